@@ -1,0 +1,136 @@
+"""The task config: every setting of DESIGN.md section 1, plus physics and evader settings.
+
+One frozen dataclass; YAML files under configs/task/ and command-line overrides go through
+`load_task_config`. SI units throughout (m, s, rad, N).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Sequence
+
+from .configio import ConfigError, build, dump_yaml, load, spec
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+CONFIG_DIR = REPO_ROOT / "configs"
+
+
+@dataclasses.dataclass(frozen=True)
+class EvaderConfig:
+    """Escape model after Janosov et al. 2017; distances in m, rates in 1/s."""
+
+    panic_distance: float = spec(1.5, lo=0.0, lo_open=True, help="chaser distance at which panic is full (m)")
+    calm_distance: float = spec(3.0, lo=0.0, lo_open=True, help="chaser distance beyond which the evader is calm (m)")
+    zigzag_rate: float = spec(1.0, lo=0.0, help="rate of heading changes when calm (1/s)")
+    zigzag_angle: float = spec(0.8, lo=0.0, hi=math.pi, help="amplitude of random heading changes (rad)")
+    wall_margin: float = spec(0.45, lo=0.0, lo_open=True, help="distance from walls at which repulsion starts (m)")
+    wall_gain: float = spec(1.5, lo=0.0, help="weight of wall repulsion against fleeing")
+    gap_escape: bool = spec(True, help="slip between two closing chasers when it can get there first")
+    sense_radius: float = spec(4.0, lo=0.0, lo_open=True, help="how far the evader senses chasers (m)")
+    smoothing: float = spec(0.25, lo=0.0, hi=1.0, help="low-pass factor on heading changes per decision step")
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskConfig:
+    """Everything that defines one pursuit task. Defaults reproduce the reference study."""
+
+    n_pursuers: int = spec(3, lo=1, hi=16, help="number of pursuers")
+    n_evaders: int = spec(1, lo=1, hi=8, help="number of evaders")
+    pursuer_speed: float = spec(0.3, lo=0.0, lo_open=True, hi=3.0, help="pursuer max speed (m/s)")
+    evader_speed: float = spec(0.6, lo=0.0, lo_open=True, hi=3.0, help="evader speed (m/s)")
+    perception_radius: float = spec(2.0, lo=0.0, lo_open=True, help="pursuer perception radius (m)")
+    field_of_view: float = spec(2 * math.pi, lo=0.0, lo_open=True, hi=2 * math.pi, help="pursuer field of view (rad)")
+    capture_radius: float = spec(0.3, lo=0.0, lo_open=True, help="capture distance pursuer-evader (m)")
+    obstacle_clearance: float = spec(0.1, lo=0.0, help="collision if a pursuer centre comes closer to an obstacle (m)")
+    teammate_clearance: float = spec(0.2, lo=0.0, help="collision if two pursuer centres come closer (m)")
+    control_dt: float = spec(0.1, lo=0.0, lo_open=True, hi=1.0, help="decision interval (s)")
+    max_steps: int = spec(1000, lo=1, help="decision steps before timeout")
+    flight_height: float = spec(0.5, lo=0.1, hi=3.0, help="altitude the drones hold (m)")
+    layout: int | str = spec(0, help="built-in layout index 0-3 or a layout file path")
+    random_obstacles: int = spec(5, lo=0, hi=64, help="random obstacles added per episode")
+    random_layout: bool = spec(False, help="draw a random built-in layout per episode")
+    observability: str = spec("partial", choices=("partial", "full"), help="partial or full observability")
+    share_detections: bool = spec(True, help="an evader seen by one pursuer is known to all (relayed)")
+    n_rays: int = spec(16, lo=0, hi=128, help="range readings around each pursuer")
+    ray_range: float = spec(2.0, lo=0.0, lo_open=True, help="max range of the range readings (m)")
+    position_noise: float = spec(0.0, lo=0.0, help="std of noise on perceived positions (m)")
+    miss_probability: float = spec(0.0, lo=0.0, hi=1.0, help="chance a visible evader is missed per step")
+    capture_reward: float = spec(10.0, help="team reward per captured evader")
+    progress_reward: float = spec(1.0, help="scale of (d_prev - d)/0.3 toward the nearest free evader")
+    collision_penalty: float = spec(-10.0, hi=0.0, help="reward on collision (<= 0)")
+    proximity_penalty: float = spec(-0.1, hi=0.0, help="soft penalty scale near walls/teammates (<= 0)")
+    proximity_distance: float = spec(0.3, lo=0.0, help="distance below which the proximity penalty acts (m)")
+    spread_reward: float = spec(0.0, help="reward for spreading out (more_r); 0 = off")
+    fidelity: str = spec("quadrotor", choices=("point", "quadrotor"), help="physics fidelity")
+    physics_dt: float = spec(0.002, lo=0.0002, hi=0.01, help="MuJoCo timestep (s)")
+    controller_hz: float = spec(250.0, lo=50.0, hi=1000.0, help="quadrotor controller rate (Hz)")
+    evader: EvaderConfig = spec(default_factory=EvaderConfig, help="escape model settings")
+
+    def validate(self, source: str = "config") -> None:
+        """Cross-field checks; raises ConfigError naming the offending keys."""
+        if self.perception_radius < self.capture_radius:
+            raise ConfigError(
+                f"{source}: perception_radius {self.perception_radius} is below capture_radius "
+                f"{self.capture_radius}: a pursuer could capture what it cannot see"
+            )
+        if isinstance(self.layout, int) and self.layout < 0:
+            raise ConfigError(f"{source}: key 'layout': {self.layout} is not a layout index (0-3) or a file")
+        substeps = self.control_dt / self.physics_dt
+        if abs(substeps - round(substeps)) > 1e-6:
+            raise ConfigError(
+                f"{source}: control_dt {self.control_dt} is not a whole number of physics_dt {self.physics_dt}"
+            )
+        per_ctrl = 1.0 / (self.controller_hz * self.physics_dt)
+        if abs(per_ctrl - round(per_ctrl)) > 1e-6 or round(per_ctrl) < 1:
+            raise ConfigError(
+                f"{source}: controller_hz {self.controller_hz} does not divide the physics rate "
+                f"{1.0 / self.physics_dt:g} Hz into whole substeps"
+            )
+        if round(substeps) % round(per_ctrl) != 0:
+            raise ConfigError(
+                f"{source}: control_dt {self.control_dt} is not a whole number of controller periods "
+                f"(controller_hz {self.controller_hz})"
+            )
+
+    @property
+    def n_drones(self) -> int:
+        return self.n_pursuers + self.n_evaders
+
+    @property
+    def substeps(self) -> int:
+        """Physics steps per decision step."""
+        return int(round(self.control_dt / self.physics_dt))
+
+    @property
+    def substeps_per_control(self) -> int:
+        """Physics steps per quadrotor controller update."""
+        return int(round(1.0 / (self.controller_hz * self.physics_dt)))
+
+
+def task_preset_path(name: str) -> Path:
+    return CONFIG_DIR / "task" / f"{name}.yaml"
+
+
+def load_task_config(
+    files: Sequence[str | Path] = (),
+    overrides: Sequence[str] = (),
+    flags: dict | None = None,
+) -> TaskConfig:
+    """Defaults <- YAML files (a bare name like 'hard' means configs/task/hard.yaml) <- flags <- --set."""
+    resolved = []
+    for f in files:
+        p = Path(f)
+        if not p.suffix and not p.exists() and task_preset_path(str(f)).exists():
+            p = task_preset_path(str(f))
+        resolved.append(p)
+    return load(TaskConfig, resolved, overrides, extra=flags, extra_source="command-line flag")
+
+
+def default_config(**changes) -> TaskConfig:
+    """The defaults, with keyword changes validated as if from a config file."""
+    return build(TaskConfig, changes, "default_config()")
+
+
+__all__ = ["EvaderConfig", "TaskConfig", "load_task_config", "default_config", "dump_yaml", "ConfigError"]

@@ -1,0 +1,263 @@
+"""Typed, frozen configs loaded from YAML and command-line overrides, validated loudly.
+
+Every config in the project is a frozen dataclass whose fields may carry a `spec(...)`
+metadata entry (allowed range, choices, help). One function, `build`, turns a plain dict
+(from YAML or overrides) into such a dataclass, naming the source of any bad value.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import types
+import typing
+from pathlib import Path
+from typing import Any, Mapping, Sequence, TypeVar
+
+import yaml
+
+T = TypeVar("T")
+
+
+class ConfigError(ValueError):
+    """A bad config key or value; the message names the key, the value and its source."""
+
+
+def spec(
+    default: Any = dataclasses.MISSING,
+    *,
+    help: str = "",
+    lo: float | None = None,
+    hi: float | None = None,
+    lo_open: bool = False,
+    choices: Sequence[Any] | None = None,
+    default_factory: Any = dataclasses.MISSING,
+) -> Any:
+    """A dataclass field with validation metadata.
+
+    lo/hi bound numbers (inclusive unless lo_open); choices restricts to listed values.
+    """
+    meta = {"help": help, "lo": lo, "hi": hi, "lo_open": lo_open, "choices": choices}
+    if default_factory is not dataclasses.MISSING:
+        return dataclasses.field(default_factory=default_factory, metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def _type_hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def _suggest(name: str, valid: Sequence[str]) -> str:
+    close = difflib.get_close_matches(name, list(valid), n=1, cutoff=0.5)
+    return f" (did you mean '{close[0]}'?)" if close else f" (valid keys: {', '.join(sorted(valid))})"
+
+
+def _coerce(value: Any, hint: Any, where: str) -> Any:
+    """Check `value` against the type hint, allowing int -> float and list -> tuple."""
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if hint is Any:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        errors = []
+        for option in args:
+            try:
+                return _coerce(value, option, where)
+            except ConfigError as exc:
+                errors.append(str(exc))
+        names = " or ".join(getattr(a, "__name__", str(a)) for a in args)
+        raise ConfigError(f"{where}: {value!r} is not a {names}")
+    if hint is type(None):
+        if value is None:
+            return None
+        raise ConfigError(f"{where}: expected null, got {value!r}")
+    if origin is typing.Literal:
+        if value in args:
+            return value
+        raise ConfigError(f"{where}: {value!r} is not one of {list(args)}")
+    if origin in (tuple, Sequence, list) or hint in (tuple, list):
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        if origin is tuple and args and args[-1] is not Ellipsis:
+            if len(args) != len(value):
+                raise ConfigError(f"{where}: expected {len(args)} values, got {list(value)!r}")
+            return tuple(_coerce(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(args, value)))
+        inner = args[0] if args else Any
+        return tuple(_coerce(v, inner, f"{where}[{i}]") for i, v in enumerate(value))
+    if dataclasses.is_dataclass(hint):
+        if isinstance(value, hint):
+            return value
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{where}: expected a mapping of {hint.__name__} keys, got {value!r}")
+        return build(hint, value, where)
+    if hint is bool:
+        if isinstance(value, bool):
+            return value
+        raise ConfigError(f"{where}: expected true or false, got {value!r}")
+    if hint is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        raise ConfigError(f"{where}: expected an integer, got {value!r}")
+    if hint is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            if not math.isfinite(float(value)):
+                raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+            return float(value)
+        raise ConfigError(f"{where}: expected a number, got {value!r}")
+    if hint is str:
+        if isinstance(value, str):
+            return value
+        raise ConfigError(f"{where}: expected a string, got {value!r}")
+    if isinstance(hint, type) and isinstance(value, hint):
+        return value
+    raise ConfigError(f"{where}: {value!r} does not fit type {hint}")
+
+
+def _check_range(value: Any, meta: Mapping[str, Any], where: str) -> None:
+    choices = meta.get("choices")
+    if choices is not None and value not in choices:
+        raise ConfigError(f"{where}: {value!r} is not one of {list(choices)}")
+    lo, hi = meta.get("lo"), meta.get("hi")
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return
+    if lo is not None:
+        bad = value <= lo if meta.get("lo_open") else value < lo
+        if bad:
+            op = ">" if meta.get("lo_open") else ">="
+            raise ConfigError(f"{where}: {value!r} is out of range (must be {op} {lo})")
+    if hi is not None and value > hi:
+        raise ConfigError(f"{where}: {value!r} is out of range (must be <= {hi})")
+
+
+def build(cls: type[T], values: Mapping[str, Any] | None, source: str = "config") -> T:
+    """Make a `cls` from a (possibly partial, possibly nested) mapping, validating each value.
+
+    Raises ConfigError naming the key, the bad value and `source` (file, flag ...).
+    """
+    values = dict(values or {})
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    hints = _type_hints(cls)
+    unknown = [k for k in values if k not in fields]
+    if unknown:
+        key = unknown[0]
+        raise ConfigError(f"{source}: unknown key '{key}'{_suggest(str(key), list(fields))}")
+    kwargs = {}
+    for name, value in values.items():
+        where = f"{source}: key '{name}'"
+        coerced = _coerce(value, hints[name], where)
+        _check_range(coerced, fields[name].metadata, where)
+        kwargs[name] = coerced
+    try:
+        obj = cls(**kwargs)
+    except TypeError as exc:  # a required field was not given
+        raise ConfigError(f"{source}: {exc}") from None
+    validate = getattr(obj, "validate", None)
+    if callable(validate):
+        validate(source)
+    return obj
+
+
+def to_dict(obj: Any) -> Any:
+    """A plain (YAML-ready) dict of a config dataclass; tuples become lists."""
+    if dataclasses.is_dataclass(obj):
+        return {f.name: to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, (list, tuple)):
+        return [to_dict(v) for v in obj]
+    return obj
+
+
+def parse_override(text: str, source: str) -> tuple[list[str], Any]:
+    """Split 'a.b=value' into (['a', 'b'], parsed YAML value)."""
+    if "=" not in text:
+        raise ConfigError(f"{source}: '{text}' is not of the form key=value")
+    key, raw = text.split("=", 1)
+    key = key.strip()
+    if not key:
+        raise ConfigError(f"{source}: '{text}' has an empty key")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else ""
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source}: value of '{key}' is not valid YAML: {raw!r}") from exc
+    return key.split("."), value
+
+
+def merge(base: Mapping[str, Any], path: list[str], value: Any) -> dict[str, Any]:
+    """Return a copy of `base` with `value` set at the nested key `path`."""
+    out = dict(base)
+    if len(path) == 1:
+        out[path[0]] = value
+        return out
+    child = out.get(path[0]) or {}
+    if not isinstance(child, Mapping):
+        child = to_dict(child)
+    out[path[0]] = merge(child, path[1:], value)
+    return out
+
+
+def load_yaml(path: str | Path, source: str | None = None) -> dict[str, Any]:
+    """Read a YAML mapping; a missing file or non-mapping content is a ConfigError."""
+    path = Path(path)
+    src = source or str(path)
+    if not path.is_file():
+        raise ConfigError(f"{src}: file not found: {path}")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{src}: not valid YAML ({exc})") from None
+    if data is None:
+        return {}
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{src}: expected a mapping at the top level, got {type(data).__name__}")
+    return dict(data)
+
+
+def load(
+    cls: type[T],
+    files: Sequence[str | Path] = (),
+    overrides: Sequence[str] = (),
+    extra: Mapping[str, Any] | None = None,
+    extra_source: str = "command line",
+) -> T:
+    """Defaults <- each YAML file in order <- `extra` (flags) <- `--set` overrides."""
+    merged: dict[str, Any] = {}
+    source = "defaults"
+    for f in files:
+        data = load_yaml(f)
+        merged = _deep_update(merged, data)
+        source = str(f)
+    obj = build(cls, merged, source)
+    if extra:
+        obj = build(cls, _deep_update(to_dict(obj), dict(extra)), extra_source)
+    for text in overrides:
+        path, value = parse_override(text, f"--set {text}")
+        _check_path(cls, path, f"--set {text}")
+        obj = build(cls, merge(to_dict(obj), path, value), f"--set {text}")
+    return obj
+
+
+def _check_path(cls: type, path: list[str], source: str) -> None:
+    """Name the nearest valid key for an unknown dotted override key."""
+    current: Any = cls
+    for i, part in enumerate(path):
+        if not dataclasses.is_dataclass(current):
+            raise ConfigError(f"{source}: '{'.'.join(path[:i])}' has no sub-keys")
+        names = [f.name for f in dataclasses.fields(current)]
+        if part not in names:
+            raise ConfigError(f"{source}: unknown key '{'.'.join(path[: i + 1])}'{_suggest(part, names)}")
+        current = _type_hints(current)[part]
+
+
+def _deep_update(base: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in new.items():
+        if isinstance(v, Mapping) and isinstance(out.get(k), Mapping):
+            out[k] = _deep_update(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def dump_yaml(obj: Any) -> str:
+    """The resolved config as YAML text."""
+    return yaml.safe_dump(to_dict(obj), sort_keys=False)

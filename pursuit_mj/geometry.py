@@ -1,0 +1,206 @@
+"""Vectorised 2D geometry of layouts: signed distances, ray casts and line of sight.
+
+All functions broadcast over leading batch dimensions (worlds, drones, rays). Positions
+are in the layout frame (m). Obstacles of one or many worlds are held by `ObstacleSet`:
+boxes (..., NB, 5) = cx, cy, half_x, half_y, yaw and cylinders (..., NC, 3) = cx, cy, r,
+padded with invalid entries (half sizes / radius 0 and valid False) to a common count.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import TYPE_CHECKING, Sequence
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from .layout import Layout
+
+FAR = 1e6
+
+
+@dataclasses.dataclass(frozen=True)
+class ObstacleSet:
+    """Obstacles as arrays. boxes (..., NB, 5) [cx, cy, hx, hy, yaw]; cylinders (..., NC, 3) [cx, cy, r]."""
+
+    boxes: np.ndarray
+    box_valid: np.ndarray
+    cylinders: np.ndarray
+    cylinder_valid: np.ndarray
+
+    @staticmethod
+    def from_layout(layout: "Layout") -> "ObstacleSet":
+        from .layout import Box, Cylinder, Wall
+
+        boxes, cyls = [], []
+        for o in layout.obstacles:
+            if isinstance(o, Wall):
+                o = o.as_box()
+            if isinstance(o, Box):
+                boxes.append([o.center[0], o.center[1], o.size[0] / 2, o.size[1] / 2, o.yaw])
+            elif isinstance(o, Cylinder):
+                cyls.append([o.center[0], o.center[1], o.radius])
+        b = np.array(boxes, dtype=np.float64).reshape(-1, 5)
+        c = np.array(cyls, dtype=np.float64).reshape(-1, 3)
+        return ObstacleSet(b, np.ones(len(b), bool), c, np.ones(len(c), bool))
+
+    @staticmethod
+    def stack(sets: Sequence["ObstacleSet"], n_boxes: int | None = None, n_cylinders: int | None = None) -> "ObstacleSet":
+        """Stack per-world sets into (W, ...) arrays padded with invalid entries."""
+        nb = max([len(s.boxes) for s in sets] + [n_boxes or 0])
+        nc = max([len(s.cylinders) for s in sets] + [n_cylinders or 0])
+        W = len(sets)
+        boxes = np.zeros((W, max(nb, 1), 5))
+        bv = np.zeros((W, max(nb, 1)), bool)
+        cyl = np.zeros((W, max(nc, 1), 3))
+        cv = np.zeros((W, max(nc, 1)), bool)
+        for i, s in enumerate(sets):
+            boxes[i, : len(s.boxes)] = s.boxes
+            bv[i, : len(s.boxes)] = s.box_valid
+            cyl[i, : len(s.cylinders)] = s.cylinders
+            cv[i, : len(s.cylinders)] = s.cylinder_valid
+        return ObstacleSet(boxes, bv, cyl, cv)
+
+    def with_extra_cylinders(self, centers: np.ndarray, radius: float, valid: np.ndarray) -> "ObstacleSet":
+        """Append cylinders (..., K, 2) of one radius (captured evaders), valid (..., K)."""
+        r = np.full(centers.shape[:-1] + (1,), radius)
+        cyl = np.concatenate([self.cylinders, np.concatenate([centers, r], -1)], axis=-2)
+        cv = np.concatenate([self.cylinder_valid, valid], axis=-1)
+        return ObstacleSet(self.boxes, self.box_valid, cyl, cv)
+
+    def segments(self) -> tuple[np.ndarray, np.ndarray]:
+        """Box edges as segments (..., 4*NB, 4) [x0, y0, x1, y1] and their validity (..., 4*NB)."""
+        cx, cy, hx, hy, yaw = np.moveaxis(self.boxes, -1, 0)
+        c, s = np.cos(yaw), np.sin(yaw)
+        corners_local = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], dtype=np.float64)
+        lx = corners_local[:, 0] * hx[..., None]
+        ly = corners_local[:, 1] * hy[..., None]
+        px = cx[..., None] + c[..., None] * lx - s[..., None] * ly
+        py = cy[..., None] + s[..., None] * lx + c[..., None] * ly
+        p = np.stack([px, py], -1)  # (..., NB, 4, 2)
+        q = np.roll(p, -1, axis=-2)
+        seg = np.concatenate([p, q], -1).reshape(self.boxes.shape[:-2] + (-1, 4))
+        valid = np.repeat(self.box_valid, 4, axis=-1)
+        return seg, valid
+
+
+def boundary_segments(layout: "Layout", circle_segments: int = 48) -> np.ndarray:
+    """The border as segments (S, 4) [x0, y0, x1, y1], counter-clockwise (inside on the left)."""
+    b = layout.boundary
+    if b.kind == "polygon":
+        pts = np.array(b.points, dtype=np.float64)
+    elif b.kind == "circle":
+        a = np.linspace(0, 2 * math.pi, circle_segments, endpoint=False)
+        pts = np.stack([b.center[0] + b.radius * np.cos(a), b.center[1] + b.radius * np.sin(a)], -1)
+    else:
+        pts = np.array([[0, 0], [layout.width, 0], [layout.width, layout.height], [0, layout.height]], dtype=np.float64)
+    return np.concatenate([pts, np.roll(pts, -1, axis=0)], -1)
+
+
+def inside_boundary(layout: "Layout", points: np.ndarray) -> np.ndarray:
+    """Whether each point (..., 2) lies inside the layout's border, (...) bool."""
+    b = layout.boundary
+    if b.kind == "circle":
+        return np.linalg.norm(points - np.asarray(b.center), axis=-1) < b.radius
+    seg = boundary_segments(layout)
+    return _inside_polygon(points, seg)
+
+
+def _inside_polygon(points: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    x, y = points[..., 0:1], points[..., 1:2]
+    x0, y0, x1, y1 = seg[:, 0], seg[:, 1], seg[:, 2], seg[:, 3]
+    crosses = (y0 > y) != (y1 > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xi = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+    return (np.sum(crosses & (x < xi), axis=-1) % 2) == 1
+
+
+def segment_distance(points: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """Distance from points (..., P, 2) to segments (..., S, 4): (..., P, S)."""
+    p = points[..., :, None, :]
+    a = seg[..., None, :, 0:2]
+    b = seg[..., None, :, 2:4]
+    ab = b - a
+    t = np.sum((p - a) * ab, -1) / np.maximum(np.sum(ab * ab, -1), 1e-12)
+    t = np.clip(t, 0.0, 1.0)
+    closest = a + t[..., None] * ab
+    return np.linalg.norm(p - closest, axis=-1)
+
+
+def box_sdf(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Signed distance from points (..., P, 2) to boxes (..., NB, 5): (..., P, NB); < 0 inside."""
+    d = points[..., :, None, :] - boxes[..., None, :, 0:2]
+    yaw = boxes[..., None, :, 4]
+    c, s = np.cos(yaw), np.sin(yaw)
+    lx = np.abs(c * d[..., 0] + s * d[..., 1]) - boxes[..., None, :, 2]
+    ly = np.abs(-s * d[..., 0] + c * d[..., 1]) - boxes[..., None, :, 3]
+    outside = np.hypot(np.maximum(lx, 0), np.maximum(ly, 0))
+    inside = np.minimum(np.maximum(lx, ly), 0)
+    return outside + inside
+
+
+def cylinder_sdf(points: np.ndarray, cylinders: np.ndarray) -> np.ndarray:
+    """Signed distance from points (..., P, 2) to cylinders (..., NC, 3): (..., P, NC)."""
+    d = points[..., :, None, :] - cylinders[..., None, :, 0:2]
+    return np.linalg.norm(d, axis=-1) - cylinders[..., None, :, 2]
+
+
+def obstacle_distance(points: np.ndarray, obstacles: ObstacleSet) -> np.ndarray:
+    """Distance from points (..., P, 2) to the nearest obstacle surface (..., P); FAR if none."""
+    db = np.where(obstacles.box_valid[..., None, :], box_sdf(points, obstacles.boxes), FAR)
+    dc = np.where(obstacles.cylinder_valid[..., None, :], cylinder_sdf(points, obstacles.cylinders), FAR)
+    return np.minimum(db.min(-1, initial=FAR), dc.min(-1, initial=FAR))
+
+
+def border_distance(points: np.ndarray, border: np.ndarray) -> np.ndarray:
+    """Distance from points (..., P, 2) to the border segments (S, 4): (..., P)."""
+    return segment_distance(points, np.broadcast_to(border, points.shape[:-2] + border.shape)).min(-1)
+
+
+def ray_segment_hits(origins: np.ndarray, dirs: np.ndarray, seg: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Hit distance along rays (..., R, 2) (unit dirs) to segments (..., S, 4): (..., R); FAR if none."""
+    o = origins[..., :, None, :]
+    d = dirs[..., :, None, :]
+    a = seg[..., None, :, 0:2]
+    e = seg[..., None, :, 2:4] - a
+    denom = d[..., 0] * e[..., 1] - d[..., 1] * e[..., 0]
+    ao = a - o
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (ao[..., 0] * e[..., 1] - ao[..., 1] * e[..., 0]) / denom
+        u = (ao[..., 0] * d[..., 1] - ao[..., 1] * d[..., 0]) / denom
+    ok = (np.abs(denom) > 1e-12) & (t >= 0) & (u >= 0) & (u <= 1) & valid[..., None, :]
+    return np.where(ok, t, FAR).min(-1, initial=FAR)
+
+
+def ray_circle_hits(origins: np.ndarray, dirs: np.ndarray, circles: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Hit distance along rays (..., R, 2) (unit dirs) to circles (..., C, 3): (..., R); FAR if none."""
+    oc = origins[..., :, None, :] - circles[..., None, :, 0:2]
+    b = np.sum(oc * dirs[..., :, None, :], -1)
+    cterm = np.sum(oc * oc, -1) - circles[..., None, :, 2] ** 2
+    disc = b * b - cterm
+    sq = np.sqrt(np.maximum(disc, 0))
+    t0 = -b - sq
+    t1 = -b + sq
+    t = np.where(t0 >= 0, t0, np.where(cterm <= 0, 0.0, FAR))  # origin inside: hit at 0
+    ok = (disc >= 0) & (t1 >= 0) & valid[..., None, :]
+    return np.where(ok, t, FAR).min(-1, initial=FAR)
+
+
+def cast_rays(origins: np.ndarray, dirs: np.ndarray, obstacles: ObstacleSet, border: np.ndarray) -> np.ndarray:
+    """Distance (m) along each ray (..., R, 2) to the nearest obstacle or border: (..., R)."""
+    seg, sv = obstacles.segments()
+    hit = ray_segment_hits(origins, dirs, seg, sv)
+    hit = np.minimum(hit, ray_circle_hits(origins, dirs, obstacles.cylinders, obstacles.cylinder_valid))
+    bseg = np.broadcast_to(border, origins.shape[:-2] + border.shape)
+    hit = np.minimum(hit, ray_segment_hits(origins, dirs, bseg, np.ones(bseg.shape[:-1], bool)))
+    return hit
+
+
+def line_of_sight(a: np.ndarray, b: np.ndarray, obstacles: ObstacleSet, border: np.ndarray) -> np.ndarray:
+    """Whether the segment a -> b (..., P, 2) is free of obstacles and border: (..., P) bool."""
+    delta = b - a
+    dist = np.linalg.norm(delta, axis=-1)
+    dirs = delta / np.maximum(dist, 1e-9)[..., None]
+    hit = cast_rays(a, dirs, obstacles, border)
+    return hit >= dist - 1e-9

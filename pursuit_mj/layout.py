@@ -1,0 +1,324 @@
+"""Arena layouts: the YAML format of DESIGN.md section 2, validation, random obstacles.
+
+A layout is 2D: origin at the arena's lower-left corner, x right, y up, metres and radians.
+`Layout` objects are immutable; `with_random_obstacles` returns a new one whose random
+obstacles are resolved into concrete boxes and cylinders.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any, Mapping, Sequence, Union
+
+import numpy as np
+import yaml
+
+from .configio import ConfigError
+from .geometry import ObstacleSet, boundary_segments
+
+LAYOUT_DIR = Path(__file__).resolve().parent.parent / "configs" / "layouts"
+N_BUILTIN = 4
+
+
+class LayoutError(ConfigError):
+    """A malformed or impossible layout; the message names the file and the entry."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Box:
+    """A rectangle: centre (m), full extents (m), yaw about +z (rad)."""
+
+    center: tuple[float, float]
+    size: tuple[float, float]
+    yaw: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Cylinder:
+    """A vertical cylinder: centre (m), radius (m)."""
+
+    center: tuple[float, float]
+    radius: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Wall:
+    """A thin wall from `start` to `end` (m) of full `thickness` (m)."""
+
+    start: tuple[float, float]
+    end: tuple[float, float]
+    thickness: float = 0.05
+
+    def as_box(self) -> Box:
+        (x0, y0), (x1, y1) = self.start, self.end
+        length = math.hypot(x1 - x0, y1 - y0)
+        return Box(((x0 + x1) / 2, (y0 + y1) / 2), (length, self.thickness), math.atan2(y1 - y0, x1 - x0))
+
+
+Obstacle = Union[Box, Cylinder, Wall]
+
+
+@dataclasses.dataclass(frozen=True)
+class Boundary:
+    """The flyable region: 'rectangle' (the arena), a polygon, or a circle."""
+
+    kind: str = "rectangle"
+    points: tuple[tuple[float, float], ...] = ()
+    center: tuple[float, float] = (0.0, 0.0)
+    radius: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class RandomObstacles:
+    """Random obstacles drawn per episode: how many, which kinds, size range (m)."""
+
+    count: int = 5
+    kinds: tuple[str, ...] = ("box", "cylinder")
+    size: tuple[float, float] = (0.15, 0.4)
+
+
+@dataclasses.dataclass(frozen=True)
+class Region:
+    """An axis-aligned spawn region: x range and y range (m)."""
+
+    x: tuple[float, float]
+    y: tuple[float, float]
+
+
+@dataclasses.dataclass(frozen=True)
+class Layout:
+    name: str
+    width: float
+    height: float
+    boundary: Boundary
+    obstacles: tuple[Obstacle, ...]
+    random_obstacles: RandomObstacles
+    spawn_pursuers: Region
+    spawn_evaders: Region
+    source: str = "<layout>"
+
+    def obstacle_set(self) -> ObstacleSet:
+        """All obstacles (not the border) as arrays for vectorised geometry."""
+        return ObstacleSet.from_layout(self)
+
+    def border(self) -> np.ndarray:
+        """Border segments, shape (S, 4): x0, y0, x1, y1 (m); the inside is on the left."""
+        return boundary_segments(self)
+
+    def with_random_obstacles(self, rng: np.random.Generator, count: int | None = None, clearance: float = 0.3) -> "Layout":
+        """A copy with `count` (default: the layout's) random obstacles placed and made concrete.
+
+        Random obstacles keep `clearance` (m) from spawn regions, fixed obstacles, the
+        border and each other. Raises LayoutError if there is no room for them.
+        """
+        from .layout_random import place_random_obstacles
+
+        n = self.random_obstacles.count if count is None else count
+        extra = place_random_obstacles(self, rng, n, clearance)
+        return dataclasses.replace(self, obstacles=self.obstacles + tuple(extra), random_obstacles=dataclasses.replace(self.random_obstacles, count=0))
+
+
+# ----------------------------------------------------------------------------- parsing
+
+
+def _pair(value: Any, where: str) -> tuple[float, float]:
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise LayoutError(f"{where}: expected [x, y], got {value!r}")
+    out = []
+    for v in value:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise LayoutError(f"{where}: expected two finite numbers, got {value!r}")
+        out.append(float(v))
+    return out[0], out[1]
+
+
+def _number(value: Any, where: str, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise LayoutError(f"{where}: expected a number, got {value!r}")
+    if positive and value <= 0:
+        raise LayoutError(f"{where}: must be > 0, got {value!r}")
+    return float(value)
+
+
+def _mapping(value: Any, where: str, keys: Sequence[str], required: Sequence[str]) -> Mapping[str, Any]:
+    if not isinstance(value, Mapping):
+        raise LayoutError(f"{where}: expected a mapping, got {value!r}")
+    for k in value:
+        if k not in keys:
+            raise LayoutError(f"{where}: unknown key '{k}' (valid: {', '.join(keys)})")
+    for k in required:
+        if k not in value:
+            raise LayoutError(f"{where}: missing key '{k}'")
+    return value
+
+
+def _parse_obstacle(entry: Any, where: str) -> Obstacle:
+    if not isinstance(entry, Mapping) or len(entry) != 1:
+        raise LayoutError(f"{where}: expected one of {{box: ...}}, {{cylinder: ...}}, {{wall: ...}}, got {entry!r}")
+    kind, body = next(iter(entry.items()))
+    w = f"{where} ({kind})"
+    if kind == "box":
+        m = _mapping(body, w, ("center", "size", "yaw"), ("center", "size"))
+        size = _pair(m["size"], f"{w}.size")
+        if min(size) <= 0:
+            raise LayoutError(f"{w}.size: extents must be > 0, got {list(size)}")
+        return Box(_pair(m["center"], f"{w}.center"), size, _number(m.get("yaw", 0.0), f"{w}.yaw"))
+    if kind == "cylinder":
+        m = _mapping(body, w, ("center", "radius"), ("center", "radius"))
+        return Cylinder(_pair(m["center"], f"{w}.center"), _number(m["radius"], f"{w}.radius", positive=True))
+    if kind == "wall":
+        m = _mapping(body, w, ("from", "to", "thickness"), ("from", "to"))
+        start, end = _pair(m["from"], f"{w}.from"), _pair(m["to"], f"{w}.to")
+        if start == end:
+            raise LayoutError(f"{w}: 'from' and 'to' are the same point {list(start)}")
+        return Wall(start, end, _number(m.get("thickness", 0.05), f"{w}.thickness", positive=True))
+    raise LayoutError(f"{where}: unknown obstacle kind '{kind}' (valid: box, cylinder, wall)")
+
+
+def _parse_boundary(value: Any, where: str) -> Boundary:
+    if value is None or value == "rectangle":
+        return Boundary()
+    if isinstance(value, Mapping) and len(value) == 1:
+        kind, body = next(iter(value.items()))
+        if kind == "polygon":
+            if not isinstance(body, (list, tuple)) or len(body) < 3:
+                raise LayoutError(f"{where}.polygon: expected at least 3 [x, y] points, got {body!r}")
+            pts = tuple(_pair(p, f"{where}.polygon[{i}]") for i, p in enumerate(body))
+            area = _signed_area(pts)
+            if abs(area) < 1e-6:
+                raise LayoutError(f"{where}.polygon: the points enclose no area")
+            if area < 0:  # keep counter-clockwise so the inside is on the left of each edge
+                pts = pts[::-1]
+            return Boundary("polygon", points=pts)
+        if kind == "circle":
+            m = _mapping(body, f"{where}.circle", ("center", "radius"), ("center", "radius"))
+            return Boundary("circle", center=_pair(m["center"], f"{where}.circle.center"), radius=_number(m["radius"], f"{where}.circle.radius", positive=True))
+    raise LayoutError(f"{where}: expected 'rectangle', {{polygon: [...]}} or {{circle: {{center, radius}}}}, got {value!r}")
+
+
+def _signed_area(pts: Sequence[tuple[float, float]]) -> float:
+    x = np.array([p[0] for p in pts])
+    y = np.array([p[1] for p in pts])
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def _parse_region(value: Any, where: str) -> Region:
+    m = _mapping(value, where, ("x", "y"), ("x", "y"))
+    x, y = _pair(m["x"], f"{where}.x"), _pair(m["y"], f"{where}.y")
+    if x[0] >= x[1] or y[0] >= y[1]:
+        raise LayoutError(f"{where}: ranges must be [low, high] with low < high, got x={list(x)} y={list(y)}")
+    return Region(x, y)
+
+
+def _parse_random(value: Any, where: str) -> RandomObstacles:
+    if value is None:
+        return RandomObstacles(count=0)
+    m = _mapping(value, where, ("count", "kinds", "size"), ())
+    count = m.get("count", 5)
+    if isinstance(count, bool) or not isinstance(count, int) or count < 0:
+        raise LayoutError(f"{where}.count: expected an integer >= 0, got {count!r}")
+    kinds = tuple(m.get("kinds", ("box", "cylinder")))
+    for k in kinds:
+        if k not in ("box", "cylinder"):
+            raise LayoutError(f"{where}.kinds: unknown kind '{k}' (valid: box, cylinder)")
+    if not kinds:
+        raise LayoutError(f"{where}.kinds: must name at least one kind")
+    size = _pair(m.get("size", (0.15, 0.4)), f"{where}.size")
+    if not 0 < size[0] <= size[1]:
+        raise LayoutError(f"{where}.size: expected [min, max] with 0 < min <= max, got {list(size)}")
+    return RandomObstacles(count, kinds, size)
+
+
+def layout_from_dict(data: Mapping[str, Any], source: str = "<layout>") -> Layout:
+    """Parse and validate a layout mapping; errors name `source` and the entry."""
+    m = _mapping(data, source, ("name", "arena", "boundary", "obstacles", "random_obstacles", "spawn"), ("arena", "spawn"))
+    arena = _mapping(m["arena"], f"{source}: arena", ("width", "height"), ("width", "height"))
+    width = _number(arena["width"], f"{source}: arena.width", positive=True)
+    height = _number(arena["height"], f"{source}: arena.height", positive=True)
+    obstacles_raw = m.get("obstacles") or []
+    if not isinstance(obstacles_raw, list):
+        raise LayoutError(f"{source}: obstacles: expected a list, got {obstacles_raw!r}")
+    obstacles = tuple(_parse_obstacle(o, f"{source}: obstacles[{i}]") for i, o in enumerate(obstacles_raw))
+    spawn = _mapping(m["spawn"], f"{source}: spawn", ("pursuers", "evaders"), ("pursuers", "evaders"))
+    layout = Layout(
+        name=str(m.get("name", Path(source).stem)),
+        width=width,
+        height=height,
+        boundary=_parse_boundary(m.get("boundary", "rectangle"), f"{source}: boundary"),
+        obstacles=obstacles,
+        random_obstacles=_parse_random(m.get("random_obstacles"), f"{source}: random_obstacles"),
+        spawn_pursuers=_parse_region(spawn["pursuers"], f"{source}: spawn.pursuers"),
+        spawn_evaders=_parse_region(spawn["evaders"], f"{source}: spawn.evaders"),
+        source=source,
+    )
+    from .layout_check import check_layout
+
+    check_layout(layout)
+    return layout
+
+
+def layout_to_dict(layout: Layout) -> dict[str, Any]:
+    """The YAML-ready mapping of a layout (inverse of `layout_from_dict`)."""
+
+    def obstacle(o: Obstacle) -> dict[str, Any]:
+        if isinstance(o, Box):
+            return {"box": {"center": list(o.center), "size": list(o.size), "yaw": o.yaw}}
+        if isinstance(o, Cylinder):
+            return {"cylinder": {"center": list(o.center), "radius": o.radius}}
+        return {"wall": {"from": list(o.start), "to": list(o.end), "thickness": o.thickness}}
+
+    b = layout.boundary
+    boundary: Any = "rectangle"
+    if b.kind == "polygon":
+        boundary = {"polygon": [list(p) for p in b.points]}
+    elif b.kind == "circle":
+        boundary = {"circle": {"center": list(b.center), "radius": b.radius}}
+    r = layout.random_obstacles
+    return {
+        "name": layout.name,
+        "arena": {"width": layout.width, "height": layout.height},
+        "boundary": boundary,
+        "obstacles": [obstacle(o) for o in layout.obstacles],
+        "random_obstacles": {"count": r.count, "kinds": list(r.kinds), "size": list(r.size)},
+        "spawn": {
+            "pursuers": {"x": list(layout.spawn_pursuers.x), "y": list(layout.spawn_pursuers.y)},
+            "evaders": {"x": list(layout.spawn_evaders.x), "y": list(layout.spawn_evaders.y)},
+        },
+    }
+
+
+def builtin_layout_path(index: int) -> Path:
+    matches = sorted(LAYOUT_DIR.glob(f"{index}_*.yaml"))
+    if not matches:
+        raise LayoutError(f"layout {index}: no built-in layout with this index (valid: 0-{N_BUILTIN - 1})")
+    return matches[0]
+
+
+def resolve_layout_ref(ref: int | str | Path) -> Path:
+    """A layout index ('2', 2) or a file path -> the file path; errors name the reference."""
+    if isinstance(ref, int) or (isinstance(ref, str) and ref.strip().isdigit()):
+        return builtin_layout_path(int(ref))
+    path = Path(ref)
+    if not path.is_file():
+        raise LayoutError(f"layout '{ref}': no such file, and not a built-in index 0-{N_BUILTIN - 1}")
+    return path
+
+
+def load_layout(ref: int | str | Path) -> Layout:
+    """Load a built-in layout by index or any layout file by path."""
+    path = resolve_layout_ref(ref)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise LayoutError(f"{path}: not valid YAML ({exc})") from None
+    return layout_from_dict(data, str(path))
+
+
+def save_layout(layout: Layout, path: str | Path) -> Path:
+    """Write a layout file atomically (a temp file renamed into place)."""
+    from .io_utils import atomic_write_text
+
+    text = yaml.safe_dump(layout_to_dict(layout), sort_keys=False, default_flow_style=None)
+    return atomic_write_text(Path(path), text)

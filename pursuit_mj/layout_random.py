@@ -1,0 +1,64 @@
+"""Seeded placement of random obstacles that avoid spawn regions, the border and each other."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .geometry import ObstacleSet, border_distance, inside_boundary, obstacle_distance
+
+MAX_TRIES = 1000
+
+
+def _spawn_distance(layout, pts: np.ndarray) -> np.ndarray:
+    """Distance (P,) from points to the nearest spawn rectangle (0 inside)."""
+    out = np.full(len(pts), np.inf)
+    for r in (layout.spawn_pursuers, layout.spawn_evaders):
+        dx = np.maximum(np.maximum(r.x[0] - pts[:, 0], pts[:, 0] - r.x[1]), 0)
+        dy = np.maximum(np.maximum(r.y[0] - pts[:, 1], pts[:, 1] - r.y[1]), 0)
+        out = np.minimum(out, np.hypot(dx, dy))
+    return out
+
+
+def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearance: float) -> list:
+    """Draw `count` obstacles of the layout's kinds and size range; LayoutError if no room."""
+    from .layout import Box, Cylinder, LayoutError
+
+    spec = layout.random_obstacles
+    placed: list = []
+    border = layout.border()
+    for k in range(count):
+        for _ in range(MAX_TRIES):
+            kind = spec.kinds[rng.integers(len(spec.kinds))]
+            size = rng.uniform(spec.size[0], spec.size[1])
+            center = np.array([rng.uniform(0, layout.width), rng.uniform(0, layout.height)])
+            if kind == "cylinder":
+                cand = Cylinder((float(center[0]), float(center[1])), float(size / 2))
+                reach = size / 2
+            else:
+                aspect = rng.uniform(0.5, 1.0)
+                cand = Box((float(center[0]), float(center[1])), (float(size), float(size * aspect)), float(rng.uniform(0, np.pi)))
+                reach = 0.5 * np.hypot(size, size * aspect)
+            pts = center[None]
+            if not inside_boundary(layout, pts)[0]:
+                continue
+            if border_distance(pts, border)[0] < reach + clearance:
+                continue
+            if _spawn_distance(layout, pts)[0] < reach + clearance:
+                continue
+            others = ObstacleSet.from_layout(_with(layout, placed))
+            if obstacle_distance(pts, others)[0] < reach + clearance:
+                continue
+            placed.append(cand)
+            break
+        else:
+            raise LayoutError(
+                f"{layout.source}: no room for random obstacle {k + 1} of {count} "
+                f"(sizes {list(spec.size)} m, clearance {clearance} m); lower random_obstacles"
+            )
+    return placed
+
+
+def _with(layout, extra: list):
+    import dataclasses
+
+    return dataclasses.replace(layout, obstacles=layout.obstacles + tuple(extra))
