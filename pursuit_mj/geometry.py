@@ -2,8 +2,9 @@
 
 All functions broadcast over leading batch dimensions (worlds, drones, rays). Positions
 are in the layout frame (m). Obstacles of one or many worlds are held by `ObstacleSet`:
-boxes (..., NB, 5) = cx, cy, half_x, half_y, yaw and cylinders (..., NC, 3) = cx, cy, r,
-padded with invalid entries (half sizes / radius 0 and valid False) to a common count.
+boxes (..., NB, 5) = cx, cy, half_x, half_y, yaw; cylinders (..., NC, 3) = cx, cy, r; and
+the border as segments (..., NS, 4) = x0, y0, x1, y1 (inside on the left). Each comes with a
+validity mask so that worlds with different layouts stack into one padded set.
 """
 
 from __future__ import annotations
@@ -28,9 +29,11 @@ class ObstacleSet:
     box_valid: np.ndarray
     cylinders: np.ndarray
     cylinder_valid: np.ndarray
+    border: np.ndarray
+    border_valid: np.ndarray
 
     @staticmethod
-    def from_layout(layout: "Layout") -> "ObstacleSet":
+    def from_layout(layout: "Layout", include_border: bool = True) -> "ObstacleSet":
         from .layout import Box, Cylinder, Wall
 
         boxes, cyls = [], []
@@ -43,31 +46,37 @@ class ObstacleSet:
                 cyls.append([o.center[0], o.center[1], o.radius])
         b = np.array(boxes, dtype=np.float64).reshape(-1, 5)
         c = np.array(cyls, dtype=np.float64).reshape(-1, 3)
-        return ObstacleSet(b, np.ones(len(b), bool), c, np.ones(len(c), bool))
+        s = boundary_segments(layout) if include_border else np.zeros((0, 4))
+        return ObstacleSet(b, np.ones(len(b), bool), c, np.ones(len(c), bool), s, np.ones(len(s), bool))
 
     @staticmethod
     def stack(sets: Sequence["ObstacleSet"], n_boxes: int | None = None, n_cylinders: int | None = None) -> "ObstacleSet":
         """Stack per-world sets into (W, ...) arrays padded with invalid entries."""
         nb = max([len(s.boxes) for s in sets] + [n_boxes or 0])
         nc = max([len(s.cylinders) for s in sets] + [n_cylinders or 0])
+        ns = max(len(s.border) for s in sets)
         W = len(sets)
         boxes = np.zeros((W, max(nb, 1), 5))
         bv = np.zeros((W, max(nb, 1)), bool)
         cyl = np.zeros((W, max(nc, 1), 3))
         cv = np.zeros((W, max(nc, 1)), bool)
+        seg = np.zeros((W, max(ns, 1), 4))
+        sv = np.zeros((W, max(ns, 1)), bool)
         for i, s in enumerate(sets):
             boxes[i, : len(s.boxes)] = s.boxes
             bv[i, : len(s.boxes)] = s.box_valid
             cyl[i, : len(s.cylinders)] = s.cylinders
             cv[i, : len(s.cylinders)] = s.cylinder_valid
-        return ObstacleSet(boxes, bv, cyl, cv)
+            seg[i, : len(s.border)] = s.border
+            sv[i, : len(s.border)] = s.border_valid
+        return ObstacleSet(boxes, bv, cyl, cv, seg, sv)
 
     def with_extra_cylinders(self, centers: np.ndarray, radius: float, valid: np.ndarray) -> "ObstacleSet":
         """Append cylinders (..., K, 2) of one radius (captured evaders), valid (..., K)."""
         r = np.full(centers.shape[:-1] + (1,), radius)
         cyl = np.concatenate([self.cylinders, np.concatenate([centers, r], -1)], axis=-2)
         cv = np.concatenate([self.cylinder_valid, valid], axis=-1)
-        return ObstacleSet(self.boxes, self.box_valid, cyl, cv)
+        return ObstacleSet(self.boxes, self.box_valid, cyl, cv, self.border, self.border_valid)
 
     def segments(self) -> tuple[np.ndarray, np.ndarray]:
         """Box edges as segments (..., 4*NB, 4) [x0, y0, x1, y1] and their validity (..., 4*NB)."""
@@ -146,16 +155,26 @@ def cylinder_sdf(points: np.ndarray, cylinders: np.ndarray) -> np.ndarray:
     return np.linalg.norm(d, axis=-1) - cylinders[..., None, :, 2]
 
 
-def obstacle_distance(points: np.ndarray, obstacles: ObstacleSet) -> np.ndarray:
-    """Distance from points (..., P, 2) to the nearest obstacle surface (..., P); FAR if none."""
+def obstacle_distance(points: np.ndarray, obstacles: ObstacleSet, with_border: bool = True) -> np.ndarray:
+    """Distance from points (..., P, 2) to the nearest obstacle surface or border (..., P); FAR if none.
+
+    Negative inside an obstacle. The border counts as a surface (distance >= 0).
+    """
     db = np.where(obstacles.box_valid[..., None, :], box_sdf(points, obstacles.boxes), FAR)
     dc = np.where(obstacles.cylinder_valid[..., None, :], cylinder_sdf(points, obstacles.cylinders), FAR)
-    return np.minimum(db.min(-1, initial=FAR), dc.min(-1, initial=FAR))
+    d = np.minimum(db.min(-1, initial=FAR), dc.min(-1, initial=FAR))
+    if with_border:
+        d = np.minimum(d, border_distance(points, obstacles.border, obstacles.border_valid))
+    return d
 
 
-def border_distance(points: np.ndarray, border: np.ndarray) -> np.ndarray:
-    """Distance from points (..., P, 2) to the border segments (S, 4): (..., P)."""
-    return segment_distance(points, np.broadcast_to(border, points.shape[:-2] + border.shape)).min(-1)
+def border_distance(points: np.ndarray, border: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
+    """Distance from points (..., P, 2) to border segments (..., S, 4): (..., P); FAR if none."""
+    seg = np.broadcast_to(border, points.shape[:-2] + border.shape[-2:]) if border.ndim == 2 else border
+    d = segment_distance(points, seg)
+    if valid is not None:
+        d = np.where(valid[..., None, :], d, FAR)
+    return d.min(-1, initial=FAR)
 
 
 def ray_segment_hits(origins: np.ndarray, dirs: np.ndarray, seg: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -187,20 +206,23 @@ def ray_circle_hits(origins: np.ndarray, dirs: np.ndarray, circles: np.ndarray, 
     return np.where(ok, t, FAR).min(-1, initial=FAR)
 
 
-def cast_rays(origins: np.ndarray, dirs: np.ndarray, obstacles: ObstacleSet, border: np.ndarray) -> np.ndarray:
-    """Distance (m) along each ray (..., R, 2) to the nearest obstacle or border: (..., R)."""
+def cast_rays(origins: np.ndarray, dirs: np.ndarray, obstacles: ObstacleSet) -> np.ndarray:
+    """Distance (m) along each ray (..., R, 2) (unit dirs) to the nearest obstacle or border: (..., R).
+
+    The leading dims of origins/dirs must match those of the obstacle set's arrays (or the
+    set is unbatched). FAR where nothing is hit.
+    """
     seg, sv = obstacles.segments()
+    seg = np.concatenate([seg, obstacles.border], axis=-2)
+    sv = np.concatenate([sv, obstacles.border_valid], axis=-1)
     hit = ray_segment_hits(origins, dirs, seg, sv)
-    hit = np.minimum(hit, ray_circle_hits(origins, dirs, obstacles.cylinders, obstacles.cylinder_valid))
-    bseg = np.broadcast_to(border, origins.shape[:-2] + border.shape)
-    hit = np.minimum(hit, ray_segment_hits(origins, dirs, bseg, np.ones(bseg.shape[:-1], bool)))
-    return hit
+    return np.minimum(hit, ray_circle_hits(origins, dirs, obstacles.cylinders, obstacles.cylinder_valid))
 
 
-def line_of_sight(a: np.ndarray, b: np.ndarray, obstacles: ObstacleSet, border: np.ndarray) -> np.ndarray:
+def line_of_sight(a: np.ndarray, b: np.ndarray, obstacles: ObstacleSet) -> np.ndarray:
     """Whether the segment a -> b (..., P, 2) is free of obstacles and border: (..., P) bool."""
     delta = b - a
     dist = np.linalg.norm(delta, axis=-1)
     dirs = delta / np.maximum(dist, 1e-9)[..., None]
-    hit = cast_rays(a, dirs, obstacles, border)
+    hit = cast_rays(a, dirs, obstacles)
     return hit >= dist - 1e-9

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import ObstacleSet, border_distance, inside_boundary, obstacle_distance
+from .geometry import ObstacleSet, inside_boundary, obstacle_distance
 
 #: a spawn point needs this much room to the nearest obstacle or border (m)
 SPAWN_CLEARANCE = 0.2
@@ -35,7 +35,6 @@ def free_spawn_points(layout, region, clearance: float = SPAWN_CLEARANCE, step: 
     ys = np.arange(region.y[0], region.y[1] + 1e-9, step)
     pts = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1).reshape(-1, 2)
     ok = inside_boundary(layout, pts)
-    ok &= border_distance(pts, layout.border()) >= clearance
     ok &= obstacle_distance(pts, ObstacleSet.from_layout(layout)) >= clearance
     return pts[ok]
 

@@ -45,8 +45,8 @@ def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearan
                 continue
             if _spawn_distance(layout, pts)[0] < reach + clearance:
                 continue
-            others = ObstacleSet.from_layout(_with(layout, placed))
-            if obstacle_distance(pts, others)[0] < reach + clearance:
+            others = ObstacleSet.from_layout(_with(layout, placed), include_border=False)
+            if obstacle_distance(pts, others, with_border=False)[0] < reach + clearance:
                 continue
             placed.append(cand)
             break

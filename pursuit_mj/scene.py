@@ -156,8 +156,10 @@ def build_spec(scene: SceneSpec) -> mujoco.MjSpec:
     used = len(layout.obstacles) + len(layout.border())
     if scene.obstacle_slots and used > scene.obstacle_slots:
         raise ValueError(f"layout {layout.source}: {used} obstacle and border geoms exceed {scene.obstacle_slots} slots")
+    # Padding: collidable (so the static BVH has the same size in every world) but far
+    # below the floor, where nothing can reach it; static-static pairs are never tested.
     for k in range(max(0, scene.obstacle_slots - used)):
-        w.add_geom(name=f"unused_{k}", type=mujoco.mjtGeom.mjGEOM_SPHERE, pos=[0, 0, -1], size=[0.01, 0, 0], contype=0, conaffinity=0, group=5)
+        w.add_geom(name=f"unused_{k}", type=mujoco.mjtGeom.mjGEOM_SPHERE, pos=[-10.0 - k, -10.0, -10.0], size=[0.01, 0, 0], group=5)
     names = drone_names(scene.n_pursuers, scene.n_evaders)
     for i, name in enumerate(names):
         role = name.split("_")[0]

@@ -1,0 +1,47 @@
+"""Flags shared by subcommands: the task config (files, --set, the common task flags)."""
+
+from __future__ import annotations
+
+import argparse
+
+from ..config import TaskConfig, dump_yaml, load_task_config
+
+
+def add_task_args(p: argparse.ArgumentParser, short_flags: bool = True) -> None:
+    """Task config flags. Speeds and radii in m and m/s (the reference study used mm)."""
+    g = p.add_argument_group("task")
+    flags = ["-ec", "--env-config", "--task"] if short_flags else ["--env-config", "--task"]
+    g.add_argument(*flags, dest="task_files", action="append", default=[], metavar="FILE|PRESET",
+                   help="task YAML file or preset name (reference, easy, hard); repeatable, later wins")
+    g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override any task key, e.g. --set evader.panic_distance=1.2 (repeatable)")
+    g.add_argument("-i", "--layout", "--env-idx", dest="layout", help="layout index 0-3 or layout file")
+    g.add_argument("--fidelity", choices=("point", "quadrotor"), help="physics fidelity")
+    g.add_argument("--pursuers", type=int, dest="n_pursuers", help="number of pursuers")
+    g.add_argument("--evaders", type=int, dest="n_evaders", help="number of evaders")
+    g.add_argument("-rv", "--pursuer-speed", "--r-velocity", type=float, dest="pursuer_speed", help="pursuer max speed (m/s)")
+    g.add_argument("-ev", "--evader-speed", "--e-velocity", type=float, dest="evader_speed", help="evader speed (m/s)")
+    g.add_argument("--perception-radius", "--r-perception", type=float, dest="perception_radius", help="perception radius (m)")
+    g.add_argument("--random-obstacles", "--obstacle-num", type=int, dest="random_obstacles", help="random obstacles per episode")
+    g.add_argument("--delta-t", "--control-dt", type=float, dest="control_dt", help="decision interval (s)")
+    g.add_argument("--observability", choices=("partial", "full"), help="observability")
+    g.add_argument("-sc", "--show-config", action="store_true", help="print the resolved task config")
+
+
+TASK_FLAG_KEYS = ("layout", "fidelity", "n_pursuers", "n_evaders", "pursuer_speed", "evader_speed",
+                  "perception_radius", "random_obstacles", "control_dt", "observability")
+
+
+def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
+    """Resolve defaults <- task files <- flags <- --set, and print it if asked."""
+    flags = {}
+    for key in TASK_FLAG_KEYS:
+        value = getattr(args, key, None)
+        if value is not None:
+            if key == "layout" and isinstance(value, str) and value.strip().isdigit():
+                value = int(value)
+            flags[key] = value
+    cfg = load_task_config(args.task_files, args.overrides, flags)
+    if getattr(args, "show_config", False):
+        print(dump_yaml(cfg))
+    return cfg

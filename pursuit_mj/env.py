@@ -1,0 +1,350 @@
+"""The pursuit task over many worlds at once: arrays in, arrays out, auto-reset.
+
+See docs/env_api.md for the contract. One `PursuitEnv` owns a `BatchedPhysics`, an
+`EscapeModel` for the evaders, perception and rewards. Shapes: W worlds, N pursuers,
+M evaders; positions and velocities in the layout frame (m, m/s).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Sequence
+
+import numpy as np
+
+from .config import TaskConfig
+from .evader import EscapeModel
+from .geometry import ObstacleSet
+from .layout import N_BUILTIN, Layout, load_layout
+from .layout_check import free_spawn_points
+from .observations import build_global_state, build_observations, global_state_dim
+from .obs_spec import ObsSpec
+from .physics import BatchedPhysics
+from .rewards import REWARD_TERMS, detect_events, reward_terms
+from .sensing import Perception, WorldView, perceive
+
+SPAWN_SEPARATION = 0.4  # m between spawned drones of one team
+OUTCOMES = ("", "success", "collision", "timeout")
+HEADING_MIN_SPEED = 0.05  # m/s: below this a pursuer keeps its previous heading
+
+
+@dataclasses.dataclass
+class EpisodeRecord:
+    """One finished episode. returns: per term, summed over steps, mean over pursuers."""
+
+    world: int
+    episode: int
+    seed: int
+    outcome: str
+    steps: int
+    time_to_capture: float | None
+    returns: dict[str, float]
+    captured: int
+    layout: str
+
+
+@dataclasses.dataclass
+class Snapshot:
+    """One world now, for recorders (copies). Shapes as in docs/env_api.md."""
+
+    step: int
+    time: float
+    layout: Layout
+    pursuer_pos: np.ndarray
+    pursuer_vel: np.ndarray
+    pursuer_quat: np.ndarray
+    evader_pos: np.ndarray
+    evader_vel: np.ndarray
+    evader_quat: np.ndarray
+    captured: np.ndarray
+    seen: np.ndarray
+    known: np.ndarray
+    heading: np.ndarray
+    commands: np.ndarray
+    thrust: np.ndarray
+    rays: np.ndarray
+    reward_terms: dict[str, np.ndarray]
+    outcome: str
+    config: TaskConfig
+
+
+def episode_seed(seed: int, world: int, episode: int) -> int:
+    """A seed for one episode, independent of how many worlds run."""
+    return int(np.random.SeedSequence([seed, world, episode]).generate_state(1)[0])
+
+
+def _layout_pool(config: TaskConfig, layouts: Sequence[int | str | Layout] | None) -> list[Layout]:
+    if layouts is not None:
+        refs = list(layouts)
+    elif config.random_layout:
+        refs = list(range(N_BUILTIN))
+    else:
+        refs = [config.layout]
+    if not refs:
+        raise ValueError("layouts: the list of layouts is empty")
+    return [r if isinstance(r, Layout) else load_layout(r) for r in refs]
+
+
+class PursuitEnv:
+    """N pursuers chase M evaders in W independent worlds (see module docstring)."""
+
+    def __init__(
+        self,
+        config: TaskConfig,
+        n_worlds: int = 1,
+        seed: int = 0,
+        auto_reset: bool = True,
+        layouts: Sequence[int | str | Layout] | None = None,
+        nthread: int = 0,
+    ):
+        if not isinstance(n_worlds, int) or n_worlds < 1:
+            raise ValueError(f"n_worlds: expected an integer >= 1, got {n_worlds!r}")
+        self.config = config
+        self.n_worlds = n_worlds
+        self.n_pursuers = config.n_pursuers
+        self.n_evaders = config.n_evaders
+        self.auto_reset = auto_reset
+        self.seed = int(seed)
+        self.pool = _layout_pool(config, layouts)
+        self._spawn_points = {id(l): (free_spawn_points(l, l.spawn_pursuers), free_spawn_points(l, l.spawn_evaders)) for l in self.pool}
+        for layout in self.pool:
+            self._check_capacity(layout)
+        self.obs_spec = ObsSpec.make(self.n_pursuers, self.n_evaders, config.n_rays)
+        self.obs_dim = self.obs_spec.dim
+        self.state_dim = global_state_dim(self.n_pursuers, self.n_evaders)
+        W, N, M = n_worlds, self.n_pursuers, self.n_evaders
+        self.episode = np.zeros(W, np.int64)
+        self.world_layouts: list[Layout] = [self.pool[w % len(self.pool)] for w in range(W)]
+        self._base_index = np.array([w % len(self.pool) for w in range(W)])
+        self.physics = BatchedPhysics(config, self.world_layouts, nthread=nthread)
+        self.evader_model = EscapeModel(config, W, self.seed)
+        self.steps = np.zeros(W, np.int64)
+        self.captured = np.zeros((W, M), bool)
+        self.heading = np.full((W, N), np.pi / 2)
+        self.done = np.zeros(W, bool)
+        self.outcome = np.full(W, "", dtype=object)
+        self.capture_time = np.full(W, np.nan)
+        self.returns = {k: np.zeros(W) for k in REWARD_TERMS}
+        self.last_terms = {k: np.zeros((W, N), np.float32) for k in REWARD_TERMS}
+        self._episode_seeds = np.zeros(W, np.int64)
+        self._sensing_rng = np.random.default_rng(self.seed)
+        self._obstacles = ObstacleSet.stack([l.obstacle_set() for l in self.world_layouts])
+        self._perception: Perception | None = None
+        self._obs: np.ndarray | None = None
+
+    # ------------------------------------------------------------------ episodes
+
+    def _check_capacity(self, layout: Layout) -> None:
+        """Refuse a task whose spawn regions cannot hold its drones (clear error, early)."""
+        rng = np.random.default_rng(0)
+        pts_p, pts_e = self._spawn_points[id(layout)]
+        for name, pts, n, region in (("pursuers", pts_p, self.n_pursuers, layout.spawn_pursuers), ("evaders", pts_e, self.n_evaders, layout.spawn_evaders)):
+            if self._sample_separated(pts, n, rng) is None:
+                raise ValueError(
+                    f"n_{name}={n}: the spawn region of {layout.source} (x={list(region.x)}, y={list(region.y)}) "
+                    f"cannot hold {n} {name} {SPAWN_SEPARATION} m apart"
+                )
+
+    @staticmethod
+    def _sample_separated(points: np.ndarray, n: int, rng: np.random.Generator, tries: int = 200) -> np.ndarray | None:
+        """n points (n, 2) drawn from `points`, pairwise at least SPAWN_SEPARATION apart, or None."""
+        for _ in range(tries):
+            chosen: list[np.ndarray] = []
+            for idx in rng.permutation(len(points)):
+                q = points[idx]
+                if all(np.hypot(*(q - c)) >= SPAWN_SEPARATION for c in chosen):
+                    chosen.append(q)
+                    if len(chosen) == n:
+                        return np.array(chosen)
+            if len(chosen) < n:
+                return None
+        return None
+
+    def _start_episodes(self, ids: np.ndarray) -> None:
+        """Begin a new episode in each listed world: new random obstacles, spawn, counters."""
+        if len(ids) == 0:
+            return
+        layouts, xy, seeds = [], [], []
+        for w in ids:
+            s = episode_seed(self.seed, int(w), int(self.episode[w]))
+            rng = np.random.default_rng(s)
+            base_i = int(rng.integers(len(self.pool))) if self.config.random_layout else int(self._base_index[w])
+            base = self.pool[base_i]
+            inst = base.with_random_obstacles(rng, self.config.random_obstacles) if self.config.random_obstacles else base
+            pts_p, pts_e = self._spawn_points[id(base)]
+            pur = self._sample_separated(pts_p, self.n_pursuers, rng)
+            eva = self._sample_separated(pts_e, self.n_evaders, rng)
+            layouts.append(inst)
+            xy.append(np.concatenate([pur, eva]))
+            seeds.append(s)
+            self.world_layouts[w] = inst
+        if self.config.random_obstacles or self.config.random_layout:
+            self.physics.set_layouts(ids, layouts)
+        self.physics.reset(ids, np.array(xy))
+        self._episode_seeds[ids] = seeds
+        self.evader_model.reset(ids, np.array(seeds))
+        self.steps[ids] = 0
+        self.captured[ids] = False
+        self.heading[ids] = np.pi / 2
+        self.done[ids] = False
+        self.outcome[ids] = ""
+        self.capture_time[ids] = np.nan
+        for k in REWARD_TERMS:
+            self.returns[k][ids] = 0.0
+            self.last_terms[k][ids] = 0.0
+        self._obstacles = ObstacleSet.stack([l.obstacle_set() for l in self.world_layouts])
+
+    def reset(self, seed: int | None = None) -> np.ndarray:
+        """Start new episodes in every world; a new `seed` restarts the seed sequence. Obs (W, N, dim)."""
+        if seed is not None:
+            self.seed = int(seed)
+            self.episode[:] = 0
+            self._sensing_rng = np.random.default_rng(self.seed)
+        self._start_episodes(np.arange(self.n_worlds))
+        self._obs = self._observe()
+        return self._obs.copy()
+
+    def reset_worlds(self, world_ids: Sequence[int]) -> np.ndarray:
+        """Start new episodes in the listed worlds only; returns the full obs (W, N, dim)."""
+        ids = np.asarray(world_ids, dtype=np.int64)
+        self.episode[ids] += 1
+        self._start_episodes(ids)
+        self._obs = self._observe()
+        return self._obs.copy()
+
+    # ------------------------------------------------------------------ state views
+
+    def _view(self) -> WorldView:
+        N = self.n_pursuers
+        pos = self.physics.positions()
+        vel = self.physics.velocities()
+        obstacles = self._obstacles_with_captured(pos[:, N:, :2])
+        return WorldView(pos[:, :N, :2], vel[:, :N, :2], self.heading, pos[:, N:, :2], vel[:, N:, :2], self.captured, obstacles)
+
+    def _obstacles_with_captured(self, evader_xy: np.ndarray) -> ObstacleSet:
+        if not self.captured.any():
+            return self._obstacles
+        return self._obstacles.with_extra_cylinders(evader_xy, self.config.capture_radius, self.captured)
+
+    def _observe(self) -> np.ndarray:
+        view = self._view()
+        self._perception = perceive(view, self.config, self._sensing_rng)
+        return build_observations(view, self._perception, self.obs_spec)
+
+    def global_state(self) -> np.ndarray:
+        """(W, state_dim) float32: the true state for centralised critics."""
+        return build_global_state(self._view(), self.steps / self.config.max_steps)
+
+    # ------------------------------------------------------------------ stepping
+
+    def _check_actions(self, actions: np.ndarray) -> np.ndarray:
+        a = np.asarray(actions, dtype=np.float64)
+        shape = (self.n_worlds, self.n_pursuers, 2)
+        if a.shape != shape:
+            raise ValueError(f"actions: expected shape {shape} (worlds, pursuers, vx vy), got {a.shape}")
+        if not np.isfinite(a).all():
+            bad = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
+            raise ValueError(f"actions: non-finite value {a[bad]} at index {bad}")
+        return np.clip(a, -1.0, 1.0)
+
+    def step(self, actions: np.ndarray):
+        """Advance every world one decision step. Returns obs, reward, terminated, truncated, info."""
+        if self._obs is None:
+            raise RuntimeError("call reset() before step()")
+        a = self._check_actions(actions)
+        cfg = self.config
+        N = self.n_pursuers
+        active = ~self.done
+        pos0 = self.physics.positions()[..., :2]
+        vel0 = self.physics.velocities()[..., :2]
+        free_before = ~self.captured
+        evader_cmd = self.evader_model.compute(
+            pos0[:, N:], vel0[:, N:], pos0[:, :N], vel0[:, :N], free_before & active[:, None], self._obstacles_with_captured(pos0[:, N:]), cfg.control_dt
+        )
+        evader_cmd = np.where((free_before & active[:, None])[..., None], evader_cmd, 0.0)
+        pursuer_cmd = a * cfg.pursuer_speed * active[:, None, None]
+        contacts = self.physics.step(np.concatenate([pursuer_cmd, evader_cmd], axis=1))
+
+        pos = self.physics.positions()[..., :2]
+        vel = self.physics.velocities()[..., :2]
+        speed = np.linalg.norm(vel[:, :N], axis=-1)
+        self.heading = np.where(speed > HEADING_MIN_SPEED, np.arctan2(vel[:, :N, 1], vel[:, :N, 0]), self.heading)
+        events = detect_events(pos[:, :N], pos[:, N:], self.captured, contacts[:, :N], self._obstacles, cfg)
+        terms = reward_terms(cfg, events, pos0[:, :N], pos[:, :N], pos[:, N:], pos0[:, N:], free_before)
+        for k in terms:
+            terms[k] = terms[k] * active[:, None]
+        self.captured |= events.new_captures & active[:, None]
+        self.steps += active
+        success = self.captured.all(-1) & active
+        collision = events.collided.any(-1) & active
+        terminated = success | collision
+        truncated = (self.steps >= cfg.max_steps) & active & ~terminated
+        self.capture_time = np.where(success & np.isnan(self.capture_time), self.steps * cfg.control_dt, self.capture_time)
+        outcome = np.full(self.n_worlds, "", dtype=object)
+        outcome[success] = "success"
+        outcome[collision] = "collision"  # a collision in the step of a capture still fails
+        outcome[truncated] = "timeout"
+        reward = sum(terms.values()).astype(np.float32)
+        for k in REWARD_TERMS:
+            self.returns[k] += terms[k].mean(-1)
+            self.last_terms[k] = terms[k]
+        finished = terminated | truncated
+        self.outcome = np.where(finished, outcome, self.outcome)
+        self.done |= finished
+
+        obs = self._observe()
+        info = {"reward_terms": terms, "outcome": outcome, "episodes": [], "final_obs": obs.copy(), "final_state": self.global_state()}
+        ids = np.flatnonzero(finished)
+        for w in ids:
+            info["episodes"].append(self._record(int(w), str(outcome[w])))
+        if self.auto_reset and len(ids):
+            self.episode[ids] += 1
+            self._start_episodes(ids)
+            obs = self._observe()
+        self._obs = obs
+        return obs.copy(), reward, terminated, truncated, info
+
+    def _record(self, w: int, outcome: str) -> EpisodeRecord:
+        t = self.capture_time[w]
+        return EpisodeRecord(
+            world=w,
+            episode=int(self.episode[w]),
+            seed=int(self._episode_seeds[w]),
+            outcome=outcome,
+            steps=int(self.steps[w]),
+            time_to_capture=None if np.isnan(t) else float(t),
+            returns={k: float(self.returns[k][w]) for k in REWARD_TERMS},
+            captured=int(self.captured[w].sum()),
+            layout=self.world_layouts[w].name,
+        )
+
+    # ------------------------------------------------------------------ recorders
+
+    def snapshot(self, world: int = 0) -> Snapshot:
+        """Everything a recorder needs about one world now (copies; reading never steers)."""
+        if not 0 <= world < self.n_worlds:
+            raise ValueError(f"world: {world} is not in 0..{self.n_worlds - 1}")
+        N = self.n_pursuers
+        st = self.physics.state()
+        per = self._perception
+        return Snapshot(
+            step=int(self.steps[world]),
+            time=float(self.steps[world] * self.config.control_dt),
+            layout=self.world_layouts[world],
+            pursuer_pos=st.pos[world, :N],
+            pursuer_vel=st.vel[world, :N],
+            pursuer_quat=st.quat[world, :N],
+            evader_pos=st.pos[world, N:],
+            evader_vel=st.vel[world, N:],
+            evader_quat=st.quat[world, N:],
+            captured=self.captured[world].copy(),
+            seen=per.seen[world].copy(),
+            known=per.known[world].copy(),
+            heading=self.heading[world].copy(),
+            commands=self.physics.commands[world].copy(),
+            thrust=st.thrust[world],
+            rays=per.rays[world].copy(),
+            reward_terms={k: v[world].copy() for k, v in self.last_terms.items()},
+            outcome=str(self.outcome[world]),
+            config=self.config,
+        )

@@ -1,0 +1,113 @@
+"""The index map of a pursuer's observation vector (DESIGN.md section 5).
+
+A pursuer's observation is a flat float32 vector made of groups, in this order:
+
+| group       | count  | width | features (SI units, layout frame)                                  |
+|-------------|--------|-------|--------------------------------------------------------------------|
+| `self`      | 1      | 4     | x, y (m), vx, vy (m/s)                                              |
+| `teammates` | N - 1  | 5     | dx, dy (m, relative to self), dvx, dvy (m/s, relative), visible     |
+| `evaders`   | M      | 7     | dx, dy (m, relative), vx, vy (m/s, absolute), visible, relayed, captured |
+| `rays`      | 1      | K     | range (m) to the nearest wall/obstacle along K directions, ray i at |
+|             |        |       | angle 2*pi*i/K from world +x, capped at ray_range                   |
+
+`visible` is 1 when the entity is known this step (seen directly, or for evaders relayed by
+a teammate when share_detections is on); when 0 the entity's other values are zero.
+`relayed` is 1 when an evader is known only through a teammate. `captured` is 1 for an
+evader already caught (its other values then describe where it stopped, visible 1).
+The same spec drives networks (per-entity encoders with masked pooling) and tests.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class Group:
+    """One block of the observation: `count` entities of `width` features from `start`."""
+
+    name: str
+    start: int
+    count: int
+    width: int
+    mask_feature: int | None = None  # index within an entity of its 0/1 visibility flag
+    features: tuple[str, ...] = ()
+
+    @property
+    def stop(self) -> int:
+        return self.start + self.count * self.width
+
+    def view(self, obs: np.ndarray) -> np.ndarray:
+        """The group's slice of obs (..., dim) reshaped to (..., count, width)."""
+        return obs[..., self.start : self.stop].reshape(obs.shape[:-1] + (self.count, self.width))
+
+
+SELF_FEATURES = ("x", "y", "vx", "vy")
+TEAMMATE_FEATURES = ("dx", "dy", "dvx", "dvy", "visible")
+EVADER_FEATURES = ("dx", "dy", "vx", "vy", "visible", "relayed", "captured")
+
+
+@dataclasses.dataclass(frozen=True)
+class ObsSpec:
+    """The layout of one pursuer's observation; `dim` is the vector length."""
+
+    n_pursuers: int
+    n_evaders: int
+    n_rays: int
+    groups: tuple[Group, ...]
+
+    @staticmethod
+    def make(n_pursuers: int, n_evaders: int, n_rays: int) -> "ObsSpec":
+        groups = []
+        start = 0
+        for name, count, feats, mask in (
+            ("self", 1, SELF_FEATURES, None),
+            ("teammates", n_pursuers - 1, TEAMMATE_FEATURES, 4),
+            ("evaders", n_evaders, EVADER_FEATURES, 4),
+            ("rays", 1, tuple(f"range_{i}" for i in range(n_rays)), None),
+        ):
+            g = Group(name, start, count, len(feats), mask, feats)
+            groups.append(g)
+            start = g.stop
+        return ObsSpec(n_pursuers, n_evaders, n_rays, tuple(groups))
+
+    @property
+    def dim(self) -> int:
+        return self.groups[-1].stop
+
+    def group(self, name: str) -> Group:
+        for g in self.groups:
+            if g.name == name:
+                return g
+        raise KeyError(f"observation has no group '{name}' (groups: {[g.name for g in self.groups]})")
+
+    def index(self, group: str, entity: int, feature: str) -> int:
+        """Flat index of one feature, e.g. spec.index('evaders', 0, 'visible')."""
+        g = self.group(group)
+        if not 0 <= entity < g.count:
+            raise IndexError(f"group '{group}' has {g.count} entities, asked for {entity}")
+        return g.start + entity * g.width + g.features.index(feature)
+
+    def to_dict(self) -> dict:
+        """A plain description, stored in checkpoints to refuse mismatched environments."""
+        return {
+            "n_pursuers": self.n_pursuers,
+            "n_evaders": self.n_evaders,
+            "n_rays": self.n_rays,
+            "groups": [[g.name, g.width, list(g.features)] for g in self.groups],
+        }
+
+    def compatible(self, other: dict) -> str | None:
+        """None if a stored spec (to_dict) has the same per-entity features and rays; else why not.
+
+        Entity counts may differ: pooled encoders handle any number of teammates/evaders.
+        """
+        mine = self.to_dict()
+        if other.get("n_rays") != self.n_rays:
+            return f"the model expects {other.get('n_rays')} range readings, the environment gives {self.n_rays} (n_rays)"
+        if [g[:3] for g in other.get("groups", [])] != [g[:3] for g in mine["groups"]] and \
+           [(g[0], g[2]) for g in other.get("groups", [])] != [(g[0], g[2]) for g in mine["groups"]]:
+            return f"observation features differ: model {other.get('groups')} vs environment {mine['groups']}"
+        return None

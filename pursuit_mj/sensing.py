@@ -1,0 +1,117 @@
+"""What each pursuer perceives: range, field of view, line of sight, relayed detections, noise.
+
+Pure functions over arrays (no MuJoCo): the simulator and the real-flight bridge call the
+same code. Shapes: W worlds, N pursuers, M evaders, K rays; positions in the layout frame (m).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .config import TaskConfig
+from .geometry import ObstacleSet, cast_rays, line_of_sight
+
+
+@dataclasses.dataclass
+class WorldView:
+    """The true state that perception works from (one entry per world).
+
+    pursuer_pos (W, N, 2) m; pursuer_vel (W, N, 2) m/s; pursuer_heading (W, N) rad (the
+    direction the pursuer faces, for the field of view); evader_pos (W, M, 2) m;
+    evader_vel (W, M, 2) m/s; captured (W, M) bool; obstacles: ObstacleSet with (W, ...)
+    arrays, border included (captured evaders may be added as cylinders).
+    """
+
+    pursuer_pos: np.ndarray
+    pursuer_vel: np.ndarray
+    pursuer_heading: np.ndarray
+    evader_pos: np.ndarray
+    evader_vel: np.ndarray
+    captured: np.ndarray
+    obstacles: ObstacleSet
+
+
+@dataclasses.dataclass
+class Perception:
+    """Who knows what, per pursuer.
+
+    seen (W, N, M) bool: evader detected directly this step; known (W, N, M): seen directly
+    or relayed by a teammate (share_detections) or captured; teammate_visible (W, N, N) bool
+    (diagonal False); evader_pos_est (W, N, M, 2) m and teammate_pos_est (W, N, N, 2) m: the
+    positions as perceived (with noise when position_noise > 0); rays (W, N, K) m.
+    """
+
+    seen: np.ndarray
+    known: np.ndarray
+    teammate_visible: np.ndarray
+    evader_pos_est: np.ndarray
+    teammate_pos_est: np.ndarray
+    rays: np.ndarray
+
+
+def ray_directions(n_rays: int) -> np.ndarray:
+    """Unit directions (K, 2): ray i at angle 2*pi*i/K from world +x."""
+    a = 2 * np.pi * np.arange(n_rays) / max(n_rays, 1)
+    return np.stack([np.cos(a), np.sin(a)], -1)
+
+
+def _in_view(observer: np.ndarray, heading: np.ndarray, target: np.ndarray, radius: float, fov: float) -> np.ndarray:
+    """(W, N, T) bool: target (W, T, 2) within radius of observer (W, N, 2) and inside its field of view."""
+    delta = target[:, None, :, :] - observer[:, :, None, :]
+    dist = np.linalg.norm(delta, axis=-1)
+    ok = dist <= radius
+    if fov < 2 * np.pi - 1e-9:
+        ang = np.arctan2(delta[..., 1], delta[..., 0]) - heading[:, :, None]
+        ang = (ang + np.pi) % (2 * np.pi) - np.pi
+        ok &= np.abs(ang) <= fov / 2
+    return ok
+
+
+def _clear_lines(observer: np.ndarray, target: np.ndarray, obstacles: ObstacleSet) -> np.ndarray:
+    """(W, N, T) bool: free line of sight from each observer (W, N, 2) to each target (W, T, 2)."""
+    W, N, T = observer.shape[0], observer.shape[1], target.shape[1]
+    a = np.broadcast_to(observer[:, :, None, :], (W, N, T, 2)).reshape(W, N * T, 2)
+    b = np.broadcast_to(target[:, None, :, :], (W, N, T, 2)).reshape(W, N * T, 2)
+    return line_of_sight(a, b, obstacles).reshape(W, N, T)
+
+
+def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator) -> Perception:
+    """Apply perception radius, field of view, line of sight, missed detections, sharing and noise.
+
+    In `full` observability every entity is known (no masking); noise still applies.
+    """
+    W, N, _ = view.pursuer_pos.shape
+    M = view.evader_pos.shape[1]
+    p = view.pursuer_pos
+    if config.observability == "full":
+        seen = np.ones((W, N, M), bool)
+        mates = np.ones((W, N, N), bool)
+    else:
+        seen = _in_view(p, view.pursuer_heading, view.evader_pos, config.perception_radius, config.field_of_view)
+        seen &= _clear_lines(p, view.evader_pos, view.obstacles)
+        mates = _in_view(p, view.pursuer_heading, p, config.perception_radius, config.field_of_view)
+        mates &= _clear_lines(p, p, view.obstacles)
+        if config.miss_probability > 0:
+            seen &= rng.random((W, N, M)) >= config.miss_probability
+    seen &= ~view.captured[:, None, :]
+    known = seen.copy()
+    if config.share_detections or config.observability == "full":
+        known |= seen.any(axis=1, keepdims=True)
+    known |= view.captured[:, None, :]
+    mates &= ~np.eye(N, dtype=bool)[None]
+
+    evader_est = np.broadcast_to(view.evader_pos[:, None], (W, N, M, 2)).copy()
+    mate_est = np.broadcast_to(p[:, None], (W, N, N, 2)).copy()
+    if config.position_noise > 0:
+        # a relayed detection carries the noise of the teammate that saw it; one draw per
+        # (observer, target) keeps it simple and identical in both fidelities
+        evader_est += rng.normal(0.0, config.position_noise, evader_est.shape)
+        mate_est += rng.normal(0.0, config.position_noise, mate_est.shape)
+    rays = np.zeros((W, N, config.n_rays))
+    if config.n_rays:
+        dirs = np.broadcast_to(ray_directions(config.n_rays), (W, N, config.n_rays, 2)).reshape(W, N * config.n_rays, 2)
+        origins = np.repeat(p, config.n_rays, axis=1)
+        rays = np.minimum(cast_rays(origins, dirs, view.obstacles), config.ray_range).reshape(W, N, config.n_rays)
+    return Perception(seen, known, mates, evader_est, mate_est, rays)
