@@ -287,7 +287,7 @@ class PursuitEnv:
         reward = sum(terms.values()).astype(np.float32)
         for k in REWARD_TERMS:
             self.returns[k] += terms[k].mean(-1)
-            self.last_terms[k] = terms[k]
+            self.last_terms[k] = terms[k].copy()
         finished = terminated | truncated
         self.outcome = np.where(finished, outcome, self.outcome)
         self.done |= finished

@@ -1,0 +1,88 @@
+"""A PettingZoo `ParallelEnv` over one world of the pursuit task (dicts keyed by agent name).
+
+Agents are the pursuers `pursuer_0 ... pursuer_{N-1}`; evaders are part of the environment.
+Observations follow obs_spec.py; actions are desired world-frame velocities in [-1, 1]^2
+as a fraction of pursuer_speed. `state()` is the global state for centralised critics.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from .config import TaskConfig, default_config
+from .env import PursuitEnv
+
+
+class PursuitParallelEnv(ParallelEnv):
+    metadata = {"name": "pursuit_mj_v0", "render_modes": []}
+
+    def __init__(self, config: TaskConfig | None = None, seed: int = 0):
+        self.config = config or default_config()
+        self._env = PursuitEnv(self.config, n_worlds=1, seed=seed, auto_reset=False)
+        self.possible_agents = [f"pursuer_{i}" for i in range(self.config.n_pursuers)]
+        self.agents: list[str] = []
+        self.render_mode = None
+        self._obs_space = spaces.Box(-np.inf, np.inf, (self._env.obs_dim,), np.float32)
+        self._act_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self.state_space = spaces.Box(-np.inf, np.inf, (self._env.state_dim,), np.float32)
+
+    @functools.lru_cache(maxsize=None)
+    def observation_space(self, agent: str) -> spaces.Box:
+        return self._obs_space
+
+    @functools.lru_cache(maxsize=None)
+    def action_space(self, agent: str) -> spaces.Box:
+        return self._act_space
+
+    @property
+    def obs_spec(self):
+        return self._env.obs_spec
+
+    @property
+    def batched(self) -> PursuitEnv:
+        """The underlying one-world batched environment (read only, for recorders)."""
+        return self._env
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        obs = self._env.reset(seed=seed)
+        self.agents = list(self.possible_agents)
+        return self._as_dict(obs[0]), {a: {} for a in self.agents}
+
+    def step(self, actions: dict):
+        if not self.agents:
+            raise ValueError("step() called on a finished episode: call reset() first")
+        missing = [a for a in self.agents if a not in actions]
+        unknown = [a for a in actions if a not in self.agents]
+        if missing or unknown:
+            raise ValueError(f"actions: missing agents {missing}, unknown agents {unknown} (expected {self.agents})")
+        arr = np.stack([np.asarray(actions[a], dtype=np.float64) if np.shape(actions[a]) == (2,) else self._bad_shape(a, actions[a]) for a in self.agents])
+        obs, reward, term, trunc, info = self._env.step(arr[None])
+        agents = self.agents
+        observations = self._as_dict(obs[0])
+        rewards = {a: float(reward[0, i]) for i, a in enumerate(agents)}
+        terms = {a: bool(term[0]) for a in agents}
+        truncs = {a: bool(trunc[0]) for a in agents}
+        infos = {
+            a: {"reward_terms": {k: float(v[0, i]) for k, v in info["reward_terms"].items()}, "outcome": str(info["outcome"][0])}
+            for i, a in enumerate(agents)
+        }
+        if term[0] or trunc[0]:
+            self.agents = []
+        return observations, rewards, terms, truncs, infos
+
+    @staticmethod
+    def _bad_shape(agent: str, value) -> np.ndarray:
+        raise ValueError(f"actions[{agent!r}]: expected shape (2,), got {np.shape(value)}")
+
+    def state(self) -> np.ndarray:
+        return self._env.global_state()[0]
+
+    def _as_dict(self, obs: np.ndarray) -> dict[str, np.ndarray]:
+        return {a: obs[i] for i, a in enumerate(self.possible_agents)}
+
+    def close(self) -> None:
+        pass

@@ -1,0 +1,130 @@
+"""The batched environment: outcomes, auto-reset, determinism, bad input, both fidelities."""
+
+import numpy as np
+import pytest
+
+from pursuit_mj.config import ConfigError, default_config
+from pursuit_mj.env import PursuitEnv
+
+FAST = dict(fidelity="point", random_obstacles=0)
+
+
+def _place(env, world, xy):
+    """Teleport one world's drones (pursuers then evaders, (D, 2) m) and refresh observations."""
+    env.physics.reset([world], np.asarray(xy, float)[None])
+    env._obs = env._observe()
+
+
+def test_collision_ends_the_episode_as_a_failure():
+    env = PursuitEnv(default_config(**FAST), n_worlds=2, seed=0)
+    env.reset()
+    _place(env, 0, [[0.5, 1.0], [1.5, 1.0], [2.5, 1.0], [1.8, 4.5]])
+    actions = np.zeros((2, 3, 2))
+    actions[0, 0] = [-1.0, 0.0]  # pursuer 0 of world 0 flies into the left border
+    for _ in range(40):
+        obs, reward, term, trunc, info = env.step(actions)
+        if term[0]:
+            break
+    assert term[0] and not trunc[0]
+    assert info["outcome"][0] == "collision"
+    rec = [e for e in info["episodes"] if e.world == 0][0]
+    assert rec.outcome == "collision" and rec.returns["collision"] == pytest.approx(default_config().collision_penalty)
+    assert np.all(info["reward_terms"]["collision"][0] < 0)
+    assert env.steps[0] == 0, "auto-reset started a new episode in world 0"
+
+
+def test_timeout_truncates():
+    env = PursuitEnv(default_config(max_steps=5, **FAST), n_worlds=1, seed=1)
+    env.reset()
+    _place(env, 0, [[0.5, 1.0], [1.5, 1.0], [2.5, 1.0], [1.8, 4.5]])
+    for k in range(5):
+        obs, reward, term, trunc, info = env.step(np.zeros((1, 3, 2)))
+    assert trunc[0] and not term[0] and info["outcome"][0] == "timeout"
+    assert info["episodes"][0].steps == 5
+
+
+def test_capture_is_a_success_and_final_obs_precedes_the_reset():
+    env = PursuitEnv(default_config(**FAST), n_worlds=1, seed=2)
+    env.reset()
+    _place(env, 0, [[1.8, 3.0], [0.8, 1.0], [2.8, 1.0], [1.8, 3.2]])
+    obs, reward, term, trunc, info = env.step(np.zeros((1, 3, 2)))
+    assert term[0] and info["outcome"][0] == "success"
+    assert info["episodes"][0].time_to_capture == pytest.approx(0.1)
+    assert np.all(info["reward_terms"]["capture"] == default_config().capture_reward)
+    spec = env.obs_spec
+    assert info["final_obs"][0, 0, spec.index("evaders", 0, "captured")] == 1
+    assert obs[0, 0, spec.index("evaders", 0, "captured")] == 0, "the returned obs starts a new episode"
+
+
+def test_frozen_worlds_without_auto_reset():
+    env = PursuitEnv(default_config(max_steps=3, **FAST), n_worlds=2, seed=0, auto_reset=False)
+    env.reset()
+    for _ in range(5):
+        obs, reward, term, trunc, info = env.step(np.zeros((2, 3, 2)))
+    assert env.done.all() and (reward == 0).all() and not term.any() and not trunc.any()
+    env.reset_worlds([1])
+    assert env.done.tolist() == [True, False]
+
+
+def test_same_seed_same_trajectory_and_different_seed_differs():
+    def run(seed):
+        env = PursuitEnv(default_config(fidelity="point", random_obstacles=3), n_worlds=3, seed=seed)
+        obs = [env.reset()]
+        rng = np.random.default_rng(0)
+        for _ in range(30):
+            obs.append(env.step(rng.uniform(-1, 1, (3, 3, 2)))[0])
+        return np.stack(obs)
+
+    a, b, c = run(5), run(5), run(6)
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_quadrotor_fidelity_has_the_same_interface():
+    env = PursuitEnv(default_config(fidelity="quadrotor", random_obstacles=2), n_worlds=2, seed=0)
+    obs = env.reset()
+    obs2, reward, term, trunc, info = env.step(np.full((2, 3, 2), 0.5))
+    assert obs.shape == obs2.shape == (2, 3, env.obs_dim) and obs.dtype == np.float32
+    assert reward.shape == (2, 3) and env.global_state().shape == (2, env.state_dim)
+    snap = env.snapshot(1)
+    assert snap.pursuer_quat.shape == (3, 4) and snap.thrust.shape == (4, 4) and snap.thrust.sum() > 0
+    assert snap.rays.shape == (3, env.config.n_rays)
+
+
+@pytest.mark.parametrize(
+    "actions,match",
+    [
+        (np.zeros((2, 3)), "expected shape"),
+        (np.zeros((1, 2, 2)), "expected shape"),
+        (np.full((1, 3, 2), np.nan), "non-finite"),
+        (np.full((1, 3, 2), np.inf), "non-finite"),
+    ],
+)
+def test_bad_actions_are_refused(actions, match):
+    env = PursuitEnv(default_config(**FAST), n_worlds=1)
+    env.reset()
+    with pytest.raises(ValueError, match=match):
+        env.step(actions)
+
+
+def test_bad_task_settings_are_refused():
+    with pytest.raises(ValueError, match="cannot hold 16 pursuers"):
+        PursuitEnv(default_config(n_pursuers=16, **FAST))
+    with pytest.raises(ConfigError, match="perception_radius"):
+        default_config(perception_radius=0.2)
+    with pytest.raises(ConfigError, match="pursuer_speed"):
+        default_config(pursuer_speed=0.0)
+    with pytest.raises(ConfigError, match="evader_speed"):
+        default_config(evader_speed=-1.0)
+    with pytest.raises(ValueError, match="n_worlds"):
+        PursuitEnv(default_config(**FAST), n_worlds=0)
+
+
+def test_random_layout_and_several_evaders_run():
+    env = PursuitEnv(default_config(fidelity="point", random_layout=True, n_evaders=2, n_pursuers=4), n_worlds=4, seed=3)
+    obs = env.reset()
+    names = {l.name for l in env.world_layouts}
+    assert len(names) >= 2, "random_layout draws different built-in layouts"
+    for _ in range(5):
+        obs, *_ = env.step(np.zeros((4, 4, 2)))
+    assert obs.shape == (4, 4, env.obs_spec.dim)

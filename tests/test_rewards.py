@@ -1,0 +1,72 @@
+"""Capture geometry, collision rules and reward terms on hand-made positions."""
+
+import numpy as np
+import pytest
+
+from pursuit_mj.config import default_config
+from pursuit_mj.geometry import ObstacleSet
+from pursuit_mj.layout import layout_from_dict
+from pursuit_mj.rewards import detect_events, reward_terms
+
+LAYOUT = layout_from_dict(
+    {
+        "arena": {"width": 4.0, "height": 4.0},
+        "obstacles": [{"box": {"center": [2.0, 2.0], "size": [0.4, 0.4]}}],
+        "random_obstacles": {"count": 0},
+        "spawn": {"pursuers": {"x": [0.2, 3.8], "y": [0.2, 0.6]}, "evaders": {"x": [0.2, 3.8], "y": [3.4, 3.8]}},
+    },
+    "test-layout",
+)
+OBST = ObstacleSet.stack([LAYOUT.obstacle_set()])
+CFG = default_config(random_obstacles=0)
+
+
+def _events(pursuers, evaders, captured=None, contacts=None):
+    p = np.array(pursuers, float)[None]
+    e = np.array(evaders, float)[None]
+    cap = np.zeros((1, e.shape[1]), bool) if captured is None else np.array(captured)[None]
+    con = np.zeros((1, p.shape[1]), bool) if contacts is None else np.array(contacts)[None]
+    return detect_events(p, e, cap, con, OBST, CFG)
+
+
+@pytest.mark.parametrize("gap,caught", [(-1e-6, True), (1e-6, False)])
+def test_capture_at_the_radius_boundary(gap, caught):
+    ev = _events([[1.0, 1.0]], [[1.0 + CFG.capture_radius + gap, 1.0]])
+    assert bool(ev.new_captures[0, 0]) is caught
+
+
+def test_already_captured_evader_is_not_caught_again():
+    ev = _events([[1.0, 1.0]], [[1.1, 1.0]], captured=[True])
+    assert not ev.new_captures.any()
+
+
+@pytest.mark.parametrize("x,collided", [(1.8 - 0.09, True), (1.8 - 0.11, False)])
+def test_obstacle_clearance(x, collided):
+    ev = _events([[x, 2.0]], [[3.5, 3.5]])
+    assert bool(ev.collided[0, 0]) is collided
+
+
+def test_border_clearance_and_teammate_clearance_and_contacts():
+    assert _events([[0.05, 1.0]], [[3.5, 3.5]]).collided[0, 0]
+    ev = _events([[1.0, 1.0], [1.19, 1.0], [3.0, 1.0]], [[3.5, 3.5]])
+    assert ev.collided[0].tolist() == [True, True, False]
+    ev = _events([[1.0, 1.0], [3.0, 1.0]], [[3.5, 3.5]], contacts=[False, True])
+    assert ev.collided[0].tolist() == [False, True]
+
+
+def test_reward_terms_are_named_and_scaled():
+    prev = np.array([[[1.0, 1.0], [3.0, 1.0]]])
+    now = np.array([[[1.0, 1.3], [3.0, 1.0]]])
+    ev_pos = np.array([[[1.0, 3.0]]])
+    free = np.ones((1, 1), bool)
+    events = detect_events(now, ev_pos, ~free, np.zeros((1, 2), bool), OBST, CFG)
+    terms = reward_terms(CFG, events, prev, now, ev_pos, ev_pos, free)
+    assert set(terms) == {"capture", "progress", "collision", "proximity", "spread"}
+    # pursuer 0 closed 0.3 m on the evader: one unit of progress; pursuer 1 moved away? no: stayed
+    assert terms["progress"][0, 0] == pytest.approx(CFG.progress_reward * 1.0)
+    assert terms["progress"][0, 1] == pytest.approx(0.0)
+    assert (terms["capture"] == 0).all() and (terms["collision"] == 0).all()
+    crash = detect_events(np.array([[[0.05, 1.0], [3.0, 1.0]]]), ev_pos, ~free, np.zeros((1, 2), bool), OBST, CFG)
+    t2 = reward_terms(CFG, crash, prev, now, ev_pos, ev_pos, free)
+    assert (t2["collision"] == CFG.collision_penalty).all(), "a collision fails the whole team"
+    assert t2["proximity"][0, 0] < 0 and t2["proximity"][0, 1] == 0

@@ -1,0 +1,126 @@
+"""Perception: range, field of view, line of sight, relayed detections, noise; the index map."""
+
+import math
+
+import numpy as np
+import pytest
+
+from pursuit_mj.config import default_config
+from pursuit_mj.geometry import ObstacleSet
+from pursuit_mj.layout import layout_from_dict
+from pursuit_mj.observations import build_observations
+from pursuit_mj.obs_spec import ObsSpec
+from pursuit_mj.sensing import WorldView, perceive
+
+
+def _layout(obstacles=()):
+    return layout_from_dict(
+        {
+            "arena": {"width": 4.0, "height": 4.0},
+            "obstacles": list(obstacles),
+            "random_obstacles": {"count": 0},
+            "spawn": {"pursuers": {"x": [0.2, 3.8], "y": [0.2, 0.6]}, "evaders": {"x": [0.2, 3.8], "y": [3.4, 3.8]}},
+        },
+        "test-layout",
+    )
+
+
+WALL = {"wall": {"from": [1.0, 2.0], "to": [3.0, 2.0], "thickness": 0.05}}
+
+
+def _view(pursuers, evaders, obstacles, heading=None, captured=None):
+    p = np.array(pursuers, float)[None]
+    e = np.array(evaders, float)[None]
+    N, M = p.shape[1], e.shape[1]
+    return WorldView(
+        pursuer_pos=p,
+        pursuer_vel=np.zeros_like(p),
+        pursuer_heading=np.full((1, N), math.pi / 2) if heading is None else np.array(heading, float)[None],
+        evader_pos=e,
+        evader_vel=np.zeros_like(e),
+        captured=np.zeros((1, M), bool) if captured is None else np.array(captured)[None],
+        obstacles=ObstacleSet.stack([obstacles]),
+    )
+
+
+def _perceive(view, **changes):
+    return perceive(view, default_config(random_obstacles=0, **changes), np.random.default_rng(0))
+
+
+def test_evader_behind_wall_is_masked_and_in_open_is_seen():
+    obstacles = _layout([WALL]).obstacle_set()
+    view = _view([[2.0, 1.5], [0.3, 2.4]], [[2.0, 2.6]], obstacles)
+    per = _perceive(view, share_detections=False)
+    assert not per.seen[0, 0, 0], "the wall between them must hide the evader"
+    assert per.seen[0, 1, 0], "a clear line at 1.5 m within the 2 m radius must see it"
+
+
+def test_out_of_range_is_masked():
+    view = _view([[0.5, 0.5]], [[0.5, 2.6]], _layout().obstacle_set())
+    assert not _perceive(view, perception_radius=2.0).seen[0, 0, 0]
+    assert _perceive(view, perception_radius=2.2).seen[0, 0, 0]
+
+
+def test_field_of_view_masks_entities_behind_the_pursuer():
+    view = _view([[2.0, 2.0], [1.0, 2.0]], [[3.0, 2.0]], _layout().obstacle_set(), heading=[0.0, math.pi])
+    per = _perceive(view, field_of_view=math.pi / 2, share_detections=False)
+    assert per.seen[0, 0, 0], "target straight ahead"
+    assert not per.seen[0, 1, 0], "target straight behind"
+    assert per.teammate_visible[0, 1, 0] is np.False_ or not per.teammate_visible[0, 1, 0]
+    assert not per.teammate_visible[0, 0, 1], "teammate behind pursuer 0"
+
+
+def test_relayed_detection_is_known_to_all_and_flagged():
+    obstacles = _layout([WALL]).obstacle_set()
+    view = _view([[2.0, 1.5], [0.3, 2.4]], [[2.0, 2.6]], obstacles)
+    spec = ObsSpec.make(2, 1, 16)
+    per = _perceive(view, share_detections=True)
+    assert per.known[0, 0, 0] and not per.seen[0, 0, 0]
+    obs = build_observations(view, per, spec)
+    assert obs[0, 0, spec.index("evaders", 0, "visible")] == 1
+    assert obs[0, 0, spec.index("evaders", 0, "relayed")] == 1
+    assert obs[0, 1, spec.index("evaders", 0, "relayed")] == 0
+    off = _perceive(view, share_detections=False)
+    obs_off = build_observations(view, off, spec)
+    assert obs_off[0, 0, spec.index("evaders", 0, "visible")] == 0
+    assert np.all(spec.group("evaders").view(obs_off)[0, 0, 0] == 0), "a hidden evader's values are all zero"
+
+
+def test_full_observability_masks_nothing():
+    obstacles = _layout([WALL]).obstacle_set()
+    view = _view([[2.0, 1.5], [0.5, 0.3]], [[2.0, 3.8]], obstacles)
+    per = _perceive(view, observability="full")
+    assert per.known.all() and per.teammate_visible[0, 0, 1] and per.teammate_visible[0, 1, 0]
+
+
+def test_observation_index_map_matches_the_vector():
+    view = _view([[1.0, 1.0], [2.0, 1.5], [3.0, 1.0]], [[1.5, 2.0]], _layout().obstacle_set())
+    view.pursuer_vel[0, 0] = [0.1, -0.2]
+    view.evader_vel[0, 0] = [0.5, 0.3]
+    spec = ObsSpec.make(3, 1, 8)
+    obs = build_observations(view, _perceive(view, n_rays=8), spec)
+    assert obs.shape == (1, 3, spec.dim) and spec.dim == 4 + 2 * 5 + 7 + 8
+    o = obs[0, 0]
+    assert (o[spec.index("self", 0, "x")], o[spec.index("self", 0, "y")]) == (1.0, 1.0)
+    assert o[spec.index("self", 0, "vy")] == pytest.approx(-0.2)
+    assert o[spec.index("teammates", 0, "dx")] == pytest.approx(1.0)  # pursuer 1 seen from 0
+    assert o[spec.index("teammates", 1, "dx")] == pytest.approx(2.0)  # pursuer 2
+    assert o[spec.index("teammates", 0, "dvx")] == pytest.approx(-0.1)
+    assert o[spec.index("evaders", 0, "dx")] == pytest.approx(0.5)
+    assert o[spec.index("evaders", 0, "dy")] == pytest.approx(1.0)
+    assert o[spec.index("evaders", 0, "vx")] == pytest.approx(0.5)
+    # ray 0 points along +x from (1, 1): the border at x = 4 is 3 m away, capped at ray_range 2
+    assert o[spec.index("rays", 0, "range_0")] == pytest.approx(2.0)
+    # ray 4 of 8 points along -x: the border at x = 0 is 1 m away
+    assert o[spec.index("rays", 0, "range_4")] == pytest.approx(1.0)
+
+
+def test_noise_and_missed_detections_are_seeded():
+    view = _view([[1.0, 1.0]], [[1.5, 2.0]], _layout().obstacle_set())
+    a = perceive(view, default_config(position_noise=0.05), np.random.default_rng(3))
+    b = perceive(view, default_config(position_noise=0.05), np.random.default_rng(3))
+    assert np.array_equal(a.evader_pos_est, b.evader_pos_est)
+    assert not np.allclose(a.evader_pos_est[0, 0, 0], [1.5, 2.0])
+    assert np.abs(a.evader_pos_est[0, 0, 0] - [1.5, 2.0]).max() < 0.3
+    missed = perceive(view, default_config(miss_probability=1.0), np.random.default_rng(0))
+    assert not missed.seen.any()
