@@ -1,0 +1,70 @@
+"""`pursuit-mj plot`: training curves and evaluation bar charts as PNG.
+
+    pursuit-mj plot --log runs/classic/metrics.jsonl --log runs/mappo/metrics.jsonl -o plots/
+    pursuit-mj plot --log classic=runs/classic/metrics.jsonl --metric validation.success -o plots/
+    pursuit-mj plot --eval results/table.json -o plots/
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "plot",
+        help="training curves (JSONL logs) and evaluation bar charts (eval JSON) as PNG",
+        description="Training logs: one chart per metric with a line per run (success, collision, mean steps "
+                    "and reward terms by default). Evaluation results: one bar chart per metric, a bar per "
+                    "policy and layout with 95 % confidence intervals.",
+    )
+    p.add_argument("--log", action="append", default=[], metavar="[LABEL=]FILE",
+                   help="training log (JSONL, e.g. runs/NAME/metrics.jsonl); repeatable, one line per run")
+    p.add_argument("--eval", action="append", default=[], metavar="FILE",
+                   help="evaluation JSON written by `pursuit-mj eval --json` (repeatable; rows are combined)")
+    p.add_argument("--metric", action="append", default=[], metavar="KEY",
+                   help="training metric to plot: a dotted key or its last part, e.g. validation.success or success "
+                        "(repeatable; default: success, collision, mean steps and reward terms)")
+    p.add_argument("--x", metavar="KEY", help="x axis key of training logs (default: env_steps, world_steps, agent_steps or update)")
+    p.add_argument("-o", "--out", default="plots", metavar="DIR", help="output folder (default plots/)")
+    p.set_defaults(func=run)
+
+
+def _label_and_path(text: str) -> tuple[str, Path]:
+    label, sep, path = text.partition("=")
+    if sep and label and not Path(text).exists():
+        return label, Path(path)
+    p = Path(text)
+    return (p.parent.name if p.name == "metrics.jsonl" and p.parent.name else p.stem), p
+
+
+def run(args) -> int:
+    from ..plots import plot_eval, plot_training, read_eval_rows, read_training_log
+
+    if not args.log and not args.eval:
+        raise ValueError("nothing to plot: give --log FILE (training) and/or --eval FILE (evaluation)")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: exists and is not a folder")
+    runs = {}
+    for text in args.log:
+        label, path = _label_and_path(text)
+        if label in runs:
+            label = f"{label} ({path})"
+        runs[label] = read_training_log(path)
+    rows = [r for f in args.eval for r in read_eval_rows(f)]
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"--out {out}: cannot create the folder ({exc.strerror})") from None
+    if not os.access(out, os.W_OK):
+        raise ValueError(f"--out {out}: folder is not writable")
+    paths = []
+    if runs:
+        paths += plot_training(runs, out, args.metric or None, args.x)
+    if rows:
+        paths += plot_eval(rows, out)
+    for p in paths:
+        print(f"wrote {p}")
+    return 0

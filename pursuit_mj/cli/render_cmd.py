@@ -1,0 +1,263 @@
+"""`pursuit-mj render`: episodes as mp4/gif, final-state PNGs and rerun recordings.
+
+    pursuit-mj render --policy heuristic -i 2 --episodes 3 -s renders/
+    pursuit-mj render -m runs/classic/best.pt -s chase.gif --camera follow:pursuer_0
+    pursuit-mj render -mc classic -i 1 --final-frame --no-video --episodes 50 -s finals/
+    pursuit-mj render --policy heuristic --rerun chase.rrd --no-video
+
+The short flags of the reference study's run_sim.py work (-mc, -ec, -m, -s, -sc, -i, -rv,
+-ev, --delta_t, --r_perception, --obstacle_num), with speeds and radii in m and m/s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+from pathlib import Path
+
+from ..config import TaskConfig, task_preset_path
+from ..configio import build, dump_yaml, load, load_yaml, to_dict
+from ..layout import load_layout
+from ..obs_spec import ObsSpec
+from ..policies import POLICY_NAMES, make_policy
+from .common import TASK_FLAG_KEYS, add_task_args, task_config_from_args
+
+DEFAULT_SAVE = "renders"
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "render",
+        help="render episodes to mp4/gif, final-state PNGs and rerun recordings",
+        description="Play episodes of a policy and write what happened: videos (mp4 or gif, by file name or "
+                    "--format), the last frame of each episode as PNG (--final-frame), and a rerun recording "
+                    "(--rerun FILE.rrd). Rendering is offscreen (EGL or OSMesa, chosen automatically).",
+    )
+    who = p.add_argument_group("policy")
+    ex = who.add_mutually_exclusive_group()
+    ex.add_argument("-m", "--model", metavar="FILE", help="trained checkpoint (default: best.pt of the -mc run, else --policy)")
+    ex.add_argument("--policy", choices=POLICY_NAMES, help="a hand-made team (default heuristic)")
+    who.add_argument("-mc", "--model-config", metavar="FILE|PRESET",
+                     help="training config (file or preset, e.g. classic): its task is the base task and its run's best.pt the default model")
+    out = p.add_argument_group("output")
+    out.add_argument("-s", "--save-path", default=DEFAULT_SAVE, metavar="DIR|FILE",
+                     help=f"folder for videos and images, or a video file name (.mp4/.gif) (default {DEFAULT_SAVE}/)")
+    out.add_argument("--format", choices=("mp4", "gif"), help="video format when -s is a folder (default mp4)")
+    out.add_argument("--final-frame", action="store_true", help="also save the last frame of each episode as PNG")
+    out.add_argument("--no-video", action="store_true", help="write no video (with --final-frame and/or --rerun)")
+    out.add_argument("--rerun", metavar="FILE.rrd", help="record all episodes for the rerun viewer (rerun FILE.rrd)")
+    run_g = p.add_argument_group("episodes and frames")
+    run_g.add_argument("--episodes", type=int, default=1, help="episodes to play (default 1)")
+    run_g.add_argument("--seed", type=int, default=0, help="environment seed (default 0)")
+    run_g.add_argument("--width", type=int, default=640, help="frame width in pixels (default 640)")
+    run_g.add_argument("--height", type=int, default=480, help="frame height in pixels (default 480)")
+    run_g.add_argument("--fps", type=float, help="video frames per second (default: real time, 1/control_dt)")
+    run_g.add_argument("--camera", default="top", help="top, angled, or follow:<drone> e.g. follow:pursuer_0 (default top)")
+    run_g.add_argument("--quality", choices=("fast", "high"), default="fast",
+                       help="fast: no antialiasing or shadows; high: 4x antialiasing, shadows (slower)")
+    run_g.add_argument("--trail", type=int, default=30, help="trail length in decision steps (default 30)")
+    add_task_args(p)
+    _add_reference_spellings(p)
+    p.set_defaults(func=run)
+
+
+def _add_reference_spellings(p: argparse.ArgumentParser) -> None:
+    """The reference study's underscore spellings, accepted but not listed in --help."""
+    hidden = argparse.SUPPRESS
+    p.add_argument("--model_config", dest="model_config", help=hidden)
+    p.add_argument("--env_config", dest="task_files", action="append", help=hidden)
+    p.add_argument("--save_path", dest="save_path", help=hidden)
+    p.add_argument("--show_config", dest="show_config", action="store_true", help=hidden)
+    p.add_argument("--env_idx", dest="layout", help=hidden)
+    p.add_argument("--delta_t", dest="control_dt", type=float, help=hidden)
+    p.add_argument("--r_velocity", dest="pursuer_speed", type=float, help=hidden)
+    p.add_argument("--e_velocity", dest="evader_speed", type=float, help=hidden)
+    p.add_argument("--r_perception", dest="perception_radius", type=float, help=hidden)
+    p.add_argument("--obstacle_num", dest="random_obstacles", type=int, help=hidden)
+
+
+# ---------------------------------------------------------------------- config and policy
+
+
+def _train_config(ref: str):
+    try:
+        from train.config import load_train_config
+    except ImportError as exc:
+        raise ValueError(f"-mc {ref}: cannot read training configs, the train package is not importable ({exc})") from None
+    return load_train_config([ref])
+
+
+def _merge(base: dict, new: dict) -> dict:
+    """Nested dict update: mappings merge key by key, anything else replaces."""
+    out = dict(base)
+    for k, v in new.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def task_config(args, base: TaskConfig | None) -> TaskConfig:
+    """defaults <- base (the -mc run's task) <- -ec files <- task flags <- --set; printed with -sc."""
+    if base is None:
+        return task_config_from_args(args)
+    merged = to_dict(base)
+    for f in args.task_files:
+        p = Path(f)
+        if not p.suffix and not p.exists() and task_preset_path(str(f)).exists():
+            p = task_preset_path(str(f))
+        merged = _merge(merged, load_yaml(p))
+        build(TaskConfig, merged, str(p))  # errors name the file that caused them
+    flags = {}
+    for key in TASK_FLAG_KEYS:
+        value = getattr(args, key, None)
+        if value is not None:
+            flags[key] = int(value) if key == "layout" and str(value).strip().isdigit() else value
+    cfg = load(TaskConfig, (), args.overrides, extra=_merge(merged, flags), extra_source="command-line flag")
+    if args.show_config:
+        print(dump_yaml(cfg))
+    return cfg
+
+
+def load_model(path: str | Path, spec: ObsSpec):
+    """A trained policy via train.policy.load_policy (lazily imported: the library never needs torch)."""
+    if not Path(path).is_file():
+        raise ValueError(f"--model {path}: no such checkpoint file")
+    try:
+        from train.policy import load_policy
+    except ImportError as exc:
+        raise ValueError(f"--model {path}: cannot load trained models, the train package is not importable ({exc})") from None
+    return load_policy(path, spec)
+
+
+def choose_policy(args, config: TaskConfig, train_cfg):
+    """(policy, label): -m FILE, else --policy NAME, else the -mc run's best.pt, else heuristic."""
+    spec = ObsSpec.make(config.n_pursuers, config.n_evaders, config.n_rays)
+    if args.model:
+        policy = load_model(args.model, spec)
+        return policy, getattr(policy, "name", Path(args.model).stem)
+    if args.policy:
+        return make_policy(args.policy, config, args.seed), args.policy
+    if train_cfg is not None:
+        best = train_cfg.run_dir / "best.pt"
+        if not best.is_file():
+            raise ValueError(f"-mc {args.model_config}: no checkpoint at {best}; train it first, or pass -m FILE or --policy")
+        policy = load_model(best, spec)
+        return policy, getattr(policy, "name", train_cfg.name)
+    return make_policy("heuristic", config, args.seed), "heuristic"
+
+
+# ---------------------------------------------------------------------- output paths
+
+
+@dataclasses.dataclass(frozen=True)
+class SaveTarget:
+    """Where -s points: a folder, the file stem when -s names a video file (else None), the video format."""
+
+    folder: Path
+    file_stem: str | None
+    fmt: str
+
+    def paths(self, episodes: int, stem: str, video: bool, final: bool) -> tuple[list[Path] | None, list[Path] | None]:
+        """(videos, final PNGs) per episode: `<stem>_ep<k>` in a folder; the file name as given for one
+        episode, numbered `<name>_ep<k>` for several."""
+        base = self.file_stem or stem
+        numbered = self.file_stem is None or episodes > 1
+        names = [f"{base}_ep{k:03d}" if numbered else base for k in range(episodes)]
+        return ([self.folder / f"{n}.{self.fmt}" for n in names] if video else None,
+                [self.folder / f"{n}_final.png" for n in names] if final else None)
+
+
+def _writable_folder(folder: Path, flag: str) -> None:
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{flag} {folder}: exists and is not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"{flag} {folder}: cannot create the folder ({exc.strerror})") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ValueError(f"{flag} {folder}: folder is not writable")
+
+
+def save_target(save_path: str, fmt: str | None) -> SaveTarget:
+    """Resolve and check -s: a name with an extension is a video file (.mp4/.gif), anything else a folder."""
+    from ..render.video import VIDEO_CODECS
+
+    path = Path(save_path)
+    if path.suffix and not path.is_dir():
+        suffix = path.suffix.lower().lstrip(".")
+        if suffix not in VIDEO_CODECS:
+            raise ValueError(f"-s {save_path}: unknown video extension {path.suffix!r} (use .mp4 or .gif, or a folder)")
+        if fmt is not None and fmt != suffix:
+            raise ValueError(f"--format {fmt} contradicts -s {save_path}")
+        target = SaveTarget(path.parent, path.stem, suffix)
+    else:
+        target = SaveTarget(path, None, fmt or "mp4")
+    _writable_folder(target.folder, "-s")
+    return target
+
+
+def check_render_settings(settings, config: TaskConfig) -> None:
+    """Refuse a bad size or an unknown --camera against the task's own scene, before any episode runs."""
+    from ..render.camera import CameraSpec
+    from ..scene import SceneSpec, build_model, drone_names
+
+    model = build_model(SceneSpec(load_layout(config.layout), config.n_pursuers, config.n_evaders, config.fidelity,
+                                  config.physics_dt, config.flight_height))
+    settings.check(model)
+    CameraSpec.parse(settings.camera, model, drone_names(config.n_pursuers, config.n_evaders))
+
+
+# ---------------------------------------------------------------------- run
+
+
+def run(args) -> int:
+    from ..render.episodes import EpisodeOutputs, run_episodes
+    from ..render.renderer import RenderSettings
+    from ..render.video import check_frame_size, ensure_ffmpeg
+
+    if args.episodes < 1:
+        raise ValueError(f"--episodes: expected an integer >= 1, got {args.episodes}")
+    if args.trail < 0:
+        raise ValueError(f"--trail: expected an integer >= 0, got {args.trail}")
+    if args.fps is not None and not args.fps > 0:
+        raise ValueError(f"--fps: expected a positive number, got {args.fps}")
+    train_cfg = _train_config(args.model_config) if args.model_config else None
+    config = task_config(args, train_cfg.task if train_cfg is not None else None)
+    load_layout(config.layout)
+    video, final = not args.no_video, args.final_frame
+    if not (video or final or args.rerun):
+        raise ValueError("--no-video without --final-frame or --rerun leaves nothing to write")
+    settings = RenderSettings(args.width, args.height, args.camera, args.quality)
+    target = None
+    if video or final:
+        target = save_target(args.save_path, args.format)
+        if video:
+            check_frame_size(target.fmt, args.width, args.height)
+            ensure_ffmpeg()
+        check_render_settings(settings, config)
+    if args.rerun:
+        from ..recording import RerunEpisodeRecording, check_rrd_path
+
+        check_rrd_path(args.rerun, "--rerun")
+    policy, label = choose_policy(args, config, train_cfg)
+    videos = finals = None
+    if target is not None:
+        stem = f"{label}_layout{Path(str(config.layout)).stem}_{config.fidelity}_seed{args.seed}"
+        videos, finals = target.paths(args.episodes, stem, video, final)
+    outputs = EpisodeOutputs(videos, finals, fps=args.fps or 1.0 / config.control_dt, trail_length=args.trail)
+
+    def report(k, record, written) -> None:
+        where = ", ".join(str(p) for p in written)
+        print(f"episode {k}: {record.outcome} after {record.steps} steps (seed {record.seed})" + (f" -> {where}" if where else ""), flush=True)
+
+    recording = RerunEpisodeRecording(args.rerun, trail_length=max(args.trail, 1)) if args.rerun else None
+    ok = False
+    try:
+        run_episodes(config, policy, args.episodes, args.seed, settings, outputs, recording, label, on_episode=report)
+        ok = True
+    finally:
+        if recording is not None:
+            path = recording.close(ok=ok)
+            if path is not None:
+                print(f"wrote {path} ({recording.n_episodes} episodes; open with: rerun {path})")
+    return 0

@@ -1,0 +1,504 @@
+"""The evaders' escape model, after Janosov et al. 2017 ("Group chasing tactics: how to catch a
+faster prey", New J. Phys. 19 053003), vectorised over worlds and evaders.
+
+Each decision step every free evader picks a world-frame direction and flies it at the
+constant `evader_speed`, through the same velocity interface as the pursuers:
+
+1. panic: 0 while the nearest sensed chaser is beyond `calm_distance`, rising linearly to 1
+   at `panic_distance`;
+2. the wanted direction blends, by panic, fleeing (away from the chasers sensed within
+   `sense_radius`, positions extrapolated by `lead_time`, each weighted by 1/distance**2)
+   with a calm zigzag (a seeded random heading turned by about +-`zigzag_angle`, alternating
+   sides, `zigzag_rate` times per second); repulsion from obstacles within `wall_margin`
+   and, weakly, from other free evaders is added, then smoothing with the last heading;
+3. a survey measures the free corridor `2 * clearance` wide (one ray per direction
+   against obstacles grown by `clearance`) along RING directions around the wanted one and scores each by alignment with it, free room
+   (`room_weight`), and, when panicked, how far the evader stays out of every chaser's
+   reach along it (`safety_weight`); a direction whose corridor is not free for
+   `clearance + evader_speed * lookahead_time` is refused while any other is free;
+4. wall following: when the wanted direction runs into an obstacle within
+   `follow_distance`, the two tangents of that obstacle join the candidates (the flee
+   direction projected onto the wall); alignment and safety pick the side away from the
+   chasers;
+5. gap escape: when cornered (fleeing runs into an obstacle within `follow_distance`, or
+   the threatening chasers surround it) it heads for the midpoint of two chasers and on
+   through, if along that path it stays `capture_radius + gap_margin` beyond the reach of
+   every chaser moving at `pursuer_speed`; it keeps to a chosen gap until it is through or
+   the gap closes;
+6. the best-scored candidate is flown; captured evaders output zero.
+
+Chasers are sensed through walls (by distance only). Random numbers come from a
+counter-based hash of (episode seed, step, evader, stream), so a world's path depends only
+on its own seed and inputs, however many worlds run together.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .config import TaskConfig
+from .geometry import FAR, ObstacleSet, obstacle_distance
+
+RING = 16  # survey directions around the wanted direction
+RING_ANGLES = 2 * math.pi * np.arange(RING) / RING  # rad, relative to the wanted direction
+ROOM_CAP = 2.0  # m, room beyond this counts as open
+PERSIST = 0.4  # weight (times panic) of keeping the current heading among candidates
+BLOCKED = -10.0  # score of a candidate the look-ahead refuses (plus up to 5 for its room)
+PATH_SAMPLES = 6  # points checked along a path against the chasers' reach
+HORIZON = 1.5  # m, how far along a candidate the safety score looks
+SLACK_SCALE = 1.0  # m, safety margins beyond this count as safe
+NORMAL_STEP = 0.02  # m, finite-difference step of obstacle normals
+EPS = 1e-9
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX2 = np.uint64(0x94D049BB133111EB)
+_TICK = np.uint64(0xD1B54A32D192ED03)
+_STREAM_TURN, _STREAM_AMPLITUDE, _STREAM_START, _STREAM_SIDE = range(4)
+
+
+# ----------------------------------------------------------------------------- small maths
+
+
+def norm(v: np.ndarray) -> np.ndarray:
+    """Length (...) of planar vectors v (..., 2)."""
+    return np.hypot(v[..., 0], v[..., 1])
+
+
+def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Dot product (...) of planar vectors a, b (..., 2), broadcast."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]
+
+
+def unit(v: np.ndarray, fallback: np.ndarray | float = 0.0) -> np.ndarray:
+    """v (..., 2) scaled to unit length; `fallback` (broadcastable) where |v| is ~0."""
+    n = norm(v)[..., None]
+    return np.where(n > EPS, v / np.maximum(n, EPS), fallback)
+
+
+def perp(v: np.ndarray) -> np.ndarray:
+    """v (..., 2) rotated by +90 degrees."""
+    return np.stack([-v[..., 1], v[..., 0]], -1)
+
+
+def rotate(v: np.ndarray, angle: np.ndarray | float) -> np.ndarray:
+    """v (..., 2) rotated counter-clockwise by angle (...) rad."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], -1)
+
+
+def panic_level(distance: np.ndarray, panic_distance: float, calm_distance: float) -> np.ndarray:
+    """Panic in [0, 1] from the nearest chaser's distance (...) m: 1 within panic_distance,
+    0 beyond calm_distance, linear between (non-increasing in distance; inf gives 0)."""
+    return np.clip((calm_distance - distance) / (calm_distance - panic_distance), 0.0, 1.0)
+
+
+def flee_vector(away: np.ndarray, sensed: np.ndarray) -> np.ndarray:
+    """Sum over sensed chasers of unit vectors chaser -> evader weighted by 1/distance**2.
+
+    away (W, M, N, 2) m, evader minus chaser position; sensed (W, M, N) bool -> (W, M, 2).
+    """
+    d = norm(away)
+    w = np.where(sensed, 1.0 / np.maximum(d, 1e-3) ** 3, 0.0)  # unit vector / d**2
+    return np.sum(away * w[..., None], axis=-2)
+
+
+def surrounded(toward: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Whether the evader lies inside the chasers' angular cover: every open half-plane around
+    it holds a chaser (the largest gap between chaser bearings is below pi).
+
+    toward (W, M, N, 2) chaser minus evader position; mask (W, M, N) chasers that count.
+    """
+    ang = np.where(mask, np.arctan2(toward[..., 1], toward[..., 0]), np.inf)
+    ang = np.sort(ang, axis=-1)
+    first = ang[..., :1] + 2 * math.pi
+    filled = np.where(np.isinf(ang), first, ang)
+    with np.errstate(invalid="ignore"):  # no chaser counts: inf - inf, masked below
+        gaps = np.diff(np.concatenate([filled, first], axis=-1), axis=-1)
+    return (mask.sum(-1) >= 3) & (np.nan_to_num(gaps, nan=2 * math.pi).max(-1) < math.pi)
+
+
+def reach_slack(origin: np.ndarray, dirs: np.ndarray, s: np.ndarray, chasers: np.ndarray, sensed: np.ndarray, speed_ratio: float) -> np.ndarray:
+    """How far (m) the evader stays outside every sensed chaser's reach along straight paths.
+
+    origin (W, M, 1, 2) m; dirs (W, M, K, 2) unit; s (W, M, K, S) m, distances along each path;
+    chasers (W, N, 2) m; sensed (W, M, N) bool; speed_ratio = pursuer / evader speed. A chaser
+    flying anywhere at full speed covers speed_ratio * s by the time the evader has flown s.
+    Returns min over samples and sensed chasers of |x - chaser| - speed_ratio * s: (W, M, K),
+    inf where no chaser is sensed.
+    """
+    x = origin[..., None, :] + dirs[..., None, :] * s[..., None]  # (W, M, K, S, 2)
+    d = norm(x[..., None, :] - chasers[:, None, None, None, :, :])  # (W, M, K, S, N)
+    margin = np.where(sensed[:, :, None, None, :], d - speed_ratio * s[..., None], np.inf)
+    return margin.min(axis=(-1, -2))
+
+
+# ----------------------------------------------------------------------------- obstacle queries
+
+
+def distance_and_normal(points: np.ndarray, obstacles: ObstacleSet) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (W, P) m from points (W, P, 2) to the nearest obstacle or border, and the unit
+    normal (W, P, 2) pointing away from it (zeros where nothing is near enough to tell)."""
+    W, P, _ = points.shape
+    h = NORMAL_STEP
+    offsets = np.array([[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
+    q = (points[:, :, None, :] + offsets).reshape(W, P * 5, 2)
+    d = obstacle_distance(q, obstacles).reshape(W, P, 5)
+    grad = np.stack([d[..., 1] - d[..., 2], d[..., 3] - d[..., 4]], -1)
+    return d[..., 0], unit(grad)
+
+
+def _shift_left(seg: np.ndarray, distance: np.ndarray) -> np.ndarray:
+    """Segments (..., S, 4) moved by distance (broadcastable to (..., S)) m to their left."""
+    d = seg[..., 2:4] - seg[..., 0:2]
+    n = np.stack([-d[..., 1], d[..., 0]], -1) / np.maximum(norm(d)[..., None], EPS)
+    shift = n * distance[..., None]
+    return seg + np.concatenate([shift, shift], -1)
+
+
+class Corridors:
+    """Free flight lengths of a disc of radius (W, M) m around each evader (its corridor).
+
+    The obstacles are grown by each evader's radius once (box edges pushed out and border
+    segments pushed in by it, circles of that radius at their corners, cylinder radii grown),
+    so that one ray per direction measures the whole corridor. Keep each radius below the
+    evader's distance to the nearest obstacle, so that every ray starts in free space.
+    """
+
+    def __init__(self, obstacles: ObstacleSet, pos: np.ndarray, radius: np.ndarray):
+        W, M = radius.shape
+        r = radius[:, :, None]  # (W, M, 1)
+        box, box_valid = obstacles.segments()  # (W, 4 NB, 4), counter-clockwise: outside on the right
+        border = obstacles.border  # (W, NS, 4), inside on the left
+        seg = np.concatenate([_shift_left(box[:, None], -r), _shift_left(border[:, None], r)], axis=2)  # (W, M, S, 4)
+        seg_valid = np.concatenate([box_valid, obstacles.border_valid], -1)[:, None]  # (W, 1, S)
+        corners = np.concatenate([box[..., 0:2], border[..., 0:2]], axis=1)[:, None]  # (W, 1, C1, 2)
+        cyl = obstacles.cylinders[:, None]  # (W, 1, NC, 3)
+        centres = np.concatenate([corners, cyl[..., 0:2]], axis=2)  # (W, 1, C, 2)
+        radii = np.concatenate([np.broadcast_to(r, (W, M, corners.shape[2])), cyl[..., 2] + r], axis=2)  # (W, M, C)
+        circle_valid = np.concatenate([box_valid, obstacles.border_valid, obstacles.cylinder_valid], -1)[:, None]
+        # everything relative to each evader, once; rays then differ only in direction
+        p = pos[:, :, None, :]
+        self._a = np.where(seg_valid[..., None], seg[..., 0:2] - p, 0.0)  # (W, M, S, 2) segment start
+        self._e = np.where(seg_valid[..., None], seg[..., 2:4] - seg[..., 0:2], 0.0)  # segment vector
+        self._c = centres - p  # (W, M, C, 2) circle centre
+        self._c2 = np.where(circle_valid, dot(self._c, self._c) - radii**2, np.inf)  # |c|^2 - r^2
+
+    def free(self, dirs: np.ndarray) -> np.ndarray:
+        """Free length (W, M, Q) m along unit dirs (W, M, Q, 2) from each evader; FAR if open."""
+        dx, dy = dirs[..., 0:1], dirs[..., 1:2]  # (W, M, Q, 1)
+        ax, ay = self._a[:, :, None, :, 0], self._a[:, :, None, :, 1]  # (W, M, 1, S)
+        ex, ey = self._e[:, :, None, :, 0], self._e[:, :, None, :, 1]
+        denom = dx * ey - dy * ex
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (ax * ey - ay * ex) / denom
+            u = (ax * dy - ay * dx) / denom
+        seg_hit = np.where((np.abs(denom) > EPS) & (t >= 0) & (u >= 0) & (u <= 1), t, FAR).min(-1, initial=FAR)
+        b = dx * self._c[:, :, None, :, 0] + dy * self._c[:, :, None, :, 1]  # (W, M, Q, C) projection of centre
+        disc = b * b - self._c2[:, :, None, :]
+        with np.errstate(invalid="ignore"):
+            t0 = b - np.sqrt(disc)  # origins lie outside every grown circle, so the near root is the hit
+        circle_hit = np.where((disc >= 0) & (t0 >= 0), t0, FAR).min(-1, initial=FAR)
+        return np.minimum(seg_hit, circle_hit)
+
+
+def survey_at(survey: np.ndarray, ref: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """A survey quantity (W, M, RING) over directions ref (W, M, 2) rotated by RING_ANGLES,
+    read at dirs (W, M, 2): the value of the survey direction nearest each dir, (W, M)."""
+    cross = ref[..., 0] * dirs[..., 1] - ref[..., 1] * dirs[..., 0]
+    angle = np.arctan2(cross, dot(ref, dirs))
+    k = np.rint(angle / (2 * math.pi / RING)).astype(np.int64) % RING
+    return np.take_along_axis(survey, k[..., None], -1)[..., 0]
+
+
+# ----------------------------------------------------------------------------- seeded randomness
+
+
+def _splitmix64(x: np.ndarray) -> np.ndarray:
+    with np.errstate(over="ignore"):
+        z = x + _GOLDEN
+        z = (z ^ (z >> np.uint64(30))) * _MIX1
+        z = (z ^ (z >> np.uint64(27))) * _MIX2
+    return z ^ (z >> np.uint64(31))
+
+
+def hash_uniform(seed: np.ndarray, tick: np.ndarray, n: int, stream: int) -> np.ndarray:
+    """Uniform [0, 1) numbers (W, n) from per-world seeds (W,) uint64 and step counters (W,) uint64.
+
+    Counter-based: the value for (seed, tick, index, stream) never depends on other worlds.
+    """
+    idx = np.arange(n, dtype=np.uint64) * np.uint64(8) + np.uint64(stream)
+    with np.errstate(over="ignore"):
+        x = _splitmix64(seed[:, None] ^ (tick[:, None] * _TICK)) + idx[None, :] * _GOLDEN
+    z = _splitmix64(x)
+    return (z >> np.uint64(11)).astype(np.float64) * 2.0**-53
+
+
+# ----------------------------------------------------------------------------- the model
+
+
+class EscapeModel:
+    """Desired velocities for every evader of every world; see the module docstring.
+
+    State per (world, evader): heading (unit, the last direction flown), the zigzag wander
+    direction and its next side, and the gap it is committed to. `reset` starts new episodes.
+    After each `compute`, `panic` (W, M), `gap` (W, M) bool (slipping through a gap) and
+    `following` (W, M) bool (turned along an obstacle) tell recorders and tests what it did.
+    """
+
+    def __init__(self, config: TaskConfig, n_worlds: int, seed: int):
+        if isinstance(n_worlds, bool) or not isinstance(n_worlds, (int, np.integer)) or n_worlds < 1:
+            raise ValueError(f"EscapeModel n_worlds: expected an integer >= 1, got {n_worlds!r}")
+        self.config = config
+        self.cfg = config.evader
+        self.n_worlds = int(n_worlds)
+        self.n_evaders = config.n_evaders
+        self.n_pursuers = config.n_pursuers
+        self.seed = int(seed)
+        self._need = self.cfg.clearance + config.evader_speed * self.cfg.lookahead_time  # m of free corridor ahead
+        W, M = self.n_worlds, self.n_evaders
+        i, j = np.triu_indices(self.n_pursuers, k=1)
+        self._pair_i, self._pair_j = i, j
+        self.heading = np.zeros((W, M, 2))
+        self.wander = np.zeros((W, M, 2))
+        self.zig_side = np.ones((W, M))
+        self.has_heading = np.zeros((W, M), bool)
+        self.gap_pair = np.full((W, M), -1)
+        self.gap_side = np.zeros((W, M))
+        self.world_seed = np.zeros(W, np.uint64)
+        self.tick = np.zeros(W, np.uint64)
+        self.episode = np.zeros(W, np.uint64)
+        self.panic = np.zeros((W, M))
+        self.gap = np.zeros((W, M), bool)
+        self.following = np.zeros((W, M), bool)
+        self.reset(np.arange(W))
+
+    # ------------------------------------------------------------------ episodes
+
+    def reset(self, world_ids: np.ndarray, seeds: np.ndarray | None = None) -> None:
+        """New episodes in the listed worlds: forget headings, zigzag and gap state.
+
+        seeds (k,) non-negative integers make each world's randomness reproducible; without
+        them a seed is derived from (model seed, world, episode count of that world).
+        """
+        ids = np.asarray(world_ids)
+        if ids.ndim != 1 or (ids.size and (not np.issubdtype(ids.dtype, np.integer) or ids.min() < 0 or ids.max() >= self.n_worlds)):
+            raise ValueError(f"EscapeModel.reset world_ids: expected world indices in [0, {self.n_worlds}), got {world_ids!r}")
+        ids = ids.astype(np.int64)
+        if seeds is None:
+            base = _splitmix64(np.array([self.seed & 0xFFFFFFFFFFFFFFFF], np.uint64))
+            key = _splitmix64(ids.astype(np.uint64) * _TICK + self.episode[ids])
+            self.world_seed[ids] = _splitmix64(base ^ key)
+        else:
+            s = np.asarray(seeds)
+            if s.shape != ids.shape or (s.size and (not np.issubdtype(s.dtype, np.integer) or s.min() < 0)):
+                raise ValueError(f"EscapeModel.reset seeds: expected {ids.size} non-negative integers, got {seeds!r}")
+            self.world_seed[ids] = _splitmix64(s.astype(np.uint64))
+        self.episode[ids] += np.uint64(1)
+        self.tick[ids] = 0
+        self.has_heading[ids] = False
+        self.heading[ids] = 0.0
+        self.wander[ids] = 0.0
+        side = hash_uniform(self.world_seed[ids], self.tick[ids], self.n_evaders, _STREAM_SIDE)
+        self.zig_side[ids] = np.where(side < 0.5, -1.0, 1.0)
+        self.gap_pair[ids] = -1
+        self.gap_side[ids] = 0.0
+        self.panic[ids] = 0.0
+        self.gap[ids] = False
+        self.following[ids] = False
+
+    # ------------------------------------------------------------------ one decision
+
+    def compute(
+        self,
+        evader_pos: np.ndarray,
+        evader_vel: np.ndarray,
+        pursuer_pos: np.ndarray,
+        pursuer_vel: np.ndarray,
+        active: np.ndarray,
+        obstacles: ObstacleSet,
+        dt: float,
+    ) -> np.ndarray:
+        """evader_pos/vel (W, M, 2) m, m/s world; pursuer_pos/vel (W, N, 2); active (W, M) bool
+        (not captured); obstacles: ObstacleSet stacked over worlds (arrays (W, ...)), border
+        included; dt decision interval (s).
+
+        Returns desired velocities (W, M, 2) m/s world: norm evader_speed where active, else 0.
+        """
+        e, ev, pp, pv, active = self._check(evader_pos, evader_vel, pursuer_pos, pursuer_vel, active, obstacles, dt)
+        cfg = self.cfg
+        away = e[:, :, None, :] - pp[:, None, :, :]  # (W, M, N, 2) chaser -> evader
+        dist = norm(away)
+        sensed = dist < cfg.sense_radius
+        self.panic = panic_level(np.where(sensed, dist, np.inf).min(-1), cfg.panic_distance, cfg.calm_distance)
+        flee = flee_vector(e[:, :, None, :] - (pp + pv * cfg.lead_time)[:, None, :, :], sensed)
+        self._start_headings(ev)
+        self._turn_wander(dt)
+        flee_dir = unit(flee, self.heading)
+
+        d0, n0 = distance_and_normal(e, obstacles)
+        corridors = Corridors(obstacles, e, np.clip(np.minimum(cfg.clearance, d0 - 0.005), 0.0, None))
+        p = self.panic[..., None]
+        want = unit(p * flee_dir + (1.0 - p) * self.wander, flee_dir)
+        push = cfg.wall_gain * np.clip((cfg.wall_margin - d0) / cfg.wall_margin, 0.0, 1.0)[..., None] * n0
+        want = unit(want + push + self._evader_push(e, active), want)
+        want = unit((1.0 - cfg.smoothing) * want + cfg.smoothing * self.heading, want)
+
+        survey = rotate(want[:, :, None, :], RING_ANGLES)  # (W, M, RING, 2); survey[:, :, 0] is want
+        gap_dir, gap_length = self._gap_paths(e, pp, flee_dir)  # (W, M, P, 2), (W, M, P)
+        free = corridors.free(np.concatenate([survey, gap_dir], axis=2))
+        room, gap_free = free[..., :RING], free[..., RING:]
+        flee_room = survey_at(room, want, flee_dir)
+        gap_on, through = self._gap_escape(away, dist, sensed, gap_dir, gap_length, gap_free, flee_room, pp, e, active)
+
+        tangents, into = self._wall_tangents(e, want, room[..., 0], obstacles)
+        candidates = np.concatenate([survey, tangents], axis=2)  # (W, M, RING + 2, 2)
+        room = np.concatenate([room, corridors.free(tangents)], axis=2)
+        best = self._choose(e, pp, sensed, want, candidates, room, into)
+        final = np.where(gap_on[..., None], through, np.take_along_axis(candidates, best[..., None, None], 2)[:, :, 0])
+
+        self.heading = np.where(active[..., None], final, self.heading)
+        self.has_heading |= active
+        self.gap = gap_on
+        self.following = into & (best >= RING) & ~gap_on
+        self.tick += np.uint64(1)
+        return final * (self.config.evader_speed * active)[..., None]
+
+    # ------------------------------------------------------------------ behaviours
+
+    def _start_headings(self, evader_vel: np.ndarray) -> None:
+        """Evaders new to an episode start along their velocity, or a random direction."""
+        u = hash_uniform(self.world_seed, self.tick, self.n_evaders, _STREAM_START)
+        random_dir = np.stack([np.cos(2 * math.pi * u), np.sin(2 * math.pi * u)], -1)
+        moving = norm(evader_vel) > 0.05
+        start = np.where(moving[..., None], unit(evader_vel, random_dir), random_dir)
+        new = ~self.has_heading[..., None]
+        self.heading = np.where(new, start, self.heading)
+        self.wander = np.where(new, start, self.wander)
+
+    def _turn_wander(self, dt: float) -> None:
+        """At random times (rate zigzag_rate) turn the wander direction from the heading by
+        zigzag_angle * U(0.5, 1) to alternate sides."""
+        cfg = self.cfg
+        u_turn = hash_uniform(self.world_seed, self.tick, self.n_evaders, _STREAM_TURN)
+        u_amp = hash_uniform(self.world_seed, self.tick, self.n_evaders, _STREAM_AMPLITUDE)
+        turn = u_turn < -math.expm1(-cfg.zigzag_rate * dt)
+        angle = self.zig_side * cfg.zigzag_angle * (0.5 + 0.5 * u_amp)
+        self.wander = np.where(turn[..., None], rotate(self.heading, angle), self.wander)
+        self.zig_side = np.where(turn, -self.zig_side, self.zig_side)
+
+    def _gap_paths(self, e: np.ndarray, pp: np.ndarray, fallback: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Unit directions (W, M, P, 2) from each evader to the midpoint of each pair of chasers,
+        and the distances (W, M, P) m to those midpoints (P = N (N - 1) / 2 pairs)."""
+        mid = 0.5 * (pp[:, self._pair_i] + pp[:, self._pair_j])  # (W, P, 2)
+        to_mid = mid[:, None] - e[:, :, None]
+        return unit(to_mid, fallback[:, :, None, :]), norm(to_mid)
+
+    def _gap_escape(self, away, dist, sensed, gap_dir, gap_length, gap_free, flee_room, pp, e, active):
+        """(on (W, M) bool, direction (W, M, 2)): the gap between two chasers it slips through.
+
+        A gap is open when both chasers are sensed, the corridor to the midpoint and `reach`
+        beyond is free of obstacles (and for the look-ahead), and along that path the evader
+        stays `reach` outside every sensed chaser's reach. It is taken when cornered, and kept
+        while open until the evader has crossed the line between the two chasers.
+        """
+        W, M = self.n_worlds, self.n_evaders
+        cfg, task = self.cfg, self.config
+        I, J = self._pair_i, self._pair_j
+        P = len(I)
+        if P == 0 or not cfg.gap_escape:
+            self.gap_pair[:] = -1
+            return np.zeros((W, M), bool), np.zeros((W, M, 2))
+        reach = task.capture_radius + cfg.gap_margin
+        s = np.linspace(0.0, 1.0, PATH_SAMPLES) * (gap_length + reach)[..., None]  # (W, M, P, S)
+        slack = reach_slack(e[:, :, None, :], gap_dir, s, pp, sensed, task.pursuer_speed / task.evader_speed) - reach
+        clear = gap_free >= np.maximum(gap_length + reach, self._need)
+        feasible = sensed[..., I] & sensed[..., J] & clear & (slack > 0)
+
+        threat = sensed & (dist < cfg.calm_distance)
+        cornered = (self.panic > 0) & ((flee_room < cfg.follow_distance) | surrounded(-away, threat))
+        edge = pp[:, J] - pp[:, I]  # (W, P, 2)
+        rel = e[:, :, None] - pp[:, None, I]
+        side = np.sign(edge[:, None, :, 0] * rel[..., 1] - edge[:, None, :, 1] * rel[..., 0])
+        committed = (self.gap_pair[..., None] == np.arange(P)) & (self.gap_side[..., None] == side)
+        candidate = feasible & (cornered[..., None] | committed)
+        score = np.where(candidate, slack + committed, -np.inf)  # keep to a chosen gap
+        best = np.argmax(score, axis=-1)
+        on = candidate.any(-1) & active
+        self.gap_pair = np.where(on, best, -1)
+        self.gap_side = np.where(on, np.take_along_axis(side, best[..., None], -1)[..., 0], 0.0)
+        return on, np.take_along_axis(gap_dir, best[..., None, None], 2)[:, :, 0]
+
+    def _wall_tangents(self, e, want, ahead, obstacles):
+        """The two tangents (W, M, 2, 2) of the obstacle the wanted direction meets, and
+        whether it meets one within follow_distance head-on enough to follow it (W, M)."""
+        cfg = self.cfg
+        probe = e + want * np.clip(ahead - 0.05, 0.0, cfg.follow_distance)[..., None]
+        _, normal = distance_and_normal(probe, obstacles)
+        into = (ahead < cfg.follow_distance) & (dot(want, normal) < -EPS)
+        t = perp(normal)
+        return np.stack([t, -t], axis=2), into
+
+    def _choose(self, e, pp, sensed, want, candidates, room, into):
+        """Index (W, M) of the best candidate direction (W, M, K, 2) given its free room (W, M, K).
+
+        Score: alignment with want, + PERSIST * panic * alignment with the heading,
+        + room_weight * room (relative to ROOM_CAP), + safety_weight * panic * the margin it
+        keeps from the chasers' reach (relative to SLACK_SCALE); candidates the look-ahead
+        refuses score BLOCKED (plus their room); the wall tangents count only when `into`.
+        """
+        cfg, task = self.cfg, self.config
+        length = np.clip(room - cfg.clearance, 0.0, HORIZON)
+        s = np.linspace(0.0, 1.0, PATH_SAMPLES) * length[..., None]  # (W, M, K, S)
+        slack = reach_slack(e[:, :, None, :], candidates, s, pp, sensed, task.pursuer_speed / task.evader_speed) - task.capture_radius
+        panic = self.panic[..., None]
+        score = (
+            dot(candidates, want[:, :, None, :])
+            + PERSIST * panic * dot(candidates, self.heading[:, :, None, :])
+            + cfg.room_weight * np.minimum(room, ROOM_CAP) / ROOM_CAP
+            + cfg.safety_weight * panic * np.clip(slack / SLACK_SCALE, -1.0, 1.0)
+        )
+        score = np.where(room >= self._need, score, BLOCKED + 5.0 * np.minimum(room / self._need, 1.0))
+        score[..., RING:] = np.where(into[..., None], score[..., RING:], -np.inf)
+        return np.argmax(score, axis=-1)
+
+    def _evader_push(self, e: np.ndarray, active: np.ndarray) -> np.ndarray:
+        """Weak repulsion (W, M, 2) between free evaders closer than evader_spacing."""
+        cfg = self.cfg
+        if self.n_evaders < 2 or cfg.evader_spacing <= 0 or cfg.evader_gain <= 0:
+            return np.zeros_like(e)
+        rel = e[:, :, None, :] - e[:, None, :, :]
+        d = norm(rel)
+        near = active[:, None, :] & ~np.eye(self.n_evaders, dtype=bool) & (d < cfg.evader_spacing)
+        w = np.where(near, (1.0 - d / cfg.evader_spacing) / np.maximum(d, 1e-6), 0.0)
+        return cfg.evader_gain * np.sum(rel * w[..., None], axis=2)
+
+    # ------------------------------------------------------------------ input checks
+
+    def _check(self, evader_pos, evader_vel, pursuer_pos, pursuer_vel, active, obstacles, dt):
+        W, M, N = self.n_worlds, self.n_evaders, self.n_pursuers
+        out = []
+        for name, arr, shape in (
+            ("evader_pos", evader_pos, (W, M, 2)),
+            ("evader_vel", evader_vel, (W, M, 2)),
+            ("pursuer_pos", pursuer_pos, (W, N, 2)),
+            ("pursuer_vel", pursuer_vel, (W, N, 2)),
+        ):
+            a = np.asarray(arr, dtype=np.float64)
+            if a.shape != shape:
+                raise ValueError(f"EscapeModel.compute {name}: expected shape {shape} (worlds, drones, x y), got {a.shape}")
+            if not np.isfinite(a).all():
+                bad = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
+                raise ValueError(f"EscapeModel.compute {name}: non-finite value {a[bad]} at index {bad}")
+            out.append(a)
+        act = np.asarray(active)
+        if act.shape != (W, M) or act.dtype != bool:
+            raise ValueError(f"EscapeModel.compute active: expected a bool array of shape {(W, M)}, got {act.dtype} {act.shape}")
+        if not isinstance(obstacles, ObstacleSet) or obstacles.boxes.ndim != 3 or obstacles.boxes.shape[0] != W:
+            got = getattr(getattr(obstacles, "boxes", None), "shape", type(obstacles).__name__)
+            raise ValueError(f"EscapeModel.compute obstacles: expected an ObstacleSet stacked over {W} worlds (boxes (W, NB, 5)), got {got}")
+        if not (isinstance(dt, (int, float, np.floating)) and math.isfinite(dt) and dt > 0):
+            raise ValueError(f"EscapeModel.compute dt: expected a decision interval > 0 s, got {dt!r}")
+        return (*out, act)

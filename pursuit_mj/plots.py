@@ -1,0 +1,209 @@
+"""PNG charts of training logs (curves) and evaluation results (bars), for `pursuit-mj plot`.
+
+Training logs are JSONL files, one JSON object per line (train/metrics_log.py writes
+`metrics.jsonl`); nested objects are flattened to dotted keys ('train.success',
+'validation.success', 'episode_returns.capture'). Evaluation results are the JSON files of
+`pursuit-mj eval --json` ({"rows": [...]}) or a bare list of such rows: policy, layout,
+<outcome>_pct with _ci_lo/_ci_hi, mean_steps with its CI.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from .io_utils import atomic_path
+
+X_KEYS = ("env_steps", "world_steps", "agent_steps", "update")
+#: default curves: (file stem, y label, accepted final key components)
+CURVES = (
+    ("success", "success rate", ("success", "success_rate")),
+    ("collision", "collision rate", ("collision", "collision_rate")),
+    ("mean_steps", "mean episode length (steps)", ("mean_steps",)),
+)
+REWARD_PREFIXES = ("episode_returns.", "reward_terms_per_step.", "reward_terms.", "returns.", "reward.")
+EVAL_METRICS = (
+    ("success", "success rate (%)", "success_pct", "success_ci_lo", "success_ci_hi"),
+    ("collision", "collision rate (%)", "collision_pct", "collision_ci_lo", "collision_ci_hi"),
+    ("timeout", "timeout rate (%)", "timeout_pct", "timeout_ci_lo", "timeout_ci_hi"),
+    ("mean_steps", "mean episode length (steps)", "mean_steps", "mean_steps_ci_lo", "mean_steps_ci_hi"),
+)
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: Path) -> Path:
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=120)
+    _plt().close(fig)
+    return path
+
+
+def flatten(row: Mapping[str, Any], prefix: str = "") -> dict[str, float]:
+    """Numeric leaves of a nested mapping as {dotted.key: float}; null, NaN, bools and strings dropped."""
+    out: dict[str, float] = {}
+    for k, v in row.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            out.update(flatten(v, f"{key}."))
+        elif isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+            out[key] = float(v)
+    return out
+
+
+# ---------------------------------------------------------------------- training curves
+
+
+def read_training_log(path: str | Path) -> list[dict[str, float]]:
+    """Flattened rows of a JSONL log. A malformed line is a ValueError naming file and line,
+    except a cut-off last line (a run killed mid-write), which is skipped."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"training log {path}: file not found")
+    lines = path.read_text().splitlines()
+    rows = []
+    for i, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            obj = json.loads(line)
+        except json.JSONDecodeError as exc:
+            if i == len(lines):
+                break
+            raise ValueError(f"training log {path}, line {i}: not JSON ({exc.msg})") from None
+        if not isinstance(obj, Mapping):
+            raise ValueError(f"training log {path}, line {i}: expected a JSON object, got {type(obj).__name__}")
+        rows.append(flatten(obj))
+    if not rows:
+        raise ValueError(f"training log {path}: no rows")
+    return rows
+
+
+def x_key(runs: Mapping[str, Sequence[Mapping[str, float]]], requested: str | None = None) -> str:
+    """The x axis: `requested`, else the first of X_KEYS that every run has."""
+    keys = [requested] if requested else list(X_KEYS)
+    for k in keys:
+        if all(any(k in r for r in rows) for rows in runs.values()):
+            return k
+    have = sorted(set().union(*(r.keys() for rows in runs.values() for r in rows)))
+    if requested:
+        raise ValueError(f"--x {requested!r}: not in every log (keys: {', '.join(have[:30])})")
+    raise ValueError(f"training logs: none of {', '.join(X_KEYS)} found in every log for the x axis")
+
+
+def curve_keys(runs: Mapping[str, Sequence[Mapping[str, float]]], wanted: Sequence[str] | None = None) -> list[str]:
+    """Which flattened keys to plot: `wanted` (a key or its last component), else success,
+    collision, mean steps and every reward term found."""
+    keys = sorted(set().union(*(r.keys() for rows in runs.values() for r in rows)))
+    if wanted:
+        out = []
+        for w in wanted:
+            match = [k for k in keys if k == w or k.rsplit(".", 1)[-1] == w]
+            if not match:
+                raise ValueError(f"--metric {w!r}: no such key in the logs (keys: {', '.join(keys[:40])})")
+            out += [m for m in match if m not in out]
+        return out
+    out = []
+    for _, _, finals in CURVES:
+        out += [k for k in keys if k.rsplit(".", 1)[-1] in finals]
+    out += [k for k in keys if k.startswith(REWARD_PREFIXES) and k not in out]
+    if not out:
+        raise ValueError(f"training logs: no success/collision/mean_steps/reward keys found (keys: {', '.join(keys[:40])})")
+    return out
+
+
+def plot_training(runs: Mapping[str, Sequence[Mapping[str, float]]], folder: str | Path,
+                  metrics: Sequence[str] | None = None, x: str | None = None) -> list[Path]:
+    """One PNG per metric with a line per run (label -> flattened rows) against the x key."""
+    plt = _plt()
+    folder = Path(folder)
+    xk = x_key(runs, x)
+    paths = []
+    for key in curve_keys(runs, metrics):
+        fig, ax = plt.subplots(figsize=(6.4, 3.8))
+        for label, rows in runs.items():
+            pts = np.array([(r[xk], r[key]) for r in rows if xk in r and key in r]).reshape(-1, 2)
+            if len(pts):
+                ax.plot(pts[:, 0], pts[:, 1], marker="." if len(pts) < 30 else None, label=label)
+        ax.set_xlabel(xk.replace("_", " "))
+        ax.set_ylabel(key)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize="small")
+        fig.tight_layout()
+        paths.append(_save(fig, folder / f"curve_{key.replace('.', '_').replace('/', '_')}.png"))
+    return paths
+
+
+# ---------------------------------------------------------------------- evaluation bars
+
+
+def read_eval_rows(path: str | Path) -> list[dict[str, Any]]:
+    """Rows of an evaluation JSON ({"rows": [...]} or a list); ValueError naming what is missing."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"evaluation results {path}: file not found")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"evaluation results {path}: not JSON ({exc.msg}, line {exc.lineno})") from None
+    rows = data.get("rows") if isinstance(data, Mapping) else data
+    if not isinstance(rows, list) or not rows:
+        raise ValueError(f"evaluation results {path}: expected a non-empty list of rows (or {{\"rows\": [...]}})")
+    for i, r in enumerate(rows):
+        if not isinstance(r, Mapping) or "policy" not in r or "layout" not in r:
+            raise ValueError(f"evaluation results {path}: row {i} lacks 'policy' or 'layout'")
+    return [dict(r) for r in rows]
+
+
+def _layout_name(layout: Any) -> str:
+    s = str(layout)
+    return f"layout {s}" if s.isdigit() else Path(s).stem
+
+
+def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path) -> list[Path]:
+    """Bar charts, one PNG per metric present: layouts on x, a bar per policy, 95 % CI whiskers."""
+    plt = _plt()
+    rows = list(rows)
+    folder = Path(folder)
+    policies = list(dict.fromkeys(str(r["policy"]) for r in rows))
+    layouts = list(dict.fromkeys(str(r["layout"]) for r in rows))
+    table = {(str(r["policy"]), str(r["layout"])): r for r in rows}
+    x = np.arange(len(layouts))
+    width = 0.8 / len(policies)
+    paths = []
+    for stem, label, key, lo_key, hi_key in EVAL_METRICS:
+        if not any(r.get(key) is not None for r in rows):
+            continue
+        fig, ax = plt.subplots(figsize=(1.8 + 1.5 * len(layouts), 3.8))
+        for i, pol in enumerate(policies):
+            vals, err_lo, err_hi = [], [], []
+            for lay in layouts:
+                r = table.get((pol, lay), {})
+                v = r.get(key)
+                vals.append(np.nan if v is None else float(v))
+                lo, hi = r.get(lo_key), r.get(hi_key)
+                err_lo.append(0.0 if v is None or lo is None else float(v) - float(lo))
+                err_hi.append(0.0 if v is None or hi is None else float(hi) - float(v))
+            ax.bar(x + (i - (len(policies) - 1) / 2) * width, vals, width, yerr=[err_lo, err_hi], capsize=3, label=pol)
+        ax.set_xticks(x, [_layout_name(l) for l in layouts])
+        ax.set_ylabel(label)
+        if key.endswith("_pct"):
+            ax.set_ylim(0, 100)
+        ax.grid(axis="y", alpha=0.3)
+        ax.legend(fontsize="small")
+        fig.tight_layout()
+        paths.append(_save(fig, folder / f"eval_{stem}.png"))
+    if not paths:
+        raise ValueError("evaluation results: rows have none of success_pct, collision_pct, timeout_pct, mean_steps")
+    return paths

@@ -1,0 +1,66 @@
+"""Training scalars streamed into a rerun recording: `RerunScalarLogger(path).log(step, metrics)`.
+
+Each metric becomes a time series `train/<key>` on the timeline `env_steps` (nested dicts
+flatten to `train/<outer>/<inner>`; non-numbers and non-finite values are skipped). The file
+is written as the run goes, not renamed at the end, so that a run that dies still leaves its
+curves behind; open it with `rerun FILE` during or after training.
+"""
+
+from __future__ import annotations
+
+import math
+import uuid
+from pathlib import Path
+from typing import Any, Mapping
+
+import rerun as rr
+
+from .rerun_episodes import APPLICATION_ID, check_rrd_path
+
+
+def flatten_numbers(metrics: Mapping[str, Any], prefix: str = "") -> dict[str, float]:
+    """{'a': 1, 'b': {'c': 2.0}} -> {'a': 1.0, 'b/c': 2.0}; bools, strings, None and NaN/inf dropped."""
+    out: dict[str, float] = {}
+    for key, value in metrics.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.update(flatten_numbers(value, f"{name}/"))
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+            out[name] = float(value)
+    return out
+
+
+class RerunScalarLogger:
+    """Stream training metrics to an .rrd file on the `env_steps` timeline."""
+
+    def __init__(self, path: str | Path, run_name: str | None = None, timeline: str = "env_steps", source: str = "rerun log"):
+        self.path = check_rrd_path(path, source)
+        self.timeline = timeline
+        self.stream = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
+        self.stream.save(self.path)
+        if run_name:
+            self.stream.send_recording_name(run_name)
+        self._closed = False
+
+    def log(self, step: int, metrics: Mapping[str, Any]) -> None:
+        """Record every numeric entry of `metrics` (nested dicts allowed) at `step` env steps."""
+        if self._closed:
+            raise RuntimeError(f"rerun log {self.path}: log after close")
+        if isinstance(step, bool) or not isinstance(step, int) or step < 0:
+            raise ValueError(f"rerun log {self.path}: step must be an integer >= 0, got {step!r}")
+        self.stream.set_time(self.timeline, sequence=step)
+        for key, value in flatten_numbers(metrics).items():
+            self.stream.log(f"train/{key}", rr.Scalars(value))
+
+    def close(self) -> Path:
+        if not self._closed:
+            self._closed = True
+            self.stream.flush()
+            self.stream.disconnect()
+        return self.path
+
+    def __enter__(self) -> "RerunScalarLogger":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,175 @@
+"""Run episodes of a policy in one world and hand every state to the recorders that want it.
+
+Recorders only read (`env.snapshot`): the video renderer, the final-frame PNG and the rerun
+recording never touch the environment, so an episode is the same with or without them.
+Episode k is the k-th episode of world 0 of `PursuitEnv(config, seed=seed)`, whichever
+recorders run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable, Sequence
+
+import numpy as np
+
+from ..config import TaskConfig
+from ..env import EpisodeRecord, PursuitEnv, Snapshot
+from ..layout import Layout
+from ..policy import Policy
+from .caption import Caption, draw_caption
+from .overlays import OverlayStyle, TrailBuffer, draw_all
+from .renderer import RenderSettings, SceneRenderer
+from .video import save_png, video_file
+
+if TYPE_CHECKING:  # rerun is imported only when a recording is made
+    from ..recording.rerun_episodes import RerunEpisodeRecording
+
+
+@dataclasses.dataclass(frozen=True)
+class EpisodeOutputs:
+    """Where episode k goes: video_paths[k] (.mp4/.gif) and final_paths[k] (.png); None = not wanted."""
+
+    video_paths: Sequence[Path] | None = None
+    final_paths: Sequence[Path] | None = None
+    fps: float = 10.0
+    trail_length: int = 30
+
+
+def drone_pose(snap: Snapshot) -> tuple[np.ndarray, np.ndarray]:
+    """(pos (D, 3) m, quat (D, 4) wxyz) of all drones in scene order (pursuers first)."""
+    return np.concatenate([snap.pursuer_pos, snap.evader_pos]), np.concatenate([snap.pursuer_quat, snap.evader_quat])
+
+
+class FrameMaker:
+    """Snapshot -> captioned frame (H, W, 3) uint8, keeping each drone's trail.
+
+    Works from snapshots alone (their layout picks the scene), so it draws live episodes and
+    recorded ones the same way.
+    """
+
+    def __init__(self, config: TaskConfig, layout: Layout, settings: RenderSettings, title: str, trail_length: int,
+                 style: OverlayStyle | None = None):
+        self.title = title
+        self.style = style or OverlayStyle()
+        self.trail = TrailBuffer(trail_length)
+        self.renderer = SceneRenderer(settings, config, layout)
+
+    def start_episode(self) -> None:
+        """Forget the trails of the previous episode."""
+        self.trail.clear()
+
+    def push(self, snap: Snapshot) -> None:
+        """Add this state to the trails (every step, drawn or not)."""
+        self.trail.push(drone_pose(snap)[0])
+
+    def draw(self, snap: Snapshot, episode: int) -> np.ndarray:
+        """The captioned frame of `snap` with the trails pushed so far (the returned array is new)."""
+        self.renderer.bind(snap.layout)
+        pos, quat = drone_pose(snap)
+        trails = self.trail.array()
+        img = self.renderer.render(pos, quat, lambda scene: draw_all(scene, snap, trails, self.style))
+        cap = Caption(f"{self.title} | layout {snap.layout.name} | {snap.config.fidelity} | episode {episode}",
+                      snap.step, snap.config.max_steps, snap.time, snap.outcome)
+        return draw_caption(img, cap)
+
+    def close(self) -> None:
+        self.renderer.close()
+
+    def __enter__(self) -> "FrameMaker":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def run_episodes(
+    config: TaskConfig,
+    policy: Policy,
+    episodes: int,
+    seed: int = 0,
+    settings: RenderSettings | None = None,
+    outputs: EpisodeOutputs | None = None,
+    recording: RerunEpisodeRecording | None = None,
+    title: str | None = None,
+    on_episode: Callable[[int, EpisodeRecord, list[Path]], None] | None = None,
+) -> list[EpisodeRecord]:
+    """Play `episodes` episodes in one world, writing videos / final PNGs / rerun as asked.
+
+    Frames are rendered only when a video or final image of that episode is wanted (for
+    final images only the last state is rendered). `on_episode(k, record, written_paths)` is
+    called after each episode.
+    """
+    if not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"--episodes: expected an integer >= 1, got {episodes!r}")
+    outputs = outputs or EpisodeOutputs()
+    for name, paths in (("video", outputs.video_paths), ("final-frame", outputs.final_paths)):
+        if paths is not None and len(paths) != episodes:
+            raise ValueError(f"{name} paths: {len(paths)} given for {episodes} episodes")
+    wants_frames = outputs.video_paths is not None or outputs.final_paths is not None
+    env = PursuitEnv(config, n_worlds=1, seed=seed, auto_reset=False)
+    obs = env.reset()
+    policy.reset(1)
+    label = title or getattr(policy, "name", "policy")
+    maker = FrameMaker(config, env.world_layouts[0], settings or RenderSettings(), label, outputs.trail_length) if wants_frames else None
+    records = []
+    try:
+        for k in range(episodes):
+            if k:
+                obs = env.reset_worlds([0])
+                policy.reset(1, np.array([0]))
+            if maker is not None:
+                maker.start_episode()
+            record, written = _one_episode(env, policy, obs, k, maker, outputs, recording, label)
+            records.append(record)
+            if on_episode is not None:
+                on_episode(k, record, written)
+    finally:
+        if maker is not None:
+            maker.close()
+    return records
+
+
+def _one_episode(env: PursuitEnv, policy: Policy, obs: np.ndarray, k: int, maker: FrameMaker | None,
+                 outputs: EpisodeOutputs, recording: RerunEpisodeRecording | None, label: str) -> tuple[EpisodeRecord, list[Path]]:
+    video_path = outputs.video_paths[k] if outputs.video_paths is not None else None
+    final_path = outputs.final_paths[k] if outputs.final_paths is not None else None
+    buffer = None
+    if recording is not None:
+        from ..recording.rerun_episodes import EpisodeBuffer
+
+        buffer = EpisodeBuffer({"policy": label})
+    written: list[Path] = []
+
+    def observe(video) -> Snapshot:
+        snap = env.snapshot(0)
+        if buffer is not None:
+            buffer.append(snap)
+        if maker is not None:
+            maker.push(snap)
+            if video is not None:
+                video.add(maker.draw(snap, k))
+        return snap
+
+    def play(video) -> tuple[EpisodeRecord, Snapshot]:
+        nonlocal obs
+        snap = observe(video)
+        info = None
+        while not env.done[0]:
+            obs, _, _, _, info = env.step(policy.act(obs, env.obs_spec))
+            snap = observe(video)
+        return info["episodes"][0], snap
+
+    if video_path is not None:
+        settings = maker.renderer.settings
+        with video_file(video_path, settings.width, settings.height, outputs.fps) as video:
+            record, last = play(video)
+        written.append(video_path)
+    else:
+        record, last = play(None)
+    if final_path is not None:
+        written.append(save_png(final_path, maker.draw(last, k)))
+    if recording is not None:
+        recording.add_episode(buffer, record)
+    return record, written

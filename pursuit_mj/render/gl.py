@@ -1,0 +1,101 @@
+"""An offscreen OpenGL context for MuJoCo on machines with no display: EGL or OSMesa.
+
+The backend is fixed per process at the first `import OpenGL.GL` (PyOpenGL reads
+PYOPENGL_PLATFORM then), so candidates cannot be tried one after the other in-process.
+`MUJOCO_GL=egl|osmesa|glfw` picks one explicitly; otherwise each candidate is tried in a
+short child process first and the first that creates a context is used here.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import subprocess
+import sys
+
+CANDIDATES = ("egl", "osmesa")
+SUPPORTED = ("egl", "osmesa", "glfw")
+
+INSTALL_HINT = {
+    "egl": "libEGL with a headless-capable driver (Debian/Ubuntu: apt install libegl1 libgl1-mesa-dri, or a GPU driver)",
+    "osmesa": "OSMesa (Debian/Ubuntu: apt install libosmesa6)",
+    "glfw": "a display (DISPLAY set) and the glfw Python package",
+}
+
+_PROBE = (
+    "import sys, mujoco.{b} as g\n"
+    "c = g.GLContext(16, 16)\n"
+    "c.make_current()\n"
+    "c.free()\n"
+)
+
+_chosen: str | None = None
+
+
+class RenderBackendError(ValueError):
+    """No OpenGL backend could create an offscreen context; the message says what to install."""
+
+
+def _explain(tried: dict[str, str]) -> str:
+    lines = [f"{b}: {why}; needs {INSTALL_HINT[b]}" for b, why in tried.items()]
+    return "no offscreen OpenGL backend works here (" + " | ".join(lines) + "); install one, or set MUJOCO_GL"
+
+
+def _probe(backend: str, timeout: float = 60.0) -> str | None:
+    """None if `backend` creates a context in a child process, else the reason it failed."""
+    env = dict(os.environ, MUJOCO_GL=backend, PYOPENGL_PLATFORM=backend)
+    try:
+        res = subprocess.run([sys.executable, "-c", _PROBE.format(b=backend)], env=env,
+                             capture_output=True, text=True, timeout=timeout)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return f"probe failed ({exc})"
+    if res.returncode == 0:
+        return None
+    tail = [l for l in res.stderr.strip().splitlines() if l.strip()]
+    return tail[-1] if tail else f"exit code {res.returncode}"
+
+
+def _pinned_platform() -> str | None:
+    """The PyOpenGL platform this process is already committed to, if OpenGL.GL is imported."""
+    if "OpenGL.GL" in sys.modules:
+        return (os.environ.get("PYOPENGL_PLATFORM") or "glfw").lower()
+    return None
+
+
+def choose_backend() -> str:
+    """The backend to use in this process (cached). Raises RenderBackendError if none works."""
+    global _chosen
+    if _chosen is not None:
+        return _chosen
+    requested = os.environ.get("MUJOCO_GL", "").strip().lower()
+    pinned = _pinned_platform()
+    if requested:
+        if requested not in SUPPORTED:
+            raise RenderBackendError(f"environment variable MUJOCO_GL={requested!r}: offscreen rendering needs one of {', '.join(SUPPORTED)}")
+        _chosen = requested
+        return _chosen
+    if pinned is not None:
+        _chosen = pinned
+        return _chosen
+    tried = {}
+    for backend in CANDIDATES:
+        why = _probe(backend)
+        if why is None:
+            _chosen = backend
+            return backend
+        tried[backend] = why
+    raise RenderBackendError(_explain(tried))
+
+
+def create_context(width: int, height: int):
+    """A current offscreen GL context of at least width x height pixels (object with make_current, free)."""
+    backend = choose_backend()
+    if backend in ("egl", "osmesa"):
+        os.environ.setdefault("PYOPENGL_PLATFORM", backend)
+    try:
+        module = importlib.import_module(f"mujoco.{backend}")
+        ctx = module.GLContext(width, height)
+        ctx.make_current()
+    except Exception as exc:  # PyOpenGL and the EGL/OSMesa loaders raise many error types
+        raise RenderBackendError(_explain({backend: f"{type(exc).__name__}: {exc}"})) from exc
+    return ctx

@@ -1,0 +1,200 @@
+"""Decorations drawn into the MuJoCo scene to explain a chase: what each pursuer perceives and does.
+
+Per frame, from a `Snapshot` (pursuit_mj.env) and the recent trail of every drone:
+perception circles (or field-of-view wedges), a solid line from a pursuer to each evader it
+sees and a dashed one to each it knows only by relay, short fading trails, the capture
+radius around every evader (filled once captured), and a role-coloured disc under each drone
+that tilts with its body. Lines are MuJoCo line geoms (width in pixels), so they stay crisp at
+any camera distance.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import mujoco
+import numpy as np
+
+from ..scene import ROLE_RGBA
+
+_EYE = np.eye(3).ravel()
+_LINE = mujoco.mjtGeom.mjGEOM_LINE
+
+
+@dataclasses.dataclass(frozen=True)
+class OverlayStyle:
+    """Colours (RGBA 0-1), line widths (pixels) and sizes (m) of the decorations."""
+
+    perception_rgba: tuple = (0.15, 0.45, 0.95, 0.45)
+    seen_rgba: tuple = (1.0, 0.75, 0.05, 0.95)
+    relayed_rgba: tuple = (1.0, 0.75, 0.05, 0.6)
+    capture_rgba: tuple = (0.95, 0.25, 0.15, 0.8)
+    captured_fill_rgba: tuple = (0.35, 0.35, 0.35, 0.55)
+    line_width: float = 2.0
+    ring_width: float = 1.5
+    trail_width: float = 2.5
+    marker_radius: float = 0.1  # m: role disc under each drone, bigger than the 9 cm frame
+    marker_alpha: float = 0.6
+    circle_segments: int = 24  # a 2 m circle is then within 2 cm of round
+    trail_segments: int = 12  # a trail is drawn through at most this many + 1 of its points
+    dash_length: float = 0.1  # m
+
+
+def _rgba(c) -> np.ndarray:
+    return np.asarray(c, dtype=np.float32)
+
+
+class GeomWriter:
+    """Appends decoration geoms to an MjvScene after mjv_updateScene has filled it."""
+
+    def __init__(self, scene: mujoco.MjvScene):
+        self.scene = scene
+        self._geoms = scene.geoms
+
+    def _next(self) -> mujoco.MjvGeom:
+        i = self.scene.ngeom
+        if i >= self.scene.maxgeom:
+            raise RuntimeError(f"render overlays need more than {self.scene.maxgeom} scene geoms")
+        self.scene.ngeom = i + 1
+        return self._geoms[i]
+
+    def line(self, a: np.ndarray, b: np.ndarray, rgba: np.ndarray, width: float) -> None:
+        """A line from a (3,) to b (3,) m world, width in pixels."""
+        g = self._next()
+        mujoco.mjv_initGeom(g, _LINE, np.zeros(3), np.zeros(3), _EYE, rgba)
+        mujoco.mjv_connector(g, _LINE, width, a, b)
+        g.castshadow = 0
+
+    def polyline(self, pts: np.ndarray, rgba: np.ndarray, width: float, fade: bool = False) -> None:
+        """Connected lines through pts (P, 3) m; with fade, alpha rises from 0 to rgba's along the path."""
+        n = len(pts) - 1
+        for k in range(n):
+            c = rgba
+            if fade:
+                c = rgba.copy()
+                c[3] *= (k + 1) / n
+            self.line(pts[k], pts[k + 1], c, width)
+
+    def dashed(self, a: np.ndarray, b: np.ndarray, rgba: np.ndarray, width: float, dash: float) -> None:
+        """A dashed line a -> b (3,) m: dashes and gaps of `dash` m each."""
+        length = float(np.linalg.norm(b - a))
+        n = max(1, int(length / dash))
+        for k in range(0, n, 2):
+            self.line(a + (b - a) * (k / n), a + (b - a) * (min(k + 1, n) / n), rgba, width)
+
+    def disc(self, center: np.ndarray, radius: float, rgba: np.ndarray, mat: np.ndarray = _EYE, thickness: float = 0.002) -> None:
+        """A flat disc (thin cylinder) of `radius` m at center (3,), oriented by mat (9,) row-major."""
+        g = self._next()
+        mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_CYLINDER, np.array([radius, thickness, 0.0]), np.asarray(center, float), np.asarray(mat, float), rgba)
+        g.castshadow = 0
+
+
+def arc_points(center: np.ndarray, radius: float, start: float, stop: float, segments: int) -> np.ndarray:
+    """(segments + 1, 3) points on a horizontal arc from angle start to stop (rad) at center's height."""
+    a = np.linspace(start, stop, segments + 1)
+    pts = np.empty((segments + 1, 3))
+    pts[:, 0] = center[0] + radius * np.cos(a)
+    pts[:, 1] = center[1] + radius * np.sin(a)
+    pts[:, 2] = center[2]
+    return pts
+
+
+def draw_perception(w: GeomWriter, snap, style: OverlayStyle) -> None:
+    """Perception circle (full field of view) or wedge per pursuer; nothing in full observability.
+
+    Outlines only: with the default 2 m radius the circles cover most of the arena, and
+    filled ones would wash it out."""
+    cfg = snap.config
+    if cfg.observability == "full":
+        return
+    r, fov = cfg.perception_radius, cfg.field_of_view
+    ring = _rgba(style.perception_rgba)
+    for i, p in enumerate(snap.pursuer_pos):
+        if fov >= 2 * math.pi - 1e-9:
+            w.polyline(arc_points(p, r, 0.0, 2 * math.pi, style.circle_segments), ring, style.ring_width)
+            continue
+        h = float(snap.heading[i])
+        segs = max(4, int(style.circle_segments * fov / (2 * math.pi)))
+        arc = arc_points(p, r, h - fov / 2, h + fov / 2, segs)
+        w.polyline(np.concatenate([p[None], arc, p[None]]), ring, style.ring_width)
+
+
+def draw_detections(w: GeomWriter, snap, style: OverlayStyle) -> None:
+    """Solid line pursuer -> evader for a direct sighting, dashed for a relayed one."""
+    seen, known, captured = snap.seen, snap.known, snap.captured
+    relayed = known & ~seen & ~captured[None, :]
+    c_seen, c_rel = _rgba(style.seen_rgba), _rgba(style.relayed_rgba)
+    for i, j in zip(*np.nonzero(seen)):
+        w.line(snap.pursuer_pos[i], snap.evader_pos[j], c_seen, style.line_width)
+    for i, j in zip(*np.nonzero(relayed)):
+        w.dashed(snap.pursuer_pos[i], snap.evader_pos[j], c_rel, style.line_width, style.dash_length)
+
+
+def draw_capture_zones(w: GeomWriter, snap, style: OverlayStyle) -> None:
+    """The capture radius around each evader: a ring while free, a grey disc once captured."""
+    r = snap.config.capture_radius
+    ring, fill = _rgba(style.capture_rgba), _rgba(style.captured_fill_rgba)
+    for j, p in enumerate(snap.evader_pos):
+        w.polyline(arc_points(p, r, 0.0, 2 * math.pi, style.circle_segments // 2), ring, style.ring_width)
+        if snap.captured[j]:
+            w.disc(p - [0, 0, 0.01], r, fill)
+
+
+def draw_markers(w: GeomWriter, snap, style: OverlayStyle) -> None:
+    """A translucent role-coloured disc under every drone, tilted with its body."""
+    for role, pos, quat in (("pursuer", snap.pursuer_pos, snap.pursuer_quat), ("evader", snap.evader_pos, snap.evader_quat)):
+        c = _rgba(ROLE_RGBA[role])
+        c[3] = style.marker_alpha
+        mat = np.empty(9)
+        for p, q in zip(pos, quat):
+            mujoco.mju_quat2Mat(mat, np.asarray(q, float))
+            w.disc(p, style.marker_radius, c, mat, thickness=0.001)
+
+
+def draw_trails(w: GeomWriter, trails: np.ndarray, n_pursuers: int, style: OverlayStyle) -> None:
+    """Fading trail per drone; trails (T, D, 3) m world, oldest first, drones in scene order."""
+    if len(trails) < 2:
+        return
+    # every geom costs a draw call, so long trails are thinned (the newest point always kept)
+    stride = -(-(len(trails) - 1) // style.trail_segments)
+    pts = trails[::-1][::stride][::-1]
+    for d in range(trails.shape[1]):
+        c = _rgba(ROLE_RGBA["pursuer" if d < n_pursuers else "evader"])
+        w.polyline(pts[:, d], c, style.trail_width, fade=True)
+
+
+def draw_all(scene: mujoco.MjvScene, snap, trails: np.ndarray, style: OverlayStyle) -> None:
+    """Every decoration of one frame (see module docstring)."""
+    w = GeomWriter(scene)
+    draw_perception(w, snap, style)
+    draw_capture_zones(w, snap, style)
+    draw_trails(w, trails, len(snap.pursuer_pos), style)
+    draw_detections(w, snap, style)
+    draw_markers(w, snap, style)
+
+
+class TrailBuffer:
+    """The last `length` positions of every drone: (T, D, 3) m world, oldest first."""
+
+    def __init__(self, length: int):
+        if length < 0:
+            raise ValueError(f"trail length: {length} must be >= 0 steps")
+        self.length = length
+        self._pts: list[np.ndarray] = []
+
+    def clear(self) -> None:
+        self._pts.clear()
+
+    def push(self, pos: np.ndarray) -> None:
+        """Add one sample, pos (D, 3) m world."""
+        if self.length == 0:
+            return
+        self._pts.append(np.array(pos, dtype=float))
+        if len(self._pts) > self.length:
+            self._pts.pop(0)
+
+    def array(self) -> np.ndarray:
+        if not self._pts:
+            return np.zeros((0, 0, 3))
+        return np.stack(self._pts)

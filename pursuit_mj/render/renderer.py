@@ -1,0 +1,190 @@
+"""Offscreen frames of a pursuit scene: drone poses in, an RGB image (H, W, 3) uint8 out.
+
+`SceneRenderer` owns one GL context and builds its own MjModel from each layout it is given
+(random obstacles give each episode its own layout), with the same scene generator as the
+simulation. It poses the drones from arrays (so it renders live worlds and recorded ones
+alike), runs only MuJoCo's kinematics on a private MjData (never the simulation's), lets a
+caller add decoration geoms, and reads the pixels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Callable
+
+import mujoco
+import numpy as np
+
+from ..config import TaskConfig
+from ..layout import Layout
+from ..scene import DroneIds, SceneSpec, build_model, drone_names
+from .camera import CameraSpec
+from .caption import band_height
+from .gl import create_context
+
+QUALITIES = ("fast", "high")
+OVERLAY_GEOMS = 3000  # decoration geoms available per frame on top of the model's own
+TOP_MARGIN = 0.15  # m of floor shown around the arena in the top view
+FLOOR_GRID = 0.5  # m: rendering grid of the floor plane
+ANGLED_TILT = math.radians(38)  # angled view: camera axis from the vertical, steep enough to see over walls
+
+
+@dataclasses.dataclass(frozen=True)
+class RenderSettings:
+    """Image size (pixels), camera text ('top', 'angled', 'follow:<drone>') and quality.
+
+    quality 'fast': no multisampling or shadows (software GL renders several times faster);
+    'high': 4x multisampling, shadows and reflections.
+    """
+
+    width: int = 640
+    height: int = 480
+    camera: str = "top"
+    quality: str = "fast"
+
+    def check(self, model: mujoco.MjModel) -> None:
+        """Raise ValueError naming the flag if the size or quality cannot be rendered."""
+        for flag, value, limit in (("--width", self.width, model.vis.global_.offwidth), ("--height", self.height, model.vis.global_.offheight)):
+            if not isinstance(value, int) or not 16 <= value <= limit:
+                raise ValueError(f"{flag} {value}: must be an integer in 16..{limit} pixels")
+        if self.quality not in QUALITIES:
+            raise ValueError(f"--quality {self.quality!r}: choose from {', '.join(QUALITIES)}")
+
+
+DrawFn = Callable[[mujoco.MjvScene], None]
+
+
+class SceneRenderer:
+    """Renders the drones of `config` (pursuers then evaders, its fidelity) in scenes of any layout."""
+
+    def __init__(self, settings: RenderSettings, config: TaskConfig, layout: Layout):
+        self.config = config
+        self.names = drone_names(config.n_pursuers, config.n_evaders)
+        self.fidelity = config.fidelity
+        model = self._build(layout)
+        settings.check(model)
+        self.settings = settings
+        self.camera_spec = CameraSpec.parse(settings.camera, model, self.names)
+        self._gl = create_context(settings.width, settings.height)
+        self._rect = mujoco.MjrRect(0, 0, settings.width, settings.height)
+        self._option = mujoco.MjvOption()
+        self._camera = mujoco.MjvCamera()
+        self._layout: Layout | None = None
+        self._model: mujoco.MjModel | None = None
+        self._context: mujoco.MjrContext | None = None
+        self._scene: mujoco.MjvScene | None = None
+        self._pixels = np.empty((settings.height, settings.width, 3), np.uint8)
+        self._bind_model(model, layout)
+
+    # ------------------------------------------------------------------ model binding
+
+    def _build(self, layout: Layout) -> mujoco.MjModel:
+        c = self.config
+        return build_model(SceneSpec(layout, c.n_pursuers, c.n_evaders, c.fidelity, c.physics_dt, c.flight_height))
+
+    def bind(self, layout: Layout) -> None:
+        """Draw the scene of `layout` from now on; free when it is the layout already bound."""
+        if layout is not self._layout:
+            self._bind_model(self._build(layout), layout)
+
+    def _bind_model(self, m: mujoco.MjModel, layout: Layout) -> None:
+        high = self.settings.quality == "high"
+        m.vis.quality.offsamples = 4 if high else 0
+        m.vis.quality.shadowsize = 2048 if high else 0
+        # the scene's overhead light plus MuJoCo's headlight saturate top faces; soften both
+        m.vis.headlight.ambient[:] = 0.3
+        m.vis.headlight.diffuse[:] = 0.3
+        m.vis.headlight.specular[:] = 0.0
+        m.light_diffuse[:] = np.minimum(m.light_diffuse, 0.5)
+        # a plane's third size is its rendering grid spacing; the scene's fine grid costs a
+        # software renderer several ms per frame and adds nothing under a uniform light
+        planes = m.geom_type == mujoco.mjtGeom.mjGEOM_PLANE
+        m.geom_size[planes, 2] = np.maximum(m.geom_size[planes, 2], FLOOR_GRID)
+        cameras = [m.camera(i).name for i in range(m.ncam)]
+        if "top" in cameras:
+            self._frame_top(m, layout)
+        if "angled" in cameras:
+            self._frame_angled(m, layout)
+        self._gl.make_current()
+        if self._context is not None:
+            self._context.free()
+        self._context = mujoco.MjrContext(m, mujoco.mjtFontScale.mjFONTSCALE_100)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
+        self._scene = mujoco.MjvScene(m, maxgeom=m.ngeom + OVERLAY_GEOMS)
+        self._scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = high
+        self._scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = high
+        self._data = mujoco.MjData(m)
+        ids = DroneIds.lookup(m, self.names, self.fidelity)
+        width = 7 if self.fidelity == "quadrotor" else 2
+        self._qpos_idx = ids.qpos_adr[:, None] + np.arange(width)  # (D, width)
+        self._layout, self._model = layout, m
+
+    def _frame_top(self, m: mujoco.MjModel, layout: Layout) -> None:
+        """Make the 'top' camera an orthographic map of the arena, clear of the caption band."""
+        W, H = self.settings.width, self.settings.height
+        band = band_height(H) / H
+        extent = max((layout.height + 2 * TOP_MARGIN) / (1.0 - band), (layout.width + 2 * TOP_MARGIN) * H / W)
+        cam = m.camera("top").id
+        m.cam_projection[cam] = mujoco.mjtProjection.mjPROJ_ORTHOGRAPHIC
+        m.cam_fovy[cam] = extent  # the visible height (m) for an orthographic camera
+        m.cam_pos[cam, :2] = (layout.width / 2, layout.height / 2 + band * extent / 2)  # centred below the band
+
+    def _frame_angled(self, m: mujoco.MjModel, layout: Layout) -> None:
+        """Look at the arena centre from the south, tilted by ANGLED_TILT, far enough to see all of it."""
+        W, H = self.settings.width, self.settings.height
+        cam = m.camera("angled").id
+        half_fov = math.radians(m.cam_fovy[cam]) / 2
+        # the near (south) half is foreshortened least; fit the full depth and the width with margin
+        need = max(layout.height * math.cos(ANGLED_TILT) + 1.2 * math.sin(ANGLED_TILT), layout.width * H / W)
+        dist = 0.62 * need / math.tan(half_fov) / (1.0 - band_height(H) / H)
+        cx, cy = layout.width / 2, layout.height / 2
+        m.cam_pos[cam] = (cx, cy - dist * math.sin(ANGLED_TILT), dist * math.cos(ANGLED_TILT))
+        m.cam_quat[cam] = (math.cos(ANGLED_TILT / 2), math.sin(ANGLED_TILT / 2), 0.0, 0.0)
+
+    @property
+    def scene(self) -> mujoco.MjvScene:
+        return self._scene
+
+    # ------------------------------------------------------------------ frames
+
+    def pose(self, pos: np.ndarray, quat: np.ndarray) -> None:
+        """Place the drones: pos (D, 3) m world, quat (D, 4) w,x,y,z body->world (ignored in point fidelity)."""
+        if self.fidelity == "quadrotor":
+            self._data.qpos[self._qpos_idx] = np.concatenate([pos, quat], axis=-1)
+        else:
+            self._data.qpos[self._qpos_idx] = pos[:, :2]
+        m, d = self._model, self._data
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_camlight(m, d)
+
+    def render(self, pos: np.ndarray, quat: np.ndarray, draw: DrawFn | None = None) -> np.ndarray:
+        """The frame (H, W, 3) uint8 for drones at pos (D, 3) / quat (D, 4); `draw` adds decorations.
+
+        The returned array is reused by the next call: copy it to keep it.
+        """
+        self.pose(pos, quat)
+        self.camera_spec.apply(self._camera, self._model, pos)
+        mujoco.mjv_updateScene(self._model, self._data, self._option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene)
+        if draw is not None:
+            draw(self._scene)
+        self._gl.make_current()
+        mujoco.mjr_render(self._rect, self._scene, self._context)
+        mujoco.mjr_readPixels(self._pixels, None, self._rect, self._context)
+        return self._pixels[::-1]
+
+    def close(self) -> None:
+        if self._context is not None:
+            self._gl.make_current()
+            self._context.free()
+            self._context = None
+        if self._gl is not None:
+            self._gl.free()
+            self._gl = None
+
+    def __enter__(self) -> "SceneRenderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

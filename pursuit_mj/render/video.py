@@ -1,0 +1,109 @@
+"""Writing frames: mp4 (h264) or gif through mediapy's streaming writer, and PNG stills.
+
+Every file is written under a temporary name beside its final one and renamed when complete,
+so an interrupted render never leaves a half-written file under the final name.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import shutil
+from pathlib import Path
+from typing import Iterator
+
+import mediapy
+import numpy as np
+from PIL import Image
+
+from ..io_utils import atomic_path
+
+VIDEO_CODECS = {"mp4": "h264", "gif": "gif"}
+#: h264 settings: mediapy's quality (qp 20) with a faster preset, since the encoder shares
+#: the CPU with the software renderer
+H264_ARGS = {"qp": 20, "ffmpeg_args": ["-preset", "veryfast"]}
+
+
+def video_format(path: str | Path, source: str = "--save-path") -> str:
+    """'mp4' or 'gif' from a file name; ValueError naming `source` for any other extension."""
+    suffix = Path(path).suffix.lower().lstrip(".")
+    if suffix not in VIDEO_CODECS:
+        raise ValueError(f"{source} {path}: unknown video extension {Path(path).suffix or '(none)'!r} (use .mp4 or .gif)")
+    return suffix
+
+
+def ensure_ffmpeg() -> str:
+    """The ffmpeg binary mediapy will use (PATH, else the one bundled with imageio-ffmpeg)."""
+    exe = shutil.which("ffmpeg")
+    if exe is None:
+        try:
+            import imageio_ffmpeg
+
+            exe = imageio_ffmpeg.get_ffmpeg_exe()
+        except (ImportError, RuntimeError) as exc:
+            raise ValueError(f"video writing needs ffmpeg: install it (apt install ffmpeg) or the imageio-ffmpeg package ({exc})") from None
+    mediapy.set_ffmpeg(exe)
+    return exe
+
+
+def check_frame_size(fmt: str, width: int, height: int) -> None:
+    """h264 (yuv420p) needs even sizes: refuse odd ones before rendering anything."""
+    if fmt == "mp4" and (width % 2 or height % 2):
+        raise ValueError(f"--width {width} / --height {height}: mp4 (h264) needs even frame sizes")
+
+
+class VideoFile:
+    """Append frames (H, W, 3) uint8 to `path` (.mp4 or .gif); `close(ok)` renames or discards it."""
+
+    def __init__(self, path: str | Path, width: int, height: int, fps: float):
+        self.path = Path(path)
+        fmt = video_format(self.path)
+        check_frame_size(fmt, width, height)
+        ensure_ffmpeg()
+        self.frames = 0
+        self._atomic = atomic_path(self.path)
+        tmp = self._atomic.__enter__()
+        extra = H264_ARGS if fmt == "mp4" else {}
+        self._writer = mediapy.VideoWriter(tmp, (height, width), fps=fps, codec=VIDEO_CODECS[fmt], **extra)
+        try:
+            self._writer.__enter__()
+        except BaseException as exc:
+            self._atomic.__exit__(type(exc), exc, exc.__traceback__)
+            raise
+
+    def add(self, frame: np.ndarray) -> None:
+        self._writer.add_image(frame)
+        self.frames += 1
+
+    def close(self, ok: bool = True) -> Path | None:
+        if self._writer is None:
+            return None
+        writer, self._writer = self._writer, None
+        if ok:
+            writer.__exit__(None, None, None)
+            self._atomic.__exit__(None, None, None)
+            return self.path
+        err = RuntimeError("video abandoned")
+        with contextlib.suppress(Exception):
+            writer.__exit__(RuntimeError, err, None)
+        with contextlib.suppress(RuntimeError):
+            self._atomic.__exit__(RuntimeError, err, None)
+        return None
+
+
+@contextlib.contextmanager
+def video_file(path: str | Path, width: int, height: int, fps: float) -> Iterator[VideoFile]:
+    """A VideoFile that is completed on success and discarded on any exception (Ctrl-C included)."""
+    v = VideoFile(path, width, height, fps)
+    try:
+        yield v
+    except BaseException:
+        v.close(ok=False)
+        raise
+    v.close(ok=True)
+
+
+def save_png(path: str | Path, frame: np.ndarray) -> Path:
+    """Write frame (H, W, 3) uint8 as a PNG, atomically."""
+    with atomic_path(path) as tmp:
+        Image.fromarray(np.ascontiguousarray(frame)).save(tmp, format="PNG")
+    return Path(path)

@@ -1,0 +1,114 @@
+"""Training curves and evaluation bar charts: what is read, what is drawn, what is refused."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from pursuit_mj.cli import main
+from pursuit_mj.plots import curve_keys, plot_eval, plot_training, read_eval_rows, read_training_log, x_key
+
+
+def _log(path, n=12, scale=1.0, cut_last=False):
+    lines = []
+    for u in range(1, n + 1):
+        lines.append(json.dumps({
+            "update": u, "world_steps": 512 * u,
+            "train": {"success": scale * u / n, "collision": 0.1, "mean_steps": 400 - 10 * u, "episodes": 4},
+            "episode_returns": {"capture": u * 0.5, "progress": 1.0},
+            "validation": {"success": u / (n + 2)} if u % 4 == 0 else {},
+            "loss": {"policy": -0.01, "value": float("nan") if u == 3 else 0.5},
+        }).replace("NaN", "null"))
+    text = "\n".join(lines) + "\n"
+    if cut_last:
+        text += '{"update": 13, "world_st'
+    path.write_text(text)
+    return path
+
+
+def _eval_json(path, policies=("heuristic", "classic"), layouts=("0", "1", "2", "3")):
+    rows = []
+    for i, p in enumerate(policies):
+        for j, l in enumerate(layouts):
+            s = 40 + 10 * i + 5 * j
+            rows.append({"policy": p, "layout": l, "episodes": 150, "success_pct": s, "success_ci_lo": s - 8, "success_ci_hi": s + 8,
+                         "collision_pct": 5, "collision_ci_lo": 2, "collision_ci_hi": 10, "timeout_pct": 100 - s - 5,
+                         "timeout_ci_lo": 90 - s, "timeout_ci_hi": 100 - s, "mean_steps": 300.0, "mean_steps_ci_lo": 280.0,
+                         "mean_steps_ci_hi": 320.0})
+    path.write_text(json.dumps({"episodes": 150, "rows": rows}))
+    return path
+
+
+def _ink(path):
+    """Fraction of pixels that are not background white."""
+    img = np.asarray(Image.open(path).convert("RGB")).astype(int)
+    return (np.abs(img - 255).sum(-1) > 30).mean()
+
+
+def test_training_log_is_flattened_and_a_cut_last_line_is_skipped(tmp_path):
+    rows = read_training_log(_log(tmp_path / "m.jsonl", cut_last=True))
+    assert len(rows) == 12
+    assert rows[0]["train.success"] == pytest.approx(1 / 12) and rows[3]["validation.success"] == pytest.approx(4 / 14)
+    assert "loss.value" not in rows[2] and rows[2]["loss.policy"] == -0.01
+
+
+def test_malformed_line_is_named(tmp_path):
+    p = tmp_path / "bad.jsonl"
+    p.write_text('{"update": 1}\nnot json\n{"update": 2}\n')
+    with pytest.raises(ValueError, match=r"bad.jsonl, line 2: not JSON"):
+        read_training_log(p)
+    with pytest.raises(ValueError, match="file not found"):
+        read_training_log(tmp_path / "none.jsonl")
+
+
+def test_default_curves_and_x_axis(tmp_path):
+    runs = {"a": read_training_log(_log(tmp_path / "a.jsonl"))}
+    assert x_key(runs) == "world_steps"
+    keys = curve_keys(runs)
+    assert keys[:4] == ["train.success", "validation.success", "train.collision", "train.mean_steps"]
+    assert "episode_returns.capture" in keys and "loss.policy" not in keys
+    assert curve_keys(runs, ["policy"]) == ["loss.policy"]
+    with pytest.raises(ValueError, match="--metric 'nope': no such key"):
+        curve_keys(runs, ["nope"])
+    with pytest.raises(ValueError, match="--x 'env_steps': not in every log"):
+        x_key(runs, "env_steps")
+
+
+def test_several_runs_on_one_chart(tmp_path):
+    runs = {"a": read_training_log(_log(tmp_path / "a.jsonl")), "b": read_training_log(_log(tmp_path / "b.jsonl", scale=0.5))}
+    one = plot_training({"a": runs["a"]}, tmp_path / "one", ["train.success"])
+    two = plot_training(runs, tmp_path / "two", ["train.success"])
+    assert one[0].name == two[0].name == "curve_train_success.png"
+    assert _ink(two[0]) > _ink(one[0]), "the second run's line is missing"
+
+
+def test_eval_bars_per_metric(tmp_path):
+    rows = read_eval_rows(_eval_json(tmp_path / "t.json"))
+    paths = plot_eval(rows, tmp_path / "plots")
+    assert [p.name for p in paths] == ["eval_success.png", "eval_collision.png", "eval_timeout.png", "eval_mean_steps.png"]
+    fewer = plot_eval([r for r in rows if r["policy"] == "heuristic"], tmp_path / "fewer")
+    assert _ink(paths[0]) > _ink(fewer[0])
+
+
+def test_eval_json_errors_are_named(tmp_path):
+    p = tmp_path / "e.json"
+    p.write_text(json.dumps({"rows": [{"layout": "0"}]}))
+    with pytest.raises(ValueError, match="row 0 lacks 'policy' or 'layout'"):
+        read_eval_rows(p)
+    p.write_text("{")
+    with pytest.raises(ValueError, match="e.json: not JSON"):
+        read_eval_rows(p)
+
+
+def test_plot_command(tmp_path, capsys):
+    a, b = _log(tmp_path / "a.jsonl"), _log(tmp_path / "b.jsonl", scale=0.7)
+    ev = _eval_json(tmp_path / "t.json")
+    out = tmp_path / "out"
+    assert main(["plot", "--log", f"first={a}", "--log", str(b), "--eval", str(ev), "-o", str(out)]) == 0
+    written = {p.name for p in out.iterdir()}
+    assert {"curve_train_success.png", "curve_train_collision.png", "curve_train_mean_steps.png", "eval_success.png"} <= written
+    assert main(["plot", "-o", str(out)]) == 2
+    assert "nothing to plot" in capsys.readouterr().err

@@ -1,0 +1,176 @@
+"""Offscreen rendering: real videos and images read back, overlays, cameras, atomic files, bad input."""
+
+from __future__ import annotations
+
+import mediapy
+import mujoco
+import numpy as np
+import pytest
+from PIL import Image
+
+from pursuit_mj.config import default_config
+from pursuit_mj.env import PursuitEnv
+from pursuit_mj.layout import load_layout
+from pursuit_mj.policy import RandomPolicy
+from pursuit_mj.render.caption import Caption, band_height, draw_caption
+from pursuit_mj.render.episodes import EpisodeOutputs, FrameMaker, run_episodes
+from pursuit_mj.render.renderer import RenderSettings, SceneRenderer
+from pursuit_mj.render.video import ensure_ffmpeg, video_format
+
+W, H = 160, 120
+CFG = dict(fidelity="point", max_steps=8, layout=1)
+
+
+def small(**changes):
+    return RenderSettings(W, H, changes.pop("camera", "top"), changes.pop("quality", "fast"))
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _ffmpeg():
+    ensure_ffmpeg()
+
+
+def _play(tmp_path, fmt, episodes=1, **cfg):
+    config = default_config(**{**CFG, **cfg})
+    videos = [tmp_path / f"ep{k}.{fmt}" for k in range(episodes)]
+    finals = [tmp_path / f"ep{k}.png" for k in range(episodes)]
+    records = run_episodes(config, RandomPolicy(3), episodes, seed=5, settings=small(), outputs=EpisodeOutputs(videos, finals, fps=10))
+    return records, videos, finals
+
+
+@pytest.mark.parametrize("fmt", ["mp4", "gif"])
+def test_video_is_read_back_with_one_frame_per_state(tmp_path, fmt):
+    (record,), (video,), _ = _play(tmp_path, fmt)
+    frames = mediapy.read_video(video)
+    assert frames.shape == (record.steps + 1, H, W, 3)  # the start state, then one frame per step
+    first, last = frames[0].astype(int), frames[-1].astype(int)
+    assert first.std() > 10, "the first frame is blank"
+    assert np.abs(first - last).mean() > 0.5, "first and last frames are the same: nothing moved on screen"
+    assert list(tmp_path.glob("*.part*")) == []
+
+
+def test_final_frame_png_per_episode_shows_the_outcome(tmp_path):
+    records, _, finals = _play(tmp_path, "mp4", episodes=2)
+    assert [r.outcome for r in records] and all(r.outcome in ("success", "collision", "timeout") for r in records)
+    for rec, path in zip(records, finals):
+        img = np.asarray(Image.open(path).convert("RGB"))
+        assert img.shape == (H, W, 3) and img.std() > 10
+    # the PNG equals the video's last frame up to compression: same caption, same state
+    last = mediapy.read_video(tmp_path / "ep1.mp4")[-1].astype(int)
+    png = np.asarray(Image.open(finals[1]).convert("RGB")).astype(int)
+    assert np.abs(last - png).mean() < 8
+
+
+def test_rendering_does_not_change_the_episode(tmp_path):
+    config = default_config(**CFG)
+    plain = run_episodes(config, RandomPolicy(3), 2, seed=5)
+    drawn = run_episodes(config, RandomPolicy(3), 2, seed=5, settings=small(),
+                         outputs=EpisodeOutputs([tmp_path / "a.gif", tmp_path / "b.gif"], None))
+    assert [(r.outcome, r.steps, r.returns) for r in plain] == [(r.outcome, r.steps, r.returns) for r in drawn]
+
+
+def test_interrupted_render_leaves_no_file_under_the_final_name(tmp_path):
+    class Interrupting(RandomPolicy):
+        calls = 0
+
+        def act(self, obs, spec):
+            Interrupting.calls += 1
+            if Interrupting.calls == 4:
+                raise KeyboardInterrupt
+            return super().act(obs, spec)
+
+    target = tmp_path / "chase.mp4"
+    with pytest.raises(KeyboardInterrupt):
+        run_episodes(default_config(**CFG), Interrupting(0), 1, settings=small(), outputs=EpisodeOutputs([target], None))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_quadrotor_attitude_reaches_the_rendered_model():
+    config = default_config(fidelity="quadrotor")
+    layout = load_layout(0)
+    with SceneRenderer(small(camera="follow:pursuer_0"), config, layout) as r:
+        pos = np.array([[1.0, 1.0, 0.5], [2.0, 1.0, 0.5], [3.0, 1.0, 0.5], [1.8, 4.5, 0.5]])
+        tilt = np.array([np.cos(0.2), np.sin(0.2), 0.0, 0.0])  # 0.4 rad roll
+        level = np.tile([1.0, 0, 0, 0], (4, 1))
+        tilted = level.copy()
+        tilted[0] = tilt
+        img_level = r.render(pos, level).copy()
+        body = r._model.body("pursuer_0/body").id
+        img_tilted = r.render(pos, tilted).copy()
+        np.testing.assert_allclose(r._data.xquat[body], tilt, atol=1e-12)
+        assert np.abs(img_level.astype(int) - img_tilted.astype(int)).sum(-1).astype(bool).sum() > 20, "the tilt is not visible"
+
+
+def test_top_camera_frames_the_whole_arena_below_the_caption():
+    config = default_config(fidelity="point")
+    layout = load_layout(0)
+    with SceneRenderer(RenderSettings(320, 240, "top"), config, layout) as r:
+        m = r._model
+        cam = m.camera("top").id
+        assert m.cam_projection[cam] == mujoco.mjtProjection.mjPROJ_ORTHOGRAPHIC
+        extent = m.cam_fovy[cam]
+        top_edge = m.cam_pos[cam, 1] + extent / 2 - extent * band_height(240) / 240
+        assert m.cam_pos[cam, 1] - extent / 2 < 0.0 and top_edge > layout.height
+        assert extent * 320 / 240 > layout.width
+
+
+def test_caption_band_differs_with_outcome():
+    frame = np.full((H, W, 3), 200, np.uint8)
+    a = draw_caption(frame, Caption("t", 3, 10, 0.3, ""))
+    b = draw_caption(frame, Caption("t", 3, 10, 0.3, "success"))
+    band = band_height(H)
+    assert (a[band:] == frame[band:]).all(), "the caption spills below its band"
+    assert np.abs(a[:band].astype(int) - b[:band].astype(int)).sum() > 0
+
+
+def test_overlays_add_scene_geoms_for_every_element():
+    config = default_config(**CFG)
+    env = PursuitEnv(config, seed=0, auto_reset=False)
+    env.reset()
+    snap = env.snapshot(0)
+    with FrameMaker(config, snap.layout, small(), "t", 5) as maker:
+        maker.push(snap)
+        maker.draw(snap, 0)
+        with_overlays = maker.renderer.scene.ngeom
+        maker.renderer.render(*[np.concatenate(x) for x in ((snap.pursuer_pos, snap.evader_pos), (snap.pursuer_quat, snap.evader_quat))])
+        plain = maker.renderer.scene.ngeom
+    n, m = config.n_pursuers, config.n_evaders
+    circles = n * maker.style.circle_segments + m * (maker.style.circle_segments // 2)
+    assert with_overlays - plain >= circles + n + m  # rings, capture zones, one marker per drone
+
+
+def test_video_format_by_extension():
+    assert video_format("a/b.MP4") == "mp4" and video_format("x.gif") == "gif"
+    with pytest.raises(ValueError, match="unknown video extension '.avi'"):
+        video_format("x.avi")
+
+
+def test_backend_is_chosen_by_trying_when_mujoco_gl_is_unset():
+    import os
+    import subprocess
+    import sys
+
+    code = ("from pursuit_mj.config import default_config\n"
+            "from pursuit_mj.layout import load_layout\n"
+            "from pursuit_mj.render import gl\n"
+            "from pursuit_mj.render.renderer import RenderSettings, SceneRenderer\n"
+            "r = SceneRenderer(RenderSettings(64, 48), default_config(fidelity='point'), load_layout(0))\n"
+            "import numpy as np\n"
+            "img = r.render(np.zeros((4, 3)) + 1.0, np.tile([1.0, 0, 0, 0], (4, 1)))\n"
+            "print(gl.choose_backend(), img.shape, int(img.std() > 1))\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    backend, *rest = out.stdout.split()
+    assert backend in ("egl", "osmesa") and " ".join(rest) == "(48, 64, 3) 1"
+
+
+def test_backend_errors_name_what_to_install(monkeypatch):
+    from pursuit_mj.render import gl
+
+    monkeypatch.setattr(gl, "_chosen", None)
+    monkeypatch.setenv("MUJOCO_GL", "vulkan")
+    with pytest.raises(gl.RenderBackendError, match="MUJOCO_GL='vulkan'.*egl, osmesa, glfw"):
+        gl.choose_backend()
+    text = gl._explain({"egl": "no device", "osmesa": "library not found"})
+    assert "egl: no device" in text and "libegl1" in text and "libosmesa6" in text

@@ -1,0 +1,91 @@
+"""`pursuit-mj render` end to end: outputs and their names, reference flags, models, and bad input refused early."""
+
+from __future__ import annotations
+
+import pytest
+
+from pursuit_mj.cli import main
+from pursuit_mj.render.video import ensure_ffmpeg
+
+W, H = 160, 120
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _ffmpeg():
+    ensure_ffmpeg()
+
+
+def _cli(tmp_path, *extra, policy="random"):
+    who = ["--policy", policy] if policy else []
+    return main(["render", *who, "--fidelity", "point", "--set", "max_steps=5", "--width", str(W), "--height", str(H), *extra])
+
+
+def test_cli_writes_videos_finals_and_reference_flags_work(tmp_path, capsys):
+    out = tmp_path / "renders"
+    code = _cli(tmp_path, "-s", str(out), "--episodes", "2", "--final-frame", "--format", "gif",
+                "-i", "2", "-rv", "0.4", "-ev", "0.5", "--r_perception", "1.5", "--obstacle_num", "2", "--delta_t", "0.1", "-sc")
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "perception_radius: 1.5" in text and "pursuer_speed: 0.4" in text and "random_obstacles: 2" in text
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["random_layout2_point_seed0_ep000.gif", "random_layout2_point_seed0_ep000_final.png",
+                     "random_layout2_point_seed0_ep001.gif", "random_layout2_point_seed0_ep001_final.png"]
+
+
+def test_cli_single_file_and_no_video(tmp_path):
+    assert _cli(tmp_path, "-s", str(tmp_path / "one.mp4")) == 0
+    assert (tmp_path / "one.mp4").is_file()
+    assert _cli(tmp_path, "-s", str(tmp_path / "finals"), "--no-video", "--final-frame", "--episodes", "3") == 0
+    assert len(list((tmp_path / "finals").glob("*_final.png"))) == 3
+    assert not list((tmp_path / "finals").glob("*.mp4"))
+
+
+@pytest.mark.parametrize("args, message", [
+    (["-s", "out.avi"], "unknown video extension '.avi'"),
+    (["-s", "x.mp4", "--format", "gif"], "--format gif contradicts"),
+    (["--camera", "side"], "--camera 'side': no such camera"),
+    (["--camera", "follow:pursuer_7"], "no drone named 'pursuer_7'"),
+    (["-m", "missing.pt"], "--model missing.pt: no such checkpoint file"),
+    (["--width", "161"], "mp4 (h264) needs even frame sizes"),
+    (["--width", "4000"], "--width 4000: must be an integer in 16..1920 pixels"),
+    (["--episodes", "0"], "--episodes: expected an integer >= 1, got 0"),
+    (["--rerun", "x.txt"], "expected a file name ending in .rrd"),
+    (["--no-video"], "leaves nothing to write"),
+])
+def test_cli_refuses_bad_input_before_any_work(tmp_path, capsys, monkeypatch, args, message):
+    monkeypatch.chdir(tmp_path)
+    if args[0] == "-m":
+        args = ["-m", str(tmp_path / "missing.pt")]
+        message = f"--model {tmp_path / 'missing.pt'}: no such checkpoint file"
+    code = main(["render", "--fidelity", "point", "--set", "max_steps=5", *args])
+    assert code == 2
+    assert message in capsys.readouterr().err
+    assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
+
+
+def test_cli_refuses_an_unwritable_save_path(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    assert _cli(tmp_path, "-s", str(blocker / "sub")) == 2
+    assert f"-s {blocker / 'sub'}: cannot create the folder" in capsys.readouterr().err
+
+
+def test_cli_checkpoints_another_observation_spec_refused_matching_one_used(tmp_path, capsys):
+    from train.config import load_train_config
+    from train.trainer import Trainer
+
+    mc = tmp_path / "model.yaml"
+    mc.write_text(f"name: sixteen_rays\nn_envs: 1\nrun: {{runs_dir: {tmp_path}, progress: false}}\ntask: {{fidelity: point, max_steps: 3, layout: 3}}\n")
+    assert main(["render", "-mc", str(mc), "-s", str(tmp_path / "m.mp4")]) == 2
+    assert f"no checkpoint at {tmp_path / 'sixteen_rays' / 'best.pt'}" in capsys.readouterr().err
+    good = Trainer(load_train_config([str(mc)]), log=lambda s: None).save("best.pt")
+    # the same model against a task whose observation has 8 range readings instead of 16
+    assert _cli(tmp_path, "-m", str(good), "--set", "n_rays=8", "-s", str(tmp_path / "o.mp4"), policy=None) == 2
+    assert "observation spec does not match" in capsys.readouterr().err
+    assert not (tmp_path / "o.mp4").exists()
+    assert _cli(tmp_path, "-m", str(good), "-s", str(tmp_path / "g.mp4"), policy=None) == 0
+    assert (tmp_path / "g.mp4").is_file()
+    # -mc: its task is the base (layout 3, 3 steps) and its run's best.pt the model
+    assert main(["render", "-mc", str(mc), "-s", str(tmp_path / "m.mp4"), "--width", str(W), "--height", str(H), "-sc"]) == 0
+    out = capsys.readouterr().out
+    assert "layout: 3" in out and "max_steps: 3" in out and (tmp_path / "m.mp4").is_file()

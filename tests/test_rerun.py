@@ -1,0 +1,193 @@
+"""Rerun recordings read back with rerun's own reader: entities, timelines, values, episodes, atomicity."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pursuit_mj.cli import main
+from pursuit_mj.config import default_config
+from pursuit_mj.env import PursuitEnv
+from pursuit_mj.policy import RandomPolicy
+from pursuit_mj.recording import EnvRecorder, EpisodeBuffer, RerunEpisodeRecording, RerunScalarLogger, check_rrd_path
+from pursuit_mj.recording.rrd_read import read_entities
+from pursuit_mj.render.episodes import run_episodes
+
+
+def _plain_run(config, episodes, seed, policy_seed):
+    """The episodes of run_episodes, stepped by hand with no recorder: per episode, snapshots per state."""
+    env = PursuitEnv(config, n_worlds=1, seed=seed, auto_reset=False)
+    policy = RandomPolicy(policy_seed)
+    obs = env.reset()
+    out = []
+    for k in range(episodes):
+        if k:
+            obs = env.reset_worlds([0])
+        snaps = [env.snapshot(0)]
+        while not env.done[0]:
+            obs, *_ = env.step(policy.act(obs, env.obs_spec))
+            snaps.append(env.snapshot(0))
+        out.append(snaps)
+    return out
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """Two quadrotor episodes recorded through run_episodes, and the same episodes stepped plainly."""
+    config = default_config(fidelity="quadrotor", max_steps=6, layout=2)
+    path = tmp_path_factory.mktemp("rrd") / "two.rrd"
+    with RerunEpisodeRecording(path, trail_length=4) as rec:
+        records = run_episodes(config, RandomPolicy(1), 2, seed=9, recording=rec, title="random")
+    return config, path, records, read_entities(path), _plain_run(config, 2, 9, 1)
+
+
+def test_every_episode_has_its_entities_and_both_timelines(recorded):
+    config, _, records, ent, _ = recorded
+    for k in range(2):
+        p = f"/episode_{k}"
+        for name in ("pursuer_0", "pursuer_1", "pursuer_2", "evader_0"):
+            assert ent[f"{p}/drones/{name}"].n_rows == records[k].steps + 1
+            assert ent[f"{p}/drones/{name}/body"].static
+            assert ent[f"{p}/trails/{name}"].n_rows == records[k].steps + 1
+            assert ent[f"{p}/velocity/{name}/commanded"].n_rows == records[k].steps + 1
+            assert ent[f"{p}/thrust/{name}"].n_rows == records[k].steps + 1
+        for name in ("pursuer_0", "pursuer_1", "pursuer_2"):
+            assert f"{p}/perception/{name}/range" in ent and f"{p}/detections/{name}" in ent and f"{p}/rays/{name}" in ent
+        for term in ("capture", "progress", "collision", "proximity", "spread"):
+            assert ent[f"{p}/reward/{term}"].n_rows == records[k].steps + 1
+        assert "Boxes3D:half_sizes" in ent[f"{p}/arena/boxes"].static or "Cylinders3D:radii" in ent[f"{p}/arena/cylinders"].static
+        rows = ent[f"{p}/drones/pursuer_0"].rows
+        assert rows["step"] == list(range(records[k].steps + 1))
+        np.testing.assert_allclose(rows["sim_time"], np.arange(records[k].steps + 1) * config.control_dt, atol=1e-9)
+
+
+def test_logged_values_equal_the_simulated_ones(recorded):
+    _, _, _, ent, plain = recorded
+    for k, snaps in enumerate(plain):
+        p = f"/episode_{k}"
+        pos = np.array([r[0] for r in ent[f"{p}/drones/pursuer_1"].rows["Transform3D:translation"]])
+        np.testing.assert_allclose(pos, [s.pursuer_pos[1] for s in snaps], atol=1e-6)
+        q = np.array([r[0] for r in ent[f"{p}/drones/evader_0"].rows["Transform3D:quaternion"]])  # x y z w
+        np.testing.assert_allclose(q[:, [3, 0, 1, 2]], [s.evader_quat[0] for s in snaps], atol=1e-6)
+        assert np.abs(q[:, :3]).max() > 1e-4, "quadrotor attitude is missing from the recording"
+        thrust = np.array(ent[f"{p}/thrust/pursuer_2"].rows["Scalars:scalars"])
+        np.testing.assert_allclose(thrust, [s.thrust[2] for s in snaps], rtol=1e-9)
+        cmd = np.array(ent[f"{p}/velocity/pursuer_0/commanded"].rows["Scalars:scalars"])
+        np.testing.assert_allclose(cmd, [s.commands[0] for s in snaps], rtol=1e-9)
+        prog = np.array(ent[f"{p}/reward/progress"].rows["Scalars:scalars"])
+        np.testing.assert_allclose(prog, [s.reward_terms["progress"] for s in snaps], rtol=1e-6)
+        strips = ent[f"{p}/detections/pursuer_0"].rows["LineStrips3D:strips"]
+        assert [len(r) for r in strips] == [int((s.known[0] & ~s.captured).sum()) for s in snaps]
+
+
+def test_recording_does_not_change_the_trajectory(recorded):
+    _, _, records, _, plain = recorded
+    assert [r.steps + 1 for r in records] == [len(s) for s in plain]
+    assert [r.outcome for r in records] == [s[-1].outcome for s in plain]
+
+
+def test_episodes_are_findable_by_property_and_outcome_entity(recorded):
+    from rerun.chunk import RrdReader
+
+    _, path, records, ent, _ = recorded
+    assert len(RrdReader(path).blueprints()) == 1, "no viewer layout (one tab per episode) in the file"
+    for k, rec in enumerate(records):
+        props = ent[f"/__properties/episode_{k}"].static
+        assert props["outcome"] == [rec.outcome] and props["steps"] == [rec.steps] and props["seed"] == [rec.seed]
+        assert props["policy"] == ["random"]
+        log = ent[f"/episode_{k}/outcome"]
+        assert log.rows["TextLog:text"] == [[f"{rec.outcome} after {rec.steps} steps"]]
+        assert log.rows["step"] == [rec.steps]
+
+
+def test_abandoned_recording_leaves_no_file(tmp_path):
+    config = default_config(fidelity="point", max_steps=3)
+    env = PursuitEnv(config, seed=0, auto_reset=False)
+    env.reset()
+    with pytest.raises(RuntimeError, match="boom"):
+        with RerunEpisodeRecording(tmp_path / "x.rrd") as rec:
+            buf = EpisodeBuffer()
+            buf.append(env.snapshot(0))
+            rec.add_episode(buf)
+            raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_rrd_path_is_checked(tmp_path):
+    with pytest.raises(ValueError, match="--rerun .*x.rr: expected a file name ending in .rrd"):
+        check_rrd_path(tmp_path / "x.rr")
+    blocker = tmp_path / "f"
+    blocker.write_text("")
+    with pytest.raises(ValueError, match="cannot create folder"):
+        check_rrd_path(blocker / "a.rrd")
+
+
+def test_scalar_logger_streams_nested_metrics(tmp_path):
+    path = tmp_path / "train.rrd"
+    with RerunScalarLogger(path, run_name="tiny") as log:
+        log.log(100, {"train": {"success": 0.25, "mean_steps": 300}, "lr": 3e-4, "skip": "text", "nan": math.nan})
+        log.log(200, {"train": {"success": 0.5, "mean_steps": 250}, "lr": 2e-4})
+        with pytest.raises(ValueError, match="step must be an integer >= 0"):
+            log.log(-1, {"lr": 1.0})
+    ent = read_entities(path)
+    succ = ent["/train/train/success"].rows
+    assert succ["env_steps"] == [100, 200] and succ["Scalars:scalars"] == [[0.25], [0.5]]
+    assert ent["/train/lr"].rows["Scalars:scalars"] == [[3e-4], [2e-4]]
+    assert "/train/skip" not in ent and "/train/nan" not in ent
+
+
+def test_render_command_records_rerun_without_video(tmp_path, capsys):
+    path = tmp_path / "r.rrd"
+    code = main(["render", "--policy", "random", "--fidelity", "point", "--set", "max_steps=4", "--episodes", "3",
+                 "--no-video", "--rerun", str(path), "-s", str(tmp_path / "unused")])
+    assert code == 0 and "3 episodes" in capsys.readouterr().out
+    assert {f"/__properties/episode_{k}" for k in range(3)} <= set(read_entities(path))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.rrd"]
+
+
+def test_env_recorder_follows_a_multi_world_evaluation_loop(tmp_path):
+    """The loop of pursuit_mj.evaluation.run_episodes (parallel worlds, restarts) with a recorder attached."""
+    config = default_config(fidelity="point", max_steps=5, random_obstacles=0)
+
+    def loop(recorder_path=None, max_episodes=None):
+        env = PursuitEnv(config, n_worlds=3, seed=4, auto_reset=False)
+        policy = RandomPolicy(2)
+        rec = None
+        obs = env.reset()
+        if recorder_path:
+            rec = EnvRecorder(RerunEpisodeRecording(recorder_path), env, {"policy": "random"}, max_episodes)
+            rec.started(range(3))
+        done, started, finals = [], 3, []
+        while len(done) < 5:
+            obs, _, _, _, info = env.step(policy.act(obs, env.obs_spec))
+            if rec:
+                rec.stepped(info)
+            for r in info["episodes"]:
+                done.append(r)
+                finals.append(env.snapshot(r.world).evader_pos.copy())
+            restart = [r.world for r in info["episodes"]][: max(5 - started, 0)]
+            if restart:
+                obs = env.reset_worlds(restart)
+                started += len(restart)
+                if rec:
+                    rec.started(restart)
+        if rec:
+            rec.recording.close()
+        return done, finals
+
+    plain, finals = loop()
+    recorded, _ = loop(tmp_path / "eval.rrd", max_episodes=4)
+    assert [(r.world, r.episode, r.steps, r.outcome) for r in plain] == [(r.world, r.episode, r.steps, r.outcome) for r in recorded]
+    ent = read_entities(tmp_path / "eval.rrd")
+    props = [ent[f"/__properties/episode_{k}"].static for k in range(4)]
+    assert "/__properties/episode_4" not in ent, "max_episodes was not respected"
+    for k, p in enumerate(props):
+        i = next(i for i, r in enumerate(plain) if r.world == p["world"][0] and r.episode == p["episode"][0])
+        assert p["steps"] == [plain[i].steps]
+        last = ent[f"/episode_{k}/drones/evader_0"].rows["Transform3D:translation"][-1][0]
+        np.testing.assert_allclose(last, finals[i][0], atol=1e-6)
+    with RerunEpisodeRecording(tmp_path / "x.rrd") as rec:
+        with pytest.raises(ValueError, match="auto_reset=False"):
+            EnvRecorder(rec, PursuitEnv(config, seed=0))
