@@ -19,17 +19,35 @@ CONFIG_DIR = REPO_ROOT / "configs"
 
 @dataclasses.dataclass(frozen=True)
 class EvaderConfig:
-    """Escape model after Janosov et al. 2017; distances in m, rates in 1/s."""
+    """Escape model after Janosov et al. 2017 (pursuit_mj/evader.py); distances in m, times in s."""
 
     panic_distance: float = spec(1.5, lo=0.0, lo_open=True, help="chaser distance at which panic is full (m)")
     calm_distance: float = spec(3.0, lo=0.0, lo_open=True, help="chaser distance beyond which the evader is calm (m)")
-    zigzag_rate: float = spec(1.0, lo=0.0, help="rate of heading changes when calm (1/s)")
-    zigzag_angle: float = spec(0.8, lo=0.0, hi=math.pi, help="amplitude of random heading changes (rad)")
-    wall_margin: float = spec(0.45, lo=0.0, lo_open=True, help="distance from walls at which repulsion starts (m)")
-    wall_gain: float = spec(1.5, lo=0.0, help="weight of wall repulsion against fleeing")
-    gap_escape: bool = spec(True, help="slip between two closing chasers when it can get there first")
     sense_radius: float = spec(4.0, lo=0.0, lo_open=True, help="how far the evader senses chasers (m)")
-    smoothing: float = spec(0.25, lo=0.0, hi=1.0, help="low-pass factor on heading changes per decision step")
+    lead_time: float = spec(0.3, lo=0.0, hi=2.0, help="how far ahead the evader extrapolates chasers' motion when fleeing (s)")
+    zigzag_rate: float = spec(1.0, lo=0.0, help="rate of random heading changes when calm (1/s)")
+    zigzag_angle: float = spec(0.8, lo=0.0, hi=math.pi, help="amplitude of random heading changes (rad)")
+    room_weight: float = spec(1.0, lo=0.0, help="preference for directions with free room (up to 2 m) over the wanted one")
+    open_weight: float = spec(1.0, lo=0.0, help="preference for paths that end away from obstacles (up to 1 m), out of corners")
+    safety_weight: float = spec(1.0, lo=0.0, help="preference for directions that stay out of the chasers' reach over fleeing straight")
+    wall_margin: float = spec(0.45, lo=0.0, lo_open=True, help="distance from walls and obstacles at which repulsion starts (m)")
+    wall_gain: float = spec(1.5, lo=0.0, help="weight of wall repulsion against fleeing")
+    follow_distance: float = spec(0.8, lo=0.0, lo_open=True, help="an obstacle closer than this ahead turns the evader along it (m)")
+    gap_escape: bool = spec(True, help="slip between two closing chasers when it can get there first")
+    gap_margin: float = spec(0.1, lo=0.0, help="clearance beyond capture_radius it keeps from chasers while slipping through (m)")
+    clearance: float = spec(0.15, lo=0.07, hi=1.0, help="half-width of the look-ahead corridor; closest approach to obstacles it plans for (m)")
+    lookahead_time: float = spec(0.5, lo=0.0, hi=5.0, help="seconds of flight the corridor ahead must be free for")
+    evader_spacing: float = spec(0.6, lo=0.0, help="distance below which evaders push each other apart (m)")
+    evader_gain: float = spec(0.4, lo=0.0, help="weight of the push between evaders")
+    smoothing: float = spec(0.25, lo=0.0, hi=0.9, help="weight of the previous heading in each new heading")
+
+    def validate(self, source: str = "config") -> None:
+        """Cross-field checks; raises ConfigError naming the offending keys."""
+        if self.calm_distance <= self.panic_distance:
+            raise ConfigError(
+                f"{source}: evader.calm_distance {self.calm_distance} must exceed evader.panic_distance "
+                f"{self.panic_distance} (panic rises from calm_distance down to panic_distance)"
+            )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,7 +83,7 @@ class TaskConfig:
     spread_reward: float = spec(0.0, help="reward for spreading out (more_r); 0 = off")
     fidelity: str = spec("quadrotor", choices=("point", "quadrotor"), help="physics fidelity")
     physics_dt: float = spec(0.002, lo=0.0002, hi=0.01, help="MuJoCo timestep (s)")
-    controller_hz: float = spec(250.0, lo=50.0, hi=1000.0, help="quadrotor controller rate (Hz)")
+    controller_hz: float = spec(100.0, lo=50.0, hi=1000.0, help="quadrotor controller rate (Hz)")
     evader: EvaderConfig = spec(default_factory=EvaderConfig, help="escape model settings")
 
     def validate(self, source: str = "config") -> None:

@@ -4,9 +4,12 @@ velocity error -> desired acceleration -> desired thrust vector (tilt + collecti
 altitude held at a reference height) -> attitude error on SO(3) -> desired body rates ->
 rate error -> body torques -> mixer -> four rotor thrusts.
 
-It knows nothing of MuJoCo: `compute(state arrays, command) -> thrusts`. Arrays have a
-leading drone dimension N (any flattening of worlds x drones). Frames: world z up;
-quaternions w, x, y, z (body to world); angular velocity in the body frame.
+It knows nothing of MuJoCo: `compute(state arrays, command) -> thrusts`. Arrays are
+component-major: (components, N) for N drones (any flattening of worlds x drones), so that
+every operation runs over long contiguous rows; this code runs hundreds of times per
+simulated second inside the physics loop. Frames: world z up; quaternions w, x, y, z
+(body to world, unit norm); angular velocity in the body frame. Rotation matrices are
+(9, N): row 3 i + j holds R[i, j], so R.reshape(3, 3, N)[:, j] is body axis j in the world.
 """
 
 from __future__ import annotations
@@ -17,33 +20,76 @@ import numpy as np
 
 GRAVITY = 9.81  # m/s^2
 
+# R (9, N) = _QQ_TO_R @ (q_i q_j for the 10 pairs i <= j) + _R_OFFSET, for unit quaternions
+_PAIR_I = np.array([0, 0, 0, 0, 1, 1, 1, 2, 2, 3])
+_PAIR_J = np.array([0, 1, 2, 3, 1, 2, 3, 2, 3, 3])
+_PAIR = {(int(i), int(j)): k for k, (i, j) in enumerate(zip(_PAIR_I, _PAIR_J))}
+_QQ_TO_R = np.zeros((9, 10))
+_R_OFFSET = np.array([1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0])[:, None]
+for _entry, _terms in {
+    0: ((2, 2, -2), (3, 3, -2)),  # R00 = 1 - 2 (y^2 + z^2)
+    1: ((1, 2, 2), (0, 3, -2)),  # R01 = 2 (x y - w z)
+    2: ((1, 3, 2), (0, 2, 2)),  # R02 = 2 (x z + w y)
+    3: ((1, 2, 2), (0, 3, 2)),  # R10 = 2 (x y + w z)
+    4: ((1, 1, -2), (3, 3, -2)),  # R11 = 1 - 2 (x^2 + z^2)
+    5: ((2, 3, 2), (0, 1, -2)),  # R12 = 2 (y z - w x)
+    6: ((1, 3, 2), (0, 2, -2)),  # R20 = 2 (x z - w y)
+    7: ((2, 3, 2), (0, 1, 2)),  # R21 = 2 (y z + w x)
+    8: ((1, 1, -2), (2, 2, -2)),  # R22 = 1 - 2 (x^2 + y^2)
+}.items():
+    for _i, _j, _c in _terms:
+        _QQ_TO_R[_entry, _PAIR[_i, _j]] += _c
+
+
+# cyclic index shifts for cross products written per component: (a x b)_i = a_{i+1} b_{i+2} - a_{i+2} b_{i+1}
+_NEXT1 = np.array([1, 2, 0])
+_NEXT2 = np.array([2, 0, 1])
+
 
 @dataclasses.dataclass(frozen=True)
 class ControllerGains:
     """Loop gains (SI). Tuned on models/crazyflie.xml; see tests/test_controller.py."""
 
     vel_xy: float = 4.0  # 1/s: desired horizontal acceleration per m/s of velocity error
-    pos_z: float = 12.0  # 1/s^2: vertical acceleration per m of altitude error
-    vel_z: float = 7.0  # 1/s: vertical acceleration per m/s of vertical velocity
+    pos_z: float = 30.0  # 1/s^2: vertical acceleration per m of altitude error
+    vel_z: float = 11.0  # 1/s: vertical acceleration per m/s of vertical velocity (about critical damping)
     int_z: float = 4.0  # 1/s^3: integral of altitude error (battery, lag, drag bias)
-    max_tilt: float = np.radians(15.0)  # rad: limit on the commanded tilt
-    att: np.ndarray = dataclasses.field(default_factory=lambda: np.array([12.0, 12.0, 6.0]))  # 1/s: rate per rad of attitude error
-    rate: np.ndarray = dataclasses.field(default_factory=lambda: np.array([40.0, 40.0, 15.0]))  # 1/s: angular acceleration per rad/s of rate error
+    max_tilt: float = float(np.radians(15.0))  # rad: limit on the commanded tilt
+    att: tuple[float, float, float] = (10.0, 10.0, 6.0)  # 1/s: rate per rad of attitude error
+    rate: tuple[float, float, float] = (40.0, 40.0, 15.0)  # 1/s: angular acceleration per rad/s of rate error
     max_rate: float = 6.0  # rad/s: limit on the commanded body rates
 
 
 def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (N, 3, 3) from quaternions (N, 4) w, x, y, z (body to world)."""
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
+    """Rotation matrices (9, N), row 3 i + j = R[i, j], from unit quaternions (4, N) w, x, y, z."""
+    return _QQ_TO_R @ (q[_PAIR_I] * q[_PAIR_J]) + _R_OFFSET
+
+
+def tilt_angle(q: np.ndarray) -> np.ndarray:
+    """Angle (...) rad between body z and world z for unit quaternions (..., 4) w, x, y, z."""
+    cos_tilt = 1.0 - 2.0 * (q[..., 1] ** 2 + q[..., 2] ** 2)
+    return np.arccos(np.clip(cos_tilt, -1.0, 1.0))
+
+
+def check_symmetric_drag(coeff: np.ndarray, source: str = "drag coefficients") -> None:
+    """ValueError unless the body-frame drag coefficients (3,) N s/m have equal x and y."""
+    coeff = np.asarray(coeff)
+    if coeff.shape != (3,) or coeff[0] != coeff[1] or not np.isfinite(coeff).all():
+        raise ValueError(f"{source}: expected 3 finite body-frame values with x == y, got {coeff.tolist()}")
+
+
+def linear_drag(rot: np.ndarray, vel: np.ndarray, coeff: np.ndarray) -> np.ndarray:
+    """World-frame drag force (3, N) N: -R diag(coeff) R^T v.
+
+    rot (9, N) body->world, vel (3, N) m/s world, coeff (3,) N s/m along body x, y, z with
+    x == y (a rotor-symmetric airframe; see check_symmetric_drag), so that
+    R diag(coeff) R^T = c_xy I + (c_z - c_xy) b3 b3^T with b3 the body z axis.
+    """
+    b3 = rot[2::3]
+    along = (vel * b3).sum(0) * (coeff[0] - coeff[2])
+    out = vel * -coeff[0]
+    out += along * b3
+    return out
 
 
 def mixer_matrix(motor_xy: np.ndarray, yaw_ratio: np.ndarray) -> np.ndarray:
@@ -58,18 +104,28 @@ class VelocityController:
     """Tracks a world-frame planar velocity at a constant altitude with yaw held at zero."""
 
     def __init__(self, params: dict, flight_height: float, gains: ControllerGains | None = None):
-        self.gains = gains or ControllerGains()
+        g = self.gains = gains or ControllerGains()
         self.mass = float(params["mass"])
-        self.inertia = np.asarray(params["inertia"], dtype=np.float64)  # (3,)
+        self.inertia = np.asarray(params["inertia"], dtype=np.float64)  # (3,) kg m^2, body axes
         self.max_thrust = float(params["max_thrust"])
         self.drag = np.asarray(params["drag"], dtype=np.float64)  # (3,) N s/m, body frame
+        check_symmetric_drag(self.drag, "controller drag parameters")
         self.flight_height = float(flight_height)
-        self.mix_inv = np.linalg.inv(mixer_matrix(np.asarray(params["motor_xy"]), np.asarray(params["yaw_ratio"])))
-        self._z_integral: np.ndarray | None = None
+        self.mixer_inv = np.linalg.inv(mixer_matrix(np.asarray(params["motor_xy"]), np.asarray(params["yaw_ratio"])))
+        m = self.mass
+        self._k_xy = m * g.vel_xy
+        self._k_z = (m * g.pos_z, m * g.vel_z, m * g.int_z, m * GRAVITY)
+        self._min_fz = 0.2 * m * GRAVITY
+        self._tan_tilt = float(np.tan(g.max_tilt))
+        self._att = -0.5 * np.asarray(g.att, dtype=np.float64)[:, None]  # the 1/2 of vee(P - P^T) / 2
+        self._rate_inertia = (self.inertia * np.asarray(g.rate, dtype=np.float64))[:, None]
+        # omega x (I omega) = omega[_NEXT1] * omega[_NEXT2] * (I[_NEXT2] - I[_NEXT1])
+        self._gyro = (self.inertia[_NEXT2] - self.inertia[_NEXT1])[:, None]
+        self._z_integral = np.zeros(0)
 
     def reset(self, n: int, mask: np.ndarray | None = None) -> None:
         """Clear the altitude integrator of all N drones, or of those where mask (N,) is True."""
-        if self._z_integral is None or self._z_integral.shape[0] != n or mask is None:
+        if self._z_integral.shape[0] != n or mask is None:
             self._z_integral = np.zeros(n)
         else:
             self._z_integral[mask] = 0.0
@@ -82,47 +138,71 @@ class VelocityController:
         angvel: np.ndarray,
         v_cmd: np.ndarray,
         dt: float,
+        rot: np.ndarray | None = None,
+        drag: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Rotor thrusts (N, 4) in N, clipped to [0, max_thrust].
+        """Rotor thrusts (4, N) in N, clipped to [0, max_thrust].
 
-        pos (N, 3) m world, vel (N, 3) m/s world, quat (N, 4) body->world, angvel (N, 3)
-        rad/s body, v_cmd (N, 2) m/s world; dt (s) is the time since the last call.
+        pos (3, N) m world, vel (3, N) m/s world, quat (4, N) body->world, angvel (3, N)
+        rad/s body, v_cmd (2, N) m/s world; dt (s) is the time since the last call;
+        rot (9, N) the rotation matrices of quat (see quat_to_rotmat) and drag (3, N) N the
+        drag force on each drone now (see linear_drag), if the caller already has them.
         """
-        g = self.gains
-        n = pos.shape[0]
-        if self._z_integral is None or self._z_integral.shape[0] != n:
+        n = pos.shape[1]
+        if self._z_integral.shape[0] != n:
             self.reset(n)
-        R = quat_to_rotmat(quat)
+        R = quat_to_rotmat(quat) if rot is None else rot
+        b3 = R[2::3]  # body z axis in the world (3, N)
 
-        # 1. velocity loop -> desired acceleration (world), drag compensated at the command
-        z_err = self.flight_height - pos[:, 2]
-        self._z_integral = np.clip(self._z_integral + z_err * dt, -0.2, 0.2)
-        acc = np.empty((n, 3))
-        acc[:, :2] = g.vel_xy * (v_cmd - vel[:, :2])
-        acc[:, 2] = g.pos_z * z_err - g.vel_z * vel[:, 2] + g.int_z * self._z_integral
-        drag_world = np.einsum("nij,j,nkj,nk->ni", R, self.drag, R, vel)  # R diag(d) R^T v
-        force = self.mass * (acc + np.array([0.0, 0.0, GRAVITY])) + drag_world
+        # 1. velocity loop -> desired force (world), with the drag at the current velocity cancelled
+        z_err = self.flight_height - pos[2]
+        zi = self._z_integral
+        zi += z_err * dt
+        np.minimum(np.maximum(zi, -0.2, out=zi), 0.2, out=zi)
+        force = linear_drag(R, vel, -self.drag) if drag is None else -drag
+        force[:2] += self._k_xy * (v_cmd - vel[:2])
+        kp, kd, ki, weight = self._k_z
+        fz = kp * z_err
+        fz -= kd * vel[2]
+        fz += ki * zi
+        fz += weight
+        fz += force[2]
 
-        # 2. limit the tilt of the desired thrust direction
-        fz = np.maximum(force[:, 2], 0.2 * self.mass * GRAVITY)
-        fxy = force[:, :2]
-        fxy_max = fz * np.tan(g.max_tilt)
-        scale = np.minimum(1.0, fxy_max / np.maximum(np.linalg.norm(fxy, axis=1), 1e-9))
-        force = np.column_stack([fxy * scale[:, None], fz])
-        z_des = force / np.linalg.norm(force, axis=1, keepdims=True)
-        thrust = np.einsum("ni,ni->n", force, R[:, :, 2])  # collective thrust along body z
+        # 2. limit the tilt of the desired thrust direction (and keep some thrust upward)
+        np.maximum(fz, self._min_fz, out=fz)
+        force[2] = fz
+        fxy = np.hypot(force[0], force[1])
+        scale = np.minimum(1.0, fz * self._tan_tilt / np.maximum(fxy, 1e-12))
+        force[:2] *= scale
+        thrust = (force * b3).sum(0)  # collective thrust along the current body z
+        z_des = force / np.hypot(fxy * scale, fz)
 
-        # 3. attitude: desired frame with yaw 0 (x_c = world x), error e_R = vee(Rd^T R - R^T Rd)/2
-        y_des = np.cross(z_des, np.array([1.0, 0.0, 0.0]))
-        y_des /= np.linalg.norm(y_des, axis=1, keepdims=True)
-        x_des = np.cross(y_des, z_des)
-        Rd = np.stack([x_des, y_des, z_des], -1)
-        E = np.einsum("nji,njk->nik", Rd, R) - np.einsum("nji,njk->nik", R, Rd)
-        e_R = 0.5 * np.stack([E[:, 2, 1], E[:, 0, 2], E[:, 1, 0]], -1)
-        rate_des = np.clip(-g.att * e_R, -g.max_rate, g.max_rate)
+        # 3. attitude error e_R = vee(Rd^T R - R^T Rd) / 2 for the desired frame of yaw 0:
+        # x_des = (s, -a b / s, -a c / s), y_des = (0, c / s, -b / s), z_des = (a, b, c)
+        a = z_des[0]
+        inv_s = 1.0 / np.hypot(z_des[1], z_des[2])
+        des = np.empty((3, 3, n))  # rows x_des, y_des, z_des
+        des[0, 0] = 1.0 / inv_s
+        des[0, 1:] = z_des[1:] * (-a * inv_s)
+        des[1, 0] = 0.0
+        des[1, 1] = z_des[2] * inv_s
+        des[1, 2] = -z_des[1] * inv_s
+        des[2] = z_des
+        cols = R.reshape(3, 3, n).transpose(1, 0, 2)  # body axes x, y, z in the world
+        # vee(P - P^T) with P_ij = des_i . col_j: (P21 - P12, P02 - P20, P10 - P01)
+        e2 = (des[_NEXT2] * cols[_NEXT1]).sum(1)
+        e2 -= (des[_NEXT1] * cols[_NEXT2]).sum(1)
+        rate_des = self._att * e2
+        max_rate = self.gains.max_rate
+        np.minimum(np.maximum(rate_des, -max_rate, out=rate_des), max_rate, out=rate_des)
 
-        # 4. rates -> torques (with gyroscopic term), then the mixer
-        Iw = self.inertia * angvel
-        torque = self.inertia * (g.rate * (rate_des - angvel)) + np.cross(angvel, Iw)
-        wrench = np.column_stack([thrust, torque])
-        return np.clip(wrench @ self.mix_inv.T, 0.0, self.max_thrust)
+        # 4. rates -> torques (with the gyroscopic term), then the mixer
+        wrench = np.empty((4, n))
+        wrench[0] = thrust
+        rate_des -= angvel
+        wrench[1:] = self._rate_inertia * rate_des
+        gyro = angvel[_NEXT1] * angvel[_NEXT2]
+        gyro *= self._gyro
+        wrench[1:] += gyro
+        out = self.mixer_inv @ wrench
+        return np.minimum(np.maximum(out, 0.0, out=out), self.max_thrust, out=out)

@@ -263,7 +263,10 @@ class PursuitEnv:
         )
         evader_cmd = np.where((free_before & active[:, None])[..., None], evader_cmd, 0.0)
         pursuer_cmd = a * cfg.pursuer_speed * active[:, None, None]
-        contacts = self.physics.step(np.concatenate([pursuer_cmd, evader_cmd], axis=1))
+        contacts = self.physics.step(np.concatenate([pursuer_cmd, evader_cmd], axis=1), strict=False)
+        # a world whose physics went bad (a violent crash) ends as a collision
+        diverged = self.physics.diverged & active
+        contacts[diverged] = True
 
         pos = self.physics.positions()[..., :2]
         vel = self.physics.velocities()[..., :2]
@@ -271,6 +274,7 @@ class PursuitEnv:
         self.heading = np.where(speed > HEADING_MIN_SPEED, np.arctan2(vel[:, :N, 1], vel[:, :N, 0]), self.heading)
         events = detect_events(pos[:, :N], pos[:, N:], self.captured, contacts[:, :N], self._obstacles, cfg)
         terms = reward_terms(cfg, events, pos0[:, :N], pos[:, :N], pos[:, N:], pos0[:, N:], free_before)
+        terms["progress"][diverged] = 0.0  # positions of a diverged world are not meaningful
         for k in terms:
             terms[k] = terms[k] * active[:, None]
         self.captured |= events.new_captures & active[:, None]

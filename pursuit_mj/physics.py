@@ -2,9 +2,10 @@
 
 `BatchedPhysics.step(commands)` advances every world by one decision interval (control_dt).
 In quadrotor fidelity the cascaded controller runs every `substeps_per_control` physics
-steps, vectorised over all drones of all worlds; in point fidelity the planar velocity
-actuators need no Python between steps. Contacts are read from each drone's contact sensor
-at every controller tick and reported per drone.
+steps, vectorised over all drones of all worlds, between MuJoCo calls that each advance all
+worlds by those physics steps. In point fidelity the planar velocity actuators need no
+Python between physics steps: the whole interval is one MuJoCo call. Either way MuJoCo
+records each drone's contact sensor after every physics step, so that no touch is missed.
 
 State arrays are shaped (n_worlds, n_drones, ...): drones in `drone_names` order (pursuers
 first), positions and linear velocities in the world (= layout) frame, m and m/s.
@@ -13,18 +14,21 @@ first), positions and linear velocities in the world (= layout) frame, m and m/s
 from __future__ import annotations
 
 import dataclasses
-from typing import Sequence
+from typing import Callable, Sequence
 
 import mujoco
 import mujoco.batch
 import numpy as np
 
 from .config import TaskConfig
-from .controller import VelocityController
+from .controller import VelocityController, check_symmetric_drag, linear_drag, quat_to_rotmat
 from .layout import Layout
 from .scene import DroneIds, SceneSpec, build_model, drone_names, drone_parameters
 
 UNIT_QUAT = np.array([1.0, 0.0, 0.0, 0.0])
+WARNING_NAMES = {int(v): k.removeprefix("mjWARN_") for k, v in mujoco.mjtWarning.__members__.items() if k != "mjNWARNING"}
+#: spare static geoms per world beyond the largest layout given, for new random obstacles
+SPARE_SLOTS = 4
 
 
 @dataclasses.dataclass
@@ -44,7 +48,10 @@ class DroneState:
 
 def check_commands(commands: np.ndarray, shape: tuple[int, ...], source: str = "commands") -> np.ndarray:
     """Validate a command array: exact shape, finite values. Raises ValueError naming the problem."""
-    arr = np.asarray(commands, dtype=np.float64)
+    try:
+        arr = np.asarray(commands, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{source}: expected a numeric array of shape {shape}, got {type(commands).__name__}") from None
     if arr.shape != shape:
         raise ValueError(f"{source}: expected shape {shape} (worlds, drones, vx vy), got {arr.shape}")
     if not np.isfinite(arr).all():
@@ -55,55 +62,54 @@ def check_commands(commands: np.ndarray, shape: tuple[int, ...], source: str = "
 
 def clip_speed(v: np.ndarray, max_speed: np.ndarray) -> np.ndarray:
     """Scale planar velocities (..., 2) down to at most max_speed (...,) m/s, keeping direction."""
-    norm = np.linalg.norm(v, axis=-1)
+    norm = np.hypot(v[..., 0], v[..., 1])
     scale = np.minimum(1.0, max_speed / np.maximum(norm, 1e-12))
     return v * scale[..., None]
+
+
+def _layout_slots(layout: Layout) -> int:
+    return len(layout.obstacles) + len(layout.border())
 
 
 class BatchedPhysics:
     """n_worlds MuJoCo worlds of one task; each world may carry its own layout instance.
 
-    All worlds must share model sizes: layouts are padded to `obstacle_slots` static geoms.
+    All worlds share model sizes: layouts are padded to `obstacle_slots` static geoms,
+    enough for the largest layout given plus `config.random_obstacles` random ones (or
+    `obstacle_slots` if given). A later `set_layouts` with a larger layout rebuilds the
+    batch with more slots, carrying every world's state over.
+
+    `observers`: callables f(physics) run after every physics chunk of `step` (each
+    controller tick in quadrotor fidelity, the whole interval in point fidelity). They may
+    read state; they must not change it.
     """
 
-    def __init__(self, config: TaskConfig, layouts: Sequence[Layout], nthread: int = 0):
+    def __init__(self, config: TaskConfig, layouts: Sequence[Layout], nthread: int = 0, obstacle_slots: int | None = None):
         self.config = config
         self.n_worlds = len(layouts)
         if self.n_worlds < 1:
-            raise ValueError("BatchedPhysics needs at least one world")
+            raise ValueError("BatchedPhysics: layouts is empty; it needs one layout per world (at least one)")
         self.names = drone_names(config.n_pursuers, config.n_evaders)
         self.n_drones = len(self.names)
         self.fidelity = config.fidelity
+        self.nthread = nthread
         self.params = drone_parameters()
-        self.obstacle_slots = max(len(l.obstacles) + len(l.border()) for l in layouts) + 8
+        self.drag = np.asarray(self.params["drag"], dtype=np.float64)
+        check_symmetric_drag(self.drag, "models/crazyflie.xml numeric 'drag'")
         self.layouts = list(layouts)
-        self.models = [self._build(l) for l in layouts]
-        base = self.models[0]
-        self.ids = DroneIds.lookup(base, self.names, self.fidelity)
-        self.batch = mujoco.batch.Batch(base, self.n_worlds, nthread=nthread)
-        self._set_models()
-        self.qpos = self.batch.bind("qpos")
-        self.qvel = self.batch.bind("qvel")
-        self.ctrl = self.batch.bind("ctrl")
-        self.sensordata = self.batch.bind("sensordata")
-        D = self.n_drones
-        if self.fidelity == "quadrotor":
-            self.act = self.batch.bind("act")
-            self.xfrc = self.batch.bind("xfrc_applied")
-            self._qpos_idx = self.ids.qpos_adr[:, None] + np.arange(7)  # (D, 7)
-            self._qvel_idx = self.ids.qvel_adr[:, None] + np.arange(6)  # (D, 6)
-            self._ctrl_idx = self.ids.ctrl_adr[:, None] + np.arange(4)  # (D, 4)
-            self._act_idx = np.array([base.actuator_actadr[a] for a in self._ctrl_idx.ravel()]).reshape(D, 4)
-            self.controller = VelocityController(self.params, config.flight_height)
-            self.controller.reset(self.n_worlds * D)
-        else:
-            self._qpos_idx = self.ids.qpos_adr[:, None] + np.arange(2)
-            self._qvel_idx = self.ids.qvel_adr[:, None] + np.arange(2)
-            self._ctrl_idx = self.ids.ctrl_adr[:, None] + np.arange(2)
+        needed = max(_layout_slots(l) for l in self.layouts) + config.random_obstacles + SPARE_SLOTS
+        self.obstacle_slots = max(needed, obstacle_slots or 0)
+        self.models = self._build_all(self.layouts)
+        self.ids = DroneIds.lookup(self.models[0], self.names, self.fidelity)
         self.max_speed = np.array([config.pursuer_speed] * config.n_pursuers + [config.evader_speed] * config.n_evaders)
-        self.commands = np.zeros((self.n_worlds, D, 2))  # last applied command, m/s world
-        self.contacts = np.zeros((self.n_worlds, D), bool)  # any contact in the last step
+        self.commands = np.zeros((self.n_worlds, self.n_drones, 2))  # last applied command, m/s world
+        self.contacts = np.zeros((self.n_worlds, self.n_drones), bool)  # any contact in the last step
         self.time = np.zeros(self.n_worlds)  # s since each world's reset
+        self.observers: list[Callable[["BatchedPhysics"], None]] = []
+        if self.fidelity == "quadrotor":
+            self.controller = VelocityController(self.params, config.flight_height)
+            self.controller.reset(self.n_worlds * self.n_drones)
+        self._make_batch()
         self.reset_all_default()
 
     # ------------------------------------------------------------------ models and layouts
@@ -111,6 +117,54 @@ class BatchedPhysics:
     def _build(self, layout: Layout) -> mujoco.MjModel:
         c = self.config
         return build_model(SceneSpec(layout, c.n_pursuers, c.n_evaders, c.fidelity, c.physics_dt, c.flight_height, self.obstacle_slots))
+
+    def _build_all(self, layouts: Sequence[Layout]) -> list[mujoco.MjModel]:
+        """One model per world; worlds given the same Layout object share one model."""
+        built: dict[int, mujoco.MjModel] = {}
+        for layout in layouts:
+            if id(layout) not in built:
+                built[id(layout)] = self._build(layout)
+        return [built[id(layout)] for layout in layouts]
+
+    def _make_batch(self, state: np.ndarray | None = None) -> None:
+        """(Re)create the batch on self.models, optionally restoring state rows, and bind arrays."""
+        self.batch = mujoco.batch.Batch(self.models[0], self.n_worlds, nthread=self.nthread)
+        self._set_models()
+        if state is not None:
+            self.batch.state[:] = state
+        b = self.batch
+        # state fields only: an output field bound here would be copied out after every call
+        self.qpos, self.qvel, self.ctrl = b.bind("qpos"), b.bind("qvel"), b.bind("ctrl")
+        self._mj_time = b.bind("time")
+        self._warnings = b.warning[:, :, 1].copy()  # MuJoCo warning counts (W, kinds) at the last check
+        self.diverged = np.zeros(self.n_worlds, bool)  # worlds whose last step went bad (strict=False)
+        base, D = self.models[0], self.n_drones
+        self._state = b.state
+
+        def column(view: np.ndarray) -> int:  # first state column of a bound state field
+            return (view.__array_interface__["data"][0] - self._state.__array_interface__["data"][0]) // self._state.itemsize
+
+        if self.fidelity == "quadrotor":
+            self.act, self.xfrc = b.bind("act"), b.bind("xfrc_applied")
+            self._qpos_idx = self.ids.qpos_adr[:, None] + np.arange(7)  # (D, 7)
+            self._qvel_idx = self.ids.qvel_adr[:, None] + np.arange(6)  # (D, 6)
+            self._ctrl_idx = self.ids.ctrl_adr[:, None] + np.arange(4)  # (D, 4)
+            self._act_idx = base.actuator_actadr[self._ctrl_idx]  # (D, 4)
+            # One gather of (qpos 7, qvel 6) and one scatter of (rotor thrust 4, drag force 3)
+            # per tick, through the transposed state: arrays (components, D, W), drone-major.
+            read = np.concatenate([column(self.qpos) + self._qpos_idx, column(self.qvel) + self._qvel_idx], 1)
+            self._read_cols = np.ascontiguousarray(read.T)  # (13, D)
+            force_cols = column(self.xfrc) + 6 * self.ids.body[:, None] + np.arange(3)
+            self._write_cols = np.ascontiguousarray(np.concatenate([column(self.ctrl) + self._ctrl_idx, force_cols], 1).T)  # (7, D)
+            self._out = np.empty((7, D * self.n_worlds))
+            per_tick = self.config.substeps_per_control
+            self._record = {"sensordata": np.empty((self.n_worlds, per_tick, base.nsensordata))}
+        else:
+            self._qpos_idx = self.ids.qpos_adr[:, None] + np.arange(2)
+            self._qvel_idx = self.ids.qvel_adr[:, None] + np.arange(2)
+            self._ctrl_idx = self.ids.ctrl_adr[:, None] + np.arange(2)
+            self._write_cols = (column(self.ctrl) + self._ctrl_idx).ravel()
+            self._record = {"sensordata": np.empty((self.n_worlds, self.config.substeps, base.nsensordata))}
 
     def _set_models(self) -> None:
         if self.n_worlds == 1 or all(m is self.models[0] for m in self.models):
@@ -120,52 +174,82 @@ class BatchedPhysics:
 
     def set_layouts(self, world_ids: Sequence[int], layouts: Sequence[Layout]) -> None:
         """Give the listed worlds new layout instances (new random obstacles); reset them after."""
-        for w, layout in zip(world_ids, layouts):
-            if len(layout.obstacles) + len(layout.border()) > self.obstacle_slots:
-                raise ValueError(f"layout {layout.source}: {len(layout.obstacles)} obstacles exceed the {self.obstacle_slots} slots this batch was built with")
+        ids = self._world_ids(world_ids, "set_layouts world_ids")
+        layouts = list(layouts)
+        if len(layouts) != len(ids):
+            raise ValueError(f"set_layouts: {len(ids)} world ids but {len(layouts)} layouts")
+        need = max([_layout_slots(l) for l in layouts] + [0])
+        for w, layout in zip(ids, layouts):
             self.layouts[w] = layout
-            self.models[w] = self._build(layout)
+        if need > self.obstacle_slots:
+            # more static geoms than the models have: rebuild every world at the new size
+            self.obstacle_slots = need + SPARE_SLOTS
+            state = self._state.copy()
+            self.models = self._build_all(self.layouts)
+            self._make_batch(state)
+            return
+        for w, model in zip(ids, self._build_all(layouts)):
+            self.models[w] = model
         self._set_models()
 
     def model(self, world: int = 0) -> mujoco.MjModel:
+        """The compiled MjModel of one world (its layout's obstacles; same sizes in every world)."""
         return self.models[world]
+
+    def _world_ids(self, world_ids: Sequence[int] | np.ndarray, source: str) -> np.ndarray:
+        ids = np.asarray(world_ids)
+        if ids.ndim != 1 or (ids.size and not np.issubdtype(ids.dtype, np.integer)):
+            raise ValueError(f"{source}: expected a 1-D list of world indices, got {world_ids!r}")
+        ids = ids.astype(np.int64)
+        if ids.size and (ids.min() < 0 or ids.max() >= self.n_worlds):
+            raise ValueError(f"{source}: world index out of range 0..{self.n_worlds - 1} in {ids.tolist()}")
+        if len(np.unique(ids)) != len(ids):
+            raise ValueError(f"{source}: repeated world index in {ids.tolist()}")
+        return ids
 
     # ------------------------------------------------------------------ reset
 
     def reset_all_default(self) -> None:
+        """Every world at rest with its drones on a row near the lower-left corner."""
         xy = np.zeros((self.n_worlds, self.n_drones, 2))
         xy[..., 0] = 0.3 + 0.3 * np.arange(self.n_drones)
         xy[..., 1] = 0.3
         self.reset(np.arange(self.n_worlds), xy)
 
     def reset(self, world_ids: Sequence[int] | np.ndarray, xy: np.ndarray) -> None:
-        """Place the drones of the listed worlds at rest at xy (k, D, 2) m, at flight height."""
-        ids = np.asarray(world_ids, dtype=np.int64)
+        """Place the drones of the listed worlds at rest at xy (k, D, 2) m, at flight height.
+
+        Other worlds are untouched.
+        """
+        ids = self._world_ids(world_ids, "reset world_ids")
         xy = np.asarray(xy, dtype=np.float64)
         if xy.shape != (len(ids), self.n_drones, 2):
-            raise ValueError(f"reset positions: expected shape {(len(ids), self.n_drones, 2)}, got {xy.shape}")
+            raise ValueError(f"reset positions: expected shape {(len(ids), self.n_drones, 2)} (worlds, drones, x y), got {xy.shape}")
+        if not np.isfinite(xy).all():
+            raise ValueError(f"reset positions: non-finite value in {xy.tolist()}")
         if len(ids) == 0:
             return
         self.batch.reset(ids, stage=mujoco.mjtStage.mjSTAGE_NONE)
         qpos = self.qpos[ids]
         if self.fidelity == "quadrotor":
-            full = np.concatenate([xy, np.full(xy.shape[:-1] + (1,), self.config.flight_height), np.broadcast_to(UNIT_QUAT, xy.shape[:-1] + (4,))], -1)
-            qpos[:, self._qpos_idx] = full
-            hover = self.params["mass"] * 9.81 / 4
+            height = np.full(xy.shape[:-1] + (1,), self.config.flight_height)
+            qpos[:, self._qpos_idx] = np.concatenate([xy, height, np.broadcast_to(UNIT_QUAT, xy.shape[:-1] + (4,))], -1)
+            hover = self.params["mass"] * 9.81 / 4  # rotors already spinning at hover thrust
             act = self.act[ids]
             act[:, self._act_idx] = hover
             self.act[ids] = act
             ctrl = self.ctrl[ids]
             ctrl[:, self._ctrl_idx] = hover
             self.ctrl[ids] = ctrl
-            mask = np.zeros((self.n_worlds, self.n_drones), bool)
-            mask[ids] = True
+            mask = np.zeros((self.n_drones, self.n_worlds), bool)  # the controller's drone-major order
+            mask[:, ids] = True
             self.controller.reset(self.n_worlds * self.n_drones, mask.ravel())
         else:
             qpos[:, self._qpos_idx] = xy
         self.qpos[ids] = qpos
         self.qvel[ids] = 0.0
         self.batch.forward(ids)
+        self._warnings[ids] = self.batch.warning[ids, :, 1]
         self.commands[ids] = 0.0
         self.contacts[ids] = False
         self.time[ids] = 0.0
@@ -173,7 +257,7 @@ class BatchedPhysics:
     # ------------------------------------------------------------------ state
 
     def positions(self) -> np.ndarray:
-        """(W, D, 3) m world."""
+        """(W, D, 3) m world (a copy)."""
         if self.fidelity == "quadrotor":
             return self.qpos[:, self._qpos_idx[:, :3]]
         p = np.empty((self.n_worlds, self.n_drones, 3))
@@ -182,60 +266,91 @@ class BatchedPhysics:
         return p
 
     def velocities(self) -> np.ndarray:
-        """(W, D, 3) m/s world."""
+        """(W, D, 3) m/s world (a copy)."""
         if self.fidelity == "quadrotor":
             return self.qvel[:, self._qvel_idx[:, :3]]
         v = np.zeros((self.n_worlds, self.n_drones, 3))
         v[..., :2] = self.qvel[:, self._qvel_idx]
         return v
 
+    def quaternions(self) -> np.ndarray:
+        """(W, D, 4) w, x, y, z body->world (a copy; identity in point fidelity)."""
+        if self.fidelity == "quadrotor":
+            return self.qpos[:, self._qpos_idx[:, 3:7]]
+        return np.broadcast_to(UNIT_QUAT, (self.n_worlds, self.n_drones, 4)).copy()
+
     def state(self) -> DroneState:
+        """Every drone of every world now (copies); see DroneState for shapes and frames."""
         W, D = self.n_worlds, self.n_drones
         if self.fidelity == "quadrotor":
             q = self.qpos[:, self._qpos_idx]
             v = self.qvel[:, self._qvel_idx]
-            return DroneState(q[..., :3].copy(), v[..., :3].copy(), q[..., 3:7].copy(), v[..., 3:6].copy(), self.act[:, self._act_idx].copy())
-        return DroneState(self.positions(), self.velocities(), np.broadcast_to(UNIT_QUAT, (W, D, 4)).copy(), np.zeros((W, D, 3)), np.zeros((W, D, 4)))
+            return DroneState(q[..., :3], v[..., :3], q[..., 3:7], v[..., 3:6], self.act[:, self._act_idx])
+        return DroneState(self.positions(), self.velocities(), self.quaternions(), np.zeros((W, D, 3)), np.zeros((W, D, 4)))
 
     # ------------------------------------------------------------------ stepping
 
-    def step(self, commands: np.ndarray) -> np.ndarray:
+    def step(self, commands: np.ndarray, strict: bool = True) -> np.ndarray:
         """Advance every world by control_dt under velocity commands (W, D, 2) m/s world.
 
         Commands are clipped to each drone's max speed. Returns contacts (W, D) bool: the
-        drone touched a wall, an obstacle or another drone during the step.
+        drone touched a wall, an obstacle or another drone during the step. A world whose
+        physics went bad raises FloatingPointError, or with strict=False is flagged in
+        `self.diverged` (W,) bool for the caller to end and reset.
         """
         cmd = check_commands(commands, (self.n_worlds, self.n_drones, 2))
         cmd = clip_speed(cmd, self.max_speed)
         self.commands[:] = cmd
-        self.contacts[:] = False
-        k = self.config.substeps_per_control
-        ticks = self.config.substeps // k
-        if self.fidelity == "point":
-            self.ctrl[:, self._ctrl_idx] = cmd
-        for _ in range(ticks):
-            if self.fidelity == "quadrotor":
-                self._control_tick(cmd, k * self.config.physics_dt)
-            self.batch.step(nstep=k)
-            self.contacts |= self.sensordata[:, self.ids.contact_adr] > 0
-        self._check_finite()
+        if self.fidelity == "quadrotor":
+            self._step_quadrotor(cmd)
+        else:
+            self._step_point(cmd)
         self.time += self.config.control_dt
+        self._check_health(strict)
         return self.contacts.copy()
 
-    def _control_tick(self, cmd: np.ndarray, dt: float) -> None:
-        W, D = self.n_worlds, self.n_drones
-        q = self.qpos[:, self._qpos_idx].reshape(W * D, 7)
-        v = self.qvel[:, self._qvel_idx].reshape(W * D, 6)
-        thrust = self.controller.compute(q[:, :3], v[:, :3], q[:, 3:7], v[:, 3:6], cmd.reshape(W * D, 2), dt)
-        self.ctrl[:, self._ctrl_idx] = thrust.reshape(W, D, 4)
-        # linear drag, body-frame coefficients, applied as a world-frame force at the COM
-        from .controller import quat_to_rotmat
+    def _step_point(self, cmd: np.ndarray) -> None:
+        self._state[:, self._write_cols] = cmd.reshape(self.n_worlds, -1)
+        rec = self.batch.rollout(self.config.substeps, record=("sensordata",), out=self._record)["sensordata"]
+        np.any(rec[:, :, self.ids.contact_adr] > 0, axis=1, out=self.contacts)
+        for observer in self.observers:
+            observer(self)
 
-        R = quat_to_rotmat(q[:, 3:7])
-        drag = -np.einsum("nij,j,nkj,nk->ni", R, self.params["drag"], R, v[:, :3])
-        self.xfrc[:, self.ids.body, :3] = drag.reshape(W, D, 3)
+    def _step_quadrotor(self, cmd: np.ndarray) -> None:
+        k = self.config.substeps_per_control
+        dt = k * self.config.physics_dt
+        state_t, out, W, D = self._state.T, self._out, self.n_worlds, self.n_drones
+        cmd_t = np.ascontiguousarray(cmd.transpose(2, 1, 0)).reshape(2, -1)  # (2, D*W)
+        out_t = out.reshape(7, D, W)
+        contacts = self.contacts
+        contacts[:] = False
+        for _ in range(self.config.substeps // k):
+            x = state_t[self._read_cols].reshape(13, -1)  # pos 3, quat 4, vel 3, angvel 3 (x D*W)
+            rot = quat_to_rotmat(x[3:7])
+            out[4:] = linear_drag(rot, x[7:10], self.drag)  # held for the k physics steps
+            out[:4] = self.controller.compute(x[:3], x[7:10], x[3:7], x[10:13], cmd_t, dt, rot, out[4:])
+            state_t[self._write_cols] = out_t
+            rec = self.batch.rollout(k, record=("sensordata",), out=self._record)["sensordata"]
+            contacts |= (rec[:, :, self.ids.contact_adr] > 0).any(axis=1)
+            for observer in self.observers:
+                observer(self)
 
-    def _check_finite(self) -> None:
-        if not np.isfinite(self.qpos).all():
-            bad = np.where(~np.isfinite(self.qpos).all(axis=1))[0]
-            raise FloatingPointError(f"physics diverged (non-finite state) in worlds {bad.tolist()}")
+    def _check_health(self, strict: bool = True) -> None:
+        """Raise FloatingPointError naming the worlds where MuJoCo raised a warning.
+
+        MuJoCo resets a simulation whose state goes bad (BADQPOS, BADQVEL, BADQACC) and a
+        batch rollout stops one whose warnings rise (e.g. CONTACTFULL): either way that
+        world's step did not happen as asked. A MuJoCo clock out of step with ours is the
+        last line of defence.
+        """
+        counts = self.batch.warning[:, :, 1]
+        risen = counts > self._warnings
+        off = risen.any(axis=1) | (np.abs(self._mj_time - self.time) > 0.5 * self.config.physics_dt)
+        self._warnings = counts.copy()
+        self.diverged = off
+        if off.any() and strict:
+            kinds = sorted({WARNING_NAMES[k] for k in np.flatnonzero(risen.any(axis=0))})
+            raise FloatingPointError(
+                f"physics diverged in worlds {np.flatnonzero(off).tolist()} (MuJoCo warnings: {', '.join(kinds) or 'none'}; "
+                "MuJoCo reset or stopped them): reset those worlds"
+            )

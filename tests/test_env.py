@@ -128,3 +128,14 @@ def test_random_layout_and_several_evaders_run():
     for _ in range(5):
         obs, *_ = env.step(np.zeros((4, 4, 2)))
     assert obs.shape == (4, 4, env.obs_spec.dim)
+
+
+def test_a_world_whose_physics_diverges_ends_as_a_collision_without_stopping_the_others():
+    env = PursuitEnv(default_config(fidelity="quadrotor", random_obstacles=0), n_worlds=2, seed=0)
+    env.reset()
+    env.physics.qvel[0, :] = 1e12  # what a violent crash can do: MuJoCo resets such a world
+    obs, reward, term, trunc, info = env.step(np.zeros((2, 3, 2)))
+    assert info["outcome"].tolist() == ["collision", ""]
+    assert np.isfinite(obs).all() and np.isfinite(reward).all()
+    obs, *_ = env.step(np.zeros((2, 3, 2)))
+    assert np.isfinite(obs).all()

@@ -18,6 +18,12 @@ SUBCOMMANDS = [
     "layout_cmd",
     "simulate",
     "bench",
+    "eval_cmd",
+    "train_cmd",
+    "study",
+    "render_cmd",
+    "plot_cmd",
+    "fly_cmd",
 ]
 
 
@@ -47,6 +53,9 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"pursuit-mj {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # output piped into `head` and the like
+        sys.stderr.close()
+        return 0
     except KeyboardInterrupt:
         print(f"pursuit-mj {args.command}: interrupted", file=sys.stderr)
         return 130

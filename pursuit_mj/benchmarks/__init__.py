@@ -1,0 +1,35 @@
+"""Speed benchmarks run by `pursuit-mj bench <target>`; one module per target (see cli/bench.py).
+
+Shared helpers: run a measurement in a fresh child process (so that its peak memory is its
+own), read the peak resident memory, and print an aligned table.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import resource
+import sys
+from typing import Any, Callable, Sequence
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far (MiB)."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**20 if sys.platform == "darwin" else peak / 2**10  # bytes on macOS, KiB on Linux
+
+
+def run_isolated(fn: Callable[..., Any], *args: Any) -> Any:
+    """fn(*args) in a fresh forked process (one task, then it exits); its result or its exception."""
+    ctx = multiprocessing.get_context("fork")
+    with ctx.Pool(1, maxtasksperchild=1) as pool:
+        return pool.apply(fn, args)
+
+
+def format_table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """Right-aligned columns, the first left-aligned; floats as given by the caller (pre-formatted strings)."""
+    cells = [list(map(str, headers))] + [[str(c) for c in r] for r in rows]
+    widths = [max(len(r[i]) for r in cells) for i in range(len(headers))]
+    lines = []
+    for r in cells:
+        lines.append("  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))))
+    return "\n".join(lines)

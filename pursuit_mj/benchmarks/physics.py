@@ -1,0 +1,147 @@
+"""`pursuit-mj bench physics`: the batched physics against the raw MuJoCo ceiling.
+
+For each fidelity and world count, one fresh process builds a `BatchedPhysics` of the
+default task (3 pursuers + 1 evader, changed by --set; layout 0 with its random obstacles, different in each
+world) and alternates timed blocks of
+  - raw: `batch.step(nstep=substeps)` with the controls left as they are (no Python per
+    physics step): the most MuJoCo can do on this model, the ceiling;
+  - ours: `BatchedPhysics.step(commands)` with the controller in the loop in quadrotor
+    fidelity and the contacts read out.
+Both do the same physical work: the drones hold their place (hover thrust held fixed in
+raw, zero velocity commands through the whole controller in ours) away from walls, so
+that the ratio is the cost of our per-step work alone, not of extra contacts.
+Rates are from the fastest block of each kind (the least disturbed by other work on the
+machine), summed over worlds; the ratio of the median blocks is shown beside. Each block
+starts from a reset.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Sequence
+
+import numpy as np
+
+from ..config import TaskConfig, load_task_config
+from ..layout import load_layout
+from . import format_table, peak_rss_mb, run_isolated
+
+HELP = "raw MuJoCo step rate (the ceiling) vs BatchedPhysics with the controller in the loop"
+BLOCK_SECONDS = 0.2  # wall time of one timed block
+MAX_BLOCK_STEPS = 40  # decision steps per block at most (4 s simulated)
+#: DESIGN aim for the ratio ours/raw at 64 worlds
+AIM = {"quadrotor": 0.70, "point": 0.50}
+
+
+@dataclasses.dataclass
+class PhysicsBench:
+    """One measured configuration: times in s per decision step of all worlds (fastest and
+    median block), memory MiB."""
+
+    fidelity: str
+    n_worlds: int
+    substeps: int
+    raw_s: float
+    ours_s: float
+    raw_median_s: float
+    ours_median_s: float
+    blocks: int
+    peak_rss_mb: float
+
+    @property
+    def ratio(self) -> float:
+        return self.raw_s / self.ours_s
+
+    @property
+    def median_ratio(self) -> float:
+        return self.raw_median_s / self.ours_median_s
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--worlds", nargs="+", type=int, default=[1, 16, 64], metavar="W", help="world counts (default 1 16 64)")
+    p.add_argument("--seconds", type=float, default=3.0, help="measuring time per configuration, raw and ours together (default 3)")
+    p.add_argument("--fidelity", nargs="+", choices=("quadrotor", "point"), default=["quadrotor", "point"], help="fidelities (default both)")
+    p.add_argument("--nthread", type=int, default=0, help="MuJoCo batch threads (default 0: all CPUs)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random obstacles and start positions (default 0)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="change a task setting from its default, e.g. --set controller_hz=100 (repeatable)")
+
+
+def task_config(fidelity: str, overrides: Sequence[str] = ()) -> TaskConfig:
+    """The default task in `fidelity`, with --set overrides."""
+    return load_task_config([], overrides, {"fidelity": fidelity})
+
+
+def measure(fidelity: str, n_worlds: int, seconds: float, nthread: int = 0, seed: int = 0, overrides: Sequence[str] = ()) -> PhysicsBench:
+    """Time raw and controlled stepping of one configuration in alternating blocks."""
+    from ..cli.simulate import spawn_positions
+    from ..physics import BatchedPhysics
+
+    config = task_config(fidelity, overrides)
+    rng = np.random.default_rng(seed)
+    base = load_layout(config.layout)
+    layouts = [base.with_random_obstacles(rng, config.random_obstacles) for _ in range(n_worlds)]
+    physics = BatchedPhysics(config, layouts, nthread=nthread)
+    worlds = np.arange(n_worlds)
+    xy = np.stack([spawn_positions(l, config.n_pursuers, config.n_evaders, rng) for l in layouts])
+    cmd = np.zeros((n_worlds, physics.n_drones, 2))
+
+    def ours() -> None:
+        physics.step(cmd)
+
+    def raw() -> None:
+        physics.batch.step(nstep=config.substeps)
+
+    def block(fn, n: int) -> float:
+        physics.reset(worlds, xy)
+        start = time.perf_counter()
+        for _ in range(n):
+            fn()
+        return (time.perf_counter() - start) / n
+
+    first = block(ours, 2)  # also warms up
+    n = int(np.clip(round(BLOCK_SECONDS / first), 1, MAX_BLOCK_STEPS))
+    rounds = max(2, int(round(seconds / (2 * n * first))))
+    t_ours, t_raw = [], []
+    for _ in range(rounds):
+        t_ours.append(block(ours, n))
+        t_raw.append(block(raw, n))
+    return PhysicsBench(fidelity, n_worlds, config.substeps, min(t_raw), min(t_ours), float(np.median(t_raw)),
+                        float(np.median(t_ours)), rounds, peak_rss_mb())
+
+
+def _row(r: PhysicsBench) -> list[str]:
+    dec_raw, dec_ours = r.n_worlds / r.raw_s, r.n_worlds / r.ours_s
+    return [r.fidelity, str(r.n_worlds), f"{dec_raw * r.substeps:,.0f}", f"{dec_ours * r.substeps:,.0f}",
+            f"{dec_raw:,.0f}", f"{dec_ours:,.0f}", f"{r.ratio:.2f}", f"{r.median_ratio:.2f}", f"{r.peak_rss_mb:.0f}"]
+
+
+def run(args) -> int:
+    if not math.isfinite(args.seconds) or args.seconds <= 0:
+        raise ValueError(f"--seconds: must be > 0, got {args.seconds}")
+    bad = [w for w in args.worlds if w < 1]
+    if bad:
+        raise ValueError(f"--worlds: world counts must be >= 1, got {bad[0]}")
+    if args.nthread < 0:
+        raise ValueError(f"--nthread: must be >= 0, got {args.nthread}")
+    cfg = task_config(args.fidelity[0], args.overrides)  # refuses bad --set values before any work
+    print(f"physics benchmark: {cfg.n_pursuers} pursuers + {cfg.n_evaders} evader(s) per world, layout {cfg.layout} with "
+          f"{cfg.random_obstacles} random obstacles per world; a decision step is control_dt {cfg.control_dt:g} s = "
+          f"{cfg.substeps} physics steps of {cfg.physics_dt:g} s; controller {cfg.controller_hz:g} Hz")
+    print("rates summed over worlds; raw = batch.step(nstep) with fixed controls, ours = BatchedPhysics.step; fastest of "
+          "alternating blocks (ratio of the median blocks beside); each configuration in its own process (peak RSS is its own)")
+    headers = ["fidelity", "worlds", "raw phys steps/s", "ours phys steps/s", "raw dec/s", "ours dec/s", "ours/raw", "(median)", "peak RSS MiB"]
+    results = []
+    for fidelity in args.fidelity:
+        for w in args.worlds:
+            results.append(run_isolated(measure, fidelity, w, args.seconds, args.nthread, args.seed, args.overrides))
+            print(f"  measured {fidelity} x {w} worlds ({results[-1].blocks} blocks each)", flush=True)
+    print(format_table(headers, [_row(r) for r in results]))
+    for fidelity in args.fidelity:
+        at64 = [r for r in results if r.fidelity == fidelity and r.n_worlds == 64]
+        if at64:
+            verdict = "met" if at64[0].ratio >= AIM[fidelity] else "NOT met"
+            print(f"aim {fidelity} at 64 worlds: ours/raw >= {AIM[fidelity]:.2f}: {at64[0].ratio:.2f}, {verdict}")
+    return 0

@@ -1,0 +1,185 @@
+"""`pursuit-mj fly`: fly a team of Crazyflies through cflib, or rehearse the flight on virtual ones.
+
+    pursuit-mj fly --flight configs/flight/example.yaml --policy heuristic --virtual
+    pursuit-mj fly --flight configs/flight/example.yaml --model runs/full_obs/best.pt
+    pursuit-mj fly check --flight configs/flight/example.yaml
+    pursuit-mj fly align --flight lab.yaml --spots "0.5,0.5 3.1,0.5 1.8,4.5"
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import sys
+
+KEYS_HELP = "during a flight: e or space = emergency stop (motors off), l = land everyone, Ctrl-C = land everyone (twice: motors off), Ctrl-\\ = motors off"
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "fly",
+        help="fly Crazyflies (or virtual ones) with a policy; also: fly check, fly align",
+        description="Fly a real team through cflib, or with --virtual rehearse the same flight on virtual "
+        "Crazyflies that speak cflib's protocol over udp://. " + KEYS_HELP,
+    )
+    _flight_args(p)
+    p.add_argument("--policy", help="hand-made team by name (heuristic, random)")
+    p.add_argument("--model", help="trained model file (e.g. runs/full_obs/best.pt)")
+    p.add_argument("--virtual", action="store_true", help="fly virtual Crazyflies on udp://127.0.0.1 instead of the radio URIs")
+    p.add_argument("--fault", action="append", default=[], metavar="KIND:DRONE@S[=V]",
+                   help="virtual only: inject a fault S seconds into the chase: drop_link:p1@3, freeze:p0@2, battery:e0@4=3.1 (repeatable)")
+    p.add_argument("--rerun", metavar="FILE.rrd", help="record the flight for the rerun viewer")
+    p.add_argument("--events", metavar="FILE.jsonl", help="event log, appended to (default flights/<name>-<time>.events.jsonl)")
+    p.add_argument("--max-time", type=float, help="end the chase after this many seconds (overrides the flight file's max_time)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the sensing and escape-model randomness")
+    p.add_argument("--yes", action="store_true", help="take off without asking after the preflight checks (real flights)")
+    p.add_argument("--verbose", action="store_true", help="also print cflib's own log messages")
+    p.set_defaults(func=run, fly_action=None)
+
+    actions = p.add_subparsers(dest="fly_action", metavar="[check | align]")
+    c = actions.add_parser("check", help="validate a flight file and show the plan; no radio is touched")
+    _flight_args(c)
+    c.set_defaults(func=run_check)
+    a = actions.add_parser("align", help="measure the lab -> layout transform from drones placed at known layout spots (Lighthouse/Loco)")
+    _flight_args(a)
+    a.add_argument("--spots", required=True, help="the layout spots of the drones, flight-file order: 'x,y x,y ...' (m)")
+    a.add_argument("--lab", help="lab positions 'x,y x,y ...' (m) measured otherwise; skips the radio")
+    a.add_argument("--virtual", action="store_true", help="measure virtual drones standing at their starts")
+    a.add_argument("--window", type=float, default=1.0, help="seconds of estimates averaged per drone")
+    a.add_argument("--write", metavar="OUT.yaml", help="write a copy of the flight file with the measured transform (comments are not kept)")
+    a.set_defaults(func=run_align)
+
+
+def _flight_args(p) -> None:
+    p.add_argument("--flight", required=False, metavar="FILE.yaml", help="the flight file (see configs/flight/example.yaml)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a task key of the flight, e.g. --set pursuer_speed=0.25 (repeatable)")
+
+
+def _quiet_cflib(verbose: bool) -> None:
+    """cflib logs link errors with tracebacks; the flight reports them itself, in one line."""
+    if verbose:
+        logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
+    else:
+        logging.getLogger("cflib").addHandler(logging.NullHandler())
+
+
+def _need_flight(args) -> str:
+    if not args.flight:
+        raise ValueError("--flight FILE.yaml is required")
+    return args.flight
+
+
+def _echo(record: dict) -> None:
+    details = ", ".join(f"{k}={v}" for k, v in record.items() if k not in ("t", "time", "kind", "level"))
+    print(f"[{record['t']:8.3f}] {record['kind']}" + (f": {details}" if details else ""), flush=True)
+
+
+def _describe(plan) -> str:
+    t, s = plan.transform, plan.safety
+    lines = [
+        f"flight {plan.spec.name} ({plan.spec.source}): {plan.spec.positioning} positioning, layout {plan.layout.name} ({plan.layout.source})",
+        f"  height {plan.height:g} m, decision rate {1 / plan.dt:g} Hz, max time {plan.spec.max_time:g} s",
+        f"  transform lab -> layout: origin {list(t.origin)} m, yaw {t.yaw:g} rad, scale {t.scale:g}; lab x {list(plan.lab.x)} y {list(plan.lab.y)} m",
+        f"  speeds: pursuers {plan.task.pursuer_speed:g} m/s, evaders {plan.task.evader_speed:g} m/s (layout); safety limit {s.max_speed:g} m/s (lab)",
+        f"  safety: fence margin {s.geofence_margin:g} m, separation {s.min_separation:g} m, stale {s.stale_hover:g}/{s.stale_land:g} s, "
+        f"battery {s.battery_takeoff:g}/{s.battery_land:g} V",
+    ]
+    for d in plan.drones:
+        lines.append(f"  {d.name:>10}  {d.role:<8} {d.uri:<32} start {list(d.start)}")
+    return "\n".join(lines)
+
+
+def run_check(args) -> int:
+    from ..flight.plan import load_plan
+
+    plan = load_plan(_need_flight(args), args.overrides)
+    print(_describe(plan))
+    print("ok: the flight file is valid (no radio was touched)")
+    return 0
+
+
+def run(args) -> int:
+    from ..flight.plan import load_plan
+    from ..flight.session import choose_policy, default_events_path, parse_fault, run_flight
+
+    _quiet_cflib(args.verbose)
+    plan = load_plan(_need_flight(args), args.overrides)
+    if args.max_time is not None:
+        if not 0 < args.max_time <= 3600:
+            raise ValueError(f"--max-time {args.max_time}: expected seconds in (0, 3600]")
+        plan = dataclasses.replace(plan, spec=dataclasses.replace(plan.spec, max_time=args.max_time))
+    events_path = args.events or default_events_path(plan)
+    policy = choose_policy(plan, args.policy, args.model, args.seed)
+    if args.fault and not args.virtual:
+        raise ValueError("--fault rehearses failures on virtual drones only; add --virtual")
+    for text in args.fault:
+        parse_fault(text, plan)
+    print(_describe(plan))
+    interactive = sys.stdin.isatty()
+    ask = not args.virtual and not args.yes
+    if ask and not interactive:
+        raise ValueError("a real flight asks for a go after the preflight checks; without a terminal pass --yes")
+    watcher = None
+
+    def wire(bridge) -> None:
+        def watch_keys() -> None:
+            nonlocal watcher
+            if interactive:  # after the go: the watcher takes the terminal's keys from here on
+                from ..flight.keys import KeyWatcher
+
+                watcher = KeyWatcher(lambda: bridge.emergency_stop("key pressed"), lambda: bridge.request_land("key pressed"), sys.stdin.fileno())
+                watcher.start()
+
+        def confirm() -> bool:
+            go = input("preflight ok. Type 'fly' to take off: ").strip().lower() == "fly"
+            if go:
+                watch_keys()
+            return go
+
+        if ask:
+            bridge.confirm = confirm
+        else:
+            watch_keys()
+
+    print(KEYS_HELP)
+    try:
+        result, _ = run_flight(plan, policy, virtual=args.virtual, faults=args.fault,
+                               events_path=events_path, rerun_path=args.rerun, seed=args.seed, echo=_echo, on_bridge=wire)
+    finally:
+        if watcher is not None:
+            watcher.stop()
+    print(f"outcome: {result.outcome} ({result.reason}); chase {result.chase_time:.1f} s, {result.captures} capture(s), "
+          f"{len(result.steps)} decision steps; landed: {'yes' if result.landed else 'no'}")
+    print(f"events: {events_path}" + (f"; rerun: {args.rerun}" if args.rerun else ""))
+    return 0 if result.outcome in ("captured", "timeout") else 1
+
+
+def run_align(args) -> int:
+    from ..flight.align import align, parse_points, transform_yaml, write_with_transform
+    from ..flight.spec import drone_names, load_flight
+
+    _quiet_cflib(False)
+    spec = load_flight(_need_flight(args))
+    spots = parse_points(args.spots, "--spots")
+    lab = parse_points(args.lab, "--lab") if args.lab else None
+    if lab is not None and args.virtual:
+        raise ValueError("--lab and --virtual exclude each other")
+    if args.virtual:
+        from ..flight.plan import resolve_flight
+        from ..flight.virtual.fleet import VirtualFleet
+
+        plan = resolve_flight(spec, args.overrides)
+        with VirtualFleet(plan) as fleet:
+            uris = [fleet.uris[plan.names.index(n)] for n in drone_names(spec)]
+            fit, lab_pts = align(spec, spots, uris=uris, window=args.window)
+    else:
+        fit, lab_pts = align(spec, spots, lab, window=args.window)
+    for name, p, q, r in zip(drone_names(spec), lab_pts, spots, fit.residuals):
+        print(f"  {name:>10}: lab [{p[0]:.3f}, {p[1]:.3f}] -> spot [{q[0]:.3f}, {q[1]:.3f}], residual {r * 1000:.1f} mm")
+    print(f"rms residual {fit.rms * 1000:.1f} mm (layout frame)")
+    print(transform_yaml(fit), end="")
+    if args.write:
+        out = write_with_transform(spec, fit, args.write)
+        print(f"wrote {out}")
+    return 0

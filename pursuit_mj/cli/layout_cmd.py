@@ -1,0 +1,286 @@
+"""`pursuit-mj layout new|show|check`: write, picture and validate layout files (DESIGN.md section 2)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..io_utils import check_writable
+from ..layout import Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout, save_layout
+from ..layout_check import free_spawn_points
+
+#: how many seeds `layout check` tries when placing the per-episode random obstacles
+CHECK_SEEDS = 20
+
+
+def register(sub) -> None:
+    p = sub.add_parser("layout", help="write a new layout file, save a top-down PNG of one, or check one")
+    lsub = p.add_subparsers(dest="layout_command", metavar="<action>")
+    lsub.required = True
+    _register_new(lsub)
+    _register_show(lsub)
+    _register_check(lsub)
+
+
+# ----------------------------------------------------------------------------- new
+
+
+def _register_new(lsub) -> None:
+    p = lsub.add_parser(
+        "new",
+        help="write a new, validated layout file",
+        description="Write a layout file: arena, border shape, obstacles, random obstacles, spawn regions. "
+        "Lengths in m, angles in rad. The layout is validated before it is written.",
+        epilog="example: pursuit-mj layout new arena.yaml --border circle --width 4 --height 4 "
+        "--cylinder 2 2 0.3 --wall 1 1 1 2 --random 3 --seed 7",
+    )
+    p.add_argument("out", metavar="OUT.yaml", help="file to write")
+    p.add_argument("--name", help="layout name (default: the file name)")
+    p.add_argument("--width", type=float, default=3.6, help="arena width along x (m, default 3.6)")
+    p.add_argument("--height", type=float, default=5.0, help="arena height along y (m, default 5.0)")
+    p.add_argument("--border", choices=("rectangle", "polygon", "circle"), default="rectangle", help="border shape")
+    p.add_argument("--points", nargs="+", metavar="X,Y", help="polygon corners for --border polygon (default: the arena with its corners cut)")
+    p.add_argument("--center", nargs=2, type=float, metavar=("X", "Y"), help="circle centre for --border circle (default: arena centre)")
+    p.add_argument("--radius", type=float, help="circle radius for --border circle (default: fits the arena)")
+    p.add_argument("--box", nargs="+", type=float, action="append", default=[], metavar="V",
+                   help="add a box: CX CY SX SY [YAW] (centre, full size, yaw); repeatable")
+    p.add_argument("--cylinder", nargs=3, type=float, action="append", default=[], metavar=("CX", "CY", "R"),
+                   help="add a cylinder: centre and radius; repeatable")
+    p.add_argument("--wall", nargs="+", type=float, action="append", default=[], metavar="V",
+                   help="add a thin wall: X0 Y0 X1 Y1 [THICKNESS] (default thickness 0.05); repeatable")
+    p.add_argument("--random", type=int, default=0, metavar="N", help="add N fixed obstacles placed at random (with --seed)")
+    p.add_argument("--seed", type=int, default=0, help="seed for --random (default 0)")
+    p.add_argument("--episode-obstacles", type=int, default=5, metavar="K",
+                   help="random obstacles drawn per episode (the file's random_obstacles.count, default 5)")
+    p.add_argument("--obstacle-size", nargs=2, type=float, default=(0.15, 0.4), metavar=("MIN", "MAX"),
+                   help="size range of random obstacles (m, default 0.15 0.4)")
+    p.add_argument("--obstacle-kinds", nargs="+", choices=("box", "cylinder"), default=["box", "cylinder"],
+                   help="kinds of random obstacles (default: box cylinder)")
+    p.add_argument("--spawn-pursuers", nargs=4, type=float, metavar=("X0", "X1", "Y0", "Y1"),
+                   help="pursuer spawn region (default: a band along the bottom of the border)")
+    p.add_argument("--spawn-evaders", nargs=4, type=float, metavar=("X0", "X1", "Y0", "Y1"),
+                   help="evader spawn region (default: a band along the top of the border)")
+    p.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
+    p.set_defaults(func=run_new)
+
+
+def _finite(values, flag: str) -> list[float]:
+    for v in values:
+        if not math.isfinite(v):
+            raise ValueError(f"{flag}: {v} is not a finite number")
+    return list(values)
+
+
+def _parse_points(texts: list[str]) -> list[list[float]]:
+    points = []
+    for t in texts:
+        parts = t.split(",")
+        try:
+            xy = [float(parts[0]), float(parts[1])] if len(parts) == 2 else None
+        except ValueError:
+            xy = None
+        if xy is None or not all(math.isfinite(v) for v in xy):
+            raise ValueError(f"--points: '{t}' is not X,Y (two numbers separated by a comma)")
+        points.append(xy)
+    return points
+
+
+def _boundary(args) -> tuple[object, tuple[float, float, float, float]]:
+    """The YAML boundary entry and its bounding box (x0, x1, y0, y1)."""
+    w, h = args.width, args.height
+    if args.border != "polygon" and args.points:
+        raise ValueError("--points: only used with --border polygon")
+    if args.border != "circle" and (args.center is not None or args.radius is not None):
+        raise ValueError("--center/--radius: only used with --border circle")
+    if args.border == "circle":
+        cx, cy = _finite(args.center, "--center") if args.center else (w / 2, h / 2)
+        r = args.radius if args.radius is not None else min(w, h) / 2
+        return {"circle": {"center": [cx, cy], "radius": r}}, (cx - r, cx + r, cy - r, cy + r)
+    if args.border == "polygon":
+        if args.points:
+            pts = _parse_points(args.points)
+        else:
+            cut = 0.15 * min(w, h)
+            pts = [[cut, 0.0], [w - cut, 0.0], [w, cut], [w, h - cut], [w - cut, h], [cut, h], [0.0, h - cut], [0.0, cut]]
+        xs, ys = [p[0] for p in pts], [p[1] for p in pts]
+        return {"polygon": pts}, (min(xs), max(xs), min(ys), max(ys))
+    return "rectangle", (0.0, w, 0.0, h)
+
+
+def _default_spawn(border: str, bbox: tuple[float, float, float, float]) -> tuple[dict, dict]:
+    """Bands along the bottom (pursuers) and top (evaders) of the border's bounding box."""
+    x0, x1, y0, y1 = bbox
+    width, height = x1 - x0, y1 - y0
+    if border == "circle":  # keep the bands inside the round border
+        cx, cy, r = (x0 + x1) / 2, (y0 + y1) / 2, width / 2
+        xs = [round(cx - 0.45 * r, 3), round(cx + 0.45 * r, 3)]
+        return ({"x": xs, "y": [round(cy - 0.8 * r, 3), round(cy - 0.5 * r, 3)]},
+                {"x": xs, "y": [round(cy + 0.5 * r, 3), round(cy + 0.8 * r, 3)]})
+    inset = min(0.2, 0.1 * width)
+    band = min(0.6, 0.25 * height)
+    xs = [round(x0 + inset + (0.1 * width if border == "polygon" else 0.0), 3), round(x1 - inset - (0.1 * width if border == "polygon" else 0.0), 3)]
+    return ({"x": xs, "y": [round(y0 + inset, 3), round(y0 + inset + band, 3)]},
+            {"x": xs, "y": [round(y1 - inset - band, 3), round(y1 - inset, 3)]})
+
+
+def _obstacles(args) -> list[dict]:
+    out: list[dict] = []
+    for values in args.box:
+        if len(values) not in (4, 5):
+            raise ValueError(f"--box: expected CX CY SX SY [YAW], got {len(values)} numbers {values}")
+        v = _finite(values, "--box")
+        out.append({"box": {"center": v[:2], "size": v[2:4], "yaw": v[4] if len(v) == 5 else 0.0}})
+    for values in args.cylinder:
+        v = _finite(values, "--cylinder")
+        out.append({"cylinder": {"center": v[:2], "radius": v[2]}})
+    for values in args.wall:
+        if len(values) not in (4, 5):
+            raise ValueError(f"--wall: expected X0 Y0 X1 Y1 [THICKNESS], got {len(values)} numbers {values}")
+        v = _finite(values, "--wall")
+        out.append({"wall": {"from": v[:2], "to": v[2:4], "thickness": v[4] if len(v) == 5 else 0.05}})
+    return out
+
+
+def build_new_layout(args) -> Layout:
+    """The validated layout that `layout new` would write (fixed random obstacles placed)."""
+    for flag, value in (("--width", args.width), ("--height", args.height)):
+        if not math.isfinite(value) or value <= 0:
+            raise ValueError(f"{flag}: must be a number > 0, got {value}")
+    if args.random < 0:
+        raise ValueError(f"--random: must be >= 0, got {args.random}")
+    if args.episode_obstacles < 0:
+        raise ValueError(f"--episode-obstacles: must be >= 0, got {args.episode_obstacles}")
+    boundary, bbox = _boundary(args)
+    pursuers, evaders = _default_spawn(args.border, bbox)
+    if args.spawn_pursuers:
+        x0, x1, y0, y1 = _finite(args.spawn_pursuers, "--spawn-pursuers")
+        pursuers = {"x": [x0, x1], "y": [y0, y1]}
+    if args.spawn_evaders:
+        x0, x1, y0, y1 = _finite(args.spawn_evaders, "--spawn-evaders")
+        evaders = {"x": [x0, x1], "y": [y0, y1]}
+    data = {
+        "name": args.name or Path(args.out).stem,
+        "arena": {"width": args.width, "height": args.height},
+        "boundary": boundary,
+        "obstacles": _obstacles(args),
+        "random_obstacles": {"count": args.random, "kinds": list(args.obstacle_kinds), "size": _finite(args.obstacle_size, "--obstacle-size")},
+        "spawn": {"pursuers": pursuers, "evaders": evaders},
+    }
+    source = f"layout new {args.out}"
+    layout = layout_from_dict(data, source)
+    if args.random:  # place the --random obstacles for good: they become fixed obstacles
+        layout = layout.with_random_obstacles(np.random.default_rng(args.seed), args.random)
+    data = layout_to_dict(layout)
+    n_given = len(data["obstacles"]) - args.random
+    data["obstacles"][n_given:] = [_round_floats(o) for o in data["obstacles"][n_given:]]
+    data["random_obstacles"]["count"] = args.episode_obstacles
+    layout = layout_from_dict(data, source)
+    _check_random_fits(layout, "lower --episode-obstacles or --obstacle-size, or make room")
+    return layout
+
+
+def _round_floats(value, digits: int = 3):
+    """A copy of a nested YAML value with floats rounded to mm (placed obstacles read better)."""
+    if isinstance(value, float):
+        return round(value, digits)
+    if isinstance(value, dict):
+        return {k: _round_floats(v, digits) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_round_floats(v, digits) for v in value]
+    return value
+
+
+def _check_random_fits(layout: Layout, hint: str, seeds: int = CHECK_SEEDS) -> int:
+    """Place the per-episode random obstacles with `seeds` seeds; LayoutError if one fails. Returns seeds tried."""
+    if layout.random_obstacles.count == 0:
+        return 0
+    for seed in range(seeds):
+        try:
+            layout.with_random_obstacles(np.random.default_rng(seed))
+        except LayoutError as exc:
+            raise LayoutError(f"{exc} (placing the {layout.random_obstacles.count} per-episode random obstacles with seed {seed}; {hint})") from None
+    return seeds
+
+
+def run_new(args) -> int:
+    out = Path(args.out)
+    if out.exists() and not args.force:
+        raise ValueError(f"OUT {out}: exists already (use --force to overwrite)")
+    check_writable(out, "OUT")
+    layout = build_new_layout(args)
+    save_layout(layout, out)
+    print(f"wrote {out}: {_summary_line(layout)}")
+    return 0
+
+
+# ----------------------------------------------------------------------------- show
+
+
+def _register_show(lsub) -> None:
+    p = lsub.add_parser("show", help="save a top-down PNG of a layout (file or built-in index)")
+    p.add_argument("layout", metavar="FILE|INDEX", help="layout file or built-in index 0-3")
+    p.add_argument("-o", "--out", help="PNG to write (default: layout_<name>.png)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random obstacles drawn (default 0)")
+    p.add_argument("--count", type=int, help="random obstacles to draw (default: the layout's random_obstacles.count)")
+    p.add_argument("--no-random", action="store_true", help="draw no random obstacles")
+    p.set_defaults(func=run_show)
+
+
+def run_show(args) -> int:
+    from ..layout_preview import save_layout_png
+
+    layout = load_layout(args.layout)
+    if args.count is not None and args.count < 0:
+        raise ValueError(f"--count: must be >= 0, got {args.count}")
+    out = Path(args.out or f"layout_{layout.name}.png")
+    if out.suffix.lower() != ".png":
+        raise ValueError(f"--out {out}: expected a .png file name")
+    check_writable(out, "--out")
+    save_layout_png(layout, out, seed=None if args.no_random else args.seed, count=args.count)
+    print(f"wrote {out}")
+    return 0
+
+
+# ----------------------------------------------------------------------------- check
+
+
+def _register_check(lsub) -> None:
+    p = lsub.add_parser("check", help="validate a layout file and print a summary")
+    p.add_argument("layout", metavar="FILE|INDEX", help="layout file or built-in index 0-3")
+    p.set_defaults(func=run_check)
+
+
+def _summary_line(layout: Layout) -> str:
+    kinds: dict[str, int] = {}
+    for o in layout.obstacles:
+        kinds[type(o).__name__.lower()] = kinds.get(type(o).__name__.lower(), 0) + 1
+    plural = {"box": "boxes", "cylinder": "cylinders", "wall": "walls"}
+    obstacles = ", ".join(f"{n} {plural[k] if n > 1 else k}" for k, n in kinds.items()) or "no obstacles"
+    return (f"'{layout.name}' {layout.width:g} x {layout.height:g} m, {layout.boundary.kind} border, {obstacles}, "
+            f"{layout.random_obstacles.count} random per episode")
+
+
+def run_check(args) -> int:
+    from ..scene import SceneSpec, build_model
+
+    layout = load_layout(args.layout)
+    print(f"layout {layout.source}: valid")
+    print(f"  {_summary_line(layout)}")
+    r = layout.random_obstacles
+    print(f"  random obstacles: {r.count} of {', '.join(r.kinds)}, size {r.size[0]:g}-{r.size[1]:g} m")
+    for name, region in (("pursuers", layout.spawn_pursuers), ("evaders", layout.spawn_evaders)):
+        free = free_spawn_points(layout, region)
+        print(f"  spawn {name}: x {region.x[0]:g}-{region.x[1]:g}, y {region.y[0]:g}-{region.y[1]:g} m, {len(free)} free points on a 5 cm grid")
+    tried = _check_random_fits(layout, "lower random_obstacles.count or size in the file, or make room")
+    if tried:
+        print(f"  random obstacles placed with seeds 0-{tried - 1}: ok")
+    placed = layout.with_random_obstacles(np.random.default_rng(0))
+    for fidelity in ("point", "quadrotor"):
+        model = build_model(SceneSpec(placed, 3, 1, fidelity))
+        print(f"  MuJoCo scene ({fidelity}, 3+1 drones, seed 0): compiles, {model.ngeom} geoms")
+    return 0
+
+

@@ -1,0 +1,151 @@
+"""`pursuit-mj simulate`: fly a scripted pattern in each built-in layout, in both fidelities, and report.
+
+Every drone flies toward the middle of the border, then circles it on a radius of its own
+(0.5 m + 0.3 m per drone), at its max speed, steering away from drones closer than 0.25 m. For each layout and fidelity it prints the
+simulated and wall-clock time, the real-time factor, the largest altitude error and tilt
+(sampled at every controller tick), the contacts and where the drones ended up.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from ..config import TaskConfig
+from ..controller import tilt_angle
+from ..layout import N_BUILTIN, Layout, load_layout
+from ..layout_check import free_spawn_points
+from ..physics import BatchedPhysics
+from .common import add_task_args, task_config_from_args
+
+SPAWN_SEPARATION = 0.35  # m between spawned drones
+SEPARATION = 0.25  # m: drones closer than this steer apart
+
+
+@dataclasses.dataclass
+class FlightReport:
+    """What happened in one scripted flight. Lengths m, angles rad, times s."""
+
+    layout: str
+    fidelity: str
+    sim_time: float
+    wall_time: float
+    max_altitude_error: float
+    max_tilt: float
+    contact_steps: np.ndarray  # (D,) decision steps in which each drone touched something
+    final_xy: np.ndarray  # (D, 2) m
+    names: list[str]
+
+    @property
+    def real_time_factor(self) -> float:
+        return self.sim_time / max(self.wall_time, 1e-9)
+
+
+def spawn_positions(layout: Layout, n_pursuers: int, n_evaders: int, rng: np.random.Generator) -> np.ndarray:
+    """Start positions (n_pursuers + n_evaders, 2) m in the spawn regions, SPAWN_SEPARATION apart."""
+    out = []
+    for region, n, role in ((layout.spawn_pursuers, n_pursuers, "pursuers"), (layout.spawn_evaders, n_evaders, "evaders")):
+        points = free_spawn_points(layout, region)
+        chosen: list[np.ndarray] = []
+        for idx in rng.permutation(len(points)):
+            if all(np.hypot(*(points[idx] - c)) >= SPAWN_SEPARATION for c in chosen):
+                chosen.append(points[idx])
+                if len(chosen) == n:
+                    break
+        if len(chosen) < n:
+            raise ValueError(f"layout {layout.source}: the {role} spawn region has no room for {n} drones {SPAWN_SEPARATION} m apart")
+        out.extend(chosen)
+    return np.array(out)
+
+
+def circle_commands(xy: np.ndarray, center: np.ndarray, radii: np.ndarray, speed: np.ndarray, separation: float = 0.0) -> np.ndarray:
+    """Velocities (W, D, 2) m/s that bring drones at xy (W, D, 2) onto circles around center (2,)
+    of radii (D,) m, counter-clockwise, at speed (D,) m/s: radial when far, tangential on the circle.
+
+    Drones closer than `separation` (m) to each other also steer apart, more the closer they are.
+    """
+    d = xy - center
+    rho = np.maximum(np.hypot(d[..., 0], d[..., 1]), 1e-6)
+    radial = d / rho[..., None]
+    tangent = np.stack([-radial[..., 1], radial[..., 0]], -1)
+    direction = tangent + (2.0 * (radii - rho) / radii)[..., None] * radial
+    if separation > 0:
+        apart = xy[:, :, None, :] - xy[:, None, :, :]  # (W, D, D, 2): from each other drone to this one
+        gap = np.maximum(np.hypot(apart[..., 0], apart[..., 1]), 1e-6)
+        push = np.where(gap < separation, 3.0 * (separation / gap - 1.0), 0.0)
+        direction += (apart / gap[..., None] * push[..., None]).sum(axis=2)
+    direction /= np.maximum(np.hypot(direction[..., 0], direction[..., 1]), 1e-9)[..., None]
+    return direction * speed[:, None]
+
+
+def fly(config: TaskConfig, layout: Layout, seconds: float, seed: int = 0) -> FlightReport:
+    """Fly the scripted pattern for `seconds` in one world of `layout` (random obstacles of `seed`)."""
+    rng = np.random.default_rng(seed)
+    world = layout.with_random_obstacles(rng, config.random_obstacles)
+    physics = BatchedPhysics(config, [world], nthread=1)
+    physics.reset([0], spawn_positions(world, config.n_pursuers, config.n_evaders, rng)[None])
+    seg = world.border()
+    center = 0.5 * (seg[:, :2].min(0) + seg[:, :2].max(0))
+    radii = 0.5 + 0.3 * np.arange(physics.n_drones)
+    h = config.flight_height
+    worst = {"dz": 0.0, "tilt": 0.0}
+
+    def track(p: BatchedPhysics) -> None:
+        worst["dz"] = max(worst["dz"], float(np.abs(p.positions()[..., 2] - h).max()))
+        worst["tilt"] = max(worst["tilt"], float(tilt_angle(p.quaternions()).max()))
+
+    physics.observers.append(track)
+    contact_steps = np.zeros(physics.n_drones, np.int64)
+    n_steps = max(1, int(round(seconds / config.control_dt)))
+    start = time.perf_counter()
+    for _ in range(n_steps):
+        cmd = circle_commands(physics.positions()[..., :2], center, radii, physics.max_speed, separation=SEPARATION)
+        contact_steps += physics.step(cmd)[0]
+    wall = time.perf_counter() - start
+    return FlightReport(world.name, config.fidelity, n_steps * config.control_dt, wall, worst["dz"], worst["tilt"],
+                        contact_steps, physics.positions()[0, :, :2], physics.names)
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "simulate",
+        help="fly a scripted pattern in each built-in layout in both fidelities and print what happened",
+        description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
+    )
+    p.add_argument("--seconds", type=float, default=5.0, help="simulated seconds per layout and fidelity (default 5)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random obstacles and spawn points (default 0)")
+    add_task_args(p, short_flags=False)
+    p.set_defaults(func=run)
+
+
+def _format(r: FlightReport) -> list[str]:
+    touched = [f"{n} x{c}" for n, c in zip(r.names, r.contact_steps) if c]
+    planar = r.fidelity == "point"
+    line = (f"{r.layout:<10} {r.fidelity:<9} {r.sim_time:6.1f} {r.wall_time:7.2f} {r.real_time_factor:7.1f} "
+            f"{'-' if planar else f'{100 * r.max_altitude_error:.2f}':>10} {'-' if planar else f'{np.degrees(r.max_tilt):.1f}':>9}  "
+            f"{', '.join(touched) if touched else 'none'}")
+    final = "  ".join(f"{n} ({x:.2f}, {y:.2f})" for n, (x, y) in zip(r.names, r.final_xy))
+    return [line, f"{'':<10} final xy (m): {final}"]
+
+
+def run(args) -> int:
+    if not np.isfinite(args.seconds) or args.seconds <= 0:
+        raise ValueError(f"--seconds: must be > 0, got {args.seconds}")
+    base = task_config_from_args(args)
+    layouts = [base.layout] if args.layout is not None else list(range(N_BUILTIN))
+    fidelities = [base.fidelity] if args.fidelity else ["quadrotor", "point"]
+    team = f"{base.n_pursuers} pursuer{'s' if base.n_pursuers > 1 else ''} + {base.n_evaders} evader{'s' if base.n_evaders > 1 else ''}"
+    print(f"scripted flight: {team} fly to the middle, then circle it; "
+          f"{args.seconds:g} s per run, control_dt {base.control_dt:g} s, physics_dt {base.physics_dt:g} s")
+    print(f"{'layout':<10} {'fidelity':<9} {'sim s':>6} {'wall s':>7} {'RTF':>7} {'max|dz| cm':>10} {'tilt deg':>9}  contacts (drone x steps)")
+    total = time.perf_counter()
+    for ref in layouts:
+        layout = load_layout(ref)
+        for fidelity in fidelities:
+            config = dataclasses.replace(base, fidelity=fidelity)
+            for line in _format(fly(config, layout, args.seconds, args.seed)):
+                print(line, flush=True)
+    print(f"total wall time {time.perf_counter() - total:.1f} s")
+    return 0

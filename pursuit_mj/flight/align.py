@@ -1,0 +1,106 @@
+"""Measure the lab -> layout transform: put drones at known layout spots, read where the lab sees them, fit.
+
+    pursuit-mj fly align --flight lab.yaml --spots "0.5,0.5 3.1,0.5 1.8,4.5"
+
+needs a shared positioning system (Lighthouse or Loco): flow-deck estimates start at each
+drone's own spot and say nothing about the lab. The drones sit on the floor at the spots
+(one spot per drone, in flight-file order); their estimates are averaged over a short
+window, and a least-squares similarity (origin, yaw, scale) is fitted (frames.fit_similarity).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import yaml
+
+from ..configio import ConfigError, load_yaml
+from ..io_utils import atomic_write_text
+from .board import StateBoard
+from .frames import Fit, fit_similarity
+from .links import CrazyflieFactory, LinkSet
+from .spec import FlightSpec, drone_names
+
+
+def parse_points(text: str, source: str) -> np.ndarray:
+    """'x,y x,y ...' (spaces or semicolons between points) -> (K, 2) m."""
+    points = []
+    for item in text.replace(";", " ").split():
+        parts = item.split(",")
+        try:
+            if len(parts) != 2:
+                raise ValueError
+            points.append([float(parts[0]), float(parts[1])])
+        except ValueError:
+            raise ValueError(f"{source}: '{item}' is not a point x,y (metres)") from None
+    if not points:
+        raise ValueError(f"{source}: no points given")
+    return np.array(points)
+
+
+def measure_lab_positions(spec: FlightSpec, uris: Sequence[str] | None = None, factory: CrazyflieFactory | None = None,
+                          window: float = 1.0) -> np.ndarray:
+    """(D, 2) m: each drone's estimated position averaged over `window` s, flight-file order.
+
+    Shared positioning systems estimate in the lab frame itself. uris: other links for the
+    same drones (virtual ones), flight-file order.
+    """
+    if spec.positioning == "flow":
+        raise ValueError(f"{spec.source}: align needs Lighthouse or Loco positioning; flow-deck estimates "
+                         "start at each drone's own spot (measure the transform with a tape instead)")
+    names = drone_names(spec)
+    uris = list(uris) if uris is not None else [d.uri for d in spec.drones]
+    board = StateBoard(len(names))
+    sums = np.zeros((len(names), 2))
+    counts = np.zeros(len(names))
+    with LinkSet(names, uris, board, factory, spec.safety.connect_timeout) as links:
+        for link in links:
+            link.start_logs(0.02, 0.1)
+        seen = board.snapshot().state_count.copy()
+        end = time.monotonic() + window
+        while time.monotonic() < end:
+            snap = board.snapshot()
+            new = snap.state_count > seen
+            sums[new] += snap.pos[new, :2]
+            counts[new] += 1
+            seen = snap.state_count
+            time.sleep(0.02)
+    if (counts == 0).any():
+        bad = int(np.flatnonzero(counts == 0)[0])
+        raise ValueError(f"drone {names[bad]} ({uris[bad]}) sent no position within {window:g} s")
+    return sums / counts[:, None]
+
+
+def fit_transform(lab: np.ndarray, spots: np.ndarray, source: str = "--spots") -> Fit:
+    if len(lab) != len(spots):
+        raise ValueError(f"{source}: {len(spots)} spots for {len(lab)} drones (one spot per drone, flight-file order)")
+    return fit_similarity(lab, spots, source)
+
+
+def transform_yaml(fit: Fit) -> str:
+    t = fit.transform
+    return yaml.safe_dump({"transform": {"origin": [round(t.origin[0], 5), round(t.origin[1], 5)], "yaw": round(t.yaw, 6), "scale": round(t.scale, 6)}}, sort_keys=False, default_flow_style=None)
+
+
+def write_with_transform(spec: FlightSpec, fit: Fit, out: str | Path) -> Path:
+    """A copy of the flight file with the measured transform (comments are not kept)."""
+    data = load_yaml(spec.source)
+    data["transform"] = yaml.safe_load(transform_yaml(fit))["transform"]
+    from .spec import flight_from_dict
+
+    try:
+        flight_from_dict(data, str(out))
+    except ConfigError as exc:
+        raise ValueError(f"the measured transform does not make a valid flight: {exc}") from None
+    return atomic_write_text(out, yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+
+
+def align(spec: FlightSpec, spots: Sequence[Sequence[float]], lab: Sequence[Sequence[float]] | None = None,
+          uris: Sequence[str] | None = None, factory: CrazyflieFactory | None = None, window: float = 1.0) -> tuple[Fit, np.ndarray]:
+    """Fit the transform from spots (K, 2) m layout and lab positions (K, 2) m (measured if not given)."""
+    spots = np.asarray(spots, np.float64)
+    lab_pts = np.asarray(lab, np.float64) if lab is not None else measure_lab_positions(spec, uris, factory, window)
+    return fit_transform(lab_pts, spots), lab_pts

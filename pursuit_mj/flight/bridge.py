@@ -1,0 +1,452 @@
+"""The flight loop: take off, chase at the decision rate with the simulator's observations, land.
+
+    plan = load_plan("configs/flight/example.yaml")
+    result = FlightBridge(plan, policy, EventLog("flight.jsonl")).run()
+
+Every decision step (1 / decision_rate s):
+1. the latest estimates of all drones (StateBoard) -> lab frame -> layout frame;
+2. abort checks, each ending the run with everyone landing: emergency stop (motors cut
+   instead), Ctrl-C, a land request, any link lost, a drone without a fresh estimate for
+   `stale_land`, a low battery, a fence breach or too high, capture of every evader, the
+   time limit;
+3. captures by the simulator's rule; observations by the simulator's code (observe.py);
+4. the policy's actions in [-1, 1]^2 times pursuer_speed, clipped (the simulator's action
+   interface), and the escape model for evader drones; targets are only tracked;
+5. layout -> lab velocities, then the safety filters (speed clamp, separation guard,
+   geofence; judged at the positions the drones' measured motion takes them to by the time
+   a command acts), a vertical speed that holds the flight height, each drone's own frame;
+6. `send_velocity_world_setpoint` for every commanded drone, or a hover setpoint at the
+   flight height for a drone whose estimate is stale or an evader that was caught.
+Take-off and landing go through the high-level commander. Every event is logged with its
+time (events.py); `FlightResult.steps` keeps what each step saw and sent.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import signal
+import threading
+import time
+from typing import Callable
+
+import numpy as np
+
+from ..physics import clip_speed
+from ..policy import Policy
+from .board import BoardSnapshot, StateBoard
+from .events import EventLog
+from .links import CrazyflieFactory, LinkError, LinkSet
+from .observe import EvaderPilot, FlightObserver
+from .plan import FlightPlan
+from .preflight import PreflightError, preflight
+from .safety import Fence, altitude_speed, clamp_speed, separate
+
+STATE_PERIOD = 0.02  # s between state-estimate log packets (50 Hz)
+HEALTH_PERIOD = 0.05  # s between health log packets
+
+
+@dataclasses.dataclass
+class StepRecord:
+    """One decision step. D drones (plan order), N pursuers, M evaders.
+
+    t (s, event-log clock); est_pos (D, 3) m and est_vel (D, 3) m/s as the drones estimated
+    them (their own frames); pos (D, 2) m and vel (D, 2) m/s in the layout frame; obs
+    (N, dim) the pursuers' observations; actions (N, 2) the policy's output in [-1, 1];
+    wanted (D, 2) m/s lab: the task's commands before the safety filters; sent (D, 3) m/s
+    in each drone's frame (vx, vy, vz), NaN rows for drones not given a velocity;
+    mode (D,) 'velocity' | 'hover' | 'none'; filtered (D,) bool: a safety filter changed the
+    command; captured (M,) bool.
+    """
+
+    t: float
+    est_pos: np.ndarray
+    est_vel: np.ndarray
+    pos: np.ndarray
+    vel: np.ndarray
+    obs: np.ndarray
+    actions: np.ndarray
+    wanted: np.ndarray
+    sent: np.ndarray
+    mode: np.ndarray
+    filtered: np.ndarray
+    captured: np.ndarray
+
+
+@dataclasses.dataclass
+class FlightResult:
+    """How a flight ended. outcome: captured | timeout | interrupted | land_requested |
+    link_lost | stale | low_battery | fence_breach | altitude | takeoff_failed |
+    emergency_stop | error; reason: a sentence; chase_time (s); captures; steps."""
+
+    outcome: str
+    reason: str
+    chase_time: float
+    captures: int
+    steps: list[StepRecord]
+    landed: bool
+
+
+class _Abort(Exception):
+    def __init__(self, outcome: str, reason: str):
+        super().__init__(reason)
+        self.outcome, self.reason = outcome, reason
+
+
+class _Edges:
+    """Logs a per-drone condition when it starts (rising edge), not on every step."""
+
+    def __init__(self, events: EventLog, names: list[str]):
+        self.events, self.names = events, names
+        self.state: dict[str, np.ndarray] = {}
+
+    def update(self, kind: str, flags: np.ndarray, **details: np.ndarray) -> None:
+        before = self.state.get(kind, np.zeros_like(flags))
+        for i in np.flatnonzero(flags & ~before):
+            self.events.log(kind, drone=self.names[i], level="warn", **{k: v[i] for k, v in details.items()})
+        self.state[kind] = flags.copy()
+
+
+class FlightBridge:
+    """One flight of a plan with a policy (module docstring).
+
+    factory: builds cflib's SyncCrazyflie per URI (default: TOC-cached, see links.py);
+    recorder: optional FlightRecorder; seed: sensing and escape-model randomness;
+    handle_signals: in the main thread, Ctrl-C lands everyone (a second Ctrl-C cuts the
+    motors) and Ctrl-\\ cuts the motors; confirm(): asked after the preflight checks,
+    False refuses the take-off (an operator's go / no-go).
+    """
+
+    def __init__(self, plan: FlightPlan, policy: Policy, events: EventLog, factory: CrazyflieFactory | None = None,
+                 recorder=None, seed: int = 0, handle_signals: bool = True, clock: Callable[[], float] = time.monotonic,
+                 confirm: Callable[[], bool] | None = None):
+        self.plan = plan
+        self.policy = policy
+        self.events = events
+        self.factory = factory
+        self.recorder = recorder
+        self.seed = seed
+        self.handle_signals = handle_signals
+        self.clock = clock
+        self.confirm = confirm
+        limits = plan.safety
+        self.fence = Fence(plan.layout, plan.transform, limits.geofence_margin, limits.lookahead, limits.breach_distance)
+        self.edges = _Edges(events, plan.names)
+        self.links: LinkSet | None = None
+        self.board: StateBoard | None = None
+        self._stop = threading.Event()  # wakes the loop for any request below
+        self._estop = threading.Event()
+        self._interrupt = threading.Event()
+        self._land_request = ""
+        self._airborne = False
+        self._landing = False
+        if recorder is not None:
+            previous = events.echo
+
+            def echo(record: dict) -> None:
+                recorder.log_event(record)
+                if previous is not None:
+                    previous(record)
+
+            events.echo = echo
+
+    # ------------------------------------------------------------------ requests (any thread)
+
+    def emergency_stop(self, reason: str = "emergency stop requested") -> None:
+        """Cut every drone's motors now, from the calling thread, and end the run."""
+        if self._estop.is_set():
+            return
+        self._estop.set()
+        self._stop.set()
+        self._cut_motors()
+        self.events.log("emergency_stop", reason=reason, level="error")
+
+    def _cut_motors(self) -> None:
+        links = self.links  # may be cleared by the flight thread meanwhile
+        if links is not None:
+            for link in links:
+                link.emergency_stop()
+
+    def request_land(self, reason: str = "landing requested") -> None:
+        """End the run: everyone lands."""
+        self._land_request = reason
+        self._stop.set()
+
+    def interrupt(self) -> None:
+        """What Ctrl-C does: everyone lands; during the landing, a second one cuts the motors."""
+        if self._landing:
+            self.emergency_stop("second Ctrl-C during the landing")
+            return
+        self._interrupt.set()
+        self._stop.set()
+
+    # ------------------------------------------------------------------ the flight
+
+    def run(self) -> FlightResult:
+        """Connect, check, take off, chase, land. Raises LinkError/PreflightError (ValueError)
+        when the flight is refused before take-off; links are always closed."""
+        plan = self.plan
+        self.events.log("start", flight=plan.spec.name, source=plan.spec.source, drones=plan.names, uris=plan.uris,
+                        layout=plan.layout.source, positioning=plan.spec.positioning, decision_rate=1.0 / plan.dt)
+        self.board = StateBoard(plan.n_drones, self.clock)
+        try:
+            with LinkSet(plan.names, plan.uris, self.board, self.factory, plan.safety.connect_timeout) as links:
+                self.links = links
+                self.events.log("links_up", uris=plan.uris)
+                for link in links:
+                    link.start_logs(STATE_PERIOD, HEALTH_PERIOD)
+                preflight(links, self.board, plan, self.events, self.clock)
+                if self.confirm is not None and not self.confirm():
+                    raise PreflightError("take-off declined by the operator")
+                with self._signals():
+                    return self._fly()
+        except (LinkError, PreflightError) as exc:
+            self.events.log("refused", reason=str(exc), level="error")
+            raise
+        finally:
+            self.links = None
+            self.events.log("links_closed")
+
+    @contextlib.contextmanager
+    def _signals(self):
+        if not (self.handle_signals and threading.current_thread() is threading.main_thread()):
+            yield
+            return
+        old_int = signal.signal(signal.SIGINT, lambda *a: self.interrupt())
+        old_quit = signal.signal(signal.SIGQUIT, lambda *a: self.emergency_stop("Ctrl-\\ pressed"))
+        try:
+            yield
+        finally:
+            signal.signal(signal.SIGINT, old_int)
+            signal.signal(signal.SIGQUIT, old_quit)
+
+    def _fly(self) -> FlightResult:
+        steps: list[StepRecord] = []
+        observer = FlightObserver(self.plan.task, self.plan.layout, self.seed)
+        pilot = EvaderPilot(self.plan.task, self.seed)
+        self.policy.reset(1)
+        outcome, reason, chase_start = "", "", None
+        try:
+            self._takeoff()
+            chase_start = self.clock()
+            self.events.log("chase", policy=getattr(self.policy, "name", type(self.policy).__name__))
+            outcome, reason = self._chase(observer, pilot, steps, chase_start)
+        except _Abort as stop:
+            outcome, reason = stop.outcome, stop.reason
+        except KeyboardInterrupt:
+            outcome, reason = "interrupted", "Ctrl-C"
+        except Exception as exc:
+            self.events.log("error", reason=f"{type(exc).__name__}: {exc}", level="error")
+            self._land_all("error")
+            raise
+        chase_time = self.clock() - chase_start if chase_start is not None else 0.0
+        self.events.log("end_of_run", outcome=outcome, reason=reason, chase_time=chase_time, level="info" if outcome == "captured" else "warn")
+        landed = False
+        if outcome != "emergency_stop" and not self._estop.is_set():
+            landed = self._land_all(outcome)
+        else:
+            outcome = "emergency_stop"
+            self._cut_motors()  # once more, in case a packet was lost
+        return FlightResult(outcome, reason, chase_time, int(observer.captured.sum()), steps, landed)
+
+    # ------------------------------------------------------------------ take-off and landing
+
+    def _takeoff(self) -> None:
+        plan, limits = self.plan, self.plan.safety
+        self._check_abort(self.board.snapshot(), None)  # e.g. an emergency stop during the checks
+        duration = plan.height / limits.takeoff_speed
+        self.events.log("takeoff", height=plan.height, duration=duration)
+        self._airborne = True
+        for link, ours in zip(self.links, plan.commanded):
+            if ours:
+                link.takeoff(plan.height, duration)
+        self._watch(duration + limits.settle)
+        z = self._lab_state(self.board.snapshot())[0][:, 2]
+        off = np.where(plan.commanded, np.abs(z - plan.height), 0.0)
+        if (off > limits.height_tolerance).any():
+            i = int(np.argmax(off))
+            raise _Abort("takeoff_failed", f"drone {plan.names[i]} is at {z[i]:.2f} m after take-off, not {plan.height:g} m")
+        self.events.log("airborne", heights=z)
+
+    def _watch(self, duration: float) -> None:
+        """Wait `duration` s (take-off) while applying the abort checks; records states at the decision rate."""
+        end = self.clock() + duration
+        while self.clock() < end:
+            snap = self.board.snapshot()
+            self._check_abort(snap, None)
+            self._record_only(snap)
+            self._stop.wait(min(self.plan.dt, max(0.0, end - self.clock())))
+
+    def _land_all(self, why: str) -> bool:
+        """Everyone with a link lands through the high-level commander; returns whether all did."""
+        if not self._airborne or self.links is None:
+            return False
+        self._landing = True
+        plan, limits = self.plan, self.plan.safety
+        snap = self.board.snapshot()
+        z = np.nan_to_num(self._lab_state(snap)[0][:, 2], nan=plan.height)
+        duration = max(float(z.max()), 0.1) / limits.landing_speed
+        up = [link for link, ours in zip(self.links, plan.commanded) if ours and link.up]
+        self.events.log("land", reason=why, duration=duration, drones=[l.name for l in up])
+        for link in up:
+            link.land(0.0, duration)
+        end = self.clock() + duration + limits.settle
+        while self.clock() < end and not self._estop.is_set():
+            self._stop.clear()  # earlier requests are served by this landing; an emergency stop sets it again
+            self._record_only(self.board.snapshot())
+            self._stop.wait(min(self.plan.dt, max(0.0, end - self.clock())))
+        if self._estop.is_set():
+            return False
+        for link in up:
+            link.stop_motors()
+        z = self._lab_state(self.board.snapshot())[0][:, 2]
+        self.events.log("landed", heights=z, drones=[l.name for l in up])
+        self._airborne = False
+        return len(up) == int(plan.commanded.sum())
+
+    # ------------------------------------------------------------------ the chase
+
+    def _chase(self, observer: FlightObserver, pilot: EvaderPilot, steps: list[StepRecord], start: float) -> tuple[str, str]:
+        next_t = self.clock()
+        while True:
+            snap = self.board.snapshot()
+            self._check_abort(snap, start)
+            step = self._decide(snap, observer, pilot)
+            steps.append(step)
+            if observer.captured.all():
+                return "captured", f"all {self.plan.n_evaders} evader(s) captured after {self.clock() - start:.1f} s"
+            next_t += self.plan.dt
+            delay = next_t - self.clock()
+            if delay < -self.plan.dt:
+                self.events.log("overrun", late=-delay, level="warn")
+                next_t = self.clock()
+            self._stop.wait(max(0.0, delay))
+
+    def _lab_state(self, snap: BoardSnapshot) -> tuple[np.ndarray, np.ndarray]:
+        """(pos (D, 3) m, vel (D, 3) m/s) in the lab frame from the drones' estimates."""
+        f = self.plan.frames
+        pos = snap.pos.copy()
+        vel = snap.vel.copy()
+        pos[:, :2] = f.to_lab(snap.pos[:, :2])
+        vel[:, :2] = f.velocity_to_lab(snap.vel[:, :2])
+        return pos, vel
+
+    def _check_abort(self, snap: BoardSnapshot, start: float | None) -> None:
+        """Raise _Abort for the first reason to end the run (module docstring, step 2)."""
+        plan, limits, names = self.plan, self.plan.safety, self.plan.names
+        if self._estop.is_set():
+            raise _Abort("emergency_stop", "emergency stop")
+        if self._interrupt.is_set():
+            self.events.log("interrupt", reason="Ctrl-C", level="warn")
+            raise _Abort("interrupted", "Ctrl-C")
+        if self._land_request:
+            raise _Abort("land_requested", self._land_request)
+        silent = snap.lost | (snap.silence > limits.link_timeout)
+        if silent.any():
+            i = int(np.flatnonzero(silent)[0])
+            why = snap.lost_reason[i] or f"nothing heard for {snap.silence[i]:.2f} s"
+            self.events.log("link_lost", drone=names[i], uri=plan.uris[i], reason=why, level="error")
+            raise _Abort("link_lost", f"link to {names[i]} ({plan.uris[i]}) lost: {why}")
+        stale = snap.state_age > limits.stale_land
+        if stale.any():
+            i = int(np.flatnonzero(stale)[0])
+            self.events.log("stale_land", drone=names[i], age=snap.state_age[i], level="error")
+            raise _Abort("stale", f"no fresh estimate from {names[i]} for {snap.state_age[i]:.2f} s")
+        recent = snap.vbat[:, -limits.battery_samples:]
+        low = (recent < limits.battery_land).all(axis=1)
+        if low.any():
+            i = int(np.flatnonzero(low)[0])
+            self.events.log("low_battery", drone=names[i], vbat=snap.vbat[i, -1], threshold=limits.battery_land, level="error")
+            raise _Abort("low_battery", f"battery of {names[i]} at {snap.vbat[i, -1]:.2f} V, below {limits.battery_land:g} V")
+        pos, _ = self._lab_state(snap)
+        ours = (snap.state_count > 0) & plan.commanded  # targets are flown by someone else
+        breach = self.fence.breached(pos[:, :2]) & ours
+        if breach.any() and self._airborne:
+            i = int(np.flatnonzero(breach)[0])
+            self.events.log("fence_breach", drone=names[i], pos=pos[i], level="error")
+            raise _Abort("fence_breach", f"{names[i]} at lab {np.round(pos[i, :2], 2).tolist()} is beyond the geofence")
+        high = (pos[:, 2] > limits.max_altitude) & ours
+        if high.any():
+            i = int(np.flatnonzero(high)[0])
+            self.events.log("altitude", drone=names[i], z=pos[i, 2], level="error")
+            raise _Abort("altitude", f"{names[i]} at {pos[i, 2]:.2f} m, above {limits.max_altitude:g} m")
+        if start is not None and self.clock() - start > plan.spec.max_time:
+            raise _Abort("timeout", f"no capture within {plan.spec.max_time:g} s")
+
+    def _decide(self, snap: BoardSnapshot, observer: FlightObserver, pilot: EvaderPilot) -> StepRecord:
+        """One decision step: task commands, safety filters, radio (module docstring, steps 3-6)."""
+        plan, N = self.plan, self.plan.n_pursuers
+        pos_lab, vel_lab = self._lab_state(snap)
+        pos = plan.transform.to_layout(pos_lab[:, :2])
+        vel = plan.transform.velocity_to_layout(vel_lab[:, :2])
+        newly = observer.update_captures(pos[:N], pos[N:])
+        for m in np.flatnonzero(newly):
+            d = np.linalg.norm(pos[:N] - pos[N + m], axis=-1)
+            self.events.log("capture", evader=plan.names[N + m], by=plan.names[int(np.argmin(d))], distance=float(d.min()))
+        obs, actions, wanted = self._task_commands(pos, vel, observer, pilot)
+        v, filtered, clearance = self._guard(wanted, pos_lab, vel_lab)
+
+        stale = snap.state_age > plan.safety.stale_hover
+        caught = np.concatenate([np.zeros(N, bool), observer.captured[0] & (plan.roles[N:] == "evader")])
+        hover = plan.commanded & (stale | caught)
+        fly = plan.commanded & ~hover
+        vz = altitude_speed(pos_lab[:, 2], plan.height, plan.safety.altitude_gain, plan.safety.max_vertical_speed)
+        sent = np.full((plan.n_drones, 3), np.nan)
+        sent[fly] = np.column_stack([plan.frames.velocity_to_drone(v), vz])[fly]
+        for i, link in enumerate(self.links):
+            if fly[i]:
+                link.velocity(sent[i])
+            elif hover[i]:
+                link.hover(plan.height)
+        for kind, flags in filtered.items():
+            self.edges.update(kind, flags & fly, pos=pos_lab[:, :2], clearance=clearance)
+        self.edges.update("stale_hover", stale & plan.commanded, age=snap.state_age)
+
+        changed = np.any([flags for flags in filtered.values()], axis=0) & fly
+        mode = np.where(fly, "velocity", np.where(hover, "hover", "none"))
+        t = self.events.now()
+        step = StepRecord(t, snap.pos.copy(), snap.vel.copy(), pos, vel, obs[0].copy(), actions, wanted, sent, mode, changed, observer.captured[0].copy())
+        self.events.log("step", pos=pos, vel=vel, actions=actions, wanted=wanted, sent=np.where(np.isfinite(sent), sent, 0.0), mode=mode,
+                        filtered=changed, captured=step.captured)
+        if self.recorder is not None:
+            self.recorder.log_step(t, np.column_stack([pos, pos_lab[:, 2]]), np.column_stack([vel, vel_lab[:, 2]]),
+                                   plan.transform.velocity_to_layout(v), snap.vbat[:, -1])
+        return step
+
+    def _task_commands(self, pos: np.ndarray, vel: np.ndarray, observer: FlightObserver, pilot: EvaderPilot):
+        """The task's commands from layout-frame states pos, vel (D, 2): (obs (1, N, dim),
+        actions (N, 2) in [-1, 1], wanted (D, 2) m/s in the lab frame; targets 0)."""
+        plan, task, N = self.plan, self.plan.task, self.plan.n_pursuers
+        obs = observer.observe(pos[:N], vel[:N], pos[N:], vel[N:])
+        actions = np.asarray(self.policy.act(obs, observer.spec), np.float64)
+        if actions.shape != (1, N, 2) or not np.isfinite(actions).all():
+            raise ValueError(f"policy {getattr(self.policy, 'name', '?')}: expected finite actions of shape (1, {N}, 2), got {actions.shape}")
+        actions = np.clip(actions, -1.0, 1.0)[0]
+        wanted = np.zeros((plan.n_drones, 2))
+        wanted[:N] = clip_speed(actions * task.pursuer_speed, np.full(N, task.pursuer_speed))
+        flown = plan.flown_evaders & ~observer.captured[0]
+        if flown.any():
+            ev = pilot.command(observer, pos[N:], vel[N:], pos[:N], vel[:N])
+            wanted[N:] = np.where(flown[:, None], clip_speed(ev, np.full(len(ev), task.evader_speed)), 0.0)
+        return obs, actions, plan.transform.velocity_to_lab(wanted)
+
+    def _guard(self, wanted: np.ndarray, pos_lab: np.ndarray, vel_lab: np.ndarray):
+        """Safety filters on lab commands (D, 2) m/s: (commands, {filter: changed (D,) bool},
+        clearance (D,) m). Judged where each drone will be when the command acts."""
+        limits = self.plan.safety
+        ahead = pos_lab[:, :2] + vel_lab[:, :2] * (self.plan.dt + limits.response_time)
+        v, clamped = clamp_speed(wanted, limits.max_speed)
+        v, separating = separate(v, ahead, limits.min_separation, limits.lookahead, self.plan.commanded)
+        v, fencing, clearance = self.fence.filter(v, ahead)
+        v, clamped_again = clamp_speed(v, limits.max_speed)  # a push back out may be fast
+        return v, {"speed_clamped": clamped | clamped_again, "separation": separating, "geofence": fencing}, clearance
+
+    def _record_only(self, snap: BoardSnapshot) -> None:
+        """States for the recorder outside the chase (take-off, landing)."""
+        if self.recorder is None or not (snap.state_count > 0).all():
+            return
+        pos_lab, vel_lab = self._lab_state(snap)
+        tr = self.plan.transform
+        pos = np.column_stack([tr.to_layout(pos_lab[:, :2]), pos_lab[:, 2]])
+        vel = np.column_stack([tr.velocity_to_layout(vel_lab[:, :2]), vel_lab[:, 2]])
+        self.recorder.log_step(self.events.now(), pos, vel, np.zeros((self.plan.n_drones, 2)), snap.vbat[:, -1])

@@ -1,0 +1,102 @@
+"""The flight's event log: every event with its time, one JSON object per line, written as it happens.
+
+A line is {"t": s since the log opened (monotonic clock), "time": wall-clock ISO 8601 UTC,
+"kind": ..., ...fields}. Lines are appended and flushed one by one (safety events are also
+fsync'ed), so a crash or a power cut leaves every event written before it readable.
+Thread-safe: cflib's threads, key watchers and the flight loop all log here.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import os
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+#: events that are not safety-relevant (no fsync)
+ROUTINE = frozenset({"step"})
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return np.round(value, 6).tolist() if value.dtype.kind == "f" else value.tolist()
+    if isinstance(value, (np.floating, float)):
+        return round(float(value), 6)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
+
+
+class EventLog:
+    """Append-only JSONL event log (module docstring); `path` None keeps events in memory only.
+
+    `echo(record)` is called for every non-routine event (e.g. to print it).
+    """
+
+    def __init__(self, path: str | Path | None = None, clock: Callable[[], float] = time.monotonic,
+                 echo: Callable[[dict], None] | None = None):
+        self.path = Path(path) if path is not None else None
+        self.clock = clock
+        self.t0 = clock()
+        self.echo = echo
+        self.records: list[dict] = []
+        self._lock = threading.Lock()
+        self._file = None
+        if self.path is not None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = open(self.path, "a", encoding="utf-8")
+
+    def now(self) -> float:
+        """Seconds since the log opened."""
+        return self.clock() - self.t0
+
+    def log(self, kind: str, **fields: Any) -> dict:
+        record = {"t": round(self.now(), 4), "time": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="milliseconds"), "kind": kind}
+        record.update({k: _plain(v) for k, v in fields.items()})
+        with self._lock:
+            self.records.append(record)
+            if self._file is not None:
+                self._file.write(json.dumps(record) + "\n")
+                self._file.flush()
+                if kind not in ROUTINE:
+                    os.fsync(self._file.fileno())
+        if self.echo is not None and kind not in ROUTINE:
+            self.echo(record)
+        return record
+
+    def of_kind(self, *kinds: str) -> list[dict]:
+        with self._lock:
+            return [r for r in self.records if r["kind"] in kinds]
+
+    def kinds(self) -> list[str]:
+        with self._lock:
+            return [r["kind"] for r in self.records]
+
+    def close(self) -> None:
+        with self._lock:
+            if self._file is not None:
+                self._file.close()
+                self._file = None
+
+    def __enter__(self) -> "EventLog":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def read_events(path: str | Path) -> list[dict]:
+    """All records of an event log file, in order."""
+    with open(path, encoding="utf-8") as f:
+        return [json.loads(line) for line in f if line.strip()]

@@ -1,0 +1,242 @@
+"""A flight file resolved into everything the bridge needs, with the cross-checks that need the layout.
+
+`resolve_flight` loads the layout, builds the task config (the flight file's `task` keys
+<- `--set` overrides <- what the flight itself fixes: drone counts, layout, height, rate),
+and refuses flights that cannot work: an arena that does not fit the lab, a drone that
+starts outside the arena or inside a virtual obstacle, drones that start too close, a
+separation guard that would forbid every capture. Nothing here touches a radio.
+
+Drone order in a plan (and in every array of the bridge): pursuers first, then evaders
+and targets, each group in file order; this is the simulator's state order.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..config import TaskConfig
+from ..configio import ConfigError, build, merge, parse_override, to_dict
+from ..geometry import inside_boundary, obstacle_distance
+from ..layout import Layout, load_layout
+from ..obs_spec import ObsSpec
+from .frames import DroneFrames, LabTransform
+from .spec import FlightSpec, LabBounds, check_uri, drone_names
+
+#: task keys a flight fixes itself (from its drones, layout, height and rate; its physics is the real world's)
+FIXED_TASK_KEYS = ("n_pursuers", "n_evaders", "layout", "flight_height", "control_dt", "random_obstacles", "random_layout",
+                   "physics_dt", "controller_hz")
+
+
+@dataclasses.dataclass(frozen=True)
+class FlightDrone:
+    """One drone of a plan: label, link, role, start spot (m, lab) and heading there (rad)."""
+
+    name: str
+    uri: str
+    role: str
+    start: tuple[float, float]
+    start_yaw: float
+
+
+@dataclasses.dataclass(frozen=True)
+class FlightPlan:
+    """A validated flight: drones in state order, task, layout, frames and limits."""
+
+    spec: FlightSpec
+    task: TaskConfig
+    layout: Layout
+    transform: LabTransform
+    lab: LabBounds
+    drones: tuple[FlightDrone, ...]
+
+    @property
+    def safety(self):
+        return self.spec.safety
+
+    @property
+    def n_drones(self) -> int:
+        return len(self.drones)
+
+    @property
+    def n_pursuers(self) -> int:
+        return self.task.n_pursuers
+
+    @property
+    def n_evaders(self) -> int:
+        return self.task.n_evaders
+
+    @property
+    def names(self) -> list[str]:
+        return [d.name for d in self.drones]
+
+    @property
+    def uris(self) -> list[str]:
+        return [d.uri for d in self.drones]
+
+    @property
+    def dt(self) -> float:
+        """Decision interval (s)."""
+        return self.task.control_dt
+
+    @property
+    def height(self) -> float:
+        """Flight height above the lab floor (m)."""
+        return self.spec.flight_height
+
+    @property
+    def obs_spec(self) -> ObsSpec:
+        return ObsSpec.make(self.task.n_pursuers, self.task.n_evaders, self.task.n_rays)
+
+    @property
+    def roles(self) -> np.ndarray:
+        """(D,) str: each drone's role."""
+        return np.array([d.role for d in self.drones])
+
+    @property
+    def flown_evaders(self) -> np.ndarray:
+        """(M,) bool: evaders flown by the escape model (targets are only tracked)."""
+        return self.roles[self.n_pursuers :] == "evader"
+
+    @property
+    def commanded(self) -> np.ndarray:
+        """(D,) bool: drones this flight sends velocity commands to (pursuers and evaders, not targets)."""
+        return self.roles != "target"
+
+    @property
+    def frames(self) -> DroneFrames:
+        """Where each drone's estimate frame sits in the lab (flow deck: at its start)."""
+        D = self.n_drones
+        if self.spec.positioning != "flow":
+            return DroneFrames(np.zeros((D, 2)), np.zeros(D))
+        return DroneFrames(np.array([d.start for d in self.drones], np.float64), np.array([d.start_yaw for d in self.drones]))
+
+    def with_uris(self, uris: Sequence[str]) -> "FlightPlan":
+        """The same flight over other links (e.g. virtual Crazyflies); uris in plan order."""
+        if len(uris) != self.n_drones:
+            raise ValueError(f"with_uris: expected {self.n_drones} URIs, got {len(uris)}")
+        drones = tuple(dataclasses.replace(d, uri=check_uri(u, f"link for {d.name}")) for d, u in zip(self.drones, uris))
+        return dataclasses.replace(self, drones=drones)
+
+
+def _resolve_layout(spec: FlightSpec) -> Layout:
+    ref = spec.layout
+    if isinstance(ref, str) and not ref.strip().isdigit():
+        beside = Path(spec.source).parent / ref
+        if not Path(ref).is_file() and beside.is_file():
+            ref = str(beside)
+    try:
+        return load_layout(ref)
+    except ConfigError as exc:
+        raise ConfigError(f"{spec.source}: key 'layout': {exc}") from None
+
+
+def _task_config(spec: FlightSpec, layout_ref, overrides: Sequence[str]) -> TaskConfig:
+    """Task keys of the flight file <- overrides <- the keys the flight fixes."""
+    src = f"{spec.source}: task"
+    for key in spec.task:
+        if key in FIXED_TASK_KEYS:
+            raise ConfigError(f"{src}: key '{key}' is set by the flight itself (drones, layout, flight_height, decision_rate)")
+    base = build(TaskConfig, spec.task, src)
+    values = to_dict(base)
+    for text in overrides:
+        path, value = parse_override(text, f"--set {text}")
+        if path[0] in FIXED_TASK_KEYS:
+            raise ConfigError(f"--set {text}: '{path[0]}' is set by the flight file (drones, layout, flight_height, decision_rate)")
+        values = to_dict(build(TaskConfig, merge(values, path, value), f"--set {text}"))
+    roles = [d.role for d in spec.drones]
+    values.update(
+        n_pursuers=roles.count("pursuer"),
+        n_evaders=len(roles) - roles.count("pursuer"),
+        layout=layout_ref,
+        flight_height=spec.flight_height,
+        random_obstacles=0,
+        random_layout=False,
+    )
+    if spec.decision_rate is not None:
+        values["control_dt"] = 1.0 / spec.decision_rate
+    # simulator stepping does not apply to a flight; keep it consistent with any decision rate
+    substeps = max(1, round(values["control_dt"] / 0.002))
+    values["physics_dt"] = values["control_dt"] / substeps
+    values["controller_hz"] = 1.0 / values["physics_dt"]
+    return build(TaskConfig, values, src)
+
+
+def _arena_corners(layout: Layout) -> np.ndarray:
+    return np.array([[0.0, 0.0], [layout.width, 0.0], [layout.width, layout.height], [0.0, layout.height]])
+
+
+def _lab_bounds(spec: FlightSpec, transform: LabTransform, layout: Layout) -> LabBounds:
+    """The given lab bounds, checked to contain the arena; else the arena's bounding box."""
+    corners = transform.to_lab(_arena_corners(layout))
+    lo, hi = corners.min(0), corners.max(0)
+    if spec.lab is None:
+        return LabBounds((float(lo[0]), float(hi[0])), (float(lo[1]), float(hi[1])))
+    lab = spec.lab
+    tol = 1e-6
+    if lo[0] < lab.x[0] - tol or hi[0] > lab.x[1] + tol or lo[1] < lab.y[0] - tol or hi[1] > lab.y[1] + tol:
+        raise ConfigError(
+            f"{spec.source}: key 'transform': the {layout.width} x {layout.height} m arena maps to lab x "
+            f"[{lo[0]:.3f}, {hi[0]:.3f}], y [{lo[1]:.3f}, {hi[1]:.3f}] m, which leaves the lab "
+            f"(lab: x {list(lab.x)}, y {list(lab.y)}): check origin, yaw and scale"
+        )
+    return lab
+
+
+def _check_starts(spec: FlightSpec, plan_drones: Sequence[FlightDrone], plan: FlightPlan) -> None:
+    """Every start inside the lab and the arena, outside virtual obstacles, and far enough apart."""
+    starts = np.array([d.start for d in plan_drones], np.float64)
+    lab = plan.lab
+    layout_xy = plan.transform.to_layout(starts)
+    inside = inside_boundary(plan.layout, layout_xy)
+    gap = obstacle_distance(layout_xy, plan.layout.obstacle_set(), with_border=False) / plan.transform.scale
+    for d, p, q, ok, g in zip(plan_drones, starts, layout_xy, inside, gap):
+        where = f"{spec.source}: drone {d.name} ({d.uri}): key 'start'"
+        if not (lab.x[0] <= p[0] <= lab.x[1] and lab.y[0] <= p[1] <= lab.y[1]):
+            raise ConfigError(f"{where}: {p.tolist()} is outside the lab (x {list(lab.x)}, y {list(lab.y)})")
+        if not ok:
+            raise ConfigError(f"{where}: lab {p.tolist()} is layout [{q[0]:.3f}, {q[1]:.3f}], outside the arena of {plan.layout.source}")
+        if g < plan.task.obstacle_clearance / plan.transform.scale:
+            raise ConfigError(f"{where}: lab {p.tolist()} is layout [{q[0]:.3f}, {q[1]:.3f}], inside or touching a virtual obstacle of {plan.layout.source}")
+    if len(starts) > 1:
+        d = np.linalg.norm(starts[:, None] - starts[None], axis=-1) + np.eye(len(starts)) * 1e9
+        i, j = np.unravel_index(np.argmin(d), d.shape)
+        if d[i, j] < spec.safety.min_separation:
+            raise ConfigError(
+                f"{spec.source}: drones {plan_drones[i].name} and {plan_drones[j].name} start {d[i, j]:.3f} m apart, "
+                f"closer than safety.min_separation {spec.safety.min_separation} m"
+            )
+
+
+def resolve_flight(spec: FlightSpec, overrides: Sequence[str] = ()) -> FlightPlan:
+    """Check a flight against its layout and task; raises ConfigError naming the file and key."""
+    layout = _resolve_layout(spec)
+    layout_ref = spec.layout if isinstance(spec.layout, int) else layout.source
+    task = _task_config(spec, layout_ref, overrides)
+    t = spec.transform
+    transform = LabTransform(t.origin, t.yaw, t.scale)
+    names = drone_names(spec)
+    order = [i for i, d in enumerate(spec.drones) if d.role == "pursuer"] + [i for i, d in enumerate(spec.drones) if d.role != "pursuer"]
+    drones = tuple(
+        FlightDrone(names[i], spec.drones[i].uri, spec.drones[i].role, spec.drones[i].start, spec.drones[i].start_yaw) for i in order
+    )
+    capture_lab = task.capture_radius / transform.scale
+    if spec.safety.min_separation >= capture_lab:
+        raise ConfigError(
+            f"{spec.source}: safety.min_separation {spec.safety.min_separation} m is not below the capture distance "
+            f"{capture_lab:.3f} m (task capture_radius {task.capture_radius} / scale {transform.scale}): no capture could happen"
+        )
+    lab = _lab_bounds(spec, transform, layout)
+    plan = FlightPlan(spec, task, layout, transform, lab, drones)
+    _check_starts(spec, drones, plan)
+    return plan
+
+
+def load_plan(path: str | Path, overrides: Sequence[str] = ()) -> FlightPlan:
+    """Read, validate and resolve a flight file."""
+    from .spec import load_flight
+
+    return resolve_flight(load_flight(path), overrides)

@@ -1,0 +1,97 @@
+"""A flight recorded for the rerun viewer (`rerun flight.rrd`), real or virtual.
+
+| entity                         | what (layout frame, m, m/s; V)                                |
+|--------------------------------|---------------------------------------------------------------|
+| `arena/border`, `arena/obstacles` | the layout's border and virtual obstacles (static)         |
+| `arena/fence`                  | the geofence: the border moved in by the margin (static)      |
+| `drones/{name}`                | estimated position, labelled, coloured by role                |
+| `drones/{name}/velocity`       | estimated velocity arrow                                      |
+| `drones/{name}/command`        | commanded velocity arrow (what was sent, after safety)         |
+| `battery/{name}`               | battery voltage                                               |
+| `height/{name}`                | estimated height                                              |
+| `events`                       | every safety and flight event as a text log line              |
+
+Timeline `flight_time`: seconds since the event log opened. The file is written under a
+temporary name and renamed when the recorder closes, even if the flight ended badly.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+
+from ..io_utils import atomic_path
+from ..layout import Box, Wall
+from .plan import FlightPlan
+
+ROLE_RGB = {"pursuer": (38, 115, 242), "evader": (242, 64, 38), "target": (160, 60, 200)}
+LEVEL = {"info": "INFO", "warn": "WARN", "error": "ERROR"}
+
+
+def _outline(o, z: float) -> list[list[float]]:
+    if isinstance(o, Wall):
+        o = o.as_box()
+    if isinstance(o, Box):
+        hx, hy = o.size[0] / 2, o.size[1] / 2
+        c, s = math.cos(o.yaw), math.sin(o.yaw)
+        pts = [(hx, hy), (-hx, hy), (-hx, -hy), (hx, -hy), (hx, hy)]
+        return [[o.center[0] + c * x - s * y, o.center[1] + s * x + c * y, z] for x, y in pts]
+    a = np.linspace(0, 2 * np.pi, 33)
+    return [[o.center[0] + o.radius * math.cos(t), o.center[1] + o.radius * math.sin(t), z] for t in a]
+
+
+class FlightRecorder:
+    """Streams a flight into an .rrd file (module docstring); `close()` finishes the file."""
+
+    def __init__(self, path: str | Path, plan: FlightPlan):
+        self.plan = plan
+        self._stack = contextlib.ExitStack()
+        tmp = self._stack.enter_context(atomic_path(path))
+        self.rec = rr.RecordingStream("pursuit_mj_flight")
+        self.rec.save(tmp)
+        self.path = Path(path)
+        self._log_static()
+
+    def _log_static(self) -> None:
+        plan, rec = self.plan, self.rec
+        z = plan.height
+        border = plan.layout.border()
+        rec.log("arena/border", rr.LineStrips3D([[[x0, y0, 0.0], [x1, y1, 0.0]] for x0, y0, x1, y1 in border], colors=(90, 90, 90)), static=True)
+        if plan.layout.obstacles:
+            rec.log("arena/obstacles", rr.LineStrips3D([_outline(o, z) for o in plan.layout.obstacles], colors=(140, 120, 100)), static=True)
+        m = plan.safety.geofence_margin * plan.transform.scale
+        w, h = plan.layout.width, plan.layout.height
+        if m < min(w, h) / 2:
+            rec.log("arena/fence", rr.LineStrips3D([[[m, m, z], [w - m, m, z], [w - m, h - m, z], [m, h - m, z], [m, m, z]]], colors=(230, 160, 40)), static=True)
+        rec.send_property("flight", rr.AnyValues(name=plan.spec.name, source=plan.spec.source, layout=plan.layout.source, positioning=plan.spec.positioning))
+
+    def log_step(self, t: float, pos: np.ndarray, vel: np.ndarray, command: np.ndarray, vbat: np.ndarray) -> None:
+        """One decision step: pos (D, 3) m, vel (D, 3) m/s, command (D, 2) m/s (layout frame), vbat (D,) V."""
+        rec = self.rec
+        rec.set_time("flight_time", duration=float(t))
+        for i, d in enumerate(self.plan.drones):
+            p = pos[i].tolist()
+            rec.log(f"drones/{d.name}", rr.Points3D([p], radii=0.06, colors=ROLE_RGB[d.role], labels=d.name))
+            rec.log(f"drones/{d.name}/velocity", rr.Arrows3D(origins=[p], vectors=[vel[i].tolist()], colors=(80, 80, 80)))
+            rec.log(f"drones/{d.name}/command", rr.Arrows3D(origins=[p], vectors=[[float(command[i, 0]), float(command[i, 1]), 0.0]], colors=ROLE_RGB[d.role]))
+            if np.isfinite(vbat[i]):
+                rec.log(f"battery/{d.name}", rr.Scalars(float(vbat[i])))
+            rec.log(f"height/{d.name}", rr.Scalars(float(pos[i, 2])))
+
+    def log_event(self, record: dict) -> None:
+        """One event-log record ({'t', 'kind', ...})."""
+        self.rec.set_time("flight_time", duration=float(record["t"]))
+        details = ", ".join(f"{k}={v}" for k, v in record.items() if k not in ("t", "time", "kind", "level"))
+        self.rec.log("events", rr.TextLog(f"{record['kind']}: {details}" if details else record["kind"], level=LEVEL.get(record.get("level", "info"), "INFO")))
+
+    def close(self) -> None:
+        """Finish the file (renamed into place)."""
+        try:
+            self.rec.flush()
+            self.rec.disconnect()
+        finally:
+            self._stack.close()

@@ -1,0 +1,121 @@
+"""Safety filters on the velocity commands of every drone at once (lab frame, m and m/s).
+
+Each filter returns the filtered commands (D, 2) and which drones it changed (D,) bool:
+- `clamp_speed`: no command faster than the limit (the simulator's own `clip_speed`);
+- `Fence`: the arena minus a margin, and the virtual obstacles. A drone may approach the
+  fence only as fast as it can stop within `lookahead` seconds before the margin; inside
+  the margin it is pushed back out. So a drone about to leave brakes and holds at the
+  margin, and may still slide along it;
+- `separate`: the same closing-speed limit between drones (half each when both move);
+- `altitude_speed`: the vertical speed that holds the flight height.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry import border_distance, inside_boundary, obstacle_distance
+from ..layout import Layout
+from ..physics import clip_speed
+from .frames import LabTransform, rotate
+
+_EPS = 1e-3  # m (layout frame): finite-difference step of the clearance gradient
+
+
+def clamp_speed(v: np.ndarray, max_speed: float) -> tuple[np.ndarray, np.ndarray]:
+    """Commands (D, 2) m/s scaled down to at most max_speed, keeping direction."""
+    out = clip_speed(v, np.full(v.shape[:-1], max_speed))
+    return out, np.linalg.norm(v, axis=-1) > max_speed * (1 + 1e-9)
+
+
+def _limit_closing(v: np.ndarray, directions: np.ndarray, limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Project v (D, 2) so that v . u <= limit for every hazard direction u (D, H, 2), limit (D, H).
+
+    A few passes on the worst violation each; returns (v, changed (D,)).
+    """
+    changed = np.zeros(v.shape[0], bool)
+    for _ in range(3):
+        excess = np.einsum("dhk,dk->dh", directions, v) - limits
+        worst = np.argmax(excess, axis=-1)
+        amount = np.take_along_axis(excess, worst[:, None], -1)[:, 0]
+        hit = amount > 1e-9
+        if not hit.any():
+            break
+        changed |= hit
+        u = directions[np.arange(len(v)), worst]
+        v = v - np.where(hit, amount, 0.0)[:, None] * u
+    return v, changed
+
+
+class Fence:
+    """Signed clearance of lab positions from the arena border and virtual obstacles, and the fence filter.
+
+    margin (m): how far inside the fence keeps drones; lookahead (s): braking horizon;
+    breach (m): how far beyond the border (or inside an obstacle) counts as a breach.
+    """
+
+    def __init__(self, layout: Layout, transform: LabTransform, margin: float, lookahead: float, breach: float):
+        self.layout = layout
+        self.transform = transform
+        self.obstacles = layout.obstacle_set()
+        self.border = layout.border()
+        self.margin = margin
+        self.lookahead = lookahead
+        self.breach = breach
+
+    def clearance(self, p_lab: np.ndarray) -> np.ndarray:
+        """(D,) m (lab): distance to the nearest border or obstacle surface; negative outside
+        the arena or inside an obstacle."""
+        q = self.transform.to_layout(p_lab)
+        d = obstacle_distance(q, self.obstacles)
+        outside = ~inside_boundary(self.layout, q)
+        d = np.where(outside, -border_distance(q, self.border), d)
+        return d / self.transform.scale
+
+    def normal(self, p_lab: np.ndarray) -> np.ndarray:
+        """(D, 2) unit vectors (lab): the direction of growing clearance."""
+        q = self.transform.to_layout(p_lab)
+        e = np.array([[_EPS, 0.0], [-_EPS, 0.0], [0.0, _EPS], [0.0, -_EPS]])
+        samples = self.transform.to_lab(q[:, None, :] + e[None]).reshape(-1, 2)
+        c = self.clearance(samples).reshape(-1, 4)
+        g = np.stack([c[:, 0] - c[:, 1], c[:, 2] - c[:, 3]], -1)  # layout-frame gradient
+        g = rotate(g, self.transform.yaw)
+        n = np.linalg.norm(g, axis=-1, keepdims=True)
+        return np.where(n > 1e-12, g / np.maximum(n, 1e-12), 0.0)
+
+    def filter(self, v: np.ndarray, p_lab: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(filtered v (D, 2), braking (D,) bool, clearance (D,) m) for commands v at p_lab (D, 2)."""
+        c = self.clearance(p_lab)
+        toward = -self.normal(p_lab)[:, None, :]  # (D, 1, 2): the way to the fence
+        limit = ((c - self.margin) / self.lookahead)[:, None]
+        v, braking = _limit_closing(v, toward, limit)
+        return v, braking, c
+
+    def breached(self, p_lab: np.ndarray) -> np.ndarray:
+        """(D,) bool: beyond the border or inside an obstacle by more than `breach`."""
+        return self.clearance(p_lab) < -self.breach
+
+
+def separate(v: np.ndarray, p_lab: np.ndarray, min_separation: float, lookahead: float, movable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Limit each movable drone's closing speed toward every other drone (see module docstring).
+
+    v (D, 2) m/s, p_lab (D, 2) m, movable (D,) bool: drones whose commands we set (the
+    others only count as hazards). Returns (v, changed (D,) bool).
+    """
+    D = len(v)
+    if D < 2:
+        return v, np.zeros(D, bool)
+    delta = p_lab[None, :, :] - p_lab[:, None, :]  # (D, D, 2): from i to j
+    dist = np.linalg.norm(delta, axis=-1)
+    u = delta / np.maximum(dist, 1e-9)[..., None]
+    share = np.where(movable[None, :], 0.5, 1.0)
+    limit = share * (dist - min_separation) / lookahead
+    limit = np.where(np.eye(D, dtype=bool), np.inf, limit)
+    out, changed = _limit_closing(v, u, limit)
+    out = np.where(movable[:, None], out, v)
+    return out, changed & movable
+
+
+def altitude_speed(z: np.ndarray, height: float, gain: float, max_vz: float) -> np.ndarray:
+    """(D,) m/s: vertical speed toward `height` (m) from heights z (D,) m, clipped to max_vz."""
+    return np.clip(gain * (height - z), -max_vz, max_vz)

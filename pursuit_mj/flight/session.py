@@ -1,0 +1,181 @@
+"""One whole flight from a flight file: what `pursuit-mj fly` runs, real or virtual.
+
+`run_flight` resolves the flight file (refusing bad ones before any radio is touched),
+checks the output paths, builds the policy, opens the event log and the optional rerun
+recording, starts virtual Crazyflies when asked (then the bridge simply flies their
+udp:// links), and runs the bridge. Faults can be injected into virtual flights to
+rehearse the safety behaviours: `drop_link:p1@3` (p1's link goes silent 3 s into the
+chase), `freeze:p0@2` (p0's estimates stop coming), `battery:e0@4=3.1` (e0's battery
+drops to 3.1 V).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import threading
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+from ..io_utils import check_writable
+from ..policies import make_policy
+from ..policy import Policy
+from .bridge import FlightBridge, FlightResult
+from .events import EventLog
+from .links import CrazyflieFactory
+from .plan import FlightPlan, load_plan
+
+FAULT_KINDS = ("drop_link", "freeze", "battery")
+_FAULT = re.compile(r"^(\w+):([\w\-]+)@([0-9.]+)(?:=([0-9.]+))?$")
+
+
+@dataclasses.dataclass(frozen=True)
+class Fault:
+    """A fault for a virtual drone: kind, drone index (plan order), seconds after the chase starts, value."""
+
+    kind: str
+    drone: int
+    at: float
+    value: float | None = None
+
+
+def parse_fault(text: str, plan: FlightPlan, source: str = "--fault") -> Fault:
+    """'kind:drone@seconds[=value]' -> Fault; ValueError naming `source` if malformed."""
+    m = _FAULT.match(text.strip())
+    if not m:
+        raise ValueError(f"{source} {text!r}: expected KIND:DRONE@SECONDS (e.g. drop_link:p1@3, battery:e0@4=3.1)")
+    kind, name, at, value = m.group(1), m.group(2), float(m.group(3)), m.group(4)
+    if kind not in FAULT_KINDS:
+        raise ValueError(f"{source} {text!r}: unknown fault '{kind}' (valid: {', '.join(FAULT_KINDS)})")
+    if name not in plan.names:
+        raise ValueError(f"{source} {text!r}: no drone named '{name}' (drones: {', '.join(plan.names)})")
+    if (kind == "battery") != (value is not None):
+        raise ValueError(f"{source} {text!r}: 'battery' needs a voltage (battery:{name}@{at:g}=3.1), other faults none")
+    return Fault(kind, plan.names.index(name), at, float(value) if value is not None else None)
+
+
+class FaultInjector:
+    """Applies faults to a VirtualFleet, timed from the 'chase' event of the flight's event log."""
+
+    def __init__(self, fleet, faults: Sequence[Fault], events: EventLog):
+        self.fleet, self.faults, self.events = fleet, list(faults), events
+        self.timers: list[threading.Timer] = []
+        previous = events.echo
+
+        def echo(record: dict) -> None:
+            if record["kind"] == "chase":
+                self._arm()
+            if previous is not None:
+                previous(record)
+
+        events.echo = echo
+
+    def _arm(self) -> None:
+        for f in self.faults:
+            t = threading.Timer(f.at, self._apply, args=(f,))
+            t.daemon = True
+            t.start()
+            self.timers.append(t)
+
+    def _apply(self, f: Fault) -> None:
+        name = self.fleet.plan.names[f.drone]
+        if f.kind == "drop_link":
+            self.fleet.drop_link(f.drone)
+        elif f.kind == "freeze":
+            self.fleet.freeze_estimates(f.drone)
+        else:
+            self.fleet.set_battery(f.drone, f.value)
+        self.events.log("fault_injected", fault=f.kind, drone=name, value=f.value, level="warn")
+
+    def cancel(self) -> None:
+        for t in self.timers:
+            t.cancel()
+
+
+def choose_policy(plan: FlightPlan, policy: str | None, model: str | Path | None, seed: int = 0) -> Policy:
+    """`--policy NAME` (pursuit_mj.policies) or `--model FILE` (train.load_policy, imported only then)."""
+    if (policy is None) == (model is None):
+        raise ValueError("give exactly one of --policy NAME (e.g. heuristic) or --model FILE")
+    if model is not None:
+        if not Path(model).is_file():
+            raise ValueError(f"--model {model}: no such file")
+        try:
+            from train.policy import load_policy
+        except ImportError as exc:
+            raise ValueError(f"--model {model}: loading trained models needs the train package and torch ({exc})") from None
+        return load_policy(model, plan.obs_spec)
+    return make_policy(policy, plan.task, seed, "--policy")
+
+
+def default_events_path(plan: FlightPlan, folder: str | Path = "flights") -> Path:
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    return Path(folder) / f"{plan.spec.name}-{stamp}.events.jsonl"
+
+
+def run_flight(
+    flight: str | Path | FlightPlan,
+    policy: Policy | None = None,
+    *,
+    policy_name: str | None = None,
+    model: str | Path | None = None,
+    overrides: Sequence[str] = (),
+    virtual: bool = False,
+    virtual_drones=None,
+    virtual_physics=None,
+    faults: Sequence[str] = (),
+    events_path: str | Path | None = None,
+    rerun_path: str | Path | None = None,
+    factory: CrazyflieFactory | None = None,
+    seed: int = 0,
+    handle_signals: bool = True,
+    echo: Callable[[dict], None] | None = None,
+    on_bridge: Callable[[FlightBridge], None] | None = None,
+) -> tuple[FlightResult, EventLog]:
+    """Fly (module docstring). Everything that can be refused is refused before a link opens.
+
+    policy: a Policy object, or else policy_name/model pick one; faults need virtual=True;
+    virtual_drones / virtual_physics: VirtualDrone options and VirtualPhysics constants;
+    on_bridge(bridge) is called once the bridge exists (e.g. to wire an emergency-stop key).
+    """
+    plan = flight if isinstance(flight, FlightPlan) else load_plan(flight, overrides)
+    if faults and not virtual:
+        raise ValueError("--fault rehearses failures on virtual drones only; add --virtual")
+    fault_list = [parse_fault(f, plan) for f in faults]
+    if rerun_path is not None:
+        from ..recording import check_rrd_path
+
+        check_rrd_path(rerun_path)
+    if events_path is not None:
+        check_writable(events_path, "--events")
+    if policy is None:
+        policy = choose_policy(plan, policy_name, model, seed)
+    events = EventLog(events_path, echo=echo)
+    recorder = None
+    fleet = None
+    injector = None
+    try:
+        if rerun_path is not None:
+            from .rerun_log import FlightRecorder
+
+            recorder = FlightRecorder(rerun_path, plan)
+        if virtual:
+            from .virtual.fleet import VirtualFleet
+
+            fleet = VirtualFleet(plan, virtual_drones, physics=virtual_physics)
+            fleet.start()
+            events.log("virtual_fleet", uris=fleet.uris)
+            injector = FaultInjector(fleet, fault_list, events)
+            plan = plan.with_uris(fleet.uris)
+        bridge = FlightBridge(plan, policy, events, factory=factory, recorder=recorder, seed=seed, handle_signals=handle_signals)
+        if on_bridge is not None:
+            on_bridge(bridge)
+        return bridge.run(), events
+    finally:
+        if injector is not None:
+            injector.cancel()
+        if fleet is not None:
+            fleet.stop()
+        if recorder is not None:
+            recorder.close()
+        events.close()

@@ -1,0 +1,247 @@
+"""The flight file (YAML): which drones fly, where, with what limits. Validated before any radio is touched.
+
+```yaml
+name: lab-3v1
+layout: 0                    # built-in index or layout file; its obstacles are virtual
+positioning: flow            # flow | lighthouse | loco
+flight_height: 0.5           # m above the lab floor
+decision_rate: 10            # Hz; default 1 / the task's control_dt
+transform: {origin: [0.0, 0.0], yaw: 0.0, scale: 1.0}   # lab -> layout, see frames.py
+lab: {x: [-0.5, 4.1], y: [-0.5, 5.5]}                   # optional: the physical flight space
+drones:
+  - {uri: radio://0/80/2M/E7E7E7E701, role: pursuer, start: [0.6, 0.5]}
+  - {uri: radio://0/80/2M/E7E7E7E704, role: evader, start: [1.8, 4.5]}
+safety: {max_speed: 0.5, geofence_margin: 0.2}         # any SafetyLimits key
+task: {pursuer_speed: 0.3}                              # any TaskConfig key
+```
+Roles: `pursuer` (flown by the policy), `evader` (flown by the escape model), `target`
+(an evader that is only tracked, flown by someone else). `start` is where the drone sits
+before take-off, in lab coordinates (m), facing `start_yaw` (rad); flow-deck drones
+measure from there. Errors name the file and the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import re
+from pathlib import Path
+from typing import Any, Mapping
+
+from ..configio import ConfigError, build, load_yaml, spec
+
+ROLES = ("pursuer", "evader", "target")
+POSITIONING = ("flow", "lighthouse", "loco")
+
+_URI_PATTERNS = {
+    "radio": re.compile(r"^radio://(\d+|[0-9A-Fa-f]{10})/(\d{1,3})/(250K|1M|2M)(/[0-9A-Fa-f]{1,10})?(\?[\w=&]*)?$"),
+    "udp": re.compile(r"^udp://([\w.\-]+):(\d{1,5})$"),
+    "usb": re.compile(r"^usb://\d+$"),
+    "tcp": re.compile(r"^tcp://([\w.\-]+):(\d{1,5})$"),
+}
+
+
+def check_uri(uri: str, where: str) -> str:
+    """Return `uri` if cflib can open it (radio://, udp://, usb://, tcp://); else ConfigError naming `where`."""
+    scheme = uri.split("://", 1)[0] if "://" in uri else ""
+    pattern = _URI_PATTERNS.get(scheme)
+    m = pattern.match(uri) if pattern else None
+    if m is None:
+        raise ConfigError(
+            f"{where}: '{uri}' is not a Crazyflie URI (expected radio://0/80/2M/E7E7E7E7E7, "
+            f"udp://127.0.0.1:19850, usb://0 or tcp://host:port)"
+        )
+    if scheme == "radio" and int(m.group(2)) > 125:
+        raise ConfigError(f"{where}: '{uri}': radio channel {m.group(2)} is out of range (0-125)")
+    if scheme in ("udp", "tcp") and not 1 <= int(m.group(2)) <= 65535:
+        raise ConfigError(f"{where}: '{uri}': port {m.group(2)} is out of range (1-65535)")
+    return uri
+
+
+@dataclasses.dataclass(frozen=True)
+class DroneSpec:
+    """One drone: radio URI, role, start spot (m, lab frame) and heading there (rad)."""
+
+    uri: str = spec(help="cflib URI, e.g. radio://0/80/2M/E7E7E7E701 or udp://127.0.0.1:19850")
+    role: str = spec(choices=ROLES, help="pursuer | evader (escape model) | target (only tracked)")
+    start: tuple[float, float] = spec(help="take-off spot [x, y] in the lab frame (m)")
+    start_yaw: float = spec(0.0, help="heading at the start spot in the lab frame (rad); flow-deck estimates rotate by it")
+    name: str = spec("", help="a label for logs; default role + index")
+
+    def validate(self, source: str) -> None:
+        check_uri(self.uri, f"{source}: key 'uri'")
+
+
+@dataclasses.dataclass(frozen=True)
+class TransformSpec:
+    """lab -> layout: layout = scale * R(-yaw) (lab - origin). See frames.py."""
+
+    origin: tuple[float, float] = spec((0.0, 0.0), help="the layout's lower-left corner in lab coordinates (m)")
+    yaw: float = spec(0.0, help="angle of the layout's x axis in the lab frame (rad, counter-clockwise)")
+    scale: float = spec(1.0, lo=0.0, lo_open=True, help="layout metres per lab metre")
+
+    def validate(self, source: str) -> None:
+        if not 0.05 <= self.scale <= 20.0:
+            raise ConfigError(f"{source}: key 'scale': {self.scale} is not a plausible scale (0.05 to 20 layout m per lab m)")
+
+
+@dataclasses.dataclass(frozen=True)
+class LabBounds:
+    """The physical flight space: x and y ranges (m, lab frame)."""
+
+    x: tuple[float, float] = spec(help="[min, max] (m)")
+    y: tuple[float, float] = spec(help="[min, max] (m)")
+
+    def validate(self, source: str) -> None:
+        for key, (lo, hi) in (("x", self.x), ("y", self.y)):
+            if not lo < hi:
+                raise ConfigError(f"{source}: key '{key}': expected [min, max] with min < max, got {[lo, hi]}")
+
+
+@dataclasses.dataclass(frozen=True)
+class SafetyLimits:
+    """What keeps drones and people safe. Lab frame, SI units (m, s, m/s, V)."""
+
+    max_speed: float = spec(0.5, lo=0.0, lo_open=True, hi=2.0, help="horizontal speed limit of every command (m/s)")
+    max_vertical_speed: float = spec(0.3, lo=0.0, lo_open=True, hi=1.0, help="vertical speed limit (m/s)")
+    geofence_margin: float = spec(0.2, lo=0.0, hi=1.0, help="keep this far inside the arena border and from virtual obstacles (m)")
+    breach_distance: float = spec(0.15, lo=0.0, help="beyond the border or inside an obstacle by more than this: everyone lands (m)")
+    max_altitude: float = spec(1.5, lo=0.2, hi=5.0, help="above this height everyone lands (m)")
+    min_separation: float = spec(0.25, lo=0.0, help="keep drone centres this far apart (m)")
+    lookahead: float = spec(0.5, lo=0.05, hi=5.0, help="braking horizon of the geofence and separation guard (s)")
+    response_time: float = spec(0.3, lo=0.0, hi=2.0, help="how long a drone takes to follow a new command; the guards judge positions this far ahead of its measured motion, plus one decision interval (s)")
+    stale_hover: float = spec(0.3, lo=0.01, help="no fresh estimate for this long: the drone hovers (s)")
+    stale_land: float = spec(1.0, lo=0.02, help="no fresh estimate for this long: everyone lands (s)")
+    link_timeout: float = spec(1.0, lo=0.05, help="nothing heard from a drone for this long: link lost, everyone lands (s)")
+    battery_takeoff: float = spec(3.8, lo=2.5, hi=4.4, help="refuse to take off below this battery voltage (V)")
+    battery_land: float = spec(3.3, lo=2.5, hi=4.4, help="in flight below this voltage the drone lands and the run ends (V)")
+    battery_samples: int = spec(3, lo=1, hi=100, help="consecutive low readings before the low-battery landing")
+    estimator_variance: float = spec(1e-3, lo=0.0, lo_open=True, help="kalman.varPX/PY/PZ must be steady within this and, for Lighthouse/Loco, below it (m^2)")
+    estimator_timeout: float = spec(10.0, lo=0.1, help="wait this long for the estimators to converge (s)")
+    start_tolerance: float = spec(0.3, lo=0.0, lo_open=True, help="Lighthouse/Loco: a drone's estimate must be this close to its start (m)")
+    connect_timeout: float = spec(10.0, lo=0.1, help="open every link within this time (s)")
+    takeoff_speed: float = spec(0.3, lo=0.05, hi=1.0, help="climb speed of the take-off (m/s)")
+    landing_speed: float = spec(0.25, lo=0.05, hi=1.0, help="descent speed of the landing (m/s)")
+    height_tolerance: float = spec(0.15, lo=0.01, help="after take-off every drone must be this close to the flight height (m)")
+    settle: float = spec(0.5, lo=0.0, hi=10.0, help="wait this long after a take-off or landing trajectory ends (s)")
+    altitude_gain: float = spec(1.5, lo=0.0, hi=10.0, help="vertical speed per metre of height error while chasing (1/s)")
+
+    def validate(self, source: str) -> None:
+        if self.stale_land <= self.stale_hover:
+            raise ConfigError(f"{source}: key 'stale_land': {self.stale_land} s must be longer than stale_hover {self.stale_hover} s")
+        if self.battery_land >= self.battery_takeoff:
+            raise ConfigError(f"{source}: key 'battery_land': {self.battery_land} V must be below battery_takeoff {self.battery_takeoff} V")
+
+
+@dataclasses.dataclass(frozen=True)
+class FlightSpec:
+    """A whole flight file (module docstring). `source` is the file it came from."""
+
+    layout: int | str = spec(help="layout index 0-3 or layout file (relative paths: to the flight file)")
+    positioning: str = spec(choices=POSITIONING, help="flow | lighthouse | loco")
+    drones: tuple[DroneSpec, ...] = spec(help="the drones, each {uri, role, start}")
+    name: str = spec("flight", help="a label for logs")
+    flight_height: float = spec(0.5, lo=0.1, hi=3.0, help="height of the chase above the lab floor (m)")
+    decision_rate: float | None = spec(None, help="policy decisions per second (Hz); default 1 / task control_dt")
+    max_time: float = spec(120.0, lo=1.0, hi=3600.0, help="the chase ends (timeout) after this long (s)")
+    transform: TransformSpec = spec(default_factory=TransformSpec, help="lab frame -> layout frame")
+    lab: LabBounds | None = spec(None, help="physical flight space; default: the arena's bounding box in the lab")
+    safety: SafetyLimits = spec(default_factory=SafetyLimits, help="safety limits")
+    task: dict = spec(default_factory=dict, help="task config keys (pursuer_speed, capture_radius ...)")
+    source: str = spec("<flight>", help="where this spec came from")
+
+    def validate(self, source: str) -> None:
+        if not self.drones:
+            raise ConfigError(f"{source}: key 'drones': the list is empty")
+        roles = [d.role for d in self.drones]
+        if "pursuer" not in roles:
+            raise ConfigError(f"{source}: key 'drones': no drone has role 'pursuer'")
+        if not ({"evader", "target"} & set(roles)):
+            raise ConfigError(f"{source}: key 'drones': no drone has role 'evader' or 'target' (nothing to chase)")
+        seen: dict[str, int] = {}
+        for i, d in enumerate(self.drones):
+            if d.uri in seen:
+                raise ConfigError(f"{source}: drones[{i}]: uri '{d.uri}' is also used by drones[{seen[d.uri]}]")
+            seen[d.uri] = i
+        names = drone_names(self)
+        if len(set(names)) != len(names):
+            raise ConfigError(f"{source}: key 'drones': two drones share the name '{_first_duplicate(names)}'")
+        if self.decision_rate is not None and not (math.isfinite(self.decision_rate) and 1.0 <= self.decision_rate <= 100.0):
+            raise ConfigError(f"{source}: key 'decision_rate': {self.decision_rate} Hz is out of range (1 to 100)")
+        if self.flight_height + 0.1 > self.safety.max_altitude:
+            raise ConfigError(
+                f"{source}: key 'flight_height': {self.flight_height} m leaves less than 0.1 m below "
+                f"safety.max_altitude {self.safety.max_altitude} m"
+            )
+
+
+def drone_names(spec_: FlightSpec) -> list[str]:
+    """Each drone's label in file order: its `name`, else role + index within the role."""
+    counts: dict[str, int] = {}
+    out = []
+    for d in spec_.drones:
+        k = counts.get(d.role, 0)
+        counts[d.role] = k + 1
+        out.append(d.name or f"{d.role}_{k}")
+    return out
+
+
+def _first_duplicate(names: list[str]) -> str:
+    seen = set()
+    for n in names:
+        if n in seen:
+            return n
+        seen.add(n)
+    return ""
+
+
+def _check_keys(cls: type, data: Mapping[str, Any], where: str) -> None:
+    """Name an unknown key (with the nearest valid one) or a missing required key."""
+    valid = [f.name for f in dataclasses.fields(cls) if f.name != "source"]
+    for key in data:
+        if key not in valid:
+            close = difflib.get_close_matches(str(key), valid, n=1, cutoff=0.5)
+            hint = f" (did you mean '{close[0]}'?)" if close else f" (valid keys: {', '.join(valid)})"
+            raise ConfigError(f"{where}: unknown key '{key}'{hint}")
+    for f in dataclasses.fields(cls):
+        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING and f.name not in data:
+            raise ConfigError(f"{where}: missing key '{f.name}'")
+
+
+def _build(cls: type, data: Any, where: str):
+    """configio.build after `_check_keys`, so that a missing key is reported as such."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{where}: expected a mapping, got {data!r}")
+    _check_keys(cls, data, where)
+    return build(cls, data, where)
+
+
+def flight_from_dict(data: Mapping[str, Any], source: str = "<flight>") -> FlightSpec:
+    """Parse and validate a flight mapping; every error names `source` and the key."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
+    data = dict(data)
+    _check_keys(FlightSpec, data, source)
+    raw_drones = data["drones"]
+    if not isinstance(raw_drones, (list, tuple)):
+        raise ConfigError(f"{source}: key 'drones': expected a list of {{uri, role, start}}, got {raw_drones!r}")
+    data["drones"] = tuple(_build(DroneSpec, d, f"{source}: drones[{i}]") for i, d in enumerate(raw_drones))
+    for key, cls in (("transform", TransformSpec), ("safety", SafetyLimits)):
+        if key in data:
+            data[key] = _build(cls, data[key] if data[key] is not None else {}, f"{source}: {key}")
+    if data.get("lab") is not None:
+        data["lab"] = _build(LabBounds, data["lab"], f"{source}: lab")
+    if "task" in data and not isinstance(data["task"], Mapping):
+        raise ConfigError(f"{source}: key 'task': expected a mapping of task keys, got {data['task']!r}")
+    data["task"] = dict(data.get("task") or {})
+    data["source"] = source
+    return build(FlightSpec, data, source)
+
+
+def load_flight(path: str | Path) -> FlightSpec:
+    """Read and validate a flight file. Raises ConfigError naming the file and the key."""
+    return flight_from_dict(load_yaml(path), str(path))
+
+
+__all__ = ["DroneSpec", "TransformSpec", "LabBounds", "SafetyLimits", "FlightSpec", "load_flight", "flight_from_dict", "check_uri", "drone_names", "ROLES", "POSITIONING"]

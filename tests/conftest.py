@@ -1,0 +1,46 @@
+"""Shared fixtures: layouts and physics set-ups used by several test files."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from pursuit_mj.config import default_config  # noqa: E402
+from pursuit_mj.layout import Layout, layout_from_dict  # noqa: E402
+from pursuit_mj.physics import BatchedPhysics  # noqa: E402
+
+
+def open_layout(width: float = 20.0, height: float = 20.0, obstacles: list | None = None, name: str = "open_test") -> Layout:
+    """A large empty arena, so that test flights never meet a wall unless they mean to."""
+    return layout_from_dict(
+        {
+            "name": name,
+            "arena": {"width": width, "height": height},
+            "obstacles": obstacles or [],
+            "random_obstacles": {"count": 0},
+            "spawn": {"pursuers": {"x": [0.5, width - 0.5], "y": [0.5, 1.5]}, "evaders": {"x": [0.5, width - 0.5], "y": [height - 1.5, height - 0.5]}},
+        },
+        f"<{name}>",
+    )
+
+
+#: start positions (4, 2) m of the default 3 pursuers + 1 evader, far from each other and from walls
+SPREAD_XY = np.array([[5.0, 5.0], [15.0, 5.0], [5.0, 15.0], [15.0, 15.0]])
+
+
+def make_physics(fidelity: str = "quadrotor", n_worlds: int = 1, layout: Layout | None = None, xy: np.ndarray | None = None, **changes) -> BatchedPhysics:
+    """BatchedPhysics of the default task (with `changes`), drones at `xy` (default SPREAD_XY) in every world."""
+    config = default_config(fidelity=fidelity, **changes)
+    physics = BatchedPhysics(config, [layout or open_layout()] * n_worlds, nthread=1)
+    start = SPREAD_XY if xy is None else np.asarray(xy, dtype=float)
+    physics.reset(np.arange(n_worlds), np.broadcast_to(start, (n_worlds,) + start.shape).copy())
+    return physics
+
+
+@pytest.fixture(scope="session")
+def big_open_layout() -> Layout:
+    return open_layout()

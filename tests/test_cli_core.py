@@ -1,0 +1,74 @@
+"""The simulator-core commands: `pursuit-mj simulate` (the interim main job) and `pursuit-mj bench`."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pursuit_mj.cli import build_parser, main
+from pursuit_mj.cli.bench import targets
+from pursuit_mj.cli.simulate import circle_commands, fly
+from pursuit_mj.config import default_config
+from pursuit_mj.layout import load_layout
+
+
+def test_simulate_prints_a_row_per_layout_and_fidelity(capsys):
+    assert main(["simulate", "--seconds", "0.3", "--layout", "3"]) == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith("cluttered")]
+    assert [r.split()[1] for r in rows] == ["quadrotor", "point"]
+    assert out.count("final xy (m): pursuer_0") == 2 and "total wall time" in out
+
+
+def test_scripted_flight_in_an_open_arena_is_clean_and_ends_circling_the_middle():
+    config = default_config(random_obstacles=0)
+    report = fly(config, load_layout(0), seconds=6.0)
+    assert report.contact_steps.sum() == 0
+    assert report.max_altitude_error < 0.03 and np.degrees(report.max_tilt) < 20
+    radius = np.hypot(*(report.final_xy - [1.8, 2.5]).T)
+    assert ((radius > 0.3) & (radius < 1.6)).all(), radius  # they started 1.7 m or more away
+    assert report.real_time_factor > 1.0
+
+
+def test_circle_commands_point_inward_far_away_and_along_the_circle_on_it():
+    center = np.array([0.0, 0.0])
+    xy = np.array([[[10.0, 0.0], [1.0, 0.0]]])
+    v = circle_commands(xy, center, np.array([1.0, 1.0]), np.array([0.3, 0.6]))
+    assert v[0, 0, 0] < -0.25  # mostly toward the centre
+    np.testing.assert_allclose(v[0, 1], [0.0, 0.6], atol=1e-12)  # tangential, counter-clockwise
+    np.testing.assert_allclose(np.linalg.norm(v, axis=-1), [[0.3, 0.6]])
+
+
+def test_bench_targets_are_found_as_modules_with_the_documented_interface():
+    found = targets()
+    assert "physics" in found
+    for module in found.values():
+        assert isinstance(module.HELP, str) and callable(module.add_arguments) and callable(module.run)
+    help_text = build_parser().format_help()
+    assert "bench" in help_text and "simulate" in help_text and "layout" in help_text
+
+
+def test_bench_physics_prints_the_table(capsys):
+    assert main(["bench", "physics", "--worlds", "2", "--seconds", "0.1", "--fidelity", "point"]) == 0
+    out = capsys.readouterr().out
+    header = next(line for line in out.splitlines() if line.startswith("fidelity"))
+    assert "raw phys steps/s" in header and "ours/raw" in header and "peak RSS MiB" in header
+    row = next(line for line in out.splitlines() if line.startswith("point "))
+    cells = row.split()
+    assert cells[1] == "2" and float(cells[6]) > 0 and float(cells[7]) > 0 and float(cells[8]) > 10
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["simulate", "--seconds", "0"], "--seconds: must be > 0"),
+        (["simulate", "--layout", "8"], "no built-in layout with this index"),
+        (["simulate", "--set", "n_pursuers=40"], "key 'n_pursuers': 40 is out of range"),
+        (["bench", "physics", "--worlds", "0"], "--worlds: world counts must be >= 1, got 0"),
+        (["bench", "physics", "--seconds", "-1"], "--seconds: must be > 0"),
+    ],
+)
+def test_bad_input_exits_2_with_one_line(argv, message, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err, err

@@ -1,0 +1,117 @@
+"""The task config: defaults of DESIGN.md section 1, YAML files, overrides, and every kind of bad value."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+import yaml
+
+from pursuit_mj.cli import main
+from pursuit_mj.config import ConfigError, TaskConfig, default_config, dump_yaml, load_task_config
+
+
+def test_defaults_reproduce_the_reference_study():
+    c = TaskConfig()
+    expected = {"n_pursuers": 3, "n_evaders": 1, "pursuer_speed": 0.3, "evader_speed": 0.6, "perception_radius": 2.0,
+                "field_of_view": 2 * math.pi, "capture_radius": 0.3, "obstacle_clearance": 0.1, "teammate_clearance": 0.2,
+                "control_dt": 0.1, "max_steps": 1000, "flight_height": 0.5, "layout": 0, "random_obstacles": 5,
+                "random_layout": False, "observability": "partial", "collision_penalty": -10.0, "spread_reward": 0.0,
+                "fidelity": "quadrotor"}
+    assert {k: getattr(c, k) for k in expected} == expected
+    assert c.substeps == 50 and c.substeps_per_control == 5 and c.n_drones == 4
+    c.validate()
+
+
+def test_config_is_frozen_and_changes_make_new_configs():
+    c = default_config()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        c.n_pursuers = 5  # type: ignore[misc]
+    d = default_config(n_pursuers=5, fidelity="point")
+    assert (c.n_pursuers, d.n_pursuers, d.fidelity) == (3, 5, "point")
+
+
+def test_yaml_files_flags_and_overrides_apply_in_order(tmp_path):
+    f1, f2 = tmp_path / "a.yaml", tmp_path / "b.yaml"
+    f1.write_text(yaml.safe_dump({"n_pursuers": 4, "evader_speed": 0.5, "evader": {"panic_distance": 1.0}}))
+    f2.write_text(yaml.safe_dump({"n_pursuers": 5}))
+    c = load_task_config([f1, f2], ["evader_speed=0.7", "evader.calm_distance=2.5"], {"fidelity": "point", "n_pursuers": 6})
+    assert (c.n_pursuers, c.evader_speed, c.fidelity) == (6, 0.7, "point")
+    assert (c.evader.panic_distance, c.evader.calm_distance) == (1.0, 2.5)
+
+
+def test_dumped_config_loads_back_identical(tmp_path):
+    c = default_config(n_pursuers=2, layout="configs/layouts/1_walls.yaml", observability="full")
+    path = tmp_path / "c.yaml"
+    path.write_text(dump_yaml(c))
+    assert load_task_config([path]) == c
+
+
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        (["n_persuers=2"], r"--set n_persuers=2: unknown key 'n_persuers' \(did you mean 'n_pursuers'\?\)"),
+        (["evader.panic_dist=1"], r"unknown key 'evader.panic_dist' \(did you mean 'panic_distance'\?\)"),
+        (["n_pursuers=2.5"], r"key 'n_pursuers': expected an integer, got 2.5"),
+        (["n_pursuers=true"], r"key 'n_pursuers': expected an integer, got True"),
+        (["pursuer_speed=fast"], r"key 'pursuer_speed': expected a number, got 'fast'"),
+        (["random_layout=3"], r"key 'random_layout': expected true or false, got 3"),
+        (["pursuer_speed=-0.3"], r"key 'pursuer_speed': -0.3 is out of range \(must be > 0.0\)"),
+        (["n_pursuers=0"], r"key 'n_pursuers': 0 is out of range \(must be >= 1\)"),
+        (["n_pursuers=99"], r"key 'n_pursuers': 99 is out of range \(must be <= 16\)"),
+        (["fidelity=rigid"], r"key 'fidelity': 'rigid' is not one of \['point', 'quadrotor'\]"),
+        (["pursuer_speed=.inf"], r"key 'pursuer_speed': expected a finite number"),
+        (["control_dt=0.015"], r"control_dt 0.015 is not a whole number of physics_dt 0.002"),
+        (["controller_hz=300"], r"controller_hz 300.0 does not divide the physics rate 500 Hz"),
+        (["perception_radius=0.2"], r"perception_radius 0.2 is below capture_radius 0.3"),
+        (["n_pursuers"], r"'n_pursuers' is not of the form key=value"),
+        (["evader=3"], r"key 'evader': expected a mapping of EvaderConfig keys, got 3"),
+        (["n_pursuers.x=1"], r"'n_pursuers' has no sub-keys"),
+    ],
+)
+def test_bad_overrides_raise_naming_key_value_and_source(overrides, message):
+    with pytest.raises(ConfigError, match=message):
+        load_task_config([], overrides)
+
+
+def test_bad_yaml_files_name_the_file(tmp_path):
+    bad_key = tmp_path / "typo.yaml"
+    bad_key.write_text("evader_sped: 0.5\n")
+    with pytest.raises(ConfigError, match=r"typo.yaml: unknown key 'evader_sped' \(did you mean 'evader_speed'\?\)"):
+        load_task_config([bad_key])
+    bad_type = tmp_path / "type.yaml"
+    bad_type.write_text("max_steps: many\n")
+    with pytest.raises(ConfigError, match=r"type.yaml: key 'max_steps': expected an integer, got 'many'"):
+        load_task_config([bad_type])
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("n_pursuers: [1,\n")
+    with pytest.raises(ConfigError, match=r"broken.yaml: not valid YAML"):
+        load_task_config([broken])
+    listing = tmp_path / "list.yaml"
+    listing.write_text("- 1\n- 2\n")
+    with pytest.raises(ConfigError, match=r"list.yaml: expected a mapping at the top level, got list"):
+        load_task_config([listing])
+    with pytest.raises(ConfigError, match=r"file not found"):
+        load_task_config([tmp_path / "nope.yaml"])
+
+
+def test_bad_keyword_to_default_config_names_the_nearest_key():
+    with pytest.raises(ConfigError, match=r"default_config\(\): unknown key 'flight_hieght' \(did you mean 'flight_height'\?\)"):
+        default_config(flight_hieght=1.0)
+    with pytest.raises(ValueError):  # ConfigError is a ValueError, for callers that catch those
+        default_config(layout=-1)
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["config", "--set", "bogus=1"], "unknown key 'bogus'"),
+        (["config", "--pursuers", "0"], "command-line flag: key 'n_pursuers': 0 is out of range"),
+        (["config", "--set", "evader_speed=-1"], "--set evader_speed=-1: key 'evader_speed': -1.0 is out of range"),
+    ],
+)
+def test_cli_bad_config_exits_2_with_one_line(argv, message, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err, err

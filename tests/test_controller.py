@@ -1,0 +1,190 @@
+"""Controller quality on the quadrotor model (through BatchedPhysics), the mixer, the point fidelity.
+
+Every flight is checked at every controller tick (a read-only physics observer), not only at
+decision steps: altitude within 3 cm of flight_height and tilt never past 20 degrees.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+from conftest import SPREAD_XY, make_physics
+
+from pursuit_mj.controller import VelocityController, mixer_matrix, quat_to_rotmat, tilt_angle
+from pursuit_mj.scene import DRONE_FILE, drone_parameters
+
+MAX_ALT_ERROR = 0.03  # m
+MAX_TILT = math.radians(20.0)
+
+
+class FlightLog:
+    """Observer: per controller tick, time (s), velocity (D, 3), position (D, 3), tilt (D,) of world 0."""
+
+    def __init__(self, physics):
+        self.t, self.vel, self.pos, self.tilt = [], [], [], []
+        physics.observers.append(self)
+
+    def __call__(self, p) -> None:
+        self.t.append((len(self.t) + 1) * p.config.substeps_per_control * p.config.physics_dt)
+        self.vel.append(p.velocities()[0])
+        self.pos.append(p.positions()[0])
+        self.tilt.append(tilt_angle(p.quaternions()[0]))
+
+    def arrays(self):
+        return np.array(self.t), np.array(self.vel), np.array(self.pos), np.array(self.tilt)
+
+
+def fly(physics, commands) -> FlightLog:
+    """Run the decision-step commands (K, D, 2) m/s in world 0 and log every controller tick."""
+    log = FlightLog(physics)
+    for cmd in commands:
+        physics.step(cmd[None])
+    return log
+
+
+def assert_safe(log: FlightLog, height: float) -> None:
+    _, vel, pos, tilt = log.arrays()
+    assert np.isfinite(vel).all() and np.isfinite(pos).all()
+    worst_dz = np.abs(pos[..., 2] - height).max()
+    assert worst_dz < MAX_ALT_ERROR, f"altitude error {worst_dz:.4f} m"
+    assert tilt.max() < MAX_TILT, f"tilt {math.degrees(tilt.max()):.1f} deg"
+
+
+# ----------------------------------------------------------------------------- step response
+
+
+#: the default controller rate (the lowest of the design's 100-500 Hz), and 250 Hz
+RATES = [pytest.param({}, id="default-rate"), pytest.param({"controller_hz": 250.0}, id="250Hz")]
+
+
+@pytest.mark.parametrize("rate", RATES)
+def test_step_response_of_0_3_m_s_meets_rise_overshoot_and_steady_error(rate):
+    physics = make_physics(**rate)
+    step = np.zeros((30, 4, 2))  # 3 s
+    step[:, 0] = [0.3, 0.0]  # pursuer_0 along x
+    step[:, 1] = [0.0, -0.3]  # pursuer_1 along -y
+    step[:, 2] = [0.3 / math.sqrt(2)] * 2  # pursuer_2 diagonally
+    step[:, 3] = [-0.3, 0.0]  # the evader, below its max speed
+    log = fly(physics, step)
+    t, vel, _, _ = log.arrays()
+    for d in range(4):
+        target = step[0, d]
+        along = vel[:, d, :2] @ target / 0.3  # velocity along the command (m/s)
+        t90 = t[np.argmax(along >= 0.9 * 0.3)]
+        assert along.max() >= 0.9 * 0.3 and t90 <= 0.8, f"drone {d}: 90 % reached at {t90:.3f} s"
+        assert along.max() < 1.15 * 0.3, f"drone {d}: overshoot {along.max() / 0.3 - 1:.1%}"
+        steady = vel[t >= 2.0, d, :2].mean(0)
+        assert np.linalg.norm(steady - target) < 0.02 * 0.3, f"drone {d}: steady velocity {steady}"
+    assert_safe(log, physics.config.flight_height)
+
+
+@pytest.mark.parametrize("rate", RATES)
+def test_full_speed_reversal_stays_stable(rate):
+    physics = make_physics(**rate)
+    cmd = np.zeros((40, 4, 2))
+    cmd[:20, :, 0] = physics.max_speed  # +0.3 pursuers, +0.6 evader
+    cmd[20:, :, 0] = -physics.max_speed
+    log = fly(physics, cmd)
+    assert_safe(log, physics.config.flight_height)
+    _, vel, _, _ = log.arrays()
+    np.testing.assert_allclose(vel[-1, :, 0], -physics.max_speed, rtol=0.02)
+
+
+@pytest.mark.parametrize("rate", RATES)
+def test_random_command_sequence_stays_stable(rate):
+    physics = make_physics(**rate)
+    rng = np.random.default_rng(7)
+    cmd = rng.uniform(-1.0, 1.0, (100, 4, 2)) * physics.max_speed[:, None]  # a new command every 0.1 s
+    log = fly(physics, cmd)
+    assert_safe(log, physics.config.flight_height)
+    _, vel, _, _ = log.arrays()
+    assert np.linalg.norm(vel[..., :2], axis=-1).max() < 1.2 * physics.max_speed.max()
+
+
+def test_hover_from_rest_drifts_under_1_cm_in_5_s():
+    physics = make_physics()
+    log = fly(physics, np.zeros((50, 4, 2)))
+    assert_safe(log, physics.config.flight_height)
+    drift = np.linalg.norm(physics.positions()[0, :, :2] - SPREAD_XY, axis=-1)
+    assert drift.max() < 0.01
+    yaw = np.arctan2(quat_to_rotmat(physics.quaternions()[0].T)[3], quat_to_rotmat(physics.quaternions()[0].T)[0])
+    assert np.abs(yaw).max() < 1e-3
+
+
+# ----------------------------------------------------------------------------- mixer
+
+
+@pytest.fixture(scope="module")
+def params():
+    return drone_parameters()
+
+
+def test_mixer_matches_hand_computed_allocation(params):
+    arm = 0.046 / math.sqrt(2)  # motors on the diagonals, 46 mm from the centre
+    ratio = 0.006  # reaction torque per newton of thrust (m)
+    inv = VelocityController(params, 0.5).mixer_inv
+    cases = {  # wrench [T, tau_x, tau_y, tau_z] -> rotor thrusts (M1 front-right, then clockwise from above)
+        (0.28, 0, 0, 0): [0.07, 0.07, 0.07, 0.07],
+        (0, 1e-3, 0, 0): np.array([-1, -1, 1, 1]) * 1e-3 / (4 * arm),  # roll right-side-down: left rotors push
+        (0, 0, 1e-3, 0): np.array([-1, 1, 1, -1]) * 1e-3 / (4 * arm),  # pitch nose-down: rear rotors push
+        (0, 0, 0, 1e-4): np.array([1, -1, 1, -1]) * 1e-4 / (4 * ratio),  # yaw left: clockwise rotors M1, M3
+    }
+    for wrench, expected in cases.items():
+        np.testing.assert_allclose(inv @ np.array(wrench), expected, rtol=1e-3, atol=1e-9, err_msg=str(wrench))
+
+
+def test_mixer_matches_mujoco_actuator_forces(params):
+    """The allocation the controller inverts is the one MuJoCo applies to the body."""
+    model = mujoco.MjModel.from_xml_path(str(DRONE_FILE))
+    data = mujoco.MjData(model)
+    allocation = mixer_matrix(params["motor_xy"], params["yaw_ratio"])
+    rng = np.random.default_rng(1)
+    for f in rng.uniform(0.0, params["max_thrust"], (5, 4)):
+        data.act[:] = f  # the filtered thrust is what the actuator applies
+        mujoco.mj_forward(model, data)
+        wrench = data.qfrc_actuator[[2, 3, 4, 5]]  # world z force and body torques (identity attitude)
+        np.testing.assert_allclose(wrench, allocation @ f, rtol=1e-9, atol=1e-12)
+
+
+def test_controller_treats_every_drone_independently(params):
+    """Computing N drones at once equals computing each alone (no mixing across the batch)."""
+    rng = np.random.default_rng(2)
+    n = 6
+    q = rng.normal(size=(4, n)) + np.array([[3.0], [0], [0], [0]])
+    q /= np.linalg.norm(q, axis=0)
+    state = (rng.normal(0.5, 0.05, (3, n)), rng.normal(0, 0.3, (3, n)), q, rng.normal(0, 1.0, (3, n)), rng.normal(0, 0.3, (2, n)))
+    together = VelocityController(params, 0.5).compute(*state, 0.004)
+    for i in range(n):
+        alone = VelocityController(params, 0.5).compute(*(a[:, i : i + 1] for a in state), 0.004)
+        np.testing.assert_allclose(together[:, i : i + 1], alone, rtol=1e-12, atol=1e-15)
+    assert (together >= 0).all() and (together <= params["max_thrust"]).all()
+
+
+def test_rotation_matrix_matches_mujoco(params):
+    rng = np.random.default_rng(3)
+    q = rng.normal(size=(4, 8))
+    q /= np.linalg.norm(q, axis=0)
+    ours = quat_to_rotmat(q)
+    for i in range(8):
+        ref = np.zeros(9)
+        mujoco.mju_quat2Mat(ref, q[:, i])
+        np.testing.assert_allclose(ours[:, i], ref, atol=1e-12)
+
+
+# ----------------------------------------------------------------------------- point fidelity
+
+
+def test_point_fidelity_is_a_first_order_lag(params):
+    physics = make_physics("point")
+    tau = params["point_time_constant"]
+    cmd = np.zeros((1, 4, 2))
+    cmd[0, 0] = [0.3, 0.0]
+    cmd[0, 3] = [0.0, -0.6]
+    for k in range(1, 8):
+        physics.step(cmd)
+        expected = cmd[0, :, :] * (1 - math.exp(-k * physics.config.control_dt / tau))
+        np.testing.assert_allclose(physics.velocities()[0, :, :2], expected, atol=0.004, err_msg=f"after {k} steps")
+    assert np.all(physics.positions()[..., 2] == physics.config.flight_height)

@@ -1,0 +1,87 @@
+"""Guards that act during a flight, on virtual Crazyflies through real cflib: the speed clamp,
+the geofence and the separation guard (commands filtered, drones kept inside and apart),
+Ctrl-C (everyone lands) and the emergency stop (every motor cut at once)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import numpy as np
+
+from flight_rehearsal import ScriptedTeam, fly_virtual, kinds_in_order, quick_plan, wait_for
+from pursuit_mj.heuristic import HeuristicTeam
+
+
+def down(fleet) -> bool:
+    state = fleet.true_state()
+    return bool((state["pos"][:, 2] < 0.03).all() and not state["motors"].any())
+
+
+def test_speed_clamp_geofence_and_separation_guard_keep_drones_slow_inside_and_apart(tmp_path):
+    # p0 flies at the left border, p1 and p2 at each other, all asked for 1 m/s (limit 0.4 m/s)
+    plan = quick_plan(max_time=2.4, task={"pursuer_speed": 1.0}, safety={"max_speed": 0.4, "geofence_margin": 0.3, "min_separation": 0.25})
+    team = ScriptedTeam([[-1.0, 0.0], [1.0, 0.0], [-1.0, 0.0]])
+    track = []
+
+    def watch(fleet, bridge):
+        end = time.monotonic() + 2.3
+        while time.monotonic() < end:
+            track.append(fleet.true_state()["pos"].copy())
+            time.sleep(0.02)
+
+    result, events, fleet = fly_virtual(plan, team, tmp_path, during=watch)
+    assert result.outcome == "timeout" and result.landed
+    names = lambda kind: {r["drone"] for r in events.of_kind(kind)}  # noqa: E731
+    assert {"p0", "p1", "p2"} <= names("speed_clamped")
+    assert "p0" in names("geofence") and {"p1", "p2"} <= names("separation")
+    sent = np.array([s.sent[:3, :2] for s in result.steps])
+    assert np.linalg.norm(sent, axis=-1).max() <= 0.4 + 1e-9
+    track = np.array(track)
+    assert track[:, 0, 0].min() > 0.3 - 0.08  # held at the margin (the arena starts at lab x = 0) ...
+    assert track[-1, 0, 0] < 0.45  # ... after flying there from x = 0.8
+    gap = np.linalg.norm(track[:, 1, :2] - track[:, 2, :2], axis=-1)
+    assert gap.min() > 0.25 - 0.05 and gap[-1] < 0.45  # they came close, not closer
+    assert down(fleet)
+
+
+def test_ctrl_c_lands_everyone_and_restores_the_signal_handler(tmp_path):
+    plan = quick_plan(max_time=8.0)
+    before = signal.getsignal(signal.SIGINT)
+
+    def press_ctrl_c(fleet, bridge):
+        time.sleep(0.3)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    result, events, fleet = fly_virtual(plan, HeuristicTeam.from_config(plan.task), tmp_path, during=press_ctrl_c, handle_signals=True)
+    assert result.outcome == "interrupted" and result.landed
+    assert kinds_in_order(events, "chase", "interrupt", "land", "landed")
+    assert signal.getsignal(signal.SIGINT) is before
+    assert down(fleet)
+
+
+def test_a_keyboard_interrupt_inside_the_loop_lands_everyone(tmp_path):
+    result, events, fleet = fly_virtual(quick_plan(max_time=8.0), ScriptedTeam([[0.2, 0.0]], raise_at=4), tmp_path)
+    assert result.outcome == "interrupted" and result.landed and len(result.steps) == 3
+    assert kinds_in_order(events, "chase", "end_of_run", "land", "landed")
+    assert down(fleet)
+
+
+def test_the_emergency_stop_cuts_every_motor_at_once_and_nobody_lands(tmp_path):
+    seen = {}
+
+    def estop(fleet, bridge):
+        time.sleep(0.3)
+        t0 = time.monotonic()
+        bridge.emergency_stop("test command")
+        seen["off_after"] = time.monotonic() - t0 if wait_for(lambda: not fleet.true_state()["motors"].any(), 1.0) else None
+
+    def aftermath(fleet):
+        seen["fell"] = wait_for(lambda: down(fleet), 2.0)
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=8.0), ScriptedTeam([[0.0, 0.0]]), tmp_path, during=estop, aftermath=aftermath)
+    assert result.outcome == "emergency_stop" and not result.landed
+    assert seen["off_after"] is not None and seen["off_after"] < 0.2
+    assert "land" not in events.kinds() and events.of_kind("emergency_stop")[0]["reason"] == "test command"
+    assert fleet.true_state()["locked"].all() and seen["fell"]

@@ -1,0 +1,115 @@
+"""Safety before and during a flight, on virtual Crazyflies through real cflib: what ends a run.
+
+Preflight refusals (deck, battery, estimator, links) and, in flight, a dropped link, frozen
+estimates and a drained battery. Checks are on the event log and on the virtual drones'
+true state.
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import pytest
+
+from flight_rehearsal import QUICK, ScriptedTeam, fly_virtual, kinds_in_order, quick_plan, wait_for
+from pursuit_mj.flight.links import LinkError
+from pursuit_mj.flight.preflight import PreflightError
+from pursuit_mj.flight.virtual.fleet import VirtualDrone
+
+HOVER = ScriptedTeam([[0.0, 0.0]])
+
+
+def pair_plan(**safety):
+    """A 1-vs-1 flight (p0 chases e0)."""
+    return quick_plan(drones=[QUICK["drones"][0], QUICK["drones"][3]], safety=safety)
+
+
+def dead_uri() -> str:
+    """A udp:// URI on which nothing listens."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return f"udp://127.0.0.1:{port}"
+
+
+def down(fleet, which=slice(None)) -> bool:
+    """The listed drones sit on the floor with their motors off."""
+    state = fleet.true_state()
+    return bool((state["pos"][which, 2] < 0.03).all() and not state["motors"][which].any())
+
+
+def never_took_off(fleet) -> bool:
+    return not any(r.kind == "takeoff" for i in range(fleet.plan.n_drones) for r in fleet.received(i))
+
+
+@pytest.mark.parametrize(
+    "drones, safety, words",
+    [
+        ([VirtualDrone(decks=()), VirtualDrone()], {}, ["preflight deck", "drone p0", "no Flow deck detected", "deck.bcFlow2 = 0"]),
+        ([VirtualDrone(), VirtualDrone(battery=3.6)], {}, ["preflight battery", "drone e0", "3.60 V is below 3.8 V"]),
+        ([VirtualDrone(), VirtualDrone(converges=False)], {"estimator_timeout": 0.6}, ["preflight estimator", "drone e0", "did not converge"]),
+    ],
+)
+def test_preflight_refuses_to_take_off_with_a_clear_reason(tmp_path, drones, safety, words):
+    result, events, fleet = fly_virtual(pair_plan(**safety), HOVER, tmp_path, drones=drones)
+    assert isinstance(result, PreflightError), result
+    for w in words:
+        assert w in str(result), (w, str(result))
+    assert kinds_in_order(events, "links_up", "preflight_failed", "refused", "links_closed")
+    assert never_took_off(fleet)
+
+
+def test_a_link_that_does_not_come_up_refuses_the_flight_naming_it(tmp_path):
+    dead = dead_uri()
+    result, events, fleet = fly_virtual(pair_plan(connect_timeout=2.0), HOVER, tmp_path, uris=lambda uris: [uris[0], dead])
+    assert isinstance(result, LinkError), result
+    assert "drone e0" in str(result) and dead in str(result)
+    assert "links_up" not in events.kinds() and never_took_off(fleet)
+
+
+def test_a_lost_link_lands_everyone_else(tmp_path):
+    seen = {}
+
+    def drop(fleet, bridge):
+        time.sleep(0.3)
+        fleet.drop_link(1)
+
+    def aftermath(fleet):
+        # the silent drone's own firmware watchdog stops its motors 2 s after its last setpoint
+        seen["p1_down"] = wait_for(lambda: down(fleet, [1]), 4.0)
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=8.0), HOVER, tmp_path, during=drop, aftermath=aftermath)
+    assert result.outcome == "link_lost" and "p1" in result.reason
+    assert events.of_kind("link_lost")[0]["drone"] == "p1"
+    assert events.of_kind("land")[0]["drones"] == ["p0", "p2", "e0"]
+    assert down(fleet, [0, 2, 3]) and seen["p1_down"]
+
+
+def test_frozen_estimates_make_the_drone_hover_then_everyone_land(tmp_path):
+    def freeze(fleet, bridge):
+        time.sleep(0.3)
+        fleet.freeze_estimates(0)
+
+    plan = quick_plan(max_time=8.0, safety={"stale_hover": 0.3, "stale_land": 1.0})
+    result, events, fleet = fly_virtual(plan, HOVER, tmp_path, during=freeze)
+    assert result.outcome == "stale" and "p0" in result.reason
+    assert kinds_in_order(events, "stale_hover", "stale_land", "land", "landed")
+    assert events.of_kind("stale_hover")[0]["drone"] == "p0" and events.of_kind("stale_land")[0]["drone"] == "p0"
+    kinds = [r.kind for r in fleet.received(0)]
+    assert "hover" in kinds and kinds.index("hover") > kinds.index("velocity")  # held while stale
+    assert down(fleet)
+
+
+def test_a_drained_battery_lands_that_drone_and_ends_the_run(tmp_path):
+    def drain(fleet, bridge):
+        time.sleep(0.3)
+        fleet.set_battery(3, 3.1)
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=8.0), HOVER, tmp_path, during=drain)
+    assert result.outcome == "low_battery" and "e0" in result.reason
+    low = events.of_kind("low_battery")[0]
+    assert low["drone"] == "e0" and low["vbat"] < 3.3
+    assert "e0" in events.of_kind("land")[0]["drones"]
+    assert down(fleet)

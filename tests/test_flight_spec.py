@@ -1,0 +1,333 @@
+"""The flight file, frames, the transform fit and the safety filters: everything decided before a radio opens."""
+
+from __future__ import annotations
+
+import copy
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from pursuit_mj.configio import ConfigError
+from pursuit_mj.flight.frames import DroneFrames, LabTransform, fit_similarity
+from pursuit_mj.flight.links import CachedFactory
+from pursuit_mj.flight.plan import load_plan, resolve_flight
+from pursuit_mj.flight.safety import Fence, altitude_speed, clamp_speed, separate
+from pursuit_mj.flight.session import parse_fault, run_flight
+from pursuit_mj.flight.spec import flight_from_dict, load_flight
+from pursuit_mj.layout import load_layout
+
+EXAMPLE = "configs/flight/example.yaml"
+
+BASE = {
+    "layout": 0,
+    "positioning": "lighthouse",
+    "drones": [
+        {"name": "p0", "uri": "radio://0/80/2M/E7E7E7E701", "role": "pursuer", "start": [1.0, 1.0]},
+        {"name": "e0", "uri": "radio://0/80/2M/E7E7E7E702", "role": "evader", "start": [2.0, 4.0]},
+        {"name": "p1", "uri": "radio://0/80/2M/E7E7E7E703", "role": "pursuer", "start": [2.5, 1.0]},
+    ],
+}
+
+
+def flight(**changes) -> dict:
+    data = copy.deepcopy(BASE)
+    data.update(changes)
+    return data
+
+
+class RecordingFactory(CachedFactory):
+    """cflib's own factory, counting links built: none may be built for a refused flight."""
+
+    def __init__(self, cache_dir):
+        super().__init__(cache_dir)
+        self.built: list[str] = []
+
+    def construct(self, uri):
+        self.built.append(uri)
+        return super().construct(uri)
+
+
+def test_example_flight_resolves_with_pursuers_first_and_flow_frames_at_the_starts():
+    plan = load_plan(EXAMPLE)
+    assert plan.names == ["p0", "p1", "p2", "e0"] and plan.n_pursuers == 3 and plan.n_evaders == 1
+    assert plan.task.control_dt == pytest.approx(0.1) and plan.task.flight_height == 0.5 and plan.task.random_obstacles == 0
+    np.testing.assert_allclose(plan.frames.offset, [[0.8, 0.5], [1.8, 0.5], [2.8, 0.5], [1.8, 4.5]])
+    assert plan.obs_spec.dim == plan.obs_spec.make(3, 1, plan.task.n_rays).dim
+
+
+@pytest.mark.parametrize("rate", [1.0, 7.0, 20.0, 30.0, 100.0])
+def test_any_decision_rate_in_range_makes_a_valid_task(rate):
+    plan = resolve_flight(flight_from_dict(flight(decision_rate=rate), "f.yaml"))
+    assert plan.dt == pytest.approx(1.0 / rate)
+
+
+def test_drone_order_is_pursuers_first_whatever_the_file_order():
+    plan = resolve_flight(flight_from_dict(flight(), "f.yaml"))
+    assert plan.names == ["p0", "p1", "e0"]
+    assert plan.commanded.tolist() == [True, True, True] and plan.flown_evaders.tolist() == [True]
+    data = flight()
+    data["drones"][1]["role"] = "target"
+    plan = resolve_flight(flight_from_dict(data, "f.yaml"))
+    assert plan.commanded.tolist() == [True, True, False] and plan.flown_evaders.tolist() == [False]
+
+
+@pytest.mark.parametrize(
+    "edit, words",
+    [
+        (lambda d: d["drones"][0].update(uri="radio://0/180/2M/E7E7E7E701"), ["drones[0]", "uri", "channel 180"]),
+        (lambda d: d["drones"][0].update(uri="bluetooth://cf1"), ["drones[0]", "uri", "not a Crazyflie URI"]),
+        (lambda d: d["drones"][1].update(uri="radio://0/80/2M/E7E7E7E701"), ["drones[1]", "also used by drones[0]"]),
+        (lambda d: d["drones"][1].update(role="chaser"), ["drones[1]", "role", "'chaser'"]),
+        (lambda d: d["drones"][0].pop("start"), ["drones[0]", "missing key 'start'"]),
+        (lambda d: d.pop("positioning"), ["missing key 'positioning'"]),
+        (lambda d: d.update(positionning="flow"), ["unknown key 'positionning'", "did you mean 'positioning'"]),
+        (lambda d: d.update(transform={"scale": 0.0}), ["transform", "scale"]),
+        (lambda d: d.update(transform={"origin": [0, 0], "yaw": "north"}), ["transform", "yaw"]),
+        (lambda d: d.update(safety={"stale_hover": 2.0, "stale_land": 1.0}), ["stale_land", "longer than stale_hover"]),
+        (lambda d: d["drones"].__setitem__(1, dict(d["drones"][1], role="pursuer")), ["no drone has role 'evader' or 'target'"]),
+    ],
+)
+def test_a_bad_flight_file_is_refused_naming_file_and_key(edit, words):
+    data = flight()
+    edit(data)
+    with pytest.raises(ConfigError) as err:
+        resolve_flight(flight_from_dict(data, "lab.yaml"))
+    message = str(err.value)
+    assert message.startswith("lab.yaml"), message
+    for w in words:
+        assert w in message, (w, message)
+
+
+@pytest.mark.parametrize(
+    "changes, words",
+    [
+        ({"transform": {"origin": [0, 0], "yaw": 0.5}, "lab": {"x": [0, 4], "y": [0, 5.2]}}, ["transform", "leaves the lab"]),
+        ({"transform": {"origin": [0, 0], "scale": 0.5}, "lab": {"x": [0, 4], "y": [0, 5]}}, ["transform", "leaves the lab"]),
+        ({"transform": {"origin": [5, 5]}, "lab": {"x": [0, 9], "y": [0, 11]}}, ["drone p0", "start", "outside the arena"]),
+        ({"transform": {"origin": [5, 5]}}, ["drone p0", "start", "outside the lab"]),
+        ({"transform": {"scale": 0.1}, "safety": {"min_separation": 3.5}}, ["min_separation", "no capture"]),
+        ({"safety": {"min_separation": 0.29}, "transform": {"scale": 1.2}}, ["min_separation", "capture distance"]),
+        ({"task": {"n_pursuers": 5}}, ["task", "n_pursuers", "set by the flight"]),
+        ({"decision_rate": 0.5}, ["decision_rate", "out of range"]),
+    ],
+)
+def test_impossible_transforms_and_settings_are_refused(changes, words):
+    with pytest.raises(ConfigError) as err:
+        resolve_flight(flight_from_dict(flight(**changes), "lab.yaml"))
+    for w in words:
+        assert w in str(err.value), (w, str(err.value))
+
+
+def test_a_start_inside_a_virtual_obstacle_or_too_close_to_another_is_refused():
+    data = flight(layout=1)  # a wall along y = 1.9 from x = 0 to 2.2
+    data["drones"][0]["start"] = [1.0, 1.9]
+    with pytest.raises(ConfigError, match="drone p0.*inside or touching a virtual obstacle"):
+        resolve_flight(flight_from_dict(data, "f.yaml"))
+    data = flight()
+    data["drones"][2]["start"] = [1.1, 1.0]
+    with pytest.raises(ConfigError, match="p0 and p1 start 0.100 m apart"):
+        resolve_flight(flight_from_dict(data, "f.yaml"))
+
+
+def test_a_refused_flight_file_touches_no_radio(tmp_path):
+    bad = flight()
+    bad["drones"][1]["role"] = "bystander"
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(bad))
+    factory = RecordingFactory(tmp_path / "cache")
+    with pytest.raises(ConfigError, match="bystander"):
+        run_flight(path, policy_name="heuristic", factory=factory, events_path=tmp_path / "ev.jsonl")
+    assert factory.built == [] and not (tmp_path / "ev.jsonl").exists()
+    impossible = flight(transform={"origin": [0, 0], "yaw": 1.0}, lab={"x": [0, 3.6], "y": [0, 5.0]})
+    path.write_text(yaml.safe_dump(impossible))
+    with pytest.raises(ConfigError, match="leaves the lab"):
+        run_flight(path, policy_name="heuristic", factory=factory)
+    assert factory.built == []
+
+
+def test_layout_files_are_found_beside_the_flight_file(tmp_path):
+    layout = yaml.safe_load(open("configs/layouts/1_walls.yaml"))
+    (tmp_path / "arena.yaml").write_text(yaml.safe_dump(layout))
+    (tmp_path / "f.yaml").write_text(yaml.safe_dump(flight(layout="arena.yaml")))
+    plan = load_plan(tmp_path / "f.yaml")
+    assert plan.layout.name == "walls" and len(plan.layout.obstacles) == 2
+    assert load_flight(tmp_path / "f.yaml").source == str(tmp_path / "f.yaml")
+
+
+# ---------------------------------------------------------------------- frames and the fit
+
+
+def test_lab_transform_round_trips_and_rotates_velocities():
+    t = LabTransform((1.0, -2.0), math.pi / 2, 2.0)
+    p = np.array([[1.0, -2.0], [1.0, -1.0], [3.0, -2.0]])
+    q = t.to_layout(p)
+    np.testing.assert_allclose(q, [[0, 0], [2, 0], [0, -4]], atol=1e-12)  # lab +y is layout +x
+    np.testing.assert_allclose(t.to_lab(q), p, atol=1e-12)
+    np.testing.assert_allclose(t.velocity_to_lab(t.velocity_to_layout(np.array([0.3, -0.1]))), [0.3, -0.1], atol=1e-12)
+    f = DroneFrames(np.array([[1.0, 1.0]]), np.array([math.pi / 2]))
+    np.testing.assert_allclose(f.to_lab(np.array([[1.0, 0.0]])), [[1.0, 2.0]], atol=1e-12)  # forward = lab +y
+    np.testing.assert_allclose(f.velocity_to_drone(f.velocity_to_lab(np.array([[0.2, 0.1]]))), [[0.2, 0.1]], atol=1e-12)
+
+
+def test_similarity_fit_recovers_a_transform_from_noisy_spots():
+    rng = np.random.default_rng(3)
+    truth = LabTransform((0.7, -0.4), 0.35, 1.25)
+    spots = rng.uniform([0.3, 0.3], [3.3, 4.7], size=(5, 2))
+    lab = truth.to_lab(spots) + rng.normal(0, 0.005, size=(5, 2))
+    fit = fit_similarity(lab, spots)
+    assert fit.transform.yaw == pytest.approx(0.35, abs=0.01)
+    assert fit.transform.scale == pytest.approx(1.25, rel=0.01)
+    np.testing.assert_allclose(fit.transform.origin, truth.origin, atol=0.02)
+    assert fit.rms < 0.02 and fit.residuals.shape == (5,)
+    with pytest.raises(ValueError, match="at least 2 spots"):
+        fit_similarity(lab[:1], spots[:1])
+    with pytest.raises(ValueError, match="coincide"):
+        fit_similarity(np.ones((3, 2)), spots[:3])
+
+
+# ---------------------------------------------------------------------- safety filters
+
+
+def test_speed_clamp_keeps_direction_and_reports_who_was_clamped():
+    v, clamped = clamp_speed(np.array([[0.3, 0.4], [0.1, 0.0]]), 0.25)
+    np.testing.assert_allclose(v, [[0.15, 0.2], [0.1, 0.0]])
+    assert clamped.tolist() == [True, False]
+
+
+def test_the_fence_brakes_a_drone_driven_at_the_border_and_holds_it_at_the_margin():
+    layout = load_layout(1)
+    t = LabTransform((0.5, 0.5), 0.0, 1.0)
+    fence = Fence(layout, t, margin=0.25, lookahead=0.5, breach=0.15)
+    p = t.to_lab(np.array([[1.8, 2.5], [3.0, 1.0]]))  # in the middle; near the right border
+    v_push = np.array([[0.0, 0.0], [0.5, 0.2]])  # the second one drives at the right border
+    dt, lowest = 0.02, np.inf
+    for _ in range(400):
+        v, braking, clearance = fence.filter(v_push, p)
+        p = p + v * dt
+        lowest = min(lowest, fence.clearance(p)[1])
+    assert braking[1] and not braking[0]
+    assert 0.22 < lowest and fence.clearance(p)[1] == pytest.approx(0.25, abs=0.02)
+    assert p[1, 1] > 1.0 + 0.5 + 1.0  # it slid along the border
+    # inside the margin it is pushed back out; beyond the border it counts as a breach
+    v, _, c = fence.filter(np.zeros((1, 2)), t.to_lab(np.array([[3.5, 1.0]])))
+    assert v[0, 0] < -0.1 and c[0] == pytest.approx(0.1)
+    assert fence.breached(t.to_lab(np.array([[3.9, 1.0], [3.7, 1.0], [1.0, 1.9]]))).tolist() == [True, False, False]
+
+
+def test_the_fence_keeps_drones_out_of_virtual_obstacles():
+    layout = load_layout(1)  # wall from (0, 1.9) to (2.2, 1.9)
+    fence = Fence(layout, LabTransform(), margin=0.2, lookahead=0.5, breach=0.15)
+    p = np.array([[1.0, 1.2]])
+    for _ in range(300):
+        v, _, _ = fence.filter(np.array([[0.0, 0.5]]), p)
+        p = p + v * 0.02
+    assert p[0, 1] == pytest.approx(1.9 - 0.025 - 0.2, abs=0.02)
+    assert fence.clearance(np.array([[1.0, 1.9]]))[0] == pytest.approx(-0.025)  # inside the wall: negative
+
+
+def test_the_separation_guard_stops_two_drones_flying_at_each_other():
+    p = np.array([[0.0, 0.0], [1.0, 0.0], [5.0, 5.0]])
+    movable = np.array([True, True, False])
+    closest = np.inf
+    for _ in range(300):
+        v, changed = separate(np.array([[0.4, 0.0], [-0.4, 0.0], [0.0, 0.0]]), p, 0.25, 0.5, movable)
+        p = p + v * 0.02
+        closest = min(closest, np.linalg.norm(p[0] - p[1]))
+    assert changed[:2].all() and not changed[2]
+    assert 0.24 < closest < 0.3
+    # a drone we do not command is a hazard but never moved
+    v, changed = separate(np.array([[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]), np.array([[0.0, 0.0], [0.1, 0.0], [5.0, 5.0]]), 0.25, 0.5, np.array([True, False, False]))
+    assert v[0, 0] < 0 and v[1, 0] == 0.0
+
+
+def test_altitude_speed_holds_the_height_within_the_vertical_limit():
+    vz = altitude_speed(np.array([0.2, 0.5, 0.9]), 0.5, 1.5, 0.3)
+    np.testing.assert_allclose(vz, [0.3, 0.0, -0.3])
+
+
+def test_faults_parse_with_drone_names_and_values():
+    plan = load_plan(EXAMPLE)
+    f = parse_fault("battery:e0@4.5=3.1", plan)
+    assert (f.kind, f.drone, f.at, f.value) == ("battery", 3, 4.5, 3.1)
+    for bad, words in (("explode:p0@1", "unknown fault"), ("drop_link:p9@1", "no drone named 'p9'"), ("battery:p0@1", "needs a voltage"), ("p0", "expected KIND")):
+        with pytest.raises(ValueError, match=words):
+            parse_fault(bad, plan)
+
+
+def test_keys_cut_the_motors_or_land_and_other_keys_do_nothing():
+    import os
+    import time
+
+    from pursuit_mj.flight.keys import KeyWatcher
+
+    calls = []
+    r, w = os.pipe()
+    with KeyWatcher(lambda: calls.append("estop"), lambda: calls.append("land"), r):
+        for key in (b"x", b"l", b" ", b"E"):
+            os.write(w, key)
+            time.sleep(0.15)
+    os.close(w)
+    os.close(r)
+    assert calls == ["land", "estop", "estop"]
+
+
+def test_fly_align_from_given_lab_points_prints_and_writes_the_transform(tmp_path, capsys):
+    from pursuit_mj.cli import main
+
+    truth = LabTransform((4.2, 0.1), math.pi / 2, 1.25)
+    spots = np.array([[0.5, 0.625], [1.75, 0.625], [1.875, 4.0]])
+    lab = truth.to_lab(spots) + np.array([[0.004, 0.0], [0.0, -0.003], [0.002, 0.002]])
+    fmt = lambda pts: " ".join(f"{x:.4f},{y:.4f}" for x, y in pts)  # noqa: E731
+    out = tmp_path / "aligned.yaml"
+    rc = main(["fly", "align", "--flight", "configs/flight/lighthouse.yaml", "--lab", fmt(lab), "--spots", fmt(spots), "--write", str(out)])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "transform:" in printed and "rms residual" in printed
+    t = load_plan(out).transform
+    assert t.yaw == pytest.approx(math.pi / 2, abs=0.01) and t.scale == pytest.approx(1.25, rel=0.01)
+    assert main(["fly", "align", "--flight", "configs/flight/lighthouse.yaml", "--lab", "1,1 2,2", "--spots", fmt(spots)]) == 2
+    assert "3 spots for 2 drones" in capsys.readouterr().err
+
+
+def test_fly_check_and_bad_command_lines_fail_with_one_clear_line(capsys):
+    from pursuit_mj.cli import main
+
+    assert main(["fly", "check", "--flight", EXAMPLE]) == 0
+    assert "no radio was touched" in capsys.readouterr().out
+    assert main(["fly", "--flight", EXAMPLE]) == 2
+    assert "exactly one of --policy" in capsys.readouterr().err
+    assert main(["fly", "--flight", EXAMPLE, "--model", "no/such/best.pt"]) == 2
+    assert "--model no/such/best.pt: no such file" in capsys.readouterr().err
+    assert main(["fly", "--flight", EXAMPLE, "--policy", "genius"]) == 2
+    assert "unknown policy" in capsys.readouterr().err
+    assert main(["fly", "--flight", EXAMPLE, "--policy", "heuristic", "--fault", "drop_link:p0@1"]) == 2
+    assert "virtual drones only" in capsys.readouterr().err
+    assert main(["fly", "--flight", EXAMPLE, "--policy", "heuristic", "--virtual", "--fault", "drop_link:zz@1"]) == 2
+    assert "no drone named 'zz'" in capsys.readouterr().err
+
+
+def test_flight_observations_equal_the_simulators_for_the_same_states():
+    from pursuit_mj.config import default_config
+    from pursuit_mj.env import PursuitEnv
+    from pursuit_mj.flight.observe import FlightObserver
+    from pursuit_mj.heuristic import HeuristicTeam
+
+    config = default_config(fidelity="point", layout=1, random_obstacles=0, field_of_view=2.0, perception_radius=1.5)
+    env = PursuitEnv(config, n_worlds=1, seed=5)
+    team = HeuristicTeam.from_config(config)
+    obs = env.reset()
+    observer = FlightObserver(config, env.world_layouts[0])
+    N = config.n_pursuers
+    compared = 0
+    for _ in range(25):
+        pos, vel = env.physics.positions()[0, :, :2], env.physics.velocities()[0, :, :2]
+        observer.update_captures(pos[:N], pos[N:])
+        np.testing.assert_array_equal(observer.observe(pos[:N], vel[:N], pos[N:], vel[N:]), obs)
+        compared += 1
+        obs, _, terminated, truncated, _ = env.step(team.act(obs, env.obs_spec))
+        if terminated[0] or truncated[0]:
+            break
+    assert compared >= 10
+    assert not np.all(observer.heading == np.pi / 2)  # headings followed the motion, as in the simulator

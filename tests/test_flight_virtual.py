@@ -1,0 +1,215 @@
+"""The virtual Crazyflie speaks cflib's protocol, and whole flights run on it through real cflib.
+
+No mock of cflib: every test connects with cflib's SyncCrazyflie over udp:// to virtual
+drones backed by pursuit_mj's quadrotor physics.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+import yaml
+
+from flight_rehearsal import FAST, fly_virtual, kinds_in_order, quick_spec, wait_for
+from pursuit_mj.cli import main
+from pursuit_mj.flight.board import StateBoard
+from pursuit_mj.flight.events import read_events
+from pursuit_mj.flight.frames import rotate
+from pursuit_mj.flight.links import CachedFactory, LinkSet
+from pursuit_mj.flight.observe import EvaderPilot, FlightObserver
+from pursuit_mj.flight.plan import load_plan, resolve_flight
+from pursuit_mj.flight.spec import flight_from_dict
+from pursuit_mj.flight.virtual import commander as cmd
+from pursuit_mj.flight.virtual.fleet import VirtualFleet
+from pursuit_mj.heuristic import HeuristicTeam
+from pursuit_mj.physics import clip_speed
+from pursuit_mj.recording.rrd_read import read_entities
+
+
+@pytest.fixture
+def two_drones():
+    """A 1-vs-1 plan (p0 chases e0), flow decks."""
+    data = quick_spec()
+    data["drones"] = [data["drones"][0], data["drones"][3]]
+    plan = resolve_flight(flight_from_dict(data, "two.yaml"))
+    return plan
+
+
+def test_cflib_connects_reads_params_streams_logs_and_caches_the_tocs(two_drones, tmp_path):
+    plan = two_drones
+    with VirtualFleet(plan, physics=FAST) as fleet:
+        board = StateBoard(2)
+        console: list[str] = []
+        links = LinkSet(plan.names, fleet.uris, board, CachedFactory(tmp_path / "toc"), timeout=5.0)
+        links[0].cf.console.receivedChar.add_callback(console.append)
+        with links:
+            assert wait_for(lambda: "virtual Crazyflie 0" in "".join(console), 2.0)
+            assert links[0].param("deck.bcFlow2") == 1.0 and links[0].param("deck.bcLighthouse4") == 0.0
+            assert links[0].param("no.such") is None
+            links[0].set_param("commander.enHighLevel", 0, timeout=2.0)
+            assert wait_for(lambda: not fleet.commander.hl_enabled[0], 2.0)
+            links[0].set_param("commander.enHighLevel", 1, timeout=2.0)
+            for link in links:
+                link.start_logs(0.02, 0.05)
+            assert wait_for(lambda: (board.snapshot().state_count >= 5).all() and (board.snapshot().health_count >= 3).all(), 5.0)
+            snap = board.snapshot()
+            truth = fleet.true_state()["pos"]
+            # flow decks estimate from their start: the drones sit at their starts
+            np.testing.assert_allclose(snap.pos[:, :2], 0.0, atol=1e-6)
+            np.testing.assert_allclose(snap.pos[:, 2], truth[:, 2], atol=1e-5)
+            assert 3.9 < snap.vbat[0, -1] < 4.2
+        cached = sorted(p.name for p in (tmp_path / "toc").glob("*.json"))
+        assert len(cached) == 2  # log and param TOCs, named by their CRC
+        with LinkSet(plan.names, fleet.uris, StateBoard(2), CachedFactory(tmp_path / "toc"), timeout=5.0) as links:
+            assert links[1].param("deck.bcFlow2") == 1.0  # the second connection works from the cache
+        assert fleet.error is None
+
+
+def _first_time(fleet, condition, timeout: float) -> float | None:
+    """The virtual clock (s) at which `condition(state)` first held, polling the fleet; None if never."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        with fleet.lock:
+            state = {"source": fleet.commander.source.copy(), "motors": fleet.airframe.motors.copy(), "z": fleet.airframe.pos[:, 2], "time": fleet.time}
+        if condition(state):
+            return state["time"]
+        time.sleep(0.005)
+    return None
+
+
+def test_virtual_firmware_watchdog_levels_then_stops_and_emergency_stop_cuts_and_locks(two_drones, tmp_path):
+    plan = two_drones
+    with VirtualFleet(plan, physics=FAST) as fleet:
+        with LinkSet(plan.names, fleet.uris, StateBoard(2), CachedFactory(tmp_path / "toc"), timeout=5.0) as links:
+            for link in links:
+                link.takeoff(0.4, 0.4)
+            assert _first_time(fleet, lambda s: (s["z"] > 0.3).all() and (s["source"] == cmd.SRC_HL).all(), 5.0) is not None
+            # drone 1: emergency stop -> motors off at once, it falls, it stays locked
+            links[1].emergency_stop()
+            assert _first_time(fleet, lambda s: not s["motors"][1], 1.0) is not None
+            # drone 0: velocity setpoints for half a second, then silence
+            end = time.monotonic() + 0.5
+            while time.monotonic() < end:
+                links[0].velocity((0.3, 0.0, 0.0))
+                time.sleep(0.02)
+            assert fleet.commander.source[0] == cmd.SRC_VELOCITY
+            bits = links[1].cf.supervisor.read_bitfield()
+            assert bits >> 6 & 1 and not bits >> 4 & 1  # locked, not flying
+            links[1].takeoff(0.4, 0.4)  # a locked drone stays down
+            levelled = _first_time(fleet, lambda s: s["source"][0] == cmd.SRC_LEVEL, 3.0)
+            stopped = _first_time(fleet, lambda s: not s["motors"][0], 5.0)
+            last = [r.t for r in fleet.received(0) if r.kind == "velocity"][-1]  # virtual clock
+            assert levelled is not None and 0.5 <= levelled - last <= 0.5 + 0.03
+            assert stopped is not None and 2.0 <= stopped - last <= 2.0 + 0.03
+            assert _first_time(fleet, lambda s: (s["z"] < 0.03).all() and not s["motors"].any(), 3.0) is not None  # both fell
+            assert [r.kind for r in fleet.received(1)][-3:] == ["emergency_stop", "stop", "takeoff"]
+
+
+def _replay_pursuers(plan, result):
+    """Observations and commands the simulator's code gives for the estimates the bridge received."""
+    observer = FlightObserver(plan.task, plan.layout, seed=0)
+    team = HeuristicTeam.from_config(plan.task)
+    team.reset(1)
+    N = plan.n_pursuers
+    starts = np.array([d.start for d in plan.drones])
+    yaws = np.array([d.start_yaw for d in plan.drones])
+    t = plan.transform
+    out = []
+    for step in result.steps:
+        lab = starts + rotate(step.est_pos[:, :2], yaws)  # flow decks: from their start, at their start heading
+        lab_v = rotate(step.est_vel[:, :2], yaws)
+        pos = t.scale * rotate(lab - np.array(t.origin), -t.yaw)
+        vel = t.scale * rotate(lab_v, -t.yaw)
+        observer.update_captures(pos[:N], pos[N:])
+        obs = observer.observe(pos[:N], vel[:N], pos[N:], vel[N:])
+        actions = team.act(obs, observer.spec)[0]
+        v_layout = clip_speed(actions * plan.task.pursuer_speed, np.full(N, plan.task.pursuer_speed))
+        v_lab = rotate(v_layout, t.yaw) / t.scale
+        out.append((pos, obs[0], actions, rotate(v_lab, -yaws[:N])))
+    return out
+
+
+def test_a_whole_virtual_flight_takes_off_chases_captures_lands_and_sends_what_the_simulator_would(tmp_path):
+    # a rotated, scaled lab; one pursuer turned 90 degrees at its start; a target that only sits there
+    spec = quick_spec(
+        transform={"origin": [4.0, 0.0], "yaw": math.pi / 2, "scale": 1.25},
+        max_time=12.0,
+        safety={"min_separation": 0.2},  # below the capture distance 0.3 / 1.25 m
+        drones=[
+            {"name": "p0", "uri": "radio://0/80/2M/E7E7E7E701", "role": "pursuer", "start": [3.5, 0.4], "start_yaw": math.pi / 2},
+            {"name": "p1", "uri": "radio://0/80/2M/E7E7E7E702", "role": "pursuer", "start": [3.5, 1.4]},
+            {"name": "p2", "uri": "radio://0/80/2M/E7E7E7E703", "role": "pursuer", "start": [3.5, 2.4]},
+            {"name": "t0", "uri": "radio://0/80/2M/E7E7E7E704", "role": "target", "start": [2.9, 1.4]},
+        ],
+    )
+    plan = resolve_flight(flight_from_dict(spec, "whole.yaml"))
+    result, events, fleet = fly_virtual(plan, HeuristicTeam.from_config(plan.task), tmp_path)
+    assert result.outcome == "captured", (result.outcome, result.reason)
+    assert kinds_in_order(events, "links_up", "preflight_ok", "takeoff", "airborne", "chase", "capture", "end_of_run", "land", "landed")
+    assert result.landed and result.captures == 1 and len(result.steps) > 5
+    final = fleet.true_state()
+    assert (final["pos"][:, 2] < 0.03).all() and not final["motors"].any()
+    assert not any(r.kind == "takeoff" for r in fleet.received(3))  # the target is never commanded
+
+    # the simulator's own observation and policy code, fed the same estimates, gives the same commands
+    replay = _replay_pursuers(plan, result)
+    N = plan.n_pursuers
+    compared = 0
+    for step, (pos, obs, actions, v_drone) in zip(result.steps, replay):
+        np.testing.assert_allclose(step.pos, pos, atol=1e-9)
+        np.testing.assert_allclose(step.obs, obs, atol=1e-6)
+        np.testing.assert_allclose(step.actions, actions, atol=1e-9)
+        fly = (step.mode[:N] == "velocity") & ~step.filtered[:N]
+        np.testing.assert_allclose(step.sent[:N][fly, :2], v_drone[fly], atol=1e-9)
+        compared += int(fly.sum())
+    assert compared >= 2 * len(result.steps)
+    # ... and what left the bridge is what each drone received (as float32 on the wire)
+    for i in range(N):
+        got = np.array([r.values[:3] for r in fleet.received(i) if r.kind == "velocity"])
+        sent = np.array([s.sent[i] for s in result.steps if s.mode[i] == "velocity"])
+        assert got.shape == sent.shape
+        np.testing.assert_allclose(got, sent.astype(np.float32), rtol=0, atol=1e-6)
+
+
+def test_fly_virtual_on_the_command_line_writes_its_event_log_and_rerun_file(tmp_path, capsys):
+    flight = tmp_path / "quick.yaml"
+    flight.write_text(yaml.safe_dump(quick_spec(task={"evader_speed": 0.3})))
+    rc = main(["fly", "--flight", str(flight), "--policy", "heuristic", "--virtual", "--max-time", "1.5",
+               "--events", str(tmp_path / "f.jsonl"), "--rerun", str(tmp_path / "f.rrd")])
+    out = capsys.readouterr().out
+    assert rc == 0 and "outcome: timeout" in out and "landed: yes" in out
+    records = read_events(tmp_path / "f.jsonl")
+    times = [r["t"] for r in records]
+    assert times == sorted(times)
+    assert kinds_in_order([r["kind"] for r in records], "virtual_fleet", "links_up", "preflight_ok", "takeoff", "chase", "end_of_run", "land", "landed")
+    steps = [r for r in records if r["kind"] == "step"]
+    assert len(steps) >= 10 and len(steps[0]["pos"]) == 4
+    # the evader was flown by the simulator's escape model: replay it from the logged states
+    plan = load_plan(flight)
+    pilot, observer = EvaderPilot(plan.task, 0), FlightObserver(plan.task, plan.layout, 0)
+    for r in steps:
+        pos, vel = np.array(r["pos"]), np.array(r["vel"])
+        observer.update_captures(pos[:3], pos[3:])
+        observer.observe(pos[:3], vel[:3], pos[3:], vel[3:])
+        v = clip_speed(pilot.command(observer, pos[3:], vel[3:], pos[:3], vel[:3]), np.full(1, plan.task.evader_speed))
+        np.testing.assert_allclose(r["wanted"][3], v[0], atol=1e-4)
+    assert max(np.linalg.norm(r["wanted"][3]) for r in steps) > 0.1
+    entities = read_entities(tmp_path / "f.rrd")
+    assert {"/drones/p0", "/drones/e0/command", "/battery/p1", "/events", "/arena/border"} <= set(entities)
+    assert entities["/drones/p0"].n_rows >= len(steps)
+    texts = [t for row in entities["/events"].rows["TextLog:text"] for t in row]
+    assert any(t.startswith("takeoff") for t in texts) and any(t.startswith("landed") for t in texts)
+
+
+def test_fly_align_measures_a_rotated_scaled_transform_from_virtual_lighthouse_drones(tmp_path, capsys):
+    spots = "0.5,0.625 1.75,0.625 1.875,4.0"  # the layout spots of configs/flight/lighthouse.yaml's starts
+    out_file = tmp_path / "aligned.yaml"
+    assert main(["fly", "align", "--flight", "configs/flight/lighthouse.yaml", "--virtual", "--window", "0.2", "--spots", spots, "--write", str(out_file)]) == 0
+    out = capsys.readouterr().out
+    assert "rms residual 0.0 mm" in out
+    t = load_plan(out_file).transform
+    assert t.yaw == pytest.approx(math.pi / 2, abs=1e-5) and t.scale == pytest.approx(1.25, abs=1e-5)
+    np.testing.assert_allclose(t.origin, [4.2, 0.1], atol=1e-4)

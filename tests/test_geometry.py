@@ -1,0 +1,131 @@
+"""2D geometry: signed distances, ray casts and line of sight against brute force, MuJoCo and hand numbers."""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+from pursuit_mj.geometry import (
+    FAR,
+    ObstacleSet,
+    border_distance,
+    box_sdf,
+    cast_rays,
+    cylinder_sdf,
+    inside_boundary,
+    line_of_sight,
+    obstacle_distance,
+)
+from pursuit_mj.layout import layout_from_dict, load_layout
+from pursuit_mj.scene import SceneSpec, build_model
+
+SPAWN = {"pursuers": {"x": [0.2, 3.4], "y": [0.2, 0.8]}, "evaders": {"x": [0.2, 3.4], "y": [4.2, 4.8]}}
+
+
+def layout_with(obstacles, boundary="rectangle", spawn=SPAWN):
+    return layout_from_dict({"arena": {"width": 3.6, "height": 5.0}, "boundary": boundary, "obstacles": obstacles, "spawn": spawn}, "<test>")
+
+
+def central_spawn(y_low: float, y_high: float) -> dict:
+    """Small spawn regions near the middle, inside round borders."""
+    return {"pursuers": {"x": [1.5, 2.1], "y": [y_low, y_low + 0.3]}, "evaders": {"x": [1.5, 2.1], "y": [y_high - 0.3, y_high]}}
+
+
+def brute_box_sdf(points, cx, cy, hx, hy, yaw, n=4000):
+    """Distance to a densely sampled box outline, negative inside (for reference)."""
+    t = np.linspace(0, 1, n, endpoint=False)
+    local = np.concatenate([np.stack([-hx + 2 * hx * t, np.full(n, -hy)], 1), np.stack([np.full(n, hx), -hy + 2 * hy * t], 1),
+                            np.stack([hx - 2 * hx * t, np.full(n, hy)], 1), np.stack([np.full(n, -hx), hy - 2 * hy * t], 1)])
+    c, s = math.cos(yaw), math.sin(yaw)
+    outline = local @ np.array([[c, s], [-s, c]]) + [cx, cy]
+    d = np.linalg.norm(points[:, None] - outline[None], axis=-1).min(1)
+    rel = (points - [cx, cy]) @ np.array([[c, -s], [s, c]])
+    inside = (np.abs(rel[:, 0]) < hx) & (np.abs(rel[:, 1]) < hy)
+    return np.where(inside, -d, d)
+
+
+def test_box_sdf_matches_brute_force_for_rotated_boxes():
+    rng = np.random.default_rng(0)
+    boxes = np.array([[1.0, 2.0, 0.5, 0.2, 0.0], [2.5, 1.0, 0.3, 0.6, 0.7], [1.5, 3.5, 0.1, 0.9, -2.0]])
+    pts = rng.uniform([0, 0], [3.6, 5.0], (300, 2))
+    ours = box_sdf(pts, boxes)
+    for k, b in enumerate(boxes):
+        np.testing.assert_allclose(ours[:, k], brute_box_sdf(pts, *b), atol=2e-3)
+
+
+def test_cylinder_sdf_and_obstacle_distance_by_hand():
+    cyl = np.array([[1.0, 1.0, 0.5]])
+    pts = np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 1.3]])
+    np.testing.assert_allclose(cylinder_sdf(pts, cyl)[:, 0], [-0.5, 0.5, -0.2])
+    layout = layout_with([{"cylinder": {"center": [1.0, 2.5], "radius": 0.5}}, {"box": {"center": [2.6, 2.5], "size": [0.4, 1.0]}}])
+    obst = ObstacleSet.from_layout(layout)
+    p = np.array([[1.8, 2.5], [0.1, 2.5], [2.6, 2.5]])
+    np.testing.assert_allclose(obstacle_distance(p, obst), [0.3, 0.1, -0.2])  # (0.1, 2.5) is nearest the border
+    np.testing.assert_allclose(obstacle_distance(p, obst, with_border=False), [0.3, 0.4, -0.2])
+
+
+def test_stacked_sets_with_padding_give_the_same_distances_and_rays():
+    a = layout_with([{"cylinder": {"center": [1.0, 2.5], "radius": 0.3}}])
+    b = layout_with([{"box": {"center": [2.0, 2.0], "size": [0.4, 0.4]}}, {"wall": {"from": [0.5, 4.0], "to": [3.0, 4.0]}}],
+                    boundary={"circle": {"center": [1.8, 2.5], "radius": 1.8}}, spawn=central_spawn(1.0, 3.6))
+    stacked = ObstacleSet.stack([a.obstacle_set(), b.obstacle_set()])
+    assert stacked.boxes.shape[:2] == (2, 2) and stacked.cylinders.shape[:2] == (2, 1)
+    rng = np.random.default_rng(1)
+    pts = rng.uniform([0.5, 1.0], [3.0, 4.0], (2, 50, 2))
+    dirs = rng.normal(size=(2, 50, 2))
+    dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+    batched_d = obstacle_distance(pts, stacked)
+    batched_r = cast_rays(pts, dirs, stacked)
+    for w, layout in enumerate((a, b)):
+        np.testing.assert_allclose(batched_d[w], obstacle_distance(pts[w], layout.obstacle_set()))
+        np.testing.assert_allclose(batched_r[w], cast_rays(pts[w], dirs[w], layout.obstacle_set()))
+
+
+def test_rays_by_hand():
+    layout = layout_with([{"box": {"center": [1.8, 3.0], "size": [1.0, 0.2]}}, {"cylinder": {"center": [3.0, 1.0], "radius": 0.2}}])
+    obst = layout.obstacle_set()
+    origin = np.array([[1.8, 1.0]] * 4)
+    dirs = np.array([[0, 1.0], [0, -1.0], [1.0, 0], [-1.0, 0]])
+    np.testing.assert_allclose(cast_rays(origin, dirs, obst), [1.9, 1.0, 1.0, 1.8])  # box face, floor wall, cylinder, left wall
+    empty = ObstacleSet.from_layout(layout, include_border=False)
+    up = cast_rays(np.array([[0.2, 0.5]]), np.array([[0.0, 1.0]]), empty)
+    assert up[0] == FAR  # nothing above (0.2, 0.5) without the border
+
+
+def test_line_of_sight_blocked_by_walls_and_obstacles():
+    layout = layout_with([{"wall": {"from": [0.0, 2.5], "to": [2.0, 2.5], "thickness": 0.05}}])
+    obst = layout.obstacle_set()
+    a = np.array([[1.0, 1.0], [3.0, 1.0], [1.0, 1.0]])
+    b = np.array([[1.0, 4.0], [3.0, 4.0], [1.5, 2.0]])
+    assert line_of_sight(a, b, obst).tolist() == [False, True, True]
+
+
+def test_inside_boundary_for_each_border_shape():
+    circle = layout_with([], boundary={"circle": {"center": [1.8, 2.5], "radius": 1.0}}, spawn=central_spawn(1.8, 3.2))
+    poly = load_layout(2)  # octagon with cut corners
+    pts = np.array([[1.8, 2.5], [1.8, 3.6], [0.05, 0.05], [3.5, 2.5]])
+    assert inside_boundary(circle, pts).tolist() == [True, False, False, False]
+    assert inside_boundary(poly, pts).tolist() == [True, True, False, True]
+    assert border_distance(np.array([[1.8, 2.5]]), circle.border())[0] == pytest.approx(1.0, abs=0.005)
+
+
+@pytest.mark.parametrize("index", [2, 3])
+def test_ray_casts_agree_with_mujoco_on_the_generated_scene(index):
+    """The 2D geometry the task senses with is the geometry MuJoCo collides with."""
+    layout = load_layout(index).with_random_obstacles(np.random.default_rng(5))
+    model = build_model(SceneSpec(layout, 1, 1, "point"))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    origin = np.array([1.8, 0.5])
+    angles = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    dirs = np.stack([np.cos(angles), np.sin(angles)], -1)
+    ours = cast_rays(np.broadcast_to(origin, dirs.shape), dirs, layout.obstacle_set())
+    group = np.zeros(6, np.uint8)
+    group[1] = 1  # obstacles and border only
+    geomid = np.zeros(1, np.int32)
+    for k, d in enumerate(dirs):
+        dist = mujoco.mj_ray(model, data, np.array([*origin, 0.5]), np.array([*d, 0.0]), group, 1, -1, geomid)
+        assert dist == pytest.approx(ours[k], abs=1e-6), f"ray {k} ({mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, geomid[0])})"

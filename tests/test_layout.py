@@ -1,0 +1,238 @@
+"""Layouts: file round trips, random obstacles, malformed and impossible files, the `layout` CLI."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from pursuit_mj.cli import main
+from pursuit_mj.geometry import ObstacleSet, inside_boundary, obstacle_distance
+from pursuit_mj.layout import (
+    N_BUILTIN,
+    Cylinder,
+    LayoutError,
+    builtin_layout_path,
+    layout_from_dict,
+    layout_to_dict,
+    load_layout,
+    save_layout,
+)
+
+SPAWN = {"pursuers": {"x": [0.2, 3.4], "y": [0.2, 0.8]}, "evaders": {"x": [0.2, 3.4], "y": [4.2, 4.8]}}
+
+
+def base_dict(**changes) -> dict:
+    data = {"name": "t", "arena": {"width": 3.6, "height": 5.0}, "boundary": "rectangle", "obstacles": [],
+            "random_obstacles": {"count": 3, "kinds": ["box", "cylinder"], "size": [0.15, 0.4]}, "spawn": SPAWN}
+    data.update(changes)
+    return data
+
+
+POLYGON = base_dict(name="hexagon", boundary={"polygon": [[0.6, 0.0], [3.0, 0.0], [3.6, 2.5], [3.0, 5.0], [0.6, 5.0], [0.0, 2.5]]},
+                    obstacles=[{"box": {"center": [1.8, 2.5], "size": [1.0, 0.2], "yaw": 0.3}}, {"wall": {"from": [1.0, 3.3], "to": [2.6, 3.3], "thickness": 0.04}}],
+                    spawn={"pursuers": {"x": [0.8, 2.8], "y": [0.2, 0.8]}, "evaders": {"x": [0.8, 2.8], "y": [4.2, 4.8]}})
+CIRCLE = base_dict(name="round", arena={"width": 4.0, "height": 4.0}, boundary={"circle": {"center": [2.0, 2.0], "radius": 1.9}},
+                   obstacles=[{"cylinder": {"center": [2.0, 2.0], "radius": 0.25}}],
+                   spawn={"pursuers": {"x": [1.2, 2.8], "y": [0.5, 1.0]}, "evaders": {"x": [1.2, 2.8], "y": [3.0, 3.5]}})
+
+
+def round_trip(layout, path: Path):
+    save_layout(layout, path)
+    again = load_layout(path)
+    assert dataclasses.replace(again, source=layout.source) == layout
+    text = path.read_text()
+    save_layout(again, path)
+    assert path.read_text() == text  # file -> object -> file is stable
+    return again
+
+
+@pytest.mark.parametrize("index", range(N_BUILTIN))
+def test_built_in_layouts_round_trip(index, tmp_path):
+    layout = load_layout(index)
+    round_trip(layout, tmp_path / "copy.yaml")
+    assert layout_to_dict(load_layout(tmp_path / "copy.yaml")) == layout_to_dict(layout)
+
+
+@pytest.mark.parametrize("data", [POLYGON, CIRCLE], ids=["polygon", "circle"])
+def test_polygon_and_circle_layouts_round_trip(data, tmp_path):
+    path = tmp_path / f"{data['name']}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    layout = load_layout(path)
+    assert layout.boundary.kind == next(iter(data["boundary"]))
+    round_trip(layout, tmp_path / "again.yaml")
+    # random obstacles resolved into concrete ones round-trip as well
+    round_trip(layout.with_random_obstacles(np.random.default_rng(0)), tmp_path / "resolved.yaml")
+
+
+def test_clockwise_polygon_is_stored_counter_clockwise():
+    cw = base_dict(boundary={"polygon": [[0, 0], [0, 5], [3.6, 5], [3.6, 0]]})
+    layout = layout_from_dict(cw)
+    pts = np.array(layout.boundary.points)
+    area = 0.5 * np.sum(pts[:, 0] * np.roll(pts[:, 1], -1) - np.roll(pts[:, 0], -1) * pts[:, 1])
+    assert area > 0
+    assert inside_boundary(layout, np.array([[1.8, 2.5]]))[0] and not inside_boundary(layout, np.array([[4.0, 2.5]]))[0]
+
+
+def test_layout_references_resolve_by_index_or_path(tmp_path):
+    assert load_layout("2") == load_layout(2)
+    assert load_layout(builtin_layout_path(1)).name == "walls"
+    with pytest.raises(LayoutError, match=r"layout 9: no built-in layout with this index \(valid: 0-3\)"):
+        load_layout(9)
+    with pytest.raises(LayoutError, match="no such file"):
+        load_layout(tmp_path / "missing.yaml")
+
+
+# ----------------------------------------------------------------------------- random obstacles
+
+
+@pytest.mark.parametrize("index", range(N_BUILTIN))
+def test_random_obstacles_are_seeded_and_keep_off_spawn_regions_and_each_other(index):
+    layout = load_layout(index)
+    a = layout.with_random_obstacles(np.random.default_rng(3))
+    b = layout.with_random_obstacles(np.random.default_rng(3))
+    c = layout.with_random_obstacles(np.random.default_rng(4))
+    assert a == b and a != c
+    extra = a.obstacles[len(layout.obstacles):]
+    assert len(extra) == layout.random_obstacles.count and a.random_obstacles.count == 0
+    lo, hi = layout.random_obstacles.size
+    for k, o in enumerate(extra):
+        size = 2 * o.radius if isinstance(o, Cylinder) else max(o.size)
+        assert lo - 1e-9 <= size <= hi + 1e-9
+        assert inside_boundary(layout, np.array([o.center]))[0]
+        alone = dataclasses.replace(layout, obstacles=(o,))
+        others = dataclasses.replace(layout, obstacles=layout.obstacles + extra[:k] + extra[k + 1:])
+        surface = _outline(alone)
+        assert obstacle_distance(surface, ObstacleSet.from_layout(others, include_border=False), with_border=False).min() > 0.0
+        for region in (layout.spawn_pursuers, layout.spawn_evaders):
+            inside = (surface[:, 0] >= region.x[0]) & (surface[:, 0] <= region.x[1]) & (surface[:, 1] >= region.y[0]) & (surface[:, 1] <= region.y[1])
+            assert not inside.any()
+
+
+def _outline(layout_with_one_obstacle) -> np.ndarray:
+    """Points (K, 2) on the boundary of the layout's only obstacle."""
+    grid = np.stack(np.meshgrid(np.linspace(0, 3.6, 181), np.linspace(0, 5.0, 251)), -1).reshape(-1, 2)
+    d = obstacle_distance(grid, ObstacleSet.from_layout(layout_with_one_obstacle, include_border=False), with_border=False)
+    return grid[np.abs(d) < 0.02]
+
+
+def test_no_room_for_random_obstacles_is_refused():
+    layout = layout_from_dict(base_dict(random_obstacles={"count": 40, "size": [0.5, 0.6]}), "crowded.yaml")
+    with pytest.raises(LayoutError, match=r"crowded.yaml: no room for random obstacle \d+ of 40"):
+        layout.with_random_obstacles(np.random.default_rng(0))
+
+
+# ----------------------------------------------------------------------------- malformed and impossible
+
+
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        ({k: v for k, v in base_dict().items() if k != "arena"}, r"bad.yaml: missing key 'arena'"),
+        (base_dict(arena={"width": 3.6}), r"arena: missing key 'height'"),
+        (base_dict(obstacles=[{"sphere": {"center": [1, 1], "radius": 0.2}}]), r"obstacles\[0\]: unknown obstacle kind 'sphere'"),
+        (base_dict(obstacles=[{"box": {"center": [1, 1]}}]), r"obstacles\[0\] \(box\): missing key 'size'"),
+        (base_dict(obstacles=[{"box": {"center": [1, "a"], "size": [1, 1]}}]), r"obstacles\[0\] \(box\).center: expected two finite numbers"),
+        (base_dict(obstacles=[{"cylinder": {"center": [1, 1], "radius": -0.2}}]), r"obstacles\[0\] \(cylinder\).radius: must be > 0, got -0.2"),
+        (base_dict(obstacles=[{"wall": {"from": [1, 1], "to": [1, 1]}}]), r"obstacles\[0\] \(wall\): 'from' and 'to' are the same point"),
+        (base_dict(arena={"width": "wide", "height": 5}), r"arena.width: expected a number, got 'wide'"),
+        (base_dict(arena={"width": float("nan"), "height": 5}), r"arena.width: expected a number, got nan"),
+        (base_dict(color="red"), r"unknown key 'color'"),
+        (base_dict(spawn={"pursuers": {"x": [3, 1], "y": [0.2, 0.8]}, "evaders": SPAWN["evaders"]}), r"spawn.pursuers: ranges must be \[low, high\]"),
+        (base_dict(random_obstacles={"count": 2, "kinds": ["pyramid"]}), r"random_obstacles.kinds: unknown kind 'pyramid'"),
+        (base_dict(random_obstacles={"count": -1}), r"random_obstacles.count: expected an integer >= 0, got -1"),
+        (base_dict(boundary={"polygon": [[0, 0], [1, 1]]}), r"boundary.polygon: expected at least 3"),
+        (base_dict(boundary="triangle"), r"boundary: expected 'rectangle'"),
+    ],
+)
+def test_malformed_layouts_are_refused_naming_the_entry(data, message, tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(LayoutError, match=message):
+        load_layout(path)
+
+
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        (base_dict(obstacles=[{"box": {"center": [1.8, 0.5], "size": [3.6, 1.0]}}]), r"spawn.pursuers .* has no free point"),
+        (base_dict(obstacles=[{"cylinder": {"center": [3.5, 2.5], "radius": 0.3}}]), r"obstacles\[0\] lies \(partly\) outside the 3.6 x 5.0 m arena"),
+        (base_dict(obstacles=[{"wall": {"from": [-0.5, 2.5], "to": [1.0, 2.5]}}]), r"obstacles\[0\] lies \(partly\) outside"),
+        (base_dict(spawn={"pursuers": {"x": [0.2, 4.0], "y": [0.2, 0.8]}, "evaders": SPAWN["evaders"]}), r"spawn.pursuers .* leaves the arena"),
+        (dict(CIRCLE, boundary={"circle": {"center": [2.0, 2.0], "radius": 2.5}}), r"boundary circle .* leaves the arena"),
+        (dict(CIRCLE, spawn={"pursuers": {"x": [0.0, 0.4], "y": [0.0, 0.4]}, "evaders": CIRCLE["spawn"]["evaders"]}), r"spawn.pursuers .* has no free point"),
+        (dict(CIRCLE, obstacles=[{"cylinder": {"center": [0.2, 0.2], "radius": 0.1}}]), r"obstacles\[0\] has its centre outside the circle boundary"),
+    ],
+)
+def test_impossible_layouts_are_refused_naming_the_entry(data, message):
+    with pytest.raises(LayoutError, match=message):
+        layout_from_dict(data, "impossible.yaml")
+
+
+def test_invalid_yaml_is_refused_with_the_file_name(tmp_path):
+    path = tmp_path / "broken.yaml"
+    path.write_text("arena: {width: 3.6, height: [\n")
+    with pytest.raises(LayoutError, match=r"broken.yaml: not valid YAML"):
+        load_layout(path)
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def test_layout_new_writes_a_valid_file_and_show_draws_it(tmp_path, capsys):
+    out = tmp_path / "new.yaml"
+    code = main(["layout", "new", str(out), "--border", "circle", "--width", "4", "--height", "4", "--cylinder", "2", "2", "0.3",
+                 "--box", "3.0", "2.0", "0.3", "0.5", "0.4", "--wall", "0.7", "1.5", "0.7", "2.5", "--random", "2", "--seed", "5",
+                 "--episode-obstacles", "2"])
+    assert code == 0 and "wrote" in capsys.readouterr().out
+    layout = load_layout(out)
+    assert layout.boundary.kind == "circle" and len(layout.obstacles) == 3 + 2 and layout.random_obstacles.count == 2
+    png = tmp_path / "new.png"
+    assert main(["layout", "show", str(out), "-o", str(png), "--seed", "1"]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+    assert main(["layout", "check", str(out)]) == 0
+    report = capsys.readouterr().out
+    assert "valid" in report and "compiles" in report
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temp files left
+
+
+def test_layout_new_default_polygon_and_seeded_random_obstacles_are_reproducible(tmp_path):
+    a, b = tmp_path / "a.yaml", tmp_path / "b.yaml"
+    for path in (a, b):
+        assert main(["layout", "new", str(path), "--border", "polygon", "--random", "3", "--seed", "9", "--name", "same"]) == 0
+    assert a.read_text() == b.read_text()
+    assert load_layout(a).boundary.kind == "polygon"
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["layout", "new", "{out}", "--box", "1", "2", "3"], "--box: expected CX CY SX SY [YAW], got 3 numbers"),
+        (["layout", "new", "{out}", "--box", "5", "2", "0.3", "0.3"], "obstacles[0] lies (partly) outside"),
+        (["layout", "new", "{out}", "--border", "polygon", "--points", "0,0", "1,x"], "--points: '1,x' is not X,Y"),
+        (["layout", "new", "{out}", "--width", "-1"], "--width: must be a number > 0, got -1.0"),
+        (["layout", "new", "{out}", "--episode-obstacles", "60"], "no room for random obstacle"),
+        (["layout", "new", "{out}", "--radius", "1"], "--center/--radius: only used with --border circle"),
+        (["layout", "show", "7"], "layout 7: no built-in layout with this index"),
+        (["layout", "show", "0", "-o", "{out}"], "expected a .png file name"),
+        (["layout", "check", "missing.yaml"], "layout 'missing.yaml': no such file"),
+    ],
+)
+def test_layout_cli_bad_input_exits_2_with_one_line(argv, message, tmp_path, capsys):
+    argv = [a.replace("{out}", str(tmp_path / "out.yaml")) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err, err
+    assert not (tmp_path / "out.yaml").exists()
+
+
+def test_layout_new_refuses_to_overwrite_without_force(tmp_path, capsys):
+    out = tmp_path / "x.yaml"
+    out.write_text("keep me")
+    assert main(["layout", "new", str(out)]) == 2
+    assert out.read_text() == "keep me" and "--force" in capsys.readouterr().err
+    assert main(["layout", "new", str(out), "--force"]) == 0
+    assert load_layout(out).name == "x"

@@ -1,0 +1,188 @@
+"""BatchedPhysics: determinism, resets of some worlds, contacts per drone, state shapes, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import SPREAD_XY, make_physics, open_layout
+
+from pursuit_mj.config import default_config
+from pursuit_mj.physics import BatchedPhysics
+
+FIDELITIES = ("point", "quadrotor")
+
+
+def random_commands(physics, steps: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.uniform(-1, 1, (steps, physics.n_worlds, physics.n_drones, 2)) * physics.max_speed[:, None]
+
+
+def full_state(physics) -> np.ndarray:
+    """Every state row (W, nstate) of the batch: qpos, qvel, act, ctrl, applied forces ..."""
+    return physics.batch.state.copy()
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_same_seed_and_commands_give_bit_identical_trajectories(fidelity):
+    cmds = None
+    runs = []
+    for _ in range(2):
+        physics = make_physics(fidelity, n_worlds=3)
+        cmds = random_commands(physics, 15, seed=4) if cmds is None else cmds
+        trajectory = []
+        for c in cmds:
+            physics.step(c)
+            trajectory.append(full_state(physics))
+        runs.append(np.array(trajectory))
+    assert np.array_equal(runs[0], runs[1])
+    assert not np.array_equal(runs[0][0], runs[0][-1])  # it did move
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_resetting_some_worlds_leaves_the_others_untouched(fidelity):
+    reference, physics = make_physics(fidelity, n_worlds=3), make_physics(fidelity, n_worlds=3)
+    cmds = random_commands(physics, 12, seed=5)
+    for c in cmds[:6]:
+        reference.step(c)
+        physics.step(c)
+    new_xy = SPREAD_XY[None] + 0.5
+    physics.reset([1], new_xy)
+    np.testing.assert_array_equal(physics.positions()[1, :, :2], new_xy[0])
+    np.testing.assert_array_equal(physics.velocities()[1], 0.0)
+    assert physics.time[1] == 0.0 and physics.time[0] > 0
+    for c in cmds[6:]:  # worlds 0 and 2 carry on exactly as if nothing happened (controller memory included)
+        reference.step(c)
+        physics.step(c)
+    untouched = full_state(physics)[[0, 2]]
+    assert np.array_equal(untouched, full_state(reference)[[0, 2]])
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_contact_with_a_wall_is_reported_for_that_drone_only(fidelity):
+    xy = SPREAD_XY.copy()
+    xy[0] = [0.4, 5.0]  # 0.4 m from the left border
+    physics = make_physics(fidelity, xy=xy)
+    cmd = np.zeros((1, 4, 2))
+    cmd[0, 0] = [-0.3, 0.0]
+    touched = np.zeros(4, bool)
+    for _ in range(15):
+        touched |= physics.step(cmd)[0]
+    assert touched.tolist() == [True, False, False, False]
+    assert physics.positions()[0, 0, 0] > 0.0  # stopped by the wall, not through it
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_contact_between_two_drones_is_reported_for_both(fidelity):
+    xy = SPREAD_XY.copy()
+    xy[0], xy[3] = [9.6, 10.0], [10.4, 10.0]  # pursuer_0 and the evader face each other 0.8 m apart
+    physics = make_physics(fidelity, xy=xy)
+    cmd = np.zeros((1, 4, 2))
+    cmd[0, 0], cmd[0, 3] = [0.3, 0.0], [-0.3, 0.0]
+    touched = np.zeros(4, bool)
+    for _ in range(15):
+        touched |= physics.step(cmd)[0]
+    assert touched.tolist() == [True, False, False, True]
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_each_world_collides_with_its_own_obstacles(fidelity):
+    pillar = open_layout(obstacles=[{"cylinder": {"center": [5.0, 5.6], "radius": 0.3}}], name="pillar")
+    config = default_config(fidelity=fidelity)
+    physics = BatchedPhysics(config, [pillar, open_layout()], nthread=1)
+    physics.reset([0, 1], np.stack([SPREAD_XY, SPREAD_XY]))
+    cmd = np.zeros((2, 4, 2))
+    cmd[:, 0] = [0.0, 0.3]  # pursuer_0 flies toward the pillar, which only world 0 has
+    touched = np.zeros((2, 4), bool)
+    for _ in range(15):
+        touched |= physics.step(cmd)
+    assert touched[0].tolist() == [True, False, False, False]
+    assert not touched[1].any()
+
+
+def test_set_layouts_with_more_obstacles_rebuilds_and_keeps_state():
+    physics = make_physics("quadrotor", n_worlds=2)
+    for c in random_commands(physics, 3, seed=6):
+        physics.step(c)
+    before = full_state(physics)
+    many = [{"cylinder": {"center": [1.0 + 0.8 * k, 18.0], "radius": 0.2}} for k in range(20)]
+    physics.set_layouts([1], [open_layout(obstacles=many, name="many")])
+    assert physics.model(1).ngeom == physics.model(0).ngeom
+    assert np.array_equal(full_state(physics), before)
+    physics.reset([1], SPREAD_XY[None])
+    physics.step(np.zeros((2, 4, 2)))
+    assert sum(physics.model(1).geom(f"obstacle_{k}").id >= 0 for k in range(20)) == 20
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_state_arrays_have_documented_shapes(fidelity):
+    physics = make_physics(fidelity, n_worlds=2)
+    physics.step(np.zeros((2, 4, 2)))
+    s = physics.state()
+    assert s.pos.shape == s.vel.shape == s.angvel.shape == (2, 4, 3)
+    assert s.quat.shape == s.thrust.shape == (2, 4, 4)
+    np.testing.assert_allclose(np.linalg.norm(s.quat, axis=-1), 1.0)
+    np.testing.assert_allclose(s.pos[..., :2], np.broadcast_to(SPREAD_XY, (2, 4, 2)), atol=0.01)
+    if fidelity == "quadrotor":  # hovering: four rotors together carry the weight
+        np.testing.assert_allclose(s.thrust.sum(-1), physics.params["mass"] * 9.81, rtol=0.02)
+    s.pos[:] = 0  # a copy: the simulation is unaffected
+    assert physics.positions()[0, 0, 0] == pytest.approx(SPREAD_XY[0, 0], abs=0.01)
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_commands_are_clipped_to_each_drones_max_speed(fidelity):
+    physics = make_physics(fidelity)
+    cmd = np.full((1, 4, 2), 3.0)
+    physics.step(cmd)
+    np.testing.assert_allclose(np.linalg.norm(physics.commands[0], axis=-1), physics.max_speed)
+    np.testing.assert_allclose(physics.commands[0, :, 0], physics.commands[0, :, 1])  # direction kept
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_observers_run_after_every_physics_chunk(fidelity):
+    physics = make_physics(fidelity)
+    calls = []
+    physics.observers.append(lambda p: calls.append(p.positions()[0, 0, 0]))
+    physics.step(np.zeros((1, 4, 2)))
+    c = physics.config
+    assert len(calls) == (c.substeps // c.substeps_per_control if fidelity == "quadrotor" else 1)
+
+
+@pytest.mark.parametrize(
+    "commands, message",
+    [
+        (np.zeros((1, 3, 2)), r"expected shape \(1, 4, 2\).*got \(1, 3, 2\)"),
+        (np.zeros((4, 2)), r"expected shape \(1, 4, 2\).*got \(4, 2\)"),
+        (np.array([[[0, 0]] * 3 + [[np.nan, 0]]]), r"non-finite value nan at index \(0, 3, 0\)"),
+        (np.array([[[0, 0], [0, np.inf], [0, 0], [0, 0]]]), r"non-finite value inf at index \(0, 1, 1\)"),
+        ("fast", r"commands: expected a numeric array"),
+    ],
+)
+def test_bad_commands_raise_value_error_naming_the_problem(commands, message):
+    physics = make_physics("point")
+    with pytest.raises(ValueError, match=message):
+        physics.step(commands)
+
+
+def test_bad_reset_and_layout_arguments_raise_value_error():
+    physics = make_physics("point", n_worlds=2)
+    with pytest.raises(ValueError, match=r"reset positions: expected shape \(1, 4, 2\)"):
+        physics.reset([0], np.zeros((1, 3, 2)))
+    with pytest.raises(ValueError, match=r"world index out of range 0..1 in \[2\]"):
+        physics.reset([2], np.zeros((1, 4, 2)))
+    with pytest.raises(ValueError, match=r"repeated world index"):
+        physics.reset([0, 0], np.zeros((2, 4, 2)))
+    with pytest.raises(ValueError, match=r"non-finite"):
+        physics.reset([0], np.full((1, 4, 2), np.nan))
+    with pytest.raises(ValueError, match=r"2 world ids but 1 layouts"):
+        physics.set_layouts([0, 1], [open_layout()])
+    with pytest.raises(ValueError, match=r"layouts is empty"):
+        BatchedPhysics(default_config(), [])
+
+
+def test_a_diverged_world_is_reported_by_index():
+    physics = make_physics("quadrotor", n_worlds=2)
+    physics.qpos[1, 0] = np.nan  # MuJoCo resets a simulation that goes non-finite
+    with pytest.raises(FloatingPointError, match=r"worlds \[1\] \(MuJoCo warnings: BADQPOS"):
+        physics.step(np.zeros((2, 4, 2)))
+    physics.reset([1], SPREAD_XY[None])  # a reset heals it
+    physics.step(np.zeros((2, 4, 2)))

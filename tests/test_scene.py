@@ -1,0 +1,124 @@
+"""Scene generation: every built-in layout compiles, names follow one pattern, obstacles are real geometry."""
+
+from __future__ import annotations
+
+import math
+import re
+
+import mujoco
+import numpy as np
+import pytest
+
+from pursuit_mj.layout import N_BUILTIN, Box, Cylinder, Wall, load_layout
+from pursuit_mj.scene import DroneIds, SceneSpec, build_model, drone_names, drone_parameters
+
+FIDELITIES = ("point", "quadrotor")
+DRONE = r"(pursuer|evader)_\d+"
+
+
+@pytest.fixture(scope="module")
+def built_in_instances():
+    """Each built-in layout with its random obstacles of seed 11 placed."""
+    return [load_layout(i).with_random_obstacles(np.random.default_rng(11)) for i in range(N_BUILTIN)]
+
+
+def names_of(model: mujoco.MjModel, kind: str, count: int) -> list[str | None]:
+    obj = getattr(mujoco.mjtObj, f"mjOBJ_{kind.upper()}")
+    return [mujoco.mj_id2name(model, obj, i) for i in range(count)]
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+@pytest.mark.parametrize("index", range(N_BUILTIN))
+def test_every_built_in_layout_compiles_and_steps(built_in_instances, index, fidelity):
+    layout = built_in_instances[index]
+    assert len(layout.obstacles) > len(load_layout(index).obstacles)  # random obstacles were added
+    model = build_model(SceneSpec(layout, 3, 1, fidelity))
+    data = mujoco.MjData(model)
+    mujoco.mj_step(model, data, 10)
+    assert np.isfinite(data.qpos).all()
+    ids = DroneIds.lookup(model, drone_names(3, 1), fidelity)
+    assert len(set(ids.body.tolist())) == 4
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_every_element_is_named_from_one_pattern(built_in_instances, fidelity):
+    layout = built_in_instances[3]
+    model = build_model(SceneSpec(layout, 2, 2, fidelity, obstacle_slots=40))
+    bodies = names_of(model, "body", model.nbody)
+    assert bodies[0] == "world" and all(re.fullmatch(rf"{DRONE}/body", n) for n in bodies[1:])
+    for kind, count in (("joint", model.njnt), ("site", model.nsite), ("actuator", model.nu), ("sensor", model.nsensor)):
+        names = names_of(model, kind, count)
+        assert count > 0 and all(n and re.fullmatch(rf"{DRONE}/\w+", n) for n in names), (kind, names)
+    geoms = names_of(model, "geom", model.ngeom)
+    assert all(n for n in geoms), "an unnamed geom"
+    n_obst, n_border = len(layout.obstacles), len(layout.border())
+    assert sorted(n for n in geoms if n.startswith("obstacle_")) == sorted(f"obstacle_{k}" for k in range(n_obst))
+    assert sorted(n for n in geoms if n.startswith("border_")) == sorted(f"border_{k}" for k in range(n_border))
+    other = [n for n in geoms if not re.fullmatch(rf"(obstacle|border|unused)_\d+|floor|{DRONE}/\w+", n)]
+    assert other == []
+    assert names_of(model, "camera", model.ncam) == ["top", "angled"]
+    # the parts a user looks up, for every drone
+    parts = ["body/body", "collision/geom", "contact/sensor"]
+    parts += [f"motor_{k}/actuator" for k in range(4)] + ["root/joint"] if fidelity == "quadrotor" else ["x/joint", "y/joint", "vx/actuator", "vy/actuator"]
+    for drone in drone_names(2, 2):
+        for part in parts:
+            name, kind = part.split("/")
+            assert getattr(model, kind)(f"{drone}/{name}").id >= 0
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_obstacles_and_border_are_collision_geometry_where_the_layout_says(built_in_instances, fidelity):
+    layout = built_in_instances[3]
+    model = build_model(SceneSpec(layout, 3, 1, fidelity))
+    for k, o in enumerate(layout.obstacles):
+        g = model.geom(f"obstacle_{k}")
+        assert g.contype[0] and g.conaffinity[0]
+        np.testing.assert_allclose(g.pos[:2], (o.as_box() if isinstance(o, Wall) else o).center, atol=1e-9)
+        if isinstance(o, Cylinder):
+            assert g.type[0] == mujoco.mjtGeom.mjGEOM_CYLINDER and g.size[0] == pytest.approx(o.radius)
+        else:
+            box = o.as_box() if isinstance(o, Wall) else o
+            assert isinstance(box, Box) and g.type[0] == mujoco.mjtGeom.mjGEOM_BOX
+            np.testing.assert_allclose(g.size[:2], np.array(box.size) / 2)
+            yaw = 2 * math.atan2(g.quat[3], g.quat[0])
+            assert math.cos(yaw - box.yaw) == pytest.approx(1.0)
+        assert g.pos[2] - g.size[1 if isinstance(o, Cylinder) else 2] <= 0.0  # from the floor up
+    for k in range(len(layout.border())):
+        g = model.geom(f"border_{k}")
+        assert g.contype[0] and g.conaffinity[0] and g.pos[2] + g.size[2] > 0.5 + 0.05  # above flight height
+
+
+def test_padded_scenes_share_sizes_across_layouts(built_in_instances):
+    models = [build_model(SceneSpec(l, 3, 1, "quadrotor", obstacle_slots=40)) for l in built_in_instances]
+    for m in models[1:]:
+        assert (m.ngeom, m.nq, m.nv, m.nu, m.na, m.nsensordata, m.nbvh) == (
+            models[0].ngeom, models[0].nq, models[0].nv, models[0].nu, models[0].na, models[0].nsensordata, models[0].nbvh)
+    with pytest.raises(ValueError, match="exceed 5 slots"):
+        build_model(SceneSpec(built_in_instances[3], 3, 1, "quadrotor", obstacle_slots=5))
+
+
+def test_scene_building_is_a_pure_function(built_in_instances):
+    spec = SceneSpec(built_in_instances[2], 3, 1, "quadrotor")
+    a, b = build_model(spec), build_model(spec)
+    for field in ("geom_pos", "geom_size", "geom_quat", "body_mass", "actuator_gear", "name_geomadr"):
+        assert np.array_equal(getattr(a, field), getattr(b, field)), field
+
+
+def test_drone_parameters_match_the_cited_crazyflie_numbers():
+    p = drone_parameters()
+    assert 0.027 <= p["mass"] <= 0.029
+    np.testing.assert_allclose(p["inertia"], [1.66e-5, 1.66e-5, 2.93e-5], rtol=0.01)
+    np.testing.assert_allclose(np.linalg.norm(p["motor_xy"], axis=1), 0.046, rtol=0.01)
+    np.testing.assert_allclose(np.abs(p["yaw_ratio"]), 0.006)
+    assert sorted(np.sign(p["yaw_ratio"]).tolist()) == [-1, -1, 1, 1]
+    assert 0.12 <= p["max_thrust"] <= 0.15 and 4 * p["max_thrust"] > 1.5 * p["mass"] * 9.81
+    assert 0.01 <= p["motor_tau"] <= 0.1
+    assert (p["drag"] > 0).all() and p["drag"][0] == p["drag"][1]
+
+
+def test_point_and_quadrotor_bodies_share_mass_and_collision_volume():
+    layout = load_layout(0)
+    quad, point = (build_model(SceneSpec(layout, 1, 1, f)) for f in ("quadrotor", "point"))
+    for name in ("pursuer_0", "evader_0"):
+        assert quad.body(f"{name}/body").mass[0] == point.body(f"{name}/body").mass[0]
+        np.testing.assert_array_equal(quad.geom(f"{name}/collision").size, point.geom(f"{name}/collision").size)
