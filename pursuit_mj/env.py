@@ -21,11 +21,10 @@ from .observations import build_global_state, build_observations, global_state_d
 from .obs_spec import ObsSpec
 from .physics import BatchedPhysics
 from .rewards import REWARD_TERMS, detect_events, reward_terms
-from .sensing import Perception, WorldView, perceive
+from .sensing import INITIAL_HEADING, Perception, WorldView, perceive, update_heading
 
 SPAWN_SEPARATION = 0.4  # m between spawned drones of one team
 OUTCOMES = ("", "success", "collision", "timeout")
-HEADING_MIN_SPEED = 0.05  # m/s: below this a pursuer keeps its previous heading
 
 
 @dataclasses.dataclass
@@ -120,7 +119,7 @@ class PursuitEnv:
         self.evader_model = EscapeModel(config, W, self.seed)
         self.steps = np.zeros(W, np.int64)
         self.captured = np.zeros((W, M), bool)
-        self.heading = np.full((W, N), np.pi / 2)
+        self.heading = np.full((W, N), INITIAL_HEADING)
         self.done = np.zeros(W, bool)
         self.outcome = np.full(W, "", dtype=object)
         self.capture_time = np.full(W, np.nan)
@@ -185,7 +184,7 @@ class PursuitEnv:
         self.evader_model.reset(ids, np.array(seeds))
         self.steps[ids] = 0
         self.captured[ids] = False
-        self.heading[ids] = np.pi / 2
+        self.heading[ids] = INITIAL_HEADING
         self.done[ids] = False
         self.outcome[ids] = ""
         self.capture_time[ids] = np.nan
@@ -270,8 +269,7 @@ class PursuitEnv:
 
         pos = self.physics.positions()[..., :2]
         vel = self.physics.velocities()[..., :2]
-        speed = np.linalg.norm(vel[:, :N], axis=-1)
-        self.heading = np.where(speed > HEADING_MIN_SPEED, np.arctan2(vel[:, :N, 1], vel[:, :N, 0]), self.heading)
+        self.heading = update_heading(self.heading, vel[:, :N])
         events = detect_events(pos[:, :N], pos[:, N:], self.captured, contacts[:, :N], self._obstacles, cfg)
         terms = reward_terms(cfg, events, pos0[:, :N], pos[:, :N], pos[:, N:], pos0[:, N:], free_before)
         terms["progress"][diverged] = 0.0  # positions of a diverged world are not meaningful

@@ -51,6 +51,17 @@ class Perception:
     rays: np.ndarray
 
 
+#: a pursuer faces +y (into the arena) at the start of an episode
+INITIAL_HEADING = np.pi / 2
+HEADING_MIN_SPEED = 0.05  # m/s: below this a pursuer keeps its previous heading
+
+
+def update_heading(heading: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """The direction each pursuer faces (..., N) rad: along its velocity (..., N, 2) m/s when moving."""
+    speed = np.hypot(velocity[..., 0], velocity[..., 1])
+    return np.where(speed > HEADING_MIN_SPEED, np.arctan2(velocity[..., 1], velocity[..., 0]), heading)
+
+
 def ray_directions(n_rays: int) -> np.ndarray:
     """Unit directions (K, 2): ray i at angle 2*pi*i/K from world +x."""
     a = 2 * np.pi * np.arange(n_rays) / max(n_rays, 1)

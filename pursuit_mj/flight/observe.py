@@ -12,14 +12,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..config import TaskConfig
-from ..env import HEADING_MIN_SPEED
 from ..evader import EscapeModel
 from ..geometry import ObstacleSet
 from ..layout import Layout
 from ..obs_spec import ObsSpec
 from ..observations import build_observations
 from ..rewards import detect_events
-from ..sensing import Perception, WorldView, perceive
+from ..sensing import INITIAL_HEADING, Perception, WorldView, perceive, update_heading
 
 
 class FlightObserver:
@@ -29,7 +28,7 @@ class FlightObserver:
         self.config = config
         self.spec = ObsSpec.make(config.n_pursuers, config.n_evaders, config.n_rays)
         self.obstacles = ObstacleSet.stack([layout.obstacle_set()])
-        self.heading = np.full((1, config.n_pursuers), np.pi / 2)  # as the simulator starts
+        self.heading = np.full((1, config.n_pursuers), INITIAL_HEADING)  # as the simulator starts
         self.captured = np.zeros((1, config.n_evaders), bool)
         self.rng = np.random.default_rng(seed)
         self.view: WorldView | None = None
@@ -51,8 +50,7 @@ class FlightObserver:
 
     def observe(self, pursuer_pos: np.ndarray, pursuer_vel: np.ndarray, evader_pos: np.ndarray, evader_vel: np.ndarray) -> np.ndarray:
         """Observations (1, N, spec.dim) float32 from pursuer_pos/vel (N, 2) and evader_pos/vel (M, 2)."""
-        speed = np.hypot(pursuer_vel[:, 0], pursuer_vel[:, 1])
-        self.heading = np.where(speed > HEADING_MIN_SPEED, np.arctan2(pursuer_vel[:, 1], pursuer_vel[:, 0]), self.heading[0])[None]
+        self.heading = update_heading(self.heading, pursuer_vel[None])
         self.view = WorldView(pursuer_pos[None], pursuer_vel[None], self.heading, evader_pos[None], evader_vel[None], self.captured.copy(), self.obstacles_now(evader_pos))
         self.perception = perceive(self.view, self.config, self.rng)
         return build_observations(self.view, self.perception, self.spec)
