@@ -9,27 +9,27 @@ constant `evader_speed`, through the same velocity interface as the pursuers:
 2. the wanted direction blends, by panic, fleeing (away from the chasers sensed within
    `sense_radius`, positions extrapolated by `lead_time`, each weighted by 1/distance**2)
    with a calm zigzag (a seeded random heading turned by about +-`zigzag_angle`, alternating
-   sides, `zigzag_rate` times per second); repulsion from obstacles within `wall_margin`
-   and, weakly, from other free evaders is added, then smoothing with the last heading;
-3. a survey measures the free corridor `2 * clearance` wide (one ray per direction
-   against obstacles grown by `clearance`) along RING directions around the wanted one and scores each by alignment with it, free room
-   (`room_weight`), and, when panicked, how far the evader stays out of every chaser's
-   reach along it (`safety_weight`); a direction whose corridor is not free for
-   `clearance + evader_speed * lookahead_time` is refused while any other is free;
-4. wall following: when the wanted direction runs into an obstacle within
-   `follow_distance`, the two tangents of that obstacle join the candidates (the flee
-   direction projected onto the wall); alignment and safety pick the side away from the
-   chasers;
-5. gap escape: when cornered (fleeing runs into an obstacle within `follow_distance`, or
-   the threatening chasers surround it) it heads for the midpoint of two chasers and on
-   through, if along that path it stays `capture_radius + gap_margin` beyond the reach of
-   every chaser moving at `pursuer_speed`; it keeps to a chosen gap until it is through or
-   the gap closes;
-6. the best-scored candidate is flown; captured evaders output zero.
+   sides, `zigzag_rate` times per second);
+3. gap escape: when cornered (the flee direction has less than `follow_distance` of room, or
+   the chasers within `panic_distance` surround it) it heads for the midpoint of two chasers
+   and on through, if along that path it stays `capture_radius + gap_margin` beyond the reach
+   of every chaser flying anywhere at `pursuer_speed`; it keeps to a chosen gap until it is
+   across or the gap closes;
+4. wall following: when the wanted direction meets an obstacle within `follow_distance`, it
+   turns toward the obstacle's tangent (the flee direction projected onto the wall), on the
+   side the chasers push it to;
+5. repulsion from obstacles within `wall_margin` and, weakly, from other free evaders, then
+   smoothing with the last heading;
+6. look-ahead: RING directions around the wanted one are measured (the free length of a
+   corridor `2 * clearance` wide: one ray each against obstacles grown by `clearance`) and
+   scored by alignment with it, room (`room_weight`) and, when panicked, how far the evader
+   stays out of every chaser's reach along them (`safety_weight`); a direction whose corridor
+   is not free for `clearance + evader_speed * lookahead_time` is flown only if all are
+   blocked. A gap escape skips 4 to 6 (its path is already checked).
 
-Chasers are sensed through walls (by distance only). Random numbers come from a
-counter-based hash of (episode seed, step, evader, stream), so a world's path depends only
-on its own seed and inputs, however many worlds run together.
+Captured evaders output zero. Chasers are sensed through walls (by distance only). Random
+numbers come from a counter-based hash of (episode seed, step, evader, stream), so a
+world's path depends only on its own seed and inputs, however many worlds run together.
 """
 
 from __future__ import annotations
@@ -43,12 +43,16 @@ from .geometry import FAR, ObstacleSet, obstacle_distance
 
 RING = 16  # survey directions around the wanted direction
 RING_ANGLES = 2 * math.pi * np.arange(RING) / RING  # rad, relative to the wanted direction
-ROOM_CAP = 2.0  # m, room beyond this counts as open
-PERSIST = 0.4  # weight (times panic) of keeping the current heading among candidates
+ROOM_CAP = 1.0  # m, room beyond this counts as open
+FOLLOW_SIDE_MIN = 0.1  # chasers' tangential push below this leaves the wall side to the heading
+FOLLOW_SWITCH = 0.5  # chasers' push against the side it follows a wall on that makes it turn
+PERSIST = 1.0  # weight (times panic) of keeping the current heading among candidates
 BLOCKED = -10.0  # score of a candidate the look-ahead refuses (plus up to 5 for its room)
+GAP_CHASERS = 4  # gaps are looked for between the nearest this many chasers
 PATH_SAMPLES = 6  # points checked along a path against the chasers' reach
 HORIZON = 1.5  # m, how far along a candidate the safety score looks
 SLACK_SCALE = 1.0  # m, safety margins beyond this count as safe
+DANGER = 3.0  # factor on negative safety margins: entering a chaser's reach costs more than room gains
 NORMAL_STEP = 0.02  # m, finite-difference step of obstacle normals
 EPS = 1e-9
 
@@ -120,18 +124,23 @@ def surrounded(toward: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return (mask.sum(-1) >= 3) & (np.nan_to_num(gaps, nan=2 * math.pi).max(-1) < math.pi)
 
 
-def reach_slack(origin: np.ndarray, dirs: np.ndarray, s: np.ndarray, chasers: np.ndarray, sensed: np.ndarray, speed_ratio: float) -> np.ndarray:
+def reach_slack(
+    origin: np.ndarray, dirs: np.ndarray, s: np.ndarray, reach: np.ndarray, chasers: np.ndarray, sensed: np.ndarray
+) -> np.ndarray:
     """How far (m) the evader stays outside every sensed chaser's reach along straight paths.
 
-    origin (W, M, 1, 2) m; dirs (W, M, K, 2) unit; s (W, M, K, S) m, distances along each path;
-    chasers (W, N, 2) m; sensed (W, M, N) bool; speed_ratio = pursuer / evader speed. A chaser
-    flying anywhere at full speed covers speed_ratio * s by the time the evader has flown s.
-    Returns min over samples and sensed chasers of |x - chaser| - speed_ratio * s: (W, M, K),
-    inf where no chaser is sensed.
+    origin (W, M, 1, 2) m; dirs (W, M, K, 2) unit; at sample times the evader has flown
+    s (W, M, K, S) m along its path while a chaser flying anywhere at full speed covers
+    reach (broadcastable to s) m. chasers (W, N, 2) m; sensed (W, M, N) bool.
+    Returns min over samples and sensed chasers of |x - chaser| - reach: (W, M, K), inf
+    where no chaser is sensed.
     """
-    x = origin[..., None, :] + dirs[..., None, :] * s[..., None]  # (W, M, K, S, 2)
-    d = norm(x[..., None, :] - chasers[:, None, None, None, :, :])  # (W, M, K, S, N)
-    margin = np.where(sensed[:, :, None, None, :], d - speed_ratio * s[..., None], np.inf)
+    oc = origin - chasers[:, None, :, :]  # (W, M, N, 2) chaser -> evader
+    along = dot(dirs[:, :, :, None, :], oc[:, :, None, :, :])[:, :, :, None, :]  # (W, M, K, 1, N)
+    s5 = s[..., None]  # (W, M, K, S, 1)
+    # |oc + s dir|^2 expanded, so that no (W, M, K, S, N, 2) array is made
+    d = np.sqrt(np.maximum(dot(oc, oc)[:, :, None, None, :] + s5 * (2.0 * along + s5), 0.0))
+    margin = np.where(sensed[:, :, None, None, :], d - np.broadcast_to(reach, s.shape)[..., None], np.inf)
     return margin.min(axis=(-1, -2))
 
 
@@ -179,38 +188,34 @@ class Corridors:
         centres = np.concatenate([corners, cyl[..., 0:2]], axis=2)  # (W, 1, C, 2)
         radii = np.concatenate([np.broadcast_to(r, (W, M, corners.shape[2])), cyl[..., 2] + r], axis=2)  # (W, M, C)
         circle_valid = np.concatenate([box_valid, obstacles.border_valid, obstacles.cylinder_valid], -1)[:, None]
-        # everything relative to each evader, once; rays then differ only in direction
+        # everything relative to each evader, once; rays then differ only in direction.
+        # float32 (micrometre rounding on metre offsets) halves the memory traffic of the hot loop.
         p = pos[:, :, None, :]
-        self._a = np.where(seg_valid[..., None], seg[..., 0:2] - p, 0.0)  # (W, M, S, 2) segment start
-        self._e = np.where(seg_valid[..., None], seg[..., 2:4] - seg[..., 0:2], 0.0)  # segment vector
-        self._c = centres - p  # (W, M, C, 2) circle centre
-        self._c2 = np.where(circle_valid, dot(self._c, self._c) - radii**2, np.inf)  # |c|^2 - r^2
+        a = np.where(seg_valid[..., None], seg[..., 0:2] - p, 0.0)  # (W, M, S, 2) segment start
+        e = np.where(seg_valid[..., None], seg[..., 2:4] - seg[..., 0:2], 0.0)  # segment vector
+        self._ax, self._ay = a[..., 0].astype(np.float32), a[..., 1].astype(np.float32)
+        self._ex, self._ey = e[..., 0].astype(np.float32), e[..., 1].astype(np.float32)
+        self._t_num = self._ax * self._ey - self._ay * self._ex  # a x e: the hit distance times (d x e)
+        c = centres - p  # (W, M, C, 2) circle centre
+        self._cx, self._cy = c[..., 0].astype(np.float32), c[..., 1].astype(np.float32)
+        self._c2 = np.where(circle_valid, dot(c, c) - radii**2, np.inf).astype(np.float32)  # |c|^2 - r^2
 
     def free(self, dirs: np.ndarray) -> np.ndarray:
         """Free length (W, M, Q) m along unit dirs (W, M, Q, 2) from each evader; FAR if open."""
-        dx, dy = dirs[..., 0:1], dirs[..., 1:2]  # (W, M, Q, 1)
-        ax, ay = self._a[:, :, None, :, 0], self._a[:, :, None, :, 1]  # (W, M, 1, S)
-        ex, ey = self._e[:, :, None, :, 0], self._e[:, :, None, :, 1]
+        d = dirs.astype(np.float32)
+        dx, dy = d[..., 0:1], d[..., 1:2]  # (W, M, Q, 1)
+        ax, ay, ex, ey = (v[:, :, None, :] for v in (self._ax, self._ay, self._ex, self._ey))  # (W, M, 1, S)
         denom = dx * ey - dy * ex
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = (ax * ey - ay * ex) / denom
+            t = self._t_num[:, :, None, :] / denom
             u = (ax * dy - ay * dx) / denom
         seg_hit = np.where((np.abs(denom) > EPS) & (t >= 0) & (u >= 0) & (u <= 1), t, FAR).min(-1, initial=FAR)
-        b = dx * self._c[:, :, None, :, 0] + dy * self._c[:, :, None, :, 1]  # (W, M, Q, C) projection of centre
+        b = dx * self._cx[:, :, None, :] + dy * self._cy[:, :, None, :]  # (W, M, Q, C) projection of centre
         disc = b * b - self._c2[:, :, None, :]
         with np.errstate(invalid="ignore"):
             t0 = b - np.sqrt(disc)  # origins lie outside every grown circle, so the near root is the hit
         circle_hit = np.where((disc >= 0) & (t0 >= 0), t0, FAR).min(-1, initial=FAR)
-        return np.minimum(seg_hit, circle_hit)
-
-
-def survey_at(survey: np.ndarray, ref: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """A survey quantity (W, M, RING) over directions ref (W, M, 2) rotated by RING_ANGLES,
-    read at dirs (W, M, 2): the value of the survey direction nearest each dir, (W, M)."""
-    cross = ref[..., 0] * dirs[..., 1] - ref[..., 1] * dirs[..., 0]
-    angle = np.arctan2(cross, dot(ref, dirs))
-    k = np.rint(angle / (2 * math.pi / RING)).astype(np.int64) % RING
-    return np.take_along_axis(survey, k[..., None], -1)[..., 0]
+        return np.minimum(seg_hit, circle_hit).astype(np.float64)
 
 
 # ----------------------------------------------------------------------------- seeded randomness
@@ -259,13 +264,12 @@ class EscapeModel:
         self.seed = int(seed)
         self._need = self.cfg.clearance + config.evader_speed * self.cfg.lookahead_time  # m of free corridor ahead
         W, M = self.n_worlds, self.n_evaders
-        i, j = np.triu_indices(self.n_pursuers, k=1)
-        self._pair_i, self._pair_j = i, j
+        self._pair_i, self._pair_j = np.triu_indices(min(GAP_CHASERS, self.n_pursuers), k=1)  # among the nearest
         self.heading = np.zeros((W, M, 2))
         self.wander = np.zeros((W, M, 2))
         self.zig_side = np.ones((W, M))
         self.has_heading = np.zeros((W, M), bool)
-        self.gap_pair = np.full((W, M), -1)
+        self.gap_pair = np.full((W, M, 2), -1)  # the two chasers of the gap it is slipping through
         self.gap_side = np.zeros((W, M))
         self.world_seed = np.zeros(W, np.uint64)
         self.tick = np.zeros(W, np.uint64)
@@ -273,6 +277,7 @@ class EscapeModel:
         self.panic = np.zeros((W, M))
         self.gap = np.zeros((W, M), bool)
         self.following = np.zeros((W, M), bool)
+        self.follow_side = np.zeros((W, M))  # +1 obstacle on the left, -1 on the right, 0 not following
         self.reset(np.arange(W))
 
     # ------------------------------------------------------------------ episodes
@@ -308,6 +313,7 @@ class EscapeModel:
         self.panic[ids] = 0.0
         self.gap[ids] = False
         self.following[ids] = False
+        self.follow_side[ids] = 0.0
 
     # ------------------------------------------------------------------ one decision
 
@@ -334,46 +340,44 @@ class EscapeModel:
         sensed = dist < cfg.sense_radius
         self.panic = panic_level(np.where(sensed, dist, np.inf).min(-1), cfg.panic_distance, cfg.calm_distance)
         flee = flee_vector(e[:, :, None, :] - (pp + pv * cfg.lead_time)[:, None, :, :], sensed)
-        self._start_headings(ev)
+        self._start_headings(ev, flee)
         self._turn_wander(dt)
         flee_dir = unit(flee, self.heading)
+        p = self.panic[..., None]
+        want = unit(p * flee_dir + (1.0 - p) * self.wander, flee_dir)
 
         d0, n0 = distance_and_normal(e, obstacles)
         corridors = Corridors(obstacles, e, np.clip(np.minimum(cfg.clearance, d0 - 0.005), 0.0, None))
-        p = self.panic[..., None]
-        want = unit(p * flee_dir + (1.0 - p) * self.wander, flee_dir)
+        gap_dir, gap_length, side, ci, cj = self._gap_paths(e, pp, dist, flee_dir)
+        free = corridors.free(np.concatenate([flee_dir[:, :, None, :], want[:, :, None, :], gap_dir], axis=2))
+        gap_on, through = self._gap_escape(
+            dist, sensed, gap_dir, gap_length, side, ci, cj, free[..., 2:], free[..., 0], -away, pp, e, active
+        )
+        want = self._follow_walls(e, want, free[..., 1], flee, obstacles, ~gap_on)
+
         push = cfg.wall_gain * np.clip((cfg.wall_margin - d0) / cfg.wall_margin, 0.0, 1.0)[..., None] * n0
         want = unit(want + push + self._evader_push(e, active), want)
         want = unit((1.0 - cfg.smoothing) * want + cfg.smoothing * self.heading, want)
-
         survey = rotate(want[:, :, None, :], RING_ANGLES)  # (W, M, RING, 2); survey[:, :, 0] is want
-        gap_dir, gap_length = self._gap_paths(e, pp, flee_dir)  # (W, M, P, 2), (W, M, P)
-        free = corridors.free(np.concatenate([survey, gap_dir], axis=2))
-        room, gap_free = free[..., :RING], free[..., RING:]
-        flee_room = survey_at(room, want, flee_dir)
-        gap_on, through = self._gap_escape(away, dist, sensed, gap_dir, gap_length, gap_free, flee_room, pp, e, active)
-
-        tangents, into = self._wall_tangents(e, want, room[..., 0], obstacles)
-        candidates = np.concatenate([survey, tangents], axis=2)  # (W, M, RING + 2, 2)
-        room = np.concatenate([room, corridors.free(tangents)], axis=2)
-        best = self._choose(e, pp, sensed, want, candidates, room, into)
-        final = np.where(gap_on[..., None], through, np.take_along_axis(candidates, best[..., None, None], 2)[:, :, 0])
+        best = self._choose(e, pp, sensed, want, survey, corridors.free(survey))
+        chosen = np.take_along_axis(survey, best[..., None, None], 2)[:, :, 0]
+        final = np.where(gap_on[..., None], through, chosen)
 
         self.heading = np.where(active[..., None], final, self.heading)
         self.has_heading |= active
         self.gap = gap_on
-        self.following = into & (best >= RING) & ~gap_on
         self.tick += np.uint64(1)
         return final * (self.config.evader_speed * active)[..., None]
 
     # ------------------------------------------------------------------ behaviours
 
-    def _start_headings(self, evader_vel: np.ndarray) -> None:
-        """Evaders new to an episode start along their velocity, or a random direction."""
+    def _start_headings(self, evader_vel: np.ndarray, flee: np.ndarray) -> None:
+        """Evaders new to an episode start along their velocity, else away from the chasers
+        they sense, else in a random direction."""
         u = hash_uniform(self.world_seed, self.tick, self.n_evaders, _STREAM_START)
-        random_dir = np.stack([np.cos(2 * math.pi * u), np.sin(2 * math.pi * u)], -1)
-        moving = norm(evader_vel) > 0.05
-        start = np.where(moving[..., None], unit(evader_vel, random_dir), random_dir)
+        start = np.stack([np.cos(2 * math.pi * u), np.sin(2 * math.pi * u)], -1)
+        start = unit(flee, start)
+        start = np.where((norm(evader_vel) > 0.05)[..., None], unit(evader_vel, start), start)
         new = ~self.has_heading[..., None]
         self.heading = np.where(new, start, self.heading)
         self.wander = np.where(new, start, self.wander)
@@ -389,79 +393,107 @@ class EscapeModel:
         self.wander = np.where(turn[..., None], rotate(self.heading, angle), self.wander)
         self.zig_side = np.where(turn, -self.zig_side, self.zig_side)
 
-    def _gap_paths(self, e: np.ndarray, pp: np.ndarray, fallback: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Unit directions (W, M, P, 2) from each evader to the midpoint of each pair of chasers,
-        and the distances (W, M, P) m to those midpoints (P = N (N - 1) / 2 pairs)."""
-        mid = 0.5 * (pp[:, self._pair_i] + pp[:, self._pair_j])  # (W, P, 2)
-        to_mid = mid[:, None] - e[:, :, None]
-        return unit(to_mid, fallback[:, :, None, :]), norm(to_mid)
+    def _gap_paths(self, e, pp, dist, fallback):
+        """Paths through the gaps between pairs of the GAP_CHASERS chasers nearest each evader:
+        to the pair's midpoint and on to `capture_radius + gap_margin` beyond their line, on
+        the far side. With P pairs, returns unit directions (W, M, P, 2), path lengths
+        (W, M, P) m, the side (W, M, P) of the line chaser i -> chaser j the evader is on (+1
+        left, -1 right) and the chaser indices i and j (W, M, P)."""
+        W = self.n_worlds
+        near = np.argsort(dist, axis=-1, kind="stable")[..., : min(GAP_CHASERS, self.n_pursuers)]  # (W, M, K)
+        ci, cj = near[..., self._pair_i], near[..., self._pair_j]  # (W, M, P)
+        world = np.arange(W)[:, None, None]
+        pi, pj = pp[world, ci], pp[world, cj]  # (W, M, P, 2)
+        edge, rel = pj - pi, e[:, :, None] - pi
+        side = np.sign(edge[..., 0] * rel[..., 1] - edge[..., 1] * rel[..., 0])
+        beyond = self.config.capture_radius + self.cfg.gap_margin
+        target = 0.5 * (pi + pj) - beyond * side[..., None] * perp(unit(edge))
+        to_target = target - e[:, :, None]
+        return unit(to_target, fallback[:, :, None, :]), norm(to_target), side, ci, cj
 
-    def _gap_escape(self, away, dist, sensed, gap_dir, gap_length, gap_free, flee_room, pp, e, active):
+    def _gap_escape(self, dist, sensed, gap_dir, gap_length, side, ci, cj, gap_free, flee_room, toward, pp, e, active):
         """(on (W, M) bool, direction (W, M, 2)): the gap between two chasers it slips through.
 
-        A gap is open when both chasers are sensed, the corridor to the midpoint and `reach`
-        beyond is free of obstacles (and for the look-ahead), and along that path the evader
-        stays `reach` outside every sensed chaser's reach. It is taken when cornered, and kept
-        while open until the evader has crossed the line between the two chasers.
+        A gap is open when both chasers are sensed, its path (see `_gap_paths`) is free of
+        obstacles and long enough for the look-ahead, and along it the evader stays
+        `capture_radius + gap_margin` outside every sensed chaser's reach. It is taken when
+        cornered: the flee direction has less than follow_distance of room (flee_room (W, M)
+        m), or the chasers within panic_distance surround it (toward (W, M, N, 2) chaser
+        minus evader). It is kept while open until the evader is across the chasers' line.
         """
         W, M = self.n_worlds, self.n_evaders
         cfg, task = self.cfg, self.config
-        I, J = self._pair_i, self._pair_j
-        P = len(I)
-        if P == 0 or not cfg.gap_escape:
+        if len(self._pair_i) == 0 or not cfg.gap_escape:
             self.gap_pair[:] = -1
             return np.zeros((W, M), bool), np.zeros((W, M, 2))
         reach = task.capture_radius + cfg.gap_margin
-        s = np.linspace(0.0, 1.0, PATH_SAMPLES) * (gap_length + reach)[..., None]  # (W, M, P, S)
-        slack = reach_slack(e[:, :, None, :], gap_dir, s, pp, sensed, task.pursuer_speed / task.evader_speed) - reach
-        clear = gap_free >= np.maximum(gap_length + reach, self._need)
-        feasible = sensed[..., I] & sensed[..., J] & clear & (slack > 0)
+        s = np.linspace(0.0, 1.0, PATH_SAMPLES) * gap_length[..., None]  # (W, M, P, S)
+        slack = reach_slack(e[:, :, None, :], gap_dir, s, s * (task.pursuer_speed / task.evader_speed), pp, sensed) - reach
+        clear = gap_free >= np.maximum(gap_length, self._need)
+        both_sensed = np.take_along_axis(sensed, ci, -1) & np.take_along_axis(sensed, cj, -1)
+        feasible = both_sensed & clear & (slack > 0)
 
-        threat = sensed & (dist < cfg.calm_distance)
-        cornered = (self.panic > 0) & ((flee_room < cfg.follow_distance) | surrounded(-away, threat))
-        edge = pp[:, J] - pp[:, I]  # (W, P, 2)
-        rel = e[:, :, None] - pp[:, None, I]
-        side = np.sign(edge[:, None, :, 0] * rel[..., 1] - edge[:, None, :, 1] * rel[..., 0])
-        committed = (self.gap_pair[..., None] == np.arange(P)) & (self.gap_side[..., None] == side)
+        close = sensed & (dist < cfg.panic_distance)
+        cornered = (self.panic > 0) & ((flee_room < cfg.follow_distance) | surrounded(toward, close))
+        same_pair = (ci == self.gap_pair[..., :1]) & (cj == self.gap_pair[..., 1:])
+        committed = same_pair & (self.gap_side[..., None] == side)
         candidate = feasible & (cornered[..., None] | committed)
         score = np.where(candidate, slack + committed, -np.inf)  # keep to a chosen gap
-        best = np.argmax(score, axis=-1)
+        best = np.argmax(score, axis=-1)[..., None]
         on = candidate.any(-1) & active
-        self.gap_pair = np.where(on, best, -1)
-        self.gap_side = np.where(on, np.take_along_axis(side, best[..., None], -1)[..., 0], 0.0)
-        return on, np.take_along_axis(gap_dir, best[..., None, None], 2)[:, :, 0]
+        pair = np.stack([np.take_along_axis(ci, best, -1)[..., 0], np.take_along_axis(cj, best, -1)[..., 0]], -1)
+        self.gap_pair = np.where(on[..., None], pair, -1)
+        self.gap_side = np.where(on, np.take_along_axis(side, best, -1)[..., 0], 0.0)
+        return on, np.take_along_axis(gap_dir, best[..., None], 2)[:, :, 0]
 
-    def _wall_tangents(self, e, want, ahead, obstacles):
-        """The two tangents (W, M, 2, 2) of the obstacle the wanted direction meets, and
-        whether it meets one within follow_distance head-on enough to follow it (W, M)."""
+    def _follow_walls(self, e, want, ahead, flee, obstacles, allowed):
+        """Turn a wanted direction (W, M, 2) that meets an obstacle within follow_distance
+        (ahead (W, M) m along it) toward that obstacle's tangent, fully once the obstacle is
+        `clearance` away. The side (which hand the wall is on) is chosen when following starts:
+        where the chasers push the evader (the tangential part of the flee vector, times
+        panic), else where it already flies; it is kept while following goes on, so corners
+        are followed round, unless the chasers push back harder than FOLLOW_SWITCH."""
         cfg = self.cfg
         probe = e + want * np.clip(ahead - 0.05, 0.0, cfg.follow_distance)[..., None]
         _, normal = distance_and_normal(probe, obstacles)
-        into = (ahead < cfg.follow_distance) & (dot(want, normal) < -EPS)
-        t = perp(normal)
-        return np.stack([t, -t], axis=2), into
+        into = allowed & (ahead < cfg.follow_distance) & (dot(want, normal) < -EPS)
+        tangent = perp(normal)  # flying along it keeps the obstacle on the left
+        pushed = self.panic * dot(tangent, unit(flee))
+        kept = np.where(dot(tangent, self.heading) < 0, -1.0, 1.0)
+        fresh = np.where(np.abs(pushed) > FOLLOW_SIDE_MIN, np.sign(pushed), kept)
+        keep = self.following & (pushed * self.follow_side > -FOLLOW_SWITCH)
+        self.follow_side = np.where(into, np.where(keep, self.follow_side, fresh), 0.0)
+        self.following = into
+        tangent = tangent * self.follow_side[..., None]
+        span = max(cfg.follow_distance - cfg.clearance, 1e-6)
+        beta = np.clip((cfg.follow_distance - ahead) / span, 0.0, 1.0)[..., None]
+        return np.where(into[..., None], unit((1.0 - beta) * want + beta * tangent, tangent), want)
 
-    def _choose(self, e, pp, sensed, want, candidates, room, into):
-        """Index (W, M) of the best candidate direction (W, M, K, 2) given its free room (W, M, K).
+    def _choose(self, e, pp, sensed, want, candidates, room):
+        """Index (W, M) of the candidate direction (W, M, K, 2) to fly, given its room (W, M, K) m.
 
-        Score: alignment with want, + PERSIST * panic * alignment with the heading,
+        Each candidate is judged along its path of up to HORIZON m (shorter where an obstacle
+        stops it). Score: alignment with want, + PERSIST * panic * alignment with the heading,
         + room_weight * room (relative to ROOM_CAP), + safety_weight * panic * the margin it
-        keeps from the chasers' reach (relative to SLACK_SCALE); candidates the look-ahead
-        refuses score BLOCKED (plus their room); the wall tangents count only when `into`.
+        keeps from the chasers' reach while flying that path and then waiting at its end until
+        HORIZON m of flight time have passed (relative to SLACK_SCALE, times DANGER if
+        negative). Candidates the look-ahead refuses score BLOCKED (plus their room), so they
+        are flown only when all are.
         """
         cfg, task = self.cfg, self.config
         length = np.clip(room - cfg.clearance, 0.0, HORIZON)
-        s = np.linspace(0.0, 1.0, PATH_SAMPLES) * length[..., None]  # (W, M, K, S)
-        slack = reach_slack(e[:, :, None, :], candidates, s, pp, sensed, task.pursuer_speed / task.evader_speed) - task.capture_radius
+        flown = np.linspace(0.0, HORIZON, PATH_SAMPLES)  # (S,) m
+        chaser_reach = flown * (task.pursuer_speed / task.evader_speed)
+        slack = reach_slack(e[:, :, None, :], candidates, np.minimum(flown, length[..., None]), chaser_reach, pp, sensed)
+        slack = slack - task.capture_radius
         panic = self.panic[..., None]
         score = (
             dot(candidates, want[:, :, None, :])
             + PERSIST * panic * dot(candidates, self.heading[:, :, None, :])
             + cfg.room_weight * np.minimum(room, ROOM_CAP) / ROOM_CAP
-            + cfg.safety_weight * panic * np.clip(slack / SLACK_SCALE, -1.0, 1.0)
+            + cfg.safety_weight * panic * np.clip(slack / SLACK_SCALE, -1.0, 1.0) * np.where(slack < 0, DANGER, 1.0)
         )
         score = np.where(room >= self._need, score, BLOCKED + 5.0 * np.minimum(room / self._need, 1.0))
-        score[..., RING:] = np.where(into[..., None], score[..., RING:], -np.inf)
         return np.argmax(score, axis=-1)
 
     def _evader_push(self, e: np.ndarray, active: np.ndarray) -> np.ndarray:
@@ -496,9 +528,14 @@ class EscapeModel:
         act = np.asarray(active)
         if act.shape != (W, M) or act.dtype != bool:
             raise ValueError(f"EscapeModel.compute active: expected a bool array of shape {(W, M)}, got {act.dtype} {act.shape}")
-        if not isinstance(obstacles, ObstacleSet) or obstacles.boxes.ndim != 3 or obstacles.boxes.shape[0] != W:
+        if not isinstance(obstacles, ObstacleSet) or any(
+            a.ndim != 3 or a.shape[0] != W for a in (obstacles.boxes, obstacles.cylinders, obstacles.border)
+        ):
             got = getattr(getattr(obstacles, "boxes", None), "shape", type(obstacles).__name__)
-            raise ValueError(f"EscapeModel.compute obstacles: expected an ObstacleSet stacked over {W} worlds (boxes (W, NB, 5)), got {got}")
+            raise ValueError(
+                f"EscapeModel.compute obstacles: expected an ObstacleSet stacked over {W} worlds "
+                f"(ObstacleSet.stack: boxes (W, NB, 5), cylinders (W, NC, 3), border (W, NS, 4)), got boxes {got}"
+            )
         if not (isinstance(dt, (int, float, np.floating)) and math.isfinite(dt) and dt > 0):
             raise ValueError(f"EscapeModel.compute dt: expected a decision interval > 0 s, got {dt!r}")
         return (*out, act)

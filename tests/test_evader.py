@@ -1,0 +1,316 @@
+"""The evaders' escape model: fleeing, panic, zigzag, walls, gaps, capture, vectorisation, bad input."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pursuit_mj.config import ConfigError, default_config, load_task_config
+from pursuit_mj.evader import EscapeModel, panic_level
+from pursuit_mj.geometry import ObstacleSet, inside_boundary, obstacle_distance
+from pursuit_mj.layout import load_layout
+from pursuit_mj.physics import BatchedPhysics
+
+DT = 0.1
+
+
+def arena_obstacles(n_worlds: int, layout: int = 0, border: bool = True) -> ObstacleSet:
+    """The fixed obstacles of a built-in layout (no random ones), stacked over worlds."""
+    return ObstacleSet.stack([ObstacleSet.from_layout(load_layout(layout), include_border=border)] * n_worlds)
+
+
+def chase(pursuer_pos: np.ndarray, evader_pos: np.ndarray, speed: float) -> np.ndarray:
+    """Naive pursuit: every pursuer (W, N, 2) flies straight at evader 0 (W, M, 2) at `speed`."""
+    to_evader = evader_pos[:, :1, :] - pursuer_pos
+    return speed * to_evader / np.maximum(np.linalg.norm(to_evader, axis=-1, keepdims=True), 1e-9)
+
+
+def fly(model: EscapeModel, evader: np.ndarray, pursuers: np.ndarray, obstacles: ObstacleSet, steps: int, chasing: bool = True):
+    """Kinematic rollout: evaders follow the model, pursuers chase naively (or hover).
+
+    Returns evader positions (steps + 1, W, M, 2), pursuer positions (steps + 1, W, N, 2) and
+    evader commands (steps, W, M, 2).
+    """
+    speed = model.config.pursuer_speed
+    e, p = np.array(evader, float), np.array(pursuers, float)
+    ve, vp = np.zeros_like(e), np.zeros_like(p)
+    es, ps, cmds = [e.copy()], [p.copy()], []
+    active = np.ones(e.shape[:2], bool)
+    for _ in range(steps):
+        vp = chase(p, e, speed) if chasing else np.zeros_like(p)
+        ve = model.compute(e, ve, p, vp, active, obstacles, DT)
+        e, p = e + ve * DT, p + vp * DT
+        es.append(e.copy())
+        ps.append(p.copy())
+        cmds.append(ve.copy())
+    return np.array(es), np.array(ps), np.array(cmds)
+
+
+def heading_of(v: np.ndarray) -> np.ndarray:
+    return np.arctan2(v[..., 1], v[..., 0])
+
+
+# ----------------------------------------------------------------------------- fleeing
+
+
+def test_distance_to_a_lone_chaser_grows_in_open_space():
+    config = default_config(n_pursuers=1)
+    W = 4
+    model = EscapeModel(config, W, seed=3)
+    angles = np.array([0.0, 1.3, 2.9, 4.4])
+    evader = np.zeros((W, 1, 2))
+    chaser = 1.0 * np.stack([np.cos(angles), np.sin(angles)], -1)[:, None, :]  # 1 m away, all around
+    es, ps, _ = fly(model, evader, chaser, arena_obstacles(W, border=False), steps=50)
+    d = np.linalg.norm(es[:, :, 0] - ps[:, :, 0], axis=-1)  # (steps + 1, W)
+    panicked = d[:-1] < config.evader.panic_distance
+    assert np.all(np.diff(d, axis=0)[panicked] > 0.02), "distance must grow every step while in panic"
+    assert np.all(d[-1] > 2.3), d[-1]
+
+
+def test_distance_to_a_lone_chaser_grows_through_point_physics():
+    config = default_config(n_pursuers=1, fidelity="point")
+    layout = load_layout(0)  # the open 3.6 x 5 m arena, no random obstacles
+    physics = BatchedPhysics(config, [layout], nthread=1)
+    physics.reset([0], np.array([[[1.8, 1.6], [1.8, 2.4]]]))  # chaser 0.8 m below the evader
+    model = EscapeModel(config, 1, seed=0)
+    obstacles = arena_obstacles(1)
+    d = []
+    for _ in range(300):
+        pos, vel = physics.positions()[..., :2], physics.velocities()[..., :2]
+        d.append(np.linalg.norm(pos[0, 1] - pos[0, 0]))
+        cmd_e = model.compute(pos[:, 1:], vel[:, 1:], pos[:, :1], vel[:, :1], np.ones((1, 1), bool), obstacles, DT)
+        physics.step(np.concatenate([chase(pos[:, :1], pos[:, 1:], config.pursuer_speed), cmd_e], axis=1))
+    d = np.array(d)
+    assert d[15] > d[0] + 0.25, "it flees: the gap to the chaser opens within 1.5 s"
+    assert d.min() > config.capture_radius + 0.1, "a lone naive chaser never catches it in 30 s"
+
+
+@pytest.mark.parametrize("layout_index", [1, 3])
+@pytest.mark.parametrize("speed", [0.6, 0.9])
+def test_it_never_flies_into_walls_or_obstacles(layout_index, speed):
+    config = default_config(fidelity="point", evader_speed=speed)
+    rng = np.random.default_rng(layout_index)
+    base = load_layout(layout_index)
+    layouts = [base.with_random_obstacles(rng, 5) for _ in range(3)]
+    W, N = len(layouts), config.n_pursuers
+    physics = BatchedPhysics(config, layouts, nthread=1)
+    start = np.zeros((W, N + 1, 2))
+    start[:, :N] = [[0.4, 0.4], [1.8, 0.3], [3.2, 0.4]]
+    start[:, N] = [[0.5, 4.6], [1.8, 4.5], [3.1, 4.6]]
+    physics.reset(np.arange(W), start)
+    model = EscapeModel(config, W, seed=7)
+    obstacles = ObstacleSet.stack([l.obstacle_set() for l in layouts])
+    running = np.ones(W, bool)  # until captured (then everything stops, as in an episode)
+    closest = np.full(W, np.inf)
+    for _ in range(300):
+        pos, vel = physics.positions()[..., :2], physics.velocities()[..., :2]
+        cmd_e = model.compute(pos[:, N:], vel[:, N:], pos[:, :N], vel[:, :N], running[:, None], obstacles, DT)
+        cmd_p = chase(pos[:, :N], pos[:, N:], config.pursuer_speed) * running[:, None, None]
+        contacts = physics.step(np.concatenate([cmd_p, cmd_e], axis=1))
+        after = physics.positions()[:, N, :2]
+        assert not np.any(contacts[:, N] & running), "the evader touched something"
+        closest = np.where(running, np.minimum(closest, obstacle_distance(after[:, None], obstacles)[:, 0]), closest)
+        inside = np.array([inside_boundary(l, after[w]) for w, l in enumerate(layouts)])
+        assert np.all(inside | ~running), "the evader left the arena"
+        caught = np.linalg.norm(physics.positions()[:, :N, :2] - after[:, None], axis=-1).min(-1) < config.capture_radius
+        running &= ~caught
+    assert np.all(closest > 0.08), closest
+
+
+# ----------------------------------------------------------------------------- panic and zigzag
+
+
+def test_panic_falls_monotonically_with_chaser_distance():
+    c = default_config().evader
+    d = np.linspace(0.0, 6.0, 121)
+    p = panic_level(d, c.panic_distance, c.calm_distance)
+    assert np.all(np.diff(p) <= 0)
+    assert np.all(p[d <= c.panic_distance] == 1.0) and np.all(p[d >= c.calm_distance] == 0.0)
+    assert 0.0 < p[np.searchsorted(d, 0.5 * (c.panic_distance + c.calm_distance))] < 1.0
+    # the model's own panic, one chaser at each distance (one world each)
+    config = default_config(n_pursuers=1)
+    W = len(d)
+    model = EscapeModel(config, W, seed=0)
+    chaser = np.stack([d, np.zeros(W)], -1)[:, None, :]
+    still = np.zeros((W, 1, 2))
+    model.compute(still, still, chaser, np.zeros_like(chaser), np.ones((W, 1), bool), arena_obstacles(W, border=False), DT)
+    assert np.all(np.diff(model.panic[:, 0]) <= 0)
+    np.testing.assert_allclose(model.panic[:, 0], p)
+
+
+def test_calm_zigzag_turns_and_is_seeded():
+    config = default_config(n_pursuers=1)
+    far = np.array([[[50.0, 50.0]]])  # beyond sense_radius: calm
+    paths = []
+    for seed in (5, 5, 6):
+        model = EscapeModel(config, 1, seed=0)
+        model.reset(np.array([0]), np.array([seed]))
+        es, _, cmds = fly(model, np.zeros((1, 1, 2)), far, arena_obstacles(1, border=False), steps=200, chasing=False)
+        paths.append(es[:, 0, 0])
+        turns = np.abs(np.angle(np.exp(1j * np.diff(heading_of(cmds[:, 0, 0])))))
+        assert np.sum(turns > 0.15) >= 8, "a calm evader changes heading every few seconds"
+        np.testing.assert_allclose(np.linalg.norm(cmds, axis=-1), config.evader_speed)
+    np.testing.assert_array_equal(paths[0], paths[1])
+    assert np.abs(paths[0] - paths[2]).max() > 0.5, "another seed, another path"
+
+
+# ----------------------------------------------------------------------------- walls and gaps
+
+
+def test_it_follows_a_wall_away_from_the_chaser():
+    config = default_config(n_pursuers=1)
+    model = EscapeModel(config, 1, seed=0)
+    # near the bottom wall; the chaser above and to the right drives it into the wall
+    e, p = np.array([[[1.5, 0.35]]]), np.array([[[1.9, 1.2]]])
+    following, cmds, ys = [], [], []
+    for _ in range(15):
+        v = model.compute(e, np.zeros_like(e), p, np.zeros_like(p), np.ones((1, 1), bool), arena_obstacles(1), DT)
+        following.append(model.following[0, 0])
+        cmds.append(v[0, 0])
+        e = e + v * DT
+        ys.append(e[0, 0, 1])
+    v = np.array(cmds)[3:]
+    assert all(following), "fleeing would drive it into the wall, so it follows the wall"
+    assert np.all(v[:, 0] < -0.4), "along the wall, away from the chaser (to the left)"
+    assert np.all(np.abs(v[:, 1]) < 0.35), "mostly along the wall, neither into it nor off it"
+    assert min(ys) > 0.2, "it keeps off the wall"
+
+
+def test_it_slips_through_a_gap_it_can_reach_first():
+    config = default_config()
+    model = EscapeModel(config, 1, seed=0)
+    # cornered against the bottom wall; two chasers close in from both sides, a third far up
+    evader = np.array([[[1.8, 0.45]]])
+    chasers = np.array([[[0.6, 1.3], [3.0, 1.3], [1.8, 4.5]]])
+    es, ps, cmds = fly(model, evader, chasers, arena_obstacles(1), steps=25)
+    first = cmds[0, 0, 0] / config.evader_speed
+    to_gap = np.array([0.0, 1.0])  # the pair's midpoint (1.8, 1.3) is straight up
+    assert first @ to_gap > 0.95
+    passed = es[:, 0, 0, 1] > ps[:, 0, 0, 1] + 0.3  # beyond the line of the two side chasers
+    assert passed.any(), "it gets through"
+    d = np.linalg.norm(es[:, 0, 0][:, None] - ps[:, 0], axis=-1).min()
+    assert d > config.capture_radius + 0.1, "and is never within reach while doing it"
+
+
+def test_no_gap_escape_when_the_chasers_are_too_close():
+    config = default_config()
+    model = EscapeModel(config, 1, seed=0)
+    evader = np.array([[[1.8, 0.45]]])
+    chasers = np.array([[[1.45, 0.85], [2.15, 0.85], [1.8, 4.5]]])  # midpoint 0.4 m away, 0.35 m from each
+    vel = model.compute(evader, np.zeros_like(evader), chasers, np.zeros_like(chasers), np.ones((1, 1), bool), arena_obstacles(1), DT)
+    assert not model.gap[0, 0]
+    assert (vel[0, 0] / config.evader_speed) @ np.array([0.0, 1.0]) < 0.9, "it does not dash for the closed gap"
+    # the same pair twice as far apart leaves a gap it takes
+    wide = chasers.copy()
+    wide[0, :2, 0] = [1.8 - 1.2, 1.8 + 1.2]
+    model.reset(np.array([0]))
+    model.compute(evader, np.zeros_like(evader), wide, np.zeros_like(wide), np.ones((1, 1), bool), arena_obstacles(1), DT)
+    assert model.gap[0, 0]
+
+
+def test_surrounded_in_the_open_it_takes_the_widest_safe_gap():
+    config = default_config()
+    model = EscapeModel(config, 1, seed=0)
+    ang = np.radians([90.0, 200.0, 340.0])  # the widest gap is between 200 and 340 degrees (below)
+    chasers = (1.2 * np.stack([np.cos(ang), np.sin(ang)], -1))[None]
+    still = np.zeros((1, 1, 2))
+    vel = model.compute(still, still, chasers, np.zeros_like(chasers), np.ones((1, 1), bool), arena_obstacles(1, border=False), DT)
+    assert model.gap[0, 0]
+    assert (vel[0, 0] / config.evader_speed) @ np.array([0.0, -1.0]) > 0.95
+
+
+# ----------------------------------------------------------------------------- interface
+
+
+def test_output_speed_and_captured_evaders():
+    config = default_config(n_evaders=3)
+    rng = np.random.default_rng(2)
+    W = 16
+    base = load_layout(3)
+    obstacles = ObstacleSet.stack([base.with_random_obstacles(rng, 5).obstacle_set() for _ in range(W)])
+    model = EscapeModel(config, W, seed=1)
+    active = rng.random((W, 3)) < 0.7
+    for _ in range(5):
+        e = np.stack([rng.uniform(0.3, 3.3, (W, 3)), rng.uniform(0.3, 4.7, (W, 3))], -1)
+        p = np.stack([rng.uniform(0.3, 3.3, (W, 3)), rng.uniform(0.3, 4.7, (W, 3))], -1)
+        v = model.compute(e, rng.normal(size=e.shape), p, rng.normal(size=p.shape), active, obstacles, DT)
+        speed = np.linalg.norm(v, axis=-1)
+        np.testing.assert_allclose(speed[active], config.evader_speed, rtol=1e-9)
+        assert np.all(v[~active] == 0.0)
+
+
+def test_evaders_push_each_other_apart():
+    config = default_config(n_evaders=2)
+    lonely = dataclasses.replace(config, evader=dataclasses.replace(config.evader, evader_gain=0.0))
+    e = np.array([[[1.7, 2.5], [1.9, 2.5]]])
+    far = np.array([[[50.0, 50.0], [51.0, 50.0], [52.0, 50.0]]])
+    apart = []
+    for c in (config, lonely):
+        model = EscapeModel(c, 1, seed=4)
+        v = model.compute(e, np.zeros_like(e), far, np.zeros_like(far), np.ones((1, 2), bool), arena_obstacles(1), DT)
+        apart.append(v[0, 1, 0] - v[0, 0, 0])  # rate at which their x separation grows
+    assert apart[0] > apart[1] + 0.02
+
+
+def test_worlds_together_equal_worlds_apart():
+    config = default_config(n_evaders=2)
+    rng = np.random.default_rng(11)
+    W = 5
+    layouts = [load_layout(i % 4).with_random_obstacles(rng, 4) for i in range(W)]
+    sets = [l.obstacle_set() for l in layouts]
+    e0 = np.stack([rng.uniform(0.5, 3.1, (W, 2)), rng.uniform(3.8, 4.6, (W, 2))], -1)
+    p0 = np.stack([rng.uniform(0.5, 3.1, (W, 3)), rng.uniform(0.4, 2.0, (W, 3))], -1)
+    seeds = rng.integers(0, 2**31, W)
+    together = EscapeModel(config, W, seed=0)
+    together.reset(np.arange(W), seeds)
+    es, _, cmds = fly(together, e0, p0, ObstacleSet.stack(sets, n_boxes=12, n_cylinders=12), steps=40)
+    for w in range(W):
+        alone = EscapeModel(config, 1, seed=99)
+        alone.reset(np.array([0]), seeds[w : w + 1])
+        es_w, _, cmds_w = fly(alone, e0[w : w + 1], p0[w : w + 1], ObstacleSet.stack([sets[w]]), steps=40)
+        np.testing.assert_allclose(cmds_w[:, 0], cmds[:, w], atol=1e-9)
+        np.testing.assert_allclose(es_w[:, 0], es[:, w], atol=1e-9)
+
+
+def test_reset_restarts_an_episode_exactly():
+    config = default_config()
+    model = EscapeModel(config, 2, seed=0)
+    model.reset(np.arange(2), np.array([8, 9]))
+    e0, p0 = np.array([[[1.0, 4.0]], [[2.5, 4.2]]]), np.array([[[0.5, 1.0], [1.5, 1.0], [2.5, 1.0]]] * 2)
+    _, _, first = fly(model, e0, p0, arena_obstacles(2, layout=3), steps=20)
+    model.reset(np.array([1]), np.array([9]))  # only world 1 starts again
+    model.reset(np.array([0]), np.array([8]))
+    _, _, again = fly(model, e0, p0, arena_obstacles(2, layout=3), steps=20)
+    np.testing.assert_array_equal(first, again)
+
+
+def test_bad_input_is_refused_by_name():
+    config = default_config()
+    model = EscapeModel(config, 2, seed=0)
+    e, p = np.zeros((2, 1, 2)), np.ones((2, 3, 2))
+    ok = dict(evader_pos=e, evader_vel=e, pursuer_pos=p, pursuer_vel=p, active=np.ones((2, 1), bool), obstacles=arena_obstacles(2), dt=DT)
+    for key, value, word in [
+        ("evader_pos", np.zeros((2, 2, 2)), "evader_pos"),
+        ("pursuer_vel", np.full((2, 3, 2), np.nan), "pursuer_vel"),
+        ("active", np.ones((2, 1)), "active"),
+        ("obstacles", arena_obstacles(3), "obstacles"),
+        ("dt", 0.0, "dt"),
+    ]:
+        with pytest.raises(ValueError, match=word):
+            model.compute(**{**ok, key: value})
+    with pytest.raises(ValueError, match="world_ids"):
+        model.reset(np.array([2]))
+    with pytest.raises(ValueError, match="seeds"):
+        model.reset(np.array([0, 1]), np.array([1]))
+    with pytest.raises(ValueError, match="n_worlds"):
+        EscapeModel(config, 0, seed=0)
+
+
+def test_evader_settings_are_validated():
+    with pytest.raises(ConfigError, match="calm_distance"):
+        default_config(evader={"panic_distance": 2.0, "calm_distance": 1.5})
+    with pytest.raises(ConfigError, match="zigzag_angle"):
+        load_task_config(overrides=["evader.zigzag_angle=4"])
+    assert load_task_config(overrides=["evader.sense_radius=2.5"]).evader.sense_radius == 2.5
