@@ -10,6 +10,7 @@ validity mask so that worlds with different layouts stack into one padded set.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import TYPE_CHECKING, Sequence
 
@@ -77,6 +78,24 @@ class ObstacleSet:
         cyl = np.concatenate([self.cylinders, np.concatenate([centers, r], -1)], axis=-2)
         cv = np.concatenate([self.cylinder_valid, valid], axis=-1)
         return ObstacleSet(self.boxes, self.box_valid, cyl, cv, self.border, self.border_valid)
+
+    @functools.cached_property
+    def ray_targets(self) -> tuple[np.ndarray, ...]:
+        """Everything rays can hit, split by component for speed (computed once per set).
+
+        Segments (box edges and border) as ax, ay, ex, ey (..., 1, S): start and edge vector,
+        invalid ones collapsed to a far point so they are never hit; cylinders as cx, cy, r2
+        (..., 1, C), invalid ones with r2 = -1 so they are never hit.
+        """
+        seg, sv = self.segments()
+        seg = np.concatenate([seg, self.border], axis=-2)
+        sv = np.concatenate([sv, self.border_valid], axis=-1)
+        seg = np.where(sv[..., None], seg, FAR)
+        ax, ay = seg[..., None, :, 0], seg[..., None, :, 1]
+        ex, ey = seg[..., None, :, 2] - ax, seg[..., None, :, 3] - ay
+        cyl = self.cylinders
+        r2 = np.where(self.cylinder_valid, cyl[..., 2] ** 2, -1.0)
+        return ax, ay, ex, ey, cyl[..., None, :, 0], cyl[..., None, :, 1], r2[..., None, :]
 
     def segments(self) -> tuple[np.ndarray, np.ndarray]:
         """Box edges as segments (..., 4*NB, 4) [x0, y0, x1, y1] and their validity (..., 4*NB)."""
@@ -210,13 +229,29 @@ def cast_rays(origins: np.ndarray, dirs: np.ndarray, obstacles: ObstacleSet) -> 
     """Distance (m) along each ray (..., R, 2) (unit dirs) to the nearest obstacle or border: (..., R).
 
     The leading dims of origins/dirs must match those of the obstacle set's arrays (or the
-    set is unbatched). FAR where nothing is hit.
+    set is unbatched). FAR where nothing is hit; 0 for a ray starting inside a cylinder.
     """
-    seg, sv = obstacles.segments()
-    seg = np.concatenate([seg, obstacles.border], axis=-2)
-    sv = np.concatenate([sv, obstacles.border_valid], axis=-1)
-    hit = ray_segment_hits(origins, dirs, seg, sv)
-    return np.minimum(hit, ray_circle_hits(origins, dirs, obstacles.cylinders, obstacles.cylinder_valid))
+    ax, ay, ex, ey, cx, cy, r2 = obstacles.ray_targets
+    ox, oy = origins[..., 0, None], origins[..., 1, None]  # (..., R, 1)
+    dx, dy = dirs[..., 0, None], dirs[..., 1, None]
+    # segments: o + t d = a + u e, solved by 2D cross products; parallel ones give inf/nan
+    aox, aoy = ax - ox, ay - oy  # (..., R, S)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / (dx * ey - dy * ex)
+        t = (aox * ey - aoy * ex) * inv
+        u = (aox * dy - aoy * dx) * inv
+    hit = np.where((t >= 0) & (u >= 0) & (u <= 1), t, FAR).min(-1, initial=FAR)
+    # cylinders: |o + t d - c|^2 = r^2
+    ocx, ocy = ox - cx, oy - cy  # (..., R, C)
+    b = ocx * dx + ocy * dy
+    cterm = ocx * ocx + ocy * ocy - r2
+    disc = b * b - cterm
+    with np.errstate(invalid="ignore"):
+        sq = np.sqrt(disc)
+    t0 = -b - sq
+    tc = np.where(cterm <= 0, 0.0, np.where((disc >= 0) & (t0 >= 0), t0, FAR))
+    tc = np.where(r2 >= 0, tc, FAR)
+    return np.minimum(hit, tc.min(-1, initial=FAR))
 
 
 def line_of_sight(a: np.ndarray, b: np.ndarray, obstacles: ObstacleSet) -> np.ndarray:

@@ -11,7 +11,7 @@ import dataclasses
 import numpy as np
 
 from .config import TaskConfig
-from .geometry import ObstacleSet, cast_rays, line_of_sight
+from .geometry import ObstacleSet, cast_rays
 
 
 @dataclasses.dataclass
@@ -80,12 +80,13 @@ def _in_view(observer: np.ndarray, heading: np.ndarray, target: np.ndarray, radi
     return ok
 
 
-def _clear_lines(observer: np.ndarray, target: np.ndarray, obstacles: ObstacleSet) -> np.ndarray:
-    """(W, N, T) bool: free line of sight from each observer (W, N, 2) to each target (W, T, 2)."""
+def _sight_rays(observer: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rays from each observer (W, N, 2) toward each target (W, T, 2): origins, unit dirs (W, N*T, 2), lengths (W, N*T)."""
     W, N, T = observer.shape[0], observer.shape[1], target.shape[1]
-    a = np.broadcast_to(observer[:, :, None, :], (W, N, T, 2)).reshape(W, N * T, 2)
-    b = np.broadcast_to(target[:, None, :, :], (W, N, T, 2)).reshape(W, N * T, 2)
-    return line_of_sight(a, b, obstacles).reshape(W, N, T)
+    origins = np.broadcast_to(observer[:, :, None, :], (W, N, T, 2)).reshape(W, N * T, 2)
+    delta = (target[:, None, :, :] - observer[:, :, None, :]).reshape(W, N * T, 2)
+    dist = np.hypot(delta[..., 0], delta[..., 1])
+    return origins, delta / np.maximum(dist, 1e-9)[..., None], dist
 
 
 def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator) -> Perception:
@@ -95,20 +96,35 @@ def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator) -> P
     """
     W, N, _ = view.pursuer_pos.shape
     M = view.evader_pos.shape[1]
+    K = config.n_rays
     p = view.pursuer_pos
-    if config.observability == "full":
-        seen = np.ones((W, N, M), bool)
-        mates = np.ones((W, N, N), bool)
-    else:
+    partial = config.observability == "partial"
+    # one ray cast for everything: K range rays per pursuer, then (partial observability)
+    # the sight lines to every evader and every teammate
+    origins = [np.repeat(p, K, axis=1)]
+    dirs = [np.broadcast_to(ray_directions(K), (W, N, K, 2)).reshape(W, N * K, 2)]
+    if partial:
+        o_e, d_e, len_e = _sight_rays(p, view.evader_pos)
+        o_m, d_m, len_m = _sight_rays(p, p)
+        origins += [o_e, o_m]
+        dirs += [d_e, d_m]
+    hits = cast_rays(np.concatenate(origins, axis=1), np.concatenate(dirs, axis=1), view.obstacles)
+    rays = np.minimum(hits[:, : N * K], config.ray_range).reshape(W, N, K)
+    if partial:
+        clear_e = hits[:, N * K : N * K + N * M] >= len_e - 1e-9
+        clear_m = hits[:, N * K + N * M :] >= len_m - 1e-9
         seen = _in_view(p, view.pursuer_heading, view.evader_pos, config.perception_radius, config.field_of_view)
-        seen &= _clear_lines(p, view.evader_pos, view.obstacles)
+        seen &= clear_e.reshape(W, N, M)
         mates = _in_view(p, view.pursuer_heading, p, config.perception_radius, config.field_of_view)
-        mates &= _clear_lines(p, p, view.obstacles)
+        mates &= clear_m.reshape(W, N, N)
         if config.miss_probability > 0:
             seen &= rng.random((W, N, M)) >= config.miss_probability
+    else:
+        seen = np.ones((W, N, M), bool)
+        mates = np.ones((W, N, N), bool)
     seen &= ~view.captured[:, None, :]
     known = seen.copy()
-    if config.share_detections or config.observability == "full":
+    if config.share_detections or not partial:
         known |= seen.any(axis=1, keepdims=True)
     known |= view.captured[:, None, :]
     mates &= ~np.eye(N, dtype=bool)[None]
@@ -120,9 +136,4 @@ def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator) -> P
         # (observer, target) keeps it simple and identical in both fidelities
         evader_est += rng.normal(0.0, config.position_noise, evader_est.shape)
         mate_est += rng.normal(0.0, config.position_noise, mate_est.shape)
-    rays = np.zeros((W, N, config.n_rays))
-    if config.n_rays:
-        dirs = np.broadcast_to(ray_directions(config.n_rays), (W, N, config.n_rays, 2)).reshape(W, N * config.n_rays, 2)
-        origins = np.repeat(p, config.n_rays, axis=1)
-        rays = np.minimum(cast_rays(origins, dirs, view.obstacles), config.ray_range).reshape(W, N, config.n_rays)
     return Perception(seen, known, mates, evader_est, mate_est, rays)
