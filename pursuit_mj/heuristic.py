@@ -9,10 +9,12 @@ Per pursuer, every decision step:
    teammates are closer to it (spreads the team over several evaders);
 3. chase a predicted position of the target (lead by its velocity, the more the farther
    away), shifted around the target so that teammates close in from different sides;
-4. without a target, go to where an evader was last seen, else sweep: fly straight toward
-   open, unvisited space (the longest free rays, away from teammates and from where it
-   has been);
-5. stay safe: repel from teammates within `mate_radius` and from close walls, and cap the
+4. without a target, go to where an evader was last seen, else sweep: head for the part of
+   the arena it has not seen for longest (a coverage map built from its own rays and its
+   teammates' positions, see coverage.py), away from teammates;
+5. steer around what the rays see (a tangent-bug: follow an obstacle on one side until the
+   way to the aim point opens);
+6. stay safe: repel from teammates within `mate_radius` and from close walls, and cap the
    speed toward any wall ray, teammate or captured evader so that the gap closes
    gradually (a collision fails the episode, so safety wins over speed).
 
@@ -27,6 +29,7 @@ import math
 
 import numpy as np
 
+from .coverage import CoverageMap, CoverageParams
 from .obs_spec import ObsSpec
 
 _TINY = 1e-9
@@ -49,14 +52,14 @@ class HeuristicParams:
     mate_gain: float = 1.5  # teammate repulsion at contact, in units of pursuer speed
     wall_margin: float = 0.35  # wall repulsion starts here (m, ray range)
     wall_gain: float = 1.2  # wall repulsion at contact, in units of pursuer speed
-    safety_buffer: float = 0.1  # keep this much beyond each clearance (m)
+    safety_buffer: float = 0.05  # keep this much beyond each clearance (m)
     approach_rate: float = 1.5  # max closing speed toward a hazard = rate * (gap - buffer) (1/s)
+    response_time: float = 0.25  # the gap shrinks by this much of the current closing speed before a command acts (s)
     safety_passes: int = 4  # projection passes of the closing-speed limits
-    explore_persist: float = 0.6  # weight of keeping the current sweep heading
-    explore_spread: float = 0.5  # weight of heading away from visible teammates
-    explore_novelty: float = 0.8  # weight of heading away from where it has been
-    explore_blocked: float = 0.8  # a ray shorter than this (m) is not a sweep heading
-    trace_time: float = 12.0  # time constant of the "where it has been" average (s)
+    hit_memory: int = 12  # steps of ray hit points kept as hazards
+    open_distance: float = 0.6  # a direction is open if its ray reaches this far (or the goal) (m)
+    side_timeout: float = 10.0  # follow an obstacle on one side at most this long, then the other (s)
+    coverage: CoverageParams = dataclasses.field(default_factory=CoverageParams)
 
 
 class HeuristicTeam:
@@ -64,7 +67,8 @@ class HeuristicTeam:
 
     pursuer_speed (m/s) scales actions; capture_radius (m) sizes captured evaders as
     hazards; teammate/obstacle clearance (m) are the collision distances of the task;
-    control_dt (s) is the decision interval; ray_range (m) the cap of range readings.
+    control_dt (s) is the decision interval; ray_range (m) the cap of range readings;
+    perception_radius (m) bounds what the coverage map counts as seen.
     """
 
     name = "heuristic"
@@ -77,6 +81,7 @@ class HeuristicTeam:
         teammate_clearance: float = 0.2,
         control_dt: float = 0.1,
         ray_range: float = 2.0,
+        perception_radius: float = 2.0,
         params: HeuristicParams | None = None,
     ):
         for key, value in (("pursuer_speed", pursuer_speed), ("control_dt", control_dt), ("ray_range", ray_range)):
@@ -88,15 +93,16 @@ class HeuristicTeam:
         self.teammate_clearance = float(teammate_clearance)
         self.dt = float(control_dt)
         self.ray_range = float(ray_range)
+        self.perception_radius = float(perception_radius)
         self.p = params or HeuristicParams()
         self._n_worlds: int | None = None
-        self._mem: dict[str, np.ndarray] = {}
+        self._mem: dict = {}  # see _memory
 
     @classmethod
     def from_config(cls, config, params: HeuristicParams | None = None) -> "HeuristicTeam":
         """A team tuned to a TaskConfig's speeds, clearances and timing (not its state)."""
         return cls(config.pursuer_speed, config.capture_radius, config.obstacle_clearance,
-                   config.teammate_clearance, config.control_dt, config.ray_range, params)
+                   config.teammate_clearance, config.control_dt, config.ray_range, config.perception_radius, params)
 
     # ------------------------------------------------------------------ memory
 
@@ -106,27 +112,38 @@ class HeuristicTeam:
             self._n_worlds = int(n_worlds)
             self._mem = {}
             return
-        ids = np.asarray(world_ids, dtype=np.int64)
         if self._mem:
-            self._mem["fresh"][ids] = True
+            ids = np.asarray(world_ids, dtype=np.int64)
+            self._mem["age"][ids] = np.inf
+            self._mem["time"][ids] = 0.0
+            self._mem["side"][ids] = 0
+            self._mem["side_time"][ids] = 0.0
+            self._mem["map"].reset(ids)
+            self._mem["hit_ok"][ids] = False
 
-    def _memory(self, W: int, N: int, M: int) -> dict[str, np.ndarray]:
-        """Per-world, per-pursuer memory; allocated on the first observation of a reset batch.
+    def _memory(self, W: int, N: int, M: int, K: int) -> dict:
+        """Per-world, per-pursuer memory, allocated on the first observation after a full reset.
 
         last_pos (W, N, M, 2) m world: where each evader was last known; last_vel (W, N, M, 2)
-        m/s; age (W, N, M) s since then (inf: nothing to go to); heading (W, N) rad: sweep
-        heading; trace (W, N, 2) m: slow average of own position; fresh (W,) bool: episode
-        just started (initialise from the next observation).
+        m/s; age (W, N, M) s since then (inf: nothing to go to); time (W,) s since the
+        episode started; side (W, N) +1/-1 while following an obstacle counter-/clockwise, 0
+        otherwise; side_time (W, N) s on that side; map: the CoverageMap of every pursuer;
+        hits (W, N, hit_memory * K, 2) m world: recent ray end points, hit_ok: which are on
+        an obstacle; slot: the ring-buffer position of the next step's hits.
         """
         m = self._mem
-        if not m or m["last_pos"].shape[:3] != (W, N, M):
+        if not m or m["age"].shape != (W, N, M) or m["hits"].shape[2] != self.p.hit_memory * K:
             self._mem = m = {
                 "last_pos": np.zeros((W, N, M, 2)),
                 "last_vel": np.zeros((W, N, M, 2)),
                 "age": np.full((W, N, M), np.inf),
-                "heading": np.zeros((W, N)),
-                "trace": np.zeros((W, N, 2)),
-                "fresh": np.ones(W, bool),
+                "time": np.zeros(W),
+                "side": np.zeros((W, N), np.int64),
+                "side_time": np.zeros((W, N)),
+                "map": CoverageMap(W, N, self.p.coverage),
+                "hits": np.zeros((W, N, self.p.hit_memory * K, 2)),
+                "hit_ok": np.zeros((W, N, self.p.hit_memory * K), bool),
+                "slot": 0,
             }
         return m
 
@@ -145,24 +162,21 @@ class HeuristicTeam:
         if W != self._n_worlds:
             raise ValueError(f"HeuristicTeam.act: got {W} worlds, but reset() was called for {self._n_worlds}")
         o = _parse(obs, spec)
-        mem = self._memory(W, N, spec.n_evaders)
-        self._start_episodes(mem, o)
+        mem = self._memory(W, N, spec.n_evaders, spec.n_rays)
+        mate_abs = o["pos"][:, :, None] + o["mate_rel"]
+        see = min(self.p.coverage.see_radius, self.perception_radius)
+        mem["map"].update(o["pos"], o["rays"], o["ray_dirs"], self.ray_range, mate_abs, o["mate_vis"], mem["time"], see)
         self._remember(mem, o)
+        self._remember_hits(mem, o)
         target, has_target = self._choose_target(mem, o)
-        v = np.where(has_target[..., None], self._chase(mem, o, target), self._sweep(mem, o))
+        sweep, planned = self._sweep(mem, o, mate_abs)
+        aim = np.where(has_target[..., None], self._chase(mem, o, target), sweep)
+        direction = np.where((planned & ~has_target)[..., None], _unit(aim), self._steer(mem, o, aim))
+        v = self.speed * direction
         v = v + self._repulsion(o)
-        v = self._limit_closing(v, o)
+        v = self._limit_closing(v, mem, o)
+        mem["time"] += self.dt
         return _clip_unit(v / self.speed)
-
-    def _start_episodes(self, mem: dict, o: dict) -> None:
-        fresh = mem["fresh"]
-        if not fresh.any():
-            return
-        mem["age"][fresh] = np.inf
-        mem["trace"][fresh] = o["pos"][fresh]
-        away = _unit(-(o["mate_rel"] * o["mate_vis"][..., None]).sum(2))
-        mem["heading"][fresh] = _best_heading(o["rays"], o["ray_dirs"], away, None, self.p, self.ray_range)[fresh]
-        fresh[:] = False
 
     def _remember(self, mem: dict, o: dict) -> None:
         """Update the last known positions; forget the ones that were searched or are too old."""
@@ -174,8 +188,6 @@ class HeuristicTeam:
         est = self._estimate(mem)
         searched = ~known & (np.linalg.norm(est - o["pos"][:, :, None], axis=-1) < self.p.reached_radius)
         mem["age"] = np.where(gone | searched, np.inf, mem["age"])
-        rate = self.dt / self.p.trace_time
-        mem["trace"] += rate * (o["pos"] - mem["trace"])
 
     def _estimate(self, mem: dict) -> np.ndarray:
         """(W, N, M, 2) m world: last known evader positions moved along their velocity a while."""
@@ -199,17 +211,16 @@ class HeuristicTeam:
         return target, valid.any(-1)
 
     def _chase(self, mem: dict, o: dict, target: np.ndarray) -> np.ndarray:
-        """(W, N, 2) m/s: toward a predicted target position, shifted to encircle it."""
-        take = target[..., None, None]
-        est = np.take_along_axis(self._estimate(mem), np.broadcast_to(take, target.shape + (1, 2)), 2)[:, :, 0]
-        vel = np.take_along_axis(mem["last_vel"], np.broadcast_to(take, target.shape + (1, 2)), 2)[:, :, 0]
+        """(W, N, 2) m relative: a predicted target position, shifted to encircle it."""
+        take = np.broadcast_to(target[..., None, None], target.shape + (1, 2))
+        est = np.take_along_axis(self._estimate(mem), take, 2)[:, :, 0]
+        vel = np.take_along_axis(mem["last_vel"], take, 2)[:, :, 0]
         age = np.take_along_axis(mem["age"], target[..., None], 2)[..., 0]
         rel = est - o["pos"]
         d = np.linalg.norm(rel, axis=-1)
         lead = np.minimum(self.p.lead_gain * d / self.speed, self.p.lead_time_max) * (age <= self.dt)
         pred = rel + vel * lead[..., None]
-        aim = pred + self._encircle_offset(o, pred, d)
-        return self.speed * _unit(aim)
+        return pred + self._encircle_offset(o, pred, d)
 
     def _encircle_offset(self, o: dict, pred: np.ndarray, d: np.ndarray) -> np.ndarray:
         """(W, N, 2) m: shift of the aim point around the target, away from teammates' bearings.
@@ -237,14 +248,55 @@ class HeuristicTeam:
         new = np.stack([np.cos(want), np.sin(want)], -1)
         return ring[..., None] * (new - now)
 
-    def _sweep(self, mem: dict, o: dict) -> np.ndarray:
-        """(W, N, 2) m/s: keep a heading toward open space, away from teammates and the past."""
-        away_mates = _unit(-(o["mate_rel"] * o["mate_vis"][..., None]).sum(2))
-        away_past = _unit(o["pos"] - mem["trace"])
-        bias = self.p.explore_spread * away_mates + self.p.explore_novelty * away_past
-        heading = np.stack([np.cos(mem["heading"]), np.sin(mem["heading"])], -1)
-        mem["heading"] = _best_heading(o["rays"], o["ray_dirs"], bias, heading, self.p, self.ray_range)
-        return self.speed * np.stack([np.cos(mem["heading"]), np.sin(mem["heading"])], -1)
+    def _sweep(self, mem: dict, o: dict, mate_abs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Aim (W, N, 2) m relative toward the stalest part of the arena this pursuer knows, and
+        whether it follows a planned path there (W, N) bool (else it steers straight at it)."""
+        cover: CoverageMap = mem["map"]
+        cover.choose_goal(o["pos"], mate_abs, o["mate_vis"], mem["time"], self.dt)
+        return cover.waypoint(o["pos"], mem["time"])
+
+    def _steer(self, mem: dict, o: dict, aim: np.ndarray) -> np.ndarray:
+        """(W, N, 2) unit direction toward `aim` (relative, m), around obstacles the rays see.
+
+        Straight at the aim when its direction is open to min(distance, open_distance);
+        otherwise along the first open ray turning to one side (kept while blocked, switched
+        after side_timeout): a tangent-bug that follows walls to their ends and doors.
+        """
+        K = o["rays"].shape[-1]
+        direct = _unit(aim)
+        if K == 0:
+            mem["side"][:] = 0
+            return direct
+        rays = o["rays"]
+        dist = np.linalg.norm(aim, axis=-1)
+        need = np.minimum(dist, self.p.open_distance)
+        step = 2 * np.pi / K
+        phi = np.arctan2(aim[..., 1], aim[..., 0])
+        lo = np.floor(phi / step).astype(np.int64) % K
+        hi = (lo + 1) % K
+        blocked = np.minimum(np.take_along_axis(rays, lo[..., None], -1), np.take_along_axis(rays, hi[..., None], -1))[..., 0] < need
+        is_open = rays >= need[..., None]  # (W, N, K)
+        # rays in order of turning away from phi: ccw starts at hi, cw at lo
+        turn = np.arange(K)
+        ccw = (hi[..., None] + turn) % K
+        cw = (lo[..., None] - turn) % K
+        first_ccw = _first_true(np.take_along_axis(is_open, ccw, -1))
+        first_cw = _first_true(np.take_along_axis(is_open, cw, -1))
+        side = mem["side"]
+        fresh = blocked & (side == 0)
+        side = np.where(fresh, np.where(first_ccw <= first_cw, 1, -1), side)
+        mem["side_time"] = np.where(blocked & ~fresh, mem["side_time"] + self.dt, 0.0)
+        flip = mem["side_time"] > self.p.side_timeout
+        side = np.where(flip, -side, side)
+        mem["side_time"] = np.where(flip, 0.0, mem["side_time"])
+        side = np.where(blocked, side, 0)
+        mem["side"] = side
+        k = np.where(side > 0, np.take_along_axis(ccw, np.minimum(first_ccw, K - 1)[..., None], -1)[..., 0],
+                     np.take_along_axis(cw, np.minimum(first_cw, K - 1)[..., None], -1)[..., 0])
+        none_open = np.where(side > 0, first_ccw, first_cw) >= K
+        k = np.where(none_open, np.argmax(rays, -1), k)
+        around = o["ray_dirs"][k]
+        return np.where(blocked[..., None], around, direct)
 
     # ------------------------------------------------------------------ safety
 
@@ -262,27 +314,51 @@ class HeuristicTeam:
             v = v + p.wall_gain * self.speed * _unit(push) * w_wall.max(-1, keepdims=True)
         return v
 
-    def _limit_closing(self, v: np.ndarray, o: dict) -> np.ndarray:
+    def _remember_hits(self, mem: dict, o: dict) -> None:
+        """Keep the last `hit_memory` steps of ray end points on obstacles (world frame): a thin
+        wall seen edge-on slips between the rays of one step, but not between those of many."""
+        K = o["rays"].shape[-1]
+        if K == 0:
+            return
+        slot = int(mem["slot"]) % self.p.hit_memory
+        mem["slot"] = slot + 1
+        sl = slice(slot * K, (slot + 1) * K)
+        mem["hits"][:, :, sl] = o["pos"][:, :, None] + o["rays"][..., None] * o["ray_dirs"]
+        mem["hit_ok"][:, :, sl] = o["rays"] < self.ray_range - 1e-6
+
+    def _limit_closing(self, v: np.ndarray, mem: dict, o: dict) -> np.ndarray:
         """Cap the speed toward each hazard to approach_rate * (gap - buffer), by projection.
 
-        Hazards: every ray (gap = range - obstacle clearance), every visible teammate (gap =
-        distance - teammate clearance, half each since both move) and every captured evader
-        (gap = distance - capture radius - obstacle clearance).
+        Hazards: every remembered ray hit point (gap = distance - obstacle clearance), every
+        visible teammate (gap = distance - teammate clearance, half each since both move) and
+        every captured evader (gap = distance - capture radius - obstacle clearance). Each gap
+        is first shortened by what the current closing speed covers in `response_time` (the
+        drone does not stop at once).
         """
         p = self.p
+        lag = p.response_time
         dirs, limits = [], []
         if o["rays"].shape[-1]:
-            dirs.append(o["ray_dirs"])
-            limits.append(p.approach_rate * (o["rays"] - self.obstacle_clearance - p.safety_buffer))
+            rel = mem["hits"] - o["pos"][:, :, None]
+            d = np.sqrt(rel[..., 0] ** 2 + rel[..., 1] ** 2)
+            u = rel / np.maximum(d, _TINY)[..., None]
+            closing = np.maximum(np.einsum("wnhk,wnk->wnh", u, o["vel"]), 0.0)
+            gap = d - self.obstacle_clearance - p.safety_buffer - lag * closing
+            dirs.append(u)
+            limits.append(np.where(mem["hit_ok"], p.approach_rate * gap, np.inf))
         if o["mate_rel"].shape[2]:
             d = np.linalg.norm(o["mate_rel"], axis=-1)
-            gap = np.where(o["mate_vis"], d - self.teammate_clearance - p.safety_buffer, np.inf)
-            dirs.append(_unit(o["mate_rel"]))
+            u = _unit(o["mate_rel"])
+            closing = np.maximum(-np.einsum("wnmk,wnmk->wnm", u, o["mate_dvel"]), 0.0)
+            gap = np.where(o["mate_vis"], d - self.teammate_clearance - p.safety_buffer - lag * closing, np.inf)
+            dirs.append(u)
             limits.append(0.5 * p.approach_rate * gap)
         d = np.linalg.norm(o["ev_rel"], axis=-1)
-        gap = np.where(o["ev_cap"] & o["ev_vis"], d - self.capture_radius - self.obstacle_clearance - p.safety_buffer, np.inf)
-        dirs.append(_unit(o["ev_rel"]))
-        limits.append(p.approach_rate * gap)
+        u = _unit(o["ev_rel"])
+        closing = np.maximum(np.einsum("wnmk,wnk->wnm", u, o["vel"]), 0.0)
+        gap = d - self.capture_radius - self.obstacle_clearance - p.safety_buffer - lag * closing
+        dirs.append(u)
+        limits.append(np.where(o["ev_cap"] & o["ev_vis"], p.approach_rate * gap, np.inf))
         u = np.concatenate(dirs, axis=2)  # (W, N, H, 2)
         cap = np.concatenate(limits, axis=2)  # (W, N, H) m/s, may be negative (back off)
         for _ in range(p.safety_passes):
@@ -310,6 +386,7 @@ def _parse(obs: np.ndarray, spec: ObsSpec) -> dict[str, np.ndarray]:
         "pos": own[..., 0:2],
         "vel": own[..., 2:4],
         "mate_rel": mates[..., 0:2],
+        "mate_dvel": mates[..., 2:4],
         "mate_vis": mates[..., 4] > 0.5,
         "ev_rel": ev[..., 0:2],
         "ev_vel": ev[..., 2:4],
@@ -321,19 +398,9 @@ def _parse(obs: np.ndarray, spec: ObsSpec) -> dict[str, np.ndarray]:
     }
 
 
-def _best_heading(rays: np.ndarray, ray_dirs: np.ndarray, bias: np.ndarray, current: np.ndarray | None,
-                  p: HeuristicParams, ray_range: float) -> np.ndarray:
-    """(W, N) rad: the ray direction scoring best on openness, persistence and a bias vector (W, N, 2)."""
-    W, N = bias.shape[:2]
-    if ray_dirs.shape[0] == 0:
-        b = bias if current is None else bias + p.explore_persist * current
-        return np.arctan2(b[..., 1], b[..., 0])
-    score = rays / ray_range + np.einsum("kc,wnc->wnk", ray_dirs, bias)
-    if current is not None:
-        score = score + p.explore_persist * np.einsum("kc,wnc->wnk", ray_dirs, current)
-    score = np.where(rays < p.explore_blocked, score - 10.0, score)
-    best = np.argmax(score, axis=-1)
-    return np.arctan2(ray_dirs[best, 1], ray_dirs[best, 0])
+def _first_true(a: np.ndarray) -> np.ndarray:
+    """Index of the first True along the last axis; the axis length where there is none."""
+    return np.where(a.any(-1), np.argmax(a, -1), a.shape[-1])
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

@@ -1,0 +1,169 @@
+"""`pursuit-mj bench env`: the whole task environment against physics alone and the raw MuJoCo ceiling.
+
+For each fidelity and world count, one fresh process builds a `PursuitEnv` of the task
+(defaults, changed by --task/--set; layout 0 with its random obstacles, different in each
+world) and alternates timed blocks of three kinds on the same worlds:
+  - raw: `batch.step(nstep=substeps)` of the env's own MuJoCo batch (no Python per physics
+    step): the ceiling;
+  - physics: `BatchedPhysics.step(commands)`: physics + controller (+ contact read-out);
+  - env: `PursuitEnv.step(actions)`: physics + controller + evader + sensing +
+    observations + rewards + outcomes (+ auto-reset when an episode ends).
+Pursuer commands are zero in all three (they hover; the evader flies in `env` only), so the
+difference between env and physics is the task's own per-step work. Every block starts
+from `env.reset()` with the same seed. Rates are from the fastest block of each kind (the
+least disturbed by other work on the machine). Aim: the task adds at most 30 % on top of
+physics at 64 worlds. --profile N prints the N functions with the most own time inside
+`PursuitEnv.step` at the last configuration, to show where the time goes.
+"""
+
+from __future__ import annotations
+
+import cProfile
+import dataclasses
+import io
+import math
+import pstats
+import time
+from typing import Sequence
+
+import numpy as np
+
+from ..config import TaskConfig, load_task_config
+from . import format_table, peak_rss_mb, run_isolated
+
+HELP = "decision steps/s of the whole environment vs physics+controller and the raw MuJoCo ceiling"
+BLOCK_SECONDS = 0.25  # wall time of one timed block
+MAX_BLOCK_STEPS = 40  # decision steps per block at most
+AIM_OVERHEAD = 0.30  # the task may add at most this fraction on top of physics at 64 worlds
+
+
+@dataclasses.dataclass
+class EnvBench:
+    """One configuration: seconds per decision step of all worlds (fastest block of each kind)."""
+
+    fidelity: str
+    n_worlds: int
+    n_pursuers: int
+    raw_s: float
+    physics_s: float
+    env_s: float
+    blocks: int
+    peak_rss_mb: float
+    profile: str = ""
+
+    @property
+    def overhead(self) -> float:
+        """The task's time on top of physics + controller, as a fraction of the latter."""
+        return self.env_s / self.physics_s - 1.0
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--worlds", nargs="+", type=int, default=[1, 16, 64], metavar="W", help="world counts (default 1 16 64)")
+    p.add_argument("--seconds", type=float, default=4.0, help="measuring time per configuration, all kinds together (default 4)")
+    p.add_argument("--fidelity", nargs="+", choices=("quadrotor", "point"), default=["quadrotor", "point"], help="fidelities (default both)")
+    p.add_argument("--seed", type=int, default=0, help="environment seed (default 0)")
+    p.add_argument("--task", dest="task_files", action="append", default=[], metavar="FILE|PRESET",
+                   help="task YAML file or preset name (reference, easy, hard); repeatable")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="change a task setting, e.g. --set n_rays=32 (repeatable)")
+    p.add_argument("--profile", type=int, default=0, metavar="N",
+                   help="print the N functions with the most own time in env.step at the last configuration")
+
+
+def task_config(fidelity: str, files: Sequence[str] = (), overrides: Sequence[str] = ()) -> TaskConfig:
+    return load_task_config(files, overrides, {"fidelity": fidelity})
+
+
+def _profile(env, actions: np.ndarray, steps: int, top: int) -> str:
+    prof = cProfile.Profile()
+    prof.enable()
+    for _ in range(steps):
+        env.step(actions)
+    prof.disable()
+    out = io.StringIO()
+    pstats.Stats(prof, stream=out).sort_stats("tottime").print_stats(top)
+    lines = [l for l in out.getvalue().splitlines() if l.strip()]
+    start = next((i for i, l in enumerate(lines) if l.lstrip().startswith("ncalls")), 0)
+    return "\n".join(lines[start:])
+
+
+def measure(fidelity: str, n_worlds: int, seconds: float, seed: int, files: Sequence[str],
+            overrides: Sequence[str], profile_top: int = 0) -> EnvBench:
+    """Time raw, physics and env stepping of one configuration in alternating blocks."""
+    from ..env import PursuitEnv
+
+    config = task_config(fidelity, files, overrides)
+    env = PursuitEnv(config, n_worlds=n_worlds, seed=seed)
+    physics = env.physics
+    commands = np.zeros((n_worlds, physics.n_drones, 2))
+    actions = np.zeros((n_worlds, config.n_pursuers, 2))
+    kinds = {
+        "raw": lambda: physics.batch.step(nstep=config.substeps),
+        "physics": lambda: physics.step(commands),
+        "env": lambda: env.step(actions),
+    }
+
+    def block(fn, n: int) -> float:
+        env.reset(seed=seed)
+        start = time.perf_counter()
+        for _ in range(n):
+            fn()
+        return (time.perf_counter() - start) / n
+
+    first = block(kinds["env"], 2)  # also warms up
+    n = int(np.clip(round(BLOCK_SECONDS / first), 1, MAX_BLOCK_STEPS))
+    rounds = max(2, int(round(seconds / (3 * n * first))))
+    times: dict[str, list[float]] = {k: [] for k in kinds}
+    for _ in range(rounds):
+        for k, fn in kinds.items():
+            times[k].append(block(fn, n))
+    profile = ""
+    if profile_top > 0:
+        env.reset(seed=seed)
+        profile = _profile(env, actions, max(n, 10), profile_top)
+    return EnvBench(fidelity, n_worlds, config.n_pursuers, min(times["raw"]), min(times["physics"]), min(times["env"]),
+                    rounds, peak_rss_mb(), profile)
+
+
+def _row(r: EnvBench) -> list[str]:
+    dec = {k: r.n_worlds / getattr(r, f"{k}_s") for k in ("raw", "physics", "env")}
+    return [r.fidelity, str(r.n_worlds), f"{dec['raw']:,.0f}", f"{dec['physics']:,.0f}", f"{dec['env']:,.0f}",
+            f"{dec['env'] * r.n_pursuers:,.0f}", f"{r.env_s * 1e3:.2f}", f"{100 * r.overhead:+.0f} %",
+            f"{r.raw_s / r.env_s:.2f}", f"{r.peak_rss_mb:.0f}"]
+
+
+def run(args) -> int:
+    if not math.isfinite(args.seconds) or args.seconds <= 0:
+        raise ValueError(f"--seconds: must be > 0, got {args.seconds}")
+    bad = [w for w in args.worlds if w < 1]
+    if bad:
+        raise ValueError(f"--worlds: world counts must be >= 1, got {bad[0]}")
+    if args.profile < 0:
+        raise ValueError(f"--profile: must be >= 0, got {args.profile}")
+    cfg = task_config(args.fidelity[0], args.task_files, args.overrides)  # refuses bad settings before any work
+    print(f"env benchmark: {cfg.n_pursuers} pursuers + {cfg.n_evaders} evader(s) per world, layout {cfg.layout} with "
+          f"{cfg.random_obstacles} random obstacles, {cfg.observability} observability, {cfg.n_rays} rays; a decision "
+          f"step is {cfg.control_dt:g} s = {cfg.substeps} physics steps")
+    print("rates in decision steps/s summed over worlds (agent-steps/s = env x pursuers); raw = batch.step(nstep), "
+          "physics = BatchedPhysics.step, env = PursuitEnv.step; fastest of alternating blocks; one process per configuration")
+    headers = ["fidelity", "worlds", "raw dec/s", "physics dec/s", "env dec/s", "env agent-steps/s", "env ms/step",
+               "task overhead", "env/raw", "peak RSS MiB"]
+    results = []
+    last = (args.fidelity[-1], args.worlds[-1])
+    for fidelity in args.fidelity:
+        for w in args.worlds:
+            top = args.profile if (fidelity, w) == last else 0
+            results.append(run_isolated(measure, fidelity, w, args.seconds, args.seed, args.task_files, args.overrides, top))
+            print(f"  measured {fidelity} x {w} worlds ({results[-1].blocks} blocks of each kind)", flush=True)
+    print(format_table(headers, [_row(r) for r in results]))
+    for fidelity in args.fidelity:
+        at64 = [r for r in results if r.fidelity == fidelity and r.n_worlds == 64]
+        if at64:
+            verdict = "met" if at64[0].overhead <= AIM_OVERHEAD else "NOT met"
+            print(f"aim {fidelity} at 64 worlds: task overhead over physics <= {100 * AIM_OVERHEAD:.0f} %: "
+                  f"{100 * at64[0].overhead:+.0f} %, {verdict}")
+    if results and results[-1].profile:
+        r = results[-1]
+        print(f"\nwhere env.step spends its time ({r.fidelity}, {r.n_worlds} worlds; own time, cProfile):")
+        print(r.profile)
+    return 0

@@ -1,0 +1,85 @@
+"""`pursuit-mj demo`: evaluate the shipped pretrained policy and the heuristic team on the four layouts.
+
+Needs nothing trained: the model is pretrained/pursuers.pt (made by this project's training
+pipeline, see pretrained/README.md). A few minutes on two cores with the default settings.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from ..config import REPO_ROOT
+from .common import add_task_args, task_config_from_args
+
+PRETRAINED = REPO_ROOT / "pretrained" / "pursuers.pt"
+
+HOW_TO_TRAIN = """\
+Next steps:
+  pursuit-mj train --config configs/train/full_obs.yaml          # PPO with full observability
+  pursuit-mj train --config configs/train/fine_tune.yaml         # ... then fine-tune it under partial observability
+  pursuit-mj train --config configs/train/classic.yaml --set task.fidelity=point   # faster physics, same actions
+  pursuit-mj eval --model runs/fine_tune/best.pt --policy heuristic --layouts 0 1 2 3 --plots results/plots
+  pursuit-mj study --budget-minutes 120                          # the whole reference experiment
+"""
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "demo",
+        help="evaluate the shipped pretrained policy and the heuristic team on layouts 0-3 (no training needed)",
+        description="Runs a modest evaluation of a trained policy (default: the small pretrained one shipped in "
+        "pretrained/) beside the hand-made heuristic team on the built-in layouts, prints the table and says how to train.",
+    )
+    p.add_argument("-m", "--model", default=str(PRETRAINED), help="checkpoint to show (default: pretrained/pursuers.pt)")
+    p.add_argument("--episodes", type=int, default=16, help="episodes per policy and layout (default 16)")
+    p.add_argument("--layouts", nargs="+", default=["0", "1", "2", "3"], metavar="LAYOUT", help="layouts (default 0 1 2 3)")
+    p.add_argument("--worlds", type=int, default=16, help="parallel worlds (default 16)")
+    p.add_argument("--seed", type=int, default=0, help="table seed")
+    p.add_argument("--no-heuristic", action="store_true", help="evaluate the model only")
+    add_task_args(p)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..evaluation import evaluate, format_table
+    from ..policies import make_policy
+
+    if args.episodes < 1:
+        raise ValueError(f"--episodes: expected an integer >= 1, got {args.episodes}")
+    model = Path(args.model)
+    if not model.is_file():
+        raise ValueError(f"--model {model}: no such file (the pretrained policy ships in pretrained/ of the repository)")
+    try:
+        from train.policy import load_policy
+    except ImportError as exc:
+        raise ValueError(f"--model {model}: cannot load trained models, the train package is not importable ({exc})") from None
+    config = task_config_from_args(args)
+    layouts = [int(x) if x.strip().isdigit() else x for x in args.layouts]
+    policy = load_policy(model, _spec(config), name="pretrained" if model == PRETRAINED else None)
+    policies = [(policy.name, policy)]
+    if not args.no_heuristic:
+        policies.append(("heuristic", make_policy("heuristic", config)))
+    print(f"demo: {len(policies)} policies x {len(layouts)} layouts x {args.episodes} episodes, "
+          f"{config.fidelity} fidelity, {config.n_pursuers} pursuers ({config.pursuer_speed} m/s) vs "
+          f"{config.n_evaders} evader ({config.evader_speed} m/s), {config.observability} observability", file=sys.stderr)
+    rows = []
+    t_all = time.perf_counter()
+    for label, pol in policies:
+        for ref in layouts:
+            t0 = time.perf_counter()
+            rows += evaluate(pol, config, [ref], args.episodes, args.seed, args.worlds, label=label)
+            print(f"[demo] {label} layout {ref}: {time.perf_counter() - t0:.1f} s, success "
+                  f"{100 * rows[-1].success.p:.0f} %", file=sys.stderr, flush=True)
+    print(format_table(rows))
+    print(f"\n({time.perf_counter() - t_all:.0f} s; brackets are 95 % confidence intervals; "
+          f"use --episodes 150 for the reference study's sample size)\n")
+    print(HOW_TO_TRAIN, end="")
+    return 0
+
+
+def _spec(config):
+    from ..obs_spec import ObsSpec
+
+    return ObsSpec.make(config.n_pursuers, config.n_evaders, config.n_rays)

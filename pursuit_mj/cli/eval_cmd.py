@@ -1,0 +1,146 @@
+"""`pursuit-mj eval`: the evaluation table (success / collision / timeout, mean steps, 95 % CIs).
+
+    pursuit-mj eval --policy heuristic --layouts 0 1 2 3 --episodes 150
+    pursuit-mj eval --policy heuristic --policy random --model runs/a/best.pt --out results/table --plots results/plots
+    pursuit-mj eval --task hard --fidelity point --layouts 3 --episodes 20 --rerun hard3.rrd
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import time
+from pathlib import Path
+
+from ..io_utils import check_writable
+from ..layout import load_layout
+from ..obs_spec import ObsSpec
+from ..policies import POLICY_NAMES, make_policy
+from .common import add_task_args, task_config_from_args
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "eval",
+        help="evaluate policies over layouts: outcome rates and episode lengths with 95%% CIs",
+        description="Run episodes in parallel worlds and print, per policy and layout, success / collision / "
+                    "timeout rates (95 % Wilson intervals) and mean episode steps (95 % t intervals).",
+    )
+    p.add_argument("--policy", action="append", default=[], metavar="NAME",
+                   help=f"a hand-made team: {', '.join(POLICY_NAMES)} (repeatable; default heuristic if no --model)")
+    p.add_argument("-m", "--model", action="append", default=[], metavar="FILE",
+                   help="a trained checkpoint (loaded with train.policy.load_policy; repeatable)")
+    p.add_argument("--layouts", nargs="+", metavar="LAYOUT",
+                   help="layout indices 0-3 and/or layout files (default: the task's layout)")
+    p.add_argument("--episodes", type=int, default=150, help="episodes per policy and layout (default 150)")
+    p.add_argument("--worlds", type=int, default=32, help="parallel worlds (default 32)")
+    p.add_argument("--seed", type=int, default=0, help="table seed: same seed and worlds, same table (default 0)")
+    p.add_argument("--out", metavar="PREFIX", help="write PREFIX.csv and PREFIX.json")
+    p.add_argument("--csv", metavar="FILE", help="write the table as CSV")
+    p.add_argument("--json", metavar="FILE", help="write the table and the resolved config as JSON")
+    p.add_argument("--plots", metavar="DIR", help="write one bar chart per metric (PNG) into DIR")
+    p.add_argument("--rerun", metavar="FILE.rrd", help="record the first episodes of each policy and layout for the rerun viewer")
+    p.add_argument("--rerun-episodes", type=int, default=3, metavar="N",
+                   help="episodes recorded per policy and layout with --rerun (default 3)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+    add_task_args(p)
+    p.set_defaults(func=run)
+
+
+def _outputs(args) -> tuple[Path | None, Path | None]:
+    csv_path = Path(args.csv) if args.csv else (Path(f"{args.out}.csv") if args.out else None)
+    json_path = Path(args.json) if args.json else (Path(f"{args.out}.json") if args.out else None)
+    for path, what in ((csv_path, "--csv"), (json_path, "--json")):
+        if path is not None:
+            check_writable(path, what)
+    if args.rerun:
+        from ..recording import check_rrd_path
+
+        check_rrd_path(args.rerun)
+    if args.plots:
+        plots = Path(args.plots)
+        if plots.exists() and not plots.is_dir():
+            raise ValueError(f"--plots {plots}: exists and is not a folder")
+    return csv_path, json_path
+
+
+def _load_model(path: str, spec):
+    if not Path(path).is_file():
+        raise ValueError(f"--model {path}: no such file")
+    try:
+        from train.policy import load_policy
+    except ImportError as exc:
+        raise ValueError(f"--model {path}: cannot load trained models, the train package is not importable ({exc})") from None
+    return load_policy(path, spec)
+
+
+def _policies(args, config) -> list[tuple[str, object]]:
+    """(label, policy) pairs in command-line order: hand-made teams first, then models."""
+    names = args.policy or ([] if args.model else ["heuristic"])
+    out = [(name, make_policy(name, config, args.seed)) for name in names]
+    spec = ObsSpec.make(config.n_pursuers, config.n_evaders, config.n_rays)
+    out += [(getattr(pol, "name", Path(m).stem), pol) for m, pol in ((m, _load_model(m, spec)) for m in args.model)]
+    seen: dict[str, int] = {}
+    labelled = []
+    for label, pol in out:
+        seen[label] = seen.get(label, 0) + 1
+        labelled.append((label if seen[label] == 1 else f"{label}#{seen[label]}", pol))
+    return labelled
+
+
+def _run_table(args, config, layouts, policies, recording) -> list:
+    from ..evaluation import evaluate
+
+    rows = []
+    for label, policy in policies:
+        for ref in layouts:
+            watch = None
+            if recording is not None:
+                from ..recording import EnvRecorder
+
+                tags = {"policy": label, "layout": str(ref)}
+                watch = lambda env, tags=tags: EnvRecorder(recording, env, label=tags, max_episodes=args.rerun_episodes)
+            t0 = time.perf_counter()
+            rows += evaluate(policy, config, [ref], args.episodes, args.seed, args.worlds, label=label, watch=watch)
+            if not args.quiet:
+                r = rows[-1]
+                print(f"[eval] {label} layout {r.layout}: {r.episodes} episodes in {time.perf_counter() - t0:.1f} s, "
+                      f"success {100 * r.success.p:.1f} %", file=sys.stderr, flush=True)
+    return rows
+
+
+def run(args) -> int:
+    from ..evaluation import format_table, plot_rows, write_csv, write_json
+
+    if args.episodes < 1:
+        raise ValueError(f"--episodes: expected an integer >= 1, got {args.episodes}")
+    if args.worlds < 1:
+        raise ValueError(f"--worlds: expected an integer >= 1, got {args.worlds}")
+    if args.rerun_episodes < 1:
+        raise ValueError(f"--rerun-episodes: expected an integer >= 1, got {args.rerun_episodes}")
+    config = task_config_from_args(args)
+    layouts = args.layouts if args.layouts else [config.layout]
+    for ref in layouts:
+        load_layout(ref)  # refuse a bad layout before any episode runs
+    csv_path, json_path = _outputs(args)
+    policies = _policies(args, config)
+    with contextlib.ExitStack() as stack:
+        recording = None
+        if args.rerun:
+            from ..recording import RerunEpisodeRecording
+
+            recording = stack.enter_context(RerunEpisodeRecording(args.rerun))
+        rows = _run_table(args, config, layouts, policies, recording)
+    print(format_table(rows))
+    meta = {"episodes": args.episodes, "worlds": args.worlds, "seed": args.seed,
+            "policies": [label for label, _ in policies], "models": list(args.model)}
+    if csv_path:
+        print(f"wrote {write_csv(rows, csv_path)}")
+    if json_path:
+        print(f"wrote {write_json(rows, json_path, config, meta)}")
+    if args.plots:
+        for path in plot_rows(rows, args.plots):
+            print(f"wrote {path}")
+    if args.rerun:
+        print(f"wrote {args.rerun} (view with: rerun {args.rerun})")
+    return 0

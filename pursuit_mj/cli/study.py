@@ -1,0 +1,59 @@
+"""`pursuit-mj study`: the reference experiment end to end within a time budget (train/ imported lazily)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .common import add_task_args, task_config_from_args
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "study",
+        help="the whole reference experiment: full_obs, fine_tune, classic, MAPPO and the heuristic, table and charts",
+        description="Train full_obs, then fine_tune from it, classic and MAPPO on layout 0, evaluate them and the "
+        "heuristic team on the layouts, and write the table (txt, csv, json), bar charts and timings into --out. "
+        "Training runs in --train-fidelity (point by default: same actions, much faster); evaluation uses the "
+        "task flags below (the reference task in quadrotor fidelity by default).",
+        epilog="example:\n  pursuit-mj study --budget-minutes 120 --episodes 150 --out runs/study",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--budget-minutes", type=float, required=True, help="wall-clock budget for everything")
+    p.add_argument("--episodes", type=int, default=150, help="episodes per policy and layout (fewer if the budget is short)")
+    p.add_argument("--layouts", nargs="+", default=["0", "1", "2", "3"], metavar="LAYOUT", help="evaluation layouts (default 0 1 2 3)")
+    p.add_argument("--worlds", type=int, default=32, help="parallel worlds in evaluation")
+    p.add_argument("--seed", type=int, default=0, help="evaluation table seed")
+    p.add_argument("--out", default="runs/study", help="output folder (default runs/study)")
+    p.add_argument("--train-fidelity", choices=("point", "quadrotor"), default="point", help="fidelity for training (default point)")
+    p.add_argument("--train-set", dest="train_overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a train key in every regime, e.g. n_envs=16 (repeatable)")
+    add_task_args(p)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from train.study import StudyPlan, format_timings, run_study
+
+    if args.budget_minutes <= 0:
+        raise ValueError(f"--budget-minutes: expected a positive number, got {args.budget_minutes}")
+    if args.episodes < 1:
+        raise ValueError(f"--episodes: expected an integer >= 1, got {args.episodes}")
+    if not args.task_files:
+        args.task_files = ["reference"]
+    task = task_config_from_args(args)
+    layouts = tuple(int(x) if x.strip().isdigit() else x for x in args.layouts)
+    out = Path(args.out)
+    if out.exists() and any((out / "runs").glob("*/last.pt")):
+        raise ValueError(f"--out {out}: already holds study runs; choose another folder")
+    plan = StudyPlan(
+        budget_minutes=args.budget_minutes, out=out, eval_task=task, layouts=layouts, episodes=args.episodes,
+        worlds=args.worlds, seed=args.seed,
+        train_overrides=(f"task.fidelity={args.train_fidelity}", *args.train_overrides),
+    )
+    result = run_study(plan)
+    print((out / "table.txt").read_text(), end="")
+    print(f"\n{result['episodes']} episodes per policy and layout; time per part:")
+    print(format_timings(result["timings"]))
+    print(f"table, charts and runs in {out}/")
+    return 0

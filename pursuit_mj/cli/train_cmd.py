@@ -1,0 +1,157 @@
+"""`pursuit-mj train`: train pursuers with PPO or MAPPO (train/ package, imported lazily)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+from pathlib import Path
+
+
+def steps_arg(text: str) -> int:
+    """An integer count that may be written 2e6 or 2_000_000."""
+    try:
+        value = float(text.replace("_", ""))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of steps") from None
+    if value < 1 or value != int(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of steps >= 1")
+    return int(value)
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "train",
+        help="train pursuers with PPO / MAPPO (regimes: classic, full_obs, fine_tune, mappo)",
+        description="Train a shared pursuer policy. Settings: defaults <- --config files <- flags <- --set. "
+        "Outputs go to <run.runs_dir>/<name>/: last.pt (every update), best.pt (best validation success), "
+        "metrics.jsonl, config.yaml.",
+        epilog="examples:\n"
+        "  pursuit-mj train --config configs/train/full_obs.yaml\n"
+        "  pursuit-mj train --config classic --set ppo.lr=1e-4 --set task.fidelity=point --total-steps 2e5\n"
+        "  pursuit-mj train --config fine_tune --init-from runs/full_obs/best.pt\n"
+        "  pursuit-mj train --resume runs/classic",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("-c", "--config", action="append", default=[], metavar="FILE|PRESET",
+                   help="train YAML file or preset name (classic, full_obs, fine_tune, mappo); repeatable, later wins")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override any train key, e.g. ppo.lr=1e-4, task.fidelity=point, run.validate_every=5")
+    p.add_argument("--name", help="run name (folder under runs/)")
+    p.add_argument("--total-steps", type=steps_arg, help="world decision steps to train for (e.g. 2e6)")
+    p.add_argument("--max-minutes", type=float, help="stop after this much training time (LR decays over it)")
+    p.add_argument("--n-envs", type=int, help="worlds stepped together")
+    p.add_argument("--seed", type=int, help="seed of networks, sampling and episodes")
+    p.add_argument("--fidelity", choices=("point", "quadrotor"), help="physics fidelity (task.fidelity)")
+    p.add_argument("--layout", action="append", metavar="INDEX|FILE",
+                   help="training layout; repeat for a list (one per world in turn)")
+    p.add_argument("--random-layout", action="store_true", help="a random built-in layout per episode")
+    p.add_argument("--init-from", metavar="CHECKPOINT", help="start from these weights (fine_tune)")
+    p.add_argument("--learnable-gamma", action="store_true", help="learn the discount by meta-gradient")
+    p.add_argument("--resume", nargs="?", const=True, metavar="RUN_DIR",
+                   help="continue the run in RUN_DIR (default: the configured run) from its last.pt")
+    p.add_argument("--export", nargs=2, metavar=("CHECKPOINT", "OUT"),
+                   help="write a small policy-only copy of CHECKPOINT (actor, config, spec) to OUT and exit")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (logs still go to metrics.jsonl)")
+    p.add_argument("-sc", "--show-config", action="store_true", help="print the resolved config and exit")
+    p.set_defaults(func=run)
+
+
+def _flags(args) -> dict:
+    flags: dict = {}
+    for key in ("name", "total_steps", "max_minutes", "n_envs", "seed", "init_from"):
+        value = getattr(args, key)
+        if value is not None:
+            flags[key] = value
+    task: dict = {}
+    if args.fidelity:
+        task["fidelity"] = args.fidelity
+    if args.random_layout:
+        task["random_layout"] = True
+    if args.layout:
+        refs = [int(x) if x.strip().isdigit() else x for x in args.layout]
+        if len(refs) == 1:
+            task["layout"] = refs[0]
+            flags["layouts"] = []
+        else:
+            flags["layouts"] = refs
+    if task:
+        flags["task"] = task
+    if args.learnable_gamma:
+        flags["ppo"] = {"learnable_gamma": True}
+    if args.no_progress:
+        flags["run"] = {"progress": False}
+    return flags
+
+
+def _check_same(asked, stored) -> None:
+    """Refuse a --resume whose config differs from the stored one in anything but the run length."""
+    from pursuit_mj.configio import to_dict
+
+    a, b = to_dict(asked), to_dict(stored)
+    for d in (a, b):
+        d.pop("total_steps"), d.pop("max_minutes"), d["run"].pop("progress")
+    diff = sorted(k for k in a if a[k] != b[k])
+    if diff:
+        raise ValueError(f"--resume: the config differs from the stored run's in {', '.join(diff)}; "
+                         f"a run continues with its stored config (only --total-steps, --max-minutes, --no-progress can change)")
+
+
+def _stop_on_sigterm(signum, frame) -> None:
+    raise KeyboardInterrupt  # handled like Ctrl-C: keep the last finished update, exit cleanly
+
+
+def _progress(args) -> bool | None:
+    return False if args.no_progress else None
+
+
+def run(args) -> int:
+    from pursuit_mj.configio import dump_yaml
+    from train.config import load_train_config
+    from train.trainer import Trainer
+
+    if args.export:
+        from train.checkpoint import export_actor
+
+        path = export_actor(*args.export)
+        print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB, policy only)")
+        return 0
+    if args.resume not in (None, True):
+        changed = [flag for flag, value in (("--config", args.config), ("--set", args.overrides), ("--name", args.name),
+                                           ("--n-envs", args.n_envs), ("--seed", args.seed), ("--fidelity", args.fidelity),
+                                           ("--layout", args.layout), ("--init-from", args.init_from),
+                                           ("--random-layout", args.random_layout), ("--learnable-gamma", args.learnable_gamma))
+                   if value]
+        if changed:
+            raise ValueError(f"--resume {args.resume}: a run continues with its stored config; {', '.join(changed)} "
+                             f"cannot change it (only --total-steps, --max-minutes, --no-progress can)")
+        run_dir = Path(args.resume)
+        if run_dir.suffix == ".pt":
+            run_dir = run_dir.parent
+        if not (run_dir / "last.pt").is_file():
+            raise ValueError(f"--resume {args.resume}: no last.pt in {run_dir}")
+        trainer = Trainer.resume(run_dir, args.total_steps, max_minutes=args.max_minutes, progress=_progress(args))
+    else:
+        cfg = load_train_config(args.config, args.overrides, _flags(args))
+        if args.show_config:
+            print(dump_yaml(cfg), end="")
+            return 0
+        last = cfg.run_dir / "last.pt"
+        if args.resume:
+            if not last.is_file():
+                raise ValueError(f"--resume: no checkpoint {last} to continue from")
+            trainer = Trainer.resume(cfg.run_dir, args.total_steps, max_minutes=args.max_minutes, progress=_progress(args))
+            _check_same(cfg, trainer.cfg)
+        else:
+            if last.exists():
+                raise ValueError(f"run folder {cfg.run_dir} already has a checkpoint: continue it with --resume, "
+                                 f"or start another run with --name")
+            trainer = Trainer(cfg)
+    signal.signal(signal.SIGTERM, _stop_on_sigterm)
+    result = trainer.train()
+    c = result["counters"]
+    print(f"{result['status']}: {c['update']} updates, {c['world_steps']} world steps, "
+          f"{c['agent_steps']} agent steps, {c['episodes']} episodes in {c['seconds']:.0f} s of training")
+    if c["best_update"] >= 0:
+        print(f"best validation success {c['best_success']:.1%} (update {c['best_update']}): {Path(result['run_dir']) / 'best.pt'}")
+    print(f"last checkpoint: {Path(result['run_dir']) / 'last.pt'}; metrics: {Path(result['run_dir']) / 'metrics.jsonl'}")
+    return 130 if result["status"] == "interrupted" else 0

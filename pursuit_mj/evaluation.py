@@ -1,0 +1,277 @@
+"""The evaluation table: outcome rates and episode lengths per policy and layout, with 95 % CIs.
+
+`evaluate(policy, config, layouts, episodes, seed, n_worlds)` runs exactly `episodes`
+episodes per layout in parallel worlds of a `PursuitEnv` and returns one `Row` per layout.
+Every started episode is counted (no bias toward short episodes). The episode seeds follow
+from `seed` and the layout, so the same seed and world count give the same table.
+Formatting, CSV, JSON and bar-chart helpers are here too, for the CLI, training and studies.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import json
+import zlib
+from pathlib import Path
+from typing import Callable, Iterable, Protocol, Sequence
+
+import numpy as np
+
+from .config import TaskConfig
+from .configio import to_dict
+from .env import EpisodeRecord, PursuitEnv
+from .io_utils import atomic_path, atomic_write_text
+from .layout import load_layout
+from .policy import Policy
+from .stats import Mean, Rate, mean_interval, rate
+
+OUTCOMES = ("success", "collision", "timeout")
+
+
+@dataclasses.dataclass(frozen=True)
+class Row:
+    """One policy on one layout. Rates are fractions with 95 % Wilson intervals; steps are decision steps."""
+
+    policy: str
+    layout: str
+    fidelity: str
+    episodes: int
+    success: Rate
+    collision: Rate
+    timeout: Rate
+    steps: Mean  # over all episodes
+    steps_success: Mean  # over successful episodes only
+    seed: int
+
+    def flat(self) -> dict[str, object]:
+        """One flat record (percentages for rates), the CSV and JSON row format."""
+        out: dict[str, object] = {"policy": self.policy, "layout": self.layout, "fidelity": self.fidelity,
+                                  "episodes": self.episodes, "seed": self.seed}
+        for name in OUTCOMES:
+            r: Rate = getattr(self, name)
+            out[f"{name}_count"] = r.count
+            out[f"{name}_pct"] = round(100 * r.p, 3)
+            out[f"{name}_ci_lo"] = round(100 * r.lo, 3)
+            out[f"{name}_ci_hi"] = round(100 * r.hi, 3)
+        for name, m in (("mean_steps", self.steps), ("mean_steps_success", self.steps_success)):
+            out[name] = None if m.mean is None else round(m.mean, 3)
+            out[f"{name}_ci_lo"] = None if m.lo is None else round(m.lo, 3)
+            out[f"{name}_ci_hi"] = None if m.hi is None else round(m.hi, 3)
+        return out
+
+
+#: the column order of CSV files (and the keys of `Row.flat`)
+FIELDS = (
+    ("policy", "layout", "fidelity", "episodes", "seed")
+    + tuple(f"{o}_{k}" for o in OUTCOMES for k in ("count", "pct", "ci_lo", "ci_hi"))
+    + tuple(f"{m}{k}" for m in ("mean_steps", "mean_steps_success") for k in ("", "_ci_lo", "_ci_hi"))
+)
+
+
+def layout_label(ref: int | str | Path) -> str:
+    """How a layout reference is named in tables: its index, or the file path as given."""
+    return str(ref).strip()
+
+
+def layout_seed(seed: int, label: str) -> int:
+    """The environment seed for one layout of a table, from the table seed and the layout label."""
+    return int(np.random.SeedSequence([int(seed), zlib.crc32(label.encode())]).generate_state(1)[0])
+
+
+def summarise(policy: str, layout: str, fidelity: str, seed: int, records: Sequence[EpisodeRecord]) -> Row:
+    """Rates with Wilson intervals and mean steps with t intervals over finished episodes."""
+    n = len(records)
+    counts = {k: sum(r.outcome == k for r in records) for k in OUTCOMES}
+    steps = [float(r.steps) for r in records]
+    steps_ok = [float(r.steps) for r in records if r.outcome == "success"]
+    return Row(policy, layout, fidelity, n, rate(counts["success"], n), rate(counts["collision"], n),
+               rate(counts["timeout"], n), mean_interval(steps), mean_interval(steps_ok), int(seed))
+
+
+class Watcher(Protocol):
+    """Something that reads the environment along the way (a recorder): see recording.EnvRecorder."""
+
+    def started(self, world_ids: Iterable[int]) -> None: ...
+
+    def stepped(self, info: dict) -> None: ...
+
+
+def run_episodes(
+    policy: Policy,
+    config: TaskConfig,
+    episodes: int,
+    seed: int,
+    n_worlds: int,
+    on_episode: Callable[[EpisodeRecord], None] | None = None,
+    watch: Callable[[PursuitEnv], Watcher] | None = None,
+) -> list[EpisodeRecord]:
+    """Run exactly `episodes` episodes of `config` in up to `n_worlds` parallel worlds.
+
+    A world that finishes starts the next unstarted episode; worlds with nothing left to
+    start stay frozen until all are done. Returns the records in order of completion.
+    `watch(env)` may return a watcher told of every episode start and step (read only).
+    """
+    if not isinstance(episodes, (int, np.integer)) or episodes < 1:
+        raise ValueError(f"episodes: expected an integer >= 1, got {episodes!r}")
+    if not isinstance(n_worlds, (int, np.integer)) or n_worlds < 1:
+        raise ValueError(f"worlds: expected an integer >= 1, got {n_worlds!r}")
+    W = int(min(n_worlds, episodes))
+    env = PursuitEnv(config, n_worlds=W, seed=seed, auto_reset=False)
+    watcher = watch(env) if watch is not None else None
+    obs = env.reset()
+    policy.reset(W)
+    if watcher is not None:
+        watcher.started(range(W))
+    started = W
+    records: list[EpisodeRecord] = []
+    while len(records) < episodes:
+        actions = policy.act(obs, env.obs_spec)
+        obs, _, _, _, info = env.step(actions)
+        if watcher is not None:
+            watcher.stepped(info)
+        finished = [rec.world for rec in info["episodes"]]
+        for rec in info["episodes"]:
+            records.append(rec)
+            if on_episode is not None:
+                on_episode(rec)
+        restart = np.array(finished[: max(episodes - started, 0)], dtype=np.int64)
+        if len(restart):
+            obs = env.reset_worlds(restart)
+            policy.reset(W, restart)
+            if watcher is not None:
+                watcher.started(restart)
+            started += len(restart)
+    return records
+
+
+def evaluate(
+    policy: Policy,
+    config: TaskConfig,
+    layouts: Sequence[int | str | Path] | None = None,
+    episodes: int = 150,
+    seed: int = 0,
+    n_worlds: int = 32,
+    label: str | None = None,
+    on_episode: Callable[[EpisodeRecord], None] | None = None,
+    watch: Callable[[PursuitEnv], Watcher] | None = None,
+) -> list[Row]:
+    """One Row per layout (default: config.layout) for `policy`, `episodes` episodes each.
+
+    Layouts are indices or layout files; all are loaded (and refused if bad) before any
+    episode runs. `random_layout` is switched off: each row is one layout.
+    """
+    refs = [config.layout] if layouts is None else list(layouts)
+    if not refs:
+        raise ValueError("layouts: the list of layouts is empty")
+    for ref in refs:
+        load_layout(ref)
+    rows = []
+    for ref in refs:
+        name = layout_label(ref)
+        cfg = dataclasses.replace(config, layout=int(name) if name.isdigit() else name, random_layout=False)
+        records = run_episodes(policy, cfg, episodes, layout_seed(seed, name), n_worlds, on_episode, watch)
+        rows.append(summarise(label or policy.name, name, cfg.fidelity, seed, records))
+    return rows
+
+
+# ---------------------------------------------------------------------- output
+
+
+def _pct(r: Rate) -> str:
+    return f"{100 * r.p:5.1f} [{100 * r.lo:5.1f}, {100 * r.hi:5.1f}]"
+
+
+def _steps(m: Mean) -> str:
+    if m.mean is None:
+        return "-"
+    return f"{m.mean:6.1f} [{m.lo:6.1f}, {m.hi:6.1f}]"
+
+
+def format_table(rows: Sequence[Row]) -> str:
+    """A plain-text table, one line per row; brackets hold 95 % confidence intervals."""
+    head = ["policy", "layout", "episodes", "success % [95% CI]", "collision % [95% CI]", "timeout % [95% CI]",
+            "mean steps [95% CI]", "steps if success [95% CI]"]
+    body = [[r.policy, r.layout, str(r.episodes), _pct(r.success), _pct(r.collision), _pct(r.timeout),
+             _steps(r.steps), _steps(r.steps_success)] for r in rows]
+    widths = [max(len(x) for x in col) for col in zip(head, *body)]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in [head] + body]
+    return "\n".join(lines)
+
+
+def rows_to_csv(rows: Sequence[Row]) -> str:
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(FIELDS), lineterminator="\n")
+    writer.writeheader()
+    for r in rows:
+        writer.writerow({k: "" if v is None else v for k, v in r.flat().items()})
+    return buf.getvalue()
+
+
+def write_csv(rows: Sequence[Row], path: str | Path) -> Path:
+    """The table as CSV (one row per policy and layout, percentages for rates), written atomically."""
+    return atomic_write_text(path, rows_to_csv(rows))
+
+
+def write_json(rows: Sequence[Row], path: str | Path, config: TaskConfig | None = None, meta: dict | None = None) -> Path:
+    """{"rows": [flat rows], "config": resolved task config, **meta}, written atomically."""
+    data: dict[str, object] = dict(meta or {})
+    if config is not None:
+        data["config"] = to_dict(config)
+    data["rows"] = [r.flat() for r in rows]
+    return atomic_write_text(path, json.dumps(data, indent=2) + "\n")
+
+
+def read_csv(path: str | Path) -> list[dict[str, str]]:
+    """The flat rows of a CSV written by `write_csv` (values as strings)."""
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+PLOT_METRICS = (
+    ("success", "success rate (%)"),
+    ("collision", "collision rate (%)"),
+    ("timeout", "timeout rate (%)"),
+    ("mean_steps", "mean episode length (steps)"),
+)
+
+
+def plot_rows(rows: Sequence[Row], folder: str | Path) -> list[Path]:
+    """Bar charts, one PNG per metric (success.png ...): layouts on x, a bar per policy, 95 % CI whiskers."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder = Path(folder)
+    policies = list(dict.fromkeys(r.policy for r in rows))
+    layouts = list(dict.fromkeys(r.layout for r in rows))
+    table = {(r.policy, r.layout): r.flat() for r in rows}
+    x = np.arange(len(layouts))
+    width = 0.8 / max(len(policies), 1)
+    paths = []
+    for key, title in PLOT_METRICS:
+        value_key = f"{key}_pct" if key in OUTCOMES else key
+        fig, ax = plt.subplots(figsize=(1.6 + 1.4 * len(layouts), 3.6))
+        for i, pol in enumerate(policies):
+            vals, lo, hi = [], [], []
+            for lay in layouts:
+                rec = table.get((pol, lay), {})
+                v = rec.get(value_key)
+                vals.append(np.nan if v is None else v)
+                lo.append(0.0 if v is None else v - rec[f"{key}_ci_lo"])
+                hi.append(0.0 if v is None else rec[f"{key}_ci_hi"] - v)
+            ax.bar(x + (i - (len(policies) - 1) / 2) * width, vals, width, yerr=[lo, hi], capsize=3, label=pol)
+        ax.set_xticks(x, [f"layout {l}" if l.isdigit() else Path(l).stem for l in layouts])
+        ax.set_ylabel(title)
+        if key in OUTCOMES:
+            ax.set_ylim(0, 100)
+        ax.legend(fontsize="small")
+        fig.tight_layout()
+        path = folder / f"{key}.png"
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png", dpi=120)
+        plt.close(fig)
+        paths.append(path)
+    return paths

@@ -1,0 +1,22 @@
+"""Hand-made policies by name, so that eval, render and flights pick them the same way.
+
+Trained models are loaded by `train.load_policy`; the library never imports `train/`, so
+that lives in the command-line layer (cli/eval_cmd.py).
+"""
+
+from __future__ import annotations
+
+from .config import TaskConfig
+from .heuristic import HeuristicTeam
+from .policy import Policy, RandomPolicy
+
+POLICY_NAMES = ("heuristic", "random")
+
+
+def make_policy(name: str, config: TaskConfig, seed: int = 0, source: str = "--policy") -> Policy:
+    """A hand-made team by name ('heuristic' or 'random') for `config`; ValueError names `source`."""
+    if name == "heuristic":
+        return HeuristicTeam.from_config(config)
+    if name == "random":
+        return RandomPolicy(seed)
+    raise ValueError(f"{source} {name!r}: unknown policy (valid: {', '.join(POLICY_NAMES)}; trained models go through --model FILE)")

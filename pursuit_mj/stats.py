@@ -1,0 +1,81 @@
+"""Confidence intervals for evaluation tables: Wilson score intervals for rates, t intervals for means.
+
+No SciPy: the 97.5 % Student t quantile comes from a table (4 decimals) up to 9 degrees
+of freedom and from a Cornish-Fisher expansion (error below 1e-4) beyond.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Sequence
+
+Z95 = 1.959963984540054  # two-sided 95 % normal quantile
+
+
+@dataclasses.dataclass(frozen=True)
+class Rate:
+    """`count` of `n` episodes; `p` = count / n; [lo, hi] the 95 % Wilson score interval (fractions)."""
+
+    count: int
+    n: int
+    p: float
+    lo: float
+    hi: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Mean:
+    """Mean of `n` values with its 95 % t interval [lo, hi]; all None when n == 0."""
+
+    n: int
+    mean: float | None
+    lo: float | None
+    hi: float | None
+
+
+def wilson_interval(count: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """Wilson score interval (lo, hi) of a binomial proportion count/n; (0, 1) when n == 0."""
+    if n < 0 or count < 0 or count > n:
+        raise ValueError(f"wilson_interval: need 0 <= count <= n, got count={count}, n={n}")
+    if n == 0:
+        return 0.0, 1.0
+    p = count / n
+    z2 = z * z
+    denom = 1.0 + z2 / n
+    centre = (p + z2 / (2 * n)) / denom
+    half = z / denom * math.sqrt(p * (1 - p) / n + z2 / (4 * n * n))
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def rate(count: int, n: int) -> Rate:
+    lo, hi = wilson_interval(count, n)
+    return Rate(int(count), int(n), count / n if n else 0.0, lo, hi)
+
+
+_T975_SMALL = (12.7062, 4.3027, 3.1824, 2.7764, 2.5706, 2.4469, 2.3646, 2.3060, 2.2622)
+
+
+def t_quantile_975(dof: int) -> float:
+    """The 0.975 quantile of Student's t with `dof` degrees of freedom (dof >= 1)."""
+    if dof < 1:
+        raise ValueError(f"t_quantile_975: degrees of freedom must be >= 1, got {dof}")
+    if dof <= len(_T975_SMALL):
+        return _T975_SMALL[dof - 1]
+    z, v = Z95, float(dof)
+    return (z + (z**3 + z) / (4 * v) + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * v**2)
+            + (3 * z**7 + 19 * z**5 + 17 * z**3 - 15 * z) / (384 * v**3)
+            + (79 * z**9 + 776 * z**7 + 1482 * z**5 - 1920 * z**3 - 945 * z) / (92160 * v**4))
+
+
+def mean_interval(values: Sequence[float]) -> Mean:
+    """Mean and 95 % t interval; a single value has the interval [value, value]."""
+    n = len(values)
+    if n == 0:
+        return Mean(0, None, None, None)
+    m = math.fsum(values) / n
+    if n == 1:
+        return Mean(1, m, m, m)
+    var = math.fsum((x - m) ** 2 for x in values) / (n - 1)
+    half = t_quantile_975(n - 1) * math.sqrt(var / n)
+    return Mean(n, m, m - half, m + half)

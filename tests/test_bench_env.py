@@ -1,0 +1,39 @@
+"""`pursuit-mj bench env`: the table of env vs physics vs raw rates, the profile, bad input."""
+
+from __future__ import annotations
+
+import pytest
+
+from pursuit_mj.benchmarks.env import measure
+from pursuit_mj.cli import main
+
+
+def test_measure_times_all_three_kinds_on_the_same_worlds():
+    r = measure("point", 2, 0.2, seed=0, files=[], overrides=["random_obstacles=2"])
+    assert r.n_worlds == 2 and r.blocks >= 2
+    assert 0 < r.raw_s and 0 < r.physics_s and 0 < r.env_s
+    assert r.env_s > 0.5 * r.physics_s  # the env does the physics and more; noise cannot halve it
+
+
+def test_bench_env_prints_rates_overhead_and_profile(capsys):
+    assert main(["bench", "env", "--worlds", "2", "--seconds", "0.2", "--fidelity", "point", "--profile", "5"]) == 0
+    out = capsys.readouterr().out
+    assert "env dec/s" in out and "task overhead" in out and "env agent-steps/s" in out
+    assert "where env.step spends its time" in out and "ncalls" in out
+    table = [line for line in out.splitlines() if line.startswith("point ")]
+    assert len(table) == 1 and table[0].split()[1] == "2"
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--worlds", "0"], "--worlds: world counts must be >= 1, got 0"),
+        (["--seconds", "0"], "--seconds: must be > 0"),
+        (["--set", "evader_speed=0"], "evader_speed"),
+        (["--task", "no_such_preset"], "no_such_preset"),
+    ],
+)
+def test_bench_env_bad_input_exits_2(args, message, capsys):
+    assert main(["bench", "env"] + args) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1

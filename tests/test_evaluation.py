@@ -1,0 +1,171 @@
+"""The evaluation table: confidence intervals, determinism, every episode counted, the eval CLI."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from pursuit_mj.cli import main
+from pursuit_mj.config import default_config, load_task_config
+from pursuit_mj.env import EpisodeRecord
+from pursuit_mj.evaluation import FIELDS, evaluate, read_csv, summarise
+from pursuit_mj.heuristic import HeuristicTeam
+from pursuit_mj.recording.rrd_read import read_entities
+from pursuit_mj.stats import mean_interval, t_quantile_975, wilson_interval
+
+
+@pytest.mark.parametrize(
+    "count, n, lo, hi",
+    [
+        # by hand: centre = (p + z^2/2n) / (1 + z^2/n), half = z / (1 + z^2/n) * sqrt(p(1-p)/n + z^2/4n^2)
+        (8, 10, 0.49016, 0.94332),
+        (0, 10, 0.0, 0.27753),
+        (10, 10, 0.72247, 1.0),
+        (75, 150, 0.42099, 0.57901),
+        (1, 1, 0.20654, 1.0),
+    ],
+)
+def test_wilson_interval_matches_hand_computed_values(count, n, lo, hi):
+    got = wilson_interval(count, n)
+    assert got == pytest.approx((lo, hi), abs=5e-5)
+
+
+def test_wilson_interval_refuses_impossible_counts():
+    with pytest.raises(ValueError, match="count=11"):
+        wilson_interval(11, 10)
+    assert wilson_interval(0, 0) == (0.0, 1.0)
+
+
+def test_t_interval_of_a_mean():
+    # published 97.5 % quantiles of Student's t
+    for dof, q in ((1, 12.7062), (4, 2.7764), (10, 2.2281), (30, 2.0423), (100, 1.9840)):
+        assert t_quantile_975(dof) == pytest.approx(q, abs=2e-4)
+    m = mean_interval([1.0, 2.0, 3.0, 4.0, 5.0])  # sd sqrt(2.5), se sqrt(0.5), t(4) 2.7764
+    half = 2.7764 * math.sqrt(0.5)
+    assert (m.n, m.mean) == (5, 3.0)
+    assert (m.lo, m.hi) == pytest.approx((3.0 - half, 3.0 + half), abs=1e-3)
+    assert mean_interval([]).mean is None
+    assert mean_interval([7.0]).lo == 7.0
+
+
+def test_difficulty_presets_by_bare_name():
+    assert load_task_config(["reference"]) == default_config()
+    easy, hard = load_task_config(["easy"]), load_task_config(["hard"])
+    assert easy == default_config(evader_speed=0.45)
+    assert (hard.evader_speed, hard.perception_radius) == (0.9, 1.5)
+    assert hard.position_noise > 0 and 0 < hard.miss_probability < 0.5
+    assert load_task_config(["hard"], flags={"fidelity": "point"}).fidelity == "point"
+
+
+def record(outcome: str, steps: int) -> EpisodeRecord:
+    return EpisodeRecord(0, 0, 0, outcome, steps, None, {}, 0, "open")
+
+
+def test_summarise_counts_outcomes_and_steps():
+    rows = [record("success", 100), record("success", 200), record("collision", 30), record("timeout", 1000)]
+    row = summarise("p", "0", "point", 5, rows)
+    assert (row.success.count, row.collision.count, row.timeout.count, row.episodes) == (2, 1, 1, 4)
+    assert row.success.p == 0.5
+    assert row.steps.mean == pytest.approx(332.5)
+    assert row.steps_success.mean == pytest.approx(150.0)
+    flat = row.flat()
+    assert tuple(flat) == FIELDS
+    assert flat["success_pct"] == 50.0 and flat["collision_count"] == 1
+
+
+def quick_config(**changes):
+    return default_config(fidelity="point", max_steps=25, **changes)
+
+
+def test_same_seed_same_table_and_every_episode_counted():
+    config = quick_config()
+
+    def run(seed, layouts):
+        records = []
+        rows = evaluate(HeuristicTeam.from_config(config), config, layouts, episodes=5, seed=seed, n_worlds=2, on_episode=records.append)
+        return rows, sorted((r.layout, r.seed, r.outcome, r.steps, tuple(r.returns.values())) for r in records)
+
+    (rows_a, rec_a), (rows_b, rec_b) = run(3, [0, 1]), run(3, [0, 1])
+    assert rows_a == rows_b and rec_a == rec_b  # same seed: same table, down to each episode's returns
+    assert [r.layout for r in rows_a] == ["0", "1"]
+    for r in rows_a:
+        assert r.episodes == 5
+        assert r.success.count + r.collision.count + r.timeout.count == 5
+    assert len({rec[1] for rec in rec_a}) == 10  # every episode has its own seed
+    _, rec_c = run(4, [0])
+    assert not {rec[1] for rec in rec_c} & {rec[1] for rec in rec_a}  # another seed, other episodes
+
+
+def test_evaluate_refuses_bad_layouts_and_counts_before_running():
+    config = quick_config()
+    team = HeuristicTeam.from_config(config)
+    with pytest.raises(ValueError, match="layout 7"):
+        evaluate(team, config, [0, 7], episodes=2)
+    with pytest.raises(ValueError, match="episodes"):
+        evaluate(team, config, [0], episodes=0)
+
+
+def test_eval_cli_writes_csv_json_and_plots(tmp_path, capsys):
+    layout_file = "configs/layouts/1_walls.yaml"
+    code = main(["eval", "--policy", "heuristic", "--policy", "random", "--layouts", "0", layout_file, "--episodes", "3",
+                 "--worlds", "3", "--fidelity", "point", "--set", "max_steps=20", "--seed", "2", "--out", str(tmp_path / "table"),
+                 "--plots", str(tmp_path / "plots"), "--rerun", str(tmp_path / "eval.rrd"), "--rerun-episodes", "1", "-q"])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "success % [95% CI]" in printed and "random" in printed
+    rows = read_csv(tmp_path / "table.csv")
+    assert [(r["policy"], r["layout"]) for r in rows] == [("heuristic", "0"), ("heuristic", layout_file), ("random", "0"), ("random", layout_file)]
+    data = json.loads((tmp_path / "table.json").read_text())
+    assert data["config"]["fidelity"] == "point" and data["config"]["max_steps"] == 20
+    assert [str(r["success_pct"]) for r in data["rows"]] == [r["success_pct"] for r in rows]
+    for r in data["rows"]:
+        assert r["episodes"] == 3
+        assert r["success_count"] + r["collision_count"] + r["timeout_count"] == 3
+    assert sorted(p.name for p in (tmp_path / "plots").iterdir()) == ["collision.png", "mean_steps.png", "success.png", "timeout.png"]
+    assert (tmp_path / "plots" / "success.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    recorded = {e for e in read_entities(tmp_path / "eval.rrd") if e.startswith("/__properties/episode_")}
+    assert len(recorded) == 4  # one episode per policy and layout
+
+
+def test_eval_cli_runs_a_trained_model_beside_the_heuristic(tmp_path, capsys):
+    import torch
+
+    from pursuit_mj.configio import to_dict
+    from pursuit_mj.obs_spec import ObsSpec
+    from train.checkpoint import save_checkpoint
+    from train.config import load_train_config
+    from train.networks import Actor
+
+    torch.manual_seed(0)
+    cfg = load_train_config([], ["name=untrained"])
+    spec = ObsSpec.make(3, 1, 16)
+    save_checkpoint(tmp_path / "m.pt", {"train_config": to_dict(cfg), "obs_spec": spec.to_dict(),
+                                         "actor": Actor(spec, cfg.net).state_dict(), "counters": {"update": 0}})
+    code = main(["eval", "--policy", "heuristic", "-m", str(tmp_path / "m.pt"), "--layouts", "0", "--episodes", "2",
+                 "--worlds", "2", "--fidelity", "point", "--set", "max_steps=10", "--json", str(tmp_path / "t.json"), "-q"])
+    assert code == 0
+    rows = json.loads((tmp_path / "t.json").read_text())["rows"]
+    assert [r["policy"] for r in rows] == ["heuristic", "untrained"]
+    assert rows[1]["episodes"] == 2
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--layouts", "9"], "layout 9"),
+        (["--layouts", "no/such/layout.yaml"], "no/such/layout.yaml"),
+        (["--policy", "greedy"], "unknown policy"),
+        (["--model", "missing/model.pt"], "missing/model.pt: no such file"),
+        (["--episodes", "0"], "--episodes"),
+        (["--set", "evader_speed=-1"], "evader_speed"),
+    ],
+)
+def test_eval_cli_bad_input_exits_2_with_a_clear_message(args, message, capsys, tmp_path):
+    code = main(["eval", "--fidelity", "point", "--episodes", "1", "--out", str(tmp_path / "t"), "-q"] + args)
+    assert code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pursuit-mj eval: error:") and message in err
+    assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "t.csv").exists()

@@ -1,0 +1,155 @@
+"""The heuristic pursuer team: reactions to crafted observations, and that it beats a random team."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pursuit_mj.config import default_config
+from pursuit_mj.evaluation import evaluate
+from pursuit_mj.heuristic import HeuristicTeam
+from pursuit_mj.obs_spec import ObsSpec
+from pursuit_mj.policy import RandomPolicy
+
+SPEC = ObsSpec.make(3, 1, 16)
+RAY_RANGE = 2.0
+
+
+def blank_obs(n_worlds: int = 1) -> np.ndarray:
+    """Observations (W, 3, dim): pursuers far apart at (1, 1), (3, 1), (5, 1), nothing seen, open rays."""
+    obs = np.zeros((n_worlds, 3, SPEC.dim), np.float32)
+    for i in range(3):
+        obs[:, i, SPEC.index("self", 0, "x")] = 1.0 + 2.0 * i
+        obs[:, i, SPEC.index("self", 0, "y")] = 1.0
+    rays = SPEC.group("rays")
+    obs[..., rays.start : rays.stop] = RAY_RANGE
+    return obs
+
+
+def see_evader(obs: np.ndarray, rel: tuple[float, float], vel: tuple[float, float] = (0.0, 0.0), pursuer: int = 0, world: int = 0) -> None:
+    for name, value in zip(("dx", "dy", "vx", "vy", "visible"), (*rel, *vel, 1.0)):
+        obs[world, pursuer, SPEC.index("evaders", 0, name)] = value
+
+
+def team() -> HeuristicTeam:
+    return HeuristicTeam(pursuer_speed=0.3, ray_range=RAY_RANGE)
+
+
+def act(t: HeuristicTeam, obs: np.ndarray) -> np.ndarray:
+    a = t.act(obs, SPEC)
+    assert a.shape == obs.shape[:2] + (2,)
+    assert np.all(np.abs(a) <= 1.0 + 1e-9)
+    return a
+
+
+def cos(a: np.ndarray, b) -> float:
+    b = np.asarray(b, float)
+    return float(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)))
+
+
+def test_chases_a_visible_evader_at_full_speed():
+    t = team()
+    t.reset(1)
+    obs = blank_obs()
+    see_evader(obs, (1.5, 0.5))
+    a = act(t, obs)[0, 0]
+    assert cos(a, (1.5, 0.5)) > 0.99
+    assert np.linalg.norm(a) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_leads_a_moving_evader():
+    still, moving = team(), team()
+    still.reset(1)
+    moving.reset(1)
+    obs = blank_obs()
+    see_evader(obs, (1.5, 0.0))
+    a_still = act(still, obs)[0, 0]
+    see_evader(obs, (1.5, 0.0), vel=(0.0, 0.6))
+    a_moving = act(moving, obs)[0, 0]
+    assert abs(a_still[1]) < 1e-6
+    assert a_moving[1] > 0.3  # aims ahead of the evader, toward where it is going
+
+
+def test_repels_from_a_close_teammate():
+    t = team()
+    t.reset(1)
+    obs = blank_obs()
+    for name, value in zip(("dx", "dy", "visible"), (0.22, 0.0, 1.0)):
+        obs[0, 0, SPEC.index("teammates", 0, name)] = value
+    see_evader(obs, (0.0, 1.5))  # the target is straight up; the teammate is just to the right
+    a = act(t, obs)[0, 0]
+    assert a[0] < -0.05  # backs away from the teammate instead of only chasing
+
+
+def test_turns_away_from_a_close_wall():
+    t = team()
+    t.reset(1)
+    obs = blank_obs()
+    rays = SPEC.group("rays")
+    obs[0, 0, rays.start + 0] = 0.12  # ray 0 points along +x: a wall 0.12 m ahead
+    see_evader(obs, (1.5, 0.0))  # the evader is behind that wall
+    a = act(t, obs)[0, 0]
+    assert a[0] < 0.0  # never closes in on the wall, even with the target beyond it
+    assert np.linalg.norm(a) > 0.2  # but keeps moving (around it)
+
+
+def test_searches_the_last_known_position_then_forgets_on_reset():
+    t = team()
+    t.reset(2)
+    obs = blank_obs(2)
+    for w in range(2):
+        see_evader(obs, (1.0, 0.5), world=w)
+    act(t, obs)
+    gone = blank_obs(2)  # the evader disappears (out of sight); nobody has moved
+    a = act(t, gone)
+    for w in range(2):
+        assert cos(a[w, 0], (1.0, 0.5)) > 0.98
+    t.reset(2, np.array([1]))  # a new episode in world 1 only
+    b = act(t, gone)
+    assert cos(b[0, 0], (1.0, 0.5)) > 0.98  # world 0 remembers
+    assert np.isinf(t._mem["age"][1]).all()  # world 1 forgot
+
+
+def test_sweeps_when_nothing_is_known():
+    t = team()
+    t.reset(1)
+    a = act(t, blank_obs())[0]
+    assert np.all(np.linalg.norm(a, axis=-1) > 0.9)  # nobody waits for the evader to show up
+
+
+def test_worlds_do_not_influence_each_other():
+    rng = np.random.default_rng(3)
+    obs = blank_obs(3)
+    for w in range(3):
+        see_evader(obs, tuple(rng.uniform(-1.5, 1.5, 2)), tuple(rng.uniform(-0.6, 0.6, 2)), pursuer=int(rng.integers(3)), world=w)
+    batch = team()
+    batch.reset(3)
+    together = act(batch, obs)
+    for w in range(3):
+        alone = team()
+        alone.reset(1)
+        np.testing.assert_allclose(act(alone, obs[w : w + 1])[0], together[w], atol=1e-9)
+
+
+def test_refuses_bad_observations():
+    t = team()
+    t.reset(1)
+    with pytest.raises(ValueError, match="expected observations"):
+        t.act(np.zeros((1, 3, SPEC.dim - 1)), SPEC)
+    bad = blank_obs()
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        t.act(bad, SPEC)
+    with pytest.raises(ValueError, match="reset"):
+        t.act(blank_obs(2), SPEC)
+
+
+def test_beats_a_random_team_on_layout_0():
+    config = default_config(fidelity="point", layout=0, max_steps=300)
+    kwargs = dict(layouts=[0], episodes=12, seed=11, n_worlds=12)
+    heuristic = evaluate(HeuristicTeam.from_config(config), config, **kwargs)[0]
+    random = evaluate(RandomPolicy(seed=11), config, **kwargs)[0]
+    assert heuristic.episodes == random.episodes == 12
+    assert heuristic.success.p >= random.success.p + 0.5
+    assert heuristic.success.lo > random.success.hi  # the 95 % intervals do not even overlap
+    assert heuristic.collision.count <= 1

@@ -1,0 +1,116 @@
+"""Checkpoints: resume keeps counters, interrupts and kill -9 lose at most one update, bad files are refused."""
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from pursuit_mj.obs_spec import ObsSpec
+from train.checkpoint import load_checkpoint
+from train.config import load_train_config
+from train.policy import load_policy
+from train.trainer import Trainer
+
+TINY = [
+    "task.fidelity=point", "task.n_pursuers=2", "task.random_obstacles=0", "task.max_steps=40",
+    "n_envs=2", "ppo.batch_size=64", "ppo.minibatch_size=32", "ppo.epochs=2",
+    "run.validate_every=0", "run.validation_episodes=2", "run.progress=false",
+]
+
+
+def tiny_config(tmp_path, name="run", updates=2, extra=()):
+    per_update = 16 * 2  # rollout of ceil(64 / (2 worlds * 2 pursuers)) = 16 steps in 2 worlds
+    return load_train_config([], TINY + [f"run.runs_dir={tmp_path}", f"name={name}", f"total_steps={per_update * updates}", *extra])
+
+
+def rows(run_dir):
+    return [json.loads(line) for line in (Path(run_dir) / "metrics.jsonl").read_text().splitlines()]
+
+
+def test_resume_continues_counters_weights_and_optimiser(tmp_path):
+    cfg = tiny_config(tmp_path, updates=2)
+    result = Trainer(cfg, log=lambda s: None).train()
+    assert result["status"] == "done" and result["counters"]["update"] == 2
+    saved = load_checkpoint(cfg.run_dir / "last.pt")
+    resumed = Trainer.resume(cfg.run_dir, total_steps=32 * 4, log=lambda s: None)
+    assert resumed.counters.update == 2 and resumed.counters.world_steps == 64
+    for k, v in saved["actor"].items():
+        assert torch.equal(resumed.model.actor.state_dict()[k], v)
+    assert resumed.optimizer.state_dict()["state"][0]["step"] == saved["optimizer"]["state"][0]["step"]
+    assert torch.equal(resumed.generator.get_state(), saved["rng"]["sampler"])
+    out = resumed.train()
+    assert out["counters"]["update"] == 4 and out["counters"]["world_steps"] == 128
+    assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2, 3, 4]
+    assert (cfg.run_dir / "best.pt").is_file()
+
+
+def test_ctrl_c_saves_the_last_consistent_update(tmp_path, monkeypatch):
+    cfg = tiny_config(tmp_path, updates=10)
+    trainer = Trainer(cfg, log=lambda s: None)
+    real = trainer.collector.collect
+    calls = {"n": 0}
+
+    def collect_then_interrupt(buf):
+        calls["n"] += 1
+        if calls["n"] == 4:
+            raise KeyboardInterrupt
+        return real(buf)
+
+    monkeypatch.setattr(trainer.collector, "collect", collect_then_interrupt)
+    out = trainer.train()
+    assert out["status"] == "interrupted"
+    assert load_checkpoint(cfg.run_dir / "last.pt")["counters"]["update"] == 3
+    resumed = Trainer.resume(cfg.run_dir, total_steps=32 * 5, log=lambda s: None)
+    assert resumed.counters.update == 3
+    assert resumed.train()["counters"]["update"] == 5
+    assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2, 3, 4, 5]
+
+
+def test_corrupted_and_foreign_checkpoints_are_refused(tmp_path):
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    good = cfg.run_dir / "last.pt"
+    data = good.read_bytes()
+    cut = tmp_path / "cut.pt"
+    cut.write_bytes(data[: len(data) // 2])
+    flipped = tmp_path / "flipped.pt"
+    flipped.write_bytes(data[:100] + bytes(b ^ 0xFF for b in data[100:400]) + data[400:])
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a checkpoint at all")
+    for bad in (cut, flipped, junk):
+        with pytest.raises(ValueError, match="checkpoint .*(unreadable|corrupted|not a pursuit-mj)"):
+            load_checkpoint(bad)
+    evil = tmp_path / "evil.pt"
+    torch.save({"format": "pursuit-mj-checkpoint", "payload": ObsSpec.make(2, 1, 4)}, evil)  # a pickled object
+    with pytest.raises(ValueError, match="unreadable or corrupted"):
+        load_checkpoint(evil)
+    other = tmp_path / "other.pt"
+    torch.save({"weights": torch.zeros(3)}, other)
+    with pytest.raises(ValueError, match="not a pursuit-mj checkpoint"):
+        load_checkpoint(other)
+    with pytest.raises(ValueError, match="file not found"):
+        load_checkpoint(tmp_path / "missing.pt")
+
+
+def test_mismatched_observation_spec_is_refused_other_team_sizes_accepted(tmp_path):
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    path = cfg.run_dir / "best.pt"
+    with pytest.raises(ValueError, match="observation spec does not match.*n_rays"):
+        load_policy(path, ObsSpec.make(2, 1, 8))
+    for n, m in ((2, 1), (5, 3)):
+        spec = ObsSpec.make(n, m, 16)
+        actions = load_policy(path, spec).act(torch.zeros(3, n, spec.dim).numpy(), spec)
+        assert actions.shape == (3, n, 2) and abs(actions).max() <= 1.0
+    with pytest.raises(ValueError, match="observation spec does not match"):
+        Trainer(tiny_config(tmp_path, name="ft", extra=[f"init_from={path}", "task.n_rays=8"]), log=lambda s: None)
+
+
+def test_existing_run_is_not_overwritten_without_resume(tmp_path):
+    from pursuit_mj.cli import main
+
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    argv = ["train", "--no-progress"] + sum((["--set", s] for s in TINY + [f"run.runs_dir={tmp_path}", "name=run"]), [])
+    assert main(argv) == 2

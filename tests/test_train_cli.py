@@ -1,0 +1,99 @@
+"""The train, study, demo and bench-train commands end to end on tiny settings."""
+
+import json
+
+import pytest
+import torch
+
+from pursuit_mj.cli import main
+
+TINY = ["task.fidelity=point", "task.n_pursuers=2", "task.random_obstacles=0", "task.max_steps=30",
+        "n_envs=2", "ppo.batch_size=64", "ppo.minibatch_size=32", "ppo.epochs=1",
+        "run.validate_every=0", "run.validation_episodes=2"]
+
+
+def sets(items):
+    return sum((["--set", s] for s in items), [])
+
+
+@pytest.mark.parametrize("command", ["train", "study", "demo"])
+def test_help(command, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([command, "--help"])
+    assert exc.value.code == 0
+    assert command in capsys.readouterr().out
+
+
+def test_train_then_resume_from_the_command_line(tmp_path, capsys):
+    base = ["train", "--no-progress", "--name", "cli", "--total-steps", "32"] + sets(TINY + [f"run.runs_dir={tmp_path}"])
+    assert main(base) == 0
+    out = capsys.readouterr().out
+    assert "2 updates" not in out and "1 updates" in out and "best validation success" in out
+    assert main(["train", "--no-progress", "--resume", str(tmp_path / "cli"), "--total-steps", "64"]) == 0
+    rows = [json.loads(x) for x in (tmp_path / "cli" / "metrics.jsonl").read_text().splitlines()]
+    assert [r["update"] for r in rows] == [1, 2]
+    capsys.readouterr()
+    assert main(["train", "--resume", str(tmp_path / "cli"), "--set", "ppo.lr=1e-3"]) == 2
+    assert "stored config" in capsys.readouterr().err
+    assert main(base + ["--resume", "--set", "ppo.lr=1e-3"]) == 2  # config differs from the stored run
+    assert "differs from the stored run's in ppo" in capsys.readouterr().err
+    assert main(base + ["--resume", "--total-steps", "96"]) == 0
+    assert json.loads((tmp_path / "cli" / "metrics.jsonl").read_text().splitlines()[-1])["update"] == 3
+
+
+def test_train_show_config_and_bad_input(tmp_path, capsys):
+    assert main(["train", "--config", "classic", "--set", "ppo.lr=1e-4", "--fidelity", "point", "-sc"]) == 0
+    out = capsys.readouterr().out
+    assert "lr: 0.0001" in out and "fidelity: point" in out
+    assert main(["train", "--config", "classic", "--set", "ppo.clip=7"]) == 2
+    assert "--set ppo.clip=7: key 'ppo': key 'clip': 7.0 is out of range" in capsys.readouterr().err
+    assert main(["train", "--config", "no_such_regime"]) == 2
+    assert main(["train", "--resume", str(tmp_path / "nothing")]) == 2
+    err = capsys.readouterr().err
+    assert "no last.pt" in err and "Traceback" not in err
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tmp_path_factory):
+    root = tmp_path_factory.mktemp("model")
+    assert main(["train", "--no-progress", "--name", "m", "--total-steps", "32"] + sets(TINY + [f"run.runs_dir={root}"])) == 0
+    return root / "m" / "best.pt"
+
+
+def test_demo_prints_the_table_and_how_to_train(tiny_model, capsys):
+    code = main(["demo", "--model", str(tiny_model), "--episodes", "2", "--worlds", "2", "--layouts", "0", "1",
+                 "--fidelity", "point", "--set", "max_steps=20"])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "heuristic" in out and "m " in out and "pursuit-mj train" in out
+    assert main(["demo", "--model", str(tiny_model.parent / "missing.pt")]) == 2
+
+
+def test_eval_command_loads_a_checkpoint_with_other_team_sizes(tiny_model, capsys):
+    code = main(["eval", "--model", str(tiny_model), "--episodes", "2", "--worlds", "2", "--pursuers", "4",
+                 "--evaders", "2", "--fidelity", "point", "--set", "max_steps=20", "-q"])
+    assert code == 0
+    assert "m " in capsys.readouterr().out
+
+
+def test_bench_train_prints_rollout_and_update_rates(capsys):
+    code = main(["bench", "train", "--fidelity", "point", "--updates", "1", "--n-envs", "2"] + sets(TINY[1:-2]))
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "rollout ag-steps/s" in out and "s per update" in out
+
+
+def test_export_writes_a_small_policy_only_checkpoint(tiny_model, tmp_path, capsys):
+    from pursuit_mj.obs_spec import ObsSpec
+    from train.checkpoint import load_checkpoint
+    from train.policy import load_policy
+
+    out = tmp_path / "small.pt"
+    assert main(["train", "--export", str(tiny_model), str(out)]) == 0
+    data = load_checkpoint(out)
+    assert "optimizer" not in data and "critic" not in data
+    assert out.stat().st_size < tiny_model.stat().st_size / 2
+    spec = ObsSpec.make(3, 1, 16)
+    full, small = load_policy(tiny_model, spec), load_policy(out, spec)
+    obs = torch.randn(2, 3, spec.dim).numpy()
+    assert (full.act(obs, spec) == small.act(obs, spec)).all()

@@ -1,0 +1,51 @@
+"""A real training process killed with kill -9 or Ctrl-C (SIGINT) loses at most one update."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from train.checkpoint import load_checkpoint
+from train.trainer import Trainer
+
+REPO = Path(__file__).resolve().parent.parent
+TINY = [
+    "task.fidelity=point", "task.n_pursuers=2", "task.random_obstacles=0", "task.max_steps=40",
+    "n_envs=2", "ppo.batch_size=64", "ppo.minibatch_size=32", "ppo.epochs=2",
+    "run.validate_every=0", "run.validation_episodes=2", "run.progress=false",
+]
+
+
+def rows(run_dir):
+    return [json.loads(line) for line in (Path(run_dir) / "metrics.jsonl").read_text().splitlines()]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
+def test_kill_9_or_ctrl_c_loses_at_most_one_update(tmp_path, sig):
+    args = [sys.executable, "-c", "import sys; from pursuit_mj.cli import main; sys.exit(main())", "train", "--no-progress", "--total-steps", "100000"]
+    for s in TINY + [f"run.runs_dir={tmp_path}", "name=killed"]:
+        args += ["--set", s]
+    env = dict(os.environ, MUJOCO_GL="egl")
+    proc = subprocess.Popen(args, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    log = tmp_path / "killed" / "metrics.jsonl"
+    deadline = time.time() + 25
+    while time.time() < deadline and proc.poll() is None and (not log.exists() or len(log.read_text().splitlines()) < 3):
+        time.sleep(0.05)
+    os.kill(proc.pid, sig)
+    code = proc.wait(timeout=30)
+    out, err = proc.stdout.read().decode(), proc.stderr.read().decode()
+    assert log.exists(), err
+    if sig == signal.SIGINT:
+        assert code == 130 and "interrupted" in out and "--resume" in out and "Traceback" not in err, err
+    logged = len(log.read_text().splitlines())
+    saved = load_checkpoint(tmp_path / "killed" / "last.pt")["counters"]["update"]
+    assert logged - 1 <= saved <= logged + 1
+    resumed = Trainer.resume(tmp_path / "killed", total_steps=32 * (saved + 1), log=lambda s: None)
+    assert resumed.counters.update == saved
+    assert resumed.train()["counters"]["update"] == saved + 1
+    assert [r["update"] for r in rows(tmp_path / "killed")] == list(range(1, saved + 2))

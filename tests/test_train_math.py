@@ -1,0 +1,177 @@
+"""The maths of train/: GAE against a plain loop, PPO losses on hand-computed numbers, pooling."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from pursuit_mj.obs_spec import ObsSpec
+from train.config import NetConfig
+from train.gae import compute_gae, next_values_from
+from train.losses import clipped_policy_loss, normalise, scaled_value_loss
+from train.networks import Actor, Critic, masked_mean
+from train.running_norm import RunningMeanStd
+
+
+def reference_gae(rewards, values, obs_values_next, final_values, terminated, truncated, gamma, lam):
+    """One stream, written the slow obvious way: walk back, restart at every episode end."""
+    T = len(rewards)
+    adv = np.zeros(T)
+    running = 0.0
+    for t in reversed(range(T)):
+        if terminated[t]:
+            bootstrap = 0.0
+        elif truncated[t]:
+            bootstrap = final_values[t]
+        else:
+            bootstrap = obs_values_next[t]
+        delta = rewards[t] + gamma * bootstrap - values[t]
+        if terminated[t] or truncated[t]:
+            running = delta
+        else:
+            running = delta + gamma * lam * running
+        adv[t] = running
+    return adv, adv + values
+
+
+def test_gae_matches_plain_loop_with_terminations_and_truncations():
+    rng = np.random.default_rng(3)
+    T, B = 17, 5
+    rewards = rng.normal(size=(T, B))
+    values = rng.normal(size=(T, B))
+    last = rng.normal(size=B)
+    final = rng.normal(size=(T, B))
+    term = rng.random((T, B)) < 0.12
+    trunc = (rng.random((T, B)) < 0.12) & ~term
+    term[T - 1, 0] = True  # an episode end on the last step
+    trunc[3, 1] = True
+    term[3, 1] = False
+    gamma, lam = 0.97, 0.9
+    t = lambda x: torch.as_tensor(x, dtype=torch.float64)  # noqa: E731
+    nv = next_values_from(t(values), t(last), torch.as_tensor(trunc), t(final))
+    adv, ret = compute_gae(t(rewards), t(values), nv, torch.as_tensor(term), torch.as_tensor(term | trunc), gamma, lam)
+    for b in range(B):
+        obs_next = np.append(values[1:, b], last[b])
+        ref_adv, ref_ret = reference_gae(rewards[:, b], values[:, b], obs_next, final[:, b], term[:, b], trunc[:, b], gamma, lam)
+        np.testing.assert_allclose(adv[:, b].numpy(), ref_adv, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(ret[:, b].numpy(), ref_ret, rtol=1e-12, atol=1e-12)
+
+
+def test_gae_hand_computed_truncation_bootstraps_from_final_obs():
+    # two steps; step 0 truncated (bootstrap from final value 2.0), step 1 runs on (last value 4.0)
+    rewards = torch.tensor([[1.0], [0.5]])
+    values = torch.tensor([[0.0], [1.0]])
+    trunc = torch.tensor([[True], [False]])
+    term = torch.tensor([[False], [False]])
+    nv = next_values_from(values, torch.tensor([4.0]), trunc, torch.tensor([[2.0], [0.0]]))
+    adv, _ = compute_gae(rewards, values, nv, term, trunc, 0.5, 1.0)
+    assert adv[1, 0].item() == pytest.approx(0.5 + 0.5 * 4.0 - 1.0)
+    assert adv[0, 0].item() == pytest.approx(1.0 + 0.5 * 2.0 - 0.0)  # no leak from step 1
+
+
+def test_gae_is_differentiable_in_gamma():
+    gamma = torch.tensor(0.9, requires_grad=True)
+    adv, _ = compute_gae(torch.ones(3, 1), torch.zeros(3, 1), torch.ones(3, 1), torch.zeros(3, 1, dtype=torch.bool),
+                         torch.zeros(3, 1, dtype=torch.bool), gamma, 1.0)
+    adv.sum().backward()
+    assert gamma.grad is not None and gamma.grad.item() > 0
+
+
+def test_clipped_policy_loss_hand_computed():
+    old = torch.zeros(4)
+    new = torch.log(torch.tensor([1.5, 0.5, 1.1, 0.7]))
+    adv = torch.tensor([1.0, 1.0, -2.0, -1.0])
+    loss, frac = clipped_policy_loss(new, old, adv, clip=0.2)
+    # min(r A, clip(r) A): 1.5 -> min(1.5, 1.2) = 1.2; 0.5 -> min(0.5, 0.8) = 0.5;
+    # 1.1, A=-2 -> min(-2.2, -2.2) = -2.2; 0.7, A=-1 -> min(-0.7, -0.8) = -0.8
+    assert loss.item() == pytest.approx(-(1.2 + 0.5 - 2.2 - 0.8) / 4)
+    assert frac.item() == pytest.approx(0.75)
+
+
+def test_clipped_loss_gradient_vanishes_outside_the_trust_region():
+    new = torch.log(torch.tensor([1.5])).requires_grad_()
+    loss, _ = clipped_policy_loss(new, torch.zeros(1), torch.tensor([1.0]), 0.2)
+    loss.backward()
+    assert new.grad.item() == 0.0
+
+
+def test_value_loss_scaled_by_target_std():
+    v = torch.tensor([1.0, 2.0, 3.0])
+    targets = torch.tensor([2.0, 2.0, 5.0])
+    mse = (1.0 + 0.0 + 4.0) / 3
+    std = float(torch.tensor([2.0, 2.0, 5.0]).std(unbiased=False))  # sqrt(2)
+    assert scaled_value_loss(v, targets, None).item() == pytest.approx(mse)
+    assert scaled_value_loss(v, targets, std).item() == pytest.approx(mse / math.sqrt(2.0))
+    assert torch.isfinite(scaled_value_loss(v, targets, 0.0))
+
+
+def test_normalise():
+    x = normalise(torch.tensor([1.0, 2.0, 3.0, 6.0]))
+    assert x.mean().item() == pytest.approx(0.0, abs=1e-6)
+    assert x.std(unbiased=False).item() == pytest.approx(1.0, abs=1e-6)
+
+
+def test_masked_mean_ignores_hidden_and_gives_zero_when_none_visible():
+    codes = torch.tensor([[[1.0, 2.0], [3.0, 4.0], [100.0, 100.0]]])
+    mask = torch.tensor([[1.0, 1.0, 0.0]])
+    assert masked_mean(codes, mask).tolist() == [[2.0, 3.0]]
+    assert masked_mean(codes, torch.zeros(1, 3)).tolist() == [[0.0, 0.0]]
+
+
+def _obs(spec, rng, visible_teammates, visible_evaders):
+    obs = rng.normal(size=(spec.dim,)).astype(np.float32)
+    for group, vis in (("teammates", visible_teammates), ("evaders", visible_evaders)):
+        for i, v in enumerate(vis):
+            obs[spec.index(group, i, "visible")] = float(v)
+    return obs
+
+
+def test_pooled_actor_and_critic_ignore_hidden_entities():
+    torch.manual_seed(0)
+    spec = ObsSpec.make(4, 2, 8)
+    actor, critic = Actor(spec, NetConfig()), Critic(spec, NetConfig())
+    rng = np.random.default_rng(1)
+    obs = _obs(spec, rng, [1, 0, 1], [0, 1])
+    changed = obs.copy()
+    for group, idx in (("teammates", 1), ("evaders", 0)):
+        g = spec.group(group)
+        lo = g.start + idx * g.width
+        keep = changed[lo + g.mask_feature]
+        changed[lo : lo + g.width] = rng.normal(size=g.width) * 5
+        changed[lo + g.mask_feature] = keep  # still hidden
+    x, y = torch.as_tensor(obs)[None], torch.as_tensor(changed)[None]
+    assert torch.equal(actor(x, spec)[0], actor(y, spec)[0])
+    assert torch.equal(critic(x, spec), critic(y, spec))
+    visible = torch.as_tensor(_obs(spec, np.random.default_rng(1), [1, 1, 1], [0, 1]))[None]
+    assert not torch.equal(actor(x, spec)[0], actor(visible, spec)[0])  # the flag does matter
+
+
+def test_pooled_actor_runs_for_other_team_sizes_with_the_same_weights():
+    torch.manual_seed(0)
+    trained = Actor(ObsSpec.make(3, 1, 16), NetConfig())
+    for n, m in ((2, 1), (6, 3)):
+        spec = ObsSpec.make(n, m, 16)
+        actor = Actor(spec, NetConfig())
+        actor.load_state_dict(trained.state_dict())
+        mean, _ = actor(torch.zeros(5, n, spec.dim), spec)
+        assert mean.shape == (5, n, 2) and bool((mean.abs() <= 1).all())
+
+
+def test_orthogonal_init_and_zero_biases():
+    torch.manual_seed(0)
+    actor = Actor(ObsSpec.make(3, 1, 16), NetConfig())
+    w = actor.trunk.fuse[0].weight  # (128, 512): rows orthonormal up to the gain sqrt(2)
+    np.testing.assert_allclose((w @ w.T / 2.0).detach().numpy(), np.eye(w.shape[0]), atol=1e-4)
+    assert all(float(m.bias.detach().abs().max()) == 0.0 for m in actor.modules() if isinstance(m, torch.nn.Linear))
+
+
+def test_running_mean_std_matches_numpy():
+    rng = np.random.default_rng(0)
+    chunks = [rng.normal(3.0, 2.0, size=n) for n in (10, 50, 7)]
+    rms = RunningMeanStd(epsilon=0.0)
+    for c in chunks:
+        rms.update(torch.as_tensor(c))
+    allx = np.concatenate(chunks)
+    assert rms.mean == pytest.approx(allx.mean())
+    assert rms.std == pytest.approx(allx.std())

@@ -1,0 +1,102 @@
+"""Training regimes and configs: the shipped YAMLs, fine_tune from full_obs, MAPPO, learnable discount."""
+
+import json
+
+import pytest
+import torch
+
+from train.checkpoint import load_checkpoint
+from train.config import load_train_config
+from train.trainer import Trainer
+
+TINY = [
+    "task.fidelity=point", "task.random_obstacles=0", "task.max_steps=40",
+    "n_envs=2", "ppo.batch_size=96", "ppo.minibatch_size=48", "ppo.epochs=2",
+    "run.validate_every=0", "run.validation_episodes=2", "run.progress=false",
+]
+QUIET = {"log": lambda s: None}
+
+
+@pytest.mark.parametrize("name,gamma,clip,envs,speeds,obs", [
+    ("classic", 0.99, 0.2, 6, (0.3, 0.6), "partial"),
+    ("full_obs", 0.95, 0.15, 10, (0.2, 0.3), "full"),
+    ("fine_tune", 0.95, 0.1, 20, (0.2, 0.3), "partial"),
+    ("mappo", 0.99, 0.2, 6, (0.3, 0.6), "partial"),
+])
+def test_regime_files_carry_the_reference_hyperparameters(name, gamma, clip, envs, speeds, obs):
+    cfg = load_train_config([f"configs/train/{name}.yaml"])
+    assert (cfg.ppo.gamma, cfg.ppo.clip, cfg.n_envs) == (gamma, clip, envs)
+    assert (cfg.task.pursuer_speed, cfg.task.evader_speed, cfg.task.observability) == (*speeds, obs)
+    assert (cfg.ppo.lr, cfg.ppo.gae_lambda, cfg.ppo.epochs, cfg.ppo.batch_size, cfg.ppo.minibatch_size) == (3e-4, 0.95, 10, 1024, 256)
+    assert cfg.algo == ("mappo" if name == "mappo" else "ppo")
+    assert cfg.regime == name
+
+
+def test_overrides_flags_and_task_file():
+    cfg = load_train_config(["classic"], ["ppo.lr=1e-4", "task.fidelity=point", "task_file=hard"], {"total_steps": 5000})
+    assert cfg.ppo.lr == 1e-4 and cfg.task.fidelity == "point" and cfg.total_steps == 5000
+    assert cfg.task.evader_speed == 0.6  # the train file's task keys beat the task file's
+    assert cfg.task.miss_probability == 0.1  # from the hard preset
+    with pytest.raises(ValueError, match="ppo.lrr.*did you mean 'lr'"):
+        load_train_config(["classic"], ["ppo.lrr=1"])
+    with pytest.raises(ValueError, match="pursuer_speed.*out of range"):
+        load_train_config(["classic"], ["task.pursuer_speed=-1"])
+    with pytest.raises(ValueError, match="fine_tune needs init_from"):
+        load_train_config(["fine_tune"], ["init_from=null"])
+    with pytest.raises(ValueError, match="minibatch_size 512 exceeds ppo.batch_size 256"):
+        load_train_config([], ["ppo.batch_size=256", "ppo.minibatch_size=512"]).check_complete()
+
+
+def test_fine_tune_starts_from_full_obs_weights_and_switches_observability(tmp_path):
+    base = TINY + [f"run.runs_dir={tmp_path}", "total_steps=32"]
+    full = load_train_config(["full_obs"], base + ["n_envs=2"])
+    Trainer(full, **QUIET).train()
+    source = load_checkpoint(full.run_dir / "best.pt")
+    assert source["train_config"]["task"]["observability"] == "full"
+
+    ft = load_train_config(["fine_tune"], base + [f"init_from={full.run_dir / 'best.pt'}"])
+    trainer = Trainer(ft, **QUIET)
+    assert trainer.env.config.observability == "partial"
+    assert trainer.env.config.collision_penalty == ft.task.collision_penalty != full.task.collision_penalty
+    for k, v in source["actor"].items():
+        assert torch.equal(trainer.model.actor.state_dict()[k], v), k
+    for k, v in source["critic"].items():
+        assert torch.equal(trainer.model.critic.state_dict()[k], v), k
+    assert trainer.counters.update == 0  # weights only: a new run with its own counters
+    trainer.train()
+    moved = load_checkpoint(ft.run_dir / "last.pt")["actor"]
+    assert any(not torch.equal(moved[k], v) for k, v in source["actor"].items())
+
+
+def test_mappo_trains_with_a_centralised_normalised_critic(tmp_path):
+    cfg = load_train_config(["mappo"], TINY + [f"run.runs_dir={tmp_path}", "total_steps=96"])
+    trainer = Trainer(cfg, **QUIET)
+    first_input = trainer.model.critic.body[0].in_features
+    assert first_input == trainer.env.state_dim + trainer.env.obs_dim
+    trainer.train()
+    assert trainer.model.value_norm.count > 100
+    data = load_checkpoint(cfg.run_dir / "last.pt")
+    assert data["value_norm"]["count"] == pytest.approx(trainer.model.value_norm.count)
+    rows = [json.loads(x) for x in (cfg.run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert all(torch.isfinite(torch.tensor(r["loss"]["value_loss"])) for r in rows)
+
+
+def test_learnable_discount_moves_and_is_logged(tmp_path):
+    cfg = load_train_config(["classic"], TINY + [f"run.runs_dir={tmp_path}", "total_steps=160",
+                                                 "ppo.learnable_gamma=true", "ppo.gamma_meta_lr=0.05"])
+    Trainer(cfg, **QUIET).train()
+    rows = [json.loads(x) for x in (cfg.run_dir / "metrics.jsonl").read_text().splitlines()]
+    gammas = [r["gamma"] for r in rows]
+    assert len(rows) == 5 and gammas[0] != gammas[-1]
+    assert all(0.0 < g < 1.0 for g in gammas) and all("gamma_meta_grad" in r for r in rows)
+    # a fixed discount stays put
+    fixed = load_train_config(["classic"], TINY + [f"run.runs_dir={tmp_path}", "name=fixed", "total_steps=64"])
+    Trainer(fixed, **QUIET).train()
+    assert {json.loads(x)["gamma"] for x in (fixed.run_dir / "metrics.jsonl").read_text().splitlines()} == {0.99}
+
+
+def test_training_on_a_list_of_layouts_gives_each_world_its_layout(tmp_path):
+    cfg = load_train_config([], TINY + [f"run.runs_dir={tmp_path}", "total_steps=32", "n_envs=4", "layouts=[0, 2]"])
+    trainer = Trainer(cfg, **QUIET)
+    names = [l.name for l in trainer.env.world_layouts]
+    assert names[0] == names[2] != names[1] == names[3]

@@ -1,0 +1,85 @@
+"""Checkpoint files: written atomically, read with torch.load(weights_only=True) only.
+
+A checkpoint is a dict of plain values and tensors (never pickled objects):
+    format, version        identify the file
+    train_config           TrainConfig as a plain dict (task config inside)
+    obs_spec               ObsSpec.to_dict() of the environment it was trained in
+    state_dim              global state length (MAPPO critic input)
+    actor, critic          state_dicts
+    optimizer              Adam state_dict (absent in weights-only exports)
+    value_norm, discount   MAPPO running stats, discount logit + its optimiser
+    counters               update, world_steps, agent_steps, episodes, best_success ...
+    rng                    torch CPU generator state (uint8 tensor), numpy state as JSON text
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from pursuit_mj.io_utils import atomic_path
+from pursuit_mj.obs_spec import ObsSpec
+
+FORMAT = "pursuit-mj-checkpoint"
+VERSION = 1
+REQUIRED = ("format", "version", "train_config", "obs_spec", "actor", "counters")
+
+
+def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
+    """Write `payload` (plus format/version) to `path` atomically; returns the path."""
+    data = {"format": FORMAT, "version": VERSION, **payload}
+    with atomic_path(path) as tmp:
+        torch.save(data, tmp)
+    return Path(path)
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Read a checkpoint; a missing, truncated, foreign or tampered file is a ValueError naming it."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"checkpoint {path}: file not found")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except (RuntimeError, pickle.UnpicklingError, zipfile.BadZipFile, EOFError, OSError, ValueError, KeyError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ValueError(f"checkpoint {path}: unreadable or corrupted ({first[:200]})") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise ValueError(f"checkpoint {path}: not a pursuit-mj checkpoint")
+    if data.get("version") != VERSION:
+        raise ValueError(f"checkpoint {path}: format version {data.get('version')}, this code reads {VERSION}")
+    missing = [k for k in REQUIRED if k not in data]
+    if missing:
+        raise ValueError(f"checkpoint {path}: missing entries {missing}")
+    return data
+
+
+def export_actor(src: str | Path, dst: str | Path) -> Path:
+    """A small copy of a checkpoint for running the policy only: actor, config, spec, counters.
+
+    No critic, optimiser or random states, so it cannot be resumed; `load_policy` reads it.
+    """
+    data = load_checkpoint(src)
+    keep = {k: data[k] for k in ("train_config", "obs_spec", "state_dim", "actor", "counters") if k in data}
+    keep["exported_from"] = str(src)
+    return save_checkpoint(dst, keep)
+
+
+def check_obs_spec(data: dict[str, Any], spec: ObsSpec, path: str | Path) -> None:
+    """Refuse a checkpoint whose observation features differ from the environment's."""
+    why = spec.compatible(data["obs_spec"])
+    if why is not None:
+        raise ValueError(f"checkpoint {path}: observation spec does not match the environment: {why}")
+
+
+def numpy_state_text(rng) -> str:
+    """A numpy Generator's bit-generator state as JSON text (128-bit ints stay exact)."""
+    return json.dumps(rng.bit_generator.state)
+
+
+def restore_numpy_state(rng, text: str) -> None:
+    rng.bit_generator.state = json.loads(text)

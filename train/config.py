@@ -1,0 +1,186 @@
+"""The training config: one frozen dataclass per concern, nested in `TrainConfig`.
+
+YAML files under configs/train/ and `--set key=value` overrides go through
+`load_train_config`, the same path as the task config (pursuit_mj.configio). A train config
+embeds the task it trains on under `task:`; `task_file:` may name a task YAML (or a preset
+such as `reference`) whose keys are applied first, then the `task:` keys, then `--set task.x=`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from pursuit_mj.config import CONFIG_DIR, TaskConfig, task_preset_path
+from pursuit_mj.configio import ConfigError, build, load, load_yaml, parse_override, spec, to_dict
+
+REGIMES = ("classic", "full_obs", "fine_tune", "mappo", "custom")
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """PPO / MAPPO hyperparameters (DESIGN.md section 6 defaults)."""
+
+    lr: float = spec(3e-4, lo=0.0, lo_open=True, help="Adam learning rate at the start (decays linearly to 0 if lr_decay)")
+    lr_decay: bool = spec(True, help="decay the learning rate linearly to zero over total_steps")
+    gamma: float = spec(0.99, lo=0.0, hi=1.0, help="discount factor per decision step")
+    gae_lambda: float = spec(0.95, lo=0.0, hi=1.0, help="GAE lambda")
+    clip: float = spec(0.2, lo=0.0, lo_open=True, hi=1.0, help="PPO ratio clip epsilon")
+    epochs: int = spec(10, lo=1, hi=100, help="passes over each rollout batch")
+    batch_size: int = spec(1024, lo=2, help="pursuer transitions per update (rollout length = ceil(batch / (n_envs * pursuers)))")
+    minibatch_size: int = spec(256, lo=1, help="pursuer transitions per gradient step")
+    ent_coef: float = spec(0.0, lo=0.0, help="weight of the entropy bonus")
+    vf_coef: float = spec(0.5, lo=0.0, help="weight of the value loss")
+    max_grad_norm: float = spec(0.5, lo=0.0, lo_open=True, help="global gradient-norm clip")
+    norm_adv: bool = spec(True, help="normalise advantages per minibatch (zero mean, unit std)")
+    value_scaling: bool = spec(True, help="PPO: divide the value loss by the std of the value targets (reference study)")
+    learnable_gamma: bool = spec(False, help="learn the discount by meta-gradient (see train/discount.py); gamma is its start")
+    gamma_meta_lr: float = spec(3e-3, lo=0.0, lo_open=True, help="Adam step size for the discount's logit")
+    gamma_outer: float = spec(0.995, lo=0.0, hi=1.0, help="fixed discount of the meta objective that judges gamma")
+
+
+
+@dataclasses.dataclass(frozen=True)
+class NetConfig:
+    """Network shape. `reference`: per-entity encoders with masked mean pooling (DESIGN.md 6)."""
+
+    kind: str = spec("reference", choices=("reference", "mlp"), help="actor/critic network family")
+    encoder_width: int = spec(128, lo=1, hi=4096, help="width of each per-entity encoder")
+    hidden: tuple[int, ...] = spec((128, 128), help="widths of the fused trunk after the encoders")
+    use_rays: bool = spec(True, help="encode the range readings (the reference study had none)")
+    init_log_std: float = spec(-0.5, lo=-5.0, hi=2.0, help="initial log std of the Gaussian head")
+    critic_hidden: tuple[int, ...] = spec((256, 256), help="MAPPO centralised critic widths")
+
+    def validate(self, source: str = "config") -> None:
+        if not self.hidden or any(h < 1 for h in self.hidden):
+            raise ConfigError(f"{source}: net.hidden {list(self.hidden)} must list positive widths")
+        if not self.critic_hidden or any(h < 1 for h in self.critic_hidden):
+            raise ConfigError(f"{source}: net.critic_hidden {list(self.critic_hidden)} must list positive widths")
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """Where and how often: run folder, validation, checkpoints, logging, threads."""
+
+    runs_dir: str = spec("runs", help="parent folder of run folders (runs/<name>/)")
+    validate_every: int = spec(10, lo=0, help="updates between validations (0 = never)")
+    validation_episodes: int = spec(24, lo=1, hi=10000, help="episodes per validation (fixed seeds)")
+    validation_seed: int = spec(10_000, lo=0, help="first seed of the fixed validation set")
+    validation_layouts: tuple[int | str, ...] = spec((), help="layouts to validate on (empty: the training layouts)")
+    checkpoint_every: int = spec(1, lo=1, help="updates between 'last' checkpoints (1: lose at most one update)")
+    torch_threads: int = spec(1, lo=0, hi=256, help="torch threads for the update (0: all cores; more than 1 only pays on idle cores); the rollout uses 1")
+    sim_threads: int = spec(0, lo=0, hi=256, help="mujoco.batch threads (0: its default)")
+    progress: bool = spec(True, help="show the tqdm progress bar")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """One training run: the regime, the task it trains on, and every learning setting."""
+
+    name: str = spec("run", help="run name; outputs go to <run.runs_dir>/<name>/")
+    regime: str = spec("custom", choices=REGIMES, help="label of the reference regime this run follows")
+    algo: str = spec("ppo", choices=("ppo", "mappo"), help="ppo: per-agent critic; mappo: centralised critic on the global state")
+    seed: int = spec(0, lo=0, help="seed of networks, sampling and environment resets")
+    total_steps: int = spec(1_000_000, lo=1, help="world decision steps to train for (summed over worlds)")
+    max_minutes: float = spec(0.0, lo=0.0, help="stop after this much training time (0 = none); the LR decays over whichever ends first")
+    n_envs: int = spec(6, lo=1, hi=4096, help="worlds stepped together")
+    layouts: tuple[int | str, ...] = spec((), help="training layouts, one chosen per world in turn (empty: task.layout)")
+    init_from: str | None = spec(None, help="checkpoint whose actor/critic weights start this run (fine_tune)")
+    task_file: str | None = spec(None, help="task YAML file or preset name applied before the task: keys")
+    task: TaskConfig = spec(default_factory=TaskConfig, help="the task trained on")
+    ppo: PPOConfig = spec(default_factory=PPOConfig, help="PPO hyperparameters")
+    net: NetConfig = spec(default_factory=NetConfig, help="network shape")
+    run: RunConfig = spec(default_factory=RunConfig, help="run folder, validation, checkpoints")
+
+    def validate(self, source: str = "config") -> None:
+        """Per-field checks run at every override; cross-field ones run in `check_complete`."""
+        if not self.name or "/" in self.name or self.name in (".", ".."):
+            raise ConfigError(f"{source}: key 'name': {self.name!r} is not a usable run folder name")
+        if self.regime == "fine_tune" and not self.init_from:
+            raise ConfigError(f"{source}: regime fine_tune needs init_from (a full_obs checkpoint)")
+
+    def check_complete(self, source: str = "train config") -> None:
+        """Checks that span keys set by separate overrides (run once the config is final)."""
+        if self.ppo.minibatch_size > self.ppo.batch_size:
+            raise ConfigError(f"{source}: ppo.minibatch_size {self.ppo.minibatch_size} exceeds ppo.batch_size {self.ppo.batch_size}")
+
+    @property
+    def run_dir(self) -> Path:
+        return Path(self.run.runs_dir) / self.name
+
+    def rollout_steps(self) -> int:
+        """Decision steps per world per update so that one update sees >= ppo.batch_size transitions."""
+        per_step = self.n_envs * self.task.n_pursuers
+        return max(1, -(-self.ppo.batch_size // per_step))
+
+
+def _deep_update(base: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in new.items():
+        out[k] = _deep_update(out[k], v) if isinstance(v, Mapping) and isinstance(out.get(k), Mapping) else v
+    return out
+
+
+def _resolve_task_file(ref: str, source: str) -> dict[str, Any]:
+    path = Path(ref)
+    if not path.suffix and not path.exists() and task_preset_path(ref).exists():
+        path = task_preset_path(ref)
+    return load_yaml(path, f"{source}: task_file {ref}")
+
+
+def _with_task_file(data: Mapping[str, Any], source: str) -> dict[str, Any]:
+    """Put the named task file's keys under the YAML's own task: keys."""
+    out = dict(data)
+    ref = out.get("task_file")
+    if ref:
+        if not isinstance(ref, str):
+            raise ConfigError(f"{source}: key 'task_file': expected a string, got {ref!r}")
+        task = out.get("task") or {}
+        if not isinstance(task, Mapping):
+            raise ConfigError(f"{source}: key 'task': expected a mapping, got {task!r}")
+        out["task"] = _deep_update(_resolve_task_file(ref, source), task)
+    return out
+
+
+def train_preset_path(name: str) -> Path:
+    return CONFIG_DIR / "train" / f"{name}.yaml"
+
+
+def load_train_config(
+    files: Sequence[str | Path] = (),
+    overrides: Sequence[str] = (),
+    flags: Mapping[str, Any] | None = None,
+) -> TrainConfig:
+    """Defaults <- YAML files (a bare name like 'classic' means configs/train/classic.yaml) <- flags <- --set.
+
+    `flags` is a nested mapping (e.g. {"total_steps": 10000, "task": {"fidelity": "point"}}).
+    """
+    merged: dict[str, Any] = {}
+    source = "defaults"
+    for f in files:
+        p = Path(f)
+        if not p.suffix and not p.exists() and train_preset_path(str(f)).exists():
+            p = train_preset_path(str(f))
+        merged = _deep_update(merged, load_yaml(p))
+        source = str(p)
+    rest = []
+    for text in overrides:  # a task_file override must be resolved before the task: keys apply
+        path, value = parse_override(text, f"--set {text}")
+        if path == ["task_file"]:
+            merged["task_file"] = value
+            source = f"--set {text}"
+        else:
+            rest.append(text)
+    merged = _with_task_file(merged, source)
+    cfg = build(TrainConfig, merged, source)
+    extra = _deep_update(to_dict(cfg), dict(flags)) if flags else None
+    return load(TrainConfig, (), rest, extra=extra or to_dict(cfg), extra_source="command-line flag")
+
+
+def train_config_from_dict(data: Mapping[str, Any], source: str) -> TrainConfig:
+    """Rebuild a config stored in a checkpoint (a plain dict)."""
+    return build(TrainConfig, data, source)
+
+
+__all__ = ["PPOConfig", "NetConfig", "RunConfig", "TrainConfig", "load_train_config", "train_config_from_dict", "REGIMES"]

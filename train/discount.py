@@ -1,0 +1,80 @@
+"""The discount factor, fixed or learned by meta-gradient (the reference study's "learnable gamma").
+
+The reference study made gamma a network parameter without saying what objective moves it;
+gamma cannot be learned by the PPO loss itself (a smaller gamma always makes value targets
+easier). Here it is learned the way Xu et al. (2018, "Meta-Gradient Reinforcement Learning")
+do it: gamma = sigmoid(logit) shapes the advantages of the inner policy-gradient step
+    L_in(theta, gamma) = -mean(log pi_theta(a|s) * A_gamma),
+and gamma is judged by how much one such step would improve a fixed outer objective
+    L_out(theta) = -mean(log pi_theta(a|s) * A_outer),  A_outer from the fixed gamma_outer.
+To first order, theta' = theta - lr * grad_theta L_in, so
+    L_out(theta') ~ L_out(theta) - lr * <grad_theta L_out, grad_theta L_in(gamma)>,
+and its derivative in gamma needs one second-order backward pass through grad_theta L_in.
+The logit takes one Adam step (gamma_meta_lr) per update down that derivative. The current
+gamma is logged every update (metrics.jsonl key `gamma`) so one can watch it move.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .gae import compute_gae
+from .losses import normalise
+
+
+class Discount:
+    """gamma as a float (fixed) or sigmoid(logit) with an Adam optimiser (learned)."""
+
+    def __init__(self, gamma: float, learnable: bool, meta_lr: float, outer_gamma: float):
+        self.learnable = learnable
+        self.outer_gamma = outer_gamma
+        g = min(max(gamma, 1e-4), 1.0 - 1e-4)
+        self.logit = torch.nn.Parameter(torch.tensor(math.log(g / (1.0 - g)), dtype=torch.float32))
+        self._fixed = gamma
+        self.optimizer = torch.optim.Adam([self.logit], lr=meta_lr) if learnable else None
+
+    @property
+    def value(self) -> float:
+        return float(torch.sigmoid(self.logit).item()) if self.learnable else self._fixed
+
+    def meta_step(self, actor, spec, obs, actions, rewards, values, next_values, terminated, done,
+                  lam: float, inner_lr: float, sample: torch.Tensor) -> float:
+        """One meta-gradient step on the logit; returns the meta-gradient d L_out / d gamma.
+
+        obs (T, B, D), actions (T, B, 2), rewards/values/next_values (T, B), terminated/done (T, B)
+        bool; `sample` indexes the flattened T*B transitions used for the policy terms.
+        """
+        gamma = torch.sigmoid(self.logit)
+        adv_in, _ = compute_gae(rewards, values, next_values, terminated, done, gamma, lam)
+        with torch.no_grad():
+            adv_out, _ = compute_gae(rewards, values, next_values, terminated, done, self.outer_gamma, lam)
+        adv_in = normalise(adv_in.reshape(-1)[sample])
+        adv_out = normalise(adv_out.reshape(-1)[sample])
+        flat_obs = obs.reshape(-1, obs.shape[-1])[sample]
+        flat_act = actions.reshape(-1, actions.shape[-1])[sample]
+        params = [p for p in actor.parameters() if p.requires_grad]
+        logp = actor.distribution(flat_obs, spec).log_prob(flat_act).sum(-1)
+        g_in = torch.autograd.grad(-(logp * adv_in).mean(), params, create_graph=True)
+        g_out = torch.autograd.grad(-(logp * adv_out.detach()).mean(), params, retain_graph=True)
+        inner_product = sum((a * b.detach()).sum() for a, b in zip(g_in, g_out))
+        meta_loss = -inner_lr * inner_product
+        (d_logit,) = torch.autograd.grad(meta_loss, [self.logit])
+        self.optimizer.zero_grad()
+        self.logit.grad = d_logit
+        self.optimizer.step()
+        sig = gamma.detach()
+        return float(d_logit / (sig * (1.0 - sig)))
+
+    def state_dict(self) -> dict:
+        out = {"logit": self.logit.detach().clone(), "fixed": self._fixed}
+        if self.optimizer is not None:
+            out["optimizer"] = self.optimizer.state_dict()
+        return out
+
+    def load_state_dict(self, state: dict) -> None:
+        with torch.no_grad():
+            self.logit.copy_(state["logit"])
+        if self.optimizer is not None and "optimizer" in state:
+            self.optimizer.load_state_dict(state["optimizer"])

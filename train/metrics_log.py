@@ -1,0 +1,48 @@
+"""The run's metrics log: one JSON object per update, appended and flushed at once (metrics.jsonl)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+from pursuit_mj.io_utils import atomic_write_text
+
+
+def _clean(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _clean(v) for k, v in value.items()}
+    return value
+
+
+class MetricsLog:
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+
+    def append(self, row: dict[str, Any]) -> None:
+        with open(self.path, "a") as f:
+            f.write(json.dumps(_clean(row)) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+
+    def rows(self) -> list[dict[str, Any]]:
+        """Every complete row (a line cut short by a crash is skipped)."""
+        if not self.path.exists():
+            return []
+        out = []
+        for line in self.path.read_text().splitlines():
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue
+        return out
+
+    def truncate_after(self, update: int) -> None:
+        """Drop rows of updates after `update` (written before a crash lost their checkpoint)."""
+        rows = [r for r in self.rows() if r.get("update", 0) <= update]
+        atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in rows))

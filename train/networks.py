@@ -1,0 +1,173 @@
+"""Actor and critic networks over the pursuer observation (pursuit_mj.obs_spec).
+
+`reference` (DESIGN.md section 6): one encoder per entity kind (self, teammate, evader, and
+the range readings), each a linear layer with tanh; teammates and evaders are mean-pooled
+over the entities whose visibility flag is 1 (hidden ones count for nothing, none visible
+gives zeros), so one network serves any number of teammates and evaders. The pooled codes
+are concatenated and fused by tanh layers (hidden widths), then a head. `mlp`: the flat
+observation through tanh layers (fixed team size). Every weight is orthogonal, every bias 0.
+
+All networks take obs (..., obs_dim) float32 tensors and keep the leading shape.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from pursuit_mj.obs_spec import ObsSpec
+
+from .config import NetConfig
+
+
+TINY = 1e-30  # |x| below this is set to 0: denormal floats slow CPU matrix products a hundredfold
+
+
+def flush_tiny(x: torch.Tensor) -> torch.Tensor:
+    """x with denormal-range values zeroed (a drone at rest reports velocities like 1e-40)."""
+    return torch.where(x.abs() < TINY, torch.zeros((), dtype=x.dtype), x)
+
+
+def init_linear(layer: nn.Linear, gain: float = math.sqrt(2.0)) -> nn.Linear:
+    nn.init.orthogonal_(layer.weight, gain)
+    nn.init.zeros_(layer.bias)
+    return layer
+
+
+def tanh_mlp(sizes: list[int], out_gain: float | None = None) -> nn.Sequential:
+    """Linear+tanh per consecutive pair; the last layer has no tanh when out_gain is given."""
+    layers: list[nn.Module] = []
+    for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
+        last = i == len(sizes) - 2
+        if last and out_gain is not None:
+            layers.append(init_linear(nn.Linear(a, b), out_gain))
+        else:
+            layers += [init_linear(nn.Linear(a, b)), nn.Tanh()]
+    return nn.Sequential(*layers)
+
+
+def masked_mean(codes: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean of codes (..., K, C) over the K entities where mask (..., K) is 1; zeros where none is."""
+    weight = mask.unsqueeze(-1)
+    total = (codes * weight).sum(dim=-2)
+    count = weight.sum(dim=-2).clamp_min(1.0)
+    return total / count
+
+
+class EntityEncoder(nn.Module):
+    """Encodes every entity of one kind with shared weights and pools the visible ones.
+
+    Works for any entity count, including zero (then the output is zeros).
+    """
+
+    def __init__(self, width: int, out: int, mask_feature: int | None):
+        super().__init__()
+        self.width = width
+        self.mask_feature = mask_feature
+        self.layer = init_linear(nn.Linear(width, out))
+
+    def forward(self, entities: torch.Tensor) -> torch.Tensor:
+        """entities (..., K, width) -> (..., out)."""
+        codes = torch.tanh(self.layer(entities))
+        if self.mask_feature is None:
+            mask = torch.ones(entities.shape[:-1], dtype=entities.dtype, device=entities.device)
+        else:
+            mask = (entities[..., self.mask_feature] > 0.5).to(entities.dtype)
+        return masked_mean(codes, mask)
+
+
+class PooledTrunk(nn.Module):
+    """Observation -> fused features through per-entity encoders with masked mean pooling."""
+
+    GROUPS = ("self", "teammates", "evaders", "rays")
+
+    def __init__(self, spec: ObsSpec, cfg: NetConfig):
+        super().__init__()
+        self.use_rays = cfg.use_rays and spec.n_rays > 0
+        groups = [g for g in self.GROUPS if g != "rays" or self.use_rays]
+        self.encoders = nn.ModuleDict()
+        for name in groups:
+            g = spec.group(name)
+            width = g.width if name != "rays" else spec.n_rays
+            self.encoders[name] = EntityEncoder(width, cfg.encoder_width, g.mask_feature)
+        self.fuse = tanh_mlp([cfg.encoder_width * len(groups), *cfg.hidden])
+        self.out_dim = cfg.hidden[-1]
+
+    def forward(self, obs: torch.Tensor, spec: ObsSpec) -> torch.Tensor:
+        parts = []
+        for name, enc in self.encoders.items():
+            g = spec.group(name)
+            parts.append(enc(obs[..., g.start : g.stop].reshape(obs.shape[:-1] + (g.count, g.width))))
+        return self.fuse(torch.cat(parts, dim=-1))
+
+
+class FlatTrunk(nn.Module):
+    """Observation -> features through a plain tanh MLP (team size fixed at construction)."""
+
+    def __init__(self, spec: ObsSpec, cfg: NetConfig):
+        super().__init__()
+        self.obs_dim = spec.dim
+        self.fuse = tanh_mlp([spec.dim, *cfg.hidden])
+        self.out_dim = cfg.hidden[-1]
+
+    def forward(self, obs: torch.Tensor, spec: ObsSpec) -> torch.Tensor:
+        if spec.dim != self.obs_dim:
+            raise ValueError(f"net.kind mlp was built for obs_dim {self.obs_dim}, got {spec.dim}: use net.kind reference to change team sizes")
+        return self.fuse(obs)
+
+
+def make_trunk(spec: ObsSpec, cfg: NetConfig) -> nn.Module:
+    return PooledTrunk(spec, cfg) if cfg.kind == "reference" else FlatTrunk(spec, cfg)
+
+
+class Actor(nn.Module):
+    """Gaussian policy: mean = tanh(head(trunk(obs))) in [-1, 1]^2, log std a free parameter."""
+
+    ACTION_DIM = 2
+
+    def __init__(self, spec: ObsSpec, cfg: NetConfig):
+        super().__init__()
+        self.trunk = make_trunk(spec, cfg)
+        self.head = init_linear(nn.Linear(self.trunk.out_dim, self.ACTION_DIM), 0.01)
+        self.log_std = nn.Parameter(torch.full((self.ACTION_DIM,), float(cfg.init_log_std)))
+
+    def forward(self, obs: torch.Tensor, spec: ObsSpec) -> tuple[torch.Tensor, torch.Tensor]:
+        """(mean (..., 2), log_std (..., 2))."""
+        mean = torch.tanh(self.head(self.trunk(obs, spec)))
+        return mean, self.log_std.expand_as(mean)
+
+    def distribution(self, obs: torch.Tensor, spec: ObsSpec) -> torch.distributions.Normal:
+        mean, log_std = self(obs, spec)
+        return torch.distributions.Normal(mean, log_std.exp())
+
+
+class Critic(nn.Module):
+    """Per-agent value V(obs) (..., ) with the same trunk family as the actor, separate weights."""
+
+    def __init__(self, spec: ObsSpec, cfg: NetConfig):
+        super().__init__()
+        self.trunk = make_trunk(spec, cfg)
+        self.head = init_linear(nn.Linear(self.trunk.out_dim, 1), 1.0)
+
+    def forward(self, obs: torch.Tensor, spec: ObsSpec) -> torch.Tensor:
+        return self.head(self.trunk(obs, spec)).squeeze(-1)
+
+
+class CentralCritic(nn.Module):
+    """MAPPO critic: value of each pursuer from the global state and that pursuer's observation.
+
+    state (..., state_dim) and obs (..., obs_dim) -> (...,) in normalised value units. Appending
+    the pursuer's own observation makes the value agent-specific (Yu et al. 2022).
+    """
+
+    def __init__(self, spec: ObsSpec, state_dim: int, cfg: NetConfig):
+        super().__init__()
+        self.state_dim = state_dim
+        self.obs_dim = spec.dim
+        self.body = tanh_mlp([state_dim + spec.dim, *cfg.critic_hidden])
+        self.head = init_linear(nn.Linear(cfg.critic_hidden[-1], 1), 1.0)
+
+    def forward(self, state: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
+        return self.head(self.body(torch.cat([state, obs], dim=-1))).squeeze(-1)

@@ -1,0 +1,76 @@
+"""Trained actors as pursuit_mj.policy.Policy objects; `load_policy` is what eval and render import.
+
+    from train.policy import load_policy      # lazily, only when a model file is given
+    policy = load_policy("runs/full_obs/best.pt", env.obs_spec)
+    actions = policy.act(obs, env.obs_spec)   # (W, N, 2) in [-1, 1]
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from pursuit_mj.configio import build
+from pursuit_mj.obs_spec import ObsSpec
+
+from .checkpoint import check_obs_spec, load_checkpoint
+from .config import NetConfig
+from .networks import Actor, flush_tiny
+
+
+def spec_from_dict(data: dict) -> ObsSpec:
+    return ObsSpec.make(int(data["n_pursuers"]), int(data["n_evaders"]), int(data["n_rays"]))
+
+
+class ActorPolicy:
+    """A trained actor driving every pursuer (shared parameters); mean action unless stochastic."""
+
+    def __init__(self, actor: Actor, name: str, stochastic: bool = False, seed: int = 0):
+        self.actor = actor.eval()
+        self.name = name
+        self.stochastic = stochastic
+        self.generator = torch.Generator().manual_seed(seed)
+
+    def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
+        """The reference actor has no memory; nothing to forget."""
+
+    @torch.no_grad()
+    def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
+        """obs (W, N, spec.dim) -> actions (W, N, 2) in [-1, 1] (fraction of max speed, world x/y)."""
+        x = flush_tiny(torch.as_tensor(np.asarray(obs, dtype=np.float32)))
+        if x.shape[-1] != spec.dim:
+            raise ValueError(f"policy {self.name}: observation width {x.shape[-1]} does not match its spec ({spec.dim})")
+        mean, log_std = self.actor(x, spec)
+        if self.stochastic:
+            mean = mean + log_std.exp() * torch.randn(mean.shape, generator=self.generator)
+        return mean.clamp(-1.0, 1.0).numpy().astype(np.float64)
+
+
+def actor_from_checkpoint(data: dict, spec: ObsSpec, source: str) -> Actor:
+    """Build the stored network for `spec` and load its weights (ValueError if they do not fit).
+
+    Only the stored `net` settings are read, so a model outlives changes to the task config's keys.
+    """
+    net = build(NetConfig, data["train_config"].get("net", {}), f"checkpoint {source}: train_config.net")
+    actor = Actor(spec, net)
+    try:
+        actor.load_state_dict(data["actor"])
+    except RuntimeError as exc:
+        raise ValueError(f"checkpoint {source}: actor weights do not fit net {net.kind} for this environment ({str(exc).splitlines()[0]})") from None
+    return actor
+
+
+def load_policy(path: str | Path, env_spec: ObsSpec | None = None, stochastic: bool = False, name: str | None = None) -> ActorPolicy:
+    """A Policy from a checkpoint file, checked against the environment's observation spec.
+
+    env_spec None means the spec the model was trained with. The name defaults to the run name
+    (for `runs/<name>/best.pt`) or the file stem.
+    """
+    data = load_checkpoint(path)
+    spec = env_spec if env_spec is not None else spec_from_dict(data["obs_spec"])
+    check_obs_spec(data, spec, path)
+    actor = actor_from_checkpoint(data, spec, str(path))
+    label = name or data["train_config"].get("name") or Path(path).stem
+    return ActorPolicy(actor, str(label), stochastic=stochastic)

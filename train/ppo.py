@@ -1,0 +1,78 @@
+"""One PPO / MAPPO update over a filled rollout: GAE, then epochs of shuffled minibatches."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from .agent import ActorCritic
+from .config import PPOConfig
+from .gae import compute_gae, next_values_from
+from .losses import clipped_policy_loss, normalise, scaled_value_loss
+from .storage import Rollout
+
+
+def advantages_and_returns(buf: Rollout, gamma: float, lam: float) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """(advantages (T, B), returns (T, B), the (T, B) streams used), B = W * N."""
+    s = buf.flat_streams()
+    s["next_values"] = next_values_from(s["values"], s["last_value"], s["truncated"], s["final_values"])
+    s["done"] = s["terminated"] | s["truncated"]
+    adv, ret = compute_gae(s["rewards"], s["values"], s["next_values"], s["terminated"], s["done"], gamma, lam)
+    return adv, ret, s
+
+
+def explained_variance(pred: torch.Tensor, target: torch.Tensor) -> float:
+    var = target.var(unbiased=False)
+    return float("nan") if var < 1e-12 else float(1.0 - (target - pred).var(unbiased=False) / var)
+
+
+def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollout, cfg: PPOConfig,
+               gamma: float, generator: torch.Generator) -> dict[str, float]:
+    """Run cfg.epochs passes of minibatch gradient steps; returns mean loss statistics."""
+    adv, ret, _ = advantages_and_returns(buf, gamma, cfg.gae_lambda)
+    n = buf.n_transitions
+    obs = buf.obs.reshape(n, -1)
+    actions = buf.actions.reshape(n, 2)
+    old_logp = buf.logp.reshape(n)
+    adv, ret = adv.reshape(n), ret.reshape(n)
+    states = None
+    if model.algo == "mappo":
+        states = buf.states.unsqueeze(2).expand(-1, -1, buf.N, -1).reshape(n, -1)
+        model.value_norm.update(ret)
+        targets, target_std = model.value_norm.normalise(ret), None
+    else:
+        targets = ret
+        target_std = float(ret.std(unbiased=False)) if cfg.value_scaling else None
+    mb = min(cfg.minibatch_size, n)
+    sums: dict[str, float] = {}
+    steps = 0
+    for _ in range(cfg.epochs):
+        perm = torch.randperm(n, generator=generator)
+        for start in range(0, n - mb + 1, mb):
+            idx = perm[start : start + mb]
+            dist = model.actor.distribution(obs[idx], model.spec)
+            new_logp = dist.log_prob(actions[idx]).sum(-1)
+            entropy = dist.entropy().sum(-1).mean()
+            a = normalise(adv[idx]) if cfg.norm_adv else adv[idx]
+            pg_loss, clip_frac = clipped_policy_loss(new_logp, old_logp[idx], a, cfg.clip)
+            v = model.raw_value(obs[idx], states[idx] if states is not None else None)
+            v_loss = scaled_value_loss(v, targets[idx], target_std)
+            loss = pg_loss + cfg.vf_coef * v_loss - cfg.ent_coef * entropy
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            grad_norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
+            optimizer.step()
+            with torch.no_grad():
+                log_ratio = new_logp - old_logp[idx]
+                approx_kl = ((log_ratio.exp() - 1.0) - log_ratio).mean()
+            for k, x in (("policy_loss", pg_loss), ("value_loss", v_loss), ("entropy", entropy),
+                         ("approx_kl", approx_kl), ("clip_frac", clip_frac), ("grad_norm", grad_norm)):
+                sums[k] = sums.get(k, 0.0) + float(x.detach())
+            steps += 1
+    out = {k: v / max(steps, 1) for k, v in sums.items()}
+    with torch.no_grad():
+        pred = buf.values.reshape(n)
+    out["explained_variance"] = explained_variance(pred, ret)
+    out["return_std"] = float(ret.std(unbiased=False))
+    out["log_std"] = float(model.actor.log_std.detach().mean())
+    return out

@@ -1,0 +1,131 @@
+"""The reference experiment in one call: train the four regimes on layout 0, evaluate all on 0-3.
+
+Order: full_obs, then fine_tune from its best checkpoint, classic, MAPPO; the heuristic team
+is evaluated beside them. A short probe of the heuristic first measures how long an evaluation
+episode takes, so the whole evaluation is reserved out of the budget (with fewer episodes
+than asked if it would not fit) before any training starts; the rest of the budget is split over the regimes by
+TRAIN_SHARE (each run stops at its max_minutes, its learning rate decaying over it). All
+policies are evaluated on the same task (the reference preset unless told otherwise) with
+partial observability: full_obs is trained with full observability but judged like the rest.
+
+Outputs in <out>/: runs/<regime>/ (checkpoints, metrics), table.txt, table.csv, table.json,
+plots/*.png, timings.json.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+from pursuit_mj.config import TaskConfig
+from pursuit_mj.evaluation import evaluate, format_table, plot_rows, write_csv, write_json
+from pursuit_mj.io_utils import atomic_write_text
+from pursuit_mj.obs_spec import ObsSpec
+from pursuit_mj.policies import make_policy
+
+from .config import load_train_config
+from .policy import load_policy
+from .trainer import Trainer
+
+#: share of the training budget per regime, in training order
+TRAIN_SHARE = (("full_obs", 0.3), ("fine_tune", 0.2), ("classic", 0.25), ("mappo", 0.25))
+MIN_TRAIN_FRACTION = 0.4  # evaluation may take at most the rest of the budget
+
+
+@dataclasses.dataclass(frozen=True)
+class StudyPlan:
+    budget_minutes: float
+    out: Path
+    eval_task: TaskConfig
+    layouts: tuple[int | str, ...] = (0, 1, 2, 3)
+    episodes: int = 150
+    worlds: int = 32
+    seed: int = 0
+    train_overrides: tuple[str, ...] = ()
+
+
+def _minutes(seconds: float) -> float:
+    return seconds / 60.0
+
+
+def fit_episodes(plan: StudyPlan, seconds_per_episode: float, spent_s: float) -> tuple[int, float]:
+    """(episodes per policy and layout, minutes left for training) within the budget.
+
+    The heuristic and the trained policies are evaluated with the same number of episodes;
+    it shrinks from plan.episodes when evaluation would take more than its share.
+    """
+    n_policies = len(TRAIN_SHARE) + 1
+    total_s = plan.budget_minutes * 60.0
+    per_round = seconds_per_episode * len(plan.layouts) * n_policies
+    cap = total_s * (1.0 - MIN_TRAIN_FRACTION) - spent_s
+    episodes = plan.episodes
+    if per_round * episodes > cap:
+        episodes = max(1, int(cap / max(per_round, 1e-9)))
+    return episodes, _minutes(total_s - spent_s - per_round * episodes)
+
+
+def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
+    """Train, evaluate, write the table and charts; returns {'rows', 'timings', 'episodes'}."""
+    plan.out.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+    t_start = time.perf_counter()
+
+    t0 = time.perf_counter()
+    heuristic = make_policy("heuristic", plan.eval_task)
+    probe = min(plan.worlds, plan.episodes)
+    evaluate(heuristic, plan.eval_task, [plan.layouts[0]], probe, plan.seed + 1, plan.worlds, label="heuristic")
+    timings["evaluation speed probe"] = time.perf_counter() - t0
+    episodes, train_minutes = fit_episodes(plan, timings["evaluation speed probe"] / probe, time.perf_counter() - t_start)
+    log(f"[study] {episodes} episodes per policy and layout; {train_minutes:.1f} min left for training")
+    if train_minutes <= 0.0:
+        raise ValueError(f"--budget-minutes {plan.budget_minutes}: too small; evaluating alone needs most of it "
+                         f"(lower --episodes or raise the budget)")
+    t0 = time.perf_counter()
+    rows = evaluate(heuristic, plan.eval_task, list(plan.layouts), episodes, plan.seed, plan.worlds, label="heuristic")
+    timings["heuristic (eval)"] = time.perf_counter() - t0
+
+    checkpoints: dict[str, Path] = {}
+    for regime, share in TRAIN_SHARE:
+        overrides = [f"run.runs_dir={plan.out / 'runs'}", f"max_minutes={share * train_minutes:.4f}",
+                     "total_steps=1000000000", "task.layout=0", *plan.train_overrides]
+        if regime == "fine_tune":
+            overrides.append(f"init_from={checkpoints['full_obs']}")
+        cfg = load_train_config([regime], overrides)
+        if (cfg.run_dir / "last.pt").exists():
+            raise ValueError(f"study folder {plan.out}: {cfg.run_dir} already holds a run; choose another --out")
+        t0 = time.perf_counter()
+        log(f"[study] training {regime} for {share * train_minutes:.1f} min ({cfg.task.fidelity} fidelity)")
+        result = Trainer(cfg, log=log).train()
+        timings[f"{regime} (train)"] = time.perf_counter() - t0
+        if result["status"] != "done":
+            raise KeyboardInterrupt
+        checkpoints[regime] = cfg.run_dir / "best.pt"
+
+    t = plan.eval_task
+    spec = ObsSpec.make(t.n_pursuers, t.n_evaders, t.n_rays)
+    for regime, _ in TRAIN_SHARE:
+        t0 = time.perf_counter()
+        policy = load_policy(checkpoints[regime], spec, name=regime)
+        rows += evaluate(policy, plan.eval_task, list(plan.layouts), episodes, plan.seed, plan.worlds, label=regime)
+        timings[f"{regime} (eval)"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_start
+    _write(plan, rows, timings, episodes)
+    return {"rows": rows, "timings": timings, "episodes": episodes}
+
+
+def _write(plan: StudyPlan, rows: Sequence, timings: dict[str, float], episodes: int) -> None:
+    atomic_write_text(plan.out / "table.txt", format_table(rows) + "\n")
+    write_csv(rows, plan.out / "table.csv")
+    meta = {"budget_minutes": plan.budget_minutes, "episodes": episodes,
+            "layouts": [str(l) for l in plan.layouts], "seed": plan.seed}
+    write_json(rows, plan.out / "table.json", plan.eval_task, meta)
+    plot_rows(rows, plan.out / "plots")
+    atomic_write_text(plan.out / "timings.json", json.dumps({k: round(v, 1) for k, v in timings.items()}, indent=2) + "\n")
+
+
+def format_timings(timings: dict[str, float]) -> str:
+    width = max(len(k) for k in timings)
+    return "\n".join(f"  {k.ljust(width)}  {v / 60.0:6.1f} min" for k, v in timings.items())

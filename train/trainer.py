@@ -1,0 +1,322 @@
+"""The training loop: collect, learn, log, validate, checkpoint; resumable and interrupt-safe.
+
+Run folder (<runs_dir>/<name>/):
+    last.pt        after every `checkpoint_every` updates (default every update), atomically
+    best.pt        the checkpoint with the best validation success so far
+    metrics.jsonl  one row per update: counters, throughput, reward terms, losses, validation
+    config.yaml    the resolved TrainConfig
+A kill -9 at any moment therefore loses at most the update in flight. Ctrl-C stops at once
+and keeps the last consistent state: `Trainer.resume(run_dir)` continues with the same
+counters, optimiser state and random streams.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import os
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+from pursuit_mj.configio import dump_yaml, to_dict
+from pursuit_mj.env import PursuitEnv
+from pursuit_mj.io_utils import atomic_write_text
+
+from .agent import ActorCritic
+from .checkpoint import check_obs_spec, load_checkpoint, save_checkpoint
+from .config import TrainConfig, train_config_from_dict
+from .discount import Discount
+from .metrics_log import MetricsLog
+from .policy import ActorPolicy
+from .ppo import advantages_and_returns, ppo_update
+from .rollout import Collector
+from .storage import Rollout
+from .validation import FixedSeedValidator, summarise
+
+WINDOW = 100  # episodes in the progress bar's moving success / collision / steps
+
+
+@dataclasses.dataclass
+class Counters:
+    """Progress of a run; saved in every checkpoint and restored by resume."""
+
+    update: int = 0
+    world_steps: int = 0
+    agent_steps: int = 0
+    episodes: int = 0
+    best_success: float = -1.0
+    best_steps: float = float("inf")
+    best_update: int = -1
+    seconds: float = 0.0
+
+
+def env_seed(seed: int, update: int) -> int:
+    """Training-env seed for a run (re)started at `update`: fresh episodes after a resume."""
+    return int(np.random.SeedSequence([seed, update, 7]).generate_state(1)[0])
+
+
+class Trainer:
+    """One training run: env, networks, optimiser, counters; `train()` runs it to the end.
+
+    `checkpoint` (a loaded last.pt) restores a run; otherwise `cfg.init_from` may seed the
+    weights. `log` receives one-line messages (resume, init, interrupt).
+    """
+
+    def __init__(self, cfg: TrainConfig, checkpoint: dict | None = None, log: Callable[[str], None] = print):
+        cfg.check_complete()
+        self.cfg = cfg
+        self.log = log
+        self.run_dir = cfg.run_dir
+        self._update_threads = cfg.run.torch_threads or os.cpu_count() or 1
+        torch.manual_seed(cfg.seed)
+        self.counters = Counters()
+        self.generator = torch.Generator().manual_seed(cfg.seed)
+        start_update = checkpoint["counters"]["update"] if checkpoint else 0
+        self.env = PursuitEnv(cfg.task, n_worlds=cfg.n_envs, seed=env_seed(cfg.seed, start_update),
+                              layouts=list(cfg.layouts) or None, nthread=cfg.run.sim_threads)
+        self.spec = self.env.obs_spec
+        self.model = ActorCritic(self.spec, self.env.state_dim, cfg)
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=cfg.ppo.lr, eps=1e-5)
+        p = cfg.ppo
+        self.discount = Discount(p.gamma, p.learnable_gamma, p.gamma_meta_lr, p.gamma_outer)
+        if checkpoint is not None:
+            self._restore(checkpoint)
+        elif cfg.init_from:
+            self._init_from(cfg.init_from)
+        self.buffer = Rollout(cfg.rollout_steps(), cfg.n_envs, self.env.n_pursuers, self.env.obs_dim,
+                              self.env.state_dim if cfg.algo == "mappo" else 0)
+        self.collector = Collector(self.env, self.model, self.generator)
+        self.metrics = MetricsLog(self.run_dir / "metrics.jsonl")
+        self.recent = collections.deque(maxlen=WINDOW)
+        self._validator: FixedSeedValidator | None = None
+        self._saved_update = self.counters.update if checkpoint else -1
+        self._consistent = True
+
+    # ------------------------------------------------------------------ construction
+
+    @classmethod
+    def resume(cls, run_dir: str | Path, total_steps: int | None = None, log: Callable[[str], None] = print,
+               max_minutes: float | None = None, progress: bool | None = None) -> "Trainer":
+        """Continue the run in `run_dir` from last.pt with its own config; only the length of the
+        run (total_steps, max_minutes) and the progress bar may change."""
+        path = Path(run_dir) / "last.pt"
+        data = load_checkpoint(path)
+        cfg = train_config_from_dict(data["train_config"], f"checkpoint {path}: train_config")
+        run = dataclasses.replace(cfg.run, runs_dir=str(Path(run_dir).parent))
+        if progress is not None:
+            run = dataclasses.replace(run, progress=progress)
+        cfg = dataclasses.replace(cfg, run=run, name=Path(run_dir).name)
+        if total_steps is not None:
+            cfg = dataclasses.replace(cfg, total_steps=total_steps)
+        if max_minutes is not None:
+            cfg = dataclasses.replace(cfg, max_minutes=max_minutes)
+        return cls(cfg, checkpoint=data, log=log)
+
+    def _restore(self, data: dict) -> None:
+        check_obs_spec(data, self.spec, self.run_dir / "last.pt")
+        self.model.actor.load_state_dict(data["actor"])
+        self.model.critic.load_state_dict(data["critic"])
+        if "optimizer" in data:
+            self.optimizer.load_state_dict(data["optimizer"])
+        if self.model.value_norm is not None and "value_norm" in data:
+            self.model.value_norm.load_state_dict(data["value_norm"])
+        if "discount" in data:
+            self.discount.load_state_dict(data["discount"])
+        self.counters = Counters(**data["counters"])
+        self.generator.set_state(data["rng"]["sampler"])
+        torch.set_rng_state(data["rng"]["torch"])
+        MetricsLog(self.run_dir / "metrics.jsonl").truncate_after(self.counters.update)
+        self.log(f"resumed {self.run_dir} at update {self.counters.update} ({self.counters.world_steps} world steps)")
+
+    def _init_from(self, path: str) -> None:
+        """Start from another run's weights (fine_tune): actor always, critic when it fits."""
+        data = load_checkpoint(path)
+        check_obs_spec(data, self.spec, path)
+        try:
+            self.model.actor.load_state_dict(data["actor"])
+        except RuntimeError as exc:
+            raise ValueError(f"init_from {path}: actor weights do not fit this network ({str(exc).splitlines()[0]})") from None
+        src_algo = data["train_config"].get("algo")
+        if src_algo == self.cfg.algo and "critic" in data:
+            try:
+                self.model.critic.load_state_dict(data["critic"])
+            except RuntimeError:
+                self.log(f"init_from {path}: critic does not fit (other team size or network); it starts fresh")
+        self.log(f"initialised from {path} (trained with observability {data['train_config']['task']['observability']}, "
+                 f"now {self.cfg.task.observability})")
+
+    # ------------------------------------------------------------------ checkpoints
+
+    def checkpoint_payload(self) -> dict:
+        return {
+            "train_config": to_dict(self.cfg),
+            "obs_spec": self.spec.to_dict(),
+            "state_dim": self.env.state_dim,
+            "actor": self.model.actor.state_dict(),
+            "critic": self.model.critic.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "value_norm": self.model.value_norm.state_dict() if self.model.value_norm else {},
+            "discount": self.discount.state_dict(),
+            "counters": dataclasses.asdict(self.counters),
+            "rng": {"sampler": self.generator.get_state(), "torch": torch.get_rng_state()},
+        }
+
+    def save(self, name: str = "last.pt") -> Path:
+        path = save_checkpoint(self.run_dir / name, self.checkpoint_payload())
+        if name == "last.pt":
+            self._saved_update = self.counters.update
+        return path
+
+    # ------------------------------------------------------------------ validation
+
+    def validate(self) -> dict[str, float]:
+        r = self.cfg.run
+        if self._validator is None:
+            layouts = list(r.validation_layouts) or list(self.cfg.layouts) or None
+            self._validator = FixedSeedValidator(self.cfg.task, layouts, r.validation_episodes, r.validation_seed, r.sim_threads)
+        summary, _ = self._validator.run(ActorPolicy(self.model.actor, self.cfg.name))
+        self.model.actor.train()
+        return summary
+
+    def _maybe_best(self, val: dict[str, float]) -> bool:
+        c = self.counters
+        better = val["success"] > c.best_success or (val["success"] == c.best_success and val["mean_steps"] < c.best_steps)
+        if better:
+            c.best_success, c.best_steps, c.best_update = val["success"], val["mean_steps"], c.update
+            self.save("best.pt")
+        return better
+
+    # ------------------------------------------------------------------ the loop
+
+    def learning_rate(self) -> float:
+        p = self.cfg.ppo
+        if not p.lr_decay:
+            return p.lr
+        return p.lr * max(1.0 - self.progress(), 0.0)
+
+    def progress(self) -> float:
+        """Fraction of the run done: by steps, or by time when max_minutes ends it sooner."""
+        frac = self.counters.world_steps / self.cfg.total_steps
+        if self.cfg.max_minutes > 0:
+            frac = max(frac, self.counters.seconds / (60.0 * self.cfg.max_minutes))
+        return min(frac, 1.0)
+
+    def train_one_update(self) -> dict:
+        """Collect one rollout, learn from it, advance the counters; returns the metrics row."""
+        cfg, c, buf = self.cfg, self.counters, self.buffer
+        t0 = time.perf_counter()
+        torch.set_num_threads(1)  # per-step forwards of a few dozen rows: threads only add overhead
+        stats = self.collector.collect(buf)
+        torch.set_num_threads(self._update_threads)
+        t1 = time.perf_counter()
+        lr = self.learning_rate()
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+        self._consistent = False
+        meta_grad = self._learn_discount() if cfg.ppo.learnable_gamma else None
+        losses = ppo_update(self.model, self.optimizer, buf, cfg.ppo, self.discount.value, self.generator)
+        t2 = time.perf_counter()
+        c.update += 1
+        c.world_steps += buf.T * buf.W
+        c.agent_steps += buf.n_transitions
+        c.episodes += len(stats.episodes)
+        c.seconds += t2 - t0
+        self._consistent = True
+        self.recent.extend(stats.episodes)
+        row = {
+            "update": c.update, "world_steps": c.world_steps, "agent_steps": c.agent_steps, "episodes": c.episodes,
+            "seconds": round(c.seconds, 3), "lr": lr, "gamma": self.discount.value,
+            "rollout_s": t1 - t0, "update_s": t2 - t1, "agent_steps_per_s": buf.n_transitions / max(t2 - t0, 1e-9),
+            "rollout_agent_steps_per_s": buf.n_transitions / max(t1 - t0, 1e-9),
+            "update_agent_steps_per_s": buf.n_transitions / max(t2 - t1, 1e-9),
+            "train": summarise(stats.episodes) if stats.episodes else {},
+            "reward_terms_per_step": stats.reward_terms,
+            "episode_returns": _mean_returns(stats.episodes),
+            "loss": losses,
+        }
+        if meta_grad is not None:
+            row["gamma_meta_grad"] = meta_grad
+        return row
+
+    def _learn_discount(self) -> float:
+        buf = self.buffer
+        _, _, s = advantages_and_returns(buf, self.discount.value, self.cfg.ppo.gae_lambda)
+        T, B = buf.T, buf.W * buf.N
+        n = T * B
+        sample = torch.randperm(n, generator=self.generator)[: min(self.cfg.ppo.minibatch_size, n)]
+        return self.discount.meta_step(
+            self.model.actor, self.spec, buf.obs.reshape(T, B, -1), buf.actions.reshape(T, B, 2),
+            s["rewards"], s["values"], s["next_values"], s["terminated"], s["done"],
+            self.cfg.ppo.gae_lambda, max(self.learning_rate(), 1e-8), sample,
+        )
+
+    def train(self) -> dict:
+        """Train until total_steps; returns {'status': 'done'|'interrupted', counters, last validation}."""
+        cfg, c = self.cfg, self.counters
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(self.run_dir / "config.yaml", dump_yaml(cfg))
+        bar = _progress(cfg, c)
+        last_val: dict = {}
+        status = "done"
+        try:
+            while self.progress() < 1.0:
+                row = self.train_one_update()
+                if c.update % cfg.run.checkpoint_every == 0:
+                    self.save()
+                final = self.progress() >= 1.0
+                if (cfg.run.validate_every and c.update % cfg.run.validate_every == 0) or final:
+                    t0 = time.perf_counter()
+                    last_val = self.validate()
+                    c.seconds += time.perf_counter() - t0
+                    row["validation"] = dict(last_val, best=self._maybe_best(last_val), seconds=time.perf_counter() - t0)
+                self.metrics.append(row)
+                _advance(bar, row, self.recent, last_val)
+            if self._saved_update != c.update:
+                self.save()
+        except KeyboardInterrupt:
+            status = "interrupted"
+            if self._consistent and self._saved_update != c.update:
+                self.save()
+            self.log(f"\ninterrupted: state of update {self._saved_update} is in {self.run_dir / 'last.pt'}; "
+                     f"continue with: pursuit-mj train --resume {self.run_dir}")
+        finally:
+            if bar is not None:
+                bar.close()
+        return {"status": status, "counters": dataclasses.asdict(c), "validation": last_val, "run_dir": str(self.run_dir)}
+
+
+def _mean_returns(episodes) -> dict[str, float]:
+    if not episodes:
+        return {}
+    keys = episodes[0].returns.keys()
+    return {k: float(np.mean([e.returns[k] for e in episodes])) for k in keys}
+
+
+def _progress(cfg: TrainConfig, c: Counters):
+    if not cfg.run.progress:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=cfg.total_steps, initial=min(c.world_steps, cfg.total_steps), unit="step",
+                desc=cfg.name, dynamic_ncols=True, smoothing=0.1)
+
+
+def _advance(bar, row: dict, recent, last_val: dict) -> None:
+    if bar is None:
+        return
+    s = summarise(list(recent)) if recent else {}
+    post = {
+        "succ": f"{s.get('success', 0):.0%}", "coll": f"{s.get('collision', 0):.0%}",
+        "steps": f"{s.get('mean_steps', float('nan')):.0f}",
+        "sps": f"{row['agent_steps_per_s']:.0f}",
+    }
+    if "gamma_meta_grad" in row:
+        post["gamma"] = f"{row['gamma']:.4f}"
+    if last_val:
+        post["val"] = f"{last_val['success']:.0%}"
+    bar.set_postfix(post, refresh=False)
+    bar.update(min(row["world_steps"], bar.total) - bar.n)
