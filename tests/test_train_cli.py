@@ -97,3 +97,15 @@ def test_export_writes_a_small_policy_only_checkpoint(tiny_model, tmp_path, caps
     full, small = load_policy(tiny_model, spec), load_policy(out, spec)
     obs = torch.randn(2, 3, spec.dim).numpy()
     assert (full.act(obs, spec) == small.act(obs, spec)).all()
+
+
+def test_train_streams_its_scalars_to_rerun(tmp_path, capsys):
+    from pursuit_mj.recording.rrd_read import read_entities
+
+    args = ["train", "--no-progress", "--rerun", "--name", "rr", "--total-steps", "64"] + sets(TINY + [f"run.runs_dir={tmp_path}"])
+    assert main(args) == 0
+    rows = [json.loads(x) for x in (tmp_path / "rr" / "metrics.jsonl").read_text().splitlines()]
+    ent = read_entities(tmp_path / "rr" / "metrics.rrd")
+    steps = ent["/train/agent_steps"].rows
+    assert steps["env_steps"] == [r["world_steps"] for r in rows]
+    assert steps["Scalars:scalars"] == [[float(r["agent_steps"])] for r in rows]

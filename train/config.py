@@ -72,6 +72,7 @@ class RunConfig:
     torch_threads: int = spec(1, lo=0, hi=256, help="torch threads for the update (0: all cores; more than 1 only pays on idle cores); the rollout uses 1")
     sim_threads: int = spec(0, lo=0, hi=256, help="mujoco.batch threads (0: its default)")
     progress: bool = spec(True, help="show the tqdm progress bar")
+    rerun: bool = spec(False, help="also stream every logged scalar to <run>/metrics.rrd (open with `rerun`)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -124,7 +125,7 @@ def _deep_update(base: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, A
 
 def _resolve_task_file(ref: str, source: str) -> dict[str, Any]:
     path = Path(ref)
-    if not path.suffix and not path.exists() and task_preset_path(ref).exists():
+    if not path.suffix and not path.is_file() and task_preset_path(ref).is_file():
         path = task_preset_path(ref)
     return load_yaml(path, f"{source}: task_file {ref}")
 
@@ -160,7 +161,7 @@ def load_train_config(
     source = "defaults"
     for f in files:
         p = Path(f)
-        if not p.suffix and not p.exists() and train_preset_path(str(f)).exists():
+        if not p.suffix and not p.is_file() and train_preset_path(str(f)).is_file():
             p = train_preset_path(str(f))
         merged = _deep_update(merged, load_yaml(p))
         source = str(p)

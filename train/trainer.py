@@ -31,6 +31,7 @@ from .checkpoint import check_obs_spec, load_checkpoint, save_checkpoint
 from .config import TrainConfig, train_config_from_dict
 from .discount import Discount
 from .metrics_log import MetricsLog
+from pursuit_mj.recording.rerun_scalars import RerunScalarLogger
 from .policy import ActorPolicy
 from .ppo import advantages_and_returns, ppo_update
 from .rollout import Collector
@@ -91,6 +92,7 @@ class Trainer:
                               self.env.state_dim if cfg.algo == "mappo" else 0)
         self.collector = Collector(self.env, self.model, self.generator)
         self.metrics = MetricsLog(self.run_dir / "metrics.jsonl")
+        self.rerun = RerunScalarLogger(self.run_dir / "metrics.rrd", run_name=cfg.name) if cfg.run.rerun else None
         self.recent = collections.deque(maxlen=WINDOW)
         self._validator: FixedSeedValidator | None = None
         self._saved_update = self.counters.update if checkpoint else -1
@@ -274,6 +276,8 @@ class Trainer:
                     c.seconds += time.perf_counter() - t0
                     row["validation"] = dict(last_val, best=self._maybe_best(last_val), seconds=time.perf_counter() - t0)
                 self.metrics.append(row)
+                if self.rerun is not None:
+                    self.rerun.log(int(row["world_steps"]), row)
                 _advance(bar, row, self.recent, last_val)
             if self._saved_update != c.update:
                 self.save()

@@ -51,6 +51,7 @@ def register(sub) -> None:
                    help="continue the run in RUN_DIR (default: the configured run) from its last.pt")
     p.add_argument("--export", nargs=2, metavar=("CHECKPOINT", "OUT"),
                    help="write a small policy-only copy of CHECKPOINT (actor, config, spec) to OUT and exit")
+    p.add_argument("--rerun", action="store_true", help="also stream the logged scalars to runs/<name>/metrics.rrd (run.rerun)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (logs still go to metrics.jsonl)")
     p.add_argument("-sc", "--show-config", action="store_true", help="print the resolved config and exit")
     p.set_defaults(func=run)
@@ -79,7 +80,9 @@ def _flags(args) -> dict:
     if args.learnable_gamma:
         flags["ppo"] = {"learnable_gamma": True}
     if args.no_progress:
-        flags["run"] = {"progress": False}
+        flags.setdefault("run", {})["progress"] = False
+    if args.rerun:
+        flags.setdefault("run", {})["rerun"] = True
     return flags
 
 
@@ -89,11 +92,11 @@ def _check_same(asked, stored) -> None:
 
     a, b = to_dict(asked), to_dict(stored)
     for d in (a, b):
-        d.pop("total_steps"), d.pop("max_minutes"), d["run"].pop("progress")
+        d.pop("total_steps"), d.pop("max_minutes"), d["run"].pop("progress"), d["run"].pop("rerun")
     diff = sorted(k for k in a if a[k] != b[k])
     if diff:
         raise ValueError(f"--resume: the config differs from the stored run's in {', '.join(diff)}; "
-                         f"a run continues with its stored config (only --total-steps, --max-minutes, --no-progress can change)")
+                         f"a run continues with its stored config (only --total-steps, --max-minutes, --no-progress, --rerun can change)")
 
 
 def _stop_on_sigterm(signum, frame) -> None:
