@@ -100,3 +100,9 @@ def test_training_on_a_list_of_layouts_gives_each_world_its_layout(tmp_path):
     trainer = Trainer(cfg, **QUIET)
     names = [l.name for l in trainer.env.world_layouts]
     assert names[0] == names[2] != names[1] == names[3]
+
+
+def test_preset_name_wins_over_a_folder_of_the_same_name(tmp_path, monkeypatch):
+    (tmp_path / "classic").mkdir()
+    monkeypatch.chdir(tmp_path)
+    assert load_train_config(["classic"]).regime == "classic"
