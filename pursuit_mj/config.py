@@ -139,7 +139,7 @@ def load_task_config(
     resolved = []
     for f in files:
         p = Path(f)
-        if not p.suffix and not p.exists() and task_preset_path(str(f)).exists():
+        if not p.suffix and not p.is_file() and task_preset_path(str(f)).exists():
             p = task_preset_path(str(f))
         resolved.append(p)
     return load(TaskConfig, resolved, overrides, extra=flags, extra_source="command-line flag")
