@@ -50,13 +50,13 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
-def flatten(row: Mapping[str, Any], prefix: str = "") -> dict[str, float]:
-    """Numeric leaves of a nested mapping as {dotted.key: float}; null, NaN, bools and strings dropped."""
+def flatten(row: Mapping[str, Any], prefix: str = "", sep: str = ".") -> dict[str, float]:
+    """Numeric leaves of a nested mapping as {outer<sep>inner: float}; null, NaN, bools and strings dropped."""
     out: dict[str, float] = {}
     for k, v in row.items():
         key = f"{prefix}{k}"
         if isinstance(v, Mapping):
-            out.update(flatten(v, f"{key}."))
+            out.update(flatten(v, f"{key}{sep}", sep))
         elif isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
             out[key] = float(v)
     return out

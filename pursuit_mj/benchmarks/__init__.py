@@ -6,10 +6,20 @@ own), read the peak resident memory, and print an aligned table.
 
 from __future__ import annotations
 
+import math
 import multiprocessing
 import resource
 import sys
 from typing import Any, Callable, Sequence
+
+
+def check_common_args(args: Any) -> None:
+    """Refuse a non-positive --seconds or a world count below 1 before any work."""
+    if not math.isfinite(args.seconds) or args.seconds <= 0:
+        raise ValueError(f"--seconds: must be > 0, got {args.seconds}")
+    bad = [w for w in args.worlds if w < 1]
+    if bad:
+        raise ValueError(f"--worlds: world counts must be >= 1, got {bad[0]}")
 
 
 def peak_rss_mb() -> float:

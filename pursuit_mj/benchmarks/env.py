@@ -21,7 +21,6 @@ from __future__ import annotations
 import cProfile
 import dataclasses
 import io
-import math
 import pstats
 import time
 from typing import Sequence
@@ -29,7 +28,7 @@ from typing import Sequence
 import numpy as np
 
 from ..config import TaskConfig, load_task_config
-from . import format_table, peak_rss_mb, run_isolated
+from . import check_common_args, format_table, peak_rss_mb, run_isolated
 
 HELP = "decision steps/s of the whole environment vs physics+controller and the raw MuJoCo ceiling"
 BLOCK_SECONDS = 0.25  # wall time of one timed block
@@ -133,11 +132,7 @@ def _row(r: EnvBench) -> list[str]:
 
 
 def run(args) -> int:
-    if not math.isfinite(args.seconds) or args.seconds <= 0:
-        raise ValueError(f"--seconds: must be > 0, got {args.seconds}")
-    bad = [w for w in args.worlds if w < 1]
-    if bad:
-        raise ValueError(f"--worlds: world counts must be >= 1, got {bad[0]}")
+    check_common_args(args)
     if args.profile < 0:
         raise ValueError(f"--profile: must be >= 0, got {args.profile}")
     cfg = task_config(args.fidelity[0], args.task_files, args.overrides)  # refuses bad settings before any work

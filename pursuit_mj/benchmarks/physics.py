@@ -18,7 +18,6 @@ starts from a reset.
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 from typing import Sequence
 
@@ -26,7 +25,7 @@ import numpy as np
 
 from ..config import TaskConfig, load_task_config
 from ..layout import load_layout
-from . import format_table, peak_rss_mb, run_isolated
+from . import check_common_args, format_table, peak_rss_mb, run_isolated
 
 HELP = "raw MuJoCo step rate (the ceiling) vs BatchedPhysics with the controller in the loop"
 BLOCK_SECONDS = 0.2  # wall time of one timed block
@@ -119,11 +118,7 @@ def _row(r: PhysicsBench) -> list[str]:
 
 
 def run(args) -> int:
-    if not math.isfinite(args.seconds) or args.seconds <= 0:
-        raise ValueError(f"--seconds: must be > 0, got {args.seconds}")
-    bad = [w for w in args.worlds if w < 1]
-    if bad:
-        raise ValueError(f"--worlds: world counts must be >= 1, got {bad[0]}")
+    check_common_args(args)
     if args.nthread < 0:
         raise ValueError(f"--nthread: must be >= 0, got {args.nthread}")
     cfg = task_config(args.fidelity[0], args.overrides)  # refuses bad --set values before any work

@@ -15,19 +15,13 @@ from typing import Any, Mapping
 
 import rerun as rr
 
+from ..plots import flatten
 from .rerun_episodes import APPLICATION_ID, check_rrd_path
 
 
-def flatten_numbers(metrics: Mapping[str, Any], prefix: str = "") -> dict[str, float]:
+def flatten_numbers(metrics: Mapping[str, Any]) -> dict[str, float]:
     """{'a': 1, 'b': {'c': 2.0}} -> {'a': 1.0, 'b/c': 2.0}; bools, strings, None and NaN/inf dropped."""
-    out: dict[str, float] = {}
-    for key, value in metrics.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, Mapping):
-            out.update(flatten_numbers(value, f"{name}/"))
-        elif isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
-            out[name] = float(value)
-    return out
+    return flatten(metrics, sep="/")
 
 
 class RerunScalarLogger:
