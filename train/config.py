@@ -42,6 +42,20 @@ class PPOConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class ImitationConfig:
+    """DAgger from a teacher team (`algo: dagger`, see train/imitation.py)."""
+
+    teacher: str = spec("heuristic", choices=("heuristic",), help="the team whose actions the student learns")
+    lr: float = spec(1e-3, lo=0.0, lo_open=True, help="Adam learning rate at the start (decays like ppo.lr if ppo.lr_decay)")
+    beta_start: float = spec(1.0, lo=0.0, hi=1.0, help="share of worlds the teacher drives in the first update")
+    beta_updates: int = spec(20, lo=0, help="updates over which the teacher's share falls linearly to 0")
+    dataset_size: int = spec(400_000, lo=1, help="pursuer observations kept (the oldest are dropped first)")
+    grad_steps: int = spec(60, lo=1, help="gradient steps per update")
+    minibatch_size: int = spec(1024, lo=1, help="demonstrations (and rollout transitions for the critic) per gradient step")
+    max_grad_norm: float = spec(1.0, lo=0.0, lo_open=True, help="global gradient-norm clip")
+
+
+@dataclasses.dataclass(frozen=True)
 class NetConfig:
     """Network shape. `reference`: per-entity encoders with masked mean pooling (DESIGN.md 6)."""
 
@@ -81,7 +95,8 @@ class TrainConfig:
 
     name: str = spec("run", help="run name; outputs go to <run.runs_dir>/<name>/")
     regime: str = spec("custom", choices=REGIMES, help="label of the reference regime this run follows")
-    algo: str = spec("ppo", choices=("ppo", "mappo"), help="ppo: per-agent critic; mappo: centralised critic on the global state")
+    algo: str = spec("ppo", choices=("ppo", "mappo", "dagger"),
+                     help="ppo: per-agent critic; mappo: centralised critic on the global state; dagger: imitate imitation.teacher (a warm start for ppo)")
     seed: int = spec(0, lo=0, help="seed of networks, sampling and environment resets")
     total_steps: int = spec(1_000_000, lo=1, help="world decision steps to train for (summed over worlds)")
     max_minutes: float = spec(0.0, lo=0.0, help="stop after this much training time (0 = none); the LR decays over whichever ends first")
@@ -91,6 +106,7 @@ class TrainConfig:
     task_file: str | None = spec(None, help="task YAML file or preset name applied before the task: keys")
     task: TaskConfig = spec(default_factory=TaskConfig, help="the task trained on")
     ppo: PPOConfig = spec(default_factory=PPOConfig, help="PPO hyperparameters")
+    imitation: ImitationConfig = spec(default_factory=ImitationConfig, help="DAgger settings (algo dagger)")
     net: NetConfig = spec(default_factory=NetConfig, help="network shape")
     run: RunConfig = spec(default_factory=RunConfig, help="run folder, validation, checkpoints")
 
@@ -105,6 +121,8 @@ class TrainConfig:
         """Checks that span keys set by separate overrides (run once the config is final)."""
         if self.ppo.minibatch_size > self.ppo.batch_size:
             raise ConfigError(f"{source}: ppo.minibatch_size {self.ppo.minibatch_size} exceeds ppo.batch_size {self.ppo.batch_size}")
+        if self.algo == "dagger" and self.ppo.learnable_gamma:
+            raise ConfigError(f"{source}: ppo.learnable_gamma works with algo ppo or mappo, not dagger (imitation has no policy gradient)")
 
     @property
     def run_dir(self) -> Path:
@@ -184,4 +202,4 @@ def train_config_from_dict(data: Mapping[str, Any], source: str) -> TrainConfig:
     return build(TrainConfig, data, source)
 
 
-__all__ = ["PPOConfig", "NetConfig", "RunConfig", "TrainConfig", "load_train_config", "train_config_from_dict", "REGIMES"]
+__all__ = ["PPOConfig", "ImitationConfig", "NetConfig", "RunConfig", "TrainConfig", "load_train_config", "train_config_from_dict", "REGIMES"]

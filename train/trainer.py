@@ -30,6 +30,7 @@ from .agent import ActorCritic
 from .checkpoint import check_obs_spec, load_checkpoint, save_checkpoint
 from .config import TrainConfig, train_config_from_dict
 from .discount import Discount
+from .imitation import DaggerCollector, Demonstrations, imitation_update, teacher_share
 from .metrics_log import MetricsLog
 from pursuit_mj.recording.rerun_scalars import RerunScalarLogger
 from .policy import ActorPolicy
@@ -81,7 +82,7 @@ class Trainer:
                               layouts=list(cfg.layouts) or None, nthread=cfg.run.sim_threads)
         self.spec = self.env.obs_spec
         self.model = ActorCritic(self.spec, self.env.state_dim, cfg)
-        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=cfg.ppo.lr, eps=1e-5)
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=self._base_lr(), eps=1e-5)
         p = cfg.ppo
         self.discount = Discount(p.gamma, p.learnable_gamma, p.gamma_meta_lr, p.gamma_outer)
         if checkpoint is not None:
@@ -90,7 +91,15 @@ class Trainer:
             self._init_from(cfg.init_from)
         self.buffer = Rollout(cfg.rollout_steps(), cfg.n_envs, self.env.n_pursuers, self.env.obs_dim,
                               self.env.state_dim if cfg.algo == "mappo" else 0)
-        self.collector = Collector(self.env, self.model, self.generator)
+        self.demos: Demonstrations | None = None
+        if cfg.algo == "dagger":
+            from pursuit_mj.policies import make_policy
+
+            teacher = make_policy(cfg.imitation.teacher, cfg.task, seed=cfg.seed, source="imitation.teacher")
+            self.demos = Demonstrations(cfg.imitation.dataset_size, self.env.obs_dim)
+            self.collector = DaggerCollector(self.env, self.model, teacher, self.demos, self.generator)
+        else:
+            self.collector = Collector(self.env, self.model, self.generator)
         self.metrics = MetricsLog(self.run_dir / "metrics.jsonl")
         self.rerun = RerunScalarLogger(self.run_dir / "metrics.rrd", run_name=cfg.name) if cfg.run.rerun else None
         self.recent = collections.deque(maxlen=WINDOW)
@@ -143,7 +152,8 @@ class Trainer:
         except RuntimeError as exc:
             raise ValueError(f"init_from {path}: actor weights do not fit this network ({str(exc).splitlines()[0]})") from None
         src_algo = data["train_config"].get("algo")
-        if src_algo == self.cfg.algo and "critic" in data:
+        same_critic = (src_algo == "mappo") == (self.cfg.algo == "mappo")  # dagger trains a ppo-style critic
+        if same_critic and "critic" in data:
             try:
                 self.model.critic.load_state_dict(data["critic"])
             except RuntimeError:
@@ -194,11 +204,13 @@ class Trainer:
 
     # ------------------------------------------------------------------ the loop
 
+    def _base_lr(self) -> float:
+        return self.cfg.imitation.lr if self.cfg.algo == "dagger" else self.cfg.ppo.lr
+
     def learning_rate(self) -> float:
-        p = self.cfg.ppo
-        if not p.lr_decay:
-            return p.lr
-        return p.lr * max(1.0 - self.progress(), 0.0)
+        if not self.cfg.ppo.lr_decay:
+            return self._base_lr()
+        return self._base_lr() * max(1.0 - self.progress(), 0.0)
 
     def progress(self) -> float:
         """Fraction of the run done: by steps, or by time when max_minutes ends it sooner."""
@@ -212,6 +224,8 @@ class Trainer:
         cfg, c, buf = self.cfg, self.counters, self.buffer
         t0 = time.perf_counter()
         torch.set_num_threads(1)  # per-step forwards of a few dozen rows: threads only add overhead
+        if self.demos is not None:
+            self.collector.beta = teacher_share(cfg.imitation, c.update)
         stats = self.collector.collect(buf)
         torch.set_num_threads(self._update_threads)
         t1 = time.perf_counter()
@@ -220,7 +234,12 @@ class Trainer:
             group["lr"] = lr
         self._consistent = False
         meta_grad = self._learn_discount() if cfg.ppo.learnable_gamma else None
-        losses = ppo_update(self.model, self.optimizer, buf, cfg.ppo, self.discount.value, self.generator)
+        if self.demos is not None:
+            losses = imitation_update(self.model, self.optimizer, self.demos, buf, cfg.imitation, cfg.ppo,
+                                      self.discount.value, self.generator)
+            losses["teacher_share"] = self.collector.beta
+        else:
+            losses = ppo_update(self.model, self.optimizer, buf, cfg.ppo, self.discount.value, self.generator)
         t2 = time.perf_counter()
         c.update += 1
         c.world_steps += buf.T * buf.W

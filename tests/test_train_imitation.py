@@ -1,0 +1,58 @@
+"""DAgger (train/imitation.py): the dataset, the teacher's share, and a student that really learns."""
+
+import pytest
+import torch
+
+from train.config import ImitationConfig, load_train_config
+from train.imitation import Demonstrations, teacher_share
+from train.trainer import Trainer
+
+
+def test_demonstrations_drop_the_oldest_pairs_when_full():
+    demos = Demonstrations(capacity=5, obs_dim=1)
+    demos.add(torch.arange(3.0)[:, None], torch.zeros(3, 2))
+    demos.add(torch.arange(3.0, 7.0)[:, None], torch.ones(4, 2))
+    assert demos.size == 5
+    assert sorted(demos.obs[:, 0].tolist()) == [2.0, 3.0, 4.0, 5.0, 6.0]
+    demos.add(torch.arange(10.0, 18.0)[:, None], torch.ones(8, 2))  # more than fits: keep the newest
+    assert sorted(demos.obs[:, 0].tolist()) == [13.0, 14.0, 15.0, 16.0, 17.0]
+    obs, act = demos.sample(50, torch.Generator().manual_seed(0))
+    assert obs.shape == (50, 1) and act.shape == (50, 2) and obs.min() >= 13.0
+
+
+def test_teacher_share_falls_linearly_to_zero_and_stays_there():
+    cfg = ImitationConfig(beta_start=0.8, beta_updates=4)
+    assert [teacher_share(cfg, u) for u in range(6)] == pytest.approx([0.8, 0.6, 0.4, 0.2, 0.0, 0.0])
+    assert teacher_share(ImitationConfig(beta_updates=0), 0) == 0.0
+
+
+def test_learnable_discount_is_refused_with_dagger():
+    with pytest.raises(ValueError, match="learnable_gamma"):
+        load_train_config([], ["algo=dagger", "ppo.learnable_gamma=true"]).check_complete()
+
+
+EASY_TEAM = [
+    "name=imitate", "seed=0", "algo=dagger", "task.fidelity=point", "task.n_pursuers=2", "task.pursuer_speed=0.5",
+    "task.evader_speed=0.25", "task.random_obstacles=0", "task.layout=0", "task.max_steps=300",
+    "task.observability=partial", "n_envs=16", "total_steps=12288", "ppo.batch_size=1024",
+    "imitation.beta_updates=6", "imitation.grad_steps=40", "imitation.minibatch_size=512",
+    "net.encoder_width=64", "net.hidden=[64,64]", "net.init_log_std=-2.0",
+    "run.validate_every=0", "run.validation_episodes=16", "run.progress=false",
+]
+
+
+@pytest.mark.slow
+def test_student_learns_the_teams_pursuit_from_its_own_observations(tmp_path):
+    cfg = load_train_config([], EASY_TEAM + [f"run.runs_dir={tmp_path}"])
+    trainer = Trainer(cfg, log=lambda s: None)
+    before = trainer.validate()
+    assert before["success"] <= 0.25, before
+    first = trainer.train_one_update()
+    result = trainer.train()
+    after = result["validation"]
+    last = trainer.metrics.rows()[-1]
+    assert after["success"] >= 0.8, after
+    assert after["collision"] <= 0.1, after
+    assert first["loss"]["teacher_share"] == 1.0
+    assert last["loss"]["teacher_share"] == 0.0  # the student drove alone at the end
+    assert last["loss"]["bc_loss"] < 0.5 * first["loss"]["bc_loss"]

@@ -1,0 +1,154 @@
+"""Learning from a teacher team by DAgger (Ross et al. 2011): `algo: dagger`.
+
+A warm start for PPO. Every update the worlds are driven by a per-world, per-step mixture
+of teacher and student (the teacher's share `beta` falls linearly from `beta_start` to 0
+over `beta_updates` updates); the teacher labels every observation the pursuers met with
+the action it would take there, and the pairs go into a bounded dataset (the oldest are
+dropped first). The student's mean action is then fitted to the teacher's by mean-squared
+error on minibatches drawn from the whole dataset, so it learns to recover from its own
+mistakes, not only to copy the teacher's trajectories. The critic learns the value of the
+driving mixture from the same rollouts (GAE returns), so a PPO run started from this
+checkpoint (`init_from`) gets a critic that already means something.
+
+The student's log std is not fitted: it stays at `net.init_log_std`, the exploration noise
+of the PPO run that follows. The teacher (a hand-made team, see pursuit_mj.policies) sees
+the very observations the student sees, so what the student can learn is bounded by what
+the teacher does from them; the teacher's memory (last seen evaders, its coverage map) is
+the part a memoryless network can only approximate.
+
+The dataset is not stored in checkpoints (it is rebuilt from new rollouts after a resume);
+weights, optimiser, counters and random streams are.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import nn
+
+from .agent import ActorCritic
+from .config import ImitationConfig, PPOConfig
+from .losses import scaled_value_loss
+from .networks import flush_tiny
+from .ppo import advantages_and_returns, explained_variance
+from .rollout import RolloutStats
+from .storage import Rollout
+
+
+class Demonstrations:
+    """A ring buffer of (observation (D,) float32, teacher action (2,) in [-1, 1]) pairs."""
+
+    def __init__(self, capacity: int, obs_dim: int):
+        self.obs = torch.zeros(capacity, obs_dim)
+        self.actions = torch.zeros(capacity, 2)
+        self.capacity = capacity
+        self.size = 0
+        self._next = 0
+
+    def add(self, obs: torch.Tensor, actions: torch.Tensor) -> None:
+        """obs (B, D), actions (B, 2); the oldest pairs make room when full."""
+        n = obs.shape[0]
+        if n >= self.capacity:
+            obs, actions, n = obs[-self.capacity :], actions[-self.capacity :], self.capacity
+        idx = (self._next + torch.arange(n)) % self.capacity
+        self.obs[idx] = obs
+        self.actions[idx] = actions
+        self._next = int((self._next + n) % self.capacity)
+        self.size = min(self.size + n, self.capacity)
+
+    def sample(self, n: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        idx = torch.randint(0, self.size, (n,), generator=generator)
+        return self.obs[idx], self.actions[idx]
+
+
+def teacher_share(cfg: ImitationConfig, update: int) -> float:
+    """beta for the update about to run (0-based count of finished updates)."""
+    if cfg.beta_updates <= 0:
+        return 0.0
+    return max(cfg.beta_start * (1.0 - update / cfg.beta_updates), 0.0)
+
+
+class DaggerCollector:
+    """Drives the training env with the teacher/student mixture and records the teacher's labels.
+
+    Same contract as rollout.Collector (fills a Rollout, returns RolloutStats) plus the
+    demonstrations. `beta` is set by the trainer before each collect.
+    """
+
+    def __init__(self, env, model: ActorCritic, teacher, demos: Demonstrations, generator: torch.Generator):
+        self.env = env
+        self.model = model
+        self.teacher = teacher
+        self.demos = demos
+        self.generator = generator
+        self.beta = 1.0
+        self.obs_np = env.reset()
+        self.teacher.reset(env.n_worlds)
+        self.obs = flush_tiny(torch.as_tensor(self.obs_np))
+
+    @torch.no_grad()
+    def collect(self, buf: Rollout) -> RolloutStats:
+        stats = RolloutStats()
+        term_sums: dict[str, float] = {}
+        spec, W = self.model.spec, self.env.n_worlds
+        for t in range(buf.T):
+            obs = self.obs
+            label = torch.as_tensor(self.teacher.act(self.obs_np, spec), dtype=torch.float32)  # (W, N, 2)
+            mean, log_std = self.model.actor(obs, spec)
+            student = mean + log_std.exp() * torch.randn(mean.shape, generator=self.generator)
+            use_teacher = torch.rand(W, generator=self.generator) < self.beta
+            action = torch.where(use_teacher[:, None, None], label, student.clamp(-1.0, 1.0))
+            buf.obs[t] = obs
+            buf.actions[t] = action
+            buf.logp[t] = torch.distributions.Normal(mean, log_std.exp()).log_prob(action).sum(-1)
+            buf.values[t] = self.model.value(obs, None)
+            self.demos.add(obs.reshape(-1, obs.shape[-1]), label.reshape(-1, 2))
+            next_obs, reward, terminated, truncated, info = self.env.step(action.numpy().astype(np.float64))
+            buf.rewards[t] = torch.as_tensor(reward)
+            buf.terminated[t] = torch.as_tensor(terminated)
+            buf.truncated[t] = torch.as_tensor(truncated)
+            buf.final_values[t] = 0.0
+            if truncated.any():
+                idx = torch.as_tensor(np.flatnonzero(truncated))
+                buf.final_values[t, idx] = self.model.value(flush_tiny(torch.as_tensor(info["final_obs"])[idx]), None)
+            ended = np.flatnonzero(terminated | truncated)
+            if len(ended):
+                self.teacher.reset(W, ended)
+            for k, v in info["reward_terms"].items():
+                term_sums[k] = term_sums.get(k, 0.0) + float(v.mean())
+            stats.episodes.extend(info["episodes"])
+            self.obs_np = next_obs
+            self.obs = flush_tiny(torch.as_tensor(next_obs))
+        buf.last_value = self.model.value(self.obs, None)
+        stats.reward_terms = {k: v / buf.T for k, v in term_sums.items()}
+        return stats
+
+
+def imitation_update(model: ActorCritic, optimizer: torch.optim.Optimizer, demos: Demonstrations, buf: Rollout,
+                     cfg: ImitationConfig, ppo: PPOConfig, gamma: float, generator: torch.Generator) -> dict[str, float]:
+    """cfg.grad_steps steps, each on a minibatch of demonstrations (behaviour cloning) and one of
+    the rollout's transitions (value regression to GAE returns); returns mean loss statistics."""
+    _, ret, _ = advantages_and_returns(buf, gamma, ppo.gae_lambda)
+    n = buf.n_transitions
+    obs = buf.obs.reshape(n, -1)
+    ret = ret.reshape(n)
+    target_std = float(ret.std(unbiased=False)) if ppo.value_scaling else None
+    mb = min(cfg.minibatch_size, n)
+    sums = {"bc_loss": 0.0, "value_loss": 0.0, "grad_norm": 0.0}
+    for _ in range(cfg.grad_steps):
+        d_obs, d_act = demos.sample(cfg.minibatch_size, generator)
+        mean, _ = model.actor(d_obs, model.spec)
+        bc = ((mean - d_act) ** 2).sum(-1).mean()
+        idx = torch.randint(0, n, (mb,), generator=generator)
+        v_loss = scaled_value_loss(model.raw_value(obs[idx], None), ret[idx], target_std)
+        loss = bc + ppo.vf_coef * v_loss
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        grad_norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
+        optimizer.step()
+        for k, x in (("bc_loss", bc), ("value_loss", v_loss), ("grad_norm", grad_norm)):
+            sums[k] += float(x.detach())
+    out = {k: v / max(cfg.grad_steps, 1) for k, v in sums.items()}
+    out["explained_variance"] = explained_variance(buf.values.reshape(n), ret)
+    out["demonstrations"] = float(demos.size)
+    return out
