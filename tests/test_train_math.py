@@ -10,7 +10,7 @@ from pursuit_mj.obs_spec import ObsSpec
 from train.config import NetConfig
 from train.gae import compute_gae, next_values_from
 from train.losses import clipped_policy_loss, normalise, scaled_value_loss
-from train.networks import Actor, Critic, masked_mean
+from train.networks import Actor, Critic, EntityEncoder, gaussian_entropy, gaussian_log_prob, masked_mean
 from train.running_norm import RunningMeanStd
 
 
@@ -175,3 +175,28 @@ def test_running_mean_std_matches_numpy():
     allx = np.concatenate(chunks)
     assert rms.mean == pytest.approx(allx.mean())
     assert rms.std == pytest.approx(allx.std())
+
+
+def test_gaussian_log_prob_and_entropy_are_torch_normal_bit_for_bit():
+    torch.manual_seed(0)
+    mean = torch.randn(7, 2, requires_grad=True)
+    log_std = torch.tensor([-0.5, 0.3], requires_grad=True)
+    x = torch.randn(7, 2)
+    grads = []
+    for fast in (False, True):
+        std = log_std.expand_as(mean).exp()
+        if fast:
+            logp, ent = gaussian_log_prob(mean, std, x), gaussian_entropy(std)
+        else:
+            dist = torch.distributions.Normal(mean, std)
+            logp, ent = dist.log_prob(x), dist.entropy()
+        grads.append((logp.detach(), ent.detach(), *torch.autograd.grad((logp.sum(-1) * 0.7 - ent.sum(-1)).mean(), [mean, log_std])))
+    for slow, fast in zip(*grads):
+        assert torch.equal(slow, fast)
+
+
+def test_one_always_present_entity_is_encoded_as_its_pooled_code():
+    torch.manual_seed(0)
+    enc = EntityEncoder(6, 8, mask_feature=None)
+    x = torch.randn(5, 1, 6)
+    assert torch.equal(enc(x), masked_mean(torch.tanh(enc.layer(x)), torch.ones(5, 1)))

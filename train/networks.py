@@ -56,6 +56,23 @@ def masked_mean(codes: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return total / count
 
 
+LOG_SQRT_2PI = math.log(math.sqrt(2.0 * math.pi))
+
+
+def gaussian_log_prob(mean: torch.Tensor, std: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """Per-dimension log density of x under N(mean, std^2); all (..., A), std = log_std.exp().
+
+    The same operations as torch.distributions.Normal(mean, std).log_prob(x), so values and
+    gradients are bit-identical, without that class's per-call argument checks.
+    """
+    return -((x - mean) ** 2) / (2 * std**2) - std.log() - LOG_SQRT_2PI
+
+
+def gaussian_entropy(std: torch.Tensor) -> torch.Tensor:
+    """Per-dimension entropy (..., A) of N(., std^2), as Normal(., std).entropy() computes it."""
+    return 0.5 + 0.5 * math.log(2 * math.pi) + torch.log(std)
+
+
 class EntityEncoder(nn.Module):
     """Encodes every entity of one kind with shared weights and pools the visible ones.
 
@@ -71,6 +88,8 @@ class EntityEncoder(nn.Module):
     def forward(self, entities: torch.Tensor) -> torch.Tensor:
         """entities (..., K, width) -> (..., out)."""
         codes = torch.tanh(self.layer(entities))
+        if self.mask_feature is None and entities.shape[-2] == 1:
+            return codes.squeeze(-2)  # one always-present entity (self, rays): its code, bit for bit
         if self.mask_feature is None:
             mask = torch.ones(entities.shape[:-1], dtype=entities.dtype, device=entities.device)
         else:

@@ -9,7 +9,11 @@ from .agent import ActorCritic
 from .config import PPOConfig
 from .gae import compute_gae, next_values_from
 from .losses import clipped_policy_loss, normalise, scaled_value_loss
+from .networks import gaussian_entropy, gaussian_log_prob
 from .storage import Rollout
+
+
+STAT_NAMES = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac", "grad_norm")
 
 
 def advantages_and_returns(buf: Rollout, gamma: float, lam: float) -> tuple[torch.Tensor, torch.Tensor, dict]:
@@ -44,18 +48,19 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
         targets = ret
         target_std = float(ret.std(unbiased=False)) if cfg.value_scaling else None
     mb = min(cfg.minibatch_size, n)
-    sums: dict[str, float] = {}
-    steps = 0
+    stats: list[torch.Tensor] = []  # per gradient step, the STAT_NAMES values
     for _ in range(cfg.epochs):
         perm = torch.randperm(n, generator=generator)
         for start in range(0, n - mb + 1, mb):
             idx = perm[start : start + mb]
-            dist = model.actor.distribution(obs[idx], model.spec)
-            new_logp = dist.log_prob(actions[idx]).sum(-1)
-            entropy = dist.entropy().sum(-1).mean()
+            mb_obs, mb_old_logp = obs[idx], old_logp[idx]
+            mean, log_std = model.actor(mb_obs, model.spec)
+            std = log_std.exp()
+            new_logp = gaussian_log_prob(mean, std, actions[idx]).sum(-1)
+            entropy = gaussian_entropy(std).sum(-1).mean()
             a = normalise(adv[idx]) if cfg.norm_adv else adv[idx]
-            pg_loss, clip_frac = clipped_policy_loss(new_logp, old_logp[idx], a, cfg.clip)
-            v = model.raw_value(obs[idx], states[idx] if states is not None else None)
+            pg_loss, clip_frac = clipped_policy_loss(new_logp, mb_old_logp, a, cfg.clip)
+            v = model.raw_value(mb_obs, states[idx] if states is not None else None)
             v_loss = scaled_value_loss(v, targets[idx], target_std)
             loss = pg_loss + cfg.vf_coef * v_loss - cfg.ent_coef * entropy
             optimizer.zero_grad(set_to_none=True)
@@ -63,13 +68,11 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
             grad_norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
             optimizer.step()
             with torch.no_grad():
-                log_ratio = new_logp - old_logp[idx]
+                log_ratio = new_logp - mb_old_logp
                 approx_kl = ((log_ratio.exp() - 1.0) - log_ratio).mean()
-            for k, x in (("policy_loss", pg_loss), ("value_loss", v_loss), ("entropy", entropy),
-                         ("approx_kl", approx_kl), ("clip_frac", clip_frac), ("grad_norm", grad_norm)):
-                sums[k] = sums.get(k, 0.0) + float(x.detach())
-            steps += 1
-    out = {k: v / max(steps, 1) for k, v in sums.items()}
+                stats.append(torch.stack([pg_loss, v_loss, entropy, approx_kl, clip_frac, grad_norm]))
+    means = torch.stack(stats).double().mean(0).tolist()  # at least one step per epoch (mb <= n)
+    out = dict(zip(STAT_NAMES, means))
     with torch.no_grad():
         pred = buf.values.reshape(n)
     out["explained_variance"] = explained_variance(pred, ret)

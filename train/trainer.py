@@ -82,7 +82,7 @@ class Trainer:
                               layouts=list(cfg.layouts) or None, nthread=cfg.run.sim_threads)
         self.spec = self.env.obs_spec
         self.model = ActorCritic(self.spec, self.env.state_dim, cfg)
-        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=self._base_lr(), eps=1e-5)
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=self._base_lr(), eps=1e-5, fused=True)
         p = cfg.ppo
         self.discount = Discount(p.gamma, p.learnable_gamma, p.gamma_meta_lr, p.gamma_outer)
         if checkpoint is not None:

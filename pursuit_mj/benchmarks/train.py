@@ -1,11 +1,27 @@
 """`pursuit-mj bench train`: training throughput, rollout and update apart, against the bare env.
 
+For each fidelity, the command builds a `train.trainer.Trainer` from the train config (the
+reference hyperparameters unless --set changes them), runs one warm-up update, then
+`--updates` measured updates. After each update the same task steps a second env of the
+same worlds (same config, its own seed) for as many decision steps as one rollout, with
+uniform random actions: the bare env rate, measured in the same process under the same
+load as the training it is compared with. Rates are agent-steps per second (decision steps
+x worlds x pursuers) from the median times over the measured updates (wall clock). Aims
+(issue 4): the update takes less time than the rollout it learns from, and training runs
+within 2x of the bare env. On a shared machine wall time swings with other work; the CPU
+ratio (process time of training over that of the bare env, per agent-step) is steadier.
 Imports the train package only when run (pursuit_mj itself never depends on it).
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
+import dataclasses
+import io
+import os
+import pstats
+import statistics
 import tempfile
 import time
 
@@ -14,6 +30,8 @@ import numpy as np
 from . import format_table
 
 HELP = "training throughput: agent-steps/s of rollout and of update, time per update, vs the bare env"
+AIM_UPDATE_OVER_ROLLOUT = 1.0  # the update must take less time than the rollout
+AIM_ENV_OVER_TRAINING = 2.0  # training at least half as fast as the bare env
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -21,52 +39,147 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fidelity", nargs="+", default=["point", "quadrotor"], choices=("point", "quadrotor"),
                    help="fidelities to measure (default both)")
     p.add_argument("--n-envs", type=int, default=None, help="worlds (default: the config's)")
-    p.add_argument("--updates", type=int, default=3, help="measured updates after one warm-up (default 3)")
+    p.add_argument("--updates", type=int, default=5, help="measured updates after one warm-up (default 5)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="train config override")
+    p.add_argument("--profile", type=int, default=0, metavar="N",
+                   help="also print the N functions with the most own time in one rollout and one update (cProfile)")
 
 
-def _bare_env(trainer, steps: int) -> float:
-    """Agent-steps per second of the same env driven by uniform random actions."""
-    env = trainer.env
-    rng = np.random.default_rng(0)
-    env.reset()
+@dataclasses.dataclass
+class TrainBench:
+    """One fidelity: median seconds per update of each part, and CPU seconds in total."""
+
+    fidelity: str
+    worlds: int
+    pursuers: int
+    batch: int  # agent-steps (transitions) per update
+    settings: str
+    rollout_s: float
+    update_s: float
+    env_s: float  # bare env, the same number of decision steps as one rollout
+    train_cpu_s: float
+    env_cpu_s: float
+    profile: str = ""
+
+    def rate(self, seconds: float) -> float:
+        return self.batch / seconds
+
+    @property
+    def update_over_rollout(self) -> float:
+        return self.update_s / self.rollout_s
+
+    @property
+    def env_over_training(self) -> float:
+        return (self.rollout_s + self.update_s) / self.env_s
+
+    @property
+    def env_over_training_cpu(self) -> float:
+        return self.train_cpu_s / self.env_cpu_s
+
+
+def _bare_env_block(env, steps: int, rng: np.random.Generator) -> tuple[float, float]:
+    """(wall s, CPU s) of `steps` decision steps of all worlds with uniform random actions."""
     shape = (env.n_worlds, env.n_pursuers, 2)
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        env.step(rng.uniform(-1.0, 1.0, shape))
-    return steps * env.n_worlds * env.n_pursuers / (time.perf_counter() - t0)
+    actions = [rng.uniform(-1.0, 1.0, shape) for _ in range(steps)]
+    w0, c0 = time.perf_counter(), time.process_time()
+    for a in actions:
+        env.step(a)
+    return time.perf_counter() - w0, time.process_time() - c0
 
 
-def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overrides: list[str]) -> dict:
+def _profile(fn, top: int) -> str:
+    prof = cProfile.Profile()
+    prof.enable()
+    fn()
+    prof.disable()
+    out = io.StringIO()
+    pstats.Stats(prof, stream=out).sort_stats("tottime").print_stats(top)
+    lines = [l for l in out.getvalue().splitlines() if l.strip()]
+    start = next((i for i, l in enumerate(lines) if l.lstrip().startswith("ncalls")), 0)
+    return "\n".join(lines[start:])
+
+
+def _settings(cfg, trainer) -> str:
+    p, buf = cfg.ppo, trainer.buffer
+    threads = cfg.run.torch_threads or os.cpu_count() or 1
+    return (f"epochs {p.epochs}, minibatch {p.minibatch_size}, batch {buf.n_transitions} = {buf.T} steps x {buf.W} worlds "
+            f"x {buf.N} pursuers, net {cfg.net.kind} {cfg.net.encoder_width}/{list(cfg.net.hidden)}, torch threads: "
+            f"rollout 1, update {threads}")
+
+
+def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overrides: list[str], profile_top: int = 0) -> TrainBench:
+    import torch
+
+    from pursuit_mj.env import PursuitEnv
     from train.config import load_train_config
+    from train.ppo import ppo_update
     from train.trainer import Trainer
 
-    if updates < 1:
-        raise ValueError(f"--updates: expected an integer >= 1, got {updates}")
     with tempfile.TemporaryDirectory() as tmp:
         extra = [f"task.fidelity={fidelity}", f"run.runs_dir={tmp}", "run.progress=false", "run.validate_every=0"]
         if n_envs is not None:
             extra.append(f"n_envs={n_envs}")
         cfg = load_train_config([config], extra + list(overrides))
         trainer = Trainer(cfg, log=lambda s: None)
+        env = PursuitEnv(cfg.task, n_worlds=cfg.n_envs, seed=cfg.seed + 1, layouts=list(cfg.layouts) or None,
+                         nthread=cfg.run.sim_threads)
+        env.reset()
+        rng = np.random.default_rng(0)
         trainer.train_one_update()  # warm-up: first forward/backward, allocator, caches
-        rows = [trainer.train_one_update() for _ in range(updates)]
-        env_rate = _bare_env(trainer, trainer.buffer.T)
-    rollout_s = sum(r["rollout_s"] for r in rows)
-    update_s = sum(r["update_s"] for r in rows)
-    n = trainer.buffer.n_transitions * updates
-    return {
-        "fidelity": fidelity, "worlds": cfg.n_envs, "pursuers": cfg.task.n_pursuers, "batch": trainer.buffer.n_transitions,
-        "rollout": n / rollout_s, "update": n / update_s, "update_s": update_s / updates,
-        "train": n / (rollout_s + update_s), "env": env_rate,
-    }
+        _bare_env_block(env, 2, rng)
+        rollout, update, bare, train_cpu, env_cpu = [], [], [], 0.0, 0.0
+        for _ in range(updates):
+            c0 = time.process_time()
+            row = trainer.train_one_update()
+            train_cpu += time.process_time() - c0
+            rollout.append(row["rollout_s"])
+            update.append(row["update_s"])
+            wall, cpu = _bare_env_block(env, trainer.buffer.T, rng)
+            bare.append(wall)
+            env_cpu += cpu
+        profile = ""
+        if profile_top > 0:
+            torch.set_num_threads(1)
+            roll = _profile(lambda: trainer.collector.collect(trainer.buffer), profile_top)
+            torch.set_num_threads(cfg.run.torch_threads or os.cpu_count() or 1)
+            upd = _profile(lambda: ppo_update(trainer.model, trainer.optimizer, trainer.buffer, cfg.ppo,
+                                              trainer.discount.value, trainer.generator), profile_top)
+            profile = f"rollout:\n{roll}\n\nupdate:\n{upd}"
+        med = statistics.median
+        return TrainBench(fidelity, cfg.n_envs, cfg.task.n_pursuers, trainer.buffer.n_transitions, _settings(cfg, trainer),
+                          med(rollout), med(update), med(bare), train_cpu, env_cpu, profile)
+
+
+def _verdict(ok: bool) -> str:
+    return "met" if ok else "NOT met"
 
 
 def run(args: argparse.Namespace) -> int:
-    results = [measure(args.config, f, args.n_envs, args.updates, args.overrides) for f in args.fidelity]
-    head = ["fidelity", "worlds x pursuers", "batch", "rollout ag-steps/s", "update ag-steps/s", "s per update",
-            "training ag-steps/s", "bare env ag-steps/s", "env / training"]
-    rows = [[r["fidelity"], f"{r['worlds']} x {r['pursuers']}", r["batch"], f"{r['rollout']:.0f}", f"{r['update']:.0f}",
-             f"{r['update_s']:.2f}", f"{r['train']:.0f}", f"{r['env']:.0f}", f"{r['env'] / r['train']:.2f}x"] for r in results]
+    if args.updates < 1:
+        raise ValueError(f"--updates: expected an integer >= 1, got {args.updates}")
+    if args.profile < 0:
+        raise ValueError(f"--profile: must be >= 0, got {args.profile}")
+    if args.n_envs is not None and args.n_envs < 1:
+        raise ValueError(f"--n-envs: expected an integer >= 1, got {args.n_envs}")
+    results = []
+    for f in args.fidelity:
+        results.append(measure(args.config, f, args.n_envs, args.updates, args.overrides, args.profile))
+        print(f"  measured {f}: {args.updates} updates after one warm-up, bare env stepped after each", flush=True)
+    print(f"train benchmark, config {args.config}: {results[0].settings}")
+    print("rates in agent-steps/s (decision steps x worlds x pursuers) from median wall times; bare env = the same task "
+          "with random actions, measured between updates; cpu = process time of training over that of the bare env")
+    head = ["fidelity", "worlds x pursuers", "rollout ag-steps/s", "update ag-steps/s", "s per update",
+            "training ag-steps/s", "bare env ag-steps/s", "update / rollout", "env / training", "cpu: env / training"]
+    rows = [[r.fidelity, f"{r.worlds} x {r.pursuers}", f"{r.rate(r.rollout_s):.0f}", f"{r.rate(r.update_s):.0f}",
+             f"{r.update_s:.2f}", f"{r.rate(r.rollout_s + r.update_s):.0f}", f"{r.rate(r.env_s):.0f}",
+             f"{r.update_over_rollout:.2f}", f"{r.env_over_training:.2f}x", f"{r.env_over_training_cpu:.2f}x"] for r in results]
     print(format_table(head, rows))
+    for r in results:
+        print(f"aims {r.fidelity}: update faster than its rollout (ratio < {AIM_UPDATE_OVER_ROLLOUT:g}): "
+              f"{r.update_over_rollout:.2f}, {_verdict(r.update_over_rollout < AIM_UPDATE_OVER_ROLLOUT)}; training within "
+              f"{AIM_ENV_OVER_TRAINING:g}x of the bare env: {r.env_over_training:.2f}x, "
+              f"{_verdict(r.env_over_training <= AIM_ENV_OVER_TRAINING)}")
+    for r in results:
+        if r.profile:
+            print(f"\nwhere training spends its time ({r.fidelity}; own time, cProfile):\n{r.profile}")
     return 0
