@@ -1,10 +1,12 @@
-"""The reference experiment in one call: train the four regimes on layout 0, evaluate all on 0-3.
+"""The reference experiment in one call: train the regimes on layout 0, evaluate all on 0-3.
 
-Order: full_obs, then fine_tune from its best checkpoint, classic, MAPPO; the heuristic team
-is evaluated beside them. A short probe of the heuristic first measures how long an evaluation
-episode takes, so the whole evaluation is reserved out of the budget (with fewer episodes
-than asked if it would not fit) before any training starts; the rest of the budget is split over the regimes by
-TRAIN_SHARE (each run stops at its max_minutes, its learning rate decaying over it). All
+Order: full_obs, then fine_tune from its best checkpoint, classic, MAPPO (the reference
+study's four), then this project's recipe: imitate (DAgger from the heuristic team) and
+imitate_ppo (PPO from its best checkpoint); the heuristic team is evaluated beside them.
+A short probe of the heuristic first measures how long an evaluation episode takes, so the
+whole evaluation is reserved out of the budget (with fewer episodes than asked if it would
+not fit) before any training starts; the rest of the budget is split over the arms by their
+shares in ARMS (each run stops at its max_minutes, its learning rate decaying over it). All
 policies are evaluated on the same task (the reference preset unless told otherwise) with
 partial observability: full_obs is trained with full observability but judged like the rest.
 
@@ -30,8 +32,26 @@ from .config import load_train_config
 from .policy import load_policy
 from .trainer import Trainer
 
-#: share of the training budget per regime, in training order
-TRAIN_SHARE = (("full_obs", 0.3), ("fine_tune", 0.2), ("classic", 0.25), ("mappo", 0.25))
+@dataclasses.dataclass(frozen=True)
+class Arm:
+    """One trained policy of the study: its name, its config preset, its share of the training
+    budget, and the arm whose best checkpoint it starts from (None: from scratch)."""
+
+    name: str
+    config: str
+    share: float
+    start_from: str | None = None
+
+
+#: the trained arms, in training order; shares sum to 1
+ARMS = (
+    Arm("full_obs", "full_obs", 0.2),
+    Arm("fine_tune", "fine_tune", 0.15, start_from="full_obs"),
+    Arm("classic", "classic", 0.175),
+    Arm("mappo", "mappo", 0.175),
+    Arm("imitate", "imitate", 0.1),
+    Arm("imitate_ppo", "finetune_ppo", 0.2, start_from="imitate"),
+)
 MIN_TRAIN_FRACTION = 0.4  # evaluation may take at most the rest of the budget
 
 
@@ -57,7 +77,7 @@ def fit_episodes(plan: StudyPlan, seconds_per_episode: float, spent_s: float) ->
     The heuristic and the trained policies are evaluated with the same number of episodes;
     it shrinks from plan.episodes when evaluation would take more than its share.
     """
-    n_policies = len(TRAIN_SHARE) + 1
+    n_policies = len(ARMS) + 1
     total_s = plan.budget_minutes * 60.0
     per_round = seconds_per_episode * len(plan.layouts) * n_policies
     cap = total_s * (1.0 - MIN_TRAIN_FRACTION) - spent_s
@@ -88,12 +108,13 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
     timings["heuristic (eval)"] = time.perf_counter() - t0
 
     checkpoints: dict[str, Path] = {}
-    for regime, share in TRAIN_SHARE:
-        overrides = [f"run.runs_dir={plan.out / 'runs'}", f"max_minutes={share * train_minutes:.4f}",
+    for arm in ARMS:
+        regime, share = arm.name, arm.share
+        overrides = [f"name={arm.name}", f"run.runs_dir={plan.out / 'runs'}", f"max_minutes={share * train_minutes:.4f}",
                      "total_steps=1000000000", "task.layout=0", *plan.train_overrides]
-        if regime == "fine_tune":
-            overrides.append(f"init_from={checkpoints['full_obs']}")
-        cfg = load_train_config([regime], overrides)
+        if arm.start_from:
+            overrides.append(f"init_from={checkpoints[arm.start_from]}")
+        cfg = load_train_config([arm.config], overrides)
         if (cfg.run_dir / "last.pt").exists():
             raise ValueError(f"study folder {plan.out}: {cfg.run_dir} already holds a run; choose another --out")
         t0 = time.perf_counter()
@@ -106,7 +127,7 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
 
     t = plan.eval_task
     spec = ObsSpec.make(t.n_pursuers, t.n_evaders, t.n_rays)
-    for regime, _ in TRAIN_SHARE:
+    for regime in (arm.name for arm in ARMS):
         t0 = time.perf_counter()
         policy = load_policy(checkpoints[regime], spec, name=regime)
         rows += evaluate(policy, plan.eval_task, list(plan.layouts), episodes, plan.seed, plan.worlds, label=regime)
