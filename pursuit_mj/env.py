@@ -20,10 +20,12 @@ from .layout_check import free_spawn_points
 from .observations import build_global_state, build_observations, global_state_dim
 from .obs_spec import ObsSpec
 from .physics import BatchedPhysics
+from .randomness import WorldRandom, world_keys
 from .rewards import REWARD_TERMS, detect_events, reward_terms
 from .sensing import INITIAL_HEADING, Perception, WorldView, perceive, update_heading
 
 SPAWN_SEPARATION = 0.4  # m between spawned drones of one team
+SENSING_DOMAIN = 1  # keeps perception's random streams apart from the evaders' (same episode seed)
 OUTCOMES = ("", "success", "collision", "timeout")
 
 
@@ -68,8 +70,18 @@ class Snapshot:
 
 
 def episode_seed(seed: int, world: int, episode: int) -> int:
-    """A seed for one episode, independent of how many worlds run."""
+    """The default seed of a world's n-th episode (from the env seed); see `reset_worlds` for explicit ones."""
     return int(np.random.SeedSequence([seed, world, episode]).generate_state(1)[0])
+
+
+def check_seeds(seeds, count: int, source: str) -> np.ndarray:
+    """Episode seeds as (count,) int64, or ValueError naming `source`: non-negative integers below 2**63."""
+    s = np.asarray(seeds)
+    if s.shape != (count,) or (count and not np.issubdtype(s.dtype, np.integer)):
+        raise ValueError(f"{source}: expected {count} integer episode seeds, got {seeds!r}")
+    if count and (s.min() < 0 or (s.dtype == np.uint64 and s.max() >= 2**63)):
+        raise ValueError(f"{source}: episode seeds must be non-negative integers below 2**63, got {seeds!r}")
+    return s.astype(np.int64)
 
 
 def _layout_pool(config: TaskConfig, layouts: Sequence[int | str | Layout] | None) -> list[Layout]:
@@ -126,7 +138,7 @@ class PursuitEnv:
         self.returns = {k: np.zeros(W) for k in REWARD_TERMS}
         self.last_terms = {k: np.zeros((W, N), np.float32) for k in REWARD_TERMS}
         self._episode_seeds = np.zeros(W, np.int64)
-        self._sensing_rng = np.random.default_rng(self.seed)
+        self._sensing_keys = np.zeros(W, np.uint64)  # per-world keys of perception noise (randomness.py)
         self._obstacles = ObstacleSet.stack([l.obstacle_set() for l in self.world_layouts])
         self._perception: Perception | None = None
         self._obs: np.ndarray | None = None
@@ -159,14 +171,20 @@ class PursuitEnv:
                 return None
         return None
 
-    def _start_episodes(self, ids: np.ndarray) -> None:
-        """Begin a new episode in each listed world: new random obstacles, spawn, counters."""
+    def _start_episodes(self, ids: np.ndarray, seeds: np.ndarray | None = None) -> None:
+        """Begin a new episode in each listed world: new random obstacles, spawn, counters.
+
+        seeds (k,) int64: the episodes' seeds (default: `episode_seed` of the world's count).
+        Everything random in an episode (layout, obstacles, spawn, evader zigzag, perception
+        noise and misses) follows from its seed alone.
+        """
         if len(ids) == 0:
             return
-        layouts, xy, seeds = [], [], []
-        for w in ids:
-            s = episode_seed(self.seed, int(w), int(self.episode[w]))
-            rng = np.random.default_rng(s)
+        if seeds is None:
+            seeds = np.array([episode_seed(self.seed, int(w), int(self.episode[w])) for w in ids], np.int64)
+        layouts, xy = [], []
+        for w, s in zip(ids, seeds):
+            rng = np.random.default_rng(int(s))
             base_i = int(rng.integers(len(self.pool))) if self.config.random_layout else int(self._base_index[w])
             base = self.pool[base_i]
             inst = base.with_random_obstacles(rng, self.config.random_obstacles) if self.config.random_obstacles else base
@@ -175,13 +193,13 @@ class PursuitEnv:
             eva = self._sample_separated(pts_e, self.n_evaders, rng)
             layouts.append(inst)
             xy.append(np.concatenate([pur, eva]))
-            seeds.append(s)
             self.world_layouts[w] = inst
         if self.config.random_obstacles or self.config.random_layout:
             self.physics.set_layouts(ids, layouts)
         self.physics.reset(ids, np.array(xy))
         self._episode_seeds[ids] = seeds
-        self.evader_model.reset(ids, np.array(seeds))
+        self._sensing_keys[ids] = world_keys(seeds, SENSING_DOMAIN)
+        self.evader_model.reset(ids, seeds)
         self.steps[ids] = 0
         self.captured[ids] = False
         self.heading[ids] = INITIAL_HEADING
@@ -193,21 +211,32 @@ class PursuitEnv:
             self.last_terms[k][ids] = 0.0
         self._obstacles = ObstacleSet.stack([l.obstacle_set() for l in self.world_layouts])
 
-    def reset(self, seed: int | None = None) -> np.ndarray:
-        """Start new episodes in every world; a new `seed` restarts the seed sequence. Obs (W, N, dim)."""
+    def reset(self, seed: int | None = None, seeds: Sequence[int] | None = None) -> np.ndarray:
+        """Start new episodes in every world; a new `seed` restarts the seed sequence. Obs (W, N, dim).
+
+        seeds (W,) non-negative integers: explicit episode seeds, one per world (as in `reset_worlds`).
+        """
         if seed is not None:
             self.seed = int(seed)
             self.episode[:] = 0
-            self._sensing_rng = np.random.default_rng(self.seed)
-        self._start_episodes(np.arange(self.n_worlds))
+        explicit = None if seeds is None else check_seeds(seeds, self.n_worlds, "reset seeds")
+        self._start_episodes(np.arange(self.n_worlds), explicit)
         self._obs = self._observe()
         return self._obs.copy()
 
-    def reset_worlds(self, world_ids: Sequence[int]) -> np.ndarray:
-        """Start new episodes in the listed worlds only; returns the full obs (W, N, dim)."""
-        ids = np.asarray(world_ids, dtype=np.int64)
+    def reset_worlds(self, world_ids: Sequence[int], seeds: Sequence[int] | None = None) -> np.ndarray:
+        """Start new episodes in the listed worlds only; returns the full obs (W, N, dim).
+
+        seeds (k,) non-negative integers: the new episodes' seeds. An episode is a function of
+        its seed and the actions taken: the same seed replays it exactly in any world, however
+        many worlds run. Without seeds each world takes the next of its default sequence.
+        """
+        ids = np.asarray(world_ids, dtype=np.int64).reshape(-1)
+        if ids.size and (ids.min() < 0 or ids.max() >= self.n_worlds or len(np.unique(ids)) != ids.size):
+            raise ValueError(f"reset_worlds world_ids: expected distinct indices in 0..{self.n_worlds - 1}, got {list(world_ids)}")
+        explicit = None if seeds is None else check_seeds(seeds, len(ids), "reset_worlds seeds")
         self.episode[ids] += 1
-        self._start_episodes(ids)
+        self._start_episodes(ids, explicit)
         self._obs = self._observe()
         return self._obs.copy()
 
@@ -227,7 +256,8 @@ class PursuitEnv:
 
     def _observe(self) -> np.ndarray:
         view = self._view()
-        self._perception = perceive(view, self.config, self._sensing_rng)
+        # draws keyed by (episode, step): the same whether or not other worlds restart now
+        self._perception = perceive(view, self.config, WorldRandom(self._sensing_keys, self.steps))
         return build_observations(view, self._perception, self.obs_spec)
 
     def global_state(self) -> np.ndarray:

@@ -39,7 +39,8 @@ import math
 import numpy as np
 
 from .config import TaskConfig
-from .geometry import FAR, ObstacleSet, obstacle_distance
+from .geometry import FAR, ObstacleSet, first_axis_last, last_axis_first, obstacle_distance
+from .randomness import TICK as _TICK, hash_uniform, splitmix64 as _splitmix64
 
 RING = 16  # survey directions around the wanted direction
 RING_ANGLES = 2 * math.pi * np.arange(RING) / RING  # rad, relative to the wanted direction
@@ -55,11 +56,10 @@ SLACK_SCALE = 1.0  # m, safety margins beyond this count as safe
 DANGER = 3.0  # factor on negative safety margins: entering a chaser's reach costs more than room gains
 NORMAL_STEP = 0.02  # m, finite-difference step of obstacle normals
 EPS = 1e-9
+_PATH_FRACTIONS = np.linspace(0.0, 1.0, PATH_SAMPLES)  # where along a path its samples lie
+_HORIZON_SAMPLES = np.linspace(0.0, HORIZON, PATH_SAMPLES)  # m flown at the samples of a candidate
+_FAR32 = np.float32(FAR)
 
-_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
-_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
-_MIX2 = np.uint64(0x94D049BB133111EB)
-_TICK = np.uint64(0xD1B54A32D192ED03)
 _STREAM_TURN, _STREAM_AMPLITUDE, _STREAM_START, _STREAM_SIDE = range(4)
 
 
@@ -124,6 +124,17 @@ def surrounded(toward: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return (mask.sum(-1) >= 3) & (np.nan_to_num(gaps, nan=2 * math.pi).max(-1) < math.pi)
 
 
+def _last_first(v: np.ndarray) -> np.ndarray:
+    """v (..., T) as (T, ...) in C order (a copy): numpy lays results out like their inputs,
+    and the rows reduced over must stay contiguous."""
+    return np.ascontiguousarray(last_axis_first(v))
+
+
+def _rows(v: np.ndarray) -> np.ndarray:
+    """(T, W, M) -> (T, 1, W*M) float32 in C order: one row of (world, evader) pairs per target."""
+    return np.ascontiguousarray(v, dtype=np.float32).reshape(v.shape[0], 1, -1)
+
+
 def reach_slack(
     origin: np.ndarray, dirs: np.ndarray, s: np.ndarray, reach: np.ndarray, chasers: np.ndarray, sensed: np.ndarray
 ) -> np.ndarray:
@@ -135,13 +146,17 @@ def reach_slack(
     Returns min over samples and sensed chasers of |x - chaser| - reach: (W, M, K), inf
     where no chaser is sensed.
     """
+    # samples and chasers first, (S, N, W, M, K): the minimum over them is then taken row by row
     oc = origin - chasers[:, None, :, :]  # (W, M, N, 2) chaser -> evader
-    along = dot(dirs[:, :, :, None, :], oc[:, :, None, :, :])[:, :, :, None, :]  # (W, M, K, 1, N)
-    s5 = s[..., None]  # (W, M, K, S, 1)
-    # |oc + s dir|^2 expanded, so that no (W, M, K, S, N, 2) array is made
-    d = np.sqrt(np.maximum(dot(oc, oc)[:, :, None, None, :] + s5 * (2.0 * along + s5), 0.0))
-    margin = np.where(sensed[:, :, None, None, :], d - np.broadcast_to(reach, s.shape)[..., None], np.inf)
-    return margin.min(axis=(-1, -2))
+    ocx, ocy = (_last_first(oc[..., i])[None, ..., None] for i in (0, 1))  # (1, N, W, M, 1)
+    along = np.ascontiguousarray(dirs[..., 0]) * ocx + np.ascontiguousarray(dirs[..., 1]) * ocy  # (1, N, W, M, K)
+    s_first = _last_first(s)[:, None]  # (S, 1, W, M, K)
+    reach_first = last_axis_first(np.broadcast_to(reach, s.shape))[:, None]
+    # |oc + s dir|^2 expanded, so that no (S, N, W, M, K, 2) array is made
+    d = np.sqrt(np.maximum((ocx * ocx + ocy * ocy) + s_first * (2.0 * along + s_first), 0.0))
+    unsensed = np.where(last_axis_first(sensed), 0.0, np.inf)[None, ..., None]  # (1, N, W, M, 1)
+    margin = d - reach_first + unsensed
+    return margin.reshape((-1,) + margin.shape[2:]).min(0)
 
 
 # ----------------------------------------------------------------------------- obstacle queries
@@ -178,67 +193,52 @@ class Corridors:
 
     def __init__(self, obstacles: ObstacleSet, pos: np.ndarray, radius: np.ndarray):
         W, M = radius.shape
-        r = radius[:, :, None]  # (W, M, 1)
+        self.shape = (W, M)
+        # Targets (segments, circles) first and (world, evader) pairs last, (T, W*M), against
+        # directions (Q, W*M): numpy then runs every operation over contiguous rows, and the
+        # minimum over targets is an elementwise minimum of rows (many times faster than
+        # broadcasting along, or reducing over, a short last axis).
+        r = radius[None]  # (1, W, M)
         box, box_valid = obstacles.segments()  # (W, 4 NB, 4), counter-clockwise: outside on the right
-        border = obstacles.border  # (W, NS, 4), inside on the left
-        seg = np.concatenate([_shift_left(box[:, None], -r), _shift_left(border[:, None], r)], axis=2)  # (W, M, S, 4)
-        seg_valid = np.concatenate([box_valid, obstacles.border_valid], -1)[:, None]  # (W, 1, S)
-        corners = np.concatenate([box[..., 0:2], border[..., 0:2]], axis=1)[:, None]  # (W, 1, C1, 2)
-        cyl = obstacles.cylinders[:, None]  # (W, 1, NC, 3)
-        centres = np.concatenate([corners, cyl[..., 0:2]], axis=2)  # (W, 1, C, 2)
-        radii = np.concatenate([np.broadcast_to(r, (W, M, corners.shape[2])), cyl[..., 2] + r], axis=2)  # (W, M, C)
-        circle_valid = np.concatenate([box_valid, obstacles.border_valid, obstacles.cylinder_valid], -1)[:, None]
+        box = box.swapaxes(0, 1)[:, :, None]  # (4 NB, W, 1, 4)
+        border = obstacles.border.swapaxes(0, 1)[:, :, None]  # (NS, W, 1, 4), inside on the left
+        seg = np.concatenate([_shift_left(box, -r), _shift_left(border, r)], axis=0)  # (S, W, M, 4)
+        seg_valid = np.concatenate([box_valid, obstacles.border_valid], -1).T[:, :, None]  # (S, W, 1)
+        corners = np.concatenate([box[..., 0:2], border[..., 0:2]], axis=0)  # (C1, W, 1, 2)
+        cyl = obstacles.cylinders.swapaxes(0, 1)[:, :, None]  # (NC, W, 1, 3)
+        centres = np.concatenate([corners, cyl[..., 0:2]], axis=0)  # (C, W, 1, 2)
+        radii = np.concatenate([np.broadcast_to(r, (corners.shape[0], W, M)), cyl[..., 2] + r], axis=0)  # (C, W, M)
+        circle_valid = np.concatenate([box_valid, obstacles.border_valid, obstacles.cylinder_valid], -1).T[:, :, None]
         # everything relative to each evader, once; rays then differ only in direction.
         # float32 (micrometre rounding on metre offsets) halves the memory traffic of the hot loop.
-        p = pos[:, :, None, :]
-        a = np.where(seg_valid[..., None], seg[..., 0:2] - p, 0.0)  # (W, M, S, 2) segment start
+        p = pos[None]  # (1, W, M, 2)
+        a = np.where(seg_valid[..., None], seg[..., 0:2] - p, 0.0)  # (S, W, M, 2) segment start
         e = np.where(seg_valid[..., None], seg[..., 2:4] - seg[..., 0:2], 0.0)  # segment vector
-        self._ax, self._ay = a[..., 0].astype(np.float32), a[..., 1].astype(np.float32)
-        self._ex, self._ey = e[..., 0].astype(np.float32), e[..., 1].astype(np.float32)
+        self._ax, self._ay, self._ex, self._ey = _rows(a[..., 0]), _rows(a[..., 1]), _rows(e[..., 0]), _rows(e[..., 1])
         self._t_num = self._ax * self._ey - self._ay * self._ex  # a x e: the hit distance times (d x e)
-        c = centres - p  # (W, M, C, 2) circle centre
-        self._cx, self._cy = c[..., 0].astype(np.float32), c[..., 1].astype(np.float32)
-        self._c2 = np.where(circle_valid, dot(c, c) - radii**2, np.inf).astype(np.float32)  # |c|^2 - r^2
+        c = centres - p  # (C, W, M, 2) circle centre
+        self._cx, self._cy = _rows(c[..., 0]), _rows(c[..., 1])  # (C, 1, W*M)
+        self._c2 = _rows(np.where(circle_valid, dot(c, c) - radii**2, np.inf))  # |c|^2 - r^2
 
     def free(self, dirs: np.ndarray) -> np.ndarray:
         """Free length (W, M, Q) m along unit dirs (W, M, Q, 2) from each evader; FAR if open."""
-        d = dirs.astype(np.float32)
-        dx, dy = d[..., 0:1], d[..., 1:2]  # (W, M, Q, 1)
-        ax, ay, ex, ey = (v[:, :, None, :] for v in (self._ax, self._ay, self._ex, self._ey))  # (W, M, 1, S)
-        denom = dx * ey - dy * ex
+        W, M = self.shape
+        Q = dirs.shape[2]
+        d = dirs.astype(np.float32).transpose(2, 0, 1, 3).reshape(Q, W * M, 2)
+        dx, dy = np.ascontiguousarray(d[..., 0]), np.ascontiguousarray(d[..., 1])  # (Q, W*M)
+        denom = dx * self._ey - dy * self._ex  # (S, Q, W*M)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = self._t_num[:, :, None, :] / denom
-            u = (ax * dy - ay * dx) / denom
-        seg_hit = np.where((np.abs(denom) > EPS) & (t >= 0) & (u >= 0) & (u <= 1), t, FAR).min(-1, initial=FAR)
-        b = dx * self._cx[:, :, None, :] + dy * self._cy[:, :, None, :]  # (W, M, Q, C) projection of centre
-        disc = b * b - self._c2[:, :, None, :]
+            t = self._t_num / denom
+            u = (self._ax * dy - self._ay * dx) / denom
+        # fmax(t, FAR where refused) instead of np.where (several times slower); fmax drops NaNs
+        seg_hit = np.fmax(t, ~((np.abs(denom) > EPS) & (t >= 0) & (u >= 0) & (u <= 1)) * _FAR32).min(0, initial=FAR)
+        b = dx * self._cx + dy * self._cy  # (C, Q, W*M) projection of centre
+        disc = b * b - self._c2
         with np.errstate(invalid="ignore"):
             t0 = b - np.sqrt(disc)  # origins lie outside every grown circle, so the near root is the hit
-        circle_hit = np.where((disc >= 0) & (t0 >= 0), t0, FAR).min(-1, initial=FAR)
-        return np.minimum(seg_hit, circle_hit).astype(np.float64)
-
-
-# ----------------------------------------------------------------------------- seeded randomness
-
-
-def _splitmix64(x: np.ndarray) -> np.ndarray:
-    with np.errstate(over="ignore"):
-        z = x + _GOLDEN
-        z = (z ^ (z >> np.uint64(30))) * _MIX1
-        z = (z ^ (z >> np.uint64(27))) * _MIX2
-    return z ^ (z >> np.uint64(31))
-
-
-def hash_uniform(seed: np.ndarray, tick: np.ndarray, n: int, stream: int) -> np.ndarray:
-    """Uniform [0, 1) numbers (W, n) from per-world seeds (W,) uint64 and step counters (W,) uint64.
-
-    Counter-based: the value for (seed, tick, index, stream) never depends on other worlds.
-    """
-    idx = np.arange(n, dtype=np.uint64) * np.uint64(8) + np.uint64(stream)
-    with np.errstate(over="ignore"):
-        x = _splitmix64(seed[:, None] ^ (tick[:, None] * _TICK)) + idx[None, :] * _GOLDEN
-    z = _splitmix64(x)
-    return (z >> np.uint64(11)).astype(np.float64) * 2.0**-53
+        circle_hit = np.fmax(t0, ~((disc >= 0) & (t0 >= 0)) * _FAR32).min(0, initial=FAR)
+        free = np.minimum(seg_hit, circle_hit).astype(np.float64)  # (Q, W*M)
+        return first_axis_last(free.reshape(Q, W, M))
 
 
 # ----------------------------------------------------------------------------- the model
@@ -374,6 +374,8 @@ class EscapeModel:
     def _start_headings(self, evader_vel: np.ndarray, flee: np.ndarray) -> None:
         """Evaders new to an episode start along their velocity, else away from the chasers
         they sense, else in a random direction."""
+        if self.has_heading.all():
+            return
         u = hash_uniform(self.world_seed, self.tick, self.n_evaders, _STREAM_START)
         start = np.stack([np.cos(2 * math.pi * u), np.sin(2 * math.pi * u)], -1)
         start = unit(flee, start)
@@ -427,7 +429,7 @@ class EscapeModel:
             self.gap_pair[:] = -1
             return np.zeros((W, M), bool), np.zeros((W, M, 2))
         reach = task.capture_radius + cfg.gap_margin
-        s = np.linspace(0.0, 1.0, PATH_SAMPLES) * gap_length[..., None]  # (W, M, P, S)
+        s = _PATH_FRACTIONS * gap_length[..., None]  # (W, M, P, S)
         slack = reach_slack(e[:, :, None, :], gap_dir, s, s * (task.pursuer_speed / task.evader_speed), pp, sensed) - reach
         clear = gap_free >= np.maximum(gap_length, self._need)
         both_sensed = np.take_along_axis(sensed, ci, -1) & np.take_along_axis(sensed, cj, -1)
@@ -482,7 +484,7 @@ class EscapeModel:
         """
         cfg, task = self.cfg, self.config
         length = np.clip(room - cfg.clearance, 0.0, HORIZON)
-        flown = np.linspace(0.0, HORIZON, PATH_SAMPLES)  # (S,) m
+        flown = _HORIZON_SAMPLES  # (S,) m
         chaser_reach = flown * (task.pursuer_speed / task.evader_speed)
         slack = reach_slack(e[:, :, None, :], candidates, np.minimum(flown, length[..., None]), chaser_reach, pp, sensed)
         slack = slack - task.capture_radius

@@ -2,8 +2,9 @@
 
 `evaluate(policy, config, layouts, episodes, seed, n_worlds)` runs exactly `episodes`
 episodes per layout in parallel worlds of a `PursuitEnv` and returns one `Row` per layout.
-Every started episode is counted (no bias toward short episodes). The episode seeds follow
-from `seed` and the layout, so the same seed and world count give the same table.
+Every started episode is counted (no bias toward short episodes). Episode k of a layout has
+a seed that follows from (`seed`, layout, k) alone, and an episode depends only on its seed,
+so the same seed gives the same table whatever the number of parallel worlds.
 Formatting, CSV, JSON and bar-chart helpers are here too, for the CLI, training and studies.
 """
 
@@ -80,6 +81,11 @@ def layout_seed(seed: int, label: str) -> int:
     return int(np.random.SeedSequence([int(seed), zlib.crc32(label.encode())]).generate_state(1)[0])
 
 
+def episode_seeds(seed: int, count: int) -> np.ndarray:
+    """Seeds (count,) int64 of episodes 0..count-1 of one table row, from the row's env seed."""
+    return np.array([np.random.SeedSequence([int(seed), k]).generate_state(1)[0] for k in range(count)], np.int64)
+
+
 def summarise(policy: str, layout: str, fidelity: str, seed: int, records: Sequence[EpisodeRecord]) -> Row:
     """Rates with Wilson intervals and mean steps with t intervals over finished episodes."""
     n = len(records)
@@ -109,23 +115,28 @@ def run_episodes(
 ) -> list[EpisodeRecord]:
     """Run exactly `episodes` episodes of `config` in up to `n_worlds` parallel worlds.
 
-    A world that finishes starts the next unstarted episode; worlds with nothing left to
-    start stay frozen until all are done. Returns the records in order of completion.
-    `watch(env)` may return a watcher told of every episode start and step (read only).
+    Episode k (0..episodes-1) runs with seed `episode_seeds(seed, episodes)[k]` in whichever
+    world is free: a world that finishes starts the next unstarted episode; worlds with
+    nothing left to start stay frozen until all are done. Returns the records in episode
+    order (k), so the result does not depend on `n_worlds`; `on_episode` hears of them in
+    order of completion. `watch(env)` may return a watcher told of every episode start and
+    step (read only).
     """
     if not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise ValueError(f"episodes: expected an integer >= 1, got {episodes!r}")
     if not isinstance(n_worlds, (int, np.integer)) or n_worlds < 1:
         raise ValueError(f"worlds: expected an integer >= 1, got {n_worlds!r}")
     W = int(min(n_worlds, episodes))
+    seeds = episode_seeds(seed, int(episodes))
     env = PursuitEnv(config, n_worlds=W, seed=seed, auto_reset=False)
     watcher = watch(env) if watch is not None else None
-    obs = env.reset()
+    obs = env.reset(seeds=seeds[:W])
+    running = np.arange(W)  # the episode index k each world runs
     policy.reset(W)
     if watcher is not None:
         watcher.started(range(W))
     started = W
-    records: list[EpisodeRecord] = []
+    records: list[tuple[int, EpisodeRecord]] = []
     while len(records) < episodes:
         actions = policy.act(obs, env.obs_spec)
         obs, _, _, _, info = env.step(actions)
@@ -133,17 +144,19 @@ def run_episodes(
             watcher.stepped(info)
         finished = [rec.world for rec in info["episodes"]]
         for rec in info["episodes"]:
-            records.append(rec)
+            records.append((int(running[rec.world]), rec))
             if on_episode is not None:
                 on_episode(rec)
         restart = np.array(finished[: max(episodes - started, 0)], dtype=np.int64)
         if len(restart):
-            obs = env.reset_worlds(restart)
+            ks = np.arange(started, started + len(restart))
+            obs = env.reset_worlds(restart, seeds[ks])
+            running[restart] = ks
             policy.reset(W, restart)
             if watcher is not None:
                 watcher.started(restart)
             started += len(restart)
-    return records
+    return [rec for _, rec in sorted(records, key=lambda kr: kr[0])]
 
 
 def evaluate(

@@ -7,11 +7,13 @@ same code. Shapes: W worlds, N pursuers, M evaders, K rays; positions in the lay
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
 from .config import TaskConfig
-from .geometry import ObstacleSet, cast_rays
+from .geometry import ObstacleSet, cast_fan, cast_rays
+from .randomness import WorldRandom
 
 
 @dataclasses.dataclass
@@ -62,61 +64,50 @@ def update_heading(heading: np.ndarray, velocity: np.ndarray) -> np.ndarray:
     return np.where(speed > HEADING_MIN_SPEED, np.arctan2(velocity[..., 1], velocity[..., 0]), heading)
 
 
+@functools.lru_cache(maxsize=None)
 def ray_directions(n_rays: int) -> np.ndarray:
-    """Unit directions (K, 2): ray i at angle 2*pi*i/K from world +x."""
+    """Unit directions (K, 2): ray i at angle 2*pi*i/K from world +x (shared, read only)."""
     a = 2 * np.pi * np.arange(n_rays) / max(n_rays, 1)
-    return np.stack([np.cos(a), np.sin(a)], -1)
+    out = np.stack([np.cos(a), np.sin(a)], -1)
+    out.flags.writeable = False
+    return out
 
 
-def _in_view(observer: np.ndarray, heading: np.ndarray, target: np.ndarray, radius: float, fov: float) -> np.ndarray:
-    """(W, N, T) bool: target (W, T, 2) within radius of observer (W, N, 2) and inside its field of view."""
-    delta = target[:, None, :, :] - observer[:, :, None, :]
-    dist = np.linalg.norm(delta, axis=-1)
-    ok = dist <= radius
-    if fov < 2 * np.pi - 1e-9:
+def _visible(observer: np.ndarray, heading: np.ndarray, target: np.ndarray, config: TaskConfig, obstacles: ObstacleSet) -> np.ndarray:
+    """(W, N, T) bool: target (W, T, 2) within perception_radius of observer (W, N, 2), inside
+    its field of view (heading (W, N) rad) and in its line of sight (one ray cast for all)."""
+    W, N, T = observer.shape[0], observer.shape[1], target.shape[1]
+    delta = target[:, None, :, :] - observer[:, :, None, :]  # (W, N, T, 2)
+    dist = np.hypot(delta[..., 0], delta[..., 1])
+    ok = dist <= config.perception_radius
+    if config.field_of_view < 2 * np.pi - 1e-9:
         ang = np.arctan2(delta[..., 1], delta[..., 0]) - heading[:, :, None]
         ang = (ang + np.pi) % (2 * np.pi) - np.pi
-        ok &= np.abs(ang) <= fov / 2
-    return ok
-
-
-def _sight_rays(observer: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Rays from each observer (W, N, 2) toward each target (W, T, 2): origins, unit dirs (W, N*T, 2), lengths (W, N*T)."""
-    W, N, T = observer.shape[0], observer.shape[1], target.shape[1]
+        ok &= np.abs(ang) <= config.field_of_view / 2
     origins = np.broadcast_to(observer[:, :, None, :], (W, N, T, 2)).reshape(W, N * T, 2)
-    delta = (target[:, None, :, :] - observer[:, :, None, :]).reshape(W, N * T, 2)
-    dist = np.hypot(delta[..., 0], delta[..., 1])
-    return origins, delta / np.maximum(dist, 1e-9)[..., None], dist
+    dirs = (delta / np.maximum(dist, 1e-9)[..., None]).reshape(W, N * T, 2)
+    hits = cast_rays(origins, dirs, obstacles).reshape(W, N, T)
+    return ok & (hits >= dist - 1e-9)
 
 
-def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator) -> Perception:
+def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator | WorldRandom) -> Perception:
     """Apply perception radius, field of view, line of sight, missed detections, sharing and noise.
 
-    In `full` observability every entity is known (no masking); noise still applies.
+    In `full` observability every entity is known (no masking); noise still applies. `rng`
+    draws the misses and the noise (arrays with worlds first): the simulator passes a
+    `WorldRandom` so that each world's draws depend on its own episode and step only.
     """
     W, N, _ = view.pursuer_pos.shape
     M = view.evader_pos.shape[1]
     K = config.n_rays
     p = view.pursuer_pos
     partial = config.observability == "partial"
-    # one ray cast for everything: K range rays per pursuer, then (partial observability)
-    # the sight lines to every evader and every teammate
-    origins = [np.repeat(p, K, axis=1)]
-    dirs = [np.broadcast_to(ray_directions(K), (W, N, K, 2)).reshape(W, N * K, 2)]
+    # K range rays per pursuer (fixed directions: a fan), then (partial observability) what
+    # each pursuer sees of every evader and every teammate
+    rays = np.minimum(cast_fan(p, ray_directions(K), view.obstacles), config.ray_range)
     if partial:
-        o_e, d_e, len_e = _sight_rays(p, view.evader_pos)
-        o_m, d_m, len_m = _sight_rays(p, p)
-        origins += [o_e, o_m]
-        dirs += [d_e, d_m]
-    hits = cast_rays(np.concatenate(origins, axis=1), np.concatenate(dirs, axis=1), view.obstacles)
-    rays = np.minimum(hits[:, : N * K], config.ray_range).reshape(W, N, K)
-    if partial:
-        clear_e = hits[:, N * K : N * K + N * M] >= len_e - 1e-9
-        clear_m = hits[:, N * K + N * M :] >= len_m - 1e-9
-        seen = _in_view(p, view.pursuer_heading, view.evader_pos, config.perception_radius, config.field_of_view)
-        seen &= clear_e.reshape(W, N, M)
-        mates = _in_view(p, view.pursuer_heading, p, config.perception_radius, config.field_of_view)
-        mates &= clear_m.reshape(W, N, N)
+        visible = _visible(p, view.pursuer_heading, np.concatenate([view.evader_pos, p], axis=1), config, view.obstacles)
+        seen, mates = visible[..., :M], visible[..., M:]
         if config.miss_probability > 0:
             seen &= rng.random((W, N, M)) >= config.miss_probability
     else:

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pursuit_mj.config import ConfigError, default_config
+from pursuit_mj.config import ConfigError, default_config, load_task_config
 from pursuit_mj.env import PursuitEnv
 
 FAST = dict(fidelity="point", random_obstacles=0)
@@ -139,3 +139,44 @@ def test_a_world_whose_physics_diverges_ends_as_a_collision_without_stopping_the
     assert np.isfinite(obs).all() and np.isfinite(reward).all()
     obs, *_ = env.step(np.zeros((2, 3, 2)))
     assert np.isfinite(obs).all()
+
+
+@pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
+def test_reset_worlds_with_a_seed_replays_an_episode_exactly(fidelity):
+    """An episode is a function of its seed and actions: noise, misses, obstacles and the
+    evader's zigzag included, whatever world it runs in and whatever the others do."""
+    config = load_task_config(["hard"], flags={"fidelity": fidelity, "random_obstacles": 3})
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (25, 3, 2))
+
+    def replay(env, world, prefix_steps):
+        for _ in range(prefix_steps):  # other episodes first, so the world is not fresh
+            env.step(rng.uniform(-1, 1, (env.n_worlds, 3, 2)))
+        obs = [env.reset_worlds([world], [12345])[world]]
+        for a in actions:
+            batch = rng.uniform(-1, 1, (env.n_worlds, 3, 2))
+            batch[world] = a
+            obs.append(env.step(batch)[0][world])
+        return np.stack(obs), env.snapshot(world).evader_pos
+
+    a = PursuitEnv(config, n_worlds=3, seed=1)
+    a.reset()
+    b = PursuitEnv(config, n_worlds=1, seed=2, auto_reset=False)
+    b.reset(seeds=[7])
+    obs_a, ev_a = replay(a, 1, 4)
+    obs_b, ev_b = replay(b, 0, 0)
+    assert np.array_equal(obs_a, obs_b) and np.array_equal(ev_a, ev_b)
+    assert not np.array_equal(obs_a[1:, :, :2], obs_a[:-1, :, :2])  # it moved
+
+
+def test_bad_episode_seeds_are_refused():
+    env = PursuitEnv(default_config(**FAST), n_worlds=2)
+    env.reset()
+    with pytest.raises(ValueError, match="reset_worlds seeds"):
+        env.reset_worlds([0, 1], [1])
+    with pytest.raises(ValueError, match="reset_worlds seeds"):
+        env.reset_worlds([0], [-3])
+    with pytest.raises(ValueError, match="reset seeds"):
+        env.reset(seeds=[1.5, 2.0])
+    with pytest.raises(ValueError, match="world_ids"):
+        env.reset_worlds([2])

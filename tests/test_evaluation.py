@@ -10,7 +10,7 @@ import pytest
 from pursuit_mj.cli import main
 from pursuit_mj.config import default_config, load_task_config
 from pursuit_mj.env import EpisodeRecord
-from pursuit_mj.evaluation import FIELDS, evaluate, read_csv, summarise
+from pursuit_mj.evaluation import FIELDS, evaluate, format_table, read_csv, run_episodes, summarise
 from pursuit_mj.heuristic import HeuristicTeam
 from pursuit_mj.recording.rrd_read import read_entities
 from pursuit_mj.stats import mean_interval, t_quantile_975, wilson_interval
@@ -56,6 +56,7 @@ def test_difficulty_presets_by_bare_name():
     assert easy == default_config(evader_speed=0.45)
     assert (hard.evader_speed, hard.perception_radius) == (0.9, 1.5)
     assert hard.position_noise > 0 and 0 < hard.miss_probability < 0.5
+    assert hard.field_of_view == pytest.approx(math.radians(120))  # a camera's view, not all round
     assert load_task_config(["hard"], flags={"fidelity": "point"}).fidelity == "point"
 
 
@@ -96,6 +97,23 @@ def test_same_seed_same_table_and_every_episode_counted():
     assert len({rec[1] for rec in rec_a}) == 10  # every episode has its own seed
     _, rec_c = run(4, [0])
     assert not {rec[1] for rec in rec_c} & {rec[1] for rec in rec_a}  # another seed, other episodes
+
+
+@pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
+def test_same_table_whatever_the_number_of_worlds(fidelity):
+    # the hard preset: perception noise and missed detections on, plus random obstacles
+    config = load_task_config(["hard"], flags={"fidelity": fidelity}, overrides=["max_steps=40"])
+    assert config.position_noise > 0 and config.miss_probability > 0 and config.random_obstacles > 0
+
+    def run(worlds):
+        records = run_episodes(HeuristicTeam.from_config(config), config, 5, seed=11, n_worlds=worlds)
+        return [(r.seed, r.outcome, r.steps, r.time_to_capture, r.returns) for r in records]
+
+    one, three = run(1), run(3)
+    assert one == three
+    assert len({r[0] for r in one}) == 5 and len({str(r[4]) for r in one}) == 5  # distinct episodes
+    rows = [evaluate(HeuristicTeam.from_config(config), config, [0], episodes=4, seed=3, n_worlds=w) for w in (2, 3)]
+    assert format_table(rows[0]) == format_table(rows[1]) and rows[0] == rows[1]
 
 
 def test_evaluate_refuses_bad_layouts_and_counts_before_running():

@@ -13,6 +13,7 @@ from pursuit_mj.geometry import (
     ObstacleSet,
     border_distance,
     box_sdf,
+    cast_fan,
     cast_rays,
     cylinder_sdf,
     inside_boundary,
@@ -82,6 +83,26 @@ def test_stacked_sets_with_padding_give_the_same_distances_and_rays():
     for w, layout in enumerate((a, b)):
         np.testing.assert_allclose(batched_d[w], obstacle_distance(pts[w], layout.obstacle_set()))
         np.testing.assert_allclose(batched_r[w], cast_rays(pts[w], dirs[w], layout.obstacle_set()))
+
+
+def test_fan_of_rays_matches_single_rays_and_distances_match_per_kind():
+    a = layout_with([{"cylinder": {"center": [1.0, 2.5], "radius": 0.3}}, {"box": {"center": [2.5, 1.5], "size": [0.6, 0.2], "yaw": 0.7}}])
+    b = layout_with([{"box": {"center": [2.0, 2.0], "size": [0.4, 0.4]}}, {"wall": {"from": [0.5, 4.0], "to": [3.0, 4.0]}}],
+                    boundary={"circle": {"center": [1.8, 2.5], "radius": 1.8}}, spawn=central_spawn(1.0, 3.6))
+    stacked = ObstacleSet.stack([a.obstacle_set(), b.obstacle_set()])
+    rng = np.random.default_rng(2)
+    pts = rng.uniform([0.5, 1.0], [3.0, 4.0], (2, 7, 2))
+    pts[0, 0] = [1.0, 2.6]  # inside the cylinder: every ray reads 0
+    angles = rng.uniform(0, 2 * math.pi, 9)
+    fan_dirs = np.stack([np.cos(angles), np.sin(angles)], -1)
+    fan = cast_fan(pts, fan_dirs, stacked)  # (2, 7, 9)
+    single = cast_rays(np.repeat(pts, 9, axis=1), np.broadcast_to(fan_dirs, (2, 7, 9, 2)).reshape(2, 63, 2), stacked)
+    np.testing.assert_allclose(fan, single.reshape(2, 7, 9), atol=1e-9)
+    assert (fan[0, 0] == 0).all() and cast_fan(pts, np.zeros((0, 2)), stacked).shape == (2, 7, 0)
+    for w, layout in enumerate((a, b)):  # the fused distance equals the minimum over each kind
+        o = layout.obstacle_set()
+        parts = [box_sdf(pts[w], o.boxes), cylinder_sdf(pts[w], o.cylinders), border_distance(pts[w], o.border)[:, None]]
+        np.testing.assert_allclose(obstacle_distance(pts, stacked)[w], np.concatenate(parts, -1).min(-1), atol=1e-12)
 
 
 def test_rays_by_hand():

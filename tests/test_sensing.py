@@ -10,6 +10,7 @@ from pursuit_mj.geometry import ObstacleSet
 from pursuit_mj.layout import layout_from_dict
 from pursuit_mj.observations import build_observations
 from pursuit_mj.obs_spec import ObsSpec
+from pursuit_mj.randomness import WorldRandom, world_keys
 from pursuit_mj.sensing import WorldView, perceive
 
 
@@ -124,3 +125,19 @@ def test_noise_and_missed_detections_are_seeded():
     assert np.abs(a.evader_pos_est[0, 0, 0] - [1.5, 2.0]).max() < 0.3
     missed = perceive(view, default_config(miss_probability=1.0), np.random.default_rng(0))
     assert not missed.seen.any()
+
+
+def test_world_random_draws_depend_on_their_own_world_only():
+    keys, ticks = world_keys(np.array([5, 6, 7])), np.array([0, 3, 9])
+    three = WorldRandom(keys, ticks)
+    a, b = three.random((3, 2, 4)), three.normal(0.0, 0.05, (3, 2, 4, 2))
+    one = WorldRandom(keys[1:2], ticks[1:2])
+    assert np.array_equal(one.random((1, 2, 4))[0], a[1]) and np.array_equal(one.normal(0.0, 0.05, (1, 2, 4, 2))[0], b[1])
+    assert not np.array_equal(a[0], a[1])  # other seeds, other numbers
+    assert not np.array_equal(WorldRandom(keys, ticks + 1).random((3, 2, 4)), a)  # next step, new numbers
+    u = WorldRandom(world_keys(np.arange(200)), np.zeros(200, int)).random((200, 50))
+    z = WorldRandom(world_keys(np.arange(200)), np.zeros(200, int)).normal(0.0, 1.0, (200, 50))
+    assert 0.0 <= u.min() and u.max() < 1.0 and abs(u.mean() - 0.5) < 0.01
+    assert abs(z.mean()) < 0.02 and abs(z.std() - 1.0) < 0.02
+    with pytest.raises(ValueError, match="number of worlds"):
+        three.random((2, 4))
