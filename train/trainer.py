@@ -280,7 +280,7 @@ class Trainer:
         cfg, c = self.cfg, self.counters
         self.run_dir.mkdir(parents=True, exist_ok=True)
         atomic_write_text(self.run_dir / "config.yaml", dump_yaml(cfg))
-        bar = _progress(cfg, c)
+        bar = _progress(cfg, self.progress())
         last_val: dict = {}
         status = "done"
         try:
@@ -297,7 +297,7 @@ class Trainer:
                 self.metrics.append(row)
                 if self.rerun is not None:
                     self.rerun.log(int(row["world_steps"]), row)
-                _advance(bar, row, self.recent, last_val)
+                _advance(bar, row, self.recent, last_val, self.progress())
             if self._saved_update != c.update:
                 self.save()
         except KeyboardInterrupt:
@@ -319,22 +319,24 @@ def _mean_returns(episodes) -> dict[str, float]:
     return {k: float(np.mean([e.returns[k] for e in episodes])) for k in keys}
 
 
-def _progress(cfg: TrainConfig, c: Counters):
+def _progress(cfg: TrainConfig, done: float):
+    """A tqdm bar in percent of the run (by steps, or by time when max_minutes ends it sooner)."""
     if not cfg.run.progress:
         return None
     from tqdm import tqdm
 
-    return tqdm(total=cfg.total_steps, initial=min(c.world_steps, cfg.total_steps), unit="step",
-                desc=cfg.name, dynamic_ncols=True, smoothing=0.1)
+    return tqdm(total=100.0, initial=round(100.0 * done, 1), unit="%", desc=cfg.name, dynamic_ncols=True,
+                smoothing=0.1, bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}{postfix}]")
 
 
-def _advance(bar, row: dict, recent, last_val: dict) -> None:
+def _advance(bar, row: dict, recent, last_val: dict, done: float) -> None:
     if bar is None:
         return
     s = summarise(list(recent)) if recent else {}
     post = {
+        "steps": row["world_steps"],
         "succ": f"{s.get('success', 0):.0%}", "coll": f"{s.get('collision', 0):.0%}",
-        "steps": f"{s.get('mean_steps', float('nan')):.0f}",
+        "ep_len": f"{s.get('mean_steps', float('nan')):.0f}",
         "sps": f"{row['agent_steps_per_s']:.0f}",
     }
     if "gamma_meta_grad" in row:
@@ -342,4 +344,4 @@ def _advance(bar, row: dict, recent, last_val: dict) -> None:
     if last_val:
         post["val"] = f"{last_val['success']:.0%}"
     bar.set_postfix(post, refresh=False)
-    bar.update(min(row["world_steps"], bar.total) - bar.n)
+    bar.update(max(round(100.0 * done, 1) - bar.n, 0.0))

@@ -11,13 +11,15 @@ import time
 from pathlib import Path
 
 from ..config import REPO_ROOT
-from .common import add_task_args, task_config_from_args
+from .common import SHIELD_HELP, add_shield_arg, add_task_args, shield_if_asked, task_config_from_args
 
 PRETRAINED = REPO_ROOT / "pretrained" / "pursuers.pt"
 
 HOW_TO_TRAIN = """\
 Next steps:
-  pursuit-mj train --config configs/train/full_obs.yaml          # PPO with full observability
+  pursuit-mj train --config imitate                              # DAgger from the heuristic team (a warm start)
+  pursuit-mj train --config finetune_ppo --set init_from=runs/imitate/best.pt --set task.fidelity=quadrotor
+  pursuit-mj train --config configs/train/full_obs.yaml          # the reference regimes: PPO from scratch
   pursuit-mj train --config configs/train/fine_tune.yaml         # ... then fine-tune it under partial observability
   pursuit-mj train --config configs/train/classic.yaml --set task.fidelity=point   # faster physics, same actions
   pursuit-mj eval --model runs/fine_tune/best.pt --policy heuristic --layouts 0 1 2 3 --plots results/plots
@@ -38,6 +40,7 @@ def register(sub) -> None:
     p.add_argument("--worlds", type=int, default=16, help="parallel worlds (default 16)")
     p.add_argument("--seed", type=int, default=0, help="table seed")
     p.add_argument("--no-heuristic", action="store_true", help="evaluate the model only")
+    add_shield_arg(p, SHIELD_HELP.replace("on the policy", "on the model"))
     add_task_args(p)
     p.set_defaults(func=run)
 
@@ -58,7 +61,8 @@ def run(args) -> int:
     config = task_config_from_args(args)
     layouts = [int(x) if x.strip().isdigit() else x for x in args.layouts]
     policy = load_policy(model, _spec(config), name="pretrained" if model == PRETRAINED else None)
-    policies = [(policy.name, policy)]
+    policy, label = shield_if_asked(args, policy, policy.name, config)
+    policies = [(label, policy)]
     if not args.no_heuristic:
         policies.append(("heuristic", make_policy("heuristic", config)))
     print(f"demo: {len(policies)} policies x {len(layouts)} layouts x {args.episodes} episodes, "
