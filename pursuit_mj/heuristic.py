@@ -14,9 +14,10 @@ Per pursuer, every decision step:
    teammates' positions, see coverage.py), away from teammates;
 5. steer around what the rays see (a tangent-bug: follow an obstacle on one side until the
    way to the aim point opens);
-6. stay safe: repel from teammates within `mate_radius` and from close walls, and cap the
-   speed toward any wall ray, teammate or captured evader so that the gap closes
-   gradually (a collision fails the episode, so safety wins over speed).
+6. stay safe: repel from teammates within `mate_radius` and from close walls, then pass
+   the velocity through the `SafetyShield` (shield.py), which caps the speed toward any
+   recent wall ray hit, teammate or captured evader so that the gap closes gradually (a
+   collision fails the episode, so safety wins over speed).
 
 Everything is vectorised over worlds, pursuers and rays; loops run only over a fixed
 number of projection passes, never over drones.
@@ -30,14 +31,18 @@ import math
 import numpy as np
 
 from .coverage import CoverageMap, CoverageParams
-from .obs_spec import ObsSpec
+from .obs_spec import ObsSpec, named_views
+from .shield import SafetyShield, ShieldParams, clip_unit, unit
 
 _TINY = 1e-9
 
 
 @dataclasses.dataclass(frozen=True)
 class HeuristicParams:
-    """Tuning of the team. Distances in m, times in s, gains dimensionless unless stated."""
+    """Tuning of the team. Distances in m, times in s, gains dimensionless unless stated.
+
+    safety_buffer .. hit_memory tune the team's SafetyShield (see ShieldParams, same defaults).
+    """
 
     lead_time_max: float = 1.5  # longest prediction horizon for a visible target (s)
     lead_gain: float = 0.6  # prediction horizon = lead_gain * distance / pursuer speed, capped
@@ -52,14 +57,19 @@ class HeuristicParams:
     mate_gain: float = 1.5  # teammate repulsion at contact, in units of pursuer speed
     wall_margin: float = 0.35  # wall repulsion starts here (m, ray range)
     wall_gain: float = 1.2  # wall repulsion at contact, in units of pursuer speed
-    safety_buffer: float = 0.05  # keep this much beyond each clearance (m)
-    approach_rate: float = 1.5  # max closing speed toward a hazard = rate * (gap - buffer) (1/s)
-    response_time: float = 0.25  # the gap shrinks by this much of the current closing speed before a command acts (s)
-    safety_passes: int = 4  # projection passes of the closing-speed limits
-    hit_memory: int = 12  # steps of ray hit points kept as hazards
+    safety_buffer: float = ShieldParams.safety_buffer
+    approach_rate: float = ShieldParams.approach_rate
+    response_time: float = ShieldParams.response_time
+    safety_passes: int = ShieldParams.safety_passes
+    hit_memory: int = ShieldParams.hit_memory
     open_distance: float = 0.6  # a direction is open if its ray reaches this far (or the goal) (m)
     side_timeout: float = 10.0  # follow an obstacle on one side at most this long, then the other (s)
     coverage: CoverageParams = dataclasses.field(default_factory=CoverageParams)
+
+    @property
+    def shield(self) -> ShieldParams:
+        """The safety-shield fields as ShieldParams."""
+        return ShieldParams(**{f.name: getattr(self, f.name) for f in dataclasses.fields(ShieldParams)})
 
 
 class HeuristicTeam:
@@ -72,6 +82,7 @@ class HeuristicTeam:
     """
 
     name = "heuristic"
+    has_shield = True  # its own SafetyShield is built in: eval/render/fly do not add another
 
     def __init__(
         self,
@@ -95,6 +106,7 @@ class HeuristicTeam:
         self.ray_range = float(ray_range)
         self.perception_radius = float(perception_radius)
         self.p = params or HeuristicParams()
+        self.shield = SafetyShield(pursuer_speed, capture_radius, obstacle_clearance, teammate_clearance, ray_range, self.p.shield)
         self._n_worlds: int | None = None
         self._mem: dict = {}  # see _memory
 
@@ -108,6 +120,7 @@ class HeuristicTeam:
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
         """Forget the listed worlds (all, and resize, when world_ids is None)."""
+        self.shield.reset(n_worlds, world_ids)
         if world_ids is None or self._n_worlds != n_worlds:
             self._n_worlds = int(n_worlds)
             self._mem = {}
@@ -119,7 +132,6 @@ class HeuristicTeam:
             self._mem["side"][ids] = 0
             self._mem["side_time"][ids] = 0.0
             self._mem["map"].reset(ids)
-            self._mem["hit_ok"][ids] = False
 
     def _memory(self, W: int, N: int, M: int, K: int) -> dict:
         """Per-world, per-pursuer memory, allocated on the first observation after a full reset.
@@ -127,12 +139,12 @@ class HeuristicTeam:
         last_pos (W, N, M, 2) m world: where each evader was last known; last_vel (W, N, M, 2)
         m/s; age (W, N, M) s since then (inf: nothing to go to); time (W,) s since the
         episode started; side (W, N) +1/-1 while following an obstacle counter-/clockwise, 0
-        otherwise; side_time (W, N) s on that side; map: the CoverageMap of every pursuer;
-        hits (W, N, hit_memory * K, 2) m world: recent ray end points, hit_ok: which are on
-        an obstacle; slot: the ring-buffer position of the next step's hits.
+        otherwise; side_time (W, N) s on that side; map: the CoverageMap of every pursuer.
+        The shield's hit memory is reset with it.
         """
         m = self._mem
-        if not m or m["age"].shape != (W, N, M) or m["hits"].shape[2] != self.p.hit_memory * K:
+        if not m or m["age"].shape != (W, N, M) or m["n_rays"] != K:
+            self.shield.reset(W)
             self._mem = m = {
                 "last_pos": np.zeros((W, N, M, 2)),
                 "last_vel": np.zeros((W, N, M, 2)),
@@ -141,9 +153,7 @@ class HeuristicTeam:
                 "side": np.zeros((W, N), np.int64),
                 "side_time": np.zeros((W, N)),
                 "map": CoverageMap(W, N, self.p.coverage),
-                "hits": np.zeros((W, N, self.p.hit_memory * K, 2)),
-                "hit_ok": np.zeros((W, N, self.p.hit_memory * K), bool),
-                "slot": 0,
+                "n_rays": K,
             }
         return m
 
@@ -167,16 +177,15 @@ class HeuristicTeam:
         see = min(self.p.coverage.see_radius, self.perception_radius)
         mem["map"].update(o["pos"], o["rays"], o["ray_dirs"], self.ray_range, mate_abs, o["mate_vis"], mem["time"], see)
         self._remember(mem, o)
-        self._remember_hits(mem, o)
         target, has_target = self._choose_target(mem, o)
         sweep, planned = self._sweep(mem, o, mate_abs)
         aim = np.where(has_target[..., None], self._chase(mem, o, target), sweep)
-        direction = np.where((planned & ~has_target)[..., None], _unit(aim), self._steer(mem, o, aim))
+        direction = np.where((planned & ~has_target)[..., None], unit(aim), self._steer(mem, o, aim))
         v = self.speed * direction
         v = v + self._repulsion(o)
-        v = self._limit_closing(v, mem, o)
+        v = self.shield.filter(v, o)
         mem["time"] += self.dt
-        return _clip_unit(v / self.speed)
+        return clip_unit(v / self.speed)
 
     def _remember(self, mem: dict, o: dict) -> None:
         """Update the last known positions; forget the ones that were searched or are too old."""
@@ -263,7 +272,7 @@ class HeuristicTeam:
         after side_timeout): a tangent-bug that follows walls to their ends and doors.
         """
         K = o["rays"].shape[-1]
-        direct = _unit(aim)
+        direct = unit(aim)
         if K == 0:
             mem["side"][:] = 0
             return direct
@@ -306,66 +315,12 @@ class HeuristicTeam:
         d_mate = np.linalg.norm(o["mate_rel"], axis=-1)
         span = max(p.mate_radius - self.teammate_clearance, _TINY)
         w_mate = np.clip((p.mate_radius - d_mate) / span, 0.0, 1.0) ** 2 * o["mate_vis"]
-        v = -(w_mate[..., None] * _unit(o["mate_rel"])).sum(2) * p.mate_gain * self.speed
+        v = -(w_mate[..., None] * unit(o["mate_rel"])).sum(2) * p.mate_gain * self.speed
         if o["rays"].shape[-1]:
             span = max(p.wall_margin - self.obstacle_clearance, _TINY)
             w_wall = np.clip((p.wall_margin - o["rays"]) / span, 0.0, 1.0) ** 2  # (W, N, K)
             push = -(w_wall[..., None] * o["ray_dirs"]).sum(2)
-            v = v + p.wall_gain * self.speed * _unit(push) * w_wall.max(-1, keepdims=True)
-        return v
-
-    def _remember_hits(self, mem: dict, o: dict) -> None:
-        """Keep the last `hit_memory` steps of ray end points on obstacles (world frame): a thin
-        wall seen edge-on slips between the rays of one step, but not between those of many."""
-        K = o["rays"].shape[-1]
-        if K == 0:
-            return
-        slot = int(mem["slot"]) % self.p.hit_memory
-        mem["slot"] = slot + 1
-        sl = slice(slot * K, (slot + 1) * K)
-        mem["hits"][:, :, sl] = o["pos"][:, :, None] + o["rays"][..., None] * o["ray_dirs"]
-        mem["hit_ok"][:, :, sl] = o["rays"] < self.ray_range - 1e-6
-
-    def _limit_closing(self, v: np.ndarray, mem: dict, o: dict) -> np.ndarray:
-        """Cap the speed toward each hazard to approach_rate * (gap - buffer), by projection.
-
-        Hazards: every remembered ray hit point (gap = distance - obstacle clearance), every
-        visible teammate (gap = distance - teammate clearance, half each since both move) and
-        every captured evader (gap = distance - capture radius - obstacle clearance). Each gap
-        is first shortened by what the current closing speed covers in `response_time` (the
-        drone does not stop at once).
-        """
-        p = self.p
-        lag = p.response_time
-        dirs, limits = [], []
-        if o["rays"].shape[-1]:
-            rel = mem["hits"] - o["pos"][:, :, None]
-            d = np.sqrt(rel[..., 0] ** 2 + rel[..., 1] ** 2)
-            u = rel / np.maximum(d, _TINY)[..., None]
-            closing = np.maximum(np.einsum("wnhk,wnk->wnh", u, o["vel"]), 0.0)
-            gap = d - self.obstacle_clearance - p.safety_buffer - lag * closing
-            dirs.append(u)
-            limits.append(np.where(mem["hit_ok"], p.approach_rate * gap, np.inf))
-        if o["mate_rel"].shape[2]:
-            d = np.linalg.norm(o["mate_rel"], axis=-1)
-            u = _unit(o["mate_rel"])
-            closing = np.maximum(-np.einsum("wnmk,wnmk->wnm", u, o["mate_dvel"]), 0.0)
-            gap = np.where(o["mate_vis"], d - self.teammate_clearance - p.safety_buffer - lag * closing, np.inf)
-            dirs.append(u)
-            limits.append(0.5 * p.approach_rate * gap)
-        d = np.linalg.norm(o["ev_rel"], axis=-1)
-        u = _unit(o["ev_rel"])
-        closing = np.maximum(np.einsum("wnmk,wnk->wnm", u, o["vel"]), 0.0)
-        gap = d - self.capture_radius - self.obstacle_clearance - p.safety_buffer - lag * closing
-        dirs.append(u)
-        limits.append(np.where(o["ev_cap"] & o["ev_vis"], p.approach_rate * gap, np.inf))
-        u = np.concatenate(dirs, axis=2)  # (W, N, H, 2)
-        cap = np.concatenate(limits, axis=2)  # (W, N, H) m/s, may be negative (back off)
-        for _ in range(p.safety_passes):
-            excess = np.einsum("wnhk,wnk->wnh", u, v) - cap
-            worst = np.argmax(excess, axis=-1)[..., None]
-            amount = np.maximum(np.take_along_axis(excess, worst, -1), 0.0)
-            v = v - amount * np.take_along_axis(u, worst[..., None], 2)[:, :, 0]
+            v = v + p.wall_gain * self.speed * unit(push) * w_wall.max(-1, keepdims=True)
         return v
 
 
@@ -373,29 +328,11 @@ class HeuristicTeam:
 
 
 def _parse(obs: np.ndarray, spec: ObsSpec) -> dict[str, np.ndarray]:
-    """Named views of observations (W, N, dim); see obs_spec.py for units and frames."""
-    W, N = obs.shape[:2]
-    own = spec.group("self").view(obs)[:, :, 0]
-    mates = spec.group("teammates").view(obs)
-    ev = spec.group("evaders").view(obs)
-    rays = spec.group("rays").view(obs)[:, :, 0] if spec.n_rays else np.zeros((W, N, 0))
-    angles = 2 * np.pi * np.arange(spec.n_rays) / max(spec.n_rays, 1)
+    """Named views of observations (W, N, dim) (obs_spec.named_views), plus tie_side (N, N-1)."""
+    N = obs.shape[1]
     # teammate j of pursuer i is stored in index order skipping i: the lower index yields
     tie = np.array([[1.0 if j < i else -1.0 for j in range(N) if j != i] for i in range(N)]).reshape(N, N - 1)
-    return {
-        "pos": own[..., 0:2],
-        "vel": own[..., 2:4],
-        "mate_rel": mates[..., 0:2],
-        "mate_dvel": mates[..., 2:4],
-        "mate_vis": mates[..., 4] > 0.5,
-        "ev_rel": ev[..., 0:2],
-        "ev_vel": ev[..., 2:4],
-        "ev_vis": ev[..., 4] > 0.5,
-        "ev_cap": ev[..., 6] > 0.5,
-        "rays": rays,
-        "ray_dirs": np.stack([np.cos(angles), np.sin(angles)], -1),  # (K, 2) world frame
-        "tie_side": tie,
-    }
+    return {**named_views(obs, spec), "tie_side": tie}
 
 
 def _first_true(a: np.ndarray) -> np.ndarray:
@@ -403,16 +340,5 @@ def _first_true(a: np.ndarray) -> np.ndarray:
     return np.where(a.any(-1), np.argmax(a, -1), a.shape[-1])
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return np.where(n > _TINY, v / np.maximum(n, _TINY), 0.0)
-
-
 def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + np.pi) % (2 * np.pi) - np.pi
-
-
-def _clip_unit(a: np.ndarray) -> np.ndarray:
-    """Scale (..., 2) down to at most unit norm (direction kept), so both axes lie in [-1, 1]."""
-    n = np.linalg.norm(a, axis=-1, keepdims=True)
-    return a / np.maximum(n, 1.0)

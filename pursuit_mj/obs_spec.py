@@ -111,3 +111,31 @@ class ObsSpec:
            [(g[0], g[2]) for g in other.get("groups", [])] != [(g[0], g[2]) for g in mine["groups"]]:
             return f"observation features differ: model {other.get('groups')} vs environment {mine['groups']}"
         return None
+
+
+def named_views(obs: np.ndarray, spec: ObsSpec) -> dict[str, np.ndarray]:
+    """Named arrays of observations obs (W, N, spec.dim), layout frame, SI units.
+
+    pos, vel (W, N, 2) m, m/s: own state; mate_rel, mate_dvel (W, N, N-1, 2) m, m/s and
+    mate_vis (W, N, N-1) bool; ev_rel (W, N, M, 2) m, ev_vel (W, N, M, 2) m/s, ev_vis and
+    ev_cap (W, N, M) bool; rays (W, N, K) m; ray_dirs (K, 2) unit vectors of the rays.
+    """
+    W, N = obs.shape[:2]
+    own = spec.group("self").view(obs)[:, :, 0]
+    mates = spec.group("teammates").view(obs)
+    ev = spec.group("evaders").view(obs)
+    rays = spec.group("rays").view(obs)[:, :, 0] if spec.n_rays else np.zeros((W, N, 0))
+    angles = 2 * np.pi * np.arange(spec.n_rays) / max(spec.n_rays, 1)
+    return {
+        "pos": own[..., 0:2],
+        "vel": own[..., 2:4],
+        "mate_rel": mates[..., 0:2],
+        "mate_dvel": mates[..., 2:4],
+        "mate_vis": mates[..., 4] > 0.5,
+        "ev_rel": ev[..., 0:2],
+        "ev_vel": ev[..., 2:4],
+        "ev_vis": ev[..., 4] > 0.5,
+        "ev_cap": ev[..., 6] > 0.5,
+        "rays": rays,
+        "ray_dirs": np.stack([np.cos(angles), np.sin(angles)], -1),
+    }

@@ -45,3 +45,22 @@ def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
     if getattr(args, "show_config", False):
         print(dump_yaml(cfg))
     return cfg
+
+
+SHIELD_HELP = ("put the safety shield on the policy (pursuit_mj/shield.py): from the pursuer's own observation it caps "
+               "the speed toward walls, teammates and captured evaders; results are labelled NAME+shield. The heuristic "
+               "team has the same shield built in and is left as is")
+
+
+def add_shield_arg(p: argparse.ArgumentParser, help: str = SHIELD_HELP) -> None:
+    p.add_argument("--shield", action="store_true", help=help)
+
+
+def shield_if_asked(args: argparse.Namespace, policy, label: str, config: TaskConfig) -> tuple[object, str]:
+    """(policy, label) behind a SafetyShield when --shield is given, unless it has one built in (the heuristic)."""
+    from ..shield import shield_policy
+
+    if not getattr(args, "shield", False):
+        return policy, label
+    wrapped = shield_policy(policy, config)
+    return (policy, label) if wrapped is policy else (wrapped, f"{label}+shield")

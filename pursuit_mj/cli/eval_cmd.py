@@ -3,6 +3,7 @@
     pursuit-mj eval --policy heuristic --layouts 0 1 2 3 --episodes 150
     pursuit-mj eval --policy heuristic --policy random --model runs/a/best.pt --out results/table --plots results/plots
     pursuit-mj eval --task hard --fidelity point --layouts 3 --episodes 20 --rerun hard3.rrd
+    pursuit-mj eval --model runs/a/best.pt --policy random --shield --layouts 0 1
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from ..io_utils import check_writable
 from ..layout import load_layout
 from ..obs_spec import ObsSpec
 from ..policies import POLICY_NAMES, make_policy
-from .common import add_task_args, task_config_from_args
+from .common import SHIELD_HELP, add_shield_arg, add_task_args, shield_if_asked, task_config_from_args
 
 
 def register(sub) -> None:
@@ -30,11 +31,12 @@ def register(sub) -> None:
                    help=f"a hand-made team: {', '.join(POLICY_NAMES)} (repeatable; default heuristic if no --model)")
     p.add_argument("-m", "--model", action="append", default=[], metavar="FILE",
                    help="a trained checkpoint (loaded with train.policy.load_policy; repeatable)")
+    add_shield_arg(p, SHIELD_HELP.replace("on the policy", "on every --model and --policy given"))
     p.add_argument("--layouts", nargs="+", metavar="LAYOUT",
                    help="layout indices 0-3 and/or layout files (default: the task's layout)")
     p.add_argument("--episodes", type=int, default=150, help="episodes per policy and layout (default 150)")
     p.add_argument("--worlds", type=int, default=32, help="parallel worlds (default 32)")
-    p.add_argument("--seed", type=int, default=0, help="table seed: same seed and worlds, same table (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="table seed: same seed, same table, whatever --worlds (default 0)")
     p.add_argument("--out", metavar="PREFIX", help="write PREFIX.csv and PREFIX.json")
     p.add_argument("--csv", metavar="FILE", help="write the table as CSV")
     p.add_argument("--json", metavar="FILE", help="write the table and the resolved config as JSON")
@@ -75,11 +77,13 @@ def _load_model(path: str, spec):
 
 
 def _policies(args, config) -> list[tuple[str, object]]:
-    """(label, policy) pairs in command-line order: hand-made teams first, then models."""
+    """(label, policy) pairs in command-line order: hand-made teams first, then models (shielded with --shield)."""
     names = args.policy or ([] if args.model else ["heuristic"])
     out = [(name, make_policy(name, config, args.seed)) for name in names]
     spec = ObsSpec.make(config.n_pursuers, config.n_evaders, config.n_rays)
     out += [(getattr(pol, "name", Path(m).stem), pol) for m, pol in ((m, _load_model(m, spec)) for m in args.model)]
+    shielded = [shield_if_asked(args, pol, label, config) for label, pol in out]
+    out = [(label, pol) for pol, label in shielded]
     seen: dict[str, int] = {}
     labelled = []
     for label, pol in out:
@@ -133,7 +137,8 @@ def run(args) -> int:
         rows = _run_table(args, config, layouts, policies, recording)
     print(format_table(rows))
     meta = {"episodes": args.episodes, "worlds": args.worlds, "seed": args.seed,
-            "policies": [label for label, _ in policies], "models": list(args.model)}
+            "policies": [label for label, _ in policies], "models": list(args.model),
+            "shield": bool(args.shield)}
     if csv_path:
         print(f"wrote {write_csv(rows, csv_path)}")
     if json_path:

@@ -12,6 +12,8 @@ import dataclasses
 import logging
 import sys
 
+from .common import add_shield_arg, shield_if_asked
+
 KEYS_HELP = "during a flight: e or space = emergency stop (motors off), l = land everyone, Ctrl-C = land everyone (twice: motors off), Ctrl-\\ = motors off"
 
 
@@ -25,6 +27,7 @@ def register(sub) -> None:
     _flight_args(p)
     p.add_argument("--policy", help="hand-made team by name (heuristic, random)")
     p.add_argument("--model", help="trained model file (e.g. runs/full_obs/best.pt)")
+    add_shield_arg(p)
     p.add_argument("--virtual", action="store_true", help="fly virtual Crazyflies on udp://127.0.0.1 instead of the radio URIs")
     p.add_argument("--fault", action="append", default=[], metavar="KIND:DRONE@S[=V]",
                    help="virtual only: inject a fault S seconds into the chase: drop_link:p1@3, freeze:p0@2, battery:e0@4=3.1 (repeatable)")
@@ -110,7 +113,7 @@ def run(args) -> int:
             raise ValueError(f"--max-time {args.max_time}: expected seconds in (0, 3600]")
         plan = dataclasses.replace(plan, spec=dataclasses.replace(plan.spec, max_time=args.max_time))
     events_path = args.events or default_events_path(plan)
-    policy = choose_policy(plan, args.policy, args.model, args.seed)
+    policy, _ = shield_if_asked(args, choose_policy(plan, args.policy, args.model, args.seed), "", plan.task)
     if args.fault and not args.virtual:
         raise ValueError("--fault rehearses failures on virtual drones only; add --virtual")
     for text in args.fault:

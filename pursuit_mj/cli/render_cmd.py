@@ -21,7 +21,7 @@ from ..configio import build, dump_yaml, load, load_yaml, to_dict
 from ..layout import load_layout
 from ..obs_spec import ObsSpec
 from ..policies import POLICY_NAMES, make_policy
-from .common import TASK_FLAG_KEYS, add_task_args, task_config_from_args
+from .common import TASK_FLAG_KEYS, add_shield_arg, add_task_args, shield_if_asked, task_config_from_args
 
 DEFAULT_SAVE = "renders"
 
@@ -40,6 +40,7 @@ def register(sub) -> None:
     ex.add_argument("--policy", choices=POLICY_NAMES, help="a hand-made team (default heuristic)")
     who.add_argument("-mc", "--model-config", metavar="FILE|PRESET",
                      help="training config (file or preset, e.g. classic): its task is the base task and its run's best.pt the default model")
+    add_shield_arg(who)
     out = p.add_argument_group("output")
     out.add_argument("-s", "--save-path", default=DEFAULT_SAVE, metavar="DIR|FILE",
                      help=f"folder for videos and images, or a video file name (.mp4/.gif) (default {DEFAULT_SAVE}/)")
@@ -239,7 +240,7 @@ def run(args) -> int:
         from ..recording import RerunEpisodeRecording, check_rrd_path
 
         check_rrd_path(args.rerun, "--rerun")
-    policy, label = choose_policy(args, config, train_cfg)
+    policy, label = shield_if_asked(args, *choose_policy(args, config, train_cfg), config)
     videos = finals = None
     if target is not None:
         stem = f"{label}_layout{Path(str(config.layout)).stem}_{config.fidelity}_seed{args.seed}"

@@ -1,0 +1,235 @@
+"""A safety shield for any pursuer policy: it caps the speed toward every hazard a pursuer knows of.
+
+The shield works from a pursuer's own observation only (its position and velocity, the
+range readings and the teammates and evaders it sees; see obs_spec.py), so it runs the
+same in simulation and on real drones. Every decision step, per pursuer:
+
+1. remember the end points of this step's range readings that hit something (world
+   frame, the last `hit_memory` steps): a thin wall seen edge-on slips between the rays
+   of one step, but not between those of many;
+2. cap the velocity component toward each hazard to approach_rate * (gap - buffer), by
+   projection (`safety_passes` passes, worst hazard first). Hazards: every remembered hit
+   (gap = distance - obstacle clearance), every visible teammate (gap = distance -
+   teammate clearance, half the rate each since both move) and every captured evader
+   (gap = distance - capture radius - obstacle clearance). Each gap is first shortened by
+   what the current closing speed covers in `response_time` (a drone does not stop at
+   once). A negative cap backs the pursuer off.
+
+A velocity that moves away from every hazard, or toward one slowly enough, passes
+unchanged. `Shielded` puts the shield on top of any `Policy`. The heuristic team
+(heuristic.py) uses the same `SafetyShield` as its last step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from .obs_spec import ObsSpec, named_views
+from .policy import Policy
+
+_TINY = 1e-9
+
+
+@dataclasses.dataclass(frozen=True)
+class ShieldParams:
+    """Tuning of the shield. Distances in m, times in s."""
+
+    safety_buffer: float = 0.05  # keep this much beyond each clearance (m)
+    approach_rate: float = 1.5  # max closing speed toward a hazard = rate * (gap - buffer) (1/s)
+    response_time: float = 0.25  # the gap shrinks by this much of the current closing speed before a command acts (s)
+    safety_passes: int = 4  # projection passes of the closing-speed limits
+    hit_memory: int = 12  # steps of ray hit points kept as hazards
+
+    def __post_init__(self):
+        for key in ("safety_buffer", "response_time"):
+            value = getattr(self, key)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"ShieldParams.{key}: expected a number >= 0, got {value!r}")
+        if not (isinstance(self.approach_rate, (int, float)) and math.isfinite(self.approach_rate) and self.approach_rate > 0):
+            raise ValueError(f"ShieldParams.approach_rate: expected a number > 0 (1/s), got {self.approach_rate!r}")
+        for key in ("safety_passes", "hit_memory"):
+            value = getattr(self, key)
+            if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 1):
+                raise ValueError(f"ShieldParams.{key}: expected an integer >= 1, got {value!r}")
+
+
+class SafetyShield:
+    """Filters desired velocities (W, N, 2) m/s, world frame, against the hazards each pursuer observes.
+
+    pursuer_speed (m/s) converts actions (fractions of it) to velocities in `Shielded`;
+    capture_radius (m) sizes captured evaders as hazards; obstacle/teammate clearance (m)
+    are the collision distances of the task; ray_range (m) is the cap of range readings (a
+    reading below it hit something). Keeps a hit memory per world: call `reset` at episode
+    starts, as for any policy.
+    """
+
+    def __init__(
+        self,
+        pursuer_speed: float = 0.3,
+        capture_radius: float = 0.3,
+        obstacle_clearance: float = 0.1,
+        teammate_clearance: float = 0.2,
+        ray_range: float = 2.0,
+        params: ShieldParams | None = None,
+    ):
+        for key, value, positive in (("pursuer_speed", pursuer_speed, True), ("ray_range", ray_range, True),
+                                     ("capture_radius", capture_radius, False), ("obstacle_clearance", obstacle_clearance, False),
+                                     ("teammate_clearance", teammate_clearance, False)):
+            if not (math.isfinite(value) and (value > 0 if positive else value >= 0)):
+                raise ValueError(f"SafetyShield: {key} must be a {'positive' if positive else 'non-negative'} number, got {value!r}")
+        self.speed = float(pursuer_speed)
+        self.capture_radius = float(capture_radius)
+        self.obstacle_clearance = float(obstacle_clearance)
+        self.teammate_clearance = float(teammate_clearance)
+        self.ray_range = float(ray_range)
+        self.p = params or ShieldParams()
+        self._n_worlds: int | None = None
+        self._hits: np.ndarray | None = None  # (W, N, hit_memory * K, 2) m world: recent ray end points
+        self._hit_ok: np.ndarray | None = None  # (W, N, hit_memory * K) bool: which of them are on something
+        self._slot = 0  # ring-buffer position of the next step's hits
+
+    @classmethod
+    def from_config(cls, config, params: ShieldParams | None = None) -> "SafetyShield":
+        """A shield for a TaskConfig's speed, clearances and ray range."""
+        return cls(config.pursuer_speed, config.capture_radius, config.obstacle_clearance,
+                   config.teammate_clearance, config.ray_range, params)
+
+    def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
+        """Forget the hits seen in the listed worlds (all, and resize, when world_ids is None)."""
+        if world_ids is None or self._n_worlds != n_worlds:
+            self._n_worlds = int(n_worlds)
+            self._hits = self._hit_ok = None
+            return
+        if self._hit_ok is not None:
+            self._hit_ok[np.asarray(world_ids, dtype=np.int64)] = False
+
+    def apply(self, v: np.ndarray, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
+        """Filtered velocities (W, N, 2) m/s from desired ones v (W, N, 2) m/s and observations (W, N, spec.dim)."""
+        obs = np.asarray(obs, dtype=np.float64)
+        if obs.ndim != 3 or obs.shape[1] != spec.n_pursuers or obs.shape[2] != spec.dim:
+            raise ValueError(f"SafetyShield: expected observations (worlds, {spec.n_pursuers}, {spec.dim}), got {obs.shape}")
+        if not np.isfinite(obs).all():
+            raise ValueError("SafetyShield: observations contain NaN or inf")
+        return self.filter(v, named_views(obs, spec))
+
+    def filter(self, v: np.ndarray, o: dict[str, np.ndarray]) -> np.ndarray:
+        """Filtered velocities (W, N, 2) m/s from desired ones v (W, N, 2) m/s and the named
+        observation arrays o (obs_spec.named_views); remembers this step's ray hits."""
+        v = np.asarray(v, dtype=np.float64)
+        W, N = o["pos"].shape[:2]
+        if v.shape != (W, N, 2):
+            raise ValueError(f"SafetyShield: expected velocities of shape {(W, N, 2)} (worlds, pursuers, vx vy), got {v.shape}")
+        if not np.isfinite(v).all():
+            raise ValueError("SafetyShield: desired velocities contain NaN or inf")
+        if self._n_worlds is None:
+            self._n_worlds = W
+        if W != self._n_worlds:
+            raise ValueError(f"SafetyShield: got {W} worlds, but reset() was called for {self._n_worlds}")
+        self._remember_hits(o)
+        return self._limit_closing(v, o)
+
+    def _remember_hits(self, o: dict) -> None:
+        """Store this step's ray end points (world frame) in the ring buffer of the last hit_memory steps."""
+        W, N, K = o["rays"].shape
+        size = self.p.hit_memory * K
+        if self._hits is None or self._hits.shape != (W, N, size, 2):
+            self._hits = np.zeros((W, N, size, 2))
+            self._hit_ok = np.zeros((W, N, size), bool)
+            self._slot = 0
+        if K == 0:
+            return
+        slot = self._slot % self.p.hit_memory
+        self._slot = slot + 1
+        sl = slice(slot * K, (slot + 1) * K)
+        self._hits[:, :, sl] = o["pos"][:, :, None] + o["rays"][..., None] * o["ray_dirs"]
+        self._hit_ok[:, :, sl] = o["rays"] < self.ray_range - 1e-6
+
+    def _limit_closing(self, v: np.ndarray, o: dict) -> np.ndarray:
+        """Cap the speed toward each hazard (module docstring) by projection; v (W, N, 2) m/s."""
+        p = self.p
+        lag = p.response_time
+        dirs, limits = [], []
+        if o["rays"].shape[-1]:
+            rel = self._hits - o["pos"][:, :, None]
+            d = np.sqrt(rel[..., 0] ** 2 + rel[..., 1] ** 2)
+            u = rel / np.maximum(d, _TINY)[..., None]
+            closing = np.maximum(np.einsum("wnhk,wnk->wnh", u, o["vel"]), 0.0)
+            gap = d - self.obstacle_clearance - p.safety_buffer - lag * closing
+            dirs.append(u)
+            limits.append(np.where(self._hit_ok, p.approach_rate * gap, np.inf))
+        if o["mate_rel"].shape[2]:
+            d = np.linalg.norm(o["mate_rel"], axis=-1)
+            u = unit(o["mate_rel"])
+            closing = np.maximum(-np.einsum("wnmk,wnmk->wnm", u, o["mate_dvel"]), 0.0)
+            gap = np.where(o["mate_vis"], d - self.teammate_clearance - p.safety_buffer - lag * closing, np.inf)
+            dirs.append(u)
+            limits.append(0.5 * p.approach_rate * gap)
+        d = np.linalg.norm(o["ev_rel"], axis=-1)
+        u = unit(o["ev_rel"])
+        closing = np.maximum(np.einsum("wnmk,wnk->wnm", u, o["vel"]), 0.0)
+        gap = d - self.capture_radius - self.obstacle_clearance - p.safety_buffer - lag * closing
+        dirs.append(u)
+        limits.append(np.where(o["ev_cap"] & o["ev_vis"], p.approach_rate * gap, np.inf))
+        u = np.concatenate(dirs, axis=2)  # (W, N, H, 2)
+        cap = np.concatenate(limits, axis=2)  # (W, N, H) m/s, may be negative (back off)
+        for _ in range(p.safety_passes):
+            excess = np.einsum("wnhk,wnk->wnh", u, v) - cap
+            worst = np.argmax(excess, axis=-1)[..., None]
+            amount = np.maximum(np.take_along_axis(excess, worst, -1), 0.0)
+            v = v - amount * np.take_along_axis(u, worst[..., None], 2)[:, :, 0]
+        return v
+
+
+class Shielded:
+    """A `Policy` that passes any policy's actions through a `SafetyShield`.
+
+    act = clip_unit(shield(a * speed) / speed), where a is the wrapped policy's action
+    clipped as the environment would (each axis to [-1, 1], then to unit norm). Results with
+    it are labelled: name = "<policy name>+shield".
+    """
+
+    has_shield = True  # eval/render/fly do not wrap it again
+
+    def __init__(self, policy: Policy, shield: SafetyShield):
+        self.policy = policy
+        self.shield = shield
+        self._inner = str(getattr(policy, "name", type(policy).__name__))
+        self.name = f"{self._inner}+shield"
+
+    def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
+        self.policy.reset(n_worlds, world_ids)
+        self.shield.reset(n_worlds, world_ids)
+
+    def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
+        """Actions (W, N, 2) within the unit disc: desired world-frame velocity / pursuer_speed."""
+        a = np.asarray(self.policy.act(obs, spec), dtype=np.float64)
+        want = tuple(np.shape(obs)[:2]) + (2,)
+        if a.shape != want:
+            raise ValueError(f"Shielded: policy {self._inner} gave actions of shape {a.shape}, expected {want}")
+        if not np.isfinite(a).all():
+            raise ValueError(f"Shielded: policy {self._inner} gave NaN or inf actions")
+        speed = self.shield.speed
+        v = self.shield.apply(clip_unit(np.clip(a, -1.0, 1.0)) * speed, obs, spec)
+        return clip_unit(v / speed)
+
+
+def shield_policy(policy: Policy, config, params: ShieldParams | None = None) -> Policy:
+    """`policy` behind a shield for TaskConfig `config`; unchanged if it has one built in (`has_shield`)."""
+    if getattr(policy, "has_shield", False):
+        return policy
+    return Shielded(policy, SafetyShield.from_config(config, params))
+
+
+def unit(v: np.ndarray) -> np.ndarray:
+    """Unit vectors along the last axis (..., 2); zero where v is (near) zero."""
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.where(n > _TINY, v / np.maximum(n, _TINY), 0.0)
+
+
+def clip_unit(a: np.ndarray) -> np.ndarray:
+    """Scale (..., 2) down to at most unit norm (direction kept), so both axes lie in [-1, 1]."""
+    n = np.linalg.norm(a, axis=-1, keepdims=True)
+    return a / np.maximum(n, 1.0)

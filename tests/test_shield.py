@@ -1,0 +1,166 @@
+"""The safety shield: it keeps any policy off walls, leaves safe actions alone, and is labelled."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from pursuit_mj.cli import main
+from pursuit_mj.config import default_config
+from pursuit_mj.env import PursuitEnv
+from pursuit_mj.evaluation import run_episodes
+from pursuit_mj.geometry import ObstacleSet, obstacle_distance
+from pursuit_mj.heuristic import HeuristicParams, HeuristicTeam
+from pursuit_mj.obs_spec import ObsSpec
+from pursuit_mj.policy import RandomPolicy
+from pursuit_mj.shield import SafetyShield, Shielded, ShieldParams, shield_policy
+
+SPEC = ObsSpec.make(3, 1, 16)
+SPEED = 0.3
+WALL_CAP = ShieldParams.approach_rate * (0.2 - 0.1 - ShieldParams.safety_buffer)  # m/s toward a wall 0.2 m away, standing
+
+
+class Straight:
+    """Every pursuer flies one fixed direction at full speed, whatever it sees."""
+
+    name = "straight"
+
+    def __init__(self, direction):
+        self.direction = np.asarray(direction, float) / np.linalg.norm(direction)
+
+    def reset(self, n_worlds, world_ids=None) -> None:
+        pass
+
+    def act(self, obs, spec):
+        return np.broadcast_to(self.direction, obs.shape[:2] + (2,)).copy()
+
+
+def blank_obs(n_worlds: int = 1) -> np.ndarray:
+    """Observations (W, 3, dim): pursuers 2 m apart on y = 2.5, standing, nothing seen, open rays."""
+    obs = np.zeros((n_worlds, 3, SPEC.dim))
+    for i in range(3):
+        obs[:, i, SPEC.index("self", 0, "x")] = 1.0 + 2.0 * i
+        obs[:, i, SPEC.index("self", 0, "y")] = 2.5
+    rays = SPEC.group("rays")
+    obs[..., rays.start : rays.stop] = 2.0
+    return obs
+
+
+def wall_east(obs: np.ndarray, distance: float, world: int = 0, pursuer: int = 0) -> None:
+    """A wall `distance` m to the +x side of one pursuer: the rays within +-60 degrees of +x see it."""
+    for k in range(16):
+        angle = 2 * np.pi * k / 16
+        if np.cos(angle) > 0.5:
+            obs[world, pursuer, SPEC.index("rays", 0, f"range_{k}")] = distance / np.cos(angle)
+
+
+def test_random_team_collides_far_less_with_the_shield():
+    cfg = dataclasses.replace(default_config(), fidelity="point", layout=0, max_steps=150)
+    rates = {}
+    for policy in (RandomPolicy(0), shield_policy(RandomPolicy(0), cfg)):
+        records = run_episodes(policy, cfg, 16, seed=0, n_worlds=16)
+        rates[policy.name] = np.mean([r.outcome == "collision" for r in records])
+    assert rates["random"] >= 0.25  # the test means something: random flight does crash
+    assert rates["random+shield"] <= min(0.5 * rates["random"], 0.25), rates
+
+
+@pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
+@pytest.mark.parametrize("direction", [(0.0, -1.0), (1.0, 0.0), (1.0, 1.0)])
+def test_flying_straight_at_a_wall_stops_short_of_it(fidelity, direction):
+    cfg = dataclasses.replace(default_config(), fidelity=fidelity, layout=0, max_steps=100)
+    env = PursuitEnv(cfg, n_worlds=3, seed=0, auto_reset=False)
+    obs = env.reset(seeds=[11, 12, 13])
+    policy = shield_policy(Straight(direction), cfg)
+    policy.reset(3)
+    obstacles = ObstacleSet.stack([layout.obstacle_set() for layout in env.world_layouts])
+    closest = np.inf
+    for _ in range(100):
+        obs, _, _, _, info = env.step(policy.act(obs, env.obs_spec))
+        assert all(r.outcome != "collision" for r in info["episodes"])
+        gaps = obstacle_distance(env.physics.positions()[:, : cfg.n_pursuers, :2], obstacles)  # (W, N) m
+        closest = min(closest, float(gaps.min()))
+        if env.done.all():
+            break
+    assert closest > cfg.obstacle_clearance
+    assert closest < cfg.obstacle_clearance + 0.15  # it went up to the wall, not stopped far away
+
+
+def test_an_action_away_from_every_hazard_is_unchanged():
+    obs = blank_obs()
+    wall_east(obs, 0.2)
+    mate = SPEC.index("teammates", 0, "dx")  # pursuer 0's first teammate, 0.3 m to its +y side
+    obs[0, 0, mate : mate + 5] = [0.0, 0.3, 0.0, 0.0, 1.0]
+    desired = np.zeros((1, 3, 2))
+    desired[0, 0] = [-0.2, -0.2]  # away from the wall and from the teammate
+    desired[0, 1] = [0.0, 0.3]
+    shield = SafetyShield(SPEED)
+    shield.reset(1)
+    np.testing.assert_array_equal(shield.apply(desired, obs, SPEC), desired)
+    toward = desired.copy()
+    toward[0, 0] = [SPEED, 0.0]  # straight at the wall 0.2 m away
+    np.testing.assert_allclose(shield.apply(toward, obs, SPEC)[0, 0], [WALL_CAP, 0.0], atol=1e-12)
+
+
+def test_shielded_policy_keeps_safe_actions_and_labels_itself():
+    obs = blank_obs()
+    wall_east(obs, 0.2)
+    policy = Shielded(Straight((-1.0, 0.0)), SafetyShield(SPEED))
+    policy.reset(1)
+    assert policy.name == "straight+shield"
+    np.testing.assert_allclose(policy.act(obs, SPEC), np.tile([-1.0, 0.0], (1, 3, 1)))
+    out = Shielded(RandomPolicy(0), SafetyShield(SPEED)).act(obs, SPEC)
+    assert np.all(np.linalg.norm(out, axis=-1) <= 1.0 + 1e-12)
+
+
+def test_reset_forgets_the_hits_of_the_listed_worlds_only():
+    shield = SafetyShield(SPEED)
+    shield.reset(2)
+    near = blank_obs(2)
+    wall_east(near, 0.2, world=0)
+    wall_east(near, 0.2, world=1)
+    fast_east = np.tile([SPEED, 0.0], (2, 3, 1))
+    shield.apply(fast_east, near, SPEC)  # both worlds see the wall
+    clear = blank_obs(2)  # the wall slips between the rays: only the memory knows it
+    capped = shield.apply(fast_east, clear, SPEC)
+    np.testing.assert_allclose(capped[:, 0, 0], WALL_CAP)
+    shield.reset(2, np.array([0]))
+    after = shield.apply(fast_east, clear, SPEC)
+    assert after[0, 0, 0] == pytest.approx(SPEED)  # world 0 forgot the wall
+    assert after[1, 0, 0] == pytest.approx(WALL_CAP)  # world 1 still remembers it
+
+
+def test_heuristic_uses_a_shield_built_from_its_params():
+    params = HeuristicParams(safety_buffer=0.08, hit_memory=5)
+    team = HeuristicTeam(params=params)
+    assert team.shield.p == ShieldParams(0.08, ShieldParams.approach_rate, ShieldParams.response_time, ShieldParams.safety_passes, 5)
+    assert HeuristicParams().shield == ShieldParams()
+    assert shield_policy(team, default_config()) is team  # the shield is built in: not wrapped twice
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [({"hit_memory": 0}, "hit_memory"), ({"approach_rate": -1.0}, "approach_rate"), ({"safety_buffer": float("nan")}, "safety_buffer")],
+)
+def test_bad_params_are_refused_by_name(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        ShieldParams(**kwargs)
+
+
+def test_bad_velocities_and_worlds_are_refused():
+    shield = SafetyShield(SPEED)
+    shield.reset(1)
+    with pytest.raises(ValueError, match="velocities of shape"):
+        shield.apply(np.zeros((1, 2, 2)), blank_obs(), SPEC)
+    with pytest.raises(ValueError, match="2 worlds"):
+        shield.apply(np.zeros((2, 3, 2)), blank_obs(2), SPEC)
+
+
+def test_eval_cli_shield_labels_the_wrapped_policies_only(tmp_path):
+    code = main(["eval", "--policy", "random", "--policy", "heuristic", "--shield", "--layouts", "0", "--episodes", "2",
+                 "--worlds", "2", "--fidelity", "point", "--set", "max_steps=10", "--json", str(tmp_path / "t.json"), "-q"])
+    assert code == 0
+    data = json.loads((tmp_path / "t.json").read_text())
+    assert [r["policy"] for r in data["rows"]] == ["random+shield", "heuristic"]
