@@ -65,8 +65,11 @@ def test_demo_prints_the_table_and_how_to_train(tiny_model, capsys):
                  "--fidelity", "point", "--set", "max_steps=20"])
     assert code == 0
     out = capsys.readouterr().out
-    assert "heuristic" in out and "m " in out and "pursuit-mj train" in out
+    assert "heuristic" in out and "m " in out and "m+shield " in out and "pursuit-mj train" in out
     assert main(["demo", "--model", str(tiny_model.parent / "missing.pt")]) == 2
+    code = main(["demo", "--model", str(tiny_model), "--episodes", "1", "--worlds", "1", "--layouts", "0", "--no-shield",
+                 "--no-heuristic", "--fidelity", "point", "--set", "max_steps=5"])
+    assert code == 0 and "+shield" not in capsys.readouterr().out
 
 
 def test_eval_command_loads_a_checkpoint_with_other_team_sizes(tiny_model, capsys):

@@ -1,4 +1,5 @@
-"""`pursuit-mj demo`: evaluate the shipped pretrained policy and the heuristic team on the four layouts.
+"""`pursuit-mj demo`: evaluate the shipped pretrained policy (bare and behind the safety shield)
+and the heuristic team on the four layouts.
 
 Needs nothing trained: the model is pretrained/pursuers.pt (made by this project's training
 pipeline, see pretrained/README.md). A few minutes on two cores with the default settings.
@@ -11,7 +12,7 @@ import time
 from pathlib import Path
 
 from ..config import REPO_ROOT
-from .common import SHIELD_HELP, add_shield_arg, add_task_args, shield_if_asked, task_config_from_args
+from .common import add_task_args, task_config_from_args
 
 PRETRAINED = REPO_ROOT / "pretrained" / "pursuers.pt"
 
@@ -40,7 +41,9 @@ def register(sub) -> None:
     p.add_argument("--worlds", type=int, default=16, help="parallel worlds (default 16)")
     p.add_argument("--seed", type=int, default=0, help="table seed")
     p.add_argument("--no-heuristic", action="store_true", help="evaluate the model only")
-    add_shield_arg(p, SHIELD_HELP.replace("on the policy", "on the model"))
+    p.add_argument("--no-shield", action="store_true",
+                   help="skip the row of the model behind the safety shield (pursuit_mj/shield.py; shown by default "
+                        "beside the bare model, labelled NAME+shield)")
     add_task_args(p)
     p.set_defaults(func=run)
 
@@ -61,8 +64,11 @@ def run(args) -> int:
     config = task_config_from_args(args)
     layouts = [int(x) if x.strip().isdigit() else x for x in args.layouts]
     policy = load_policy(model, _spec(config), name="pretrained" if model == PRETRAINED else None)
-    policy, label = shield_if_asked(args, policy, policy.name, config)
-    policies = [(label, policy)]
+    policies = [(policy.name, policy)]
+    if not args.no_shield:
+        from ..shield import shield_policy
+
+        policies.append((f"{policy.name}+shield", shield_policy(policy, config)))
     if not args.no_heuristic:
         policies.append(("heuristic", make_policy("heuristic", config)))
     print(f"demo: {len(policies)} policies x {len(layouts)} layouts x {args.episodes} episodes, "
