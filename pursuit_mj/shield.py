@@ -115,6 +115,15 @@ class SafetyShield:
             raise ValueError("SafetyShield: observations contain NaN or inf")
         return self.filter(v, named_views(obs, spec))
 
+    def shield_actions(self, actions: np.ndarray, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
+        """Policy actions (W, N, 2) (fraction of pursuer_speed) -> shielded actions in the unit disc.
+
+        The actions are first clipped as the environment would (each axis to [-1, 1], then to
+        unit norm), so the shield sees the velocity that would be flown.
+        """
+        a = clip_unit(np.clip(np.asarray(actions, dtype=np.float64), -1.0, 1.0))
+        return clip_unit(self.apply(a * self.speed, obs, spec) / self.speed)
+
     def filter(self, v: np.ndarray, o: dict[str, np.ndarray]) -> np.ndarray:
         """Filtered velocities (W, N, 2) m/s from desired ones v (W, N, 2) m/s and the named
         observation arrays o (obs_spec.named_views); remembers this step's ray hits."""
@@ -211,9 +220,7 @@ class Shielded:
             raise ValueError(f"Shielded: policy {self._inner} gave actions of shape {a.shape}, expected {want}")
         if not np.isfinite(a).all():
             raise ValueError(f"Shielded: policy {self._inner} gave NaN or inf actions")
-        speed = self.shield.speed
-        v = self.shield.apply(clip_unit(np.clip(a, -1.0, 1.0)) * speed, obs, spec)
-        return clip_unit(v / speed)
+        return self.shield.shield_actions(a, obs, spec)
 
 
 def shield_policy(policy: Policy, config, params: ShieldParams | None = None) -> Policy:

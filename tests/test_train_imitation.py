@@ -56,3 +56,24 @@ def test_student_learns_the_teams_pursuit_from_its_own_observations(tmp_path):
     assert first["loss"]["teacher_share"] == 1.0
     assert last["loss"]["teacher_share"] == 0.0  # the student drove alone at the end
     assert last["loss"]["bc_loss"] < 0.5 * first["loss"]["bc_loss"]
+
+
+def test_a_run_trained_behind_the_shield_loads_behind_it(tmp_path):
+    from pursuit_mj.config import TaskConfig
+    from pursuit_mj.obs_spec import ObsSpec
+    from train.policy import load_policy
+
+    cfg = load_train_config([], [
+        "name=shielded", "algo=dagger", "shield=true", "task.fidelity=point", "task.n_pursuers=2",
+        "task.max_steps=20", "n_envs=2", "total_steps=40", "ppo.batch_size=40", "ppo.minibatch_size=20", "imitation.grad_steps=2",
+        "imitation.minibatch_size=16", "net.encoder_width=8", "net.hidden=[8]", "run.validate_every=0",
+        "run.validation_episodes=2", "run.progress=false", f"run.runs_dir={tmp_path}",
+    ])
+    trainer = Trainer(cfg, log=lambda s: None)
+    assert trainer.collector.shield is not None
+    trainer.train()
+    spec = ObsSpec.make(2, 1, cfg.task.n_rays)
+    policy = load_policy(tmp_path / "shielded" / "best.pt", spec, task=TaskConfig(n_pursuers=2, pursuer_speed=0.4))
+    assert policy.name == "shielded+shield" and policy.has_shield
+    assert policy.shield.speed == 0.4  # sized for the task it runs in, not the one it trained on
+    assert load_policy(tmp_path / "shielded" / "best.pt", spec).shield.speed == cfg.task.pursuer_speed

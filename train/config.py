@@ -103,6 +103,8 @@ class TrainConfig:
     n_envs: int = spec(6, lo=1, hi=4096, help="worlds stepped together")
     layouts: tuple[int | str, ...] = spec((), help="training layouts, one chosen per world in turn (empty: task.layout)")
     init_from: str | None = spec(None, help="checkpoint whose actor/critic weights start this run (fine_tune)")
+    shield: bool = spec(False, help="act behind the safety shield (pursuit_mj/shield.py) in training and validation; "
+                                    "load_policy puts it back on the trained policy")
     task_file: str | None = spec(None, help="task YAML file or preset name applied before the task: keys")
     task: TaskConfig = spec(default_factory=TaskConfig, help="the task trained on")
     ppo: PPOConfig = spec(default_factory=PPOConfig, help="PPO hyperparameters")

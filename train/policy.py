@@ -12,8 +12,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from pursuit_mj.config import TaskConfig
 from pursuit_mj.configio import build
 from pursuit_mj.obs_spec import ObsSpec
+from pursuit_mj.policy import Policy
+from pursuit_mj.shield import shield_policy
 
 from .checkpoint import check_obs_spec, load_checkpoint
 from .config import NetConfig
@@ -62,15 +65,23 @@ def actor_from_checkpoint(data: dict, spec: ObsSpec, source: str) -> Actor:
     return actor
 
 
-def load_policy(path: str | Path, env_spec: ObsSpec | None = None, stochastic: bool = False, name: str | None = None) -> ActorPolicy:
+def load_policy(path: str | Path, env_spec: ObsSpec | None = None, stochastic: bool = False, name: str | None = None,
+                task: TaskConfig | None = None) -> Policy:
     """A Policy from a checkpoint file, checked against the environment's observation spec.
 
     env_spec None means the spec the model was trained with. The name defaults to the run name
-    (for `runs/<name>/best.pt`) or the file stem.
+    (for `runs/<name>/best.pt`) or the file stem. A model trained behind the safety shield
+    (train config `shield: true`) comes back behind it (named NAME+shield), sized for `task`
+    (the TaskConfig it will run in; None: the task it was trained on).
     """
     data = load_checkpoint(path)
     spec = env_spec if env_spec is not None else spec_from_dict(data["obs_spec"])
     check_obs_spec(data, spec, path)
     actor = actor_from_checkpoint(data, spec, str(path))
     label = name or data["train_config"].get("name") or Path(path).stem
-    return ActorPolicy(actor, str(label), stochastic=stochastic)
+    policy = ActorPolicy(actor, str(label), stochastic=stochastic)
+    if not data["train_config"].get("shield", False):
+        return policy
+    if task is None:
+        task = build(TaskConfig, data["train_config"].get("task", {}), f"checkpoint {path}: train_config.task")
+    return shield_policy(policy, task)

@@ -25,15 +25,20 @@ class Collector:
     """Owns the running observation of a training env between updates (episodes span updates).
 
     Observations come from the env already free of denormal floats (pursuit_mj.observations);
-    the MAPPO global state is flushed here.
+    the MAPPO global state is flushed here. With a `shield` (pursuit_mj.shield.SafetyShield)
+    the env is stepped with the shielded actions; the buffer keeps the policy's own samples,
+    so to PPO the shield is part of the environment.
     """
 
-    def __init__(self, env, model: ActorCritic, generator: torch.Generator):
+    def __init__(self, env, model: ActorCritic, generator: torch.Generator, shield=None):
         self.env = env
         self.model = model
         self.generator = generator
+        self.shield = shield
         self.needs_state = model.algo == "mappo"
         self.obs = torch.as_tensor(env.reset())
+        if shield is not None:
+            shield.reset(env.n_worlds)
         self.state = self._state()
 
     def _state(self) -> torch.Tensor | None:
@@ -53,7 +58,7 @@ class Collector:
             buf.values[t] = value
             if state is not None:
                 buf.states[t] = state
-            next_obs, reward, terminated, truncated, info = self.env.step(action.clamp(-1.0, 1.0).numpy())
+            next_obs, reward, terminated, truncated, info = self.env.step(env_actions(action, obs, self.shield, self.model.spec))
             buf.rewards[t] = torch.as_tensor(reward)
             buf.terminated[t] = torch.as_tensor(terminated)
             buf.truncated[t] = torch.as_tensor(truncated)
@@ -65,8 +70,24 @@ class Collector:
             for k, v in info["reward_terms"].items():
                 term_sums[k] = term_sums.get(k, 0.0) + float(v.mean())
             stats.episodes.extend(info["episodes"])
+            if self.shield is not None:
+                forget_ended(self.shield, terminated | truncated)
             self.obs = torch.as_tensor(next_obs)
             self.state = self._state()
         buf.last_value.copy_(self.model.world_value(self.obs, self.state))
         stats.reward_terms = {k: v / buf.T for k, v in term_sums.items()}
         return stats
+
+
+def env_actions(action: torch.Tensor, obs: torch.Tensor, shield, spec) -> np.ndarray:
+    """What the env is stepped with: the sampled actions (W, N, 2) clipped to [-1, 1], behind
+    the shield when there is one (obs (W, N, D) are the observations they answer)."""
+    a = action.clamp(-1.0, 1.0).numpy()
+    return a if shield is None else shield.shield_actions(a, obs.numpy(), spec)
+
+
+def forget_ended(memory, ended: np.ndarray) -> None:
+    """Reset the per-world memory (a shield or a teacher team) of worlds whose episode ended (W,) bool."""
+    ids = np.flatnonzero(ended)
+    if len(ids):
+        memory.reset(len(ended), ids)

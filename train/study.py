@@ -129,7 +129,7 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
     spec = ObsSpec.make(t.n_pursuers, t.n_evaders, t.n_rays)
     for regime in (arm.name for arm in ARMS):
         t0 = time.perf_counter()
-        policy = load_policy(checkpoints[regime], spec, name=regime)
+        policy = load_policy(checkpoints[regime], spec, name=regime, task=plan.eval_task)
         rows += evaluate(policy, plan.eval_task, list(plan.layouts), episodes, plan.seed, plan.worlds, label=regime)
         timings[f"{regime} (eval)"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start

@@ -25,6 +25,7 @@ import torch
 from pursuit_mj.configio import dump_yaml, to_dict
 from pursuit_mj.env import PursuitEnv
 from pursuit_mj.io_utils import atomic_write_text
+from pursuit_mj.shield import SafetyShield, shield_policy
 
 from .agent import ActorCritic
 from .checkpoint import check_obs_spec, load_checkpoint, save_checkpoint
@@ -92,14 +93,15 @@ class Trainer:
         self.buffer = Rollout(cfg.rollout_steps(), cfg.n_envs, self.env.n_pursuers, self.env.obs_dim,
                               self.env.state_dim if cfg.algo == "mappo" else 0)
         self.demos: Demonstrations | None = None
+        shield = SafetyShield.from_config(cfg.task) if cfg.shield else None
         if cfg.algo == "dagger":
             from pursuit_mj.policies import make_policy
 
             teacher = make_policy(cfg.imitation.teacher, cfg.task, seed=cfg.seed, source="imitation.teacher")
             self.demos = Demonstrations(cfg.imitation.dataset_size, self.env.obs_dim)
-            self.collector = DaggerCollector(self.env, self.model, teacher, self.demos, self.generator)
+            self.collector = DaggerCollector(self.env, self.model, teacher, self.demos, self.generator, shield)
         else:
-            self.collector = Collector(self.env, self.model, self.generator)
+            self.collector = Collector(self.env, self.model, self.generator, shield)
         self.metrics = MetricsLog(self.run_dir / "metrics.jsonl")
         self.rerun = RerunScalarLogger(self.run_dir / "metrics.rrd", run_name=cfg.name) if cfg.run.rerun else None
         self.recent = collections.deque(maxlen=WINDOW)
@@ -190,7 +192,8 @@ class Trainer:
         if self._validator is None:
             layouts = list(r.validation_layouts) or list(self.cfg.layouts) or None
             self._validator = FixedSeedValidator(self.cfg.task, layouts, r.validation_episodes, r.validation_seed, r.sim_threads)
-        summary, _ = self._validator.run(ActorPolicy(self.model.actor, self.cfg.name))
+        policy = ActorPolicy(self.model.actor, self.cfg.name)
+        summary, _ = self._validator.run(shield_policy(policy, self.cfg.task) if self.cfg.shield else policy)
         self.model.actor.train()
         return summary
 

@@ -64,3 +64,17 @@ def shield_if_asked(args: argparse.Namespace, policy, label: str, config: TaskCo
         return policy, label
     wrapped = shield_policy(policy, config)
     return (policy, label) if wrapped is policy else (wrapped, f"{label}+shield")
+
+
+def load_model(path, spec, task: TaskConfig, flag: str = "--model"):
+    """A trained policy for `task` via train.policy.load_policy (imported lazily: the library never
+    needs torch); a model trained behind the safety shield comes back behind it."""
+    from pathlib import Path
+
+    if not Path(path).is_file():
+        raise ValueError(f"{flag} {path}: no such checkpoint file")
+    try:
+        from train.policy import load_policy
+    except ImportError as exc:
+        raise ValueError(f"{flag} {path}: cannot load trained models, the train package is not importable ({exc})") from None
+    return load_policy(path, spec, task=task)

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from ..config import REPO_ROOT
-from .common import add_task_args, task_config_from_args
+from .common import add_task_args, load_model, task_config_from_args
 
 PRETRAINED = REPO_ROOT / "pretrained" / "pursuers.pt"
 
@@ -57,18 +57,17 @@ def run(args) -> int:
     model = Path(args.model)
     if not model.is_file():
         raise ValueError(f"--model {model}: no such file (the pretrained policy ships in pretrained/ of the repository)")
-    try:
-        from train.policy import load_policy
-    except ImportError as exc:
-        raise ValueError(f"--model {model}: cannot load trained models, the train package is not importable ({exc})") from None
     config = task_config_from_args(args)
     layouts = [int(x) if x.strip().isdigit() else x for x in args.layouts]
-    policy = load_policy(model, _spec(config), name="pretrained" if model == PRETRAINED else None)
-    policies = [(policy.name, policy)]
-    if not args.no_shield:
+    policy = load_model(model, _spec(config), config)
+    name = "pretrained" if model == PRETRAINED else policy.name
+    policies = [(name, policy)]
+    if getattr(policy, "has_shield", False):  # trained behind the shield: it comes with it
+        policies = [(f"{name}+shield" if model == PRETRAINED else name, policy)]
+    elif not args.no_shield:
         from ..shield import shield_policy
 
-        policies.append((f"{policy.name}+shield", shield_policy(policy, config)))
+        policies.append((f"{name}+shield", shield_policy(policy, config)))
     if not args.no_heuristic:
         policies.append(("heuristic", make_policy("heuristic", config)))
     print(f"demo: {len(policies)} policies x {len(layouts)} layouts x {args.episodes} episodes, "

@@ -17,7 +17,7 @@ from ..io_utils import check_writable
 from ..layout import load_layout
 from ..obs_spec import ObsSpec
 from ..policies import POLICY_NAMES, make_policy
-from .common import SHIELD_HELP, add_shield_arg, add_task_args, shield_if_asked, task_config_from_args
+from .common import SHIELD_HELP, add_shield_arg, add_task_args, load_model, shield_if_asked, task_config_from_args
 
 
 def register(sub) -> None:
@@ -66,22 +66,12 @@ def _outputs(args) -> tuple[Path | None, Path | None]:
     return csv_path, json_path
 
 
-def _load_model(path: str, spec):
-    if not Path(path).is_file():
-        raise ValueError(f"--model {path}: no such file")
-    try:
-        from train.policy import load_policy
-    except ImportError as exc:
-        raise ValueError(f"--model {path}: cannot load trained models, the train package is not importable ({exc})") from None
-    return load_policy(path, spec)
-
-
 def _policies(args, config) -> list[tuple[str, object]]:
     """(label, policy) pairs in command-line order: hand-made teams first, then models (shielded with --shield)."""
     names = args.policy or ([] if args.model else ["heuristic"])
     out = [(name, make_policy(name, config, args.seed)) for name in names]
     spec = ObsSpec.make(config.n_pursuers, config.n_evaders, config.n_rays)
-    out += [(getattr(pol, "name", Path(m).stem), pol) for m, pol in ((m, _load_model(m, spec)) for m in args.model)]
+    out += [(getattr(pol, "name", Path(m).stem), pol) for m, pol in ((m, load_model(m, spec, config)) for m in args.model)]
     shielded = [shield_if_asked(args, pol, label, config) for label, pol in out]
     out = [(label, pol) for pol, label in shielded]
     seen: dict[str, int] = {}

@@ -21,7 +21,7 @@ from ..configio import build, dump_yaml, load, load_yaml, to_dict
 from ..layout import load_layout
 from ..obs_spec import ObsSpec
 from ..policies import POLICY_NAMES, make_policy
-from .common import TASK_FLAG_KEYS, add_shield_arg, add_task_args, shield_if_asked, task_config_from_args
+from .common import TASK_FLAG_KEYS, add_shield_arg, add_task_args, load_model, shield_if_asked, task_config_from_args
 
 DEFAULT_SAVE = "renders"
 
@@ -119,22 +119,11 @@ def task_config(args, base: TaskConfig | None) -> TaskConfig:
     return cfg
 
 
-def load_model(path: str | Path, spec: ObsSpec):
-    """A trained policy via train.policy.load_policy (lazily imported: the library never needs torch)."""
-    if not Path(path).is_file():
-        raise ValueError(f"--model {path}: no such checkpoint file")
-    try:
-        from train.policy import load_policy
-    except ImportError as exc:
-        raise ValueError(f"--model {path}: cannot load trained models, the train package is not importable ({exc})") from None
-    return load_policy(path, spec)
-
-
 def choose_policy(args, config: TaskConfig, train_cfg):
     """(policy, label): -m FILE, else --policy NAME, else the -mc run's best.pt, else heuristic."""
     spec = ObsSpec.make(config.n_pursuers, config.n_evaders, config.n_rays)
     if args.model:
-        policy = load_model(args.model, spec)
+        policy = load_model(args.model, spec, config)
         return policy, getattr(policy, "name", Path(args.model).stem)
     if args.policy:
         return make_policy(args.policy, config, args.seed), args.policy
@@ -142,7 +131,7 @@ def choose_policy(args, config: TaskConfig, train_cfg):
         best = train_cfg.run_dir / "best.pt"
         if not best.is_file():
             raise ValueError(f"-mc {args.model_config}: no checkpoint at {best}; train it first, or pass -m FILE or --policy")
-        policy = load_model(best, spec)
+        policy = load_model(best, spec, config, flag=f"-mc {args.model_config}:")
         return policy, getattr(policy, "name", train_cfg.name)
     return make_policy("heuristic", config, args.seed), "heuristic"
 

@@ -104,7 +104,7 @@ def choose_policy(plan: FlightPlan, policy: str | None, model: str | Path | None
             from train.policy import load_policy
         except ImportError as exc:
             raise ValueError(f"--model {model}: loading trained models needs the train package and torch ({exc})") from None
-        return load_policy(model, plan.obs_spec)
+        return load_policy(model, plan.obs_spec, task=plan.task)
     return make_policy(policy, plan.task, seed, "--policy")
 
 
