@@ -18,17 +18,14 @@ physics at 64 worlds. --profile N prints the N functions with the most own time 
 
 from __future__ import annotations
 
-import cProfile
 import dataclasses
-import io
-import pstats
 import time
 from typing import Sequence
 
 import numpy as np
 
 from ..config import TaskConfig, load_task_config
-from . import check_common_args, format_table, peak_rss_mb, run_isolated
+from . import check_common_args, format_table, peak_rss_mb, profile_call, run_isolated
 
 HELP = "decision steps/s of the whole environment vs physics+controller and the raw MuJoCo ceiling"
 BLOCK_SECONDS = 0.25  # wall time of one timed block
@@ -73,19 +70,6 @@ def task_config(fidelity: str, files: Sequence[str] = (), overrides: Sequence[st
     return load_task_config(files, overrides, {"fidelity": fidelity})
 
 
-def _profile(env, actions: np.ndarray, steps: int, top: int) -> str:
-    prof = cProfile.Profile()
-    prof.enable()
-    for _ in range(steps):
-        env.step(actions)
-    prof.disable()
-    out = io.StringIO()
-    pstats.Stats(prof, stream=out).sort_stats("tottime").print_stats(top)
-    lines = [l for l in out.getvalue().splitlines() if l.strip()]
-    start = next((i for i, l in enumerate(lines) if l.lstrip().startswith("ncalls")), 0)
-    return "\n".join(lines[start:])
-
-
 def measure(fidelity: str, n_worlds: int, seconds: float, seed: int, files: Sequence[str],
             overrides: Sequence[str], profile_top: int = 0) -> EnvBench:
     """Time raw, physics and env stepping of one configuration in alternating blocks."""
@@ -119,7 +103,7 @@ def measure(fidelity: str, n_worlds: int, seconds: float, seed: int, files: Sequ
     profile = ""
     if profile_top > 0:
         env.reset(seed=seed)
-        profile = _profile(env, actions, max(n, 10), profile_top)
+        profile = profile_call(lambda: [env.step(actions) for _ in range(max(n, 10))], profile_top)
     return EnvBench(fidelity, n_worlds, config.n_pursuers, min(times["raw"]), min(times["physics"]), min(times["env"]),
                     rounds, peak_rss_mb(), profile)
 

@@ -16,18 +16,15 @@ Imports the train package only when run (pursuit_mj itself never depends on it).
 from __future__ import annotations
 
 import argparse
-import cProfile
 import dataclasses
-import io
 import os
-import pstats
 import statistics
 import tempfile
 import time
 
 import numpy as np
 
-from . import format_table
+from . import format_table, profile_call
 
 HELP = "training throughput: agent-steps/s of rollout and of update, time per update, vs the bare env"
 AIM_UPDATE_OVER_ROLLOUT = 1.0  # the update must take less time than the rollout
@@ -87,18 +84,6 @@ def _bare_env_block(env, steps: int, rng: np.random.Generator) -> tuple[float, f
     return time.perf_counter() - w0, time.process_time() - c0
 
 
-def _profile(fn, top: int) -> str:
-    prof = cProfile.Profile()
-    prof.enable()
-    fn()
-    prof.disable()
-    out = io.StringIO()
-    pstats.Stats(prof, stream=out).sort_stats("tottime").print_stats(top)
-    lines = [l for l in out.getvalue().splitlines() if l.strip()]
-    start = next((i for i, l in enumerate(lines) if l.lstrip().startswith("ncalls")), 0)
-    return "\n".join(lines[start:])
-
-
 def _settings(cfg, trainer) -> str:
     p, buf = cfg.ppo, trainer.buffer
     threads = cfg.run.torch_threads or os.cpu_count() or 1
@@ -140,9 +125,9 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
         profile = ""
         if profile_top > 0:
             torch.set_num_threads(1)
-            roll = _profile(lambda: trainer.collector.collect(trainer.buffer), profile_top)
+            roll = profile_call(lambda: trainer.collector.collect(trainer.buffer), profile_top)
             torch.set_num_threads(cfg.run.torch_threads or os.cpu_count() or 1)
-            upd = _profile(lambda: ppo_update(trainer.model, trainer.optimizer, trainer.buffer, cfg.ppo,
+            upd = profile_call(lambda: ppo_update(trainer.model, trainer.optimizer, trainer.buffer, cfg.ppo,
                                               trainer.discount.value, trainer.generator), profile_top)
             profile = f"rollout:\n{roll}\n\nupdate:\n{upd}"
         med = statistics.median
