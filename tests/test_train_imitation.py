@@ -34,8 +34,8 @@ def test_learnable_discount_is_refused_with_dagger():
 EASY_TEAM = [
     "name=imitate", "seed=0", "algo=dagger", "task.fidelity=point", "task.n_pursuers=2", "task.pursuer_speed=0.5",
     "task.evader_speed=0.25", "task.random_obstacles=0", "task.layout=0", "task.max_steps=300",
-    "task.observability=partial", "n_envs=16", "total_steps=12288", "ppo.batch_size=1024",
-    "imitation.beta_updates=6", "imitation.grad_steps=40", "imitation.minibatch_size=512",
+    "task.observability=partial", "n_envs=16", "total_steps=8192", "ppo.batch_size=1024",
+    "imitation.beta_updates=4", "imitation.grad_steps=40", "imitation.minibatch_size=512",
     "net.encoder_width=64", "net.hidden=[64,64]", "net.init_log_std=-2.0",
     "run.validate_every=0", "run.validation_episodes=16", "run.progress=false",
 ]
