@@ -175,7 +175,7 @@ def test_eval_cli_runs_a_trained_model_beside_the_heuristic(tmp_path, capsys):
         (["--layouts", "9"], "layout 9"),
         (["--layouts", "no/such/layout.yaml"], "no/such/layout.yaml"),
         (["--policy", "greedy"], "unknown policy"),
-        (["--model", "missing/model.pt"], "missing/model.pt: no such file"),
+        (["--model", "missing/model.pt"], "--model missing/model.pt: no such checkpoint file"),
         (["--episodes", "0"], "--episodes"),
         (["--set", "evader_speed=-1"], "evader_speed"),
     ],
