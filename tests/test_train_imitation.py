@@ -70,7 +70,7 @@ def test_a_run_trained_behind_the_shield_loads_behind_it(tmp_path):
         "run.validation_episodes=2", "run.progress=false", f"run.runs_dir={tmp_path}",
     ])
     trainer = Trainer(cfg, log=lambda s: None)
-    assert trainer.collector.shield is not None
+    assert trainer.collector.path.shield is not None
     trainer.train()
     spec = ObsSpec.make(2, 1, cfg.task.n_rays)
     policy = load_policy(tmp_path / "shielded" / "best.pt", spec, task=TaskConfig(n_pursuers=2, pursuer_speed=0.4))

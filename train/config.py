@@ -56,6 +56,15 @@ class ImitationConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class ResidualConfig:
+    """Residual policy learning (pursuit_mj/residual.py): the actor learns a correction added to a base team."""
+
+    base: str = spec("none", choices=("none", "heuristic"),
+                     help="team whose actions the actor corrects (none: the actor alone drives)")
+    scale: float = spec(0.3, lo=0.0, lo_open=True, hi=2.0, help="weight of the actor's output in the sum, in fractions of max speed")
+
+
+@dataclasses.dataclass(frozen=True)
 class NetConfig:
     """Network shape. `reference`: per-entity encoders with masked mean pooling (DESIGN.md 6)."""
 
@@ -109,6 +118,7 @@ class TrainConfig:
     task: TaskConfig = spec(default_factory=TaskConfig, help="the task trained on")
     ppo: PPOConfig = spec(default_factory=PPOConfig, help="PPO hyperparameters")
     imitation: ImitationConfig = spec(default_factory=ImitationConfig, help="DAgger settings (algo dagger)")
+    residual: ResidualConfig = spec(default_factory=ResidualConfig, help="learn a correction to a base team (residual.base)")
     net: NetConfig = spec(default_factory=NetConfig, help="network shape")
     run: RunConfig = spec(default_factory=RunConfig, help="run folder, validation, checkpoints")
 
@@ -125,6 +135,9 @@ class TrainConfig:
             raise ConfigError(f"{source}: ppo.minibatch_size {self.ppo.minibatch_size} exceeds ppo.batch_size {self.ppo.batch_size}")
         if self.algo == "dagger" and self.ppo.learnable_gamma:
             raise ConfigError(f"{source}: ppo.learnable_gamma works with algo ppo or mappo, not dagger (imitation has no policy gradient)")
+        if self.algo == "dagger" and self.residual.base != "none":
+            raise ConfigError(f"{source}: residual.base {self.residual.base!r} works with algo ppo or mappo, not dagger "
+                              "(a residual starts as its base team; there is nothing to imitate)")
 
     @property
     def run_dir(self) -> Path:
@@ -204,4 +217,4 @@ def train_config_from_dict(data: Mapping[str, Any], source: str) -> TrainConfig:
     return build(TrainConfig, data, source)
 
 
-__all__ = ["PPOConfig", "ImitationConfig", "NetConfig", "RunConfig", "TrainConfig", "load_train_config", "train_config_from_dict", "REGIMES"]
+__all__ = ["PPOConfig", "ImitationConfig", "ResidualConfig", "NetConfig", "RunConfig", "TrainConfig", "load_train_config", "train_config_from_dict", "REGIMES"]

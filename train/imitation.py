@@ -31,7 +31,7 @@ from .config import ImitationConfig, PPOConfig
 from .losses import scaled_value_loss
 from .networks import flush_tiny
 from .ppo import advantages_and_returns, explained_variance
-from .rollout import RolloutStats, env_actions, forget_ended
+from .rollout import ActionPath, RolloutStats, forget_ended
 from .storage import Rollout
 
 
@@ -75,9 +75,10 @@ class DaggerCollector:
     demonstrations. `beta` is set by the trainer before each collect.
     """
 
-    def __init__(self, env, model: ActorCritic, teacher, demos: Demonstrations, generator: torch.Generator, shield=None):
+    def __init__(self, env, model: ActorCritic, teacher, demos: Demonstrations, generator: torch.Generator,
+                 path: ActionPath | None = None):
         self.env = env
-        self.shield = shield
+        self.path = path or ActionPath()
         self.model = model
         self.teacher = teacher
         self.demos = demos
@@ -85,8 +86,7 @@ class DaggerCollector:
         self.beta = 1.0
         self.obs_np = env.reset()
         self.teacher.reset(env.n_worlds)
-        if shield is not None:
-            shield.reset(env.n_worlds)
+        self.path.reset(env.n_worlds)
         self.obs = flush_tiny(torch.as_tensor(self.obs_np))
 
     @torch.no_grad()
@@ -107,7 +107,7 @@ class DaggerCollector:
             buf.values[t] = self.model.value(obs, None)
             self.demos.add(obs.reshape(-1, obs.shape[-1]), label.reshape(-1, 2))
             # the teacher's labels already carry its built-in shield; the student's go through ours
-            next_obs, reward, terminated, truncated, info = self.env.step(env_actions(action, obs, self.shield, spec))
+            next_obs, reward, terminated, truncated, info = self.env.step(self.path(action, obs, spec))
             buf.rewards[t] = torch.as_tensor(reward)
             buf.terminated[t] = torch.as_tensor(terminated)
             buf.truncated[t] = torch.as_tensor(truncated)
@@ -116,8 +116,7 @@ class DaggerCollector:
                 idx = torch.as_tensor(np.flatnonzero(truncated))
                 buf.final_values[t, idx] = self.model.value(flush_tiny(torch.as_tensor(info["final_obs"])[idx]), None)
             forget_ended(self.teacher, terminated | truncated)
-            if self.shield is not None:
-                forget_ended(self.shield, terminated | truncated)
+            self.path.forget_ended(terminated | truncated)
             for k, v in info["reward_terms"].items():
                 term_sums[k] = term_sums.get(k, 0.0) + float(v.mean())
             stats.episodes.extend(info["episodes"])

@@ -16,10 +16,12 @@ from pursuit_mj.config import TaskConfig
 from pursuit_mj.configio import build
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policy import Policy
+from pursuit_mj.policies import make_policy
+from pursuit_mj.residual import ResidualTeam
 from pursuit_mj.shield import shield_policy
 
 from .checkpoint import check_obs_spec, load_checkpoint
-from .config import NetConfig
+from .config import NetConfig, ResidualConfig, TrainConfig
 from .networks import Actor, flush_tiny
 
 
@@ -71,8 +73,10 @@ def load_policy(path: str | Path, env_spec: ObsSpec | None = None, stochastic: b
 
     env_spec None means the spec the model was trained with. The name defaults to the run name
     (for `runs/<name>/best.pt`) or the file stem. A model trained behind the safety shield
-    (train config `shield: true`) comes back behind it (named NAME+shield), sized for `task`
-    (the TaskConfig it will run in; None: the task it was trained on).
+    (train config `shield: true`) comes back behind it (named NAME+shield), one trained as a
+    correction of a base team (`residual.base`) comes back added to that team (named
+    NAME@heuristic); both sized for `task` (the TaskConfig it will run in; None: the task it
+    was trained on).
     """
     data = load_checkpoint(path)
     spec = env_spec if env_spec is not None else spec_from_dict(data["obs_spec"])
@@ -80,8 +84,34 @@ def load_policy(path: str | Path, env_spec: ObsSpec | None = None, stochastic: b
     actor = actor_from_checkpoint(data, spec, str(path))
     label = name or data["train_config"].get("name") or Path(path).stem
     policy = ActorPolicy(actor, str(label), stochastic=stochastic)
-    if not data["train_config"].get("shield", False):
+    stored = data["train_config"]
+    source = f"checkpoint {path}: train_config"
+    residual = build(ResidualConfig, stored.get("residual", {}), f"{source}.residual")
+    if not stored.get("shield", False) and residual.base == "none":
         return policy
     if task is None:
-        task = build(TaskConfig, data["train_config"].get("task", {}), f"checkpoint {path}: train_config.task")
-    return shield_policy(policy, task)
+        task = build(TaskConfig, stored.get("task", {}), f"{source}.task")
+    return trained_team(policy, task=task, shield=bool(stored.get("shield", False)), residual=residual)
+
+
+def base_team(cfg: TrainConfig, task: TaskConfig | None = None) -> Policy | None:
+    """The hand-made team a residual actor corrects (cfg.residual.base), sized for `task`
+    (default cfg.task); None when the actor drives alone."""
+    if cfg.residual.base == "none":
+        return None
+    return make_policy(cfg.residual.base, task or cfg.task, seed=cfg.seed, source="residual.base")
+
+
+def trained_team(actor: Policy, cfg: TrainConfig | None = None, *, task: TaskConfig | None = None,
+                 shield: bool | None = None, residual: ResidualConfig | None = None) -> Policy:
+    """The policy a trained actor stands for, as it acted in training: added to its base team
+    (residual learning) and behind the shield when its config says so. Settings come from
+    `cfg` unless given; `task` sizes the base team and the shield (default cfg.task)."""
+    task = task or cfg.task
+    shield = cfg.shield if shield is None else shield
+    residual = residual or cfg.residual
+    policy = actor
+    if residual.base != "none":
+        base = make_policy(residual.base, task, source="residual.base")
+        policy = ResidualTeam(base, actor, residual.scale)
+    return shield_policy(policy, task) if shield else policy

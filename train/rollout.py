@@ -7,6 +7,8 @@ import dataclasses
 import numpy as np
 import torch
 
+from pursuit_mj.residual import combine
+
 from .agent import ActorCritic
 from .networks import flush_tiny, gaussian_log_prob
 from .storage import Rollout
@@ -25,20 +27,19 @@ class Collector:
     """Owns the running observation of a training env between updates (episodes span updates).
 
     Observations come from the env already free of denormal floats (pursuit_mj.observations);
-    the MAPPO global state is flushed here. With a `shield` (pursuit_mj.shield.SafetyShield)
-    the env is stepped with the shielded actions; the buffer keeps the policy's own samples,
-    so to PPO the shield is part of the environment.
+    the MAPPO global state is flushed here. The env is stepped with what `path` makes of the
+    samples (a base team's actions added, a shield); the buffer keeps the policy's own samples,
+    so to PPO both are part of the environment.
     """
 
-    def __init__(self, env, model: ActorCritic, generator: torch.Generator, shield=None):
+    def __init__(self, env, model: ActorCritic, generator: torch.Generator, path: "ActionPath | None" = None):
         self.env = env
         self.model = model
         self.generator = generator
-        self.shield = shield
+        self.path = path or ActionPath()
         self.needs_state = model.algo == "mappo"
         self.obs = torch.as_tensor(env.reset())
-        if shield is not None:
-            shield.reset(env.n_worlds)
+        self.path.reset(env.n_worlds)
         self.state = self._state()
 
     def _state(self) -> torch.Tensor | None:
@@ -58,7 +59,7 @@ class Collector:
             buf.values[t] = value
             if state is not None:
                 buf.states[t] = state
-            next_obs, reward, terminated, truncated, info = self.env.step(env_actions(action, obs, self.shield, self.model.spec))
+            next_obs, reward, terminated, truncated, info = self.env.step(self.path(action, obs, self.model.spec))
             buf.rewards[t] = torch.as_tensor(reward)
             buf.terminated[t] = torch.as_tensor(terminated)
             buf.truncated[t] = torch.as_tensor(truncated)
@@ -70,8 +71,7 @@ class Collector:
             for k, v in info["reward_terms"].items():
                 term_sums[k] = term_sums.get(k, 0.0) + float(v.mean())
             stats.episodes.extend(info["episodes"])
-            if self.shield is not None:
-                forget_ended(self.shield, terminated | truncated)
+            self.path.forget_ended(terminated | truncated)
             self.obs = torch.as_tensor(next_obs)
             self.state = self._state()
         buf.last_value.copy_(self.model.world_value(self.obs, self.state))
@@ -79,11 +79,38 @@ class Collector:
         return stats
 
 
-def env_actions(action: torch.Tensor, obs: torch.Tensor, shield, spec) -> np.ndarray:
-    """What the env is stepped with: the sampled actions (W, N, 2) clipped to [-1, 1], behind
-    the shield when there is one (obs (W, N, D) are the observations they answer)."""
-    a = action.clamp(-1.0, 1.0).numpy()
-    return a if shield is None else shield.shield_actions(a, obs.numpy(), spec)
+class ActionPath:
+    """What the env is stepped with, from the actor's samples (W, N, 2) and the observations
+    (W, N, D) they answer: the samples clipped to [-1, 1]; with a `base` team (residual
+    learning, pursuit_mj.residual) its actions plus `scale` x the samples; then, with a
+    `shield` (pursuit_mj.shield.SafetyShield), shielded. Base and shield keep per-world memory:
+    `forget_ended` clears it for worlds whose episode ended.
+    """
+
+    def __init__(self, shield=None, base=None, scale: float = 1.0):
+        self.shield = shield
+        self.base = base
+        self.scale = scale
+
+    def reset(self, n_worlds: int) -> None:
+        for memory in (self.shield, self.base):
+            if memory is not None:
+                memory.reset(n_worlds)
+
+    def __call__(self, action: torch.Tensor, obs: torch.Tensor, spec) -> np.ndarray:
+        a = action.clamp(-1.0, 1.0).numpy()
+        if self.base is None and self.shield is None:
+            return a
+        o = obs.numpy()
+        if self.base is not None:
+            a = combine(self.base.act(o, spec), a, self.scale)
+        return a if self.shield is None else self.shield.shield_actions(a, o, spec)
+
+    def forget_ended(self, ended: np.ndarray) -> None:
+        """Reset the memory of worlds whose episode ended (W,) bool."""
+        for memory in (self.shield, self.base):
+            if memory is not None:
+                forget_ended(memory, ended)
 
 
 def forget_ended(memory, ended: np.ndarray) -> None:

@@ -25,7 +25,8 @@ import torch
 from pursuit_mj.configio import dump_yaml, to_dict
 from pursuit_mj.env import PursuitEnv
 from pursuit_mj.io_utils import atomic_write_text
-from pursuit_mj.shield import SafetyShield, shield_policy
+from pursuit_mj.policies import make_policy
+from pursuit_mj.shield import SafetyShield
 
 from .agent import ActorCritic
 from .checkpoint import check_obs_spec, load_checkpoint, save_checkpoint
@@ -34,9 +35,9 @@ from .discount import Discount
 from .imitation import DaggerCollector, Demonstrations, imitation_update, teacher_share
 from .metrics_log import MetricsLog
 from pursuit_mj.recording.rerun_scalars import RerunScalarLogger
-from .policy import ActorPolicy
+from .policy import ActorPolicy, base_team, trained_team
 from .ppo import advantages_and_returns, ppo_update
-from .rollout import Collector
+from .rollout import ActionPath, Collector
 from .storage import Rollout
 from .validation import FixedSeedValidator, summarise
 
@@ -94,14 +95,13 @@ class Trainer:
                               self.env.state_dim if cfg.algo == "mappo" else 0)
         self.demos: Demonstrations | None = None
         shield = SafetyShield.from_config(cfg.task) if cfg.shield else None
+        path = ActionPath(shield, base_team(cfg), cfg.residual.scale)
         if cfg.algo == "dagger":
-            from pursuit_mj.policies import make_policy
-
             teacher = make_policy(cfg.imitation.teacher, cfg.task, seed=cfg.seed, source="imitation.teacher")
             self.demos = Demonstrations(cfg.imitation.dataset_size, self.env.obs_dim)
-            self.collector = DaggerCollector(self.env, self.model, teacher, self.demos, self.generator, shield)
+            self.collector = DaggerCollector(self.env, self.model, teacher, self.demos, self.generator, path)
         else:
-            self.collector = Collector(self.env, self.model, self.generator, shield)
+            self.collector = Collector(self.env, self.model, self.generator, path)
         self.metrics = MetricsLog(self.run_dir / "metrics.jsonl")
         self.rerun = RerunScalarLogger(self.run_dir / "metrics.rrd", run_name=cfg.name) if cfg.run.rerun else None
         self.recent = collections.deque(maxlen=WINDOW)
@@ -192,8 +192,8 @@ class Trainer:
         if self._validator is None:
             layouts = list(r.validation_layouts) or list(self.cfg.layouts) or None
             self._validator = FixedSeedValidator(self.cfg.task, layouts, r.validation_episodes, r.validation_seed, r.sim_threads)
-        policy = ActorPolicy(self.model.actor, self.cfg.name)
-        summary, _ = self._validator.run(shield_policy(policy, self.cfg.task) if self.cfg.shield else policy)
+        policy = trained_team(ActorPolicy(self.model.actor, self.cfg.name), self.cfg)
+        summary, _ = self._validator.run(policy)
         self.model.actor.train()
         return summary
 

@@ -1,0 +1,115 @@
+"""Residual policy learning (pursuit_mj/residual.py, train residual.*): a learned correction on a base team."""
+
+import numpy as np
+import pytest
+import torch
+
+from pursuit_mj.config import TaskConfig
+from pursuit_mj.env import PursuitEnv
+from pursuit_mj.heuristic import HeuristicTeam
+from pursuit_mj.residual import ResidualTeam, combine
+from train.config import load_train_config
+from train.policy import load_policy
+from train.rollout import ActionPath
+from train.trainer import Trainer
+
+
+class ConstantPolicy:
+    """Every pursuer asks for the same action (2,)."""
+
+    def __init__(self, action, name="const"):
+        self.action = np.asarray(action, dtype=np.float64)
+        self.name = name
+
+    def reset(self, n_worlds, world_ids=None):
+        pass
+
+    def act(self, obs, spec):
+        return np.broadcast_to(self.action, obs.shape[:2] + (2,)).copy()
+
+
+def test_combine_adds_the_scaled_correction_and_stays_in_the_unit_disc():
+    base = np.array([[[0.2, 0.0], [1.0, 0.0], [0.0, 0.0]]])
+    corr = np.array([[[0.0, 1.0], [0.0, 5.0], [-3.0, 0.0]]])  # correction is clipped per axis first
+    out = combine(base, corr, 0.5)
+    assert out[0, 0] == pytest.approx([0.2, 0.5])
+    assert out[0, 1] == pytest.approx(np.array([1.0, 0.5]) / np.hypot(1.0, 0.5))  # direction kept, norm 1
+    assert out[0, 2] == pytest.approx([-0.5, 0.0])
+    assert np.all(np.linalg.norm(out, axis=-1) <= 1.0 + 1e-12)
+
+
+def _episode_actions(policy, task, steps=30):
+    env = PursuitEnv(task, n_worlds=3, seed=5)
+    obs = env.reset()
+    policy.reset(env.n_worlds)
+    actions = []
+    for _ in range(steps):
+        a = policy.act(obs, env.obs_spec)
+        actions.append(a)
+        obs, *_ = env.step(a)
+    return np.array(actions)
+
+
+def test_a_zero_correction_drives_exactly_like_the_base_team():
+    task = TaskConfig(fidelity="point")
+    alone = _episode_actions(HeuristicTeam.from_config(task), task)
+    team = ResidualTeam(HeuristicTeam.from_config(task), ConstantPolicy([0.0, 0.0]), scale=0.5)
+    assert team.name == "const@heuristic"
+    np.testing.assert_array_equal(_episode_actions(team, task), alone)
+
+
+def test_a_correction_steers_the_team():
+    task = TaskConfig(fidelity="point")
+    base = _episode_actions(HeuristicTeam.from_config(task), task, steps=1)
+    team = ResidualTeam(HeuristicTeam.from_config(task), ConstantPolicy([0.0, 1.0]), scale=0.5)
+    pushed = _episode_actions(team, task, steps=1)
+    np.testing.assert_allclose(pushed, combine(base, np.array([0.0, 1.0]), 0.5))
+    assert (pushed[..., 1] > base[..., 1]).all()
+
+
+def test_bad_scale_is_refused():
+    with pytest.raises(ValueError, match="scale"):
+        ResidualTeam(HeuristicTeam(), ConstantPolicy([0, 0]), scale=0.0)
+
+
+def test_the_action_path_adds_the_base_team_then_shields():
+    task = TaskConfig(fidelity="point")
+    env = PursuitEnv(task, n_worlds=2, seed=1)
+    obs = env.reset()
+    heuristic = HeuristicTeam.from_config(task)
+    heuristic.reset(2)
+    want = heuristic.act(obs, env.obs_spec)
+    path = ActionPath(base=HeuristicTeam.from_config(task), scale=0.4)
+    path.reset(2)
+    got = path(torch.zeros(2, task.n_pursuers, 2), torch.as_tensor(obs), env.obs_spec)
+    np.testing.assert_allclose(got, want)
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["algo=dagger", "residual.base=heuristic"], "residual.base"),
+    (["residual.base=greedy"], "greedy"),
+    (["residual.scale=0"], "residual.scale"),
+])
+def test_bad_residual_settings_are_refused_by_name(overrides, message):
+    with pytest.raises(ValueError, match=message):
+        load_train_config([], overrides).check_complete()
+
+
+def test_a_residual_run_trains_validates_and_loads_as_its_team(tmp_path):
+    from pursuit_mj.obs_spec import ObsSpec
+
+    cfg = load_train_config([], [
+        "name=res", "algo=ppo", "shield=true", "residual.base=heuristic", "residual.scale=0.5",
+        "task.fidelity=point", "task.n_pursuers=2", "task.max_steps=30", "n_envs=2", "total_steps=80",
+        "ppo.batch_size=80", "ppo.minibatch_size=40", "ppo.epochs=1", "net.encoder_width=8", "net.hidden=[8]",
+        "run.validate_every=1", "run.validation_episodes=2", "run.progress=false", f"run.runs_dir={tmp_path}",
+    ])
+    trainer = Trainer(cfg, log=lambda s: None)
+    assert isinstance(trainer.collector.path.base, HeuristicTeam)
+    result = trainer.train()
+    assert result["status"] == "done" and result["validation"]["episodes"] == 2
+    spec = ObsSpec.make(2, 1, cfg.task.n_rays)
+    policy = load_policy(tmp_path / "res" / "best.pt", spec, task=TaskConfig(n_pursuers=2, pursuer_speed=0.4))
+    assert policy.name == "res@heuristic+shield" and policy.has_shield
+    assert isinstance(policy.policy, ResidualTeam) and policy.policy.scale == 0.5
+    assert policy.policy.base.speed == 0.4  # the base team is sized for the task it runs in
