@@ -1,8 +1,9 @@
 """The reference experiment in one call: train the regimes on layout 0, evaluate all on 0-3.
 
 Order: full_obs, then fine_tune from its best checkpoint, classic, MAPPO (the reference
-study's four), then this project's recipe: imitate (DAgger from the heuristic team) and
-imitate_ppo (PPO from its best checkpoint); the heuristic team is evaluated beside them.
+study's four), then this project's recipes: imitate (DAgger from the heuristic team),
+imitate_ppo (PPO from its best checkpoint) and residual (PPO learning a correction added to
+the heuristic team); the heuristic team is evaluated beside them.
 A short probe of the heuristic first measures how long an evaluation episode takes, so the
 whole evaluation is reserved out of the budget (with fewer episodes than asked if it would
 not fit) before any training starts; the rest of the budget is split over the arms by their
@@ -45,12 +46,13 @@ class Arm:
 
 #: the trained arms, in training order; shares sum to 1
 ARMS = (
-    Arm("full_obs", "full_obs", 0.2),
-    Arm("fine_tune", "fine_tune", 0.15, start_from="full_obs"),
-    Arm("classic", "classic", 0.175),
-    Arm("mappo", "mappo", 0.175),
+    Arm("full_obs", "full_obs", 0.18),
+    Arm("fine_tune", "fine_tune", 0.13, start_from="full_obs"),
+    Arm("classic", "classic", 0.16),
+    Arm("mappo", "mappo", 0.16),
     Arm("imitate", "imitate", 0.1),
-    Arm("imitate_ppo", "finetune_ppo", 0.2, start_from="imitate"),
+    Arm("imitate_ppo", "finetune_ppo", 0.17, start_from="imitate"),
+    Arm("residual", "residual", 0.1),
 )
 MIN_TRAIN_FRACTION = 0.4  # evaluation may take at most the rest of the budget
 
