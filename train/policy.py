@@ -21,7 +21,7 @@ from pursuit_mj.residual import ResidualTeam
 from pursuit_mj.shield import shield_policy
 
 from .checkpoint import check_obs_spec, load_checkpoint
-from .config import NetConfig, ResidualConfig, TrainConfig
+from .config import NetConfig, ResidualConfig
 from .networks import Actor, flush_tiny
 
 
@@ -91,27 +91,20 @@ def load_policy(path: str | Path, env_spec: ObsSpec | None = None, stochastic: b
         return policy
     if task is None:
         task = build(TaskConfig, stored.get("task", {}), f"{source}.task")
-    return trained_team(policy, task=task, shield=bool(stored.get("shield", False)), residual=residual)
+    return trained_team(policy, task, bool(stored.get("shield", False)), residual)
 
 
-def base_team(cfg: TrainConfig, task: TaskConfig | None = None) -> Policy | None:
-    """The hand-made team a residual actor corrects (cfg.residual.base), sized for `task`
-    (default cfg.task); None when the actor drives alone."""
-    if cfg.residual.base == "none":
+def base_team(residual: ResidualConfig, task: TaskConfig) -> Policy | None:
+    """The hand-made team a residual actor corrects (residual.base), sized for `task`; None
+    when the actor drives alone."""
+    if residual.base == "none":
         return None
-    return make_policy(cfg.residual.base, task or cfg.task, seed=cfg.seed, source="residual.base")
+    return make_policy(residual.base, task, source="residual.base")
 
 
-def trained_team(actor: Policy, cfg: TrainConfig | None = None, *, task: TaskConfig | None = None,
-                 shield: bool | None = None, residual: ResidualConfig | None = None) -> Policy:
+def trained_team(actor: Policy, task: TaskConfig, shield: bool, residual: ResidualConfig) -> Policy:
     """The policy a trained actor stands for, as it acted in training: added to its base team
-    (residual learning) and behind the shield when its config says so. Settings come from
-    `cfg` unless given; `task` sizes the base team and the shield (default cfg.task)."""
-    task = task or cfg.task
-    shield = cfg.shield if shield is None else shield
-    residual = residual or cfg.residual
-    policy = actor
-    if residual.base != "none":
-        base = make_policy(residual.base, task, source="residual.base")
-        policy = ResidualTeam(base, actor, residual.scale)
+    (residual learning) and behind the shield when its train config says so, both sized for `task`."""
+    base = base_team(residual, task)
+    policy = actor if base is None else ResidualTeam(base, actor, residual.scale)
     return shield_policy(policy, task) if shield else policy

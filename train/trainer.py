@@ -95,7 +95,7 @@ class Trainer:
                               self.env.state_dim if cfg.algo == "mappo" else 0)
         self.demos: Demonstrations | None = None
         shield = SafetyShield.from_config(cfg.task) if cfg.shield else None
-        path = ActionPath(shield, base_team(cfg), cfg.residual.scale)
+        path = ActionPath(shield, base_team(cfg.residual, cfg.task), cfg.residual.scale)
         if cfg.algo == "dagger":
             teacher = make_policy(cfg.imitation.teacher, cfg.task, seed=cfg.seed, source="imitation.teacher")
             self.demos = Demonstrations(cfg.imitation.dataset_size, self.env.obs_dim)
@@ -192,7 +192,7 @@ class Trainer:
         if self._validator is None:
             layouts = list(r.validation_layouts) or list(self.cfg.layouts) or None
             self._validator = FixedSeedValidator(self.cfg.task, layouts, r.validation_episodes, r.validation_seed, r.sim_threads)
-        policy = trained_team(ActorPolicy(self.model.actor, self.cfg.name), self.cfg)
+        policy = trained_team(ActorPolicy(self.model.actor, self.cfg.name), self.cfg.task, self.cfg.shield, self.cfg.residual)
         summary, _ = self._validator.run(policy)
         self.model.actor.train()
         return summary
