@@ -20,6 +20,7 @@ HOW_TO_TRAIN = """\
 Next steps:
   pursuit-mj train --config imitate                              # DAgger from the heuristic team (a warm start)
   pursuit-mj train --config finetune_ppo --set init_from=runs/imitate/best.pt --set task.fidelity=quadrotor
+  pursuit-mj train --config residual                             # PPO learns a correction to the heuristic team
   pursuit-mj train --config configs/train/full_obs.yaml          # the reference regimes: PPO from scratch
   pursuit-mj train --config configs/train/fine_tune.yaml         # ... then fine-tune it under partial observability
   pursuit-mj train --config configs/train/classic.yaml --set task.fidelity=point   # faster physics, same actions
