@@ -8,6 +8,7 @@ from pursuit_mj.config import TaskConfig
 from pursuit_mj.env import PursuitEnv
 from pursuit_mj.heuristic import HeuristicTeam
 from pursuit_mj.residual import ResidualTeam, combine
+from pursuit_mj.shield import SafetyShield
 from train.config import load_train_config
 from train.policy import load_policy
 from train.rollout import ActionPath
@@ -75,14 +76,25 @@ def test_bad_scale_is_refused():
 def test_the_action_path_adds_the_base_team_then_shields():
     task = TaskConfig(fidelity="point")
     env = PursuitEnv(task, n_worlds=2, seed=1)
-    obs = env.reset()
+    env.reset()
+    toward_wall = np.tile([-1.0, 0.0], (2, task.n_pursuers, 1))
+    for _ in range(3):  # fly toward the -x border until the shield has work to do
+        obs, *_ = env.step(toward_wall)
     heuristic = HeuristicTeam.from_config(task)
     heuristic.reset(2)
-    want = heuristic.act(obs, env.obs_spec)
-    path = ActionPath(base=HeuristicTeam.from_config(task), scale=0.4)
+    correction = toward_wall.copy()
+    summed = combine(heuristic.act(obs, env.obs_spec), correction, 1.0)
+    reference_shield = SafetyShield.from_config(task)
+    reference_shield.reset(2)
+    want = reference_shield.shield_actions(summed, obs, env.obs_spec)
+    assert np.abs(want - summed).max() > 0.1
+    path = ActionPath(shield=SafetyShield.from_config(task), base=HeuristicTeam.from_config(task), scale=1.0)
     path.reset(2)
-    got = path(torch.zeros(2, task.n_pursuers, 2), torch.as_tensor(obs), env.obs_spec)
+    got = path(torch.as_tensor(correction, dtype=torch.float32), torch.as_tensor(obs), env.obs_spec)
     np.testing.assert_allclose(got, want)
+    unshielded = ActionPath(base=HeuristicTeam.from_config(task), scale=1.0)
+    unshielded.reset(2)
+    np.testing.assert_allclose(unshielded(torch.as_tensor(correction, dtype=torch.float32), torch.as_tensor(obs), env.obs_spec), summed)
 
 
 @pytest.mark.parametrize("overrides, message", [

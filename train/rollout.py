@@ -92,10 +92,12 @@ class ActionPath:
         self.base = base
         self.scale = scale
 
+    def _memories(self) -> list:
+        return [m for m in (self.shield, self.base) if m is not None]
+
     def reset(self, n_worlds: int) -> None:
-        for memory in (self.shield, self.base):
-            if memory is not None:
-                memory.reset(n_worlds)
+        for memory in self._memories():
+            memory.reset(n_worlds)
 
     def __call__(self, action: torch.Tensor, obs: torch.Tensor, spec) -> np.ndarray:
         a = action.clamp(-1.0, 1.0).numpy()
@@ -108,9 +110,8 @@ class ActionPath:
 
     def forget_ended(self, ended: np.ndarray) -> None:
         """Reset the memory of worlds whose episode ended (W,) bool."""
-        for memory in (self.shield, self.base):
-            if memory is not None:
-                forget_ended(memory, ended)
+        for memory in self._memories():
+            forget_ended(memory, ended)
 
 
 def forget_ended(memory, ended: np.ndarray) -> None:
