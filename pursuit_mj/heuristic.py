@@ -161,6 +161,21 @@ class HeuristicTeam:
 
     def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
         """Actions (W, N, 2) in [-1, 1]: desired world-frame velocity / pursuer_speed."""
+        o, mem, sweep, planned = self.observe(obs, spec)
+        target, has_target = self._choose_target(mem, o)
+        aim = np.where(has_target[..., None], self._chase(mem, o, target), sweep)
+        direction = np.where((planned & ~has_target)[..., None], unit(aim), self._steer(mem, o, aim))
+        v = self.speed * direction
+        v = v + self._repulsion(o)
+        v = self.shield.filter(v, o)
+        self.tick()
+        return clip_unit(v / self.speed)
+
+    def observe(self, obs: np.ndarray, spec: ObsSpec) -> tuple[dict, dict, np.ndarray, np.ndarray]:
+        """Take in one decision step's observations (W, N, spec.dim): update the memory of
+        evaders and the coverage map, choose the sweep goal. Returns (named observation views,
+        the memory (see _memory), sweep aim (W, N, 2) m relative, planned (W, N) bool).
+        Call `tick` once the step is decided (act does both)."""
         obs = np.asarray(obs, dtype=np.float64)
         if obs.ndim != 3 or obs.shape[1] != spec.n_pursuers or obs.shape[2] != spec.dim:
             raise ValueError(f"HeuristicTeam.act: expected observations (worlds, {spec.n_pursuers}, {spec.dim}), got {obs.shape}")
@@ -177,15 +192,18 @@ class HeuristicTeam:
         see = min(self.p.coverage.see_radius, self.perception_radius)
         mem["map"].update(o["pos"], o["rays"], o["ray_dirs"], self.ray_range, mate_abs, o["mate_vis"], mem["time"], see)
         self._remember(mem, o)
-        target, has_target = self._choose_target(mem, o)
         sweep, planned = self._sweep(mem, o, mate_abs)
-        aim = np.where(has_target[..., None], self._chase(mem, o, target), sweep)
-        direction = np.where((planned & ~has_target)[..., None], unit(aim), self._steer(mem, o, aim))
-        v = self.speed * direction
-        v = v + self._repulsion(o)
-        v = self.shield.filter(v, o)
-        mem["time"] += self.dt
-        return clip_unit(v / self.speed)
+        return o, mem, sweep, planned
+
+    def tick(self) -> None:
+        """Advance the episode clock by one decision interval."""
+        self._mem["time"] += self.dt
+
+    def evader_estimates(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """From the memory: (estimated evader positions (W, N, M, 2) m layout frame, their last
+        velocities (W, N, M, 2) m/s, age (W, N, M) s since known, inf where nothing is known)."""
+        mem = self._mem
+        return self._estimate(mem), mem["last_vel"], mem["age"]
 
     def _remember(self, mem: dict, o: dict) -> None:
         """Update the last known positions; forget the ones that were searched or are too old."""

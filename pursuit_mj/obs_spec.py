@@ -10,6 +10,16 @@ A pursuer's observation is a flat float32 vector made of groups, in this order:
 | `rays`      | 1      | K     | range (m) to the nearest wall/obstacle along K directions, ray i at |
 |             |        |       | angle 2*pi*i/K from world +x, capped at ray_range                   |
 
+With belief features (pursuit_mj.belief; `ObsSpec.make(..., belief=True)`), computed by the
+policy from the pursuer's own observation history, two groups follow:
+
+| group       | count  | width | features                                                            |
+|-------------|--------|-------|---------------------------------------------------------------------|
+| `memory`    | M      | 6     | dx, dy (m, estimated position relative to self), vx, vy (m/s, last  |
+|             |        |       | known), age (s since known, capped), known                          |
+| `goal`      | 1      | 3     | dx, dy (m, relative): the next waypoint of the coverage search,     |
+|             |        |       | planned (1 when it lies on a path found around known walls)         |
+
 `visible` is 1 when the entity is known this step (seen directly, or for evaders relayed by
 a teammate when share_detections is on); when 0 the entity's other values are zero.
 `relayed` is 1 when an evader is known only through a teammate. `captured` is 1 for an
@@ -47,6 +57,8 @@ class Group:
 SELF_FEATURES = ("x", "y", "vx", "vy")
 TEAMMATE_FEATURES = ("dx", "dy", "dvx", "dvy", "visible")
 EVADER_FEATURES = ("dx", "dy", "vx", "vy", "visible", "relayed", "captured")
+MEMORY_FEATURES = ("dx", "dy", "vx", "vy", "age", "known")
+GOAL_FEATURES = ("dx", "dy", "planned")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,15 +71,19 @@ class ObsSpec:
     groups: tuple[Group, ...]
 
     @staticmethod
-    def make(n_pursuers: int, n_evaders: int, n_rays: int) -> "ObsSpec":
+    def make(n_pursuers: int, n_evaders: int, n_rays: int, belief: bool = False) -> "ObsSpec":
+        """The environment's spec; with `belief`, the memory and goal groups appended."""
         groups = []
         start = 0
-        for name, count, feats, mask in (
+        layout = [
             ("self", 1, SELF_FEATURES, None),
             ("teammates", n_pursuers - 1, TEAMMATE_FEATURES, 4),
             ("evaders", n_evaders, EVADER_FEATURES, 4),
             ("rays", 1, tuple(f"range_{i}" for i in range(n_rays)), None),
-        ):
+        ]
+        if belief:
+            layout += [("memory", n_evaders, MEMORY_FEATURES, 5), ("goal", 1, GOAL_FEATURES, None)]
+        for name, count, feats, mask in layout:
             g = Group(name, start, count, len(feats), mask, feats)
             groups.append(g)
             start = g.stop
@@ -76,6 +92,15 @@ class ObsSpec:
     @property
     def dim(self) -> int:
         return self.groups[-1].stop
+
+    @property
+    def has_belief(self) -> bool:
+        """Whether the belief groups (memory, goal) are part of the vector."""
+        return any(g.name == "memory" for g in self.groups)
+
+    def without_belief(self) -> "ObsSpec":
+        """The environment's own part of this spec (the belief groups come after it)."""
+        return ObsSpec.make(self.n_pursuers, self.n_evaders, self.n_rays)
 
     def group(self, name: str) -> Group:
         for g in self.groups:
@@ -105,6 +130,10 @@ class ObsSpec:
         Entity counts may differ: pooled encoders handle any number of teammates/evaders.
         """
         mine = self.to_dict()
+        theirs_belief = any(g[0] == "memory" for g in other.get("groups", []))
+        if theirs_belief != self.has_belief:
+            side = ("the model", "the environment") if theirs_belief else ("the environment", "the model")
+            return f"{side[0]} has belief features (memory, goal) and {side[1]} does not (train config key belief)"
         if other.get("n_rays") != self.n_rays:
             return f"the model expects {other.get('n_rays')} range readings, the environment gives {self.n_rays} (n_rays)"
         if [g[:3] for g in other.get("groups", [])] != [g[:3] for g in mine["groups"]] and \

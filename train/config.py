@@ -114,6 +114,8 @@ class TrainConfig:
     init_from: str | None = spec(None, help="checkpoint whose actor/critic weights start this run (fine_tune)")
     shield: bool = spec(False, help="act behind the safety shield (pursuit_mj/shield.py) in training and validation; "
                                     "load_policy puts it back on the trained policy")
+    belief: bool = spec(False, help="append belief features (pursuit_mj/belief.py: remembered evaders, coverage-search "
+                                    "waypoint) to the actor's and critic's observations; load_policy adds them back")
     task_file: str | None = spec(None, help="task YAML file or preset name applied before the task: keys")
     task: TaskConfig = spec(default_factory=TaskConfig, help="the task trained on")
     ppo: PPOConfig = spec(default_factory=PPOConfig, help="PPO hyperparameters")

@@ -1,7 +1,7 @@
 """Actor and critic networks over the pursuer observation (pursuit_mj.obs_spec).
 
-`reference` (DESIGN.md section 6): one encoder per entity kind (self, teammate, evader, and
-the range readings), each a linear layer with tanh; teammates and evaders are mean-pooled
+`reference` (DESIGN.md section 6): one encoder per entity kind (self, teammate, evader, the
+range readings, and with belief features the remembered evaders and the search goal), each a linear layer with tanh; teammates and evaders are mean-pooled
 over the entities whose visibility flag is 1 (hidden ones count for nothing, none visible
 gives zeros), so one network serves any number of teammates and evaders. The pooled codes
 are concatenated and fused by tanh layers (hidden widths), then a head. `mlp`: the flat
@@ -101,11 +101,14 @@ class PooledTrunk(nn.Module):
     """Observation -> fused features through per-entity encoders with masked mean pooling."""
 
     GROUPS = ("self", "teammates", "evaders", "rays")
+    BELIEF_GROUPS = ("memory", "goal")  # pooled like evaders / encoded like self (pursuit_mj.belief)
 
     def __init__(self, spec: ObsSpec, cfg: NetConfig):
         super().__init__()
         self.use_rays = cfg.use_rays and spec.n_rays > 0
         groups = [g for g in self.GROUPS if g != "rays" or self.use_rays]
+        if spec.has_belief:
+            groups += list(self.BELIEF_GROUPS)
         self.encoders = nn.ModuleDict()
         for name in groups:
             g = spec.group(name)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from pursuit_mj.belief import Belief, BeliefPolicy, belief_spec
 from pursuit_mj.config import TaskConfig
 from pursuit_mj.configio import build
 from pursuit_mj.obs_spec import ObsSpec
@@ -26,6 +27,7 @@ from .networks import Actor, flush_tiny
 
 
 def spec_from_dict(data: dict) -> ObsSpec:
+    """The environment's spec (without belief groups) a stored spec (ObsSpec.to_dict) was made for."""
     return ObsSpec.make(int(data["n_pursuers"]), int(data["n_evaders"]), int(data["n_rays"]))
 
 
@@ -76,22 +78,27 @@ def load_policy(path: str | Path, env_spec: ObsSpec | None = None, stochastic: b
     (train config `shield: true`) comes back behind it (named NAME+shield), one trained as a
     correction of a base team (`residual.base`) comes back added to that team (named
     NAME@heuristic); both sized for `task` (the TaskConfig it will run in; None: the task it
-    was trained on).
+    was trained on). A model trained with belief features (train config `belief: true`) comes
+    back with its Belief in front, so it takes the environment's own observations.
     """
     data = load_checkpoint(path)
-    spec = env_spec if env_spec is not None else spec_from_dict(data["obs_spec"])
-    check_obs_spec(data, spec, path)
-    actor = actor_from_checkpoint(data, spec, str(path))
-    label = name or data["train_config"].get("name") or Path(path).stem
-    policy = ActorPolicy(actor, str(label), stochastic=stochastic)
     stored = data["train_config"]
+    belief = bool(stored.get("belief", False))
+    spec = env_spec if env_spec is not None else spec_from_dict(data["obs_spec"])
+    if env_spec is not None and env_spec.has_belief:
+        raise ValueError("load_policy: env_spec must be the environment's own spec (without belief features)")
+    actor_spec = belief_spec(spec) if belief else spec
+    check_obs_spec(data, actor_spec, path)
+    actor = actor_from_checkpoint(data, actor_spec, str(path))
+    label = name or stored.get("name") or Path(path).stem
+    policy = ActorPolicy(actor, str(label), stochastic=stochastic)
     source = f"checkpoint {path}: train_config"
     residual = build(ResidualConfig, stored.get("residual", {}), f"{source}.residual")
-    if not stored.get("shield", False) and residual.base == "none":
+    if not stored.get("shield", False) and residual.base == "none" and not belief:
         return policy
     if task is None:
         task = build(TaskConfig, stored.get("task", {}), f"{source}.task")
-    return trained_team(policy, task, bool(stored.get("shield", False)), residual)
+    return trained_team(policy, task, bool(stored.get("shield", False)), residual, belief)
 
 
 def base_team(residual: ResidualConfig, task: TaskConfig) -> Policy | None:
@@ -102,9 +109,12 @@ def base_team(residual: ResidualConfig, task: TaskConfig) -> Policy | None:
     return make_policy(residual.base, task, source="residual.base")
 
 
-def trained_team(actor: Policy, task: TaskConfig, shield: bool, residual: ResidualConfig) -> Policy:
-    """The policy a trained actor stands for, as it acted in training: added to its base team
-    (residual learning) and behind the shield when its train config says so, both sized for `task`."""
+def trained_team(actor: Policy, task: TaskConfig, shield: bool, residual: ResidualConfig, belief: bool = False) -> Policy:
+    """The policy a trained actor stands for, as it acted in training: fed belief features,
+    added to its base team (residual learning) and behind the shield when its train config
+    says so, all sized for `task`."""
+    if belief:
+        actor = BeliefPolicy(actor, Belief.from_config(task))
     base = base_team(residual, task)
     policy = actor if base is None else ResidualTeam(base, actor, residual.scale)
     return shield_policy(policy, task) if shield else policy

@@ -22,6 +22,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from pursuit_mj.belief import Belief, BeliefEnv
 from pursuit_mj.configio import dump_yaml, to_dict
 from pursuit_mj.env import PursuitEnv
 from pursuit_mj.io_utils import atomic_write_text
@@ -82,6 +83,8 @@ class Trainer:
         start_update = checkpoint["counters"]["update"] if checkpoint else 0
         self.env = PursuitEnv(cfg.task, n_worlds=cfg.n_envs, seed=env_seed(cfg.seed, start_update),
                               layouts=list(cfg.layouts) or None, nthread=cfg.run.sim_threads)
+        if cfg.belief:
+            self.env = BeliefEnv(self.env, Belief.from_config(cfg.task))
         self.spec = self.env.obs_spec
         self.model = ActorCritic(self.spec, self.env.state_dim, cfg)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=self._base_lr(), eps=1e-5, fused=True)
@@ -192,7 +195,8 @@ class Trainer:
         if self._validator is None:
             layouts = list(r.validation_layouts) or list(self.cfg.layouts) or None
             self._validator = FixedSeedValidator(self.cfg.task, layouts, r.validation_episodes, r.validation_seed, r.sim_threads)
-        policy = trained_team(ActorPolicy(self.model.actor, self.cfg.name), self.cfg.task, self.cfg.shield, self.cfg.residual)
+        policy = trained_team(ActorPolicy(self.model.actor, self.cfg.name), self.cfg.task, self.cfg.shield, self.cfg.residual,
+                              self.cfg.belief)
         summary, _ = self._validator.run(policy)
         self.model.actor.train()
         return summary

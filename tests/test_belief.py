@@ -1,0 +1,147 @@
+"""Belief features (pursuit_mj/belief.py, train belief: true): memory appended to observations."""
+
+import numpy as np
+import pytest
+import torch
+
+from pursuit_mj.belief import AGE_CAP, Belief, BeliefEnv, BeliefPolicy, belief_spec
+from pursuit_mj.config import TaskConfig
+from pursuit_mj.env import PursuitEnv
+from pursuit_mj.obs_spec import ObsSpec
+from train.config import NetConfig, load_train_config
+from train.networks import PooledTrunk
+from train.policy import load_policy
+from train.trainer import Trainer
+
+TASK = TaskConfig(fidelity="point")
+
+
+def _obs(spec: ObsSpec, pos, evader=None) -> np.ndarray:
+    """One world, every pursuer at `pos` at rest, open rays; evader (dx, dy, vx, vy) visible or None."""
+    obs = np.zeros((1, spec.n_pursuers, spec.dim), np.float32)
+    obs[..., spec.index("self", 0, "x")], obs[..., spec.index("self", 0, "y")] = pos
+    g = spec.group("rays")
+    obs[..., g.start : g.stop] = TASK.ray_range
+    if evader is not None:
+        for name, value in zip(("dx", "dy", "vx", "vy"), evader):
+            obs[..., spec.index("evaders", 0, name)] = value
+        obs[..., spec.index("evaders", 0, "visible")] = 1.0
+    return obs
+
+
+def _memory(features: np.ndarray, spec: ObsSpec) -> dict[str, float]:
+    """Pursuer 0's memory of evader 0 as a dict of named features."""
+    full = belief_spec(spec)
+    vec = np.concatenate([np.zeros(spec.dim, np.float32), features[0, 0]])
+    return {f: float(vec[full.index("memory", 0, f)]) for f in full.group("memory").features}
+
+
+def test_the_belief_groups_follow_the_environment_groups():
+    spec = ObsSpec.make(3, 2, 16)
+    full = belief_spec(spec)
+    assert full.has_belief and not spec.has_belief
+    assert full.dim == spec.dim + 2 * 6 + 3
+    assert [g.name for g in full.groups] == ["self", "teammates", "evaders", "rays", "memory", "goal"]
+    assert full.without_belief() == spec
+    assert "belief" in spec.compatible(full.to_dict()) and "belief" in full.compatible(spec.to_dict())
+
+
+def test_a_lost_evader_is_remembered_moved_along_its_velocity_then_forgotten_when_searched():
+    spec = ObsSpec.make(3, 1, TASK.n_rays)
+    belief = Belief.from_config(TASK)
+    belief.reset(1)
+    first = _memory(belief.features(_obs(spec, (1.0, 1.0), evader=(1.0, 0.0, 0.2, 0.0)), spec), spec)
+    assert first == pytest.approx({"dx": 1.0, "dy": 0.0, "vx": 0.2, "vy": 0.0, "age": 0.0, "known": 1.0})
+    for k in range(1, 4):  # out of sight: the estimate drifts with the last velocity, the age grows
+        lost = _memory(belief.features(_obs(spec, (1.0, 1.0)), spec), spec)
+        age = k * TASK.control_dt
+        assert lost == pytest.approx({"dx": 1.0 + 0.2 * age, "dy": 0.0, "vx": 0.2, "vy": 0.0, "age": age, "known": 1.0})
+    # the pursuer arrives where the evader should be and finds nothing: the memory is cleared
+    gone = _memory(belief.features(_obs(spec, (2.06, 1.0)), spec), spec)
+    assert gone == {"dx": 0.0, "dy": 0.0, "vx": 0.0, "vy": 0.0, "age": 0.0, "known": 0.0}
+
+
+def test_the_age_reads_capped():
+    spec = ObsSpec.make(3, 1, TASK.n_rays)
+    belief = Belief.from_config(TASK)
+    belief.reset(1)
+    belief.features(_obs(spec, (1.0, 1.0), evader=(3.0, 0.0, 0.0, 0.0)), spec)
+    for _ in range(int(AGE_CAP / TASK.control_dt) + 10):
+        mem = _memory(belief.features(_obs(spec, (1.0, 1.0)), spec), spec)
+    assert mem["known"] == 1.0 and mem["age"] == AGE_CAP
+
+
+def test_the_goal_is_the_heuristic_sweep_waypoint():
+    from pursuit_mj.heuristic import HeuristicTeam
+
+    env = PursuitEnv(TASK, n_worlds=2, seed=3, layouts=[1])
+    obs = env.reset()
+    belief, team = Belief.from_config(TASK), HeuristicTeam.from_config(TASK)
+    belief.reset(2), team.reset(2)
+    full = belief_spec(env.obs_spec)
+    goal = full.group("goal")
+    for _ in range(5):
+        aug = belief.augment(obs, env.obs_spec)
+        _, _, sweep, planned = team.observe(obs, env.obs_spec)
+        team.tick()
+        np.testing.assert_allclose(aug[..., goal.start : goal.start + 2], sweep, atol=1e-5)
+        np.testing.assert_array_equal(aug[..., goal.start + 2], planned)
+        obs, *_ = env.step(np.zeros((2, TASK.n_pursuers, 2)))
+
+
+def test_the_env_wrapper_clears_the_memory_of_ended_episodes():
+    task = TaskConfig(fidelity="point", max_steps=4)
+    env = BeliefEnv(PursuitEnv(task, n_worlds=2, seed=2), Belief.from_config(task))
+    raw_dim = env.raw_spec.dim
+    obs = env.reset()
+    assert obs.shape == (2, task.n_pursuers, env.obs_dim) and env.obs_spec.has_belief
+    previous = obs
+    for step in range(4):
+        obs, _, terminated, truncated, info = env.step(np.zeros((2, task.n_pursuers, 2)))
+        if step < 3:
+            previous = obs
+    assert truncated.all()
+    np.testing.assert_array_equal(info["final_obs"][..., raw_dim:], previous[..., raw_dim:])  # one step old
+    fresh = Belief.from_config(task)
+    fresh.reset(2)
+    np.testing.assert_allclose(obs[..., raw_dim:], fresh.features(obs[..., :raw_dim], env.raw_spec), atol=1e-6)
+
+
+def test_hidden_memories_do_not_reach_the_network():
+    spec = belief_spec(ObsSpec.make(3, 2, 8))
+    trunk = PooledTrunk(spec, NetConfig(encoder_width=8, hidden=(8,)))
+    obs = torch.randn(5, spec.dim)
+    mem = spec.group("memory")
+    obs[:, mem.start + 5] = 1.0  # evader 0 known
+    obs[:, mem.start + mem.width + 5] = 0.0  # evader 1 not known
+    other = obs.clone()
+    other[:, mem.start + mem.width : mem.start + 2 * mem.width - 1] = torch.randn(5, mem.width - 1)
+    torch.testing.assert_close(trunk(obs, spec), trunk(other, spec))
+    other[:, mem.start] += 1.0
+    assert not torch.allclose(trunk(obs, spec), trunk(other, spec))
+
+
+def _tiny(tmp_path, *extra):
+    return load_train_config([], [
+        "algo=dagger", "task.fidelity=point", "task.n_pursuers=2", "task.max_steps=30", "n_envs=2",
+        "total_steps=60", "ppo.batch_size=60", "ppo.minibatch_size=30", "imitation.grad_steps=2",
+        "imitation.minibatch_size=16", "net.encoder_width=8", "net.hidden=[8]", "run.validate_every=1",
+        "run.validation_episodes=2", "run.progress=false", f"run.runs_dir={tmp_path}", *extra,
+    ])
+
+
+def test_a_belief_run_trains_and_loads_as_a_policy_of_the_environment_observations(tmp_path):
+    trainer = Trainer(_tiny(tmp_path, "name=bel", "belief=true"), log=lambda s: None)
+    assert trainer.spec.has_belief and trainer.buffer.obs.shape[-1] == trainer.spec.dim
+    assert trainer.train()["status"] == "done"
+    env = PursuitEnv(TaskConfig(fidelity="point", n_pursuers=4, n_evaders=2), n_worlds=2, seed=0)
+    policy = load_policy(tmp_path / "bel" / "best.pt", env.obs_spec, task=env.config)
+    assert isinstance(policy, BeliefPolicy) and policy.name == "bel"
+    obs = env.reset()
+    policy.reset(2)
+    for _ in range(3):
+        actions = policy.act(obs, env.obs_spec)
+        assert actions.shape == (2, 4, 2) and np.abs(actions).max() <= 1.0
+        obs, *_ = env.step(actions)
+    with pytest.raises(ValueError, match="belief"):
+        Trainer(_tiny(tmp_path, "name=plain", f"init_from={tmp_path / 'bel' / 'best.pt'}"), log=lambda s: None)
