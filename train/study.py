@@ -2,8 +2,9 @@
 
 Order: full_obs, then fine_tune from its best checkpoint, classic, MAPPO (the reference
 study's four), then this project's recipes: imitate (DAgger from the heuristic team),
-imitate_ppo (PPO from its best checkpoint) and residual (PPO learning a correction added to
-the heuristic team); the heuristic team is evaluated beside them.
+imitate_ppo (PPO from its best checkpoint), residual (PPO learning a correction added to
+the heuristic team), belief (DAgger of a network fed belief features) and belief_ppo (PPO
+from it); the heuristic team is evaluated beside them.
 A short probe of the heuristic first measures how long an evaluation episode takes, so the
 whole evaluation is reserved out of the budget (with fewer episodes than asked if it would
 not fit) before any training starts; the rest of the budget is split over the arms by their
@@ -46,13 +47,15 @@ class Arm:
 
 #: the trained arms, in training order; shares sum to 1
 ARMS = (
-    Arm("full_obs", "full_obs", 0.18),
-    Arm("fine_tune", "fine_tune", 0.13, start_from="full_obs"),
-    Arm("classic", "classic", 0.16),
-    Arm("mappo", "mappo", 0.16),
-    Arm("imitate", "imitate", 0.1),
-    Arm("imitate_ppo", "finetune_ppo", 0.17, start_from="imitate"),
-    Arm("residual", "residual", 0.1),
+    Arm("full_obs", "full_obs", 0.14),
+    Arm("fine_tune", "fine_tune", 0.1, start_from="full_obs"),
+    Arm("classic", "classic", 0.12),
+    Arm("mappo", "mappo", 0.12),
+    Arm("imitate", "imitate", 0.08),
+    Arm("imitate_ppo", "finetune_ppo", 0.1, start_from="imitate"),
+    Arm("residual", "residual", 0.08),
+    Arm("belief", "belief", 0.12),
+    Arm("belief_ppo", "belief_ppo", 0.14, start_from="belief"),
 )
 MIN_TRAIN_FRACTION = 0.4  # evaluation may take at most the rest of the budget
 
