@@ -10,7 +10,7 @@ from pursuit_mj.obs_spec import ObsSpec
 from train.config import NetConfig
 from train.gae import compute_gae, next_values_from
 from train.losses import clipped_policy_loss, normalise, scaled_value_loss
-from train.networks import Actor, Critic, EntityEncoder, gaussian_entropy, gaussian_log_prob, masked_mean
+from train.networks import Actor, Critic, EntityEncoder, gaussian_entropy, gaussian_log_prob, masked_mean, tanh
 from train.running_norm import RunningMeanStd
 
 
@@ -110,6 +110,19 @@ def test_normalise():
     x = normalise(torch.tensor([1.0, 2.0, 3.0, 6.0]))
     assert x.mean().item() == pytest.approx(0.0, abs=1e-6)
     assert x.std(unbiased=False).item() == pytest.approx(1.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("shape", [(3, 5), (256, 128)])  # torch.tanh below the size threshold, sigmoid above
+def test_network_tanh_matches_torch_tanh_in_value_and_gradient(shape):
+    x = (torch.randn(shape, generator=torch.Generator().manual_seed(1)) * 4).requires_grad_()
+    y = tanh(x)
+    torch.testing.assert_close(y, torch.tanh(x), atol=3e-7, rtol=0)
+    weights = torch.randn(shape, generator=torch.Generator().manual_seed(2))
+    (g,) = torch.autograd.grad((y * weights).sum(), x)
+    torch.testing.assert_close(g, weights * (1 - torch.tanh(x.detach()) ** 2), atol=1e-6, rtol=1e-5)
+    with torch.inference_mode():
+        torch.testing.assert_close(tanh(x.detach()), torch.tanh(x.detach()), atol=3e-7, rtol=0)
+    assert tanh(torch.tensor([-50.0, 0.0, 50.0])).tolist() == [-1.0, 0.0, 1.0]
 
 
 def test_masked_mean_ignores_hidden_and_gives_zero_when_none_visible():

@@ -1,8 +1,9 @@
 """Actor and critic networks over the pursuer observation (pursuit_mj.obs_spec).
 
 `reference` (DESIGN.md section 6): one encoder per entity kind (self, teammate, evader, the
-range readings, and with belief features the remembered evaders and the search goal), each a linear layer with tanh; teammates and evaders are mean-pooled
-over the entities whose visibility flag is 1 (hidden ones count for nothing, none visible
+range readings, and with belief features the remembered evaders and the search goal), each
+a linear layer with tanh; teammates and evaders are mean-pooled over the entities whose
+visibility flag is 1 (hidden ones count for nothing, none visible
 gives zeros), so one network serves any number of teammates and evaders. The pooled codes
 are concatenated and fused by tanh layers (hidden widths), then a head. `mlp`: the flat
 observation through tanh layers (fixed team size). Every weight is orthogonal, every bias 0.
@@ -30,6 +31,42 @@ def flush_tiny(x: torch.Tensor) -> torch.Tensor:
     return torch.where(x.abs() < TINY, torch.zeros((), dtype=x.dtype), x)
 
 
+class _SigmoidTanh(torch.autograd.Function):
+    """tanh(x) as 2 sigmoid(2x) - 1, differentiated as tanh: d/dx = 1 - y^2 from the output y."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor) -> torch.Tensor:
+        y = torch.sigmoid(x * 2.0).mul_(2.0).sub_(1.0)
+        ctx.save_for_backward(y)
+        return y
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
+        (y,) = ctx.saved_tensors
+        return torch.ops.aten.tanh_backward(grad, y)
+
+
+SIGMOID_TANH_MIN_SIZE = 4096  # elements; below this torch.tanh is as fast
+
+
+def tanh(x: torch.Tensor) -> torch.Tensor:
+    """tanh, within 2e-7 of torch.tanh. On large tensors it is computed through sigmoid: torch's
+    CPU tanh kernel is several times slower than its sigmoid (70 vs 16 us on 256 x 128 here),
+    and the update's minibatches made tanh 15 % of its time."""
+    if x.numel() < SIGMOID_TANH_MIN_SIZE:
+        return torch.tanh(x)
+    if x.requires_grad and torch.is_grad_enabled():
+        return _SigmoidTanh.apply(x)
+    return torch.sigmoid(x * 2.0).mul_(2.0).sub_(1.0)
+
+
+class Tanh(nn.Module):
+    """nn.Tanh computed by `tanh` above."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return tanh(x)
+
+
 def init_linear(layer: nn.Linear, gain: float = math.sqrt(2.0)) -> nn.Linear:
     nn.init.orthogonal_(layer.weight, gain)
     nn.init.zeros_(layer.bias)
@@ -44,7 +81,7 @@ def tanh_mlp(sizes: list[int], out_gain: float | None = None) -> nn.Sequential:
         if last and out_gain is not None:
             layers.append(init_linear(nn.Linear(a, b), out_gain))
         else:
-            layers += [init_linear(nn.Linear(a, b)), nn.Tanh()]
+            layers += [init_linear(nn.Linear(a, b)), Tanh()]
     return nn.Sequential(*layers)
 
 
@@ -87,7 +124,7 @@ class EntityEncoder(nn.Module):
 
     def forward(self, entities: torch.Tensor) -> torch.Tensor:
         """entities (..., K, width) -> (..., out)."""
-        codes = torch.tanh(self.layer(entities))
+        codes = tanh(self.layer(entities))
         if self.mask_feature is None and entities.shape[-2] == 1:
             return codes.squeeze(-2)  # one always-present entity (self, rays): its code, bit for bit
         if self.mask_feature is None:
@@ -157,7 +194,7 @@ class Actor(nn.Module):
 
     def forward(self, obs: torch.Tensor, spec: ObsSpec) -> tuple[torch.Tensor, torch.Tensor]:
         """(mean (..., 2), log_std (..., 2))."""
-        mean = torch.tanh(self.head(self.trunk(obs, spec)))
+        mean = tanh(self.head(self.trunk(obs, spec)))
         return mean, self.log_std.expand_as(mean)
 
     def distribution(self, obs: torch.Tensor, spec: ObsSpec) -> torch.distributions.Normal:
