@@ -14,6 +14,7 @@ import csv
 import dataclasses
 import io
 import json
+import math
 import zlib
 from pathlib import Path
 from typing import Callable, Iterable, Protocol, Sequence
@@ -86,14 +87,17 @@ def episode_seeds(seed: int, count: int) -> np.ndarray:
     return np.array([np.random.SeedSequence([int(seed), k]).generate_state(1)[0] for k in range(count)], np.int64)
 
 
-def summarise(policy: str, layout: str, fidelity: str, seed: int, records: Sequence[EpisodeRecord]) -> Row:
-    """Rates with Wilson intervals and mean steps with t intervals over finished episodes."""
+def summarise(policy: str, layout: str, fidelity: str, seed: int, records: Sequence[EpisodeRecord],
+              max_steps: float = math.inf) -> Row:
+    """Rates with Wilson intervals and mean steps with t intervals (cut to [0, max_steps]) over
+    finished episodes."""
     n = len(records)
     counts = {k: sum(r.outcome == k for r in records) for k in OUTCOMES}
     steps = [float(r.steps) for r in records]
     steps_ok = [float(r.steps) for r in records if r.outcome == "success"]
+    bounds = (0.0, float(max_steps))
     return Row(policy, layout, fidelity, n, rate(counts["success"], n), rate(counts["collision"], n),
-               rate(counts["timeout"], n), mean_interval(steps), mean_interval(steps_ok), int(seed))
+               rate(counts["timeout"], n), mean_interval(steps, bounds), mean_interval(steps_ok, bounds), int(seed))
 
 
 class Watcher(Protocol):
@@ -185,7 +189,7 @@ def evaluate(
         name = layout_label(ref)
         cfg = dataclasses.replace(config, layout=int(name) if name.isdigit() else name, random_layout=False)
         records = run_episodes(policy, cfg, episodes, layout_seed(seed, name), n_worlds, on_episode, watch)
-        rows.append(summarise(label or policy.name, name, cfg.fidelity, seed, records))
+        rows.append(summarise(label or policy.name, name, cfg.fidelity, seed, records, cfg.max_steps))
     return rows
 
 

@@ -68,8 +68,12 @@ def t_quantile_975(dof: int) -> float:
             + (79 * z**9 + 776 * z**7 + 1482 * z**5 - 1920 * z**3 - 945 * z) / (92160 * v**4))
 
 
-def mean_interval(values: Sequence[float]) -> Mean:
-    """Mean and 95 % t interval; a single value has the interval [value, value]."""
+def mean_interval(values: Sequence[float], bounds: tuple[float, float] | None = None) -> Mean:
+    """Mean and 95 % t interval; a single value has the interval [value, value].
+
+    bounds (lo, hi): the range the values can take (episode steps: 0..max_steps); the
+    interval is cut to it, since a few skewed samples can stretch a t interval past it.
+    """
     n = len(values)
     if n == 0:
         return Mean(0, None, None, None)
@@ -78,4 +82,7 @@ def mean_interval(values: Sequence[float]) -> Mean:
         return Mean(1, m, m, m)
     var = math.fsum((x - m) ** 2 for x in values) / (n - 1)
     half = t_quantile_975(n - 1) * math.sqrt(var / n)
-    return Mean(n, m, m - half, m + half)
+    lo, hi = m - half, m + half
+    if bounds is not None:
+        lo, hi = max(lo, bounds[0]), min(hi, bounds[1])
+    return Mean(n, m, lo, hi)
