@@ -41,7 +41,7 @@ _TINY = 1e-9
 class HeuristicParams:
     """Tuning of the team. Distances in m, times in s, gains dimensionless unless stated.
 
-    safety_buffer .. hit_memory tune the team's SafetyShield (see ShieldParams, same defaults).
+    safety_buffer .. mate_memory tune the team's SafetyShield (see ShieldParams, same defaults).
     """
 
     lead_time_max: float = 1.5  # longest prediction horizon for a visible target (s)
@@ -62,6 +62,7 @@ class HeuristicParams:
     response_time: float = ShieldParams.response_time
     safety_passes: int = ShieldParams.safety_passes
     hit_memory: int = ShieldParams.hit_memory
+    mate_memory: float = ShieldParams.mate_memory
     open_distance: float = 0.6  # a direction is open if its ray reaches this far (or the goal) (m)
     side_timeout: float = 10.0  # follow an obstacle on one side at most this long, then the other (s)
     coverage: CoverageParams = dataclasses.field(default_factory=CoverageParams)
@@ -106,7 +107,8 @@ class HeuristicTeam:
         self.ray_range = float(ray_range)
         self.perception_radius = float(perception_radius)
         self.p = params or HeuristicParams()
-        self.shield = SafetyShield(pursuer_speed, capture_radius, obstacle_clearance, teammate_clearance, ray_range, self.p.shield)
+        self.shield = SafetyShield(pursuer_speed, capture_radius, obstacle_clearance, teammate_clearance, ray_range, self.p.shield,
+                                   control_dt)
         self._n_worlds: int | None = None
         self._mem: dict = {}  # see _memory
 

@@ -15,6 +15,12 @@ same in simulation and on real drones. Every decision step, per pursuer:
    what the current closing speed covers in `response_time` (a drone does not stop at
    once). A negative cap backs the pursuer off.
 
+Teammates are remembered: one that drops out of sight (behind the pursuer, with a narrow
+field of view) stays a hazard for `mate_memory` s, at its last seen position moved along
+its last seen velocity. Two pursuers that cannot see each other would otherwise close in
+at full speed; on the `hard` preset (120 deg view) that was every collision of the
+heuristic team.
+
 A velocity that moves away from every hazard, or toward one slowly enough, passes
 unchanged. `Shielded` puts the shield on top of any `Policy`. The heuristic team
 (heuristic.py) uses the same `SafetyShield` as its last step.
@@ -42,9 +48,10 @@ class ShieldParams:
     response_time: float = 0.25  # the gap shrinks by this much of the current closing speed before a command acts (s)
     safety_passes: int = 4  # projection passes of the closing-speed limits
     hit_memory: int = 12  # steps of ray hit points kept as hazards
+    mate_memory: float = 3.0  # an unseen teammate stays a hazard this long, dead-reckoned (s; 0: off)
 
     def __post_init__(self):
-        for key in ("safety_buffer", "response_time"):
+        for key in ("safety_buffer", "response_time", "mate_memory"):
             value = getattr(self, key)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"ShieldParams.{key}: expected a number >= 0, got {value!r}")
@@ -62,7 +69,8 @@ class SafetyShield:
     pursuer_speed (m/s) converts actions (fractions of it) to velocities in `Shielded`;
     capture_radius (m) sizes captured evaders as hazards; obstacle/teammate clearance (m)
     are the collision distances of the task; ray_range (m) is the cap of range readings (a
-    reading below it hit something). Keeps a hit memory per world: call `reset` at episode
+    reading below it hit something); control_dt (s) is the decision interval (one `filter`
+    call each). Keeps a memory of hits and teammates per world: call `reset` at episode
     starts, as for any policy.
     """
 
@@ -74,8 +82,10 @@ class SafetyShield:
         teammate_clearance: float = 0.2,
         ray_range: float = 2.0,
         params: ShieldParams | None = None,
+        control_dt: float = 0.1,
     ):
         for key, value, positive in (("pursuer_speed", pursuer_speed, True), ("ray_range", ray_range, True),
+                                     ("control_dt", control_dt, True),
                                      ("capture_radius", capture_radius, False), ("obstacle_clearance", obstacle_clearance, False),
                                      ("teammate_clearance", teammate_clearance, False)):
             if not (math.isfinite(value) and (value > 0 if positive else value >= 0)):
@@ -85,26 +95,33 @@ class SafetyShield:
         self.obstacle_clearance = float(obstacle_clearance)
         self.teammate_clearance = float(teammate_clearance)
         self.ray_range = float(ray_range)
+        self.dt = float(control_dt)
         self.p = params or ShieldParams()
         self._n_worlds: int | None = None
         self._hits: np.ndarray | None = None  # (W, N, hit_memory * K, 2) m world: recent ray end points
         self._hit_ok: np.ndarray | None = None  # (W, N, hit_memory * K) bool: which of them are on something
         self._slot = 0  # ring-buffer position of the next step's hits
+        # last seen teammates, per observer: position (W, N, N-1, 2) m world, velocity
+        # (W, N, N-1, 2) m/s world, age (W, N, N-1) s since seen (inf: not remembered)
+        self._mates: dict[str, np.ndarray] | None = None
 
     @classmethod
     def from_config(cls, config, params: ShieldParams | None = None) -> "SafetyShield":
         """A shield for a TaskConfig's speed, clearances and ray range."""
         return cls(config.pursuer_speed, config.capture_radius, config.obstacle_clearance,
-                   config.teammate_clearance, config.ray_range, params)
+                   config.teammate_clearance, config.ray_range, params, config.control_dt)
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
-        """Forget the hits seen in the listed worlds (all, and resize, when world_ids is None)."""
+        """Forget the hits and teammates seen in the listed worlds (all, and resize, when world_ids is None)."""
         if world_ids is None or self._n_worlds != n_worlds:
             self._n_worlds = int(n_worlds)
-            self._hits = self._hit_ok = None
+            self._hits = self._hit_ok = self._mates = None
             return
+        ids = np.asarray(world_ids, dtype=np.int64)
         if self._hit_ok is not None:
-            self._hit_ok[np.asarray(world_ids, dtype=np.int64)] = False
+            self._hit_ok[ids] = False
+        if self._mates is not None:
+            self._mates["age"][ids] = np.inf
 
     def apply(self, v: np.ndarray, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
         """Filtered velocities (W, N, 2) m/s from desired ones v (W, N, 2) m/s and observations (W, N, spec.dim)."""
@@ -138,7 +155,26 @@ class SafetyShield:
         if W != self._n_worlds:
             raise ValueError(f"SafetyShield: got {W} worlds, but reset() was called for {self._n_worlds}")
         self._remember_hits(o)
-        return self._limit_closing(v, o)
+        return self._limit_closing(v, self._with_remembered_mates(o))
+
+    def _with_remembered_mates(self, o: dict) -> dict:
+        """o with teammates out of sight for at most mate_memory s put back where they should be now."""
+        rel, vis = o["mate_rel"], o["mate_vis"]
+        if rel.shape[2] == 0 or self.p.mate_memory <= 0:
+            return o
+        pos, vel = o["pos"][:, :, None], o["vel"][:, :, None]
+        m = self._mates
+        if m is None or m["age"].shape != vis.shape:
+            m = self._mates = {"pos": np.zeros(rel.shape), "vel": np.zeros(rel.shape), "age": np.full(vis.shape, np.inf)}
+        m["pos"] = np.where(vis[..., None], pos + rel, m["pos"])
+        m["vel"] = np.where(vis[..., None], vel + o["mate_dvel"], m["vel"])
+        m["age"] = np.where(vis, 0.0, m["age"] + self.dt)
+        recalled = ~vis & (m["age"] <= self.p.mate_memory)
+        if not recalled.any():
+            return o
+        est = m["pos"] + m["vel"] * np.where(recalled, m["age"], 0.0)[..., None]
+        return dict(o, mate_rel=np.where(recalled[..., None], est - pos, rel),
+                    mate_dvel=np.where(recalled[..., None], m["vel"] - vel, o["mate_dvel"]), mate_vis=vis | recalled)
 
     def _remember_hits(self, o: dict) -> None:
         """Store this step's ray end points (world frame) in the ring buffer of the last hit_memory steps."""

@@ -132,17 +132,74 @@ def test_reset_forgets_the_hits_of_the_listed_worlds_only():
     assert after[1, 0, 0] == pytest.approx(WALL_CAP)  # world 1 still remembers it
 
 
+def _mate_east(obs: np.ndarray, distance: float | None) -> None:
+    """Pursuer 0's first teammate standing `distance` m to its +x side (None: not seen)."""
+    at = SPEC.index("teammates", 0, "dx")
+    obs[0, 0, at : at + 5] = [0.0, 0.0, 0.0, 0.0, 0.0] if distance is None else [distance, 0.0, 0.0, 0.0, 1.0]
+
+
+def test_a_teammate_out_of_sight_stays_a_hazard_for_mate_memory_seconds():
+    shield = SafetyShield(SPEED, params=ShieldParams(mate_memory=0.5), control_dt=0.1)
+    shield.reset(2)
+    fast_east = np.tile([SPEED, 0.0], (2, 3, 1))
+    seen = blank_obs(2)
+    _mate_east(seen, 0.3)
+    capped = shield.apply(fast_east, seen, SPEC)[0, 0, 0]
+    mate_cap = 0.5 * ShieldParams.approach_rate * (0.3 - 0.2 - ShieldParams.safety_buffer)
+    assert capped == pytest.approx(mate_cap)
+    hidden = blank_obs(2)  # it is behind the pursuer now: not in the observation
+    _mate_east(hidden, None)
+    shield.reset(2, np.array([1]))  # another world's reset does not touch world 0's memory
+    for _ in range(5):  # 0.1 .. 0.5 s out of sight: still there (it stood still)
+        assert shield.apply(fast_east, hidden, SPEC)[0, 0, 0] == pytest.approx(mate_cap)
+    assert shield.apply(fast_east, hidden, SPEC)[0, 0, 0] == pytest.approx(SPEED)  # 0.6 s: forgotten
+    shield.apply(fast_east, seen, SPEC)
+    shield.reset(2, np.array([0]))
+    assert shield.apply(fast_east, hidden, SPEC)[0, 0, 0] == pytest.approx(SPEED)  # a new episode remembers nothing
+
+
+def test_a_remembered_teammate_moves_along_its_last_velocity():
+    shield = SafetyShield(SPEED, params=ShieldParams(mate_memory=3.0), control_dt=0.1)
+    shield.reset(1)
+    obs = blank_obs()
+    at = SPEC.index("teammates", 0, "dx")
+    obs[0, 0, at : at + 5] = [0.5, 0.0, -0.3, 0.0, 1.0]  # 0.5 m east, coming west at 0.3 m/s
+
+    def cap(distance):  # the shield's limit toward a teammate closing at 0.3 m/s (module docstring)
+        gap = distance - 0.2 - ShieldParams.safety_buffer - ShieldParams.response_time * 0.3
+        return 0.5 * ShieldParams.approach_rate * gap
+
+    east = np.tile([SPEED, 0.0], (1, 3, 1))
+    assert shield.apply(east, obs, SPEC)[0, 0, 0] == pytest.approx(cap(0.5))
+    hidden = blank_obs()
+    for _ in range(2):  # after 0.2 s out of sight it should be 0.44 m away
+        out = shield.apply(east, hidden, SPEC)[0, 0, 0]
+    assert out == pytest.approx(cap(0.44))
+
+
+def test_mate_memory_zero_forgets_at_once():
+    shield = SafetyShield(SPEED, params=ShieldParams(mate_memory=0.0))
+    shield.reset(1)
+    seen, hidden = blank_obs(), blank_obs()
+    _mate_east(seen, 0.3)
+    fast_east = np.tile([SPEED, 0.0], (1, 3, 1))
+    assert shield.apply(fast_east, seen, SPEC)[0, 0, 0] < SPEED
+    assert shield.apply(fast_east, hidden, SPEC)[0, 0, 0] == pytest.approx(SPEED)
+
+
 def test_heuristic_uses_a_shield_built_from_its_params():
-    params = HeuristicParams(safety_buffer=0.08, hit_memory=5)
-    team = HeuristicTeam(params=params)
-    assert team.shield.p == ShieldParams(0.08, ShieldParams.approach_rate, ShieldParams.response_time, ShieldParams.safety_passes, 5)
+    params = HeuristicParams(safety_buffer=0.08, hit_memory=5, mate_memory=1.5)
+    team = HeuristicTeam(params=params, control_dt=0.2)
+    assert team.shield.p == ShieldParams(0.08, ShieldParams.approach_rate, ShieldParams.response_time, ShieldParams.safety_passes, 5, 1.5)
+    assert team.shield.dt == 0.2
     assert HeuristicParams().shield == ShieldParams()
     assert shield_policy(team, default_config()) is team  # the shield is built in: not wrapped twice
 
 
 @pytest.mark.parametrize(
     "kwargs, message",
-    [({"hit_memory": 0}, "hit_memory"), ({"approach_rate": -1.0}, "approach_rate"), ({"safety_buffer": float("nan")}, "safety_buffer")],
+    [({"hit_memory": 0}, "hit_memory"), ({"approach_rate": -1.0}, "approach_rate"), ({"safety_buffer": float("nan")}, "safety_buffer"),
+     ({"mate_memory": -1.0}, "mate_memory")],
 )
 def test_bad_params_are_refused_by_name(kwargs, message):
     with pytest.raises(ValueError, match=message):
