@@ -180,14 +180,14 @@ class HeuristicTeam:
         Call `tick` once the step is decided (act does both)."""
         obs = np.asarray(obs, dtype=np.float64)
         if obs.ndim != 3 or obs.shape[1] != spec.n_pursuers or obs.shape[2] != spec.dim:
-            raise ValueError(f"HeuristicTeam.act: expected observations (worlds, {spec.n_pursuers}, {spec.dim}), got {obs.shape}")
+            raise ValueError(f"HeuristicTeam: expected observations (worlds, {spec.n_pursuers}, {spec.dim}), got {obs.shape}")
         if not np.isfinite(obs).all():
-            raise ValueError("HeuristicTeam.act: observations contain NaN or inf")
+            raise ValueError("HeuristicTeam: observations contain NaN or inf")
         W, N = obs.shape[:2]
         if self._n_worlds is None:
             self._n_worlds = W
         if W != self._n_worlds:
-            raise ValueError(f"HeuristicTeam.act: got {W} worlds, but reset() was called for {self._n_worlds}")
+            raise ValueError(f"HeuristicTeam: got {W} worlds, but reset() was called for {self._n_worlds}")
         o = _parse(obs, spec)
         mem = self._memory(W, N, spec.n_evaders, spec.n_rays)
         mate_abs = o["pos"][:, :, None] + o["mate_rel"]

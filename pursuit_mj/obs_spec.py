@@ -98,10 +98,6 @@ class ObsSpec:
         """Whether the belief groups (memory, goal) are part of the vector."""
         return any(g.name == "memory" for g in self.groups)
 
-    def without_belief(self) -> "ObsSpec":
-        """The environment's own part of this spec (the belief groups come after it)."""
-        return ObsSpec.make(self.n_pursuers, self.n_evaders, self.n_rays)
-
     def group(self, name: str) -> Group:
         for g in self.groups:
             if g.name == name:

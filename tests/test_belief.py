@@ -42,7 +42,7 @@ def test_the_belief_groups_follow_the_environment_groups():
     assert full.has_belief and not spec.has_belief
     assert full.dim == spec.dim + 2 * 6 + 3
     assert [g.name for g in full.groups] == ["self", "teammates", "evaders", "rays", "memory", "goal"]
-    assert full.without_belief() == spec
+    assert full.groups[:4] == spec.groups  # the environment's part is unchanged, in front
     assert "belief" in spec.compatible(full.to_dict()) and "belief" in full.compatible(spec.to_dict())
 
 
@@ -145,3 +145,14 @@ def test_a_belief_run_trains_and_loads_as_a_policy_of_the_environment_observatio
         obs, *_ = env.step(actions)
     with pytest.raises(ValueError, match="belief"):
         Trainer(_tiny(tmp_path, "name=plain", f"init_from={tmp_path / 'bel' / 'best.pt'}"), log=lambda s: None)
+
+
+def test_bad_observations_are_refused_with_what_was_wrong():
+    spec = ObsSpec.make(3, 1, TASK.n_rays)
+    belief = Belief.from_config(TASK)
+    belief.reset(1)
+    aug = belief.augment(_obs(spec, (1.0, 1.0)), spec)
+    with pytest.raises(ValueError, match="already carry belief"):
+        belief.features(aug, belief_spec(spec))
+    with pytest.raises(ValueError, match=r"expected observations \(worlds, 3, %d\)" % spec.dim):
+        belief.features(aug, spec)
