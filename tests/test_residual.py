@@ -10,6 +10,7 @@ from pursuit_mj.heuristic import HeuristicTeam
 from pursuit_mj.residual import ResidualTeam, combine
 from pursuit_mj.shield import SafetyShield
 from train.config import load_train_config
+from train.rollout import make_action_path
 from train.policy import load_policy
 from train.rollout import ActionPath
 from train.trainer import Trainer
@@ -117,7 +118,8 @@ def test_a_residual_run_trains_validates_and_loads_as_its_team(tmp_path):
         "run.validate_every=1", "run.validation_episodes=2", "run.progress=false", f"run.runs_dir={tmp_path}",
     ])
     trainer = Trainer(cfg, log=lambda s: None)
-    assert isinstance(trainer.collector.path.base, HeuristicTeam)
+    path = make_action_path(cfg)  # what the rollout worker steps the env through
+    assert isinstance(path.base, HeuristicTeam) and path.shield is not None
     result = trainer.train()
     assert result["status"] == "done" and result["validation"]["episodes"] == 2
     spec = ObsSpec.make(2, 1, cfg.task.n_rays)

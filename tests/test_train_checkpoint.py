@@ -10,6 +10,7 @@ from pursuit_mj.obs_spec import ObsSpec
 from train.checkpoint import load_checkpoint
 from train.config import load_train_config
 from train.policy import load_policy
+import train.trainer as trainer_module
 from train.trainer import Trainer
 
 TINY = [
@@ -45,22 +46,31 @@ def test_resume_continues_counters_weights_and_optimiser(tmp_path):
     assert (cfg.run_dir / "best.pt").is_file()
 
 
-def test_ctrl_c_saves_the_last_consistent_update(tmp_path, monkeypatch):
-    cfg = tiny_config(tmp_path, updates=10)
+@pytest.mark.parametrize("overlap", [False, True])
+def test_ctrl_c_saves_the_last_consistent_update(tmp_path, monkeypatch, overlap):
+    """Ctrl-C in the 4th rollout (collected in turn) or the 4th update (a rollout worker
+    collecting beside it): update 3 is kept, the worker stops, and the run resumes."""
+    cfg = tiny_config(tmp_path, updates=10, extra=[f"run.overlap={str(overlap).lower()}"])
     trainer = Trainer(cfg, log=lambda s: None)
-    real = trainer.collector.collect
     calls = {"n": 0}
 
-    def collect_then_interrupt(buf):
-        calls["n"] += 1
-        if calls["n"] == 4:
-            raise KeyboardInterrupt
-        return real(buf)
+    def fourth_call_interrupts(real):
+        def call(*args):
+            calls["n"] += 1
+            if calls["n"] == 4:
+                raise KeyboardInterrupt
+            return real(*args)
+        return call
 
-    monkeypatch.setattr(trainer.collector, "collect", collect_then_interrupt)
+    if overlap:
+        monkeypatch.setattr("train.trainer.ppo_update", fourth_call_interrupts(trainer_module.ppo_update))
+    else:
+        monkeypatch.setattr(trainer.collector, "collect", fourth_call_interrupts(trainer.collector.collect))
     out = trainer.train()
     assert out["status"] == "interrupted"
+    assert trainer.worker is None
     assert load_checkpoint(cfg.run_dir / "last.pt")["counters"]["update"] == 3
+    monkeypatch.undo()
     resumed = Trainer.resume(cfg.run_dir, total_steps=32 * 5, log=lambda s: None)
     assert resumed.counters.update == 3
     assert resumed.train()["counters"]["update"] == 5

@@ -21,6 +21,27 @@ TINY = [
 ]
 
 
+def children(pid: int) -> list[int]:
+    """Live processes whose parent is `pid` (Linux /proc)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                    out.append(int(entry.name))
+            except (OSError, IndexError, ValueError):
+                pass
+    return out
+
+
+def alive(pid: int) -> bool:
+    """True while `pid` exists and is not a zombie."""
+    try:
+        return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 def rows(run_dir):
     return [json.loads(line) for line in (Path(run_dir) / "metrics.jsonl").read_text().splitlines()]
 
@@ -36,8 +57,14 @@ def test_kill_9_or_ctrl_c_loses_at_most_one_update(tmp_path, sig):
     deadline = time.time() + 25
     while time.time() < deadline and proc.poll() is None and (not log.exists() or len(log.read_text().splitlines()) < 3):
         time.sleep(0.05)
+    workers = children(proc.pid)  # the rollout worker (run.overlap is on by default)
+    assert workers, "no rollout worker process"
     os.kill(proc.pid, sig)
     code = proc.wait(timeout=30)
+    deadline = time.time() + 15
+    while time.time() < deadline and any(alive(pid) for pid in workers):
+        time.sleep(0.05)
+    assert not any(alive(pid) for pid in workers), "the rollout worker outlived its trainer"
     out, err = proc.stdout.read().decode(), proc.stderr.read().decode()
     assert log.exists(), err
     if sig == signal.SIGINT:

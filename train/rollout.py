@@ -7,11 +7,35 @@ import dataclasses
 import numpy as np
 import torch
 
+from pursuit_mj.belief import Belief, BeliefEnv
+from pursuit_mj.env import PursuitEnv
 from pursuit_mj.residual import combine
+from pursuit_mj.shield import SafetyShield
 
 from .agent import ActorCritic
+from .config import TrainConfig
 from .networks import flush_tiny, gaussian_log_prob
+from .policy import base_team
 from .storage import Rollout
+
+
+def env_seed(seed: int, update: int) -> int:
+    """Training-env seed for a run (re)started at `update`: fresh episodes after a resume."""
+    return int(np.random.SeedSequence([seed, update, 7]).generate_state(1)[0])
+
+
+def make_training_env(cfg: TrainConfig, start_update: int):
+    """The auto-resetting env a run (re)started at `start_update` trains in (belief features
+    appended when cfg.belief)."""
+    env = PursuitEnv(cfg.task, n_worlds=cfg.n_envs, seed=env_seed(cfg.seed, start_update),
+                     layouts=list(cfg.layouts) or None, nthread=cfg.run.sim_threads)
+    return BeliefEnv(env, Belief.from_config(cfg.task)) if cfg.belief else env
+
+
+def make_action_path(cfg: TrainConfig) -> "ActionPath":
+    """What stands between the actor's samples and the env in this run: base team, shield."""
+    shield = SafetyShield.from_config(cfg.task) if cfg.shield else None
+    return ActionPath(shield, base_team(cfg.residual, cfg.task), cfg.residual.scale)
 
 
 @dataclasses.dataclass

@@ -29,6 +29,13 @@ class Rollout:
         self.states = torch.zeros(T, W, state_dim)
         self.last_value = torch.zeros(W, N)
 
+    def share_memory(self) -> "Rollout":
+        """Moves every tensor into shared memory (a rollout filled by another process); returns self."""
+        for value in vars(self).values():
+            if isinstance(value, torch.Tensor):
+                value.share_memory_()
+        return self
+
     @property
     def n_transitions(self) -> int:
         return self.T * self.W * self.N

@@ -22,12 +22,9 @@ from typing import Callable
 import numpy as np
 import torch
 
-from pursuit_mj.belief import Belief, BeliefEnv
 from pursuit_mj.configio import dump_yaml, to_dict
-from pursuit_mj.env import PursuitEnv
 from pursuit_mj.io_utils import atomic_write_text
 from pursuit_mj.policies import make_policy
-from pursuit_mj.shield import SafetyShield
 
 from .agent import ActorCritic
 from .checkpoint import check_obs_spec, load_checkpoint, save_checkpoint
@@ -36,9 +33,10 @@ from .discount import Discount
 from .imitation import DaggerCollector, Demonstrations, imitation_update, teacher_share
 from .metrics_log import MetricsLog
 from pursuit_mj.recording.rerun_scalars import RerunScalarLogger
-from .policy import ActorPolicy, base_team, trained_team
+from .policy import ActorPolicy, trained_team
 from .ppo import advantages_and_returns, ppo_update
-from .rollout import ActionPath, Collector
+from .rollout import Collector, RolloutStats, make_action_path, make_training_env
+from .rollout_worker import RolloutWorker
 from .storage import Rollout
 from .validation import FixedSeedValidator, summarise
 
@@ -59,11 +57,6 @@ class Counters:
     seconds: float = 0.0
 
 
-def env_seed(seed: int, update: int) -> int:
-    """Training-env seed for a run (re)started at `update`: fresh episodes after a resume."""
-    return int(np.random.SeedSequence([seed, update, 7]).generate_state(1)[0])
-
-
 class Trainer:
     """One training run: env, networks, optimiser, counters; `train()` runs it to the end.
 
@@ -81,10 +74,8 @@ class Trainer:
         self.counters = Counters()
         self.generator = torch.Generator().manual_seed(cfg.seed)
         start_update = checkpoint["counters"]["update"] if checkpoint else 0
-        self.env = PursuitEnv(cfg.task, n_worlds=cfg.n_envs, seed=env_seed(cfg.seed, start_update),
-                              layouts=list(cfg.layouts) or None, nthread=cfg.run.sim_threads)
-        if cfg.belief:
-            self.env = BeliefEnv(self.env, Belief.from_config(cfg.task))
+        self.start_update = start_update
+        self.env = make_training_env(cfg, start_update)
         self.spec = self.env.obs_spec
         self.model = ActorCritic(self.spec, self.env.state_dim, cfg)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=self._base_lr(), eps=1e-5, fused=True)
@@ -97,14 +88,15 @@ class Trainer:
         self.buffer = Rollout(cfg.rollout_steps(), cfg.n_envs, self.env.n_pursuers, self.env.obs_dim,
                               self.env.state_dim if cfg.algo == "mappo" else 0)
         self.demos: Demonstrations | None = None
-        shield = SafetyShield.from_config(cfg.task) if cfg.shield else None
-        path = ActionPath(shield, base_team(cfg.residual, cfg.task), cfg.residual.scale)
+        self.overlap = cfg.run.overlap and cfg.algo != "dagger"
+        self.collector: Collector | DaggerCollector | None = None  # in-process collection (overlap off)
+        self.worker: RolloutWorker | None = None  # collection in a child process (overlap on), started on first use
         if cfg.algo == "dagger":
             teacher = make_policy(cfg.imitation.teacher, cfg.task, seed=cfg.seed, source="imitation.teacher")
             self.demos = Demonstrations(cfg.imitation.dataset_size, self.env.obs_dim)
-            self.collector = DaggerCollector(self.env, self.model, teacher, self.demos, self.generator, path)
-        else:
-            self.collector = Collector(self.env, self.model, self.generator, path)
+            self.collector = DaggerCollector(self.env, self.model, teacher, self.demos, self.generator, make_action_path(cfg))
+        elif not self.overlap:
+            self.collector = Collector(self.env, self.model, self.generator, make_action_path(cfg))
         self.metrics = MetricsLog(self.run_dir / "metrics.jsonl")
         self.rerun = RerunScalarLogger(self.run_dir / "metrics.rrd", run_name=cfg.name) if cfg.run.rerun else None
         self.recent = collections.deque(maxlen=WINDOW)
@@ -226,14 +218,37 @@ class Trainer:
             frac = max(frac, self.counters.seconds / (60.0 * self.cfg.max_minutes))
         return min(frac, 1.0)
 
-    def train_one_update(self) -> dict:
-        """Collect one rollout, learn from it, advance the counters; returns the metrics row."""
-        cfg, c, buf = self.cfg, self.counters, self.buffer
-        t0 = time.perf_counter()
+    def _next_rollout(self) -> tuple[Rollout, RolloutStats]:
+        """The rollout the next update learns from, with what it saw (stats.seconds: collection time)."""
+        if self.overlap:
+            if self.worker is None:
+                buf = self.buffer
+                self.worker = RolloutWorker(self.cfg, self.start_update, buf.T, buf.W, buf.N, self.env.obs_dim,
+                                            buf.states.shape[-1])
+            buf, stats = self.worker.result(self.model)
+            self.worker.start(self.model)  # the next rollout, collected while this one is learned from
+            return buf, stats
         torch.set_num_threads(1)  # per-step forwards of a few dozen rows: threads only add overhead
         if self.demos is not None:
-            self.collector.beta = teacher_share(cfg.imitation, c.update)
-        stats = self.collector.collect(buf)
+            self.collector.beta = teacher_share(self.cfg.imitation, self.counters.update)
+        t0 = time.perf_counter()
+        stats = self.collector.collect(self.buffer)
+        stats.seconds = time.perf_counter() - t0
+        return self.buffer, stats
+
+    def close(self) -> None:
+        """Stop the rollout worker, if one runs (train() does this when it returns)."""
+        if self.worker is not None:
+            self.worker.close()
+            self.worker = None
+
+    def train_one_update(self) -> dict:
+        """Collect one rollout (or take the one collected meanwhile, with overlap), learn from it,
+        advance the counters; returns the metrics row."""
+        cfg, c = self.cfg, self.counters
+        t0 = time.perf_counter()
+        buf, stats = self._next_rollout()
+        self.buffer = buf
         torch.set_num_threads(self._update_threads)
         t1 = time.perf_counter()
         lr = self.learning_rate()
@@ -258,8 +273,9 @@ class Trainer:
         row = {
             "update": c.update, "world_steps": c.world_steps, "agent_steps": c.agent_steps, "episodes": c.episodes,
             "seconds": round(c.seconds, 3), "lr": lr, "gamma": self.discount.value,
-            "rollout_s": t1 - t0, "update_s": t2 - t1, "agent_steps_per_s": buf.n_transitions / max(t2 - t0, 1e-9),
-            "rollout_agent_steps_per_s": buf.n_transitions / max(t1 - t0, 1e-9),
+            "rollout_s": stats.seconds, "wait_s": t1 - t0, "update_s": t2 - t1, "wall_s": t2 - t0,
+            "agent_steps_per_s": buf.n_transitions / max(t2 - t0, 1e-9),
+            "rollout_agent_steps_per_s": buf.n_transitions / max(stats.seconds, 1e-9),
             "update_agent_steps_per_s": buf.n_transitions / max(t2 - t1, 1e-9),
             "train": summarise(stats.episodes) if stats.episodes else {},
             "reward_terms_per_step": stats.reward_terms,
@@ -293,8 +309,6 @@ class Trainer:
         try:
             while self.progress() < 1.0:
                 row = self.train_one_update()
-                if c.update % cfg.run.checkpoint_every == 0:
-                    self.save()
                 final = self.progress() >= 1.0
                 if (cfg.run.validate_every and c.update % cfg.run.validate_every == 0) or final:
                     t0 = time.perf_counter()
@@ -304,6 +318,8 @@ class Trainer:
                 self.metrics.append(row)
                 if self.rerun is not None:
                     self.rerun.log(int(row["world_steps"]), row)
+                if c.update % cfg.run.checkpoint_every == 0:  # after the log: a resume truncates the log to it
+                    self.save()
                 _advance(bar, row, self.recent, last_val, self.progress())
             if self._saved_update != c.update:
                 self.save()
@@ -314,6 +330,7 @@ class Trainer:
             self.log(f"\ninterrupted: state of update {self._saved_update} is in {self.run_dir / 'last.pt'}; "
                      f"continue with: pursuit-mj train --resume {self.run_dir}")
         finally:
+            self.close()
             if bar is not None:
                 bar.close()
         return {"status": status, "counters": dataclasses.asdict(c), "validation": last_val, "run_dir": str(self.run_dir)}

@@ -2,14 +2,17 @@
 
 For each fidelity, the command builds a `train.trainer.Trainer` from the train config (the
 reference hyperparameters unless --set changes them), runs one warm-up update, then
-`--updates` measured updates. After each update the same task steps a second env of the
-same worlds (same config, its own seed) for as many decision steps as one rollout, with
-uniform random actions: the bare env rate, measured in the same process under the same
-load as the training it is compared with. Rates are agent-steps per second (decision steps
-x worlds x pursuers) from the median times over the measured updates (wall clock). Aims
+`--updates` measured updates back to back. Then a second env of the same task and worlds
+(its own seed) steps as many decision steps as the measured rollouts, with uniform random
+actions: the bare env rate, in the same process, after training (with `run.overlap` a
+rollout worker runs beside the update, so stepping the bare env between updates would
+compete with it). Rates are agent-steps per second (decision steps x worlds x pursuers)
+from the median times over the measured updates (wall clock); a training step is what the
+run waits for: rollout + update in turn, about the longer of them with overlap. Aims
 (issue 4): the update takes less time than the rollout it learns from, and training runs
 within 2x of the bare env. On a shared machine wall time swings with other work; the CPU
-ratio (process time of training over that of the bare env, per agent-step) is steadier.
+ratio (process time of training, rollout worker included, over that of the bare env, per
+agent-step) is steadier, and shows what overlap costs in work rather than in waiting.
 Imports the train package only when run (pursuit_mj itself never depends on it).
 """
 
@@ -53,6 +56,7 @@ class TrainBench:
     settings: str
     rollout_s: float
     update_s: float
+    wall_s: float  # one training step as the run sees it: rollout + update, or the longer of them with overlap
     env_s: float  # bare env, the same number of decision steps as one rollout
     train_cpu_s: float
     env_cpu_s: float
@@ -67,7 +71,7 @@ class TrainBench:
 
     @property
     def env_over_training(self) -> float:
-        return (self.rollout_s + self.update_s) / self.env_s
+        return self.wall_s / self.env_s
 
     @property
     def env_over_training_cpu(self) -> float:
@@ -89,7 +93,18 @@ def _settings(cfg, trainer) -> str:
     threads = cfg.run.torch_threads or os.cpu_count() or 1
     return (f"epochs {p.epochs}, minibatch {p.minibatch_size}, batch {buf.n_transitions} = {buf.T} steps x {buf.W} worlds "
             f"x {buf.N} pursuers, net {cfg.net.kind} {cfg.net.encoder_width}/{list(cfg.net.hidden)}, torch threads: "
-            f"rollout 1, update {threads}")
+            f"rollout 1, update {threads}; rollout {'in a child process beside the update' if cfg.run.overlap and cfg.algo != 'dagger' else 'then update'}")
+
+
+def _child_cpu_s(pid: int | None) -> float:
+    """CPU seconds used so far by a live child process (Linux /proc; 0 elsewhere or without one)."""
+    if pid is None:
+        return 0.0
+    try:
+        fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
 
 
 def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overrides: list[str], profile_top: int = 0) -> TrainBench:
@@ -98,6 +113,7 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
     from pursuit_mj.env import PursuitEnv
     from train.config import load_train_config
     from train.ppo import ppo_update
+    from train.rollout import Collector, make_action_path
     from train.trainer import Trainer
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -106,33 +122,44 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
             extra.append(f"n_envs={n_envs}")
         cfg = load_train_config([config], extra + list(overrides))
         trainer = Trainer(cfg, log=lambda s: None)
+        try:
+            trainer.train_one_update()  # warm-up: first forward/backward, allocator, caches, the rollout worker
+            rollout, update, wall = [], [], []
+            pid = trainer.worker.process.pid if trainer.worker is not None else None
+            c0, child0 = time.process_time(), _child_cpu_s(pid)
+            for _ in range(updates):
+                row = trainer.train_one_update()
+                rollout.append(row["rollout_s"])
+                update.append(row["update_s"])
+                wall.append(row["wall_s"])
+            if trainer.worker is not None:
+                trainer.worker.result(trainer.model)  # the rollout collected meanwhile is part of the CPU spent
+            train_cpu = time.process_time() - c0 + _child_cpu_s(pid) - child0
+        finally:
+            trainer.close()
+        # the bare env after training (not between updates: a rollout worker would run beside it)
         env = PursuitEnv(cfg.task, n_worlds=cfg.n_envs, seed=cfg.seed + 1, layouts=list(cfg.layouts) or None,
                          nthread=cfg.run.sim_threads)
         env.reset()
         rng = np.random.default_rng(0)
-        trainer.train_one_update()  # warm-up: first forward/backward, allocator, caches
         _bare_env_block(env, 2, rng)
-        rollout, update, bare, train_cpu, env_cpu = [], [], [], 0.0, 0.0
-        for _ in range(updates):
-            c0 = time.process_time()
-            row = trainer.train_one_update()
-            train_cpu += time.process_time() - c0
-            rollout.append(row["rollout_s"])
-            update.append(row["update_s"])
-            wall, cpu = _bare_env_block(env, trainer.buffer.T, rng)
-            bare.append(wall)
+        bare, env_cpu = [], 0.0
+        for _ in range(updates + 1):  # + 1: the CPU above includes the rollout collected meanwhile
+            wall_s, cpu = _bare_env_block(env, trainer.buffer.T, rng)
+            bare.append(wall_s)
             env_cpu += cpu
         profile = ""
         if profile_top > 0:
             torch.set_num_threads(1)
-            roll = profile_call(lambda: trainer.collector.collect(trainer.buffer), profile_top)
+            collector = trainer.collector or Collector(trainer.env, trainer.model, trainer.generator, make_action_path(cfg))
+            roll = profile_call(lambda: collector.collect(trainer.buffer), profile_top)
             torch.set_num_threads(cfg.run.torch_threads or os.cpu_count() or 1)
             upd = profile_call(lambda: ppo_update(trainer.model, trainer.optimizer, trainer.buffer, cfg.ppo,
                                               trainer.discount.value, trainer.generator), profile_top)
             profile = f"rollout:\n{roll}\n\nupdate:\n{upd}"
         med = statistics.median
         return TrainBench(fidelity, cfg.n_envs, cfg.task.n_pursuers, trainer.buffer.n_transitions, _settings(cfg, trainer),
-                          med(rollout), med(update), med(bare), train_cpu, env_cpu, profile)
+                          med(rollout), med(update), med(wall), med(bare), train_cpu, env_cpu, profile)
 
 
 def _verdict(ok: bool) -> str:
@@ -149,14 +176,14 @@ def run(args: argparse.Namespace) -> int:
     results = []
     for f in args.fidelity:
         results.append(measure(args.config, f, args.n_envs, args.updates, args.overrides, args.profile))
-        print(f"  measured {f}: {args.updates} updates after one warm-up, bare env stepped after each", flush=True)
+        print(f"  measured {f}: {args.updates} updates after one warm-up, bare env stepped after them", flush=True)
     print(f"train benchmark, config {args.config}: {results[0].settings}")
     print("rates in agent-steps/s (decision steps x worlds x pursuers) from median wall times; bare env = the same task "
-          "with random actions, measured between updates; cpu = process time of training over that of the bare env")
+          "with random actions, stepped after training; cpu = process time of training (rollout worker included) over that of the bare env")
     head = ["fidelity", "worlds x pursuers", "rollout ag-steps/s", "update ag-steps/s", "s per update",
             "training ag-steps/s", "bare env ag-steps/s", "update / rollout", "env / training", "cpu: env / training"]
     rows = [[r.fidelity, f"{r.worlds} x {r.pursuers}", f"{r.rate(r.rollout_s):.0f}", f"{r.rate(r.update_s):.0f}",
-             f"{r.update_s:.2f}", f"{r.rate(r.rollout_s + r.update_s):.0f}", f"{r.rate(r.env_s):.0f}",
+             f"{r.update_s:.2f}", f"{r.rate(r.wall_s):.0f}", f"{r.rate(r.env_s):.0f}",
              f"{r.update_over_rollout:.2f}", f"{r.env_over_training:.2f}x", f"{r.env_over_training_cpu:.2f}x"] for r in results]
     print(format_table(head, rows))
     for r in results:

@@ -1,0 +1,86 @@
+"""run.overlap: rollouts collected in a child process while the parent learns."""
+
+import copy
+import json
+
+import pytest
+import torch
+
+import train.trainer as trainer_module
+from train.config import load_train_config
+from train.networks import gaussian_log_prob
+from train.rollout_worker import RolloutWorker
+from train.trainer import Trainer
+
+TINY = [
+    "task.fidelity=point", "task.n_pursuers=2", "task.random_obstacles=0", "task.max_steps=40",
+    "n_envs=2", "ppo.batch_size=64", "ppo.minibatch_size=32", "ppo.epochs=2", "net.encoder_width=16", "net.hidden=[16]",
+    "run.validate_every=0", "run.validation_episodes=2", "run.progress=false",
+]
+
+
+def tiny(tmp_path, *extra):
+    return load_train_config([], TINY + [f"run.runs_dir={tmp_path}", *extra])
+
+
+def test_each_update_learns_from_the_rollout_of_the_weights_one_update_older(tmp_path, monkeypatch):
+    """Update k (k >= 2) sees a rollout sampled with the weights after update k - 2: the
+    weights the model had when update k - 1 began."""
+    seen = []
+    real = trainer_module.ppo_update
+
+    def spy(model, optimizer, buf, *args):
+        seen.append((copy.deepcopy(model.actor.state_dict()), buf.obs.clone(), buf.actions.clone(), buf.logp.clone()))
+        return real(model, optimizer, buf, *args)
+
+    monkeypatch.setattr(trainer_module, "ppo_update", spy)
+    trainer = Trainer(tiny(tmp_path, "total_steps=128"), log=lambda s: None)
+    assert trainer.overlap
+    trainer.train()
+    assert len(seen) == 4 and trainer.worker is None
+    actor = copy.deepcopy(trainer.model.actor)
+    for k in range(1, 4):
+        behaviour = seen[k - 1][0] if k >= 2 else seen[0][0]  # updates 1 and 2 both learn from the initial weights
+        actor.load_state_dict(behaviour)
+        _, obs, actions, logp = seen[k]
+        with torch.no_grad():
+            mean, log_std = actor(obs, trainer.spec)
+            expected = gaussian_log_prob(mean, log_std.exp(), actions).sum(-1)
+        torch.testing.assert_close(logp, expected, rtol=1e-5, atol=1e-5)
+        if k >= 2:  # and not with the weights the update itself starts from
+            actor.load_state_dict(seen[k][0])
+            with torch.no_grad():
+                mean, log_std = actor(obs, trainer.spec)
+            assert not torch.allclose(gaussian_log_prob(mean, log_std.exp(), actions).sum(-1), logp, atol=1e-5)
+
+
+def test_an_overlapped_run_is_reproducible_and_logs_its_timing(tmp_path):
+    runs = []
+    for name in ("a", "b"):
+        trainer = Trainer(tiny(tmp_path, f"name={name}", "total_steps=96"), log=lambda s: None)
+        trainer.train()
+        runs.append(trainer.model.actor.state_dict())
+    for k in runs[0]:
+        assert torch.equal(runs[0][k], runs[1][k]), k
+    last = json.loads((tmp_path / "b" / "metrics.jsonl").read_text().splitlines()[-1])
+    assert {"rollout_s", "wait_s", "update_s", "wall_s"} <= last.keys()
+    assert last["rollout_s"] > 0 and last["wall_s"] >= last["update_s"]
+
+
+def test_overlap_off_and_dagger_collect_in_turn(tmp_path):
+    assert not Trainer(tiny(tmp_path, "run.overlap=false"), log=lambda s: None).overlap
+    dagger = Trainer(tiny(tmp_path, "algo=dagger", "name=d"), log=lambda s: None)
+    assert not dagger.overlap and dagger.collector is not None
+
+
+def test_a_failing_worker_raises_its_traceback_in_the_parent(tmp_path):
+    cfg = tiny(tmp_path)
+    trainer = Trainer(cfg, log=lambda s: None)
+    buf = trainer.buffer
+    worker = RolloutWorker(cfg, 0, buf.T, buf.W, buf.N, buf.obs.shape[-1] + 1, 0)  # buffers one column too wide
+    try:
+        with pytest.raises(RuntimeError, match="(?s)rollout worker .* failed:.*Traceback.*expanded size"):
+            worker.result(trainer.model)
+    finally:
+        worker.close()
+    assert not worker.process.is_alive()

@@ -1,0 +1,140 @@
+"""Rollouts collected in a child process while the parent learns (`run.overlap`).
+
+Plain PPO alternates: collect a rollout, then learn from it, each waiting for the other.
+With overlap, a child process owns the training env, its action path (shield, base team) and
+a copy of the networks, and collects the next rollout while the parent runs the update on
+the last one; on two cores a training step then costs about the longer of the two instead
+of their sum. (Threads cannot do this: the env's Python code and the update fight over the
+GIL, and the pair ran barely faster than in turn.)
+
+The price is one update of policy lag: the rollout an update learns from was collected with
+the weights from before the previous update. PPO's ratio is taken against the stored
+log-probabilities of the policy that acted, so the objective still weighs the samples
+correctly; the clip range sees that much more drift, and the stored values (GAE) come from
+the critic of one update earlier.
+
+Two rollout buffers live in shared memory: the parent reads one while the child fills the
+other. Weights go to the child as numpy arrays with each request. The child ignores Ctrl-C
+(the parent handles it and stops the child) and exits when the parent's end of the pipe
+closes, so a killed parent leaves nothing running.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+import traceback
+import weakref
+
+import numpy as np
+import torch
+import torch.multiprocessing as mp
+
+from .agent import ActorCritic
+from .config import TrainConfig
+from .rollout import Collector, RolloutStats, make_action_path, make_training_env
+from .storage import Rollout
+
+POLL_S = 0.2  # how often a waiting parent checks that the child is alive
+STOP_TIMEOUT_S = 5.0
+
+
+def sampler_seed(seed: int, update: int) -> int:
+    """Seed of the child's action noise for a run (re)started at `update`."""
+    return int(np.random.SeedSequence([seed, update, 11]).generate_state(1)[0])
+
+
+def model_weights(model: ActorCritic) -> dict:
+    """What the child needs to act like `model`: parameters as numpy arrays, value normaliser state."""
+    nets = {k: v.detach().numpy().copy() for k, v in model.state_dict().items()}
+    return {"nets": nets, "value_norm": model.value_norm.state_dict() if model.value_norm is not None else None}
+
+
+def _load_weights(model: ActorCritic, weights: dict) -> None:
+    model.load_state_dict({k: torch.from_numpy(v) for k, v in weights["nets"].items()})
+    if model.value_norm is not None:
+        model.value_norm.load_state_dict(weights["value_norm"])
+
+
+def _serve(conn, cfg: TrainConfig, start_update: int, buffers: list[Rollout]) -> None:
+    """The child: build the env and networks, then fill buffers on request until told to stop."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    torch.set_num_threads(1)
+    try:
+        env = make_training_env(cfg, start_update)
+        model = ActorCritic(env.obs_spec, env.state_dim, cfg)
+        generator = torch.Generator().manual_seed(sampler_seed(cfg.seed, start_update))
+        collector = Collector(env, model, generator, make_action_path(cfg))
+        while True:
+            request = conn.recv()
+            if request[0] == "stop":
+                return
+            _, index, weights = request
+            _load_weights(model, weights)
+            t0 = time.perf_counter()
+            stats = collector.collect(buffers[index])
+            stats.seconds = time.perf_counter() - t0
+            conn.send(("done", stats))
+    except (EOFError, BrokenPipeError, ConnectionResetError):
+        return  # the parent is gone
+    except BaseException:  # noqa: BLE001 - everything goes back to the parent, which raises it
+        try:
+            conn.send(("error", traceback.format_exc()))
+        except (BrokenPipeError, ConnectionResetError):
+            pass
+
+
+def _shutdown(process, conn) -> None:
+    try:
+        conn.send(("stop",))
+    except (BrokenPipeError, ConnectionResetError, OSError):
+        pass
+    process.join(STOP_TIMEOUT_S)
+    if process.is_alive():
+        process.terminate()
+        process.join(STOP_TIMEOUT_S)
+    conn.close()
+
+
+class RolloutWorker:
+    """A child process that collects rollouts of `cfg`'s training env, one request at a time.
+
+    `start(model)` asks for the next rollout with `model`'s current weights and returns at
+    once; `result(model)` waits for it (starting one first if none is running) and returns
+    (buffer, stats); the buffer stays valid until the request after next. `close()` stops the
+    child (also done when the worker is garbage-collected or the interpreter exits).
+    """
+
+    def __init__(self, cfg: TrainConfig, start_update: int, T: int, W: int, N: int, obs_dim: int, state_dim: int):
+        self.buffers = [Rollout(T, W, N, obs_dim, state_dim).share_memory() for _ in range(2)]
+        ctx = mp.get_context("spawn")  # a fresh interpreter: no forked MuJoCo or torch thread state
+        self._conn, child_conn = ctx.Pipe()
+        self.process = ctx.Process(target=_serve, args=(child_conn, cfg, start_update, self.buffers),
+                                   name=f"rollout-{cfg.name}", daemon=True)
+        self.process.start()
+        child_conn.close()
+        self._next = 0  # the buffer the next request fills
+        self._pending: int | None = None
+        self._finalizer = weakref.finalize(self, _shutdown, self.process, self._conn)
+
+    def start(self, model: ActorCritic) -> None:
+        if self._pending is not None:
+            raise RuntimeError("rollout worker: a rollout is already being collected")
+        self._conn.send(("collect", self._next, model_weights(model)))
+        self._pending, self._next = self._next, 1 - self._next
+
+    def result(self, model: ActorCritic) -> tuple[Rollout, RolloutStats]:
+        if self._pending is None:
+            self.start(model)
+        while not self._conn.poll(POLL_S):
+            if not self.process.is_alive():
+                raise RuntimeError(f"rollout worker {self.process.name} exited (code {self.process.exitcode}) "
+                                   "without finishing its rollout")
+        kind, payload = self._conn.recv()
+        if kind == "error":
+            raise RuntimeError(f"rollout worker {self.process.name} failed:\n{payload}")
+        index, self._pending = self._pending, None
+        return self.buffers[index], payload
+
+    def close(self) -> None:
+        self._finalizer()
