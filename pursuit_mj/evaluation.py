@@ -46,6 +46,9 @@ class Row:
     steps: Mean  # over all episodes
     steps_success: Mean  # over successful episodes only
     seed: int
+    # per episode k (episode order, the same seeds for every policy of a table): its steps if it
+    # ended in success, else max_steps; what pursuit_mj.comparison pairs (not in CSV / JSON rows)
+    capture_steps: tuple[float, ...] = dataclasses.field(default=(), repr=False, compare=False)
 
     def flat(self) -> dict[str, object]:
         """One flat record (percentages for rates), the CSV and JSON row format."""
@@ -90,14 +93,16 @@ def episode_seeds(seed: int, count: int) -> np.ndarray:
 def summarise(policy: str, layout: str, fidelity: str, seed: int, records: Sequence[EpisodeRecord],
               max_steps: float = math.inf) -> Row:
     """Rates with Wilson intervals and mean steps with t intervals (cut to [0, max_steps]) over
-    finished episodes."""
+    finished episodes, given in episode order."""
     n = len(records)
     counts = {k: sum(r.outcome == k for r in records) for k in OUTCOMES}
     steps = [float(r.steps) for r in records]
     steps_ok = [float(r.steps) for r in records if r.outcome == "success"]
     bounds = (0.0, float(max_steps))
+    capture = tuple(float(r.steps) if r.outcome == "success" or math.isinf(max_steps) else float(max_steps) for r in records)
     return Row(policy, layout, fidelity, n, rate(counts["success"], n), rate(counts["collision"], n),
-               rate(counts["timeout"], n), mean_interval(steps, bounds), mean_interval(steps_ok, bounds), int(seed))
+               rate(counts["timeout"], n), mean_interval(steps, bounds), mean_interval(steps_ok, bounds), int(seed),
+               capture)
 
 
 class Watcher(Protocol):

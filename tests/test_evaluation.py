@@ -140,6 +140,8 @@ def test_eval_cli_writes_csv_json_and_plots(tmp_path, capsys):
     data = json.loads((tmp_path / "table.json").read_text())
     assert data["config"]["fidelity"] == "point" and data["config"]["max_steps"] == 20
     assert [str(r["success_pct"]) for r in data["rows"]] == [r["success_pct"] for r in rows]
+    assert "paired with heuristic on the same episodes" in printed  # heuristic and others: paired by default
+    assert [(p["policy"], p["versus"], p["layout"]) for p in data["paired"]] == [("random", "heuristic", "0"), ("random", "heuristic", layout_file)]
     for r in data["rows"]:
         assert r["episodes"] == 3
         assert r["success_count"] + r["collision_count"] + r["timeout_count"] == 3
@@ -180,6 +182,7 @@ def test_eval_cli_runs_a_trained_model_beside_the_heuristic(tmp_path, capsys):
         (["--model", "missing/model.pt"], "--model missing/model.pt: no such checkpoint file"),
         (["--episodes", "0"], "--episodes"),
         (["--set", "evader_speed=-1"], "evader_speed"),
+        (["--policy", "heuristic", "--policy", "random", "--versus", "greedy"], "--versus 'greedy': not a policy of this table"),
     ],
 )
 def test_eval_cli_bad_input_exits_2_with_a_clear_message(args, message, capsys, tmp_path):

@@ -4,6 +4,7 @@
     pursuit-mj eval --policy heuristic --policy random --model runs/a/best.pt --out results/table --plots results/plots
     pursuit-mj eval --task hard --fidelity point --layouts 3 --episodes 20 --rerun hard3.rrd
     pursuit-mj eval --model runs/a/best.pt --policy random --shield --layouts 0 1
+    pursuit-mj eval --policy heuristic --model runs/a/best.pt --versus heuristic --layouts 0 1 2 3
 """
 
 from __future__ import annotations
@@ -37,6 +38,9 @@ def register(sub) -> None:
     p.add_argument("--episodes", type=int, default=150, help="episodes per policy and layout (default 150)")
     p.add_argument("--worlds", type=int, default=32, help="parallel worlds (default 32)")
     p.add_argument("--seed", type=int, default=0, help="table seed: same seed, same table, whatever --worlds (default 0)")
+    p.add_argument("--versus", metavar="POLICY",
+                   help="also compare every other policy with this one episode by episode (paired capture times, "
+                        "95 %% CI; default: heuristic when it is in the table with others; 'none': no comparison)")
     p.add_argument("--out", metavar="PREFIX", help="write PREFIX.csv and PREFIX.json")
     p.add_argument("--csv", metavar="FILE", help="write the table as CSV")
     p.add_argument("--json", metavar="FILE", help="write the table and the resolved config as JSON")
@@ -103,7 +107,20 @@ def _run_table(args, config, layouts, policies, recording) -> list:
     return rows
 
 
+def _versus(args, policies) -> str | None:
+    """The label the others are paired against: --versus, else heuristic when others are there too."""
+    labels = [label for label, _ in policies]
+    if args.versus is None:
+        return "heuristic" if "heuristic" in labels and len(labels) > 1 else None
+    if args.versus == "none":
+        return None
+    if args.versus not in labels:
+        raise ValueError(f"--versus {args.versus!r}: not a policy of this table (policies: {', '.join(labels)})")
+    return args.versus
+
+
 def run(args) -> int:
+    from ..comparison import format_pairs, pair_table, pairs_to_dicts
     from ..evaluation import format_table, plot_rows, write_csv, write_json
 
     if args.episodes < 1:
@@ -118,6 +135,7 @@ def run(args) -> int:
         load_layout(ref)  # refuse a bad layout before any episode runs
     csv_path, json_path = _outputs(args)
     policies = _policies(args, config)
+    versus = _versus(args, policies)
     with contextlib.ExitStack() as stack:
         recording = None
         if args.rerun:
@@ -129,6 +147,12 @@ def run(args) -> int:
     meta = {"episodes": args.episodes, "worlds": args.worlds, "seed": args.seed,
             "policies": [label for label, _ in policies], "models": list(args.model),
             "shield": bool(args.shield)}
+    if versus is not None:
+        pairs = pair_table(rows, versus, config.max_steps)
+        print(f"\npaired with {versus} on the same episodes (capture steps: steps of a success, {config.max_steps} "
+              "for a failure; negative = sooner):")
+        print(format_pairs(pairs))
+        meta["paired"] = pairs_to_dicts(pairs)
     if csv_path:
         print(f"wrote {write_csv(rows, csv_path)}")
     if json_path:

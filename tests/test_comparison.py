@@ -1,0 +1,66 @@
+"""Paired comparison on the same episodes (pursuit_mj.comparison)."""
+
+import pytest
+
+from pursuit_mj.comparison import format_pairs, pair, pair_table
+from pursuit_mj.config import default_config
+from pursuit_mj.env import EpisodeRecord
+from pursuit_mj.evaluation import evaluate, summarise
+from pursuit_mj.heuristic import HeuristicTeam
+from pursuit_mj.policy import RandomPolicy
+from pursuit_mj.stats import t_quantile_975
+
+MAX = 1000
+
+
+def row(policy, episodes, seed=5, layout="0"):
+    records = [EpisodeRecord(0, k, 0, outcome, steps, None, {}, 0, layout) for k, (outcome, steps) in enumerate(episodes)]
+    return summarise(policy, layout, "point", seed, records, MAX)
+
+
+def test_differences_are_taken_episode_by_episode_and_failures_count_as_max_steps():
+    ref = row("heuristic", [("success", 200), ("success", 300), ("success", 400), ("timeout", MAX)])
+    pol = row("net", [("success", 190), ("success", 280), ("collision", 50), ("success", 600)])
+    p = pair(pol, ref, MAX)
+    diffs = [-10, -20, MAX - 400, 600 - MAX]  # the early collision costs the policy, not gains it
+    mean = sum(diffs) / 4
+    sd = (sum((d - mean) ** 2 for d in diffs) / 3) ** 0.5
+    assert p.steps.mean == pytest.approx(mean)
+    assert p.steps.hi - p.steps.mean == pytest.approx(min(t_quantile_975(3) * sd / 2, MAX - mean))
+    assert (p.faster, p.slower, p.only_policy, p.only_reference) == (3, 1, 1, 1)
+    assert p.verdict == "level"
+
+
+def test_a_steady_gain_is_called_faster_even_when_the_means_overlap():
+    """Episode lengths spread widely (their means' intervals overlap), but the policy is 10 steps
+    sooner in every episode: pairing sees it."""
+    lengths = [150, 420, 260, 610, 330, 180, 505, 240]
+    ref = row("heuristic", [("success", s) for s in lengths])
+    pol = row("net", [("success", s - 10) for s in lengths])
+    assert pol.steps.hi > ref.steps.lo  # unpaired, no difference can be claimed
+    p = pair(pol, ref, MAX)
+    assert p.steps.mean == pytest.approx(-10) and p.steps.lo == p.steps.hi == pytest.approx(-10)
+    assert p.verdict == "faster" and (p.faster, p.slower) == (8, 0)
+    assert pair(ref, pol, MAX).verdict == "slower"
+    assert "faster" in format_pairs([p]) and "-10.0" in format_pairs([p])
+
+
+def test_rows_of_other_episodes_are_refused():
+    a = row("a", [("success", 100)] * 3, seed=1)
+    b = row("b", [("success", 100)] * 3, seed=2)
+    with pytest.raises(ValueError, match="did not play the same episodes"):
+        pair(a, b, MAX)
+    with pytest.raises(ValueError, match="--versus 'c': no such policy in the table \\(policies: a, b\\)"):
+        pair_table([a, b], "c", MAX)
+
+
+def test_a_policy_against_itself_on_a_real_table_is_level_to_the_step():
+    config = default_config(fidelity="point", max_steps=60)
+    rows = []
+    for label, policy in (("heuristic", HeuristicTeam.from_config(config)), ("again", HeuristicTeam.from_config(config)),
+                          ("random", RandomPolicy(0))):
+        rows += evaluate(policy, config, [0], episodes=4, seed=3, n_worlds=2, label=label)
+    same, rnd = pair_table(rows, "heuristic", config.max_steps)
+    assert same.steps.mean == 0 and same.steps.lo == same.steps.hi == 0 and same.verdict == "level"
+    assert (same.faster, same.slower) == (0, 0)
+    assert rnd.policy == "random" and rnd.episodes == 4
