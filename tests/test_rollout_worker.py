@@ -15,7 +15,7 @@ from train.trainer import Trainer
 TINY = [
     "task.fidelity=point", "task.n_pursuers=2", "task.random_obstacles=0", "task.max_steps=40",
     "n_envs=2", "ppo.batch_size=64", "ppo.minibatch_size=32", "ppo.epochs=2", "net.encoder_width=16", "net.hidden=[16]",
-    "run.validate_every=0", "run.validation_episodes=2", "run.progress=false",
+    "run.validate_every=0", "run.validation_episodes=2", "run.progress=false", "run.overlap=true",
 ]
 
 
@@ -29,9 +29,9 @@ def test_each_update_learns_from_the_rollout_of_the_weights_one_update_older(tmp
     seen = []
     real = trainer_module.ppo_update
 
-    def spy(model, optimizer, buf, *args):
+    def spy(model, optimizer, buf, *args, **kwargs):
         seen.append((copy.deepcopy(model.actor.state_dict()), buf.obs.clone(), buf.actions.clone(), buf.logp.clone()))
-        return real(model, optimizer, buf, *args)
+        return real(model, optimizer, buf, *args, **kwargs)
 
     monkeypatch.setattr(trainer_module, "ppo_update", spy)
     trainer = Trainer(tiny(tmp_path, "total_steps=128"), log=lambda s: None)

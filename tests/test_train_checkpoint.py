@@ -55,11 +55,11 @@ def test_ctrl_c_saves_the_last_consistent_update(tmp_path, monkeypatch, overlap)
     calls = {"n": 0}
 
     def fourth_call_interrupts(real):
-        def call(*args):
+        def call(*args, **kwargs):
             calls["n"] += 1
             if calls["n"] == 4:
                 raise KeyboardInterrupt
-            return real(*args)
+            return real(*args, **kwargs)
         return call
 
     if overlap:

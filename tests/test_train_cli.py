@@ -84,7 +84,8 @@ def test_bench_train_prints_rollout_and_update_rates(capsys):
     assert code == 0
     out = capsys.readouterr().out
     assert "rollout ag-steps/s" in out and "s per update" in out and "bare env ag-steps/s" in out
-    assert "aims point: update faster than its rollout" in out
+    assert "aims point, in turn: update faster than its rollout" in out
+    assert "aims point, overlapped: update faster than its rollout" in out  # both collection modes by default
 
 
 def test_export_writes_a_small_policy_only_checkpoint(tiny_model, tmp_path, capsys):

@@ -9,7 +9,7 @@ import torch
 from pursuit_mj.obs_spec import ObsSpec
 from train.config import NetConfig
 from train.gae import compute_gae, next_values_from
-from train.losses import clipped_policy_loss, normalise, scaled_value_loss
+from train.losses import behaviour_weights, clipped_policy_loss, normalise, scaled_value_loss
 from train.networks import Actor, Critic, EntityEncoder, gaussian_entropy, gaussian_log_prob, masked_mean, tanh
 from train.running_norm import RunningMeanStd
 
@@ -87,6 +87,51 @@ def test_clipped_policy_loss_hand_computed():
     # 1.1, A=-2 -> min(-2.2, -2.2) = -2.2; 0.7, A=-1 -> min(-0.7, -0.8) = -0.8
     assert loss.item() == pytest.approx(-(1.2 + 0.5 - 2.2 - 0.8) / 4)
     assert frac.item() == pytest.approx(0.75)
+
+
+def test_decoupled_objective_weights_each_sample_by_its_capped_importance():
+    behaviour = torch.log(torch.tensor([0.5, 0.2, 0.4, 0.1]))
+    prox = torch.log(torch.tensor([0.25, 0.2, 0.8, 0.1]))  # the model now: half as likely, same, twice, same
+    w = behaviour_weights(prox, behaviour)
+    torch.testing.assert_close(w, torch.tensor([0.5, 1.0, 1.0, 1.0]))  # 2.0 is capped at 1
+    new = prox + torch.log(torch.tensor([1.5, 0.5, 1.1, 0.7]))  # ratios against the model now, as above
+    adv = torch.tensor([1.0, 1.0, -2.0, -1.0])
+    loss, frac = clipped_policy_loss(new, prox, adv, clip=0.2, weights=w)
+    assert loss.item() == pytest.approx(-(0.5 * 1.2 + 0.5 - 2.2 - 0.8) / 4)
+    assert frac.item() == pytest.approx(0.75)
+
+
+def test_a_lagged_update_of_fresh_samples_is_plain_ppo():
+    """When the policy that acted is the model itself, every weight is 1 and the decoupled update
+    moves the weights as plain PPO does."""
+    from train.agent import ActorCritic
+    from train.config import load_train_config
+    from train.ppo import ppo_update
+    from train.storage import Rollout
+
+    cfg = load_train_config([], ["ppo.epochs=2", "ppo.minibatch_size=16", "net.encoder_width=8", "net.hidden=[8]"])
+    spec = ObsSpec.make(2, 1, 4)
+    T, W, N = 8, 2, 2
+    torch.manual_seed(0)
+    buf = Rollout(T, W, N, spec.dim)
+    buf.obs.uniform_(-1, 1)
+    buf.rewards.normal_()
+    buf.terminated[3, 0] = True
+    results = []
+    for lagged in (False, True):
+        torch.manual_seed(1)
+        model = ActorCritic(spec, 0, cfg)
+        with torch.no_grad():
+            mean, log_std = model.actor(buf.obs, spec)
+            buf.actions.copy_(mean + 0.3 * torch.randn(mean.shape, generator=torch.Generator().manual_seed(2)))
+            buf.logp.copy_(gaussian_log_prob(mean, log_std.exp(), buf.actions).sum(-1))
+        opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+        stats = ppo_update(model, opt, buf, cfg.ppo, 0.99, torch.Generator().manual_seed(3), lagged=lagged)
+        results.append((model.state_dict(), stats))
+    (plain, _), (decoupled, stats) = results
+    assert stats["behaviour_weight"] == pytest.approx(1.0)
+    for k in plain:
+        torch.testing.assert_close(decoupled[k], plain[k], rtol=1e-4, atol=1e-5)
 
 
 def test_clipped_loss_gradient_vanishes_outside_the_trust_region():

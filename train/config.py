@@ -93,9 +93,9 @@ class RunConfig:
     validation_layouts: tuple[int | str, ...] = spec((), help="layouts to validate on (empty: the training layouts)")
     checkpoint_every: int = spec(1, lo=1, help="updates between 'last' checkpoints (1: lose at most one update)")
     torch_threads: int = spec(1, lo=0, hi=256, help="torch threads for the update (0: all cores; more than 1 only pays on idle cores); the rollout uses 1")
-    overlap: bool = spec(True, help="collect the next rollout in a child process while the update runs (train/rollout_worker.py): "
-                                    "about the longer of the two per step on 2+ cores, at one update of policy lag; "
-                                    "ppo and mappo only (dagger always collects in turn)")
+    overlap: bool = spec(False, help="collect the next rollout in a child process while the update runs (train/rollout_worker.py): "
+                                     "a training step costs about the longer of the two on 2+ cores, at one update of policy lag "
+                                     "(corrected by the decoupled PPO objective); ppo and mappo only (dagger always collects in turn)")
     sim_threads: int = spec(0, lo=0, hi=256, help="mujoco.batch threads (0: its default)")
     progress: bool = spec(True, help="show the tqdm progress bar")
     rerun: bool = spec(False, help="also stream every logged scalar to <run>/metrics.rrd (open with `rerun`)")

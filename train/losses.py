@@ -6,17 +6,32 @@ import torch
 
 
 def clipped_policy_loss(new_logp: torch.Tensor, old_logp: torch.Tensor, advantages: torch.Tensor,
-                        clip: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """(loss, clip fraction): -mean(min(r A, clip(r, 1-eps, 1+eps) A)), r = exp(new - old).
+                        clip: float, weights: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """(loss, clip fraction): -mean(w min(r A, clip(r, 1-eps, 1+eps) A)), r = exp(new - old).
 
-    All inputs (B,); the clip fraction is the share of samples whose ratio left [1-eps, 1+eps].
+    All inputs (B,); w = 1 unless `weights` are given (the decoupled objective for lagged
+    samples, see behaviour_weights). The clip fraction is the share of samples whose ratio
+    left [1-eps, 1+eps].
     """
     ratio = torch.exp(new_logp - old_logp)
     unclipped = ratio * advantages
     clipped = torch.clamp(ratio, 1.0 - clip, 1.0 + clip) * advantages
-    loss = -torch.minimum(unclipped, clipped).mean()
+    surrogate = torch.minimum(unclipped, clipped)
+    loss = -(surrogate if weights is None else weights * surrogate).mean()
     clip_frac = ((ratio - 1.0).abs() > clip).float().mean()
     return loss, clip_frac
+
+
+BEHAVIOUR_WEIGHT_CAP = 1.0  # truncation of pi_prox / pi_behaviour (IMPALA's rho-bar)
+
+
+def behaviour_weights(prox_logp: torch.Tensor, behaviour_logp: torch.Tensor, cap: float = BEHAVIOUR_WEIGHT_CAP) -> torch.Tensor:
+    """min(pi_prox(a) / pi_behaviour(a), cap), all (B,): the importance weight of a sample drawn by
+    an older policy, for PPO's decoupled objective (Hilton et al. 2021, "Batch size-invariance
+    for policy optimization"): the clip range is centred on the proximal policy (the weights
+    at the start of the update), and the weight accounts for the policy that really acted.
+    Truncated at `cap` so that one unlikely old sample cannot dominate."""
+    return torch.exp(prox_logp - behaviour_logp).clamp(max=cap)
 
 
 def scaled_value_loss(values: torch.Tensor, targets: torch.Tensor, target_std: float | torch.Tensor | None) -> torch.Tensor:

@@ -8,7 +8,7 @@ from torch import nn
 from .agent import ActorCritic
 from .config import PPOConfig
 from .gae import compute_gae, next_values_from
-from .losses import clipped_policy_loss, normalise, scaled_value_loss
+from .losses import behaviour_weights, clipped_policy_loss, normalise, scaled_value_loss
 from .networks import gaussian_entropy, gaussian_log_prob
 from .storage import Rollout
 
@@ -31,13 +31,26 @@ def explained_variance(pred: torch.Tensor, target: torch.Tensor) -> float:
 
 
 def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollout, cfg: PPOConfig,
-               gamma: float, generator: torch.Generator) -> dict[str, float]:
-    """Run cfg.epochs passes of minibatch gradient steps; returns mean loss statistics."""
+               gamma: float, generator: torch.Generator, lagged: bool = False) -> dict[str, float]:
+    """Run cfg.epochs passes of minibatch gradient steps; returns mean loss statistics.
+
+    lagged: the rollout was sampled by an older policy than the model's (run.overlap); the
+    update then uses the decoupled objective (losses.behaviour_weights): ratios against the
+    model as it is now, each sample weighted by how much likelier the model finds it than
+    the policy that acted. Without lag the two policies are one and this is plain PPO.
+    """
     adv, ret, _ = advantages_and_returns(buf, gamma, cfg.gae_lambda)
     n = buf.n_transitions
     obs = buf.obs.reshape(n, -1)
     actions = buf.actions.reshape(n, 2)
     old_logp = buf.logp.reshape(n)
+    weights = None
+    if lagged:
+        with torch.no_grad():
+            mean, log_std = model.actor(obs, model.spec)
+            prox_logp = gaussian_log_prob(mean, log_std.exp(), actions).sum(-1)
+        weights = behaviour_weights(prox_logp, old_logp)
+        old_logp = prox_logp
     adv, ret = adv.reshape(n), ret.reshape(n)
     states = None
     if model.algo == "mappo":
@@ -59,7 +72,8 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
             new_logp = gaussian_log_prob(mean, std, actions[idx]).sum(-1)
             entropy = gaussian_entropy(std).sum(-1).mean()
             a = normalise(adv[idx]) if cfg.norm_adv else adv[idx]
-            pg_loss, clip_frac = clipped_policy_loss(new_logp, mb_old_logp, a, cfg.clip)
+            pg_loss, clip_frac = clipped_policy_loss(new_logp, mb_old_logp, a, cfg.clip,
+                                                     weights[idx] if weights is not None else None)
             v = model.raw_value(mb_obs, states[idx] if states is not None else None)
             v_loss = scaled_value_loss(v, targets[idx], target_std)
             loss = pg_loss + cfg.vf_coef * v_loss - cfg.ent_coef * entropy
@@ -78,4 +92,6 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
     out["explained_variance"] = explained_variance(pred, ret)
     out["return_std"] = float(ret.std(unbiased=False))
     out["log_std"] = float(model.actor.log_std.detach().mean())
+    if weights is not None:
+        out["behaviour_weight"] = float(weights.mean())  # 1: the lag changed nothing
     return out

@@ -21,7 +21,9 @@ closes, so a killed parent leaves nothing running.
 
 from __future__ import annotations
 
+import contextlib
 import signal
+import sys
 import time
 import traceback
 import weakref
@@ -84,6 +86,29 @@ def _serve(conn, cfg: TrainConfig, start_update: int, buffers: list[Rollout]) ->
             pass
 
 
+@contextlib.contextmanager
+def _main_script_hidden():
+    """While a child is spawned, hide where the parent's __main__ came from.
+
+    A spawned child normally re-imports the parent's main script or module before it runs
+    its target, and a user's training script without an `if __name__ == "__main__":` guard
+    would then start another training run inside the child. The worker needs only train.*
+    modules, so the child is told of no main script at all (multiprocessing.spawn reads
+    __main__.__spec__ and __main__.__file__ while Process.start() runs, and only then).
+    """
+    main = sys.modules.get("__main__")
+    saved = {k: main.__dict__[k] for k in ("__spec__", "__file__") if main is not None and k in main.__dict__}
+    try:
+        if "__spec__" in saved:
+            main.__spec__ = None
+        if "__file__" in saved:
+            del main.__file__
+        yield
+    finally:
+        if main is not None:
+            main.__dict__.update(saved)
+
+
 def _shutdown(process, conn) -> None:
     try:
         conn.send(("stop",))
@@ -111,7 +136,8 @@ class RolloutWorker:
         self._conn, child_conn = ctx.Pipe()
         self.process = ctx.Process(target=_serve, args=(child_conn, cfg, start_update, self.buffers),
                                    name=f"rollout-{cfg.name}", daemon=True)
-        self.process.start()
+        with _main_script_hidden():
+            self.process.start()
         child_conn.close()
         self._next = 0  # the buffer the next request fills
         self._pending: int | None = None
@@ -120,7 +146,13 @@ class RolloutWorker:
     def start(self, model: ActorCritic) -> None:
         if self._pending is not None:
             raise RuntimeError("rollout worker: a rollout is already being collected")
-        self._conn.send(("collect", self._next, model_weights(model)))
+        try:
+            self._conn.send(("collect", self._next, model_weights(model)))
+        except (BrokenPipeError, ConnectionResetError):
+            self.process.join(STOP_TIMEOUT_S)
+            raise RuntimeError(f"rollout worker {self.process.name} exited (code {self.process.exitcode}) before "
+                               "its first rollout; its error is printed above (run.overlap=false collects in this "
+                               "process instead)") from None
         self._pending, self._next = self._next, 1 - self._next
 
     def result(self, model: ActorCritic) -> tuple[Rollout, RolloutStats]:

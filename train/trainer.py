@@ -261,7 +261,8 @@ class Trainer:
                                       self.discount.value, self.generator)
             losses["teacher_share"] = self.collector.beta
         else:
-            losses = ppo_update(self.model, self.optimizer, buf, cfg.ppo, self.discount.value, self.generator)
+            losses = ppo_update(self.model, self.optimizer, buf, cfg.ppo, self.discount.value, self.generator,
+                                lagged=self.overlap)
         t2 = time.perf_counter()
         c.update += 1
         c.world_steps += buf.T * buf.W

@@ -41,6 +41,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n-envs", type=int, default=None, help="worlds (default: the config's)")
     p.add_argument("--updates", type=int, default=5, help="measured updates after one warm-up (default 5)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="train config override")
+    p.add_argument("--collection", choices=("both", "in-turn", "overlapped"), default="both",
+                   help="collect rollouts in turn with the update, overlapped with it in a child process "
+                        "(run.overlap), or measure both (default)")
     p.add_argument("--profile", type=int, default=0, metavar="N",
                    help="also print the N functions with the most own time in one rollout and one update (cProfile)")
 
@@ -50,6 +53,7 @@ class TrainBench:
     """One fidelity: median seconds per update of each part, and CPU seconds in total."""
 
     fidelity: str
+    collection: str  # "in turn" or "overlapped"
     worlds: int
     pursuers: int
     batch: int  # agent-steps (transitions) per update
@@ -93,7 +97,7 @@ def _settings(cfg, trainer) -> str:
     threads = cfg.run.torch_threads or os.cpu_count() or 1
     return (f"epochs {p.epochs}, minibatch {p.minibatch_size}, batch {buf.n_transitions} = {buf.T} steps x {buf.W} worlds "
             f"x {buf.N} pursuers, net {cfg.net.kind} {cfg.net.encoder_width}/{list(cfg.net.hidden)}, torch threads: "
-            f"rollout 1, update {threads}; rollout {'in a child process beside the update' if cfg.run.overlap and cfg.algo != 'dagger' else 'then update'}")
+            f"rollout 1, update {threads}")
 
 
 def _child_cpu_s(pid: int | None) -> float:
@@ -158,7 +162,8 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
                                               trainer.discount.value, trainer.generator), profile_top)
             profile = f"rollout:\n{roll}\n\nupdate:\n{upd}"
         med = statistics.median
-        return TrainBench(fidelity, cfg.n_envs, cfg.task.n_pursuers, trainer.buffer.n_transitions, _settings(cfg, trainer),
+        collection = "overlapped" if trainer.overlap else "in turn"
+        return TrainBench(fidelity, collection, cfg.n_envs, cfg.task.n_pursuers, trainer.buffer.n_transitions, _settings(cfg, trainer),
                           med(rollout), med(update), med(wall), med(bare), train_cpu, env_cpu, profile)
 
 
@@ -173,25 +178,29 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--profile: must be >= 0, got {args.profile}")
     if args.n_envs is not None and args.n_envs < 1:
         raise ValueError(f"--n-envs: expected an integer >= 1, got {args.n_envs}")
+    modes = {"both": ["false", "true"], "in-turn": ["false"], "overlapped": ["true"]}[args.collection]
     results = []
     for f in args.fidelity:
-        results.append(measure(args.config, f, args.n_envs, args.updates, args.overrides, args.profile))
-        print(f"  measured {f}: {args.updates} updates after one warm-up, bare env stepped after them", flush=True)
+        for overlap in modes:
+            results.append(measure(args.config, f, args.n_envs, args.updates, args.overrides + [f"run.overlap={overlap}"],
+                                   args.profile))
+            print(f"  measured {f}, {results[-1].collection}: {args.updates} updates after one warm-up, bare env stepped "
+                  "after them", flush=True)
     print(f"train benchmark, config {args.config}: {results[0].settings}")
     print("rates in agent-steps/s (decision steps x worlds x pursuers) from median wall times; bare env = the same task "
           "with random actions, stepped after training; cpu = process time of training (rollout worker included) over that of the bare env")
-    head = ["fidelity", "worlds x pursuers", "rollout ag-steps/s", "update ag-steps/s", "s per update",
+    head = ["fidelity", "collection", "worlds x pursuers", "rollout ag-steps/s", "update ag-steps/s", "s per update",
             "training ag-steps/s", "bare env ag-steps/s", "update / rollout", "env / training", "cpu: env / training"]
-    rows = [[r.fidelity, f"{r.worlds} x {r.pursuers}", f"{r.rate(r.rollout_s):.0f}", f"{r.rate(r.update_s):.0f}",
+    rows = [[r.fidelity, r.collection, f"{r.worlds} x {r.pursuers}", f"{r.rate(r.rollout_s):.0f}", f"{r.rate(r.update_s):.0f}",
              f"{r.update_s:.2f}", f"{r.rate(r.wall_s):.0f}", f"{r.rate(r.env_s):.0f}",
              f"{r.update_over_rollout:.2f}", f"{r.env_over_training:.2f}x", f"{r.env_over_training_cpu:.2f}x"] for r in results]
     print(format_table(head, rows))
     for r in results:
-        print(f"aims {r.fidelity}: update faster than its rollout (ratio < {AIM_UPDATE_OVER_ROLLOUT:g}): "
+        print(f"aims {r.fidelity}, {r.collection}: update faster than its rollout (ratio < {AIM_UPDATE_OVER_ROLLOUT:g}): "
               f"{r.update_over_rollout:.2f}, {_verdict(r.update_over_rollout < AIM_UPDATE_OVER_ROLLOUT)}; training within "
               f"{AIM_ENV_OVER_TRAINING:g}x of the bare env: {r.env_over_training:.2f}x, "
               f"{_verdict(r.env_over_training <= AIM_ENV_OVER_TRAINING)}")
     for r in results:
         if r.profile:
-            print(f"\nwhere training spends its time ({r.fidelity}; own time, cProfile):\n{r.profile}")
+            print(f"\nwhere training spends its time ({r.fidelity}, {r.collection}; own time, cProfile):\n{r.profile}")
     return 0
