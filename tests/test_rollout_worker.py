@@ -84,3 +84,26 @@ def test_a_failing_worker_raises_its_traceback_in_the_parent(tmp_path):
     finally:
         worker.close()
     assert not worker.process.is_alive()
+
+
+def test_a_training_script_without_a_main_guard_trains_once(tmp_path):
+    """The worker is spawned without re-running the parent's script (which would train again)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = tmp_path / "train_here.py"
+    script.write_text(
+        "from train.config import load_train_config\n"
+        "from train.trainer import Trainer\n"
+        f"cfg = load_train_config([], {TINY + [f'run.runs_dir={tmp_path}', 'name=script', 'total_steps=64']!r})\n"
+        "print('training', flush=True)\n"
+        "print(Trainer(cfg, log=print).train()['status'])\n"
+    )
+    repo = Path(__file__).resolve().parent.parent
+    done = subprocess.run([sys.executable, str(script)], cwd=repo, capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": str(repo)})
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["training", "done"]
+    assert len((tmp_path / "script" / "metrics.jsonl").read_text().splitlines()) == 2
