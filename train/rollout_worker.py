@@ -5,13 +5,13 @@ With overlap, a child process owns the training env, its action path (shield, ba
 a copy of the networks, and collects the next rollout while the parent runs the update on
 the last one; on two cores a training step then costs about the longer of the two instead
 of their sum. (Threads cannot do this: the env's Python code and the update fight over the
-GIL, and the pair ran barely faster than in turn.)
+GIL, and the pair ran only 8 % faster than in turn.)
 
 The price is one update of policy lag: the rollout an update learns from was collected with
-the weights from before the previous update. PPO's ratio is taken against the stored
-log-probabilities of the policy that acted, so the objective still weighs the samples
-correctly; the clip range sees that much more drift, and the stored values (GAE) come from
-the critic of one update earlier.
+the weights from before the previous update. The update corrects for it with PPO's
+decoupled objective (train.ppo.ppo_update(lagged=True), losses.behaviour_weights); the
+stored values (GAE) come from the critic of one update earlier. Off by default: on the easy
+learning task the lag cost as many samples as the overlap saved time (docs/training.md).
 
 Two rollout buffers live in shared memory: the parent reads one while the child fills the
 other. Weights go to the child as numpy arrays with each request. The child ignores Ctrl-C
