@@ -96,3 +96,14 @@ def pairs_to_dicts(pairs: Sequence[Paired]) -> list[dict]:
              "capture_steps_diff_ci_hi": p.steps.hi, "faster": p.faster, "slower": p.slower,
              "caught_only_by_policy": p.only_policy, "caught_only_by_versus": p.only_reference,
              "verdict": p.verdict} for p in pairs]
+
+
+def paired_report(rows: Sequence[Row], reference: str, max_steps: float) -> tuple[str, list[Paired]]:
+    """(text, pairs): every other policy of `rows` paired with `reference`, under a heading that
+    says how to read it; ("", []) when `reference` is alone or absent."""
+    if reference not in {r.policy for r in rows} or len({r.policy for r in rows}) < 2:
+        return "", []
+    pairs = pair_table(rows, reference, max_steps)
+    head = (f"paired with {reference} on the same episodes (capture steps: steps of a success, {max_steps:g} "
+            "for a failure; negative = sooner):")
+    return head + "\n" + format_pairs(pairs), pairs

@@ -66,6 +66,7 @@ def test_demo_prints_the_table_and_how_to_train(tiny_model, capsys):
     assert code == 0
     out = capsys.readouterr().out
     assert "heuristic" in out and "m " in out and "m+shield " in out and "pursuit-mj train" in out
+    assert "paired with heuristic on the same episodes" in out
     assert main(["demo", "--model", str(tiny_model.parent / "missing.pt")]) == 2
     code = main(["demo", "--model", str(tiny_model), "--episodes", "1", "--worlds", "1", "--layouts", "0", "--no-shield",
                  "--no-heuristic", "--fidelity", "point", "--set", "max_steps=5"])

@@ -12,8 +12,9 @@ shares in ARMS (each run stops at its max_minutes, its learning rate decaying ov
 policies are evaluated on the same task (the reference preset unless told otherwise) with
 partial observability: full_obs is trained with full observability but judged like the rest.
 
-Outputs in <out>/: runs/<regime>/ (checkpoints, metrics), table.txt, table.csv, table.json,
-plots/*.png, timings.json.
+Outputs in <out>/: runs/<regime>/ (checkpoints, metrics), table.txt (the table, then every arm
+paired with the heuristic team on the same episodes, pursuit_mj.comparison), table.csv,
+table.json (rows, and the pairs under "paired"), plots/*.png, timings.json.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from pursuit_mj.config import TaskConfig
+from pursuit_mj.comparison import paired_report, pairs_to_dicts
 from pursuit_mj.evaluation import evaluate, format_table, plot_rows, write_csv, write_json
 from pursuit_mj.io_utils import atomic_write_text
 from pursuit_mj.obs_spec import ObsSpec
@@ -143,10 +145,11 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
 
 
 def _write(plan: StudyPlan, rows: Sequence, timings: dict[str, float], episodes: int) -> None:
-    atomic_write_text(plan.out / "table.txt", format_table(rows) + "\n")
+    paired, pairs = paired_report(rows, "heuristic", plan.eval_task.max_steps)
+    atomic_write_text(plan.out / "table.txt", format_table(rows) + "\n" + (f"\n{paired}\n" if paired else ""))
     write_csv(rows, plan.out / "table.csv")
     meta = {"budget_minutes": plan.budget_minutes, "episodes": episodes,
-            "layouts": [str(l) for l in plan.layouts], "seed": plan.seed}
+            "layouts": [str(l) for l in plan.layouts], "seed": plan.seed, "paired": pairs_to_dicts(pairs)}
     write_json(rows, plan.out / "table.json", plan.eval_task, meta)
     plot_rows(rows, plan.out / "plots")
     atomic_write_text(plan.out / "timings.json", json.dumps({k: round(v, 1) for k, v in timings.items()}, indent=2) + "\n")

@@ -52,6 +52,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from ..comparison import paired_report
     from ..evaluation import evaluate, format_table
     from ..policies import make_policy
 
@@ -85,6 +86,9 @@ def run(args) -> int:
             print(f"[demo] {label} layout {ref}: {time.perf_counter() - t0:.1f} s, success "
                   f"{100 * rows[-1].success.p:.0f} %", file=sys.stderr, flush=True)
     print(format_table(rows))
+    paired, _ = paired_report(rows, "heuristic", config.max_steps)
+    if paired:
+        print(f"\n{paired}")
     print(f"\n({time.perf_counter() - t_all:.0f} s; brackets are 95 % confidence intervals; "
           f"use --episodes 150 for the reference study's sample size)\n")
     print(HOW_TO_TRAIN, end="")

@@ -120,7 +120,7 @@ def _versus(args, policies) -> str | None:
 
 
 def run(args) -> int:
-    from ..comparison import format_pairs, pair_table, pairs_to_dicts
+    from ..comparison import paired_report, pairs_to_dicts
     from ..evaluation import format_table, plot_rows, write_csv, write_json
 
     if args.episodes < 1:
@@ -148,10 +148,8 @@ def run(args) -> int:
             "policies": [label for label, _ in policies], "models": list(args.model),
             "shield": bool(args.shield)}
     if versus is not None:
-        pairs = pair_table(rows, versus, config.max_steps)
-        print(f"\npaired with {versus} on the same episodes (capture steps: steps of a success, {config.max_steps} "
-              "for a failure; negative = sooner):")
-        print(format_pairs(pairs))
+        text, pairs = paired_report(rows, versus, config.max_steps)
+        print(f"\n{text}")
         meta["paired"] = pairs_to_dicts(pairs)
     if csv_path:
         print(f"wrote {write_csv(rows, csv_path)}")
