@@ -74,7 +74,6 @@ class Trainer:
         self.counters = Counters()
         self.generator = torch.Generator().manual_seed(cfg.seed)
         start_update = checkpoint["counters"]["update"] if checkpoint else 0
-        self.start_update = start_update
         self.env = make_training_env(cfg, start_update)
         self.spec = self.env.obs_spec
         self.model = ActorCritic(self.spec, self.env.state_dim, cfg)
@@ -223,7 +222,8 @@ class Trainer:
         if self.overlap:
             if self.worker is None:
                 buf = self.buffer
-                self.worker = RolloutWorker(self.cfg, self.start_update, buf.T, buf.W, buf.N, self.env.obs_dim,
+                # its env and noise are seeded from the update it starts at, like a resumed run's
+                self.worker = RolloutWorker(self.cfg, self.counters.update, buf.T, buf.W, buf.N, self.env.obs_dim,
                                             buf.states.shape[-1])
             buf, stats = self.worker.result(self.model)
             self.worker.start(self.model)  # the next rollout, collected while this one is learned from
