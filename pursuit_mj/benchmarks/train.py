@@ -148,7 +148,7 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
         rng = np.random.default_rng(0)
         _bare_env_block(env, 2, rng)
         bare, env_cpu = [], 0.0
-        for _ in range(updates + 1):  # + 1: the CPU above includes the rollout collected meanwhile
+        for _ in range(updates + int(trainer.overlap)):  # overlapped, the CPU above includes one more rollout
             wall_s, cpu = _bare_env_block(env, trainer.buffer.T, rng)
             bare.append(wall_s)
             env_cpu += cpu
