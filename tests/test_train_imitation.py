@@ -77,3 +77,30 @@ def test_a_run_trained_behind_the_shield_loads_behind_it(tmp_path):
     assert policy.name == "shielded+shield" and policy.has_shield
     assert policy.shield.speed == 0.4  # sized for the task it runs in, not the one it trained on
     assert load_policy(tmp_path / "shielded" / "best.pt", spec).shield.speed == cfg.task.pursuer_speed
+
+
+def test_heading_speed_cloning_keeps_the_teachers_speed_where_mse_averages_it_away():
+    """Two demonstrations of one observation, at full speed left and full speed up: the mse
+    optimum is their average (speed 0.71), the heading_speed optimum flies at speed 1."""
+    import torch
+
+    from train.imitation import cloning_loss
+
+    target = torch.tensor([[-1.0, 0.0], [0.0, 1.0]])
+    best = {}
+    for kind in ("mse", "heading_speed"):
+        a = torch.tensor([0.1, 0.1], requires_grad=True)
+        opt = torch.optim.Adam([a], lr=0.02)
+        for _ in range(1500):
+            opt.zero_grad()
+            cloning_loss(a.expand(2, 2), target, kind).backward()
+            opt.step()
+        best[kind] = a.detach()
+    torch.testing.assert_close(best["mse"], torch.tensor([-0.5, 0.5]), atol=1e-3, rtol=0)
+    assert abs(float(best["heading_speed"].norm()) - 1.0) < 0.01
+    torch.testing.assert_close(best["heading_speed"] / best["heading_speed"].norm(), torch.tensor([-0.7071, 0.7071]),
+                               atol=1e-3, rtol=0)
+    # a single demonstration is matched exactly by both, and a still teacher asks only for speed 0
+    one = torch.tensor([[0.6, -0.8]])
+    assert float(cloning_loss(one, one, "heading_speed")) < 1e-3 and float(cloning_loss(one, one, "mse")) == 0.0
+    assert float(cloning_loss(torch.zeros(1, 2), torch.zeros(1, 2), "heading_speed")) == 0.0

@@ -5,7 +5,8 @@ of teacher and student (the teacher's share `beta` falls linearly from `beta_sta
 over `beta_updates` updates); the teacher labels every observation the pursuers met with
 the action it would take there, and the pairs go into a bounded dataset (the oldest are
 dropped first). The student's mean action is then fitted to the teacher's by mean-squared
-error on minibatches drawn from the whole dataset, so it learns to recover from its own
+error (or, with `imitation.loss: heading_speed`, by heading and speed apart: cloning_loss) on
+minibatches drawn from the whole dataset, so it learns to recover from its own
 mistakes, not only to copy the teacher's trajectories. The critic learns the value of the
 driving mixture from the same rollouts (GAE returns), so a PPO run started from this
 checkpoint (`init_from`) gets a critic that already means something.
@@ -127,6 +128,29 @@ class DaggerCollector:
         return stats
 
 
+HEADING_EPS = 0.05  # fraction of max speed: below it a heading is soft (no 1/|a| blow-up near rest)
+STILL = 0.05  # a teacher action slower than this has no heading to learn
+
+
+def cloning_loss(mean: torch.Tensor, target: torch.Tensor, kind: str) -> torch.Tensor:
+    """How far the student's mean actions (B, 2) are from the teacher's (B, 2), averaged over B.
+
+    mse: squared distance. Where the observation leaves the teacher's direction open (several
+    ways round a wall), its minimiser is the average of the teacher's actions, which is
+    shorter than any of them: the student slows down. heading_speed: the squared distance of
+    the unit headings (where the teacher moves at all) plus the squared difference of the
+    speeds, so the speed is learnt as the teacher's speed, not as the length of an average.
+    """
+    if kind == "mse":
+        return ((mean - target) ** 2).sum(-1).mean()
+    speed_s, speed_t = mean.norm(dim=-1), target.norm(dim=-1)
+    heading_s = mean / torch.sqrt(speed_s.unsqueeze(-1) ** 2 + HEADING_EPS**2)
+    heading_t = target / speed_t.clamp_min(1e-9).unsqueeze(-1)
+    moving = (speed_t > STILL).to(mean.dtype)
+    heading = (((heading_s - heading_t) ** 2).sum(-1) * moving).mean()
+    return heading + ((speed_s - speed_t) ** 2).mean()
+
+
 def imitation_update(model: ActorCritic, optimizer: torch.optim.Optimizer, demos: Demonstrations, buf: Rollout,
                      cfg: ImitationConfig, ppo: PPOConfig, gamma: float, generator: torch.Generator) -> dict[str, float]:
     """cfg.grad_steps steps, each on a minibatch of demonstrations (behaviour cloning) and one of
@@ -141,7 +165,7 @@ def imitation_update(model: ActorCritic, optimizer: torch.optim.Optimizer, demos
     for _ in range(cfg.grad_steps):
         d_obs, d_act = demos.sample(cfg.minibatch_size, generator)
         mean, _ = model.actor(d_obs, model.spec)
-        bc = ((mean - d_act) ** 2).sum(-1).mean()
+        bc = cloning_loss(mean, d_act, cfg.loss)
         idx = torch.randint(0, n, (mb,), generator=generator)
         v_loss = scaled_value_loss(model.raw_value(obs[idx], None), ret[idx], target_std)
         loss = bc + ppo.vf_coef * v_loss
