@@ -104,3 +104,5 @@ def test_heading_speed_cloning_keeps_the_teachers_speed_where_mse_averages_it_aw
     one = torch.tensor([[0.6, -0.8]])
     assert float(cloning_loss(one, one, "heading_speed")) < 1e-3 and float(cloning_loss(one, one, "mse")) == 0.0
     assert float(cloning_loss(torch.zeros(1, 2), torch.zeros(1, 2), "heading_speed")) == 0.0
+    with pytest.raises(ValueError, match="imitation.loss: 'huber'"):
+        cloning_loss(one, one, "huber")

@@ -143,6 +143,8 @@ def cloning_loss(mean: torch.Tensor, target: torch.Tensor, kind: str) -> torch.T
     """
     if kind == "mse":
         return ((mean - target) ** 2).sum(-1).mean()
+    if kind != "heading_speed":
+        raise ValueError(f"imitation.loss: {kind!r} is not one of mse, heading_speed")
     speed_s, speed_t = mean.norm(dim=-1), target.norm(dim=-1)
     heading_s = mean / torch.sqrt(speed_s.unsqueeze(-1) ** 2 + HEADING_EPS**2)
     heading_t = target / speed_t.clamp_min(1e-9).unsqueeze(-1)
