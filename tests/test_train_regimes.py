@@ -48,6 +48,16 @@ def test_overrides_flags_and_task_file():
         load_train_config([], ["ppo.batch_size=256", "ppo.minibatch_size=512"]).check_complete()
 
 
+def test_update_threads_take_the_cores_the_collection_leaves_idle():
+    run = load_train_config(["classic"]).run
+    assert run.torch_threads == 0  # auto by default
+    assert run.update_threads(overlapped=False, cores=8) == 8  # collection waits: every core
+    assert run.update_threads(overlapped=True, cores=8) == 7  # one core collects meanwhile
+    assert run.update_threads(overlapped=True, cores=1) == 1
+    fixed = load_train_config(["classic"], ["run.torch_threads=3"]).run
+    assert fixed.update_threads(overlapped=False, cores=8) == fixed.update_threads(overlapped=True, cores=8) == 3
+
+
 def test_fine_tune_starts_from_full_obs_weights_and_switches_observability(tmp_path):
     base = TINY + [f"run.runs_dir={tmp_path}", "total_steps=32"]
     full = load_train_config(["full_obs"], base + ["n_envs=2"])

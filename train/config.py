@@ -9,6 +9,7 @@ such as `reference`) whose keys are applied first, then the `task:` keys, then `
 from __future__ import annotations
 
 import dataclasses
+import os
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -95,13 +96,23 @@ class RunConfig:
     validation_seed: int = spec(10_000, lo=0, help="first seed of the fixed validation set")
     validation_layouts: tuple[int | str, ...] = spec((), help="layouts to validate on (empty: the training layouts)")
     checkpoint_every: int = spec(1, lo=1, help="updates between 'last' checkpoints (1: lose at most one update)")
-    torch_threads: int = spec(1, lo=0, hi=256, help="torch threads for the update (0: all cores; more than 1 only pays on idle cores); the rollout uses 1")
+    torch_threads: int = spec(0, lo=0, hi=256, help="torch threads for the update (0: the cores left idle meanwhile, "
+                                                  "all of them in turn, one fewer with overlap); the rollout uses 1")
     overlap: bool = spec(False, help="collect the next rollout in a child process while the update runs (train/rollout_worker.py): "
                                      "a training step costs about the longer of the two on 2+ cores, at one update of policy lag "
                                      "(corrected by the decoupled PPO objective); ppo and mappo only (dagger always collects in turn)")
     sim_threads: int = spec(0, lo=0, hi=256, help="mujoco.batch threads (0: its default)")
     progress: bool = spec(True, help="show the tqdm progress bar")
     rerun: bool = spec(False, help="also stream every logged scalar to <run>/metrics.rrd (open with `rerun`)")
+
+    def update_threads(self, overlapped: bool, cores: int | None = None) -> int:
+        """Torch threads for the update: torch_threads when set, else the cores idle during it
+        (all of them when collection waits for the update, one fewer when a rollout worker
+        collects meanwhile), at least 1. cores: os.cpu_count() unless given."""
+        if self.torch_threads:
+            return self.torch_threads
+        cores = cores or os.cpu_count() or 1
+        return max(1, cores - 1) if overlapped else cores
 
 
 @dataclasses.dataclass(frozen=True)

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import os
 import time
 from pathlib import Path
 from typing import Callable
@@ -69,7 +68,6 @@ class Trainer:
         self.cfg = cfg
         self.log = log
         self.run_dir = cfg.run_dir
-        self._update_threads = cfg.run.torch_threads or os.cpu_count() or 1
         torch.manual_seed(cfg.seed)
         self.counters = Counters()
         self.generator = torch.Generator().manual_seed(cfg.seed)
@@ -88,6 +86,7 @@ class Trainer:
                               self.env.state_dim if cfg.algo == "mappo" else 0)
         self.demos: Demonstrations | None = None
         self.overlap = cfg.run.overlap and cfg.algo != "dagger"
+        self.update_threads = cfg.run.update_threads(self.overlap)
         self.collector: Collector | DaggerCollector | None = None  # in-process collection (overlap off)
         self.worker: RolloutWorker | None = None  # collection in a child process (overlap on), started on first use
         if cfg.algo == "dagger":
@@ -249,7 +248,7 @@ class Trainer:
         t0 = time.perf_counter()
         buf, stats = self._next_rollout()
         self.buffer = buf
-        torch.set_num_threads(self._update_threads)
+        torch.set_num_threads(self.update_threads)
         t1 = time.perf_counter()
         lr = self.learning_rate()
         for group in self.optimizer.param_groups:

@@ -94,7 +94,7 @@ def _bare_env_block(env, steps: int, rng: np.random.Generator) -> tuple[float, f
 
 def _settings(cfg, trainer) -> str:
     p, buf = cfg.ppo, trainer.buffer
-    threads = cfg.run.torch_threads or os.cpu_count() or 1
+    threads = trainer.update_threads
     return (f"epochs {p.epochs}, minibatch {p.minibatch_size}, batch {buf.n_transitions} = {buf.T} steps x {buf.W} worlds "
             f"x {buf.N} pursuers, net {cfg.net.kind} {cfg.net.encoder_width}/{list(cfg.net.hidden)}, torch threads: "
             f"rollout 1, update {threads}")
@@ -157,7 +157,7 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
             torch.set_num_threads(1)
             collector = trainer.collector or Collector(trainer.env, trainer.model, trainer.generator, make_action_path(cfg))
             roll = profile_call(lambda: collector.collect(trainer.buffer), profile_top)
-            torch.set_num_threads(cfg.run.torch_threads or os.cpu_count() or 1)
+            torch.set_num_threads(trainer.update_threads)
             upd = profile_call(lambda: ppo_update(trainer.model, trainer.optimizer, trainer.buffer, cfg.ppo,
                                               trainer.discount.value, trainer.generator), profile_top)
             profile = f"rollout:\n{roll}\n\nupdate:\n{upd}"
