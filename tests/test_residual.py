@@ -122,6 +122,8 @@ def test_a_residual_run_trains_validates_and_loads_as_its_team(tmp_path):
     assert isinstance(path.base, HeuristicTeam) and path.shield is not None
     result = trainer.train()
     assert result["status"] == "done" and result["validation"]["episodes"] == 2
+    val = result["validation"]
+    assert val["heuristic_mean_steps"] > 0 and val["vs_heuristic_lo"] <= val["vs_heuristic_steps"] <= val["vs_heuristic_hi"]
     spec = ObsSpec.make(2, 1, cfg.task.n_rays)
     policy = load_policy(tmp_path / "res" / "best.pt", spec, task=TaskConfig(n_pursuers=2, pursuer_speed=0.4))
     assert policy.name == "res@heuristic+shield" and policy.has_shield

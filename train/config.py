@@ -95,6 +95,8 @@ class RunConfig:
     validation_episodes: int = spec(24, lo=1, hi=10000, help="episodes per validation (fixed seeds)")
     validation_seed: int = spec(10_000, lo=0, help="first seed of the fixed validation set")
     validation_layouts: tuple[int | str, ...] = spec((), help="layouts to validate on (empty: the training layouts)")
+    validation_vs_heuristic: bool = spec(True, help="play the validation episodes once with the heuristic team too, and "
+                                                    "report every validation paired with it, episode by episode")
     checkpoint_every: int = spec(1, lo=1, help="updates between 'last' checkpoints (1: lose at most one update)")
     torch_threads: int = spec(0, lo=0, hi=256, help="torch threads for the update (0: the cores left idle meanwhile, "
                                                   "all of them in turn, one fewer with overlap); the rollout uses 1")

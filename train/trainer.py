@@ -37,7 +37,7 @@ from .ppo import advantages_and_returns, ppo_update
 from .rollout import Collector, RolloutStats, make_action_path, make_training_env
 from .rollout_worker import RolloutWorker
 from .storage import Rollout
-from .validation import FixedSeedValidator, summarise
+from .validation import FixedSeedValidator, summarise, versus
 
 WINDOW = 100  # episodes in the progress bar's moving success / collision / steps
 
@@ -86,6 +86,7 @@ class Trainer:
                               self.env.state_dim if cfg.algo == "mappo" else 0)
         self.demos: Demonstrations | None = None
         self.overlap = cfg.run.overlap and cfg.algo != "dagger"
+        self._heuristic_records: list | None = None  # the heuristic team's validation episodes (validation_vs_heuristic)
         self.update_threads = cfg.run.update_threads(self.overlap)
         self.collector: Collector | DaggerCollector | None = None  # in-process collection (overlap off)
         self.worker: RolloutWorker | None = None  # collection in a child process (overlap on), started on first use
@@ -187,8 +188,12 @@ class Trainer:
             self._validator = FixedSeedValidator(self.cfg.task, layouts, r.validation_episodes, r.validation_seed, r.sim_threads)
         policy = trained_team(ActorPolicy(self.model.actor, self.cfg.name), self.cfg.task, self.cfg.shield, self.cfg.residual,
                               self.cfg.belief)
-        summary, _ = self._validator.run(policy)
+        summary, records = self._validator.run(policy)
         self.model.actor.train()
+        if r.validation_vs_heuristic:
+            if self._heuristic_records is None:  # the same episodes every time: played once per process
+                _, self._heuristic_records = self._validator.run(make_policy("heuristic", self.cfg.task))
+            summary.update(versus(records, self._heuristic_records, self.cfg.task.max_steps))
         return summary
 
     def _maybe_best(self, val: dict[str, float]) -> bool:
@@ -367,5 +372,7 @@ def _advance(bar, row: dict, recent, last_val: dict, done: float) -> None:
         post["gamma"] = f"{row['gamma']:.4f}"
     if last_val:
         post["val"] = f"{last_val['success']:.0%}"
+        if "vs_heuristic_steps" in last_val:
+            post["val_vs_heur"] = f"{last_val['vs_heuristic_steps']:+.0f} steps"
     bar.set_postfix(post, refresh=False)
     bar.update(max(round(100.0 * done, 1) - bar.n, 0.0))

@@ -12,6 +12,7 @@ import numpy as np
 
 from pursuit_mj.config import TaskConfig
 from pursuit_mj.env import EpisodeRecord, PursuitEnv
+from pursuit_mj.stats import mean_interval
 
 
 def summarise(records: Sequence[EpisodeRecord]) -> dict[str, float]:
@@ -27,6 +28,28 @@ def summarise(records: Sequence[EpisodeRecord]) -> dict[str, float]:
         "mean_steps": float(np.mean(steps)) if steps else float("nan"),
         "success_steps": float(np.mean(won)) if won else float("nan"),
     }
+
+
+def capture_steps(records: Sequence[EpisodeRecord], max_steps: int) -> list[float]:
+    """Per record: its steps if it ended in success, else max_steps (a failure gains nothing by ending early)."""
+    return [float(r.steps) if r.outcome == "success" else float(max_steps) for r in records]
+
+
+def versus(records: Sequence[EpisodeRecord], reference: Sequence[EpisodeRecord], max_steps: int,
+           name: str = "heuristic") -> dict[str, float]:
+    """A validation paired with a reference policy's run of the same episodes (both in world order).
+
+    {name}_success, {name}_mean_steps: the reference's rates; vs_{name}_steps with _lo / _hi:
+    the mean per-episode difference in capture steps (policy - reference; negative: sooner)
+    with its 95 % t interval. ValueError if the two did not play the same episodes.
+    """
+    if [(r.world, r.seed) for r in records] != [(r.world, r.seed) for r in reference]:
+        raise ValueError("validation: the policy and its reference did not play the same episodes")
+    diffs = [a - b for a, b in zip(capture_steps(records, max_steps), capture_steps(reference, max_steps))]
+    m = mean_interval(diffs, (-float(max_steps), float(max_steps)))
+    ref = summarise(reference)
+    return {f"{name}_success": ref["success"], f"{name}_mean_steps": ref["mean_steps"],
+            f"vs_{name}_steps": m.mean, f"vs_{name}_lo": m.lo, f"vs_{name}_hi": m.hi}
 
 
 class FixedSeedValidator:

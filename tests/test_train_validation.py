@@ -1,0 +1,37 @@
+"""Validation paired with the heuristic team on the same fixed episodes (train/validation.py)."""
+
+import dataclasses
+
+import pytest
+
+from pursuit_mj.config import TaskConfig
+from pursuit_mj.env import EpisodeRecord
+from pursuit_mj.policies import make_policy
+from train.validation import FixedSeedValidator, capture_steps, versus
+
+
+def record(world: int, outcome: str, steps: int, seed: int | None = None) -> EpisodeRecord:
+    return EpisodeRecord(world=world, episode=0, seed=100 + world if seed is None else seed, outcome=outcome, steps=steps,
+                         time_to_capture=None, returns={}, captured=int(outcome == "success"), layout="0")
+
+
+def test_versus_pairs_capture_steps_episode_by_episode():
+    policy = [record(0, "success", 10), record(1, "timeout", 50), record(2, "collision", 35), record(3, "success", 30)]
+    heuristic = [record(0, "success", 20), record(1, "success", 40), record(2, "success", 45), record(3, "success", 30)]
+    assert capture_steps(policy, 50) == [10.0, 50.0, 50.0, 30.0]  # a crash at step 35 counts as never catching
+    out = versus(policy, heuristic, max_steps=50)
+    # differences -10, +10, +5, 0
+    assert out["vs_heuristic_steps"] == pytest.approx(1.25)
+    assert out["vs_heuristic_lo"] < 1.25 < out["vs_heuristic_hi"]
+    assert out["heuristic_success"] == 1.0 and out["heuristic_mean_steps"] == pytest.approx(33.75)
+    with pytest.raises(ValueError, match="same episodes"):
+        versus(policy, [dataclasses.replace(r, seed=r.seed + 1) for r in heuristic], max_steps=50)
+
+
+def test_the_heuristic_team_against_itself_is_level_to_the_step():
+    task = TaskConfig(fidelity="point", max_steps=60)
+    validator = FixedSeedValidator(task, [0], n_episodes=4, seed=7)
+    _, first = validator.run(make_policy("heuristic", task))
+    _, again = validator.run(make_policy("heuristic", task))  # a fresh team, the same episodes
+    out = versus(again, first, task.max_steps)
+    assert out["vs_heuristic_steps"] == out["vs_heuristic_lo"] == out["vs_heuristic_hi"] == 0.0
