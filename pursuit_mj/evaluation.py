@@ -90,6 +90,12 @@ def episode_seeds(seed: int, count: int) -> np.ndarray:
     return np.array([np.random.SeedSequence([int(seed), k]).generate_state(1)[0] for k in range(count)], np.int64)
 
 
+def capture_steps(records: Sequence[EpisodeRecord], max_steps: float = math.inf) -> tuple[float, ...]:
+    """Per record: its steps if it ended in success, else max_steps (a failure gains nothing by
+    ending early; with max_steps infinite, its own steps)."""
+    return tuple(float(r.steps) if r.outcome == "success" or math.isinf(max_steps) else float(max_steps) for r in records)
+
+
 def summarise(policy: str, layout: str, fidelity: str, seed: int, records: Sequence[EpisodeRecord],
               max_steps: float = math.inf) -> Row:
     """Rates with Wilson intervals and mean steps with t intervals (cut to [0, max_steps]) over
@@ -99,7 +105,7 @@ def summarise(policy: str, layout: str, fidelity: str, seed: int, records: Seque
     steps = [float(r.steps) for r in records]
     steps_ok = [float(r.steps) for r in records if r.outcome == "success"]
     bounds = (0.0, float(max_steps))
-    capture = tuple(float(r.steps) if r.outcome == "success" or math.isinf(max_steps) else float(max_steps) for r in records)
+    capture = capture_steps(records, max_steps)
     return Row(policy, layout, fidelity, n, rate(counts["success"], n), rate(counts["collision"], n),
                rate(counts["timeout"], n), mean_interval(steps, bounds), mean_interval(steps_ok, bounds), int(seed),
                capture)

@@ -7,7 +7,8 @@ import pytest
 from pursuit_mj.config import TaskConfig
 from pursuit_mj.env import EpisodeRecord
 from pursuit_mj.policies import make_policy
-from train.validation import FixedSeedValidator, capture_steps, versus
+from pursuit_mj.evaluation import capture_steps
+from train.validation import FixedSeedValidator, versus
 
 
 def record(world: int, outcome: str, steps: int, seed: int | None = None) -> EpisodeRecord:
@@ -18,7 +19,7 @@ def record(world: int, outcome: str, steps: int, seed: int | None = None) -> Epi
 def test_versus_pairs_capture_steps_episode_by_episode():
     policy = [record(0, "success", 10), record(1, "timeout", 50), record(2, "collision", 35), record(3, "success", 30)]
     heuristic = [record(0, "success", 20), record(1, "success", 40), record(2, "success", 45), record(3, "success", 30)]
-    assert capture_steps(policy, 50) == [10.0, 50.0, 50.0, 30.0]  # a crash at step 35 counts as never catching
+    assert capture_steps(policy, 50) == (10.0, 50.0, 50.0, 30.0)  # a crash at step 35 counts as never catching
     out = versus(policy, heuristic, max_steps=50)
     # differences -10, +10, +5, 0
     assert out["vs_heuristic_steps"] == pytest.approx(1.25)

@@ -12,6 +12,7 @@ import numpy as np
 
 from pursuit_mj.config import TaskConfig
 from pursuit_mj.env import EpisodeRecord, PursuitEnv
+from pursuit_mj.evaluation import capture_steps
 from pursuit_mj.stats import mean_interval
 
 
@@ -28,11 +29,6 @@ def summarise(records: Sequence[EpisodeRecord]) -> dict[str, float]:
         "mean_steps": float(np.mean(steps)) if steps else float("nan"),
         "success_steps": float(np.mean(won)) if won else float("nan"),
     }
-
-
-def capture_steps(records: Sequence[EpisodeRecord], max_steps: int) -> list[float]:
-    """Per record: its steps if it ended in success, else max_steps (a failure gains nothing by ending early)."""
-    return [float(r.steps) if r.outcome == "success" else float(max_steps) for r in records]
 
 
 def versus(records: Sequence[EpisodeRecord], reference: Sequence[EpisodeRecord], max_steps: int,
