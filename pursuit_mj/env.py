@@ -22,7 +22,7 @@ from .obs_spec import ObsSpec
 from .physics import BatchedPhysics
 from .randomness import WorldRandom, world_keys
 from .rewards import REWARD_TERMS, detect_events, reward_terms
-from .sensing import INITIAL_HEADING, Perception, WorldView, perceive, update_heading
+from .sensing import INITIAL_HEADING, PERCEPTION_KEYS, Perception, WorldView, perceive, update_heading
 
 SPAWN_SEPARATION = 0.4  # m between spawned drones of one team
 SENSING_DOMAIN = 1  # keeps perception's random streams apart from the evaders' (same episode seed)
@@ -259,6 +259,23 @@ class PursuitEnv:
         # draws keyed by (episode, step): the same whether or not other worlds restart now
         self._perception = perceive(view, self.config, WorldRandom(self._sensing_keys, self.steps))
         return build_observations(view, self._perception, self.obs_spec)
+
+    def observe_as(self, config: TaskConfig) -> np.ndarray:
+        """Observations (W, N, obs_dim) float32 of the current state as perceived under `config`,
+        which may differ from the env's task only in its perception keys (sensing.PERCEPTION_KEYS).
+
+        For a privileged teacher in training: what the pursuers would observe now with, say, an
+        all-round view. It changes nothing in the env; noise and misses, if `config` has any,
+        are drawn from the same per-world streams as the env's own observations.
+        """
+        changed = [f.name for f in dataclasses.fields(TaskConfig)
+                   if f.name not in PERCEPTION_KEYS and getattr(config, f.name) != getattr(self.config, f.name)]
+        if changed:
+            raise ValueError(f"observe_as: the config differs from the env's task in {', '.join(changed)}; "
+                             f"only perception keys may ({', '.join(PERCEPTION_KEYS)})")
+        view = self._view()
+        perception = perceive(view, config, WorldRandom(self._sensing_keys, self.steps))
+        return build_observations(view, perception, self.obs_spec)
 
     def global_state(self) -> np.ndarray:
         """(W, state_dim) float32: the true state for centralised critics."""

@@ -53,6 +53,30 @@ class Perception:
     rays: np.ndarray
 
 
+#: the TaskConfig keys that shape what a pursuer perceives (and nothing else of the task)
+PERCEPTION_KEYS = ("observability", "perception_radius", "field_of_view", "share_detections",
+                   "position_noise", "miss_probability")
+
+#: privileged views a teacher can be given in training (train/imitation.py): name -> changes
+PRIVILEGED_VIEWS = {
+    "all_round": {"field_of_view": 2 * np.pi, "position_noise": 0.0, "miss_probability": 0.0},
+    "full": {"observability": "full", "position_noise": 0.0, "miss_probability": 0.0},
+}
+
+
+def privileged_config(config: TaskConfig, view: str) -> TaskConfig:
+    """config with the perception of a privileged `view` ('same' returns config itself).
+
+    all_round: the same radius and line of sight, but a 360 deg view, exact positions and no
+    missed detections; full: every entity known, exactly (full observability).
+    """
+    if view == "same":
+        return config
+    if view not in PRIVILEGED_VIEWS:
+        raise ValueError(f"privileged view {view!r}: not one of same, {', '.join(PRIVILEGED_VIEWS)}")
+    return dataclasses.replace(config, **PRIVILEGED_VIEWS[view])
+
+
 #: a pursuer faces +y (into the arena) at the start of an episode
 INITIAL_HEADING = np.pi / 2
 HEADING_MIN_SPEED = 0.05  # m/s: below this a pursuer keeps its previous heading

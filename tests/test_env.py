@@ -180,3 +180,37 @@ def test_bad_episode_seeds_are_refused():
         env.reset(seeds=[1.5, 2.0])
     with pytest.raises(ValueError, match="world_ids"):
         env.reset_worlds([2])
+
+
+def test_observe_as_gives_a_privileged_view_of_the_same_state_and_changes_nothing():
+    import dataclasses
+
+    from pursuit_mj.sensing import privileged_config
+
+    hard = load_task_config(["hard"], flags=dict(FAST))
+    env, twin = PursuitEnv(hard, n_worlds=8, seed=3), PursuitEnv(hard, n_worlds=8, seed=3)
+    env.reset(), twin.reset()
+    for w in range(8):  # the evader within sight range of every pursuer, behind the first (they face +y)
+        xy = [[1.0 + 0.1 * w, 2.0], [2.0, 1.5], [0.5, 1.0], [1.0 + 0.1 * w, 1.2]]
+        _place(env, w, xy), _place(twin, w, xy)
+    obs = env._obs.copy()
+    spec = env.obs_spec
+    known = lambda o: spec.group("evaders").view(o)[..., 4] > 0.5  # noqa: E731  (W, N, M)
+    own_known = priv_known = 0
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        np.testing.assert_array_equal(env.observe_as(hard), obs)  # the task's own view: the same draws
+        priv = env.observe_as(privileged_config(hard, "all_round"))
+        assert np.all(known(priv) | ~known(obs)), "all-round sight sees all that the 120 deg view sees"
+        own_known += int(known(obs).sum())
+        priv_known += int(known(priv).sum())
+        # exact positions: a known evader sits where the env put it (relative to the pursuer)
+        ev, me = spec.group("evaders").view(priv), spec.group("self").view(priv)
+        truth = env.physics.positions()[:, None, env.n_pursuers:, :2] - me[:, :, None, 0, 0:2]
+        np.testing.assert_allclose(ev[..., 0:2][known(priv)], truth[known(priv)], atol=1e-5)
+        actions = rng.uniform(-0.3, 0.3, (8, 3, 2))
+        obs = env.step(actions)[0]
+        np.testing.assert_array_equal(obs, twin.step(actions)[0])  # observe_as left the episode alone
+    assert priv_known > own_known * 1.2, (own_known, priv_known)
+    with pytest.raises(ValueError, match="evader_speed"):
+        env.observe_as(dataclasses.replace(hard, evader_speed=0.5))

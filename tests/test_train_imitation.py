@@ -1,5 +1,6 @@
 """DAgger (train/imitation.py): the dataset, the teacher's share, and a student that really learns."""
 
+import numpy as np
 import pytest
 import torch
 
@@ -106,3 +107,37 @@ def test_heading_speed_cloning_keeps_the_teachers_speed_where_mse_averages_it_aw
     assert float(cloning_loss(torch.zeros(1, 2), torch.zeros(1, 2), "heading_speed")) == 0.0
     with pytest.raises(ValueError, match="imitation.loss: 'huber'"):
         cloning_loss(one, one, "huber")
+
+
+def test_a_privileged_teacher_labels_the_students_states_from_its_own_fuller_view(tmp_path):
+    from pursuit_mj.config import ConfigError
+
+    cfg = load_train_config([], [
+        "name=privileged", "algo=dagger", "belief=true", "task_file=hard", "task.fidelity=point",
+        "task.max_steps=30", "n_envs=3", "total_steps=60", "ppo.batch_size=90", "ppo.minibatch_size=30",
+        "imitation.grad_steps=2", "imitation.minibatch_size=16", "imitation.teacher_sees=full",
+        "net.encoder_width=8", "net.hidden=[8]", "run.validate_every=0", "run.validation_episodes=2",
+        "run.progress=false", f"run.runs_dir={tmp_path}",
+    ])
+    trainer = Trainer(cfg, log=lambda s: None)
+    collector = trainer.collector
+    raw = trainer.env.raw_spec
+    seen = []  # (teacher's observation, student's observation) per step
+    act = collector.teacher.act
+
+    def recording_act(obs, spec):
+        seen.append((obs.copy(), collector.obs_np.copy()))
+        assert spec is raw, "the teacher reads plain observations, without the student's belief features"
+        return act(obs, spec)
+
+    collector.teacher.act = recording_act
+    trainer.train_one_update()
+    assert len(seen) == trainer.buffer.T
+    teacher_known = np.stack([raw.group("evaders").view(t)[..., 4] for t, _ in seen])
+    student_known = np.stack([raw.group("evaders").view(s[..., : raw.dim])[..., 4] for _, s in seen])
+    assert teacher_known.min() == 1.0, "fully observed: the teacher always knows where the evader is"
+    assert student_known.mean() < 0.5, "the student, with the hard preset's 120 deg view, mostly does not"
+    # the student's own base observation is what the task shows; the teacher's is the same state seen fully
+    np.testing.assert_array_equal(raw.group("self").view(seen[5][0]), raw.group("self").view(seen[5][1][..., : raw.dim]))
+    with pytest.raises(ConfigError, match="teacher_sees"):
+        load_train_config([], ["imitation.teacher_sees=psychic"])

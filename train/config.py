@@ -47,6 +47,10 @@ class ImitationConfig:
     """DAgger from a teacher team (`algo: dagger`, see train/imitation.py)."""
 
     teacher: str = spec("heuristic", choices=("heuristic",), help="the team whose actions the student learns")
+    teacher_sees: str = spec("same", choices=("same", "all_round", "full"),
+                             help="what the teacher perceives: same (the student's observations), all_round (360 deg, "
+                                  "exact, no misses: pursuit_mj.sensing.PRIVILEGED_VIEWS) or full (everything, exactly); "
+                                  "a privileged teacher labels the student's observations with what it would do knowing more")
     lr: float = spec(1e-3, lo=0.0, lo_open=True, help="Adam learning rate at the start (decays like ppo.lr if ppo.lr_decay)")
     beta_start: float = spec(1.0, lo=0.0, hi=1.0, help="share of worlds the teacher drives in the first update")
     beta_updates: int = spec(20, lo=0, help="updates over which the teacher's share falls linearly to 0")

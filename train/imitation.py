@@ -12,10 +12,13 @@ driving mixture from the same rollouts (GAE returns), so a PPO run started from 
 checkpoint (`init_from`) gets a critic that already means something.
 
 The student's log std is not fitted: it stays at `net.init_log_std`, the exploration noise
-of the PPO run that follows. The teacher (a hand-made team, see pursuit_mj.policies) sees
+of the PPO run that follows. By default the teacher (a hand-made team, see pursuit_mj.policies) sees
 the very observations the student sees, so what the student can learn is bounded by what
 the teacher does from them; the teacher's memory (last seen evaders, its coverage map) is
-the part a memoryless network can only approximate.
+the part a memoryless network can only approximate. With `imitation.teacher_sees` the
+teacher is privileged (learning by cheating, Chen et al. 2019): it acts on the same state
+perceived with an all-round, exact view (or fully observed), and the student learns to do
+from its own, poorer observations what the teacher does knowing more.
 
 The dataset is not stored in checkpoints (it is rebuilt from new rollouts after a resume);
 weights, optimiser, counters and random streams are.
@@ -77,8 +80,12 @@ class DaggerCollector:
     """
 
     def __init__(self, env, model: ActorCritic, teacher, demos: Demonstrations, generator: torch.Generator,
-                 path: ActionPath | None = None):
+                 path: ActionPath | None = None, teacher_task=None):
         self.env = env
+        # a privileged teacher (imitation.teacher_sees) acts on the env's state as perceived
+        # under teacher_task (env.observe_as), without the student's belief features
+        self.teacher_task = teacher_task
+        self.teacher_spec = getattr(env, "raw_spec", env.obs_spec)
         self.path = path or ActionPath()
         self.model = model
         self.teacher = teacher
@@ -97,7 +104,7 @@ class DaggerCollector:
         spec, W = self.model.spec, self.env.n_worlds
         for t in range(buf.T):
             obs = self.obs
-            label = torch.as_tensor(self.teacher.act(self.obs_np, spec), dtype=torch.float32)  # (W, N, 2)
+            label = torch.as_tensor(self._teacher_actions(spec), dtype=torch.float32)  # (W, N, 2)
             mean, log_std = self.model.actor(obs, spec)
             student = mean + log_std.exp() * torch.randn(mean.shape, generator=self.generator)
             use_teacher = torch.rand(W, generator=self.generator) < self.beta
@@ -126,6 +133,13 @@ class DaggerCollector:
         buf.last_value = self.model.value(self.obs, None)
         stats.reward_terms = {k: v / buf.T for k, v in term_sums.items()}
         return stats
+
+
+    def _teacher_actions(self, spec) -> np.ndarray:
+        """The teacher's actions (W, N, 2) in the current state, from its own view of it."""
+        if self.teacher_task is None:
+            return self.teacher.act(self.obs_np, spec)
+        return self.teacher.act(self.env.observe_as(self.teacher_task), self.teacher_spec)
 
 
 HEADING_EPS = 0.05  # fraction of max speed: below it a heading is soft (no 1/|a| blow-up near rest)

@@ -24,6 +24,7 @@ import torch
 from pursuit_mj.configio import dump_yaml, to_dict
 from pursuit_mj.io_utils import atomic_write_text
 from pursuit_mj.policies import make_policy
+from pursuit_mj.sensing import privileged_config
 
 from .agent import ActorCritic
 from .checkpoint import check_obs_spec, load_checkpoint, save_checkpoint
@@ -91,9 +92,11 @@ class Trainer:
         self.collector: Collector | DaggerCollector | None = None  # in-process collection (overlap off)
         self.worker: RolloutWorker | None = None  # collection in a child process (overlap on), started on first use
         if cfg.algo == "dagger":
-            teacher = make_policy(cfg.imitation.teacher, cfg.task, seed=cfg.seed, source="imitation.teacher")
+            teacher_task = privileged_config(cfg.task, cfg.imitation.teacher_sees)
+            teacher = make_policy(cfg.imitation.teacher, teacher_task, seed=cfg.seed, source="imitation.teacher")
             self.demos = Demonstrations(cfg.imitation.dataset_size, self.env.obs_dim)
-            self.collector = DaggerCollector(self.env, self.model, teacher, self.demos, self.generator, make_action_path(cfg))
+            self.collector = DaggerCollector(self.env, self.model, teacher, self.demos, self.generator, make_action_path(cfg),
+                                             teacher_task=None if teacher_task is cfg.task else teacher_task)
         elif not self.overlap:
             self.collector = Collector(self.env, self.model, self.generator, make_action_path(cfg))
         self.metrics = MetricsLog(self.run_dir / "metrics.jsonl")
