@@ -63,6 +63,7 @@ class HeuristicParams:
     safety_passes: int = ShieldParams.safety_passes
     hit_memory: int = ShieldParams.hit_memory
     mate_memory: float = ShieldParams.mate_memory
+    noise_margin: float = ShieldParams.noise_margin
     open_distance: float = 0.6  # a direction is open if its ray reaches this far (or the goal) (m)
     side_timeout: float = 10.0  # follow an obstacle on one side at most this long, then the other (s)
     coverage: CoverageParams = dataclasses.field(default_factory=CoverageParams)
@@ -79,7 +80,8 @@ class HeuristicTeam:
     pursuer_speed (m/s) scales actions; capture_radius (m) sizes captured evaders as
     hazards; teammate/obstacle clearance (m) are the collision distances of the task;
     control_dt (s) is the decision interval; ray_range (m) the cap of range readings;
-    perception_radius (m) bounds what the coverage map counts as seen.
+    perception_radius (m) bounds what the coverage map counts as seen; field_of_view (rad) is
+    the teammates' view, which the shield needs to know who gives way.
     """
 
     name = "heuristic"
@@ -95,6 +97,8 @@ class HeuristicTeam:
         ray_range: float = 2.0,
         perception_radius: float = 2.0,
         params: HeuristicParams | None = None,
+        field_of_view: float = 2 * math.pi,
+        position_noise: float = 0.0,
     ):
         for key, value in (("pursuer_speed", pursuer_speed), ("control_dt", control_dt), ("ray_range", ray_range)):
             if not (math.isfinite(value) and value > 0):
@@ -108,7 +112,7 @@ class HeuristicTeam:
         self.perception_radius = float(perception_radius)
         self.p = params or HeuristicParams()
         self.shield = SafetyShield(pursuer_speed, capture_radius, obstacle_clearance, teammate_clearance, ray_range, self.p.shield,
-                                   control_dt)
+                                   control_dt, field_of_view, perception_radius, position_noise)
         self._n_worlds: int | None = None
         self._mem: dict = {}  # see _memory
 
@@ -116,7 +120,8 @@ class HeuristicTeam:
     def from_config(cls, config, params: HeuristicParams | None = None) -> "HeuristicTeam":
         """A team tuned to a TaskConfig's speeds, clearances and timing (not its state)."""
         return cls(config.pursuer_speed, config.capture_radius, config.obstacle_clearance,
-                   config.teammate_clearance, config.control_dt, config.ray_range, config.perception_radius, params)
+                   config.teammate_clearance, config.control_dt, config.ray_range, config.perception_radius, params,
+                   config.field_of_view, config.position_noise)
 
     # ------------------------------------------------------------------ memory
 

@@ -177,6 +177,51 @@ def test_a_remembered_teammate_moves_along_its_last_velocity():
     assert out == pytest.approx(cap(0.44))
 
 
+def test_a_teammate_that_cannot_see_the_pursuer_leaves_it_all_the_giving_way():
+    narrow = dict(field_of_view=2 * np.pi / 3, perception_radius=1.5)  # the hard preset's view
+
+    def shielded_east(mate_velocity, **view):
+        """Pursuer 0 (standing) wants +x at full speed; a teammate 0.5 m east flies mate_velocity."""
+        shield = SafetyShield(SPEED, **view)
+        shield.reset(1)
+        obs = blank_obs()
+        at = SPEC.index("teammates", 0, "dx")
+        obs[0, 0, at : at + 5] = [0.5, 0.0, *mate_velocity, 1.0]
+        return shield.apply(np.tile([SPEED, 0.0], (1, 3, 1)), obs, SPEC)[0, 0, 0]
+
+    def shared_cap(closing):  # half the closing budget: the teammate gives way too
+        return 0.5 * ShieldParams.approach_rate * (0.5 - 0.2 - ShieldParams.safety_buffer - ShieldParams.response_time * closing)
+
+    head_on = (-0.3, 0.0)  # flying straight at the pursuer: it is in the teammate's view cone
+    assert shielded_east(head_on, **narrow) == pytest.approx(shared_cap(0.3))
+    sideways = (-0.1, 0.28)  # mostly north: the pursuer, due west of it, is 70 deg off its heading
+    assert shielded_east(sideways, **narrow) == pytest.approx(shared_cap(0.1) - 0.1)  # its 0.1 m/s approach comes off
+    assert shielded_east(sideways) == pytest.approx(shared_cap(0.1))  # all-round sight: it sees and gives way
+    assert shielded_east((0.0, 0.0), **narrow) == pytest.approx(shared_cap(0.0))  # standing: nothing to take off
+    assert shielded_east((0.2, 0.1), **narrow) == pytest.approx(shared_cap(0.0))  # moving away: no credit either
+    with pytest.raises(ValueError, match="field_of_view"):
+        SafetyShield(SPEED, field_of_view=0.0)
+
+
+def test_noisy_teammate_positions_widen_the_teammate_margin_only():
+    def capped(position_noise, hazard):
+        shield = SafetyShield(SPEED, position_noise=position_noise)
+        shield.reset(1)
+        obs = blank_obs()
+        if hazard == "mate":
+            _mate_east(obs, 0.5)
+        else:
+            wall_east(obs, 0.25)
+        return shield.apply(np.tile([SPEED, 0.0], (1, 3, 1)), obs, SPEC)[0, 0, 0]
+
+    rate, buffer = ShieldParams.approach_rate, ShieldParams.safety_buffer
+    assert capped(0.0, "mate") == pytest.approx(0.5 * rate * (0.5 - 0.2 - buffer))
+    assert capped(0.1, "mate") == pytest.approx(0.5 * rate * (0.5 - 0.2 - buffer - ShieldParams.noise_margin * 0.1))
+    assert capped(0.1, "wall") == pytest.approx(capped(0.0, "wall"))  # range readings are not noisy
+    with pytest.raises(ValueError, match="position_noise"):
+        SafetyShield(SPEED, position_noise=-0.1)
+
+
 def test_mate_memory_zero_forgets_at_once():
     shield = SafetyShield(SPEED, params=ShieldParams(mate_memory=0.0))
     shield.reset(1)
