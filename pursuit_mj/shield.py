@@ -28,7 +28,7 @@ own approach speed out of its half of the budget too, so the pair's closing spee
 within the cap. And where perceived positions are noisy (task `position_noise`, std m),
 a teammate's gap is shortened by `noise_margin` std more (range readings are exact, so
 walls keep the plain buffer). On the `hard` preset in quadrotor fidelity these two cut the
-heuristic team's collisions from 23 to 3 in 192 episodes (docs/evaluation.md).
+heuristic team's collisions from 47 to 14 in 576 episodes (docs/evaluation.md).
 
 A velocity that moves away from every hazard, or toward one slowly enough, passes
 unchanged. `Shielded` puts the shield on top of any `Policy`. The heuristic team
