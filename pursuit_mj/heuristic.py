@@ -81,7 +81,8 @@ class HeuristicTeam:
     hazards; teammate/obstacle clearance (m) are the collision distances of the task;
     control_dt (s) is the decision interval; ray_range (m) the cap of range readings;
     perception_radius (m) bounds what the coverage map counts as seen; field_of_view (rad) is
-    the teammates' view, which the shield needs to know who gives way.
+    the teammates' view, which the shield needs to know who gives way; position_noise (m) is
+    the std of perceived positions, which the shield keeps a margin for around teammates.
     """
 
     name = "heuristic"
