@@ -15,6 +15,7 @@ from typing import Any, Mapping, Sequence
 
 from pursuit_mj.config import CONFIG_DIR, TaskConfig, task_preset_path
 from pursuit_mj.configio import ConfigError, build, load, load_yaml, parse_override, spec, to_dict
+from pursuit_mj.sensing import PRIVILEGED_VIEWS
 
 REGIMES = ("classic", "full_obs", "fine_tune", "mappo", "custom")
 
@@ -47,7 +48,7 @@ class ImitationConfig:
     """DAgger from a teacher team (`algo: dagger`, see train/imitation.py)."""
 
     teacher: str = spec("heuristic", choices=("heuristic",), help="the team whose actions the student learns")
-    teacher_sees: str = spec("same", choices=("same", "all_round", "full"),
+    teacher_sees: str = spec("same", choices=("same", *PRIVILEGED_VIEWS),
                              help="what the teacher perceives: same (the student's observations), all_round (360 deg, "
                                   "exact, no misses: pursuit_mj.sensing.PRIVILEGED_VIEWS) or full (everything, exactly); "
                                   "a privileged teacher labels the student's observations with what it would do knowing more")

@@ -134,7 +134,6 @@ class DaggerCollector:
         stats.reward_terms = {k: v / buf.T for k, v in term_sums.items()}
         return stats
 
-
     def _teacher_actions(self, spec) -> np.ndarray:
         """The teacher's actions (W, N, 2) in the current state, from its own view of it."""
         if self.teacher_task is None:
