@@ -126,8 +126,19 @@ class TaskConfig:
         return int(round(1.0 / (self.controller_hz * self.physics_dt)))
 
 
-def task_preset_path(name: str) -> Path:
-    return CONFIG_DIR / "task" / f"{name}.yaml"
+def preset_or_file(ref: str | Path, kind: str) -> Path:
+    """The YAML file `ref` names: an existing path, or a bare name of a preset in configs/<kind>/.
+
+    A reference that is neither is a ConfigError listing the presets there.
+    """
+    path = Path(ref)
+    if path.is_file():
+        return path
+    preset = CONFIG_DIR / kind / f"{ref}.yaml"
+    if not path.suffix and preset.is_file():
+        return preset
+    names = ", ".join(sorted(p.stem for p in (CONFIG_DIR / kind).glob("*.yaml")))
+    raise ConfigError(f"{ref}: no such file, nor a {kind} preset of that name (presets: {names})")
 
 
 def load_task_config(
@@ -136,12 +147,7 @@ def load_task_config(
     flags: dict | None = None,
 ) -> TaskConfig:
     """Defaults <- YAML files (a bare name like 'hard' means configs/task/hard.yaml) <- flags <- --set."""
-    resolved = []
-    for f in files:
-        p = Path(f)
-        if not p.suffix and not p.is_file() and task_preset_path(str(f)).exists():
-            p = task_preset_path(str(f))
-        resolved.append(p)
+    resolved = [preset_or_file(f, "task") for f in files]
     return load(TaskConfig, resolved, overrides, extra=flags, extra_source="command-line flag")
 
 
@@ -150,4 +156,4 @@ def default_config(**changes) -> TaskConfig:
     return build(TaskConfig, changes, "default_config()")
 
 
-__all__ = ["EvaderConfig", "TaskConfig", "load_task_config", "default_config", "dump_yaml", "ConfigError"]
+__all__ = ["EvaderConfig", "TaskConfig", "load_task_config", "preset_or_file", "default_config", "dump_yaml", "ConfigError"]

@@ -92,8 +92,10 @@ def test_bad_yaml_files_name_the_file(tmp_path):
     listing.write_text("- 1\n- 2\n")
     with pytest.raises(ConfigError, match=r"list.yaml: expected a mapping at the top level, got list"):
         load_task_config([listing])
-    with pytest.raises(ConfigError, match=r"file not found"):
+    with pytest.raises(ConfigError, match=r"nope.yaml: no such file"):
         load_task_config([tmp_path / "nope.yaml"])
+    with pytest.raises(ConfigError, match=r"hardd: no such file, nor a task preset of that name \(presets: easy, hard, reference\)"):
+        load_task_config(["hardd"])
 
 
 def test_bad_keyword_to_default_config_names_the_nearest_key():

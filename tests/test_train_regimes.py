@@ -5,7 +5,7 @@ import json
 import pytest
 import torch
 
-from pursuit_mj.config import load_task_config
+from pursuit_mj.config import ConfigError, load_task_config
 from train.checkpoint import load_checkpoint
 from train.config import load_train_config
 from train.trainer import Trainer
@@ -111,6 +111,13 @@ def test_training_on_a_list_of_layouts_gives_each_world_its_layout(tmp_path):
     trainer = Trainer(cfg, **QUIET)
     names = [l.name for l in trainer.env.world_layouts]
     assert names[0] == names[2] != names[1] == names[3]
+
+
+def test_unknown_preset_names_the_presets():
+    with pytest.raises(ConfigError, match=r"clasic: no such file, nor a train preset of that name \(presets: .*classic, .*mappo"):
+        load_train_config(["clasic"])
+    with pytest.raises(ConfigError, match=r"--set task_file=hardd: task_file hardd: no such file, nor a task preset .*easy, hard, reference"):
+        load_train_config([], ["task_file=hardd"])
 
 
 def test_preset_name_wins_over_a_folder_of_the_same_name(tmp_path, monkeypatch):

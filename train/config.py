@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from pursuit_mj.config import CONFIG_DIR, TaskConfig, task_preset_path
+from pursuit_mj.config import TaskConfig, preset_or_file
 from pursuit_mj.configio import ConfigError, build, load, load_yaml, parse_override, spec, to_dict
 from pursuit_mj.sensing import PRIVILEGED_VIEWS
 
@@ -183,9 +183,10 @@ def _deep_update(base: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, A
 
 
 def _resolve_task_file(ref: str, source: str) -> dict[str, Any]:
-    path = Path(ref)
-    if not path.suffix and not path.is_file() and task_preset_path(ref).is_file():
-        path = task_preset_path(ref)
+    try:
+        path = preset_or_file(ref, "task")
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: task_file {exc}") from None
     return load_yaml(path, f"{source}: task_file {ref}")
 
 
@@ -203,10 +204,6 @@ def _with_task_file(data: Mapping[str, Any], source: str) -> dict[str, Any]:
     return out
 
 
-def train_preset_path(name: str) -> Path:
-    return CONFIG_DIR / "train" / f"{name}.yaml"
-
-
 def load_train_config(
     files: Sequence[str | Path] = (),
     overrides: Sequence[str] = (),
@@ -219,9 +216,7 @@ def load_train_config(
     merged: dict[str, Any] = {}
     source = "defaults"
     for f in files:
-        p = Path(f)
-        if not p.suffix and not p.is_file() and train_preset_path(str(f)).is_file():
-            p = train_preset_path(str(f))
+        p = preset_or_file(f, "train")
         merged = _deep_update(merged, load_yaml(p))
         source = str(p)
     rest = []

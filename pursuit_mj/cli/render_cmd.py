@@ -16,7 +16,7 @@ import dataclasses
 import os
 from pathlib import Path
 
-from ..config import TaskConfig, task_preset_path
+from ..config import TaskConfig, preset_or_file
 from ..configio import build, dump_yaml, load, load_yaml, to_dict
 from ..layout import load_layout
 from ..obs_spec import ObsSpec
@@ -103,9 +103,7 @@ def task_config(args, base: TaskConfig | None) -> TaskConfig:
         return task_config_from_args(args)
     merged = to_dict(base)
     for f in args.task_files:
-        p = Path(f)
-        if not p.suffix and not p.exists() and task_preset_path(str(f)).exists():
-            p = task_preset_path(str(f))
+        p = preset_or_file(f, "task")
         merged = _merge(merged, load_yaml(p))
         build(TaskConfig, merged, str(p))  # errors name the file that caused them
     flags = {}
