@@ -47,6 +47,7 @@ class Belief:
 
     def __init__(self, memory: HeuristicTeam):
         self.memory = memory
+        self.last: tuple | None = None  # (raw obs, what memory.observe returned) of the last step
 
     @classmethod
     def from_config(cls, config) -> "Belief":
@@ -61,8 +62,9 @@ class Belief:
         """Belief features (W, N, 6M + 3) float32 after taking in obs (W, N, spec.dim)."""
         if spec.has_belief:
             raise ValueError("Belief: these observations already carry belief features")
-        o, _, sweep, planned = self.memory.observe(obs, spec)
+        o, mem, sweep, planned = self.memory.observe(obs, spec)
         self.memory.tick()
+        self.last = (obs, (o, mem, sweep, planned))
         est, vel, age = self.memory.evader_estimates()
         known = np.isfinite(age)
         rel = np.where(known[..., None], est - o["pos"][:, :, None], 0.0)
@@ -76,6 +78,36 @@ class Belief:
     def augment(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
         """obs (W, N, spec.dim) with the belief features appended, float32, for belief_spec(spec)."""
         return np.concatenate([np.asarray(obs, dtype=np.float32), self.features(obs, spec)], -1)
+
+
+class BeliefTeam:
+    """The heuristic team acting from a Belief's memory: a `Policy` for the observations that
+    belief just augmented, without keeping (and updating) a second copy of the same memory.
+
+    A heuristic teacher (DAgger) or base team (residual learning) fed the same observations as
+    the belief would build exactly the belief's memory, its coverage map included, which is
+    most of its cost. `act` decides from the belief's last observation (HeuristicTeam.decide)
+    and refuses observations the belief has not just taken in; `reset` does nothing, because
+    the belief's owner (BeliefEnv) resets the memory.
+    """
+
+    has_shield = True  # HeuristicTeam.decide ends in its shield
+
+    def __init__(self, belief: Belief):
+        self.belief = belief
+        self.name = "heuristic"
+
+    def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
+        pass
+
+    def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
+        """Actions (W, N, 2) in [-1, 1] for obs (W, N, D), with or without belief features."""
+        if self.belief.last is None:
+            raise RuntimeError("BeliefTeam: the belief has taken in no observations yet")
+        raw, observed = self.belief.last
+        if np.shape(obs)[:2] != raw.shape[:2] or not np.array_equal(np.asarray(obs)[..., : raw.shape[-1]], raw):
+            raise RuntimeError("BeliefTeam: these are not the observations the belief took in last")
+        return self.belief.memory.decide(*observed)
 
 
 class BeliefPolicy:

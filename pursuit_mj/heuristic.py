@@ -170,13 +170,22 @@ class HeuristicTeam:
     def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
         """Actions (W, N, 2) in [-1, 1]: desired world-frame velocity / pursuer_speed."""
         o, mem, sweep, planned = self.observe(obs, spec)
+        actions = self.decide(o, mem, sweep, planned)
+        self.tick()
+        return actions
+
+    def decide(self, o: dict, mem: dict, sweep: np.ndarray, planned: np.ndarray) -> np.ndarray:
+        """Actions (W, N, 2) in [-1, 1] from what `observe` returned for this decision step.
+
+        Reads the evader memory and the sweep aim, not the episode clock, so it may come before
+        or after `tick`; it updates only the obstacle-following side and the shield's memory.
+        """
         target, has_target = self._choose_target(mem, o)
         aim = np.where(has_target[..., None], self._chase(mem, o, target), sweep)
         direction = np.where((planned & ~has_target)[..., None], unit(aim), self._steer(mem, o, aim))
         v = self.speed * direction
         v = v + self._repulsion(o)
         v = self.shield.filter(v, o)
-        self.tick()
         return clip_unit(v / self.speed)
 
     def observe(self, obs: np.ndarray, spec: ObsSpec) -> tuple[dict, dict, np.ndarray, np.ndarray]:

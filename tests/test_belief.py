@@ -4,13 +4,15 @@ import numpy as np
 import pytest
 import torch
 
-from pursuit_mj.belief import AGE_CAP, Belief, BeliefEnv, BeliefPolicy, belief_spec
+from pursuit_mj.belief import AGE_CAP, Belief, BeliefEnv, BeliefPolicy, BeliefTeam, belief_spec
 from pursuit_mj.config import TaskConfig
 from pursuit_mj.env import PursuitEnv
+from pursuit_mj.heuristic import HeuristicTeam
 from pursuit_mj.obs_spec import ObsSpec
 from train.config import NetConfig, load_train_config
 from train.networks import PooledTrunk
 from train.policy import load_policy
+from train.rollout import hand_made_team, make_action_path
 from train.trainer import Trainer
 
 TASK = TaskConfig(fidelity="point")
@@ -105,6 +107,51 @@ def test_the_env_wrapper_clears_the_memory_of_ended_episodes():
     fresh = Belief.from_config(task)
     fresh.reset(2)
     np.testing.assert_allclose(obs[..., raw_dim:], fresh.features(obs[..., :raw_dim], env.raw_spec), atol=1e-6)
+
+
+def test_the_team_acting_from_a_belief_acts_exactly_as_a_team_with_its_own_memory():
+    task = TaskConfig(fidelity="point", max_steps=40)
+    env = BeliefEnv(PursuitEnv(task, n_worlds=3, seed=4), Belief.from_config(task))
+    shared = BeliefTeam(env.belief)
+    own = HeuristicTeam.from_config(task)
+    obs = env.reset()
+    own.reset(3)
+    ended_any = False
+    for _ in range(60):  # through auto-resets of ended episodes
+        actions = shared.act(obs, env.obs_spec)
+        np.testing.assert_array_equal(actions, own.act(obs, env.obs_spec))
+        obs, _, terminated, truncated, _ = env.step(actions)
+        ended = terminated | truncated
+        ended_any |= ended.any()
+        shared.reset(3, np.flatnonzero(ended))  # a no-op: the BeliefEnv reset the memory already
+        own.reset(3, np.flatnonzero(ended))
+    assert ended_any
+
+
+def test_the_team_acting_from_a_belief_refuses_observations_the_belief_did_not_take_in():
+    task = TaskConfig(fidelity="point")
+    env = BeliefEnv(PursuitEnv(task, n_worlds=2, seed=4), Belief.from_config(task))
+    team = BeliefTeam(env.belief)
+    with pytest.raises(RuntimeError, match="no observations yet"):
+        team.act(np.zeros((2, task.n_pursuers, env.obs_dim), np.float32), env.obs_spec)
+    obs = env.reset()
+    team.act(obs[..., : env.raw_spec.dim], env.raw_spec)  # the raw part alone is the same step
+    stale = obs.copy()
+    stale[0, 0, 0] += 0.1
+    with pytest.raises(RuntimeError, match="not the observations the belief took in last"):
+        team.act(stale, env.obs_spec)
+
+
+def test_training_shares_the_belief_memory_with_a_heuristic_teacher_or_base_team(tmp_path):
+    trainer = Trainer(_tiny(tmp_path, "name=shared", "belief=true"), log=lambda s: None)
+    assert isinstance(trainer.collector.teacher, BeliefTeam) and trainer.collector.teacher.belief is trainer.env.belief
+    privileged = Trainer(_tiny(tmp_path, "name=priv", "belief=true", "imitation.teacher_sees=all_round"), log=lambda s: None)
+    assert isinstance(privileged.collector.teacher, HeuristicTeam)  # it sees differently: its own memory
+    plain = load_train_config([], ["task.fidelity=point", "residual.base=heuristic", "shield=true"])
+    assert isinstance(hand_made_team("heuristic", plain), HeuristicTeam)
+    env = BeliefEnv(PursuitEnv(plain.task, n_worlds=2, seed=0), Belief.from_config(plain.task))
+    assert isinstance(make_action_path(plain, env).base, BeliefTeam)
+    assert isinstance(make_action_path(plain).base, HeuristicTeam)
 
 
 def test_hidden_memories_do_not_reach_the_network():

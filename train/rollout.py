@@ -7,15 +7,16 @@ import dataclasses
 import numpy as np
 import torch
 
-from pursuit_mj.belief import Belief, BeliefEnv
+from pursuit_mj.belief import Belief, BeliefEnv, BeliefTeam
 from pursuit_mj.env import PursuitEnv
+from pursuit_mj.policies import make_policy
+from pursuit_mj.policy import Policy
 from pursuit_mj.residual import combine
 from pursuit_mj.shield import SafetyShield
 
 from .agent import ActorCritic
 from .config import TrainConfig
 from .networks import flush_tiny, gaussian_log_prob
-from .policy import base_team
 from .storage import Rollout
 
 
@@ -32,10 +33,24 @@ def make_training_env(cfg: TrainConfig, start_update: int):
     return BeliefEnv(env, Belief.from_config(cfg.task)) if cfg.belief else env
 
 
-def make_action_path(cfg: TrainConfig) -> "ActionPath":
-    """What stands between the actor's samples and the env in this run: base team, shield."""
+def hand_made_team(name: str, cfg: TrainConfig, env=None, source: str = "--policy") -> Policy:
+    """The hand-made team `name` (pursuit_mj.policies) for the run's task, to act in `env`.
+
+    In a BeliefEnv the heuristic team acts from the belief's memory (BeliefTeam): the belief
+    is that team's memory of the same observations, so a second copy would compute the same
+    coverage map again each step.
+    """
+    if name == "heuristic" and isinstance(env, BeliefEnv):
+        return BeliefTeam(env.belief)
+    return make_policy(name, cfg.task, seed=cfg.seed, source=source)
+
+
+def make_action_path(cfg: TrainConfig, env=None) -> "ActionPath":
+    """What stands between the actor's samples and the env in this run: base team, shield.
+    `env`: the training env the path steps (lets the base team share a belief's memory)."""
     shield = SafetyShield.from_config(cfg.task) if cfg.shield else None
-    return ActionPath(shield, base_team(cfg.residual, cfg.task), cfg.residual.scale)
+    base = None if cfg.residual.base == "none" else hand_made_team(cfg.residual.base, cfg, env, "residual.base")
+    return ActionPath(shield, base, cfg.residual.scale)
 
 
 @dataclasses.dataclass

@@ -66,7 +66,7 @@ def _serve(conn, cfg: TrainConfig, start_update: int, buffers: list[Rollout]) ->
         env = make_training_env(cfg, start_update)
         model = ActorCritic(env.obs_spec, env.state_dim, cfg)
         generator = torch.Generator().manual_seed(sampler_seed(cfg.seed, start_update))
-        collector = Collector(env, model, generator, make_action_path(cfg))
+        collector = Collector(env, model, generator, make_action_path(cfg, env))
         while True:
             request = conn.recv()
             if request[0] == "stop":

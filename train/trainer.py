@@ -35,7 +35,7 @@ from .metrics_log import MetricsLog
 from pursuit_mj.recording.rerun_scalars import RerunScalarLogger
 from .policy import ActorPolicy, trained_team
 from .ppo import advantages_and_returns, ppo_update
-from .rollout import Collector, RolloutStats, make_action_path, make_training_env
+from .rollout import Collector, RolloutStats, hand_made_team, make_action_path, make_training_env
 from .rollout_worker import RolloutWorker
 from .storage import Rollout
 from .validation import FixedSeedValidator, summarise, versus
@@ -93,12 +93,15 @@ class Trainer:
         self.worker: RolloutWorker | None = None  # collection in a child process (overlap on), started on first use
         if cfg.algo == "dagger":
             teacher_task = privileged_config(cfg.task, cfg.imitation.teacher_sees)
-            teacher = make_policy(cfg.imitation.teacher, teacher_task, seed=cfg.seed, source="imitation.teacher")
+            if teacher_task is cfg.task:
+                teacher = hand_made_team(cfg.imitation.teacher, cfg, self.env, "imitation.teacher")
+            else:
+                teacher = make_policy(cfg.imitation.teacher, teacher_task, seed=cfg.seed, source="imitation.teacher")
             self.demos = Demonstrations(cfg.imitation.dataset_size, self.env.obs_dim)
-            self.collector = DaggerCollector(self.env, self.model, teacher, self.demos, self.generator, make_action_path(cfg),
+            self.collector = DaggerCollector(self.env, self.model, teacher, self.demos, self.generator, make_action_path(cfg, self.env),
                                              teacher_task=None if teacher_task is cfg.task else teacher_task)
         elif not self.overlap:
-            self.collector = Collector(self.env, self.model, self.generator, make_action_path(cfg))
+            self.collector = Collector(self.env, self.model, self.generator, make_action_path(cfg, self.env))
         self.metrics = MetricsLog(self.run_dir / "metrics.jsonl")
         self.rerun = RerunScalarLogger(self.run_dir / "metrics.rrd", run_name=cfg.name) if cfg.run.rerun else None
         self.recent = collections.deque(maxlen=WINDOW)

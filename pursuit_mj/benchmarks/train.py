@@ -155,7 +155,7 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
         profile = ""
         if profile_top > 0:
             torch.set_num_threads(1)
-            collector = trainer.collector or Collector(trainer.env, trainer.model, trainer.generator, make_action_path(cfg))
+            collector = trainer.collector or Collector(trainer.env, trainer.model, trainer.generator, make_action_path(cfg, trainer.env))
             roll = profile_call(lambda: collector.collect(trainer.buffer), profile_top)
             torch.set_num_threads(trainer.update_threads)
             upd = profile_call(lambda: ppo_update(trainer.model, trainer.optimizer, trainer.buffer, cfg.ppo,
