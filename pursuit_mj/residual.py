@@ -51,4 +51,5 @@ class ResidualTeam:
 
     def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
         """Actions (W, N, 2) within the unit disc from obs (W, N, spec.dim)."""
-        return combine(self.base.act(obs, spec), self.correction.act(obs, spec), self.scale)
+        correction = self.correction.act(obs, spec)  # first: a base acting from the correction's belief (BeliefTeam) needs it
+        return combine(self.base.act(obs, spec), correction, self.scale)

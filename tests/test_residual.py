@@ -8,10 +8,12 @@ from pursuit_mj.config import TaskConfig
 from pursuit_mj.env import PursuitEnv
 from pursuit_mj.heuristic import HeuristicTeam
 from pursuit_mj.residual import ResidualTeam, combine
-from pursuit_mj.shield import SafetyShield
-from train.config import load_train_config
+from pursuit_mj.belief import Belief, BeliefPolicy, BeliefTeam, belief_spec
+from pursuit_mj.shield import SafetyShield, shield_policy
+from train.config import NetConfig, load_train_config
+from train.networks import Actor
 from train.rollout import make_action_path
-from train.policy import load_policy
+from train.policy import ActorPolicy, load_policy, trained_team
 from train.rollout import ActionPath
 from train.trainer import Trainer
 
@@ -58,6 +60,16 @@ def test_a_zero_correction_drives_exactly_like_the_base_team():
     team = ResidualTeam(HeuristicTeam.from_config(task), ConstantPolicy([0.0, 0.0]), scale=0.5)
     assert team.name == "const@heuristic"
     np.testing.assert_array_equal(_episode_actions(team, task), alone)
+
+
+def test_a_belief_fed_correction_shares_its_memory_with_the_heuristic_base():
+    task = TaskConfig(fidelity="point")
+    actor = Actor(belief_spec(PursuitEnv(task, n_worlds=1).obs_spec), NetConfig(encoder_width=8, hidden=(8,)))
+    residual = load_train_config([], ["residual.base=heuristic"]).residual
+    team = trained_team(ActorPolicy(actor, "bel"), task, shield=True, residual=residual, belief=True)
+    assert isinstance(team.policy.base, BeliefTeam) and team.policy.base.belief is team.policy.correction.belief
+    separate = ResidualTeam(HeuristicTeam.from_config(task), BeliefPolicy(ActorPolicy(actor, "bel"), Belief.from_config(task)), residual.scale)
+    np.testing.assert_array_equal(_episode_actions(team, task), _episode_actions(shield_policy(separate, task), task))
 
 
 def test_a_correction_steers_the_team():

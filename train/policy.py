@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pursuit_mj.belief import Belief, BeliefPolicy, belief_spec
+from pursuit_mj.belief import Belief, BeliefPolicy, BeliefTeam, belief_spec
 from pursuit_mj.config import TaskConfig
 from pursuit_mj.configio import build
 from pursuit_mj.obs_spec import ObsSpec
@@ -113,8 +113,10 @@ def trained_team(actor: Policy, task: TaskConfig, shield: bool, residual: Residu
     """The policy a trained actor stands for, as it acted in training: fed belief features,
     added to its base team (residual learning) and behind the shield when its train config
     says so, all sized for `task`."""
+    base = base_team(residual, task)
     if belief:
         actor = BeliefPolicy(actor, Belief.from_config(task))
-    base = base_team(residual, task)
+        if residual.base == "heuristic":
+            base = BeliefTeam(actor.belief)  # the belief is that team's memory: act from it
     policy = actor if base is None else ResidualTeam(base, actor, residual.scale)
     return shield_policy(policy, task) if shield else policy
