@@ -134,8 +134,10 @@ def preset_or_file(ref: str | Path, kind: str) -> Path:
     path = Path(ref)
     if path.is_file():
         return path
+    if path.suffix or len(path.parts) > 1:
+        raise ConfigError(f"{ref}: no such file")
     preset = CONFIG_DIR / kind / f"{ref}.yaml"
-    if not path.suffix and preset.is_file():
+    if preset.is_file():
         return preset
     names = ", ".join(sorted(p.stem for p in (CONFIG_DIR / kind).glob("*.yaml")))
     raise ConfigError(f"{ref}: no such file, nor a {kind} preset of that name (presets: {names})")

@@ -113,10 +113,11 @@ def trained_team(actor: Policy, task: TaskConfig, shield: bool, residual: Residu
     """The policy a trained actor stands for, as it acted in training: fed belief features,
     added to its base team (residual learning) and behind the shield when its train config
     says so, all sized for `task`."""
-    base = base_team(residual, task)
     if belief:
         actor = BeliefPolicy(actor, Belief.from_config(task))
-        if residual.base == "heuristic":
-            base = BeliefTeam(actor.belief)  # the belief is that team's memory: act from it
+    if belief and residual.base == "heuristic":
+        base = BeliefTeam(actor.belief)  # the belief is that team's memory: act from it
+    else:
+        base = base_team(residual, task)
     policy = actor if base is None else ResidualTeam(base, actor, residual.scale)
     return shield_policy(policy, task) if shield else policy
