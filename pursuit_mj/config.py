@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Sequence
 
 from .configio import ConfigError, build, dump_yaml, load, spec
+from .layout import N_BUILTIN
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 CONFIG_DIR = REPO_ROOT / "configs"
@@ -92,8 +93,9 @@ class TaskConfig:
                 f"{source}: perception_radius {self.perception_radius} is below capture_radius "
                 f"{self.capture_radius}: a pursuer could capture what it cannot see"
             )
-        if isinstance(self.layout, int) and self.layout < 0:
-            raise ConfigError(f"{source}: key 'layout': {self.layout} is not a layout index (0-3) or a file")
+        if isinstance(self.layout, int) and not 0 <= self.layout < N_BUILTIN:
+            raise ConfigError(f"{source}: key 'layout': {self.layout} is not a built-in layout index "
+                              f"(0-{N_BUILTIN - 1}) or a file")
         substeps = self.control_dt / self.physics_dt
         if abs(substeps - round(substeps)) > 1e-6:
             raise ConfigError(
@@ -139,18 +141,25 @@ def preset_or_file(ref: str | Path, kind: str) -> Path:
     preset = CONFIG_DIR / kind / f"{ref}.yaml"
     if preset.is_file():
         return preset
-    names = ", ".join(sorted(p.stem for p in (CONFIG_DIR / kind).glob("*.yaml")))
-    raise ConfigError(f"{ref}: no such file, nor a {kind} preset of that name (presets: {names})")
+    raise ConfigError(f"{ref}: no such file, nor a {kind} preset of that name (presets: {', '.join(preset_names(kind))})")
+
+
+def preset_names(kind: str) -> list[str]:
+    """Names of the presets in configs/<kind>/ ('task' or 'train'), sorted."""
+    return sorted(p.stem for p in (CONFIG_DIR / kind).glob("*.yaml"))
 
 
 def load_task_config(
     files: Sequence[str | Path] = (),
     overrides: Sequence[str] = (),
     flags: dict | None = None,
+    flags_source: str = "command-line flag",
 ) -> TaskConfig:
-    """Defaults <- YAML files (a bare name like 'hard' means configs/task/hard.yaml) <- flags <- --set."""
+    """Defaults <- YAML files (a bare name like 'hard' means configs/task/hard.yaml) <- flags <- --set.
+
+    `flags_source` names the flags in errors (a CLI passes what was typed, e.g. '--pursuers -2')."""
     resolved = [preset_or_file(f, "task") for f in files]
-    return load(TaskConfig, resolved, overrides, extra=flags, extra_source="command-line flag")
+    return load(TaskConfig, resolved, overrides, extra=flags, extra_source=flags_source)
 
 
 def default_config(**changes) -> TaskConfig:

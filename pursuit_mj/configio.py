@@ -198,6 +198,15 @@ def merge(base: Mapping[str, Any], path: list[str], value: Any) -> dict[str, Any
     return out
 
 
+def yaml_error_text(exc: yaml.YAMLError) -> str:
+    """A YAML parse error in one line: 'line L, column C: what is wrong' (1-based, as editors count)."""
+    mark = getattr(exc, "problem_mark", None)
+    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    context = getattr(exc, "context", None)
+    what = f"{problem} ({context})" if context else problem
+    return f"line {mark.line + 1}, column {mark.column + 1}: {what}" if mark is not None else what
+
+
 def load_yaml(path: str | Path, source: str | None = None) -> dict[str, Any]:
     """Read a YAML mapping; a missing file or non-mapping content is a ConfigError."""
     path = Path(path)
@@ -207,7 +216,7 @@ def load_yaml(path: str | Path, source: str | None = None) -> dict[str, Any]:
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{src}: not valid YAML ({exc})") from None
+        raise ConfigError(f"{src}: not valid YAML, {yaml_error_text(exc)}") from None
     if data is None:
         return {}
     if not isinstance(data, Mapping):

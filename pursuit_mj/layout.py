@@ -15,7 +15,7 @@ from typing import Any, Mapping, Sequence, Union
 import numpy as np
 import yaml
 
-from .configio import ConfigError
+from .configio import ConfigError, yaml_error_text
 from .geometry import ObstacleSet, boundary_segments
 
 LAYOUT_DIR = Path(__file__).resolve().parent.parent / "configs" / "layouts"
@@ -312,7 +312,7 @@ def load_layout(ref: int | str | Path) -> Layout:
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        raise LayoutError(f"{path}: not valid YAML ({exc})") from None
+        raise LayoutError(f"{path}: not valid YAML, {yaml_error_text(exc)}") from None
     return layout_from_dict(data, str(path))
 
 

@@ -86,7 +86,7 @@ def test_bad_yaml_files_name_the_file(tmp_path):
         load_task_config([bad_type])
     broken = tmp_path / "broken.yaml"
     broken.write_text("n_pursuers: [1,\n")
-    with pytest.raises(ConfigError, match=r"broken.yaml: not valid YAML"):
+    with pytest.raises(ConfigError, match=r"broken.yaml: not valid YAML, line \d+, column \d+: "):
         load_task_config([broken])
     listing = tmp_path / "list.yaml"
     listing.write_text("- 1\n- 2\n")
@@ -109,7 +109,12 @@ def test_bad_keyword_to_default_config_names_the_nearest_key():
     "argv, message",
     [
         (["config", "--set", "bogus=1"], "unknown key 'bogus'"),
-        (["config", "--pursuers", "0"], "command-line flag: key 'n_pursuers': 0 is out of range"),
+        (["config", "--pursuers", "0"], "flag --pursuers 0: key 'n_pursuers': 0 is out of range"),
+        (["config", "-ev", "0.5", "--pursuers", "0"], "flags --pursuers 0 --evader-speed 0.5: key 'n_pursuers'"),
+        (["config", "-i", "7"], "flag --layout 7: key 'layout': 7 is not a built-in layout index (0-3)"),
+        (["config", "--set", "layout=9"], "--set layout=9: key 'layout': 9 is not a built-in layout index"),
+        (["config", "-i", "no_such_layout.yaml"], "layout 'no_such_layout.yaml': no such file"),
+        (["train", "--seed", "-1", "--total-steps", "10"], "flags --total-steps 10 --seed -1: key 'seed': -1 is out of range"),
         (["config", "--set", "evader_speed=-1"], "--set evader_speed=-1: key 'evader_speed': -1.0 is out of range"),
     ],
 )
@@ -117,3 +122,11 @@ def test_cli_bad_config_exits_2_with_one_line(argv, message, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err, err
+
+
+@pytest.mark.parametrize("command", [["eval"], ["render"], ["demo"], ["simulate"], ["layout", "new", "x.yaml"]])
+def test_negative_seed_is_refused_naming_the_flag(command, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([*command, "--seed", "-1"])
+    assert exc.value.code == 2
+    assert "argument --seed: expected an integer >= 0, got -1" in capsys.readouterr().err

@@ -175,7 +175,7 @@ def test_impossible_layouts_are_refused_naming_the_entry(data, message):
 def test_invalid_yaml_is_refused_with_the_file_name(tmp_path):
     path = tmp_path / "broken.yaml"
     path.write_text("arena: {width: 3.6, height: [\n")
-    with pytest.raises(LayoutError, match=r"broken.yaml: not valid YAML"):
+    with pytest.raises(LayoutError, match=r"broken.yaml: not valid YAML, line \d+, column \d+: "):
         load_layout(path)
 
 

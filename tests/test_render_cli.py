@@ -48,6 +48,7 @@ def test_cli_single_file_and_no_video(tmp_path):
     (["-m", "missing.pt"], "--model missing.pt: no such checkpoint file"),
     (["--width", "161"], "mp4 (h264) needs even frame sizes"),
     (["--width", "4000"], "--width 4000: must be an integer in 16..1920 pixels"),
+    (["--width", "-5"], "--width -5: must be an integer in 16..1920 pixels"),  # the range before the parity
     (["--episodes", "0"], "--episodes: expected an integer >= 1, got 0"),
     (["--rerun", "x.txt"], "expected a file name ending in .rrd"),
     (["--no-video"], "leaves nothing to write"),

@@ -33,6 +33,12 @@ def test_train_then_resume_from_the_command_line(tmp_path, capsys):
     assert main(["train", "--no-progress", "--resume", str(tmp_path / "cli"), "--total-steps", "64"]) == 0
     rows = [json.loads(x) for x in (tmp_path / "cli" / "metrics.jsonl").read_text().splitlines()]
     assert [r["update"] for r in rows] == [1, 2]
+    # validate_every 0: only the closing validation, and the summary keeps its time apart
+    counters = torch.load(tmp_path / "cli" / "last.pt", weights_only=True)["counters"]
+    spent = sum(r["validation"]["seconds"] for r in rows if "validation" in r)
+    assert [r["update"] for r in rows if "validation" in r] == [1, 2]  # each run's last update
+    assert counters["validation_seconds"] == pytest.approx(spent) and counters["seconds"] > spent
+    assert "s training, " in capsys.readouterr().out
     capsys.readouterr()
     assert main(["train", "--resume", str(tmp_path / "cli"), "--set", "ppo.lr=1e-3"]) == 2
     assert "stored config" in capsys.readouterr().err

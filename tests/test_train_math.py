@@ -258,3 +258,19 @@ def test_one_always_present_entity_is_encoded_as_its_pooled_code():
     enc = EntityEncoder(6, 8, mask_feature=None)
     x = torch.randn(5, 1, 6)
     assert torch.equal(enc(x), masked_mean(torch.tanh(enc.layer(x)), torch.ones(5, 1)))
+
+
+def test_a_policy_step_runs_torch_on_one_thread_and_restores_the_count():
+    from train.policy import ActorPolicy
+
+    spec = ObsSpec.make(3, 1, 16)
+    actor = Actor(spec, NetConfig())
+    seen = []
+    actor.register_forward_hook(lambda *_: seen.append(torch.get_num_threads()))
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        ActorPolicy(actor, "a").act(np.zeros((2, 3, spec.dim), dtype=np.float32), spec)
+        assert seen == [1] and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)

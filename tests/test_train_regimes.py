@@ -79,6 +79,13 @@ def test_fine_tune_starts_from_full_obs_weights_and_switches_observability(tmp_p
     assert any(not torch.equal(moved[k], v) for k, v in source["actor"].items())
 
 
+def test_fine_tune_without_its_full_obs_checkpoint_says_how_to_get_one(tmp_path):
+    ft = load_train_config(["fine_tune"], TINY + [f"run.runs_dir={tmp_path}", f"init_from={tmp_path / 'nope.pt'}"])
+    with pytest.raises(ValueError, match=r"init_from .*nope.pt: no such checkpoint .*--init-from.*"
+                                         r"fine_tune starts from a full_obs run"):
+        Trainer(ft, **QUIET)
+
+
 def test_mappo_trains_with_a_centralised_normalised_critic(tmp_path):
     cfg = load_train_config(["mappo"], TINY + [f"run.runs_dir={tmp_path}", "total_steps=96"])
     trainer = Trainer(cfg, **QUIET)

@@ -43,11 +43,18 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"checkpoint {path}: file not found")
+    if not zipfile.is_zipfile(path):
+        raise ValueError(f"checkpoint {path}: not a pursuit-mj checkpoint (not a torch zip archive: "
+                         f"another kind of file, or one cut short)")
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
-    except (RuntimeError, pickle.UnpicklingError, zipfile.BadZipFile, EOFError, OSError, ValueError, KeyError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ValueError(f"checkpoint {path}: unreadable or corrupted ({first[:200]})") from None
+    except pickle.UnpicklingError as exc:
+        if "Unsupported global" in str(exc):  # torch's safe unpickler met a class or function
+            raise ValueError(f"checkpoint {path}: refused: it holds Python objects other than tensors and plain "
+                             f"data, and checkpoints are read without running stored code") from None
+        raise ValueError(f"checkpoint {path}: corrupted (its data does not unpickle)") from None
+    except (RuntimeError, zipfile.BadZipFile, EOFError, OSError, ValueError, KeyError) as exc:
+        raise ValueError(f"checkpoint {path}: corrupted (torch could not read it: {type(exc).__name__})") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise ValueError(f"checkpoint {path}: not a pursuit-mj checkpoint")
     if data.get("version") != VERSION:

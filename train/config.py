@@ -96,7 +96,7 @@ class RunConfig:
     """Where and how often: run folder, validation, checkpoints, logging, threads."""
 
     runs_dir: str = spec("runs", help="parent folder of run folders (runs/<name>/)")
-    validate_every: int = spec(10, lo=0, help="updates between validations (0 = never)")
+    validate_every: int = spec(10, lo=0, help="updates between validations (0 = only the one every run ends with, which writes best.pt)")
     validation_episodes: int = spec(24, lo=1, hi=10000, help="episodes per validation (fixed seeds)")
     validation_seed: int = spec(10_000, lo=0, help="first seed of the fixed validation set")
     validation_layouts: tuple[int | str, ...] = spec((), help="layouts to validate on (empty: the training layouts)")
@@ -208,10 +208,12 @@ def load_train_config(
     files: Sequence[str | Path] = (),
     overrides: Sequence[str] = (),
     flags: Mapping[str, Any] | None = None,
+    flags_source: str = "command-line flag",
 ) -> TrainConfig:
     """Defaults <- YAML files (a bare name like 'classic' means configs/train/classic.yaml) <- flags <- --set.
 
-    `flags` is a nested mapping (e.g. {"total_steps": 10000, "task": {"fidelity": "point"}}).
+    `flags` is a nested mapping (e.g. {"total_steps": 10000, "task": {"fidelity": "point"}});
+    `flags_source` names them in errors (a CLI passes what was typed, e.g. '--seed -1').
     """
     merged: dict[str, Any] = {}
     source = "defaults"
@@ -230,7 +232,7 @@ def load_train_config(
     merged = _with_task_file(merged, source)
     cfg = build(TrainConfig, merged, source)
     extra = _deep_update(to_dict(cfg), dict(flags)) if flags else None
-    return load(TrainConfig, (), rest, extra=extra or to_dict(cfg), extra_source="command-line flag")
+    return load(TrainConfig, (), rest, extra=extra or to_dict(cfg), extra_source=flags_source)
 
 
 def train_config_from_dict(data: Mapping[str, Any], source: str) -> TrainConfig:

@@ -54,7 +54,8 @@ class Counters:
     best_success: float = -1.0
     best_steps: float = float("inf")
     best_update: int = -1
-    seconds: float = 0.0
+    seconds: float = 0.0  # wall time of the run so far: collection, updates and validations
+    validation_seconds: float = 0.0  # the part of `seconds` spent in validations
 
 
 class Trainer:
@@ -147,6 +148,11 @@ class Trainer:
 
     def _init_from(self, path: str) -> None:
         """Start from another run's weights (fine_tune): actor always, critic when it fits."""
+        if not Path(path).is_file():
+            hint = (" fine_tune starts from a full_obs run: train one first (pursuit-mj train --config full_obs), "
+                    "then pass its best.pt" if self.cfg.regime == "fine_tune" else "")
+            raise ValueError(f"init_from {path}: no such checkpoint (set it with --init-from or --set init_from=...)."
+                             f"{hint}")
         data = load_checkpoint(path)
         check_obs_spec(data, self.spec, path)
         try:
@@ -324,8 +330,10 @@ class Trainer:
                 if (cfg.run.validate_every and c.update % cfg.run.validate_every == 0) or final:
                     t0 = time.perf_counter()
                     last_val = self.validate()
-                    c.seconds += time.perf_counter() - t0
-                    row["validation"] = dict(last_val, best=self._maybe_best(last_val), seconds=time.perf_counter() - t0)
+                    spent = time.perf_counter() - t0
+                    c.seconds += spent
+                    c.validation_seconds += spent
+                    row["validation"] = dict(last_val, best=self._maybe_best(last_val), seconds=spent)
                 self.metrics.append(row)
                 if self.rerun is not None:
                     self.rerun.log(int(row["world_steps"]), row)

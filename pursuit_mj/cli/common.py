@@ -7,11 +7,21 @@ import argparse
 from ..config import TaskConfig, dump_yaml, load_task_config
 
 
-def add_task_args(p: argparse.ArgumentParser, short_flags: bool = True) -> None:
+def seed_arg(text: str) -> int:
+    """argparse type of --seed: an integer >= 0 (numpy's seeding refuses negative ones)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
+    return value
+
+
+def add_task_args(p: argparse.ArgumentParser) -> None:
     """Task config flags. Speeds and radii in m and m/s (the reference study used mm)."""
     g = p.add_argument_group("task")
-    flags = ["-ec", "--env-config", "--task"] if short_flags else ["--env-config", "--task"]
-    g.add_argument(*flags, dest="task_files", action="append", default=[], metavar="FILE|PRESET",
+    g.add_argument("-ec", "--env-config", "--task", dest="task_files", action="append", default=[], metavar="FILE|PRESET",
                    help="task YAML file or preset name (reference, easy, hard); repeatable, later wins")
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override any task key, e.g. --set evader.panic_distance=1.2 (repeatable)")
@@ -28,8 +38,17 @@ def add_task_args(p: argparse.ArgumentParser, short_flags: bool = True) -> None:
     g.add_argument("-sc", "--show-config", action="store_true", help="print the resolved task config")
 
 
-TASK_FLAG_KEYS = ("layout", "fidelity", "n_pursuers", "n_evaders", "pursuer_speed", "evader_speed",
-                  "perception_radius", "random_obstacles", "control_dt", "observability")
+TASK_FLAG_NAMES = {"layout": "--layout", "fidelity": "--fidelity", "n_pursuers": "--pursuers", "n_evaders": "--evaders",
+                   "pursuer_speed": "--pursuer-speed", "evader_speed": "--evader-speed",
+                   "perception_radius": "--perception-radius", "random_obstacles": "--random-obstacles",
+                   "control_dt": "--delta-t", "observability": "--observability"}
+TASK_FLAG_KEYS = tuple(TASK_FLAG_NAMES)
+
+
+def flags_typed(pairs) -> str:
+    """How config errors name the flags given, e.g. 'flag --pursuers -2' or 'flags --pursuers -2 --fidelity point'."""
+    typed = [f"{flag} {value}" for flag, value in pairs]
+    return ("flag " if len(typed) == 1 else "flags ") + " ".join(typed)
 
 
 def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
@@ -41,7 +60,8 @@ def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
             if key == "layout" and isinstance(value, str) and value.strip().isdigit():
                 value = int(value)
             flags[key] = value
-    cfg = load_task_config(args.task_files, args.overrides, flags)
+    cfg = load_task_config(args.task_files, args.overrides, flags,
+                           flags_typed((TASK_FLAG_NAMES[k], v) for k, v in flags.items()))
     if getattr(args, "show_config", False):
         print(dump_yaml(cfg))
     return cfg

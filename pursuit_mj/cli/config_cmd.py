@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..config import dump_yaml
+from ..layout import load_layout
 from .common import add_task_args, task_config_from_args
 
 
@@ -14,5 +15,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     args.show_config = False
-    print(dump_yaml(task_config_from_args(args)), end="")
+    config = task_config_from_args(args)
+    load_layout(config.layout)  # a missing or broken layout file is an error here too, not only when used
+    print(dump_yaml(config), end="")
     return 0

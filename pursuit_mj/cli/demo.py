@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from ..config import REPO_ROOT
-from .common import add_task_args, load_model, task_config_from_args
+from .common import add_task_args, load_model, seed_arg, task_config_from_args
 
 PRETRAINED = REPO_ROOT / "pretrained" / "pursuers.pt"
 
@@ -42,11 +42,12 @@ def register(sub) -> None:
     p.add_argument("--episodes", type=int, default=16, help="episodes per policy and layout (default 16)")
     p.add_argument("--layouts", nargs="+", default=["0", "1", "2", "3"], metavar="LAYOUT", help="layouts (default 0 1 2 3)")
     p.add_argument("--worlds", type=int, default=16, help="parallel worlds (default 16)")
-    p.add_argument("--seed", type=int, default=0, help="table seed")
+    p.add_argument("--seed", type=seed_arg, default=0, help="table seed")
     p.add_argument("--no-heuristic", action="store_true", help="evaluate the model only")
     p.add_argument("--no-shield", action="store_true",
-                   help="skip the row of the model behind the safety shield (pursuit_mj/shield.py; shown by default "
-                        "beside the bare model, labelled NAME+shield)")
+                   help="for a model trained without the safety shield (pursuit_mj/shield.py), skip the extra row "
+                        "of it behind the shield (shown by default beside the bare model, labelled NAME+shield). A "
+                        "model trained behind the shield, like the shipped one, always runs with it")
     add_task_args(p)
     p.set_defaults(func=run)
 
@@ -64,14 +65,15 @@ def run(args) -> int:
     config = task_config_from_args(args)
     layouts = [int(x) if x.strip().isdigit() else x for x in args.layouts]
     policy = load_model(model, _spec(config), config)
-    name = "pretrained" if model == PRETRAINED else policy.name
-    policies = [(name, policy)]
-    if getattr(policy, "has_shield", False):  # trained behind the shield: it comes with it
-        policies = [(f"{name}+shield" if model == PRETRAINED else name, policy)]
+    policies = [(policy.name, policy)]  # the training run's name, as eval and render call it
+    if getattr(policy, "has_shield", False):  # trained behind the shield: it comes with it (NAME+shield)
+        if args.no_shield:
+            print(f"demo: {model} was trained behind the safety shield and always runs with it; "
+                  f"--no-shield has no extra row to skip", file=sys.stderr)
     elif not args.no_shield:
         from ..shield import shield_policy
 
-        policies.append((f"{name}+shield", shield_policy(policy, config)))
+        policies.append((f"{policy.name}+shield", shield_policy(policy, config)))
     if not args.no_heuristic:
         policies.append(("heuristic", make_policy("heuristic", config)))
     print(f"demo: {len(policies)} policies x {len(layouts)} layouts x {args.episodes} episodes, "

@@ -18,7 +18,7 @@ from ..io_utils import check_writable
 from ..layout import load_layout
 from ..obs_spec import ObsSpec
 from ..policies import POLICY_NAMES, make_policy
-from .common import SHIELD_HELP, add_shield_arg, add_task_args, load_model, shield_if_asked, task_config_from_args
+from .common import SHIELD_HELP, add_shield_arg, add_task_args, load_model, seed_arg, shield_if_asked, task_config_from_args
 
 
 def register(sub) -> None:
@@ -37,7 +37,7 @@ def register(sub) -> None:
                    help="layout indices 0-3 and/or layout files (default: the task's layout)")
     p.add_argument("--episodes", type=int, default=150, help="episodes per policy and layout (default 150)")
     p.add_argument("--worlds", type=int, default=32, help="parallel worlds (default 32)")
-    p.add_argument("--seed", type=int, default=0, help="table seed: same seed, same table, whatever --worlds (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="table seed: same seed, same table, whatever --worlds (default 0)")
     p.add_argument("--versus", metavar="POLICY",
                    help="also compare every other policy with this one episode by episode (paired capture times, "
                         "95 %% CI; default: heuristic when it is in the table with others; 'none': no comparison)")

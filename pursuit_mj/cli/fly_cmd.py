@@ -12,7 +12,7 @@ import dataclasses
 import logging
 import sys
 
-from .common import add_shield_arg, shield_if_asked
+from .common import add_shield_arg, seed_arg, shield_if_asked
 
 KEYS_HELP = "during a flight: e or space = emergency stop (motors off), l = land everyone, Ctrl-C = land everyone (twice: motors off), Ctrl-\\ = motors off"
 
@@ -34,7 +34,7 @@ def register(sub) -> None:
     p.add_argument("--rerun", metavar="FILE.rrd", help="record the flight for the rerun viewer")
     p.add_argument("--events", metavar="FILE.jsonl", help="event log, appended to (default flights/<name>-<time>.events.jsonl)")
     p.add_argument("--max-time", type=float, help="end the chase after this many seconds (overrides the flight file's max_time)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the sensing and escape-model randomness")
+    p.add_argument("--seed", type=seed_arg, default=0, help="seed of the sensing and escape-model randomness")
     p.add_argument("--yes", action="store_true", help="take off without asking after the preflight checks (real flights)")
     p.add_argument("--verbose", action="store_true", help="also print cflib's own log messages")
     p.set_defaults(func=run, fly_action=None)

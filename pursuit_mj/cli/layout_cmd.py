@@ -11,6 +11,7 @@ import numpy as np
 from ..io_utils import check_writable
 from ..layout import Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout, save_layout
 from ..layout_check import free_spawn_points
+from .common import seed_arg
 
 #: how many seeds `layout check` tries when placing the per-episode random obstacles
 CHECK_SEEDS = 20
@@ -52,7 +53,7 @@ def _register_new(lsub) -> None:
     p.add_argument("--wall", nargs="+", type=float, action="append", default=[], metavar="V",
                    help="add a thin wall: X0 Y0 X1 Y1 [THICKNESS] (default thickness 0.05); repeatable")
     p.add_argument("--random", type=int, default=0, metavar="N", help="add N fixed obstacles placed at random (with --seed)")
-    p.add_argument("--seed", type=int, default=0, help="seed for --random (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="seed for --random (default 0)")
     p.add_argument("--episode-obstacles", type=int, default=5, metavar="K",
                    help="random obstacles drawn per episode (the file's random_obstacles.count, default 5)")
     p.add_argument("--obstacle-size", nargs=2, type=float, default=(0.15, 0.4), metavar=("MIN", "MAX"),
@@ -223,7 +224,7 @@ def _register_show(lsub) -> None:
     p = lsub.add_parser("show", help="save a top-down PNG of a layout (file or built-in index)")
     p.add_argument("layout", metavar="FILE|INDEX", help="layout file or built-in index 0-3")
     p.add_argument("-o", "--out", help="PNG to write (default: layout_<name>.png)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the random obstacles drawn (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="seed of the random obstacles drawn (default 0)")
     p.add_argument("--count", type=int, help="random obstacles to draw (default: the layout's random_obstacles.count)")
     p.add_argument("--no-random", action="store_true", help="draw no random obstacles")
     p.set_defaults(func=run_show)

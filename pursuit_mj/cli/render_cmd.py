@@ -21,7 +21,7 @@ from ..configio import build, dump_yaml, load, load_yaml, to_dict
 from ..layout import load_layout
 from ..obs_spec import ObsSpec
 from ..policies import POLICY_NAMES, make_policy
-from .common import TASK_FLAG_KEYS, add_shield_arg, add_task_args, load_model, shield_if_asked, task_config_from_args
+from .common import TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, flags_typed, add_task_args, load_model, seed_arg, shield_if_asked, task_config_from_args
 
 DEFAULT_SAVE = "renders"
 
@@ -50,7 +50,7 @@ def register(sub) -> None:
     out.add_argument("--rerun", metavar="FILE.rrd", help="record all episodes for the rerun viewer (rerun FILE.rrd)")
     run_g = p.add_argument_group("episodes and frames")
     run_g.add_argument("--episodes", type=int, default=1, help="episodes to play (default 1)")
-    run_g.add_argument("--seed", type=int, default=0, help="environment seed (default 0)")
+    run_g.add_argument("--seed", type=seed_arg, default=0, help="environment seed (default 0)")
     run_g.add_argument("--width", type=int, default=640, help="frame width in pixels (default 640)")
     run_g.add_argument("--height", type=int, default=480, help="frame height in pixels (default 480)")
     run_g.add_argument("--fps", type=float, help="video frames per second (default: real time, 1/control_dt)")
@@ -111,7 +111,8 @@ def task_config(args, base: TaskConfig | None) -> TaskConfig:
         value = getattr(args, key, None)
         if value is not None:
             flags[key] = int(value) if key == "layout" and str(value).strip().isdigit() else value
-    cfg = load(TaskConfig, (), args.overrides, extra=_merge(merged, flags), extra_source="command-line flag")
+    typed = flags_typed((TASK_FLAG_NAMES[k], v) for k, v in flags.items()) if flags else "-mc and -ec files"
+    cfg = load(TaskConfig, (), args.overrides, extra=_merge(merged, flags), extra_source=typed)
     if args.show_config:
         print(dump_yaml(cfg))
     return cfg
@@ -219,10 +220,10 @@ def run(args) -> int:
     target = None
     if video or final:
         target = save_target(args.save_path, args.format)
+        check_render_settings(settings, config)  # the size range first: an odd size matters only inside it
         if video:
             check_frame_size(target.fmt, args.width, args.height)
             ensure_ffmpeg()
-        check_render_settings(settings, config)
     if args.rerun:
         from ..recording import RerunEpisodeRecording, check_rrd_path
 

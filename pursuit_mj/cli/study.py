@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import add_task_args, task_config_from_args
+from .common import add_task_args, seed_arg, task_config_from_args
 
 
 def register(sub) -> None:
@@ -23,7 +23,7 @@ def register(sub) -> None:
     p.add_argument("--episodes", type=int, default=150, help="episodes per policy and layout (fewer if the budget is short)")
     p.add_argument("--layouts", nargs="+", default=["0", "1", "2", "3"], metavar="LAYOUT", help="evaluation layouts (default 0 1 2 3)")
     p.add_argument("--worlds", type=int, default=32, help="parallel worlds in evaluation")
-    p.add_argument("--seed", type=int, default=0, help="evaluation table seed")
+    p.add_argument("--seed", type=seed_arg, default=0, help="evaluation table seed")
     p.add_argument("--out", default="runs/study", help="output folder (default runs/study)")
     p.add_argument("--train-fidelity", choices=("point", "quadrotor"), default="point", help="fidelity for training (default point)")
     p.add_argument("--train-set", dest="train_overrides", action="append", default=[], metavar="KEY=VALUE",

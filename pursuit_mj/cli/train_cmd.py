@@ -19,12 +19,15 @@ def steps_arg(text: str) -> int:
 
 
 def register(sub) -> None:
+    from ..config import preset_names
+
+    presets = ", ".join(preset_names("train"))
     p = sub.add_parser(
         "train",
-        help="train pursuers with PPO / MAPPO (regimes: classic, full_obs, fine_tune, mappo)",
+        help="train pursuers: PPO / MAPPO in the regimes classic, full_obs, fine_tune; imitation; residual",
         description="Train a shared pursuer policy. Settings: defaults <- --config files <- flags <- --set. "
         "Outputs go to <run.runs_dir>/<name>/: last.pt (every update), best.pt (best validation success), "
-        "metrics.jsonl, config.yaml.",
+        f"metrics.jsonl, config.yaml. Presets (configs/train/): {presets}.",
         epilog="examples:\n"
         "  pursuit-mj train --config configs/train/full_obs.yaml\n"
         "  pursuit-mj train --config classic --set ppo.lr=1e-4 --set task.fidelity=point --total-steps 2e5\n"
@@ -33,7 +36,7 @@ def register(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("-c", "--config", action="append", default=[], metavar="FILE|PRESET",
-                   help="train YAML file or preset name (classic, full_obs, fine_tune, mappo); repeatable, later wins")
+                   help=f"train YAML file or preset name ({presets}); repeatable, later wins")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override any train key, e.g. ppo.lr=1e-4, task.fidelity=point, run.validate_every=5")
     p.add_argument("--name", help="run name (folder under runs/)")
@@ -86,6 +89,17 @@ def _flags(args) -> dict:
     return flags
 
 
+def _flags_typed(args) -> str:
+    """The value-carrying flags given, as config errors name them (e.g. 'flag --seed -1')."""
+    from .common import flags_typed
+
+    names = {"name": "--name", "total_steps": "--total-steps", "max_minutes": "--max-minutes", "n_envs": "--n-envs",
+             "seed": "--seed", "init_from": "--init-from", "fidelity": "--fidelity"}
+    pairs = [(flag, getattr(args, key)) for key, flag in names.items() if getattr(args, key) is not None]
+    pairs += [("--layout", ref) for ref in args.layout or []]
+    return flags_typed(pairs) if pairs else "command-line flag"
+
+
 def _check_same(asked, stored) -> None:
     """Refuse a --resume whose config differs from the stored one in anything but the run length."""
     from pursuit_mj.configio import to_dict
@@ -134,7 +148,7 @@ def run(args) -> int:
             raise ValueError(f"--resume {args.resume}: no last.pt in {run_dir}")
         trainer = Trainer.resume(run_dir, args.total_steps, max_minutes=args.max_minutes, progress=_progress(args))
     else:
-        cfg = load_train_config(args.config, args.overrides, _flags(args))
+        cfg = load_train_config(args.config, args.overrides, _flags(args), _flags_typed(args))
         if args.show_config:
             print(dump_yaml(cfg), end="")
             return 0
@@ -153,7 +167,8 @@ def run(args) -> int:
     result = trainer.train()
     c = result["counters"]
     print(f"{result['status']}: {c['update']} updates, {c['world_steps']} world steps, "
-          f"{c['agent_steps']} agent steps, {c['episodes']} episodes in {c['seconds']:.0f} s of training")
+          f"{c['agent_steps']} agent steps, {c['episodes']} episodes in {c['seconds']:.0f} s "
+          f"({c['seconds'] - c.get('validation_seconds', 0.0):.0f} s training, {c.get('validation_seconds', 0.0):.0f} s validating)")
     if c["best_update"] >= 0:
         print(f"best validation success {c['best_success']:.1%} (update {c['best_update']}): {Path(result['run_dir']) / 'best.pt'}")
     val = result["validation"]
