@@ -328,6 +328,7 @@ class Trainer:
                 row = self.train_one_update()
                 final = self.progress() >= 1.0
                 if (cfg.run.validate_every and c.update % cfg.run.validate_every == 0) or final:
+                    _advance(bar, row, self.recent, last_val, self.progress(), note="validating")
                     t0 = time.perf_counter()
                     last_val = self.validate()
                     spent = time.perf_counter() - t0
@@ -372,7 +373,8 @@ def _progress(cfg: TrainConfig, done: float):
                 smoothing=0.1, bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}{postfix}]")
 
 
-def _advance(bar, row: dict, recent, last_val: dict, done: float) -> None:
+def _advance(bar, row: dict, recent, last_val: dict, done: float, note: str = "") -> None:
+    """Move the bar to `done` (fraction of the run) with live training figures; `note` says what runs now."""
     if bar is None:
         return
     s = summarise(list(recent)) if recent else {}
@@ -388,5 +390,9 @@ def _advance(bar, row: dict, recent, last_val: dict, done: float) -> None:
         post["val"] = f"{last_val['success']:.0%}"
         if "vs_heuristic_steps" in last_val:
             post["val_vs_heur"] = f"{last_val['vs_heuristic_steps']:+.0f} steps"
+    if note:
+        post["now"] = note
     bar.set_postfix(post, refresh=False)
     bar.update(max(round(100.0 * done, 1) - bar.n, 0.0))
+    if note:
+        bar.refresh()  # the update may not redraw (tqdm's miniters), and what follows can take a while
