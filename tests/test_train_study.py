@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from pursuit_mj.cli import main
 
 TRAIN = ["task.n_pursuers=2", "task.random_obstacles=0", "task.max_steps=30", "n_envs=2", "ppo.batch_size=64",
@@ -28,3 +30,29 @@ def test_study_end_to_end_on_a_tiny_budget(tmp_path, capsys):
     ft = json.loads((out_dir / "runs" / "fine_tune" / "metrics.jsonl").read_text().splitlines()[0])
     assert ft["update"] == 1
     assert f"initialised from {out_dir / 'runs' / 'imitate' / 'best.pt'}" in out  # PPO continues the imitation
+
+
+def test_an_arm_gets_its_share_of_the_time_left_less_its_closing_validation():
+    from train.study import VALIDATION_SHARE, arm_budget
+
+    # 600 s left, a quarter of the shares still to come: 150 s; 24 validation episodes of 1 s, twice
+    minutes, episodes = arm_budget(600.0, 0.1, 0.4, 24, 1.0, vs_heuristic=True)
+    assert episodes == int(VALIDATION_SHARE * 150 / 2) == 22  # 48 s would be over 30 % of 150 s
+    assert minutes * 60 == pytest.approx(150 - 2 * 22)
+    minutes, episodes = arm_budget(6000.0, 0.1, 0.4, 24, 1.0, vs_heuristic=False)  # plenty: all 24, once each
+    assert episodes == 24 and minutes * 60 == pytest.approx(1500 - 24)
+    minutes, episodes = arm_budget(-5.0, 0.1, 0.4, 24, 1.0, vs_heuristic=True)  # over time already
+    assert minutes == 0.0 and episodes == 4
+
+
+def test_the_evaluation_is_reserved_with_a_margin_for_the_trained_arms():
+    from pathlib import Path
+
+    from pursuit_mj.config import default_config
+    from train.study import ARMS, EVAL_MARGIN, MIN_TRAIN_FRACTION, StudyPlan, fit_episodes
+
+    plan = StudyPlan(budget_minutes=10.0, out=Path("x"), eval_task=default_config(), episodes=150)
+    episodes, train_minutes = fit_episodes(plan, 0.1, 0.0)
+    per_round = 0.1 * 4 * (1 + EVAL_MARGIN * len(ARMS))
+    assert episodes == int(600 * (1 - MIN_TRAIN_FRACTION) / per_round)
+    assert train_minutes == pytest.approx((600 - per_round * episodes) / 60)

@@ -7,8 +7,12 @@ the heuristic team), belief (DAgger of a network fed belief features) and belief
 from it); the heuristic team is evaluated beside them.
 A short probe of the heuristic first measures how long an evaluation episode takes, so the
 whole evaluation is reserved out of the budget (with fewer episodes than asked if it would
-not fit) before any training starts; the rest of the budget is split over the arms by their
-shares in ARMS (each run stops at its max_minutes, its learning rate decaying over it). All
+not fit) before any training starts. The heuristic team's full evaluation, timed, then sets
+the reserve for the arms' evaluations; the rest is training time, handed out arm by arm by
+their shares in ARMS of what is left (so an arm that ran over takes from the later ones, not
+from the budget). Each run stops at its max_minutes, its learning rate decaying over it, and
+that time is its share less its closing validation (fewer validation episodes when they
+would take more than VALIDATION_SHARE of it). All
 policies are evaluated on the same task (the reference preset unless told otherwise) with
 partial observability: full_obs is trained with full observability but judged like the rest.
 
@@ -60,6 +64,9 @@ ARMS = (
     Arm("belief_ppo", "belief_ppo", 0.14, start_from="belief"),
 )
 MIN_TRAIN_FRACTION = 0.4  # evaluation may take at most the rest of the budget
+EVAL_MARGIN = 1.0  # an arm's evaluation over the team's; measured 0.65-0.8 on average (many arms end episodes early), up to 1.25 for one
+VALIDATION_SHARE = 0.3  # at most this part of an arm's time goes to its closing validation
+MIN_VALIDATION_EPISODES = 4
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,14 +91,29 @@ def fit_episodes(plan: StudyPlan, seconds_per_episode: float, spent_s: float) ->
     The heuristic and the trained policies are evaluated with the same number of episodes;
     it shrinks from plan.episodes when evaluation would take more than its share.
     """
-    n_policies = len(ARMS) + 1
     total_s = plan.budget_minutes * 60.0
-    per_round = seconds_per_episode * len(plan.layouts) * n_policies
+    per_round = seconds_per_episode * len(plan.layouts) * (1 + EVAL_MARGIN * len(ARMS))
     cap = total_s * (1.0 - MIN_TRAIN_FRACTION) - spent_s
     episodes = plan.episodes
     if per_round * episodes > cap:
         episodes = max(1, int(cap / max(per_round, 1e-9)))
     return episodes, _minutes(total_s - spent_s - per_round * episodes)
+
+
+def arm_budget(left_s: float, share: float, shares_left: float, validation_episodes: int,
+               seconds_per_episode: float, vs_heuristic: bool) -> tuple[float, int]:
+    """(max_minutes, validation episodes) of the next arm.
+
+    Its time is `share` / `shares_left` of the `left_s` training seconds still unspent. The run
+    ends with a validation outside max_minutes: `validation_episodes` episodes, played by the
+    heuristic team too when `vs_heuristic`, at `seconds_per_episode`. That is reserved out of
+    its time, with fewer episodes when they would take more than VALIDATION_SHARE of it.
+    """
+    arm_s = max(left_s, 0.0) * share / shares_left
+    per_episode = seconds_per_episode * (2 if vs_heuristic else 1)
+    fits = int(VALIDATION_SHARE * arm_s / max(per_episode, 1e-9))
+    episodes = min(validation_episodes, max(MIN_VALIDATION_EPISODES, fits))
+    return max(arm_s - episodes * per_episode, 0.0) / 60.0, episodes
 
 
 def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
@@ -102,10 +124,11 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
 
     t0 = time.perf_counter()
     heuristic = make_policy("heuristic", plan.eval_task)
-    probe = min(plan.worlds, plan.episodes)
-    evaluate(heuristic, plan.eval_task, [plan.layouts[0]], probe, plan.seed + 1, plan.worlds, label="heuristic")
+    probe = max(2, min(plan.worlds, plan.episodes) // len(plan.layouts))  # per layout: they differ in length
+    evaluate(heuristic, plan.eval_task, list(plan.layouts), probe, plan.seed + 1, plan.worlds, label="heuristic")
     timings["evaluation speed probe"] = time.perf_counter() - t0
-    episodes, train_minutes = fit_episodes(plan, timings["evaluation speed probe"] / probe, time.perf_counter() - t_start)
+    episodes, train_minutes = fit_episodes(plan, timings["evaluation speed probe"] / (probe * len(plan.layouts)),
+                                           time.perf_counter() - t_start)
     log(f"[study] {episodes} episodes per policy and layout; {train_minutes:.1f} min left for training")
     if train_minutes <= 0.0:
         raise ValueError(f"--budget-minutes {plan.budget_minutes}: too small; evaluating alone needs most of it "
@@ -113,19 +136,26 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
     t0 = time.perf_counter()
     rows = evaluate(heuristic, plan.eval_task, list(plan.layouts), episodes, plan.seed, plan.worlds, label="heuristic")
     timings["heuristic (eval)"] = time.perf_counter() - t0
+    seconds_per_episode = timings["heuristic (eval)"] / (episodes * len(plan.layouts))
+    train_end = t_start + plan.budget_minutes * 60.0 - EVAL_MARGIN * len(ARMS) * timings["heuristic (eval)"]
 
     checkpoints: dict[str, Path] = {}
-    for arm in ARMS:
-        regime, share = arm.name, arm.share
-        overrides = [f"name={arm.name}", f"run.runs_dir={plan.out / 'runs'}", f"max_minutes={share * train_minutes:.4f}",
-                     "total_steps=1000000000", "task.layout=0", *plan.train_overrides]
+    for i, arm in enumerate(ARMS):
+        regime = arm.name
+        overrides = [f"name={arm.name}", f"run.runs_dir={plan.out / 'runs'}", "total_steps=1000000000", "task.layout=0",
+                     *plan.train_overrides]
         if arm.start_from:
             overrides.append(f"init_from={checkpoints[arm.start_from]}")
         cfg = load_train_config([arm.config], overrides)
         if (cfg.run_dir / "last.pt").exists():
             raise ValueError(f"study folder {plan.out}: {cfg.run_dir} already holds a run; choose another --out")
+        minutes, val_episodes = arm_budget(train_end - time.perf_counter(), arm.share, sum(a.share for a in ARMS[i:]),
+                                           cfg.run.validation_episodes, seconds_per_episode, cfg.run.validation_vs_heuristic)
+        cfg = load_train_config([arm.config], overrides + [f"max_minutes={max(minutes, 0.01):.4f}",
+                                                          f"run.validation_episodes={val_episodes}"])
         t0 = time.perf_counter()
-        log(f"[study] training {regime} for {share * train_minutes:.1f} min ({cfg.task.fidelity} fidelity)")
+        log(f"[study] training {regime} for {minutes:.1f} min, then validating on {val_episodes} episodes "
+            f"({cfg.task.fidelity} fidelity)")
         result = Trainer(cfg, log=log).train()
         timings[f"{regime} (train)"] = time.perf_counter() - t0
         if result["status"] != "done":
