@@ -126,3 +126,17 @@ def test_existing_run_is_not_overwritten_without_resume(tmp_path):
     Trainer(cfg, log=lambda s: None).train()
     argv = ["train", "--no-progress"] + sum((["--set", s] for s in TINY + [f"run.runs_dir={tmp_path}", "name=run"]), [])
     assert main(argv) == 2
+
+
+def test_best_checkpoint_ties_go_to_fewer_capture_steps_not_to_earlier_crashes(tmp_path):
+    trainer = Trainer(tiny_config(tmp_path, updates=1), log=lambda s: None)
+    val = trainer.validate()
+    max_steps = trainer.cfg.task.max_steps
+    assert val["capture_steps"] >= val["mean_steps"] and val["capture_steps"] <= max_steps
+    if val["success"] < 1.0:  # a failed episode counts as max_steps
+        assert val["capture_steps"] > val["mean_steps"] or val["mean_steps"] == max_steps
+    assert trainer._maybe_best({"success": 0.0, "mean_steps": 300.0, "capture_steps": 1000.0})
+    assert not trainer._maybe_best({"success": 0.0, "mean_steps": 200.0, "capture_steps": 1000.0})  # crashed sooner
+    assert trainer._maybe_best({"success": 0.0, "mean_steps": 500.0, "capture_steps": 900.0})  # failed later, or caught
+    assert trainer._maybe_best({"success": 0.5, "mean_steps": 600.0, "capture_steps": 950.0})  # success first
+    assert trainer.counters.best_steps == 950.0

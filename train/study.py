@@ -167,7 +167,8 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
     for regime in (arm.name for arm in ARMS):
         t0 = time.perf_counter()
         policy = load_policy(checkpoints[regime], spec, name=regime, task=plan.eval_task)
-        rows += evaluate(policy, plan.eval_task, list(plan.layouts), episodes, plan.seed, plan.worlds, label=regime)
+        label = f"{regime}+shield" if getattr(policy, "has_shield", False) else regime  # as eval labels it
+        rows += evaluate(policy, plan.eval_task, list(plan.layouts), episodes, plan.seed, plan.worlds, label=label)
         timings[f"{regime} (eval)"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     _write(plan, rows, timings, episodes)

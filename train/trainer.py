@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from pursuit_mj.configio import dump_yaml, to_dict
+from pursuit_mj.evaluation import capture_steps
 from pursuit_mj.io_utils import atomic_write_text
 from pursuit_mj.policies import make_policy
 from pursuit_mj.sensing import privileged_config
@@ -52,7 +53,7 @@ class Counters:
     agent_steps: int = 0
     episodes: int = 0
     best_success: float = -1.0
-    best_steps: float = float("inf")
+    best_steps: float = float("inf")  # its mean capture steps (a failed episode counts as max_steps)
     best_update: int = -1
     seconds: float = 0.0  # wall time of the run so far: collection, updates and validations
     validation_seconds: float = 0.0  # the part of `seconds` spent in validations
@@ -201,6 +202,9 @@ class Trainer:
         policy = trained_team(ActorPolicy(self.model.actor, self.cfg.name), self.cfg.task, self.cfg.shield, self.cfg.residual,
                               self.cfg.belief)
         summary, records = self._validator.run(policy)
+        # the best-checkpoint tie-break: a collision or timeout counts as max_steps, as in every
+        # comparison here, so that an earlier crash never looks like a faster capture
+        summary["capture_steps"] = float(np.mean(capture_steps(records, self.cfg.task.max_steps)))
         self.model.actor.train()
         if r.validation_vs_heuristic:
             if self._heuristic_records is None:  # the same episodes every time: played once per process
@@ -210,9 +214,9 @@ class Trainer:
 
     def _maybe_best(self, val: dict[str, float]) -> bool:
         c = self.counters
-        better = val["success"] > c.best_success or (val["success"] == c.best_success and val["mean_steps"] < c.best_steps)
+        better = val["success"] > c.best_success or (val["success"] == c.best_success and val["capture_steps"] < c.best_steps)
         if better:
-            c.best_success, c.best_steps, c.best_update = val["success"], val["mean_steps"], c.update
+            c.best_success, c.best_steps, c.best_update = val["success"], val["capture_steps"], c.update
             self.save("best.pt")
         return better
 

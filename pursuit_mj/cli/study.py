@@ -11,11 +11,15 @@ from .common import add_task_args, seed_arg, task_config_from_args
 def register(sub) -> None:
     p = sub.add_parser(
         "study",
-        help="the whole reference experiment: full_obs, fine_tune, classic, MAPPO and the heuristic, table and charts",
-        description="Train full_obs, then fine_tune from it, classic and MAPPO on layout 0, evaluate them and the "
-        "heuristic team on the layouts, and write the table (txt, csv, json), bar charts and timings into --out. "
+        help="the whole reference experiment (full_obs, fine_tune, classic, MAPPO) and this project's recipes "
+        "(imitate, imitate_ppo, residual, belief, belief_ppo) beside the heuristic team: table and charts",
+        description="Train on layout 0, within one wall-clock budget: the reference study's four (full_obs, then "
+        "fine_tune from it, classic, MAPPO) and this project's recipes (imitate, then imitate_ppo from it, residual, "
+        "belief, then belief_ppo from it). Evaluate them and the heuristic team on the layouts, each paired with the "
+        "team on the same episodes, and write the table (txt, csv, json), bar charts and timings into --out. "
         "Training runs in --train-fidelity (point by default: same actions, much faster); evaluation uses the "
-        "task flags below (the reference task in quadrotor fidelity by default).",
+        "task flags below (the reference task in quadrotor fidelity by default). Arms trained behind the safety "
+        "shield are labelled NAME+shield.",
         epilog="example:\n  pursuit-mj study --budget-minutes 120 --episodes 150 --out runs/study",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
