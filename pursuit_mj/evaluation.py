@@ -24,7 +24,7 @@ import numpy as np
 from .config import TaskConfig
 from .configio import to_dict
 from .env import EpisodeRecord, PursuitEnv
-from .io_utils import atomic_path, atomic_write_text
+from .io_utils import atomic_write_text
 from .layout import load_layout
 from .policy import Policy
 from .stats import Mean, Rate, mean_interval, rate
@@ -257,49 +257,9 @@ def read_csv(path: str | Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-PLOT_METRICS = (
-    ("success", "success rate (%)"),
-    ("collision", "collision rate (%)"),
-    ("timeout", "timeout rate (%)"),
-    ("mean_steps", "mean episode length (steps)"),
-)
-
-
 def plot_rows(rows: Sequence[Row], folder: str | Path) -> list[Path]:
-    """Bar charts, one PNG per metric (success.png ...): layouts on x, a bar per policy, 95 % CI whiskers."""
-    import matplotlib
+    """Bar charts, one PNG per metric (success.png ...), as `pursuit-mj plot --eval` draws them
+    (pursuit_mj.plots.plot_eval): layouts on x, a bar per policy, 95 % CI whiskers."""
+    from .plots import plot_eval
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    folder = Path(folder)
-    policies = list(dict.fromkeys(r.policy for r in rows))
-    layouts = list(dict.fromkeys(r.layout for r in rows))
-    table = {(r.policy, r.layout): r.flat() for r in rows}
-    x = np.arange(len(layouts))
-    width = 0.8 / max(len(policies), 1)
-    paths = []
-    for key, title in PLOT_METRICS:
-        value_key = f"{key}_pct" if key in OUTCOMES else key
-        fig, ax = plt.subplots(figsize=(1.6 + 1.4 * len(layouts), 3.6))
-        for i, pol in enumerate(policies):
-            vals, lo, hi = [], [], []
-            for lay in layouts:
-                rec = table.get((pol, lay), {})
-                v = rec.get(value_key)
-                vals.append(np.nan if v is None else v)
-                lo.append(0.0 if v is None else v - rec[f"{key}_ci_lo"])
-                hi.append(0.0 if v is None else rec[f"{key}_ci_hi"] - v)
-            ax.bar(x + (i - (len(policies) - 1) / 2) * width, vals, width, yerr=[lo, hi], capsize=3, label=pol)
-        ax.set_xticks(x, [f"layout {l}" if l.isdigit() else Path(l).stem for l in layouts])
-        ax.set_ylabel(title)
-        if key in OUTCOMES:
-            ax.set_ylim(0, 100)
-        ax.legend(fontsize="small")
-        fig.tight_layout()
-        path = folder / f"{key}.png"
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, format="png", dpi=120)
-        plt.close(fig)
-        paths.append(path)
-    return paths
+    return plot_eval([r.flat() for r in rows], folder, prefix="")

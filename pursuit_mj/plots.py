@@ -98,7 +98,7 @@ def x_key(runs: Mapping[str, Sequence[Mapping[str, float]]], requested: str | No
             return k
     have = sorted(set().union(*(r.keys() for rows in runs.values() for r in rows)))
     if requested:
-        raise ValueError(f"--x {requested!r}: not in every log (keys: {', '.join(have[:30])})")
+        raise ValueError(f"--x {requested!r}: not in every log (keys: {', '.join(have)})")
     raise ValueError(f"training logs: none of {', '.join(X_KEYS)} found in every log for the x axis")
 
 
@@ -111,7 +111,7 @@ def curve_keys(runs: Mapping[str, Sequence[Mapping[str, float]]], wanted: Sequen
         for w in wanted:
             match = [k for k in keys if k == w or k.rsplit(".", 1)[-1] == w]
             if not match:
-                raise ValueError(f"--metric {w!r}: no such key in the logs (keys: {', '.join(keys[:40])})")
+                raise ValueError(f"--metric {w!r}: no such key in the logs (keys: {', '.join(keys)})")
             out += [m for m in match if m not in out]
         return out
     out = []
@@ -119,8 +119,20 @@ def curve_keys(runs: Mapping[str, Sequence[Mapping[str, float]]], wanted: Sequen
         out += [k for k in keys if k.rsplit(".", 1)[-1] in finals]
     out += [k for k in keys if k.startswith(REWARD_PREFIXES) and k not in out]
     if not out:
-        raise ValueError(f"training logs: no success/collision/mean_steps/reward keys found (keys: {', '.join(keys[:40])})")
+        raise ValueError(f"training logs: no success/collision/mean_steps/reward keys found (keys: {', '.join(keys)})")
     return out
+
+
+RATE_KEYS = ("success", "collision", "timeout", "success_rate", "collision_rate")
+
+
+def _curve_label(key: str) -> str:
+    """'train.success' -> 'train: success rate (fraction)'; other keys as they are."""
+    group, _, last = key.rpartition(".")
+    names = {"success": "success rate (fraction)", "success_rate": "success rate (fraction)",
+             "collision": "collision rate (fraction)", "collision_rate": "collision rate (fraction)",
+             "timeout": "timeout rate (fraction)", "mean_steps": "mean episode length (steps)"}
+    return f"{group}: {names[last]}" if group and last in names else names.get(key, key)
 
 
 def plot_training(runs: Mapping[str, Sequence[Mapping[str, float]]], folder: str | Path,
@@ -137,7 +149,9 @@ def plot_training(runs: Mapping[str, Sequence[Mapping[str, float]]], folder: str
             if len(pts):
                 ax.plot(pts[:, 0], pts[:, 1], marker="." if len(pts) < 30 else None, label=label)
         ax.set_xlabel(xk.replace("_", " "))
-        ax.set_ylabel(key)
+        ax.set_ylabel(_curve_label(key))
+        if key.rsplit(".", 1)[-1] in RATE_KEYS:
+            ax.set_ylim(0.0, 1.0)
         ax.grid(alpha=0.3)
         ax.legend(fontsize="small")
         fig.tight_layout()
@@ -171,39 +185,57 @@ def _layout_name(layout: Any) -> str:
     return f"layout {s}" if s.isdigit() else Path(s).stem
 
 
-def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path) -> list[Path]:
-    """Bar charts, one PNG per metric present: layouts on x, a bar per policy, 95 % CI whiskers."""
+def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str = "eval_") -> list[Path]:
+    """Bar charts, one PNG (<prefix><metric>.png) per metric present: layouts on x, a bar per
+    policy with its 95 % CI whiskers, each layout's bars centred on it (a policy without a row
+    there leaves no gap), one colour per policy in every chart. A (policy, layout) pair given
+    twice is a ValueError: which of the two would the bar show?"""
     plt = _plt()
     rows = list(rows)
     folder = Path(folder)
     policies = list(dict.fromkeys(str(r["policy"]) for r in rows))
     layouts = list(dict.fromkeys(str(r["layout"]) for r in rows))
-    table = {(str(r["policy"]), str(r["layout"])): r for r in rows}
-    x = np.arange(len(layouts))
-    width = 0.8 / len(policies)
+    table: dict[tuple[str, str], Mapping[str, Any]] = {}
+    for r in rows:
+        pair = (str(r["policy"]), str(r["layout"]))
+        if pair in table:
+            raise ValueError(f"evaluation results: policy {pair[0]} on layout {pair[1]} is given twice; "
+                             f"rename one (e.g. eval --model with another run name) or plot them apart")
+        table[pair] = r
+    palette = plt.get_cmap("tab10" if len(policies) <= 10 else "tab20")
+    colour = {pol: palette(i % palette.N) for i, pol in enumerate(policies)}
+    slots = max(sum((pol, lay) in table for pol in policies) for lay in layouts)
+    width = 0.8 / slots
+    episodes = sorted({int(r["episodes"]) for r in rows if r.get("episodes") is not None})
+    n_text = "" if not episodes else (f", {episodes[0]} episodes per bar" if len(episodes) == 1
+                                      else f", {episodes[0]}-{episodes[-1]} episodes per bar")
     paths = []
     for stem, label, key, lo_key, hi_key in EVAL_METRICS:
         if not any(r.get(key) is not None for r in rows):
             continue
-        fig, ax = plt.subplots(figsize=(1.8 + 1.5 * len(layouts), 3.8))
-        for i, pol in enumerate(policies):
-            vals, err_lo, err_hi = [], [], []
-            for lay in layouts:
-                r = table.get((pol, lay), {})
+        fig, ax = plt.subplots(figsize=(2.6 + 1.2 * len(layouts) * max(slots, 2) / 2, 3.8))
+        shown: set[str] = set()
+        for x, lay in enumerate(layouts):
+            here = [pol for pol in policies if (pol, lay) in table]
+            for i, pol in enumerate(here):
+                r = table[(pol, lay)]
                 v = r.get(key)
-                vals.append(np.nan if v is None else float(v))
+                if v is None:
+                    continue
                 lo, hi = r.get(lo_key), r.get(hi_key)
-                err_lo.append(0.0 if v is None or lo is None else float(v) - float(lo))
-                err_hi.append(0.0 if v is None or hi is None else float(hi) - float(v))
-            ax.bar(x + (i - (len(policies) - 1) / 2) * width, vals, width, yerr=[err_lo, err_hi], capsize=3, label=pol)
-        ax.set_xticks(x, [_layout_name(l) for l in layouts])
+                err = [[0.0 if lo is None else float(v) - float(lo)], [0.0 if hi is None else float(hi) - float(v)]]
+                ax.bar(x + (i - (len(here) - 1) / 2) * width, float(v), width, yerr=err, capsize=3, color=colour[pol],
+                       label=None if pol in shown else pol)
+                shown.add(pol)
+        ax.set_xticks(np.arange(len(layouts)), [_layout_name(l) for l in layouts])
         ax.set_ylabel(label)
+        ax.set_title(f"{label.split(' (')[0]} by layout{n_text}", fontsize="medium")
         if key.endswith("_pct"):
             ax.set_ylim(0, 100)
         ax.grid(axis="y", alpha=0.3)
-        ax.legend(fontsize="small")
+        ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
         fig.tight_layout()
-        paths.append(_save(fig, folder / f"eval_{stem}.png"))
+        paths.append(_save(fig, folder / f"{prefix}{stem}.png"))
     if not paths:
         raise ValueError("evaluation results: rows have none of success_pct, collision_pct, timeout_pct, mean_steps")
     return paths

@@ -112,3 +112,39 @@ def test_plot_command(tmp_path, capsys):
     assert {"curve_train_success.png", "curve_train_collision.png", "curve_train_mean_steps.png", "eval_success.png"} <= written
     assert main(["plot", "-o", str(out)]) == 2
     assert "nothing to plot" in capsys.readouterr().err
+
+
+def test_a_layout_s_bars_are_centred_on_it_and_a_pair_given_twice_is_refused(tmp_path):
+    import matplotlib.pyplot as plt
+
+    rows = read_eval_rows(_eval_json(tmp_path / "t.json", policies=("a", "b", "c", "d"), layouts=("0",)))
+    rows += read_eval_rows(_eval_json(tmp_path / "u.json", policies=("a", "b"), layouts=("1",)))
+    drawn = []
+    real_bar = plt.Axes.bar
+
+    def spy(self, x, height, width, **kw):
+        drawn.append((round(float(x), 6), kw.get("label")))
+        return real_bar(self, x, height, width, **kw)
+
+    plt.Axes.bar = spy
+    try:
+        plot_eval(rows, tmp_path / "plots")
+    finally:
+        plt.Axes.bar = real_bar
+    first_chart = drawn[:6]
+    at = {x for x, _ in first_chart}
+    assert sum(x > 0.5 for x in at) == 2 and np.mean([x for x in at if x > 0.5]) == pytest.approx(1.0)  # centred
+    assert np.mean([x for x in at if x < 0.5]) == pytest.approx(0.0)
+    assert [lab for _, lab in first_chart].count("a") == 1  # one legend entry per policy
+    with pytest.raises(ValueError, match="policy a on layout 0 is given twice"):
+        plot_eval(rows + rows[:1], tmp_path / "again")
+
+
+def test_plot_command_tells_apart_a_policy_that_two_files_hold(tmp_path, capsys):
+    one, two = _eval_json(tmp_path / "one.json"), _eval_json(tmp_path / "two.json", policies=("heuristic", "mappo"))
+    assert main(["plot", "--eval", str(one), "--eval", str(two), "-o", str(tmp_path / "out")]) == 0
+    assert (tmp_path / "out" / "eval_success.png").is_file()
+    from pursuit_mj.cli.plot_cmd import _combined_rows
+
+    names = {r["policy"] for r in _combined_rows([(str(one), read_eval_rows(one)), (str(two), read_eval_rows(two))])}
+    assert names == {"heuristic (one)", "heuristic (two)", "classic", "mappo"}

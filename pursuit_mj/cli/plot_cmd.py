@@ -53,7 +53,7 @@ def run(args) -> int:
         if label in runs:
             label = f"{label} ({path})"
         runs[label] = read_training_log(path)
-    rows = [r for f in args.eval for r in read_eval_rows(f)]
+    rows = _combined_rows([(f, read_eval_rows(f)) for f in args.eval])
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -68,3 +68,18 @@ def run(args) -> int:
     for p in paths:
         print(f"wrote {p}")
     return 0
+
+
+def _combined_rows(files: list[tuple[str, list[dict]]]) -> list[dict]:
+    """The rows of several eval files; a policy name that more than one file holds (the
+    heuristic team, typically) is labelled 'NAME (file stem)' in each, so no bar hides another."""
+    holders: dict[str, set[str]] = {}
+    for f, rows in files:
+        for r in rows:
+            holders.setdefault(str(r["policy"]), set()).add(f)
+    out = []
+    for f, rows in files:
+        for r in rows:
+            name = str(r["policy"])
+            out.append(dict(r, policy=f"{name} ({Path(f).stem})") if len(holders[name]) > 1 else r)
+    return out
