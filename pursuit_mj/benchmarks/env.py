@@ -95,9 +95,10 @@ def measure(fidelity: str, n_worlds: int, seconds: float, seed: int, files: Sequ
 
     first = block(kinds["env"], 2)  # also warms up
     n = int(np.clip(round(BLOCK_SECONDS / first), 1, MAX_BLOCK_STEPS))
-    rounds = max(2, int(round(seconds / (3 * n * first))))
-    times: dict[str, list[float]] = {k: [] for k in kinds}
-    for _ in range(rounds):
+    times: dict[str, list[float]] = {k: [block(fn, n)] for k, fn in kinds.items()}  # a first round sizes the rest
+    per_round = n * sum(t[0] for t in times.values())
+    rounds = max(2, int(round(seconds / per_round)))
+    for _ in range(rounds - 1):
         for k, fn in kinds.items():
             times[k].append(block(fn, n))
     profile = ""

@@ -56,7 +56,7 @@ class RenderBenchResult:
         return self.rerun_s / self.sim_s
 
     def lines(self) -> list[str]:
-        ok = lambda good: "ok" if good else "BELOW TARGET"  # noqa: E731
+        ok = lambda good: "met" if good else "NOT met"  # noqa: E731
         return [
             f"render bench, {self.fidelity} fidelity: {self.steps} decision steps in {self.episodes} episodes of the heuristic team, "
             f"{self.frames} frames at {self.width}x{self.height}",

@@ -65,6 +65,7 @@ class TrainBench:
     train_cpu_s: float
     env_cpu_s: float
     profile: str = ""
+    update_threads: int = 1  # torch threads of the update (the rollout's forwards use one)
 
     def rate(self, seconds: float) -> float:
         return self.batch / seconds
@@ -93,11 +94,11 @@ def _bare_env_block(env, steps: int, rng: np.random.Generator) -> tuple[float, f
 
 
 def _settings(cfg, trainer) -> str:
-    p, buf = cfg.ppo, trainer.buffer
-    threads = trainer.update_threads
-    return (f"epochs {p.epochs}, minibatch {p.minibatch_size}, batch {buf.n_transitions} = {buf.T} steps x {buf.W} worlds "
-            f"x {buf.N} pursuers, net {cfg.net.kind} {cfg.net.encoder_width}/{list(cfg.net.hidden)}, torch threads: "
-            f"rollout 1, update {threads}")
+    p, im, buf = cfg.ppo, cfg.imitation, trainer.buffer
+    learner = (f"DAgger: {im.grad_steps} gradient steps of minibatch {im.minibatch_size}" if cfg.algo == "dagger"
+               else f"{cfg.algo.upper()}: epochs {p.epochs}, minibatch {p.minibatch_size}")
+    return (f"{learner}, batch {buf.n_transitions} = {buf.T} steps x {buf.W} worlds x {buf.N} pursuers, "
+            f"net {cfg.net.kind} {cfg.net.encoder_width}/{list(cfg.net.hidden)}")
 
 
 def _child_cpu_s(pid: int | None) -> float:
@@ -164,7 +165,7 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
         med = statistics.median
         collection = "overlapped" if trainer.overlap else "in turn"
         return TrainBench(fidelity, collection, cfg.n_envs, cfg.task.n_pursuers, trainer.buffer.n_transitions, _settings(cfg, trainer),
-                          med(rollout), med(update), med(wall), med(bare), train_cpu, env_cpu, profile)
+                          med(rollout), med(update), med(wall), med(bare), train_cpu, env_cpu, profile, trainer.update_threads)
 
 
 def _verdict(ok: bool) -> str:
@@ -189,9 +190,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"train benchmark, config {args.config}: {results[0].settings}")
     print("rates in agent-steps/s (decision steps x worlds x pursuers) from median wall times; bare env = the same task "
           "with random actions, stepped after training; cpu = process time of training (rollout worker included) over that of the bare env")
-    head = ["fidelity", "collection", "worlds x pursuers", "rollout ag-steps/s", "update ag-steps/s", "s per update",
+    head = ["fidelity", "collection", "worlds x pursuers", "update threads", "rollout ag-steps/s", "update ag-steps/s", "s per update",
             "training ag-steps/s", "bare env ag-steps/s", "update / rollout", "env / training", "cpu: env / training"]
-    rows = [[r.fidelity, r.collection, f"{r.worlds} x {r.pursuers}", f"{r.rate(r.rollout_s):.0f}", f"{r.rate(r.update_s):.0f}",
+    rows = [[r.fidelity, r.collection, f"{r.worlds} x {r.pursuers}", str(r.update_threads), f"{r.rate(r.rollout_s):.0f}", f"{r.rate(r.update_s):.0f}",
              f"{r.update_s:.2f}", f"{r.rate(r.wall_s):.0f}", f"{r.rate(r.env_s):.0f}",
              f"{r.update_over_rollout:.2f}", f"{r.env_over_training:.2f}x", f"{r.env_over_training_cpu:.2f}x"] for r in results]
     print(format_table(head, rows))
