@@ -183,6 +183,8 @@ def test_env_recorder_follows_a_multi_world_evaluation_loop(tmp_path):
     ent = read_entities(tmp_path / "eval.rrd")
     props = [ent[f"/__properties/episode_{k}"].static for k in range(4)]
     assert "/__properties/episode_4" not in ent, "max_episodes was not respected"
+    assert sorted(p["started"][0] for p in props) == [0, 1, 2, 3]  # the order they began in
+    assert all(p["started"] == [p["world"][0]] for p in props if p["episode"][0] == 0)  # worlds 0-2 began first
     for k, p in enumerate(props):
         i = next(i for i, r in enumerate(plain) if r.world == p["world"][0] and r.episode == p["episode"][0])
         assert p["steps"] == [plain[i].steps]

@@ -41,7 +41,9 @@ class EnvRecorder:
             self._buffers.pop(int(w), None)
             if self.max_episodes is not None and self._claimed >= self.max_episodes:
                 continue
-            buf = EpisodeBuffer(self.label)
+            # started: the order the episodes began in; in `eval` (pursuit_mj.evaluation.run_episodes
+            # starts them in table order) it is the episode's index k among the row's episodes
+            buf = EpisodeBuffer(dict(self.label, started=self._claimed))
             buf.append(self.env.snapshot(int(w)))
             self._buffers[int(w)] = buf
             self._claimed += 1
