@@ -54,7 +54,10 @@ def test_kill_9_or_ctrl_c_loses_at_most_one_update(tmp_path, sig, overlap):
     for s in TINY + [f"run.runs_dir={tmp_path}", "name=killed", f"run.overlap={str(overlap).lower()}"]:
         args += ["--set", s]
     env = dict(os.environ, MUJOCO_GL="egl")
-    proc = subprocess.Popen(args, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    # a shell that starts the suite in the background makes it ignore SIGINT, and children inherit
+    # that: give the trainer the default disposition, as a terminal's Ctrl-C would find it
+    proc = subprocess.Popen(args, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     log = tmp_path / "killed" / "metrics.jsonl"
     deadline = time.time() + 25
     while time.time() < deadline and proc.poll() is None and (not log.exists() or len(log.read_text().splitlines()) < 3):
