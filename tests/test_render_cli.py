@@ -90,3 +90,10 @@ def test_cli_checkpoints_another_observation_spec_refused_matching_one_used(tmp_
     assert main(["render", "-mc", str(mc), "-s", str(tmp_path / "m.mp4"), "--width", str(W), "--height", str(H), "-sc"]) == 0
     out = capsys.readouterr().out
     assert "layout: 3" in out and "max_steps: 3" in out and (tmp_path / "m.mp4").is_file()
+
+
+def test_a_missing_model_leaves_no_output_folder_behind(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", "-mc", "classic", "-s", "finals/", "--fidelity", "point"]) == 2
+    assert "no checkpoint at" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []

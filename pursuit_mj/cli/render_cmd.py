@@ -217,6 +217,7 @@ def run(args) -> int:
     if not (video or final or args.rerun):
         raise ValueError("--no-video without --final-frame or --rerun leaves nothing to write")
     settings = RenderSettings(args.width, args.height, args.camera, args.quality)
+    policy, label = shield_if_asked(args, *choose_policy(args, config, train_cfg), config)  # before any folder is made
     target = None
     if video or final:
         target = save_target(args.save_path, args.format)
@@ -228,7 +229,6 @@ def run(args) -> int:
         from ..recording import RerunEpisodeRecording, check_rrd_path
 
         check_rrd_path(args.rerun, "--rerun")
-    policy, label = shield_if_asked(args, *choose_policy(args, config, train_cfg), config)
     videos = finals = None
     if target is not None:
         stem = f"{label}_layout{Path(str(config.layout)).stem}_{config.fidelity}_seed{args.seed}"
