@@ -38,7 +38,8 @@ def test_train_then_resume_from_the_command_line(tmp_path, capsys):
     spent = sum(r["validation"]["seconds"] for r in rows if "validation" in r)
     assert [r["update"] for r in rows if "validation" in r] == [1, 2]  # each run's last update
     assert counters["validation_seconds"] == pytest.approx(spent) and counters["seconds"] > spent
-    assert "s training, " in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "s training, " in out and "of it in this session" in out  # the resumed run says what this session spent
     capsys.readouterr()
     assert main(["train", "--resume", str(tmp_path / "cli"), "--set", "ppo.lr=1e-3"]) == 2
     assert "stored config" in capsys.readouterr().err

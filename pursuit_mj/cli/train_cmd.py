@@ -164,11 +164,14 @@ def run(args) -> int:
                                  f"or start another run with --name")
             trainer = Trainer(cfg)
     signal.signal(signal.SIGTERM, _stop_on_sigterm)
+    seconds_before = trainer.counters.seconds  # a resumed run's counters hold its earlier sessions too
     result = trainer.train()
     c = result["counters"]
+    earlier = f"; {c['seconds'] - seconds_before:.0f} s of it in this session" if seconds_before > 0 else ""
     print(f"{result['status']}: {c['update']} updates, {c['world_steps']} world steps, "
           f"{c['agent_steps']} agent steps, {c['episodes']} episodes in {c['seconds']:.0f} s "
-          f"({c['seconds'] - c.get('validation_seconds', 0.0):.0f} s training, {c.get('validation_seconds', 0.0):.0f} s validating)")
+          f"({c['seconds'] - c.get('validation_seconds', 0.0):.0f} s training, {c.get('validation_seconds', 0.0):.0f} s validating"
+          f"{earlier})")
     if c["best_update"] >= 0:
         print(f"best validation success {c['best_success']:.1%} (update {c['best_update']}): {Path(result['run_dir']) / 'best.pt'}")
     val = result["validation"]
