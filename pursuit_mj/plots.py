@@ -127,12 +127,11 @@ RATE_KEYS = ("success", "collision", "timeout", "success_rate", "collision_rate"
 
 
 def _curve_label(key: str) -> str:
-    """'train.success' -> 'train: success rate (fraction)'; other keys as they are."""
+    """'train.success' -> 'train: success rate (fraction)' (labels from CURVES); other keys as they are."""
     group, _, last = key.rpartition(".")
-    names = {"success": "success rate (fraction)", "success_rate": "success rate (fraction)",
-             "collision": "collision rate (fraction)", "collision_rate": "collision rate (fraction)",
-             "timeout": "timeout rate (fraction)", "mean_steps": "mean episode length (steps)"}
-    return f"{group}: {names[last]}" if group and last in names else names.get(key, key)
+    label = next((f"{lab} (fraction)" if last in RATE_KEYS else lab for _, lab, finals in CURVES if last in finals),
+                 "timeout rate (fraction)" if last == "timeout" else None)
+    return key if label is None else (f"{group}: {label}" if group else label)
 
 
 def plot_training(runs: Mapping[str, Sequence[Mapping[str, float]]], folder: str | Path,

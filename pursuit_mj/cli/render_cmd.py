@@ -21,7 +21,8 @@ from ..configio import build, dump_yaml, load, load_yaml, to_dict
 from ..layout import load_layout
 from ..obs_spec import ObsSpec
 from ..policies import POLICY_NAMES, make_policy
-from .common import TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, flags_typed, add_task_args, load_model, seed_arg, shield_if_asked, task_config_from_args
+from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, flags_typed, load_model, seed_arg,
+                     shield_if_asked, task_config_from_args)
 
 DEFAULT_SAVE = "renders"
 
