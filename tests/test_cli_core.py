@@ -72,3 +72,15 @@ def test_bad_input_exits_2_with_one_line(argv, message, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err, err
+
+
+def test_negative_numbers_in_scientific_notation_reach_the_flags_own_check(capsys):
+    from pursuit_mj.cli import glue_negative_numbers
+
+    assert glue_negative_numbers(["train", "--total-steps", "-1e5", "--set", "a=-1e5"]) == [
+        "train", "--total-steps=-1e5", "--set", "a=-1e5"]
+    assert glue_negative_numbers(["simulate", "--seconds", "-inf", "-12"]) == ["simulate", "--seconds=-inf", "-12"]
+    assert main(["simulate", "--seconds", "-2.5e-1"]) == 2
+    assert "--seconds: must be > 0, got -0.25" in capsys.readouterr().err
+    assert main(["simulate", "--seconds", "-inf"]) == 2
+    assert "--seconds: must be > 0, got -inf" in capsys.readouterr().err

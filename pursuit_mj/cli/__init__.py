@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 
 #: subcommand modules, in the order `--help` lists them
@@ -45,9 +46,26 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: negative numbers argparse would take for flags: it only knows -12 and -1.5, not -1e5 or -inf
+_NEGATIVE_NUMBER_ARGPARSE_MISSES = re.compile(r"^-(\d+\.?\d*[eE][-+]?\d+|\.\d+[eE][-+]?\d+|inf|infinity|nan)$", re.IGNORECASE)
+
+
+def glue_negative_numbers(argv: list[str]) -> list[str]:
+    """argv with `--flag -1e5` written as `--flag=-1e5`, so the flag's own check reports the value
+    instead of argparse's "expected one argument" (argparse reads -1e5 as a flag)."""
+    out: list[str] = []
+    for token in argv:
+        previous = out[-1] if out else ""
+        if _NEGATIVE_NUMBER_ARGPARSE_MISSES.match(token) and previous.startswith("-") and "=" not in previous and previous != "--":
+            out[-1] = f"{previous}={token}"
+        else:
+            out.append(token)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(glue_negative_numbers(sys.argv[1:] if argv is None else list(argv)))
     try:
         return int(args.func(args) or 0)
     except ValueError as exc:
