@@ -11,7 +11,7 @@ import math
 from pathlib import Path
 from typing import Sequence
 
-from .configio import ConfigError, build, dump_yaml, load, spec
+from .configio import ConfigError, build, dump_yaml, load, spec, to_dict
 from .layout import N_BUILTIN
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
@@ -67,7 +67,7 @@ class TaskConfig:
     max_steps: int = spec(1000, lo=1, help="decision steps before timeout")
     flight_height: float = spec(0.5, lo=0.1, hi=3.0, help="altitude the drones hold (m)")
     layout: int | str = spec(0, help="built-in layout index 0-3 or a layout file path")
-    random_obstacles: int = spec(5, lo=0, hi=64, help="random obstacles added per episode")
+    random_obstacles: int | None = spec(None, lo=0, hi=64, help="random obstacles added per episode; null: each layout's own random_obstacles.count (5 in the built-in layouts)")
     random_layout: bool = spec(False, help="draw a random built-in layout per episode")
     observability: str = spec("partial", choices=("partial", "full"), help="partial or full observability")
     share_detections: bool = spec(True, help="an evader seen by one pursuer is known to all (relayed)")
@@ -113,6 +113,10 @@ class TaskConfig:
                 f"(controller_hz {self.controller_hz})"
             )
 
+    def random_obstacle_count(self, layout) -> int:
+        """Random obstacles drawn per episode in `layout` (a Layout): this config's count, else the layout's."""
+        return layout.random_obstacles.count if self.random_obstacles is None else self.random_obstacles
+
     @property
     def n_drones(self) -> int:
         return self.n_pursuers + self.n_evaders
@@ -157,7 +161,10 @@ def load_task_config(
 ) -> TaskConfig:
     """Defaults <- YAML files (a bare name like 'hard' means configs/task/hard.yaml) <- flags <- --set.
 
+    `files` and `overrides` are lists; a single string is taken as a list of one.
     `flags_source` names the flags in errors (a CLI passes what was typed, e.g. '--pursuers -2')."""
+    files = [files] if isinstance(files, (str, Path)) else files
+    overrides = [overrides] if isinstance(overrides, str) else overrides
     resolved = [preset_or_file(f, "task") for f in files]
     return load(TaskConfig, resolved, overrides, extra=flags, extra_source=flags_source)
 
@@ -167,4 +174,13 @@ def default_config(**changes) -> TaskConfig:
     return build(TaskConfig, changes, "default_config()")
 
 
-__all__ = ["EvaderConfig", "TaskConfig", "load_task_config", "preset_or_file", "default_config", "dump_yaml", "ConfigError"]
+def checked_task_config(config, source: str) -> TaskConfig:
+    """`config` with every value checked as if it came from a file (a TaskConfig made directly,
+    or changed with dataclasses.replace, skips the checks); ConfigError names `source`."""
+    if not isinstance(config, TaskConfig):
+        raise ConfigError(f"{source}: expected a TaskConfig (pursuit_mj.config.default_config(...) or "
+                          f"load_task_config(...)), got {type(config).__name__}")
+    return build(TaskConfig, to_dict(config), source)
+
+
+__all__ = ["EvaderConfig", "TaskConfig", "load_task_config", "checked_task_config", "preset_or_file", "default_config", "dump_yaml", "ConfigError"]

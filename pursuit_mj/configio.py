@@ -16,6 +16,7 @@ import typing
 from pathlib import Path
 from typing import Any, Mapping, Sequence, TypeVar
 
+import numpy as np
 import yaml
 
 T = TypeVar("T")
@@ -67,8 +68,9 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
                 return _coerce(value, option, where)
             except ConfigError as exc:
                 errors.append(str(exc))
-        names = " or ".join(getattr(a, "__name__", str(a)) for a in args)
-        raise ConfigError(f"{where}: {value!r} is not a {names}")
+        words = {type(None): "null", int: "an integer", float: "a number", str: "a string", bool: "true or false"}
+        names = " or ".join(words.get(a, getattr(a, "__name__", str(a))) for a in args)
+        raise ConfigError(f"{where}: {value!r} is not {names}")
     if hint is type(None):
         if value is None:
             return None
@@ -97,11 +99,11 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
             return value
         raise ConfigError(f"{where}: expected true or false, got {value!r}")
     if hint is int:
-        if isinstance(value, int) and not isinstance(value, bool):
-            return value
+        if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+            return int(value)
         raise ConfigError(f"{where}: expected an integer, got {value!r}")
     if hint is float:
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
+        if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
             if not math.isfinite(float(value)):
                 raise ConfigError(f"{where}: expected a finite number, got {value!r}")
             return float(value)

@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .config import TaskConfig
+from .config import TaskConfig, checked_task_config
 from .evader import EscapeModel
 from .geometry import ObstacleSet
 from .layout import N_BUILTIN, Layout, load_layout
@@ -84,8 +84,17 @@ def check_seeds(seeds, count: int, source: str) -> np.ndarray:
     return s.astype(np.int64)
 
 
+def check_seed(seed, source: str) -> int:
+    """`seed` as an int, or ValueError naming `source`: a non-negative integer below 2**63."""
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2**63:
+        raise ValueError(f"{source}: expected a non-negative integer below 2**63, got {seed!r}")
+    return int(seed)
+
+
 def _layout_pool(config: TaskConfig, layouts: Sequence[int | str | Layout] | None) -> list[Layout]:
     if layouts is not None:
+        if isinstance(layouts, (str, bytes, Layout)) or not isinstance(layouts, Sequence):
+            raise ValueError(f"layouts: expected a list of layouts (indices, files or Layout objects), got {layouts!r}")
         refs = list(layouts)
     elif config.random_layout:
         refs = list(range(N_BUILTIN))
@@ -108,15 +117,22 @@ class PursuitEnv:
         layouts: Sequence[int | str | Layout] | None = None,
         nthread: int = 0,
     ):
-        if not isinstance(n_worlds, int) or n_worlds < 1:
+        config = checked_task_config(config, "PursuitEnv config")
+        if isinstance(n_worlds, (bool, np.bool_)) or not isinstance(n_worlds, (int, np.integer)) or n_worlds < 1:
             raise ValueError(f"n_worlds: expected an integer >= 1, got {n_worlds!r}")
+        if not isinstance(auto_reset, (bool, np.bool_)):
+            raise ValueError(f"auto_reset: expected True or False, got {auto_reset!r}")
+        if isinstance(nthread, (bool, np.bool_)) or not isinstance(nthread, (int, np.integer)) or nthread < 0:
+            raise ValueError(f"nthread: expected an integer >= 0 (0: MuJoCo's choice), got {nthread!r}")
         self.config = config
-        self.n_worlds = n_worlds
+        self.n_worlds = int(n_worlds)
+        n_worlds = self.n_worlds
         self.n_pursuers = config.n_pursuers
         self.n_evaders = config.n_evaders
-        self.auto_reset = auto_reset
-        self.seed = int(seed)
+        self.auto_reset = bool(auto_reset)
+        self.seed = check_seed(seed, "PursuitEnv seed")
         self.pool = _layout_pool(config, layouts)
+        self._random_obstacles = any(config.random_obstacle_count(l) for l in self.pool)
         self._spawn_points = {id(l): (free_spawn_points(l, l.spawn_pursuers), free_spawn_points(l, l.spawn_evaders)) for l in self.pool}
         for layout in self.pool:
             self._check_capacity(layout)
@@ -187,14 +203,15 @@ class PursuitEnv:
             rng = np.random.default_rng(int(s))
             base_i = int(rng.integers(len(self.pool))) if self.config.random_layout else int(self._base_index[w])
             base = self.pool[base_i]
-            inst = base.with_random_obstacles(rng, self.config.random_obstacles) if self.config.random_obstacles else base
+            count = self.config.random_obstacle_count(base)
+            inst = base.with_random_obstacles(rng, count) if count else base
             pts_p, pts_e = self._spawn_points[id(base)]
             pur = self._sample_separated(pts_p, self.n_pursuers, rng)
             eva = self._sample_separated(pts_e, self.n_evaders, rng)
             layouts.append(inst)
             xy.append(np.concatenate([pur, eva]))
             self.world_layouts[w] = inst
-        if self.config.random_obstacles or self.config.random_layout:
+        if self._random_obstacles or self.config.random_layout:
             self.physics.set_layouts(ids, layouts)
         self.physics.reset(ids, np.array(xy))
         self._episode_seeds[ids] = seeds
@@ -212,14 +229,19 @@ class PursuitEnv:
         self._obstacles = ObstacleSet.stack([l.obstacle_set() for l in self.world_layouts])
 
     def reset(self, seed: int | None = None, seeds: Sequence[int] | None = None) -> np.ndarray:
-        """Start new episodes in every world; a new `seed` restarts the seed sequence. Obs (W, N, dim).
+        """Start new episodes in every world. Obs (W, N, dim).
 
+        A new `seed` restarts the default seed sequence at episode 0; without one each world
+        takes the next episode of its sequence (the first reset after construction takes
+        episode 0), so repeated `reset()` calls never replay an episode.
         seeds (W,) non-negative integers: explicit episode seeds, one per world (as in `reset_worlds`).
         """
-        if seed is not None:
-            self.seed = int(seed)
-            self.episode[:] = 0
         explicit = None if seeds is None else check_seeds(seeds, self.n_worlds, "reset seeds")
+        if seed is not None:
+            self.seed = check_seed(seed, "reset seed")
+            self.episode[:] = 0
+        elif self._obs is not None:
+            self.episode += 1
         self._start_episodes(np.arange(self.n_worlds), explicit)
         self._obs = self._observe()
         return self._obs.copy()
@@ -328,7 +350,7 @@ class PursuitEnv:
         collision = events.collided.any(-1) & active
         terminated = success | collision
         truncated = (self.steps >= cfg.max_steps) & active & ~terminated
-        self.capture_time = np.where(success & np.isnan(self.capture_time), self.steps * cfg.control_dt, self.capture_time)
+        self.capture_time = np.where(success & np.isnan(self.capture_time), np.round(self.steps * cfg.control_dt, 9), self.capture_time)  # 16.4, not 16.400000000000002
         outcome = np.full(self.n_worlds, "", dtype=object)
         outcome[success] = "success"
         outcome[collision] = "collision"  # a collision in the step of a capture still fails

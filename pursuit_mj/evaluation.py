@@ -23,7 +23,7 @@ import numpy as np
 
 from .config import TaskConfig
 from .configio import to_dict
-from .env import EpisodeRecord, PursuitEnv
+from .env import EpisodeRecord, PursuitEnv, check_seed
 from .io_utils import atomic_write_text
 from .layout import load_layout
 from .policy import Policy
@@ -190,6 +190,7 @@ def evaluate(
     Layouts are indices or layout files; all are loaded (and refused if bad) before any
     episode runs. `random_layout` is switched off: each row is one layout.
     """
+    check_seed(seed, "evaluate seed")
     refs = [config.layout] if layouts is None else list(layouts)
     if not refs:
         raise ValueError("layouts: the list of layouts is empty")

@@ -219,7 +219,10 @@ def _parse_random(value: Any, where: str) -> RandomObstacles:
     count = m.get("count", 5)
     if isinstance(count, bool) or not isinstance(count, int) or count < 0:
         raise LayoutError(f"{where}.count: expected an integer >= 0, got {count!r}")
-    kinds = tuple(m.get("kinds", ("box", "cylinder")))
+    raw_kinds = m.get("kinds", ("box", "cylinder"))
+    if not isinstance(raw_kinds, (list, tuple)):
+        raise LayoutError(f"{where}.kinds: expected a list such as [box, cylinder], got {raw_kinds!r}")
+    kinds = tuple(raw_kinds)
     for k in kinds:
         if k not in ("box", "cylinder"):
             raise LayoutError(f"{where}.kinds: unknown kind '{k}' (valid: box, cylinder)")
@@ -298,8 +301,10 @@ def builtin_layout_path(index: int) -> Path:
 
 def resolve_layout_ref(ref: int | str | Path) -> Path:
     """A layout index ('2', 2) or a file path -> the file path; errors name the reference."""
-    if isinstance(ref, int) or (isinstance(ref, str) and ref.strip().isdigit()):
+    if isinstance(ref, (int, np.integer)) and not isinstance(ref, (bool, np.bool_)) or (isinstance(ref, str) and ref.strip().isdigit()):
         return builtin_layout_path(int(ref))
+    if not isinstance(ref, (str, Path)):
+        raise LayoutError(f"layout {ref!r}: expected a built-in index 0-{N_BUILTIN - 1} or a file path")
     path = Path(ref)
     if not path.is_file():
         raise LayoutError(f"layout '{ref}': no such file, and not a built-in index 0-{N_BUILTIN - 1}")

@@ -75,7 +75,7 @@ class BatchedPhysics:
     """n_worlds MuJoCo worlds of one task; each world may carry its own layout instance.
 
     All worlds share model sizes: layouts are padded to `obstacle_slots` static geoms,
-    enough for the largest layout given plus `config.random_obstacles` random ones (or
+    enough for the largest layout given plus its random ones (`config.random_obstacle_count`, or
     `obstacle_slots` if given). A later `set_layouts` with a larger layout rebuilds the
     batch with more slots, carrying every world's state over.
 
@@ -97,7 +97,7 @@ class BatchedPhysics:
         self.drag = np.asarray(self.params["drag"], dtype=np.float64)
         check_symmetric_drag(self.drag, "models/crazyflie.xml numeric 'drag'")
         self.layouts = list(layouts)
-        needed = max(_layout_slots(l) for l in self.layouts) + config.random_obstacles + SPARE_SLOTS
+        needed = max(_layout_slots(l) + config.random_obstacle_count(l) for l in self.layouts) + SPARE_SLOTS
         self.obstacle_slots = max(needed, obstacle_slots or 0)
         self.models = self._build_all(self.layouts)
         self.ids = DroneIds.lookup(self.models[0], self.names, self.fidelity)

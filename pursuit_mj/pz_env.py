@@ -7,8 +7,6 @@ as a fraction of pursuer_speed. `state()` is the global state for centralised cr
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
@@ -26,17 +24,26 @@ class PursuitParallelEnv(ParallelEnv):
         self.possible_agents = [f"pursuer_{i}" for i in range(self.config.n_pursuers)]
         self.agents: list[str] = []
         self.render_mode = None
+        self._started = False
         self._obs_space = spaces.Box(-np.inf, np.inf, (self._env.obs_dim,), np.float32)
         self._act_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self.state_space = spaces.Box(-np.inf, np.inf, (self._env.state_dim,), np.float32)
 
-    @functools.lru_cache(maxsize=None)
     def observation_space(self, agent: str) -> spaces.Box:
+        self._check_agent(agent, "observation_space")
         return self._obs_space
 
-    @functools.lru_cache(maxsize=None)
     def action_space(self, agent: str) -> spaces.Box:
+        self._check_agent(agent, "action_space")
         return self._act_space
+
+    def _check_agent(self, agent: str, where: str) -> None:
+        if agent not in self.possible_agents:
+            raise ValueError(f"{where}: no agent {agent!r} (agents: {self.possible_agents})")
+
+    def render(self):
+        raise NotImplementedError("PursuitParallelEnv draws nothing itself: record `env.batched.snapshot()` each step "
+                                  "(pursuit_mj.render, docs/rendering.md) or use `pursuit-mj render`")
 
     @property
     def obs_spec(self):
@@ -48,12 +55,18 @@ class PursuitParallelEnv(ParallelEnv):
         return self._env
 
     def reset(self, seed: int | None = None, options: dict | None = None):
+        """A new episode: with `seed`, episode 0 of that seed's sequence, else the next episode of the
+        current one (never a replay). `options` is accepted for the API and ignored (pettingzoo's
+        own API test passes some); the task is set by the config."""
         obs = self._env.reset(seed=seed)
+        self._started = True
         self.agents = list(self.possible_agents)
         return self._as_dict(obs[0]), {a: {} for a in self.agents}
 
     def step(self, actions: dict):
         if not self.agents:
+            if not self._started:
+                raise ValueError("step() called before reset(): call reset() first")
             raise ValueError("step() called on a finished episode: call reset() first")
         missing = [a for a in self.agents if a not in actions]
         unknown = [a for a in actions if a not in self.agents]

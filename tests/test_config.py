@@ -9,6 +9,7 @@ import pytest
 import yaml
 
 from pursuit_mj.cli import main
+from pursuit_mj.layout import load_layout
 from pursuit_mj.config import ConfigError, TaskConfig, default_config, dump_yaml, load_task_config
 
 
@@ -16,12 +17,15 @@ def test_defaults_reproduce_the_reference_study():
     c = TaskConfig()
     expected = {"n_pursuers": 3, "n_evaders": 1, "pursuer_speed": 0.3, "evader_speed": 0.6, "perception_radius": 2.0,
                 "field_of_view": 2 * math.pi, "capture_radius": 0.3, "obstacle_clearance": 0.1, "teammate_clearance": 0.2,
-                "control_dt": 0.1, "max_steps": 1000, "flight_height": 0.5, "layout": 0, "random_obstacles": 5,
+                "control_dt": 0.1, "max_steps": 1000, "flight_height": 0.5, "layout": 0,
                 "random_layout": False, "observability": "partial", "collision_penalty": -10.0, "spread_reward": 0.0,
                 "fidelity": "quadrotor"}
     assert {k: getattr(c, k) for k in expected} == expected
     assert c.substeps == 50 and c.substeps_per_control == 5 and c.n_drones == 4
     c.validate()
+    # obstacle_num 5: every built-in layout file asks for 5 random obstacles, which the config defers to
+    assert c.random_obstacles is None
+    assert [c.random_obstacle_count(load_layout(i)) for i in range(4)] == [5, 5, 5, 5]
 
 
 def test_config_is_frozen_and_changes_make_new_configs():

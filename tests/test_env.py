@@ -214,3 +214,54 @@ def test_observe_as_gives_a_privileged_view_of_the_same_state_and_changes_nothin
     assert priv_known > own_known * 1.2, (own_known, priv_known)
     with pytest.raises(ValueError, match="evader_speed"):
         env.observe_as(dataclasses.replace(hard, evader_speed=0.5))
+
+
+def test_reset_without_a_seed_never_replays_an_episode():
+    env = PursuitEnv(default_config(fidelity="point"), n_worlds=2, seed=4)
+    first = env.reset()
+    layouts = [l.obstacles for l in env.world_layouts]
+    second = env.reset()
+    assert not np.array_equal(first, second)
+    assert [l.obstacles for l in env.world_layouts] != layouts
+    np.testing.assert_array_equal(env.reset(seed=4), first)  # a seed restarts its sequence
+
+
+def test_random_obstacles_default_to_the_layout_files_count(tmp_path):
+    layout = tmp_path / "two.yaml"
+    layout.write_text("arena: {width: 3.6, height: 5.0}\nrandom_obstacles: {count: 2, kinds: [box], size: [0.15, 0.3]}\n"
+                      "spawn: {pursuers: {x: [0.5, 3.1], y: [0.4, 1.2]}, evaders: {x: [0.5, 3.1], y: [3.8, 4.6]}}\n")
+    env = PursuitEnv(default_config(fidelity="point", layout=str(layout)), n_worlds=2)
+    env.reset()
+    assert [len(l.obstacles) for l in env.world_layouts] == [2, 2]
+    env = PursuitEnv(default_config(fidelity="point", layout=str(layout), random_obstacles=4))
+    env.reset()
+    assert len(env.world_layouts[0].obstacles) == 4  # a config value overrides every layout's count
+
+
+def test_configs_made_without_the_loader_are_checked_by_the_env():
+    import dataclasses
+
+    from pursuit_mj.config import TaskConfig
+
+    with pytest.raises(ConfigError, match="PursuitEnv config: key 'pursuer_speed': -1.0 is out of range"):
+        PursuitEnv(TaskConfig(pursuer_speed=-1.0, fidelity="point"))
+    with pytest.raises(ConfigError, match="key 'fidelity': 'pointy' is not one of"):
+        PursuitEnv(TaskConfig(fidelity="pointy"))
+    with pytest.raises(ConfigError, match="key 'max_steps': 0"):
+        PursuitEnv(dataclasses.replace(default_config(**FAST), max_steps=0))
+    with pytest.raises(ConfigError, match="unknown key 'x'"):
+        PursuitEnv(TaskConfig(evader={"x": 1}, fidelity="point"))
+    with pytest.raises(ConfigError, match="expected a TaskConfig .* got dict"):
+        PursuitEnv({"fidelity": "point"})
+    for seed in (-1, 1.7, "abc", None, True):
+        with pytest.raises(ValueError, match="PursuitEnv seed: expected a non-negative integer"):
+            PursuitEnv(default_config(**FAST), seed=seed)
+    with pytest.raises(ValueError, match="reset seed: expected a non-negative integer"):
+        PursuitEnv(default_config(**FAST)).reset(seed=-5)
+    with pytest.raises(ValueError, match="auto_reset: expected True or False"):
+        PursuitEnv(default_config(**FAST), auto_reset="no")
+    with pytest.raises(ValueError, match="layouts: expected a list"):
+        PursuitEnv(default_config(**FAST), layouts=2)
+    env = PursuitEnv(default_config(fidelity="point", random_obstacles=np.int64(0)), n_worlds=np.int64(2), seed=np.int64(3))
+    assert env.n_worlds == 2 and env.reset().shape[0] == 2
+    assert load_task_config("hard") == load_task_config(["hard"])

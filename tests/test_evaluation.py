@@ -12,6 +12,7 @@ from pursuit_mj.config import default_config, load_task_config
 from pursuit_mj.env import EpisodeRecord
 from pursuit_mj.evaluation import FIELDS, evaluate, format_table, read_csv, run_episodes, summarise
 from pursuit_mj.heuristic import HeuristicTeam
+from pursuit_mj.layout import load_layout
 from pursuit_mj.recording.rrd_read import read_entities
 from pursuit_mj.stats import mean_interval, t_quantile_975, wilson_interval
 
@@ -105,7 +106,7 @@ def test_same_seed_same_table_and_every_episode_counted():
 def test_same_table_whatever_the_number_of_worlds(fidelity):
     # the hard preset: perception noise and missed detections on, plus random obstacles
     config = load_task_config(["hard"], flags={"fidelity": fidelity}, overrides=["max_steps=40"])
-    assert config.position_noise > 0 and config.miss_probability > 0 and config.random_obstacles > 0
+    assert config.position_noise > 0 and config.miss_probability > 0 and config.random_obstacle_count(load_layout(config.layout)) > 0
 
     def run(worlds):
         records = run_episodes(HeuristicTeam.from_config(config), config, 5, seed=11, n_worlds=worlds)

@@ -28,3 +28,25 @@ def test_action_dict_errors_name_the_agent():
         env.step({f"pursuer_{i}": np.zeros(2) for i in (0, 1, 2, 9)})
     with pytest.raises(ValueError, match="expected shape \\(2,\\)"):
         env.step({f"pursuer_{i}": np.zeros(3) for i in range(3)})
+
+
+def test_reset_without_a_seed_moves_on_to_the_next_episode():
+    env = PursuitParallelEnv(default_config(fidelity="point", max_steps=5))
+
+    def start():
+        obs, _ = env.reset()
+        return obs["pursuer_0"].copy(), env.batched.snapshot().layout.obstacles
+
+    first, second = start(), start()
+    assert not np.array_equal(first[0], second[0]) or first[1] != second[1]
+    env.reset(seed=0)
+    replay = env.batched.snapshot().layout.obstacles
+    assert replay == first[1]  # a seed restarts the sequence: episode 0 again
+
+
+def test_agent_names_and_call_order_are_checked():
+    env = PursuitParallelEnv(default_config(fidelity="point", random_obstacles=0))
+    with pytest.raises(ValueError, match="before reset"):
+        env.step({f"pursuer_{i}": np.zeros(2) for i in range(3)})
+    with pytest.raises(ValueError, match="no agent 'evader_0'"):
+        env.observation_space("evader_0")

@@ -24,6 +24,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..layout import load_layout
 from ..config import TaskConfig, load_task_config
 from . import check_common_args, format_table, peak_rss_mb, profile_call, run_isolated
 
@@ -122,7 +123,7 @@ def run(args) -> int:
         raise ValueError(f"--profile: must be >= 0, got {args.profile}")
     cfg = task_config(args.fidelity[0], args.task_files, args.overrides)  # refuses bad settings before any work
     print(f"env benchmark: {cfg.n_pursuers} pursuers + {cfg.n_evaders} evader(s) per world, layout {cfg.layout} with "
-          f"{cfg.random_obstacles} random obstacles, {cfg.observability} observability, {cfg.n_rays} rays; a decision "
+          f"{cfg.random_obstacle_count(load_layout(cfg.layout))} random obstacles, {cfg.observability} observability, {cfg.n_rays} rays; a decision "
           f"step is {cfg.control_dt:g} s = {cfg.substeps} physics steps")
     print("rates in decision steps/s summed over worlds (agent-steps/s = env x pursuers); raw = batch.step(nstep), "
           "physics = BatchedPhysics.step, env = PursuitEnv.step; fastest of alternating blocks; one process per configuration")

@@ -123,7 +123,7 @@ def run(args) -> int:
         raise ValueError(f"--nthread: must be >= 0, got {args.nthread}")
     cfg = task_config(args.fidelity[0], args.overrides)  # refuses bad --set values before any work
     print(f"physics benchmark: {cfg.n_pursuers} pursuers + {cfg.n_evaders} evader(s) per world, layout {cfg.layout} with "
-          f"{cfg.random_obstacles} random obstacles per world; a decision step is control_dt {cfg.control_dt:g} s = "
+          f"{cfg.random_obstacle_count(load_layout(cfg.layout))} random obstacles per world; a decision step is control_dt {cfg.control_dt:g} s = "
           f"{cfg.substeps} physics steps of {cfg.physics_dt:g} s; controller {cfg.controller_hz:g} Hz")
     print("rates summed over worlds; raw = batch.step(nstep) with fixed controls, ours = BatchedPhysics.step; fastest of "
           "alternating blocks (ratio of the median blocks beside); each configuration in its own process (peak RSS is its own)")

@@ -32,7 +32,7 @@ def add_task_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("-rv", "--pursuer-speed", "--r-velocity", type=float, dest="pursuer_speed", help="pursuer max speed (m/s)")
     g.add_argument("-ev", "--evader-speed", "--e-velocity", type=float, dest="evader_speed", help="evader speed (m/s)")
     g.add_argument("--perception-radius", "--r-perception", type=float, dest="perception_radius", help="perception radius (m)")
-    g.add_argument("--random-obstacles", "--obstacle-num", type=int, dest="random_obstacles", help="random obstacles per episode")
+    g.add_argument("--random-obstacles", "--obstacle-num", type=int, dest="random_obstacles", help="random obstacles per episode (default: the layout file's random_obstacles.count)")
     g.add_argument("--delta-t", "--control-dt", type=float, dest="control_dt", help="decision interval (s)")
     g.add_argument("--observability", choices=("partial", "full"), help="observability")
     g.add_argument("-sc", "--show-config", action="store_true", help="print the resolved task config")
