@@ -85,3 +85,36 @@ def test_the_emergency_stop_cuts_every_motor_at_once_and_nobody_lands(tmp_path):
     assert seen["off_after"] is not None and seen["off_after"] < 0.2
     assert "land" not in events.kinds() and events.of_kind("emergency_stop")[0]["reason"] == "test command"
     assert fleet.true_state()["locked"].all() and seen["fell"]
+
+
+def test_sigterm_lands_everyone_like_ctrl_c(tmp_path):
+    plan = quick_plan(max_time=8.0)
+    before = signal.getsignal(signal.SIGTERM)
+
+    def terminate(fleet, bridge):
+        time.sleep(0.3)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    result, events, fleet = fly_virtual(plan, HeuristicTeam.from_config(plan.task), tmp_path, during=terminate, handle_signals=True)
+    assert result.outcome == "interrupted" and result.reason == "SIGTERM" and result.landed
+    assert kinds_in_order(events, "chase", "interrupt", "land", "landed")
+    assert events.of_kind("interrupt")[0]["reason"] == "SIGTERM"
+    assert signal.getsignal(signal.SIGTERM) is before
+    assert down(fleet)
+
+
+def test_ctrl_c_before_take_off_ends_the_run_and_is_logged(tmp_path):
+    import json
+
+    import pytest
+
+    def press_ctrl_c_at_the_go_no_go():
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.2)  # the handler runs here
+        return True
+
+    with pytest.raises(KeyboardInterrupt):
+        fly_virtual(quick_plan(max_time=8.0), HeuristicTeam.from_config(quick_plan().task), tmp_path,
+                    handle_signals=True, confirm=press_ctrl_c_at_the_go_no_go)
+    kinds = [json.loads(line)["kind"] for line in (tmp_path / "events.jsonl").read_text().splitlines()]
+    assert "takeoff" not in kinds and kinds.index("interrupt") < kinds.index("links_closed")

@@ -112,8 +112,9 @@ class FlightBridge:
 
     factory: builds cflib's SyncCrazyflie per URI (default: TOC-cached, see links.py);
     recorder: optional FlightRecorder; seed: sensing and escape-model randomness;
-    handle_signals: in the main thread, Ctrl-C lands everyone (a second Ctrl-C cuts the
-    motors) and Ctrl-\\ cuts the motors; confirm(): asked after the preflight checks,
+    handle_signals: in the main thread, Ctrl-C, SIGTERM and SIGHUP (a closed terminal; not when
+    started under nohup) land everyone (a second one cuts the motors), before take-off they
+    end the run at once, and Ctrl-\\ cuts the motors; confirm(): asked after the preflight checks,
     False refuses the take-off (an operator's go / no-go).
     """
 
@@ -137,9 +138,11 @@ class FlightBridge:
         self._stop = threading.Event()  # wakes the loop for any request below
         self._estop = threading.Event()
         self._interrupt = threading.Event()
+        self._interrupt_reason = "Ctrl-C"
         self._land_request = ""
         self._airborne = False
         self._landing = False
+        self._in_flight = False  # past the checks: a stop signal lands instead of aborting
         if recorder is not None:
             previous = events.echo
 
@@ -172,11 +175,12 @@ class FlightBridge:
         self._land_request = reason
         self._stop.set()
 
-    def interrupt(self) -> None:
+    def interrupt(self, reason: str = "Ctrl-C") -> None:
         """What Ctrl-C does: everyone lands; during the landing, a second one cuts the motors."""
         if self._landing:
-            self.emergency_stop("second Ctrl-C during the landing")
+            self.emergency_stop(f"second {reason} during the landing")
             return
+        self._interrupt_reason = reason
         self._interrupt.set()
         self._stop.set()
 
@@ -190,7 +194,7 @@ class FlightBridge:
                         layout=plan.layout.source, positioning=plan.spec.positioning, decision_rate=1.0 / plan.dt)
         self.board = StateBoard(plan.n_drones, self.clock)
         try:
-            with LinkSet(plan.names, plan.uris, self.board, self.factory, plan.safety.connect_timeout) as links:
+            with self._signals(), LinkSet(plan.names, plan.uris, self.board, self.factory, plan.safety.connect_timeout) as links:
                 self.links = links
                 self.events.log("links_up", uris=plan.uris)
                 for link in links:
@@ -198,10 +202,13 @@ class FlightBridge:
                 preflight(links, self.board, plan, self.events, self.clock)
                 if self.confirm is not None and not self.confirm():
                     raise PreflightError("take-off declined by the operator")
-                with self._signals():
-                    return self._fly()
+                self._in_flight = True
+                return self._fly()
         except (LinkError, PreflightError) as exc:
             self.events.log("refused", reason=str(exc), level="error")
+            raise
+        except KeyboardInterrupt:  # before take-off: nothing to land
+            self.events.log("interrupt", reason=self._interrupt_reason, before_takeoff=True, level="warn")
             raise
         finally:
             self.links = None
@@ -209,16 +216,32 @@ class FlightBridge:
 
     @contextlib.contextmanager
     def _signals(self):
+        """Stop signals from the connection to the end: before take-off they raise KeyboardInterrupt
+        (the run ends, links close), once flying they land everyone (`interrupt`). SIGINT is taken
+        even where the shell started us ignoring it (a background job): a flight must be stoppable."""
         if not (self.handle_signals and threading.current_thread() is threading.main_thread()):
             yield
             return
-        old_int = signal.signal(signal.SIGINT, lambda *a: self.interrupt())
-        old_quit = signal.signal(signal.SIGQUIT, lambda *a: self.emergency_stop("Ctrl-\\ pressed"))
+        names = {signal.SIGINT: "Ctrl-C", signal.SIGTERM: "SIGTERM", signal.SIGHUP: "SIGHUP"}
+
+        def on_stop(signum, frame):
+            reason = names.get(signum, f"signal {signum}")
+            if not self._in_flight:
+                self._interrupt_reason = reason
+                raise KeyboardInterrupt(reason)
+            self.interrupt(reason)
+
+        previous = {sig: signal.getsignal(sig) for sig in (*names, signal.SIGQUIT)}
+        for sig in names:
+            if sig == signal.SIGHUP and previous[sig] == signal.SIG_IGN:
+                continue  # nohup: the operator asked to outlive the terminal
+            signal.signal(sig, on_stop)
+        signal.signal(signal.SIGQUIT, lambda *a: self.emergency_stop("Ctrl-\\ pressed"))
         try:
             yield
         finally:
-            signal.signal(signal.SIGINT, old_int)
-            signal.signal(signal.SIGQUIT, old_quit)
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
 
     def _fly(self) -> FlightResult:
         steps: list[StepRecord] = []
@@ -234,7 +257,7 @@ class FlightBridge:
         except _Abort as stop:
             outcome, reason = stop.outcome, stop.reason
         except KeyboardInterrupt:
-            outcome, reason = "interrupted", "Ctrl-C"
+            outcome, reason = "interrupted", self._interrupt_reason
         except Exception as exc:
             self.events.log("error", reason=f"{type(exc).__name__}: {exc}", level="error")
             self._land_all("error")
@@ -337,8 +360,8 @@ class FlightBridge:
         if self._estop.is_set():
             raise _Abort("emergency_stop", "emergency stop")
         if self._interrupt.is_set():
-            self.events.log("interrupt", reason="Ctrl-C", level="warn")
-            raise _Abort("interrupted", "Ctrl-C")
+            self.events.log("interrupt", reason=self._interrupt_reason, level="warn")
+            raise _Abort("interrupted", self._interrupt_reason)
         if self._land_request:
             raise _Abort("land_requested", self._land_request)
         silent = snap.lost | (snap.silence > limits.link_timeout)
