@@ -209,6 +209,37 @@ def yaml_error_text(exc: yaml.YAMLError) -> str:
     return f"line {mark.line + 1}, column {mark.column + 1}: {what}" if mark is not None else what
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """yaml.SafeLoader that refuses a key given twice in one mapping (PyYAML keeps the last silently)."""
+
+    def construct_mapping(self, node, deep=False):
+        first_line: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            try:
+                duplicate = key in first_line
+            except TypeError:  # an unhashable key: SafeLoader reports it
+                break
+            if duplicate:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"key {key!r} given twice (first on line {first_line[key] + 1})", key_node.start_mark)
+            first_line[key] = key_node.start_mark.line
+        return super().construct_mapping(node, deep)
+
+
+def safe_load(text: str) -> Any:
+    """yaml.safe_load, refusing duplicate keys."""
+    return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+
+
+def read_text(path: Path, source: str) -> str:
+    """A file's text; ConfigError naming `source` when it is not UTF-8 text (an image, say)."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise ConfigError(f"{source}: not a text (YAML) file") from None
+
+
 def load_yaml(path: str | Path, source: str | None = None) -> dict[str, Any]:
     """Read a YAML mapping; a missing file or non-mapping content is a ConfigError."""
     path = Path(path)
@@ -216,7 +247,7 @@ def load_yaml(path: str | Path, source: str | None = None) -> dict[str, Any]:
     if not path.is_file():
         raise ConfigError(f"{src}: file not found: {path}")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = safe_load(read_text(path, src))
     except yaml.YAMLError as exc:
         raise ConfigError(f"{src}: not valid YAML, {yaml_error_text(exc)}") from None
     if data is None:

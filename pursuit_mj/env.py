@@ -16,7 +16,7 @@ from .config import TaskConfig, checked_task_config
 from .evader import EscapeModel
 from .geometry import ObstacleSet
 from .layout import N_BUILTIN, Layout, load_layout
-from .layout_check import free_spawn_points
+from .layout_check import check_spawn_capacity, free_spawn_points, sample_separated
 from .observations import build_global_state, build_observations, global_state_dim
 from .obs_spec import ObsSpec
 from .physics import BatchedPhysics
@@ -163,29 +163,7 @@ class PursuitEnv:
 
     def _check_capacity(self, layout: Layout) -> None:
         """Refuse a task whose spawn regions cannot hold its drones (clear error, early)."""
-        rng = np.random.default_rng(0)
-        pts_p, pts_e = self._spawn_points[id(layout)]
-        for name, pts, n, region in (("pursuers", pts_p, self.n_pursuers, layout.spawn_pursuers), ("evaders", pts_e, self.n_evaders, layout.spawn_evaders)):
-            if self._sample_separated(pts, n, rng) is None:
-                raise ValueError(
-                    f"n_{name}={n}: the spawn region of {layout.source} (x={list(region.x)}, y={list(region.y)}) "
-                    f"cannot hold {n} {name} {SPAWN_SEPARATION} m apart"
-                )
-
-    @staticmethod
-    def _sample_separated(points: np.ndarray, n: int, rng: np.random.Generator, tries: int = 200) -> np.ndarray | None:
-        """n points (n, 2) drawn from `points`, pairwise at least SPAWN_SEPARATION apart, or None."""
-        for _ in range(tries):
-            chosen: list[np.ndarray] = []
-            for idx in rng.permutation(len(points)):
-                q = points[idx]
-                if all(np.hypot(*(q - c)) >= SPAWN_SEPARATION for c in chosen):
-                    chosen.append(q)
-                    if len(chosen) == n:
-                        return np.array(chosen)
-            if len(chosen) < n:
-                return None
-        return None
+        check_spawn_capacity(layout, self.n_pursuers, self.n_evaders, SPAWN_SEPARATION)
 
     def _start_episodes(self, ids: np.ndarray, seeds: np.ndarray | None = None) -> None:
         """Begin a new episode in each listed world: new random obstacles, spawn, counters.
@@ -206,8 +184,8 @@ class PursuitEnv:
             count = self.config.random_obstacle_count(base)
             inst = base.with_random_obstacles(rng, count) if count else base
             pts_p, pts_e = self._spawn_points[id(base)]
-            pur = self._sample_separated(pts_p, self.n_pursuers, rng)
-            eva = self._sample_separated(pts_e, self.n_evaders, rng)
+            pur = sample_separated(pts_p, self.n_pursuers, rng, SPAWN_SEPARATION)
+            eva = sample_separated(pts_e, self.n_evaders, rng, SPAWN_SEPARATION)
             layouts.append(inst)
             xy.append(np.concatenate([pur, eva]))
             self.world_layouts[w] = inst
@@ -253,7 +231,10 @@ class PursuitEnv:
         its seed and the actions taken: the same seed replays it exactly in any world, however
         many worlds run. Without seeds each world takes the next of its default sequence.
         """
-        ids = np.asarray(world_ids, dtype=np.int64).reshape(-1)
+        raw = np.asarray(world_ids).reshape(-1)
+        if raw.size and (raw.dtype == bool or not np.issubdtype(raw.dtype, np.integer)):
+            raise ValueError(f"reset_worlds world_ids: expected integer world indices, got {world_ids!r}")
+        ids = raw.astype(np.int64)
         if ids.size and (ids.min() < 0 or ids.max() >= self.n_worlds or len(np.unique(ids)) != ids.size):
             raise ValueError(f"reset_worlds world_ids: expected distinct indices in 0..{self.n_worlds - 1}, got {list(world_ids)}")
         explicit = None if seeds is None else check_seeds(seeds, len(ids), "reset_worlds seeds")
@@ -393,8 +374,9 @@ class PursuitEnv:
 
     def snapshot(self, world: int = 0) -> Snapshot:
         """Everything a recorder needs about one world now (copies; reading never steers)."""
-        if not 0 <= world < self.n_worlds:
-            raise ValueError(f"world: {world} is not in 0..{self.n_worlds - 1}")
+        if isinstance(world, (bool, np.bool_)) or not isinstance(world, (int, np.integer)) or not 0 <= world < self.n_worlds:
+            raise ValueError(f"world: {world!r} is not a world index in 0..{self.n_worlds - 1}")
+        world = int(world)
         N = self.n_pursuers
         st = self.physics.state()
         per = self._perception

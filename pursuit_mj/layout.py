@@ -15,7 +15,7 @@ from typing import Any, Mapping, Sequence, Union
 import numpy as np
 import yaml
 
-from .configio import ConfigError, yaml_error_text
+from .configio import ConfigError, read_text, safe_load, yaml_error_text
 from .geometry import ObstacleSet, boundary_segments
 
 LAYOUT_DIR = Path(__file__).resolve().parent.parent / "configs" / "layouts"
@@ -186,6 +186,13 @@ def _parse_boundary(value: Any, where: str) -> Boundary:
             if not isinstance(body, (list, tuple)) or len(body) < 3:
                 raise LayoutError(f"{where}.polygon: expected at least 3 [x, y] points, got {body!r}")
             pts = tuple(_pair(p, f"{where}.polygon[{i}]") for i, p in enumerate(body))
+            from .layout_check import polygon_crossing
+
+            crossing = polygon_crossing(pts)
+            if crossing is not None:
+                i, j = crossing
+                raise LayoutError(f"{where}.polygon: edge {list(pts[i])} -> {list(pts[(i + 1) % len(pts)])} crosses edge "
+                                  f"{list(pts[j])} -> {list(pts[(j + 1) % len(pts)])}: the border must not cross itself")
             area = _signed_area(pts)
             if abs(area) < 1e-6:
                 raise LayoutError(f"{where}.polygon: the points enclose no area")
@@ -315,7 +322,7 @@ def load_layout(ref: int | str | Path) -> Layout:
     """Load a built-in layout by index or any layout file by path."""
     path = resolve_layout_ref(ref)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = safe_load(read_text(path, str(path)))
     except yaml.YAMLError as exc:
         raise LayoutError(f"{path}: not valid YAML, {yaml_error_text(exc)}") from None
     return layout_from_dict(data, str(path))

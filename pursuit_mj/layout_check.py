@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 
 from .geometry import ObstacleSet, inside_boundary, obstacle_distance
 
 #: a spawn point needs this much room to the nearest obstacle or border (m)
 SPAWN_CLEARANCE = 0.2
+#: a drone centre this far from every wall and obstacle can pass (the task's obstacle_clearance default, m)
+PASSAGE_CLEARANCE = 0.1
+#: grid pitch of the reachability check (m); coarser for big arenas, at most GRID_CELLS cells a side
+GRID_STEP = 0.05
+GRID_CELLS = 300
 
 
 def _obstacle_points(layout, obstacles) -> list[np.ndarray]:
@@ -39,25 +46,116 @@ def free_spawn_points(layout, region, clearance: float = SPAWN_CLEARANCE, step: 
     return pts[ok]
 
 
+def sample_separated(points: np.ndarray, n: int, rng: np.random.Generator, separation: float, tries: int = 200) -> np.ndarray | None:
+    """n of `points` (K, 2) drawn at random, pairwise at least `separation` (m) apart, as (n, 2); None if no draw fits."""
+    for _ in range(tries):
+        chosen: list[np.ndarray] = []
+        for idx in rng.permutation(len(points)):
+            q = points[idx]
+            if all(np.hypot(*(q - c)) >= separation for c in chosen):
+                chosen.append(q)
+                if len(chosen) == n:
+                    return np.array(chosen)
+        if len(chosen) < n:
+            return None
+    return None
+
+
+def check_spawn_capacity(layout, n_pursuers: int, n_evaders: int, separation: float) -> None:
+    """LayoutError unless each spawn region holds its team `separation` (m) apart."""
+    from .layout import LayoutError
+
+    rng = np.random.default_rng(0)
+    for name, region, n in (("pursuers", layout.spawn_pursuers, n_pursuers), ("evaders", layout.spawn_evaders, n_evaders)):
+        if sample_separated(free_spawn_points(layout, region), n, rng, separation) is None:
+            raise LayoutError(f"n_{name}={n}: the spawn region of {layout.source} (x={list(region.x)}, y={list(region.y)}) "
+                              f"cannot hold {n} {name} {separation} m apart")
+
+
+def reachable(layout, start, goal, clearance: float = PASSAGE_CLEARANCE) -> bool:
+    """Whether a drone centre keeping `clearance` (m) from the border and the fixed obstacles can fly
+    from some free point of Region `start` to some free point of Region `goal` (8-connected grid)."""
+    step = max(GRID_STEP, max(layout.width, layout.height) / GRID_CELLS)
+    xs = np.arange(step / 2, layout.width, step)
+    ys = np.arange(step / 2, layout.height, step)
+    grid = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1)  # (X, Y, 2) cell centres, m
+    flat = grid.reshape(-1, 2)
+    free = (inside_boundary(layout, flat) & (obstacle_distance(flat, ObstacleSet.from_layout(layout)) >= clearance)).reshape(grid.shape[:2])
+
+    def cells_in(region) -> np.ndarray:
+        x, y = grid[..., 0], grid[..., 1]
+        return free & (x >= region.x[0]) & (x <= region.x[1]) & (y >= region.y[0]) & (y <= region.y[1])
+
+    target = cells_in(goal)
+    seen = cells_in(start).copy()
+    queue = deque(zip(*np.nonzero(seen)))
+    nx, ny = free.shape
+    while queue:
+        i, j = queue.popleft()
+        if target[i, j]:
+            return True
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                a, b = i + di, j + dj
+                if 0 <= a < nx and 0 <= b < ny and free[a, b] and not seen[a, b]:
+                    seen[a, b] = True
+                    queue.append((a, b))
+    return False
+
+
+def polygon_crossing(points) -> tuple[int, int] | None:
+    """The first pair (i, j) of non-adjacent edges that cross (edge i runs from point i to i+1), or None."""
+    p = np.asarray(points, dtype=float)
+    n = len(p)
+    a, b = p, np.roll(p, -1, axis=0)
+
+    def side(o, q, r):  # sign of the turn o -> q -> r
+        return np.sign((q[..., 0] - o[..., 0]) * (r[..., 1] - o[..., 1]) - (q[..., 1] - o[..., 1]) * (r[..., 0] - o[..., 0]))
+
+    for i in range(n):
+        for j in range(i + 2, n):
+            if i == 0 and j == n - 1:
+                continue  # neighbours through the closing edge
+            if side(a[i], b[i], a[j]) * side(a[i], b[i], b[j]) < 0 and side(a[j], b[j], a[i]) * side(a[j], b[j], b[i]) < 0:
+                return i, j
+    return None
+
+
+def _describe(o) -> str:
+    from .layout import Box, Cylinder, Wall
+
+    if isinstance(o, Cylinder):
+        return f"cylinder centre {list(o.center)} radius {o.radius}"
+    if isinstance(o, Wall):
+        return f"wall from {list(o.start)} to {list(o.end)}"
+    if isinstance(o, Box):
+        return f"box centre {list(o.center)} size {list(o.size)}"
+    return repr(o)
+
+
 def check_layout(layout) -> None:
-    """Raise LayoutError if an obstacle leaves the arena or a spawn region has no free room."""
+    """Raise LayoutError if an obstacle leaves the arena, a spawn region has no free room, or the
+    evaders' spawn region cannot be reached from the pursuers' past the fixed obstacles."""
     from .layout import LayoutError
 
     src = layout.source
     for i, pts in enumerate(_obstacle_points(layout, layout.obstacles)):
         in_arena = (pts[:, 0] >= -1e-9) & (pts[:, 0] <= layout.width + 1e-9) & (pts[:, 1] >= -1e-9) & (pts[:, 1] <= layout.height + 1e-9)
         if not in_arena.all():
-            raise LayoutError(f"{src}: obstacles[{i}] lies (partly) outside the {layout.width} x {layout.height} m arena")
+            raise LayoutError(f"{src}: obstacles[{i}] ({_describe(layout.obstacles[i])}) lies (partly) outside "
+                              f"the {layout.width} x {layout.height} m arena")
         if layout.boundary.kind != "rectangle" and not inside_boundary(layout, pts[-1:]).all():
-            raise LayoutError(f"{src}: obstacles[{i}] has its centre outside the {layout.boundary.kind} boundary")
+            raise LayoutError(f"{src}: obstacles[{i}] ({_describe(layout.obstacles[i])}) has its centre outside the {layout.boundary.kind} boundary")
     b = layout.boundary
     if b.kind == "circle":
         if b.center[0] - b.radius < -1e-9 or b.center[0] + b.radius > layout.width + 1e-9 or b.center[1] - b.radius < -1e-9 or b.center[1] + b.radius > layout.height + 1e-9:
             raise LayoutError(f"{src}: boundary circle (centre {list(b.center)}, radius {b.radius}) leaves the arena")
     if b.kind == "polygon":
         p = np.array(b.points)
-        if (p[:, 0] < -1e-9).any() or (p[:, 0] > layout.width + 1e-9).any() or (p[:, 1] < -1e-9).any() or (p[:, 1] > layout.height + 1e-9).any():
-            raise LayoutError(f"{src}: boundary polygon has a point outside the {layout.width} x {layout.height} m arena")
+        out = (p[:, 0] < -1e-9) | (p[:, 0] > layout.width + 1e-9) | (p[:, 1] < -1e-9) | (p[:, 1] > layout.height + 1e-9)
+        if out.any():
+            k = int(np.flatnonzero(out)[0])
+            raise LayoutError(f"{src}: boundary polygon point {list(b.points[k])} lies outside the {layout.width} x {layout.height} m arena")
     for name, region in (("pursuers", layout.spawn_pursuers), ("evaders", layout.spawn_evaders)):
         if region.x[0] < 0 or region.y[0] < 0 or region.x[1] > layout.width or region.y[1] > layout.height:
             raise LayoutError(f"{src}: spawn.{name} x={list(region.x)} y={list(region.y)} leaves the arena")
@@ -66,3 +164,8 @@ def check_layout(layout) -> None:
                 f"{src}: spawn.{name} x={list(region.x)} y={list(region.y)} has no free point "
                 f"{SPAWN_CLEARANCE} m away from obstacles and the border (spawn region inside an obstacle?)"
             )
+    if not reachable(layout, layout.spawn_pursuers, layout.spawn_evaders):
+        raise LayoutError(
+            f"{src}: the evaders' spawn region cannot be reached from the pursuers': walls or obstacles cut the "
+            f"arena in two (a passage needs {2 * PASSAGE_CLEARANCE:g} m between them)"
+        )

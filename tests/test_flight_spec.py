@@ -110,6 +110,7 @@ def test_a_bad_flight_file_is_refused_naming_file_and_key(edit, words):
         ({"transform": {"scale": 0.1}, "safety": {"min_separation": 3.5}}, ["min_separation", "no capture"]),
         ({"safety": {"min_separation": 0.29}, "transform": {"scale": 1.2}}, ["min_separation", "capture distance"]),
         ({"task": {"n_pursuers": 5}}, ["task", "n_pursuers", "set by the flight"]),
+        ({"task": {"fidelity": "point"}}, ["task", "'fidelity' means nothing in a flight"]),
         ({"decision_rate": 0.5}, ["decision_rate", "out of range"]),
     ],
 )
@@ -295,7 +296,10 @@ def test_fly_check_and_bad_command_lines_fail_with_one_clear_line(capsys):
     from pursuit_mj.cli import main
 
     assert main(["fly", "check", "--flight", EXAMPLE]) == 0
-    assert "no radio was touched" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "no radio was touched" in out and "warning" not in out
+    assert main(["fly", "check", "--flight", EXAMPLE, "--set", "evader_speed=0.9"]) == 0
+    assert "warning: the evaders' task speed 0.9 m/s is 0.9 m/s in the lab, above the safety limit" in capsys.readouterr().out
     assert main(["fly", "--flight", EXAMPLE]) == 2
     assert "exactly one of --policy" in capsys.readouterr().err
     assert main(["fly", "--flight", EXAMPLE, "--model", "no/such/best.pt"]) == 2

@@ -159,17 +159,36 @@ def test_malformed_layouts_are_refused_naming_the_entry(data, message, tmp_path)
     "data, message",
     [
         (base_dict(obstacles=[{"box": {"center": [1.8, 0.5], "size": [3.6, 1.0]}}]), r"spawn.pursuers .* has no free point"),
-        (base_dict(obstacles=[{"cylinder": {"center": [3.5, 2.5], "radius": 0.3}}]), r"obstacles\[0\] lies \(partly\) outside the 3.6 x 5.0 m arena"),
-        (base_dict(obstacles=[{"wall": {"from": [-0.5, 2.5], "to": [1.0, 2.5]}}]), r"obstacles\[0\] lies \(partly\) outside"),
+        (base_dict(obstacles=[{"cylinder": {"center": [3.5, 2.5], "radius": 0.3}}]), r"obstacles\[0\] \(cylinder centre \[3.5, 2.5\] radius 0.3\) lies \(partly\) outside the 3.6 x 5.0 m arena"),
+        (base_dict(obstacles=[{"wall": {"from": [-0.5, 2.5], "to": [1.0, 2.5]}}]), r"obstacles\[0\] \(wall from \[-0.5, 2.5\] to \[1.0, 2.5\]\) lies \(partly\) outside"),
         (base_dict(spawn={"pursuers": {"x": [0.2, 4.0], "y": [0.2, 0.8]}, "evaders": SPAWN["evaders"]}), r"spawn.pursuers .* leaves the arena"),
         (dict(CIRCLE, boundary={"circle": {"center": [2.0, 2.0], "radius": 2.5}}), r"boundary circle .* leaves the arena"),
         (dict(CIRCLE, spawn={"pursuers": {"x": [0.0, 0.4], "y": [0.0, 0.4]}, "evaders": CIRCLE["spawn"]["evaders"]}), r"spawn.pursuers .* has no free point"),
-        (dict(CIRCLE, obstacles=[{"cylinder": {"center": [0.2, 0.2], "radius": 0.1}}]), r"obstacles\[0\] has its centre outside the circle boundary"),
+        (dict(CIRCLE, obstacles=[{"cylinder": {"center": [0.2, 0.2], "radius": 0.1}}]), r"obstacles\[0\] \(cylinder .*\) has its centre outside the circle boundary"),
+        (base_dict(obstacles=[{"wall": {"from": [0.0, 2.5], "to": [3.6, 2.5]}}]), r"evaders' spawn region cannot be reached from the pursuers'"),
+        (base_dict(obstacles=[{"wall": {"from": [0.0, 2.5], "to": [3.45, 2.5]}}]), r"cannot be reached"),  # a 0.15 m gap: too narrow
+        (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [1, 5], [3.6, 4]]}), r"boundary.polygon: edge \[3.6, 0.0\] -> \[1.0, 5.0\] crosses edge"),
+        (base_dict(boundary={"polygon": [[0, 0], [3.6, 5], [3.6, 0], [0, 5]]}), r"must not cross itself"),
     ],
 )
 def test_impossible_layouts_are_refused_naming_the_entry(data, message):
     with pytest.raises(LayoutError, match=message):
         layout_from_dict(data, "impossible.yaml")
+
+
+def test_a_passage_just_wide_enough_is_accepted():
+    layout_from_dict(base_dict(obstacles=[{"wall": {"from": [0.0, 2.5], "to": [3.3, 2.5]}}]), "gap.yaml")  # 0.3 m minus the wall's half-thickness
+
+
+def test_duplicate_keys_and_non_text_files_are_refused(tmp_path):
+    path = tmp_path / "twice.yaml"
+    path.write_text(yaml.safe_dump(base_dict()) + "name: again\n")
+    with pytest.raises(LayoutError, match=r"twice.yaml: not valid YAML, line \d+, column 1: key 'name' given twice \(first on line \d+\)"):
+        load_layout(path)
+    picture = tmp_path / "layout.png"
+    picture.write_bytes(b"\x89PNG\r\n\x1a\n\x00\xff")
+    with pytest.raises(ValueError, match=r"layout.png: not a text \(YAML\) file"):
+        load_layout(picture)
 
 
 def test_invalid_yaml_is_refused_with_the_file_name(tmp_path):
@@ -211,7 +230,7 @@ def test_layout_new_default_polygon_and_seeded_random_obstacles_are_reproducible
     "argv, message",
     [
         (["layout", "new", "{out}", "--box", "1", "2", "3"], "--box: expected CX CY SX SY [YAW], got 3 numbers"),
-        (["layout", "new", "{out}", "--box", "5", "2", "0.3", "0.3"], "obstacles[0] lies (partly) outside"),
+        (["layout", "new", "{out}", "--box", "5", "2", "0.3", "0.3"], "obstacles[0] (box centre [5.0, 2.0] size [0.3, 0.3]) lies (partly) outside"),
         (["layout", "new", "{out}", "--border", "polygon", "--points", "0,0", "1,x"], "--points: '1,x' is not X,Y"),
         (["layout", "new", "{out}", "--width", "-1"], "--width: must be a number > 0, got -1.0"),
         (["layout", "new", "{out}", "--episode-obstacles", "60"], "no room for random obstacle"),
@@ -236,3 +255,26 @@ def test_layout_new_refuses_to_overwrite_without_force(tmp_path, capsys):
     assert out.read_text() == "keep me" and "--force" in capsys.readouterr().err
     assert main(["layout", "new", str(out), "--force"]) == 0
     assert load_layout(out).name == "x"
+
+
+def test_layout_check_says_valid_only_after_every_check_and_checks_the_team_size(tmp_path, capsys):
+    crowded = tmp_path / "crowded.yaml"
+    crowded.write_text(yaml.safe_dump(base_dict(random_obstacles={"count": 60})))
+    assert main(["layout", "check", str(crowded)]) == 2
+    captured = capsys.readouterr()
+    assert "valid" not in captured.out and "no room for random obstacle" in captured.err
+    assert main(["layout", "check", "0", "--pursuers", "30"]) == 2
+    assert "cannot hold 30 pursuers 0.4 m apart" in capsys.readouterr().err
+    assert main(["layout", "check", "0", "--pursuers", "5", "--evaders", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "room for 5 pursuers and 2 evader(s)" in out and "(point, 5+2 drones, seed 0): compiles" in out
+
+
+def test_the_example_in_layout_new_help_works(tmp_path, capsys):
+    from pursuit_mj.cli import build_parser
+
+    parser = build_parser()
+    new = parser._subparsers._group_actions[0].choices["layout"]._subparsers._group_actions[0].choices["new"]
+    example = new.epilog.split("example: pursuit-mj ", 1)[1].split()
+    example[2] = str(tmp_path / "arena.yaml")
+    assert main(example) == 0, capsys.readouterr().err

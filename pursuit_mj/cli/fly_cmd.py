@@ -90,6 +90,12 @@ def _describe(plan) -> str:
     ]
     for d in plan.drones:
         lines.append(f"  {d.name:>10}  {d.role:<8} {d.uri:<32} start {list(d.start)}")
+    for who, speed in (("pursuers", plan.task.pursuer_speed), ("evaders", plan.task.evader_speed)):
+        lab_speed = speed / t.scale
+        if lab_speed > s.max_speed + 1e-9:
+            lines.append(f"  warning: the {who}' task speed {speed:g} m/s is {lab_speed:g} m/s in the lab, above the safety "
+                         f"limit {s.max_speed:g} m/s: they will fly slower than the policy expects (raise safety.max_speed "
+                         f"or lower task.{'pursuer' if who == 'pursuers' else 'evader'}_speed)")
     return "\n".join(lines)
 
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..io_utils import check_writable
 from ..layout import Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout, save_layout
-from ..layout_check import free_spawn_points
+from ..layout_check import check_spawn_capacity, free_spawn_points
 from .common import seed_arg
 
 #: how many seeds `layout check` tries when placing the per-episode random obstacles
@@ -36,7 +36,7 @@ def _register_new(lsub) -> None:
         description="Write a layout file: arena, border shape, obstacles, random obstacles, spawn regions. "
         "Lengths in m, angles in rad. The layout is validated before it is written.",
         epilog="example: pursuit-mj layout new arena.yaml --border circle --width 4 --height 4 "
-        "--cylinder 2 2 0.3 --wall 1 1 1 2 --random 3 --seed 7",
+        "--cylinder 2 2.6 0.3 --wall 1 2 1.6 2 --random 2 --seed 7 --episode-obstacles 2",
     )
     p.add_argument("out", metavar="OUT.yaml", help="file to write")
     p.add_argument("--name", help="layout name (default: the file name)")
@@ -202,7 +202,8 @@ def _check_random_fits(layout: Layout, hint: str, seeds: int = CHECK_SEEDS) -> i
         try:
             layout.with_random_obstacles(np.random.default_rng(seed))
         except LayoutError as exc:
-            raise LayoutError(f"{exc} (placing the {layout.random_obstacles.count} per-episode random obstacles with seed {seed}; {hint})") from None
+            raise LayoutError(f"{exc} (the check places the {layout.random_obstacles.count} per-episode random obstacles "
+                              f"{seeds} times, with placement seeds 0-{seeds - 1}; seed {seed} found no room; {hint})") from None
     return seeds
 
 
@@ -251,6 +252,8 @@ def run_show(args) -> int:
 def _register_check(lsub) -> None:
     p = lsub.add_parser("check", help="validate a layout file and print a summary")
     p.add_argument("layout", metavar="FILE|INDEX", help="layout file or built-in index 0-3")
+    p.add_argument("--pursuers", type=int, default=3, help="team size whose spawn room is checked (default 3)")
+    p.add_argument("--evaders", type=int, default=1, help="evaders whose spawn room is checked (default 1)")
     p.set_defaults(func=run_check)
 
 
@@ -265,9 +268,16 @@ def _summary_line(layout: Layout) -> str:
 
 
 def run_check(args) -> int:
+    from ..env import SPAWN_SEPARATION
     from ..scene import SceneSpec, build_model
 
+    if args.pursuers < 1 or args.evaders < 1:
+        raise ValueError(f"--pursuers {args.pursuers} / --evaders {args.evaders}: each must be >= 1")
     layout = load_layout(args.layout)
+    tried = _check_random_fits(layout, "lower random_obstacles.count or size in the file, or make room")
+    check_spawn_capacity(layout, args.pursuers, args.evaders, SPAWN_SEPARATION)
+    placed = layout.with_random_obstacles(np.random.default_rng(0))
+    models = {f: build_model(SceneSpec(placed, args.pursuers, args.evaders, f)) for f in ("point", "quadrotor")}
     print(f"layout {layout.source}: valid")
     print(f"  {_summary_line(layout)}")
     r = layout.random_obstacles
@@ -275,13 +285,12 @@ def run_check(args) -> int:
     for name, region in (("pursuers", layout.spawn_pursuers), ("evaders", layout.spawn_evaders)):
         free = free_spawn_points(layout, region)
         print(f"  spawn {name}: x {region.x[0]:g}-{region.x[1]:g}, y {region.y[0]:g}-{region.y[1]:g} m, {len(free)} free points on a 5 cm grid")
-    tried = _check_random_fits(layout, "lower random_obstacles.count or size in the file, or make room")
+    print(f"  room for {args.pursuers} pursuers and {args.evaders} evader(s) {SPAWN_SEPARATION} m apart; "
+          f"the evaders' spawn region is reachable from the pursuers'")
     if tried:
         print(f"  random obstacles placed with seeds 0-{tried - 1}: ok")
-    placed = layout.with_random_obstacles(np.random.default_rng(0))
-    for fidelity in ("point", "quadrotor"):
-        model = build_model(SceneSpec(placed, 3, 1, fidelity))
-        print(f"  MuJoCo scene ({fidelity}, 3+1 drones, seed 0): compiles, {model.ngeom} geoms")
+    for fidelity, model in models.items():
+        print(f"  MuJoCo scene ({fidelity}, {args.pursuers}+{args.evaders} drones, seed 0): compiles, {model.ngeom} geoms")
     return 0
 
 

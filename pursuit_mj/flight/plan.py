@@ -138,6 +138,9 @@ def _task_config(spec: FlightSpec, layout_ref, overrides: Sequence[str]) -> Task
     """Task keys of the flight file <- overrides <- the keys the flight fixes."""
     src = f"{spec.source}: task"
     for key in spec.task:
+        if key == "fidelity":
+            raise ConfigError(f"{src}: key 'fidelity' means nothing in a flight: the physics is the real world's "
+                              "(the policy is trained in either fidelity)")
         if key in FIXED_TASK_KEYS:
             raise ConfigError(f"{src}: key '{key}' is set by the flight itself (drones, layout, flight_height, decision_rate)")
     base = build(TaskConfig, spec.task, src)
