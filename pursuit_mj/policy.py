@@ -24,6 +24,16 @@ class Policy(Protocol):
         """Actions (W, N, 2) in [-1, 1] (fraction of max speed, world x/y) from obs (W, N, spec.dim)."""
 
 
+def check_observations(obs, spec: ObsSpec, who: str) -> np.ndarray:
+    """obs as a float64 array (W, N, spec.dim), or ValueError naming policy `who`."""
+    a = np.asarray(obs, dtype=np.float64)
+    if a.ndim != 3 or a.shape[1] != spec.n_pursuers or a.shape[2] != spec.dim:
+        raise ValueError(f"{who}: expected observations (worlds, {spec.n_pursuers}, {spec.dim}), got {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError(f"{who}: observations contain NaN or inf")
+    return a
+
+
 class RandomPolicy:
     """Uniform random actions; a floor every policy must beat."""
 

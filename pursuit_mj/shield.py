@@ -43,7 +43,7 @@ import math
 import numpy as np
 
 from .obs_spec import ObsSpec, named_views
-from .policy import Policy
+from .policy import Policy, check_observations
 from .sensing import HEADING_MIN_SPEED
 
 _TINY = 1e-9
@@ -291,6 +291,7 @@ class Shielded:
 
     def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
         """Actions (W, N, 2) within the unit disc: desired world-frame velocity / pursuer_speed."""
+        check_observations(obs, spec, f"policy {self.name}")
         a = np.asarray(self.policy.act(obs, spec), dtype=np.float64)
         want = tuple(np.shape(obs)[:2]) + (2,)
         if a.shape != want:
