@@ -82,5 +82,10 @@ def test_negative_numbers_in_scientific_notation_reach_the_flags_own_check(capsy
     assert glue_negative_numbers(["simulate", "--seconds", "-inf", "-12"]) == ["simulate", "--seconds=-inf", "-12"]
     assert main(["simulate", "--seconds", "-2.5e-1"]) == 2
     assert "--seconds: must be > 0, got -0.25" in capsys.readouterr().err
-    assert main(["simulate", "--seconds", "-inf"]) == 2
-    assert "--seconds: must be > 0, got -inf" in capsys.readouterr().err
+    for text in ("-inf", "nan"):
+        with pytest.raises(SystemExit):
+            main(["simulate", "--seconds", text])
+        assert f"argument --seconds: expected a finite number, got '{text}'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["study", "--budget-minutes", "nan"])  # nan <= 0 is False: it used to start a study
+    assert "expected a finite number" in capsys.readouterr().err

@@ -24,8 +24,9 @@ from typing import Sequence
 
 import numpy as np
 
-from ..layout import load_layout
+from ..cli.common import finite_float
 from ..config import TaskConfig, load_task_config
+from ..layout import load_layout
 from . import check_common_args, format_table, peak_rss_mb, profile_call, run_isolated
 
 HELP = "decision steps/s of the whole environment vs physics+controller and the raw MuJoCo ceiling"
@@ -56,7 +57,7 @@ class EnvBench:
 
 def add_arguments(p) -> None:
     p.add_argument("--worlds", nargs="+", type=int, default=[1, 16, 64], metavar="W", help="world counts (default 1 16 64)")
-    p.add_argument("--seconds", type=float, default=4.0, help="measuring time per configuration, all kinds together (default 4)")
+    p.add_argument("--seconds", type=finite_float, default=4.0, help="measuring time per configuration, all kinds together (default 4)")
     p.add_argument("--fidelity", nargs="+", choices=("quadrotor", "point"), default=["quadrotor", "point"], help="fidelities (default both)")
     p.add_argument("--seed", type=int, default=0, help="environment seed (default 0)")
     p.add_argument("--task", dest="task_files", action="append", default=[], metavar="FILE|PRESET",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 from ..config import TaskConfig, dump_yaml, load_task_config
 
@@ -18,6 +19,17 @@ def seed_arg(text: str) -> int:
     return value
 
 
+def finite_float(text: str) -> float:
+    """argparse type of a number flag: finite (nan and inf would slip past checks like `x <= 0`)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
 def add_task_args(p: argparse.ArgumentParser) -> None:
     """Task config flags. Speeds and radii in m and m/s (the reference study used mm)."""
     g = p.add_argument_group("task")
@@ -29,11 +41,11 @@ def add_task_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--fidelity", choices=("point", "quadrotor"), help="physics fidelity")
     g.add_argument("--pursuers", type=int, dest="n_pursuers", help="number of pursuers")
     g.add_argument("--evaders", type=int, dest="n_evaders", help="number of evaders")
-    g.add_argument("-rv", "--pursuer-speed", "--r-velocity", type=float, dest="pursuer_speed", help="pursuer max speed (m/s)")
-    g.add_argument("-ev", "--evader-speed", "--e-velocity", type=float, dest="evader_speed", help="evader speed (m/s)")
-    g.add_argument("--perception-radius", "--r-perception", type=float, dest="perception_radius", help="perception radius (m)")
+    g.add_argument("-rv", "--pursuer-speed", "--r-velocity", type=finite_float, dest="pursuer_speed", help="pursuer max speed (m/s)")
+    g.add_argument("-ev", "--evader-speed", "--e-velocity", type=finite_float, dest="evader_speed", help="evader speed (m/s)")
+    g.add_argument("--perception-radius", "--r-perception", type=finite_float, dest="perception_radius", help="perception radius (m)")
     g.add_argument("--random-obstacles", "--obstacle-num", type=int, dest="random_obstacles", help="random obstacles per episode (default: the layout file's random_obstacles.count)")
-    g.add_argument("--delta-t", "--control-dt", type=float, dest="control_dt", help="decision interval (s)")
+    g.add_argument("--delta-t", "--control-dt", type=finite_float, dest="control_dt", help="decision interval (s)")
     g.add_argument("--observability", choices=("partial", "full"), help="observability")
     g.add_argument("-sc", "--show-config", action="store_true", help="print the resolved task config")
 

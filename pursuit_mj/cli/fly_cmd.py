@@ -12,7 +12,7 @@ import dataclasses
 import logging
 import sys
 
-from .common import add_shield_arg, seed_arg, shield_if_asked
+from .common import add_shield_arg, finite_float, seed_arg, shield_if_asked
 
 KEYS_HELP = "during a flight: e or space = emergency stop (motors off), l = land everyone, Ctrl-C = land everyone (twice: motors off), Ctrl-\\ = motors off"
 
@@ -33,7 +33,7 @@ def register(sub) -> None:
                    help="virtual only: inject a fault S seconds into the chase: drop_link:p1@3, freeze:p0@2, battery:e0@4=3.1 (repeatable)")
     p.add_argument("--rerun", metavar="FILE.rrd", help="record the flight for the rerun viewer")
     p.add_argument("--events", metavar="FILE.jsonl", help="event log, appended to (default flights/<name>-<time>.events.jsonl)")
-    p.add_argument("--max-time", type=float, help="end the chase after this many seconds (overrides the flight file's max_time)")
+    p.add_argument("--max-time", type=finite_float, help="end the chase after this many seconds (overrides the flight file's max_time)")
     p.add_argument("--seed", type=seed_arg, default=0, help="seed of the sensing and escape-model randomness")
     p.add_argument("--yes", action="store_true", help="take off without asking after the preflight checks (real flights)")
     p.add_argument("--verbose", action="store_true", help="also print cflib's own log messages")
@@ -48,7 +48,7 @@ def register(sub) -> None:
     a.add_argument("--spots", required=True, help="the layout spots of the drones, flight-file order: 'x,y x,y ...' (m)")
     a.add_argument("--lab", help="lab positions 'x,y x,y ...' (m) measured otherwise; skips the radio")
     a.add_argument("--virtual", action="store_true", help="measure virtual drones standing at their starts")
-    a.add_argument("--window", type=float, default=1.0, help="seconds of estimates averaged per drone")
+    a.add_argument("--window", type=finite_float, default=1.0, help="seconds of estimates averaged per drone")
     a.add_argument("--write", metavar="OUT.yaml", help="write a copy of the flight file with the measured transform (comments are not kept)")
     a.set_defaults(func=run_align)
 

@@ -11,7 +11,7 @@ import numpy as np
 from ..io_utils import check_writable
 from ..layout import Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout, save_layout
 from ..layout_check import check_spawn_capacity, free_spawn_points
-from .common import seed_arg
+from .common import finite_float, seed_arg
 
 #: how many seeds `layout check` tries when placing the per-episode random obstacles
 CHECK_SEEDS = 20
@@ -40,29 +40,29 @@ def _register_new(lsub) -> None:
     )
     p.add_argument("out", metavar="OUT.yaml", help="file to write")
     p.add_argument("--name", help="layout name (default: the file name)")
-    p.add_argument("--width", type=float, default=3.6, help="arena width along x (m, default 3.6)")
-    p.add_argument("--height", type=float, default=5.0, help="arena height along y (m, default 5.0)")
+    p.add_argument("--width", type=finite_float, default=3.6, help="arena width along x (m, default 3.6)")
+    p.add_argument("--height", type=finite_float, default=5.0, help="arena height along y (m, default 5.0)")
     p.add_argument("--border", choices=("rectangle", "polygon", "circle"), default="rectangle", help="border shape")
     p.add_argument("--points", nargs="+", metavar="X,Y", help="polygon corners for --border polygon (default: the arena with its corners cut)")
-    p.add_argument("--center", nargs=2, type=float, metavar=("X", "Y"), help="circle centre for --border circle (default: arena centre)")
-    p.add_argument("--radius", type=float, help="circle radius for --border circle (default: fits the arena)")
-    p.add_argument("--box", nargs="+", type=float, action="append", default=[], metavar="V",
+    p.add_argument("--center", nargs=2, type=finite_float, metavar=("X", "Y"), help="circle centre for --border circle (default: arena centre)")
+    p.add_argument("--radius", type=finite_float, help="circle radius for --border circle (default: fits the arena)")
+    p.add_argument("--box", nargs="+", type=finite_float, action="append", default=[], metavar="V",
                    help="add a box: CX CY SX SY [YAW] (centre, full size, yaw); repeatable")
-    p.add_argument("--cylinder", nargs=3, type=float, action="append", default=[], metavar=("CX", "CY", "R"),
+    p.add_argument("--cylinder", nargs=3, type=finite_float, action="append", default=[], metavar=("CX", "CY", "R"),
                    help="add a cylinder: centre and radius; repeatable")
-    p.add_argument("--wall", nargs="+", type=float, action="append", default=[], metavar="V",
+    p.add_argument("--wall", nargs="+", type=finite_float, action="append", default=[], metavar="V",
                    help="add a thin wall: X0 Y0 X1 Y1 [THICKNESS] (default thickness 0.05); repeatable")
     p.add_argument("--random", type=int, default=0, metavar="N", help="add N fixed obstacles placed at random (with --seed)")
     p.add_argument("--seed", type=seed_arg, default=0, help="seed for --random (default 0)")
     p.add_argument("--episode-obstacles", type=int, default=5, metavar="K",
                    help="random obstacles drawn per episode (the file's random_obstacles.count, default 5)")
-    p.add_argument("--obstacle-size", nargs=2, type=float, default=(0.15, 0.4), metavar=("MIN", "MAX"),
+    p.add_argument("--obstacle-size", nargs=2, type=finite_float, default=(0.15, 0.4), metavar=("MIN", "MAX"),
                    help="size range of random obstacles (m, default 0.15 0.4)")
     p.add_argument("--obstacle-kinds", nargs="+", choices=("box", "cylinder"), default=["box", "cylinder"],
                    help="kinds of random obstacles (default: box cylinder)")
-    p.add_argument("--spawn-pursuers", nargs=4, type=float, metavar=("X0", "X1", "Y0", "Y1"),
+    p.add_argument("--spawn-pursuers", nargs=4, type=finite_float, metavar=("X0", "X1", "Y0", "Y1"),
                    help="pursuer spawn region (default: a band along the bottom of the border)")
-    p.add_argument("--spawn-evaders", nargs=4, type=float, metavar=("X0", "X1", "Y0", "Y1"),
+    p.add_argument("--spawn-evaders", nargs=4, type=finite_float, metavar=("X0", "X1", "Y0", "Y1"),
                    help="evader spawn region (default: a band along the top of the border)")
     p.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
     p.set_defaults(func=run_new)

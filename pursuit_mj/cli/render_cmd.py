@@ -22,7 +22,7 @@ from ..layout import load_layout
 from ..obs_spec import ObsSpec
 from ..policies import POLICY_NAMES, make_policy
 from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, flags_typed, load_model, seed_arg,
-                     shield_if_asked, task_config_from_args)
+                     finite_float, shield_if_asked, task_config_from_args)
 
 DEFAULT_SAVE = "renders"
 
@@ -54,7 +54,7 @@ def register(sub) -> None:
     run_g.add_argument("--seed", type=seed_arg, default=0, help="environment seed (default 0)")
     run_g.add_argument("--width", type=int, default=640, help="frame width in pixels (default 640)")
     run_g.add_argument("--height", type=int, default=480, help="frame height in pixels (default 480)")
-    run_g.add_argument("--fps", type=float, help="video frames per second (default: real time, 1/control_dt)")
+    run_g.add_argument("--fps", type=finite_float, help="video frames per second (default: real time, 1/control_dt)")
     run_g.add_argument("--camera", default="top", help="top, angled, or follow:<drone> e.g. follow:pursuer_0 (default top)")
     run_g.add_argument("--quality", choices=("fast", "high"), default="fast",
                        help="fast: no antialiasing or shadows; high: 4x antialiasing, shadows (slower)")
@@ -72,10 +72,10 @@ def _add_reference_spellings(p: argparse.ArgumentParser) -> None:
     p.add_argument("--save_path", dest="save_path", help=hidden)
     p.add_argument("--show_config", dest="show_config", action="store_true", help=hidden)
     p.add_argument("--env_idx", dest="layout", help=hidden)
-    p.add_argument("--delta_t", dest="control_dt", type=float, help=hidden)
-    p.add_argument("--r_velocity", dest="pursuer_speed", type=float, help=hidden)
-    p.add_argument("--e_velocity", dest="evader_speed", type=float, help=hidden)
-    p.add_argument("--r_perception", dest="perception_radius", type=float, help=hidden)
+    p.add_argument("--delta_t", dest="control_dt", type=finite_float, help=hidden)
+    p.add_argument("--r_velocity", dest="pursuer_speed", type=finite_float, help=hidden)
+    p.add_argument("--e_velocity", dest="evader_speed", type=finite_float, help=hidden)
+    p.add_argument("--r_perception", dest="perception_radius", type=finite_float, help=hidden)
     p.add_argument("--obstacle_num", dest="random_obstacles", type=int, help=hidden)
 
 

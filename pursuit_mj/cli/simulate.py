@@ -18,7 +18,7 @@ from ..controller import tilt_angle
 from ..layout import N_BUILTIN, Layout, load_layout
 from ..layout_check import free_spawn_points
 from ..physics import BatchedPhysics
-from .common import add_task_args, seed_arg, task_config_from_args
+from .common import add_task_args, finite_float, seed_arg, task_config_from_args
 
 SPAWN_SEPARATION = 0.35  # m between spawned drones
 SEPARATION = 0.25  # m: drones closer than this steer apart
@@ -114,7 +114,7 @@ def register(sub) -> None:
         help="fly a scripted pattern in each built-in layout in both fidelities and print what happened",
         description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
     )
-    p.add_argument("--seconds", type=float, default=5.0, help="simulated seconds per layout and fidelity (default 5)")
+    p.add_argument("--seconds", type=finite_float, default=5.0, help="simulated seconds per layout and fidelity (default 5)")
     p.add_argument("--seed", type=seed_arg, default=0, help="seed of the random obstacles and spawn points (default 0)")
     add_task_args(p)
     p.set_defaults(func=run)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import add_task_args, seed_arg, task_config_from_args
+from .common import add_task_args, finite_float, seed_arg, task_config_from_args
 
 
 def register(sub) -> None:
@@ -23,7 +23,7 @@ def register(sub) -> None:
         epilog="example:\n  pursuit-mj study --budget-minutes 120 --episodes 150 --out runs/study",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--budget-minutes", type=float, required=True, help="wall-clock budget for everything")
+    p.add_argument("--budget-minutes", type=finite_float, required=True, help="wall-clock budget for everything")
     p.add_argument("--episodes", type=int, default=150, help="episodes per policy and layout (fewer if the budget is short)")
     p.add_argument("--layouts", nargs="+", default=["0", "1", "2", "3"], metavar="LAYOUT", help="evaluation layouts (default 0 1 2 3)")
     p.add_argument("--worlds", type=int, default=32, help="parallel worlds in evaluation")

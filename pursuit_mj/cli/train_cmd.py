@@ -6,6 +6,8 @@ import argparse
 import signal
 from pathlib import Path
 
+from .common import finite_float
+
 
 def steps_arg(text: str) -> int:
     """An integer count that may be written 2e6 or 2_000_000."""
@@ -41,7 +43,7 @@ def register(sub) -> None:
                    help="override any train key, e.g. ppo.lr=1e-4, task.fidelity=point, run.validate_every=5")
     p.add_argument("--name", help="run name (folder under runs/)")
     p.add_argument("--total-steps", type=steps_arg, help="world decision steps to train for (e.g. 2e6)")
-    p.add_argument("--max-minutes", type=float, help="stop after this much training time (LR decays over it)")
+    p.add_argument("--max-minutes", type=finite_float, help="stop after this much training time (LR decays over it)")
     p.add_argument("--n-envs", type=int, help="worlds stepped together")
     p.add_argument("--seed", type=int, help="seed of networks, sampling and episodes")
     p.add_argument("--fidelity", choices=("point", "quadrotor"), help="physics fidelity (task.fidelity)")
