@@ -140,3 +140,63 @@ def test_best_checkpoint_ties_go_to_fewer_capture_steps_not_to_earlier_crashes(t
     assert trainer._maybe_best({"success": 0.0, "mean_steps": 500.0, "capture_steps": 900.0})  # failed later, or caught
     assert trainer._maybe_best({"success": 0.5, "mean_steps": 600.0, "capture_steps": 950.0})  # success first
     assert trainer.counters.best_steps == 950.0
+
+
+def test_ctrl_c_during_a_validation_is_made_good_on_resume(tmp_path, monkeypatch):
+    """The update whose validation was cut short is validated first thing after --resume, so its
+    log row (and its chance to be best.pt) is not lost."""
+    cfg = tiny_config(tmp_path, updates=4, extra=["run.validate_every=1"])
+    trainer = Trainer(cfg, log=lambda s: None)
+    real = Trainer.validate
+    calls = {"n": 0}
+
+    def second_validation_interrupts(self):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return real(self)
+
+    monkeypatch.setattr(Trainer, "validate", second_validation_interrupts)
+    assert trainer.train()["status"] == "interrupted"
+    assert [r["update"] for r in rows(cfg.run_dir)] == [1]
+    assert load_checkpoint(cfg.run_dir / "last.pt")["pending_row"]["update"] == 2
+    monkeypatch.setattr(Trainer, "validate", real)
+    out = Trainer.resume(cfg.run_dir, log=lambda s: None).train()
+    assert out["status"] == "done" and out["counters"]["update"] == 4
+    logged = rows(cfg.run_dir)
+    assert [r["update"] for r in logged] == [1, 2, 3, 4]
+    assert all("validation" in r for r in logged)
+    assert load_checkpoint(cfg.run_dir / "last.pt")["pending_row"] == {}
+
+
+def test_export_never_replaces_a_training_checkpoint_and_an_export_does_not_resume(tmp_path):
+    from train.checkpoint import export_actor
+
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    last = cfg.run_dir / "last.pt"
+    with pytest.raises(ValueError, match="OUT is the checkpoint itself"):
+        export_actor(last, last)
+    with pytest.raises(ValueError, match="OUT is a training checkpoint"):
+        export_actor(last, cfg.run_dir / "best.pt")
+    small = export_actor(last, tmp_path / "small.pt")
+    small.replace(last)
+    with pytest.raises(ValueError, match="last.pt is a policy-only export .* not a training checkpoint"):
+        Trainer.resume(cfg.run_dir, log=lambda s: None)
+
+
+def test_non_finite_weights_and_damaged_bytes_are_refused(tmp_path):
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    data = load_checkpoint(cfg.run_dir / "last.pt")
+    name = next(iter(data["actor"]))
+    data["actor"][name][0] = float("nan")
+    torch.save(data, tmp_path / "nan.pt")
+    with pytest.raises(ValueError, match=f"non-finite weights \\(NaN or inf\\) in actor.{name}"):
+        load_checkpoint(tmp_path / "nan.pt")
+    raw = bytearray((cfg.run_dir / "last.pt").read_bytes())
+    middle = len(raw) // 2
+    raw[middle:middle + 8] = bytes(8) if raw[middle:middle + 8] != bytes(8) else b"\xff" * 8
+    (tmp_path / "flipped.pt").write_bytes(bytes(raw))
+    with pytest.raises(ValueError, match="corrupted"):
+        load_checkpoint(tmp_path / "flipped.pt")

@@ -44,7 +44,9 @@ def test_train_then_resume_from_the_command_line(tmp_path, capsys):
     assert main(["train", "--resume", str(tmp_path / "cli"), "--set", "ppo.lr=1e-3"]) == 2
     assert "stored config" in capsys.readouterr().err
     assert main(base + ["--resume", "--set", "ppo.lr=1e-3"]) == 2  # config differs from the stored run
-    assert "differs from the stored run's in ppo" in capsys.readouterr().err
+    captured = capsys.readouterr()
+    assert "differs from the stored run's: ppo.lr 0.001 (asked) vs 0.0003 (stored)" in captured.err
+    assert "resumed" not in captured.out  # refused before anything is restored
     assert main(base + ["--resume", "--total-steps", "96"]) == 0
     assert json.loads((tmp_path / "cli" / "metrics.jsonl").read_text().splitlines()[-1])["update"] == 3
 
@@ -58,7 +60,7 @@ def test_train_show_config_and_bad_input(tmp_path, capsys):
     assert main(["train", "--config", "no_such_regime"]) == 2
     assert main(["train", "--resume", str(tmp_path / "nothing")]) == 2
     err = capsys.readouterr().err
-    assert "no last.pt" in err and "Traceback" not in err
+    assert "no such run folder" in err and "Traceback" not in err
 
 
 @pytest.fixture(scope="module")

@@ -47,6 +47,13 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
         raise ValueError(f"checkpoint {path}: not a pursuit-mj checkpoint (not a torch zip archive: "
                          f"another kind of file, or one cut short)")
     try:
+        with zipfile.ZipFile(path) as archive:
+            damaged = archive.testzip()  # torch.load does not check the archive's CRC-32 sums
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
+        raise ValueError(f"checkpoint {path}: corrupted (its zip archive cannot be read: {type(exc).__name__})") from None
+    if damaged is not None:
+        raise ValueError(f"checkpoint {path}: corrupted (entry {damaged} fails its checksum)")
+    try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
         if "Unsupported global" in str(exc):  # torch's safe unpickler met a class or function
@@ -62,7 +69,16 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     missing = [k for k in REQUIRED if k not in data]
     if missing:
         raise ValueError(f"checkpoint {path}: missing entries {missing}")
+    for net in ("actor", "critic"):
+        for name, value in (data.get(net) or {}).items():
+            if torch.is_tensor(value) and value.is_floating_point() and not torch.isfinite(value).all():
+                raise ValueError(f"checkpoint {path}: non-finite weights (NaN or inf) in {net}.{name}")
     return data
+
+
+def is_training_checkpoint(data: dict[str, Any]) -> bool:
+    """Whether a loaded checkpoint can resume training (a policy-only export cannot)."""
+    return all(k in data for k in ("critic", "optimizer", "rng"))
 
 
 def export_actor(src: str | Path, dst: str | Path) -> Path:
@@ -70,9 +86,20 @@ def export_actor(src: str | Path, dst: str | Path) -> Path:
 
     No critic, optimiser or random states, so it cannot be resumed; `load_policy` reads it.
     """
+    src, dst = Path(src), Path(dst)
     data = load_checkpoint(src)
+    if dst.exists() and dst.resolve() == src.resolve():
+        raise ValueError(f"--export {src} {dst}: OUT is the checkpoint itself; write the export to another file")
+    if dst.is_file():
+        try:
+            replaced = load_checkpoint(dst)
+        except ValueError:
+            replaced = None
+        if replaced is not None and is_training_checkpoint(replaced):
+            raise ValueError(f"--export {src} {dst}: OUT is a training checkpoint, which the export would replace "
+                             f"(losing its critic and optimiser state); choose another file")
     keep = {k: data[k] for k in ("train_config", "obs_spec", "state_dim", "actor", "counters") if k in data}
-    keep["exported_from"] = str(src)
+    keep["exported_from"] = str(data.get("exported_from", src))
     return save_checkpoint(dst, keep)
 
 

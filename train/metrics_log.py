@@ -11,11 +11,12 @@ from typing import Any
 from pursuit_mj.io_utils import atomic_write_text
 
 
-def _clean(value: Any) -> Any:
+def json_ready(value: Any) -> Any:
+    """`value` with non-finite floats (nested in dicts) as None, which JSON can hold."""
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
+        return {k: json_ready(v) for k, v in value.items()}
     return value
 
 
@@ -26,7 +27,7 @@ class MetricsLog:
 
     def append(self, row: dict[str, Any]) -> None:
         with open(self.path, "a") as f:
-            f.write(json.dumps(_clean(row)) + "\n")
+            f.write(json.dumps(json_ready(row)) + "\n")
             f.flush()
             os.fsync(f.fileno())
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import json
 import time
 from pathlib import Path
 from typing import Callable
@@ -28,11 +29,11 @@ from pursuit_mj.policies import make_policy
 from pursuit_mj.sensing import privileged_config
 
 from .agent import ActorCritic
-from .checkpoint import check_obs_spec, load_checkpoint, save_checkpoint
+from .checkpoint import check_obs_spec, is_training_checkpoint, load_checkpoint, save_checkpoint
 from .config import TrainConfig, train_config_from_dict
 from .discount import Discount
 from .imitation import DaggerCollector, Demonstrations, imitation_update, teacher_share
-from .metrics_log import MetricsLog
+from .metrics_log import MetricsLog, json_ready
 from pursuit_mj.recording.rerun_scalars import RerunScalarLogger
 from .policy import ActorPolicy, trained_team
 from .ppo import advantages_and_returns, ppo_update
@@ -109,21 +110,31 @@ class Trainer:
         self.recent = collections.deque(maxlen=WINDOW)
         self._validator: FixedSeedValidator | None = None
         self._saved_update = self.counters.update if checkpoint else -1
+        self._pending_row: dict = dict(checkpoint.get("pending_row") or {}) if checkpoint else {}
         self._consistent = True
 
     # ------------------------------------------------------------------ construction
 
     @classmethod
     def resume(cls, run_dir: str | Path, total_steps: int | None = None, log: Callable[[str], None] = print,
-               max_minutes: float | None = None, progress: bool | None = None) -> "Trainer":
+               max_minutes: float | None = None, progress: bool | None = None,
+               check: Callable[[TrainConfig], None] | None = None, rerun: bool | None = None) -> "Trainer":
         """Continue the run in `run_dir` from last.pt with its own config; only the length of the
-        run (total_steps, max_minutes) and the progress bar may change."""
+        run (total_steps, max_minutes), the progress bar and rerun streaming may change. `check(stored config)`
+        runs before anything is restored (to refuse a resume asked with other settings)."""
         path = Path(run_dir) / "last.pt"
         data = load_checkpoint(path)
+        if not is_training_checkpoint(data):
+            raise ValueError(f"--resume {run_dir}: {path} is a policy-only export (of {data.get('exported_from', 'a run')}), "
+                             f"not a training checkpoint: it holds no critic, optimiser or random state to resume from")
         cfg = train_config_from_dict(data["train_config"], f"checkpoint {path}: train_config")
+        if check is not None:
+            check(cfg)
         run = dataclasses.replace(cfg.run, runs_dir=str(Path(run_dir).parent))
         if progress is not None:
             run = dataclasses.replace(run, progress=progress)
+        if rerun is not None:
+            run = dataclasses.replace(run, rerun=rerun)
         cfg = dataclasses.replace(cfg, run=run, name=Path(run_dir).name)
         if total_steps is not None:
             cfg = dataclasses.replace(cfg, total_steps=total_steps)
@@ -184,6 +195,9 @@ class Trainer:
             "discount": self.discount.state_dict(),
             "counters": dataclasses.asdict(self.counters),
             "rng": {"sampler": self.generator.get_state(), "torch": torch.get_rng_state()},
+            # the log row of an update whose validation Ctrl-C cut short (plain JSON values): a resume
+            # validates it and writes the row, so no update goes unlogged or unvalidated
+            "pending_row": json.loads(json.dumps(json_ready(self._pending_row))) if self._pending_row else {},
         }
 
     def save(self, name: str = "last.pt") -> Path:
@@ -307,6 +321,27 @@ class Trainer:
             row["gamma_meta_grad"] = meta_grad
         return row
 
+    def _validate_into(self, row: dict, bar, last_val: dict) -> dict:
+        """Validate the current policy; the result goes into `row` (and best.pt if it is the best)."""
+        c = self.counters
+        _advance(bar, row, self.recent, last_val, self.progress(), note="validating")
+        t0 = time.perf_counter()
+        val = self.validate()
+        spent = time.perf_counter() - t0
+        c.seconds += spent
+        c.validation_seconds += spent
+        row["validation"] = dict(val, best=self._maybe_best(val), seconds=spent)
+        return val
+
+    def _log_row(self, row: dict, bar, last_val: dict) -> None:
+        """Append an update's row to the log (and rerun), then checkpoint on schedule."""
+        self.metrics.append(row)
+        if self.rerun is not None:
+            self.rerun.log(int(row["world_steps"]), row)
+        if self.counters.update % self.cfg.run.checkpoint_every == 0:  # after the log: a resume truncates the log to it
+            self.save()
+        _advance(bar, row, self.recent, last_val, self.progress())
+
     def _learn_discount(self) -> float:
         buf = self.buffer
         _, _, s = advantages_and_returns(buf, self.discount.value, self.cfg.ppo.gae_lambda)
@@ -328,28 +363,23 @@ class Trainer:
         last_val: dict = {}
         status = "done"
         try:
+            if self._pending_row:  # an update whose validation was interrupted: validate it now
+                row, self._pending_row = self._pending_row, {}
+                last_val = self._validate_into(row, bar, last_val)
+                self._log_row(row, bar, last_val)
             while self.progress() < 1.0:
                 row = self.train_one_update()
                 final = self.progress() >= 1.0
                 if (cfg.run.validate_every and c.update % cfg.run.validate_every == 0) or final:
-                    _advance(bar, row, self.recent, last_val, self.progress(), note="validating")
-                    t0 = time.perf_counter()
-                    last_val = self.validate()
-                    spent = time.perf_counter() - t0
-                    c.seconds += spent
-                    c.validation_seconds += spent
-                    row["validation"] = dict(last_val, best=self._maybe_best(last_val), seconds=spent)
-                self.metrics.append(row)
-                if self.rerun is not None:
-                    self.rerun.log(int(row["world_steps"]), row)
-                if c.update % cfg.run.checkpoint_every == 0:  # after the log: a resume truncates the log to it
-                    self.save()
-                _advance(bar, row, self.recent, last_val, self.progress())
+                    self._pending_row = row
+                    last_val = self._validate_into(row, bar, last_val)
+                    self._pending_row = {}
+                self._log_row(row, bar, last_val)
             if self._saved_update != c.update:
                 self.save()
         except KeyboardInterrupt:
             status = "interrupted"
-            if self._consistent and self._saved_update != c.update:
+            if self._consistent and (self._saved_update != c.update or self._pending_row):
                 self.save()
             self.log(f"\ninterrupted: state of update {self._saved_update} is in {self.run_dir / 'last.pt'}; "
                      f"continue with: pursuit-mj train --resume {self.run_dir}")

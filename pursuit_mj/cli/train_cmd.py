@@ -102,17 +102,28 @@ def _flags_typed(args) -> str:
     return flags_typed(pairs) if pairs else "command-line flag"
 
 
+RESUMABLE_FLAGS = "--total-steps, --max-minutes, --no-progress, --rerun"
+
+
 def _check_same(asked, stored) -> None:
     """Refuse a --resume whose config differs from the stored one in anything but the run length."""
     from pursuit_mj.configio import to_dict
 
-    a, b = to_dict(asked), to_dict(stored)
-    for d in (a, b):
-        d.pop("total_steps"), d.pop("max_minutes"), d["run"].pop("progress"), d["run"].pop("rerun")
-    diff = sorted(k for k in a if a[k] != b[k])
+    def flat(d: dict, prefix: str = "") -> dict:
+        out = {}
+        for k, v in d.items():
+            out.update(flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
+        return out
+
+    a, b = flat(to_dict(asked)), flat(to_dict(stored))
+    for key in ("total_steps", "max_minutes", "run.progress", "run.rerun", "name", "run.runs_dir"):
+        a.pop(key, None), b.pop(key, None)
+    diff = [f"{k} {a.get(k)!r} (asked) vs {b.get(k)!r} (stored)" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
     if diff:
-        raise ValueError(f"--resume: the config differs from the stored run's in {', '.join(diff)}; "
-                         f"a run continues with its stored config (only --total-steps, --max-minutes, --no-progress, --rerun can change)")
+        more = f" and {len(diff) - 4} more" if len(diff) > 4 else ""
+        raise ValueError(f"--resume: the config differs from the stored run's: {'; '.join(diff[:4])}{more}. "
+                         f"A run continues with its stored config: repeat the command that started it, or give the "
+                         f"folder alone (--resume RUN_DIR); only {RESUMABLE_FLAGS} can change")
 
 
 def _stop_on_sigterm(signum, frame) -> None:
@@ -142,13 +153,16 @@ def run(args) -> int:
                    if value]
         if changed:
             raise ValueError(f"--resume {args.resume}: a run continues with its stored config; {', '.join(changed)} "
-                             f"cannot change it (only --total-steps, --max-minutes, --no-progress can)")
+                             f"cannot change it (only {RESUMABLE_FLAGS} can)")
         run_dir = Path(args.resume)
         if run_dir.suffix == ".pt":
             run_dir = run_dir.parent
+        if not run_dir.is_dir():
+            raise ValueError(f"--resume {args.resume}: no such run folder")
         if not (run_dir / "last.pt").is_file():
             raise ValueError(f"--resume {args.resume}: no last.pt in {run_dir}")
-        trainer = Trainer.resume(run_dir, args.total_steps, max_minutes=args.max_minutes, progress=_progress(args))
+        trainer = Trainer.resume(run_dir, args.total_steps, max_minutes=args.max_minutes, progress=_progress(args),
+                                 rerun=True if args.rerun else None)
     else:
         cfg = load_train_config(args.config, args.overrides, _flags(args), _flags_typed(args))
         if args.show_config:
@@ -158,8 +172,8 @@ def run(args) -> int:
         if args.resume:
             if not last.is_file():
                 raise ValueError(f"--resume: no checkpoint {last} to continue from")
-            trainer = Trainer.resume(cfg.run_dir, args.total_steps, max_minutes=args.max_minutes, progress=_progress(args))
-            _check_same(cfg, trainer.cfg)
+            trainer = Trainer.resume(cfg.run_dir, args.total_steps, max_minutes=args.max_minutes, progress=_progress(args),
+                                     check=lambda stored: _check_same(cfg, stored), rerun=True if args.rerun else None)
         else:
             if last.exists():
                 raise ValueError(f"run folder {cfg.run_dir} already has a checkpoint: continue it with --resume, "
