@@ -12,7 +12,7 @@ TRAIN = ["task.n_pursuers=2", "task.random_obstacles=0", "task.max_steps=30", "n
 
 def test_study_end_to_end_on_a_tiny_budget(tmp_path, capsys):
     out_dir = tmp_path / "study"
-    code = main(["study", "--budget-minutes", "0.5", "--episodes", "2", "--worlds", "2", "--layouts", "0", "1",
+    code = main(["study", "--budget-minutes", "0.8", "--episodes", "2", "--worlds", "2", "--layouts", "0", "1",
                  "--out", str(out_dir), "--fidelity", "point", "--set", "max_steps=20"]
                 + sum((["--train-set", s] for s in TRAIN), []))
     assert code == 0
@@ -45,14 +45,21 @@ def test_an_arm_gets_its_share_of_the_time_left_less_its_closing_validation():
     assert minutes == 0.0 and episodes == 4
 
 
-def test_the_evaluation_is_reserved_with_a_margin_for_the_trained_arms():
+def test_the_evaluation_is_reserved_by_each_arms_cost_and_never_below_one_batch():
     from pathlib import Path
 
     from pursuit_mj.config import default_config
-    from train.study import ARMS, EVAL_MARGIN, MIN_TRAIN_FRACTION, StudyPlan, fit_episodes
+    from train.study import ARM_START_S, ARMS, ARMS_EVAL_COST, MIN_TRAIN_FRACTION, StudyPlan, eval_seconds, fit_episodes
 
+    assert ARMS_EVAL_COST > len(ARMS)  # the belief arms build the team's memory every step: about twice the team
     plan = StudyPlan(budget_minutes=10.0, out=Path("x"), eval_task=default_config(), episodes=150)
-    episodes, train_minutes = fit_episodes(plan, 0.1, 0.0)
-    per_round = 0.1 * 4 * (1 + EVAL_MARGIN * len(ARMS))
-    assert episodes == int(600 * (1 - MIN_TRAIN_FRACTION) / per_round)
-    assert train_minutes == pytest.approx((600 - per_round * episodes) / 60)
+    # a probe of 8 episodes per layout took 3.2 s: 0.4 s an episode beyond it
+    episodes, train_minutes = fit_episodes(plan, 3.2, 8, 0.0)
+    rounds = 1 + ARMS_EVAL_COST
+    assert rounds * eval_seconds(3.2, 8, episodes) <= 600 * (1 - MIN_TRAIN_FRACTION) < rounds * eval_seconds(3.2, 8, episodes + 1)
+    assert train_minutes == pytest.approx((600 - rounds * eval_seconds(3.2, 8, episodes) - ARM_START_S * len(ARMS)) / 60)
+    assert eval_seconds(3.2, 8, 2) == eval_seconds(3.2, 8, 8) == 3.2  # fewer episodes end no sooner than the longest
+    # a budget where even one episode per layout leaves nothing to train: no time left
+    small = StudyPlan(budget_minutes=3.0, out=Path("x"), eval_task=default_config(), episodes=150)
+    episodes, train_minutes = fit_episodes(small, 13.4, 8, 13.4)
+    assert episodes == 1 and train_minutes < 0

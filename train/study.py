@@ -49,22 +49,26 @@ class Arm:
     config: str
     share: float
     start_from: str | None = None
+    eval_cost: float = 1.0  # its evaluation's time over the heuristic team's on the same episodes (measured)
 
 
 #: the trained arms, in training order; shares sum to 1
 ARMS = (
-    Arm("full_obs", "full_obs", 0.14),
+    Arm("full_obs", "full_obs", 0.14, eval_cost=1.1),
     Arm("fine_tune", "fine_tune", 0.1, start_from="full_obs"),
-    Arm("classic", "classic", 0.12),
-    Arm("mappo", "mappo", 0.12),
+    Arm("classic", "classic", 0.12, eval_cost=1.1),
+    Arm("mappo", "mappo", 0.12, eval_cost=1.3),
     Arm("imitate", "imitate", 0.08),
     Arm("imitate_ppo", "finetune_ppo", 0.1, start_from="imitate"),
-    Arm("residual", "residual", 0.08),
-    Arm("belief", "belief", 0.12),
-    Arm("belief_ppo", "belief_ppo", 0.14, start_from="belief"),
+    Arm("residual", "residual", 0.08, eval_cost=1.4),  # the network and the heuristic team it corrects
+    Arm("belief", "belief", 0.12, eval_cost=2.1),  # belief features: the team's memory, built every step
+    Arm("belief_ppo", "belief_ppo", 0.14, start_from="belief", eval_cost=2.1),
 )
+#: sum of the arms' evaluation times in units of the heuristic team's
+ARMS_EVAL_COST = sum(a.eval_cost for a in ARMS)
+ARM_START_S = 3.0  # s an arm spends outside its max_minutes besides its validation: building worlds, loading
+MIN_TRAIN_MINUTES = 0.01  # below this the arms would not train at all
 MIN_TRAIN_FRACTION = 0.4  # evaluation may take at most the rest of the budget
-EVAL_MARGIN = 1.0  # an arm's evaluation over the team's; measured 0.65-0.8 on average (many arms end episodes early), up to 1.25 for one
 VALIDATION_SHARE = 0.3  # at most this part of an arm's time goes to its closing validation
 MIN_VALIDATION_EPISODES = 4
 
@@ -85,19 +89,32 @@ def _minutes(seconds: float) -> float:
     return seconds / 60.0
 
 
-def fit_episodes(plan: StudyPlan, seconds_per_episode: float, spent_s: float) -> tuple[int, float]:
+def _duration(seconds: float) -> str:
+    """'42 s' below two minutes, else '3.5 min'."""
+    return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60.0:.1f} min"
+
+
+def eval_seconds(probe_s: float, probe_episodes: int, episodes: int) -> float:
+    """Seconds to evaluate the heuristic team with `episodes` per layout, from a probe of
+    `probe_episodes` per layout that took `probe_s`: proportional beyond the probe, and no less
+    than it below (episodes in parallel worlds end with the longest of them)."""
+    return probe_s * max(1.0, episodes / probe_episodes)
+
+
+def fit_episodes(plan: StudyPlan, probe_s: float, probe_episodes: int, spent_s: float) -> tuple[int, float]:
     """(episodes per policy and layout, minutes left for training) within the budget.
 
     The heuristic and the trained policies are evaluated with the same number of episodes;
     it shrinks from plan.episodes when evaluation would take more than its share.
     """
     total_s = plan.budget_minutes * 60.0
-    per_round = seconds_per_episode * len(plan.layouts) * (1 + EVAL_MARGIN * len(ARMS))
+    rounds = 1 + ARMS_EVAL_COST  # the team's evaluation and the arms'
     cap = total_s * (1.0 - MIN_TRAIN_FRACTION) - spent_s
     episodes = plan.episodes
-    if per_round * episodes > cap:
-        episodes = max(1, int(cap / max(per_round, 1e-9)))
-    return episodes, _minutes(total_s - spent_s - per_round * episodes)
+    while episodes > 1 and rounds * eval_seconds(probe_s, probe_episodes, episodes) > cap:
+        episodes = max(1, min(episodes - 1, int(episodes * cap / (rounds * eval_seconds(probe_s, probe_episodes, episodes)))))
+    evaluation_s = rounds * eval_seconds(probe_s, probe_episodes, episodes)
+    return episodes, _minutes(total_s - spent_s - evaluation_s - ARM_START_S * len(ARMS))
 
 
 def arm_budget(left_s: float, share: float, shares_left: float, validation_episodes: int,
@@ -127,17 +144,18 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
     probe = max(2, min(plan.worlds, plan.episodes) // len(plan.layouts))  # per layout: they differ in length
     evaluate(heuristic, plan.eval_task, list(plan.layouts), probe, plan.seed + 1, plan.worlds, label="heuristic")
     timings["evaluation speed probe"] = time.perf_counter() - t0
-    episodes, train_minutes = fit_episodes(plan, timings["evaluation speed probe"] / (probe * len(plan.layouts)),
-                                           time.perf_counter() - t_start)
-    log(f"[study] {episodes} episodes per policy and layout; {train_minutes:.1f} min left for training")
-    if train_minutes <= 0.0:
-        raise ValueError(f"--budget-minutes {plan.budget_minutes}: too small; evaluating alone needs most of it "
-                         f"(lower --episodes or raise the budget)")
+    episodes, train_minutes = fit_episodes(plan, timings["evaluation speed probe"], probe, time.perf_counter() - t_start)
+    if train_minutes < MIN_TRAIN_MINUTES:
+        needed = plan.budget_minutes + MIN_TRAIN_MINUTES - train_minutes
+        raise ValueError(f"--budget-minutes {plan.budget_minutes}: too small on this machine; evaluating {len(ARMS) + 1} "
+                         f"policies and starting {len(ARMS)} runs leave {max(train_minutes, 0.0) * 60:.0f} s for training "
+                         f"(raise the budget to about {needed:.0f} min, or lower --episodes)")
+    log(f"[study] {episodes} episodes per policy and layout; {_duration(train_minutes * 60)} left for training")
     t0 = time.perf_counter()
     rows = evaluate(heuristic, plan.eval_task, list(plan.layouts), episodes, plan.seed, plan.worlds, label="heuristic")
     timings["heuristic (eval)"] = time.perf_counter() - t0
     seconds_per_episode = timings["heuristic (eval)"] / (episodes * len(plan.layouts))
-    train_end = t_start + plan.budget_minutes * 60.0 - EVAL_MARGIN * len(ARMS) * timings["heuristic (eval)"]
+    train_end = t_start + plan.budget_minutes * 60.0 - ARMS_EVAL_COST * timings["heuristic (eval)"]
 
     checkpoints: dict[str, Path] = {}
     for i, arm in enumerate(ARMS):
@@ -149,12 +167,13 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
         cfg = load_train_config([arm.config], overrides)
         if (cfg.run_dir / "last.pt").exists():
             raise ValueError(f"study folder {plan.out}: {cfg.run_dir} already holds a run; choose another --out")
-        minutes, val_episodes = arm_budget(train_end - time.perf_counter(), arm.share, sum(a.share for a in ARMS[i:]),
+        left_s = train_end - time.perf_counter() - ARM_START_S * (len(ARMS) - i)  # this and every later arm's start
+        minutes, val_episodes = arm_budget(left_s, arm.share, sum(a.share for a in ARMS[i:]),
                                            cfg.run.validation_episodes, seconds_per_episode, cfg.run.validation_vs_heuristic)
         cfg = load_train_config([arm.config], overrides + [f"max_minutes={max(minutes, 0.01):.4f}",
                                                           f"run.validation_episodes={val_episodes}"])
         t0 = time.perf_counter()
-        log(f"[study] training {regime} for {minutes:.1f} min, then validating on {val_episodes} episodes "
+        log(f"[study] training {regime} for {_duration(minutes * 60)}, then validating on {val_episodes} episodes "
             f"({cfg.task.fidelity} fidelity)")
         result = Trainer(cfg, log=log).train()
         timings[f"{regime} (train)"] = time.perf_counter() - t0
