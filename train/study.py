@@ -149,7 +149,7 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
         needed = plan.budget_minutes + MIN_TRAIN_MINUTES - train_minutes
         raise ValueError(f"--budget-minutes {plan.budget_minutes}: too small on this machine; evaluating {len(ARMS) + 1} "
                          f"policies and starting {len(ARMS)} runs leave {max(train_minutes, 0.0) * 60:.0f} s for training "
-                         f"(raise the budget to about {needed:.0f} min, or lower --episodes)")
+                         f"(raise the budget to about {needed:.0f} min)")
     log(f"[study] {episodes} episodes per policy and layout; {_duration(train_minutes * 60)} left for training")
     t0 = time.perf_counter()
     rows = evaluate(heuristic, plan.eval_task, list(plan.layouts), episodes, plan.seed, plan.worlds, label="heuristic")
