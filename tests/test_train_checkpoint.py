@@ -200,3 +200,15 @@ def test_non_finite_weights_and_damaged_bytes_are_refused(tmp_path):
     (tmp_path / "flipped.pt").write_bytes(bytes(raw))
     with pytest.raises(ValueError, match="corrupted"):
         load_checkpoint(tmp_path / "flipped.pt")
+
+
+def test_starting_from_another_kind_of_run_says_what_does_not_carry_over(tmp_path):
+    residual = tiny_config(tmp_path, name="res", updates=1, extra=["residual.base=heuristic", "shield=true"])
+    Trainer(residual, log=lambda s: None).train()
+    lines = []
+    plain = tiny_config(tmp_path, name="plain", updates=1, extra=[f"init_from={residual.run_dir / 'last.pt'}", "algo=mappo"])
+    Trainer(plain, log=lines.append)
+    said = " ".join(lines)
+    assert "its critic (ppo) is not this run's (mappo): the critic starts fresh" in said
+    assert "correction to base team 'heuristic', here it acts on base 'none'" in said
+    assert "trained behind the shield, this run is without it" in said

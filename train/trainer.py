@@ -171,15 +171,28 @@ class Trainer:
             self.model.actor.load_state_dict(data["actor"])
         except RuntimeError as exc:
             raise ValueError(f"init_from {path}: actor weights do not fit this network ({str(exc).splitlines()[0]})") from None
-        src_algo = data["train_config"].get("algo")
+        src = data["train_config"]
+        src_algo = src.get("algo")
         same_critic = (src_algo == "mappo") == (self.cfg.algo == "mappo")  # dagger trains a ppo-style critic
-        if same_critic and "critic" in data:
+        notes = []
+        if "critic" not in data:
+            notes.append("it is a policy-only export: the critic starts fresh")
+        elif not same_critic:
+            notes.append(f"its critic ({src_algo}) is not this run's ({self.cfg.algo}): the critic starts fresh")
+        else:
             try:
                 self.model.critic.load_state_dict(data["critic"])
             except RuntimeError:
-                self.log(f"init_from {path}: critic does not fit (other team size or network); it starts fresh")
-        self.log(f"initialised from {path} (trained with observability {data['train_config']['task']['observability']}, "
-                 f"now {self.cfg.task.observability})")
+                notes.append("its critic does not fit (other team size or network): the critic starts fresh")
+        src_base = (src.get("residual") or {}).get("base", "none")
+        if src_base != self.cfg.residual.base:
+            notes.append(f"its actor was trained as a correction to base team {src_base!r}, here it acts on base "
+                         f"{self.cfg.residual.base!r}")
+        if bool(src.get("shield", False)) != self.cfg.shield:
+            notes.append(f"it was trained {'behind' if src.get('shield') else 'without'} the shield, this run is "
+                         f"{'behind' if self.cfg.shield else 'without'} it")
+        self.log(f"initialised from {path} (trained with observability {src['task']['observability']}, "
+                 f"now {self.cfg.task.observability})" + "".join(f"; note: {n}" for n in notes))
 
     # ------------------------------------------------------------------ checkpoints
 
