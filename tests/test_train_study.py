@@ -45,11 +45,11 @@ def test_an_arm_gets_its_share_of_the_time_left_less_its_closing_validation():
     assert minutes == 0.0 and episodes == 4
 
 
-def test_the_evaluation_is_reserved_by_each_arms_cost_and_never_below_one_batch():
+def test_the_evaluation_is_reserved_by_each_arms_cost_and_short_ones_keep_a_floor():
     from pathlib import Path
 
     from pursuit_mj.config import default_config
-    from train.study import ARM_START_S, ARMS, ARMS_EVAL_COST, MIN_TRAIN_FRACTION, StudyPlan, eval_seconds, fit_episodes
+    from train.study import ARM_START_S, ARMS, ARMS_EVAL_COST, BATCH_FLOOR, MIN_TRAIN_FRACTION, StudyPlan, eval_seconds, fit_episodes
 
     assert ARMS_EVAL_COST > len(ARMS)  # the belief arms build the team's memory every step: about twice the team
     plan = StudyPlan(budget_minutes=10.0, out=Path("x"), eval_task=default_config(), episodes=150)
@@ -58,8 +58,9 @@ def test_the_evaluation_is_reserved_by_each_arms_cost_and_never_below_one_batch(
     rounds = 1 + ARMS_EVAL_COST
     assert rounds * eval_seconds(3.2, 8, episodes) <= 600 * (1 - MIN_TRAIN_FRACTION) < rounds * eval_seconds(3.2, 8, episodes + 1)
     assert train_minutes == pytest.approx((600 - rounds * eval_seconds(3.2, 8, episodes) - ARM_START_S * len(ARMS)) / 60)
-    assert eval_seconds(3.2, 8, 2) == eval_seconds(3.2, 8, 8) == 3.2  # fewer episodes end no sooner than the longest
-    # a budget where even one episode per layout leaves nothing to train: no time left
-    small = StudyPlan(budget_minutes=3.0, out=Path("x"), eval_task=default_config(), episodes=150)
+    assert eval_seconds(3.2, 8, 16) == pytest.approx(6.4) and eval_seconds(3.2, 8, 8) == 3.2
+    assert eval_seconds(3.2, 8, 0) == pytest.approx(3.2 * BATCH_FLOOR)  # fewer episodes than a batch save less
+    # a budget where even one episode per layout leaves nothing to train
+    small = StudyPlan(budget_minutes=1.5, out=Path("x"), eval_task=default_config(), episodes=150)
     episodes, train_minutes = fit_episodes(small, 13.4, 8, 13.4)
     assert episodes == 1 and train_minutes < 0
