@@ -86,7 +86,7 @@ def read_training_log(path: str | Path) -> list[dict[str, float]]:
             raise ValueError(f"training log {path}, line {i}: expected a JSON object, got {type(obj).__name__}")
         rows.append(flatten(obj))
     if not rows:
-        raise ValueError(f"training log {path}: no rows")
+        raise ValueError(f"training log {path}: no rows (a metrics.jsonl of pursuit-mj train has one JSON object per line)")
     return rows
 
 

@@ -161,6 +161,12 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
     timings["heuristic (eval)"] = time.perf_counter() - t0
     seconds_per_episode = timings["heuristic (eval)"] / (episodes * len(plan.layouts))
     train_end = t_start + plan.budget_minutes * 60.0 - ARMS_EVAL_COST * timings["heuristic (eval)"]
+    left_s = train_end - time.perf_counter() - ARM_START_S * len(ARMS)
+    if left_s < 0.5 * train_minutes * 60.0:
+        planned = eval_seconds(timings["evaluation speed probe"], probe, episodes)
+        log(f"[study] warning: the heuristic team's evaluation took {timings['heuristic (eval)']:.0f} s where "
+            f"{planned:.0f} s were planned (is the machine busy?); {_duration(max(left_s, 0.0))} are left for training, "
+            f"and the study may run over its budget")
 
     checkpoints: dict[str, Path] = {}
     for i, arm in enumerate(ARMS):

@@ -334,6 +334,13 @@ class Trainer:
             row["gamma_meta_grad"] = meta_grad
         return row
 
+    def _logged_validation(self) -> dict:
+        """The newest validation in the metrics log ({} if none)."""
+        for row in reversed(self.metrics.rows()):
+            if row.get("validation"):
+                return {k: v for k, v in row["validation"].items() if k not in ("best", "seconds")}
+        return {}
+
     def _validate_into(self, row: dict, bar, last_val: dict) -> dict:
         """Validate the current policy; the result goes into `row` (and best.pt if it is the best)."""
         c = self.counters
@@ -373,7 +380,7 @@ class Trainer:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         atomic_write_text(self.run_dir / "config.yaml", dump_yaml(cfg))
         bar = _progress(cfg, self.progress())
-        last_val: dict = {}
+        last_val = self._logged_validation()  # a resumed run's last one, until this session validates
         status = "done"
         try:
             if self._pending_row:  # an update whose validation was interrupted: validate it now

@@ -28,8 +28,15 @@ SUBCOMMANDS = [
 ]
 
 
+class OneLineErrorParser(argparse.ArgumentParser):
+    """argparse, with a usage error printed as one line (the usage block buried the message)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineErrorParser(
         prog="pursuit-mj",
         description="Quadrotor pursuit-evasion in MuJoCo: layouts, physics, training, evaluation, rendering, flights.",
     )
@@ -65,7 +72,11 @@ def glue_negative_numbers(argv: list[str]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(glue_negative_numbers(sys.argv[1:] if argv is None else list(argv)))
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv:  # a bare `pursuit-mj`: show what there is
+        parser.print_help(sys.stderr)
+        return 2
+    args = parser.parse_args(glue_negative_numbers(argv))
     try:
         return int(args.func(args) or 0)
     except ValueError as exc:

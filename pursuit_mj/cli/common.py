@@ -103,6 +103,9 @@ def load_model(path, spec, task: TaskConfig, flag: str = "--model"):
     needs torch); a model trained behind the safety shield comes back behind it."""
     from pathlib import Path
 
+    if Path(path).is_dir():
+        hint = next((f"; did you mean {Path(path) / n}?" for n in ("best.pt", "last.pt") if (Path(path) / n).is_file()), "")
+        raise ValueError(f"{flag} {path}: a folder, not a checkpoint file{hint}")
     if not Path(path).is_file():
         raise ValueError(f"{flag} {path}: no such checkpoint file")
     try:
