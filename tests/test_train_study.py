@@ -60,7 +60,8 @@ def test_the_evaluation_is_reserved_by_each_arms_cost_and_short_ones_keep_a_floo
     assert train_minutes == pytest.approx((600 - rounds * eval_seconds(3.2, 8, episodes) - ARM_START_S * len(ARMS)) / 60)
     assert eval_seconds(3.2, 8, 16) == pytest.approx(6.4) and eval_seconds(3.2, 8, 8) == 3.2
     assert eval_seconds(3.2, 8, 0) == pytest.approx(3.2 * BATCH_FLOOR)  # fewer episodes than a batch save less
+    assert eval_seconds(3.2, 8, 2) >= 3.2 * 2 / 8
     # a budget where even one episode per layout leaves nothing to train
-    small = StudyPlan(budget_minutes=1.5, out=Path("x"), eval_task=default_config(), episodes=150)
+    small = StudyPlan(budget_minutes=3.0, out=Path("x"), eval_task=default_config(), episodes=150)
     episodes, train_minutes = fit_episodes(small, 13.4, 8, 13.4)
     assert episodes == 1 and train_minutes < 0

@@ -68,6 +68,7 @@ ARMS = (
 ARMS_EVAL_COST = sum(a.eval_cost for a in ARMS)
 ARM_START_S = 3.0  # s an arm spends outside its max_minutes besides its validation: building worlds, loading
 MIN_TRAIN_MINUTES = 0.01  # below this the arms would not train at all
+FEW_EPISODES = 20  # fewer per layout than this and the study says its table is rough
 MIN_TRAIN_FRACTION = 0.4  # evaluation may take at most the rest of the budget
 VALIDATION_SHARE = 0.3  # at most this part of an arm's time goes to its closing validation
 MIN_VALIDATION_EPISODES = 4
@@ -94,7 +95,8 @@ def _duration(seconds: float) -> str:
     return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60.0:.1f} min"
 
 
-BATCH_FLOOR = 0.3  # part of a batch's time that fewer episodes do not save (measured: 1 episode per layout 0.38 of 8)
+BATCH_FLOOR = 1.0  # part of a batch's time that fewer episodes do not save: all of it, to be safe (measured on
+#                    two idle runs: 1 episode per layout took 0.38 of the 8-episode probe's time, 6 episodes 1.28)
 
 
 def eval_seconds(probe_s: float, probe_episodes: int, episodes: int) -> float:
@@ -156,6 +158,9 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
                          f"policies and starting {len(ARMS)} runs leave {max(train_minutes, 0.0) * 60:.0f} s for training "
                          f"(raise the budget to about {needed:.0f} min)")
     log(f"[study] {episodes} episodes per policy and layout; {_duration(train_minutes * 60)} left for training")
+    if episodes < min(plan.episodes, FEW_EPISODES):
+        log(f"[study] warning: {episodes} episodes per layout give wide intervals (a single episode decides "
+            f"{100 / episodes:.0f} points of success); a larger budget buys more")
     t0 = time.perf_counter()
     rows = evaluate(heuristic, plan.eval_task, list(plan.layouts), episodes, plan.seed, plan.worlds, label="heuristic")
     timings["heuristic (eval)"] = time.perf_counter() - t0
