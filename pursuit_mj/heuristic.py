@@ -32,7 +32,7 @@ import numpy as np
 
 from .coverage import CoverageMap, CoverageParams
 from .obs_spec import ObsSpec, named_views
-from .shield import SafetyShield, ShieldParams, clip_unit, unit
+from .shield import MIN_RAYS, SafetyShield, ShieldParams, check_rays, clip_unit, unit
 
 _TINY = 1e-9
 
@@ -120,6 +120,7 @@ class HeuristicTeam:
     @classmethod
     def from_config(cls, config, params: HeuristicParams | None = None) -> "HeuristicTeam":
         """A team tuned to a TaskConfig's speeds, clearances and timing (not its state)."""
+        check_rays(config.n_rays, "the heuristic team")
         return cls(config.pursuer_speed, config.capture_radius, config.obstacle_clearance,
                    config.teammate_clearance, config.control_dt, config.ray_range, config.perception_radius, params,
                    config.field_of_view, config.position_noise)

@@ -46,6 +46,16 @@ from .obs_spec import ObsSpec, named_views
 from .policy import Policy, check_observations
 from .sensing import HEADING_MIN_SPEED
 
+MIN_RAYS = 8  # range readings the shield (and the heuristic team) need to keep off walls: they see walls through nothing else
+
+
+def check_rays(n_rays: int, who: str) -> None:
+    """ValueError unless the task gives `who` enough range readings (MIN_RAYS)."""
+    if n_rays < MIN_RAYS:
+        raise ValueError(f"task n_rays {n_rays}: {who} sees walls only through range readings and needs at least "
+                         f"{MIN_RAYS} (set n_rays >= {MIN_RAYS})")
+
+
 _TINY = 1e-9
 
 
@@ -130,6 +140,7 @@ class SafetyShield:
     @classmethod
     def from_config(cls, config, params: ShieldParams | None = None) -> "SafetyShield":
         """A shield for a TaskConfig's speed, clearances, ray range and teammates' sight."""
+        check_rays(config.n_rays, "the safety shield")
         return cls(config.pursuer_speed, config.capture_radius, config.obstacle_clearance,
                    config.teammate_clearance, config.ray_range, params, config.control_dt,
                    config.field_of_view, config.perception_radius, config.position_noise)

@@ -266,3 +266,18 @@ def test_eval_cli_shield_labels_the_wrapped_policies_only(tmp_path):
     assert code == 0
     data = json.loads((tmp_path / "t.json").read_text())
     assert [r["policy"] for r in data["rows"]] == ["random+shield", "heuristic"]
+
+
+def test_the_team_and_the_shield_refuse_a_task_without_enough_range_readings():
+    from pursuit_mj.config import ConfigError, default_config
+    from pursuit_mj.heuristic import HeuristicTeam
+    from train.config import load_train_config
+
+    blind = default_config(n_rays=4)
+    with pytest.raises(ValueError, match="task n_rays 4: the heuristic team sees walls only through range readings"):
+        HeuristicTeam.from_config(blind)
+    with pytest.raises(ValueError, match="task n_rays 4: the safety shield"):
+        SafetyShield.from_config(blind)
+    with pytest.raises(ConfigError, match="task.n_rays 0: .* shield, residual.base, run.validation_vs_heuristic"):
+        load_train_config(["residual"], ["task.n_rays=0"]).check_complete()
+    load_train_config(["classic"], ["task.n_rays=0", "run.validation_vs_heuristic=false"]).check_complete()  # a network alone may

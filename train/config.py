@@ -164,6 +164,16 @@ class TrainConfig:
         if self.algo == "dagger" and self.residual.base != "none":
             raise ConfigError(f"{source}: residual.base {self.residual.base!r} works with algo ppo or mappo, not dagger "
                               "(a residual starts as its base team; there is nothing to imitate)")
+        from pursuit_mj.shield import MIN_RAYS
+
+        if self.task.n_rays < MIN_RAYS:
+            users = [k for k, on in (("shield", self.shield), ("residual.base", self.residual.base != "none"),
+                                     ("belief", self.belief), ("algo dagger (its teacher)", self.algo == "dagger"),
+                                     ("run.validation_vs_heuristic", self.run.validation_vs_heuristic)) if on]
+            if users:
+                raise ConfigError(f"{source}: task.n_rays {self.task.n_rays}: the heuristic team and the shield see walls "
+                                  f"only through range readings and need at least {MIN_RAYS}; {', '.join(users)} "
+                                  f"use(s) them (raise task.n_rays, or turn those off)")
 
     @property
     def run_dir(self) -> Path:
