@@ -222,6 +222,12 @@ def inside_boundary(layout: "Layout", points: np.ndarray) -> np.ndarray:
     return _inside_polygon(points, seg)
 
 
+def inside_polygon(points: np.ndarray, corners) -> np.ndarray:
+    """Whether each point (..., 2) lies inside the polygon of `corners` (K, 2) m, (...) bool."""
+    pts = np.asarray(corners, dtype=np.float64)
+    return _inside_polygon(np.asarray(points, dtype=np.float64), np.concatenate([pts, np.roll(pts, -1, axis=0)], -1))
+
+
 def _inside_polygon(points: np.ndarray, seg: np.ndarray) -> np.ndarray:
     x, y = points[..., 0:1], points[..., 1:2]
     x0, y0, x1, y1 = seg[:, 0], seg[:, 1], seg[:, 2], seg[:, 3]

@@ -278,3 +278,17 @@ def test_the_example_in_layout_new_help_works(tmp_path, capsys):
     example = new.epilog.split("example: pursuit-mj ", 1)[1].split()
     example[2] = str(tmp_path / "arena.yaml")
     assert main(example) == 0, capsys.readouterr().err
+
+
+def test_layout_new_puts_default_spawn_bands_inside_a_polygon(tmp_path):
+    from pursuit_mj.geometry import inside_polygon
+
+    out = tmp_path / "house.yaml"
+    corners = [[0, 0], [4, 0], [4, 5], [2, 6], [0, 5]]  # a roof above y = 5
+    assert main(["layout", "new", str(out), "--border", "polygon", "--points", *(f"{x},{y}" for x, y in corners),
+                 "--width", "4", "--height", "6"]) == 0
+    layout = load_layout(out)
+    for region in (layout.spawn_pursuers, layout.spawn_evaders):
+        box = [[x, y] for x in region.x for y in region.y]
+        assert inside_polygon(np.array(box), corners).all(), region
+    assert layout.spawn_evaders.y[1] > 5.0  # up in the roof, as high as a 1 m band fits

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..io_utils import check_writable
 from ..layout import Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout, save_layout
+from ..geometry import inside_polygon
 from ..layout_check import check_spawn_capacity, free_spawn_points
 from .common import finite_float, seed_arg
 
@@ -111,8 +112,33 @@ def _boundary(args) -> tuple[object, tuple[float, float, float, float]]:
     return "rectangle", (0.0, w, 0.0, h)
 
 
-def _default_spawn(border: str, bbox: tuple[float, float, float, float]) -> tuple[dict, dict]:
-    """Bands along the bottom (pursuers) and top (evaders) of the border's bounding box."""
+def _polygon_band(corners, bbox, inset: float, band: float, from_top: bool) -> dict | None:
+    """The spawn band nearest the bottom (or top) of a polygon whose corners of the band all lie
+    `inset` inside it and which is at least MIN_BAND_WIDTH wide; None if there is none."""
+    x0, x1, y0, y1 = bbox
+    xs = np.linspace(x0, x1, 181)
+    for shift in np.arange(0.0, (y1 - y0) / 2 - band, 0.05):
+        lo = (y1 - inset - band - shift) if from_top else (y0 + inset + shift)
+        rows = [np.stack([xs, np.full_like(xs, y)], -1) for y in (lo, lo + band / 2, lo + band)]
+        ok = np.ones_like(xs, dtype=bool)
+        for pts in rows:
+            ok &= inside_polygon(pts, corners)
+            ok &= inside_polygon(pts + [inset, 0.0], corners) & inside_polygon(pts - [inset, 0.0], corners)
+        runs = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
+        if len(runs):
+            starts, ends = runs[0::2], runs[1::2] - 1
+            k = int(np.argmax(xs[ends] - xs[starts]))
+            if xs[ends[k]] - xs[starts[k]] >= MIN_BAND_WIDTH:
+                return {"x": [round(float(xs[starts[k]]), 3), round(float(xs[ends[k]]), 3)], "y": [round(float(lo), 3), round(float(lo + band), 3)]}
+    return None
+
+
+MIN_BAND_WIDTH = 1.0  # m: a default spawn band holds a team of 3, 0.4 m apart
+
+
+def _default_spawn(border: str, bbox: tuple[float, float, float, float], corners=None) -> tuple[dict, dict]:
+    """Bands along the bottom (pursuers) and top (evaders) of the border: inside a polygon's
+    corners when given, else of its bounding box."""
     x0, x1, y0, y1 = bbox
     width, height = x1 - x0, y1 - y0
     if border == "circle":  # keep the bands inside the round border
@@ -122,6 +148,11 @@ def _default_spawn(border: str, bbox: tuple[float, float, float, float]) -> tupl
                 {"x": xs, "y": [round(cy + 0.5 * r, 3), round(cy + 0.8 * r, 3)]})
     inset = min(0.2, 0.1 * width)
     band = min(0.6, 0.25 * height)
+    if border == "polygon" and corners is not None:
+        bottom = _polygon_band(corners, bbox, inset, band, from_top=False)
+        top = _polygon_band(corners, bbox, inset, band, from_top=True)
+        if bottom is not None and top is not None:
+            return bottom, top
     xs = [round(x0 + inset + (0.1 * width if border == "polygon" else 0.0), 3), round(x1 - inset - (0.1 * width if border == "polygon" else 0.0), 3)]
     return ({"x": xs, "y": [round(y0 + inset, 3), round(y0 + inset + band, 3)]},
             {"x": xs, "y": [round(y1 - inset - band, 3), round(y1 - inset, 3)]})
@@ -155,7 +186,7 @@ def build_new_layout(args) -> Layout:
     if args.episode_obstacles < 0:
         raise ValueError(f"--episode-obstacles: must be >= 0, got {args.episode_obstacles}")
     boundary, bbox = _boundary(args)
-    pursuers, evaders = _default_spawn(args.border, bbox)
+    pursuers, evaders = _default_spawn(args.border, bbox, boundary["polygon"] if args.border == "polygon" else None)
     if args.spawn_pursuers:
         x0, x1, y0, y1 = _finite(args.spawn_pursuers, "--spawn-pursuers")
         pursuers = {"x": [x0, x1], "y": [y0, y1]}
