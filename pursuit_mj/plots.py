@@ -31,6 +31,8 @@ EVAL_METRICS = (
     ("collision", "collision rate (%)", "collision_pct", "collision_ci_lo", "collision_ci_hi"),
     ("timeout", "timeout rate (%)", "timeout_pct", "timeout_ci_lo", "timeout_ci_hi"),
     ("mean_steps", "mean episode length (steps)", "mean_steps", "mean_steps_ci_lo", "mean_steps_ci_hi"),
+    ("steps_success", "mean steps of the successes (steps)", "mean_steps_success", "mean_steps_success_ci_lo",
+     "mean_steps_success_ci_hi"),
 )
 
 
@@ -126,9 +128,20 @@ def curve_keys(runs: Mapping[str, Sequence[Mapping[str, float]]], wanted: Sequen
 RATE_KEYS = ("success", "collision", "timeout", "success_rate", "collision_rate")
 
 
+REWARD_UNITS = {"episode_returns": "return per episode", "reward_terms_per_step": "reward per step"}
+
+
+def is_rate(key: str) -> bool:
+    """Whether a flattened log key is a 0-1 rate ('train.collision'), not a reward term ('episode_returns.collision')."""
+    return key.rsplit(".", 1)[-1] in RATE_KEYS and not key.startswith(REWARD_PREFIXES)
+
+
 def _curve_label(key: str) -> str:
-    """'train.success' -> 'train: success rate (fraction)' (labels from CURVES); other keys as they are."""
+    """'train.success' -> 'train: success rate (fraction)' (labels from CURVES); a reward term ->
+    'collision term (return per episode)'; other keys as they are."""
     group, _, last = key.rpartition(".")
+    if key.startswith(REWARD_PREFIXES):
+        return f"{last} term ({REWARD_UNITS.get(group, group.replace('_', ' '))})"
     label = next((f"{lab} (fraction)" if last in RATE_KEYS else lab for _, lab, finals in CURVES if last in finals),
                  "timeout rate (fraction)" if last == "timeout" else None)
     return key if label is None else (f"{group}: {label}" if group else label)
@@ -149,8 +162,9 @@ def plot_training(runs: Mapping[str, Sequence[Mapping[str, float]]], folder: str
                 ax.plot(pts[:, 0], pts[:, 1], marker="." if len(pts) < 30 else None, label=label)
         ax.set_xlabel(xk.replace("_", " "))
         ax.set_ylabel(_curve_label(key))
-        if key.rsplit(".", 1)[-1] in RATE_KEYS:
-            ax.set_ylim(0.0, 1.0)
+        if is_rate(key):
+            ax.set_ylim(-0.03, 1.03)  # markers at 0 and 1 whole
+        ax.set_title(key, fontsize="small")
         ax.grid(alpha=0.3)
         ax.legend(fontsize="small")
         fig.tight_layout()
@@ -206,14 +220,20 @@ def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str
     slots = max(sum((pol, lay) in table for pol in policies) for lay in layouts)
     width = 0.8 / slots
     episodes = sorted({int(r["episodes"]) for r in rows if r.get("episodes") is not None})
-    n_text = "" if not episodes else (f", {episodes[0]} episodes per bar" if len(episodes) == 1
-                                      else f", {episodes[0]}-{episodes[-1]} episodes per bar")
+    about = [] if not episodes else [f"{episodes[0]} episodes per bar" if len(episodes) == 1
+                                     else f"{episodes[0]}-{episodes[-1]} episodes per bar"]
+    fidelities = sorted({str(r["fidelity"]) for r in rows if r.get("fidelity")})
+    if fidelities:
+        about.append(f"{', '.join(fidelities)} fidelity")
+    n_text = "" if not about else "\n" + ", ".join(about)  # a second title line: narrow charts clip long titles
     paths = []
+    values: list[tuple[float, float, float]] = []
     for stem, label, key, lo_key, hi_key in EVAL_METRICS:
         if not any(r.get(key) is not None for r in rows):
             continue
         fig, ax = plt.subplots(figsize=(2.6 + 1.2 * len(layouts) * max(slots, 2) / 2, 3.8))
         shown: set[str] = set()
+        top = 0.0
         for x, lay in enumerate(layouts):
             here = [pol for pol in policies if (pol, lay) in table]
             for i, pol in enumerate(here):
@@ -223,14 +243,24 @@ def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str
                     continue
                 lo, hi = r.get(lo_key), r.get(hi_key)
                 err = [[0.0 if lo is None else float(v) - float(lo)], [0.0 if hi is None else float(hi) - float(v)]]
-                ax.bar(x + (i - (len(here) - 1) / 2) * width, float(v), width, yerr=err, capsize=3, color=colour[pol],
-                       label=None if pol in shown else pol)
+                centre = x + (i - (len(here) - 1) / 2) * width
+                ax.bar(centre, float(v), width, yerr=err, capsize=3, color=colour[pol], label=None if pol in shown else pol)
+                tip = float(v) + err[1][0]
+                values.append((centre, tip, float(v)))  # each bar's value written above its whisker: a 0 % bar shows "0"
+                top = max(top, tip)
                 shown.add(pol)
+        pad = 0.02 * (100.0 if key.endswith("_pct") else max(top, 1.0))
+        for centre, tip, v in values:
+            ax.text(centre, tip + pad, f"{v:.0f}", ha="center", va="bottom", fontsize=7)
+        values.clear()
         ax.set_xticks(np.arange(len(layouts)), [_layout_name(l) for l in layouts])
         ax.set_ylabel(label)
         ax.set_title(f"{label.split(' (')[0]} by layout{n_text}", fontsize="medium")
         if key.endswith("_pct"):
-            ax.set_ylim(0, 100)
+            ax.set_ylim(0, 112)  # room above 100 for the whisker caps and values
+            ax.set_yticks(range(0, 101, 20))
+        else:
+            ax.set_ylim(0, max(top, 1.0) * 1.12)
         ax.grid(axis="y", alpha=0.3)
         ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
         fig.tight_layout()

@@ -148,3 +148,12 @@ def test_plot_command_tells_apart_a_policy_that_two_files_hold(tmp_path, capsys)
 
     names = {r["policy"] for r in _combined_rows([(str(one), read_eval_rows(one)), (str(two), read_eval_rows(two))])}
     assert names == {"heuristic (one)", "heuristic (two)", "classic", "mappo"}
+
+
+def test_a_reward_term_named_like_an_outcome_is_not_drawn_as_a_rate():
+    from pursuit_mj.plots import _curve_label, is_rate
+
+    assert is_rate("train.collision") and is_rate("validation.success")
+    assert not is_rate("episode_returns.collision") and not is_rate("reward_terms_per_step.collision")
+    assert _curve_label("episode_returns.collision") == "collision term (return per episode)"
+    assert _curve_label("train.collision") == "train: collision rate (fraction)"
