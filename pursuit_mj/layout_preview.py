@@ -63,9 +63,13 @@ def draw_layout(ax, layout: Layout, random_obstacles: tuple = (), random_label: 
         patch = _obstacle_patch(o, RANDOM_COLOR, hatch="///")
         patch.set_zorder(3)
         ax.add_patch(patch)
-    handles = [
-        mpatches.Patch(facecolor=FIXED_COLOR, edgecolor="black", label=f"fixed obstacles ({len(layout.obstacles)})"),
-        mpatches.Patch(facecolor=RANDOM_COLOR, edgecolor="black", hatch="///", label=f"{random_label} ({len(random_obstacles)})"),
+    handles = []
+    if layout.obstacles:
+        handles.append(mpatches.Patch(facecolor=FIXED_COLOR, edgecolor="black", label=f"fixed obstacles ({len(layout.obstacles)})"))
+    if random_obstacles:
+        handles.append(mpatches.Patch(facecolor=RANDOM_COLOR, edgecolor="black", hatch="///",
+                                      label=f"{random_label} ({len(random_obstacles)})"))
+    handles += [
         mpatches.Patch(facecolor=SPAWN_COLORS["pursuers"], alpha=0.35, label="pursuer spawn"),
         mpatches.Patch(facecolor=SPAWN_COLORS["evaders"], alpha=0.35, label="evader spawn"),
     ]

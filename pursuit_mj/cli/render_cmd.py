@@ -232,7 +232,8 @@ def run(args) -> int:
         check_rrd_path(args.rerun, "--rerun")
     videos = finals = None
     if target is not None:
-        stem = f"{label}_layout{Path(str(config.layout)).stem}_{config.fidelity}_seed{args.seed}"
+        task_tag = "".join(f"_{Path(f).stem}" for f in args.task_files or [])  # --task hard: not the default task's files
+        stem = f"{label}{task_tag}_layout{Path(str(config.layout)).stem}_{config.fidelity}_seed{args.seed}"
         videos, finals = target.paths(args.episodes, stem, video, final)
     outputs = EpisodeOutputs(videos, finals, fps=args.fps or 1.0 / config.control_dt, trail_length=args.trail)
 
