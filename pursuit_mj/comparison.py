@@ -19,6 +19,9 @@ from .evaluation import Row
 from .stats import Mean, mean_interval
 
 
+MIN_VERDICT_EPISODES = 5  # paired episodes below which no faster/slower verdict is given
+
+
 @dataclasses.dataclass(frozen=True)
 class Paired:
     """`policy` against `reference` on one layout, over the same `episodes`.
@@ -41,7 +44,10 @@ class Paired:
 
     @property
     def verdict(self) -> str:
-        """'faster' / 'slower' when the 95 % interval excludes 0, else 'level'."""
+        """'faster' / 'slower' when the 95 % interval excludes 0, 'level' when it holds it, 'too few'
+        below MIN_VERDICT_EPISODES pairs (a t interval of two or three identical differences has width 0)."""
+        if self.steps.n < MIN_VERDICT_EPISODES:
+            return "too few"
         if self.steps.hi is not None and self.steps.hi < 0:
             return "faster"
         if self.steps.lo is not None and self.steps.lo > 0:
@@ -83,7 +89,8 @@ def format_pairs(pairs: Sequence[Paired]) -> str:
     head = ["policy", "versus", "layout", "episodes", "capture steps, policy - versus [95% CI]", "faster / slower",
             "caught only by policy / versus", "verdict"]
     body = [[p.policy, p.reference, p.layout, str(p.episodes),
-             f"{p.steps.mean:+7.1f} [{p.steps.lo:+7.1f}, {p.steps.hi:+7.1f}]", f"{p.faster} / {p.slower}",
+             f"{p.steps.mean:+7.1f} " + ("[no interval]" if p.steps.lo is None else f"[{p.steps.lo:+7.1f}, {p.steps.hi:+7.1f}]"),
+             f"{p.faster} / {p.slower}",
              f"{p.only_policy} / {p.only_reference}", p.verdict] for p in pairs]
     widths = [max(len(x) for x in col) for col in zip(head, *body)]
     return "\n".join("  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in [head] + body)

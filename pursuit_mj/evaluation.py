@@ -215,6 +215,8 @@ def _pct(r: Rate) -> str:
 def _steps(m: Mean) -> str:
     if m.mean is None:
         return "-"
+    if m.lo is None:
+        return f"{m.mean:6.1f} [no interval: 1 episode]"
     return f"{m.mean:6.1f} [{m.lo:6.1f}, {m.hi:6.1f}]"
 
 

@@ -69,7 +69,7 @@ def t_quantile_975(dof: int) -> float:
 
 
 def mean_interval(values: Sequence[float], bounds: tuple[float, float] | None = None) -> Mean:
-    """Mean and 95 % t interval; a single value has the interval [value, value].
+    """Mean and 95 % t interval; a single value has no interval (lo and hi None).
 
     bounds (lo, hi): the range the values can take (episode steps: 0..max_steps); the
     interval is cut to it, since a few skewed samples can stretch a t interval past it.
@@ -79,7 +79,7 @@ def mean_interval(values: Sequence[float], bounds: tuple[float, float] | None = 
         return Mean(0, None, None, None)
     m = math.fsum(values) / n
     if n == 1:
-        return Mean(1, m, m, m)
+        return Mean(1, m, None, None)  # one sample says nothing of the spread
     var = math.fsum((x - m) ** 2 for x in values) / (n - 1)
     half = t_quantile_975(n - 1) * math.sqrt(var / n)
     lo, hi = m - half, m + half

@@ -28,7 +28,7 @@ def test_differences_are_taken_episode_by_episode_and_failures_count_as_max_step
     assert p.steps.mean == pytest.approx(mean)
     assert p.steps.hi - p.steps.mean == pytest.approx(min(t_quantile_975(3) * sd / 2, MAX - mean))
     assert (p.faster, p.slower, p.only_policy, p.only_reference) == (3, 1, 1, 1)
-    assert p.verdict == "level"
+    assert p.verdict == "too few"  # 4 pairs
 
 
 def test_a_steady_gain_is_called_faster_even_when_the_means_overlap():
@@ -61,6 +61,15 @@ def test_a_policy_against_itself_on_a_real_table_is_level_to_the_step():
                           ("random", RandomPolicy(0))):
         rows += evaluate(policy, config, [0], episodes=4, seed=3, n_worlds=2, label=label)
     same, rnd = pair_table(rows, "heuristic", config.max_steps)
-    assert same.steps.mean == 0 and same.steps.lo == same.steps.hi == 0 and same.verdict == "level"
+    assert same.steps.mean == 0 and same.steps.lo == same.steps.hi == 0
+    assert same.verdict == "too few"  # 4 pairs: no verdict, however clear
     assert (same.faster, same.slower) == (0, 0)
     assert rnd.policy == "random" and rnd.episodes == 4
+
+
+def test_no_verdict_and_no_interval_from_too_few_episodes():
+    one = pair(row("net", [("success", 400)]), row("heuristic", [("success", 300)]), MAX)
+    assert one.steps.mean == 100 and one.steps.lo is None and one.verdict == "too few"
+    assert "[no interval]" in format_pairs([one])
+    two = pair(row("net", [("success", 400), ("success", 500)]), row("heuristic", [("success", 300), ("success", 400)]), MAX)
+    assert two.steps.lo == two.steps.hi == 100 and two.verdict == "too few"  # a t interval of width 0 proves nothing

@@ -48,7 +48,7 @@ def test_t_interval_of_a_mean():
     assert (m.n, m.mean) == (5, 3.0)
     assert (m.lo, m.hi) == pytest.approx((3.0 - half, 3.0 + half), abs=1e-3)
     assert mean_interval([]).mean is None
-    assert mean_interval([7.0]).lo == 7.0
+    assert mean_interval([7.0]).mean == 7.0 and mean_interval([7.0]).lo is None  # one sample: no interval
     skewed = mean_interval([50.0, 60.0, 1000.0], bounds=(0.0, 1000.0))  # t interval -1000..1740 unbounded
     assert (skewed.lo, skewed.hi) == (0.0, 1000.0) and skewed.mean == pytest.approx(370.0)
 

@@ -194,7 +194,9 @@ def run(args) -> int:
     if "vs_heuristic_steps" in val:
         print(f"last validation ({val['episodes']} fixed episodes): success {val['success']:.1%}, {val['mean_steps']:.1f} mean steps; "
               f"the heuristic team {val['heuristic_success']:.1%}, {val['heuristic_mean_steps']:.1f}; paired, "
-              f"{val['vs_heuristic_steps']:+.1f} [{val['vs_heuristic_lo']:+.1f}, {val['vs_heuristic_hi']:+.1f}] capture steps "
+              f"{val['vs_heuristic_steps']:+.1f} "
+              + ("[no interval: 1 episode]" if val["vs_heuristic_lo"] is None else
+                 f"[{val['vs_heuristic_lo']:+.1f}, {val['vs_heuristic_hi']:+.1f}]") + " capture steps "
               f"per episode (negative: sooner)")
     print(f"last checkpoint: {Path(result['run_dir']) / 'last.pt'}; metrics: {Path(result['run_dir']) / 'metrics.jsonl'}")
     return 130 if result["status"] == "interrupted" else 0
