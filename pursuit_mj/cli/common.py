@@ -48,6 +48,16 @@ def add_task_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--delta-t", "--control-dt", type=finite_float, dest="control_dt", help="decision interval (s)")
     g.add_argument("--observability", choices=("partial", "full"), help="observability")
     g.add_argument("-sc", "--show-config", action="store_true", help="print the resolved task config")
+    # the reference study's run_sim.py spellings, accepted everywhere but not listed in --help
+    hidden = argparse.SUPPRESS
+    g.add_argument("--env_config", dest="task_files", action="append", help=hidden)
+    g.add_argument("--show_config", dest="show_config", action="store_true", help=hidden)
+    g.add_argument("--env_idx", dest="layout", help=hidden)
+    g.add_argument("--delta_t", dest="control_dt", type=finite_float, help=hidden)
+    g.add_argument("--r_velocity", dest="pursuer_speed", type=finite_float, help=hidden)
+    g.add_argument("--e_velocity", dest="evader_speed", type=finite_float, help=hidden)
+    g.add_argument("--r_perception", dest="perception_radius", type=finite_float, help=hidden)
+    g.add_argument("--obstacle_num", dest="random_obstacles", type=int, help=hidden)
 
 
 TASK_FLAG_NAMES = {"layout": "--layout", "fidelity": "--fidelity", "n_pursuers": "--pursuers", "n_evaders": "--evaders",

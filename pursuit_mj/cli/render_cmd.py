@@ -68,15 +68,7 @@ def _add_reference_spellings(p: argparse.ArgumentParser) -> None:
     """The reference study's underscore spellings, accepted but not listed in --help."""
     hidden = argparse.SUPPRESS
     p.add_argument("--model_config", dest="model_config", help=hidden)
-    p.add_argument("--env_config", dest="task_files", action="append", help=hidden)
-    p.add_argument("--save_path", dest="save_path", help=hidden)
-    p.add_argument("--show_config", dest="show_config", action="store_true", help=hidden)
-    p.add_argument("--env_idx", dest="layout", help=hidden)
-    p.add_argument("--delta_t", dest="control_dt", type=finite_float, help=hidden)
-    p.add_argument("--r_velocity", dest="pursuer_speed", type=finite_float, help=hidden)
-    p.add_argument("--e_velocity", dest="evader_speed", type=finite_float, help=hidden)
-    p.add_argument("--r_perception", dest="perception_radius", type=finite_float, help=hidden)
-    p.add_argument("--obstacle_num", dest="random_obstacles", type=int, help=hidden)
+    p.add_argument("--save_path", dest="save_path", help=hidden)  # the task ones: common.add_task_args
 
 
 # ---------------------------------------------------------------------- config and policy
