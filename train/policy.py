@@ -116,10 +116,12 @@ def load_policy(path: str | Path, env_spec: ObsSpec | None = None, stochastic: b
     source = f"checkpoint {path}: train_config"
     residual = build(ResidualConfig, stored.get("residual", {}), f"{source}.residual")
     if not stored.get("shield", False) and residual.base == "none" and not belief:
-        return policy
-    if task is None:
-        task = build(TaskConfig, stored.get("task", {}), f"{source}.task")
-    return trained_team(policy, task, bool(stored.get("shield", False)), residual, belief)
+        team = policy
+    else:
+        run_task = task if task is not None else build(TaskConfig, stored.get("task", {}), f"{source}.task")
+        team = trained_team(policy, run_task, bool(stored.get("shield", False)), residual, belief)
+    team.trained_task = dict(stored.get("task", {}))  # the task it learned in, for callers to compare with theirs
+    return team
 
 
 def base_team(residual: ResidualConfig, task: TaskConfig) -> Policy | None:

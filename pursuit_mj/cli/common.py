@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 
 from ..config import TaskConfig, dump_yaml, load_task_config
 
@@ -108,6 +109,10 @@ def shield_if_asked(args: argparse.Namespace, policy, label: str, config: TaskCo
     return (policy, label) if wrapped is policy else (wrapped, f"{label}+shield")
 
 
+#: task keys whose change between training and use a loaded model's user is told of
+TRAINED_TASK_KEYS = ("observability", "pursuer_speed", "evader_speed", "perception_radius", "field_of_view")
+
+
 def load_model(path, spec, task: TaskConfig, flag: str = "--model"):
     """A trained policy for `task` via train.policy.load_policy (imported lazily: the library never
     needs torch); a model trained behind the safety shield comes back behind it."""
@@ -122,4 +127,10 @@ def load_model(path, spec, task: TaskConfig, flag: str = "--model"):
         from train.policy import load_policy
     except ImportError as exc:
         raise ValueError(f"{flag} {path}: cannot load trained models, the train package is not importable ({exc})") from None
-    return load_policy(path, spec, task=task)
+    policy = load_policy(path, spec, task=task)
+    trained = getattr(policy, "trained_task", {})
+    differ = [f"{k} {trained[k]} (this task: {getattr(task, k)})" for k in TRAINED_TASK_KEYS
+              if k in trained and trained[k] != getattr(task, k)]
+    if differ:  # legitimate (the study judges full_obs under partial observability), but worth knowing
+        print(f"note: {flag} {path} was trained with {', '.join(differ)}", file=sys.stderr)
+    return policy

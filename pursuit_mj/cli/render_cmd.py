@@ -242,5 +242,5 @@ def run(args) -> int:
         if recording is not None:
             path = recording.close(ok=ok)
             if path is not None:
-                print(f"wrote {path} ({recording.n_episodes} episodes; open with: rerun {path})")
+                print(f"wrote {path} ({recording.n_episodes} episode{'' if recording.n_episodes == 1 else 's'}; open with: rerun {path})")
     return 0
