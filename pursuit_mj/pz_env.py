@@ -7,6 +7,8 @@ as a fraction of pursuer_speed. `state()` is the global state for centralised cr
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
@@ -41,9 +43,11 @@ class PursuitParallelEnv(ParallelEnv):
         if agent not in self.possible_agents:
             raise ValueError(f"{where}: no agent {agent!r} (agents: {self.possible_agents})")
 
-    def render(self):
-        raise NotImplementedError("PursuitParallelEnv draws nothing itself: record `env.batched.snapshot()` each step "
-                                  "(pursuit_mj.render, docs/rendering.md) or use `pursuit-mj render`")
+    def render(self) -> None:
+        """Draws nothing (render_mode None, as gymnasium does without a mode) and says where pictures come from."""
+        warnings.warn("PursuitParallelEnv draws nothing itself: record `env.batched.snapshot()` each step "
+                      "(pursuit_mj.render, docs/rendering.md) or use `pursuit-mj render`", stacklevel=2)
+        return None
 
     @property
     def obs_spec(self):

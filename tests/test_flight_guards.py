@@ -9,6 +9,7 @@ import signal
 import time
 
 import numpy as np
+import pytest
 
 from flight_rehearsal import ScriptedTeam, fly_virtual, kinds_in_order, quick_plan, wait_for
 from pursuit_mj.heuristic import HeuristicTeam
@@ -46,18 +47,20 @@ def test_speed_clamp_geofence_and_separation_guard_keep_drones_slow_inside_and_a
     assert down(fleet)
 
 
-def test_ctrl_c_lands_everyone_and_restores_the_signal_handler(tmp_path):
+@pytest.mark.parametrize("sig, reason", [(signal.SIGINT, "Ctrl-C"), (signal.SIGTERM, "SIGTERM")])
+def test_ctrl_c_or_sigterm_lands_everyone_and_restores_the_signal_handler(tmp_path, sig, reason):
     plan = quick_plan(max_time=8.0)
-    before = signal.getsignal(signal.SIGINT)
+    before = signal.getsignal(sig)
 
-    def press_ctrl_c(fleet, bridge):
+    def send(fleet, bridge):
         time.sleep(0.3)
-        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), sig)
 
-    result, events, fleet = fly_virtual(plan, HeuristicTeam.from_config(plan.task), tmp_path, during=press_ctrl_c, handle_signals=True)
-    assert result.outcome == "interrupted" and result.landed
+    result, events, fleet = fly_virtual(plan, HeuristicTeam.from_config(plan.task), tmp_path, during=send, handle_signals=True)
+    assert result.outcome == "interrupted" and result.reason == reason and result.landed
     assert kinds_in_order(events, "chase", "interrupt", "land", "landed")
-    assert signal.getsignal(signal.SIGINT) is before
+    assert events.of_kind("interrupt")[0]["reason"] == reason
+    assert signal.getsignal(sig) is before
     assert down(fleet)
 
 
@@ -87,26 +90,8 @@ def test_the_emergency_stop_cuts_every_motor_at_once_and_nobody_lands(tmp_path):
     assert fleet.true_state()["locked"].all() and seen["fell"]
 
 
-def test_sigterm_lands_everyone_like_ctrl_c(tmp_path):
-    plan = quick_plan(max_time=8.0)
-    before = signal.getsignal(signal.SIGTERM)
-
-    def terminate(fleet, bridge):
-        time.sleep(0.3)
-        os.kill(os.getpid(), signal.SIGTERM)
-
-    result, events, fleet = fly_virtual(plan, HeuristicTeam.from_config(plan.task), tmp_path, during=terminate, handle_signals=True)
-    assert result.outcome == "interrupted" and result.reason == "SIGTERM" and result.landed
-    assert kinds_in_order(events, "chase", "interrupt", "land", "landed")
-    assert events.of_kind("interrupt")[0]["reason"] == "SIGTERM"
-    assert signal.getsignal(signal.SIGTERM) is before
-    assert down(fleet)
-
-
 def test_ctrl_c_before_take_off_ends_the_run_and_is_logged(tmp_path):
     import json
-
-    import pytest
 
     def press_ctrl_c_at_the_go_no_go():
         os.kill(os.getpid(), signal.SIGINT)
