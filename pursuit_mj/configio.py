@@ -111,6 +111,8 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
     if hint is str:
         if isinstance(value, str):
             return value
+        if isinstance(value, Path):  # a layout file given as a Path in Python
+            return str(value)
         raise ConfigError(f"{where}: expected a string, got {value!r}")
     if isinstance(hint, type) and isinstance(value, hint):
         return value

@@ -212,3 +212,14 @@ def test_starting_from_another_kind_of_run_says_what_does_not_carry_over(tmp_pat
     assert "its critic (ppo) is not this run's (mappo): the critic starts fresh" in said
     assert "correction to base team 'heuristic', here it acts on base 'none'" in said
     assert "trained behind the shield, this run is without it" in said
+
+
+def test_an_interrupted_closing_validation_is_made_good_once(tmp_path, monkeypatch):
+    cfg = tiny_config(tmp_path, updates=2)  # validate_every 0: only the closing validation, of update 2
+    real = Trainer.validate
+    monkeypatch.setattr(Trainer, "validate", lambda self: (_ for _ in ()).throw(KeyboardInterrupt))
+    assert Trainer(cfg, log=lambda s: None).train()["status"] == "interrupted"
+    monkeypatch.setattr(Trainer, "validate", real)
+    for _ in range(2):  # the second resume has nothing left to do
+        assert Trainer.resume(cfg.run_dir, log=lambda s: None).train()["status"] == "done"
+    assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2] and "validation" in rows(cfg.run_dir)[1]

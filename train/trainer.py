@@ -387,6 +387,7 @@ class Trainer:
                 row, self._pending_row = self._pending_row, {}
                 last_val = self._validate_into(row, bar, last_val)
                 self._log_row(row, bar, last_val)
+                self.save()  # last.pt without the pending row: it is in the log now
             while self.progress() < 1.0:
                 row = self.train_one_update()
                 final = self.progress() >= 1.0
