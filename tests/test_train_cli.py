@@ -132,3 +132,10 @@ def test_a_model_used_in_another_task_than_it_learned_says_so(tiny_model, capsys
                  "--pursuers", "2", "--set", "max_steps=10", "-q", "--observability", "full", "-ev", "0.5"]) == 0
     err = capsys.readouterr().err
     assert "was trained with observability partial (this task: full), evader_speed 0.6 (this task: 0.5)" in err
+
+
+def test_an_empty_train_config_file_is_refused(tmp_path, capsys):
+    empty = tmp_path / "empty.yaml"
+    empty.write_text("# nothing yet\n")
+    assert main(["train", "--config", str(empty), "-sc"]) == 2
+    assert "empty.yaml: the file is empty" in capsys.readouterr().err

@@ -229,7 +229,11 @@ def load_train_config(
     source = "defaults"
     for f in files:
         p = preset_or_file(f, "train")
-        merged = _deep_update(merged, load_yaml(p))
+        data = load_yaml(p)
+        if not data:
+            raise ConfigError(f"{p}: the file is empty; a train config sets at least its regime or name "
+                              f"(see configs/train/*.yaml), and none at all means the defaults: leave out --config")
+        merged = _deep_update(merged, data)
         source = str(p)
     rest = []
     for text in overrides:  # a task_file override must be resolved before the task: keys apply
