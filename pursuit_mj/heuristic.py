@@ -32,6 +32,7 @@ import numpy as np
 
 from .coverage import CoverageMap, CoverageParams
 from .obs_spec import ObsSpec, named_views
+from .policy import check_observations
 from .shield import MIN_RAYS, SafetyShield, ShieldParams, check_rays, clip_unit, unit
 
 _TINY = 1e-9
@@ -194,11 +195,7 @@ class HeuristicTeam:
         evaders and the coverage map, choose the sweep goal. Returns (named observation views,
         the memory (see _memory), sweep aim (W, N, 2) m relative, planned (W, N) bool).
         Call `tick` once the step is decided (act does both)."""
-        obs = np.asarray(obs, dtype=np.float64)
-        if obs.ndim != 3 or obs.shape[1] != spec.n_pursuers or obs.shape[2] != spec.dim:
-            raise ValueError(f"HeuristicTeam: expected observations (worlds, {spec.n_pursuers}, {spec.dim}), got {obs.shape}")
-        if not np.isfinite(obs).all():
-            raise ValueError("HeuristicTeam: observations contain NaN or inf")
+        obs = check_observations(obs, spec, "HeuristicTeam")
         W, N = obs.shape[:2]
         if self._n_worlds is None:
             self._n_worlds = W

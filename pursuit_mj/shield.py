@@ -159,12 +159,7 @@ class SafetyShield:
 
     def apply(self, v: np.ndarray, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
         """Filtered velocities (W, N, 2) m/s from desired ones v (W, N, 2) m/s and observations (W, N, spec.dim)."""
-        obs = np.asarray(obs, dtype=np.float64)
-        if obs.ndim != 3 or obs.shape[1] != spec.n_pursuers or obs.shape[2] != spec.dim:
-            raise ValueError(f"SafetyShield: expected observations (worlds, {spec.n_pursuers}, {spec.dim}), got {obs.shape}")
-        if not np.isfinite(obs).all():
-            raise ValueError("SafetyShield: observations contain NaN or inf")
-        return self.filter(v, named_views(obs, spec))
+        return self.filter(v, named_views(check_observations(obs, spec, "SafetyShield"), spec))
 
     def shield_actions(self, actions: np.ndarray, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
         """Policy actions (W, N, 2) (fraction of pursuer_speed) -> shielded actions in the unit disc.
