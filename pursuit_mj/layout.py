@@ -98,6 +98,7 @@ class Layout:
     spawn_pursuers: Region
     spawn_evaders: Region
     source: str = "<layout>"
+    n_random: int = 0  # how many of `obstacles`, the last ones, were placed at random (with_random_obstacles)
 
     def obstacle_set(self) -> ObstacleSet:
         """All obstacles (not the border) as arrays for vectorised geometry."""
@@ -117,7 +118,8 @@ class Layout:
 
         n = self.random_obstacles.count if count is None else count
         extra = place_random_obstacles(self, rng, n, clearance)
-        return dataclasses.replace(self, obstacles=self.obstacles + tuple(extra), random_obstacles=dataclasses.replace(self.random_obstacles, count=0))
+        return dataclasses.replace(self, obstacles=self.obstacles + tuple(extra), n_random=self.n_random + len(extra),
+                                   random_obstacles=dataclasses.replace(self.random_obstacles, count=0))
 
 
 # ----------------------------------------------------------------------------- parsing

@@ -18,12 +18,13 @@ import numpy as np  # noqa: E402
 
 from .io_utils import atomic_path  # noqa: E402
 from .layout import Box, Cylinder, Layout, Wall  # noqa: E402
+from .palette import BORDER_RGBA, OBSTACLE_RGBA, ROLE_RGBA, hex_colour  # noqa: E402
 
-FIXED_COLOR = "#6b6157"
-RANDOM_COLOR = "#d08a2e"
-BORDER_COLOR = "#2b2f33"
+FIXED_COLOR = hex_colour(OBSTACLE_RGBA["fixed"])
+RANDOM_COLOR = hex_colour(OBSTACLE_RGBA["random"])
+BORDER_COLOR = hex_colour(BORDER_RGBA)
 OUTSIDE_COLOR = "#c9ccd1"
-SPAWN_COLORS = {"pursuers": "#2f6fe0", "evaders": "#e0452f"}
+SPAWN_COLORS = {"pursuers": hex_colour(ROLE_RGBA["pursuer"]), "evaders": hex_colour(ROLE_RGBA["evader"])}
 
 
 def _obstacle_patch(o, color: str, hatch: str | None = None) -> mpatches.Patch:
@@ -49,13 +50,16 @@ def _draw_border(ax, layout: Layout) -> None:
 
 
 def draw_layout(ax, layout: Layout, random_obstacles: tuple = (), random_label: str = "random obstacles") -> None:
-    """Draw `layout` on a matplotlib axes; `random_obstacles` are drawn hatched as extra obstacles."""
+    """Draw `layout` on a matplotlib axes; `random_obstacles` are drawn hatched as extra obstacles,
+    and so are a placed layout's own random ones (`Layout.n_random`)."""
     _draw_border(ax, layout)
+    n_fixed = len(layout.obstacles) - layout.n_random
+    fixed, random_obstacles = layout.obstacles[:n_fixed], layout.obstacles[n_fixed:] + tuple(random_obstacles)
     for name, region in (("pursuers", layout.spawn_pursuers), ("evaders", layout.spawn_evaders)):
         color = SPAWN_COLORS[name]
         ax.add_patch(mpatches.Rectangle((region.x[0], region.y[0]), region.x[1] - region.x[0], region.y[1] - region.y[0],
                                         facecolor=color, alpha=0.18, edgecolor=color, linewidth=1.2, zorder=2))
-    for o in layout.obstacles:
+    for o in fixed:
         patch = _obstacle_patch(o, FIXED_COLOR)
         patch.set_zorder(3)
         ax.add_patch(patch)
@@ -64,8 +68,8 @@ def draw_layout(ax, layout: Layout, random_obstacles: tuple = (), random_label: 
         patch.set_zorder(3)
         ax.add_patch(patch)
     handles = []
-    if layout.obstacles:
-        handles.append(mpatches.Patch(facecolor=FIXED_COLOR, edgecolor="black", label=f"fixed obstacles ({len(layout.obstacles)})"))
+    if fixed:
+        handles.append(mpatches.Patch(facecolor=FIXED_COLOR, edgecolor="black", label=f"fixed obstacles ({len(fixed)})"))
     if random_obstacles:
         handles.append(mpatches.Patch(facecolor=RANDOM_COLOR, edgecolor="black", hatch="///",
                                       label=f"{random_label} ({len(random_obstacles)})"))

@@ -17,13 +17,13 @@ import mujoco
 import numpy as np
 
 from .layout import Box, Cylinder, Layout, Wall
+from .palette import BORDER_RGBA, OBSTACLE_RGBA, ROLE_RGBA
 
 MODEL_DIR = Path(__file__).resolve().parent.parent / "models"
 DRONE_FILE = MODEL_DIR / "crazyflie.xml"
 
 OBSTACLE_HEIGHT = 1.2  # m
 BORDER_THICKNESS = 0.05  # m
-ROLE_RGBA = {"pursuer": (0.15, 0.45, 0.95, 1.0), "evader": (0.95, 0.25, 0.15, 1.0)}
 GROUP_OBSTACLE = 1
 
 
@@ -102,19 +102,22 @@ def _add_box(world, name: str, center, half_xy, yaw: float, rgba, height: float 
 
 
 def _add_obstacles(spec: mujoco.MjSpec, layout: Layout) -> None:
+    """Obstacles coloured by origin (the layout's own, or placed at random), then the border."""
     world = spec.worldbody
+    first_random = len(layout.obstacles) - layout.n_random
     for k, o in enumerate(layout.obstacles):
+        rgba = OBSTACLE_RGBA["random" if k >= first_random else "fixed"]
         if isinstance(o, Wall):
             o = o.as_box()
         if isinstance(o, Box):
-            _add_box(world, f"obstacle_{k}", o.center, (o.size[0] / 2, o.size[1] / 2), o.yaw, (0.55, 0.5, 0.45, 1))
+            _add_box(world, f"obstacle_{k}", o.center, (o.size[0] / 2, o.size[1] / 2), o.yaw, rgba)
         elif isinstance(o, Cylinder):
             world.add_geom(
                 name=f"obstacle_{k}",
                 type=mujoco.mjtGeom.mjGEOM_CYLINDER,
                 pos=[o.center[0], o.center[1], OBSTACLE_HEIGHT / 2],
                 size=[o.radius, OBSTACLE_HEIGHT / 2, 0],
-                rgba=(0.45, 0.5, 0.55, 1),
+                rgba=rgba,
                 group=GROUP_OBSTACLE,
             )
     # The border: one thin box per boundary segment, just outside the flyable region.
@@ -124,7 +127,7 @@ def _add_obstacles(spec: mujoco.MjSpec, layout: Layout) -> None:
         # the inside is on the left of each segment: shift the wall to the right
         nx, ny = math.sin(yaw), -math.cos(yaw)
         c = ((x0 + x1) / 2 + nx * BORDER_THICKNESS / 2, (y0 + y1) / 2 + ny * BORDER_THICKNESS / 2)
-        _add_box(world, f"border_{k}", c, (length / 2 + BORDER_THICKNESS, BORDER_THICKNESS / 2), yaw, (0.3, 0.32, 0.35, 1), height=0.6)
+        _add_box(world, f"border_{k}", c, (length / 2 + BORDER_THICKNESS, BORDER_THICKNESS / 2), yaw, BORDER_RGBA, height=0.6)
 
 
 def build_spec(scene: SceneSpec) -> mujoco.MjSpec:

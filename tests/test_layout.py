@@ -43,7 +43,8 @@ CIRCLE = base_dict(name="round", arena={"width": 4.0, "height": 4.0}, boundary={
 def round_trip(layout, path: Path):
     save_layout(layout, path)
     again = load_layout(path)
-    assert dataclasses.replace(again, source=layout.source) == layout
+    # a saved file lists placed random obstacles as its own: they are fixed ones once loaded
+    assert dataclasses.replace(again, source=layout.source) == dataclasses.replace(layout, n_random=0)
     text = path.read_text()
     save_layout(again, path)
     assert path.read_text() == text  # file -> object -> file is stable

@@ -12,8 +12,9 @@ from pursuit_mj.config import default_config
 from pursuit_mj.env import PursuitEnv
 from pursuit_mj.layout import load_layout
 from pursuit_mj.policy import RandomPolicy
-from pursuit_mj.render.caption import Caption, band_height, draw_caption
+from pursuit_mj.render.caption import Caption, KeyEntry, band_height, draw_caption, draw_key, key_band_height
 from pursuit_mj.render.episodes import EpisodeOutputs, FrameMaker, run_episodes
+from pursuit_mj.render.overlays import OverlayStyle, key_entries
 from pursuit_mj.render.renderer import RenderSettings, SceneRenderer
 from pursuit_mj.render.video import ensure_ffmpeg, video_format
 
@@ -101,16 +102,18 @@ def test_quadrotor_attitude_reaches_the_rendered_model():
         assert np.abs(img_level.astype(int) - img_tilted.astype(int)).sum(-1).astype(bool).sum() > 20, "the tilt is not visible"
 
 
-def test_top_camera_frames_the_whole_arena_below_the_caption():
+@pytest.mark.parametrize("key", [True, False])
+def test_top_camera_frames_the_whole_arena_between_caption_and_key(key):
     config = default_config(fidelity="point")
     layout = load_layout(0)
-    with SceneRenderer(RenderSettings(320, 240, "top"), config, layout) as r:
+    with SceneRenderer(RenderSettings(320, 240, "top", key=key), config, layout) as r:
         m = r._model
         cam = m.camera("top").id
         assert m.cam_projection[cam] == mujoco.mjtProjection.mjPROJ_ORTHOGRAPHIC
         extent = m.cam_fovy[cam]
         top_edge = m.cam_pos[cam, 1] + extent / 2 - extent * band_height(240) / 240
-        assert m.cam_pos[cam, 1] - extent / 2 < 0.0 and top_edge > layout.height
+        bottom_edge = m.cam_pos[cam, 1] - extent / 2 + (extent * key_band_height(240) / 240 if key else 0.0)
+        assert bottom_edge < 0.0 and top_edge > layout.height
         assert extent * 320 / 240 > layout.width
 
 
@@ -121,6 +124,38 @@ def test_caption_band_differs_with_outcome():
     band = band_height(H)
     assert (a[band:] == frame[band:]).all(), "the caption spills below its band"
     assert np.abs(a[:band].astype(int) - b[:band].astype(int)).sum() > 0
+
+
+def test_colour_key_stays_in_its_band_and_lists_what_the_task_shows():
+    frame = np.full((H, W, 3), 200, np.uint8)
+    keyed = draw_key(frame, [KeyEntry("pursuer", (40, 115, 240), "dot"), KeyEntry("random", (209, 138, 46), "square")])
+    band = key_band_height(H)
+    assert (keyed[:-band] == frame[:-band]).all(), "the key spills above its band"
+    assert (keyed[-band:] != frame[-band:]).any()
+    env = PursuitEnv(default_config(**CFG), seed=0, auto_reset=False)
+    env.reset()
+    snap = env.snapshot(0)
+    labels = [e.label for e in key_entries(snap, OverlayStyle())]
+    assert labels == ["pursuer", "evader", "sight", "seen", "relayed", "capture", "obstacle", "random"]
+    full = PursuitEnv(default_config(**CFG, observability="full", random_obstacles=0), seed=0, auto_reset=False)
+    full.reset()
+    labels = [e.label for e in key_entries(full.snapshot(0), OverlayStyle())]
+    assert labels == ["pursuer", "evader", "seen", "capture", "obstacle"]
+
+
+def test_frames_carry_the_key_unless_it_is_turned_off():
+    config = default_config(**CFG)
+    env = PursuitEnv(config, seed=0, auto_reset=False)
+    env.reset()
+    snap = env.snapshot(0)
+    frames = {}
+    for key in (True, False):
+        settings = RenderSettings(W, H, "follow:pursuer_0", key=key)  # the same view either way
+        with FrameMaker(config, snap.layout, settings, "t", 5) as maker:
+            frames[key] = maker.draw(snap, 0)
+    band = key_band_height(H)
+    assert (frames[True][:-band] == frames[False][:-band]).all()
+    assert (frames[True][-band:] != frames[False][-band:]).any()
 
 
 def test_overlays_add_scene_geoms_for_every_element():

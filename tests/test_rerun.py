@@ -9,6 +9,7 @@ import pytest
 
 from pursuit_mj.cli import main
 from pursuit_mj.config import default_config
+from pursuit_mj.palette import OBSTACLE_RGBA, rgb255
 from pursuit_mj.env import PursuitEnv
 from pursuit_mj.policy import RandomPolicy
 from pursuit_mj.recording import EnvRecorder, EpisodeBuffer, RerunEpisodeRecording, RerunScalarLogger, check_rrd_path
@@ -193,3 +194,14 @@ def test_env_recorder_follows_a_multi_world_evaluation_loop(tmp_path):
     with RerunEpisodeRecording(tmp_path / "x.rrd") as rec:
         with pytest.raises(ValueError, match="auto_reset=False"):
             EnvRecorder(rec, PursuitEnv(config, seed=0))
+
+
+def test_obstacles_are_coloured_by_origin_as_in_the_frames(recorded):
+    config, _, records, ent, plain = recorded
+    layout = plain[0][0].layout
+    packed = list(ent["/episode_0/arena/boxes"].static.get("Boxes3D:colors", []))
+    packed += list(ent["/episode_0/arena/cylinders"].static.get("Cylinders3D:colors", []))
+    rgb = [((c >> 24) & 255, (c >> 16) & 255, (c >> 8) & 255) for c in packed]  # rerun packs 0xRRGGBBAA
+    assert len(rgb) == len(layout.obstacles) and layout.n_random > 0
+    assert rgb.count(rgb255(OBSTACLE_RGBA["random"])) == layout.n_random
+    assert rgb.count(rgb255(OBSTACLE_RGBA["fixed"])) == len(layout.obstacles) - layout.n_random

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from pursuit_mj.layout import N_BUILTIN, Box, Cylinder, Wall, load_layout
+from pursuit_mj.palette import OBSTACLE_RGBA
 from pursuit_mj.scene import DroneIds, SceneSpec, build_model, drone_names, drone_parameters
 
 FIDELITIES = ("point", "quadrotor")
@@ -86,6 +87,16 @@ def test_obstacles_and_border_are_collision_geometry_where_the_layout_says(built
     for k in range(len(layout.border())):
         g = model.geom(f"border_{k}")
         assert g.contype[0] and g.conaffinity[0] and g.pos[2] + g.size[2] > 0.5 + 0.05  # above flight height
+
+
+def test_obstacles_are_coloured_by_origin(built_in_instances):
+    base = load_layout(3)
+    layout = built_in_instances[3]
+    assert layout.n_random == base.random_obstacles.count == len(layout.obstacles) - len(base.obstacles)
+    model = build_model(SceneSpec(layout, 3, 1, "point"))
+    for k in range(len(layout.obstacles)):
+        origin = "fixed" if k < len(base.obstacles) else "random"
+        np.testing.assert_allclose(model.geom(f"obstacle_{k}").rgba, OBSTACLE_RGBA[origin], atol=1e-6)
 
 
 def test_padded_scenes_share_sizes_across_layouts(built_in_instances):

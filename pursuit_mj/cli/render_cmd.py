@@ -59,6 +59,7 @@ def register(sub) -> None:
     run_g.add_argument("--quality", choices=("fast", "high"), default="fast",
                        help="fast: no antialiasing or shadows; high: 4x antialiasing, shadows (slower)")
     run_g.add_argument("--trail", type=int, default=30, help="trail length in decision steps (default 30)")
+    run_g.add_argument("--no-key", action="store_true", help="leave the colour key off the bottom of each frame")
     add_task_args(p)
     _add_reference_spellings(p)
     p.set_defaults(func=run)
@@ -209,7 +210,7 @@ def run(args) -> int:
     video, final = not args.no_video, args.final_frame
     if not (video or final or args.rerun):
         raise ValueError("--no-video without --final-frame or --rerun leaves nothing to write")
-    settings = RenderSettings(args.width, args.height, args.camera, args.quality)
+    settings = RenderSettings(args.width, args.height, args.camera, args.quality, key=not args.no_key)
     policy, label = shield_if_asked(args, *choose_policy(args, config, train_cfg), config)  # before any folder is made
     target = None
     if video or final:

@@ -37,11 +37,12 @@ import rerun.blueprint as rrb
 
 from ..io_utils import atomic_path, check_writable
 from ..layout import Box, Cylinder, Layout, Wall
+from ..palette import BORDER_RGBA, OBSTACLE_RGBA, ROLE_RGBA, rgb255
 from ..scene import OBSTACLE_HEIGHT, drone_names
 
 APPLICATION_ID = "pursuit_mj"
-PURSUER_RGB = (38, 115, 242)
-EVADER_RGB = (242, 64, 38)
+PURSUER_RGB = rgb255(ROLE_RGBA["pursuer"])
+EVADER_RGB = rgb255(ROLE_RGBA["evader"])
 SEEN_RGBA = (255, 190, 10, 255)
 RELAYED_RGBA = (255, 190, 10, 110)
 RAY_RGBA = (120, 120, 120, 90)
@@ -156,22 +157,27 @@ class RerunEpisodeRecording:
         seg = layout.border()
         z = 0.02
         strips = [[[x0, y0, z], [x1, y1, z]] for x0, y0, x1, y1 in seg]
-        log(f"{prefix}/arena/border", rr.LineStrips3D(strips, colors=[(80, 80, 90)]), static=True)
+        log(f"{prefix}/arena/border", rr.LineStrips3D(strips, colors=[rgb255(BORDER_RGBA)]), static=True)
+        first_random = len(layout.obstacles) - layout.n_random
+        colour = [rgb255(OBSTACLE_RGBA["random" if k >= first_random else "fixed"]) for k in range(len(layout.obstacles))]
         boxes = [o.as_box() if isinstance(o, Wall) else o for o in layout.obstacles if isinstance(o, (Box, Wall))]
+        box_colours = [c for o, c in zip(layout.obstacles, colour) if isinstance(o, (Box, Wall))]
         if boxes:
             log(f"{prefix}/arena/boxes", rr.Boxes3D(
                 half_sizes=[[b.size[0] / 2, b.size[1] / 2, OBSTACLE_HEIGHT / 2] for b in boxes],
                 centers=[[b.center[0], b.center[1], OBSTACLE_HEIGHT / 2] for b in boxes],
                 quaternions=_yaw_quat_xyzw([b.yaw for b in boxes]),
-                colors=[(140, 128, 115)], fill_mode="solid"), static=True)
+                colors=box_colours, fill_mode="solid"), static=True)
         cyls = [o for o in layout.obstacles if isinstance(o, Cylinder)]
+        cyl_colours = [c for o, c in zip(layout.obstacles, colour) if isinstance(o, Cylinder)]
         if cyls:
             log(f"{prefix}/arena/cylinders", rr.Cylinders3D(
                 lengths=[OBSTACLE_HEIGHT] * len(cyls), radii=[c.radius for c in cyls],
                 centers=[[c.center[0], c.center[1], OBSTACLE_HEIGHT / 2] for c in cyls],
-                colors=[(115, 128, 140)], fill_mode="solid"), static=True)
+                colors=cyl_colours, fill_mode="solid"), static=True)
         log(f"{prefix}/arena/info", rr.TextDocument(f"layout **{layout.name}** ({layout.source}), "
-                                                  f"{layout.width} x {layout.height} m, {len(layout.obstacles)} obstacles",
+                                                  f"{layout.width} x {layout.height} m, {len(layout.obstacles)} obstacles "
+                                                  f"({layout.n_random} of them placed at random, in orange)",
                                                   media_type="text/markdown"), static=True)
 
     def _log_body(self, entity: str, rgb) -> None:

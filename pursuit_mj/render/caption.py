@@ -1,4 +1,5 @@
-"""A caption band composited onto a frame with Pillow: title, step, time and outcome."""
+"""Text composited onto a frame with Pillow: a caption band at the top (title, step, time,
+outcome) and a colour key at the bottom (what each mark and colour in the scene means)."""
 
 from __future__ import annotations
 
@@ -65,4 +66,69 @@ def draw_caption(frame: np.ndarray, caption: Caption) -> np.ndarray:
     big = _font(int(size * 1.3))
     tw = d.textlength(text, font=big)
     d.text((w - pad - tw, (band - int(size * 1.3)) // 2), text, font=big, fill=OUTCOME_RGB.get(caption.outcome, OUTCOME_RGB[""]))
+    return np.asarray(img)
+
+
+KEY_MARKS = ("dot", "ring", "line", "dash", "square")
+
+
+@dataclasses.dataclass(frozen=True)
+class KeyEntry:
+    """One item of the colour key: a mark (one of KEY_MARKS) drawn in rgb (0-255), then label."""
+
+    label: str
+    rgb: tuple[int, int, int]
+    mark: str
+
+
+def key_band_height(height: int) -> int:
+    """Pixels the colour key covers at the bottom of a frame `height` pixels tall."""
+    size, pad, _ = _metrics(height)
+    return size + 2 * pad
+
+
+def _draw_mark(d: ImageDraw.ImageDraw, mark: str, x: int, y: int, size: int, rgb: tuple) -> None:
+    """The mark in a size x size box whose top-left corner is (x, y)."""
+    r = size // 2
+    cx, cy = x + r, y + r
+    if mark == "dot":
+        d.ellipse((cx - r * 0.7, cy - r * 0.7, cx + r * 0.7, cy + r * 0.7), fill=rgb)
+    elif mark == "ring":
+        d.ellipse((cx - r * 0.8, cy - r * 0.8, cx + r * 0.8, cy + r * 0.8), outline=rgb, width=max(1, size // 8))
+    elif mark == "square":
+        d.rectangle((x + 1, y + 1, x + size - 2, y + size - 2), fill=rgb)
+    elif mark == "line":
+        d.line((x, cy, x + size, cy), fill=rgb, width=max(2, size // 6))
+    elif mark == "dash":
+        for k in range(0, 4, 2):
+            d.line((x + k * size // 4, cy, x + (k + 1) * size // 4, cy), fill=rgb, width=max(2, size // 6))
+    else:
+        raise ValueError(f"key mark {mark!r}: choose from {', '.join(KEY_MARKS)}")
+
+
+def draw_key(frame: np.ndarray, entries: list[KeyEntry]) -> np.ndarray:
+    """A copy of frame (H, W, 3) uint8 with a translucent band across the bottom holding the key.
+
+    Entries are laid out left to right in the caption's font size, smaller where they would
+    not fit the width (down to 8 px); what still does not fit is left off the end.
+    """
+    h, w = frame.shape[:2]
+    size, pad, _ = _metrics(h)
+    band = key_band_height(h)
+    img = Image.fromarray(frame)
+    overlay = Image.new("RGBA", (w, band), (15, 18, 24, 170))
+    img.paste(overlay, (0, h - band), overlay)
+    d = ImageDraw.Draw(img)
+    for fsize in range(size, 7, -1):
+        font = _font(fsize)
+        widths = [fsize + fsize // 3 + d.textlength(e.label, font=font) for e in entries]
+        if sum(widths) + fsize * (len(entries) - 1) + 2 * pad <= w:
+            break
+    x, y = pad, h - band + (band - fsize) // 2
+    for e, width in zip(entries, widths):
+        if x + width > w - pad:
+            break
+        _draw_mark(d, e.mark, x, y, fsize, e.rgb)
+        d.text((x + fsize + fsize // 3, y), e.label, font=font, fill=(235, 235, 235))
+        x += int(width) + fsize
     return np.asarray(img)

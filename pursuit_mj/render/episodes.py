@@ -18,8 +18,8 @@ from ..config import TaskConfig
 from ..env import EpisodeRecord, PursuitEnv, Snapshot
 from ..layout import Layout
 from ..policy import Policy
-from .caption import Caption, draw_caption
-from .overlays import OverlayStyle, TrailBuffer, draw_all
+from .caption import Caption, draw_caption, draw_key
+from .overlays import OverlayStyle, TrailBuffer, draw_all, key_entries
 from .renderer import RenderSettings, SceneRenderer
 from .video import save_png, video_file
 
@@ -72,7 +72,8 @@ class FrameMaker:
         img = self.renderer.render(pos, quat, lambda scene: draw_all(scene, snap, trails, self.style))
         cap = Caption(f"{self.title} | layout {snap.layout.name} | {snap.config.fidelity} | episode {episode}",
                       snap.step, snap.config.max_steps, snap.time, snap.outcome)
-        return draw_caption(img, cap)
+        img = draw_caption(img, cap)
+        return draw_key(img, key_entries(snap, self.style)) if self.renderer.settings.key else img
 
     def close(self) -> None:
         self.renderer.close()

@@ -16,7 +16,8 @@ import math
 import mujoco
 import numpy as np
 
-from ..scene import ROLE_RGBA
+from ..palette import OBSTACLE_RGBA, ROLE_RGBA, rgb255
+from .caption import KeyEntry
 
 _EYE = np.eye(3).ravel()
 _LINE = mujoco.mjtGeom.mjGEOM_LINE
@@ -172,6 +173,30 @@ def draw_all(scene: mujoco.MjvScene, snap, trails: np.ndarray, style: OverlaySty
     draw_trails(w, trails, len(snap.pursuer_pos), style)
     draw_detections(w, snap, style)
     draw_markers(w, snap, style)
+
+
+def key_entries(snap, style: OverlayStyle) -> list[KeyEntry]:
+    """The colour key of a frame of `snap`: what the marks drawn for its task mean.
+
+    Only what the task can show is listed: no sight ring or relayed line in full
+    observability (every pursuer sees every evader), no relayed line without shared
+    detections, no random obstacle where the layout has none.
+    """
+    cfg = snap.config
+    entries = [KeyEntry("pursuer", rgb255(ROLE_RGBA["pursuer"]), "dot"), KeyEntry("evader", rgb255(ROLE_RGBA["evader"]), "dot")]
+    partial = cfg.observability != "full"
+    if partial:
+        entries.append(KeyEntry("sight", rgb255(style.perception_rgba), "ring"))
+    entries.append(KeyEntry("seen", rgb255(style.seen_rgba), "line"))
+    if partial and cfg.share_detections:
+        entries.append(KeyEntry("relayed", rgb255(style.relayed_rgba), "dash"))
+    entries.append(KeyEntry("capture", rgb255(style.capture_rgba), "ring"))
+    layout = snap.layout
+    if len(layout.obstacles) > layout.n_random:
+        entries.append(KeyEntry("obstacle", rgb255(OBSTACLE_RGBA["fixed"]), "square"))
+    if layout.n_random:
+        entries.append(KeyEntry("random", rgb255(OBSTACLE_RGBA["random"]), "square"))
+    return entries
 
 
 class TrailBuffer:

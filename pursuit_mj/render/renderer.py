@@ -20,7 +20,7 @@ from ..config import TaskConfig
 from ..layout import Layout
 from ..scene import DroneIds, SceneSpec, build_model, drone_names
 from .camera import CameraSpec
-from .caption import band_height
+from .caption import band_height, key_band_height
 from .gl import create_context
 
 QUALITIES = ("fast", "high")
@@ -32,16 +32,23 @@ ANGLED_TILT = math.radians(38)  # angled view: camera axis from the vertical, st
 
 @dataclasses.dataclass(frozen=True)
 class RenderSettings:
-    """Image size (pixels), camera text ('top', 'angled', 'follow:<drone>') and quality.
+    """Image size (pixels), camera text ('top', 'angled', 'follow:<drone>'), quality, colour key.
 
     quality 'fast': no multisampling or shadows (software GL renders several times faster);
-    'high': 4x multisampling, shadows and reflections.
+    'high': 4x multisampling, shadows and reflections. key: frames get a colour key band at
+    the bottom (the top and angled views are framed clear of it).
     """
 
     width: int = 640
     height: int = 480
     camera: str = "top"
     quality: str = "fast"
+    key: bool = True
+
+    def bands(self) -> tuple[float, float]:
+        """(top, bottom): the shares of the frame height that the caption and the key cover."""
+        bottom = key_band_height(self.height) if self.key else 0
+        return band_height(self.height) / self.height, bottom / self.height
 
     def check(self, model: mujoco.MjModel) -> None:
         """Raise ValueError naming the flag if the size or quality cannot be rendered."""
@@ -123,12 +130,12 @@ class SceneRenderer:
     def _frame_top(self, m: mujoco.MjModel, layout: Layout) -> None:
         """Make the 'top' camera an orthographic map of the arena, clear of the caption band."""
         W, H = self.settings.width, self.settings.height
-        band = band_height(H) / H
-        extent = max((layout.height + 2 * TOP_MARGIN) / (1.0 - band), (layout.width + 2 * TOP_MARGIN) * H / W)
+        top, bottom = self.settings.bands()
+        extent = max((layout.height + 2 * TOP_MARGIN) / (1.0 - top - bottom), (layout.width + 2 * TOP_MARGIN) * H / W)
         cam = m.camera("top").id
         m.cam_projection[cam] = mujoco.mjtProjection.mjPROJ_ORTHOGRAPHIC
         m.cam_fovy[cam] = extent  # the visible height (m) for an orthographic camera
-        m.cam_pos[cam, :2] = (layout.width / 2, layout.height / 2 + band * extent / 2)  # centred below the band
+        m.cam_pos[cam, :2] = (layout.width / 2, layout.height / 2 + (top - bottom) * extent / 2)  # centred between the bands
 
     def _frame_angled(self, m: mujoco.MjModel, layout: Layout) -> None:
         """Look at the arena centre from the south, tilted by ANGLED_TILT, far enough to see all of it."""
@@ -137,7 +144,7 @@ class SceneRenderer:
         half_fov = math.radians(m.cam_fovy[cam]) / 2
         # the near (south) half is foreshortened least; fit the full depth and the width with margin
         need = max(layout.height * math.cos(ANGLED_TILT) + 1.2 * math.sin(ANGLED_TILT), layout.width * H / W)
-        dist = 0.62 * need / math.tan(half_fov) / (1.0 - band_height(H) / H)
+        dist = 0.62 * need / math.tan(half_fov) / (1.0 - sum(self.settings.bands()))
         cx, cy = layout.width / 2, layout.height / 2
         m.cam_pos[cam] = (cx, cy - dist * math.sin(ANGLED_TILT), dist * math.cos(ANGLED_TILT))
         m.cam_quat[cam] = (math.cos(ANGLED_TILT / 2), math.sin(ANGLED_TILT / 2), 0.0, 0.0)
