@@ -255,7 +255,10 @@ def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str
         values.clear()
         ax.set_xticks(np.arange(len(layouts)), [_layout_name(l) for l in layouts])
         ax.set_ylabel(label)
-        ax.set_title(f"{label.split(' (')[0]} by layout{n_text}", fontsize="medium")
+        about_bars = n_text
+        if key == "mean_steps_success" and n_text:
+            about_bars = n_text.replace("episodes per bar", "episodes per bar, the successes among them")
+        ax.set_title(f"{label.split(' (')[0]} by layout{about_bars}", fontsize="medium")
         if key.endswith("_pct"):
             ax.set_ylim(0, 112)  # room above 100 for the whisker caps and values
             ax.set_yticks(range(0, 101, 20))

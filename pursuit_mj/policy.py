@@ -7,6 +7,7 @@ way in evaluation, rendering and real flights.
 
 from __future__ import annotations
 
+import zlib
 from typing import Protocol
 
 import numpy as np
@@ -35,15 +36,34 @@ def check_observations(obs, spec: ObsSpec, who: str) -> np.ndarray:
 
 
 class RandomPolicy:
-    """Uniform random actions; a floor every policy must beat."""
+    """Uniform random actions; a floor every policy must beat.
+
+    Each world's actions are drawn from a generator keyed by the policy's seed, the step of
+    the world's episode and that world's observation, never from one stream shared by the
+    batch: so an episode is the same whichever world of however many plays it (eval's
+    --worlds), as it is for every other policy.
+    """
 
     name = "random"
 
     def __init__(self, seed: int = 0):
-        self.rng = np.random.default_rng(seed)
+        self.seed = int(seed)
+        self._steps = np.zeros(0, np.int64)  # (W,) decision steps since each world's reset
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
-        pass
+        if world_ids is None or len(self._steps) != n_worlds:
+            self._steps = np.zeros(n_worlds, np.int64)
+        else:
+            self._steps[np.asarray(world_ids, dtype=np.int64)] = 0
 
     def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
-        return self.rng.uniform(-1.0, 1.0, size=obs.shape[:-1] + (2,))
+        a = np.ascontiguousarray(obs, dtype=np.float32)
+        W = a.shape[0]
+        if len(self._steps) != W:
+            self.reset(W)
+        out = np.empty(a.shape[:-1] + (2,))
+        for w in range(W):  # one small draw per world: a baseline, not a hot path
+            key = [self.seed, int(self._steps[w]), zlib.crc32(a[w].tobytes())]
+            out[w] = np.random.default_rng(key).uniform(-1.0, 1.0, size=a.shape[1:-1] + (2,))
+        self._steps += 1
+        return out

@@ -48,7 +48,8 @@ def detect_events(
 
     A pursuer collides when its centre comes closer than obstacle_clearance to an obstacle
     or the border, closer than teammate_clearance to another pursuer, or MuJoCo reports a
-    contact of its collision volume (pursuer_contacts (W, N) bool).
+    contact of its collision volume (pursuer_contacts (W, N) bool). Distances are those of
+    the positions given (the end of a decision step); contacts cover the whole step.
     """
     N = pursuer_pos.shape[1]
     d_pe = pairwise_distance(pursuer_pos, evader_pos)

@@ -22,7 +22,9 @@ from .palette import BORDER_RGBA, OBSTACLE_RGBA, ROLE_RGBA
 MODEL_DIR = Path(__file__).resolve().parent.parent / "models"
 DRONE_FILE = MODEL_DIR / "crazyflie.xml"
 
-OBSTACLE_HEIGHT = 1.2  # m
+OBSTACLE_HEIGHT = 1.2  # m, at least; and at least OBSTACLE_HEADROOM above the flight height
+BORDER_HEIGHT = 0.6  # m, at least (low, so that the angled camera sees in); likewise
+OBSTACLE_HEADROOM = 0.3  # m: walls reach this far above the flight height, so no drone flies over one
 BORDER_THICKNESS = 0.05  # m
 GROUP_OBSTACLE = 1
 
@@ -55,7 +57,7 @@ def drone_parameters() -> dict[str, np.ndarray | float]:
 
     mass (kg), inertia (3,) kg m^2, motor_xy (4, 2) m in the body frame, yaw_ratio (4,) m
     (signed torque per newton of thrust), max_thrust (N), motor_tau (s), drag (3,) N s/m,
-    point_time_constant (s).
+    point_time_constant (s), point_max_accel (m/s^2).
     """
     m = mujoco.MjModel.from_xml_path(str(DRONE_FILE))
     body = m.body("body").id
@@ -70,6 +72,7 @@ def drone_parameters() -> dict[str, np.ndarray | float]:
         "motor_tau": float(m.actuator_dynprm[acts[0], 0]),
         "drag": m.numeric("drag").data.copy(),
         "point_time_constant": float(m.numeric("point_time_constant").data[0]),
+        "point_max_accel": float(m.numeric("point_max_accel").data[0]),
     }
 
 
@@ -86,10 +89,19 @@ def _drone_spec(role: str, fidelity: str, params: dict) -> mujoco.MjSpec:
             j = body.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1.0 if axis == 0 else 0.0, 1.0 if axis == 1 else 0.0, 0.0])
             a = child.add_actuator(name=f"v{name}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
             a.set_to_velocity(kv=kv)
+            # the acceleration limit is per axis (what MuJoCo's force range offers): a diagonal
+            # push may reach sqrt(2) times it, where the quadrotor's tilt limit holds in every direction
+            a.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            a.forcerange = [-params["mass"] * params["point_max_accel"], params["mass"] * params["point_max_accel"]]
     return child
 
 
-def _add_box(world, name: str, center, half_xy, yaw: float, rgba, height: float = OBSTACLE_HEIGHT) -> None:
+def wall_heights(flight_height: float) -> tuple[float, float]:
+    """(obstacle, border) heights (m) of a scene whose drones hold `flight_height` (m)."""
+    return max(OBSTACLE_HEIGHT, flight_height + OBSTACLE_HEADROOM), max(BORDER_HEIGHT, flight_height + OBSTACLE_HEADROOM)
+
+
+def _add_box(world, name: str, center, half_xy, yaw: float, rgba, height: float) -> None:
     world.add_geom(
         name=name,
         type=mujoco.mjtGeom.mjGEOM_BOX,
@@ -101,22 +113,23 @@ def _add_box(world, name: str, center, half_xy, yaw: float, rgba, height: float 
     )
 
 
-def _add_obstacles(spec: mujoco.MjSpec, layout: Layout) -> None:
+def _add_obstacles(spec: mujoco.MjSpec, layout: Layout, flight_height: float) -> None:
     """Obstacles coloured by origin (the layout's own, or placed at random), then the border."""
     world = spec.worldbody
+    height, border_height = wall_heights(flight_height)
     first_random = len(layout.obstacles) - layout.n_random
     for k, o in enumerate(layout.obstacles):
         rgba = OBSTACLE_RGBA["random" if k >= first_random else "fixed"]
         if isinstance(o, Wall):
             o = o.as_box()
         if isinstance(o, Box):
-            _add_box(world, f"obstacle_{k}", o.center, (o.size[0] / 2, o.size[1] / 2), o.yaw, rgba)
+            _add_box(world, f"obstacle_{k}", o.center, (o.size[0] / 2, o.size[1] / 2), o.yaw, rgba, height)
         elif isinstance(o, Cylinder):
             world.add_geom(
                 name=f"obstacle_{k}",
                 type=mujoco.mjtGeom.mjGEOM_CYLINDER,
-                pos=[o.center[0], o.center[1], OBSTACLE_HEIGHT / 2],
-                size=[o.radius, OBSTACLE_HEIGHT / 2, 0],
+                pos=[o.center[0], o.center[1], height / 2],
+                size=[o.radius, height / 2, 0],
                 rgba=rgba,
                 group=GROUP_OBSTACLE,
             )
@@ -127,7 +140,7 @@ def _add_obstacles(spec: mujoco.MjSpec, layout: Layout) -> None:
         # the inside is on the left of each segment: shift the wall to the right
         nx, ny = math.sin(yaw), -math.cos(yaw)
         c = ((x0 + x1) / 2 + nx * BORDER_THICKNESS / 2, (y0 + y1) / 2 + ny * BORDER_THICKNESS / 2)
-        _add_box(world, f"border_{k}", c, (length / 2 + BORDER_THICKNESS, BORDER_THICKNESS / 2), yaw, BORDER_RGBA, height=0.6)
+        _add_box(world, f"border_{k}", c, (length / 2 + BORDER_THICKNESS, BORDER_THICKNESS / 2), yaw, BORDER_RGBA, border_height)
 
 
 def build_spec(scene: SceneSpec) -> mujoco.MjSpec:
@@ -155,7 +168,7 @@ def build_spec(scene: SceneSpec) -> mujoco.MjSpec:
     w.add_camera(name="top", pos=[cx, cy, top_z], quat=[1, 0, 0, 0], fovy=fovy)
     tilt = math.radians(50)
     w.add_camera(name="angled", pos=[cx, cy - 0.9 * top_z * math.sin(tilt) - 0.6, 0.9 * top_z * math.cos(tilt) + 0.6], quat=[math.cos(tilt / 2), math.sin(tilt / 2), 0, 0], fovy=fovy)
-    _add_obstacles(spec, layout)
+    _add_obstacles(spec, layout, scene.flight_height)
     used = len(layout.obstacles) + len(layout.border())
     if scene.obstacle_slots and used > scene.obstacle_slots:
         raise ValueError(f"layout {layout.source}: {used} obstacle and border geoms exceed {scene.obstacle_slots} slots")

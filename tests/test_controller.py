@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from conftest import SPREAD_XY, make_physics
 
-from pursuit_mj.controller import VelocityController, mixer_matrix, quat_to_rotmat, tilt_angle
+from pursuit_mj.controller import ControllerGains, VelocityController, mixer_matrix, quat_to_rotmat, tilt_angle
 from pursuit_mj.scene import DRONE_FILE, drone_parameters
 
 MAX_ALT_ERROR = 0.03  # m
@@ -182,9 +182,23 @@ def test_point_fidelity_is_a_first_order_lag(params):
     tau = params["point_time_constant"]
     cmd = np.zeros((1, 4, 2))
     cmd[0, 0] = [0.3, 0.0]
-    cmd[0, 3] = [0.0, -0.6]
+    cmd[0, 3] = [0.0, -0.4]  # below tau x the acceleration limit: the lag alone shapes the response
+    assert 0.4 / tau < params["point_max_accel"]
     for k in range(1, 8):
         physics.step(cmd)
         expected = cmd[0, :, :] * (1 - math.exp(-k * physics.config.control_dt / tau))
         np.testing.assert_allclose(physics.velocities()[0, :, :2], expected, atol=0.004, err_msg=f"after {k} steps")
     assert np.all(physics.positions()[..., 2] == physics.config.flight_height)
+
+
+def test_point_fidelity_accelerates_no_harder_than_the_quadrotor_may_tilt(params):
+    assert params["point_max_accel"] == pytest.approx(9.81 * math.tan(ControllerGains().max_tilt), rel=1e-3)
+    physics = make_physics("point", pursuer_speed=0.6)  # pursuers' commands are clipped to their speed
+    cmd = np.zeros((1, 4, 2))
+    cmd[0, :, 0] = 0.6
+    for _ in range(20):
+        physics.step(cmd)
+    v0 = physics.velocities()[0, :, 0].copy()
+    physics.step(-cmd)  # a reversal asks for 1.2 m/s at once: the limit, not the lag, sets the pace
+    dv = v0 - physics.velocities()[0, :, 0]
+    np.testing.assert_allclose(dv, params["point_max_accel"] * physics.config.control_dt, rtol=0.02)

@@ -33,6 +33,14 @@ def test_wilson_interval_matches_hand_computed_values(count, n, lo, hi):
     assert got == pytest.approx((lo, hi), abs=5e-5)
 
 
+def test_wilson_interval_holds_the_rate_exactly_at_0_and_100_percent():
+    for n in range(1, 200):
+        assert wilson_interval(0, n)[0] == 0.0 and wilson_interval(n, n)[1] == 1.0
+        for count in (0, n // 2, n):
+            lo, hi = wilson_interval(count, n)
+            assert lo <= count / n <= hi
+
+
 def test_wilson_interval_refuses_impossible_counts():
     with pytest.raises(ValueError, match="count=11"):
         wilson_interval(11, 10)
@@ -119,6 +127,32 @@ def test_same_table_whatever_the_number_of_worlds(fidelity):
     assert format_table(rows[0]) == format_table(rows[1]) and rows[0] == rows[1]
 
 
+def test_random_and_trained_policies_play_the_same_episodes_whatever_the_number_of_worlds():
+    import numpy as np
+
+    from pursuit_mj.belief import belief_spec
+    from pursuit_mj.policy import RandomPolicy
+    from train.checkpoint import load_checkpoint
+    from train.policy import ROWS_PER_FORWARD, ActorPolicy, actor_from_checkpoint, spec_from_dict
+
+    config = default_config(fidelity="point", max_steps=30)
+
+    def run(policy, worlds):
+        return [(r.seed, r.outcome, r.steps, r.returns) for r in run_episodes(policy, config, 5, seed=2, n_worlds=worlds)]
+
+    assert run(RandomPolicy(4), 1) == run(RandomPolicy(4), 3)
+    # a trained actor gives each pursuer the same action whatever else shares its forward pass
+    # (float32 products of another shape differ in the last bits, and a chase amplifies that)
+    data = load_checkpoint("pretrained/pursuers.pt")
+    spec = belief_spec(spec_from_dict(data["obs_spec"]))
+    policy = ActorPolicy(actor_from_checkpoint(data, spec, "pretrained"), "pretrained")
+    obs = np.random.default_rng(0).normal(size=(ROWS_PER_FORWARD + 5, 3, spec.dim)).astype(np.float32)
+    whole = policy.act(obs, spec)
+    for w in (1, 2, 7):
+        np.testing.assert_array_equal(policy.act(obs[:w], spec), whole[:w])
+    np.testing.assert_array_equal(policy.act(obs[9:], spec), whole[9:])
+
+
 def test_evaluate_refuses_bad_layouts_and_counts_before_running():
     config = quick_config()
     team = HeuristicTeam.from_config(config)
@@ -146,6 +180,14 @@ def test_eval_cli_writes_csv_json_and_plots(tmp_path, capsys):
     for r in data["rows"]:
         assert r["episodes"] == 3
         assert r["success_count"] + r["collision_count"] + r["timeout_count"] == 3
+        per = r["per_episode"]  # every episode, to pair or pool later
+        assert per["outcome"].count("success") == r["success_count"] and len(per["steps"]) == 3
+    by_layout = {}
+    for r in data["rows"]:
+        by_layout.setdefault(r["layout"], []).append(r["per_episode"]["seed"])
+    assert all(a == b for a, b in by_layout.values())  # the same episodes for both policies
+    code_meta = data["code"]
+    assert len(code_meta["drone_model_sha256"]) == 64 and "git_commit" in code_meta and "version" in code_meta
     assert sorted(p.name for p in (tmp_path / "plots").iterdir()) == ["collision.png", "mean_steps.png", "success.png", "timeout.png"]
     assert (tmp_path / "plots" / "success.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     recorded = {e for e in read_entities(tmp_path / "eval.rrd") if e.startswith("/__properties/episode_")}

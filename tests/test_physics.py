@@ -57,11 +57,11 @@ def test_resetting_some_worlds_leaves_the_others_untouched(fidelity):
     assert np.array_equal(untouched, full_state(reference)[[0, 2]])
 
 
-@pytest.mark.parametrize("fidelity", FIDELITIES)
-def test_contact_with_a_wall_is_reported_for_that_drone_only(fidelity):
+@pytest.mark.parametrize("fidelity,flight_height", [("point", 0.5), ("quadrotor", 0.5), ("point", 2.0), ("quadrotor", 1.0)])
+def test_contact_with_a_wall_is_reported_for_that_drone_only(fidelity, flight_height):
     xy = SPREAD_XY.copy()
     xy[0] = [0.4, 5.0]  # 0.4 m from the left border
-    physics = make_physics(fidelity, xy=xy)
+    physics = make_physics(fidelity, xy=xy, flight_height=flight_height)  # the border rises with the flight height
     cmd = np.zeros((1, 4, 2))
     cmd[0, 0] = [-0.3, 0.0]
     touched = np.zeros(4, bool)

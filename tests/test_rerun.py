@@ -22,10 +22,12 @@ def _plain_run(config, episodes, seed, policy_seed):
     env = PursuitEnv(config, n_worlds=1, seed=seed, auto_reset=False)
     policy = RandomPolicy(policy_seed)
     obs = env.reset()
+    policy.reset(1)
     out = []
     for k in range(episodes):
         if k:
             obs = env.reset_worlds([0])
+            policy.reset(1, np.array([0]))
         snaps = [env.snapshot(0)]
         while not env.done[0]:
             obs, *_ = env.step(policy.act(obs, env.obs_spec))

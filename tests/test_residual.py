@@ -91,7 +91,7 @@ def test_the_action_path_adds_the_base_team_then_shields():
     env = PursuitEnv(task, n_worlds=2, seed=1)
     env.reset()
     toward_wall = np.tile([-1.0, 0.0], (2, task.n_pursuers, 1))
-    for _ in range(3):  # fly toward the -x border until the shield has work to do
+    for _ in range(10):  # fly toward the -x border until the shield has work to do
         obs, *_ = env.step(toward_wall)
     heuristic = HeuristicTeam.from_config(task)
     heuristic.reset(2)

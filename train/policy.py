@@ -51,6 +51,9 @@ def one_torch_thread() -> Iterator[None]:
             torch.set_num_threads(before)
 
 
+ROWS_PER_FORWARD = 64  # pursuers (rows) per forward pass of a loaded actor, see ActorPolicy._forward
+
+
 class ActorPolicy:
     """A trained actor driving every pursuer (shared parameters); mean action unless stochastic."""
 
@@ -63,6 +66,21 @@ class ActorPolicy:
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
         """The reference actor has no memory; nothing to forget."""
 
+    def _forward(self, rows: torch.Tensor, spec: ObsSpec) -> tuple[torch.Tensor, torch.Tensor]:
+        """The actor on rows (R, dim) in blocks of exactly ROWS_PER_FORWARD (the last padded).
+
+        Float32 matrix products give a row a result that depends on how many rows share the
+        product (the library picks its kernels by shape; 1e-7 apart here), and a chase
+        amplifies that into another episode. Fixed-size blocks make every row's action the
+        same whatever the batch, so eval's episodes do not depend on --worlds.
+        """
+        R = rows.shape[0]
+        pad = (-R) % ROWS_PER_FORWARD
+        if pad:
+            rows = torch.cat([rows, rows.new_zeros(pad, rows.shape[1])])
+        parts = [self.actor(rows[k : k + ROWS_PER_FORWARD], spec) for k in range(0, rows.shape[0], ROWS_PER_FORWARD)]
+        return torch.cat([m for m, _ in parts])[:R], torch.cat([s for _, s in parts])[:R]
+
     @torch.no_grad()
     def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
         """obs (W, N, spec.dim) -> actions (W, N, 2) in [-1, 1] (fraction of max speed, world x/y)."""
@@ -70,7 +88,8 @@ class ActorPolicy:
         if x.shape[-1] != spec.dim:
             raise ValueError(f"policy {self.name}: observation width {x.shape[-1]} does not match its spec ({spec.dim})")
         with one_torch_thread():
-            mean, log_std = self.actor(x, spec)
+            mean, log_std = self._forward(x.reshape(-1, spec.dim), spec)
+            mean, log_std = mean.reshape(x.shape[:-1] + (2,)), log_std.reshape(x.shape[:-1] + (2,))
         if self.stochastic:
             mean = mean + log_std.exp() * torch.randn(mean.shape, generator=self.generator)
         return mean.clamp(-1.0, 1.0).numpy().astype(np.float64)

@@ -122,6 +122,7 @@ def _versus(args, policies) -> str | None:
 def run(args) -> int:
     from ..comparison import paired_report, pairs_to_dicts
     from ..evaluation import format_table, plot_rows, write_csv, write_json
+    from ..provenance import provenance
 
     if args.episodes < 1:
         raise ValueError(f"--episodes: expected an integer >= 1, got {args.episodes}")
@@ -146,7 +147,7 @@ def run(args) -> int:
     print(format_table(rows))
     meta = {"episodes": args.episodes, "worlds": args.worlds, "seed": args.seed,
             "policies": [label for label, _ in policies], "models": list(args.model),
-            "shield": bool(args.shield)}
+            "shield": bool(args.shield), "code": provenance()}
     if versus is not None:
         text, pairs = paired_report(rows, versus, config.max_steps)
         print(f"\n{text}")

@@ -38,7 +38,7 @@ import rerun.blueprint as rrb
 from ..io_utils import atomic_path, check_writable
 from ..layout import Box, Cylinder, Layout, Wall
 from ..palette import BORDER_RGBA, OBSTACLE_RGBA, ROLE_RGBA, rgb255
-from ..scene import OBSTACLE_HEIGHT, drone_names
+from ..scene import drone_names, wall_heights
 
 APPLICATION_ID = "pursuit_mj"
 PURSUER_RGB = rgb255(ROLE_RGBA["pursuer"])
@@ -135,7 +135,7 @@ class RerunEpisodeRecording:
         quat = np.stack([np.concatenate([s.pursuer_quat, s.evader_quat]) for s in snaps])  # (T, D, 4) wxyz
         vel = np.stack([np.concatenate([s.pursuer_vel, s.evader_vel]) for s in snaps])  # (T, D, 3)
         send = self.stream.send_columns
-        self._log_arena(prefix, first.layout)
+        self._log_arena(prefix, first.layout, first.config.flight_height)
         for d, name in enumerate(names):
             rgb = PURSUER_RGB if d < N else EVADER_RGB
             self._log_body(f"{prefix}/drones/{name}/body", rgb)
@@ -152,8 +152,9 @@ class RerunEpisodeRecording:
         self.n_episodes += 1
         return prefix
 
-    def _log_arena(self, prefix: str, layout: Layout) -> None:
+    def _log_arena(self, prefix: str, layout: Layout, flight_height: float) -> None:
         log = self.stream.log
+        height = wall_heights(flight_height)[0]
         seg = layout.border()
         z = 0.02
         strips = [[[x0, y0, z], [x1, y1, z]] for x0, y0, x1, y1 in seg]
@@ -164,16 +165,16 @@ class RerunEpisodeRecording:
         box_colours = [c for o, c in zip(layout.obstacles, colour) if isinstance(o, (Box, Wall))]
         if boxes:
             log(f"{prefix}/arena/boxes", rr.Boxes3D(
-                half_sizes=[[b.size[0] / 2, b.size[1] / 2, OBSTACLE_HEIGHT / 2] for b in boxes],
-                centers=[[b.center[0], b.center[1], OBSTACLE_HEIGHT / 2] for b in boxes],
+                half_sizes=[[b.size[0] / 2, b.size[1] / 2, height / 2] for b in boxes],
+                centers=[[b.center[0], b.center[1], height / 2] for b in boxes],
                 quaternions=_yaw_quat_xyzw([b.yaw for b in boxes]),
                 colors=box_colours, fill_mode="solid"), static=True)
         cyls = [o for o in layout.obstacles if isinstance(o, Cylinder)]
         cyl_colours = [c for o, c in zip(layout.obstacles, colour) if isinstance(o, Cylinder)]
         if cyls:
             log(f"{prefix}/arena/cylinders", rr.Cylinders3D(
-                lengths=[OBSTACLE_HEIGHT] * len(cyls), radii=[c.radius for c in cyls],
-                centers=[[c.center[0], c.center[1], OBSTACLE_HEIGHT / 2] for c in cyls],
+                lengths=[height] * len(cyls), radii=[c.radius for c in cyls],
+                centers=[[c.center[0], c.center[1], height / 2] for c in cyls],
                 colors=cyl_colours, fill_mode="solid"), static=True)
         log(f"{prefix}/arena/info", rr.TextDocument(f"layout **{layout.name}** ({layout.source}), "
                                                   f"{layout.width} x {layout.height} m, {len(layout.obstacles)} obstacles "
