@@ -26,7 +26,6 @@ from .sensing import INITIAL_HEADING, PERCEPTION_KEYS, Perception, WorldView, pe
 
 SPAWN_SEPARATION = 0.4  # m between spawned drones of one team
 SENSING_DOMAIN = 1  # keeps perception's random streams apart from the evaders' (same episode seed)
-OUTCOMES = ("", "success", "collision", "timeout")
 
 
 @dataclasses.dataclass

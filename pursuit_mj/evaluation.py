@@ -139,9 +139,9 @@ def run_episodes(
     order of completion. `watch(env)` may return a watcher told of every episode start and
     step (read only).
     """
-    if not isinstance(episodes, (int, np.integer)) or episodes < 1:
+    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
         raise ValueError(f"episodes: expected an integer >= 1, got {episodes!r}")
-    if not isinstance(n_worlds, (int, np.integer)) or n_worlds < 1:
+    if isinstance(n_worlds, bool) or not isinstance(n_worlds, (int, np.integer)) or n_worlds < 1:
         raise ValueError(f"worlds: expected an integer >= 1, got {n_worlds!r}")
     W = int(min(n_worlds, episodes))
     seeds = episode_seeds(seed, int(episodes))

@@ -301,35 +301,6 @@ def border_distance(points: np.ndarray, border: np.ndarray, valid: np.ndarray | 
     return d.min(-1, initial=FAR)
 
 
-def ray_segment_hits(origins: np.ndarray, dirs: np.ndarray, seg: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Hit distance along rays (..., R, 2) (unit dirs) to segments (..., S, 4): (..., R); FAR if none."""
-    o = origins[..., :, None, :]
-    d = dirs[..., :, None, :]
-    a = seg[..., None, :, 0:2]
-    e = seg[..., None, :, 2:4] - a
-    denom = d[..., 0] * e[..., 1] - d[..., 1] * e[..., 0]
-    ao = a - o
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (ao[..., 0] * e[..., 1] - ao[..., 1] * e[..., 0]) / denom
-        u = (ao[..., 0] * d[..., 1] - ao[..., 1] * d[..., 0]) / denom
-    ok = (np.abs(denom) > 1e-12) & (t >= 0) & (u >= 0) & (u <= 1) & valid[..., None, :]
-    return np.where(ok, t, FAR).min(-1, initial=FAR)
-
-
-def ray_circle_hits(origins: np.ndarray, dirs: np.ndarray, circles: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Hit distance along rays (..., R, 2) (unit dirs) to circles (..., C, 3): (..., R); FAR if none."""
-    oc = origins[..., :, None, :] - circles[..., None, :, 0:2]
-    b = np.sum(oc * dirs[..., :, None, :], -1)
-    cterm = np.sum(oc * oc, -1) - circles[..., None, :, 2] ** 2
-    disc = b * b - cterm
-    sq = np.sqrt(np.maximum(disc, 0))
-    t0 = -b - sq
-    t1 = -b + sq
-    t = np.where(t0 >= 0, t0, np.where(cterm <= 0, 0.0, FAR))  # origin inside: hit at 0
-    ok = (disc >= 0) & (t1 >= 0) & valid[..., None, :]
-    return np.where(ok, t, FAR).min(-1, initial=FAR)
-
-
 def cast_rays(origins: np.ndarray, dirs: np.ndarray, obstacles: ObstacleSet) -> np.ndarray:
     """Distance (m) along each ray (..., R, 2) (unit dirs) to the nearest obstacle or border: (..., R).
 

@@ -40,12 +40,6 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     return Path(path)
 
 
-def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
-    return Path(path)
-
-
 def check_writable(path: str | Path, what: str = "output") -> Path:
     """Fail early with a clear message if `path` cannot be written (before any work is done)."""
     path = Path(path)

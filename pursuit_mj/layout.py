@@ -101,7 +101,7 @@ class Layout:
     n_random: int = 0  # how many of `obstacles`, the last ones, were placed at random (with_random_obstacles)
 
     def obstacle_set(self) -> ObstacleSet:
-        """All obstacles (not the border) as arrays for vectorised geometry."""
+        """All obstacles and the border as arrays for vectorised geometry (geometry.ObstacleSet)."""
         return ObstacleSet.from_layout(self)
 
     def border(self) -> np.ndarray:

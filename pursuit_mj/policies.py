@@ -1,7 +1,7 @@
 """Hand-made policies by name, so that eval, render and flights pick them the same way.
 
-Trained models are loaded by `train.load_policy`; the library never imports `train/`, so
-that lives in the command-line layer (cli/eval_cmd.py).
+Trained models are loaded by `train.load_policy`; the simulator never imports `train/`, so
+the command line (`pursuit_cli/common.py: load_model`) does that.
 """
 
 from __future__ import annotations

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from pursuit_mj.benchmarks.env import measure
-from pursuit_mj.cli import main
+from pursuit_cli.benchmarks.env import measure
+from pursuit_cli import main
 
 
 def test_measure_times_all_three_kinds_on_the_same_worlds():

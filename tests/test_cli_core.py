@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pursuit_mj.cli import build_parser, main
-from pursuit_mj.cli.bench import targets
-from pursuit_mj.cli.simulate import circle_commands, fly
+from pursuit_cli import build_parser, main
+from pursuit_cli.bench import targets
+from pursuit_cli.simulate import circle_commands, fly
 from pursuit_mj.config import default_config
 from pursuit_mj.layout import load_layout
 
@@ -75,7 +75,7 @@ def test_bad_input_exits_2_with_one_line(argv, message, capsys):
 
 
 def test_negative_numbers_in_scientific_notation_reach_the_flags_own_check(capsys):
-    from pursuit_mj.cli import glue_negative_numbers
+    from pursuit_cli import glue_negative_numbers
 
     assert glue_negative_numbers(["train", "--total-steps", "-1e5", "--set", "a=-1e5"]) == [
         "train", "--total-steps=-1e5", "--set", "a=-1e5"]
@@ -89,3 +89,29 @@ def test_negative_numbers_in_scientific_notation_reach_the_flags_own_check(capsy
     with pytest.raises(SystemExit):
         main(["study", "--budget-minutes", "nan"])  # nan <= 0 is False: it used to start a study
     assert "expected a finite number" in capsys.readouterr().err
+
+
+def test_the_simulator_package_imports_neither_train_nor_torch_nor_the_command_line():
+    # DESIGN.md section 4: pursuit_mj never imports train/; the command line (pursuit_cli)
+    # is the one package that imports both. Every module is imported with those blocked.
+    import subprocess
+    import sys
+
+    script = """
+import importlib, pkgutil, sys
+class Block:
+    def find_spec(self, name, path=None, target=None):
+        if name.split('.')[0] in ('torch', 'train', 'pursuit_cli'):
+            raise ImportError('blocked ' + name)
+sys.meta_path.insert(0, Block())
+import pursuit_mj
+bad = []
+for m in pkgutil.walk_packages(pursuit_mj.__path__, 'pursuit_mj.'):
+    try:
+        importlib.import_module(m.name)
+    except ImportError as exc:
+        bad.append(f'{m.name}: {exc}')
+print('\\n'.join(bad) or 'ok')
+"""
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip() == "ok", out.stdout + out.stderr

@@ -8,7 +8,7 @@ import math
 import pytest
 import yaml
 
-from pursuit_mj.cli import main
+from pursuit_cli import main
 from pursuit_mj.layout import load_layout
 from pursuit_mj.config import ConfigError, TaskConfig, default_config, dump_yaml, load_task_config
 

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from pursuit_mj.cli import main
+from pursuit_cli import main
 from pursuit_mj.config import default_config, load_task_config
 from pursuit_mj.env import EpisodeRecord
 from pursuit_mj.evaluation import FIELDS, evaluate, format_table, read_csv, run_episodes, summarise

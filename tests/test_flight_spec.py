@@ -275,7 +275,7 @@ def test_keys_cut_the_motors_or_land_and_other_keys_do_nothing():
 
 
 def test_fly_align_from_given_lab_points_prints_and_writes_the_transform(tmp_path, capsys):
-    from pursuit_mj.cli import main
+    from pursuit_cli import main
 
     truth = LabTransform((4.2, 0.1), math.pi / 2, 1.25)
     spots = np.array([[0.5, 0.625], [1.75, 0.625], [1.875, 4.0]])
@@ -293,7 +293,7 @@ def test_fly_align_from_given_lab_points_prints_and_writes_the_transform(tmp_pat
 
 
 def test_fly_check_and_bad_command_lines_fail_with_one_clear_line(capsys):
-    from pursuit_mj.cli import main
+    from pursuit_cli import main
 
     assert main(["fly", "check", "--flight", EXAMPLE]) == 0
     out = capsys.readouterr().out
@@ -303,7 +303,7 @@ def test_fly_check_and_bad_command_lines_fail_with_one_clear_line(capsys):
     assert main(["fly", "--flight", EXAMPLE]) == 2
     assert "exactly one of --policy" in capsys.readouterr().err
     assert main(["fly", "--flight", EXAMPLE, "--model", "no/such/best.pt"]) == 2
-    assert "--model no/such/best.pt: no such file" in capsys.readouterr().err
+    assert "--model no/such/best.pt: no such checkpoint file" in capsys.readouterr().err
     assert main(["fly", "--flight", EXAMPLE, "--policy", "genius"]) == 2
     assert "unknown policy" in capsys.readouterr().err
     assert main(["fly", "--flight", EXAMPLE, "--policy", "heuristic", "--fault", "drop_link:p0@1"]) == 2

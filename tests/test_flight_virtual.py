@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from flight_rehearsal import FAST, fly_virtual, kinds_in_order, quick_spec, wait_for
-from pursuit_mj.cli import main
+from pursuit_cli import main
 from pursuit_mj.flight.board import StateBoard
 from pursuit_mj.flight.events import read_events
 from pursuit_mj.flight.frames import rotate

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pursuit_mj.cli import main
+from pursuit_cli import main
 from pursuit_mj.geometry import ObstacleSet, inside_boundary, obstacle_distance
 from pursuit_mj.layout import (
     N_BUILTIN,
@@ -272,7 +272,7 @@ def test_layout_check_says_valid_only_after_every_check_and_checks_the_team_size
 
 
 def test_the_example_in_layout_new_help_works(tmp_path, capsys):
-    from pursuit_mj.cli import build_parser
+    from pursuit_cli import build_parser
 
     parser = build_parser()
     new = parser._subparsers._group_actions[0].choices["layout"]._subparsers._group_actions[0].choices["new"]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from pursuit_mj.cli import main
+from pursuit_cli import main
 from pursuit_mj.plots import curve_keys, plot_eval, plot_training, read_eval_rows, read_training_log, x_key
 
 
@@ -144,7 +144,7 @@ def test_plot_command_tells_apart_a_policy_that_two_files_hold(tmp_path, capsys)
     one, two = _eval_json(tmp_path / "one.json"), _eval_json(tmp_path / "two.json", policies=("heuristic", "mappo"))
     assert main(["plot", "--eval", str(one), "--eval", str(two), "-o", str(tmp_path / "out")]) == 0
     assert (tmp_path / "out" / "eval_success.png").is_file()
-    from pursuit_mj.cli.plot_cmd import _combined_rows
+    from pursuit_cli.plot_cmd import _combined_rows
 
     names = {r["policy"] for r in _combined_rows([(str(one), read_eval_rows(one)), (str(two), read_eval_rows(two))])}
     assert names == {"heuristic (one)", "heuristic (two)", "classic", "mappo"}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from pursuit_mj.cli import main
+from pursuit_cli import main
 from pursuit_mj.render.video import ensure_ffmpeg
 
 W, H = 160, 120

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from pursuit_mj.cli import main
+from pursuit_cli import main
 from pursuit_mj.config import default_config
 from pursuit_mj.palette import OBSTACLE_RGBA, rgb255
 from pursuit_mj.env import PursuitEnv

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from pursuit_mj.cli import main
+from pursuit_cli import main
 from pursuit_mj.config import default_config
 from pursuit_mj.env import PursuitEnv
 from pursuit_mj.evaluation import run_episodes

@@ -120,7 +120,7 @@ def test_mismatched_observation_spec_is_refused_other_team_sizes_accepted(tmp_pa
 
 
 def test_existing_run_is_not_overwritten_without_resume(tmp_path):
-    from pursuit_mj.cli import main
+    from pursuit_cli import main
 
     cfg = tiny_config(tmp_path, updates=1)
     Trainer(cfg, log=lambda s: None).train()

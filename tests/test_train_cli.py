@@ -5,7 +5,7 @@ import json
 import pytest
 import torch
 
-from pursuit_mj.cli import main
+from pursuit_cli import main
 
 TINY = ["task.fidelity=point", "task.n_pursuers=2", "task.random_obstacles=0", "task.max_steps=30",
         "n_envs=2", "ppo.batch_size=64", "ppo.minibatch_size=32", "ppo.epochs=1",

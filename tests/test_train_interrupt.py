@@ -50,7 +50,7 @@ def rows(run_dir):
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
 def test_kill_9_or_ctrl_c_loses_at_most_one_update(tmp_path, sig, overlap):
     """Also with a rollout worker (run.overlap), which must not outlive its trainer."""
-    args = [sys.executable, "-c", "import sys; from pursuit_mj.cli import main; sys.exit(main())", "train", "--no-progress", "--total-steps", "100000"]
+    args = [sys.executable, "-c", "import sys; from pursuit_cli import main; sys.exit(main())", "train", "--no-progress", "--total-steps", "100000"]
     for s in TINY + [f"run.runs_dir={tmp_path}", "name=killed", f"run.overlap={str(overlap).lower()}"]:
         args += ["--set", s]
     env = dict(os.environ, MUJOCO_GL="egl")

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from pursuit_mj.cli import main
+from pursuit_cli import main
 
 TRAIN = ["task.n_pursuers=2", "task.random_obstacles=0", "task.max_steps=30", "n_envs=2", "ppo.batch_size=64",
          "ppo.minibatch_size=32", "ppo.epochs=1", "imitation.grad_steps=2", "run.validate_every=0", "run.validation_episodes=2"]

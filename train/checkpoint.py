@@ -14,7 +14,6 @@ A checkpoint is a dict of plain values and tensors (never pickled objects):
 
 from __future__ import annotations
 
-import json
 import pickle
 import zipfile
 from pathlib import Path
@@ -108,12 +107,3 @@ def check_obs_spec(data: dict[str, Any], spec: ObsSpec, path: str | Path) -> Non
     why = spec.compatible(data["obs_spec"])
     if why is not None:
         raise ValueError(f"checkpoint {path}: observation spec does not match the environment: {why}")
-
-
-def numpy_state_text(rng) -> str:
-    """A numpy Generator's bit-generator state as JSON text (128-bit ints stay exact)."""
-    return json.dumps(rng.bit_generator.state)
-
-
-def restore_numpy_state(rng, text: str) -> None:
-    rng.bit_generator.state = json.loads(text)

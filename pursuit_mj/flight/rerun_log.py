@@ -26,9 +26,10 @@ import rerun as rr
 
 from ..io_utils import atomic_path
 from ..layout import Box, Wall
+from ..palette import ROLE_RGBA, rgb255
 from .plan import FlightPlan
 
-ROLE_RGB = {"pursuer": (38, 115, 242), "evader": (242, 64, 38), "target": (160, 60, 200)}
+ROLE_RGB = {"pursuer": rgb255(ROLE_RGBA["pursuer"]), "evader": rgb255(ROLE_RGBA["evader"]), "target": (160, 60, 200)}
 LEVEL = {"info": "INFO", "warn": "WARN", "error": "ERROR"}
 
 

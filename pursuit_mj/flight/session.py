@@ -93,18 +93,12 @@ class FaultInjector:
             t.cancel()
 
 
-def choose_policy(plan: FlightPlan, policy: str | None, model: str | Path | None, seed: int = 0) -> Policy:
-    """`--policy NAME` (pursuit_mj.policies) or `--model FILE` (train.load_policy, imported only then)."""
-    if (policy is None) == (model is None):
-        raise ValueError("give exactly one of --policy NAME (e.g. heuristic) or --model FILE")
-    if model is not None:
-        if not Path(model).is_file():
-            raise ValueError(f"--model {model}: no such file")
-        try:
-            from train.policy import load_policy
-        except ImportError as exc:
-            raise ValueError(f"--model {model}: loading trained models needs the train package and torch ({exc})") from None
-        return load_policy(model, plan.obs_spec, task=plan.task)
+def choose_policy(plan: FlightPlan, policy: str | None, seed: int = 0) -> Policy:
+    """`--policy NAME` (pursuit_mj.policies). A trained model is loaded by the caller
+    (`train.load_policy`; the simulator package never imports the learning one) and handed
+    to `run_flight` as a Policy."""
+    if policy is None:
+        raise ValueError("give a policy: --policy NAME (e.g. heuristic) or --model FILE")
     return make_policy(policy, plan.task, seed, "--policy")
 
 
@@ -118,7 +112,6 @@ def run_flight(
     policy: Policy | None = None,
     *,
     policy_name: str | None = None,
-    model: str | Path | None = None,
     overrides: Sequence[str] = (),
     virtual: bool = False,
     virtual_drones=None,
@@ -134,7 +127,8 @@ def run_flight(
 ) -> tuple[FlightResult, EventLog]:
     """Fly (module docstring). Everything that can be refused is refused before a link opens.
 
-    policy: a Policy object, or else policy_name/model pick one; faults need virtual=True;
+    policy: a Policy object (a trained one: train.load_policy(path, plan.obs_spec,
+    task=plan.task)), or else policy_name picks a hand-made one; faults need virtual=True;
     virtual_drones / virtual_physics: VirtualDrone options and VirtualPhysics constants;
     on_bridge(bridge) is called once the bridge exists (e.g. to wire an emergency-stop key).
     """
@@ -149,7 +143,7 @@ def run_flight(
     if events_path is not None:
         check_writable(events_path, "--events")
     if policy is None:
-        policy = choose_policy(plan, policy_name, model, seed)
+        policy = choose_policy(plan, policy_name, seed)
     events = EventLog(events_path, echo=echo)
     recorder = None
     fleet = None

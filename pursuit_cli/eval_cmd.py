@@ -14,10 +14,10 @@ import sys
 import time
 from pathlib import Path
 
-from ..io_utils import check_writable
-from ..layout import load_layout
-from ..obs_spec import ObsSpec
-from ..policies import POLICY_NAMES, make_policy
+from pursuit_mj.io_utils import check_writable
+from pursuit_mj.layout import load_layout
+from pursuit_mj.obs_spec import ObsSpec
+from pursuit_mj.policies import POLICY_NAMES, make_policy
 from .common import SHIELD_HELP, add_shield_arg, add_task_args, load_model, seed_arg, shield_if_asked, task_config_from_args
 
 
@@ -60,7 +60,7 @@ def _outputs(args) -> tuple[Path | None, Path | None]:
         if path is not None:
             check_writable(path, what)
     if args.rerun:
-        from ..recording import check_rrd_path
+        from pursuit_mj.recording import check_rrd_path
 
         check_rrd_path(args.rerun)
     if args.plots:
@@ -87,14 +87,14 @@ def _policies(args, config) -> list[tuple[str, object]]:
 
 
 def _run_table(args, config, layouts, policies, recording) -> list:
-    from ..evaluation import evaluate
+    from pursuit_mj.evaluation import evaluate
 
     rows = []
     for label, policy in policies:
         for ref in layouts:
             watch = None
             if recording is not None:
-                from ..recording import EnvRecorder
+                from pursuit_mj.recording import EnvRecorder
 
                 tags = {"policy": label, "layout": str(ref)}
                 watch = lambda env, tags=tags: EnvRecorder(recording, env, label=tags, max_episodes=args.rerun_episodes)
@@ -120,9 +120,9 @@ def _versus(args, policies) -> str | None:
 
 
 def run(args) -> int:
-    from ..comparison import paired_report, pairs_to_dicts
-    from ..evaluation import format_table, plot_rows, write_csv, write_json
-    from ..provenance import provenance
+    from pursuit_mj.comparison import paired_report, pairs_to_dicts
+    from pursuit_mj.evaluation import format_table, plot_rows, write_csv, write_json
+    from pursuit_mj.provenance import provenance
 
     if args.episodes < 1:
         raise ValueError(f"--episodes: expected an integer >= 1, got {args.episodes}")
@@ -140,7 +140,7 @@ def run(args) -> int:
     with contextlib.ExitStack() as stack:
         recording = None
         if args.rerun:
-            from ..recording import RerunEpisodeRecording
+            from pursuit_mj.recording import RerunEpisodeRecording
 
             recording = stack.enter_context(RerunEpisodeRecording(args.rerun))
         rows = _run_table(args, config, layouts, policies, recording)

@@ -21,7 +21,7 @@ def steps_arg(text: str) -> int:
 
 
 def register(sub) -> None:
-    from ..config import preset_names
+    from pursuit_mj.config import preset_names
 
     presets = ", ".join(preset_names("train"))
     p = sub.add_parser(

@@ -16,11 +16,11 @@ import dataclasses
 import os
 from pathlib import Path
 
-from ..config import TaskConfig, preset_or_file
-from ..configio import build, dump_yaml, load, load_yaml, to_dict
-from ..layout import load_layout
-from ..obs_spec import ObsSpec
-from ..policies import POLICY_NAMES, make_policy
+from pursuit_mj.config import TaskConfig, preset_or_file
+from pursuit_mj.configio import build, dump_yaml, load, load_yaml, to_dict
+from pursuit_mj.layout import load_layout
+from pursuit_mj.obs_spec import ObsSpec
+from pursuit_mj.policies import POLICY_NAMES, make_policy
 from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, flags_typed, load_model, seed_arg,
                      finite_float, shield_if_asked, task_config_from_args)
 
@@ -163,7 +163,7 @@ def _writable_folder(folder: Path, flag: str) -> None:
 
 def save_target(save_path: str, fmt: str | None) -> SaveTarget:
     """Resolve and check -s: a name with an extension is a video file (.mp4/.gif), anything else a folder."""
-    from ..render.video import VIDEO_CODECS
+    from pursuit_mj.render.video import VIDEO_CODECS
 
     path = Path(save_path)
     if path.suffix and not path.is_dir():
@@ -181,8 +181,8 @@ def save_target(save_path: str, fmt: str | None) -> SaveTarget:
 
 def check_render_settings(settings, config: TaskConfig) -> None:
     """Refuse a bad size or an unknown --camera against the task's own scene, before any episode runs."""
-    from ..render.camera import CameraSpec
-    from ..scene import SceneSpec, build_model, drone_names
+    from pursuit_mj.render.camera import CameraSpec
+    from pursuit_mj.scene import SceneSpec, build_model, drone_names
 
     model = build_model(SceneSpec(load_layout(config.layout), config.n_pursuers, config.n_evaders, config.fidelity,
                                   config.physics_dt, config.flight_height))
@@ -194,9 +194,9 @@ def check_render_settings(settings, config: TaskConfig) -> None:
 
 
 def run(args) -> int:
-    from ..render.episodes import EpisodeOutputs, run_episodes
-    from ..render.renderer import RenderSettings
-    from ..render.video import check_frame_size, ensure_ffmpeg
+    from pursuit_mj.render.episodes import EpisodeOutputs, run_episodes
+    from pursuit_mj.render.renderer import RenderSettings
+    from pursuit_mj.render.video import check_frame_size, ensure_ffmpeg
 
     if args.episodes < 1:
         raise ValueError(f"--episodes: expected an integer >= 1, got {args.episodes}")
@@ -220,7 +220,7 @@ def run(args) -> int:
             check_frame_size(target.fmt, args.width, args.height)
             ensure_ffmpeg()
     if args.rerun:
-        from ..recording import RerunEpisodeRecording, check_rrd_path
+        from pursuit_mj.recording import RerunEpisodeRecording, check_rrd_path
 
         check_rrd_path(args.rerun, "--rerun")
     videos = finals = None

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import TaskConfig, default_config
-from ..env import PursuitEnv
-from ..policies import make_policy
+from pursuit_mj.config import TaskConfig, default_config
+from pursuit_mj.env import PursuitEnv
+from pursuit_mj.policies import make_policy
 
 HELP = "video frames per second of a 1000-step render at 640x480, and the cost of a rerun recording"
 TARGET_FPS = 20.0
@@ -104,9 +104,9 @@ def _simulate(config: TaskConfig, steps: int, seed: int):
 
 def _render(config: TaskConfig, episodes, folder: Path, width: int, height: int) -> tuple[float, float]:
     """Draw every snapshot into one mp4; returns (draw seconds, encode seconds)."""
-    from ..render.episodes import FrameMaker
-    from ..render.renderer import RenderSettings
-    from ..render.video import video_file
+    from pursuit_mj.render.episodes import FrameMaker
+    from pursuit_mj.render.renderer import RenderSettings
+    from pursuit_mj.render.video import video_file
 
     draw = enc = 0.0
     with FrameMaker(config, episodes[0][0][0].layout, RenderSettings(width, height, "top"), "heuristic", 30) as maker:
@@ -127,7 +127,7 @@ def _render(config: TaskConfig, episodes, folder: Path, width: int, height: int)
 
 
 def _record(episodes, folder: Path) -> float:
-    from ..recording import EpisodeBuffer, RerunEpisodeRecording
+    from pursuit_mj.recording import EpisodeBuffer, RerunEpisodeRecording
 
     t = time.perf_counter()
     with RerunEpisodeRecording(folder / "bench.rrd") as rec:
@@ -160,7 +160,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.steps < 1:
         raise ValueError(f"--steps: expected an integer >= 1, got {args.steps}")
-    from ..render.video import check_frame_size, ensure_ffmpeg
+    from pursuit_mj.render.video import check_frame_size, ensure_ffmpeg
 
     check_frame_size("mp4", args.width, args.height)
     ensure_ffmpeg()

@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from ..config import REPO_ROOT
+from pursuit_mj.config import REPO_ROOT
 from .common import add_task_args, load_model, seed_arg, task_config_from_args
 
 PRETRAINED = REPO_ROOT / "pretrained" / "pursuers.pt"
@@ -53,9 +53,9 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..comparison import paired_report
-    from ..evaluation import evaluate, format_table
-    from ..policies import make_policy
+    from pursuit_mj.comparison import paired_report
+    from pursuit_mj.evaluation import evaluate, format_table
+    from pursuit_mj.policies import make_policy
 
     if args.episodes < 1:
         raise ValueError(f"--episodes: expected an integer >= 1, got {args.episodes}")
@@ -71,7 +71,7 @@ def run(args) -> int:
             print(f"demo: {model} was trained behind the safety shield and always runs with it; "
                   f"--no-shield has no extra row to skip", file=sys.stderr)
     elif not args.no_shield:
-        from ..shield import shield_policy
+        from pursuit_mj.shield import shield_policy
 
         policies.append((f"{policy.name}+shield", shield_policy(policy, config)))
     if not args.no_heuristic:
@@ -98,6 +98,6 @@ def run(args) -> int:
 
 
 def _spec(config):
-    from ..obs_spec import ObsSpec
+    from pursuit_mj.obs_spec import ObsSpec
 
     return ObsSpec.make(config.n_pursuers, config.n_evaders, config.n_rays)

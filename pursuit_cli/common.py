@@ -6,7 +6,7 @@ import argparse
 import math
 import sys
 
-from ..config import TaskConfig, dump_yaml, load_task_config
+from pursuit_mj.config import TaskConfig, dump_yaml, load_task_config
 
 
 def seed_arg(text: str) -> int:
@@ -101,7 +101,7 @@ def add_shield_arg(p: argparse.ArgumentParser, help: str = SHIELD_HELP) -> None:
 
 def shield_if_asked(args: argparse.Namespace, policy, label: str, config: TaskConfig) -> tuple[object, str]:
     """(policy, label) behind a SafetyShield when --shield is given, unless it has one built in (the heuristic)."""
-    from ..shield import shield_policy
+    from pursuit_mj.shield import shield_policy
 
     if not getattr(args, "shield", False):
         return policy, label

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io_utils import check_writable
-from ..layout import Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout, save_layout
-from ..geometry import inside_polygon
-from ..layout_check import check_spawn_capacity, free_spawn_points
+from pursuit_mj.io_utils import check_writable
+from pursuit_mj.layout import Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout, save_layout
+from pursuit_mj.geometry import inside_polygon
+from pursuit_mj.layout_check import check_spawn_capacity, free_spawn_points
 from .common import finite_float, seed_arg
 
 #: how many seeds `layout check` tries when placing the per-episode random obstacles
@@ -265,7 +265,7 @@ def _register_show(lsub) -> None:
 
 
 def run_show(args) -> int:
-    from ..layout_preview import save_layout_png
+    from pursuit_mj.layout_preview import save_layout_png
 
     layout = load_layout(args.layout)
     if args.count is not None and args.count < 0:
@@ -301,8 +301,8 @@ def _summary_line(layout: Layout) -> str:
 
 
 def run_check(args) -> int:
-    from ..env import SPAWN_SEPARATION
-    from ..scene import SceneSpec, build_model
+    from pursuit_mj.env import SPAWN_SEPARATION
+    from pursuit_mj.scene import SceneSpec, build_model
 
     if args.pursuers < 1 or args.evaders < 1:
         raise ValueError(f"--pursuers {args.pursuers} / --evaders {args.evaders}: each must be >= 1")

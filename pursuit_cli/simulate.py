@@ -13,11 +13,11 @@ import time
 
 import numpy as np
 
-from ..config import TaskConfig
-from ..controller import tilt_angle
-from ..layout import N_BUILTIN, Layout, load_layout
-from ..layout_check import free_spawn_points
-from ..physics import BatchedPhysics
+from pursuit_mj.config import TaskConfig
+from pursuit_mj.controller import tilt_angle
+from pursuit_mj.layout import N_BUILTIN, Layout, load_layout
+from pursuit_mj.layout_check import free_spawn_points
+from pursuit_mj.physics import BatchedPhysics
 from .common import add_task_args, finite_float, seed_arg, task_config_from_args
 
 SPAWN_SEPARATION = 0.35  # m between spawned drones

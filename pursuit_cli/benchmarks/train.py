@@ -13,7 +13,7 @@ run waits for: rollout + update in turn, about the longer of them with overlap. 
 within 2x of the bare env. On a shared machine wall time swings with other work; the CPU
 ratio (process time of training, rollout worker included, over that of the bare env, per
 agent-step) is steadier, and shows what overlap costs in work rather than in waiting.
-Imports the train package only when run (pursuit_mj itself never depends on it).
+Imports the train package only when run.
 """
 
 from __future__ import annotations

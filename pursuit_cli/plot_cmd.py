@@ -40,7 +40,7 @@ def _label_and_path(text: str) -> tuple[str, Path]:
 
 
 def run(args) -> int:
-    from ..plots import plot_eval, plot_training, read_eval_rows, read_training_log
+    from pursuit_mj.plots import plot_eval, plot_training, read_eval_rows, read_training_log
 
     if not args.log and not args.eval:
         raise ValueError("nothing to plot: give --log FILE (training) and/or --eval FILE (evaluation)")

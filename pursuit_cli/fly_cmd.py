@@ -12,7 +12,7 @@ import dataclasses
 import logging
 import sys
 
-from .common import add_shield_arg, finite_float, seed_arg, shield_if_asked
+from .common import add_shield_arg, finite_float, load_model, seed_arg, shield_if_asked
 
 KEYS_HELP = "during a flight: e or space = emergency stop (motors off), l = land everyone, Ctrl-C = land everyone (twice: motors off), Ctrl-\\ = motors off"
 
@@ -100,7 +100,7 @@ def _describe(plan) -> str:
 
 
 def run_check(args) -> int:
-    from ..flight.plan import load_plan
+    from pursuit_mj.flight.plan import load_plan
 
     plan = load_plan(_need_flight(args), args.overrides)
     print(_describe(plan))
@@ -109,8 +109,8 @@ def run_check(args) -> int:
 
 
 def run(args) -> int:
-    from ..flight.plan import load_plan
-    from ..flight.session import choose_policy, default_events_path, parse_fault, run_flight
+    from pursuit_mj.flight.plan import load_plan
+    from pursuit_mj.flight.session import choose_policy, default_events_path, parse_fault, run_flight
 
     _quiet_cflib(args.verbose)
     plan = load_plan(_need_flight(args), args.overrides)
@@ -119,7 +119,10 @@ def run(args) -> int:
             raise ValueError(f"--max-time {args.max_time}: expected seconds in (0, 3600]")
         plan = dataclasses.replace(plan, spec=dataclasses.replace(plan.spec, max_time=args.max_time))
     events_path = args.events or default_events_path(plan)
-    policy, _ = shield_if_asked(args, choose_policy(plan, args.policy, args.model, args.seed), "", plan.task)
+    if (args.policy is None) == (args.model is None):
+        raise ValueError("give exactly one of --policy NAME (e.g. heuristic) or --model FILE")
+    chosen = load_model(args.model, plan.obs_spec, plan.task) if args.model else choose_policy(plan, args.policy, args.seed)
+    policy, _ = shield_if_asked(args, chosen, "", plan.task)
     if args.fault and not args.virtual:
         raise ValueError("--fault rehearses failures on virtual drones only; add --virtual")
     for text in args.fault:
@@ -135,7 +138,7 @@ def run(args) -> int:
         def watch_keys() -> None:
             nonlocal watcher
             if interactive:  # after the go: the watcher takes the terminal's keys from here on
-                from ..flight.keys import KeyWatcher
+                from pursuit_mj.flight.keys import KeyWatcher
 
                 watcher = KeyWatcher(lambda: bridge.emergency_stop("key pressed"), lambda: bridge.request_land("key pressed"), sys.stdin.fileno())
                 watcher.start()
@@ -165,8 +168,8 @@ def run(args) -> int:
 
 
 def run_align(args) -> int:
-    from ..flight.align import align, parse_points, transform_yaml, write_with_transform
-    from ..flight.spec import drone_names, load_flight
+    from pursuit_mj.flight.align import align, parse_points, transform_yaml, write_with_transform
+    from pursuit_mj.flight.spec import drone_names, load_flight
 
     _quiet_cflib(False)
     spec = load_flight(_need_flight(args))
@@ -175,8 +178,8 @@ def run_align(args) -> int:
     if lab is not None and args.virtual:
         raise ValueError("--lab and --virtual exclude each other")
     if args.virtual:
-        from ..flight.plan import resolve_flight
-        from ..flight.virtual.fleet import VirtualFleet
+        from pursuit_mj.flight.plan import resolve_flight
+        from pursuit_mj.flight.virtual.fleet import VirtualFleet
 
         plan = resolve_flight(spec, args.overrides)
         with VirtualFleet(plan) as fleet:

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from ..config import dump_yaml
-from ..layout import load_layout
+from pursuit_mj.config import dump_yaml
+from pursuit_mj.layout import load_layout
 from .common import add_task_args, task_config_from_args
 
 

@@ -1,15 +1,15 @@
 """`pursuit-mj bench <target>`: speed benchmarks (they print measurements; they are not tests).
 
-Targets are the modules of the package `pursuit_mj.benchmarks`, found when the parser is
-built: `pursuit_mj/benchmarks/physics.py` is `pursuit-mj bench physics`. To add a target
-(say `env`), create `pursuit_mj/benchmarks/env.py` defining
+Targets are the modules of the package `pursuit_cli.benchmarks`, found when the parser is
+built: `pursuit_cli/benchmarks/physics.py` is `pursuit-mj bench physics`. To add a target
+(say `env`), create `pursuit_cli/benchmarks/env.py` defining
 
     HELP = "one line for `pursuit-mj bench --help`"
     def add_arguments(parser: argparse.ArgumentParser) -> None: ...   # its flags
     def run(args: argparse.Namespace) -> int: ...                     # measure, print, exit code
 
 and nothing else needs editing. `run` raises ValueError on bad input (exit code 2, one
-line). Helpers for isolated runs, peak memory and tables are in `pursuit_mj.benchmarks`.
+line). Helpers for isolated runs, peak memory and tables are in `pursuit_cli.benchmarks`.
 Modules whose names start with an underscore are not targets.
 """
 
@@ -18,7 +18,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-from .. import benchmarks
+from . import benchmarks
 
 
 def targets() -> dict[str, object]:

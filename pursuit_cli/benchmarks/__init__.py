@@ -1,4 +1,4 @@
-"""Speed benchmarks run by `pursuit-mj bench <target>`; one module per target (see cli/bench.py).
+"""Speed benchmarks run by `pursuit-mj bench <target>`; one module per target (see pursuit_cli/bench.py).
 
 Shared helpers: run a measurement in a fresh child process (so that its peak memory is its
 own), read the peak resident memory, and print an aligned table.

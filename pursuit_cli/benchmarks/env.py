@@ -24,9 +24,9 @@ from typing import Sequence
 
 import numpy as np
 
-from ..cli.common import finite_float
-from ..config import TaskConfig, load_task_config
-from ..layout import load_layout
+from ..common import finite_float
+from pursuit_mj.config import TaskConfig, load_task_config
+from pursuit_mj.layout import load_layout
 from . import check_common_args, format_table, peak_rss_mb, profile_call, run_isolated
 
 HELP = "decision steps/s of the whole environment vs physics+controller and the raw MuJoCo ceiling"
@@ -75,7 +75,7 @@ def task_config(fidelity: str, files: Sequence[str] = (), overrides: Sequence[st
 def measure(fidelity: str, n_worlds: int, seconds: float, seed: int, files: Sequence[str],
             overrides: Sequence[str], profile_top: int = 0) -> EnvBench:
     """Time raw, physics and env stepping of one configuration in alternating blocks."""
-    from ..env import PursuitEnv
+    from pursuit_mj.env import PursuitEnv
 
     config = task_config(fidelity, files, overrides)
     env = PursuitEnv(config, n_worlds=n_worlds, seed=seed)

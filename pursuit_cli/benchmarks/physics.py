@@ -23,9 +23,9 @@ from typing import Sequence
 
 import numpy as np
 
-from ..cli.common import finite_float
-from ..config import TaskConfig, load_task_config
-from ..layout import load_layout
+from ..common import finite_float
+from pursuit_mj.config import TaskConfig, load_task_config
+from pursuit_mj.layout import load_layout
 from . import check_common_args, format_table, peak_rss_mb, run_isolated
 
 HELP = "raw MuJoCo step rate (the ceiling) vs BatchedPhysics with the controller in the loop"
@@ -76,8 +76,8 @@ def task_config(fidelity: str, overrides: Sequence[str] = ()) -> TaskConfig:
 
 def measure(fidelity: str, n_worlds: int, seconds: float, nthread: int = 0, seed: int = 0, overrides: Sequence[str] = ()) -> PhysicsBench:
     """Time raw and controlled stepping of one configuration in alternating blocks."""
-    from ..cli.simulate import spawn_positions
-    from ..physics import BatchedPhysics
+    from ..simulate import spawn_positions
+    from pursuit_mj.physics import BatchedPhysics
 
     config = task_config(fidelity, overrides)
     rng = np.random.default_rng(seed)
