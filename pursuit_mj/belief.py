@@ -153,11 +153,14 @@ class BeliefEnv:
         return np.concatenate([obs.astype(np.float32), self._features], -1)
 
     def reset(self, *args, **kwargs) -> np.ndarray:
+        """The env's reset with a fresh belief: obs (W, N, obs_dim + belief features) float32."""
         obs = self.env.reset(*args, **kwargs)
         self.belief.reset(self.env.n_worlds)
         return self._augment(obs)
 
     def step(self, actions: np.ndarray):
+        """The env's step, actions (W, N, 2); obs and info["final_obs"] get the belief features
+        appended (W, N, obs_dim + belief features); a world's belief restarts at its episode's end."""
         obs, reward, terminated, truncated, info = self.env.step(actions)
         previous = self._features
         ended = np.flatnonzero(terminated | truncated)

@@ -130,7 +130,12 @@ class CoverageMap:
     # ------------------------------------------------------------------ planning
 
     def choose_goal(self, pos: np.ndarray, mate_pos: np.ndarray, mate_vis: np.ndarray, now: np.ndarray, dt: float) -> None:
-        """Pick each pursuer's goal cell: stalest free cell, nearer is better, away from teammates."""
+        """Pick each pursuer's goal cell: stalest free cell, nearer is better, away from teammates.
+
+        pos (W, N, 2) m, layout frame; mate_pos (W, N, T, 2) m absolute, where each pursuer
+        believes its T teammates are, and mate_vis (W, N, T) bool, which of them it knows (as
+        in `update`); now (W,) s, each world's episode time; dt (s) the decision step.
+        """
         p = self.p
         stale = np.clip((now[:, None, None, None] - self.seen) / p.stale_time, 0.0, 1.0)
         score = stale - np.sqrt(self._dist2(pos)) / p.distance_scale

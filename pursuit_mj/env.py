@@ -296,7 +296,14 @@ class PursuitEnv:
         return np.clip(a, -1.0, 1.0)
 
     def step(self, actions: np.ndarray):
-        """Advance every world one decision step. Returns obs, reward, terminated, truncated, info."""
+        """Advance every world one decision step (docs/env_api.md has the whole contract).
+
+        actions (W, N, 2): desired velocity of each pursuer, world (layout) frame, as a
+        fraction of pursuer_speed. Returns obs (W, N, obs_dim) float32, reward (W, N)
+        float32, terminated (W,) bool, truncated (W,) bool, and info: "reward_terms"
+        {term: (W, N) float32}, "outcome" (W,) str, "episodes" [EpisodeRecord],
+        "final_obs" (W, N, obs_dim), "final_state" (W, state_dim).
+        """
         if self._obs is None:
             raise RuntimeError("call reset() before step()")
         a = self._check_actions(actions)

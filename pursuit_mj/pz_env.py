@@ -96,6 +96,7 @@ class PursuitParallelEnv(ParallelEnv):
         raise ValueError(f"actions[{agent!r}]: expected shape (2,), got {np.shape(value)}")
 
     def state(self) -> np.ndarray:
+        """The global state (state_dim,) float32 of the one world (PursuitEnv.global_state)."""
         return self._env.global_state()[0]
 
     def _as_dict(self, obs: np.ndarray) -> dict[str, np.ndarray]:

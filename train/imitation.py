@@ -61,6 +61,8 @@ class Demonstrations:
         self.size = min(self.size + n, self.capacity)
 
     def sample(self, n: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        """n stored pairs drawn with replacement: obs (n, obs_dim) float32 and the teacher's
+        actions (n, 2) (fractions of pursuer_speed, layout frame)."""
         idx = torch.randint(0, self.size, (n,), generator=generator)
         return self.obs[idx], self.actions[idx]
 

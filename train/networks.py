@@ -155,6 +155,7 @@ class PooledTrunk(nn.Module):
         self.out_dim = cfg.hidden[-1]
 
     def forward(self, obs: torch.Tensor, spec: ObsSpec) -> torch.Tensor:
+        """obs (..., spec.dim) float32 -> features (..., out_dim)."""
         parts = []
         for name, enc in self.encoders.items():
             g = spec.group(name)
@@ -172,6 +173,7 @@ class FlatTrunk(nn.Module):
         self.out_dim = cfg.hidden[-1]
 
     def forward(self, obs: torch.Tensor, spec: ObsSpec) -> torch.Tensor:
+        """obs (..., spec.dim) float32 -> features (..., out_dim)."""
         if spec.dim != self.obs_dim:
             raise ValueError(f"net.kind mlp was built for obs_dim {self.obs_dim}, got {spec.dim}: use net.kind reference to change team sizes")
         return self.fuse(obs)

@@ -75,6 +75,9 @@ def measure_lab_positions(spec: FlightSpec, uris: Sequence[str] | None = None, f
 
 
 def fit_transform(lab: np.ndarray, spots: np.ndarray, source: str = "--spots") -> Fit:
+    """The similarity transform lab -> layout frame from matched points: lab (D, 2) m, where
+    the drones stand in the lab frame (their position estimates), and spots (D, 2) m, where the
+    flight file says they stand in the layout frame, in the same (flight-file) order."""
     if len(lab) != len(spots):
         raise ValueError(f"{source}: {len(spots)} spots for {len(lab)} drones (one spot per drone, flight-file order)")
     return fit_similarity(lab, spots, source)

@@ -66,6 +66,9 @@ class EvaderPilot:
 
     def command(self, observer: FlightObserver, evader_pos: np.ndarray, evader_vel: np.ndarray,
                 pursuer_pos: np.ndarray, pursuer_vel: np.ndarray) -> np.ndarray:
+        """Desired velocities (M, 2) m/s of the evaders, layout frame (0 for caught ones), from
+        evader_pos / evader_vel (M, 2) and pursuer_pos / pursuer_vel (N, 2), m and m/s in the
+        layout frame (the lab's estimates already mapped by the alignment)."""
         active = ~observer.captured
         v = self.model.compute(evader_pos[None], evader_vel[None], pursuer_pos[None], pursuer_vel[None], active, observer.obstacles_now(evader_pos), self.dt)
         return np.where(active[..., None], v, 0.0)[0]

@@ -71,6 +71,7 @@ class VideoFile:
             raise
 
     def add(self, frame: np.ndarray) -> None:
+        """Append one frame (H, W, 3) uint8 RGB of the size the file was opened with."""
         self._writer.add_image(frame)
         self.frames += 1
 

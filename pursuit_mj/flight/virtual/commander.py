@@ -82,6 +82,9 @@ class Commander:
     def notify_setpoint_stop(self, i: int, t: float, remain_s: float) -> None:
         self.relax_at[i] = t + remain_s
 
+    # High-level commander plans of drone i from time t (s): pos (3,) m where it is now and
+    # target (3,) m, both in the drone's own lab frame; height (m); duration (s).
+
     def hl_takeoff(self, i: int, t: float, pos: np.ndarray, height: float, duration: float) -> None:
         self._hl_plan(i, t, pos, np.array([pos[0], pos[1], height]), duration, HL_FLYING)
 
