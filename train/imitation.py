@@ -33,7 +33,7 @@ from torch import nn
 from .agent import ActorCritic
 from .config import ImitationConfig, PPOConfig
 from .losses import scaled_value_loss
-from .networks import flush_tiny
+from .networks import flush_tiny, gaussian_log_prob
 from .ppo import advantages_and_returns, explained_variance
 from .rollout import ActionPath, RolloutStats, forget_ended
 from .storage import Rollout
@@ -113,7 +113,7 @@ class DaggerCollector:
             action = torch.where(use_teacher[:, None, None], label, student.clamp(-1.0, 1.0))
             buf.obs[t] = obs
             buf.actions[t] = action
-            buf.logp[t] = torch.distributions.Normal(mean, log_std.exp()).log_prob(action).sum(-1)
+            buf.logp[t] = gaussian_log_prob(mean, log_std.exp(), action).sum(-1)
             buf.values[t] = self.model.value(obs, None)
             self.demos.add(obs.reshape(-1, obs.shape[-1]), label.reshape(-1, 2))
             # the teacher's labels already carry its built-in shield; the student's go through ours
@@ -132,7 +132,7 @@ class DaggerCollector:
             stats.episodes.extend(info["episodes"])
             self.obs_np = next_obs
             self.obs = flush_tiny(torch.as_tensor(next_obs))
-        buf.last_value = self.model.value(self.obs, None)
+        buf.last_value.copy_(self.model.value(self.obs, None))  # in place, as Collector: the buffer may be shared
         stats.reward_terms = {k: v / buf.T for k, v in term_sums.items()}
         return stats
 
