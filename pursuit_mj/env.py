@@ -15,7 +15,7 @@ import numpy as np
 from .config import TaskConfig, checked_task_config
 from .evader import EscapeModel
 from .geometry import ObstacleSet
-from .layout import N_BUILTIN, Layout, load_layout
+from .layout import N_BUILTIN, Layout, LayoutError, load_layout
 from .layout_check import check_spawn_capacity, free_spawn_points, sample_separated
 from .observations import build_global_state, build_observations, global_state_dim
 from .obs_spec import ObsSpec
@@ -185,6 +185,10 @@ class PursuitEnv:
             pts_p, pts_e = self._spawn_points[id(base)]
             pur = sample_separated(pts_p, self.n_pursuers, rng, SPAWN_SEPARATION)
             eva = sample_separated(pts_e, self.n_evaders, rng, SPAWN_SEPARATION)
+            for team, drawn, n in (("pursuers", pur, self.n_pursuers), ("evaders", eva, self.n_evaders)):
+                if drawn is None:  # the capacity check passed on other draws: this episode's seed found no room
+                    raise LayoutError(f"{base.source}: episode seed {int(s)} found no room for {n} {team} "
+                                      f"{SPAWN_SEPARATION} m apart in the spawn region; make it larger or use fewer {team}")
             layouts.append(inst)
             xy.append(np.concatenate([pur, eva]))
             self.world_layouts[w] = inst
@@ -347,6 +351,9 @@ class PursuitEnv:
             self.returns[k] += terms[k].mean(-1)
             self.last_terms[k] = terms[k].copy()
         finished = terminated | truncated
+        caught_w, caught_e = np.nonzero(events.new_captures & (active & ~finished)[:, None])
+        if len(caught_w):  # caught evaders stop where they are (DESIGN.md section 1), at once
+            self.physics.halt(caught_w, caught_e + N)
         self.outcome = np.where(finished, outcome, self.outcome)
         self.done |= finished
 

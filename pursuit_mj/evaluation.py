@@ -49,8 +49,9 @@ class Row:
     # per episode k (episode order, the same seeds for every policy of a table): its steps if it
     # ended in success, else max_steps; what pursuit_mj.comparison pairs (not in CSV / JSON rows)
     capture_steps: tuple[float, ...] = dataclasses.field(default=(), repr=False, compare=False)
-    # per episode k: (seed, outcome, steps), kept in JSON files so that others can pair or pool them
-    episode_log: tuple[tuple[int, str, int], ...] = dataclasses.field(default=(), repr=False, compare=False)
+    # per episode k: (seed, outcome, steps, evaders caught), kept in JSON files so that others
+    # can pair or pool them
+    episode_log: tuple[tuple[int, str, int, int], ...] = dataclasses.field(default=(), repr=False, compare=False)
 
     def flat(self) -> dict[str, object]:
         """One flat record (percentages for rates), the CSV and JSON row format."""
@@ -110,7 +111,7 @@ def summarise(policy: str, layout: str, fidelity: str, seed: int, records: Seque
     capture = capture_steps(records, max_steps)
     return Row(policy, layout, fidelity, n, rate(counts["success"], n), rate(counts["collision"], n),
                rate(counts["timeout"], n), mean_interval(steps, bounds), mean_interval(steps_ok, bounds), int(seed),
-               capture, tuple((int(r.seed), r.outcome, int(r.steps)) for r in records))
+               capture, tuple((int(r.seed), r.outcome, int(r.steps), int(r.captured)) for r in records))
 
 
 class Watcher(Protocol):
@@ -251,7 +252,8 @@ def write_json(rows: Sequence[Row], path: str | Path, config: TaskConfig | None 
     """{"rows": [flat rows], "config": resolved task config, **meta}, written atomically.
 
     Each row also lists its episodes, "per_episode": {"seed": [...], "outcome": [...],
-    "steps": [...]} in episode order (the same seeds for every policy on a layout).
+    "steps": [...], "captured": [...]} in episode order (the same seeds for every policy on a
+    layout; captured: how many evaders were caught, which tells a timeout with some caught).
     """
     data: dict[str, object] = dict(meta or {})
     if config is not None:
@@ -260,8 +262,8 @@ def write_json(rows: Sequence[Row], path: str | Path, config: TaskConfig | None 
     for r in rows:
         flat = r.flat()
         if r.episode_log:
-            seeds, outcomes, steps = zip(*r.episode_log)
-            flat["per_episode"] = {"seed": list(seeds), "outcome": list(outcomes), "steps": list(steps)}
+            seeds, outcomes, steps, caught = zip(*r.episode_log)
+            flat["per_episode"] = {"seed": list(seeds), "outcome": list(outcomes), "steps": list(steps), "captured": list(caught)}
         data["rows"].append(flat)
     return atomic_write_text(path, json.dumps(data, indent=2) + "\n")
 

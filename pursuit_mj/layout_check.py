@@ -56,9 +56,10 @@ def sample_separated(points: np.ndarray, n: int, rng: np.random.Generator, separ
                 chosen.append(q)
                 if len(chosen) == n:
                     return np.array(chosen)
-        if len(chosen) < n:
-            return None
     return None
+
+
+CAPACITY_DRAWS = 50  # spawn draws that must all fit for a team size to be accepted
 
 
 def check_spawn_capacity(layout, n_pursuers: int, n_evaders: int, separation: float) -> None:
@@ -67,9 +68,13 @@ def check_spawn_capacity(layout, n_pursuers: int, n_evaders: int, separation: fl
 
     rng = np.random.default_rng(0)
     for name, region, n in (("pursuers", layout.spawn_pursuers, n_pursuers), ("evaders", layout.spawn_evaders, n_evaders)):
-        if sample_separated(free_spawn_points(layout, region), n, rng, separation) is None:
+        points = free_spawn_points(layout, region)
+        # every episode draws its own spawn: a team that fits only some draws would stop a
+        # run partway, so CAPACITY_DRAWS draws must all fit
+        if any(sample_separated(points, n, rng, separation) is None for _ in range(CAPACITY_DRAWS)):
             raise LayoutError(f"n_{name}={n}: the spawn region of {layout.source} (x={list(region.x)}, y={list(region.y)}) "
-                              f"cannot hold {n} {name} {separation} m apart")
+                              f"cannot reliably hold {n} {name} {separation} m apart (some random spawns find no "
+                              f"room); make the layout's spawn region larger or use fewer {name}")
 
 
 def reachable(layout, start, goal, clearance: float = PASSAGE_CLEARANCE) -> bool:

@@ -254,6 +254,17 @@ class BatchedPhysics:
         self.contacts[ids] = False
         self.time[ids] = 0.0
 
+    def halt(self, worlds: np.ndarray, drones: np.ndarray) -> None:
+        """Stop drone drones[k] of world worlds[k] dead (all its velocities 0), where it is.
+
+        For a caught evader: commanded to stop, it would coast on for a few tenths of a second,
+        into the pursuer that just caught it."""
+        worlds, drones = np.asarray(worlds, np.int64), np.asarray(drones, np.int64)
+        for w in np.unique(worlds):
+            qvel = self.qvel[[w]]
+            qvel[0, self._qvel_idx[drones[worlds == w]]] = 0.0
+            self.qvel[[w]] = qvel
+
     # ------------------------------------------------------------------ state
 
     def positions(self) -> np.ndarray:

@@ -108,7 +108,7 @@ def test_bad_actions_are_refused(actions, match):
 
 
 def test_bad_task_settings_are_refused():
-    with pytest.raises(ValueError, match="cannot hold 16 pursuers"):
+    with pytest.raises(ValueError, match="cannot reliably hold 16 pursuers"):
         PursuitEnv(default_config(n_pursuers=16, **FAST))
     with pytest.raises(ConfigError, match="perception_radius"):
         default_config(perception_radius=0.2)
@@ -265,3 +265,29 @@ def test_configs_made_without_the_loader_are_checked_by_the_env():
     env = PursuitEnv(default_config(fidelity="point", random_obstacles=np.int64(0)), n_worlds=np.int64(2), seed=np.int64(3))
     assert env.n_worlds == 2 and env.reset().shape[0] == 2
     assert load_task_config("hard") == load_task_config(["hard"])
+
+
+@pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
+def test_a_caught_evader_stops_at_once_while_the_chase_goes_on(fidelity):
+    from pursuit_mj.heuristic import HeuristicTeam
+
+    config = default_config(fidelity=fidelity, n_evaders=2)
+    env = PursuitEnv(config, n_worlds=4, seed=0, auto_reset=False)
+    team = HeuristicTeam.from_config(config)
+    obs = env.reset()
+    team.reset(env.n_worlds)
+    N = config.n_pursuers
+    for _ in range(config.max_steps):
+        before = env.captured.copy()
+        obs, *_ = env.step(team.act(obs, env.obs_spec))
+        new = env.captured & ~before & ~env.done[:, None]
+        if new.any():
+            break
+    else:
+        pytest.fail("no world caught one of its two evaders and went on")
+    w, j = map(int, np.argwhere(new)[0])
+    assert np.all(env.physics.velocities()[w, N + j] == 0.0)
+    where = env.physics.positions()[w, N + j, :2].copy()
+    for _ in range(3):
+        obs, *_ = env.step(team.act(obs, env.obs_spec))
+    assert np.linalg.norm(env.physics.positions()[w, N + j, :2] - where) < 0.02

@@ -265,7 +265,7 @@ def test_layout_check_says_valid_only_after_every_check_and_checks_the_team_size
     captured = capsys.readouterr()
     assert "valid" not in captured.out and "no room for random obstacle" in captured.err
     assert main(["layout", "check", "0", "--pursuers", "30"]) == 2
-    assert "cannot hold 30 pursuers 0.4 m apart" in capsys.readouterr().err
+    assert "cannot reliably hold 30 pursuers 0.4 m apart" in capsys.readouterr().err
     assert main(["layout", "check", "0", "--pursuers", "5", "--evaders", "2"]) == 0
     out = capsys.readouterr().out
     assert "room for 5 pursuers and 2 evader(s)" in out and "(point, 5+2 drones, seed 0): compiles" in out
@@ -293,3 +293,16 @@ def test_layout_new_puts_default_spawn_bands_inside_a_polygon(tmp_path):
         box = [[x, y] for x in region.x for y in region.y]
         assert inside_polygon(np.array(box), corners).all(), region
     assert layout.spawn_evaders.y[1] > 5.0  # up in the roof, as high as a 1 m band fits
+
+
+def test_separated_spawn_draws_retry_until_one_fits():
+    from pursuit_mj.layout_check import sample_separated
+
+    # five points 0.25 m apart on a line, three wanted 0.5 m apart: only {0, 0.5, 1.0} fits, and
+    # a random greedy pass often takes 0.25 or 0.75 first, so a draw must retry until it fits
+    line = np.array([[0.25 * i, 0.0] for i in range(5)])
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        drawn = sample_separated(line, 3, rng, 0.5, tries=200)
+        assert drawn is not None and sorted(drawn[:, 0].tolist()) == [0.0, 0.5, 1.0]
+    assert sample_separated(line, 4, rng, 0.5, tries=5) is None

@@ -136,11 +136,11 @@ def test_colour_key_stays_in_its_band_and_lists_what_the_task_shows():
     env.reset()
     snap = env.snapshot(0)
     labels = [e.label for e in key_entries(snap, OverlayStyle())]
-    assert labels == ["pursuer", "evader", "sight", "seen", "relayed", "capture", "obstacle", "random"]
+    assert labels == ["pursuer", "evader", "sight", "seen", "relayed", "capture", "caught", "obstacle", "random"]
     full = PursuitEnv(default_config(**CFG, observability="full", random_obstacles=0), seed=0, auto_reset=False)
     full.reset()
     labels = [e.label for e in key_entries(full.snapshot(0), OverlayStyle())]
-    assert labels == ["pursuer", "evader", "seen", "capture", "obstacle"]
+    assert labels == ["pursuer", "evader", "seen", "capture", "caught", "obstacle"]
 
 
 def test_frames_carry_the_key_unless_it_is_turned_off():

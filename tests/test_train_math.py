@@ -205,6 +205,24 @@ def test_pooled_actor_and_critic_ignore_hidden_entities():
     assert not torch.equal(actor(x, spec)[0], actor(visible, spec)[0])  # the flag does matter
 
 
+def test_caught_evaders_are_left_out_of_the_pool():
+    torch.manual_seed(0)
+    spec = ObsSpec.make(3, 2, 8)
+    actor = Actor(spec, NetConfig())
+    obs = _obs(spec, np.random.default_rng(2), [1, 1], [1, 1])
+    obs[spec.index("evaders", 0, "captured")] = 1.0  # caught where it stopped, still visible
+    obs[spec.index("evaders", 1, "captured")] = 0.0
+    moved = obs.copy()
+    moved[spec.index("evaders", 0, "dx")] += 3.0
+    hidden = obs.copy()
+    hidden[spec.index("evaders", 0, "visible")] = 0.0
+    out = [actor(torch.as_tensor(o)[None], spec)[0] for o in (obs, moved, hidden)]
+    assert torch.equal(out[0], out[1]) and torch.equal(out[0], out[2])
+    free = obs.copy()
+    free[spec.index("evaders", 0, "captured")] = 0.0
+    assert not torch.equal(out[0], actor(torch.as_tensor(free)[None], spec)[0])
+
+
 def test_pooled_actor_runs_for_other_team_sizes_with_the_same_weights():
     torch.manual_seed(0)
     trained = Actor(ObsSpec.make(3, 1, 16), NetConfig())

@@ -4,7 +4,8 @@
 range readings, and with belief features the remembered evaders and the search goal), each
 a linear layer with tanh; teammates and evaders are mean-pooled over the entities whose
 visibility flag is 1 (hidden ones count for nothing, none visible
-gives zeros), so one network serves any number of teammates and evaders. The pooled codes
+gives zeros; caught evaders count for nothing either), so one network serves any number of
+teammates and evaders. The pooled codes
 are concatenated and fused by tanh layers (hidden widths), then a head. `mlp`: the flat
 observation through tanh layers (fixed team size). Every weight is orthogonal, every bias 0.
 
@@ -116,10 +117,11 @@ class EntityEncoder(nn.Module):
     Works for any entity count, including zero (then the output is zeros).
     """
 
-    def __init__(self, width: int, out: int, mask_feature: int | None):
+    def __init__(self, width: int, out: int, mask_feature: int | None, exclude_feature: int | None = None):
         super().__init__()
         self.width = width
         self.mask_feature = mask_feature
+        self.exclude_feature = exclude_feature  # entities with this flag at 1 are left out of the pool
         self.layer = init_linear(nn.Linear(width, out))
 
     def forward(self, entities: torch.Tensor) -> torch.Tensor:
@@ -131,6 +133,8 @@ class EntityEncoder(nn.Module):
             mask = torch.ones(entities.shape[:-1], dtype=entities.dtype, device=entities.device)
         else:
             mask = (entities[..., self.mask_feature] > 0.5).to(entities.dtype)
+        if self.exclude_feature is not None:
+            mask = mask * (entities[..., self.exclude_feature] <= 0.5).to(entities.dtype)
         return masked_mean(codes, mask)
 
 
@@ -150,7 +154,10 @@ class PooledTrunk(nn.Module):
         for name in groups:
             g = spec.group(name)
             width = g.width if name != "rays" else spec.n_rays
-            self.encoders[name] = EntityEncoder(width, cfg.encoder_width, g.mask_feature)
+            # a caught evader stays visible where it stopped; pooling it with the free ones would
+            # blur where the chase is, so only free evaders count (one evader: no change)
+            exclude = g.features.index("captured") if "captured" in g.features else None
+            self.encoders[name] = EntityEncoder(width, cfg.encoder_width, g.mask_feature, exclude)
         self.fuse = tanh_mlp([cfg.encoder_width * len(groups), *cfg.hidden])
         self.out_dim = cfg.hidden[-1]
 

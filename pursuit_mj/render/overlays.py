@@ -191,6 +191,7 @@ def key_entries(snap, style: OverlayStyle) -> list[KeyEntry]:
     if partial and cfg.share_detections:
         entries.append(KeyEntry("relayed", rgb255(style.relayed_rgba), "dash"))
     entries.append(KeyEntry("capture", rgb255(style.capture_rgba), "ring"))
+    entries.append(KeyEntry("caught", rgb255(style.captured_fill_rgba), "dot"))  # the filled capture disc
     layout = snap.layout
     if len(layout.obstacles) > layout.n_random:
         entries.append(KeyEntry("obstacle", rgb255(OBSTACLE_RGBA["fixed"]), "square"))
