@@ -7,8 +7,9 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
+
+from pursuit_mj.io_utils import check_writable_folder
 
 
 def register(sub) -> None:
@@ -54,12 +55,7 @@ def run(args) -> int:
             label = f"{label} ({path})"
         runs[label] = read_training_log(path)
     rows = _combined_rows([(f, read_eval_rows(f)) for f in args.eval])
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ValueError(f"--out {out}: cannot create the folder ({exc.strerror})") from None
-    if not os.access(out, os.W_OK):
-        raise ValueError(f"--out {out}: folder is not writable")
+    check_writable_folder(out, f"--out {out}")
     paths = []
     if runs:
         paths += plot_training(runs, out, args.metric or None, args.x)

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 from pathlib import Path
 
+from pursuit_mj.io_utils import check_writable_folder
 from pursuit_mj.config import TaskConfig, preset_or_file
 from pursuit_mj.configio import build, dump_yaml, load, load_yaml, to_dict
 from pursuit_mj.layout import load_layout
@@ -151,14 +151,7 @@ class SaveTarget:
 
 
 def _writable_folder(folder: Path, flag: str) -> None:
-    if folder.exists() and not folder.is_dir():
-        raise ValueError(f"{flag} {folder}: exists and is not a folder")
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ValueError(f"{flag} {folder}: cannot create the folder ({exc.strerror})") from None
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise ValueError(f"{flag} {folder}: folder is not writable")
+    check_writable_folder(folder, f"{flag} {folder}")
 
 
 def save_target(save_path: str, fmt: str | None) -> SaveTarget:

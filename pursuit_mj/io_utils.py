@@ -40,16 +40,25 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     return Path(path)
 
 
+def check_writable_folder(folder: str | Path, what: str) -> Path:
+    """Create `folder` if needed, or ValueError starting with `what` (e.g. the flag and its
+    value) if it is a file, cannot be created or cannot be written."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{what}: {folder} exists and is not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"{what}: cannot create the folder {folder} ({exc.strerror})") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ValueError(f"{what}: folder {folder} is not writable")
+    return folder
+
+
 def check_writable(path: str | Path, what: str = "output") -> Path:
     """Fail early with a clear message if `path` cannot be written (before any work is done)."""
     path = Path(path)
-    parent = path.parent if str(path.parent) else Path(".")
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ValueError(f"{what} path {path}: cannot create folder {parent} ({exc.strerror})") from None
-    if not os.access(parent, os.W_OK):
-        raise ValueError(f"{what} path {path}: folder {parent} is not writable")
+    check_writable_folder(path.parent if str(path.parent) else Path("."), f"{what} path {path}")
     if path.is_dir():
         raise ValueError(f"{what} path {path}: is a folder, expected a file name")
     return path

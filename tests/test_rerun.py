@@ -123,7 +123,7 @@ def test_rrd_path_is_checked(tmp_path):
         check_rrd_path(tmp_path / "x.rr")
     blocker = tmp_path / "f"
     blocker.write_text("")
-    with pytest.raises(ValueError, match="cannot create folder"):
+    with pytest.raises(ValueError, match="f exists and is not a folder"):
         check_rrd_path(blocker / "a.rrd")
 
 
