@@ -232,6 +232,105 @@ def test_mate_memory_zero_forgets_at_once():
     assert shield.apply(fast_east, hidden, SPEC)[0, 0, 0] == pytest.approx(SPEED)
 
 
+def wall_toward(obs: np.ndarray, distance: float, angle: float, pursuer: int = 0) -> None:
+    """A straight wall `distance` m from one pursuer (world 0) on the side at `angle` rad: the
+    rays within +-60 degrees of that direction see it."""
+    for k in range(16):
+        off = np.cos(2 * np.pi * k / 16 - angle)
+        if off > 0.5:
+            obs[0, pursuer, SPEC.index("rays", 0, f"range_{k}")] = distance / off
+
+
+def limits_of(obs: np.ndarray, pursuer: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Directions (H, 2) and caps (H,) m/s the shield should hold for a standing pursuer of
+    world 0 (module docstring): one per ray hit and one per visible teammate."""
+    dirs, caps = [], []
+    rate, buffer = ShieldParams.approach_rate, ShieldParams.safety_buffer
+    for k in range(16):
+        r = obs[0, pursuer, SPEC.index("rays", 0, f"range_{k}")]
+        if r < 2.0 - 1e-6:
+            dirs.append([np.cos(2 * np.pi * k / 16), np.sin(2 * np.pi * k / 16)])
+            caps.append(rate * (r - 0.1 - buffer))
+    for j in range(2):
+        at = SPEC.index("teammates", j, "dx")
+        dx, dy, _, _, seen = obs[0, pursuer, at : at + 5]
+        if seen:
+            d = np.hypot(dx, dy)
+            dirs.append([dx / d, dy / d])
+            caps.append(0.5 * rate * (d - 0.2 - buffer))
+    return np.array(dirs), np.array(caps)
+
+
+def nearest_allowed_on_a_grid(want: np.ndarray, dirs: np.ndarray, caps: np.ndarray, step: float = 0.001) -> float:
+    """Distance (m/s) from `want` to the nearest velocity on a 1 mm/s grid within every limit."""
+    axis = np.arange(-0.4, 0.4 + step / 2, step)
+    grid = np.stack(np.meshgrid(axis, axis), -1).reshape(-1, 2)
+    ok = np.all(grid @ dirs.T <= caps, axis=1)
+    return float(np.min(np.linalg.norm(grid[ok] - want, axis=1)))
+
+
+def test_limits_meeting_at_a_sharp_angle_all_hold():
+    # a pursuer 0.2 m from a teammate (west-south-west, too close: back off) with a wall
+    # 0.155 m away to the north-north-east, wanting to fly between them: the two limits
+    # meet at about 30 deg, where projecting onto one limit at a time converged too slowly
+    # (four passes left 0.05 m/s toward the teammate; seen with a team pushing into a wall)
+    rng = np.random.default_rng(3)
+    cases = [(0.2, np.radians(194), 0.155, np.radians(63), np.radians(163))]
+    for _ in range(6):
+        cases.append((rng.uniform(0.2, 0.35), rng.uniform(0, 2 * np.pi), rng.uniform(0.13, 0.3),
+                      rng.uniform(0, 2 * np.pi), rng.uniform(0, 2 * np.pi)))
+    for mate_d, mate_angle, wall_d, wall_angle, heading in cases:
+        shield = SafetyShield(SPEED)
+        shield.reset(1)
+        obs = blank_obs()
+        wall_toward(obs, wall_d, wall_angle)
+        at = SPEC.index("teammates", 0, "dx")
+        obs[0, 0, at : at + 5] = [mate_d * np.cos(mate_angle), mate_d * np.sin(mate_angle), 0.0, 0.0, 1.0]
+        want = SPEED * np.array([np.cos(heading), np.sin(heading)])
+        out = shield.apply(np.tile(want, (1, 3, 1)), obs, SPEC)[0, 0]
+        dirs, caps = limits_of(obs)
+        assert np.all(dirs @ out <= caps + 1e-9), (dirs @ out - caps).max()
+        if mate_d == 0.2:  # where the passes fell short, the answer moves the action least
+            assert np.linalg.norm(out - want) <= nearest_allowed_on_a_grid(want, dirs, caps) + 1e-9
+
+
+def test_a_teammate_pressing_a_pursuer_against_a_wall_does_not_push_it_into_the_wall():
+    # both too close (wall 0.12 m east, teammate 0.2 m west): no velocity keeps off both,
+    # and the wall wins; the teammate's own shield makes it give way
+    shield = SafetyShield(SPEED)
+    shield.reset(1)
+    obs = blank_obs()
+    wall_east(obs, 0.12)
+    _mate_east(obs, -0.2)
+    out = shield.apply(np.tile([-SPEED, 0.0], (1, 3, 1)), obs, SPEC)[0, 0]
+    assert out[0] <= ShieldParams.approach_rate * (0.12 - 0.1 - ShieldParams.safety_buffer) + 1e-9
+
+
+@pytest.mark.parametrize("direction", [(-1.0, 0.3), (-1.0, -0.3)])
+def test_a_team_pushing_into_one_wall_keeps_off_it_and_off_each_other(direction):
+    # every pursuer flies into the west wall at a slant: they pile up along it, each
+    # squeezed between the wall and a teammate (a wall collision in 8 episodes before)
+    cfg = dataclasses.replace(default_config(), fidelity="point", layout=0, max_steps=200)
+    env = PursuitEnv(cfg, n_worlds=8, seed=0, auto_reset=False)
+    obs = env.reset(seeds=list(range(8)))
+    policy = shield_policy(Straight(direction), cfg)
+    policy.reset(8)
+    obstacles = ObstacleSet.stack([layout.obstacle_set() for layout in env.world_layouts])
+    wall_gap = mate_gap = np.inf
+    for _ in range(200):
+        flying = ~env.done
+        obs, _, _, _, info = env.step(policy.act(obs, env.obs_spec))
+        assert all(r.outcome != "collision" for r in info["episodes"])
+        xy = env.physics.positions()[:, : cfg.n_pursuers, :2]  # (W, N, 2) m
+        apart = np.linalg.norm(xy[:, :, None] - xy[:, None], axis=-1) + 9 * np.eye(cfg.n_pursuers)
+        wall_gap = min(wall_gap, obstacle_distance(xy, obstacles)[flying].min(initial=np.inf))
+        mate_gap = min(mate_gap, apart[flying].min(initial=np.inf))
+        if env.done.all():
+            break
+    assert wall_gap > cfg.obstacle_clearance + 0.03
+    assert mate_gap > cfg.teammate_clearance + 0.02
+
+
 def test_heuristic_uses_a_shield_built_from_its_params():
     params = HeuristicParams(safety_buffer=0.08, hit_memory=5, mate_memory=1.5)
     team = HeuristicTeam(params=params, control_dt=0.2)
