@@ -40,6 +40,7 @@ import numpy as np
 
 from .config import TaskConfig
 from .geometry import FAR, ObstacleSet, first_axis_last, last_axis_first, obstacle_distance
+from .planar import EPS, dot, norm, perp, rotate, unit
 from .randomness import TICK as _TICK, hash_uniform, splitmix64 as _splitmix64
 
 RING = 16  # survey directions around the wanted direction
@@ -55,7 +56,6 @@ HORIZON = 1.5  # m, how far along a candidate the safety score looks
 SLACK_SCALE = 1.0  # m, safety margins beyond this count as safe
 DANGER = 3.0  # factor on negative safety margins: entering a chaser's reach costs more than room gains
 NORMAL_STEP = 0.02  # m, finite-difference step of obstacle normals
-EPS = 1e-9
 _PATH_FRACTIONS = np.linspace(0.0, 1.0, PATH_SAMPLES)  # where along a path its samples lie
 _HORIZON_SAMPLES = np.linspace(0.0, HORIZON, PATH_SAMPLES)  # m flown at the samples of a candidate
 _FAR32 = np.float32(FAR)
@@ -64,33 +64,6 @@ _STREAM_TURN, _STREAM_AMPLITUDE, _STREAM_START, _STREAM_SIDE = range(4)
 
 
 # ----------------------------------------------------------------------------- small maths
-
-
-def norm(v: np.ndarray) -> np.ndarray:
-    """Length (...) of planar vectors v (..., 2)."""
-    return np.hypot(v[..., 0], v[..., 1])
-
-
-def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Dot product (...) of planar vectors a, b (..., 2), broadcast."""
-    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]
-
-
-def unit(v: np.ndarray, fallback: np.ndarray | float = 0.0) -> np.ndarray:
-    """v (..., 2) scaled to unit length; `fallback` (broadcastable) where |v| is ~0."""
-    n = norm(v)[..., None]
-    return np.where(n > EPS, v / np.maximum(n, EPS), fallback)
-
-
-def perp(v: np.ndarray) -> np.ndarray:
-    """v (..., 2) rotated by +90 degrees."""
-    return np.stack([-v[..., 1], v[..., 0]], -1)
-
-
-def rotate(v: np.ndarray, angle: np.ndarray | float) -> np.ndarray:
-    """v (..., 2) rotated counter-clockwise by angle (...) rad."""
-    c, s = np.cos(angle), np.sin(angle)
-    return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], -1)
 
 
 def panic_level(distance: np.ndarray, panic_distance: float, calm_distance: float) -> np.ndarray:

@@ -33,7 +33,8 @@ import numpy as np
 from .coverage import CoverageMap, CoverageParams
 from .obs_spec import ObsSpec, named_views
 from .policy import check_observations
-from .shield import MIN_RAYS, SafetyShield, ShieldParams, check_rays, clip_unit, unit
+from .planar import clip_unit, unit
+from .shield import MIN_RAYS, SafetyShield, ShieldParams, check_rays
 
 _TINY = 1e-9
 

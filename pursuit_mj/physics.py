@@ -23,6 +23,7 @@ import numpy as np
 from .config import TaskConfig
 from .controller import VelocityController, check_symmetric_drag, linear_drag, quat_to_rotmat
 from .layout import Layout
+from .planar import clip_norm
 from .scene import DroneIds, SceneSpec, build_model, drone_names, drone_parameters
 
 UNIT_QUAT = np.array([1.0, 0.0, 0.0, 0.0])
@@ -58,13 +59,6 @@ def check_commands(commands: np.ndarray, shape: tuple[int, ...], source: str = "
         bad = np.argwhere(~np.isfinite(arr))[0]
         raise ValueError(f"{source}: non-finite value {arr[tuple(bad)]} at index {tuple(int(i) for i in bad)}")
     return arr
-
-
-def clip_speed(v: np.ndarray, max_speed: np.ndarray) -> np.ndarray:
-    """Scale planar velocities (..., 2) down to at most max_speed (...,) m/s, keeping direction."""
-    norm = np.hypot(v[..., 0], v[..., 1])
-    scale = np.minimum(1.0, max_speed / np.maximum(norm, 1e-12))
-    return v * scale[..., None]
 
 
 def _layout_slots(layout: Layout) -> int:
@@ -310,7 +304,7 @@ class BatchedPhysics:
         `self.diverged` (W,) bool for the caller to end and reset.
         """
         cmd = check_commands(commands, (self.n_worlds, self.n_drones, 2))
-        cmd = clip_speed(cmd, self.max_speed)
+        cmd = clip_norm(cmd, self.max_speed)
         self.commands[:] = cmd
         if self.fidelity == "quadrotor":
             self._step_quadrotor(cmd)

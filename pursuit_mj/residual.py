@@ -20,7 +20,8 @@ import numpy as np
 
 from .obs_spec import ObsSpec
 from .policy import Policy
-from .shield import clip_unit
+from .planar import clip_unit
+from .shield import SafetyShield, Shielded
 
 
 def combine(base_actions: np.ndarray, correction: np.ndarray, scale: float) -> np.ndarray:
@@ -53,3 +54,12 @@ class ResidualTeam:
         """Actions (W, N, 2) within the unit disc from obs (W, N, spec.dim)."""
         correction = self.correction.act(obs, spec)  # first: a base acting from the correction's belief (BeliefTeam) needs it
         return combine(self.base.act(obs, spec), correction, self.scale)
+
+
+def acting_team(actor: Policy, base: Policy | None, scale: float, shield: SafetyShield | None) -> Policy:
+    """What drives the env from an actor's actions: the actor alone, or added to `base` with
+    `scale` (a ResidualTeam), then behind `shield` when one is given. Training (the actor is
+    the rollout's samples, train/rollout.py) and every use of a trained model (the actor is
+    the network, train/policy.py) build it here, so the two cannot drift apart."""
+    team = actor if base is None else ResidualTeam(base, actor, scale)
+    return team if shield is None else Shielded(team, shield)

@@ -46,6 +46,7 @@ import math
 import numpy as np
 
 from .obs_spec import ObsSpec, named_views
+from .planar import EPS, clip_unit, limit_closing, norm, unit
 from .policy import Policy, check_observations
 from .sensing import HEADING_MIN_SPEED
 
@@ -57,9 +58,6 @@ def check_rays(n_rays: int, who: str) -> None:
     if n_rays < MIN_RAYS:
         raise ValueError(f"task n_rays {n_rays}: {who} sees walls only through range readings and needs at least "
                          f"{MIN_RAYS} (set n_rays >= {MIN_RAYS})")
-
-
-_TINY = 1e-9
 
 
 @dataclasses.dataclass(frozen=True)
@@ -233,8 +231,8 @@ class SafetyShield:
         near = d <= self.perception_radius
         if self.field_of_view >= 2 * math.pi - 1e-9:
             return near
-        speed = np.linalg.norm(mate_vel, axis=-1)
-        cos_to_me = -np.einsum("wnmk,wnmk->wnm", u, mate_vel) / np.maximum(speed, _TINY)
+        speed = norm(mate_vel)
+        cos_to_me = -np.einsum("wnmk,wnmk->wnm", u, mate_vel) / np.maximum(speed, EPS)
         return near & (speed > HEADING_MIN_SPEED) & (cos_to_me >= math.cos(self.field_of_view / 2))
 
     def _limit_closing(self, v: np.ndarray, o: dict) -> np.ndarray:
@@ -245,13 +243,13 @@ class SafetyShield:
         if o["rays"].shape[-1]:
             rel = self._hits - o["pos"][:, :, None]
             d = np.sqrt(rel[..., 0] ** 2 + rel[..., 1] ** 2)
-            u = rel / np.maximum(d, _TINY)[..., None]
+            u = rel / np.maximum(d, EPS)[..., None]
             closing = np.maximum(np.einsum("wnhk,wnk->wnh", u, o["vel"]), 0.0)
             gap = d - self.obstacle_clearance - p.safety_buffer - lag * closing
             dirs.append(u)
-            limits.append(np.where(self._hit_ok & (d > _TINY), p.approach_rate * gap, np.inf))  # d = 0: no direction (a finished world's blank observation)
+            limits.append(np.where(self._hit_ok, p.approach_rate * gap, np.inf))
         if o["mate_rel"].shape[2]:
-            d = np.linalg.norm(o["mate_rel"], axis=-1)
+            d = norm(o["mate_rel"])
             u = unit(o["mate_rel"])
             closing = np.maximum(-np.einsum("wnmk,wnmk->wnm", u, o["mate_dvel"]), 0.0)
             margin = p.safety_buffer + p.noise_margin * self.position_noise
@@ -262,7 +260,7 @@ class SafetyShield:
             approach = np.minimum(np.einsum("wnmk,wnmk->wnm", u, mate_vel), 0.0)
             dirs.append(u)
             limits.append(0.5 * p.approach_rate * gap + np.where(blind, approach, 0.0))
-        d = np.linalg.norm(o["ev_rel"], axis=-1)
+        d = norm(o["ev_rel"])
         u = unit(o["ev_rel"])
         closing = np.maximum(np.einsum("wnmk,wnk->wnm", u, o["vel"]), 0.0)
         gap = d - self.capture_radius - self.obstacle_clearance - p.safety_buffer - lag * closing
@@ -270,90 +268,19 @@ class SafetyShield:
         limits.append(np.where(o["ev_cap"] & o["ev_vis"], p.approach_rate * gap, np.inf))
         u = np.concatenate(dirs, axis=2)  # (W, N, H, 2)
         cap = np.concatenate(limits, axis=2)  # (W, N, H) m/s, may be negative (back off)
-        passed, binding = _project(v, u, cap, p.safety_passes)
-        exceeded = np.max(np.einsum("wnhk,wnk->wnh", u, passed) - cap, axis=-1) > _ALLOWED_SLACK  # (W, N)
-        if not exceeded.any():
-            return passed
-        # Where the passes left a limit exceeded, two or more limits meet at a sharp angle
-        # (a wall and a teammate on either side) and the passes approach the answer too slowly:
-        # solve those rows exactly.
-        w, n = np.nonzero(exceeded)
-        rows = (w, n)
-        safe = _closest_allowed(v[rows][None], u[rows][None], cap[rows][None], binding[rows][None])[0]
-        # No velocity keeps within every limit: they conflict (a teammate presses the pursuer
+        out, met = limit_closing(v, u, cap, p.safety_passes)
+        if met.all():
+            return out
+        # No velocity keeps within every cap: they conflict (a teammate presses the pursuer
         # against a wall). Then the static hazards (remembered hits, captured evaders) get the
         # last word: a wall does not move, and a teammate's own shield makes it give way.
         static = np.ones(cap.shape[-1], bool)
         if o["mate_rel"].shape[2]:
             n_hits = self._hits.shape[2] if o["rays"].shape[-1] else 0
             static[n_hits : n_hits + o["mate_rel"].shape[2]] = False
-        fallback, _ = _project(passed[rows][None], u[rows][:, static][None], cap[rows][:, static][None], p.safety_passes)
-        out = passed.copy()
-        out[rows] = np.where(np.isnan(safe), fallback[0], safe)
+        w, n = np.nonzero(~met)
+        out[w, n], _ = limit_closing(out[w, n], u[w, n][:, static], cap[w, n][:, static], p.safety_passes)
         return out
-
-
-_ALLOWED_SLACK = 1e-7  # m/s a candidate may exceed a limit by (rounding)
-
-
-def _project(v: np.ndarray, u: np.ndarray, cap: np.ndarray, passes: int) -> tuple[np.ndarray, np.ndarray]:
-    """v (W, N, 2) m/s with its component along hazard directions u (W, N, H, 2) cut to cap
-    (W, N, H) m/s, one hazard per pass, the one exceeded most first; also the hazard indices
-    (W, N, passes + 1) picked by the passes and the one exceeded most at the end."""
-    picked = []
-    for _ in range(passes + 1):
-        excess = np.einsum("wnhk,wnk->wnh", u, v) - cap
-        worst = np.argmax(excess, axis=-1)[..., None]
-        picked.append(worst)
-        if len(picked) > passes:
-            break
-        amount = np.maximum(np.take_along_axis(excess, worst, -1), 0.0)
-        v = v - amount * np.take_along_axis(u, worst[..., None], 2)[:, :, 0]
-    return v, np.concatenate(picked, axis=-1)
-
-
-def _closest_allowed(v: np.ndarray, u: np.ndarray, cap: np.ndarray, binding: np.ndarray, rounds: int = 3) -> np.ndarray:
-    """The velocity (W, N, 2) m/s nearest to v (W, N, 2) within every limit u . x <= cap
-    (u (W, N, H, 2), cap (W, N, H) m/s), searched among the limits `binding` (W, N, B hazard
-    indices) and, for `rounds` more tries, the limit most exceeded by the best candidate;
-    NaN rows where none is found.
-
-    In the plane the nearest allowed velocity lies where at most two limits bind: it is v
-    itself, v moved onto one limit's line, or the crossing of two lines. Sequential
-    projections alone approach it slowly where two limits meet at a sharp angle (a wall
-    and a teammate on either side): four passes left 0.05 m/s toward the teammate.
-    """
-    for _ in range(rounds + 1):
-        candidates = _candidates(v, u, cap, binding)  # (W, N, C, 2)
-        with np.errstate(invalid="ignore"):
-            over = np.einsum("wnck,wnhk->wnch", candidates, u) - cap[:, :, None]  # (W, N, C, H)
-            worst = np.where(np.isfinite(candidates).all(-1), over.max(-1), np.inf)  # (W, N, C)
-        allowed = worst <= _ALLOWED_SLACK
-        if allowed.any(-1).all():
-            break
-        least = np.argmin(worst, axis=-1)[..., None, None]  # the candidate closest to allowed
-        most_exceeded = np.argmax(np.nan_to_num(np.take_along_axis(over, least, 2)[:, :, 0], nan=-np.inf), -1)
-        binding = np.concatenate([binding, most_exceeded[..., None]], axis=-1)
-    moved = np.where(allowed, np.sum((candidates - v[:, :, None]) ** 2, axis=-1), np.inf)
-    best = np.argmin(moved, axis=-1)[..., None, None]
-    chosen = np.take_along_axis(candidates, best, 2)[:, :, 0]
-    return np.where(allowed.any(-1)[..., None], chosen, np.nan)
-
-
-def _candidates(v: np.ndarray, u: np.ndarray, cap: np.ndarray, binding: np.ndarray) -> np.ndarray:
-    """Velocities (W, N, C, 2) m/s where the nearest allowed one can lie if only the limits
-    `binding` (W, N, B) bind: v, v moved onto each limit's line, each crossing of two lines
-    (NaN where two lines are parallel or a limit is infinite)."""
-    ub = np.take_along_axis(u, binding[..., None], 2)  # (W, N, B, 2)
-    cb = np.take_along_axis(cap, binding, -1)  # (W, N, B)
-    i, j = np.triu_indices(binding.shape[-1], k=1)
-    ui, uj, ci, cj = ub[:, :, i], ub[:, :, j], cb[:, :, i], cb[:, :, j]
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        onto_one = v[:, :, None] - (np.einsum("wnbk,wnk->wnb", ub, v) - cb)[..., None] * ub
-        det = ui[..., 0] * uj[..., 1] - ui[..., 1] * uj[..., 0]
-        det = np.where(np.abs(det) > 1e-9, det, np.nan)
-        crossing = np.stack([(ci * uj[..., 1] - cj * ui[..., 1]) / det, (ui[..., 0] * cj - uj[..., 0] * ci) / det], -1)
-    return np.concatenate([v[:, :, None], onto_one, crossing], axis=2)
 
 
 class Shielded:
@@ -393,15 +320,3 @@ def shield_policy(policy: Policy, config, params: ShieldParams | None = None) ->
     if getattr(policy, "has_shield", False):
         return policy
     return Shielded(policy, SafetyShield.from_config(config, params))
-
-
-def unit(v: np.ndarray) -> np.ndarray:
-    """Unit vectors along the last axis (..., 2); zero where v is (near) zero."""
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return np.where(n > _TINY, v / np.maximum(n, _TINY), 0.0)
-
-
-def clip_unit(a: np.ndarray) -> np.ndarray:
-    """Scale (..., 2) down to at most unit norm (direction kept), so both axes lie in [-1, 1]."""
-    n = np.linalg.norm(a, axis=-1, keepdims=True)
-    return a / np.maximum(n, 1.0)

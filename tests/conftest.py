@@ -44,3 +44,11 @@ def make_physics(fidelity: str = "quadrotor", n_worlds: int = 1, layout: Layout 
 @pytest.fixture(scope="session")
 def big_open_layout() -> Layout:
     return open_layout()
+
+
+def nearest_allowed_on_a_grid(want: np.ndarray, dirs: np.ndarray, caps: np.ndarray, step: float = 0.001) -> float:
+    """Distance (m/s) from `want` to the nearest velocity on a 1 mm/s grid within every limit."""
+    axis = np.arange(-0.4, 0.4 + step / 2, step)
+    grid = np.stack(np.meshgrid(axis, axis), -1).reshape(-1, 2)
+    ok = np.all(grid @ dirs.T <= caps, axis=1)
+    return float(np.min(np.linalg.norm(grid[ok] - want, axis=1)))

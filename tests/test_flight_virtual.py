@@ -17,7 +17,7 @@ from flight_rehearsal import FAST, fly_virtual, kinds_in_order, quick_spec, wait
 from pursuit_cli import main
 from pursuit_mj.flight.board import StateBoard
 from pursuit_mj.flight.events import read_events
-from pursuit_mj.flight.frames import rotate
+from pursuit_mj.planar import rotate
 from pursuit_mj.flight.links import CachedFactory, LinkSet
 from pursuit_mj.flight.observe import EvaderPilot, FlightObserver
 from pursuit_mj.flight.plan import load_plan, resolve_flight
@@ -25,7 +25,7 @@ from pursuit_mj.flight.spec import flight_from_dict
 from pursuit_mj.flight.virtual import commander as cmd
 from pursuit_mj.flight.virtual.fleet import VirtualFleet
 from pursuit_mj.heuristic import HeuristicTeam
-from pursuit_mj.physics import clip_speed
+from pursuit_mj.planar import clip_norm
 from pursuit_mj.recording.rrd_read import read_entities
 
 
@@ -126,7 +126,7 @@ def _replay_pursuers(plan, result):
         observer.update_captures(pos[:N], pos[N:])
         obs = observer.observe(pos[:N], vel[:N], pos[N:], vel[N:])
         actions = team.act(obs, observer.spec)[0]
-        v_layout = clip_speed(actions * plan.task.pursuer_speed, np.full(N, plan.task.pursuer_speed))
+        v_layout = clip_norm(actions * plan.task.pursuer_speed, plan.task.pursuer_speed)
         v_lab = rotate(v_layout, t.yaw) / t.scale
         out.append((pos, obs[0], actions, rotate(v_lab, -yaws[:N])))
     return out
@@ -194,7 +194,7 @@ def test_fly_virtual_on_the_command_line_writes_its_event_log_and_rerun_file(tmp
         pos, vel = np.array(r["pos"]), np.array(r["vel"])
         observer.update_captures(pos[:3], pos[3:])
         observer.observe(pos[:3], vel[:3], pos[3:], vel[3:])
-        v = clip_speed(pilot.command(observer, pos[3:], vel[3:], pos[:3], vel[:3]), np.full(1, plan.task.evader_speed))
+        v = clip_norm(pilot.command(observer, pos[3:], vel[3:], pos[:3], vel[:3]), plan.task.evader_speed)
         np.testing.assert_allclose(r["wanted"][3], v[0], atol=1e-4)
     assert max(np.linalg.norm(r["wanted"][3]) for r in steps) > 0.1
     entities = read_entities(tmp_path / "f.rrd")

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from pursuit_cli import main
+from conftest import nearest_allowed_on_a_grid
 from pursuit_mj.config import default_config
 from pursuit_mj.env import PursuitEnv
 from pursuit_mj.evaluation import run_episodes
@@ -259,14 +260,6 @@ def limits_of(obs: np.ndarray, pursuer: int = 0) -> tuple[np.ndarray, np.ndarray
             dirs.append([dx / d, dy / d])
             caps.append(0.5 * rate * (d - 0.2 - buffer))
     return np.array(dirs), np.array(caps)
-
-
-def nearest_allowed_on_a_grid(want: np.ndarray, dirs: np.ndarray, caps: np.ndarray, step: float = 0.001) -> float:
-    """Distance (m/s) from `want` to the nearest velocity on a 1 mm/s grid within every limit."""
-    axis = np.arange(-0.4, 0.4 + step / 2, step)
-    grid = np.stack(np.meshgrid(axis, axis), -1).reshape(-1, 2)
-    ok = np.all(grid @ dirs.T <= caps, axis=1)
-    return float(np.min(np.linalg.norm(grid[ok] - want, axis=1)))
 
 
 def test_limits_meeting_at_a_sharp_angle_all_hold():

@@ -20,8 +20,8 @@ from pursuit_mj.configio import build
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policy import Policy
 from pursuit_mj.policies import make_policy
-from pursuit_mj.residual import ResidualTeam
-from pursuit_mj.shield import shield_policy
+from pursuit_mj.residual import acting_team
+from pursuit_mj.shield import SafetyShield
 
 from .checkpoint import check_obs_spec, load_checkpoint
 from .config import NetConfig, ResidualConfig
@@ -161,5 +161,4 @@ def trained_team(actor: Policy, task: TaskConfig, shield: bool, residual: Residu
         base = BeliefTeam(actor.belief)  # the belief is that team's memory: act from it
     else:
         base = base_team(residual, task)
-    policy = actor if base is None else ResidualTeam(base, actor, residual.scale)
-    return shield_policy(policy, task) if shield else policy
+    return acting_team(actor, base, residual.scale, SafetyShield.from_config(task) if shield else None)

@@ -11,7 +11,7 @@ from pursuit_mj.belief import Belief, BeliefEnv, BeliefTeam
 from pursuit_mj.env import PursuitEnv
 from pursuit_mj.policies import make_policy
 from pursuit_mj.policy import Policy
-from pursuit_mj.residual import combine
+from pursuit_mj.residual import acting_team
 from pursuit_mj.shield import SafetyShield
 
 from .agent import ActorCritic
@@ -122,35 +122,45 @@ class ActionPath:
     """What the env is stepped with, from the actor's samples (W, N, 2) and the observations
     (W, N, D) they answer: the samples clipped to [-1, 1]; with a `base` team (residual
     learning, pursuit_mj.residual) its actions plus `scale` x the samples; then, with a
-    `shield` (pursuit_mj.shield.SafetyShield), shielded. Base and shield keep per-world memory:
+    `shield` (pursuit_mj.shield.SafetyShield), shielded. The same `acting_team` a trained
+    model is loaded into, around the samples. Base and shield keep per-world memory:
     `forget_ended` clears it for worlds whose episode ended.
     """
 
-    def __init__(self, shield=None, base=None, scale: float = 1.0):
+    def __init__(self, shield: SafetyShield | None = None, base: Policy | None = None, scale: float = 1.0):
         self.shield = shield
         self.base = base
-        self.scale = scale
-
-    def _memories(self) -> list:
-        return [m for m in (self.shield, self.base) if m is not None]
+        self._samples = Samples()
+        self.team = acting_team(self._samples, base, scale, shield)
 
     def reset(self, n_worlds: int) -> None:
-        for memory in self._memories():
-            memory.reset(n_worlds)
+        self.team.reset(n_worlds)
 
     def __call__(self, action: torch.Tensor, obs: torch.Tensor, spec) -> np.ndarray:
-        a = action.clamp(-1.0, 1.0).numpy()
-        if self.base is None and self.shield is None:
-            return a
-        o = obs.numpy()
-        if self.base is not None:
-            a = combine(self.base.act(o, spec), a, self.scale)
-        return a if self.shield is None else self.shield.shield_actions(a, o, spec)
+        self._samples.actions = action.clamp(-1.0, 1.0).numpy()
+        if self.team is self._samples:
+            return self._samples.actions
+        return self.team.act(obs.numpy(), spec)
 
     def forget_ended(self, ended: np.ndarray) -> None:
         """Reset the memory of worlds whose episode ended (W,) bool."""
-        for memory in self._memories():
-            forget_ended(memory, ended)
+        forget_ended(self.team, ended)
+
+
+class Samples:
+    """A `Policy` that acts with the actions (W, N, 2) last put in `actions`: the actor's
+    samples of this decision step, as the actor inside an `ActionPath`."""
+
+    name = "actor"
+
+    def __init__(self):
+        self.actions: np.ndarray | None = None
+
+    def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
+        pass
+
+    def act(self, obs: np.ndarray, spec) -> np.ndarray:
+        return self.actions
 
 
 def forget_ended(memory, ended: np.ndarray) -> None:

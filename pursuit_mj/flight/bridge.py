@@ -32,7 +32,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..physics import clip_speed
+from ..planar import clip_norm
 from ..policy import Policy
 from .board import BoardSnapshot, StateBoard
 from .events import EventLog
@@ -446,11 +446,11 @@ class FlightBridge:
             raise ValueError(f"policy {getattr(self.policy, 'name', '?')}: expected finite actions of shape (1, {N}, 2), got {actions.shape}")
         actions = np.clip(actions, -1.0, 1.0)[0]
         wanted = np.zeros((plan.n_drones, 2))
-        wanted[:N] = clip_speed(actions * task.pursuer_speed, np.full(N, task.pursuer_speed))
+        wanted[:N] = clip_norm(actions * task.pursuer_speed, task.pursuer_speed)
         flown = plan.flown_evaders & ~observer.captured[0]
         if flown.any():
             ev = pilot.command(observer, pos[N:], vel[N:], pos[:N], vel[:N])
-            wanted[N:] = np.where(flown[:, None], clip_speed(ev, np.full(len(ev), task.evader_speed)), 0.0)
+            wanted[N:] = np.where(flown[:, None], clip_norm(ev, task.evader_speed), 0.0)
         return obs, actions, plan.transform.velocity_to_lab(wanted)
 
     def _guard(self, wanted: np.ndarray, pos_lab: np.ndarray, vel_lab: np.ndarray):

@@ -17,19 +17,13 @@ import math
 
 import numpy as np
 
+from ..planar import rotate
+
 
 def rotation(angle: float | np.ndarray) -> np.ndarray:
     """2D rotation matrices (..., 2, 2) for angles (...) rad."""
     c, s = np.cos(angle), np.sin(angle)
     return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
-
-
-def rotate(v: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
-    """Rotate planar vectors (..., 2) counter-clockwise by angle (...) or a scalar, rad."""
-    c, s = np.cos(angle), np.sin(angle)
-    c, s = np.asarray(c)[..., None], np.asarray(s)[..., None]
-    x, y = v[..., 0:1], v[..., 1:2]
-    return np.concatenate([c * x - s * y, s * x + c * y], -1)
 
 
 @dataclasses.dataclass(frozen=True)

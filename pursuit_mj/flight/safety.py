@@ -1,7 +1,7 @@
 """Safety filters on the velocity commands of every drone at once (lab frame, m and m/s).
 
 Each filter returns the filtered commands (D, 2) and which drones it changed (D,) bool:
-- `clamp_speed`: no command faster than the limit (the simulator's own `clip_speed`);
+- `clamp_speed`: no command faster than the limit;
 - `Fence`: the arena minus a margin, and the virtual obstacles. A drone may approach the
   fence only as fast as it can stop within `lookahead` seconds before the margin; inside
   the margin it is pushed back out. So a drone about to leave brakes and holds at the
@@ -16,35 +16,23 @@ import numpy as np
 
 from ..geometry import border_distance, inside_boundary, obstacle_distance
 from ..layout import Layout
-from ..physics import clip_speed
-from .frames import LabTransform, rotate
+from ..planar import clip_norm, limit_closing, rotate
+from .frames import LabTransform
 
 _EPS = 1e-3  # m (layout frame): finite-difference step of the clearance gradient
 
 
 def clamp_speed(v: np.ndarray, max_speed: float) -> tuple[np.ndarray, np.ndarray]:
     """Commands (D, 2) m/s scaled down to at most max_speed, keeping direction."""
-    out = clip_speed(v, np.full(v.shape[:-1], max_speed))
+    out = clip_norm(v, max_speed)
     return out, np.linalg.norm(v, axis=-1) > max_speed * (1 + 1e-9)
 
 
-def _limit_closing(v: np.ndarray, directions: np.ndarray, limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Project v (D, 2) so that v . u <= limit for every hazard direction u (D, H, 2), limit (D, H).
-
-    A few passes on the worst violation each; returns (v, changed (D,)).
-    """
-    changed = np.zeros(v.shape[0], bool)
-    for _ in range(3):
-        excess = np.einsum("dhk,dk->dh", directions, v) - limits
-        worst = np.argmax(excess, axis=-1)
-        amount = np.take_along_axis(excess, worst[:, None], -1)[:, 0]
-        hit = amount > 1e-9
-        if not hit.any():
-            break
-        changed |= hit
-        u = directions[np.arange(len(v)), worst]
-        v = v - np.where(hit, amount, 0.0)[:, None] * u
-    return v, changed
+def _capped(v: np.ndarray, directions: np.ndarray, limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(v (D, 2) with v . u <= limit for every hazard direction u (D, H, 2), limit (D, H)
+    where that is possible (planar.limit_closing), changed (D,) bool)."""
+    out, _ = limit_closing(v, directions, limits, passes=3)
+    return out, np.any(np.abs(out - v) > 1e-12, axis=-1)
 
 
 class Fence:
@@ -88,7 +76,7 @@ class Fence:
         c = self.clearance(p_lab)
         toward = -self.normal(p_lab)[:, None, :]  # (D, 1, 2): the way to the fence
         limit = ((c - self.margin) / self.lookahead)[:, None]
-        v, braking = _limit_closing(v, toward, limit)
+        v, braking = _capped(v, toward, limit)
         return v, braking, c
 
     def breached(self, p_lab: np.ndarray) -> np.ndarray:
@@ -111,7 +99,7 @@ def separate(v: np.ndarray, p_lab: np.ndarray, min_separation: float, lookahead:
     share = np.where(movable[None, :], 0.5, 1.0)
     limit = share * (dist - min_separation) / lookahead
     limit = np.where(np.eye(D, dtype=bool), np.inf, limit)
-    out, changed = _limit_closing(v, u, limit)
+    out, changed = _capped(v, u, limit)
     out = np.where(movable[:, None], out, v)
     return out, changed & movable
 

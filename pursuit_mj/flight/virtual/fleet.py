@@ -27,7 +27,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..frames import rotate
+from ...planar import rotate
 from ..plan import FlightPlan
 from . import commander as cmd
 from .airframe import Airframe

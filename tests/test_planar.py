@@ -1,0 +1,67 @@
+"""Planar maths: the closing-speed limiter finds the nearest allowed velocity, and says when there is none."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from conftest import nearest_allowed_on_a_grid
+from pursuit_mj.planar import clip_norm, clip_unit, limit_closing, rotate, unit
+
+
+def test_the_limiter_keeps_every_cap_wherever_that_is_possible():
+    rng = np.random.default_rng(0)
+    axis = np.linspace(-0.4, 0.4, 201)
+    grid = np.stack(np.meshgrid(axis, axis), -1).reshape(-1, 2)  # velocities (G, 2) m/s
+    solved = 0
+    for _ in range(60):
+        n_caps = rng.integers(1, 5)
+        angles = rng.uniform(0, 2 * np.pi, n_caps)
+        dirs = np.stack([np.cos(angles), np.sin(angles)], -1)  # (H, 2)
+        caps = rng.uniform(-0.1, 0.2, n_caps)  # m/s
+        want = rng.uniform(-0.3, 0.3, 2)
+        out, met = limit_closing(want[None], dirs[None], caps[None])
+        if np.all(grid @ dirs.T <= caps, axis=1).any():  # some velocity keeps them all
+            assert met[0]
+            assert np.all(dirs @ out[0] <= caps + 1e-7)
+            solved += 1
+    assert solved >= 30  # the test means something: most draws have an answer
+
+
+def test_two_caps_at_a_sharp_angle_get_the_nearest_velocity_within_both():
+    # a 30 deg wedge between "back off 0.04 m/s" and "at most 0.005 m/s": projections
+    # alternate between the two and converge slowly; the exact answer is their crossing
+    a, b = np.radians(194.0), np.radians(64.0)
+    dirs = np.array([[np.cos(a), np.sin(a)], [np.cos(b), np.sin(b)]])
+    caps = np.array([-0.04, 0.005])
+    want = 0.3 * np.array([np.cos(np.radians(163.0)), np.sin(np.radians(163.0))])
+    out, met = limit_closing(want[None], dirs[None], caps[None], passes=4)
+    assert met[0]
+    np.testing.assert_allclose(dirs @ out[0], caps, atol=1e-9)  # both bind
+    assert np.linalg.norm(out[0] - want) <= nearest_allowed_on_a_grid(want, dirs, caps) + 1e-9
+
+
+def test_conflicting_caps_are_reported_and_zero_directions_ignored():
+    toward_and_away = np.array([[[1.0, 0.0], [-1.0, 0.0]]])  # (1, 2, 2)
+    out, met = limit_closing(np.array([[0.3, 0.1]]), toward_and_away, np.array([[-0.1, -0.1]]))
+    assert not met[0]  # both ways away at 0.1 m/s: impossible
+    out, met = limit_closing(np.array([[0.3, 0.1]]), np.array([[[0.0, 0.0], [1.0, 0.0]]]), np.array([[-0.5, 0.1]]))
+    assert met[0]
+    np.testing.assert_allclose(out[0], [0.1, 0.1])  # the direction-less cap counted for nothing
+
+
+def test_leading_dimensions_are_kept_and_safe_velocities_pass_unchanged():
+    v = np.zeros((2, 3, 2))
+    v[..., 0] = -0.2  # away from the one hazard, to the +x side
+    u = np.zeros((2, 3, 1, 2))
+    u[..., 0] = 1.0
+    out, met = limit_closing(v, u, np.full((2, 3, 1), 0.05))
+    assert out.shape == (2, 3, 2) and met.shape == (2, 3) and met.all()
+    np.testing.assert_array_equal(out, v)
+
+
+def test_small_vector_helpers():
+    np.testing.assert_allclose(unit(np.array([[3.0, 4.0], [0.0, 0.0]])), [[0.6, 0.8], [0.0, 0.0]])
+    np.testing.assert_allclose(rotate(np.array([1.0, 0.0]), np.pi / 2), [0.0, 1.0], atol=1e-15)
+    np.testing.assert_allclose(clip_norm(np.array([[0.6, 0.8], [0.3, 0.0]]), 0.5), [[0.3, 0.4], [0.3, 0.0]])
+    once = clip_unit(np.array([[3.0, 4.0], [0.2, -0.9]]))
+    np.testing.assert_array_equal(clip_unit(once), once)  # clipping twice changes nothing, bit for bit
