@@ -145,9 +145,18 @@ def run_episodes(
     if isinstance(n_worlds, bool) or not isinstance(n_worlds, (int, np.integer)) or n_worlds < 1:
         raise ValueError(f"worlds: expected an integer >= 1, got {n_worlds!r}")
     W = int(min(n_worlds, episodes))
-    seeds = episode_seeds(seed, int(episodes))
     env = PursuitEnv(config, n_worlds=W, seed=seed, auto_reset=False)
-    watcher = watch(env) if watch is not None else None
+    return play(env, policy, episode_seeds(seed, int(episodes)), on_episode, watch(env) if watch is not None else None)
+
+
+def play(env: PursuitEnv, policy: Policy, seeds: np.ndarray, on_episode: Callable[[EpisodeRecord], None] | None = None,
+         watcher: Watcher | None = None) -> list[EpisodeRecord]:
+    """Episode k with seed seeds[k] (K,), for every k, in the worlds of `env` (auto_reset off);
+    the `run_episodes` contract for an env the caller keeps (validation replays the same
+    episodes in one env, its models built once)."""
+    episodes, W = len(seeds), env.n_worlds
+    if env.auto_reset or W > episodes:
+        raise ValueError(f"play: needs an env without auto_reset and at most {episodes} worlds, got {W}")
     obs = env.reset(seeds=seeds[:W])
     running = np.arange(W)  # the episode index k each world runs
     policy.reset(W)
