@@ -41,12 +41,6 @@ class ActorCritic(nn.Module):
             return self.critic(state, obs)
         return self.critic(obs, self.spec)
 
-    def policy_step(self, obs: torch.Tensor, state: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """What a rollout needs per decision step, in one call: (action mean (W, N, 2), action std
-        (W, N, 2), value (W, N) in reward units) from obs (W, N, obs_dim) and, for mappo, state (W, S)."""
-        mean, log_std = self.actor(obs, self.spec)
-        return mean, log_std.exp(), self.world_value(obs, state)
-
     def world_value(self, obs: torch.Tensor, state: torch.Tensor | None) -> torch.Tensor:
         """Values (W, N) in reward units of obs (W, N, obs_dim); state (W, S) is one per world (mappo)."""
         if state is not None:

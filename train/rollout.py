@@ -90,12 +90,12 @@ class Collector:
         term_sums: dict[str, float] = {}
         for t in range(buf.T):
             obs, state = self.obs, self.state
-            mean, std, value = self.model.policy_step(obs, state)
+            mean, log_std = self.model.actor(obs, self.model.spec)
+            std = log_std.exp()
             action = mean + std * torch.randn(mean.shape, generator=self.generator)
             buf.obs[t] = obs
             buf.actions[t] = action
             buf.logp[t] = gaussian_log_prob(mean, std, action).sum(-1)
-            buf.values[t] = value
             if state is not None:
                 buf.states[t] = state
             next_obs, reward, terminated, truncated, info = self.env.step(self.path(action, obs, self.model.spec))
@@ -114,6 +114,11 @@ class Collector:
             self.obs = torch.as_tensor(next_obs)
             self.state = self._state()
         buf.last_value.copy_(self.model.world_value(self.obs, self.state))
+        # the critic once over the whole rollout, not once per step: its values are not needed
+        # to act, and one large product costs a fraction of T small ones
+        T, W = buf.obs.shape[:2]
+        states = buf.states.flatten(0, 1) if self.needs_state else None
+        buf.values.copy_(self.model.world_value(buf.obs.flatten(0, 1), states).view(T, W, -1))
         stats.reward_terms = {k: v / buf.T for k, v in term_sums.items()}
         return stats
 
