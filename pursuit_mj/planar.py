@@ -1,7 +1,8 @@
 """Planar vector maths shared by the escape model, the shield, the heuristic team and flight safety.
 
 Vectors are (..., 2) arrays, x then y, in whatever frame and unit the caller works in (m or
-m/s); every function broadcasts over the leading dimensions.
+m/s); the small helpers broadcast over the leading dimensions, `limit_closing` takes arrays
+whose leading dimensions already agree.
 
 `limit_closing` is the one closing-speed limiter of the project: the safety shield caps a
 pursuer's speed toward walls, teammates and caught evaders with it, and flight safety caps
@@ -70,6 +71,8 @@ def limit_closing(v: np.ndarray, u: np.ndarray, cap: np.ndarray, passes: int = 4
     result and is reported False.
     """
     lead = v.shape[:-1]
+    if u.shape[-2] == 0:  # no hazards
+        return v.copy(), np.ones(lead, bool)
     v2, u2, cap2 = v.reshape(-1, 2), u.reshape(-1, u.shape[-2], 2), cap.reshape(-1, cap.shape[-1])
     cap2 = np.where(np.abs(u2).sum(-1) > EPS, cap2, np.inf)
     passed, binding = _project(v2, u2, cap2, passes)
@@ -116,7 +119,9 @@ def _closest_allowed(v: np.ndarray, u: np.ndarray, cap: np.ndarray, binding: np.
         if allowed.any(-1).all():
             break
         least = np.argmin(worst, axis=-1)  # the candidate closest to allowed
-        most_exceeded = np.argmax(np.nan_to_num(over[rows, least], nan=-np.inf), axis=-1)
+        exceeded = np.nan_to_num(over[rows, least], nan=-np.inf)  # (P, H)
+        exceeded[rows[:, None], binding] = -np.inf  # a cap already in the set adds nothing
+        most_exceeded = np.argmax(exceeded, axis=-1)
         binding = np.concatenate([binding, most_exceeded[:, None]], axis=-1)
     moved = np.where(allowed, np.sum((candidates - v[:, None]) ** 2, axis=-1), np.inf)
     chosen = candidates[rows, np.argmin(moved, axis=-1)]

@@ -241,6 +241,9 @@ def test_the_separation_guard_stops_two_drones_flying_at_each_other():
     # a drone we do not command is a hazard but never moved
     v, changed = separate(np.array([[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]), np.array([[0.0, 0.0], [0.1, 0.0], [5.0, 5.0]]), 0.25, 0.5, np.array([True, False, False]))
     assert v[0, 0] < 0 and v[1, 0] == 0.0
+    # two drones at one spot: no direction to part them along, but the log must say they are too close
+    _, changed = separate(np.array([[0.3, 0.0], [0.0, 0.0]]), np.zeros((2, 2)), 0.5, 0.5, np.array([True, True]))
+    assert changed.all()
 
 
 def test_altitude_speed_holds_the_height_within_the_vertical_limit():

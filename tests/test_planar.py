@@ -1,4 +1,5 @@
-"""Planar maths: the closing-speed limiter finds the nearest allowed velocity, and says when there is none."""
+"""Planar maths: the closing-speed limiter keeps every cap where that is possible (the nearest such
+velocity where the projections fall short), and says when it is not."""
 
 from __future__ import annotations
 
@@ -25,6 +26,26 @@ def test_the_limiter_keeps_every_cap_wherever_that_is_possible():
             assert np.all(dirs @ out[0] <= caps + 1e-7)
             solved += 1
     assert solved >= 30  # the test means something: most draws have an answer
+
+
+def test_many_caps_at_once_are_kept_wherever_possible():
+    # 10-30 caps (a shield sees ~200): the exact solve must not stall on caps it already has
+    # (it once re-added the same cap each round and gave up on rows that had an answer)
+    rng = np.random.default_rng(1)
+    n_rows, n_caps = 300, 20
+    angles = rng.uniform(0, 2 * np.pi, (n_rows, n_caps))
+    dirs = np.stack([np.cos(angles), np.sin(angles)], -1)  # (P, H, 2)
+    caps = rng.uniform(0.0, np.pi, (n_rows, n_caps)) * 0.05  # m/s, all >= 0: standing still is allowed
+    want = rng.uniform(-0.3, 0.3, (n_rows, 2))
+    out, met = limit_closing(want, dirs, caps, passes=0)
+    assert met.all()
+    assert np.all(np.einsum("phk,pk->ph", dirs, out) <= caps + 1e-7)
+    out, met = limit_closing(np.array([[1.0, 1.0]]), np.array([[[1.0, 0.0], [0.0, 1.0]]]), np.zeros((1, 2)), passes=0)
+    assert met[0]
+    np.testing.assert_allclose(out[0], [0.0, 0.0], atol=1e-12)
+    out, met = limit_closing(want[:2], np.zeros((2, 0, 2)), np.zeros((2, 0)))  # no hazards at all
+    np.testing.assert_array_equal(out, want[:2])
+    assert met.all()
 
 
 def test_two_caps_at_a_sharp_angle_get_the_nearest_velocity_within_both():

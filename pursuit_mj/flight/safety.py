@@ -30,9 +30,12 @@ def clamp_speed(v: np.ndarray, max_speed: float) -> tuple[np.ndarray, np.ndarray
 
 def _capped(v: np.ndarray, directions: np.ndarray, limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(v (D, 2) with v . u <= limit for every hazard direction u (D, H, 2), limit (D, H)
-    where that is possible (planar.limit_closing), changed (D,) bool)."""
+    where that is possible (planar.limit_closing), changed (D,) bool: the command moved, or a
+    limit says back off along no direction (two drones at one spot), which no command fixes
+    but the log must show)."""
     out, _ = limit_closing(v, directions, limits, passes=3)
-    return out, np.any(np.abs(out - v) > 1e-12, axis=-1)
+    stuck = np.any((limits < 0) & (np.abs(directions).sum(-1) <= 1e-9), axis=-1)
+    return out, np.any(np.abs(out - v) > 1e-12, axis=-1) | stuck
 
 
 class Fence:
