@@ -34,7 +34,7 @@ from .coverage import CoverageMap, CoverageParams
 from .obs_spec import ObsSpec, named_views
 from .policy import check_observations
 from .planar import clip_unit, unit
-from .shield import MIN_RAYS, SafetyShield, ShieldParams, check_rays
+from .shield import SafetyShield, ShieldParams, check_rays
 
 _TINY = 1e-9
 
