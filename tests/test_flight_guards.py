@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 import time
 
 import numpy as np
@@ -103,3 +104,51 @@ def test_ctrl_c_before_take_off_ends_the_run_and_is_logged(tmp_path):
                     handle_signals=True, confirm=press_ctrl_c_at_the_go_no_go)
     kinds = [json.loads(line)["kind"] for line in (tmp_path / "events.jsonl").read_text().splitlines()]
     assert "takeoff" not in kinds and kinds.index("interrupt") < kinds.index("links_closed")
+
+
+def test_a_log_that_can_no_longer_be_written_or_echoed_does_not_keep_the_drones_from_landing(tmp_path):
+    """A full disk under the event log and a closed pipe under its echo (`fly ... | tee`,
+    then Ctrl-C) used to raise out of the flight loop before the landing."""
+
+    def break_the_log(fleet, bridge):
+        time.sleep(0.3)
+        bridge.events._file = open("/dev/full", "a")  # what a full disk does to the next write
+
+        def closed_pipe(record):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        bridge.events.echo = closed_pipe
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=1.5), ScriptedTeam([[0.0, 0.0]]), tmp_path, during=break_the_log)
+    assert result.outcome == "timeout" and result.landed
+    assert kinds_in_order(events, "chase", "end_of_run", "land", "landed")  # every record kept in memory
+    assert len(events.failures) == 2 and "events.jsonl" in events.failures[0] and "Broken pipe" in events.failures[1]
+    assert down(fleet)
+
+
+def test_ctrl_backslash_cuts_the_motors_from_another_thread_than_the_signal_handler(tmp_path):
+    """The handler runs on the main thread, which may be inside a link's send holding its lock:
+    cutting the motors there could wait on that lock for ever."""
+    from pursuit_mj.flight.bridge import FlightBridge
+
+    cut_on = []
+    real = FlightBridge._cut_motors
+
+    def record_thread(self):
+        cut_on.append(threading.current_thread().name)
+        real(self)
+
+    def send(fleet, bridge):
+        time.sleep(0.3)
+        os.kill(os.getpid(), signal.SIGQUIT)
+
+    FlightBridge._cut_motors = record_thread
+    try:
+        result, events, fleet = fly_virtual(quick_plan(max_time=8.0), ScriptedTeam([[0.0, 0.0]]), tmp_path, during=send,
+                                            handle_signals=True)
+    finally:
+        FlightBridge._cut_motors = real
+    assert result.outcome == "emergency_stop" and not result.landed
+    assert cut_on[0] == "emergency-stop"  # first from its own thread, then once more from the flight's
+    assert events.of_kind("emergency_stop")[0]["reason"] == "Ctrl-\\ pressed"
+    assert wait_for(lambda: not fleet.true_state()["motors"].any(), 1.0)

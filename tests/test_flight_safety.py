@@ -113,3 +113,46 @@ def test_a_drained_battery_lands_that_drone_and_ends_the_run(tmp_path):
     assert low["drone"] == "e0" and low["vbat"] < 3.3
     assert "e0" in events.of_kind("land")[0]["drones"]
     assert down(fleet)
+
+
+def test_a_diverged_estimate_lands_everyone_instead_of_flying_on_nan(tmp_path):
+    """NaN compares false with every limit: it passed each abort check and reached the radio."""
+    from pursuit_mj.flight.board import StateBoard
+    from pursuit_mj.flight.bridge import FlightBridge, _Abort
+    from pursuit_mj.flight.events import EventLog
+
+    plan = quick_plan()
+    bridge = FlightBridge(plan, HOVER, EventLog(), handle_signals=False)
+    board = StateBoard(plan.n_drones)
+    for i in range(plan.n_drones):
+        value = float("nan") if i == 1 else 0.5
+        board.on_state(i, {f"stateEstimate.{k}": value for k in ("x", "y", "z", "vx", "vy", "vz")})
+        for _ in range(5):
+            board.on_health(i, {"pm.vbat": 4.0, "kalman.varPX": 1e-4, "kalman.varPY": 1e-4, "kalman.varPZ": 1e-4})
+    bridge.board, bridge._airborne = board, True
+    with pytest.raises(_Abort) as stop:
+        bridge._check_abort(board.snapshot(), bridge.clock())
+    assert stop.value.outcome == "stale" and plan.names[1] in stop.value.reason and "not a number" in stop.value.reason
+
+
+def test_links_are_closed_when_connecting_fails_after_they_opened(tmp_path):
+    from pursuit_mj.flight.board import StateBoard
+    from pursuit_mj.flight.links import CachedFactory, LinkSet
+    from pursuit_mj.flight.virtual.fleet import VirtualFleet
+    from flight_rehearsal import FAST
+
+    made = []
+
+    class StalledParameters(CachedFactory):
+        def construct(self, uri):
+            scf = super().construct(uri)
+            scf.is_params_updated = lambda: False  # a parameter download that never ends
+            made.append(scf)
+            return scf
+
+    plan = pair_plan(connect_timeout=1.0)
+    with VirtualFleet(plan, physics=FAST) as fleet:
+        with pytest.raises(LinkError, match="parameter values did not arrive"):
+            with LinkSet(plan.names, fleet.uris, StateBoard(2), StalledParameters(tmp_path / "toc"), 1.0):
+                pass
+        assert len(made) == 2 and not any(scf.is_link_open() for scf in made)

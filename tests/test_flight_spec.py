@@ -13,7 +13,7 @@ from pursuit_mj.configio import ConfigError
 from pursuit_mj.flight.frames import DroneFrames, LabTransform, fit_similarity
 from pursuit_mj.flight.links import CachedFactory
 from pursuit_mj.flight.plan import load_plan, resolve_flight
-from pursuit_mj.flight.safety import Fence, altitude_speed, clamp_speed, separate
+from pursuit_mj.flight.safety import Fence, altitude_speed, clamp_speed, keep_apart_and_inside, separate
 from pursuit_mj.flight.session import parse_fault, run_flight
 from pursuit_mj.flight.spec import flight_from_dict, load_flight
 from pursuit_mj.layout import load_layout
@@ -228,6 +228,35 @@ def test_the_fence_keeps_drones_out_of_virtual_obstacles():
     assert fence.clearance(np.array([[1.0, 1.9]]))[0] == pytest.approx(-0.025)  # inside the wall: negative
 
 
+def test_the_fence_holds_a_drone_sliding_into_a_corner_at_both_margins():
+    """Braking toward the nearest wall alone let a drone sliding along one margin reach the
+    other wall at full speed (to 0.07 m of it, with a 0.2 m margin)."""
+    fence = Fence(load_layout(0), LabTransform(), margin=0.2, lookahead=0.5, breach=0.15)  # border x 0-3.6, y 0-5
+    p = np.array([[1.0, 0.22]])
+    for _ in range(400):
+        v, _, _ = fence.filter(np.array([[-0.7, -0.05]]), p)
+        p = p + v * 0.02
+        assert p[0, 0] > 0.2 - 0.02 and p[0, 1] > 0.2 - 0.02
+    assert p[0] == pytest.approx([0.2, 0.2], abs=0.03)  # held in the corner of the margins
+
+
+def test_fence_and_separation_are_kept_together_not_one_after_the_other():
+    """p0 inside the south margin must back out north, but p1 sits at min_separation to its
+    north-east: the fence alone sends p0 north, toward p1; the joint solve sends it north-west."""
+    fence = Fence(load_layout(0), LabTransform(), margin=0.2, lookahead=0.5, breach=0.15)
+    d = 0.25
+    p = np.array([[1.0, 0.10], [1.0 + d / math.sqrt(2), 0.10 + d / math.sqrt(2)], [1.8, 3.0]])
+    movable = np.array([True, True, False])
+    v, separating, fencing, clearance = keep_apart_and_inside(np.zeros((3, 2)), p, fence, d, 0.5, movable)
+    toward_p1 = (p[1] - p[0]) / d
+    assert float(v[0] @ toward_p1) <= 1e-9  # no closer to p1 ...
+    assert v[0, 1] >= (0.2 - 0.10) / 0.5 - 1e-9  # ... while backing out of the margin as fast as the fence asks
+    assert fencing.tolist() == [True, False, False] and clearance[0] == pytest.approx(0.10)
+    assert v[2].tolist() == [0.0, 0.0]  # not ours: never moved
+    alone, _, _ = fence.filter(np.zeros((3, 2)), p)
+    assert float(alone[0] @ toward_p1) > 0.1  # what applying the fence last did
+
+
 def test_the_separation_guard_stops_two_drones_flying_at_each_other():
     p = np.array([[0.0, 0.0], [1.0, 0.0], [5.0, 5.0]])
     movable = np.array([True, True, False])
@@ -338,3 +367,20 @@ def test_flight_observations_equal_the_simulators_for_the_same_states():
             break
     assert compared >= 10
     assert not np.all(observer.heading == np.pi / 2)  # headings followed the motion, as in the simulator
+
+
+@pytest.mark.parametrize("path, value, words", [
+    (("drones", 0, "start_yaw"), 90.0, "start_yaw"),  # degrees where radians are meant
+    (("transform", "yaw"), -180.0, "yaw"),
+    (("safety", "battery_samples"), 50, "battery_samples"),  # the board keeps 16 readings
+])
+def test_flight_values_out_of_their_range_are_refused_naming_the_key(path, value, words):
+    from flight_rehearsal import QUICK
+
+    data = copy.deepcopy(QUICK)
+    node = data
+    for key in path[:-1]:
+        node = node.setdefault(key, {}) if isinstance(key, str) else node[key]
+    node[path[-1]] = value
+    with pytest.raises(ConfigError, match=words):
+        flight_from_dict(data, "test.yaml")

@@ -40,7 +40,7 @@ from .links import CrazyflieFactory, LinkError, LinkSet
 from .observe import EvaderPilot, FlightObserver
 from .plan import FlightPlan
 from .preflight import PreflightError, preflight
-from .safety import Fence, altitude_speed, clamp_speed, separate
+from .safety import Fence, altitude_speed, clamp_speed, keep_apart_and_inside
 
 STATE_PERIOD = 0.02  # s between state-estimate log packets (50 Hz)
 HEALTH_PERIOD = 0.05  # s between health log packets
@@ -161,6 +161,19 @@ class FlightBridge:
             return
         self._estop.set()
         self._stop.set()
+        self._cut_motors_and_log(reason)
+
+    def _emergency_stop_soon(self, reason: str) -> None:
+        """emergency_stop from a signal handler: the run ends now, the motors are cut from a
+        thread of its own. The handler runs on the main thread, which may be inside a link's
+        send and hold that link's lock."""
+        if self._estop.is_set():
+            return
+        self._estop.set()
+        self._stop.set()
+        threading.Thread(target=self._cut_motors_and_log, args=(reason,), name="emergency-stop", daemon=True).start()
+
+    def _cut_motors_and_log(self, reason: str) -> None:
         self._cut_motors()
         self.events.log("emergency_stop", reason=reason, level="error")
 
@@ -229,14 +242,17 @@ class FlightBridge:
             if not self._in_flight:
                 self._interrupt_reason = reason
                 raise KeyboardInterrupt(reason)
-            self.interrupt(reason)
+            if self._landing:
+                self._emergency_stop_soon(f"second {reason} during the landing")
+            else:
+                self.interrupt(reason)
 
         previous = {sig: signal.getsignal(sig) for sig in (*names, signal.SIGQUIT)}
         for sig in names:
             if sig == signal.SIGHUP and previous[sig] == signal.SIG_IGN:
                 continue  # nohup: the operator asked to outlive the terminal
             signal.signal(sig, on_stop)
-        signal.signal(signal.SIGQUIT, lambda *a: self.emergency_stop("Ctrl-\\ pressed"))
+        signal.signal(signal.SIGQUIT, lambda *a: self._emergency_stop_soon("Ctrl-\\ pressed"))
         try:
             yield
         finally:
@@ -259,15 +275,17 @@ class FlightBridge:
         except KeyboardInterrupt:
             outcome, reason = "interrupted", self._interrupt_reason
         except Exception as exc:
-            self.events.log("error", reason=f"{type(exc).__name__}: {exc}", level="error")
-            self._land_all("error")
+            try:
+                self._land_all("error")  # first: nothing may come between an error and the landing
+            finally:
+                self.events.log("error", reason=f"{type(exc).__name__}: {exc}", level="error")
             raise
         chase_time = self.clock() - chase_start if chase_start is not None else 0.0
         self.events.log("end_of_run", outcome=outcome, reason=reason, chase_time=chase_time, level="info" if outcome == "captured" else "warn")
         landed = False
         if outcome != "emergency_stop" and not self._estop.is_set():
             landed = self._land_all(outcome)
-        else:
+        if outcome == "emergency_stop" or self._estop.is_set():  # also one during the landing
             outcome = "emergency_stop"
             self._cut_motors()  # once more, in case a packet was lost
         return FlightResult(outcome, reason, chase_time, int(observer.captured.sum()), steps, landed)
@@ -381,7 +399,12 @@ class FlightBridge:
             i = int(np.flatnonzero(low)[0])
             self.events.log("low_battery", drone=names[i], vbat=snap.vbat[i, -1], threshold=limits.battery_land, level="error")
             raise _Abort("low_battery", f"battery of {names[i]} at {snap.vbat[i, -1]:.2f} V, below {limits.battery_land:g} V")
-        pos, _ = self._lab_state(snap)
+        pos, vel = self._lab_state(snap)
+        broken = (snap.state_count > 0) & ~(np.isfinite(pos).all(axis=1) & np.isfinite(vel).all(axis=1))
+        if broken.any():  # a NaN passes every comparison below and would reach the commands
+            i = int(np.flatnonzero(broken)[0])
+            self.events.log("stale_land", drone=names[i], reason="estimate not finite", pos=pos[i], vel=vel[i], level="error")
+            raise _Abort("stale", f"the estimate of {names[i]} is not a number (pos {pos[i].tolist()}, vel {vel[i].tolist()})")
         ours = (snap.state_count > 0) & plan.commanded  # targets are flown by someone else
         breach = self.fence.breached(pos[:, :2]) & ours
         if breach.any() and self._airborne:
@@ -416,6 +439,9 @@ class FlightBridge:
         vz = altitude_speed(pos_lab[:, 2], plan.height, plan.safety.altitude_gain, plan.safety.max_vertical_speed)
         sent = np.full((plan.n_drones, 3), np.nan)
         sent[fly] = np.column_stack([plan.frames.velocity_to_drone(v), vz])[fly]
+        unsendable = fly & ~np.isfinite(sent).all(axis=1)  # never a NaN setpoint: hold height instead
+        hover, fly = hover | unsendable, fly & ~unsendable
+        sent[unsendable] = np.nan
         for i, link in enumerate(self.links):
             if fly[i]:
                 link.velocity(sent[i])
@@ -459,8 +485,8 @@ class FlightBridge:
         limits = self.plan.safety
         ahead = pos_lab[:, :2] + vel_lab[:, :2] * (self.plan.dt + limits.response_time)
         v, clamped = clamp_speed(wanted, limits.max_speed)
-        v, separating = separate(v, ahead, limits.min_separation, limits.lookahead, self.plan.commanded)
-        v, fencing, clearance = self.fence.filter(v, ahead)
+        v, separating, fencing, clearance = keep_apart_and_inside(v, ahead, self.fence, limits.min_separation, limits.lookahead,
+                                                                  self.plan.commanded)
         v, clamped_again = clamp_speed(v, limits.max_speed)  # a push back out may be fast
         return v, {"speed_clamped": clamped | clamped_again, "separation": separating, "geofence": fencing}, clearance
 

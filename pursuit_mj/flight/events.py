@@ -3,7 +3,10 @@
 A line is {"t": s since the log opened (monotonic clock), "time": wall-clock ISO 8601 UTC,
 "kind": ..., ...fields}. Lines are appended and flushed one by one (safety events are also
 fsync'ed), so a crash or a power cut leaves every event written before it readable.
-Thread-safe: cflib's threads, key watchers and the flight loop all log here.
+Thread-safe: cflib's threads, key watchers and the flight loop all log here. Logging never
+raises into the flight: a log file that cannot be written (disk full) or an echo that fails
+(a closed pipe or terminal) is reported once on stderr and dropped, and the records stay in
+memory, so a failing log cannot keep the drones from landing.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ from __future__ import annotations
 import datetime
 import json
 import os
+import sys
 import threading
 import time
 from pathlib import Path
@@ -51,8 +55,9 @@ class EventLog:
         self.t0 = clock()
         self.echo = echo
         self.records: list[dict] = []
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # re-entrant: a signal handler may log while the main thread is logging
         self._file = None
+        self.failures: list[str] = []  # what stopped being written, and why
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._file = open(self.path, "a", encoding="utf-8")
@@ -67,13 +72,35 @@ class EventLog:
         with self._lock:
             self.records.append(record)
             if self._file is not None:
-                self._file.write(json.dumps(record) + "\n")
-                self._file.flush()
-                if kind not in ROUTINE:
-                    os.fsync(self._file.fileno())
+                try:
+                    self._file.write(json.dumps(record) + "\n")
+                    self._file.flush()
+                    if kind not in ROUTINE:
+                        os.fsync(self._file.fileno())
+                except (OSError, ValueError) as exc:
+                    self._give_up("file", f"event log {self.path} no longer written ({type(exc).__name__}: {exc})")
         if self.echo is not None and kind not in ROUTINE:
-            self.echo(record)
+            try:
+                self.echo(record)
+            except Exception as exc:  # a closed pipe or terminal: the flight goes on without the echo
+                self._give_up("echo", f"events no longer echoed ({type(exc).__name__}: {exc})")
         return record
+
+    def _give_up(self, what: str, why: str) -> None:
+        """Stop writing the file or the echo after its first failure; say so on stderr if it is there."""
+        if what == "file":
+            file, self._file = self._file, None
+            try:
+                file.close()
+            except (OSError, ValueError):
+                pass
+        else:
+            self.echo = None
+        self.failures.append(why)
+        try:
+            print(f"pursuit-mj fly: {why}; records are kept in memory", file=sys.stderr, flush=True)
+        except (OSError, ValueError):
+            pass
 
     def of_kind(self, *kinds: str) -> list[dict]:
         with self._lock:

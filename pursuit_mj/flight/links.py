@@ -195,6 +195,7 @@ class LinkSet:
         self.board = board
         self.timeout = timeout
         self.links = [DroneLink(i, n, u, factory.construct(u), board) for i, (n, u) in enumerate(zip(names, uris))]
+        self._abandoned = False  # open() ended early: links that come up later are closed at once
 
     def __enter__(self) -> "LinkSet":
         self.open()
@@ -213,8 +214,20 @@ class LinkSet:
         return self.links[i]
 
     def open(self) -> None:
-        """Open every link in parallel; LinkError naming each failed drone if any fails or times out."""
-        threads = []
+        """Open every link in parallel; LinkError naming each failed drone if any fails or times
+        out. Whatever ends it early (a failure, Ctrl-C) closes the links it opened."""
+        threads: list[threading.Thread] = []
+        try:
+            self._open_all(threads)
+        except BaseException:
+            self._abandoned = True  # a link still connecting closes itself once it is up
+            for link, th in zip(self.links, threads):
+                if th.is_alive():
+                    link.abort_open("the flight ended while connecting")
+            self.close()
+            raise
+
+    def _open_all(self, threads: list[threading.Thread]) -> None:
         for link in self.links:
             th = threading.Thread(target=self._open_one, args=(link,), name=f"open-{link.name}", daemon=True)
             th.start()
@@ -228,17 +241,17 @@ class LinkSet:
                 th.join(2.0)
         failed = [l for l in self.links if not l.scf.is_link_open()]
         if failed:
-            self.close()
             raise LinkError("cannot open " + "; ".join(f"drone {l.label}: {l.error or 'link failed'}" for l in failed))
         for link in self.links:
             link.wait_params(max(1.0, deadline - time.monotonic()))
 
-    @staticmethod
-    def _open_one(link: DroneLink) -> None:
+    def _open_one(self, link: DroneLink) -> None:
         try:
             link.open()
         except Exception:  # recorded in link.error, reported by open()
-            pass
+            return
+        if self._abandoned:
+            self._close_one(link)
 
     def close(self) -> None:
         """Close every open link, in parallel (cflib takes up to a second per link); one

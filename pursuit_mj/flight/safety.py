@@ -5,8 +5,11 @@ Each filter returns the filtered commands (D, 2) and which drones it changed (D,
 - `Fence`: the arena minus a margin, and the virtual obstacles. A drone may approach the
   fence only as fast as it can stop within `lookahead` seconds before the margin; inside
   the margin it is pushed back out. So a drone about to leave brakes and holds at the
-  margin, and may still slide along it;
+  margin, and may still slide along it. The nearest surface is one hazard, and a fan of
+  rays finds the others (a second wall in a corner, an obstacle beside the border);
 - `separate`: the same closing-speed limit between drones (half each when both move);
+- `keep_apart_and_inside`: fence and separation solved together (planar.limit_closing), so
+  that neither undoes the other; where no command keeps both, the fence wins;
 - `altitude_speed`: the vertical speed that holds the flight height.
 """
 
@@ -14,12 +17,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import border_distance, inside_boundary, obstacle_distance
+from ..geometry import FAR, border_distance, cast_fan, inside_boundary, obstacle_distance
 from ..layout import Layout
 from ..planar import clip_norm, limit_closing, rotate
 from .frames import LabTransform
 
 _EPS = 1e-3  # m (layout frame): finite-difference step of the clearance gradient
+FENCE_RAYS = 16  # directions of the fan that finds every surface near a drone, not only the nearest
 
 
 def clamp_speed(v: np.ndarray, max_speed: float) -> tuple[np.ndarray, np.ndarray]:
@@ -53,6 +57,8 @@ class Fence:
         self.margin = margin
         self.lookahead = lookahead
         self.breach = breach
+        angles = np.arange(FENCE_RAYS) * (2 * np.pi / FENCE_RAYS)
+        self._fan = np.stack([np.cos(angles), np.sin(angles)], axis=-1)  # (K, 2) layout frame
 
     def clearance(self, p_lab: np.ndarray) -> np.ndarray:
         """(D,) m (lab): distance to the nearest border or obstacle surface; negative outside
@@ -74,11 +80,25 @@ class Fence:
         n = np.linalg.norm(g, axis=-1, keepdims=True)
         return np.where(n > 1e-12, g / np.maximum(n, 1e-12), 0.0)
 
-    def filter(self, v: np.ndarray, p_lab: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(filtered v (D, 2), braking (D,) bool, clearance (D,) m) for commands v at p_lab (D, 2)."""
+    def hazards(self, p_lab: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For drones at p_lab (D, 2): (directions (D, 1 + FENCE_RAYS, 2) unit, lab frame; closing
+        speed limits (D, 1 + FENCE_RAYS) m/s; clearance (D,) m). First the way to the nearest
+        surface, then the rays of a fan that hit something; a drone outside the arena or
+        inside an obstacle has only the first (its way back in crosses a surface)."""
         c = self.clearance(p_lab)
         toward = -self.normal(p_lab)[:, None, :]  # (D, 1, 2): the way to the fence
         limit = ((c - self.margin) / self.lookahead)[:, None]
+        hit = cast_fan(self.transform.to_layout(p_lab), self._fan, self.obstacles)  # (D, K) layout m
+        seen = (c[:, None] > 0) & (hit < FAR / 2)
+        # at most "come no closer" along a ray: a slanted ray's negative limit would demand more
+        # than the way out of the margin, which the nearest surface's limit already sets
+        ray_limit = np.where(seen, np.maximum((hit / self.transform.scale - self.margin) / self.lookahead, 0.0), np.inf)
+        rays = np.broadcast_to(rotate(self._fan, self.transform.yaw), (len(c), FENCE_RAYS, 2))
+        return np.concatenate([toward, rays], axis=1), np.concatenate([limit, ray_limit], axis=1), c
+
+    def filter(self, v: np.ndarray, p_lab: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(filtered v (D, 2), braking (D,) bool, clearance (D,) m) for commands v at p_lab (D, 2)."""
+        toward, limit, c = self.hazards(p_lab)
         v, braking = _capped(v, toward, limit)
         return v, braking, c
 
@@ -93,18 +113,48 @@ def separate(v: np.ndarray, p_lab: np.ndarray, min_separation: float, lookahead:
     v (D, 2) m/s, p_lab (D, 2) m, movable (D,) bool: drones whose commands we set (the
     others only count as hazards). Returns (v, changed (D,) bool).
     """
-    D = len(v)
-    if D < 2:
-        return v, np.zeros(D, bool)
+    if len(v) < 2:
+        return v, np.zeros(len(v), bool)
+    u, limit = separation_hazards(p_lab, min_separation, lookahead, movable)
+    out, changed = _capped(v, u, limit)
+    out = np.where(movable[:, None], out, v)
+    return out, changed & movable
+
+
+def separation_hazards(p_lab: np.ndarray, min_separation: float, lookahead: float, movable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(directions (D, D, 2) from each drone to every other, unit, lab; closing speed limits
+    (D, D) m/s, inf for a drone and itself) for drones at p_lab (D, 2): a drone closing on a
+    movable one takes half the room, on one we do not command all of it."""
+    D = len(p_lab)
     delta = p_lab[None, :, :] - p_lab[:, None, :]  # (D, D, 2): from i to j
     dist = np.linalg.norm(delta, axis=-1)
     u = delta / np.maximum(dist, 1e-9)[..., None]
     share = np.where(movable[None, :], 0.5, 1.0)
     limit = share * (dist - min_separation) / lookahead
-    limit = np.where(np.eye(D, dtype=bool), np.inf, limit)
-    out, changed = _capped(v, u, limit)
+    return u, np.where(np.eye(D, dtype=bool), np.inf, limit)
+
+
+def keep_apart_and_inside(v: np.ndarray, p_lab: np.ndarray, fence: Fence, min_separation: float, lookahead: float,
+                          movable: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Commands v (D, 2) m/s for drones at p_lab (D, 2) m kept within the fence's and the
+    separation's closing-speed limits at once: (v, separating (D,) bool, fencing (D,) bool,
+    clearance (D,) m). A flag says the command broke one of that filter's limits (or, for
+    separation, two drones share one spot). Where no command keeps every limit (a drone
+    pressed against the fence by another), the fence's limits alone are kept. Drones not
+    `movable` keep their command and count only as hazards."""
+    u_f, lim_f, clearance = fence.hazards(p_lab)
+    if len(v) < 2:
+        out, fencing = _capped(v, u_f, lim_f)
+        return out, np.zeros(len(v), bool), fencing, clearance
+    u_s, lim_s = separation_hazards(p_lab, min_separation, lookahead, movable)
+    out, met = limit_closing(v, np.concatenate([u_f, u_s], axis=1), np.concatenate([lim_f, lim_s], axis=1), passes=3)
+    if not met.all():
+        fence_only, _ = limit_closing(v, u_f, lim_f, passes=3)
+        out = np.where(met[:, None], out, fence_only)
     out = np.where(movable[:, None], out, v)
-    return out, changed & movable
+    _, fencing = _capped(v, u_f, lim_f)
+    _, separating = _capped(v, u_s, lim_s)
+    return out, separating & movable, fencing & movable, clearance
 
 
 def altitude_speed(z: np.ndarray, height: float, gain: float, max_vz: float) -> np.ndarray:

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from ..configio import ConfigError, build, load_yaml, spec
+from .board import HISTORY
 
 ROLES = ("pursuer", "evader", "target")
 POSITIONING = ("flow", "lighthouse", "loco")
@@ -66,7 +67,8 @@ class DroneSpec:
     uri: str = spec(help="cflib URI, e.g. radio://0/80/2M/E7E7E7E701 or udp://127.0.0.1:19850")
     role: str = spec(choices=ROLES, help="pursuer | evader (escape model) | target (only tracked)")
     start: tuple[float, float] = spec(help="take-off spot [x, y] in the lab frame (m)")
-    start_yaw: float = spec(0.0, help="heading at the start spot in the lab frame (rad); flow-deck estimates rotate by it")
+    start_yaw: float = spec(0.0, lo=-2 * math.pi, hi=2 * math.pi,
+                            help="heading at the start spot in the lab frame (rad, not degrees); flow-deck estimates rotate by it")
     name: str = spec("", help="a label for logs; default role + index")
 
     def validate(self, source: str) -> None:
@@ -78,7 +80,7 @@ class TransformSpec:
     """lab -> layout: layout = scale * R(-yaw) (lab - origin). See frames.py."""
 
     origin: tuple[float, float] = spec((0.0, 0.0), help="the layout's lower-left corner in lab coordinates (m)")
-    yaw: float = spec(0.0, help="angle of the layout's x axis in the lab frame (rad, counter-clockwise)")
+    yaw: float = spec(0.0, lo=-2 * math.pi, hi=2 * math.pi, help="angle of the layout's x axis in the lab frame (rad, not degrees; counter-clockwise)")
     scale: float = spec(1.0, lo=0.0, lo_open=True, help="layout metres per lab metre")
 
     def validate(self, source: str) -> None:
@@ -116,7 +118,7 @@ class SafetyLimits:
     link_timeout: float = spec(1.0, lo=0.05, help="nothing heard from a drone for this long: link lost, everyone lands (s)")
     battery_takeoff: float = spec(3.8, lo=2.5, hi=4.4, help="refuse to take off below this battery voltage (V)")
     battery_land: float = spec(3.3, lo=2.5, hi=4.4, help="in flight below this voltage the drone lands and the run ends (V)")
-    battery_samples: int = spec(3, lo=1, hi=100, help="consecutive low readings before the low-battery landing")
+    battery_samples: int = spec(3, lo=1, hi=HISTORY, help=f"consecutive low readings before the low-battery landing (the board keeps {HISTORY})")
     estimator_variance: float = spec(1e-3, lo=0.0, lo_open=True, help="kalman.varPX/PY/PZ must be steady within this and, for Lighthouse/Loco, below it (m^2)")
     estimator_timeout: float = spec(10.0, lo=0.1, help="wait this long for the estimators to converge (s)")
     start_tolerance: float = spec(0.3, lo=0.0, lo_open=True, help="Lighthouse/Loco: a drone's estimate must be this close to its start (m)")
