@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 from pathlib import Path
 
@@ -15,9 +16,17 @@ def steps_arg(text: str) -> int:
         value = float(text.replace("_", ""))
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number of steps") from None
-    if value < 1 or value != int(value):
+    if not math.isfinite(value) or value < 1 or value != int(value):
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of steps >= 1")
     return int(value)
+
+
+def minutes_arg(text: str) -> float:
+    """A training time limit in minutes: finite, >= 0 (0: none)."""
+    value = finite_float(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of minutes >= 0 (0: no limit)")
+    return value
 
 
 def register(sub) -> None:
@@ -43,7 +52,7 @@ def register(sub) -> None:
                    help="override any train key, e.g. ppo.lr=1e-4, task.fidelity=point, run.validate_every=5")
     p.add_argument("--name", help="run name (folder under runs/)")
     p.add_argument("--total-steps", type=steps_arg, help="world decision steps to train for (e.g. 2e6)")
-    p.add_argument("--max-minutes", type=finite_float, help="stop after this much training time (LR decays over it)")
+    p.add_argument("--max-minutes", type=minutes_arg, help="stop after this much training time (LR decays over it)")
     p.add_argument("--n-envs", type=int, help="worlds stepped together")
     p.add_argument("--seed", type=int, help="seed of networks, sampling and episodes")
     p.add_argument("--fidelity", choices=("point", "quadrotor"), help="physics fidelity (task.fidelity)")

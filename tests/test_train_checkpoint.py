@@ -77,6 +77,18 @@ def test_ctrl_c_saves_the_last_consistent_update(tmp_path, monkeypatch, overlap)
     assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2, 3, 4, 5]
 
 
+class _RunsACommand:
+    """Pickles as a call of os.system: what a malicious checkpoint would hold."""
+
+    def __init__(self, command: str):
+        self.command = command
+
+    def __reduce__(self):
+        import os
+
+        return (os.system, (self.command,))
+
+
 def test_corrupted_and_foreign_checkpoints_are_refused(tmp_path):
     cfg = tiny_config(tmp_path, updates=1)
     Trainer(cfg, log=lambda s: None).train()
@@ -97,6 +109,11 @@ def test_corrupted_and_foreign_checkpoints_are_refused(tmp_path):
     with pytest.raises(ValueError, match="refused: it holds Python objects") as err:
         load_checkpoint(evil)
     assert "weights_only" not in str(err.value)
+    marker = tmp_path / "ran"
+    torch.save({"format": "pursuit-mj-checkpoint", "x": _RunsACommand(f"touch {marker}")}, evil)  # code, not a class
+    with pytest.raises(ValueError, match="refused: it holds Python objects"):
+        load_checkpoint(evil)
+    assert not marker.exists()
     other = tmp_path / "other.pt"
     torch.save({"weights": torch.zeros(3)}, other)
     with pytest.raises(ValueError, match="not a pursuit-mj checkpoint"):

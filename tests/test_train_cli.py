@@ -139,3 +139,14 @@ def test_an_empty_train_config_file_is_refused(tmp_path, capsys):
     empty.write_text("# nothing yet\n")
     assert main(["train", "--config", str(empty), "-sc"]) == 2
     assert "empty.yaml: the file is empty" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flag, value, words", [("--total-steps", "inf", "whole number of steps"),
+                                                ("--total-steps", "1e400", "whole number of steps"),
+                                                ("--max-minutes", "-1", "minutes >= 0")])
+def test_a_step_count_or_time_limit_out_of_range_is_refused_naming_the_flag(flag, value, words, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--config", "classic", flag, value, "-sc"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert flag in err and words in err and "Traceback" not in err

@@ -55,7 +55,7 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
-        if "Unsupported global" in str(exc):  # torch's safe unpickler met a class or function
+        if "unsupported global" in str(exc).lower():  # torch's safe unpickler met a class or function
             raise ValueError(f"checkpoint {path}: refused: it holds Python objects other than tensors and plain "
                              f"data, and checkpoints are read without running stored code") from None
         raise ValueError(f"checkpoint {path}: corrupted (its data does not unpickle)") from None
