@@ -240,3 +240,80 @@ def test_an_interrupted_closing_validation_is_made_good_once(tmp_path, monkeypat
     for _ in range(2):  # the second resume has nothing left to do
         assert Trainer.resume(cfg.run_dir, log=lambda s: None).train()["status"] == "done"
     assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2] and "validation" in rows(cfg.run_dir)[1]
+
+
+def test_a_ctrl_c_at_any_point_of_an_update_neither_loses_nor_repeats_a_metrics_row(tmp_path, monkeypatch):
+    """Three moments the log used to get wrong: while an update's row is being built (the row
+    was lost), and right after a resumed run logged its pending row, while last.pt was being
+    rewritten (the row came twice)."""
+    cfg = tiny_config(tmp_path, updates=4, extra=["run.validate_every=1"])
+    built = {"rows": 0}
+    real_returns = trainer_module._mean_returns
+
+    def ctrl_c_while_building_row_2(episodes):
+        built["rows"] += 1
+        if built["rows"] == 2:
+            raise KeyboardInterrupt
+        return real_returns(episodes)
+
+    monkeypatch.setattr(trainer_module, "_mean_returns", ctrl_c_while_building_row_2)
+    assert Trainer(cfg, log=lambda s: None).train()["status"] == "interrupted"
+    monkeypatch.setattr(trainer_module, "_mean_returns", real_returns)
+    assert [r["update"] for r in rows(cfg.run_dir)] == [1]
+
+    real_validate = Trainer.validate
+    validations = {"n": 0}
+
+    def ctrl_c_in_the_second_validation(self):
+        validations["n"] += 1
+        if validations["n"] == 2:
+            raise KeyboardInterrupt
+        return real_validate(self)
+
+    monkeypatch.setattr(Trainer, "validate", ctrl_c_in_the_second_validation)
+    assert Trainer.resume(cfg.run_dir, log=lambda s: None).train()["status"] == "interrupted"
+    monkeypatch.setattr(Trainer, "validate", real_validate)
+    pending = load_checkpoint(cfg.run_dir / "last.pt")["pending_row"]
+    assert pending and "validation" not in pending
+
+    real_save = trainer_module.save_checkpoint
+    once = {"done": False}
+
+    def ctrl_c_while_writing_last_pt(path, payload):
+        if str(path).endswith("last.pt") and not once["done"]:
+            once["done"] = True
+            raise KeyboardInterrupt
+        return real_save(path, payload)
+
+    monkeypatch.setattr(trainer_module, "save_checkpoint", ctrl_c_while_writing_last_pt)
+    assert Trainer.resume(cfg.run_dir, log=lambda s: None).train()["status"] == "interrupted"
+    monkeypatch.setattr(trainer_module, "save_checkpoint", real_save)
+    assert Trainer.resume(cfg.run_dir, log=lambda s: None).train()["status"] == "done"
+    logged = rows(cfg.run_dir)
+    assert [r["update"] for r in logged] == [1, 2, 3, 4]
+    assert all("validation" in r for r in logged)  # validate_every 1: the re-logged rows were validated too
+
+
+def test_a_ctrl_c_while_best_pt_is_written_leaves_the_counters_naming_the_best_pt_on_disk(tmp_path, monkeypatch):
+    cfg = tiny_config(tmp_path, updates=3, extra=["run.validate_every=1"])
+    real_validate = Trainer.validate
+
+    def better_every_update(self):
+        out = real_validate(self)
+        out["success"] = self.counters.update / 10
+        return out
+
+    real_save = trainer_module.save_checkpoint
+
+    def ctrl_c_writing_best_of_update_2(path, payload):
+        if str(path).endswith("best.pt") and payload["counters"]["update"] == 2:
+            raise KeyboardInterrupt
+        return real_save(path, payload)
+
+    monkeypatch.setattr(Trainer, "validate", better_every_update)
+    monkeypatch.setattr(trainer_module, "save_checkpoint", ctrl_c_writing_best_of_update_2)
+    assert Trainer(cfg, log=lambda s: None).train()["status"] == "interrupted"
+    assert load_checkpoint(cfg.run_dir / "last.pt")["counters"]["best_update"] == 1  # what best.pt holds
+    monkeypatch.setattr(trainer_module, "save_checkpoint", real_save)
+    result = Trainer.resume(cfg.run_dir, total_steps=64, log=lambda s: None).train()
+    assert result["counters"]["best_update"] == 2 and load_checkpoint(cfg.run_dir / "best.pt")["counters"]["update"] == 2

@@ -155,7 +155,9 @@ class Trainer:
         self.counters = Counters(**data["counters"])
         self.generator.set_state(data["rng"]["sampler"])
         torch.set_rng_state(data["rng"]["torch"])
-        MetricsLog(self.run_dir / "metrics.jsonl").truncate_after(self.counters.update)
+        # a row still pending may have reached the log before the run was stopped: it is logged again
+        logged = self.counters.update - (1 if data.get("pending_row") else 0)
+        MetricsLog(self.run_dir / "metrics.jsonl").truncate_after(logged)
         self.log(f"resumed {self.run_dir} at update {self.counters.update} ({self.counters.world_steps} world steps)")
 
     def _init_from(self, path: str) -> None:
@@ -243,8 +245,13 @@ class Trainer:
         c = self.counters
         better = val["success"] > c.best_success or (val["success"] == c.best_success and val["capture_steps"] < c.best_steps)
         if better:
+            before = c.best_success, c.best_steps, c.best_update
             c.best_success, c.best_steps, c.best_update = val["success"], val["capture_steps"], c.update
-            self.save("best.pt")
+            try:
+                self.save("best.pt")
+            except BaseException:  # best.pt was not replaced: the counters must not say it was
+                c.best_success, c.best_steps, c.best_update = before
+                raise
         return better
 
     # ------------------------------------------------------------------ the loop
@@ -316,7 +323,6 @@ class Trainer:
         c.agent_steps += buf.n_transitions
         c.episodes += len(stats.episodes)
         c.seconds += t2 - t0
-        self._consistent = True
         self.recent.extend(stats.episodes)
         row = {
             "update": c.update, "world_steps": c.world_steps, "agent_steps": c.agent_steps, "episodes": c.episodes,
@@ -332,7 +338,15 @@ class Trainer:
         }
         if meta_grad is not None:
             row["gamma_meta_grad"] = meta_grad
+        # from here a checkpoint holds this update, and its row until the row is in the log
+        self._pending_row = row
+        self._consistent = True
         return row
+
+    def _validation_due(self) -> bool:
+        """Whether the update just made is validated: every run.validate_every and the last."""
+        every = self.cfg.run.validate_every
+        return bool(every and self.counters.update % every == 0) or self.progress() >= 1.0
 
     def _logged_validation(self) -> dict:
         """The newest validation in the metrics log ({} if none)."""
@@ -356,6 +370,7 @@ class Trainer:
     def _log_row(self, row: dict, bar, last_val: dict) -> None:
         """Append an update's row to the log (and rerun), then checkpoint on schedule."""
         self.metrics.append(row)
+        self._pending_row = {}
         if self.rerun is not None:
             self.rerun.log(int(row["world_steps"]), row)
         if self.counters.update % self.cfg.run.checkpoint_every == 0:  # after the log: a resume truncates the log to it
@@ -383,18 +398,16 @@ class Trainer:
         last_val = self._logged_validation()  # a resumed run's last one, until this session validates
         status = "done"
         try:
-            if self._pending_row:  # an update whose validation was interrupted: validate it now
-                row, self._pending_row = self._pending_row, {}
-                last_val = self._validate_into(row, bar, last_val)
+            if self._pending_row:  # the last update's row never reached the log (interrupted): log it now
+                row = self._pending_row
+                if "validation" not in row and self._validation_due():
+                    last_val = self._validate_into(row, bar, last_val)
                 self._log_row(row, bar, last_val)
                 self.save()  # last.pt without the pending row: it is in the log now
             while self.progress() < 1.0:
-                row = self.train_one_update()
-                final = self.progress() >= 1.0
-                if (cfg.run.validate_every and c.update % cfg.run.validate_every == 0) or final:
-                    self._pending_row = row
+                row = self.train_one_update()  # pending until _log_row
+                if self._validation_due():
                     last_val = self._validate_into(row, bar, last_val)
-                    self._pending_row = {}
                 self._log_row(row, bar, last_val)
             if self._saved_update != c.update:
                 self.save()
