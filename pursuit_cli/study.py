@@ -37,6 +37,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from pursuit_mj.io_utils import check_writable_folder
     from train.study import StudyPlan, format_timings, run_study
 
     if args.budget_minutes <= 0:
@@ -48,6 +49,7 @@ def run(args) -> int:
     task = task_config_from_args(args)
     layouts = tuple(int(x) if x.strip().isdigit() else x for x in args.layouts)
     out = Path(args.out)
+    check_writable_folder(out, f"--out {out}")
     if out.exists() and any((out / "runs").glob("*/last.pt")):
         raise ValueError(f"--out {out}: already holds study runs; choose another folder")
     plan = StudyPlan(

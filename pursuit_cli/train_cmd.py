@@ -149,8 +149,12 @@ def run(args) -> int:
     from train.trainer import Trainer
 
     if args.export:
+        from pursuit_mj.io_utils import check_writable
         from train.checkpoint import export_actor
 
+        if Path(args.export[1]).is_dir():
+            raise ValueError(f"--export OUT {args.export[1]}: is a folder; give the file to write (e.g. {Path(args.export[1]) / 'policy.pt'})")
+        check_writable(args.export[1], "--export OUT")
         path = export_actor(*args.export)
         print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB, policy only)")
         return 0
@@ -163,8 +167,14 @@ def run(args) -> int:
         if changed:
             raise ValueError(f"--resume {args.resume}: a run continues with its stored config; {', '.join(changed)} "
                              f"cannot change it (only {RESUMABLE_FLAGS} can)")
+        if args.show_config:
+            raise ValueError(f"--resume {args.resume}: -sc/--show-config does not resume; the run's config is in "
+                             f"{Path(args.resume) / 'config.yaml'} (or: pursuit-mj config ...)")
         run_dir = Path(args.resume)
         if run_dir.suffix == ".pt":
+            if run_dir.name != "last.pt":
+                raise ValueError(f"--resume {args.resume}: a run resumes from its last.pt, not {run_dir.name}; "
+                                 f"give the folder ({run_dir.parent}), or start a new run from it with --init-from")
             run_dir = run_dir.parent
         if not run_dir.is_dir():
             raise ValueError(f"--resume {args.resume}: no such run folder")

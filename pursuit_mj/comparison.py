@@ -66,12 +66,22 @@ def pair(row: Row, reference: Row, max_steps: float) -> Paired:
         raise ValueError(f"paired comparison on layout {row.layout}: {row.policy} has {len(a)} episode times and "
                          f"{reference.policy} {len(b)}; both need one per episode of the same table")
     diffs = [x - y for x, y in zip(a, b)]
-    # a success beats a failure; two failures (both at max_steps) tie
-    only_row = sum(x < max_steps <= y for x, y in zip(a, b))
-    only_ref = sum(y < max_steps <= x for x, y in zip(a, b))
+    # a success beats a failure; two failures (both at max_steps) tie. From the outcomes where
+    # the rows carry them: a capture on the very last step costs max_steps too
+    won_a, won_b = _successes(row, max_steps), _successes(reference, max_steps)
+    only_row = sum(x and not y for x, y in zip(won_a, won_b))
+    only_ref = sum(y and not x for x, y in zip(won_a, won_b))
     return Paired(row.policy, reference.policy, row.layout, len(diffs),
                   mean_interval(diffs, (-float(max_steps), float(max_steps))),
                   sum(d < 0 for d in diffs), sum(d > 0 for d in diffs), only_row, only_ref)
+
+
+def _successes(row: Row, max_steps: float) -> list[bool]:
+    """Per episode of `row`: whether it ended in success (from its episode log, else from its
+    capture steps, where a success on the last step cannot be told from a failure)."""
+    if len(row.episode_log) == len(row.capture_steps):
+        return [outcome == "success" for _, outcome, _, _ in row.episode_log]
+    return [x < max_steps for x in row.capture_steps]
 
 
 def pair_table(rows: Sequence[Row], reference: str, max_steps: float) -> list[Paired]:

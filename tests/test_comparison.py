@@ -31,6 +31,14 @@ def test_differences_are_taken_episode_by_episode_and_failures_count_as_max_step
     assert p.verdict == "too few"  # 4 pairs
 
 
+def test_a_capture_on_the_last_step_counts_as_caught_only_by_that_policy():
+    ref = row("heuristic", [("timeout", MAX), ("success", 300)])
+    pol = row("net", [("success", MAX), ("timeout", MAX)])  # caught on the very last step; lost the other
+    p = pair(pol, ref, MAX)
+    assert (p.only_policy, p.only_reference) == (1, 1)
+    assert p.steps.mean == pytest.approx((0 + MAX - 300) / 2)  # the last-step capture costs max_steps, as a failure
+
+
 def test_a_steady_gain_is_called_faster_even_when_the_means_overlap():
     """Episode lengths spread widely (their means' intervals overlap), but the policy is 10 steps
     sooner in every episode: pairing sees it."""

@@ -150,3 +150,22 @@ def test_a_step_count_or_time_limit_out_of_range_is_refused_naming_the_flag(flag
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert flag in err and words in err and "Traceback" not in err
+
+
+def test_flags_that_would_be_ignored_or_end_in_a_traceback_are_refused_naming_them(tmp_path, capsys):
+    base = ["train", "--no-progress", "--name", "r", "--total-steps", "32"] + sets(TINY + [f"run.runs_dir={tmp_path}"])
+    assert main(base) == 0
+    run_dir = tmp_path / "r"
+    (tmp_path / "a_folder").mkdir()
+    (tmp_path / "a_file").write_text("x")
+    for argv, words in (
+        (["train", "--resume", str(run_dir), "-sc"], "does not resume"),
+        (["train", "--resume", str(run_dir / "best.pt")], "resumes from its last.pt, not best.pt"),
+        (["train", "--export", str(run_dir / "best.pt"), str(tmp_path / "a_folder")], "is a folder"),
+        (["study", "--budget-minutes", "1", "--out", str(tmp_path / "a_file")], "not a folder"),
+    ):
+        capsys.readouterr()
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert words in err and "Traceback" not in err, err
+    assert [json.loads(x)["update"] for x in (run_dir / "metrics.jsonl").read_text().splitlines()] == [1]  # nothing resumed
