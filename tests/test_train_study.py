@@ -65,3 +65,11 @@ def test_the_evaluation_is_reserved_by_each_arms_cost_and_short_ones_keep_a_floo
     small = StudyPlan(budget_minutes=3.0, out=Path("x"), eval_task=default_config(), episodes=150)
     episodes, train_minutes = fit_episodes(small, 13.4, 8, 13.4)
     assert episodes == 1 and train_minutes < 0
+
+
+def test_a_train_override_one_arm_refuses_is_found_before_anything_runs(tmp_path, capsys):
+    out = tmp_path / "study"
+    assert main(["study", "--budget-minutes", "30", "--out", str(out), "--train-set", "ppo.learnable_gamma=true"]) == 2
+    err = capsys.readouterr().err
+    assert "--train-set: the imitate arm" in err and "learnable_gamma" in err
+    assert not (out / "runs").exists()  # no arm trained, no evaluation run

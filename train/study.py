@@ -140,8 +140,20 @@ def arm_budget(left_s: float, share: float, shares_left: float, validation_episo
     return max(arm_s - episodes * per_episode, 0.0) / 60.0, episodes
 
 
+def check_train_overrides(plan: StudyPlan) -> None:
+    """Every arm's config with plan.train_overrides, before anything runs: ValueError naming
+    --train-set and the arm that refuses them (found at that arm's start, it cost the earlier arms' time)."""
+    for arm in ARMS:
+        try:
+            cfg = load_train_config([arm.config], ["name=check", "total_steps=1000000000", "task.layout=0", *plan.train_overrides])
+            cfg.check_complete()
+        except ValueError as exc:
+            raise ValueError(f"--train-set: the {arm.name} arm ({arm.config} config) refuses it: {exc}") from None
+
+
 def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
     """Train, evaluate, write the table and charts; returns {'rows', 'timings', 'episodes'}."""
+    check_train_overrides(plan)
     plan.out.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
     t_start = time.perf_counter()
