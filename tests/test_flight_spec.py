@@ -384,3 +384,19 @@ def test_flight_values_out_of_their_range_are_refused_naming_the_key(path, value
     node[path[-1]] = value
     with pytest.raises(ConfigError, match=words):
         flight_from_dict(data, "test.yaml")
+
+
+@pytest.mark.parametrize("changes, words", [
+    ({"name": "../../etc/x"}, "not a plain label"),
+    ({"safety": {"min_separation": 0.0}}, "min_separation"),  # would switch the separation guard off
+    ({"safety": {"link_timeout": 1e6}}, "link_timeout"),  # would never notice a lost link
+    ({"safety": {"breach_distance": 50.0}}, "breach_distance"),
+])
+def test_values_that_would_switch_a_guard_off_or_write_elsewhere_are_refused(changes, words):
+    from flight_rehearsal import QUICK
+
+    data = copy.deepcopy(QUICK)
+    for key, value in changes.items():
+        data[key] = {**data.get(key, {}), **value} if isinstance(value, dict) else value
+    with pytest.raises(ConfigError, match=words):
+        flight_from_dict(data, "test.yaml")

@@ -98,7 +98,7 @@ class RunConfig:
     runs_dir: str = spec("runs", help="parent folder of run folders (runs/<name>/)")
     validate_every: int = spec(10, lo=0, help="updates between validations (0 = only the one every run ends with, which writes best.pt)")
     validation_episodes: int = spec(24, lo=1, hi=10000, help="episodes per validation (fixed seeds)")
-    validation_seed: int = spec(10_000, lo=0, help="first seed of the fixed validation set")
+    validation_seed: int = spec(10_000, lo=0, hi=2**62, help="first seed of the fixed validation set")
     validation_layouts: tuple[int | str, ...] = spec((), help="layouts to validate on (empty: the training layouts)")
     validation_vs_heuristic: bool = spec(True, help="play the validation episodes once with the heuristic team too, and "
                                                     "report every validation paired with it, episode by episode")
@@ -130,7 +130,7 @@ class TrainConfig:
     regime: str = spec("custom", choices=REGIMES, help="label of the reference regime this run follows")
     algo: str = spec("ppo", choices=("ppo", "mappo", "dagger"),
                      help="ppo: per-agent critic; mappo: centralised critic on the global state; dagger: imitate imitation.teacher (a warm start for ppo)")
-    seed: int = spec(0, lo=0, help="seed of networks, sampling and environment resets")
+    seed: int = spec(0, lo=0, hi=2**62, help="seed of networks, sampling and environment resets")
     total_steps: int = spec(1_000_000, lo=1, help="world decision steps to train for (summed over worlds)")
     max_minutes: float = spec(0.0, lo=0.0, help="stop after this much training time (0 = none); the LR decays over whichever ends first")
     n_envs: int = spec(6, lo=1, hi=4096, help="worlds stepped together")

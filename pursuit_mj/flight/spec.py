@@ -108,14 +108,14 @@ class SafetyLimits:
     max_speed: float = spec(0.5, lo=0.0, lo_open=True, hi=2.0, help="horizontal speed limit of every command (m/s)")
     max_vertical_speed: float = spec(0.3, lo=0.0, lo_open=True, hi=1.0, help="vertical speed limit (m/s)")
     geofence_margin: float = spec(0.2, lo=0.0, hi=1.0, help="keep this far inside the arena border and from virtual obstacles (m)")
-    breach_distance: float = spec(0.15, lo=0.0, help="beyond the border or inside an obstacle by more than this: everyone lands (m)")
+    breach_distance: float = spec(0.15, lo=0.0, hi=1.0, help="beyond the border or inside an obstacle by more than this: everyone lands (m)")
     max_altitude: float = spec(1.5, lo=0.2, hi=5.0, help="above this height everyone lands (m)")
-    min_separation: float = spec(0.25, lo=0.0, help="keep drone centres this far apart (m)")
+    min_separation: float = spec(0.25, lo=0.1, hi=10.0, help="keep drone centres this far apart (m)")
     lookahead: float = spec(0.5, lo=0.05, hi=5.0, help="braking horizon of the geofence and separation guard (s)")
     response_time: float = spec(0.3, lo=0.0, hi=2.0, help="how long a drone takes to follow a new command; the guards judge positions this far ahead of its measured motion, plus one decision interval (s)")
-    stale_hover: float = spec(0.3, lo=0.01, help="no fresh estimate for this long: the drone hovers (s)")
-    stale_land: float = spec(1.0, lo=0.02, help="no fresh estimate for this long: everyone lands (s)")
-    link_timeout: float = spec(1.0, lo=0.05, help="nothing heard from a drone for this long: link lost, everyone lands (s)")
+    stale_hover: float = spec(0.3, lo=0.01, hi=5.0, help="no fresh estimate for this long: the drone hovers (s)")
+    stale_land: float = spec(1.0, lo=0.02, hi=10.0, help="no fresh estimate for this long: everyone lands (s)")
+    link_timeout: float = spec(1.0, lo=0.05, hi=10.0, help="nothing heard from a drone for this long: link lost, everyone lands (s)")
     battery_takeoff: float = spec(3.8, lo=2.5, hi=4.4, help="refuse to take off below this battery voltage (V)")
     battery_land: float = spec(3.3, lo=2.5, hi=4.4, help="in flight below this voltage the drone lands and the run ends (V)")
     battery_samples: int = spec(3, lo=1, hi=HISTORY, help=f"consecutive low readings before the low-battery landing (the board keeps {HISTORY})")
@@ -125,7 +125,7 @@ class SafetyLimits:
     connect_timeout: float = spec(10.0, lo=0.1, help="open every link within this time (s)")
     takeoff_speed: float = spec(0.3, lo=0.05, hi=1.0, help="climb speed of the take-off (m/s)")
     landing_speed: float = spec(0.25, lo=0.05, hi=1.0, help="descent speed of the landing (m/s)")
-    height_tolerance: float = spec(0.15, lo=0.01, help="after take-off every drone must be this close to the flight height (m)")
+    height_tolerance: float = spec(0.15, lo=0.01, hi=1.0, help="after take-off every drone must be this close to the flight height (m)")
     settle: float = spec(0.5, lo=0.0, hi=10.0, help="wait this long after a take-off or landing trajectory ends (s)")
     altitude_gain: float = spec(1.5, lo=0.0, hi=10.0, help="vertical speed per metre of height error while chasing (1/s)")
 
@@ -154,6 +154,9 @@ class FlightSpec:
     source: str = spec("<flight>", help="where this spec came from")
 
     def validate(self, source: str) -> None:
+        if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", self.name) or ".." in self.name:
+            raise ConfigError(f"{source}: key 'name': {self.name!r} is not a plain label (letters, digits, _ . -): "
+                              f"it names the default event log file")
         if not self.drones:
             raise ConfigError(f"{source}: key 'drones': the list is empty")
         roles = [d.role for d in self.drones]
