@@ -7,7 +7,10 @@ Run folder (<runs_dir>/<name>/):
     config.yaml    the resolved TrainConfig
 A kill -9 at any moment therefore loses at most the update in flight. Ctrl-C stops at once
 and keeps the last consistent state: `Trainer.resume(run_dir)` continues with the same
-counters, optimiser state and random streams.
+counters, optimiser state and sampling streams (torch's); the environments start afresh,
+seeded from the run's seed and the update they start at (rollout.env_seed), since a world's
+state in mid-episode is not stored. An update's metrics row stays in last.pt until it is in
+metrics.jsonl, so an interrupted run neither loses nor repeats a row.
 """
 
 from __future__ import annotations
