@@ -44,6 +44,8 @@ def run(args) -> int:
         raise ValueError(f"--budget-minutes: expected a positive number, got {args.budget_minutes}")
     if args.episodes < 1:
         raise ValueError(f"--episodes: expected an integer >= 1, got {args.episodes}")
+    if args.worlds < 1:
+        raise ValueError(f"--worlds: expected an integer >= 1, got {args.worlds}")
     if not args.task_files:
         args.task_files = ["reference"]
     task = task_config_from_args(args)

@@ -317,3 +317,17 @@ def test_a_ctrl_c_while_best_pt_is_written_leaves_the_counters_naming_the_best_p
     monkeypatch.setattr(trainer_module, "save_checkpoint", real_save)
     result = Trainer.resume(cfg.run_dir, total_steps=64, log=lambda s: None).train()
     assert result["counters"]["best_update"] == 2 and load_checkpoint(cfg.run_dir / "best.pt")["counters"]["update"] == 2
+
+
+def test_a_resume_with_nothing_left_to_train_says_which_limit_ended_the_run(tmp_path):
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    said = []
+    Trainer.resume(cfg.run_dir, log=said.append).train()
+    assert any("reached total_steps 32" in s and "--total-steps" in s for s in said)
+    timed = tiny_config(tmp_path, name="timed", updates=100, extra=["max_minutes=0.0001"])
+    assert Trainer(timed, log=lambda s: None).train()["counters"]["update"] == 1  # the time ran out first
+    said = []
+    result = Trainer.resume(timed.run_dir, total_steps=32 * 200, log=said.append).train()
+    assert result["counters"]["update"] == 1
+    assert any("max_minutes 0.0001" in s and "--max-minutes" in s for s in said)

@@ -346,6 +346,15 @@ class Trainer:
         self._consistent = True
         return row
 
+    def _why_done(self) -> str:
+        """What ended the run already, for a resume that finds nothing left to do."""
+        c, cfg = self.counters, self.cfg
+        if cfg.max_minutes > 0 and c.seconds >= 60.0 * cfg.max_minutes and c.world_steps < cfg.total_steps:
+            return (f"nothing to train: the run has used its max_minutes {cfg.max_minutes:g} ({c.seconds / 60:.1f} min); "
+                    f"resume with a larger --max-minutes (or 0 for none) to go on")
+        return (f"nothing to train: the run has reached total_steps {cfg.total_steps} ({c.world_steps} world steps); "
+                f"resume with a larger --total-steps to go on")
+
     def _validation_due(self) -> bool:
         """Whether the update just made is validated: every run.validate_every and the last."""
         every = self.cfg.run.validate_every
@@ -400,6 +409,8 @@ class Trainer:
         bar = _progress(cfg, self.progress())
         last_val = self._logged_validation()  # a resumed run's last one, until this session validates
         status = "done"
+        if self.progress() >= 1.0 and not self._pending_row:
+            self.log(self._why_done())
         try:
             if self._pending_row:  # the last update's row never reached the log (interrupted): log it now
                 row = self._pending_row
