@@ -156,3 +156,23 @@ def test_links_are_closed_when_connecting_fails_after_they_opened(tmp_path):
             with LinkSet(plan.names, fleet.uris, StateBoard(2), StalledParameters(tmp_path / "toc"), 1.0):
                 pass
         assert len(made) == 2 and not any(scf.is_link_open() for scf in made)
+
+
+def test_a_supervisor_state_that_does_not_arrive_refuses_the_flight_a_late_one_does_not():
+    """cflib's read_bitfield answers 0 after a 0.2 s timeout: 0 passed every state check."""
+    from types import SimpleNamespace
+
+    from pursuit_mj.flight.events import EventLog
+    from pursuit_mj.flight.preflight import check_supervisor
+
+    def drone(answers):
+        answers = iter(answers)
+        cf = SimpleNamespace(platform=SimpleNamespace(get_protocol_version=lambda: 12),
+                             supervisor=SimpleNamespace(read_bitfield=lambda: next(answers)))
+        return SimpleNamespace(cf=cf, label="p0 (udp://x)")
+
+    check_supervisor([drone([0, 0b100])], EventLog())  # the second try answered: auto-armed, fine
+    with pytest.raises(PreflightError, match="p0 .*supervisor state did not arrive"):
+        check_supervisor([drone([0, 0, 0])], EventLog())
+    with pytest.raises(PreflightError, match="p0 .*locked"):
+        check_supervisor([drone([0b1000100])], EventLog())

@@ -52,12 +52,31 @@ def check_decks(links: LinkSet, plan: FlightPlan, events: EventLog) -> None:
             _refuse(events, "deck", f"drone {link.label}: no {DECK_NAMES[plan.spec.positioning]} detected ({shown})")
 
 
+SUPERVISOR_TRIES = 3
+
+
+def read_supervisor_state(link) -> int:
+    """The supervisor's state bits. cflib answers 0 when no reply came within its 0.2 s, and 0
+    would pass every check, so a 0 is asked again (a drone that is up always has a state bit
+    set: ready to arm, armed or auto-armed)."""
+    bits = 0
+    for _ in range(SUPERVISOR_TRIES):
+        bits = int(link.cf.supervisor.read_bitfield())
+        if bits:
+            break
+        time.sleep(0.15)  # past cflib's 0.1 s cache of the last answer
+    return bits
+
+
 def check_supervisor(links: LinkSet, events: EventLog) -> None:
     """Refuse drones the firmware reports locked, tumbled or crashed (protocol 12 and newer)."""
     for link in links:
         if link.cf.platform.get_protocol_version() < 12:
             continue
-        bits = link.cf.supervisor.read_bitfield()
+        bits = read_supervisor_state(link)
+        if bits == 0:
+            _refuse(events, "state", f"drone {link.label}: its supervisor state did not arrive ({SUPERVISOR_TRIES} tries); "
+                                     f"a drone that is up reports at least one state bit")
         for bit, what in BAD_STATES.items():
             if bits >> bit & 1:
                 _refuse(events, "state", f"drone {link.label} is {what}")
