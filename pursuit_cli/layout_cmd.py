@@ -301,7 +301,7 @@ def _summary_line(layout: Layout) -> str:
 
 
 def run_check(args) -> int:
-    from pursuit_mj.env import SPAWN_SEPARATION
+    from pursuit_mj.layout_check import SPAWN_SEPARATION
     from pursuit_mj.scene import SceneSpec, build_model
 
     if args.pursuers < 1 or args.evaders < 1:

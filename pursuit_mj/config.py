@@ -73,7 +73,7 @@ class TaskConfig:
     share_detections: bool = spec(True, help="an evader seen by one pursuer is known to all (relayed)")
     n_rays: int = spec(16, lo=0, hi=128, help="range readings around each pursuer")
     ray_range: float = spec(2.0, lo=0.0, lo_open=True, help="max range of the range readings (m)")
-    position_noise: float = spec(0.0, lo=0.0, help="std of noise on perceived positions (m)")
+    position_noise: float = spec(0.0, lo=0.0, hi=1.0, help="std of noise on perceived positions (m)")
     miss_probability: float = spec(0.0, lo=0.0, hi=1.0, help="chance a visible evader is missed per step")
     capture_reward: float = spec(10.0, help="team reward per captured evader")
     progress_reward: float = spec(1.0, help="scale of (d_prev - d)/0.3 toward the nearest free evader")
@@ -93,6 +93,13 @@ class TaskConfig:
                 f"{source}: perception_radius {self.perception_radius} is below capture_radius "
                 f"{self.capture_radius}: a pursuer could capture what it cannot see"
             )
+        from .layout_check import SPAWN_CLEARANCE, SPAWN_SEPARATION
+
+        for key, value, room, what in (("obstacle_clearance", self.obstacle_clearance, SPAWN_CLEARANCE, "from walls"),
+                                       ("teammate_clearance", self.teammate_clearance, SPAWN_SEPARATION, "apart")):
+            if value >= room:
+                raise ConfigError(f"{source}: key '{key}': {value} m is not below the {room} m that drones spawn "
+                                  f"{what}: episodes would end in a collision before any action")
         if isinstance(self.layout, int) and not 0 <= self.layout < N_BUILTIN:
             raise ConfigError(f"{source}: key 'layout': {self.layout} is not a built-in layout index "
                               f"(0-{N_BUILTIN - 1}) or a file")

@@ -16,15 +16,14 @@ from .config import TaskConfig, checked_task_config
 from .evader import EscapeModel
 from .geometry import ObstacleSet
 from .layout import N_BUILTIN, Layout, LayoutError, load_layout
-from .layout_check import check_spawn_capacity, free_spawn_points, sample_separated
+from .layout_check import SPAWN_SEPARATION, check_spawn_capacity, free_spawn_points, sample_separated
 from .observations import build_global_state, build_observations, global_state_dim
 from .obs_spec import ObsSpec
 from .physics import BatchedPhysics
 from .randomness import WorldRandom, world_keys
 from .rewards import REWARD_TERMS, detect_events, reward_terms
-from .sensing import INITIAL_HEADING, PERCEPTION_KEYS, Perception, WorldView, perceive, update_heading
+from .sensing import CAUGHT_BODY_RADIUS, INITIAL_HEADING, PERCEPTION_KEYS, Perception, WorldView, perceive, update_heading
 
-SPAWN_SEPARATION = 0.4  # m between spawned drones of one team
 SENSING_DOMAIN = 1  # keeps perception's random streams apart from the evaders' (same episode seed)
 
 
@@ -234,6 +233,8 @@ class PursuitEnv:
         its seed and the actions taken: the same seed replays it exactly in any world, however
         many worlds run. Without seeds each world takes the next of its default sequence.
         """
+        if self._obs is None:
+            raise RuntimeError("call reset() before reset_worlds(): the other worlds have no episode yet")
         raw = np.asarray(world_ids).reshape(-1)
         if raw.size and (raw.dtype == bool or not np.issubdtype(raw.dtype, np.integer)):
             raise ValueError(f"reset_worlds world_ids: expected integer world indices, got {world_ids!r}")
@@ -252,13 +253,15 @@ class PursuitEnv:
         N = self.n_pursuers
         pos = self.physics.positions()
         vel = self.physics.velocities()
-        obstacles = self._obstacles_with_captured(pos[:, N:, :2])
+        obstacles = self._obstacles_with_captured(pos[:, N:, :2], CAUGHT_BODY_RADIUS)
         return WorldView(pos[:, :N, :2], vel[:, :N, :2], self.heading, pos[:, N:, :2], vel[:, N:, :2], self.captured, obstacles)
 
-    def _obstacles_with_captured(self, evader_xy: np.ndarray) -> ObstacleSet:
+    def _obstacles_with_captured(self, evader_xy: np.ndarray, radius: float) -> ObstacleSet:
+        """The layout's obstacles plus a cylinder of `radius` (m) at each caught evader: the
+        drone's body for perception, its capture disc for the free evaders' escape."""
         if not self.captured.any():
             return self._obstacles
-        return self._obstacles.with_extra_cylinders(evader_xy, self.config.capture_radius, self.captured)
+        return self._obstacles.with_extra_cylinders(evader_xy, radius, self.captured)
 
     def _observe(self) -> np.ndarray:
         view = self._view()
@@ -274,6 +277,7 @@ class PursuitEnv:
         all-round view. It changes nothing in the env; noise and misses, if `config` has any,
         are drawn from the same per-world streams as the env's own observations.
         """
+        config = checked_task_config(config, "observe_as config")
         changed = [f.name for f in dataclasses.fields(TaskConfig)
                    if f.name not in PERCEPTION_KEYS and getattr(config, f.name) != getattr(self.config, f.name)]
         if changed:
@@ -318,7 +322,7 @@ class PursuitEnv:
         vel0 = self.physics.velocities()[..., :2]
         free_before = ~self.captured
         evader_cmd = self.evader_model.compute(
-            pos0[:, N:], vel0[:, N:], pos0[:, :N], vel0[:, :N], free_before & active[:, None], self._obstacles_with_captured(pos0[:, N:]), cfg.control_dt
+            pos0[:, N:], vel0[:, N:], pos0[:, :N], vel0[:, :N], free_before & active[:, None], self._obstacles_with_captured(pos0[:, N:], cfg.capture_radius), cfg.control_dt
         )
         evader_cmd = np.where((free_before & active[:, None])[..., None], evader_cmd, 0.0)
         pursuer_cmd = a * cfg.pursuer_speed * active[:, None, None]
@@ -341,7 +345,7 @@ class PursuitEnv:
         collision = events.collided.any(-1) & active
         terminated = success | collision
         truncated = (self.steps >= cfg.max_steps) & active & ~terminated
-        self.capture_time = np.where(success & np.isnan(self.capture_time), np.round(self.steps * cfg.control_dt, 9), self.capture_time)  # 16.4, not 16.400000000000002
+        self.capture_time = np.where(success & ~collision & np.isnan(self.capture_time), np.round(self.steps * cfg.control_dt, 9), self.capture_time)  # 16.4, not 16.400000000000002
         outcome = np.full(self.n_worlds, "", dtype=object)
         outcome[success] = "success"
         outcome[collision] = "collision"  # a collision in the step of a capture still fails

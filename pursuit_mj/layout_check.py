@@ -10,6 +10,8 @@ from .geometry import ObstacleSet, inside_boundary, obstacle_distance
 
 #: a spawn point needs this much room to the nearest obstacle or border (m)
 SPAWN_CLEARANCE = 0.2
+#: spawned drones of one team are at least this far apart (m)
+SPAWN_SEPARATION = 0.4
 #: a drone centre this far from every wall and obstacle can pass (the task's obstacle_clearance default, m)
 PASSAGE_CLEARANCE = 0.1
 #: grid pitch of the reachability check (m); coarser for big arenas, at most GRID_CELLS cells a side

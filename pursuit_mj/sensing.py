@@ -80,6 +80,10 @@ def privileged_config(config: TaskConfig, view: str) -> TaskConfig:
 #: a pursuer faces +y (into the arena) at the start of an episode
 INITIAL_HEADING = np.pi / 2
 HEADING_MIN_SPEED = 0.05  # m/s: below this a pursuer keeps its previous heading
+# m: a caught evader blocks sight and range readings as the drone it is (a Crazyflie's rotors
+# reach about 0.05 m from its centre), not as its capture disc, which holds the pursuer that
+# caught it: from inside, every ray and line of sight would be blocked at once
+CAUGHT_BODY_RADIUS = 0.05
 
 
 def update_heading(heading: np.ndarray, velocity: np.ndarray) -> np.ndarray:

@@ -291,3 +291,44 @@ def test_a_caught_evader_stops_at_once_while_the_chase_goes_on(fidelity):
     for _ in range(3):
         obs, *_ = env.step(team.act(obs, env.obs_spec))
     assert np.linalg.norm(env.physics.positions()[w, N + j, :2] - where) < 0.02
+
+
+def test_the_pursuer_that_catches_one_evader_still_sees_its_teammates_and_the_other_evader():
+    """A caught evader used to block sight as its capture disc, which holds its catcher: every
+    ray of that pursuer read 0 and it saw no one until it flew out of the disc."""
+    cfg = default_config(fidelity="point", random_obstacles=0, n_evaders=2)
+    env = PursuitEnv(cfg, n_worlds=1, seed=0)
+    env.reset()
+    xy = [[1.8, 3.0], [0.8, 2.5], [2.8, 2.5], [1.8, 3.2], [1.0, 3.5]]  # p0 0.2 m from evader 0, evader 1 free
+    env.physics.reset([0], np.asarray(xy, float)[None])
+    env._obs = env._observe()
+    obs, _, terminated, _, _ = env.step(np.zeros((1, 3, 2)))
+    assert env.captured[0].tolist() == [True, False] and not terminated[0]
+    spec = env.obs_spec
+    rays = spec.group("rays").view(obs)[0, 0, 0]
+    assert rays.min() > 0.1  # the caught drone is a body of 0.05 m, not a 0.3 m disc around its catcher
+    assert spec.group("teammates").view(obs)[0, 0, :, spec.group("teammates").mask_feature].tolist() == [1.0, 1.0]
+    assert env._perception.seen[0, 0, 1]  # the free evader, 1 m away in the open
+
+
+def test_a_capture_in_the_step_of_a_collision_fails_without_a_capture_time():
+    env = PursuitEnv(default_config(fidelity="point", random_obstacles=0), n_worlds=1, seed=0)
+    env.reset()
+    env.physics.reset([0], np.array([[[1.8, 3.0], [0.8, 1.0], [0.9, 1.0], [1.8, 3.2]]]))  # p1 and p2 0.1 m apart
+    env._obs = env._observe()
+    _, _, _, _, info = env.step(np.zeros((1, 3, 2)))
+    record = info["episodes"][0]
+    assert record.outcome == "collision" and record.captured == 1
+    assert record.time_to_capture is None or np.isnan(record.time_to_capture)
+
+
+def test_reset_worlds_before_reset_is_refused():
+    env = PursuitEnv(default_config(fidelity="point"), n_worlds=2, seed=0)
+    with pytest.raises(RuntimeError, match="call reset"):
+        env.reset_worlds([0])
+
+
+@pytest.mark.parametrize("key, value", [("obstacle_clearance", 0.25), ("teammate_clearance", 0.45)])
+def test_clearances_the_spawn_spacing_breaks_are_refused_naming_the_key(key, value):
+    with pytest.raises(ConfigError, match=f"'{key}'.*collision before any action"):
+        default_config(**{key: value})

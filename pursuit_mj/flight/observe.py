@@ -18,7 +18,7 @@ from ..layout import Layout
 from ..obs_spec import ObsSpec
 from ..observations import build_observations
 from ..rewards import detect_events
-from ..sensing import INITIAL_HEADING, Perception, WorldView, perceive, update_heading
+from ..sensing import CAUGHT_BODY_RADIUS, INITIAL_HEADING, Perception, WorldView, perceive, update_heading
 
 
 class FlightObserver:
@@ -34,11 +34,13 @@ class FlightObserver:
         self.view: WorldView | None = None
         self.perception: Perception | None = None
 
-    def obstacles_now(self, evader_pos: np.ndarray) -> ObstacleSet:
-        """Virtual obstacles plus captured evaders (cylinders of capture_radius), (1, ...) arrays."""
+    def obstacles_now(self, evader_pos: np.ndarray, radius: float = CAUGHT_BODY_RADIUS) -> ObstacleSet:
+        """Virtual obstacles plus captured evaders as cylinders of `radius` (m), (1, ...) arrays:
+        as the simulator has them, the drone's body for perception, the capture disc for the
+        free evaders' escape."""
         if not self.captured.any():
             return self.obstacles
-        return self.obstacles.with_extra_cylinders(evader_pos[None], self.config.capture_radius, self.captured)
+        return self.obstacles.with_extra_cylinders(evader_pos[None], radius, self.captured)
 
     def update_captures(self, pursuer_pos: np.ndarray, evader_pos: np.ndarray) -> np.ndarray:
         """Apply the simulator's capture rule; returns the evaders (M,) bool captured just now."""
@@ -63,6 +65,7 @@ class EvaderPilot:
         self.model = EscapeModel(config, 1, seed)
         self.model.reset(np.array([0]), np.array([seed]))
         self.dt = config.control_dt
+        self.capture_radius = config.capture_radius
 
     def command(self, observer: FlightObserver, evader_pos: np.ndarray, evader_vel: np.ndarray,
                 pursuer_pos: np.ndarray, pursuer_vel: np.ndarray) -> np.ndarray:
@@ -70,5 +73,5 @@ class EvaderPilot:
         evader_pos / evader_vel (M, 2) and pursuer_pos / pursuer_vel (N, 2), m and m/s in the
         layout frame (the lab's estimates already mapped by the alignment)."""
         active = ~observer.captured
-        v = self.model.compute(evader_pos[None], evader_vel[None], pursuer_pos[None], pursuer_vel[None], active, observer.obstacles_now(evader_pos), self.dt)
+        v = self.model.compute(evader_pos[None], evader_vel[None], pursuer_pos[None], pursuer_vel[None], active, observer.obstacles_now(evader_pos, self.capture_radius), self.dt)
         return np.where(active[..., None], v, 0.0)[0]
