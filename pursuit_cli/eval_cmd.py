@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from pursuit_mj.io_utils import check_writable
+from pursuit_mj.io_utils import check_writable, check_writable_folder
 from pursuit_mj.layout import load_layout
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
@@ -59,14 +59,14 @@ def _outputs(args) -> tuple[Path | None, Path | None]:
     for path, what in ((csv_path, "--csv"), (json_path, "--json")):
         if path is not None:
             check_writable(path, what)
+    if csv_path is not None and json_path is not None and csv_path.resolve() == json_path.resolve():
+        raise ValueError(f"--csv and --json: both name {csv_path}; the JSON would overwrite the CSV")
     if args.rerun:
         from pursuit_mj.recording import check_rrd_path
 
         check_rrd_path(args.rerun)
     if args.plots:
-        plots = Path(args.plots)
-        if plots.exists() and not plots.is_dir():
-            raise ValueError(f"--plots {plots}: exists and is not a folder")
+        check_writable_folder(args.plots, f"--plots {args.plots}")
     return csv_path, json_path
 
 
@@ -121,7 +121,7 @@ def _versus(args, policies) -> str | None:
 
 def run(args) -> int:
     from pursuit_mj.comparison import paired_report, pairs_to_dicts
-    from pursuit_mj.evaluation import format_table, plot_rows, write_csv, write_json
+    from pursuit_mj.evaluation import format_table, layout_label, plot_rows, write_csv, write_json
     from pursuit_mj.provenance import provenance
 
     if args.episodes < 1:
@@ -132,8 +132,12 @@ def run(args) -> int:
         raise ValueError(f"--rerun-episodes: expected an integer >= 1, got {args.rerun_episodes}")
     config = task_config_from_args(args)
     layouts = args.layouts if args.layouts else [config.layout]
+    labels: set[str] = set()
     for ref in layouts:
         load_layout(ref)  # refuse a bad layout before any episode runs
+        if layout_label(ref) in labels:
+            raise ValueError(f"--layouts: {ref} is given twice; each layout is one column of the table")
+        labels.add(layout_label(ref))
     csv_path, json_path = _outputs(args)
     policies = _policies(args, config)
     versus = _versus(args, policies)

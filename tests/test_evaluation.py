@@ -226,6 +226,9 @@ def test_eval_cli_runs_a_trained_model_beside_the_heuristic(tmp_path, capsys):
         (["--episodes", "0"], "--episodes"),
         (["--set", "evader_speed=-1"], "evader_speed"),
         (["--policy", "heuristic", "--policy", "random", "--versus", "greedy"], "--versus 'greedy': not a policy of this table"),
+        (["--layouts", "0", "1", "0"], "--layouts: 0 is given twice"),
+        (["--plots", "/dev/null/plots"], "--plots /dev/null/plots: cannot create the folder"),
+        (["--csv", "same.txt", "--json", "same.txt"], "both name same.txt"),
     ],
 )
 def test_eval_cli_bad_input_exits_2_with_a_clear_message(args, message, capsys, tmp_path):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import mediapy
 import mujoco
 import numpy as np
@@ -172,6 +173,31 @@ def test_overlays_add_scene_geoms_for_every_element():
     n, m = config.n_pursuers, config.n_evaders
     circles = n * maker.style.circle_segments + m * (maker.style.circle_segments // 2)
     assert with_overlays - plain >= circles + n + m  # rings, capture zones, one marker per drone
+
+
+def test_largest_team_with_every_evader_relayed_across_the_arena_fits_the_scene(tmp_path):
+    """16 pursuers and 8 evaders, every pair a dashed relay line corner to corner: the worst
+    frame the overlays can draw must fit the scene the renderer sized for it."""
+    big = tmp_path / "big.yaml"
+    big.write_text("name: big\narena: {width: 8.0, height: 10.0}\nboundary: rectangle\nobstacles: []\n"
+                   "spawn:\n  pursuers: {x: [0.2, 7.8], y: [0.2, 2.0]}\n  evaders: {x: [0.2, 7.8], y: [8.0, 9.8]}\n")
+    config = default_config(**{**CFG, "layout": str(big), "n_pursuers": 16, "n_evaders": 8})
+    env = PursuitEnv(config, seed=0, auto_reset=False)
+    env.reset()
+    snap = env.snapshot(0)
+    n, m = config.n_pursuers, config.n_evaders
+    far = dataclasses.replace(
+        snap,
+        pursuer_pos=np.tile([0.0, 0.0, 0.5], (n, 1)),
+        evader_pos=np.tile([snap.layout.width, snap.layout.height, 0.5], (m, 1)),
+        seen=np.zeros((n, m), bool), known=np.ones((n, m), bool), captured=np.zeros(m, bool))
+    with FrameMaker(config, snap.layout, small(), "t", 40) as maker:
+        for _ in range(40):
+            maker.push(far)
+        frame = maker.draw(far, 0)
+        assert maker.renderer.scene.ngeom <= maker.renderer.scene.maxgeom
+        assert maker.renderer.scene.ngeom > 3000  # more than the old fixed allowance held
+    assert frame.shape == (H, W, 3)
 
 
 def test_video_format_by_extension():

@@ -19,7 +19,7 @@ from ..env import EpisodeRecord, PursuitEnv, Snapshot
 from ..layout import Layout
 from ..policy import Policy
 from .caption import Caption, draw_caption, draw_key
-from .overlays import OverlayStyle, TrailBuffer, draw_all, key_entries
+from .overlays import OverlayStyle, TrailBuffer, draw_all, key_entries, overlay_geom_budget
 from .renderer import RenderSettings, SceneRenderer
 from .video import save_png, video_file
 
@@ -54,7 +54,7 @@ class FrameMaker:
         self.title = title
         self.style = style or OverlayStyle()
         self.trail = TrailBuffer(trail_length)
-        self.renderer = SceneRenderer(settings, config, layout)
+        self.renderer = SceneRenderer(settings, config, layout, lambda lay: overlay_geom_budget(config, lay, self.style))
 
     def start_episode(self) -> None:
         """Forget the trails of the previous episode."""

@@ -165,6 +165,21 @@ def draw_trails(w: GeomWriter, trails: np.ndarray, n_pursuers: int, style: Overl
         w.polyline(pts[:, d], c, style.trail_width, fade=True)
 
 
+def overlay_geom_budget(config, layout, style: OverlayStyle) -> int:
+    """An upper bound on the geoms `draw_all` adds for `config`'s team in `layout`'s arena.
+
+    The dashed relay lines are the only part that grows with distance, so the arena's
+    diagonal (plus a metre for a drone that has left it) bounds them."""
+    n_p, n_e = config.n_pursuers, config.n_evaders
+    perception = n_p * (max(style.circle_segments, 4) + 2)  # a wedge's arc plus its two sides
+    capture = n_e * (style.circle_segments // 2 + 1)  # the ring plus the captured fill
+    trails = (n_p + n_e) * (style.trail_segments + 1)
+    longest = math.hypot(layout.width, layout.height) + 1.0
+    per_pair = int(longest / style.dash_length) // 2 + 1  # a sighting is one line, a relay at most this many dashes
+    markers = n_p + n_e
+    return perception + capture + trails + n_p * n_e * per_pair + markers
+
+
 def draw_all(scene: mujoco.MjvScene, snap, trails: np.ndarray, style: OverlayStyle) -> None:
     """Every decoration of one frame (see module docstring)."""
     w = GeomWriter(scene)

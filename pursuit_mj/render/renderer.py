@@ -24,7 +24,7 @@ from .caption import band_height, key_band_height
 from .gl import create_context
 
 QUALITIES = ("fast", "high")
-OVERLAY_GEOMS = 3000  # decoration geoms available per frame on top of the model's own
+OVERLAY_GEOMS = 3000  # decoration geoms available per frame on top of the model's own, unless told
 TOP_MARGIN = 0.15  # m of floor shown around the arena in the top view
 FLOOR_GRID = 0.5  # m: rendering grid of the floor plane
 ANGLED_TILT = math.radians(38)  # angled view: camera axis from the vertical, steep enough to see over walls
@@ -60,13 +60,19 @@ class RenderSettings:
 
 
 DrawFn = Callable[[mujoco.MjvScene], None]
+OverlayBudget = Callable[[Layout], int]  # decoration geoms a frame of this layout may add
 
 
 class SceneRenderer:
-    """Renders the drones of `config` (pursuers then evaders, its fidelity) in scenes of any layout."""
+    """Renders the drones of `config` (pursuers then evaders, its fidelity) in scenes of any layout.
 
-    def __init__(self, settings: RenderSettings, config: TaskConfig, layout: Layout):
+    overlay_geoms: how many decoration geoms a `draw` callback may add per frame, for each
+    layout bound (default OVERLAY_GEOMS whatever the layout).
+    """
+
+    def __init__(self, settings: RenderSettings, config: TaskConfig, layout: Layout, overlay_geoms: OverlayBudget | None = None):
         self.config = config
+        self._overlay_geoms = overlay_geoms or (lambda _layout: OVERLAY_GEOMS)
         self.names = drone_names(config.n_pursuers, config.n_evaders)
         self.fidelity = config.fidelity
         model = self._build(layout)
@@ -118,7 +124,7 @@ class SceneRenderer:
             self._context.free()
         self._context = mujoco.MjrContext(m, mujoco.mjtFontScale.mjFONTSCALE_100)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
-        self._scene = mujoco.MjvScene(m, maxgeom=m.ngeom + OVERLAY_GEOMS)
+        self._scene = mujoco.MjvScene(m, maxgeom=m.ngeom + self._overlay_geoms(layout))
         self._scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = high
         self._scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = high
         self._data = mujoco.MjData(m)
