@@ -91,7 +91,13 @@ def reachable(layout, start, goal, clearance: float = PASSAGE_CLEARANCE) -> bool
 
     def cells_in(region) -> np.ndarray:
         x, y = grid[..., 0], grid[..., 1]
-        return free & (x >= region.x[0]) & (x <= region.x[1]) & (y >= region.y[0]) & (y <= region.y[1])
+        cells = free & (x >= region.x[0]) & (x <= region.x[1]) & (y >= region.y[0]) & (y <= region.y[1])
+        # a region thinner than a cell holds no cell centre: start from the cells its spawn points lie in
+        pts = free_spawn_points(layout, region)
+        i = np.clip((pts[:, 0] // step).astype(int), 0, free.shape[0] - 1)
+        j = np.clip((pts[:, 1] // step).astype(int), 0, free.shape[1] - 1)
+        cells[i, j] |= free[i, j]
+        return cells
 
     target = cells_in(goal)
     seen = cells_in(start).copy()

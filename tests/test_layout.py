@@ -10,6 +10,8 @@ import pytest
 import yaml
 
 from pursuit_cli import main
+from pursuit_mj.config import default_config
+from pursuit_mj.env import PursuitEnv
 from pursuit_mj.geometry import ObstacleSet, inside_boundary, obstacle_distance
 from pursuit_mj.layout import (
     N_BUILTIN,
@@ -179,6 +181,16 @@ def test_impossible_layouts_are_refused_naming_the_entry(data, message):
 
 def test_a_passage_just_wide_enough_is_accepted():
     layout_from_dict(base_dict(obstacles=[{"wall": {"from": [0.0, 2.5], "to": [3.3, 2.5]}}]), "gap.yaml")  # 0.3 m minus the wall's half-thickness
+
+
+def test_a_spawn_strip_thinner_than_the_reachability_grid_is_accepted_and_spawns_on_it(tmp_path):
+    strip = {"pursuers": {"x": [1.81, 1.82], "y": [0.2, 1.4]}, "evaders": SPAWN["evaders"]}  # 1 cm wide, 5 cm grid
+    path = tmp_path / "strip.yaml"
+    path.write_text(yaml.safe_dump(base_dict(spawn=strip)))
+    env = PursuitEnv(default_config(layout=str(path), fidelity="point"), seed=0)
+    env.reset()
+    x = env.snapshot(0).pursuer_pos[:, 0]
+    assert ((x >= 1.81 - 1e-6) & (x <= 1.82 + 1e-6)).all()
 
 
 def test_duplicate_keys_and_non_text_files_are_refused(tmp_path):
