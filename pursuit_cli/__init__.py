@@ -8,9 +8,13 @@ LayoutError ...), which `main` prints as one clear line with exit code 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import os
 import re
+import signal
 import sys
+import threading
 
 #: subcommand modules, in the order `--help` lists them
 SUBCOMMANDS = [
@@ -70,7 +74,49 @@ def glue_negative_numbers(argv: list[str]) -> list[str]:
     return out
 
 
+def mujoco_import_error() -> str | None:
+    """Why `import mujoco` fails here, as one line naming MUJOCO_GL, or None when it imports.
+
+    mujoco reads MUJOCO_GL as it is imported, and a value it rejects (or a backend whose
+    library is missing) breaks every command, --help included, with a traceback."""
+    try:
+        import mujoco  # noqa: F401
+    except Exception as exc:  # the GL loaders raise RuntimeError, ImportError, AttributeError ...
+        value = os.environ.get("MUJOCO_GL")
+        where = f"environment variable MUJOCO_GL={value!r}" if value is not None else "import mujoco"
+        return (f"{where}: mujoco cannot start with it ({type(exc).__name__}: {exc}); "
+                f"set MUJOCO_GL to egl or osmesa (whichever is installed), or unset it")
+    return None
+
+
+@contextlib.contextmanager
+def termination_as_interrupt():
+    """Within: SIGTERM and SIGHUP (kill, a closed terminal) stop a command as Ctrl-C does, so
+    its half-written outputs are removed and its checkpoints saved the same way. Signals
+    already handled or ignored (nohup) are left alone; off the main thread, nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def raise_interrupt(signum, frame):
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    taken = {}
+    for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+        if sig is not None and signal.getsignal(sig) == signal.SIG_DFL:
+            taken[sig] = signal.signal(sig, raise_interrupt)
+    try:
+        yield
+    finally:
+        for sig, previous in taken.items():
+            signal.signal(sig, previous)
+
+
 def main(argv: list[str] | None = None) -> int:
+    broken = mujoco_import_error()
+    if broken is not None:
+        print(f"pursuit-mj: error: {broken}", file=sys.stderr)
+        return 2
     parser = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)
     if not argv:  # a bare `pursuit-mj`: show what there is
@@ -78,15 +124,17 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     args = parser.parse_args(glue_negative_numbers(argv))
     try:
-        return int(args.func(args) or 0)
+        with termination_as_interrupt():
+            return int(args.func(args) or 0)
     except ValueError as exc:
         print(f"pursuit-mj {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # output piped into `head` and the like
         sys.stderr.close()
         return 0
-    except KeyboardInterrupt:
-        print(f"pursuit-mj {args.command}: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        signal_name = f" by {exc.args[0]}" if exc.args and str(exc.args[0]).startswith("SIG") else ""
+        print(f"pursuit-mj {args.command}: interrupted{signal_name}", file=sys.stderr)
         return 130
 
 

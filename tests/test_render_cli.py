@@ -97,3 +97,42 @@ def test_a_missing_model_leaves_no_output_folder_behind(tmp_path, capsys, monkey
     assert main(["render", "-mc", "classic", "-s", "finals/", "--fidelity", "point"]) == 2
     assert "no checkpoint at" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def _cli_process(args, env_changes=None, **popen):
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, **(env_changes or {})}
+    code = "import sys; from pursuit_cli import main; sys.exit(main(sys.argv[1:]))"
+    return subprocess.Popen([sys.executable, "-c", code, *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, **popen)
+
+
+@pytest.mark.parametrize("value", ["foo", "osmesa-typo"])
+def test_a_mujoco_gl_value_mujoco_rejects_is_one_line_naming_it_even_for_help(value):
+    proc = _cli_process(["--help"], {"MUJOCO_GL": value})
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2 and out == ""
+    assert err.startswith(f"pursuit-mj: error: environment variable MUJOCO_GL={value!r}") and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGHUP"])
+def test_a_render_killed_by_sigterm_or_sighup_leaves_no_partial_video(tmp_path, sig):
+    import signal
+    import time
+
+    out = tmp_path / "renders"
+    proc = _cli_process(["render", "--policy", "random", "--fidelity", "point", "--set", "max_steps=100000",
+                         "--width", str(W), "--height", str(H), "-s", str(out / "long.mp4")])
+    deadline = time.monotonic() + 90
+    while not (out.is_dir() and any(out.iterdir())) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    assert proc.poll() is None, proc.communicate()[1][-2000:]
+    time.sleep(0.3)  # a few frames into the video
+    proc.send_signal(getattr(signal, sig))
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err[-2000:]
+    assert f"interrupted by {sig}" in err
+    assert list(out.iterdir()) == []

@@ -21,7 +21,7 @@ from ..layout import Layout
 from ..scene import DroneIds, SceneSpec, build_model, drone_names
 from .camera import CameraSpec
 from .caption import band_height, key_band_height
-from .gl import create_context
+from .gl import RenderBackendError, choose_backend, create_context
 
 QUALITIES = ("fast", "high")
 OVERLAY_GEOMS = 3000  # decoration geoms available per frame on top of the model's own, unless told
@@ -122,7 +122,12 @@ class SceneRenderer:
         self._gl.make_current()
         if self._context is not None:
             self._context.free()
-        self._context = mujoco.MjrContext(m, mujoco.mjtFontScale.mjFONTSCALE_100)
+        self._context = None
+        try:
+            self._context = mujoco.MjrContext(m, mujoco.mjtFontScale.mjFONTSCALE_100)
+        except mujoco.FatalError as exc:  # a context that was made but cannot draw (no GL 1.5 / framebuffer)
+            raise RenderBackendError(f"the OpenGL context of backend {choose_backend()} cannot render MuJoCo scenes ({exc}); "
+                                     f"set MUJOCO_GL to another of egl, osmesa") from None
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
         self._scene = mujoco.MjvScene(m, maxgeom=m.ngeom + self._overlay_geoms(layout))
         self._scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = high
