@@ -181,11 +181,9 @@ def parse_override(text: str, source: str) -> tuple[list[str], Any]:
     if not key:
         raise ConfigError(f"{source}: '{text}' has an empty key")
     try:
-        value = yaml.safe_load(raw) if raw.strip() else ""
+        value = safe_load(raw) if raw.strip() else ""
     except yaml.YAMLError as exc:
         raise ConfigError(f"{source}: value of '{key}' is not valid YAML: {raw!r}") from exc
-    if isinstance(value, str) and re.fullmatch(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+", value.strip()):
-        value = float(value)  # YAML 1.1 reads 1e-4 (no dot) as text; a number was meant
     return key.split("."), value
 
 
@@ -227,6 +225,12 @@ class _UniqueKeyLoader(yaml.SafeLoader):
                     None, None, f"key {key!r} given twice (first on line {first_line[key] + 1})", key_node.start_mark)
             first_line[key] = key_node.start_mark.line
         return super().construct_mapping(node, deep)
+
+
+# YAML 1.1, which PyYAML follows, reads 1e6 and 1e-4 (no dot) as text; YAML 1.2 and every
+# user mean a number
+_UniqueKeyLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float", re.compile(r"^[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)[eE][-+]?[0-9]+$"), list("-+0123456789."))
 
 
 def safe_load(text: str) -> Any:

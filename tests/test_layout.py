@@ -318,3 +318,14 @@ def test_separated_spawn_draws_retry_until_one_fits():
         drawn = sample_separated(line, 3, rng, 0.5, tries=200)
         assert drawn is not None and sorted(drawn[:, 0].tolist()) == [0.0, 0.5, 1.0]
     assert sample_separated(line, 4, rng, 0.5, tries=5) is None
+
+
+def test_numbers_in_exponent_form_are_numbers_as_in_yaml_1_2(tmp_path):
+    """PyYAML follows YAML 1.1, where 36e-1 without a dot is text; a layout author means 3.6."""
+    path = tmp_path / "exp.yaml"
+    path.write_text("name: exp\narena: {width: 36e-1, height: 5e0}\nboundary: rectangle\n"
+                    "obstacles: [{cylinder: {center: [18e-1, 2.5], radius: 2E-1}}]\n"
+                    "spawn:\n  pursuers: {x: [0.2, 3.4], y: [0.2, 0.8]}\n  evaders: {x: [0.2, 3.4], y: [4.2, 4.8]}\n")
+    layout = load_layout(path)
+    assert (layout.width, layout.height) == (3.6, 5.0)
+    assert layout.obstacles[0].center == (1.8, 2.5) and layout.obstacles[0].radius == 0.2
