@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 from pathlib import Path
 
 from pursuit_mj.io_utils import check_writable_folder
@@ -44,7 +45,8 @@ def register(sub) -> None:
     add_shield_arg(who)
     out = p.add_argument_group("output")
     out.add_argument("-s", "--save-path", default=DEFAULT_SAVE, metavar="DIR|FILE",
-                     help=f"folder for videos and images, or a video file name (.mp4/.gif) (default {DEFAULT_SAVE}/)")
+                     help=f"folder for videos and images, or a video file name (.mp4/.gif); a name ending in / is a folder "
+                          f"(default {DEFAULT_SAVE}/)")
     out.add_argument("--format", choices=("mp4", "gif"), help="video format when -s is a folder (default mp4)")
     out.add_argument("--final-frame", action="store_true", help="also save the last frame of each episode as PNG")
     out.add_argument("--no-video", action="store_true", help="write no video (with --final-frame and/or --rerun)")
@@ -155,11 +157,13 @@ def _writable_folder(folder: Path, flag: str) -> None:
 
 
 def save_target(save_path: str, fmt: str | None) -> SaveTarget:
-    """Resolve and check -s: a name with an extension is a video file (.mp4/.gif), anything else a folder."""
+    """Resolve and check -s: a name with an extension is a video file (.mp4/.gif), anything else a
+    folder; so is a name ending in / (renders.v2/) or an existing folder."""
     from pursuit_mj.render.video import VIDEO_CODECS
 
     path = Path(save_path)
-    if path.suffix and not path.is_dir():
+    folder_meant = save_path.endswith(("/", os.sep)) or path.is_dir()
+    if path.suffix and not folder_meant:
         suffix = path.suffix.lower().lstrip(".")
         if suffix not in VIDEO_CODECS:
             raise ValueError(f"-s {save_path}: unknown video extension {path.suffix!r} (use .mp4 or .gif, or a folder)")

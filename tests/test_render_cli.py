@@ -32,6 +32,12 @@ def test_cli_writes_videos_finals_and_reference_flags_work(tmp_path, capsys):
                      "random_layout2_point_seed0_ep001.gif", "random_layout2_point_seed0_ep001_final.png"]
 
 
+def test_a_save_path_ending_in_a_slash_is_a_folder_even_with_a_dot_in_its_name(tmp_path):
+    out = tmp_path / "renders.v0.2"
+    assert _cli(tmp_path, "-s", f"{out}/", "--format", "gif") == 0
+    assert [p.name for p in out.iterdir()] == ["random_layout0_point_seed0_ep000.gif"]
+
+
 def test_cli_single_file_and_no_video(tmp_path):
     assert _cli(tmp_path, "-s", str(tmp_path / "one.mp4")) == 0
     assert (tmp_path / "one.mp4").is_file()
