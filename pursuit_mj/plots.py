@@ -67,13 +67,23 @@ def flatten(row: Mapping[str, Any], prefix: str = "", sep: str = ".") -> dict[st
 # ---------------------------------------------------------------------- training curves
 
 
+def _text(path: Path, what: str) -> str:
+    """The UTF-8 text of `path`, or ValueError naming it (a binary file given by mistake)."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise ValueError(f"{what} {path}: not a text file (expected JSON)") from None
+    except OSError as exc:
+        raise ValueError(f"{what} {path}: cannot be read ({exc.strerror})") from None
+
+
 def read_training_log(path: str | Path) -> list[dict[str, float]]:
     """Flattened rows of a JSONL log. A malformed line is a ValueError naming file and line,
     except a cut-off last line (a run killed mid-write), which is skipped."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"training log {path}: file not found")
-    lines = path.read_text().splitlines()
+    lines = _text(path, "training log").splitlines()
     rows = []
     for i, line in enumerate(lines, 1):
         if not line.strip():
@@ -181,7 +191,7 @@ def read_eval_rows(path: str | Path) -> list[dict[str, Any]]:
     if not path.is_file():
         raise ValueError(f"evaluation results {path}: file not found")
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(_text(path, "evaluation results"))
     except json.JSONDecodeError as exc:
         raise ValueError(f"evaluation results {path}: not JSON ({exc.msg}, line {exc.lineno})") from None
     rows = data.get("rows") if isinstance(data, Mapping) else data

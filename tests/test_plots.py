@@ -103,6 +103,15 @@ def test_eval_json_errors_are_named(tmp_path):
         read_eval_rows(p)
 
 
+def test_a_binary_file_given_as_a_log_or_results_is_named(tmp_path):
+    p = tmp_path / "picture.png"
+    p.write_bytes(b"\x89PNG\r\n\x1a\n\x00\xff\xcc")
+    with pytest.raises(ValueError, match=r"training log .*picture.png: not a text file"):
+        read_training_log(p)
+    with pytest.raises(ValueError, match=r"evaluation results .*picture.png: not a text file"):
+        read_eval_rows(p)
+
+
 def test_plot_command(tmp_path, capsys):
     a, b = _log(tmp_path / "a.jsonl"), _log(tmp_path / "b.jsonl", scale=0.7)
     ev = _eval_json(tmp_path / "t.json")
