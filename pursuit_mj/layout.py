@@ -243,12 +243,19 @@ def _parse_random(value: Any, where: str) -> RandomObstacles:
     return RandomObstacles(count, kinds, size)
 
 
+MAX_ARENA_SIDE = 50.0  # m: the checks grid the arena, and Crazyflie arenas are far smaller
+
+
 def layout_from_dict(data: Mapping[str, Any], source: str = "<layout>") -> Layout:
     """Parse and validate a layout mapping; errors name `source` and the entry."""
     m = _mapping(data, source, ("name", "arena", "boundary", "obstacles", "random_obstacles", "spawn"), ("arena", "spawn"))
     arena = _mapping(m["arena"], f"{source}: arena", ("width", "height"), ("width", "height"))
     width = _number(arena["width"], f"{source}: arena.width", positive=True)
     height = _number(arena["height"], f"{source}: arena.height", positive=True)
+    for key, side in (("width", width), ("height", height)):
+        if side > MAX_ARENA_SIDE:
+            raise LayoutError(f"{source}: arena.{key}: {side:g} m is beyond the {MAX_ARENA_SIDE:g} m this simulator "
+                              f"handles (an indoor flight arena is a few metres)")
     obstacles_raw = m.get("obstacles") or []
     if not isinstance(obstacles_raw, list):
         raise LayoutError(f"{source}: obstacles: expected a list, got {obstacles_raw!r}")

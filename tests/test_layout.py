@@ -172,6 +172,7 @@ def test_malformed_layouts_are_refused_naming_the_entry(data, message, tmp_path)
         (base_dict(obstacles=[{"wall": {"from": [0.0, 2.5], "to": [3.45, 2.5]}}]), r"cannot be reached"),  # a 0.15 m gap: too narrow
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [1, 5], [3.6, 4]]}), r"boundary.polygon: edge \[3.6, 0.0\] -> \[1.0, 5.0\] crosses edge"),
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 5], [3.6, 0], [0, 5]]}), r"must not cross itself"),
+        (base_dict(arena={"width": 1e6, "height": 5.0}), r"arena.width: 1e\+06 m is beyond the 50 m"),
     ],
 )
 def test_impossible_layouts_are_refused_naming_the_entry(data, message):
