@@ -157,7 +157,7 @@ def _writable_folder(folder: Path, flag: str) -> None:
 
 
 def save_target(save_path: str, fmt: str | None) -> SaveTarget:
-    """Resolve and check -s: a name with an extension is a video file (.mp4/.gif), anything else a
+    """Resolve -s (its folder is checked and made apart, by _writable_folder): a name with an extension is a video file (.mp4/.gif), anything else a
     folder; so is a name ending in / (renders.v2/) or an existing folder."""
     from pursuit_mj.render.video import VIDEO_CODECS
 
@@ -172,7 +172,6 @@ def save_target(save_path: str, fmt: str | None) -> SaveTarget:
         target = SaveTarget(path.parent, path.stem, suffix)
     else:
         target = SaveTarget(path, None, fmt or "mp4")
-    _writable_folder(target.folder, "-s")
     return target
 
 
@@ -193,7 +192,7 @@ def check_render_settings(settings, config: TaskConfig) -> None:
 def run(args) -> int:
     from pursuit_mj.render.episodes import EpisodeOutputs, run_episodes
     from pursuit_mj.render.renderer import RenderSettings
-    from pursuit_mj.render.video import check_frame_size, ensure_ffmpeg
+    from pursuit_mj.render.video import check_frame_size, check_video_fps, ensure_ffmpeg
 
     if args.episodes < 1:
         raise ValueError(f"--episodes: expected an integer >= 1, got {args.episodes}")
@@ -205,27 +204,30 @@ def run(args) -> int:
     config = task_config(args, train_cfg.task if train_cfg is not None else None)
     load_layout(config.layout)
     video, final = not args.no_video, args.final_frame
+    fps = args.fps or 1.0 / config.control_dt
     if not (video or final or args.rerun):
         raise ValueError("--no-video without --final-frame or --rerun leaves nothing to write")
     settings = RenderSettings(args.width, args.height, args.camera, args.quality, key=not args.no_key)
     policy, label = shield_if_asked(args, *choose_policy(args, config, train_cfg), config)  # before any folder is made
+    if args.rerun:
+        from pursuit_mj.recording import RerunEpisodeRecording, check_rrd_path
+
+        check_rrd_path(args.rerun, "--rerun")
     target = None
     if video or final:
         target = save_target(args.save_path, args.format)
         check_render_settings(settings, config)  # the size range first: an odd size matters only inside it
         if video:
             check_frame_size(target.fmt, args.width, args.height)
+            check_video_fps(target.fmt, fps, "--fps" if args.fps else f"--fps (default 1/control_dt = {fps:g})")
             ensure_ffmpeg()
-    if args.rerun:
-        from pursuit_mj.recording import RerunEpisodeRecording, check_rrd_path
-
-        check_rrd_path(args.rerun, "--rerun")
+        _writable_folder(target.folder, "-s")
     videos = finals = None
     if target is not None:
         task_tag = "".join(f"_{Path(f).stem}" for f in args.task_files or [])  # --task hard: not the default task's files
         stem = f"{label}{task_tag}_layout{Path(str(config.layout)).stem}_{config.fidelity}_seed{args.seed}"
         videos, finals = target.paths(args.episodes, stem, video, final)
-    outputs = EpisodeOutputs(videos, finals, fps=args.fps or 1.0 / config.control_dt, trail_length=args.trail)
+    outputs = EpisodeOutputs(videos, finals, fps=fps, trail_length=args.trail)
 
     def report(k, record, written) -> None:
         where = ", ".join(str(p) for p in written)

@@ -58,6 +58,8 @@ def test_cli_single_file_and_no_video(tmp_path):
     (["--episodes", "0"], "--episodes: expected an integer >= 1, got 0"),
     (["--rerun", "x.txt"], "expected a file name ending in .rrd"),
     (["--no-video"], "leaves nothing to write"),
+    (["-s", "out/x.gif", "--fps", "60"], "--fps: 60 frames per second is beyond what a GIF plays"),
+    (["-s", "out/", "--format", "gif", "--set", "control_dt=0.01"], "--fps (default 1/control_dt = 100): 100 frames per second"),
 ])
 def test_cli_refuses_bad_input_before_any_work(tmp_path, capsys, monkeypatch, args, message):
     monkeypatch.chdir(tmp_path)
@@ -67,7 +69,7 @@ def test_cli_refuses_bad_input_before_any_work(tmp_path, capsys, monkeypatch, ar
     code = main(["render", "--fidelity", "point", "--set", "max_steps=5", *args])
     assert code == 2
     assert message in capsys.readouterr().err
-    assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
+    assert list(tmp_path.iterdir()) == []  # not even an empty output folder
 
 
 def test_cli_refuses_an_unwritable_save_path(tmp_path, capsys):
@@ -130,7 +132,9 @@ def test_a_render_killed_by_sigterm_or_sighup_leaves_no_partial_video(tmp_path, 
     import time
 
     out = tmp_path / "renders"
+    # drones at 2 cm/s neither collide nor catch: the episode outlasts the test
     proc = _cli_process(["render", "--policy", "random", "--fidelity", "point", "--set", "max_steps=100000",
+                         "--set", "pursuer_speed=0.02", "--set", "evader_speed=0.02",
                          "--width", str(W), "--height", str(H), "-s", str(out / "long.mp4")])
     deadline = time.monotonic() + 90
     while not (out.is_dir() and any(out.iterdir())) and time.monotonic() < deadline and proc.poll() is None:

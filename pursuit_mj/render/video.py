@@ -6,6 +6,8 @@ so an interrupted render never leaves a half-written file under the final name.
 
 from __future__ import annotations
 
+import math
+
 import contextlib
 import shutil
 from pathlib import Path
@@ -51,6 +53,18 @@ def check_frame_size(fmt: str, width: int, height: int) -> None:
         raise ValueError(f"--width {width} / --height {height}: mp4 (h264) needs even frame sizes")
 
 
+GIF_MAX_FPS = 50.0  # GIF delays are whole hundredths of a second, and players slow any under 0.02 s
+
+
+def check_video_fps(fmt: str, fps: float, source: str = "fps") -> None:
+    """Refuse a frame rate the format cannot play (ValueError naming `source`), before rendering anything."""
+    if not (math.isfinite(fps) and fps > 0):
+        raise ValueError(f"{source}: expected a positive frame rate, got {fps}")
+    if fmt == "gif" and fps > GIF_MAX_FPS:
+        raise ValueError(f"{source}: {fps:g} frames per second is beyond what a GIF plays (at most {GIF_MAX_FPS:g}; "
+                         f"its frame delays are whole hundredths of a second); lower --fps or write mp4")
+
+
 class VideoFile:
     """Append frames (H, W, 3) uint8 to `path` (.mp4 or .gif); `close(ok)` renames or discards it."""
 
@@ -58,6 +72,7 @@ class VideoFile:
         self.path = Path(path)
         fmt = video_format(self.path)
         check_frame_size(fmt, width, height)
+        check_video_fps(fmt, fps)
         ensure_ffmpeg()
         self.frames = 0
         self._atomic = atomic_path(self.path)
