@@ -98,7 +98,13 @@ def termination_as_interrupt():
         yield
         return
 
+    owner = os.getpid()
+
     def raise_interrupt(signum, frame):
+        if os.getpid() != owner:  # a forked worker (a pool's) inherits this: it must die as told
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
         raise KeyboardInterrupt(signal.Signals(signum).name)
 
     taken = {}

@@ -37,3 +37,37 @@ def test_bench_env_bad_input_exits_2(args, message, capsys):
     assert main(["bench", "env"] + args) == 2
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
+
+
+def _fail(message):
+    raise ValueError(message)
+
+
+def test_isolated_benchmarks_return_results_and_raise_errors_from_their_own_process():
+    import os
+
+    from pursuit_cli.benchmarks import run_isolated
+
+    assert run_isolated(os.getpid) != os.getpid()
+    with pytest.raises(ValueError, match="--seed"):
+        run_isolated(_fail, "--seed: bad")
+
+
+def test_a_forked_worker_dies_of_sigterm_while_its_parent_turns_it_into_an_interrupt():
+    """The CLI makes SIGTERM a KeyboardInterrupt; a worker forked under it (a benchmark's,
+    a pool's) must still die when told, or whoever stops it waits for ever."""
+    import multiprocessing
+    import signal
+    import time
+
+    from pursuit_cli import termination_as_interrupt
+
+    with termination_as_interrupt():
+        worker = multiprocessing.get_context("fork").Process(target=time.sleep, args=(60,))
+        worker.start()
+        time.sleep(0.2)
+        worker.terminate()  # SIGTERM
+        worker.join(timeout=20)
+        assert worker.exitcode == -signal.SIGTERM
+        with pytest.raises(KeyboardInterrupt, match="SIGTERM"):
+            signal.raise_signal(signal.SIGTERM)

@@ -28,11 +28,42 @@ def peak_rss_mb() -> float:
     return peak / 2**20 if sys.platform == "darwin" else peak / 2**10  # bytes on macOS, KiB on Linux
 
 
+def _run_and_send(send, fn: Callable[..., Any], args: tuple) -> None:
+    try:
+        outcome = (True, fn(*args))
+    except BaseException as exc:  # the parent re-raises it
+        outcome = (False, exc)
+    try:
+        send.send(outcome)
+    except Exception as exc:  # an unpicklable result or exception
+        send.send((False, RuntimeError(f"benchmark process: {type(exc).__name__}: {exc}")))
+
+
 def run_isolated(fn: Callable[..., Any], *args: Any) -> Any:
-    """fn(*args) in a fresh forked process (one task, then it exits); its result or its exception."""
+    """fn(*args) in a fresh forked process that exits after it; its result, or its exception raised here.
+
+    One plain process and a pipe: a Pool starts a replacement worker after the task and
+    then has to stop it, which could hang its exit."""
     ctx = multiprocessing.get_context("fork")
-    with ctx.Pool(1, maxtasksperchild=1) as pool:
-        return pool.apply(fn, args)
+    recv, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_run_and_send, args=(send, fn, args), daemon=True)
+    proc.start()
+    send.close()
+    try:
+        ok, value = recv.recv()
+    except EOFError:
+        proc.join()
+        raise RuntimeError(f"the benchmark process died (exit code {proc.exitcode})") from None
+    finally:
+        recv.close()
+        if proc.is_alive() and proc.exitcode is None:
+            proc.join(timeout=10)
+            if proc.is_alive():
+                proc.kill()
+                proc.join()
+    if not ok:
+        raise value
+    return value
 
 
 def format_table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
