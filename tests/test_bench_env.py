@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+
 import pytest
 
 from pursuit_cli.benchmarks.env import measure
@@ -31,10 +33,19 @@ def test_bench_env_prints_rates_overhead_and_profile(capsys):
         (["--seconds", "0"], "--seconds: must be > 0"),
         (["--set", "evader_speed=0"], "evader_speed"),
         (["--task", "no_such_preset"], "no_such_preset"),
+        (["--seed", "-1"], "argument --seed: expected an integer >= 0"),
+        (["--fidelity", "quadrotor", "point", "--set", "fidelity=point"], "--set fidelity=point: this benchmark measures"),
+        (["physics", "--fidelity", "point", "quadrotor", "--set", "fidelity=point"], "--set fidelity=point: this benchmark measures"),
+        (["physics", "--seed", "-1"], "argument --seed: expected an integer >= 0"),
+        (["render", "--seed", "-1"], "argument --seed: expected an integer >= 0"),
     ],
 )
 def test_bench_env_bad_input_exits_2(args, message, capsys):
-    assert main(["bench", "env"] + args) == 2
+    kind = args.pop(0) if args[0] in ("physics", "render") else "env"
+    with pytest.raises(SystemExit) if "argument" in message else contextlib.nullcontext() as exited:  # argparse exits, our checks return 2
+        code = main(["bench", kind] + args)
+    code = exited.value.code if exited is not None else code
+    assert code == 2
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
 

@@ -24,7 +24,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..common import finite_float
+from ..common import finite_float, seed_arg
 from pursuit_mj.config import TaskConfig, load_task_config
 from pursuit_mj.layout import load_layout
 from . import check_common_args, format_table, peak_rss_mb, profile_call, run_isolated
@@ -59,7 +59,7 @@ def add_arguments(p) -> None:
     p.add_argument("--worlds", nargs="+", type=int, default=[1, 16, 64], metavar="W", help="world counts (default 1 16 64)")
     p.add_argument("--seconds", type=finite_float, default=4.0, help="measuring time per configuration, all kinds together (default 4)")
     p.add_argument("--fidelity", nargs="+", choices=("quadrotor", "point"), default=["quadrotor", "point"], help="fidelities (default both)")
-    p.add_argument("--seed", type=int, default=0, help="environment seed (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="environment seed (default 0)")
     p.add_argument("--task", dest="task_files", action="append", default=[], metavar="FILE|PRESET",
                    help="task YAML file or preset name (reference, easy, hard); repeatable")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -69,7 +69,11 @@ def add_arguments(p) -> None:
 
 
 def task_config(fidelity: str, files: Sequence[str] = (), overrides: Sequence[str] = ()) -> TaskConfig:
-    return load_task_config(files, overrides, {"fidelity": fidelity})
+    config = load_task_config(files, overrides, {"fidelity": fidelity})
+    if config.fidelity != fidelity:
+        raise ValueError(f"--set fidelity={config.fidelity}: this benchmark measures the fidelities given by --fidelity; "
+                         f"use --fidelity {config.fidelity}")
+    return config
 
 
 def measure(fidelity: str, n_worlds: int, seconds: float, seed: int, files: Sequence[str],
@@ -122,7 +126,7 @@ def run(args) -> int:
     check_common_args(args)
     if args.profile < 0:
         raise ValueError(f"--profile: must be >= 0, got {args.profile}")
-    cfg = task_config(args.fidelity[0], args.task_files, args.overrides)  # refuses bad settings before any work
+    cfg = [task_config(f, args.task_files, args.overrides) for f in args.fidelity][0]  # refuses bad settings before any work
     print(f"env benchmark: {cfg.n_pursuers} pursuers + {cfg.n_evaders} evader(s) per world, layout {cfg.layout} with "
           f"{cfg.random_obstacle_count(load_layout(cfg.layout))} random obstacles, {cfg.observability} observability, {cfg.n_rays} rays; a decision "
           f"step is {cfg.control_dt:g} s = {cfg.substeps} physics steps")

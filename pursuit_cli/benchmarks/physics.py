@@ -23,7 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..common import finite_float
+from ..common import finite_float, seed_arg
 from pursuit_mj.config import TaskConfig, load_task_config
 from pursuit_mj.layout import load_layout
 from . import check_common_args, format_table, peak_rss_mb, run_isolated
@@ -64,14 +64,18 @@ def add_arguments(p) -> None:
     p.add_argument("--seconds", type=finite_float, default=3.0, help="measuring time per configuration, raw and ours together (default 3)")
     p.add_argument("--fidelity", nargs="+", choices=("quadrotor", "point"), default=["quadrotor", "point"], help="fidelities (default both)")
     p.add_argument("--nthread", type=int, default=0, help="MuJoCo batch threads (default 0: all CPUs)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the random obstacles and start positions (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="seed of the random obstacles and start positions (default 0)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="change a task setting from its default, e.g. --set controller_hz=100 (repeatable)")
 
 
 def task_config(fidelity: str, overrides: Sequence[str] = ()) -> TaskConfig:
     """The default task in `fidelity`, with --set overrides."""
-    return load_task_config([], overrides, {"fidelity": fidelity})
+    config = load_task_config([], overrides, {"fidelity": fidelity})
+    if config.fidelity != fidelity:
+        raise ValueError(f"--set fidelity={config.fidelity}: this benchmark measures the fidelities given by --fidelity; "
+                         f"use --fidelity {config.fidelity}")
+    return config
 
 
 def measure(fidelity: str, n_worlds: int, seconds: float, nthread: int = 0, seed: int = 0, overrides: Sequence[str] = ()) -> PhysicsBench:
@@ -122,7 +126,7 @@ def run(args) -> int:
     check_common_args(args)
     if args.nthread < 0:
         raise ValueError(f"--nthread: must be >= 0, got {args.nthread}")
-    cfg = task_config(args.fidelity[0], args.overrides)  # refuses bad --set values before any work
+    cfg = [task_config(f, args.overrides) for f in args.fidelity][0]  # refuses bad --set values before any work
     print(f"physics benchmark: {cfg.n_pursuers} pursuers + {cfg.n_evaders} evader(s) per world, layout {cfg.layout} with "
           f"{cfg.random_obstacle_count(load_layout(cfg.layout))} random obstacles per world; a decision step is control_dt {cfg.control_dt:g} s = "
           f"{cfg.substeps} physics steps of {cfg.physics_dt:g} s; controller {cfg.controller_hz:g} Hz")

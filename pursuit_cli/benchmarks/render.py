@@ -21,6 +21,7 @@ import numpy as np
 from pursuit_mj.config import TaskConfig, default_config
 from pursuit_mj.env import PursuitEnv
 from pursuit_mj.policies import make_policy
+from ..common import seed_arg
 
 HELP = "video frames per second of a 1000-step render at 640x480, and the cost of a rerun recording"
 TARGET_FPS = 20.0
@@ -154,7 +155,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int, default=1000, help="decision steps to play and render (default 1000)")
     p.add_argument("--width", type=int, default=640, help="frame width in pixels (default 640)")
     p.add_argument("--height", type=int, default=480, help="frame height in pixels (default 480)")
-    p.add_argument("--seed", type=int, default=0, help="environment seed (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="environment seed (default 0)")
 
 
 def run(args: argparse.Namespace) -> int:
