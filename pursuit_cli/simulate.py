@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from pursuit_mj.config import TaskConfig
+from pursuit_mj.config import TaskConfig, default_config
 from pursuit_mj.controller import tilt_angle
 from pursuit_mj.layout import N_BUILTIN, Layout, load_layout
 from pursuit_mj.layout_check import free_spawn_points
@@ -130,12 +130,18 @@ def _format(r: FlightReport) -> list[str]:
     return [line, f"{'':<10} final xy (m): {final}"]
 
 
+def _chosen(args, config: TaskConfig, key: str) -> bool:
+    """Whether the user picked `key` (by its flag, --set or a task file): then only that value is flown."""
+    named = {o.split("=", 1)[0].strip() for o in args.overrides}
+    return getattr(args, key) is not None or key in named or getattr(config, key) != getattr(default_config(), key)
+
+
 def run(args) -> int:
     if not np.isfinite(args.seconds) or args.seconds <= 0:
         raise ValueError(f"--seconds: must be > 0, got {args.seconds}")
     base = task_config_from_args(args)
-    layouts = [base.layout] if args.layout is not None else list(range(N_BUILTIN))
-    fidelities = [base.fidelity] if args.fidelity else ["quadrotor", "point"]
+    layouts = [base.layout] if _chosen(args, base, "layout") else list(range(N_BUILTIN))
+    fidelities = [base.fidelity] if _chosen(args, base, "fidelity") else ["quadrotor", "point"]
     team = f"{base.n_pursuers} pursuer{'s' if base.n_pursuers > 1 else ''} + {base.n_evaders} evader{'s' if base.n_evaders > 1 else ''}"
     print(f"scripted flight: {team} fly to the middle, then circle it; "
           f"{args.seconds:g} s per run, control_dt {base.control_dt:g} s, physics_dt {base.physics_dt:g} s")

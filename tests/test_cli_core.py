@@ -20,6 +20,12 @@ def test_simulate_prints_a_row_per_layout_and_fidelity(capsys):
     assert out.count("final xy (m): pursuer_0") == 2 and "total wall time" in out
 
 
+def test_simulate_flies_only_the_layout_and_fidelity_chosen_through_set(capsys):
+    assert main(["simulate", "--seconds", "0.2", "--set", "fidelity=point", "--set", "layout=1"]) == 0
+    rows = [line.split()[:2] for line in capsys.readouterr().out.splitlines() if line.split()[:1] in (["open"], ["walls"], ["bars"], ["cluttered"])]
+    assert rows == [["walls", "point"]]
+
+
 def test_scripted_flight_in_an_open_arena_is_clean_and_ends_circling_the_middle():
     config = default_config(random_obstacles=0)
     report = fly(config, load_layout(0), seconds=6.0)
