@@ -83,6 +83,17 @@ def test_demo_prints_the_table_and_how_to_train(tiny_model, capsys):
     assert code == 0 and "+shield" not in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("args, message", [
+    (["--layouts", "0", "7"], "--layouts: layout 7: no built-in layout"),
+    (["--layouts", "0", "0"], "--layouts: 0 is given twice"),
+    (["--worlds", "0"], "--worlds: expected an integer >= 1"),
+])
+def test_demo_refuses_bad_layouts_and_worlds_before_any_episode(tiny_model, capsys, args, message):
+    assert main(["demo", "--model", str(tiny_model), "--fidelity", "point", *args]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "[demo]" not in err and len(err.strip().splitlines()) == 1
+
+
 def test_eval_command_loads_a_checkpoint_with_other_team_sizes(tiny_model, capsys):
     code = main(["eval", "--model", str(tiny_model), "--episodes", "2", "--worlds", "2", "--pursuers", "4",
                  "--evaders", "2", "--fidelity", "point", "--set", "max_steps=20", "-q"])
