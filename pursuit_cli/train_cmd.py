@@ -65,7 +65,8 @@ def register(sub) -> None:
                    help="continue the run in RUN_DIR (default: the configured run) from its last.pt")
     p.add_argument("--export", nargs=2, metavar=("CHECKPOINT", "OUT"),
                    help="write a small policy-only copy of CHECKPOINT (actor, config, spec) to OUT and exit")
-    p.add_argument("--rerun", action="store_true", help="also stream the logged scalars to runs/<name>/metrics.rrd (run.rerun)")
+    p.add_argument("--rerun", action="store_true", help="also stream the logged scalars to runs/<name>/metrics.rrd (run.rerun); a resumed run rewrites it "
+                        "from the whole metrics log first")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (logs still go to metrics.jsonl)")
     p.add_argument("-sc", "--show-config", action="store_true", help="print the resolved config and exit")
     p.set_defaults(func=run)

@@ -136,6 +136,11 @@ def test_train_streams_its_scalars_to_rerun(tmp_path, capsys):
     steps = ent["/train/agent_steps"].rows
     assert steps["env_steps"] == [r["world_steps"] for r in rows]
     assert steps["Scalars:scalars"] == [[float(r["agent_steps"])] for r in rows]
+    # a resumed run's file starts afresh and holds the earlier curves too
+    assert main(["train", "--no-progress", "--resume", str(tmp_path / "rr"), "--total-steps", "128", "--rerun"]) == 0
+    rows = [json.loads(x) for x in (tmp_path / "rr" / "metrics.jsonl").read_text().splitlines()]
+    steps = read_entities(tmp_path / "rr" / "metrics.rrd")["/train/agent_steps"].rows
+    assert len(rows) >= 2 and steps["env_steps"] == [r["world_steps"] for r in rows]
 
 
 def test_a_model_used_in_another_task_than_it_learned_says_so(tiny_model, capsys):

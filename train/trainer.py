@@ -110,6 +110,9 @@ class Trainer:
             self.collector = Collector(self.env, self.model, self.generator, make_action_path(cfg, self.env))
         self.metrics = MetricsLog(self.run_dir / "metrics.jsonl")
         self.rerun = RerunScalarLogger(self.run_dir / "metrics.rrd", run_name=cfg.name) if cfg.run.rerun else None
+        if self.rerun is not None and checkpoint:  # the file starts afresh: the curves so far come from the log
+            for row in self.metrics.rows():
+                self.rerun.log(int(row["world_steps"]), row)
         self.recent = collections.deque(maxlen=WINDOW)
         self._validator: FixedSeedValidator | None = None
         self._saved_update = self.counters.update if checkpoint else -1
