@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from .common import add_task_args, finite_float, seed_arg, task_config_from_args
@@ -32,6 +33,9 @@ def register(sub) -> None:
     p.add_argument("--train-fidelity", choices=("point", "quadrotor"), default="point", help="fidelity for training (default point)")
     p.add_argument("--train-set", dest="train_overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a train key in every regime, e.g. n_envs=16 (repeatable)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the interrupted study in --out: finished arms are kept, the interrupted one resumes "
+                        "from its last checkpoint, the rest train; --budget-minutes is the time for what is left")
     add_task_args(p)
     p.set_defaults(func=run)
 
@@ -51,15 +55,23 @@ def run(args) -> int:
     task = task_config_from_args(args)
     layouts = tuple(int(x) if x.strip().isdigit() else x for x in args.layouts)
     out = Path(args.out)
+    if args.resume and not out.is_dir():
+        raise ValueError(f"--resume: --out {out} is not a folder with a study to continue")
     check_writable_folder(out, f"--out {out}")
-    if out.exists() and any((out / "runs").glob("*/last.pt")):
-        raise ValueError(f"--out {out}: already holds study runs; choose another folder")
+    if not args.resume and any((out / "runs").glob("*/last.pt")):
+        raise ValueError(f"--out {out}: already holds study runs; continue them with --resume, or choose another folder")
     plan = StudyPlan(
         budget_minutes=args.budget_minutes, out=out, eval_task=task, layouts=layouts, episodes=args.episodes,
         worlds=args.worlds, seed=args.seed,
-        train_overrides=(f"task.fidelity={args.train_fidelity}", *args.train_overrides),
+        train_overrides=(f"task.fidelity={args.train_fidelity}", *args.train_overrides), resume=args.resume,
     )
-    result = run_study(plan)
+    try:
+        result = run_study(plan)
+    except KeyboardInterrupt:
+        print(f"[study] interrupted; the finished arms are kept: continue with pursuit-mj study --resume --out {out} "
+              f"--budget-minutes M (the time for what is left) and the same task, --train-fidelity and --train-set flags",
+              file=sys.stderr)
+        raise
     print((out / "table.txt").read_text(), end="")
     print(f"\n{result['episodes']} episodes per policy and layout; time per part:")
     print(format_timings(result["timings"]))

@@ -73,3 +73,39 @@ def test_a_train_override_one_arm_refuses_is_found_before_anything_runs(tmp_path
     err = capsys.readouterr().err
     assert "--train-set: the imitate arm" in err and "learnable_gamma" in err
     assert not (out / "runs").exists()  # no arm trained, no evaluation run
+
+
+def test_an_interrupted_study_resumes_keeping_its_finished_arms(tmp_path, capsys, monkeypatch):
+    from train.trainer import Trainer
+
+    out_dir = tmp_path / "study"
+    args = ["--episodes", "2", "--worlds", "2", "--layouts", "0", "--out", str(out_dir), "--fidelity", "point",
+            "--set", "max_steps=20"] + sum((["--train-set", s] for s in TRAIN), [])
+    real_update = Trainer.train_one_update
+
+    def ctrl_c_in_classic(self):
+        if self.cfg.name == "classic" and self.counters.update >= 1:
+            raise KeyboardInterrupt
+        return real_update(self)
+
+    monkeypatch.setattr(Trainer, "train_one_update", ctrl_c_in_classic)
+    assert main(["study", "--budget-minutes", "0.8", *args]) == 130
+    err = capsys.readouterr().err
+    assert "pursuit-mj study --resume" in err and "pursuit-mj train --resume" not in err
+    assert set(json.loads((out_dir / "study.json").read_text())["arms"]) == {"full_obs", "fine_tune"}
+    assert main(["study", "--budget-minutes", "0.8", *args]) == 2  # not over the runs without --resume
+    assert "continue them with --resume" in capsys.readouterr().err
+    kept = (out_dir / "runs" / "full_obs" / "metrics.jsonl").read_text()
+    classic_rows = len((out_dir / "runs" / "classic" / "metrics.jsonl").read_text().splitlines())
+
+    monkeypatch.setattr(Trainer, "train_one_update", real_update)
+    assert main(["study", "--budget-minutes", "0.6", "--resume", *args]) == 0
+    out = capsys.readouterr().out
+    assert "full_obs: trained in an earlier session, kept" in out and "resuming classic" in out
+    assert (out_dir / "runs" / "full_obs" / "metrics.jsonl").read_text() == kept
+    updates = [json.loads(x)["update"] for x in (out_dir / "runs" / "classic" / "metrics.jsonl").read_text().splitlines()]
+    assert updates[:classic_rows] == list(range(1, classic_rows + 1)) and len(updates) > classic_rows  # continued
+    table = json.loads((out_dir / "table.json").read_text())
+    assert len({r["policy"] for r in table["rows"]}) == 10  # the heuristic team and all nine arms
+    assert main(["study", "--budget-minutes", "0.6", "--resume", *args, "--train-set", "n_envs=3"]) == 2
+    assert "give the same --train-fidelity and --train-set" in capsys.readouterr().err

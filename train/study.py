@@ -16,7 +16,11 @@ would take more than VALIDATION_SHARE of it). All
 policies are evaluated on the same task (the reference preset unless told otherwise) with
 partial observability: full_obs is trained with full observability but judged like the rest.
 
-Outputs in <out>/: runs/<regime>/ (checkpoints, metrics), table.txt (the table, then every arm
+An interrupted study continues with `resume=True` (`study --resume`): arms recorded as
+finished in <out>/study.json are kept, the interrupted one resumes from its last.pt with its
+share of the new budget added, and the rest train as before; everything is evaluated again.
+
+Outputs in <out>/: runs/<regime>/ (checkpoints, metrics), study.json (the finished arms), table.txt (the table, then every arm
 paired with the heuristic team on the same episodes, pursuit_mj.comparison), table.csv,
 table.json (rows, and the pairs under "paired"), plots/*.png, timings.json.
 """
@@ -84,6 +88,31 @@ class StudyPlan:
     worlds: int = 32
     seed: int = 0
     train_overrides: tuple[str, ...] = ()
+    resume: bool = False  # continue the study in `out`: keep its finished arms, resume its interrupted one
+
+
+STATE_FILE = "study.json"  # in <out>/: the arms trained so far, written as each one ends
+
+
+def _load_state(plan: StudyPlan) -> dict:
+    """The study's record of finished arms: new (and written) for a fresh study, read for --resume;
+    ValueError when there is nothing to continue or it was trained with other --train-set values."""
+    path = plan.out / STATE_FILE
+    if not plan.resume:
+        state = {"train_overrides": list(plan.train_overrides), "arms": {}}
+        atomic_write_text(path, json.dumps(state, indent=2) + "\n")
+        return state
+    if not path.is_file():
+        raise ValueError(f"--resume: {plan.out} holds no study to continue (no {STATE_FILE})")
+    try:
+        state = json.loads(path.read_text())
+        arms, stored = dict(state["arms"]), list(state["train_overrides"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"--resume: {path} is not a study record ({exc})") from None
+    if stored != list(plan.train_overrides):
+        raise ValueError(f"--resume: the study in {plan.out} was trained with {stored or 'no train overrides'}, not "
+                         f"{list(plan.train_overrides)}; give the same --train-fidelity and --train-set")
+    return {"train_overrides": stored, "arms": arms}
 
 
 def _minutes(seconds: float) -> float:
@@ -155,6 +184,8 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
     """Train, evaluate, write the table and charts; returns {'rows', 'timings', 'episodes'}."""
     check_train_overrides(plan)
     plan.out.mkdir(parents=True, exist_ok=True)
+    state = _load_state(plan)
+    todo = [arm for arm in ARMS if arm.name not in state["arms"]]
     timings: dict[str, float] = {}
     t_start = time.perf_counter()
 
@@ -178,7 +209,7 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
     timings["heuristic (eval)"] = time.perf_counter() - t0
     seconds_per_episode = timings["heuristic (eval)"] / (episodes * len(plan.layouts))
     train_end = t_start + plan.budget_minutes * 60.0 - ARMS_EVAL_COST * timings["heuristic (eval)"]
-    left_s = train_end - time.perf_counter() - ARM_START_S * len(ARMS)
+    left_s = train_end - time.perf_counter() - ARM_START_S * len(todo)
     if left_s < 0.5 * train_minutes * 60.0:
         planned = eval_seconds(timings["evaluation speed probe"], probe, episodes)
         log(f"[study] warning: the heuristic team's evaluation took {timings['heuristic (eval)']:.0f} s where "
@@ -186,28 +217,44 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
             f"and the study may run over its budget")
 
     checkpoints: dict[str, Path] = {}
-    for i, arm in enumerate(ARMS):
+    for arm in ARMS:
         regime = arm.name
+        run_dir = plan.out / "runs" / regime
+        if regime in state["arms"]:
+            checkpoints[regime] = run_dir / "best.pt"
+            timings[f"{regime} (train, earlier session)"] = float(state["arms"][regime]["train_seconds"])
+            log(f"[study] {regime}: trained in an earlier session, kept")
+            continue
         overrides = [f"name={arm.name}", f"run.runs_dir={plan.out / 'runs'}", "total_steps=1000000000", "task.layout=0",
                      *plan.train_overrides]
         if arm.start_from:
             overrides.append(f"init_from={checkpoints[arm.start_from]}")
         cfg = load_train_config([arm.config], overrides)
-        if (cfg.run_dir / "last.pt").exists():
+        interrupted = (cfg.run_dir / "last.pt").exists()
+        if interrupted and not plan.resume:
             raise ValueError(f"study folder {plan.out}: {cfg.run_dir} already holds a run; choose another --out")
-        left_s = train_end - time.perf_counter() - ARM_START_S * (len(ARMS) - i)  # this and every later arm's start
-        minutes, val_episodes = arm_budget(left_s, arm.share, sum(a.share for a in ARMS[i:]),
+        i = todo.index(arm)
+        left_s = train_end - time.perf_counter() - ARM_START_S * (len(todo) - i)  # this and every later arm's start
+        minutes, val_episodes = arm_budget(left_s, arm.share, sum(a.share for a in todo[i:]),
                                            cfg.run.validation_episodes, seconds_per_episode, cfg.run.validation_vs_heuristic)
-        cfg = load_train_config([arm.config], overrides + [f"max_minutes={max(minutes, 0.01):.4f}",
-                                                          f"run.validation_episodes={val_episodes}"])
         t0 = time.perf_counter()
-        log(f"[study] training {regime} for {_duration(minutes * 60)}, then validating on {val_episodes} episodes "
-            f"({cfg.task.fidelity} fidelity)")
-        result = Trainer(cfg, log=log).train()
+        if interrupted:  # its own config, with the time it had plus its share of this session's
+            trainer = Trainer.resume(cfg.run_dir, log=log, max_minutes=_spent_minutes(cfg.run_dir) + max(minutes, 0.01))
+            log(f"[study] resuming {regime} for {_duration(minutes * 60)} more")
+        else:
+            cfg = load_train_config([arm.config], overrides + [f"max_minutes={max(minutes, 0.01):.4f}",
+                                                              f"run.validation_episodes={val_episodes}"])
+            log(f"[study] training {regime} for {_duration(minutes * 60)}, then validating on {val_episodes} episodes "
+                f"({cfg.task.fidelity} fidelity)")
+            trainer = Trainer(cfg, log=log)
+        trainer.resume_command = "pursuit-mj study --resume (the whole study; see below)"
+        result = trainer.train()
         timings[f"{regime} (train)"] = time.perf_counter() - t0
         if result["status"] != "done":
             raise KeyboardInterrupt
-        checkpoints[regime] = cfg.run_dir / "best.pt"
+        checkpoints[regime] = run_dir / "best.pt"
+        state["arms"][regime] = {"train_seconds": round(float(result["counters"]["seconds"]), 1)}
+        atomic_write_text(plan.out / STATE_FILE, json.dumps(state, indent=2) + "\n")
 
     t = plan.eval_task
     spec = ObsSpec.make(t.n_pursuers, t.n_evaders, t.n_rays)
@@ -220,6 +267,13 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
     timings["total"] = time.perf_counter() - t_start
     _write(plan, rows, timings, episodes)
     return {"rows": rows, "timings": timings, "episodes": episodes}
+
+
+def _spent_minutes(run_dir: Path) -> float:
+    """Minutes an interrupted run has trained so far (its checkpoint's counters)."""
+    from .checkpoint import load_checkpoint
+
+    return float(load_checkpoint(run_dir / "last.pt")["counters"]["seconds"]) / 60.0
 
 
 def _write(plan: StudyPlan, rows: Sequence, timings: dict[str, float], episodes: int) -> None:

@@ -75,6 +75,7 @@ class Trainer:
         self.cfg = cfg
         self.log = log
         self.run_dir = cfg.run_dir
+        self.resume_command = f"pursuit-mj train --resume {self.run_dir}"  # what an interrupted run tells the user
         torch.manual_seed(cfg.seed)
         self.counters = Counters()
         self.generator = torch.Generator().manual_seed(cfg.seed)
@@ -433,7 +434,7 @@ class Trainer:
             if self._consistent and (self._saved_update != c.update or self._pending_row):
                 self.save()
             self.log(f"\ninterrupted: state of update {self._saved_update} is in {self.run_dir / 'last.pt'}; "
-                     f"continue with: pursuit-mj train --resume {self.run_dir}")
+                     f"continue with: {self.resume_command}")
         finally:
             self.close()
             if bar is not None:
