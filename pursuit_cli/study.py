@@ -42,7 +42,8 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from pursuit_mj.io_utils import check_writable_folder
-    from train.study import StudyPlan, format_timings, run_study
+    from pursuit_mj.layout import load_layout
+    from train.study import StudyPlan, check_train_overrides, format_timings, run_study
 
     if args.budget_minutes <= 0:
         raise ValueError(f"--budget-minutes: expected a positive number, got {args.budget_minutes}")
@@ -54,17 +55,20 @@ def run(args) -> int:
         args.task_files = ["reference"]
     task = task_config_from_args(args)
     layouts = tuple(int(x) if x.strip().isdigit() else x for x in args.layouts)
+    for ref in layouts:
+        load_layout(ref)  # a bad layout refused before any folder is made or any arm trains
     out = Path(args.out)
-    if args.resume and not out.is_dir():
-        raise ValueError(f"--resume: --out {out} is not a folder with a study to continue")
-    check_writable_folder(out, f"--out {out}")
-    if not args.resume and any((out / "runs").glob("*/last.pt")):
-        raise ValueError(f"--out {out}: already holds study runs; continue them with --resume, or choose another folder")
     plan = StudyPlan(
         budget_minutes=args.budget_minutes, out=out, eval_task=task, layouts=layouts, episodes=args.episodes,
         worlds=args.worlds, seed=args.seed,
         train_overrides=(f"task.fidelity={args.train_fidelity}", *args.train_overrides), resume=args.resume,
     )
+    check_train_overrides(plan)
+    if args.resume and not out.is_dir():
+        raise ValueError(f"--resume: --out {out} is not a folder with a study to continue")
+    check_writable_folder(out, f"--out {out}")
+    if not args.resume and any((out / "runs").glob("*/last.pt")):
+        raise ValueError(f"--out {out}: already holds study runs; continue them with --resume, or choose another folder")
     try:
         result = run_study(plan)
     except KeyboardInterrupt:
