@@ -16,6 +16,9 @@ from .layout import N_BUILTIN
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 CONFIG_DIR = REPO_ROOT / "configs"
+#: m between two drone centres when their collision cylinders touch (2 x the 0.0685 m radius
+#: of the "collision" geom in models/crazyflie.xml; a test checks the two agree)
+DRONE_CONTACT_DISTANCE = 2 * 0.0685
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,6 +96,10 @@ class TaskConfig:
                 f"{source}: perception_radius {self.perception_radius} is below capture_radius "
                 f"{self.capture_radius}: a pursuer could capture what it cannot see"
             )
+        if self.capture_radius <= DRONE_CONTACT_DISTANCE:
+            raise ConfigError(
+                f"{source}: capture_radius {self.capture_radius} m is not beyond {DRONE_CONTACT_DISTANCE:g} m, where two "
+                f"drones' collision volumes touch: every capture would be a collision")
         from .layout_check import SPAWN_CLEARANCE, SPAWN_SEPARATION
 
         for key, value, room, what in (("obstacle_clearance", self.obstacle_clearance, SPAWN_CLEARANCE, "from walls"),

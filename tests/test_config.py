@@ -69,6 +69,7 @@ def test_dumped_config_loads_back_identical(tmp_path):
         (["control_dt=0.015"], r"control_dt 0.015 is not a whole number of physics_dt 0.002"),
         (["controller_hz=300"], r"controller_hz 300.0 does not divide the physics rate 500 Hz"),
         (["perception_radius=0.2"], r"perception_radius 0.2 is below capture_radius 0.3"),
+        (["capture_radius=0.1"], r"capture_radius 0.1 m is not beyond 0.137 m, where two drones' collision volumes touch"),
         (["n_pursuers"], r"'n_pursuers' is not of the form key=value"),
         (["evader=3"], r"key 'evader': expected a mapping of EvaderConfig keys, got 3"),
         (["n_pursuers.x=1"], r"'n_pursuers' has no sub-keys"),
@@ -77,6 +78,15 @@ def test_dumped_config_loads_back_identical(tmp_path):
 def test_bad_overrides_raise_naming_key_value_and_source(overrides, message):
     with pytest.raises(ConfigError, match=message):
         load_task_config([], overrides)
+
+
+def test_the_contact_distance_is_twice_the_drone_models_collision_radius():
+    import mujoco
+
+    from pursuit_mj.config import DRONE_CONTACT_DISTANCE
+
+    model = mujoco.MjModel.from_xml_path("models/crazyflie.xml")
+    assert DRONE_CONTACT_DISTANCE == pytest.approx(2 * model.geom("collision").size[0])
 
 
 def test_bad_yaml_files_name_the_file(tmp_path):
