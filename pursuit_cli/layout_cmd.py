@@ -41,6 +41,8 @@ def _register_new(lsub) -> None:
     )
     p.add_argument("out", metavar="OUT.yaml", help="file to write")
     p.add_argument("--name", help="layout name (default: the file name)")
+    p.add_argument("--pursuers", type=int, default=3, help="team size whose spawn room is checked (default 3)")
+    p.add_argument("--evaders", type=int, default=1, help="evaders whose spawn room is checked (default 1)")
     p.add_argument("--width", type=finite_float, default=3.6, help="arena width along x (m, default 3.6)")
     p.add_argument("--height", type=finite_float, default=5.0, help="arena height along y (m, default 5.0)")
     p.add_argument("--border", choices=("rectangle", "polygon", "circle"), default="rectangle", help="border shape")
@@ -211,7 +213,23 @@ def build_new_layout(args) -> Layout:
     data["random_obstacles"]["count"] = args.episode_obstacles
     layout = layout_from_dict(data, source)
     _check_random_fits(layout, "lower --episode-obstacles or --obstacle-size, or make room")
+    _check_team_fits(layout, args.pursuers, args.evaders)
     return layout
+
+
+def _check_team_fits(layout: Layout, n_pursuers: int, n_evaders: int) -> None:
+    """What every task on `layout` needs: room to spawn the team, and the two teams' regions
+    farther apart than the default capture_radius. LayoutError naming the flags otherwise."""
+    from pursuit_mj.config import default_config
+    from pursuit_mj.layout_check import SPAWN_SEPARATION, check_spawn_gap
+
+    if n_pursuers < 1 or n_evaders < 1:
+        raise ValueError(f"--pursuers {n_pursuers} / --evaders {n_evaders}: each must be >= 1")
+    try:
+        check_spawn_capacity(layout, n_pursuers, n_evaders, SPAWN_SEPARATION)
+    except LayoutError as exc:
+        raise LayoutError(f"{exc} (checked for --pursuers {n_pursuers} --evaders {n_evaders})") from None
+    check_spawn_gap(layout, default_config().capture_radius, "default capture_radius")
 
 
 def _round_floats(value, digits: int = 3):
@@ -304,11 +322,9 @@ def run_check(args) -> int:
     from pursuit_mj.layout_check import SPAWN_SEPARATION
     from pursuit_mj.scene import SceneSpec, build_model
 
-    if args.pursuers < 1 or args.evaders < 1:
-        raise ValueError(f"--pursuers {args.pursuers} / --evaders {args.evaders}: each must be >= 1")
     layout = load_layout(args.layout)
     tried = _check_random_fits(layout, "lower random_obstacles.count or size in the file, or make room")
-    check_spawn_capacity(layout, args.pursuers, args.evaders, SPAWN_SEPARATION)
+    _check_team_fits(layout, args.pursuers, args.evaders)
     placed = layout.with_random_obstacles(np.random.default_rng(0))
     models = {f: build_model(SceneSpec(placed, args.pursuers, args.evaders, f)) for f in ("point", "quadrotor")}
     print(f"layout {layout.source}: valid")

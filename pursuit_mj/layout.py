@@ -190,6 +190,16 @@ def _parse_boundary(value: Any, where: str) -> Boundary:
             pts = tuple(_pair(p, f"{where}.polygon[{i}]") for i, p in enumerate(body))
             from .layout_check import polygon_crossing
 
+            for i, p in enumerate(pts):
+                if p in pts[:i]:
+                    raise LayoutError(f"{where}.polygon: point {i} {list(p)} repeats point {pts.index(p)}: "
+                                      f"the border must not touch itself")
+            for i in range(len(pts)):  # a border that turns straight back runs over itself
+                a, b, c = (np.array(pts[(i + k) % len(pts)]) for k in range(3))
+                u, v = b - a, c - b
+                if abs(u[0] * v[1] - u[1] * v[0]) < 1e-12 and float(u @ v) < 0:
+                    raise LayoutError(f"{where}.polygon: at {list(pts[(i + 1) % len(pts)])} the border turns straight "
+                                      f"back along itself")
             crossing = polygon_crossing(pts)
             if crossing is not None:
                 i, j = crossing
@@ -261,8 +271,11 @@ def layout_from_dict(data: Mapping[str, Any], source: str = "<layout>") -> Layou
         raise LayoutError(f"{source}: obstacles: expected a list, got {obstacles_raw!r}")
     obstacles = tuple(_parse_obstacle(o, f"{source}: obstacles[{i}]") for i, o in enumerate(obstacles_raw))
     spawn = _mapping(m["spawn"], f"{source}: spawn", ("pursuers", "evaders"), ("pursuers", "evaders"))
+    name = str(m.get("name", Path(source).stem))
+    if not name.strip() or any(c in name for c in "/\\") or not name.isprintable():
+        raise LayoutError(f"{source}: name {name!r}: must be a plain label (no slashes; output files are named after it)")
     layout = Layout(
-        name=str(m.get("name", Path(source).stem)),
+        name=name,
         width=width,
         height=height,
         boundary=_parse_boundary(m.get("boundary", "rectangle"), f"{source}: boundary"),

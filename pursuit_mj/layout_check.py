@@ -79,6 +79,27 @@ def check_spawn_capacity(layout, n_pursuers: int, n_evaders: int, separation: fl
                               f"room); make the layout's spawn region larger or use fewer {name}")
 
 
+def spawn_gap(layout) -> float:
+    """Shortest distance (m) between the pursuers' and the evaders' spawn rectangles; 0 when they overlap."""
+    a, b = layout.spawn_pursuers, layout.spawn_evaders
+    dx = max(0.0, a.x[0] - b.x[1], b.x[0] - a.x[1])
+    dy = max(0.0, a.y[0] - b.y[1], b.y[0] - a.y[1])
+    return float(np.hypot(dx, dy))
+
+
+def check_spawn_gap(layout, capture_radius: float, source: str = "capture_radius") -> None:
+    """LayoutError unless the two spawn regions lie more than `capture_radius` (m) apart: an
+    evader spawned within it of a pursuer would count as caught on the first step."""
+    from .layout import LayoutError
+
+    gap = spawn_gap(layout)
+    if gap <= capture_radius:
+        where = "overlap" if gap == 0 else f"are {gap:g} m apart"
+        raise LayoutError(f"{layout.source}: the pursuers' and the evaders' spawn regions {where}, within the "
+                          f"{source} of {capture_radius:g} m: an episode could start with its evader caught; "
+                          f"move the regions apart")
+
+
 def reachable(layout, start, goal, clearance: float = PASSAGE_CLEARANCE) -> bool:
     """Whether a drone centre keeping `clearance` (m) from the border and the fixed obstacles can fly
     from some free point of Region `start` to some free point of Region `goal` (8-connected grid)."""

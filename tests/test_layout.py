@@ -172,6 +172,8 @@ def test_malformed_layouts_are_refused_naming_the_entry(data, message, tmp_path)
         (base_dict(obstacles=[{"wall": {"from": [0.0, 2.5], "to": [3.45, 2.5]}}]), r"cannot be reached"),  # a 0.15 m gap: too narrow
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [1, 5], [3.6, 4]]}), r"boundary.polygon: edge \[3.6, 0.0\] -> \[1.0, 5.0\] crosses edge"),
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 5], [3.6, 0], [0, 5]]}), r"must not cross itself"),
+        (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [3.6, 5], [0, 5], [3.6, 0]]}), r"point 4 \[3.6, 0.0\] repeats point 1"),
+        (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [3.6, 5], [3.6, 2], [0, 5]]}), r"at \[3.6, 5.0\] the border turns straight back"),
         (base_dict(arena={"width": 1e6, "height": 5.0}), r"arena.width: 1e\+06 m is beyond the 50 m"),
     ],
 )
@@ -252,6 +254,11 @@ def test_layout_new_default_polygon_and_seeded_random_obstacles_are_reproducible
         (["layout", "show", "7"], "layout 7: no built-in layout with this index"),
         (["layout", "show", "0", "-o", "{out}"], "expected a .png file name"),
         (["layout", "check", "missing.yaml"], "layout 'missing.yaml': no such file"),
+        (["layout", "new", "{out}", "--width", "0.7", "--height", "3", "--episode-obstacles", "0"],
+         "cannot reliably hold 3 pursuers 0.4 m apart"),  # the file would be refused by every command
+        (["layout", "new", "{out}", "--spawn-pursuers", "1", "2.6", "2", "3", "--spawn-evaders", "1", "2.6", "2", "3"],
+         "spawn regions overlap"),
+        (["layout", "new", "{out}", "--name", "../x"], "name '../x': must be a plain label"),
     ],
 )
 def test_layout_cli_bad_input_exits_2_with_one_line(argv, message, tmp_path, capsys):
@@ -319,6 +326,14 @@ def test_separated_spawn_draws_retry_until_one_fits():
         drawn = sample_separated(line, 3, rng, 0.5, tries=200)
         assert drawn is not None and sorted(drawn[:, 0].tolist()) == [0.0, 0.5, 1.0]
     assert sample_separated(line, 4, rng, 0.5, tries=5) is None
+
+
+def test_a_task_whose_capture_radius_spans_the_spawn_gap_is_refused(tmp_path):
+    path = tmp_path / "close.yaml"
+    path.write_text(yaml.safe_dump(base_dict(spawn={"pursuers": SPAWN["pursuers"], "evaders": {"x": [0.2, 3.4], "y": [1.2, 1.8]}})))
+    PursuitEnv(default_config(layout=str(path), fidelity="point"), seed=0)  # 0.4 m apart: fine with 0.3
+    with pytest.raises(LayoutError, match="spawn regions are 0.4 m apart, within the capture_radius of 0.5 m"):
+        PursuitEnv(default_config(layout=str(path), fidelity="point", capture_radius=0.5), seed=0)
 
 
 def test_numbers_in_exponent_form_are_numbers_as_in_yaml_1_2(tmp_path):
