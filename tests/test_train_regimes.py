@@ -79,6 +79,17 @@ def test_fine_tune_starts_from_full_obs_weights_and_switches_observability(tmp_p
     assert any(not torch.equal(moved[k], v) for k, v in source["actor"].items())
 
 
+def test_a_mappo_run_started_from_a_mappo_checkpoint_keeps_its_critics_value_scale(tmp_path):
+    base = TINY + [f"run.runs_dir={tmp_path}", "total_steps=96"]
+    source_cfg = load_train_config(["mappo"], base + ["name=src"])
+    Trainer(source_cfg, **QUIET).train()
+    source = load_checkpoint(source_cfg.run_dir / "last.pt")
+    assert source["value_norm"]["count"] > 1  # the source learnt its returns' statistics
+    child = Trainer(load_train_config(["mappo"], base + ["name=child", f"init_from={source_cfg.run_dir / 'last.pt'}"]), **QUIET)
+    for k, v in source["value_norm"].items():
+        assert torch.equal(torch.as_tensor(child.model.value_norm.state_dict()[k]), torch.as_tensor(v)), k
+
+
 def test_fine_tune_without_its_full_obs_checkpoint_says_how_to_get_one(tmp_path):
     ft = load_train_config(["fine_tune"], TINY + [f"run.runs_dir={tmp_path}", f"init_from={tmp_path / 'nope.pt'}"])
     with pytest.raises(ValueError, match=r"init_from .*nope.pt: no such checkpoint .*--init-from.*"

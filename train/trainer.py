@@ -193,6 +193,9 @@ class Trainer:
                 self.model.critic.load_state_dict(data["critic"])
             except RuntimeError:
                 notes.append("its critic does not fit (other team size or network): the critic starts fresh")
+            else:  # a normalised critic's outputs mean nothing without the statistics they were scaled by
+                if self.model.value_norm is not None and data.get("value_norm"):
+                    self.model.value_norm.load_state_dict(data["value_norm"])
         src_base = (src.get("residual") or {}).get("base", "none")
         if src_base != self.cfg.residual.base:
             notes.append(f"its actor was trained as a correction to base team {src_base!r}, here it acts on base "
