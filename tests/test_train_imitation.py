@@ -109,6 +109,27 @@ def test_heading_speed_cloning_keeps_the_teachers_speed_where_mse_averages_it_aw
         cloning_loss(one, one, "huber")
 
 
+def test_median_speed_cloning_copies_the_speed_the_teacher_flies_most():
+    """Three demonstrations of one observation, all heading +x, at speeds 1, 1 and 0.2: the
+    squared speed error is least at their mean (0.73), the absolute one at their median (1)."""
+    import torch
+
+    from train.imitation import cloning_loss
+
+    target = torch.tensor([[1.0, 0.0], [1.0, 0.0], [0.2, 0.0]])
+    speed = {}
+    for kind in ("heading_speed", "heading_median_speed"):
+        a = torch.tensor([0.5, 0.0], requires_grad=True)
+        opt = torch.optim.Adam([a], lr=0.01)
+        for _ in range(1500):
+            opt.zero_grad()
+            cloning_loss(a.expand(3, 2), target, kind).backward()
+            opt.step()
+        speed[kind] = float(a.detach().norm())
+    assert abs(speed["heading_speed"] - 2.2 / 3) < 0.01
+    assert abs(speed["heading_median_speed"] - 1.0) < 0.02
+
+
 def test_a_privileged_teacher_labels_the_students_states_from_its_own_fuller_view(tmp_path):
     from pursuit_mj.config import ConfigError
 

@@ -59,9 +59,10 @@ class ImitationConfig:
     grad_steps: int = spec(60, lo=1, help="gradient steps per update")
     minibatch_size: int = spec(1024, lo=1, help="demonstrations (and rollout transitions for the critic) per gradient step")
     max_grad_norm: float = spec(1.0, lo=0.0, lo_open=True, help="global gradient-norm clip")
-    loss: str = spec("mse", choices=("mse", "heading_speed"),
+    loss: str = spec("mse", choices=("mse", "heading_speed", "heading_median_speed"),
                      help="mse: squared error of the action; heading_speed: heading and speed fitted apart, so a "
-                          "student unsure of the direction still flies at its teacher's speed (train/imitation.py)")
+                          "student unsure of the direction still flies at its teacher's speed; heading_median_speed: the "
+                          "same with the median of its speeds, not their mean (train/imitation.py)")
 
 
 @dataclasses.dataclass(frozen=True)

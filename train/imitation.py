@@ -155,16 +155,21 @@ def cloning_loss(mean: torch.Tensor, target: torch.Tensor, kind: str) -> torch.T
     shorter than any of them: the student slows down. heading_speed: the squared distance of
     the unit headings (where the teacher moves at all) plus the squared difference of the
     speeds, so the speed is learnt as the teacher's speed, not as the length of an average.
+    heading_median_speed: the same with the absolute difference of the speeds, whose minimiser
+    is the median of the teacher's speeds for an observation, not their mean: a teacher at
+    full speed most of the time is copied at full speed.
     """
     if kind == "mse":
         return ((mean - target) ** 2).sum(-1).mean()
-    if kind != "heading_speed":
-        raise ValueError(f"imitation.loss: {kind!r} is not one of mse, heading_speed")
+    if kind not in ("heading_speed", "heading_median_speed"):
+        raise ValueError(f"imitation.loss: {kind!r} is not one of mse, heading_speed, heading_median_speed")
     speed_s, speed_t = mean.norm(dim=-1), target.norm(dim=-1)
     heading_s = mean / torch.sqrt(speed_s.unsqueeze(-1) ** 2 + HEADING_EPS**2)
     heading_t = target / speed_t.clamp_min(1e-9).unsqueeze(-1)
     moving = (speed_t > STILL).to(mean.dtype)
     heading = (((heading_s - heading_t) ** 2).sum(-1) * moving).mean()
+    if kind == "heading_median_speed":
+        return heading + (speed_s - speed_t).abs().mean()
     return heading + ((speed_s - speed_t) ** 2).mean()
 
 
