@@ -80,6 +80,21 @@ def test_a_run_trained_behind_the_shield_loads_behind_it(tmp_path):
     assert load_policy(tmp_path / "shielded" / "best.pt", spec).shield.speed == cfg.task.pursuer_speed
 
 
+def _fit_one_action(target, kind: str, start, lr: float):
+    """The single action (2,) that minimises cloning_loss against every row of target (B, 2), by Adam."""
+    import torch
+
+    from train.imitation import cloning_loss
+
+    a = torch.tensor(start, requires_grad=True)
+    opt = torch.optim.Adam([a], lr=lr)
+    for _ in range(1500):
+        opt.zero_grad()
+        cloning_loss(a.expand(len(target), 2), target, kind).backward()
+        opt.step()
+    return a.detach()
+
+
 def test_heading_speed_cloning_keeps_the_teachers_speed_where_mse_averages_it_away():
     """Two demonstrations of one observation, at full speed left and full speed up: the mse
     optimum is their average (speed 0.71), the heading_speed optimum flies at speed 1."""
@@ -88,15 +103,7 @@ def test_heading_speed_cloning_keeps_the_teachers_speed_where_mse_averages_it_aw
     from train.imitation import cloning_loss
 
     target = torch.tensor([[-1.0, 0.0], [0.0, 1.0]])
-    best = {}
-    for kind in ("mse", "heading_speed"):
-        a = torch.tensor([0.1, 0.1], requires_grad=True)
-        opt = torch.optim.Adam([a], lr=0.02)
-        for _ in range(1500):
-            opt.zero_grad()
-            cloning_loss(a.expand(2, 2), target, kind).backward()
-            opt.step()
-        best[kind] = a.detach()
+    best = {kind: _fit_one_action(target, kind, [0.1, 0.1], lr=0.02) for kind in ("mse", "heading_speed")}
     torch.testing.assert_close(best["mse"], torch.tensor([-0.5, 0.5]), atol=1e-3, rtol=0)
     assert abs(float(best["heading_speed"].norm()) - 1.0) < 0.01
     torch.testing.assert_close(best["heading_speed"] / best["heading_speed"].norm(), torch.tensor([-0.7071, 0.7071]),
@@ -117,15 +124,8 @@ def test_median_speed_cloning_copies_the_speed_the_teacher_flies_most():
     from train.imitation import cloning_loss
 
     target = torch.tensor([[1.0, 0.0], [1.0, 0.0], [0.2, 0.0]])
-    speed = {}
-    for kind in ("heading_speed", "heading_median_speed"):
-        a = torch.tensor([0.5, 0.0], requires_grad=True)
-        opt = torch.optim.Adam([a], lr=0.01)
-        for _ in range(1500):
-            opt.zero_grad()
-            cloning_loss(a.expand(3, 2), target, kind).backward()
-            opt.step()
-        speed[kind] = float(a.detach().norm())
+    speed = {kind: float(_fit_one_action(target, kind, [0.5, 0.0], lr=0.01).norm())
+             for kind in ("heading_speed", "heading_median_speed")}
     assert abs(speed["heading_speed"] - 2.2 / 3) < 0.01
     assert abs(speed["heading_median_speed"] - 1.0) < 0.02
 
