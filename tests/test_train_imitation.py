@@ -121,8 +121,6 @@ def test_median_speed_cloning_copies_the_speed_the_teacher_flies_most():
     squared speed error is least at their mean (0.73), the absolute one at their median (1)."""
     import torch
 
-    from train.imitation import cloning_loss
-
     target = torch.tensor([[1.0, 0.0], [1.0, 0.0], [0.2, 0.0]])
     speed = {kind: float(_fit_one_action(target, kind, [0.5, 0.0], lr=0.01).norm())
              for kind in ("heading_speed", "heading_median_speed")}
