@@ -74,6 +74,7 @@ class TaskConfig:
     random_layout: bool = spec(False, help="draw a random built-in layout per episode")
     observability: str = spec("partial", choices=("partial", "full"), help="partial or full observability")
     share_detections: bool = spec(True, help="an evader seen by one pursuer is known to all (relayed)")
+    share_teammates: bool = spec(False, help="pursuers broadcast their own positions: every teammate is known exactly, whatever the radius, view and walls")
     n_rays: int = spec(16, lo=0, hi=128, help="range readings around each pursuer")
     ray_range: float = spec(2.0, lo=0.0, lo_open=True, help="max range of the range readings (m)")
     position_noise: float = spec(0.0, lo=0.0, hi=1.0, help="std of noise on perceived positions (m)")

@@ -84,7 +84,8 @@ class HeuristicTeam:
     control_dt (s) is the decision interval; ray_range (m) the cap of range readings;
     perception_radius (m) bounds what the coverage map counts as seen; field_of_view (rad) is
     the teammates' view, which the shield needs to know who gives way; position_noise (m) is
-    the std of perceived positions, which the shield keeps a margin for around teammates.
+    the std of perceived positions, which the shield keeps a margin for around teammates;
+    share_teammates (task key) says teammates broadcast their positions (both rules then moot).
     """
 
     name = "heuristic"
@@ -102,6 +103,7 @@ class HeuristicTeam:
         params: HeuristicParams | None = None,
         field_of_view: float = 2 * math.pi,
         position_noise: float = 0.0,
+        share_teammates: bool = False,
     ):
         for key, value in (("pursuer_speed", pursuer_speed), ("control_dt", control_dt), ("ray_range", ray_range)):
             if not (math.isfinite(value) and value > 0):
@@ -115,7 +117,7 @@ class HeuristicTeam:
         self.perception_radius = float(perception_radius)
         self.p = params or HeuristicParams()
         self.shield = SafetyShield(pursuer_speed, capture_radius, obstacle_clearance, teammate_clearance, ray_range, self.p.shield,
-                                   control_dt, field_of_view, perception_radius, position_noise)
+                                   control_dt, field_of_view, perception_radius, position_noise, share_teammates)
         self._n_worlds: int | None = None
         self._mem: dict = {}  # see _memory
 
@@ -125,7 +127,7 @@ class HeuristicTeam:
         check_rays(config.n_rays, "the heuristic team")
         return cls(config.pursuer_speed, config.capture_radius, config.obstacle_clearance,
                    config.teammate_clearance, config.control_dt, config.ray_range, config.perception_radius, params,
-                   config.field_of_view, config.position_noise)
+                   config.field_of_view, config.position_noise, config.share_teammates)
 
     # ------------------------------------------------------------------ memory
 

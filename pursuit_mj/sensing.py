@@ -41,8 +41,9 @@ class Perception:
 
     seen (W, N, M) bool: evader detected directly this step; known (W, N, M): seen directly
     or relayed by a teammate (share_detections) or captured; teammate_visible (W, N, N) bool
-    (diagonal False); evader_pos_est (W, N, M, 2) m and teammate_pos_est (W, N, N, 2) m: the
-    positions as perceived (with noise when position_noise > 0); rays (W, N, K) m.
+    (diagonal False; every teammate with share_teammates); evader_pos_est (W, N, M, 2) m and
+    teammate_pos_est (W, N, N, 2) m: the positions as perceived (with noise when
+    position_noise > 0, except teammates' own broadcast positions); rays (W, N, K) m.
     """
 
     seen: np.ndarray
@@ -55,7 +56,7 @@ class Perception:
 
 #: the TaskConfig keys that shape what a pursuer perceives (and nothing else of the task)
 PERCEPTION_KEYS = ("observability", "perception_radius", "field_of_view", "share_detections",
-                   "position_noise", "miss_probability")
+                   "share_teammates", "position_noise", "miss_probability")
 
 #: privileged views a teacher can be given in training (train/imitation.py): name -> changes
 PRIVILEGED_VIEWS = {
@@ -121,6 +122,9 @@ def _visible(observer: np.ndarray, heading: np.ndarray, target: np.ndarray, conf
 def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator | WorldRandom) -> Perception:
     """Apply perception radius, field of view, line of sight, missed detections, sharing and noise.
 
+    With share_teammates every teammate is known at its true position (its own broadcast),
+    whatever the radius, view, walls and position_noise; evaders are perceived as without it.
+
     In `full` observability every entity is known (no masking); noise still applies. `rng`
     draws the misses and the noise (arrays with worlds first): the simulator passes a
     `WorldRandom` so that each world's draws depend on its own episode and step only.
@@ -146,6 +150,8 @@ def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator | Wor
     if config.share_detections or not partial:
         known |= seen.any(axis=1, keepdims=True)
     known |= view.captured[:, None, :]
+    if config.share_teammates:  # each pursuer knows its own position and broadcasts it
+        mates = np.ones((W, N, N), bool)
     mates &= ~np.eye(N, dtype=bool)[None]
 
     evader_est = np.broadcast_to(view.evader_pos[:, None], (W, N, M, 2)).copy()
@@ -154,5 +160,7 @@ def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator | Wor
         # a relayed detection carries the noise of the teammate that saw it; one draw per
         # (observer, target) keeps it simple and identical in both fidelities
         evader_est += rng.normal(0.0, config.position_noise, evader_est.shape)
-        mate_est += rng.normal(0.0, config.position_noise, mate_est.shape)
+        mate_noise = rng.normal(0.0, config.position_noise, mate_est.shape)  # drawn either way: the same evader noise
+        if not config.share_teammates:
+            mate_est += mate_noise
     return Perception(seen, known, mates, evader_est, mate_est, rays)

@@ -92,8 +92,10 @@ class SafetyShield:
     capture_radius (m) sizes captured evaders as hazards; obstacle/teammate clearance (m)
     are the collision distances of the task; ray_range (m) is the cap of range readings (a
     reading below it hit something); control_dt (s) is the decision interval (one `filter`
-    call each). Keeps a memory of hits and teammates per world: call `reset` at episode
-    starts, as for any policy.
+    call each); field_of_view (rad), perception_radius (m) and position_noise (std, m) are
+    how teammates perceive each other, for the who-gives-way and noise-margin rules, unless
+    share_teammates (task key: positions broadcast, every teammate known exactly). Keeps a
+    memory of hits and teammates per world: call `reset` at episode starts, as for any policy.
     """
 
     def __init__(
@@ -108,6 +110,7 @@ class SafetyShield:
         field_of_view: float = 2 * math.pi,
         perception_radius: float = math.inf,
         position_noise: float = 0.0,
+        share_teammates: bool = False,
     ):
         for key, value, positive in (("pursuer_speed", pursuer_speed, True), ("ray_range", ray_range, True),
                                      ("control_dt", control_dt, True),
@@ -120,6 +123,8 @@ class SafetyShield:
                              f"got {field_of_view!r} and {perception_radius!r}")
         if not (math.isfinite(position_noise) and position_noise >= 0):
             raise ValueError(f"SafetyShield: position_noise must be a non-negative number (m), got {position_noise!r}")
+        if share_teammates:  # teammates broadcast their own positions: each knows of every other, exactly
+            field_of_view, perception_radius, position_noise = 2 * math.pi, math.inf, 0.0
         self.position_noise = float(position_noise)
         self.field_of_view = float(field_of_view)
         self.perception_radius = float(perception_radius)
@@ -144,7 +149,7 @@ class SafetyShield:
         check_rays(config.n_rays, "the safety shield")
         return cls(config.pursuer_speed, config.capture_radius, config.obstacle_clearance,
                    config.teammate_clearance, config.ray_range, params, config.control_dt,
-                   config.field_of_view, config.perception_radius, config.position_noise)
+                   config.field_of_view, config.perception_radius, config.position_noise, config.share_teammates)
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
         """Forget the hits and teammates seen in the listed worlds (all, and resize, when world_ids is None)."""

@@ -153,3 +153,14 @@ def test_beats_a_random_team_on_layout_0():
     assert heuristic.success.p >= random.success.p + 0.5
     assert heuristic.success.lo > random.success.hi  # the 95 % intervals do not even overlap
     assert heuristic.collision.count <= 1
+
+
+def test_a_narrow_view_team_keeps_off_its_teammates_when_they_share_positions():
+    # a 57 deg camera: pursuers cross each other's paths out of each other's sight
+    config = default_config(fidelity="point", layout=0, max_steps=400, field_of_view=1.0)
+    kwargs = dict(layouts=[0], episodes=12, seed=3, n_worlds=12)
+    blind = evaluate(HeuristicTeam.from_config(config), config, **kwargs)[0]
+    shared_config = default_config(fidelity="point", layout=0, max_steps=400, field_of_view=1.0, share_teammates=True)
+    shared = evaluate(HeuristicTeam.from_config(shared_config), shared_config, **kwargs)[0]
+    assert blind.collision.count >= 1, "the unshared team collides here (2 of 12 when written): else the test shows nothing"
+    assert shared.collision.count == 0

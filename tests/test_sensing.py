@@ -87,6 +87,19 @@ def test_relayed_detection_is_known_to_all_and_flagged():
     assert np.all(spec.group("evaders").view(obs_off)[0, 0, 0] == 0), "a hidden evader's values are all zero"
 
 
+def test_shared_teammates_are_known_exactly_through_walls_and_out_of_view():
+    obstacles = _layout([WALL]).obstacle_set()
+    # pursuer 1 is behind the wall from pursuer 0, pursuer 2 behind it (heading +y) and 3.5 m away
+    view = _view([[2.0, 2.5], [2.0, 1.5], [0.3, 0.3]], [[3.5, 3.5]], obstacles)
+    alone = _perceive(view, field_of_view=1.0, position_noise=0.1)
+    assert not alone.teammate_visible[0, 0, 1] and not alone.teammate_visible[0, 0, 2]
+    shared = _perceive(view, field_of_view=1.0, position_noise=0.1, share_teammates=True)
+    assert shared.teammate_visible[0] == pytest.approx(~np.eye(3, dtype=bool))
+    assert np.array_equal(shared.teammate_pos_est[0, 0], view.pursuer_pos[0]), "broadcast positions carry no noise"
+    assert np.array_equal(shared.evader_pos_est, alone.evader_pos_est), "evaders are perceived as without sharing"
+    assert np.array_equal(shared.seen, alone.seen)
+
+
 def test_full_observability_masks_nothing():
     obstacles = _layout([WALL]).obstacle_set()
     view = _view([[2.0, 1.5], [0.5, 0.3]], [[2.0, 3.8]], obstacles)

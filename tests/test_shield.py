@@ -200,6 +200,8 @@ def test_a_teammate_that_cannot_see_the_pursuer_leaves_it_all_the_giving_way():
     assert shielded_east(sideways) == pytest.approx(shared_cap(0.1))  # all-round sight: it sees and gives way
     assert shielded_east((0.0, 0.0), **narrow) == pytest.approx(shared_cap(0.0))  # standing: nothing to take off
     assert shielded_east((0.2, 0.1), **narrow) == pytest.approx(shared_cap(0.0))  # moving away: no credit either
+    # teammates that broadcast their positions know of each other: everyone gives way
+    assert shielded_east(sideways, **narrow, share_teammates=True) == pytest.approx(shared_cap(0.1))
     with pytest.raises(ValueError, match="field_of_view"):
         SafetyShield(SPEED, field_of_view=0.0)
 
@@ -219,6 +221,8 @@ def test_noisy_teammate_positions_widen_the_teammate_margin_only():
     assert capped(0.0, "mate") == pytest.approx(0.5 * rate * (0.5 - 0.2 - buffer))
     assert capped(0.1, "mate") == pytest.approx(0.5 * rate * (0.5 - 0.2 - buffer - ShieldParams.noise_margin * 0.1))
     assert capped(0.1, "wall") == pytest.approx(capped(0.0, "wall"))  # range readings are not noisy
+    shield = SafetyShield(SPEED, position_noise=0.1, share_teammates=True)  # broadcast positions are exact
+    assert shield.position_noise == 0.0
     with pytest.raises(ValueError, match="position_noise"):
         SafetyShield(SPEED, position_noise=-0.1)
 
