@@ -25,7 +25,11 @@ constant `evader_speed`, through the same velocity interface as the pursuers:
    scored by alignment with it, room (`room_weight`) and, when panicked, how far the evader
    stays out of every chaser's reach along them (`safety_weight`); a direction whose corridor
    is not free for `clearance + evader_speed * lookahead_time` is flown only if all are
-   blocked. A gap escape skips 4 to 6 (its path is already checked).
+   blocked. A gap escape skips 4 to 6 (its path is already checked);
+7. keeping apart: each free evader's closing speed toward every other free evader is capped
+   (planar.limit_closing, half the budget each, as the pursuers' shield does for teammates),
+   so evaders slow down rather than fly into each other; only then do they fly slower than
+   `evader_speed`.
 
 Captured evaders output zero. Chasers are sensed through walls (by distance only). Random
 numbers come from a counter-based hash of (episode seed, step, evader, stream), so a
@@ -38,9 +42,9 @@ import math
 
 import numpy as np
 
-from .config import TaskConfig
+from .config import DRONE_CONTACT_DISTANCE, TaskConfig
 from .geometry import FAR, ObstacleSet, first_axis_last, last_axis_first, obstacle_distance
-from .planar import EPS, dot, norm, perp, rotate, unit
+from .planar import EPS, dot, limit_closing, norm, perp, rotate, unit
 from .randomness import TICK as _TICK, hash_uniform, splitmix64 as _splitmix64
 
 RING = 16  # survey directions around the wanted direction
@@ -56,6 +60,12 @@ HORIZON = 1.5  # m, how far along a candidate the safety score looks
 SLACK_SCALE = 1.0  # m, safety margins beyond this count as safe
 DANGER = 3.0  # factor on negative safety margins: entering a chaser's reach costs more than room gains
 NORMAL_STEP = 0.02  # m, finite-difference step of obstacle normals
+# step 7: two evaders' closing speed is at most APART_RATE * (gap - APART_BUFFER), the gap
+# (m) between their collision volumes shortened by what the closing speed covers in
+# APART_RESPONSE (s): a drone does not stop at once
+APART_RATE = 1.5  # 1/s
+APART_BUFFER = 0.1  # m
+APART_RESPONSE = 0.35  # s
 _PATH_FRACTIONS = np.linspace(0.0, 1.0, PATH_SAMPLES)  # where along a path its samples lie
 _HORIZON_SAMPLES = np.linspace(0.0, HORIZON, PATH_SAMPLES)  # m flown at the samples of a candidate
 _FAR32 = np.float32(FAR)
@@ -340,7 +350,7 @@ class EscapeModel:
         self.has_heading |= active
         self.gap = gap_on
         self.tick += np.uint64(1)
-        return final * (self.config.evader_speed * active)[..., None]
+        return self._keep_apart(e, ev, final * (self.config.evader_speed * active)[..., None], active, n0)
 
     # ------------------------------------------------------------------ behaviours
 
@@ -470,6 +480,28 @@ class EscapeModel:
         )
         score = np.where(room >= self._need, score, BLOCKED + 5.0 * np.minimum(room / self._need, 1.0))
         return np.argmax(score, axis=-1)
+
+    def _keep_apart(self, e: np.ndarray, ev: np.ndarray, v: np.ndarray, active: np.ndarray, wall_normal: np.ndarray) -> np.ndarray:
+        """v (W, M, 2) m/s with every free pair's closing speed capped (module docstring, step 7),
+        never turned further toward the nearest obstacle (wall_normal (W, M, 2), pointing away
+        from it) than v already was; where both cannot hold, the obstacle wins and the pair
+        only stops closing in."""
+        if self.n_evaders < 2:
+            return v
+        rel = e[:, None, :, :] - e[:, :, None, :]  # (W, M, M, 2) m: from evader i to evader j
+        u = unit(rel)
+        closing = np.maximum(-dot(u, ev[:, None, :, :] - ev[:, :, None, :]), 0.0)  # (W, M, M) m/s
+        gap = norm(rel) - DRONE_CONTACT_DISTANCE - APART_BUFFER - APART_RESPONSE * closing
+        pair = active[:, :, None] & active[:, None, :] & ~np.eye(self.n_evaders, dtype=bool)
+        pair_cap = np.where(pair, 0.5 * APART_RATE * gap, np.inf)
+        to_wall = -wall_normal[:, :, None, :]
+        wall_cap = np.maximum(dot(v, -wall_normal), 0.0)[..., None]
+        dirs = np.concatenate([u, to_wall], axis=2)
+        capped, met = limit_closing(v, dirs, np.concatenate([pair_cap, wall_cap], axis=2))
+        if not met.all():  # backing off a pressing evader would mean flying into the obstacle
+            held, _ = limit_closing(v, dirs, np.concatenate([np.maximum(pair_cap, 0.0), wall_cap], axis=2))
+            capped = np.where(met[..., None], capped, held)
+        return np.where(active[..., None], capped, 0.0)
 
     def _evader_push(self, e: np.ndarray, active: np.ndarray) -> np.ndarray:
         """Weak repulsion (W, M, 2) between free evaders closer than evader_spacing."""
