@@ -252,12 +252,29 @@ class BatchedPhysics:
         """Stop drone drones[k] of world worlds[k] dead (all its velocities 0), where it is.
 
         For a caught evader: commanded to stop, it would coast on for a few tenths of a second,
-        into the pursuer that just caught it."""
+        into the pursuer that just caught it. A quadrotor is also levelled (its yaw kept) and its
+        rotors set to hover thrust: caught while tilted, it would accelerate off again."""
         worlds, drones = np.asarray(worlds, np.int64), np.asarray(drones, np.int64)
         for w in np.unique(worlds):
+            these = drones[worlds == w]
             qvel = self.qvel[[w]]
-            qvel[0, self._qvel_idx[drones[worlds == w]]] = 0.0
+            qvel[0, self._qvel_idx[these]] = 0.0
             self.qvel[[w]] = qvel
+            if self.fidelity == "quadrotor":
+                qpos = self.qpos[[w]]
+                qw, qx, qy, qz = np.moveaxis(qpos[0, self._qpos_idx[these, 3:7]], -1, 0)
+                half_yaw = 0.5 * np.arctan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy**2 + qz**2))
+                level = np.zeros((len(these), 4))
+                level[:, 0], level[:, 3] = np.cos(half_yaw), np.sin(half_yaw)
+                qpos[0, self._qpos_idx[these, 3:7]] = level
+                self.qpos[[w]] = qpos
+                hover = self.params["mass"] * 9.81 / 4
+                for name in ("act", "ctrl"):
+                    arr = getattr(self, name)[[w]]
+                    arr[0, (self._act_idx if name == "act" else self._ctrl_idx)[these]] = hover
+                    getattr(self, name)[[w]] = arr
+        if self.fidelity == "quadrotor":
+            self.batch.forward(np.unique(worlds))
 
     # ------------------------------------------------------------------ state
 

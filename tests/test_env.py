@@ -288,9 +288,9 @@ def test_a_caught_evader_stops_at_once_while_the_chase_goes_on(fidelity):
     w, j = map(int, np.argwhere(new)[0])
     assert np.all(env.physics.velocities()[w, N + j] == 0.0)
     where = env.physics.positions()[w, N + j, :2].copy()
-    for _ in range(3):
+    for _ in range(10):  # a quadrotor caught while tilted used to drift off at 0.15 m/s
         obs, *_ = env.step(team.act(obs, env.obs_spec))
-    assert np.linalg.norm(env.physics.positions()[w, N + j, :2] - where) < 0.02
+        assert np.linalg.norm(env.physics.positions()[w, N + j, :2] - where) < 0.02
 
 
 def test_the_pursuer_that_catches_one_evader_still_sees_its_teammates_and_the_other_evader():
