@@ -157,8 +157,8 @@ def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator | Wor
     evader_est = np.broadcast_to(view.evader_pos[:, None], (W, N, M, 2)).copy()
     mate_est = np.broadcast_to(p[:, None], (W, N, N, 2)).copy()
     if config.position_noise > 0:
-        # a relayed detection carries the noise of the teammate that saw it; one draw per
-        # (observer, target) keeps it simple and identical in both fidelities
+        # one independent draw per (observer, target), relayed detections included (not the
+        # noise of the teammate that saw it): simple, and identical in both fidelities
         evader_est += rng.normal(0.0, config.position_noise, evader_est.shape)
         mate_noise = rng.normal(0.0, config.position_noise, mate_est.shape)  # drawn either way: the same evader noise
         if not config.share_teammates:

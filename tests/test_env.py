@@ -98,6 +98,10 @@ def test_quadrotor_fidelity_has_the_same_interface():
         (np.zeros((1, 2, 2)), "expected shape"),
         (np.full((1, 3, 2), np.nan), "non-finite"),
         (np.full((1, 3, 2), np.inf), "non-finite"),
+        (np.full((1, 3, 2), "0.5"), "dtype <U3"),
+        (np.ones((1, 3, 2), bool), "dtype bool"),
+        (np.full((1, 3, 2), 0.5 + 1j), "dtype complex128"),
+        ([[[0.1, None]] * 3], "dtype object"),
     ],
 )
 def test_bad_actions_are_refused(actions, match):
