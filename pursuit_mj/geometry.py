@@ -366,3 +366,11 @@ def line_of_sight(a: np.ndarray, b: np.ndarray, obstacles: ObstacleSet) -> np.nd
     dirs = delta / np.maximum(dist, 1e-9)[..., None]
     hit = cast_rays(a, dirs, obstacles)
     return hit >= dist - 1e-9
+
+
+def pairwise_line_of_sight(observer: np.ndarray, target: np.ndarray, obstacles: ObstacleSet) -> np.ndarray:
+    """(W, N, T) bool: line_of_sight from each observer (W, N, 2) m to each target (W, T, 2) m."""
+    W, N, T = observer.shape[0], observer.shape[1], target.shape[1]
+    a = np.broadcast_to(observer[:, :, None, :], (W, N, T, 2)).reshape(W, N * T, 2)
+    b = np.broadcast_to(target[:, None, :, :], (W, N, T, 2)).reshape(W, N * T, 2)
+    return line_of_sight(a, b, obstacles).reshape(W, N, T)

@@ -10,7 +10,7 @@ import dataclasses
 import numpy as np
 
 from .config import TaskConfig
-from .geometry import ObstacleSet, obstacle_distance
+from .geometry import ObstacleSet, pairwise_line_of_sight, obstacle_distance
 
 REWARD_TERMS = ("capture", "progress", "collision", "proximity", "spread")
 PROGRESS_UNIT = 0.3  # m: progress is measured in units of 0.3 m, as in the reference study
@@ -44,7 +44,8 @@ def detect_events(
     obstacles: ObstacleSet,
     config: TaskConfig,
 ) -> Events:
-    """Captures (a pursuer within capture_radius of a free evader) and collisions.
+    """Captures (a pursuer within capture_radius of a free evader, with no wall between them)
+    and collisions.
 
     A pursuer collides when its centre comes closer than obstacle_clearance to an obstacle
     or the border, closer than teammate_clearance to another pursuer, or MuJoCo reports a
@@ -53,7 +54,10 @@ def detect_events(
     """
     N = pursuer_pos.shape[1]
     d_pe = pairwise_distance(pursuer_pos, evader_pos)
-    new_captures = (d_pe <= config.capture_radius).any(axis=1) & ~captured
+    within = (d_pe <= config.capture_radius) & ~captured[:, None, :]  # (W, N, M)
+    if within.any():  # not through a thin wall: one ray per pair, only in steps that may capture
+        within &= pairwise_line_of_sight(pursuer_pos, evader_pos, obstacles)
+    new_captures = within.any(axis=1)
     gap = obstacle_distance(pursuer_pos, obstacles)
     if N > 1:
         d_pp = pairwise_distance(pursuer_pos, pursuer_pos) + np.where(np.eye(N, dtype=bool), np.inf, 0.0)

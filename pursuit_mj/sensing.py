@@ -12,7 +12,7 @@ import functools
 import numpy as np
 
 from .config import TaskConfig
-from .geometry import ObstacleSet, cast_fan, cast_rays
+from .geometry import ObstacleSet, cast_fan, pairwise_line_of_sight
 from .randomness import WorldRandom
 
 
@@ -105,7 +105,6 @@ def ray_directions(n_rays: int) -> np.ndarray:
 def _visible(observer: np.ndarray, heading: np.ndarray, target: np.ndarray, config: TaskConfig, obstacles: ObstacleSet) -> np.ndarray:
     """(W, N, T) bool: target (W, T, 2) within perception_radius of observer (W, N, 2), inside
     its field of view (heading (W, N) rad) and in its line of sight (one ray cast for all)."""
-    W, N, T = observer.shape[0], observer.shape[1], target.shape[1]
     delta = target[:, None, :, :] - observer[:, :, None, :]  # (W, N, T, 2)
     dist = np.hypot(delta[..., 0], delta[..., 1])
     ok = dist <= config.perception_radius
@@ -113,10 +112,7 @@ def _visible(observer: np.ndarray, heading: np.ndarray, target: np.ndarray, conf
         ang = np.arctan2(delta[..., 1], delta[..., 0]) - heading[:, :, None]
         ang = (ang + np.pi) % (2 * np.pi) - np.pi
         ok &= np.abs(ang) <= config.field_of_view / 2
-    origins = np.broadcast_to(observer[:, :, None, :], (W, N, T, 2)).reshape(W, N * T, 2)
-    dirs = (delta / np.maximum(dist, 1e-9)[..., None]).reshape(W, N * T, 2)
-    hits = cast_rays(origins, dirs, obstacles).reshape(W, N, T)
-    return ok & (hits >= dist - 1e-9)
+    return ok & pairwise_line_of_sight(observer, target, obstacles)
 
 
 def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator | WorldRandom) -> Perception:

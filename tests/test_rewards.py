@@ -35,6 +35,27 @@ def test_capture_at_the_radius_boundary(gap, caught):
     assert bool(ev.new_captures[0, 0]) is caught
 
 
+def test_no_capture_through_a_thin_wall():
+    walled = layout_from_dict(
+        {
+            "arena": {"width": 4.0, "height": 4.0},
+            "obstacles": [{"wall": {"from": [1.0, 2.0], "to": [3.0, 2.0], "thickness": 0.05}}],
+            "random_obstacles": {"count": 0},
+            "spawn": {"pursuers": {"x": [0.2, 3.8], "y": [0.2, 0.6]}, "evaders": {"x": [0.2, 3.8], "y": [3.4, 3.8]}},
+        },
+        "thin-wall",
+    )
+    obstacles = ObstacleSet.stack([walled.obstacle_set()])
+
+    def caught(pursuers, evader):
+        p, e = np.array(pursuers, float)[None], np.array([evader], float)[None]
+        return bool(detect_events(p, e, np.zeros((1, 1), bool), np.zeros((1, len(pursuers)), bool), obstacles, CFG).new_captures[0, 0])
+
+    assert not caught([[2.0, 1.85]], [2.0, 2.1]), "0.25 m apart, but the wall is between them"
+    assert caught([[0.8, 1.85]], [0.8, 2.1]), "the same 0.25 m beside the wall's end"
+    assert caught([[2.0, 1.85], [2.1, 2.3]], [2.0, 2.1]), "a teammate on the evader's side still catches it"
+
+
 def test_already_captured_evader_is_not_caught_again():
     ev = _events([[1.0, 1.0]], [[1.1, 1.0]], captured=[True])
     assert not ev.new_captures.any()
