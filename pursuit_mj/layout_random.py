@@ -26,6 +26,7 @@ def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearan
     spec = layout.random_obstacles
     placed: list = []
     border = layout.border()
+    others = ObstacleSet.from_layout(layout, include_border=False)
     for k in range(count):
         for _ in range(MAX_TRIES):
             kind = spec.kinds[rng.integers(len(spec.kinds))]
@@ -45,10 +46,10 @@ def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearan
                 continue
             if _spawn_distance(layout, pts)[0] < reach + clearance:
                 continue
-            others = ObstacleSet.from_layout(_with(layout, placed), include_border=False)
             if obstacle_distance(pts, others, with_border=False)[0] < reach + clearance:
                 continue
             placed.append(cand)
+            others = ObstacleSet.from_layout(_with(layout, placed), include_border=False)
             break
         else:
             raise LayoutError(

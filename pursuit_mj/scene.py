@@ -57,8 +57,13 @@ def drone_parameters() -> dict[str, np.ndarray | float]:
 
     mass (kg), inertia (3,) kg m^2, motor_xy (4, 2) m in the body frame, yaw_ratio (4,) m
     (signed torque per newton of thrust), max_thrust (N), motor_tau (s), drag (3,) N s/m,
-    point_time_constant (s), point_max_accel (m/s^2).
+    point_time_constant (s), point_max_accel (m/s^2). A fresh copy on every call.
     """
+    return {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in _read_drone_parameters().items()}
+
+
+@lru_cache(maxsize=1)
+def _read_drone_parameters() -> dict[str, np.ndarray | float]:
     m = mujoco.MjModel.from_xml_path(str(DRONE_FILE))
     body = m.body("body").id
     sites = [m.site(f"motor_{i}").id for i in range(4)]
@@ -76,7 +81,14 @@ def drone_parameters() -> dict[str, np.ndarray | float]:
     }
 
 
-def _drone_spec(role: str, fidelity: str, params: dict) -> mujoco.MjSpec:
+def _drone_spec(role: str, fidelity: str) -> mujoco.MjSpec:
+    """A new spec of one drone of `role` in `fidelity`, to attach to a scene."""
+    return _drone_spec_template(role, fidelity).copy()  # a copy costs a twentieth of building one
+
+
+@lru_cache(maxsize=None)
+def _drone_spec_template(role: str, fidelity: str) -> mujoco.MjSpec:
+    params = drone_parameters()
     child = mujoco.MjSpec.from_string(_drone_template_xml())
     child.material("role").rgba = ROLE_RGBA[role]
     if fidelity == "point":
@@ -145,7 +157,6 @@ def _add_obstacles(spec: mujoco.MjSpec, layout: Layout, flight_height: float) ->
 
 def build_spec(scene: SceneSpec) -> mujoco.MjSpec:
     """The scene as an MjSpec (not compiled), for callers that want to edit it further."""
-    params = drone_parameters()
     layout = scene.layout
     spec = mujoco.MjSpec()
     spec.modelname = f"pursuit_{layout.name}_{scene.fidelity}"
@@ -183,7 +194,7 @@ def build_spec(scene: SceneSpec) -> mujoco.MjSpec:
         frame = w.add_frame(pos=[0.3 + 0.3 * i, 0.3, scene.flight_height if scene.fidelity == "point" else 0.0])
         if scene.fidelity == "point":
             frame.pos = [0.0, 0.0, scene.flight_height]
-        spec.attach(_drone_spec(role, scene.fidelity, params), prefix=f"{name}/", frame=frame)
+        spec.attach(_drone_spec(role, scene.fidelity), prefix=f"{name}/", frame=frame)
         sensor = spec.add_sensor(name=f"{name}/contact", type=mujoco.mjtSensor.mjSENS_CONTACT, objtype=mujoco.mjtObj.mjOBJ_GEOM, objname=f"{name}/collision")
         sensor.intprm[0] = 1  # data: "found" (number of contacts)
         sensor.intprm[2] = 1  # num: one slot
