@@ -3,9 +3,10 @@
 `BatchedPhysics.step(commands)` advances every world by one decision interval (control_dt).
 In quadrotor fidelity the cascaded controller runs every `substeps_per_control` physics
 steps, vectorised over all drones of all worlds, between MuJoCo calls that each advance all
-worlds by those physics steps. In point fidelity the planar velocity actuators need no
-Python between physics steps: the whole interval is one MuJoCo call. Either way MuJoCo
-records each drone's contact sensor after every physics step, so that no touch is missed.
+worlds by those physics steps. In point fidelity a planar force per drone is set at the
+same ticks (a first-order velocity response whose acceleration is capped in norm, as the
+quadrotor's tilt limit caps it in every direction). Either way MuJoCo records each drone's
+contact sensor after every physics step, so that no touch is missed.
 
 State arrays are shaped (n_worlds, n_drones, ...): drones in `drone_names` order (pursuers
 first), positions and linear velocities in the world (= layout) frame, m and m/s.
@@ -73,8 +74,7 @@ class BatchedPhysics:
     `obstacle_slots` if given). A later `set_layouts` with a larger layout rebuilds the
     batch with more slots, carrying every world's state over.
 
-    `observers`: callables f(physics) run after every physics chunk of `step` (each
-    controller tick in quadrotor fidelity, the whole interval in point fidelity). They may
+    `observers`: callables f(physics) run after every controller tick of `step`. They may
     read state; they must not change it.
     """
 
@@ -158,7 +158,7 @@ class BatchedPhysics:
             self._qvel_idx = self.ids.qvel_adr[:, None] + np.arange(2)
             self._ctrl_idx = self.ids.ctrl_adr[:, None] + np.arange(2)
             self._write_cols = (column(self.ctrl) + self._ctrl_idx).ravel()
-            self._record = {"sensordata": np.empty((self.n_worlds, self.config.substeps, base.nsensordata))}
+            self._record = {"sensordata": np.empty((self.n_worlds, self.config.substeps_per_control, base.nsensordata))}
 
     def _set_models(self) -> None:
         if self.n_worlds == 1 or all(m is self.models[0] for m in self.models):
@@ -332,11 +332,22 @@ class BatchedPhysics:
         return self.contacts.copy()
 
     def _step_point(self, cmd: np.ndarray) -> None:
-        self._state[:, self._write_cols] = cmd.reshape(self.n_worlds, -1)
-        rec = self.batch.rollout(self.config.substeps, record=("sensordata",), out=self._record)["sensordata"]
-        np.any(rec[:, :, self.ids.contact_adr] > 0, axis=1, out=self.contacts)
-        for observer in self.observers:
-            observer(self)
+        """Every controller tick: the force that moves each drone's velocity toward cmd as a
+        first-order lag of point_time_constant would over the tick (exact for an unlimited
+        one), its acceleration capped in norm at point_max_accel."""
+        k = self.config.substeps_per_control
+        tick = k * self.config.physics_dt
+        rate = -np.expm1(-tick / self.params["point_time_constant"]) / tick  # 1/s
+        mass, limit = self.params["mass"], self.params["point_max_accel"]
+        contacts = self.contacts
+        contacts[:] = False
+        for _ in range(self.config.substeps // k):
+            accel = clip_norm(rate * (cmd - self.qvel[:, self._qvel_idx]), limit)  # (W, D, 2) m/s^2
+            self._state[:, self._write_cols] = (mass * accel).reshape(self.n_worlds, -1)
+            rec = self.batch.rollout(k, record=("sensordata",), out=self._record)["sensordata"]
+            contacts |= (rec[:, :, self.ids.contact_adr] > 0).any(axis=1)
+            for observer in self.observers:
+                observer(self)
 
     def _step_quadrotor(self, cmd: np.ndarray) -> None:
         k = self.config.substeps_per_control

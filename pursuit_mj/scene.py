@@ -1,7 +1,7 @@
 """Scene generation: (layout, drone counts, fidelity, physics settings) -> MjModel, through MjSpec.
 
 Names follow one pattern: drones are `{role}_{i}` (role: pursuer | evader) and their parts
-`{role}_{i}/{part}` (body, root, x, y, motor_0..3, vx, vy, collision, contact); obstacles are
+`{role}_{i}/{part}` (body, root, x, y, motor_0..3, fx, fy, collision, contact); obstacles are
 `obstacle_{k}`, border segments `border_{k}`, the floor `floor`. Geom groups: 0 floor,
 1 obstacles and border, 2 drone visuals, 3 drone collision volumes.
 """
@@ -88,7 +88,6 @@ def _drone_spec(role: str, fidelity: str) -> mujoco.MjSpec:
 
 @lru_cache(maxsize=None)
 def _drone_spec_template(role: str, fidelity: str) -> mujoco.MjSpec:
-    params = drone_parameters()
     child = mujoco.MjSpec.from_string(_drone_template_xml())
     child.material("role").rgba = ROLE_RGBA[role]
     if fidelity == "point":
@@ -96,15 +95,11 @@ def _drone_spec_template(role: str, fidelity: str) -> mujoco.MjSpec:
         child.delete(child.joint("root"))
         for act in list(child.actuators):
             child.delete(act)
-        kv = params["mass"] / params["point_time_constant"]
         for axis, name in ((0, "x"), (1, "y")):
-            j = body.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1.0 if axis == 0 else 0.0, 1.0 if axis == 1 else 0.0, 0.0])
-            a = child.add_actuator(name=f"v{name}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
-            a.set_to_velocity(kv=kv)
-            # the acceleration limit is per axis (what MuJoCo's force range offers): a diagonal
-            # push may reach sqrt(2) times it, where the quadrotor's tilt limit holds in every direction
-            a.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
-            a.forcerange = [-params["mass"] * params["point_max_accel"], params["mass"] * params["point_max_accel"]]
+            body.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1.0 if axis == 0 else 0.0, 1.0 if axis == 1 else 0.0, 0.0])
+            # a plain force (N) along the joint: physics.py sets it every controller tick, so
+            # that the acceleration limit holds in every direction, not per axis
+            child.add_actuator(name=f"f{name}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
     return child
 
 
@@ -218,14 +213,14 @@ class DroneIds:
     body: np.ndarray  # (D,) body ids
     qpos_adr: np.ndarray  # (D,) first qpos index of each drone's joint(s)
     qvel_adr: np.ndarray  # (D,) first qvel index
-    ctrl_adr: np.ndarray  # (D,) first actuator index (4 motors, or vx vy)
+    ctrl_adr: np.ndarray  # (D,) first actuator index (4 motors, or the forces fx fy)
     contact_adr: np.ndarray  # (D,) sensordata index of each contact sensor
     collision_geom: np.ndarray  # (D,) geom id of each collision volume
 
     @staticmethod
     def lookup(model: mujoco.MjModel, names: list[str], fidelity: str) -> "DroneIds":
         first_joint = "root" if fidelity == "quadrotor" else "x"
-        first_act = "motor_0" if fidelity == "quadrotor" else "vx"
+        first_act = "motor_0" if fidelity == "quadrotor" else "fx"
         joints = [model.joint(f"{n}/{first_joint}") for n in names]
         return DroneIds(
             names=tuple(names),

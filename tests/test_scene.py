@@ -60,7 +60,7 @@ def test_every_element_is_named_from_one_pattern(built_in_instances, fidelity):
     assert names_of(model, "camera", model.ncam) == ["top", "angled"]
     # the parts a user looks up, for every drone
     parts = ["body/body", "collision/geom", "contact/sensor"]
-    parts += [f"motor_{k}/actuator" for k in range(4)] + ["root/joint"] if fidelity == "quadrotor" else ["x/joint", "y/joint", "vx/actuator", "vy/actuator"]
+    parts += [f"motor_{k}/actuator" for k in range(4)] + ["root/joint"] if fidelity == "quadrotor" else ["x/joint", "y/joint", "fx/actuator", "fy/actuator"]
     for drone in drone_names(2, 2):
         for part in parts:
             name, kind = part.split("/")

@@ -59,7 +59,7 @@ def wall_east(obs: np.ndarray, distance: float, world: int = 0, pursuer: int = 0
 
 
 def test_random_team_collides_far_less_with_the_shield():
-    cfg = dataclasses.replace(default_config(), fidelity="point", layout=0, max_steps=150)
+    cfg = dataclasses.replace(default_config(), fidelity="point", layout=0, max_steps=300)
     rates = {}
     for policy in (RandomPolicy(0), shield_policy(RandomPolicy(0), cfg)):
         records = run_episodes(policy, cfg, 16, seed=0, n_worlds=16)
