@@ -10,6 +10,7 @@ from __future__ import annotations
 import socket
 import time
 
+import numpy as np
 import pytest
 
 from flight_rehearsal import QUICK, ScriptedTeam, fly_virtual, kinds_in_order, quick_plan, wait_for
@@ -112,6 +113,26 @@ def test_a_drained_battery_lands_that_drone_and_ends_the_run(tmp_path):
     low = events.of_kind("low_battery")[0]
     assert low["drone"] == "e0" and low["vbat"] < 3.3
     assert "e0" in events.of_kind("land")[0]["drones"]
+    assert down(fleet)
+
+
+def test_a_drone_crossing_a_thin_virtual_wall_is_a_breach_and_everyone_lands(tmp_path, monkeypatch):
+    """A 0.05 m wall is thinner than breach_distance (0.15 m): a drone flown across it (here
+    with the geofence switched off, as a jump of its estimate or a gust would) went unreported."""
+    import pursuit_mj.flight.bridge as bridge_module
+
+    def no_guard(v, p, fence, *args, **kwargs):
+        return v, np.zeros(len(v), bool), np.zeros(len(v), bool), fence.clearance(p)
+
+    monkeypatch.setattr(bridge_module, "keep_apart_and_inside", no_guard)
+    p0 = dict(QUICK["drones"][0], start=[0.8, 1.5])  # 0.375 m below the wall y 1.875-1.925 (x 0-2.2) of layout 1
+    e0 = dict(QUICK["drones"][3], start=[3.0, 4.5])
+    plan = quick_plan(layout=1, drones=[p0, e0], max_time=4.0, task={"pursuer_speed": 0.5})
+    result, events, fleet = fly_virtual(plan, ScriptedTeam([[0.0, 1.0]]), tmp_path)
+    assert result.outcome == "fence_breach" and "p0" in result.reason and "virtual obstacle" in result.reason, result.reason
+    breach = events.of_kind("fence_breach")[0]
+    assert breach["drone"] == "p0" and 1.85 < breach["pos"][1] < 2.05
+    assert kinds_in_order(events, "chase", "fence_breach", "end_of_run", "land", "landed")
     assert down(fleet)
 
 

@@ -211,10 +211,11 @@ def test_the_fence_brakes_a_drone_driven_at_the_border_and_holds_it_at_the_margi
     assert braking[1] and not braking[0]
     assert 0.22 < lowest and fence.clearance(p)[1] == pytest.approx(0.25, abs=0.02)
     assert p[1, 1] > 1.0 + 0.5 + 1.0  # it slid along the border
-    # inside the margin it is pushed back out; beyond the border it counts as a breach
+    # inside the margin it is pushed back out; beyond the border by breach_distance, or in a
+    # virtual obstacle at any depth (a 0.05 m wall is thinner than breach_distance), is a breach
     v, _, c = fence.filter(np.zeros((1, 2)), t.to_lab(np.array([[3.5, 1.0]])))
     assert v[0, 0] < -0.1 and c[0] == pytest.approx(0.1)
-    assert fence.breached(t.to_lab(np.array([[3.9, 1.0], [3.7, 1.0], [1.0, 1.9]]))).tolist() == [True, False, False]
+    assert fence.breached(t.to_lab(np.array([[3.9, 1.0], [3.7, 1.0], [1.0, 1.9], [1.0, 1.87]]))).tolist() == [True, False, True, False]
 
 
 def test_the_fence_keeps_drones_out_of_virtual_obstacles():
@@ -226,6 +227,39 @@ def test_the_fence_keeps_drones_out_of_virtual_obstacles():
         p = p + v * 0.02
     assert p[0, 1] == pytest.approx(1.9 - 0.025 - 0.2, abs=0.02)
     assert fence.clearance(np.array([[1.0, 1.9]]))[0] == pytest.approx(-0.025)  # inside the wall: negative
+
+
+def test_the_fence_judges_a_thin_wall_from_the_drones_own_side_never_pushing_it_through():
+    """Judged at its predicted point alone, a drone whose prediction passed the middle of a
+    0.05 m wall was nearest the wall's far side and was pushed on, through the wall."""
+    fence = Fence(load_layout(1), LabTransform(), margin=0.2, lookahead=0.5, breach=0.15)  # wall y 1.875-1.925, x 0-2.2
+    y = np.linspace(1.70, 1.87, 18)
+    p = np.column_stack([np.full_like(y, 0.8), y])
+    ahead = p + np.array([0.0, 0.3]) * 0.4  # asking +0.3 m/s, prediction 0.4 s on: up to 0.12 m into or past the wall
+    v, _, braking, clearance = keep_apart_and_inside(np.tile([0.0, 0.3], (len(y), 1)), p, fence, 0.25, 0.5, np.ones(len(y), bool), ahead)
+    assert braking.all() and (v[:, 1] < 0).all()  # every one backs off ...
+    assert (np.diff(v[:, 1]) < 0).all()  # ... the harder the further its path goes into or past the wall
+    assert clearance[-1] == pytest.approx(1.875 - 1.99, abs=0.005)  # measured from its side: 0.115 m beyond the near face
+    # a drone already past the wall is judged from its side too: it may fly on, away from the wall
+    v, _ = fence.filter(np.array([[0.0, 0.3]]), np.array([[0.8, 2.2]]), np.array([[0.8, 2.32]]))[:2]
+    assert v.tolist() == [[0.0, 0.3]]
+    # flying at it too fast to stop short (1 m/s from 0.3 m), with a lagging response: turned back, never across
+    p, vel, top = np.array([[0.8, 1.575]]), np.array([[0.0, 1.0]]), 0.0
+    for _ in range(100):
+        cmd, _, _ = fence.filter(np.array([[0.0, 1.0]]), p, p + vel * 0.4)
+        for _ in range(10):
+            vel = vel + (cmd - vel) * 0.01 / 0.3
+            p = p + vel * 0.01
+            top = max(top, p[0, 1])
+    assert top < 1.875 and p[0, 1] == pytest.approx(1.875 - 0.2, abs=0.02)
+
+
+def test_a_path_between_two_estimates_that_meets_a_virtual_obstacle_is_a_crossing():
+    fence = Fence(load_layout(1), LabTransform(), margin=0.2, lookahead=0.5, breach=0.15)
+    before = np.array([[0.8, 1.85], [0.8, 1.5], [2.5, 1.85], [np.nan, np.nan], [0.8, 1.88]])
+    after = np.array([[0.8, 1.95], [0.8, 1.6], [2.5, 1.95], [0.8, 1.95], [0.8, 1.88]])
+    # across the wall; short of it; beside its end; no previous estimate; still
+    assert fence.crossed(before, after).tolist() == [True, False, False, False, False]
 
 
 def test_the_fence_holds_a_drone_sliding_into_a_corner_at_both_margins():

@@ -7,14 +7,15 @@ Every decision step (1 / decision_rate s):
 1. the latest estimates of all drones (StateBoard) -> lab frame -> layout frame;
 2. abort checks, each ending the run with everyone landing: emergency stop (motors cut
    instead), Ctrl-C, a land request, any link lost, a drone without a fresh estimate for
-   `stale_land`, a low battery, a fence breach or too high, capture of every evader, the
-   time limit;
+   `stale_land`, a low battery, a fence breach (also a virtual obstacle entered or crossed
+   between two estimates) or too high, capture of every evader, the time limit;
 3. captures by the simulator's rule; observations by the simulator's code (observe.py);
 4. the policy's actions in [-1, 1]^2 times pursuer_speed, clipped (the simulator's action
    interface), and the escape model for evader drones; targets are only tracked;
 5. layout -> lab velocities, then the safety filters (speed clamp, separation guard,
    geofence; judged at the positions the drones' measured motion takes them to by the time
-   a command acts), a vertical speed that holds the flight height, each drone's own frame;
+   a command acts, the fence from each drone's own side of every surface), a vertical
+   speed that holds the flight height, each drone's own frame;
 6. `send_velocity_world_setpoint` for every commanded drone, or a hover setpoint at the
    flight height for a drone whose estimate is stale or an evader that was caught.
 Take-off and landing go through the high-level commander. Every event is logged with its
@@ -135,6 +136,7 @@ class FlightBridge:
         self.edges = _Edges(events, plan.names)
         self.links: LinkSet | None = None
         self.board: StateBoard | None = None
+        self._last_xy = np.full((plan.n_drones, 2), np.nan)  # lab m: each drone's previous estimate, for crossings
         self._stop = threading.Event()  # wakes the loop for any request below
         self._estop = threading.Event()
         self._interrupt = threading.Event()
@@ -406,11 +408,14 @@ class FlightBridge:
             self.events.log("stale_land", drone=names[i], reason="estimate not finite", pos=pos[i], vel=vel[i], level="error")
             raise _Abort("stale", f"the estimate of {names[i]} is not a number (pos {pos[i].tolist()}, vel {vel[i].tolist()})")
         ours = (snap.state_count > 0) & plan.commanded  # targets are flown by someone else
-        breach = self.fence.breached(pos[:, :2]) & ours
+        before, self._last_xy = self._last_xy, np.where(np.isfinite(pos[:, :2]), pos[:, :2], self._last_xy)
+        crossed = self.fence.crossed(before, pos[:, :2]) & ours
+        breach = (self.fence.breached(pos[:, :2]) & ours) | crossed
         if breach.any() and self._airborne:
             i = int(np.flatnonzero(breach)[0])
-            self.events.log("fence_breach", drone=names[i], pos=pos[i], level="error")
-            raise _Abort("fence_breach", f"{names[i]} at lab {np.round(pos[i, :2], 2).tolist()} is beyond the geofence")
+            self.events.log("fence_breach", drone=names[i], pos=pos[i], crossed=bool(crossed[i]), level="error")
+            where = f"entered or crossed a virtual obstacle since lab {np.round(before[i], 2).tolist()}" if crossed[i] else "is beyond the geofence"
+            raise _Abort("fence_breach", f"{names[i]} at lab {np.round(pos[i, :2], 2).tolist()} {where}")
         high = (pos[:, 2] > limits.max_altitude) & ours
         if high.any():
             i = int(np.flatnonzero(high)[0])
@@ -485,8 +490,8 @@ class FlightBridge:
         limits = self.plan.safety
         ahead = pos_lab[:, :2] + vel_lab[:, :2] * (self.plan.dt + limits.response_time)
         v, clamped = clamp_speed(wanted, limits.max_speed)
-        v, separating, fencing, clearance = keep_apart_and_inside(v, ahead, self.fence, limits.min_separation, limits.lookahead,
-                                                                  self.plan.commanded)
+        v, separating, fencing, clearance = keep_apart_and_inside(v, pos_lab[:, :2], self.fence, limits.min_separation, limits.lookahead,
+                                                                  self.plan.commanded, ahead_lab=ahead)
         v, clamped_again = clamp_speed(v, limits.max_speed)  # a push back out may be fast
         return v, {"speed_clamped": clamped | clamped_again, "separation": separating, "geofence": fencing}, clearance
 
