@@ -96,7 +96,7 @@ def fly_virtual(plan: FlightPlan, policy, tmp_path, drones=None, during: Callabl
                 th.start()
                 worker.append(th)
 
-        events.echo = echo
+        events.add_sink("during", echo)
     with fleet:
         try:
             result = bridge.run()

@@ -117,13 +117,58 @@ def test_a_log_that_can_no_longer_be_written_or_echoed_does_not_keep_the_drones_
         def closed_pipe(record):
             raise BrokenPipeError(32, "Broken pipe")
 
-        bridge.events.echo = closed_pipe
+        bridge.events.add_sink("echo", closed_pipe)
 
     result, events, fleet = fly_virtual(quick_plan(max_time=1.5), ScriptedTeam([[0.0, 0.0]]), tmp_path, during=break_the_log)
     assert result.outcome == "timeout" and result.landed
     assert kinds_in_order(events, "chase", "end_of_run", "land", "landed")  # every record kept in memory
     assert len(events.failures) == 2 and "events.jsonl" in events.failures[0] and "Broken pipe" in events.failures[1]
     assert down(fleet)
+
+
+def test_a_failing_event_sink_is_dropped_alone():
+    from pursuit_mj.flight.events import EventLog
+
+    got = []
+
+    def closed_pipe(record):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    events = EventLog(echo=closed_pipe)
+    events.add_sink("rerun", got.append)
+    events.log("takeoff")
+    events.log("step")  # routine: no sink sees it
+    events.log("land")
+    assert [r["kind"] for r in got] == ["takeoff", "land"] and events.sinks == ("rerun",)
+    assert len(events.failures) == 1 and "'echo'" in events.failures[0]
+    with pytest.raises(ValueError, match="'rerun' is already attached"):
+        events.add_sink("rerun", got.append)
+
+
+def test_a_broken_terminal_echo_keeps_the_fault_injection_and_the_rerun_recording_going(tmp_path):
+    """`fly ... | head -n 13`: the echo's first failure dropped the whole chain built on it
+    (the rerun recorder and the fault injector), so the fault never came."""
+    from pursuit_mj.flight.session import run_flight
+    from pursuit_mj.recording.rrd_read import read_entities
+
+    from flight_rehearsal import FAST
+
+    printed = []
+
+    def head(record):  # a pipe that closes after three lines
+        if len(printed) == 3:
+            raise BrokenPipeError(32, "Broken pipe")
+        printed.append(record["kind"])
+
+    result, events = run_flight(quick_plan(max_time=1.5), ScriptedTeam([[0.0, 0.0]]), virtual=True, virtual_physics=FAST,
+                                faults=["freeze:p0@0.3"], events_path=tmp_path / "e.jsonl", rerun_path=tmp_path / "f.rrd",
+                                echo=head, handle_signals=False)
+    assert result.outcome == "timeout" and len(printed) == 3
+    assert kinds_in_order(events, "chase", "fault_injected", "end_of_run", "land", "landed")
+    texts = [t for row in read_entities(tmp_path / "f.rrd")["/events"].rows["TextLog:text"] for t in row]
+    assert any(t.startswith("fault_injected") for t in texts) and any(t.startswith("landed") for t in texts)
+    assert len(events.failures) == 1 and "'echo'" in events.failures[0] and "Broken pipe" in events.failures[0]
+    assert events.sinks == ("faults", "rerun")
 
 
 def test_ctrl_backslash_cuts_the_motors_from_another_thread_than_the_signal_handler(tmp_path):

@@ -146,14 +146,7 @@ class FlightBridge:
         self._landing = False
         self._in_flight = False  # past the checks: a stop signal lands instead of aborting
         if recorder is not None:
-            previous = events.echo
-
-            def echo(record: dict) -> None:
-                recorder.log_event(record)
-                if previous is not None:
-                    previous(record)
-
-            events.echo = echo
+            events.add_sink("rerun", recorder.log_event)
 
     # ------------------------------------------------------------------ requests (any thread)
 

@@ -3,9 +3,11 @@
 A line is {"t": s since the log opened (monotonic clock), "time": wall-clock ISO 8601 UTC,
 "kind": ..., ...fields}. Lines are appended and flushed one by one (safety events are also
 fsync'ed), so a crash or a power cut leaves every event written before it readable.
-Thread-safe: cflib's threads, key watchers and the flight loop all log here. Logging never
-raises into the flight: a log file that cannot be written (disk full) or an echo that fails
-(a closed pipe or terminal) is reported once on stderr and dropped, and the records stay in
+Thread-safe: cflib's threads, key watchers and the flight loop all log here. Sinks (the
+terminal echo, the rerun recorder, the fault injector) each receive every non-routine
+record, independently. Logging never raises into the flight: a log file that cannot be
+written (disk full) or a sink that fails (a closed pipe or terminal under the echo) is
+reported once on stderr and dropped alone; the other sinks go on, and the records stay in
 memory, so a failing log cannot keep the drones from landing.
 """
 
@@ -45,7 +47,7 @@ def _plain(value: Any) -> Any:
 class EventLog:
     """Append-only JSONL event log (module docstring); `path` None keeps events in memory only.
 
-    `echo(record)` is called for every non-routine event (e.g. to print it).
+    `echo(record)`, if given, is the first sink, named "echo" (e.g. a terminal print).
     """
 
     def __init__(self, path: str | Path | None = None, clock: Callable[[], float] = time.monotonic,
@@ -53,14 +55,31 @@ class EventLog:
         self.path = Path(path) if path is not None else None
         self.clock = clock
         self.t0 = clock()
-        self.echo = echo
         self.records: list[dict] = []
         self._lock = threading.RLock()  # re-entrant: a signal handler may log while the main thread is logging
         self._file = None
+        self._sinks: dict[str, Callable[[dict], None]] = {}
         self.failures: list[str] = []  # what stopped being written, and why
+        if echo is not None:
+            self.add_sink("echo", echo)
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._file = open(self.path, "a", encoding="utf-8")
+
+    def add_sink(self, name: str, sink: Callable[[dict], None]) -> None:
+        """Call sink(record) for every non-routine event from now on, after the file is written.
+        A sink that raises is removed (others are not) and named on stderr once; ValueError if
+        `name` is taken."""
+        with self._lock:
+            if name in self._sinks:
+                raise ValueError(f"event log: a sink named {name!r} is already attached")
+            self._sinks[name] = sink
+
+    @property
+    def sinks(self) -> tuple[str, ...]:
+        """Names of the sinks still attached."""
+        with self._lock:
+            return tuple(self._sinks)
 
     def now(self) -> float:
         """Seconds since the log opened."""
@@ -78,25 +97,37 @@ class EventLog:
                     if kind not in ROUTINE:
                         os.fsync(self._file.fileno())
                 except (OSError, ValueError) as exc:
-                    self._give_up("file", f"event log {self.path} no longer written ({type(exc).__name__}: {exc})")
-        if self.echo is not None and kind not in ROUTINE:
-            try:
-                self.echo(record)
-            except Exception as exc:  # a closed pipe or terminal: the flight goes on without the echo
-                self._give_up("echo", f"events no longer echoed ({type(exc).__name__}: {exc})")
+                    self._drop_file(f"event log {self.path} no longer written ({type(exc).__name__}: {exc})")
+        if kind not in ROUTINE:
+            with self._lock:
+                sinks = tuple(self._sinks.items())
+            for name, sink in sinks:
+                try:
+                    sink(record)
+                except Exception as exc:  # e.g. a closed pipe under the echo: the flight goes on without that sink
+                    self._drop_sink(name, f"events no longer sent to '{name}' ({type(exc).__name__}: {exc})")
         return record
 
-    def _give_up(self, what: str, why: str) -> None:
-        """Stop writing the file or the echo after its first failure; say so on stderr if it is there."""
-        if what == "file":
-            file, self._file = self._file, None
-            try:
-                file.close()
-            except (OSError, ValueError):
-                pass
-        else:
-            self.echo = None
-        self.failures.append(why)
+    def _drop_file(self, why: str) -> None:
+        """Stop writing the file after its first failure (called with the lock held)."""
+        file, self._file = self._file, None
+        try:
+            file.close()
+        except (OSError, ValueError):
+            pass
+        self._report(why)
+
+    def _drop_sink(self, name: str, why: str) -> None:
+        """Remove the sink `name` after its first failure; the others stay."""
+        with self._lock:
+            if self._sinks.pop(name, None) is None:
+                return  # another thread dropped it first
+        self._report(why)
+
+    def _report(self, why: str) -> None:
+        """Keep `why` in `failures` and say it once on stderr, if stderr is there."""
+        with self._lock:
+            self.failures.append(why)
         try:
             print(f"pursuit-mj fly: {why}; records are kept in memory", file=sys.stderr, flush=True)
         except (OSError, ValueError):

@@ -61,17 +61,11 @@ class FaultInjector:
     def __init__(self, fleet, faults: Sequence[Fault], events: EventLog):
         self.fleet, self.faults, self.events = fleet, list(faults), events
         self.timers: list[threading.Timer] = []
-        previous = events.echo
+        events.add_sink("faults", self._on_event)
 
-        def echo(record: dict) -> None:
-            if record["kind"] == "chase":
-                self._arm()
-            if previous is not None:
-                previous(record)
-
-        events.echo = echo
-
-    def _arm(self) -> None:
+    def _on_event(self, record: dict) -> None:
+        if record["kind"] != "chase":
+            return
         for f in self.faults:
             t = threading.Timer(f.at, self._apply, args=(f,))
             t.daemon = True
