@@ -15,7 +15,7 @@ from pursuit_mj.flight.links import CachedFactory
 from pursuit_mj.flight.plan import load_plan, resolve_flight
 from pursuit_mj.flight.safety import Fence, altitude_speed, clamp_speed, keep_apart_and_inside, separate
 from pursuit_mj.flight.session import parse_fault, run_flight
-from pursuit_mj.flight.spec import flight_from_dict, load_flight
+from pursuit_mj.flight.spec import flight_from_dict, link_key, load_flight
 from pursuit_mj.layout import load_layout
 
 EXAMPLE = "configs/flight/example.yaml"
@@ -73,12 +73,33 @@ def test_drone_order_is_pursuers_first_whatever_the_file_order():
     assert plan.commanded.tolist() == [True, True, False] and plan.flown_evaders.tolist() == [False]
 
 
+def test_uris_compare_as_cflib_reads_them():
+    key = lambda uri: link_key(uri, "f.yaml")  # noqa: E731
+    assert key("radio://0/080/2M/e7e7e7e701") == key("radio://1/80/2M/E7E7E7E701") == ("radio", 80, "2M", 0xE7E7E7E701)
+    assert key("radio://0/80/2M") == key("radio://0/80/2M/E7E7E7E7E7") and key("radio://0/80/2M/E701") == key("radio://0/80/2M/000000E701")
+    assert key("radio://0/80/2M/E7E7E7E701") != key("radio://0/90/2M/E7E7E7E701") != key("radio://0/90/1M/E7E7E7E701")
+    assert key("udp://LocalHost:19850") == key("udp://localhost:19850") != key("udp://localhost:19851")
+    assert key("usb://00") == key("usb://0")
+
+
 @pytest.mark.parametrize(
     "edit, words",
     [
         (lambda d: d["drones"][0].update(uri="radio://0/180/2M/E7E7E7E701"), ["drones[0]", "uri", "channel 180"]),
         (lambda d: d["drones"][0].update(uri="bluetooth://cf1"), ["drones[0]", "uri", "not a Crazyflie URI"]),
         (lambda d: d["drones"][1].update(uri="radio://0/80/2M/E7E7E7E701"), ["drones[1]", "also used by drones[0]"]),
+        (lambda d: d["drones"][1].update(uri="radio://0/80/2M/e7e7e7e701"), ["drones[1]", "also used by drones[0]", "address E7E7E7E701"]),
+        (lambda d: d["drones"][1].update(uri="radio://0/080/2M/E7E7E7E701"), ["drones[1]", "also used by drones[0]", "channel 80"]),
+        (lambda d: d["drones"][1].update(uri="radio://1/80/2M/E7E7E7E701"), ["drones[1]", "also used by drones[0]"]),  # another dongle, same drone
+        (lambda d: (d["drones"][0].update(uri="radio://0/80/2M/E7E701"), d["drones"][1].update(uri="radio://0/80/2M/0000e7e701")),
+         ["drones[1]", "also used by drones[0]", "address 0000E7E701"]),  # cflib pads short addresses with zeros
+        (lambda d: (d["drones"][0].update(uri="radio://0/80/2M"), d["drones"][1].update(uri="radio://0/80/2M/E7E7E7E7E7")),
+         ["drones[1]", "also used by drones[0]", "address E7E7E7E7E7"]),
+        (lambda d: (d["drones"][0].update(uri="udp://LocalHost:19850"), d["drones"][1].update(uri="udp://localhost:19850")),
+         ["drones[1]", "also used by drones[0]", "localhost:19850"]),
+        (lambda d: d["drones"][0].update(uri="radio://0/80/2m/E7E7E7E701"), ["drones[0]", "uri", "data rate '2m'", "250K, 1M, 2M"]),
+        (lambda d: d["drones"][0].update(name="p 0"), ["drones[0]", "name", "'p 0'", "--fault"]),
+        (lambda d: d["drones"][0].update(name="p0@1"), ["drones[0]", "name", "'p0@1'"]),
         (lambda d: d["drones"][1].update(role="chaser"), ["drones[1]", "role", "'chaser'"]),
         (lambda d: d["drones"][0].pop("start"), ["drones[0]", "missing key 'start'"]),
         (lambda d: d.pop("positioning"), ["missing key 'positioning'"]),

@@ -25,9 +25,10 @@ from .bridge import FlightBridge, FlightResult
 from .events import EventLog
 from .links import CrazyflieFactory
 from .plan import FlightPlan, load_plan
+from .spec import NAME
 
 FAULT_KINDS = ("drop_link", "freeze", "battery")
-_FAULT = re.compile(r"^(\w+):([\w\-]+)@([0-9.]+)(?:=([0-9.]+))?$")
+_FAULT = re.compile(rf"^(\w+):({NAME})@([0-9.]+)(?:=([0-9.]+))?$")
 
 
 @dataclasses.dataclass(frozen=True)

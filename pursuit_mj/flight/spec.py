@@ -33,18 +33,36 @@ from ..configio import ConfigError, build, load_yaml, spec
 from .board import HISTORY
 
 ROLES = ("pursuer", "evader", "target")
+NAME = r"[\w\-]+"  # a drone name: what `--fault KIND:NAME@S` can address
 POSITIONING = ("flow", "lighthouse", "loco")
 
+DATA_RATES = ("250K", "1M", "2M")  # spelled as cflib's radio driver compares them
+DEFAULT_RADIO_ADDRESS = 0xE7E7E7E7E7  # what cflib uses for a radio URI without an address
+
 _URI_PATTERNS = {
-    "radio": re.compile(r"^radio://(\d+|[0-9A-Fa-f]{10})/(\d{1,3})/(250K|1M|2M)(/[0-9A-Fa-f]{1,10})?(\?[\w=&]*)?$"),
+    # dongle: an index (fewer than 10 digits) or a 10-character serial, as cflib's radiodriver.parse_uri
+    "radio": re.compile(r"^radio://(\d{1,9}|[0-9A-Fa-f]{10})/(\d{1,3})/(\w+)(?:/([0-9A-Fa-f]{1,10}))?(\?[\w=&]*)?$"),
     "udp": re.compile(r"^udp://([\w.\-]+):(\d{1,5})$"),
-    "usb": re.compile(r"^usb://\d+$"),
+    "usb": re.compile(r"^usb://(\d+)$"),
     "tcp": re.compile(r"^tcp://([\w.\-]+):(\d{1,5})$"),
 }
 
 
 def check_uri(uri: str, where: str) -> str:
     """Return `uri` if cflib can open it (radio://, udp://, usb://, tcp://); else ConfigError naming `where`."""
+    link_key(uri, where)
+    return uri
+
+
+def link_key(uri: str, where: str) -> tuple:
+    """What `uri` reaches, as cflib parses it, so that two spellings of one link compare equal;
+    ConfigError naming `where` if cflib cannot open it.
+
+    radio: ("radio", channel, data rate, address): the channel as a number (080 is 80), the
+    address as a number (any case, zero-padded as cflib pads it; none is 0xE7E7E7E7E7). The
+    dongle is left out: one Crazyflie answers every dongle on its channel and address.
+    udp/tcp: (scheme, host in lower case, port); usb: ("usb", index).
+    """
     scheme = uri.split("://", 1)[0] if "://" in uri else ""
     pattern = _URI_PATTERNS.get(scheme)
     m = pattern.match(uri) if pattern else None
@@ -53,11 +71,26 @@ def check_uri(uri: str, where: str) -> str:
             f"{where}: '{uri}' is not a Crazyflie URI (expected radio://0/80/2M/E7E7E7E7E7, "
             f"udp://127.0.0.1:19850, usb://0 or tcp://host:port)"
         )
-    if scheme == "radio" and int(m.group(2)) > 125:
-        raise ConfigError(f"{where}: '{uri}': radio channel {m.group(2)} is out of range (0-125)")
-    if scheme in ("udp", "tcp") and not 1 <= int(m.group(2)) <= 65535:
+    if scheme == "radio":
+        channel, rate, address = int(m.group(2)), m.group(3), m.group(4)
+        if channel > 125:
+            raise ConfigError(f"{where}: '{uri}': radio channel {m.group(2)} is out of range (0-125)")
+        if rate not in DATA_RATES:
+            raise ConfigError(f"{where}: '{uri}': data rate '{rate}' is not one of {', '.join(DATA_RATES)}, written "
+                              f"exactly so (cflib reads any other spelling, '2m' or '1m' too, as 2M)")
+        return ("radio", channel, rate, int(address, 16) if address else DEFAULT_RADIO_ADDRESS)
+    if scheme == "usb":
+        return ("usb", int(m.group(1)))
+    port = int(m.group(2))
+    if not 1 <= port <= 65535:
         raise ConfigError(f"{where}: '{uri}': port {m.group(2)} is out of range (1-65535)")
-    return uri
+    return (scheme, m.group(1).lower(), port)
+
+
+def _describe_link(key: tuple) -> str:
+    if key[0] == "radio":
+        return f"channel {key[1]}, {key[2]}, address {key[3]:010X}"
+    return ":".join(str(k) for k in key[1:])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,6 +106,9 @@ class DroneSpec:
 
     def validate(self, source: str) -> None:
         check_uri(self.uri, f"{source}: key 'uri'")
+        if self.name and not re.fullmatch(NAME, self.name):
+            raise ConfigError(f"{source}: key 'name': {self.name!r} is not a plain label (letters, digits, _ and -; "
+                              f"no spaces): it names the drone in --fault KIND:NAME@S and in the records")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -164,11 +200,14 @@ class FlightSpec:
             raise ConfigError(f"{source}: key 'drones': no drone has role 'pursuer'")
         if not ({"evader", "target"} & set(roles)):
             raise ConfigError(f"{source}: key 'drones': no drone has role 'evader' or 'target' (nothing to chase)")
-        seen: dict[str, int] = {}
+        seen: dict[tuple, int] = {}
         for i, d in enumerate(self.drones):
-            if d.uri in seen:
-                raise ConfigError(f"{source}: drones[{i}]: uri '{d.uri}' is also used by drones[{seen[d.uri]}]")
-            seen[d.uri] = i
+            key = link_key(d.uri, f"{source}: drones[{i}]: key 'uri'")
+            if key in seen:
+                j = seen[key]
+                spelled = "" if d.uri == self.drones[j].uri else f" as '{self.drones[j].uri}' (cflib reads both as {_describe_link(key)})"
+                raise ConfigError(f"{source}: drones[{i}]: uri '{d.uri}' is also used by drones[{j}]{spelled}")
+            seen[key] = i
         names = drone_names(self)
         if len(set(names)) != len(names):
             raise ConfigError(f"{source}: key 'drones': two drones share the name '{_first_duplicate(names)}'")
@@ -249,4 +288,4 @@ def load_flight(path: str | Path) -> FlightSpec:
     return flight_from_dict(load_yaml(path), str(path))
 
 
-__all__ = ["DroneSpec", "TransformSpec", "LabBounds", "SafetyLimits", "FlightSpec", "load_flight", "flight_from_dict", "check_uri", "drone_names", "ROLES", "POSITIONING"]
+__all__ = ["DroneSpec", "TransformSpec", "LabBounds", "SafetyLimits", "FlightSpec", "load_flight", "flight_from_dict", "check_uri", "link_key", "drone_names", "ROLES", "POSITIONING"]
