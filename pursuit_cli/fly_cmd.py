@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import sys
 
 from .common import add_shield_arg, finite_float, load_model, seed_arg, shield_if_asked
@@ -99,6 +100,18 @@ def _describe(plan) -> str:
     return "\n".join(lines)
 
 
+def _landed(result, plan) -> str:
+    """'yes' or 'no', and what that is based on: the drones' last height estimates."""
+    from pursuit_mj.flight.bridge import LANDED_HEIGHT
+
+    if result.landed:
+        return f"yes (every commanded drone's last height estimate below {LANDED_HEIGHT:g} m)"
+    heights = result.heights if result.heights is not None else [math.nan] * plan.n_drones
+    up = [f"{name} {z:.2f} m" if math.isfinite(z) else f"{name} unknown"
+          for name, z, ours in zip(plan.names, heights, plan.commanded) if ours and not z < LANDED_HEIGHT]
+    return "no" + (f" (last height estimates: {', '.join(up)}; landed means below {LANDED_HEIGHT:g} m)" if up else "")
+
+
 def run_check(args) -> int:
     from pursuit_mj.flight.plan import load_plan
 
@@ -162,7 +175,7 @@ def run(args) -> int:
         if watcher is not None:
             watcher.stop()
     print(f"outcome: {result.outcome} ({result.reason}); chase {result.chase_time:.1f} s, {result.captures} capture(s), "
-          f"{len(result.steps)} decision steps; landed: {'yes' if result.landed else 'no'}")
+          f"{len(result.steps)} decision steps; landed: {_landed(result, plan)}")
     print(f"events: {events_path}" + (f"; rerun: {args.rerun}" if args.rerun else ""))
     return 0 if result.outcome in ("captured", "timeout") else 1
 

@@ -101,6 +101,9 @@ def test_frozen_estimates_make_the_drone_hover_then_everyone_land(tmp_path):
     kinds = [r.kind for r in fleet.received(0)]
     assert "hover" in kinds and kinds.index("hover") > kinds.index("velocity")  # held while stale
     assert down(fleet)
+    # its last estimate still says 0.3 m up: the flight cannot say it landed
+    assert not result.landed and result.heights[0] == pytest.approx(0.3, abs=0.05) and (result.heights[1:] < 0.1).all()
+    assert events.of_kind("landed")[0]["not_down"] == ["p0"]
 
 
 def test_a_drained_battery_lands_that_drone_and_ends_the_run(tmp_path):

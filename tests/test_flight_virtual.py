@@ -180,7 +180,7 @@ def test_fly_virtual_on_the_command_line_writes_its_event_log_and_rerun_file(tmp
     rc = main(["fly", "--flight", str(flight), "--policy", "heuristic", "--virtual", "--max-time", "1.5",
                "--events", str(tmp_path / "f.jsonl"), "--rerun", str(tmp_path / "f.rrd")])
     out = capsys.readouterr().out
-    assert rc == 0 and "outcome: timeout" in out and "landed: yes" in out
+    assert rc == 0 and "outcome: timeout" in out and "landed: yes (every commanded drone's last height estimate below 0.1 m)" in out
     records = read_events(tmp_path / "f.jsonl")
     times = [r["t"] for r in records]
     assert times == sorted(times)
@@ -202,6 +202,16 @@ def test_fly_virtual_on_the_command_line_writes_its_event_log_and_rerun_file(tmp
     assert entities["/drones/p0"].n_rows >= len(steps)
     texts = [t for row in entities["/events"].rows["TextLog:text"] for t in row]
     assert any(t.startswith("takeoff") for t in texts) and any(t.startswith("landed") for t in texts)
+
+
+def test_fly_says_landed_only_when_every_drone_reports_a_height_near_the_floor(tmp_path, capsys):
+    flight = tmp_path / "quick.yaml"
+    flight.write_text(yaml.safe_dump(quick_spec()))
+    rc = main(["fly", "--flight", str(flight), "--policy", "heuristic", "--virtual", "--max-time", "1.0",
+               "--events", str(tmp_path / "f.jsonl"), "--fault", "freeze:p0@0.2"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "outcome: timeout" in out
+    assert "landed: no (last height estimates: p0 0.3" in out and "landed means below 0.1 m" in out  # its estimates stopped in the air
 
 
 def test_fly_align_measures_a_rotated_scaled_transform_from_virtual_lighthouse_drones(tmp_path, capsys):

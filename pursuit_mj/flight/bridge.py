@@ -45,6 +45,7 @@ from .safety import Fence, altitude_speed, clamp_speed, keep_apart_and_inside
 
 STATE_PERIOD = 0.02  # s between state-estimate log packets (50 Hz)
 HEALTH_PERIOD = 0.05  # s between health log packets
+LANDED_HEIGHT = 0.1  # m: a drone whose last height estimate is below this counts as landed
 
 
 @dataclasses.dataclass
@@ -78,7 +79,9 @@ class StepRecord:
 class FlightResult:
     """How a flight ended. outcome: captured | timeout | interrupted | land_requested |
     link_lost | stale | low_battery | fence_breach | altitude | takeoff_failed |
-    emergency_stop | error; reason: a sentence; chase_time (s); captures; steps."""
+    emergency_stop | error; reason: a sentence; chase_time (s); captures; steps; landed:
+    the landing ran for every commanded drone and each one's last height estimate is below
+    LANDED_HEIGHT; heights (D,) m: the last height estimates at the end (NaN: none)."""
 
     outcome: str
     reason: str
@@ -86,6 +89,7 @@ class FlightResult:
     captures: int
     steps: list[StepRecord]
     landed: bool
+    heights: np.ndarray | None = None
 
 
 class _Abort(Exception):
@@ -283,7 +287,8 @@ class FlightBridge:
         if outcome == "emergency_stop" or self._estop.is_set():  # also one during the landing
             outcome = "emergency_stop"
             self._cut_motors()  # once more, in case a packet was lost
-        return FlightResult(outcome, reason, chase_time, int(observer.captured.sum()), steps, landed)
+        heights = self._lab_state(self.board.snapshot())[0][:, 2]
+        return FlightResult(outcome, reason, chase_time, int(observer.captured.sum()), steps, landed, heights)
 
     # ------------------------------------------------------------------ take-off and landing
 
@@ -314,7 +319,8 @@ class FlightBridge:
             self._stop.wait(min(self.plan.dt, max(0.0, end - self.clock())))
 
     def _land_all(self, why: str) -> bool:
-        """Everyone with a link lands through the high-level commander; returns whether all did."""
+        """Everyone with a link lands through the high-level commander; returns whether every
+        commanded drone was landed and its last height estimate is below LANDED_HEIGHT."""
         if not self._airborne or self.links is None:
             return False
         self._landing = True
@@ -336,9 +342,11 @@ class FlightBridge:
         for link in up:
             link.stop_motors()
         z = self._lab_state(self.board.snapshot())[0][:, 2]
-        self.events.log("landed", heights=z, drones=[l.name for l in up])
+        down = z < LANDED_HEIGHT  # a missing estimate (NaN) does not count as down
+        not_down = [n for n, ok, ours in zip(plan.names, down, plan.commanded) if ours and not ok]
+        self.events.log("landed", heights=z, drones=[l.name for l in up], not_down=not_down, level="warn" if not_down else "info")
         self._airborne = False
-        return len(up) == int(plan.commanded.sum())
+        return len(up) == int(plan.commanded.sum()) and bool(down[plan.commanded].all())
 
     # ------------------------------------------------------------------ the chase
 
