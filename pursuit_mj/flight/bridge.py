@@ -148,6 +148,7 @@ class FlightBridge:
         self._land_request = ""
         self._airborne = False
         self._landing = False
+        self._lost_logged: set[int] = set()  # drones whose link_lost event is in the log
         self._in_flight = False  # past the checks: a stop signal lands instead of aborting
         if recorder is not None:
             events.add_sink("rerun", recorder.log_event)
@@ -341,12 +342,22 @@ class FlightBridge:
             return False
         for link in up:
             link.stop_motors()
-        z = self._lab_state(self.board.snapshot())[0][:, 2]
+        snap = self.board.snapshot()
+        silent = snap.lost | (snap.silence > limits.link_timeout)
+        for i in np.flatnonzero(silent):  # links that dropped during the landing
+            self._log_link_lost(int(i), snap.lost_reason[i] or f"nothing heard for {snap.silence[i]:.2f} s", during="landing")
+        z = self._lab_state(snap)[0][:, 2]
         down = z < LANDED_HEIGHT  # a missing estimate (NaN) does not count as down
         not_down = [n for n, ok, ours in zip(plan.names, down, plan.commanded) if ours and not ok]
         self.events.log("landed", heights=z, drones=[l.name for l in up], not_down=not_down, level="warn" if not_down else "info")
         self._airborne = False
         return len(up) == int(plan.commanded.sum()) and bool(down[plan.commanded].all())
+
+    def _log_link_lost(self, i: int, why: str, **extra) -> None:
+        """One `link_lost` event per drone and flight."""
+        if i not in self._lost_logged:
+            self._lost_logged.add(i)
+            self.events.log("link_lost", drone=self.plan.names[i], uri=self.plan.uris[i], reason=why, level="error", **extra)
 
     # ------------------------------------------------------------------ the chase
 
@@ -389,7 +400,7 @@ class FlightBridge:
         if silent.any():
             i = int(np.flatnonzero(silent)[0])
             why = snap.lost_reason[i] or f"nothing heard for {snap.silence[i]:.2f} s"
-            self.events.log("link_lost", drone=names[i], uri=plan.uris[i], reason=why, level="error")
+            self._log_link_lost(i, why)
             raise _Abort("link_lost", f"link to {names[i]} ({plan.uris[i]}) lost: {why}")
         stale = snap.state_age > limits.stale_land
         if stale.any():

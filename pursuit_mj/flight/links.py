@@ -87,6 +87,10 @@ class DroneLink:
         except Exception as exc:  # cflib raises a bare Exception carrying its reason
             self.error = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise
+        # cflib's latency pings (unused here) deadlock a link that fails under a command of
+        # ours: the send holds cflib's send lock while its error handler joins the ping
+        # thread, which waits for that lock (seen landing a team after one link dropped)
+        self.cf.link_statistics.stop()
 
     def abort_open(self, reason: str) -> None:
         """Make a pending `open` give up (cflib waits for a result without a timeout)."""
@@ -179,8 +183,8 @@ class DroneLink:
             self.cf.commander.send_stop_setpoint()
 
     def close(self) -> None:
-        # stop cflib's latency pings first: one sent while the link closes would make its
-        # thread handle the link error and try to join itself
+        # no latency pings (see open; again here for links whose open failed): one sent while
+        # the link closes would make its thread handle the link error and try to join itself
         self.cf.link_statistics.stop()
         self.scf.close_link()
 
