@@ -228,7 +228,7 @@ class BatchedPhysics:
         if self.fidelity == "quadrotor":
             height = np.full(xy.shape[:-1] + (1,), self.config.flight_height)
             qpos[:, self._qpos_idx] = np.concatenate([xy, height, np.broadcast_to(UNIT_QUAT, xy.shape[:-1] + (4,))], -1)
-            hover = self.params["mass"] * 9.81 / 4  # rotors already spinning at hover thrust
+            hover = self._hover_thrust()  # rotors already spinning at hover thrust
             act = self.act[ids]
             act[:, self._act_idx] = hover
             self.act[ids] = act
@@ -247,6 +247,10 @@ class BatchedPhysics:
         self.commands[ids] = 0.0
         self.contacts[ids] = False
         self.time[ids] = 0.0
+
+    def _hover_thrust(self) -> float:
+        """N per rotor that holds a drone's weight."""
+        return self.params["mass"] * 9.81 / 4
 
     def halt(self, worlds: np.ndarray, drones: np.ndarray) -> None:
         """Stop drone drones[k] of world worlds[k] dead (all its velocities 0), where it is.
@@ -268,11 +272,9 @@ class BatchedPhysics:
                 level[:, 0], level[:, 3] = np.cos(half_yaw), np.sin(half_yaw)
                 qpos[0, self._qpos_idx[these, 3:7]] = level
                 self.qpos[[w]] = qpos
-                hover = self.params["mass"] * 9.81 / 4
-                for name in ("act", "ctrl"):
-                    arr = getattr(self, name)[[w]]
-                    arr[0, (self._act_idx if name == "act" else self._ctrl_idx)[these]] = hover
-                    getattr(self, name)[[w]] = arr
+                act, ctrl = self.act[[w]], self.ctrl[[w]]
+                act[0, self._act_idx[these]] = ctrl[0, self._ctrl_idx[these]] = self._hover_thrust()
+                self.act[[w]], self.ctrl[[w]] = act, ctrl
         if self.fidelity == "quadrotor":
             self.batch.forward(np.unique(worlds))
 
