@@ -153,6 +153,8 @@ def test_a_whole_virtual_flight_takes_off_chases_captures_lands_and_sends_what_t
     final = fleet.true_state()
     assert (final["pos"][:, 2] < 0.03).all() and not final["motors"].any()
     assert not any(r.kind == "takeoff" for r in fleet.received(3))  # the target is never commanded
+    for i in range(3):  # take-off and landing keep each drone's yaw (cflib's default turns it to 0)
+        assert [r.values[3] for r in fleet.received(i) if r.kind in ("takeoff", "land")] == [1.0, 1.0]
 
     # the simulator's own observation and policy code, fed the same estimates, gives the same commands
     replay = _replay_pursuers(plan, result)

@@ -161,14 +161,16 @@ class DroneLink:
             self.cf.commander.send_hover_setpoint(0.0, 0.0, 0.0, float(z))
 
     def takeoff(self, height: float, duration: float) -> None:
+        """Rise to height (m) in duration (s), keeping the yaw the drone has (cflib's default,
+        yaw 0, would turn a drone placed at another heading toward the estimator's +x)."""
         if self.up:
-            self.cf.high_level_commander.takeoff(float(height), float(duration))
+            self.cf.high_level_commander.takeoff(float(height), float(duration), yaw=None)
 
     def land(self, height: float, duration: float) -> None:
-        """Hand control back to the high-level commander and land on it."""
+        """Hand control back to the high-level commander and land on it, keeping the yaw."""
         if self.up:
             self.cf.commander.send_notify_setpoint_stop()
-            self.cf.high_level_commander.land(float(height), float(duration))
+            self.cf.high_level_commander.land(float(height), float(duration), yaw=None)
 
     def stop_motors(self) -> None:
         """After a landing: stop the planner and the motors."""

@@ -280,10 +280,10 @@ class VirtualFirmware:
             c.hl_stop(i)
             self._note(t, "hl_stop")
         elif command in (p.HL_TAKEOFF_2, p.HL_LAND_2) and len(data) >= 15:
-            _, _, height, yaw, _, duration = struct.unpack("<BBff?f", data[:15])
+            _, _, height, yaw, use_current_yaw, duration = struct.unpack("<BBff?f", data[:15])
             plan = c.hl_takeoff if command == p.HL_TAKEOFF_2 else c.hl_land
-            plan(i, t, self.position(i), height, duration)
-            self._note(t, "takeoff" if command == p.HL_TAKEOFF_2 else "land", height, duration)
+            plan(i, t, self.position(i), height, duration)  # the virtual drone keeps its yaw either way
+            self._note(t, "takeoff" if command == p.HL_TAKEOFF_2 else "land", height, duration, yaw, use_current_yaw)
         elif command == p.HL_GO_TO_2 and len(data) >= 24:
             _, _, relative, _, x, y, z, yaw, duration = struct.unpack("<BBBBfffff", data[:24])
             c.hl_go_to(i, t, self.position(i), np.array([x, y, z]), duration, bool(relative))
