@@ -118,6 +118,22 @@ def test_top_camera_frames_the_whole_arena_between_caption_and_key(key):
         assert extent * 320 / 240 > layout.width
 
 
+@pytest.mark.parametrize("key", [True, False])
+def test_a_frame_too_short_for_its_bands_is_refused_and_the_shortest_allowed_frames_the_arena(key):
+    config, layout = default_config(fidelity="point"), load_layout(0)
+    bands = band_height(48) + (key_band_height(48) if key else 0)  # 42 px, 27 px without the key
+    with pytest.raises(ValueError, match=f"--height {bands}: too small to hold the caption band"):
+        SceneRenderer(RenderSettings(64, bands, "top", key=key), config, layout)
+    with SceneRenderer(RenderSettings(64, bands + 1, "top", key=key), config, layout) as r:
+        m = r._model
+        cam = m.camera("top").id
+        extent = m.cam_fovy[cam]  # visible height (m): it was 1/0 or negative (an upside-down view) before
+        assert extent > 0 and r.render(np.ones((4, 3)), np.tile([1.0, 0, 0, 0], (4, 1))).shape == (bands + 1, 64, 3)
+        top_edge = m.cam_pos[cam, 1] + extent / 2 - extent * band_height(bands + 1) / (bands + 1)
+        bottom_edge = m.cam_pos[cam, 1] - extent / 2 + (extent * key_band_height(bands + 1) / (bands + 1) if key else 0.0)
+        assert bottom_edge < 0.0 and top_edge > layout.height
+
+
 def test_caption_band_differs_with_outcome():
     frame = np.full((H, W, 3), 200, np.uint8)
     a = draw_caption(frame, Caption("t", 3, 10, 0.3, ""))

@@ -55,6 +55,11 @@ class RenderSettings:
         for flag, value, limit in (("--width", self.width, model.vis.global_.offwidth), ("--height", self.height, model.vis.global_.offheight)):
             if not isinstance(value, int) or not 16 <= value <= limit:
                 raise ValueError(f"{flag} {value}: must be an integer in 16..{limit} pixels")
+        caption, key = band_height(self.height), (key_band_height(self.height) if self.key else 0)
+        if caption + key >= self.height:  # the cameras frame the arena between the bands: no room would be left
+            bands = f"the caption band ({caption} px) and the colour key ({key} px)" if key else f"the caption band ({caption} px)"
+            raise ValueError(f"--height {self.height}: too small to hold {bands} and the scene between them; "
+                             f"use --height {caption + key + 1} or more" + (" (or --no-key)" if key else ""))
         if self.quality not in QUALITIES:
             raise ValueError(f"--quality {self.quality!r}: choose from {', '.join(QUALITIES)}")
 
