@@ -76,7 +76,7 @@ class PursuitParallelEnv(ParallelEnv):
         unknown = [a for a in actions if a not in self.agents]
         if missing or unknown:
             raise ValueError(f"actions: missing agents {missing}, unknown agents {unknown} (expected {self.agents})")
-        arr = np.stack([np.asarray(actions[a], dtype=np.float64) if np.shape(actions[a]) == (2,) else self._bad_shape(a, actions[a]) for a in self.agents])
+        arr = np.stack([self._action(a, actions[a]) for a in self.agents])
         obs, reward, term, trunc, info = self._env.step(arr[None])
         agents = self.agents
         observations = self._as_dict(obs[0])
@@ -92,8 +92,18 @@ class PursuitParallelEnv(ParallelEnv):
         return observations, rewards, terms, truncs, infos
 
     @staticmethod
-    def _bad_shape(agent: str, value) -> np.ndarray:
-        raise ValueError(f"actions[{agent!r}]: expected shape (2,), got {np.shape(value)}")
+    def _action(agent: str, value) -> np.ndarray:
+        """One agent's action as float64 (2,), refused as PursuitEnv refuses it (bools, text, complex
+        numbers, non-finite values), but naming the agent."""
+        raw = np.asarray(value)
+        if raw.shape != (2,):
+            raise ValueError(f"actions[{agent!r}]: expected shape (2,), got {raw.shape}")
+        if raw.dtype.kind not in "fiu":  # no silent cast: True would be full speed, 1+2j would lose its 2j
+            raise ValueError(f"actions[{agent!r}]: expected real numbers (vx, vy), got an array of dtype {raw.dtype}")
+        a = raw.astype(np.float64)
+        if not np.isfinite(a).all():
+            raise ValueError(f"actions[{agent!r}]: non-finite value in {a.tolist()}")
+        return a
 
     def state(self) -> np.ndarray:
         """The global state (state_dim,) float32 of the one world (PursuitEnv.global_state)."""

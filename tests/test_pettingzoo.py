@@ -30,6 +30,24 @@ def test_action_dict_errors_name_the_agent():
         env.step({f"pursuer_{i}": np.zeros(3) for i in range(3)})
 
 
+@pytest.mark.parametrize("bad, message", [
+    (np.array([True, False]), "expected real numbers \\(vx, vy\\), got an array of dtype bool"),  # was full speed
+    (np.array([0.5 + 1j, 0.0]), "got an array of dtype complex128"),  # was 0.5, the 1j dropped
+    (["0.5", "0"], "got an array of dtype <U3"),  # was parsed as numbers
+    (np.array([0.1, np.nan]), "non-finite value in \\[0.1, nan\\]"),
+])
+def test_actions_the_batched_env_refuses_are_refused_naming_the_agent(bad, message):
+    env = PursuitParallelEnv(default_config(fidelity="point", random_obstacles=0))
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=f"actions\\['pursuer_1'\\]: .*{message}"):
+        env.step({a: (bad if a == "pursuer_1" else np.zeros(2)) for a in env.agents})
+    with pytest.raises(ValueError, match="expected real numbers|non-finite"):  # the contract it follows
+        env.batched.step(np.tile(np.asarray(bad), (1, 3, 1)))
+    assert env.batched.steps[0] == 0 and env.agents == env.possible_agents  # nothing was stepped
+    env.step({a: np.array([1, 0], np.int64) for a in env.agents})  # integers are numbers
+    assert env.batched.steps[0] == 1
+
+
 def test_reset_without_a_seed_moves_on_to_the_next_episode():
     env = PursuitParallelEnv(default_config(fidelity="point", max_steps=5))
 
