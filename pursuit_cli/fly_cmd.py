@@ -75,6 +75,8 @@ def _need_flight(args) -> str:
 
 
 def _echo(record: dict) -> None:
+    if record["kind"] == "plan_warning":
+        return  # printed with the plan, before the flight
     details = ", ".join(f"{k}={v}" for k, v in record.items() if k not in ("t", "time", "kind", "level"))
     print(f"[{record['t']:8.3f}] {record['kind']}" + (f": {details}" if details else ""), flush=True)
 
@@ -91,12 +93,7 @@ def _describe(plan) -> str:
     ]
     for d in plan.drones:
         lines.append(f"  {d.name:>10}  {d.role:<8} {d.uri:<32} start {list(d.start)}")
-    for who, speed in (("pursuers", plan.task.pursuer_speed), ("evaders", plan.task.evader_speed)):
-        lab_speed = speed / t.scale
-        if lab_speed > s.max_speed + 1e-9:
-            lines.append(f"  warning: the {who}' task speed {speed:g} m/s is {lab_speed:g} m/s in the lab, above the safety "
-                         f"limit {s.max_speed:g} m/s: they will fly slower than the policy expects (raise safety.max_speed "
-                         f"or lower task.{'pursuer' if who == 'pursuers' else 'evader'}_speed)")
+    lines += [f"  warning: {w}" for w in plan.warnings]
     return "\n".join(lines)
 
 

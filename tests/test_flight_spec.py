@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import math
+import socket
 
 import numpy as np
 import pytest
@@ -455,3 +456,121 @@ def test_values_that_would_switch_a_guard_off_or_write_elsewhere_are_refused(cha
         data[key] = {**data.get(key, {}), **value} if isinstance(value, dict) else value
     with pytest.raises(ConfigError, match=words):
         flight_from_dict(data, "test.yaml")
+
+
+# ---------------------------------------------------------------------- the geofence margin and the starts
+
+
+def _start(data: dict, i: int, xy) -> dict:
+    data["drones"][i]["start"] = list(xy)
+    return data
+
+
+def margin_warnings(plan) -> list[str]:
+    """The plan's warnings about the geofence margin (BASE also warns that its evader is slowed to max_speed)."""
+    return [w for w in plan.warnings if "geofence_margin" in w]
+
+
+@pytest.mark.parametrize("changes, words", [
+    ({"safety": {"geofence_margin": 0.0}}, ["lab.yaml: safety: key 'geofence_margin'", "0 m leaves the fence no room", "any depth lands everyone"]),
+    ({"safety": {"geofence_margin": 0.05}}, ["key 'geofence_margin'", "0.05 m is below the task's obstacle_clearance 0.1 m", "collision"]),
+    # in a scaled lab the clearance is compared in lab metres: 0.1 layout m is 0.125 lab m at scale 0.8
+    ({"safety": {"geofence_margin": 0.11}, "transform": {"scale": 0.8}}, ["0.11 m is below", "(0.125 m in the lab, scale 0.8)"]),
+    ({"safety": {"geofence_margin": 0.12}, "task": {"obstacle_clearance": 0.15}}, ["0.12 m is below the task's obstacle_clearance 0.15 m"]),
+])
+def test_a_geofence_margin_of_zero_or_inside_the_collision_clearance_is_refused(changes, words):
+    with pytest.raises(ConfigError) as err:
+        resolve_flight(flight_from_dict(flight(**changes), "lab.yaml"))
+    for w in words:
+        assert w in str(err.value), (w, str(err.value))
+
+
+def test_a_geofence_margin_shorter_than_the_braking_distance_is_warned_about():
+    # defaults: 0.5 m/s (max_speed; the evader asks 0.6) * (0.1 s decision + 0.3 s response) = 0.2 m = the margin
+    plan = resolve_flight(flight_from_dict(flight(), "lab.yaml"))
+    assert plan.braking_distance == pytest.approx(0.2) and margin_warnings(plan) == []
+    plan = resolve_flight(flight_from_dict(flight(safety={"max_speed": 0.7}), "lab.yaml"))  # the evader's 0.6 m/s now flies
+    assert plan.fastest_command == pytest.approx(0.6) and plan.braking_distance == pytest.approx(0.24)
+    [warning] = margin_warnings(plan)
+    for w in ["safety.geofence_margin 0.2 m", "braking distance 0.240 m", "0.6 m/s", "response_time 0.3 s"]:
+        assert w in warning, (w, warning)
+    assert resolve_flight(flight_from_dict(flight(safety={"max_speed": 0.7, "geofence_margin": 0.25}), "lab.yaml")).warnings == ()
+    # a slower decision rate lengthens it: 0.5 m/s * (0.5 + 0.3) s = 0.4 m
+    plan = resolve_flight(flight_from_dict(flight(decision_rate=2.0), "lab.yaml"))
+    assert plan.braking_distance == pytest.approx(0.4) and "braking distance 0.400 m" in plan.warnings[0]
+
+
+@pytest.mark.parametrize("drone, xy, words", [
+    (0, [0.15, 1.0], ["drone p0: start [0.15, 1.0] is 0.150 m from the arena border", "inside safety.geofence_margin 0.2 m"]),
+    (2, [2.5, 4.9 - 0.03], ["drone p1", "0.130 m from the arena border"]),  # the top border, y = 5
+])
+def test_a_start_inside_the_geofence_margin_of_the_border_is_warned_about(drone, xy, words):
+    plan = resolve_flight(flight_from_dict(_start(flight(), drone, xy), "lab.yaml"))
+    [warning] = margin_warnings(plan)
+    for w in words:
+        assert w in warning, (w, warning)
+
+
+def test_a_start_inside_the_geofence_margin_of_a_virtual_obstacle_is_warned_about_and_touching_one_refused():
+    wall = 1.9 - 0.025  # layout 1: a 0.05 m wall along y = 1.9 from x = 0 to 2.2; its lower face
+    plan = resolve_flight(flight_from_dict(_start(flight(layout=1), 0, [1.0, wall - 0.15]), "lab.yaml"))
+    [warning] = margin_warnings(plan)
+    assert "drone p0: start [1.0, 1.725] is 0.150 m from a virtual obstacle, inside safety.geofence_margin 0.2 m" in warning
+    assert margin_warnings(resolve_flight(flight_from_dict(_start(flight(layout=1), 0, [1.0, wall - 0.25]), "lab.yaml"))) == []
+    with pytest.raises(ConfigError, match=r"drone p0 .*key 'start'.*inside or touching a virtual obstacle"):
+        resolve_flight(flight_from_dict(_start(flight(layout=1), 0, [1.0, wall - 0.05]), "lab.yaml"))
+
+
+@pytest.mark.parametrize("xy", [[0.0, 1.0], [0.05, 1.0], [3.55, 2.0]])
+def test_a_start_on_or_touching_the_arena_border_is_refused(xy):
+    with pytest.raises(ConfigError) as err:
+        resolve_flight(flight_from_dict(_start(flight(), 0, xy), "lab.yaml"))
+    message = str(err.value)
+    for w in ["lab.yaml: drone p0", "key 'start'", f"lab {[float(v) for v in xy]}", "from the border of the arena", "on or touching it"]:
+        assert w in message, (w, message)
+
+
+def test_a_target_starting_inside_the_margin_is_no_warning_the_fence_does_not_steer_it():
+    data = flight()
+    data["drones"][1].update(role="target", start=[2.0, 4.85])
+    assert margin_warnings(resolve_flight(flight_from_dict(data, "lab.yaml"))) == []
+
+
+def test_starts_closer_than_the_separation_minimum_are_refused_naming_both_drones():
+    data = flight(safety={"min_separation": 0.28})
+    _start(data, 2, [1.25, 1.05])  # 0.255 m from p0: clear of 0.25, not of 0.28
+    with pytest.raises(ConfigError, match=r"lab.yaml: drones p0 and p1 start 0.255 m apart, closer than safety.min_separation 0.28 m"):
+        resolve_flight(flight_from_dict(data, "lab.yaml"))
+    data["safety"]["min_separation"] = 0.25
+    assert margin_warnings(resolve_flight(flight_from_dict(data, "lab.yaml"))) == []
+
+
+def test_plan_warnings_are_printed_once_with_the_plan_and_logged_in_the_event_log(tmp_path, capsys):
+    """`fly` prints the plan's warnings before the flight and logs them as it starts; here the
+    links never come up (nothing answers on them), so the run ends there."""
+    from pursuit_cli import main
+    from pursuit_mj.flight.events import read_events
+
+    silent = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in BASE["drones"]]
+    try:
+        for s in silent:
+            s.bind(("127.0.0.1", 0))
+        data = _start(flight(safety={"connect_timeout": 0.3}, task={"evader_speed": 0.5}), 0, [0.15, 1.0])
+        for d, s in zip(data["drones"], silent):
+            d["uri"] = f"udp://127.0.0.1:{s.getsockname()[1]}"
+        path = tmp_path / "lab.yaml"
+        path.write_text(yaml.safe_dump(data))
+        assert main(["fly", "check", "--flight", str(path)]) == 0
+        out = capsys.readouterr().out
+        assert out.count("warning:") == 1 and "warning: drone p0: start [0.15, 1.0] is 0.150 m from the arena border" in out
+        rc = main(["fly", "--flight", str(path), "--policy", "heuristic", "--yes", "--events", str(tmp_path / "ev.jsonl")])
+        captured = capsys.readouterr()
+        assert rc == 2 and "cannot open" in captured.err
+        assert captured.out.count("warning:") == 1 and captured.out.count("0.150 m from the arena border") == 1
+    finally:
+        for s in silent:
+            s.close()
+    records = read_events(tmp_path / "ev.jsonl")
+    warned = [r for r in records if r["kind"] == "plan_warning"]
+    assert [r["kind"] for r in records][:2] == ["start", "plan_warning"] and len(warned) == 1
+    assert warned[0]["level"] == "warn" and "inside safety.geofence_margin 0.2 m" in warned[0]["warning"]

@@ -205,6 +205,8 @@ class FlightBridge:
         plan = self.plan
         self.events.log("start", flight=plan.spec.name, source=plan.spec.source, drones=plan.names, uris=plan.uris,
                         layout=plan.layout.source, positioning=plan.spec.positioning, decision_rate=1.0 / plan.dt)
+        for warning in plan.warnings:  # what the plan found risky, on record with the flight
+            self.events.log("plan_warning", warning=warning, level="warn")
         self.board = StateBoard(plan.n_drones, self.clock)
         try:
             with self._signals(), LinkSet(plan.names, plan.uris, self.board, self.factory, plan.safety.connect_timeout) as links:

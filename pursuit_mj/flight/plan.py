@@ -4,7 +4,12 @@
 <- `--set` overrides <- what the flight itself fixes: drone counts, layout, height, rate),
 and refuses flights that cannot work: an arena that does not fit the lab, a drone that
 starts outside the arena or inside a virtual obstacle, drones that start too close, a
-separation guard that would forbid every capture. Nothing here touches a radio.
+separation guard that would forbid every capture, a geofence margin below the task's
+obstacle clearance (zero included). Flights that can work but are risky resolve with
+`FlightPlan.warnings`: a geofence margin shorter than the braking distance at the fastest
+command, a drone that starts inside the geofence margin, a task speed above the safety
+limit. `fly` and `fly check` print them with the plan, the bridge logs each as a
+`plan_warning` event. Nothing here touches a radio.
 
 Drone order in a plan (and in every array of the bridge): pursuers first, then evaders
 and targets, each group in file order; this is the simulator's state order.
@@ -20,7 +25,7 @@ import numpy as np
 
 from ..config import TaskConfig
 from ..configio import ConfigError, build, merge, parse_override, to_dict
-from ..geometry import inside_boundary, obstacle_distance
+from ..geometry import border_distance, inside_boundary, obstacle_distance
 from ..layout import Layout, load_layout
 from ..obs_spec import ObsSpec
 from .frames import DroneFrames, LabTransform
@@ -44,7 +49,8 @@ class FlightDrone:
 
 @dataclasses.dataclass(frozen=True)
 class FlightPlan:
-    """A validated flight: drones in state order, task, layout, frames and limits."""
+    """A validated flight: drones in state order, task, layout, frames and limits; warnings:
+    sentences about what can work but is risky (module docstring), each naming the key."""
 
     spec: FlightSpec
     task: TaskConfig
@@ -52,6 +58,7 @@ class FlightPlan:
     transform: LabTransform
     lab: LabBounds
     drones: tuple[FlightDrone, ...]
+    warnings: tuple[str, ...] = ()
 
     @property
     def safety(self):
@@ -105,6 +112,19 @@ class FlightPlan:
     def commanded(self) -> np.ndarray:
         """(D,) bool: drones this flight sends velocity commands to (pursuers and evaders, not targets)."""
         return self.roles != "target"
+
+    @property
+    def fastest_command(self) -> float:
+        """m/s (lab): the fastest horizontal command of the flight: the task speed of each
+        flown role (targets are flown by someone else) in the lab, at most safety.max_speed."""
+        speeds = [self.task.pursuer_speed] + ([self.task.evader_speed] if self.flown_evaders.any() else [])
+        return min(self.safety.max_speed, max(speeds) / self.transform.scale)
+
+    @property
+    def braking_distance(self) -> float:
+        """m (lab): how far a drone at the fastest command goes before a stop takes effect:
+        up to one decision interval until the command is sent, then `response_time` to follow it."""
+        return self.fastest_command * (self.dt + self.safety.response_time)
 
     @property
     def frames(self) -> DroneFrames:
@@ -189,21 +209,74 @@ def _lab_bounds(spec: FlightSpec, transform: LabTransform, layout: Layout) -> La
     return lab
 
 
-def _check_starts(spec: FlightSpec, plan_drones: Sequence[FlightDrone], plan: FlightPlan) -> None:
-    """Every start inside the lab and the arena, outside virtual obstacles, and far enough apart."""
+def _check_margin(spec: FlightSpec, task: TaskConfig, transform: LabTransform) -> None:
+    """Refuse a geofence margin of zero or below the task's obstacle clearance (in the lab):
+    the fence would hold drones where the simulator counts a collision, and with no margin
+    on the surface of virtual obstacles, where entering one at any depth lands everyone."""
+    margin = spec.safety.geofence_margin
+    floor = task.obstacle_clearance / transform.scale
+    where = f"{spec.source}: safety: key 'geofence_margin'"
+    if margin <= 0.0:
+        raise ConfigError(f"{where}: {margin:g} m leaves the fence no room: it would hold drones with their centre on the "
+                          f"arena border and on the virtual obstacles, where entering one at any depth lands everyone "
+                          f"(use at least the task's obstacle_clearance, {floor:.3f} m in the lab)")
+    if margin < floor - 1e-9:
+        raise ConfigError(f"{where}: {margin:g} m is below the task's obstacle_clearance {task.obstacle_clearance:g} m "
+                          f"({floor:.3f} m in the lab, scale {transform.scale:g}): the fence would hold drones where "
+                          f"the simulator counts a collision with a wall or obstacle")
+
+
+def _margin_warnings(plan: FlightPlan) -> list[str]:
+    """A margin shorter than the braking distance at the fastest command; task speeds above the safety limit."""
+    s, t = plan.safety, plan.transform
+    out = []
+    if s.geofence_margin < plan.braking_distance - 1e-9:
+        out.append(
+            f"safety.geofence_margin {s.geofence_margin:g} m is shorter than the braking distance "
+            f"{plan.braking_distance:.3f} m of a drone at {plan.fastest_command:g} m/s (one decision interval "
+            f"{plan.dt:g} s + response_time {s.response_time:g} s): the fence relies on its prediction alone, "
+            f"and a drone that responds slower than that crosses the border or a virtual obstacle before it stops "
+            f"(raise the margin or lower safety.max_speed)"
+        )
+    for who, key, speed in (("pursuers", "pursuer", plan.task.pursuer_speed), ("evaders", "evader", plan.task.evader_speed)):
+        lab_speed = speed / t.scale
+        if lab_speed > s.max_speed + 1e-9:
+            out.append(f"the {who}' task speed {speed:g} m/s is {lab_speed:g} m/s in the lab, above the safety "
+                       f"limit {s.max_speed:g} m/s: they will fly slower than the policy expects (raise safety.max_speed "
+                       f"or lower task.{key}_speed)")
+    return out
+
+
+def _check_starts(spec: FlightSpec, plan_drones: Sequence[FlightDrone], plan: FlightPlan) -> list[str]:
+    """Every start inside the lab and the arena, outside virtual obstacles, and far enough
+    apart (else ConfigError); returns warnings for starts inside the geofence margin."""
     starts = np.array([d.start for d in plan_drones], np.float64)
     lab = plan.lab
+    margin = spec.safety.geofence_margin
     layout_xy = plan.transform.to_layout(starts)
     inside = inside_boundary(plan.layout, layout_xy)
     gap = obstacle_distance(layout_xy, plan.layout.obstacle_set(), with_border=False) / plan.transform.scale
-    for d, p, q, ok, g in zip(plan_drones, starts, layout_xy, inside, gap):
+    to_border = border_distance(layout_xy, plan.layout.border()) / plan.transform.scale
+    touching = plan.task.obstacle_clearance / plan.transform.scale  # what the simulator counts as a collision (lab m)
+    warnings = []
+    for d, p, q, ok, g, b in zip(plan_drones, starts, layout_xy, inside, gap, to_border):
         where = f"{spec.source}: drone {d.name} ({d.uri}): key 'start'"
         if not (lab.x[0] <= p[0] <= lab.x[1] and lab.y[0] <= p[1] <= lab.y[1]):
             raise ConfigError(f"{where}: {p.tolist()} is outside the lab (x {list(lab.x)}, y {list(lab.y)})")
         if not ok:
             raise ConfigError(f"{where}: lab {p.tolist()} is layout [{q[0]:.3f}, {q[1]:.3f}], outside the arena of {plan.layout.source}")
-        if g < plan.task.obstacle_clearance / plan.transform.scale:
+        if g < touching:
             raise ConfigError(f"{where}: lab {p.tolist()} is layout [{q[0]:.3f}, {q[1]:.3f}], inside or touching a virtual obstacle of {plan.layout.source}")
+        if b < touching:
+            raise ConfigError(f"{where}: lab {p.tolist()} is {b:.3f} m from the border of the arena of {plan.layout.source}, "
+                              f"closer than the task's obstacle_clearance ({touching:.3f} m in the lab): on or touching it")
+        if d.role == "target":
+            continue  # flown by someone else: the fence does not steer it
+        near = [(what, dist) for what, dist in (("the arena border", b), ("a virtual obstacle", g)) if dist < margin - 1e-9]
+        if near:
+            what, dist = min(near, key=lambda n: n[1])
+            warnings.append(f"drone {d.name}: start {p.tolist()} is {dist:.3f} m from {what}, inside safety.geofence_margin "
+                            f"{margin:g} m: the fence pushes it out as the chase begins, before the policy steers it")
     if len(starts) > 1:
         d = np.linalg.norm(starts[:, None] - starts[None], axis=-1) + np.eye(len(starts)) * 1e9
         i, j = np.unravel_index(np.argmin(d), d.shape)
@@ -212,6 +285,7 @@ def _check_starts(spec: FlightSpec, plan_drones: Sequence[FlightDrone], plan: Fl
                 f"{spec.source}: drones {plan_drones[i].name} and {plan_drones[j].name} start {d[i, j]:.3f} m apart, "
                 f"closer than safety.min_separation {spec.safety.min_separation} m"
             )
+    return warnings
 
 
 def resolve_flight(spec: FlightSpec, overrides: Sequence[str] = ()) -> FlightPlan:
@@ -232,10 +306,11 @@ def resolve_flight(spec: FlightSpec, overrides: Sequence[str] = ()) -> FlightPla
             f"{spec.source}: safety.min_separation {spec.safety.min_separation} m is not below the capture distance "
             f"{capture_lab:.3f} m (task capture_radius {task.capture_radius} / scale {transform.scale}): no capture could happen"
         )
+    _check_margin(spec, task, transform)
     lab = _lab_bounds(spec, transform, layout)
     plan = FlightPlan(spec, task, layout, transform, lab, drones)
-    _check_starts(spec, drones, plan)
-    return plan
+    warnings = _margin_warnings(plan) + _check_starts(spec, drones, plan)
+    return dataclasses.replace(plan, warnings=tuple(warnings))
 
 
 def load_plan(path: str | Path, overrides: Sequence[str] = ()) -> FlightPlan:

@@ -143,7 +143,7 @@ class SafetyLimits:
 
     max_speed: float = spec(0.5, lo=0.0, lo_open=True, hi=2.0, help="horizontal speed limit of every command (m/s)")
     max_vertical_speed: float = spec(0.3, lo=0.0, lo_open=True, hi=1.0, help="vertical speed limit (m/s)")
-    geofence_margin: float = spec(0.2, lo=0.0, hi=1.0, help="keep this far inside the arena border and from virtual obstacles (m)")
+    geofence_margin: float = spec(0.2, lo=0.0, hi=1.0, help="keep this far inside the arena border and from virtual obstacles (m); at least the task's obstacle_clearance, better the braking distance (docs/flight.md)")
     breach_distance: float = spec(0.15, lo=0.0, hi=1.0, help="beyond the border or inside an obstacle by more than this: everyone lands (m)")
     max_altitude: float = spec(1.5, lo=0.2, hi=5.0, help="above this height everyone lands (m)")
     min_separation: float = spec(0.25, lo=0.1, hi=10.0, help="keep drone centres this far apart (m)")
