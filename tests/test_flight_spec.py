@@ -400,6 +400,19 @@ def test_fly_check_and_bad_command_lines_fail_with_one_clear_line(capsys):
     assert "no drone named 'zz'" in capsys.readouterr().err
 
 
+def test_the_speed_warning_is_about_flown_roles_only_a_target_is_flown_by_someone_else(capsys):
+    from pursuit_cli import main
+
+    assert main(["fly", "check", "--flight", "configs/flight/lighthouse.yaml"]) == 0  # pursuers and a target: no evader flown
+    assert "warning" not in capsys.readouterr().out
+    data = flight(safety={"max_speed": 0.4, "geofence_margin": 0.25})
+    data["drones"][1]["role"] = "target"
+    assert resolve_flight(flight_from_dict(data, "lab.yaml")).warnings == ()
+    data["drones"][1]["role"] = "evader"
+    [warning] = resolve_flight(flight_from_dict(data, "lab.yaml")).warnings
+    assert warning.startswith("the evaders' task speed 0.6 m/s is 0.6 m/s in the lab, above the safety limit 0.4 m/s")
+
+
 def test_flight_observations_equal_the_simulators_for_the_same_states():
     from pursuit_mj.config import default_config
     from pursuit_mj.env import PursuitEnv

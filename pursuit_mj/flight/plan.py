@@ -238,7 +238,10 @@ def _margin_warnings(plan: FlightPlan) -> list[str]:
             f"and a drone that responds slower than that crosses the border or a virtual obstacle before it stops "
             f"(raise the margin or lower safety.max_speed)"
         )
-    for who, key, speed in (("pursuers", "pursuer", plan.task.pursuer_speed), ("evaders", "evader", plan.task.evader_speed)):
+    flown = [("pursuers", "pursuer", plan.task.pursuer_speed)]
+    if plan.flown_evaders.any():  # targets are flown by someone else, at their own speed
+        flown.append(("evaders", "evader", plan.task.evader_speed))
+    for who, key, speed in flown:
         lab_speed = speed / t.scale
         if lab_speed > s.max_speed + 1e-9:
             out.append(f"the {who}' task speed {speed:g} m/s is {lab_speed:g} m/s in the lab, above the safety "
