@@ -340,7 +340,9 @@ def test_faults_parse_with_drone_names_and_values():
     plan = load_plan(EXAMPLE)
     f = parse_fault("battery:e0@4.5=3.1", plan)
     assert (f.kind, f.drone, f.at, f.value) == ("battery", 3, 4.5, 3.1)
-    for bad, words in (("explode:p0@1", "unknown fault"), ("drop_link:p9@1", "no drone named 'p9'"), ("battery:p0@1", "needs a voltage"), ("p0", "expected KIND")):
+    assert parse_fault("drop_link:p1@.5", plan).at == 0.5 and parse_fault("battery:e0@3.=3", plan).value == 3.0
+    for bad, words in (("explode:p0@1", "unknown fault"), ("drop_link:p9@1", "no drone named 'p9'"), ("battery:p0@1", "needs a voltage"), ("p0", "expected KIND"),
+                       ("drop_link:p0@1.2.3", "'drop_link:p0@1.2.3': expected KIND"), ("battery:e0@4=.", "'battery:e0@4=.': expected KIND")):
         with pytest.raises(ValueError, match=words):
             parse_fault(bad, plan)
 

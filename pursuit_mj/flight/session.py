@@ -28,7 +28,8 @@ from .plan import FlightPlan, load_plan
 from .spec import NAME
 
 FAULT_KINDS = ("drop_link", "freeze", "battery")
-_FAULT = re.compile(rf"^(\w+):({NAME})@([0-9.]+)(?:=([0-9.]+))?$")
+_NUMBER = r"\d+(?:\.\d*)?|\.\d+"  # 3, 3., 3.1, .5: what float() reads, no sign or exponent
+_FAULT = re.compile(rf"^(\w+):({NAME})@({_NUMBER})(?:=({_NUMBER}))?$")
 
 
 @dataclasses.dataclass(frozen=True)
