@@ -86,6 +86,11 @@ def _policies(args, config) -> list[tuple[str, object]]:
     return labelled
 
 
+def _report_interrupted(recording) -> None:
+    if recording.kept != recording.path:  # a whole run says so with the table
+        print(recording.summary(), file=sys.stderr, flush=True)
+
+
 def _run_table(args, config, layouts, policies, recording) -> list:
     from pursuit_mj.evaluation import evaluate
 
@@ -146,7 +151,9 @@ def run(args) -> int:
         if args.rerun:
             from pursuit_mj.recording import RerunEpisodeRecording
 
-            recording = stack.enter_context(RerunEpisodeRecording(args.rerun))
+            recording = RerunEpisodeRecording(args.rerun)
+            stack.callback(_report_interrupted, recording)  # runs after the recording is closed
+            stack.enter_context(recording)
         rows = _run_table(args, config, layouts, policies, recording)
     print(format_table(rows))
     meta = {"episodes": args.episodes, "worlds": args.worlds, "seed": args.seed,

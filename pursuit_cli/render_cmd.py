@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import sys
 from pathlib import Path
 
 from pursuit_mj.io_utils import check_writable_folder
@@ -242,5 +243,5 @@ def run(args) -> int:
         if recording is not None:
             path = recording.close(ok=ok)
             if path is not None:
-                print(f"wrote {path} ({recording.n_episodes} episode{'' if recording.n_episodes == 1 else 's'}; open with: rerun {path})")
+                print(recording.summary(), file=sys.stdout if ok else sys.stderr, flush=True)
     return 0

@@ -148,3 +148,28 @@ def test_a_render_killed_by_sigterm_or_sighup_leaves_no_partial_video(tmp_path, 
     assert proc.returncode == 130, err[-2000:]
     assert f"interrupted by {sig}" in err
     assert list(out.iterdir()) == []
+
+
+def test_a_recording_interrupted_by_sigterm_keeps_its_finished_episodes(tmp_path):
+    import signal
+
+    from pursuit_mj.recording.rrd_read import read_entities
+
+    rrd = tmp_path / "ev.rrd"
+    # 20-step episodes, one after another, far more than the test waits for
+    proc = _cli_process(["render", "--policy", "random", "--fidelity", "point", "--episodes", "5000", "--no-video",
+                         "--set", "max_steps=20", "--set", "pursuer_speed=0.02", "--set", "evader_speed=0.02",
+                         "--rerun", str(rrd)])
+    line = ""
+    while not line.startswith("episode 1:") and proc.poll() is None:  # two episodes are in the recording
+        line = proc.stdout.readline()
+    assert proc.poll() is None, proc.communicate()[1][-2000:]
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err[-2000:]
+    partial = tmp_path / "ev.interrupted.rrd"
+    assert f"finished before it are in {partial}" in err and f"{rrd} was not written" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ev.interrupted.rrd"]
+    ent = read_entities(partial)
+    n = ent["/__properties/interrupted"].static["finished_episodes"][0]
+    assert n >= 2 and f"/episode_{n - 1}/outcome" in ent

@@ -105,17 +105,36 @@ def test_episodes_are_findable_by_property_and_outcome_entity(recorded):
         assert log.rows["step"] == [rec.steps]
 
 
-def test_abandoned_recording_leaves_no_file(tmp_path):
+def test_a_recording_abandoned_before_any_episode_leaves_no_file(tmp_path):
+    with pytest.raises(RuntimeError, match="boom"):
+        with RerunEpisodeRecording(tmp_path / "x.rrd") as rec:
+            raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == [] and rec.kept is None
+    assert "x.rrd was not written" in rec.summary()
+
+
+def test_an_interrupted_recording_keeps_its_finished_episodes_beside_the_whole_one(tmp_path):
+    """Ctrl-C (or any error) after some episodes: they stay readable under x.interrupted.rrd,
+    marked as such; x.rrd, which only ever holds a whole run, keeps what an earlier run wrote."""
+    earlier = tmp_path / "x.rrd"
+    earlier.write_bytes(b"an earlier, whole recording")
     config = default_config(fidelity="point", max_steps=3)
     env = PursuitEnv(config, seed=0, auto_reset=False)
     env.reset()
-    with pytest.raises(RuntimeError, match="boom"):
-        with RerunEpisodeRecording(tmp_path / "x.rrd") as rec:
-            buf = EpisodeBuffer()
-            buf.append(env.snapshot(0))
-            rec.add_episode(buf)
-            raise RuntimeError("boom")
-    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(KeyboardInterrupt):
+        with RerunEpisodeRecording(earlier) as rec:
+            for _ in range(2):
+                buf = EpisodeBuffer()
+                buf.append(env.snapshot(0))
+                rec.add_episode(buf)
+            raise KeyboardInterrupt
+    partial = tmp_path / "x.interrupted.rrd"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.interrupted.rrd", "x.rrd"]  # no .part file left
+    assert earlier.read_bytes() == b"an earlier, whole recording"
+    assert rec.kept == partial and "the 2 episodes finished before it are in" in rec.summary()
+    ent = read_entities(partial)
+    assert "/episode_0/outcome" in ent and "/episode_1/outcome" in ent
+    assert ent["/__properties/interrupted"].static["finished_episodes"] == [2]
 
 
 def test_rrd_path_is_checked(tmp_path):

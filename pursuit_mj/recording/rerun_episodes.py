@@ -27,6 +27,7 @@ snapshot copy. The file is written under a temporary name and renamed on `close`
 from __future__ import annotations
 
 import math
+import os
 import uuid
 from pathlib import Path
 from typing import Sequence
@@ -103,10 +104,11 @@ class RerunEpisodeRecording:
             raise ValueError(f"trail length: {trail_length} must be >= 1 step")
         self.trail_length = int(trail_length)
         self.n_episodes = 0
+        self.kept: Path | None = None  # where close() left the episodes: path, partial_path or nowhere
         self._atomic = atomic_path(self.path)
-        tmp = self._atomic.__enter__()
+        self._tmp = self._atomic.__enter__()
         self.stream = rr.RecordingStream(application_id, recording_id=uuid.uuid4())
-        self.stream.save(tmp)
+        self.stream.save(self._tmp)
         self.stream.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self._closed = False
         self._thrust = False
@@ -276,24 +278,53 @@ class RerunEpisodeRecording:
             tabs.append(rrb.Horizontal(rrb.Spatial3DView(origin=p, name=f"episode {k}"), rrb.Vertical(*plots), column_shares=[3, 2], name=f"episode {k}"))
         return rrb.Blueprint(rrb.Tabs(*tabs) if tabs else rrb.Spatial3DView(origin="/"), collapse_panels=False)
 
+    @property
+    def partial_path(self) -> Path:
+        """Where an interrupted recording keeps its finished episodes: out.rrd -> out.interrupted.rrd."""
+        return self.path.with_name(f"{self.path.stem}.interrupted{self.path.suffix}")
+
+    def summary(self) -> str:
+        """One line for the user about where the episodes went, once closed."""
+        n = f"{self.n_episodes} episode{'' if self.n_episodes == 1 else 's'}"
+        if self.kept == self.path:
+            return f"wrote {self.path} ({n}; open with: rerun {self.path})"
+        if self.kept is not None:
+            return f"interrupted: the {n} finished before it are in {self.kept} (open with: rerun {self.kept}); {self.path} was not written"
+        return f"interrupted before any episode finished: {self.path} was not written"
+
     def close(self, ok: bool = True) -> Path | None:
-        """Finish the file: flush and rename it onto `path` (ok) or discard it (not ok)."""
+        """Finish the file; returns where its episodes are (also `kept`), None if nowhere.
+
+        ok: flush and rename it onto `path`. Not ok (an error, Ctrl-C, SIGTERM): the
+        finished episodes are kept under `partial_path` with the recording property
+        `interrupted`, so that `path` only ever holds a whole run (and an earlier one there
+        survives); a recording without a finished episode is discarded.
+        """
         if self._closed:
-            return self.path if ok else None
+            return self.kept
         self._closed = True
-        if ok:
+        keep = ok or self.n_episodes > 0
+        if keep:
+            if not ok:
+                self.stream.send_property("interrupted", rr.AnyValues(finished_episodes=self.n_episodes))
             self.stream.send_blueprint(self.blueprint())
         self.stream.flush()
         self.stream.disconnect()
         if ok:
             self._atomic.__exit__(None, None, None)
-            return self.path
+            self.kept = self.path
+            return self.kept
+        if keep:
+            with open(self._tmp, "rb") as f:
+                os.fsync(f.fileno())
+            os.replace(self._tmp, self.partial_path)
+            self.kept = self.partial_path
         err = RuntimeError("recording abandoned")
         try:
             self._atomic.__exit__(RuntimeError, err, None)
         except RuntimeError:
             pass
-        return None
+        return self.kept
 
     def __enter__(self) -> "RerunEpisodeRecording":
         return self
