@@ -160,6 +160,21 @@ def test_scalar_logger_streams_nested_metrics(tmp_path):
     assert "/train/skip" not in ent and "/train/nan" not in ent
 
 
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")  # what a killed writer leaves; rerun reads it by a scan
+def test_scalar_rows_survive_a_kill_9_right_after_they_are_logged(tmp_path):
+    import subprocess
+    import sys
+
+    path = tmp_path / "train.rrd"
+    code = ("import os, signal, sys; from pursuit_mj.recording import RerunScalarLogger\n"
+            "log = RerunScalarLogger(sys.argv[1])\n"
+            "for k in range(50): log.log(k, {'loss': float(k)})\n"
+            "os.kill(os.getpid(), signal.SIGKILL)\n")
+    proc = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == -9, proc.stderr[-2000:]
+    assert read_entities(path)["/train/loss"].rows["env_steps"] == list(range(50))
+
+
 def test_render_command_records_rerun_without_video(tmp_path, capsys):
     path = tmp_path / "r.rrd"
     code = main(["render", "--policy", "random", "--fidelity", "point", "--set", "max_steps=4", "--episodes", "3",

@@ -301,10 +301,12 @@ class Trainer:
         return self.buffer, stats
 
     def close(self) -> None:
-        """Stop the rollout worker, if one runs (train() does this when it returns)."""
+        """Stop the rollout worker, if one runs, and finish metrics.rrd (train() does this when it returns)."""
         if self.worker is not None:
             self.worker.close()
             self.worker = None
+        if self.rerun is not None:
+            self.rerun.close()
 
     def train_one_update(self) -> dict:
         """Collect one rollout (or take the one collected meanwhile, with overlap), learn from it,

@@ -45,6 +45,7 @@ class RerunScalarLogger:
         self.stream.set_time(self.timeline, sequence=step)
         for key, value in flatten_numbers(metrics).items():
             self.stream.log(f"train/{key}", rr.Scalars(value))
+        self.stream.flush()  # on disk before the next row: a run killed (kill -9) keeps every logged row
 
     def close(self) -> Path:
         if not self._closed:
