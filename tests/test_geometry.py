@@ -150,3 +150,27 @@ def test_ray_casts_agree_with_mujoco_on_the_generated_scene(index):
     for k, d in enumerate(dirs):
         dist = mujoco.mj_ray(model, data, np.array([*origin, 0.5]), np.array([*d, 0.0]), group, 1, -1, geomid)
         assert dist == pytest.approx(ours[k], abs=1e-6), f"ray {k} ({mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, geomid[0])})"
+
+
+def test_ray_casts_agree_with_mujoco_around_the_reflex_corners_of_a_concave_border():
+    """The border walls of a concave polygon do not reach into the flyable region at its reflex
+    corners (they did by BORDER_THICKNESS, so MuJoCo hit walls the 2D geometry never saw)."""
+    notch = {"polygon": [[0, 0], [3.6, 0], [3.6, 5], [2.6, 5], [2.6, 3.0], [1.0, 3.0], [1.0, 5], [0, 5]]}
+    spawn = {"pursuers": {"x": [1.2, 2.4], "y": [0.4, 0.8]}, "evaders": {"x": [0.2, 0.8], "y": [4.2, 4.6]}}
+    layout = layout_with([], boundary=notch, spawn=spawn)
+    model = build_model(SceneSpec(layout, 1, 1, "point"))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    angles = np.linspace(0, 2 * np.pi, 16, endpoint=False) + 0.01
+    dirs = np.stack([np.cos(angles), np.sin(angles)], -1)
+    ring = 0.08 * dirs  # origins 8 cm around each reflex corner, inside the border
+    origins = np.concatenate([ring + [1.0, 3.0], ring + [2.6, 3.0]])
+    origins = origins[inside_boundary(layout, origins)]
+    group = np.zeros(6, np.uint8)
+    group[1] = 1
+    geomid = np.zeros(1, np.int32)
+    for p in origins:
+        ours = cast_rays(np.broadcast_to(p, dirs.shape), dirs, layout.obstacle_set())
+        for k, d in enumerate(dirs):
+            dist = mujoco.mj_ray(model, data, np.array([*p, 0.5]), np.array([*d, 0.0]), group, 1, -1, geomid)
+            assert dist == pytest.approx(ours[k], abs=1e-6), (p, d, mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, geomid[0]))
