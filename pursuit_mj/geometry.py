@@ -20,6 +20,9 @@ if TYPE_CHECKING:
     from .layout import Layout
 
 FAR = 1e6
+#: how far past its ends (a fraction of its length) a segment still counts as hit: a ray through a
+#: box corner computes u a rounding error outside [0, 1] on both edges there and would miss both
+U_SLACK = 1e-9
 
 
 @dataclasses.dataclass(frozen=True)
@@ -318,7 +321,7 @@ def cast_rays(origins: np.ndarray, dirs: np.ndarray, obstacles: ObstacleSet) -> 
         t = (aox * ey - aoy * ex) * inv
         u = (aox * dy - aoy * dx) * inv
     # fmax(t, FAR where missed) rather than np.where (several times slower); fmax drops NaNs
-    hit = np.fmax(t, ~((t >= 0) & (u >= 0) & (u <= 1)) * FAR).min(0, initial=FAR)
+    hit = np.fmax(t, ~((t >= 0) & (u >= -U_SLACK) & (u <= 1 + U_SLACK)) * FAR).min(0, initial=FAR)
     # cylinders: |o + t d - c|^2 = r^2
     ocx, ocy = ox - cx, oy - cy  # (C, R, ...)
     b = ocx * dx + ocy * dy
@@ -347,7 +350,7 @@ def cast_fan(origins: np.ndarray, dirs: np.ndarray, obstacles: ObstacleSet) -> n
     with np.errstate(invalid="ignore"):
         t = (a_e - (ox * ey - oy * ex)) * inv  # (S, K, N, ...)
         u = a_d - o_d * inv
-    hit = np.fmax(t, ~((t >= 0) & (u >= 0) & (u <= 1)) * FAR).min(0, initial=FAR)  # (K, N, ...)
+    hit = np.fmax(t, ~((t >= 0) & (u >= -U_SLACK) & (u <= 1 + U_SLACK)) * FAR).min(0, initial=FAR)  # (K, N, ...)
     ocx, ocy = ox - cx, oy - cy  # (C, 1, N, ...)
     b = (ox * dx + oy * dy) - c_d  # (o - c) . d: (C, K, N, ...)
     cterm = ocx * ocx + ocy * ocy - r2

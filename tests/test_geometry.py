@@ -163,7 +163,7 @@ def test_ray_casts_agree_with_mujoco_around_the_reflex_corners_of_a_concave_bord
     mujoco.mj_forward(model, data)
     angles = np.linspace(0, 2 * np.pi, 16, endpoint=False) + 0.01
     dirs = np.stack([np.cos(angles), np.sin(angles)], -1)
-    ring = 0.08 * dirs  # origins 8 cm around each reflex corner, inside the border
+    ring = 0.08 * np.stack([np.cos(angles + 0.1), np.sin(angles + 0.1)], -1)  # 8 cm around each reflex corner; no ray aims at it
     origins = np.concatenate([ring + [1.0, 3.0], ring + [2.6, 3.0]])
     origins = origins[inside_boundary(layout, origins)]
     group = np.zeros(6, np.uint8)
@@ -174,3 +174,20 @@ def test_ray_casts_agree_with_mujoco_around_the_reflex_corners_of_a_concave_bord
         for k, d in enumerate(dirs):
             dist = mujoco.mj_ray(model, data, np.array([*p, 0.5]), np.array([*d, 0.0]), group, 1, -1, geomid)
             assert dist == pytest.approx(ours[k], abs=1e-6), (p, d, mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, geomid[0]))
+
+
+def test_rays_through_a_box_corner_hit_the_corner():
+    """A ray entering a box exactly through a corner stops there (rounding put it just past the
+    end of both edges that meet there, and it read the box's far side instead)."""
+    rng = np.random.default_rng(0)
+    for k in range(60):
+        box = np.array([[1.8, 2.5, *rng.uniform(0.05, 0.4, 2), rng.uniform(-3, 3)]])
+        obst = ObstacleSet(box, np.ones(1, bool), np.zeros((0, 3)), np.zeros(0, bool), np.zeros((0, 4)), np.zeros(0, bool))
+        corners = np.repeat(obst.segments()[0][:, :2], 10, axis=0)  # (40, 2)
+        origins = rng.uniform([0.3, 0.3], [3.3, 4.7], corners.shape)
+        dist = np.linalg.norm(corners - origins, axis=-1)
+        dirs = (corners - origins) / dist[:, None]
+        enters = box_sdf(origins + dirs * (dist + 1e-3)[:, None], box)[:, 0] < 0  # not only grazing the corner
+        np.testing.assert_allclose(cast_rays(origins, dirs, obst)[enters], dist[enters], atol=1e-9, err_msg=f"box {k}")
+        fan = np.array([cast_fan(o[None], d[None], obst)[0, 0] for o, d in zip(origins[enters], dirs[enters])])
+        np.testing.assert_allclose(fan, dist[enters], atol=1e-9, err_msg=f"box {k}")
