@@ -125,19 +125,30 @@ class Layout:
 # ----------------------------------------------------------------------------- parsing
 
 
+def _finite_number(v: Any) -> bool:
+    """Whether v is an int or float (not a bool) that a float holds finitely; an integer too
+    long for a float (a 400-digit literal) is not, rather than an OverflowError."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:
+        return False
+
+
 def _pair(value: Any, where: str) -> tuple[float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 2:
         raise LayoutError(f"{where}: expected [x, y], got {value!r}")
     out = []
     for v in value:
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        if not _finite_number(v):
             raise LayoutError(f"{where}: expected two finite numbers, got {value!r}")
         out.append(float(v))
     return out[0], out[1]
 
 
 def _number(value: Any, where: str, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not _finite_number(value):
         raise LayoutError(f"{where}: expected a number, got {value!r}")
     if positive and value <= 0:
         raise LayoutError(f"{where}: must be > 0, got {value!r}")

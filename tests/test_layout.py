@@ -345,3 +345,16 @@ def test_numbers_in_exponent_form_are_numbers_as_in_yaml_1_2(tmp_path):
     layout = load_layout(path)
     assert (layout.width, layout.height) == (3.6, 5.0)
     assert layout.obstacles[0].center == (1.8, 2.5) and layout.obstacles[0].radius == 0.2
+
+
+def test_an_integer_too_long_for_a_float_is_refused_naming_the_entry(tmp_path):
+    """A 400-digit integer literal is refused like any other non-number (it raised OverflowError)."""
+    huge = "1" + "0" * 400
+    path = tmp_path / "huge.yaml"
+    path.write_text(f"arena: {{width: {huge}, height: 5.0}}\nobstacles: [{{cylinder: {{center: [1.8, {huge}], radius: 0.2}}}}]\n"
+                    "spawn:\n  pursuers: {x: [0.2, 3.4], y: [0.2, 0.8]}\n  evaders: {x: [0.2, 3.4], y: [4.2, 4.8]}\n")
+    with pytest.raises(LayoutError, match=r"huge.yaml: arena.width: expected a number"):
+        load_layout(path)
+    path.write_text(path.read_text().replace(f"width: {huge}", "width: 3.6"))
+    with pytest.raises(LayoutError, match=r"huge.yaml: obstacles\[0\] \(cylinder\).center: expected two finite numbers"):
+        load_layout(path)
