@@ -221,11 +221,27 @@ def _parse_boundary(value: Any, where: str) -> Boundary:
                 raise LayoutError(f"{where}.polygon: the points enclose no area")
             if area < 0:  # keep counter-clockwise so the inside is on the left of each edge
                 pts = pts[::-1]
+            _refuse_sharp_reflex_corners(pts, where)
             return Boundary("polygon", points=pts)
         if kind == "circle":
             m = _mapping(body, f"{where}.circle", ("center", "radius"), ("center", "radius"))
             return Boundary("circle", center=_pair(m["center"], f"{where}.circle.center"), radius=_number(m["radius"], f"{where}.circle.radius", positive=True))
     raise LayoutError(f"{where}: expected 'rectangle', {{polygon: [...]}} or {{circle: {{center, radius}}}}, got {value!r}")
+
+
+def _refuse_sharp_reflex_corners(pts: Sequence[tuple[float, float]], where: str) -> None:
+    """LayoutError at a reflex corner sharper than a right angle (an inside angle over 270 deg;
+    pts counter-clockwise): the scene's border walls are boxes outside each edge, and there any
+    such box stands partly inside the flyable region, where the 2D geometry sees free space."""
+    n = len(pts)
+    for i in range(n):
+        a, b, c = (np.array(pts[(i + k) % n]) for k in range(3))
+        u, v = (b - a) / np.linalg.norm(b - a), (c - b) / np.linalg.norm(c - b)
+        if u[0] * v[1] - u[1] * v[0] < 0 and float(u @ v) < -1e-9:
+            inside = 180.0 + math.degrees(math.acos(max(-1.0, min(1.0, float(u @ v)))))
+            raise LayoutError(f"{where}.polygon: at {list(pts[(i + 1) % n])} the border turns into the arena at an inside "
+                              f"angle of {inside:.0f} deg, over 270: its walls cannot be built there without standing in "
+                              f"the flyable region; widen that notch to a right angle or more, or use a wall obstacle")
 
 
 def _signed_area(pts: Sequence[tuple[float, float]]) -> float:

@@ -175,6 +175,9 @@ def test_malformed_layouts_are_refused_naming_the_entry(data, message, tmp_path)
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [3.6, 5], [0, 5], [3.6, 0]]}), r"point 4 \[3.6, 0.0\] repeats point 1"),
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [3.6, 5], [3.6, 2], [0, 5]]}), r"at \[3.6, 5.0\] the border turns straight back"),
         (base_dict(arena={"width": 1e6, "height": 5.0}), r"arena.width: 1e\+06 m is beyond the 50 m"),
+        # an inward spike sharper than a right angle: box walls outside its edges would stand in the arena
+        (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [3.6, 5], [2.8, 5], [1.8, 3.5], [0.8, 5], [0, 5]]}),
+         r"boundary.polygon: at \[1.8, 3.5\] the border turns into the arena at an inside angle of 293 deg, over 270"),
     ],
 )
 def test_impossible_layouts_are_refused_naming_the_entry(data, message):
