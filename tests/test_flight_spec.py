@@ -560,6 +560,17 @@ def test_starts_closer_than_the_separation_minimum_are_refused_naming_both_drone
     assert margin_warnings(resolve_flight(flight_from_dict(data, "lab.yaml"))) == []
 
 
+@pytest.mark.parametrize("role", ["evader", "target"])
+def test_a_quarry_starting_within_the_capture_distance_of_a_pursuer_is_refused(role):
+    data = flight()
+    data["drones"][1]["role"] = role
+    _start(data, 1, [2.5, 1.28])  # 0.28 m from p1: apart enough, but caught (capture_radius 0.3)
+    with pytest.raises(ConfigError, match=rf"lab.yaml: {role} e0 starts 0.280 m from pursuer p1, within the capture distance 0.300 m"):
+        resolve_flight(flight_from_dict(data, "lab.yaml"))
+    _start(data, 1, [2.5, 1.31])
+    resolve_flight(flight_from_dict(data, "lab.yaml"))
+
+
 def test_plan_warnings_are_printed_once_with_the_plan_and_logged_in_the_event_log(tmp_path, capsys):
     """`fly` prints the plan's warnings before the flight and logs them as it starts; here the
     links never come up (nothing answers on them), so the run ends there."""

@@ -288,6 +288,16 @@ def _check_starts(spec: FlightSpec, plan_drones: Sequence[FlightDrone], plan: Fl
                 f"{spec.source}: drones {plan_drones[i].name} and {plan_drones[j].name} start {d[i, j]:.3f} m apart, "
                 f"closer than safety.min_separation {spec.safety.min_separation} m"
             )
+        capture_lab = plan.task.capture_radius / plan.transform.scale
+        chasers = [k for k, dr in enumerate(plan_drones) if dr.role == "pursuer"]
+        for k in (k for k, dr in enumerate(plan_drones) if dr.role != "pursuer"):
+            c = min(chasers, key=lambda c: d[c, k], default=None)
+            if c is not None and d[c, k] <= capture_lab:
+                raise ConfigError(
+                    f"{spec.source}: {plan_drones[k].role} {plan_drones[k].name} starts {d[c, k]:.3f} m from pursuer "
+                    f"{plan_drones[c].name}, within the capture distance {capture_lab:.3f} m (task capture_radius "
+                    f"{plan.task.capture_radius} / scale {plan.transform.scale}): the chase would end before it began"
+                )
     return warnings
 
 
