@@ -227,3 +227,12 @@ def test_a_supervisor_state_that_does_not_arrive_refuses_the_flight_a_late_one_d
         check_supervisor([drone([0, 0, 0])], EventLog())
     with pytest.raises(PreflightError, match="p0 .*locked"):
         check_supervisor([drone([0b1000100])], EventLog())
+
+
+def test_the_landing_lasts_for_the_highest_commanded_drone_not_a_target_held_high():
+    from pursuit_mj.flight.bridge import landing_duration
+
+    commanded = np.array([True, True, False])  # two pursuers, a target someone carries
+    assert landing_duration(np.array([0.5, 0.4, 1.8]), commanded, 0.5, 0.25) == pytest.approx(2.0)
+    assert landing_duration(np.array([np.nan, 0.4, 1.8]), commanded, 0.6, 0.25) == pytest.approx(2.4)  # unknown: flight height
+    assert landing_duration(np.array([0.0, 0.02, 1.8]), commanded, 0.5, 0.25) == pytest.approx(0.4)  # at least 0.1 m

@@ -48,6 +48,14 @@ HEALTH_PERIOD = 0.05  # s between health log packets
 LANDED_HEIGHT = 0.1  # m: a drone whose last height estimate is below this counts as landed
 
 
+def landing_duration(heights: np.ndarray, commanded: np.ndarray, flight_height: float, landing_speed: float) -> float:
+    """s for the landing: the highest commanded drone (heights (D,) m, lab; NaN: unknown, taken
+    as flight_height) comes down at landing_speed m/s. Targets are carried by someone else:
+    one held high must not slow everyone's descent."""
+    z = np.nan_to_num(np.asarray(heights, np.float64)[commanded], nan=flight_height)
+    return max(float(z.max(initial=0.0)), 0.1) / landing_speed
+
+
 @dataclasses.dataclass
 class StepRecord:
     """One decision step. D drones (plan order), N pursuers, M evaders.
@@ -329,8 +337,7 @@ class FlightBridge:
         self._landing = True
         plan, limits = self.plan, self.plan.safety
         snap = self.board.snapshot()
-        z = np.nan_to_num(self._lab_state(snap)[0][:, 2], nan=plan.height)
-        duration = max(float(z.max()), 0.1) / limits.landing_speed
+        duration = landing_duration(self._lab_state(snap)[0][:, 2], plan.commanded, plan.height, limits.landing_speed)
         up = [link for link, ours in zip(self.links, plan.commanded) if ours and link.up]
         self.events.log("land", reason=why, duration=duration, drones=[l.name for l in up])
         for link in up:
