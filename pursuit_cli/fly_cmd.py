@@ -202,6 +202,6 @@ def run_align(args) -> int:
     print(f"rms residual {fit.rms * 1000:.1f} mm (layout frame)")
     print(transform_yaml(fit), end="")
     if args.write:
-        out = write_with_transform(spec, fit, args.write)
+        out = write_with_transform(spec, fit, args.write, args.overrides)
         print(f"wrote {out}")
     return 0

@@ -382,6 +382,20 @@ def test_fly_align_from_given_lab_points_prints_and_writes_the_transform(tmp_pat
     assert "3 spots for 2 drones" in capsys.readouterr().err
 
 
+def test_fly_align_does_not_write_a_transform_the_flight_cannot_resolve_with(tmp_path, capsys):
+    from pursuit_cli import main
+
+    far = LabTransform((9.0, 9.0), 0.0, 1.0)  # the arena moved out of the lab
+    spots = np.array([[0.5, 0.625], [1.75, 0.625], [1.875, 4.0]])
+    fmt = lambda pts: " ".join(f"{x:.4f},{y:.4f}" for x, y in pts)  # noqa: E731
+    out = tmp_path / "aligned.yaml"
+    rc = main(["fly", "align", "--flight", "configs/flight/lighthouse.yaml", "--lab", fmt(far.to_lab(spots)), "--spots", fmt(spots),
+               "--write", str(out)])
+    assert rc == 2 and not out.exists()
+    err = capsys.readouterr().err
+    assert "the measured transform does not make a valid flight" in err and "which leaves the lab" in err, err
+
+
 def test_fly_check_and_bad_command_lines_fail_with_one_clear_line(capsys):
     from pursuit_cli import main
 

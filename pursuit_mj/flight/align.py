@@ -88,14 +88,17 @@ def transform_yaml(fit: Fit) -> str:
     return yaml.safe_dump({"transform": {"origin": [round(t.origin[0], 5), round(t.origin[1], 5)], "yaw": round(t.yaw, 6), "scale": round(t.scale, 6)}}, sort_keys=False, default_flow_style=None)
 
 
-def write_with_transform(spec: FlightSpec, fit: Fit, out: str | Path) -> Path:
-    """A copy of the flight file with the measured transform (comments are not kept)."""
+def write_with_transform(spec: FlightSpec, fit: Fit, out: str | Path, overrides: Sequence[str] = ()) -> Path:
+    """A copy of the flight file with the measured transform (comments are not kept), written
+    only if the flight still resolves with it: the arena in the lab, every start in the arena
+    and clear of its obstacles (what `fly check` checks, with the same --set overrides)."""
     data = load_yaml(spec.source)
     data["transform"] = yaml.safe_load(transform_yaml(fit))["transform"]
+    from .plan import resolve_flight
     from .spec import flight_from_dict
 
     try:
-        flight_from_dict(data, str(out))
+        resolve_flight(flight_from_dict(data, str(out)), overrides)
     except ConfigError as exc:
         raise ValueError(f"the measured transform does not make a valid flight: {exc}") from None
     return atomic_write_text(out, yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
