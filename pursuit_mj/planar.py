@@ -108,24 +108,34 @@ def _project(v: np.ndarray, u: np.ndarray, cap: np.ndarray, passes: int) -> tupl
 def _closest_allowed(v: np.ndarray, u: np.ndarray, cap: np.ndarray, binding: np.ndarray, rounds: int = 3) -> np.ndarray:
     """The velocity (P, 2) nearest to v (P, 2) within every cap (u (P, H, 2), cap (P, H)),
     searched among the caps `binding` (P, B hazard indices) and, for `rounds` more tries, the
-    cap most exceeded by the best candidate; NaN rows where none is found."""
-    rows = np.arange(len(v))
-    for _ in range(rounds + 1):
-        candidates = _candidates(v, u, cap, binding)  # (P, C, 2)
+    cap most exceeded by the best candidate; NaN rows where none is found.
+
+    Each row is solved on its own: a row that has an allowed candidate keeps it, whatever the
+    other rows still need (so a pursuer's velocity does not depend on the rest of the batch)."""
+    out = np.full(v.shape, np.nan)
+    todo = np.arange(len(v))  # rows not solved yet
+    for r in range(rounds + 1):
+        vt, ut, ct = v[todo], u[todo], cap[todo]
+        rows = np.arange(len(todo))
+        candidates = _candidates(vt, ut, ct, binding)  # (T, C, 2)
         with np.errstate(invalid="ignore"):
-            over = np.einsum("pck,phk->pch", candidates, u) - cap[:, None]  # (P, C, H)
-            worst = np.where(np.isfinite(candidates).all(-1), over.max(-1, initial=-np.inf), np.inf)  # (P, C)
+            over = np.einsum("pck,phk->pch", candidates, ut) - ct[:, None]  # (T, C, H)
+            worst = np.where(np.isfinite(candidates).all(-1), over.max(-1, initial=-np.inf), np.inf)  # (T, C)
         allowed = worst <= _SLACK
-        if allowed.any(-1).all():
+        found = allowed.any(-1)
+        moved = np.where(allowed, np.sum((candidates - vt[:, None]) ** 2, axis=-1), np.inf)
+        chosen = candidates[rows, np.argmin(moved, axis=-1)]
+        out[todo[found]] = chosen[found]
+        if found.all() or r == rounds:
             break
-        least = np.argmin(worst, axis=-1)  # the candidate closest to allowed
-        exceeded = np.nan_to_num(over[rows, least], nan=-np.inf)  # (P, H)
-        exceeded[rows[:, None], binding] = -np.inf  # a cap already in the set adds nothing
-        most_exceeded = np.argmax(exceeded, axis=-1)
-        binding = np.concatenate([binding, most_exceeded[:, None]], axis=-1)
-    moved = np.where(allowed, np.sum((candidates - v[:, None]) ** 2, axis=-1), np.inf)
-    chosen = candidates[rows, np.argmin(moved, axis=-1)]
-    return np.where(allowed.any(-1)[:, None], chosen, np.nan)
+        left = ~found
+        least = np.argmin(worst[left], axis=-1)  # the candidate closest to allowed
+        exceeded = np.nan_to_num(over[left][np.arange(left.sum()), least], nan=-np.inf)  # (T', H)
+        binding = binding[left]
+        exceeded[np.arange(len(binding))[:, None], binding] = -np.inf  # a cap already in the set adds nothing
+        binding = np.concatenate([binding, np.argmax(exceeded, axis=-1)[:, None]], axis=-1)
+        todo = todo[left]
+    return out
 
 
 def _candidates(v: np.ndarray, u: np.ndarray, cap: np.ndarray, binding: np.ndarray) -> np.ndarray:

@@ -80,6 +80,25 @@ def test_leading_dimensions_are_kept_and_safe_velocities_pass_unchanged():
     np.testing.assert_array_equal(out, v)
 
 
+def test_each_velocity_is_limited_the_same_whatever_else_is_in_the_batch():
+    # Row 0 needs the exact solve and finds an allowed velocity at once; row 1 needs more
+    # rounds. Row 1's extra rounds used to add caps to row 0 too and change its answer (by
+    # 0.11 m/s here): a pursuer's shielded velocity depended on the other pursuers and worlds
+    # of the batch, so an eval episode ended differently with --worlds 1 and --worlds 6.
+    want = np.array([[-0.8263233461744847, 0.663199334447105], [-1.1243859199611483, 0.870374762016278]])
+    angles = np.array([[3.7364461058234286, 2.4684807639480315, 3.131694912732728, 4.574094657609654, 1.9585079332658477, 1.8198648524529117],
+                       [1.637072629554822, 0.2879924901307654, 3.215134311118233, 3.5462048874407417, 2.11857226956252, 1.5000758991364387]])
+    caps = np.array([[0.06307876192940914, -0.02672806889503249, -0.04137756517567492, 0.5324180078838434, -0.06201894782563397, -0.04242630102742562],
+                     [0.28082191752993607, -0.1631978993867944, -0.22908051941506558, -0.12316222292401402, -0.17301454281889295, 0.15814323336603037]])
+    dirs = np.stack([np.cos(angles), np.sin(angles)], -1)
+    together, met = limit_closing(want, dirs, caps, passes=1)
+    for row in range(2):
+        alone, met_alone = limit_closing(want[row : row + 1], dirs[row : row + 1], caps[row : row + 1], passes=1)
+        assert met_alone[0] == met[row]
+        np.testing.assert_array_equal(alone[0], together[row])
+    assert met[0] and np.all(dirs[0] @ together[0] <= caps[0] + 1e-7)
+
+
 def test_small_vector_helpers():
     np.testing.assert_allclose(unit(np.array([[3.0, 4.0], [0.0, 0.0]])), [[0.6, 0.8], [0.0, 0.0]])
     np.testing.assert_allclose(rotate(np.array([1.0, 0.0]), np.pi / 2), [0.0, 1.0], atol=1e-15)
