@@ -125,9 +125,11 @@ class HeuristicTeam:
     def from_config(cls, config, params: HeuristicParams | None = None) -> "HeuristicTeam":
         """A team tuned to a TaskConfig's speeds, clearances and timing (not its state)."""
         check_rays(config.n_rays, "the heuristic team")
-        return cls(config.pursuer_speed, config.capture_radius, config.obstacle_clearance,
+        team = cls(config.pursuer_speed, config.capture_radius, config.obstacle_clearance,
                    config.teammate_clearance, config.control_dt, config.ray_range, config.perception_radius, params,
                    config.field_of_view, config.position_noise, config.share_teammates)
+        team.shield = SafetyShield.from_config(config, team.p.shield)  # the task's teammate sight (full observability)
+        return team
 
     # ------------------------------------------------------------------ memory
 

@@ -145,11 +145,14 @@ class SafetyShield:
 
     @classmethod
     def from_config(cls, config, params: ShieldParams | None = None) -> "SafetyShield":
-        """A shield for a TaskConfig's speed, clearances, ray range and teammates' sight."""
+        """A shield for a TaskConfig's speed, clearances, ray range and teammates' sight
+        (in full observability every teammate knows every other: none is taken as blind)."""
         check_rays(config.n_rays, "the safety shield")
+        full = config.observability == "full"
         return cls(config.pursuer_speed, config.capture_radius, config.obstacle_clearance,
                    config.teammate_clearance, config.ray_range, params, config.control_dt,
-                   config.field_of_view, config.perception_radius, config.position_noise, config.share_teammates)
+                   2 * math.pi if full else config.field_of_view, math.inf if full else config.perception_radius,
+                   config.position_noise, config.share_teammates)
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
         """Forget the hits and teammates seen in the listed worlds (all, and resize, when world_ids is None)."""

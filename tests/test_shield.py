@@ -206,6 +206,29 @@ def test_a_teammate_that_cannot_see_the_pursuer_leaves_it_all_the_giving_way():
         SafetyShield(SPEED, field_of_view=0.0)
 
 
+def test_in_full_observability_no_teammate_is_taken_as_blind():
+    # With a 120 deg view but full observability every teammate knows every other (sensing
+    # masks nothing), so each gives way: the shield must not take a teammate's approach off
+    # the cap as if it could not see the pursuer (it did, from the task's field of view).
+    obs = blank_obs()
+    at = SPEC.index("teammates", 0, "dx")
+    obs[0, 0, at : at + 5] = [0.5, 0.0, -0.1, 0.28, 1.0]  # 0.5 m east, flying mostly north: the pursuer is 70 deg off its heading
+    want = np.tile([SPEED, 0.0], (1, 3, 1))
+    hard = dict(n_rays=16, field_of_view=2 * np.pi / 3, perception_radius=1.5)
+
+    def east(config, team=False):
+        shield = HeuristicTeam.from_config(config).shield if team else SafetyShield.from_config(config)
+        shield.reset(1)
+        return shield.apply(want, obs, SPEC)[0, 0, 0]
+
+    partial, full = default_config(**hard), default_config(**hard, observability="full")
+    seen = east(default_config(**hard, share_teammates=True))  # teammates known to each other: both give way
+    assert east(partial) == pytest.approx(seen - 0.1)  # a narrow view: its 0.1 m/s approach comes off
+    assert east(full) == pytest.approx(seen)
+    assert east(full, team=True) == pytest.approx(seen)  # the heuristic team's own shield too
+    assert east(partial, team=True) == pytest.approx(seen - 0.1)
+
+
 def test_noisy_teammate_positions_widen_the_teammate_margin_only():
     def capped(position_noise, hazard):
         shield = SafetyShield(SPEED, position_noise=position_noise)
