@@ -397,6 +397,8 @@ class PursuitEnv:
         """Everything a recorder needs about one world now (copies; reading never steers)."""
         if isinstance(world, (bool, np.bool_)) or not isinstance(world, (int, np.integer)) or not 0 <= world < self.n_worlds:
             raise ValueError(f"world: {world!r} is not a world index in 0..{self.n_worlds - 1}")
+        if self._perception is None:
+            raise RuntimeError("call reset() before snapshot(): no episode has started, nothing has been perceived")
         world = int(world)
         N = self.n_pursuers
         st = self.physics.state()

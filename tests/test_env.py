@@ -332,6 +332,14 @@ def test_reset_worlds_before_reset_is_refused():
         env.reset_worlds([0])
 
 
+def test_snapshot_before_reset_is_refused_and_works_after():
+    env = PursuitEnv(default_config(fidelity="point"), n_worlds=1, seed=0)
+    with pytest.raises(RuntimeError, match="call reset"):
+        env.snapshot(0)
+    env.reset()
+    assert env.snapshot(0).seen.shape == (3, 1)
+
+
 @pytest.mark.parametrize("key, value", [("obstacle_clearance", 0.25), ("teammate_clearance", 0.45)])
 def test_clearances_the_spawn_spacing_breaks_are_refused_naming_the_key(key, value):
     with pytest.raises(ConfigError, match=f"'{key}'.*collision before any action"):
