@@ -270,21 +270,62 @@ def load(
     extra: Mapping[str, Any] | None = None,
     extra_source: str = "command line",
 ) -> T:
-    """Defaults <- each YAML file in order <- `extra` (flags) <- `--set` overrides."""
+    """Defaults <- each YAML file in order <- `extra` (flags) <- `--set` overrides.
+
+    Each source's keys and values are checked as it is read, so an error names the source
+    that holds the bad value; the checks across keys (validate) judge the whole, so a later
+    source may repair what an earlier one left inconsistent (--set evader.panic_distance=3.5
+    --set evader.calm_distance=5), and their error names the source after which the config
+    stayed inconsistent."""
     merged: dict[str, Any] = {}
-    source = "defaults"
+    stages: list[tuple[str, dict[str, Any]]] = []  # (source, merged after it)
     for f in files:
         data = load_yaml(f)
+        check_values(cls, data, str(f))
         merged = _deep_update(merged, data)
-        source = str(f)
-    obj = build(cls, merged, source)
+        stages.append((str(f), merged))
     if extra:
-        obj = build(cls, _deep_update(to_dict(obj), dict(extra)), extra_source)
+        check_values(cls, extra, extra_source)
+        merged = _deep_update(merged, dict(extra))
+        stages.append((extra_source, merged))
     for text in overrides:
-        path, value = parse_override(text, f"--set {text}")
-        _check_path(cls, path, f"--set {text}")
-        obj = build(cls, merge(to_dict(obj), path, value), f"--set {text}")
-    return obj
+        source = f"--set {text}"
+        path, value = parse_override(text, source)
+        _check_path(cls, path, source)
+        check_values(cls, merge({}, path, value), source)
+        merged = merge(merged, path, value)
+        stages.append((source, merged))
+    try:
+        return build(cls, merged, stages[-1][0] if stages else "defaults")
+    except ConfigError:
+        if len(stages) < 2:
+            raise
+    blamed = 0  # the first source after which every prefix stays inconsistent
+    for i in range(len(stages) - 2, -1, -1):
+        try:
+            build(cls, stages[i][1], stages[i][0])
+        except ConfigError:
+            continue
+        blamed = i + 1
+        break
+    return build(cls, merged, stages[blamed][0])
+
+
+def check_values(cls: type, values: Mapping[str, Any], source: str) -> None:
+    """Check the keys and values of a partial mapping for `cls` one by one (unknown keys, types,
+    ranges), nested configs included; the checks across keys wait for the whole (see `load`)."""
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    hints = _type_hints(cls)
+    unknown = [k for k in values if k not in fields]
+    if unknown:
+        key = unknown[0]
+        raise ConfigError(f"{source}: unknown key '{key}'{_suggest(str(key), list(fields))}")
+    for name, value in values.items():
+        where = f"{source}: key '{name}'"
+        if dataclasses.is_dataclass(hints[name]) and isinstance(value, Mapping):
+            check_values(hints[name], value, where)
+        else:
+            _check_range(_coerce(value, hints[name], where), fields[name].metadata, where)
 
 
 def _check_path(cls: type, path: list[str], source: str) -> None:

@@ -45,6 +45,44 @@ def test_yaml_files_flags_and_overrides_apply_in_order(tmp_path):
     assert (c.evader.panic_distance, c.evader.calm_distance) == (1.0, 2.5)
 
 
+def test_a_bad_value_in_an_earlier_file_names_that_file(tmp_path):
+    typo, bad, fine = tmp_path / "typo.yaml", tmp_path / "bad.yaml", tmp_path / "fine.yaml"
+    typo.write_text("n_pursuer: 2\n")
+    bad.write_text("n_pursuers: 0\n")
+    fine.write_text("n_evaders: 2\n")
+    with pytest.raises(ConfigError, match=r"typo.yaml: unknown key 'n_pursuer' \(did you mean 'n_pursuers'\?\)"):
+        load_task_config([typo, fine])
+    with pytest.raises(ConfigError, match=r"bad.yaml: key 'n_pursuers': 0 is out of range"):
+        load_task_config([bad, fine], ["max_steps=10"])
+
+
+@pytest.mark.parametrize(
+    "overrides, flags",
+    [
+        (["evader.panic_distance=3.5", "evader.calm_distance=5"], None),  # each alone breaks calm > panic
+        (["capture_radius=0.15"], {"perception_radius": 0.2}),  # the flag alone is below capture_radius
+        (["physics_dt=0.004", "controller_hz=250"], None),  # 100 Hz does not divide 250 Hz
+    ],
+)
+def test_keys_that_must_agree_are_judged_on_the_whole_not_in_the_order_given(overrides, flags):
+    c = load_task_config([], overrides, flags)
+    for text in overrides:
+        key, value = text.split("=")
+        obj = c
+        for part in key.split(".")[:-1]:
+            obj = getattr(obj, part)
+        assert getattr(obj, key.split(".")[-1]) == float(value)
+
+
+def test_keys_that_disagree_name_the_source_after_which_they_stayed_so(tmp_path):
+    with pytest.raises(ConfigError, match=r"^--set perception_radius=0.4: perception_radius 0.4 is below capture_radius 0.5"):
+        load_task_config([], ["capture_radius=0.5", "perception_radius=0.4", "n_pursuers=2"])
+    narrow = tmp_path / "narrow.yaml"
+    narrow.write_text("perception_radius: 0.2\n")
+    with pytest.raises(ConfigError, match=r"narrow.yaml: perception_radius 0.2 is below capture_radius 0.3"):
+        load_task_config([narrow], ["n_pursuers=2"], {"fidelity": "point"})
+
+
 def test_dumped_config_loads_back_identical(tmp_path):
     c = default_config(n_pursuers=2, layout="configs/layouts/1_walls.yaml", observability="full")
     path = tmp_path / "c.yaml"
