@@ -112,6 +112,11 @@ class TaskConfig:
             raise ConfigError(f"{source}: key 'layout': {self.layout} is not a built-in layout index "
                               f"(0-{N_BUILTIN - 1}) or a file")
         substeps = self.control_dt / self.physics_dt
+        if round(substeps) < 1:  # 1e-9 s is "a whole number" (0) of physics steps within the tolerance below
+            raise ConfigError(
+                f"{source}: control_dt {self.control_dt} is shorter than physics_dt {self.physics_dt}: "
+                f"a decision step would advance no physics"
+            )
         if abs(substeps - round(substeps)) > 1e-6:
             raise ConfigError(
                 f"{source}: control_dt {self.control_dt} is not a whole number of physics_dt {self.physics_dt}"
