@@ -32,11 +32,22 @@ SUBCOMMANDS = [
 ]
 
 
+#: negative numbers argparse takes for flags: it knows only -12 and -1.5 as numbers, not -1e5, -inf or nan
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*[eE][-+]?\d+|\.\d+[eE][-+]?\d+|inf|infinity|nan)$", re.IGNORECASE)
+
+
 class OneLineErrorParser(argparse.ArgumentParser):
-    """argparse, with a usage error printed as one line (the usage block buried the message)."""
+    """argparse, with a usage error printed as one line (the usage block buried the message), and
+    negative numbers like -1e-1 and -inf read as values, also among a flag's several values
+    (`--box 1 2 0.2 0.2 -1e-1`), so the flag's own check reports a bad one."""
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+    def _parse_optional(self, arg_string):
+        if _NEGATIVE_NUMBER.match(arg_string) and arg_string not in self._option_string_actions:
+            return None  # a value, as argparse takes -12 (it would read -1e5 as an unknown flag, -inf as -i nf)
+        return super()._parse_optional(arg_string)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -55,23 +66,6 @@ def build_parser() -> argparse.ArgumentParser:
             raise
         module.register(sub)
     return parser
-
-
-#: negative numbers argparse would take for flags: it only knows -12 and -1.5, not -1e5 or -inf
-_NEGATIVE_NUMBER_ARGPARSE_MISSES = re.compile(r"^-(\d+\.?\d*[eE][-+]?\d+|\.\d+[eE][-+]?\d+|inf|infinity|nan)$", re.IGNORECASE)
-
-
-def glue_negative_numbers(argv: list[str]) -> list[str]:
-    """argv with `--flag -1e5` written as `--flag=-1e5`, so the flag's own check reports the value
-    instead of argparse's "expected one argument" (argparse reads -1e5 as a flag)."""
-    out: list[str] = []
-    for token in argv:
-        previous = out[-1] if out else ""
-        if _NEGATIVE_NUMBER_ARGPARSE_MISSES.match(token) and previous.startswith("-") and "=" not in previous and previous != "--":
-            out[-1] = f"{previous}={token}"
-        else:
-            out.append(token)
-    return out
 
 
 def mujoco_import_error() -> str | None:
@@ -128,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     if not argv:  # a bare `pursuit-mj`: show what there is
         parser.print_help(sys.stderr)
         return 2
-    args = parser.parse_args(glue_negative_numbers(argv))
+    args = parser.parse_args(argv)
     try:
         with termination_as_interrupt():
             return int(args.func(args) or 0)

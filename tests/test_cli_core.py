@@ -81,11 +81,6 @@ def test_bad_input_exits_2_with_one_line(argv, message, capsys):
 
 
 def test_negative_numbers_in_scientific_notation_reach_the_flags_own_check(capsys):
-    from pursuit_cli import glue_negative_numbers
-
-    assert glue_negative_numbers(["train", "--total-steps", "-1e5", "--set", "a=-1e5"]) == [
-        "train", "--total-steps=-1e5", "--set", "a=-1e5"]
-    assert glue_negative_numbers(["simulate", "--seconds", "-inf", "-12"]) == ["simulate", "--seconds=-inf", "-12"]
     assert main(["simulate", "--seconds", "-2.5e-1"]) == 2
     assert "--seconds: must be > 0, got -0.25" in capsys.readouterr().err
     for text in ("-inf", "nan"):
@@ -95,6 +90,19 @@ def test_negative_numbers_in_scientific_notation_reach_the_flags_own_check(capsy
     with pytest.raises(SystemExit):
         main(["study", "--budget-minutes", "nan"])  # nan <= 0 is False: it used to start a study
     assert "expected a finite number" in capsys.readouterr().err
+
+
+def test_negative_numbers_in_scientific_notation_count_among_a_flags_several_values(tmp_path, capsys):
+    # argparse read -1e-1 as an unknown flag: a valid yaw was refused ("unrecognized arguments: -1e-1"),
+    # and gluing it to the flag (--center=-1e5) left a two-value flag one value short
+    out = tmp_path / "yawed.yaml"
+    assert main(["layout", "new", str(out), "--box", "1", "2", "0.2", "0.2", "-1e-1"]) == 0
+    assert load_layout(out).obstacles[0].yaw == -0.1
+    assert main(["layout", "new", str(tmp_path / "c.yaml"), "--border", "circle", "--center", "-1e5", "2"]) == 2
+    assert "centre [-100000.0, 2.0]" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["layout", "new", str(tmp_path / "b.yaml"), "--box", "1", "2", "0.2", "0.2", "-inf"])
+    assert "argument --box: expected a finite number, got '-inf'" in capsys.readouterr().err
 
 
 def test_the_simulator_package_imports_neither_train_nor_torch_nor_the_command_line():
