@@ -114,6 +114,14 @@ class CoverageMap:
         t = np.broadcast_to(now[:, None, None, None], free.shape)
         self.seen[w[seen], n[seen], i[seen], j[seen]] = t[seen]
         hit = rays < ray_range - 1e-6  # (W, N, K): the ray ended on something
+        # The cell just past the end is blocked. Past the west and south borders that point is
+        # outside the grid and clips into the strip of cells along the border, which is then
+        # blocked too (the east and north strips are not: the grid grows there). Known and
+        # measured (2026-12-03): blocking only the cell past every border made the team slower,
+        # by +17.4 / +30.0 / +2.9 / +10.3 mean steps on layouts 0-3 (paired, 64 episodes, point
+        # fidelity, intervals +-23 to +-33): the blocked strip works as a wall margin for the
+        # sweep. Changing it changes the baseline every result here is measured against, so it
+        # stays until the sweep keeps an explicit margin along every wall.
         hi, hj = self._cells(ends + 0.02 * ray_dirs)
         wk = np.broadcast_to(np.arange(W)[:, None, None], hit.shape)
         nk = np.broadcast_to(np.arange(N)[None, :, None], hit.shape)
