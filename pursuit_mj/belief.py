@@ -158,6 +158,13 @@ class BeliefEnv:
         self.belief.reset(self.env.n_worlds)
         return self._augment(obs)
 
+    def reset_worlds(self, world_ids, seeds=None):
+        """Refused: the belief takes in every world's observation at once and counts time by
+        it, so it cannot restart some worlds between steps without ageing the others' memory.
+        Training restarts worlds by auto-reset inside `step`."""
+        raise RuntimeError("BeliefEnv.reset_worlds: not supported (the belief memory advances all worlds "
+                           "together); let episodes restart by auto_reset, or call reset() for all worlds")
+
     def step(self, actions: np.ndarray):
         """The env's step, actions (W, N, 2); obs and info["final_obs"] get the belief features
         appended (W, N, obs_dim + belief features); a world's belief restarts at its episode's end."""

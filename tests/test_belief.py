@@ -107,6 +107,9 @@ def test_the_env_wrapper_clears_the_memory_of_ended_episodes():
     fresh = Belief.from_config(task)
     fresh.reset(2)
     np.testing.assert_allclose(obs[..., raw_dim:], fresh.features(obs[..., :raw_dim], env.raw_spec), atol=1e-6)
+    # restarting some worlds between steps would age the others' memory: refused, not passed through
+    with pytest.raises(RuntimeError, match="reset_worlds: not supported"):
+        env.reset_worlds([0])
 
 
 def test_the_team_acting_from_a_belief_acts_exactly_as_a_team_with_its_own_memory():
