@@ -278,6 +278,8 @@ class PursuitEnv:
         all-round view. It changes nothing in the env; noise and misses, if `config` has any,
         are drawn from the same per-world streams as the env's own observations.
         """
+        if self._obs is None:
+            raise RuntimeError("call reset() before observe_as(): no episode has started")
         config = checked_task_config(config, "observe_as config")
         changed = [f.name for f in dataclasses.fields(TaskConfig)
                    if f.name not in PERCEPTION_KEYS and getattr(config, f.name) != getattr(self.config, f.name)]
@@ -290,6 +292,8 @@ class PursuitEnv:
 
     def global_state(self) -> np.ndarray:
         """(W, state_dim) float32: the true state for centralised critics."""
+        if self._obs is None:
+            raise RuntimeError("call reset() before global_state(): no episode has started")
         return build_global_state(self._view(), self.steps / self.config.max_steps)
 
     # ------------------------------------------------------------------ stepping

@@ -332,12 +332,17 @@ def test_reset_worlds_before_reset_is_refused():
         env.reset_worlds([0])
 
 
-def test_snapshot_before_reset_is_refused_and_works_after():
+def test_reading_the_state_before_reset_is_refused_and_works_after():
+    """snapshot, global_state and observe_as before any episode would report the drones' build
+    placement (a row in a corner) as if it were one."""
     env = PursuitEnv(default_config(fidelity="point"), n_worlds=1, seed=0)
-    with pytest.raises(RuntimeError, match="call reset"):
-        env.snapshot(0)
-    env.reset()
+    for read in (lambda: env.snapshot(0), env.global_state, lambda: env.observe_as(env.config)):
+        with pytest.raises(RuntimeError, match="call reset"):
+            read()
+    obs = env.reset()
     assert env.snapshot(0).seen.shape == (3, 1)
+    assert env.global_state().shape == (1, env.state_dim)
+    np.testing.assert_array_equal(env.observe_as(env.config), obs)
 
 
 @pytest.mark.parametrize("key, value", [("obstacle_clearance", 0.25), ("teammate_clearance", 0.45)])
