@@ -292,3 +292,32 @@ def test_a_policy_step_runs_torch_on_one_thread_and_restores_the_count():
         assert seen == [1] and torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(before)
+
+
+def test_every_transition_is_used_once_per_epoch_when_the_minibatch_does_not_divide_the_rollout(monkeypatch):
+    """n = 10 transitions, minibatch 4: two minibatches of 5 per epoch, not two of 4 with 2 left out.
+    With gamma 0 and zero values each advantage is its transition's reward (1..10), so the advantages
+    the loss sees name the transitions it was given."""
+    import train.ppo as ppo
+    from train.agent import ActorCritic
+    from train.config import load_train_config
+    from train.storage import Rollout
+
+    cfg = load_train_config([], ["ppo.epochs=3", "ppo.batch_size=8", "ppo.minibatch_size=4", "ppo.norm_adv=false",
+                                 "net.encoder_width=4", "net.hidden=[4]"])
+    spec = ObsSpec.make(1, 1, 4)
+    buf = Rollout(5, 2, 1, spec.dim)  # T=5, W=2, N=1: n = 10
+    buf.rewards.copy_(torch.arange(1.0, 11.0).reshape(5, 2, 1))
+    seen = []
+    loss = ppo.clipped_policy_loss
+
+    def spy(new_logp, old_logp, advantages, clip, weights=None):
+        seen.append(sorted(advantages.tolist()))
+        return loss(new_logp, old_logp, advantages, clip, weights)
+
+    monkeypatch.setattr(ppo, "clipped_policy_loss", spy)
+    model = ActorCritic(spec, 0, cfg)
+    ppo.ppo_update(model, torch.optim.Adam(model.parameters(), lr=1e-3), buf, cfg.ppo, 0.0, torch.Generator().manual_seed(0))
+    assert [len(s) for s in seen] == [5, 5] * 3  # n // minibatch = 2 steps per epoch, the remainder shared
+    for epoch in range(3):
+        assert sorted(seen[2 * epoch] + seen[2 * epoch + 1]) == [float(k) for k in range(1, 11)]

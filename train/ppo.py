@@ -60,12 +60,13 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
     else:
         targets = ret
         target_std = float(ret.std(unbiased=False)) if cfg.value_scaling else None
-    mb = min(cfg.minibatch_size, n)
+    # n // minibatch_size minibatches per epoch; a remainder (1026 = 4 x 256 + 2 in classic) is
+    # shared among them (sizes differ by at most one), so every transition is used once per epoch
+    n_minibatches = max(n // cfg.minibatch_size, 1)
     stats: list[torch.Tensor] = []  # per gradient step, the STAT_NAMES values
     for _ in range(cfg.epochs):
         perm = torch.randperm(n, generator=generator)
-        for start in range(0, n - mb + 1, mb):
-            idx = perm[start : start + mb]
+        for idx in torch.tensor_split(perm, n_minibatches):
             mb_obs, mb_old_logp = obs[idx], old_logp[idx]
             mean, log_std = model.actor(mb_obs, model.spec)
             std = log_std.exp()
@@ -85,7 +86,7 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
                 log_ratio = new_logp - mb_old_logp
                 approx_kl = ((log_ratio.exp() - 1.0) - log_ratio).mean()
                 stats.append(torch.stack([pg_loss, v_loss, entropy, approx_kl, clip_frac, grad_norm]))
-    means = torch.stack(stats).double().mean(0).tolist()  # at least one step per epoch (mb <= n)
+    means = torch.stack(stats).double().mean(0).tolist()  # at least one step per epoch
     out = dict(zip(STAT_NAMES, means))
     with torch.no_grad():
         pred = buf.values.reshape(n)
