@@ -26,6 +26,14 @@ def test_simulate_flies_only_the_layout_and_fidelity_chosen_through_set(capsys):
     assert rows == [["walls", "point"]]
 
 
+def test_simulate_flies_only_what_a_task_file_names_even_at_its_default(tmp_path, capsys):
+    task = tmp_path / "t.yaml"
+    task.write_text("fidelity: quadrotor\nlayout: 0\n")  # both the defaults, but named
+    assert main(["simulate", "--seconds", "0.2", "--task", str(task)]) == 0
+    rows = [line.split()[:2] for line in capsys.readouterr().out.splitlines() if line.split()[:1] in (["open"], ["walls"], ["bars"], ["cluttered"])]
+    assert rows == [["open", "quadrotor"]]
+
+
 def test_scripted_flight_in_an_open_arena_is_clean_and_ends_circling_the_middle():
     config = default_config(random_obstacles=0)
     report = fly(config, load_layout(0), seconds=6.0)
