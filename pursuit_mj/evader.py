@@ -386,7 +386,10 @@ class EscapeModel:
         left, -1 right) and the chaser indices i and j (W, M, P)."""
         W = self.n_worlds
         near = np.argsort(dist, axis=-1, kind="stable")[..., : min(GAP_CHASERS, self.n_pursuers)]  # (W, M, K)
-        ci, cj = near[..., self._pair_i], near[..., self._pair_j]  # (W, M, P)
+        a, b = near[..., self._pair_i], near[..., self._pair_j]  # (W, M, P)
+        # each pair by chaser index, not by which of the two is nearer: the gap it is committed
+        # to (chasers and side) must be recognised when their distances cross on the way through
+        ci, cj = np.minimum(a, b), np.maximum(a, b)
         world = np.arange(W)[:, None, None]
         pi, pj = pp[world, ci], pp[world, cj]  # (W, M, P, 2)
         edge, rel = pj - pi, e[:, :, None] - pi

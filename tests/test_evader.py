@@ -216,6 +216,28 @@ def test_no_gap_escape_when_the_chasers_are_too_close():
     assert model.gap[0, 0]
 
 
+def test_it_keeps_to_its_gap_when_the_other_chaser_becomes_the_nearer():
+    # cornered against the bottom wall; chaser 0 hovers, chaser 1 closes in from the right, so
+    # halfway through the gap chaser 1 becomes the nearer of the two (once the committed gap was
+    # recognised only with its nearer chaser first: the evader dropped it there, out of the
+    # corner, and turned back toward the wall before it was across)
+    config = default_config(n_pursuers=2)
+    model = EscapeModel(config, 1, seed=0)
+    e, p = np.array([[[1.8, 0.45]]]), np.array([[[0.9, 1.3], [3.0, 1.3]]])
+    vp = np.array([[[0.0, 0.0], [-0.2, 0.0]]])
+    ve, on, across, nearer = np.zeros_like(e), [], [], []
+    for _ in range(20):
+        ve = model.compute(e, ve, p, vp, np.ones((1, 1), bool), arena_obstacles(1), DT)
+        edge, rel = p[0, 1] - p[0, 0], e[0, 0] - p[0, 0]
+        across.append(edge[0] * rel[1] - edge[1] * rel[0] > 0)
+        nearer.append(np.argmin(np.linalg.norm(e[0, 0] - p[0], axis=-1)))
+        on.append(model.gap[0, 0])
+        assert across[-1] or (model.gap[0, 0] and ve[0, 0, 1] > 0.5), "until across it keeps to the gap, upward"
+        e, p = e + ve * DT, p + vp * DT
+    assert nearer[0] == 0 and 1 in nearer[: across.index(True)], "the other chaser became the nearer on the way"
+    assert e[0, 0, 1] > p[0, :, 1].max() + 0.3, "it got through"
+
+
 def test_surrounded_in_the_open_it_takes_the_widest_safe_gap():
     config = default_config()
     model = EscapeModel(config, 1, seed=0)
