@@ -574,6 +574,22 @@ def test_starts_closer_than_the_separation_minimum_are_refused_naming_both_drone
     assert margin_warnings(resolve_flight(flight_from_dict(data, "lab.yaml"))) == []
 
 
+def test_a_guard_lookahead_under_half_a_decision_interval_is_refused_under_one_warned_about():
+    """The guards cap the closing speed at (gap - margin) / lookahead for a whole decision
+    interval dt: the gap beyond the margin is multiplied by 1 - dt / lookahead each decision,
+    which overshoots for lookahead < dt and swings ever wider for lookahead < dt / 2."""
+    data = flight(safety={"lookahead": 0.06}, decision_rate=5)  # decisions every 0.2 s
+    with pytest.raises(ConfigError, match=r"lab.yaml: safety: key 'lookahead': 0.06 s is shorter than half a decision interval \(0.2 s\)"):
+        resolve_flight(flight_from_dict(data, "lab.yaml"))
+    data = flight(safety={"lookahead": 0.05})  # decisions every 0.1 s: half of one is allowed
+    resolve_flight(flight_from_dict(data, "lab.yaml"))
+    data["safety"]["lookahead"] = 0.08
+    assert any("safety.lookahead 0.08 s is shorter than one decision interval 0.1 s" in w
+               for w in resolve_flight(flight_from_dict(data, "lab.yaml")).warnings)
+    data["safety"]["lookahead"] = 0.1
+    assert not any("lookahead" in w for w in resolve_flight(flight_from_dict(data, "lab.yaml")).warnings)
+
+
 @pytest.mark.parametrize("role", ["evader", "target"])
 def test_a_quarry_starting_within_the_capture_distance_of_a_pursuer_is_refused(role):
     data = flight()

@@ -238,6 +238,10 @@ def _margin_warnings(plan: FlightPlan) -> list[str]:
             f"and a drone that responds slower than that crosses the border or a virtual obstacle before it stops "
             f"(raise the margin or lower safety.max_speed)"
         )
+    if s.lookahead < plan.dt - 1e-9:
+        out.append(f"safety.lookahead {s.lookahead:g} s is shorter than one decision interval {plan.dt:g} s: near the "
+                   f"margin or a teammate a drone overshoots the guards' limit and is pushed back the next decision "
+                   f"(use at least {plan.dt:g} s for a smooth approach)")
     flown = [("pursuers", "pursuer", plan.task.pursuer_speed)]
     if plan.flown_evaders.any():  # targets are flown by someone else, at their own speed
         flown.append(("evaders", "evader", plan.task.evader_speed))
@@ -320,6 +324,12 @@ def resolve_flight(spec: FlightSpec, overrides: Sequence[str] = ()) -> FlightPla
             f"{capture_lab:.3f} m (task capture_radius {task.capture_radius} / scale {transform.scale}): no capture could happen"
         )
     _check_margin(spec, task, transform)
+    if spec.safety.lookahead < task.control_dt / 2 - 1e-9:
+        raise ConfigError(
+            f"{spec.source}: safety: key 'lookahead': {spec.safety.lookahead:g} s is shorter than half a decision interval "
+            f"({task.control_dt:g} s): each decision the guards would let a drone cover over twice its way to the margin, "
+            f"so it would overshoot by more than it corrected and swing ever wider (use at least {task.control_dt:g} s)"
+        )
     lab = _lab_bounds(spec, transform, layout)
     plan = FlightPlan(spec, task, layout, transform, lab, drones)
     warnings = _margin_warnings(plan) + _check_starts(spec, drones, plan)
