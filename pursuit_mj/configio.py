@@ -135,18 +135,25 @@ def _check_range(value: Any, meta: Mapping[str, Any], where: str) -> None:
         raise ConfigError(f"{where}: {value!r} is out of range (must be <= {hi})")
 
 
+def _known_fields(cls: type, values: Mapping[str, Any], source: str) -> dict[str, dataclasses.Field]:
+    """The dataclass fields of `cls` by name; ConfigError (with a close key suggested) if
+    `values` has a key that is not one of them."""
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = [k for k in values if k not in fields]
+    if unknown:
+        key = unknown[0]
+        raise ConfigError(f"{source}: unknown key '{key}'{_suggest(str(key), list(fields))}")
+    return fields
+
+
 def build(cls: type[T], values: Mapping[str, Any] | None, source: str = "config") -> T:
     """Make a `cls` from a (possibly partial, possibly nested) mapping, validating each value.
 
     Raises ConfigError naming the key, the bad value and `source` (file, flag ...).
     """
     values = dict(values or {})
-    fields = {f.name: f for f in dataclasses.fields(cls)}
+    fields = _known_fields(cls, values, source)
     hints = _type_hints(cls)
-    unknown = [k for k in values if k not in fields]
-    if unknown:
-        key = unknown[0]
-        raise ConfigError(f"{source}: unknown key '{key}'{_suggest(str(key), list(fields))}")
     kwargs = {}
     for name, value in values.items():
         where = f"{source}: key '{name}'"
@@ -314,12 +321,8 @@ def load(
 def check_values(cls: type, values: Mapping[str, Any], source: str) -> None:
     """Check the keys and values of a partial mapping for `cls` one by one (unknown keys, types,
     ranges), nested configs included; the checks across keys wait for the whole (see `load`)."""
-    fields = {f.name: f for f in dataclasses.fields(cls)}
+    fields = _known_fields(cls, values, source)
     hints = _type_hints(cls)
-    unknown = [k for k in values if k not in fields]
-    if unknown:
-        key = unknown[0]
-        raise ConfigError(f"{source}: unknown key '{key}'{_suggest(str(key), list(fields))}")
     for name, value in values.items():
         where = f"{source}: key '{name}'"
         if dataclasses.is_dataclass(hints[name]) and isinstance(value, Mapping):
