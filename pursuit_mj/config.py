@@ -87,7 +87,7 @@ class TaskConfig:
     spread_reward: float = spec(0.0, help="reward for spreading out (more_r); 0 = off")
     fidelity: str = spec("quadrotor", choices=("point", "quadrotor"), help="physics fidelity")
     physics_dt: float = spec(0.002, lo=0.0002, hi=0.01, help="MuJoCo timestep (s)")
-    controller_hz: float = spec(100.0, lo=50.0, hi=1000.0, help="quadrotor controller rate (Hz)")
+    controller_hz: float = spec(100.0, lo=100.0, hi=1000.0, help="quadrotor controller rate (Hz); at 50 Hz a full-speed reversal tilted to 22 deg, past the 15 deg limit")
     evader: EvaderConfig = spec(default_factory=EvaderConfig, help="escape model settings")
 
     def validate(self, source: str = "config") -> None:

@@ -107,6 +107,7 @@ def test_dumped_config_loads_back_identical(tmp_path):
         (["control_dt=0.015"], r"control_dt 0.015 is not a whole number of physics_dt 0.002"),
         (["control_dt=1e-9"], r"control_dt 1e-09 is shorter than physics_dt 0.002: a decision step would advance no physics"),
         (["controller_hz=300"], r"controller_hz 300.0 does not divide the physics rate 500 Hz"),
+        (["controller_hz=50"], r"key 'controller_hz': 50.0 is out of range \(must be >= 100.0\)"),
         (["perception_radius=0.2"], r"perception_radius 0.2 is below capture_radius 0.3"),
         (["capture_radius=0.1"], r"capture_radius 0.1 m is not beyond 0.137 m, where two drones' collision volumes touch"),
         (["n_pursuers"], r"'n_pursuers' is not of the form key=value"),
