@@ -185,3 +185,30 @@ def test_flags_that_would_be_ignored_or_end_in_a_traceback_are_refused_naming_th
         err = capsys.readouterr().err
         assert words in err and "Traceback" not in err, err
     assert [json.loads(x)["update"] for x in (run_dir / "metrics.jsonl").read_text().splitlines()] == [1]  # nothing resumed
+
+
+def test_bench_train_cpu_ratio_sets_as_many_bare_env_rollouts_as_training_ones(monkeypatch):
+    """Overlapped, the rollout after the warm-up is collected during the warm-up update, before
+    any CPU reading; the bare env must be charged the rollouts the training CPU holds, no more.
+    Here a rollout 'costs' 1 CPU second in the worker and a bare-env rollout 1 too: ratio 1."""
+    import types
+
+    import pursuit_cli.benchmarks.train as bench
+    from train.rollout_worker import RolloutWorker
+
+    started = [0]
+    start = RolloutWorker.start
+
+    def counting_start(self, model):
+        started[0] += 1
+        start(self, model)
+
+    monkeypatch.setattr(RolloutWorker, "start", counting_start)
+    monkeypatch.setattr(bench, "_child_cpu_s", lambda pid: float(started[0]) if pid is not None else 0.0)
+    monkeypatch.setattr(bench, "_bare_env_block", lambda env, steps, rng: (0.01, 1.0))
+    monkeypatch.setattr(bench, "time", types.SimpleNamespace(perf_counter=bench.time.perf_counter, process_time=lambda: 0.0))
+    for overlap in ("true", "false"):
+        r = bench.measure("classic", "point", 2, 3, TINY[1:-2] + [f"run.overlap={overlap}"])
+        assert r.env_cpu_s == 3.0  # one bare block per measured update
+        if overlap == "true":
+            assert r.train_cpu_s == 3.0 and r.env_over_training_cpu == 1.0

@@ -112,6 +112,24 @@ def _child_cpu_s(pid: int | None) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
 
 
+def _watch_worker_cpu(worker) -> list[float]:
+    """The rollout worker's CPU seconds (`_child_cpu_s`) read each time `worker.result` hands
+    over a rollout, when it has just finished one and has not yet started the next: successive
+    readings hold whole rollouts. Empty, and nothing watched, without a worker."""
+    readings: list[float] = []
+    if worker is None:
+        return readings
+    take = worker.result
+
+    def result(model):
+        out = take(model)
+        readings.append(_child_cpu_s(worker.process.pid))
+        return out
+
+    worker.result = result
+    return readings
+
+
 def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overrides: list[str], profile_top: int = 0) -> TrainBench:
     import torch
 
@@ -130,16 +148,18 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
         try:
             trainer.train_one_update()  # warm-up: first forward/backward, allocator, caches, the rollout worker
             rollout, update, wall = [], [], []
-            pid = trainer.worker.process.pid if trainer.worker is not None else None
-            c0, child0 = time.process_time(), _child_cpu_s(pid)
+            idle = _watch_worker_cpu(trainer.worker)
+            c0 = time.process_time()
             for _ in range(updates):
                 row = trainer.train_one_update()
                 rollout.append(row["rollout_s"])
                 update.append(row["update_s"])
                 wall.append(row["wall_s"])
             if trainer.worker is not None:
-                trainer.worker.result(trainer.model)  # the rollout collected meanwhile is part of the CPU spent
-            train_cpu = time.process_time() - c0 + _child_cpu_s(pid) - child0
+                trainer.worker.result(trainer.model)  # the rollout collected meanwhile, to the end of its CPU
+            # the worker's CPU between its first and last idle moments: `updates` whole rollouts (the
+            # 2nd to the last collected; the 1st began during the warm-up update, before any reading)
+            train_cpu = time.process_time() - c0 + (idle[-1] - idle[0] if idle else 0.0)
         finally:
             trainer.close()
         # the bare env after training (not between updates: a rollout worker would run beside it)
@@ -149,7 +169,7 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
         rng = np.random.default_rng(0)
         _bare_env_block(env, 2, rng)
         bare, env_cpu = [], 0.0
-        for _ in range(updates + int(trainer.overlap)):  # overlapped, the CPU above includes one more rollout
+        for _ in range(updates):  # as many rollouts as the CPU above holds, in turn or overlapped
             wall_s, cpu = _bare_env_block(env, trainer.buffer.T, rng)
             bare.append(wall_s)
             env_cpu += cpu
