@@ -160,6 +160,16 @@ def test_colour_key_stays_in_its_band_and_lists_what_the_task_shows():
     assert labels == ["pursuer", "evader", "seen", "capture", "caught", "obstacle"]
 
 
+def test_colour_key_lists_no_relayed_line_for_a_lone_pursuer():
+    """With one pursuer nothing is ever relayed (known = seen), so the key must not list it."""
+    env = PursuitEnv(default_config(**CFG, n_pursuers=1, share_detections=True), seed=0, auto_reset=False)
+    env.reset()
+    snap = env.snapshot(0)
+    assert not (snap.known & ~snap.seen & ~snap.captured[None, :]).any()
+    labels = [e.label for e in key_entries(snap, OverlayStyle())]
+    assert "relayed" not in labels and "sight" in labels and "seen" in labels
+
+
 def test_frames_carry_the_key_unless_it_is_turned_off():
     config = default_config(**CFG)
     env = PursuitEnv(config, seed=0, auto_reset=False)

@@ -195,7 +195,7 @@ def key_entries(snap, style: OverlayStyle) -> list[KeyEntry]:
 
     Only what the task can show is listed: no sight ring or relayed line in full
     observability (every pursuer sees every evader), no relayed line without shared
-    detections, no random obstacle where the layout has none.
+    detections or a teammate to relay them, no random obstacle where the layout has none.
     """
     cfg = snap.config
     entries = [KeyEntry("pursuer", rgb255(ROLE_RGBA["pursuer"]), "dot"), KeyEntry("evader", rgb255(ROLE_RGBA["evader"]), "dot")]
@@ -203,7 +203,7 @@ def key_entries(snap, style: OverlayStyle) -> list[KeyEntry]:
     if partial:
         entries.append(KeyEntry("sight", rgb255(style.perception_rgba), "ring"))
     entries.append(KeyEntry("seen", rgb255(style.seen_rgba), "line"))
-    if partial and cfg.share_detections:
+    if partial and cfg.share_detections and cfg.n_pursuers > 1:  # a lone pursuer has no one to relay to it
         entries.append(KeyEntry("relayed", rgb255(style.relayed_rgba), "dash"))
     entries.append(KeyEntry("capture", rgb255(style.capture_rgba), "ring"))
     entries.append(KeyEntry("caught", rgb255(style.captured_fill_rgba), "dot"))  # the filled capture disc
