@@ -31,6 +31,29 @@ def finite_float(text: str) -> float:
     return value
 
 
+def checked_layouts(refs: list[str], flag: str = "--layouts") -> list[int | str]:
+    """Layout references from a CLI flag, each loaded once to refuse a bad one before any work,
+    with digits read as built-in indices; the same layout given twice (0 and 00, a.yaml and
+    ./a.yaml) is refused, since each layout is one column of a table."""
+    from pursuit_mj.layout import load_layout, resolve_layout_ref
+
+    layouts: list[int | str] = []
+    seen: dict = {}
+    for text in refs:
+        ref = int(text) if text.strip().isdigit() else text
+        try:
+            load_layout(ref)
+        except ValueError as exc:
+            raise ValueError(f"{flag}: {exc}") from None
+        where = resolve_layout_ref(ref).resolve()
+        if where in seen:
+            raise ValueError(f"{flag}: {text} is given twice (as {seen[where]} and {text}); each layout is one "
+                             f"column of the table")
+        seen[where] = text
+        layouts.append(ref)
+    return layouts
+
+
 def add_task_args(p: argparse.ArgumentParser) -> None:
     """Task config flags. Speeds and radii in m and m/s (the reference study used mm)."""
     g = p.add_argument_group("task")

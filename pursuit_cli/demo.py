@@ -12,8 +12,7 @@ import time
 from pathlib import Path
 
 from pursuit_mj.config import REPO_ROOT
-from pursuit_mj.layout import load_layout
-from .common import add_task_args, load_model, seed_arg, task_config_from_args
+from .common import add_task_args, checked_layouts, load_model, seed_arg, task_config_from_args
 
 PRETRAINED = REPO_ROOT / "pretrained" / "pursuers.pt"
 
@@ -62,20 +61,11 @@ def run(args) -> int:
         raise ValueError(f"--episodes: expected an integer >= 1, got {args.episodes}")
     if args.worlds < 1:
         raise ValueError(f"--worlds: expected an integer >= 1, got {args.worlds}")
-    seen: set[str] = set()
-    for ref in args.layouts:  # a typo in the last layout must not cost the earlier ones' minutes
-        try:
-            load_layout(int(ref) if ref.strip().isdigit() else ref)
-        except ValueError as exc:
-            raise ValueError(f"--layouts: {exc}") from None
-        if ref.strip() in seen:
-            raise ValueError(f"--layouts: {ref} is given twice")
-        seen.add(ref.strip())
+    layouts = checked_layouts(args.layouts)  # a typo in the last layout must not cost the earlier ones' minutes
     model = Path(args.model)
     if not model.is_file():
         raise ValueError(f"--model {model}: no such file (the pretrained policy ships in pretrained/ of the repository)")
     config = task_config_from_args(args)
-    layouts = [int(x) if x.strip().isdigit() else x for x in args.layouts]
     policy = load_model(model, _spec(config), config)
     policies = [(policy.name, policy)]  # the training run's name, as eval and render call it
     if getattr(policy, "has_shield", False):  # trained behind the shield: it comes with it (NAME+shield)

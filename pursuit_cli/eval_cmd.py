@@ -15,10 +15,9 @@ import time
 from pathlib import Path
 
 from pursuit_mj.io_utils import check_writable, check_writable_folder
-from pursuit_mj.layout import load_layout
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
-from .common import SHIELD_HELP, add_shield_arg, add_task_args, load_model, seed_arg, shield_if_asked, task_config_from_args
+from .common import SHIELD_HELP, add_shield_arg, add_task_args, checked_layouts, load_model, seed_arg, shield_if_asked, task_config_from_args
 
 
 def register(sub) -> None:
@@ -126,7 +125,7 @@ def _versus(args, policies) -> str | None:
 
 def run(args) -> int:
     from pursuit_mj.comparison import paired_report, pairs_to_dicts
-    from pursuit_mj.evaluation import format_table, layout_label, plot_rows, write_csv, write_json
+    from pursuit_mj.evaluation import format_table, plot_rows, write_csv, write_json
     from pursuit_mj.provenance import provenance
 
     if args.episodes < 1:
@@ -136,13 +135,8 @@ def run(args) -> int:
     if args.rerun_episodes < 1:
         raise ValueError(f"--rerun-episodes: expected an integer >= 1, got {args.rerun_episodes}")
     config = task_config_from_args(args)
-    layouts = args.layouts if args.layouts else [config.layout]
-    labels: set[str] = set()
-    for ref in layouts:
-        load_layout(ref)  # refuse a bad layout before any episode runs
-        if layout_label(ref) in labels:
-            raise ValueError(f"--layouts: {ref} is given twice; each layout is one column of the table")
-        labels.add(layout_label(ref))
+    # a bad or repeated layout refused before any episode runs
+    layouts = checked_layouts(args.layouts) if args.layouts else [config.layout]
     csv_path, json_path = _outputs(args)
     policies = _policies(args, config)
     versus = _versus(args, policies)

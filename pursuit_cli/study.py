@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .common import add_task_args, finite_float, seed_arg, task_config_from_args
+from .common import add_task_args, checked_layouts, finite_float, seed_arg, task_config_from_args
 
 
 def register(sub) -> None:
@@ -42,7 +42,6 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from pursuit_mj.io_utils import check_writable_folder
-    from pursuit_mj.layout import load_layout
     from train.study import StudyPlan, check_train_overrides, format_timings, run_study
 
     if args.budget_minutes <= 0:
@@ -54,9 +53,7 @@ def run(args) -> int:
     if not args.task_files:
         args.task_files = ["reference"]
     task = task_config_from_args(args)
-    layouts = tuple(int(x) if x.strip().isdigit() else x for x in args.layouts)
-    for ref in layouts:
-        load_layout(ref)  # a bad layout refused before any folder is made or any arm trains
+    layouts = tuple(checked_layouts(args.layouts))  # refused before any folder is made or any arm trains
     out = Path(args.out)
     plan = StudyPlan(
         budget_minutes=args.budget_minutes, out=out, eval_task=task, layouts=layouts, episodes=args.episodes,

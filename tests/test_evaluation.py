@@ -12,7 +12,7 @@ from pursuit_mj.config import default_config, load_task_config
 from pursuit_mj.env import EpisodeRecord
 from pursuit_mj.evaluation import FIELDS, evaluate, format_table, read_csv, run_episodes, summarise
 from pursuit_mj.heuristic import HeuristicTeam
-from pursuit_mj.layout import load_layout
+from pursuit_mj.layout import builtin_layout_path, load_layout
 from pursuit_mj.recording.rrd_read import read_entities
 from pursuit_mj.stats import mean_interval, t_quantile_975, wilson_interval
 
@@ -227,6 +227,7 @@ def test_eval_cli_runs_a_trained_model_beside_the_heuristic(tmp_path, capsys):
         (["--set", "evader_speed=-1"], "evader_speed"),
         (["--policy", "heuristic", "--policy", "random", "--versus", "greedy"], "--versus 'greedy': not a policy of this table"),
         (["--layouts", "0", "1", "0"], "--layouts: 0 is given twice"),
+        (["--layouts", "0", str(builtin_layout_path(0))], "0_open.yaml is given twice (as 0 and"),
         (["--plots", "/dev/null/plots"], "--plots /dev/null/plots: cannot create the folder"),
         (["--csv", "same.txt", "--json", "same.txt"], "both name same.txt"),
     ],

@@ -86,6 +86,7 @@ def test_demo_prints_the_table_and_how_to_train(tiny_model, capsys):
 @pytest.mark.parametrize("args, message", [
     (["--layouts", "0", "7"], "--layouts: layout 7: no built-in layout"),
     (["--layouts", "0", "0"], "--layouts: 0 is given twice"),
+    (["--layouts", "0", "00"], "--layouts: 00 is given twice (as 0 and 00)"),
     (["--worlds", "0"], "--worlds: expected an integer >= 1"),
 ])
 def test_demo_refuses_bad_layouts_and_worlds_before_any_episode(tiny_model, capsys, args, message):

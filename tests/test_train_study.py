@@ -75,6 +75,8 @@ def test_a_train_override_one_arm_refuses_is_found_before_anything_runs(tmp_path
     assert not out.exists()  # no arm trained, no evaluation run, not even the folder made
     assert main(["study", "--budget-minutes", "30", "--out", str(out), "--layouts", "0", "9"]) == 2
     assert "layout 9" in capsys.readouterr().err and not out.exists()
+    assert main(["study", "--budget-minutes", "30", "--out", str(out), "--layouts", "1", "01"]) == 2
+    assert "--layouts: 01 is given twice" in capsys.readouterr().err and not out.exists()
 
 
 def test_an_interrupted_study_resumes_keeping_its_finished_arms(tmp_path, capsys, monkeypatch):
