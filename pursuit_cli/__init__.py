@@ -127,7 +127,9 @@ def main(argv: list[str] | None = None) -> int:
         with termination_as_interrupt():
             return int(args.func(args) or 0)
     except ValueError as exc:
-        print(f"pursuit-mj {args.command}: error: {exc}", file=sys.stderr)
+        action = next((getattr(args, d) for d in ("layout_command", "bench_target", "fly_action") if getattr(args, d, None)), None)
+        command = " ".join(filter(None, (args.command, action)))  # e.g. 'layout show', as argparse's own errors say
+        print(f"pursuit-mj {command}: error: {exc}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # output piped into `head` and the like
         sys.stderr.close()

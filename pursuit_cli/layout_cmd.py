@@ -292,7 +292,13 @@ def run_show(args) -> int:
     if out.suffix.lower() != ".png":
         raise ValueError(f"--out {out}: expected a .png file name")
     check_writable(out, "--out")
-    save_layout_png(layout, out, seed=None if args.no_random else args.seed, count=args.count)
+    try:
+        save_layout_png(layout, out, seed=None if args.no_random else args.seed, count=args.count)
+    except LayoutError as exc:
+        if args.count is None:
+            raise
+        found = str(exc).split(" (sizes")[0]  # the file's own advice does not apply to a count from the flag
+        raise LayoutError(f"--count {args.count}: {found}; draw fewer") from None
     print(f"wrote {out}")
     return 0
 

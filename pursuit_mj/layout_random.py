@@ -54,7 +54,7 @@ def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearan
         else:
             raise LayoutError(
                 f"{layout.source}: no room for random obstacle {k + 1} of {count} "
-                f"(sizes {list(spec.size)} m, clearance {clearance} m); lower random_obstacles"
+                f"(sizes {list(spec.size)} m, clearance {clearance} m); lower random_obstacles.count or .size"
             )
     return placed
 

@@ -256,6 +256,7 @@ def test_layout_new_default_polygon_and_seeded_random_obstacles_are_reproducible
         (["layout", "new", "{out}", "--radius", "1"], "--center/--radius: only used with --border circle"),
         (["layout", "show", "7"], "layout 7: no built-in layout with this index"),
         (["layout", "show", "0", "-o", "{out}"], "expected a .png file name"),
+        (["layout", "show", "0", "--count", "500", "-o", "{out}.png"], "layout show: error: --count 500: "),
         (["layout", "check", "missing.yaml"], "layout 'missing.yaml': no such file"),
         (["layout", "new", "{out}", "--width", "0.7", "--height", "3", "--episode-obstacles", "0"],
          "cannot reliably hold 3 pursuers 0.4 m apart"),  # the file would be refused by every command
