@@ -116,6 +116,7 @@ class VelocityController:
         self._k_xy = m * g.vel_xy
         self._k_z = (m * g.pos_z, m * g.vel_z, m * g.int_z, m * GRAVITY)
         self._min_fz = 0.2 * m * GRAVITY
+        self._max_fz = 4.0 * self.max_thrust  # N: the most vertical force all four rotors give, level
         self._tan_tilt = float(np.tan(g.max_tilt))
         self._att = -0.5 * np.asarray(g.att, dtype=np.float64)[:, None]  # the 1/2 of vee(P - P^T) / 2
         self._rate_inertia = (self.inertia * np.asarray(g.rate, dtype=np.float64))[:, None]
@@ -156,14 +157,21 @@ class VelocityController:
 
         # 1. velocity loop -> desired force (world), with the drag at the current velocity cancelled
         z_err = self.flight_height - pos[2]
-        zi = self._z_integral
-        zi += z_err * dt
+        zi = self._z_integral + z_err * dt
         np.minimum(np.maximum(zi, -0.2, out=zi), 0.2, out=zi)
         force = linear_drag(R, vel, -self.drag) if drag is None else -drag
         force[:2] += self._k_xy * (v_cmd - vel[:2])
         kp, kd, ki, weight = self._k_z
         fz = kp * z_err
         fz -= kd * vel[2]
+        # anti-windup: where the vertical force asked for is beyond what the rotors give (all of
+        # them at full thrust, or the floor on fz below) the integral keeps its value instead
+        # of growing further into the saturation, so a drone held down or pushed up does not
+        # overshoot by the integral it gathered meanwhile once released
+        asked = fz + ki * zi + weight + force[2]
+        held = ((asked > self._max_fz) & (zi > self._z_integral)) | ((asked < self._min_fz) & (zi < self._z_integral))
+        zi[held] = self._z_integral[held]
+        self._z_integral = zi
         fz += ki * zi
         fz += weight
         fz += force[2]

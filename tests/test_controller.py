@@ -163,6 +163,34 @@ def test_controller_treats_every_drone_independently(params):
     assert (together >= 0).all() and (together <= params["max_thrust"]).all()
 
 
+@pytest.mark.parametrize("held_at", [0.5, 1.5], ids=["held-down", "pushed-up"])
+def test_altitude_integral_does_not_wind_up_while_the_rotors_saturate(params, held_at):
+    """Held 0.5 m off its flight height for 5 s (all rotors at full thrust, or the thrust at its
+    floor), a drone released at its height at rest asks for its hover thrust, not the clamp of
+    an integral gathered meanwhile (0.2 m s x int_z x mass = 0.02 N, a slow 3 cm overshoot)."""
+    ctrl = VelocityController(params, 1.0)
+    level = np.array([[1.0], [0.0], [0.0], [0.0]])
+    still = (np.zeros((3, 1)), level, np.zeros((3, 1)), np.zeros((2, 1)))
+    held = np.array([[0.0], [0.0], [held_at]])
+    for _ in range(500):
+        thrusts = ctrl.compute(held, *still, 0.01)
+    saturated = params["max_thrust"] if held_at < 1.0 else 0.0
+    np.testing.assert_allclose(thrusts, saturated, atol=0.02)  # the rotors are at their limit
+    released = ctrl.compute(np.array([[0.0], [0.0], [1.0]]), *still, 0.01)
+    assert abs(released.sum() - params["mass"] * 9.81) < 1e-3
+
+
+def test_altitude_integral_still_removes_a_small_steady_offset(params):
+    """Unsaturated, the integral grows: 1 cm below for 5 s adds thrust beyond the P term."""
+    ctrl = VelocityController(params, 1.0)
+    still = (np.zeros((3, 1)), np.array([[1.0], [0.0], [0.0], [0.0]]), np.zeros((3, 1)), np.zeros((2, 1)))
+    first = ctrl.compute(np.array([[0.0], [0.0], [0.99]]), *still, 0.01).sum()
+    for _ in range(500):
+        last = ctrl.compute(np.array([[0.0], [0.0], [0.99]]), *still, 0.01).sum()
+    g = ControllerGains()
+    assert last - first > 0.9 * params["mass"] * g.int_z * 0.01 * 5.0
+
+
 def test_rotation_matrix_matches_mujoco(params):
     rng = np.random.default_rng(3)
     q = rng.normal(size=(4, 8))
