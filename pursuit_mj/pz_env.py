@@ -20,7 +20,10 @@ from .env import PursuitEnv
 class PursuitParallelEnv(ParallelEnv):
     metadata = {"name": "pursuit_mj_v0", "render_modes": []}
 
-    def __init__(self, config: TaskConfig | None = None, seed: int = 0):
+    def __init__(self, config: TaskConfig | None = None, seed: int = 0, render_mode: str | None = None):
+        if render_mode is not None:  # pettingzoo's convention: refuse a mode not in metadata["render_modes"]
+            raise ValueError(f"render_mode: {render_mode!r} is not supported, PursuitParallelEnv draws nothing "
+                             "(render_mode None); for pictures record `env.batched.snapshot()` (docs/rendering.md)")
         self.config = config or default_config()
         self._env = PursuitEnv(self.config, n_worlds=1, seed=seed, auto_reset=False)
         self.possible_agents = [f"pursuer_{i}" for i in range(self.config.n_pursuers)]

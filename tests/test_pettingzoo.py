@@ -68,3 +68,12 @@ def test_agent_names_and_call_order_are_checked():
         env.step({f"pursuer_{i}": np.zeros(2) for i in range(3)})
     with pytest.raises(ValueError, match="no agent 'evader_0'"):
         env.observation_space("evader_0")
+
+
+def test_render_mode_none_is_accepted_and_other_modes_are_refused_by_name():
+    config = default_config(fidelity="point", random_obstacles=0)
+    env = PursuitParallelEnv(config, render_mode=None)  # what generic tooling passes
+    assert env.render_mode is None and env.metadata["render_modes"] == []
+    for mode in ("rgb_array", "human"):
+        with pytest.raises(ValueError, match=f"render_mode: '{mode}' is not supported"):
+            PursuitParallelEnv(config, render_mode=mode)
