@@ -8,6 +8,7 @@ as a fraction of pursuer_speed. `state()` is the global state for centralised cr
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping
 
 import numpy as np
 from gymnasium import spaces
@@ -75,6 +76,8 @@ class PursuitParallelEnv(ParallelEnv):
             if not self._started:
                 raise ValueError("step() called before reset(): call reset() first")
             raise ValueError("step() called on a finished episode: call reset() first")
+        if not isinstance(actions, Mapping):
+            raise ValueError(f"actions: expected a dict {{agent: (vx, vy)}} for agents {self.agents}, got {type(actions).__name__}")
         missing = [a for a in self.agents if a not in actions]
         unknown = [a for a in actions if a not in self.agents]
         if missing or unknown:

@@ -77,3 +77,12 @@ def test_render_mode_none_is_accepted_and_other_modes_are_refused_by_name():
     for mode in ("rgb_array", "human"):
         with pytest.raises(ValueError, match=f"render_mode: '{mode}' is not supported"):
             PursuitParallelEnv(config, render_mode=mode)
+
+
+@pytest.mark.parametrize("actions", [np.zeros((3, 2)), [np.zeros(2)] * 3, None])
+def test_actions_that_are_not_a_dict_are_refused_clearly(actions):
+    env = PursuitParallelEnv(default_config(fidelity="point", random_obstacles=0))
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=f"actions: expected a dict .* got {type(actions).__name__}"):
+        env.step(actions)
+    assert env.batched.steps[0] == 0
