@@ -146,6 +146,8 @@ class BeliefEnv:
         self._features: np.ndarray | None = None
 
     def __getattr__(self, name):
+        if name == "env":  # not set yet (copy.copy builds the object without __init__): no endless recursion
+            raise AttributeError(name)
         return getattr(self.env, name)
 
     def _augment(self, obs: np.ndarray) -> np.ndarray:

@@ -1,5 +1,7 @@
 """Belief features (pursuit_mj/belief.py, train belief: true): memory appended to observations."""
 
+import copy
+
 import numpy as np
 import pytest
 import torch
@@ -206,3 +208,11 @@ def test_bad_observations_are_refused_with_what_was_wrong():
         belief.features(aug, belief_spec(spec))
     with pytest.raises(ValueError, match=r"expected observations \(worlds, 3, %d\)" % spec.dim):
         belief.features(aug, spec)
+
+
+def test_the_env_wrapper_can_be_copied_and_passes_unknown_names_to_the_env():
+    env = BeliefEnv(PursuitEnv(TASK, n_worlds=1, seed=0), Belief.from_config(TASK))
+    twin = copy.copy(env)  # was a RecursionError: __getattr__ looked for self.env before it was set
+    assert twin.env is env.env and twin.obs_dim == env.obs_dim and twin.n_worlds == 1
+    with pytest.raises(AttributeError, match="no_such_thing"):
+        env.no_such_thing
