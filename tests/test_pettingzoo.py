@@ -1,10 +1,12 @@
-"""PettingZoo's own conformance tests on the ParallelEnv, in both fidelities."""
+"""PettingZoo's own conformance tests on the ParallelEnv (and its AEC conversion), in both fidelities."""
 
 import numpy as np
 import pytest
-from pettingzoo.test import parallel_api_test, parallel_seed_test
+from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, seed_test, state_test
+from pettingzoo.utils.conversions import parallel_to_aec
 
 from pursuit_mj.config import default_config
+from pursuit_mj.heuristic import HeuristicTeam
 from pursuit_mj.pz_env import PursuitParallelEnv
 
 
@@ -18,6 +20,54 @@ def test_parallel_api(fidelity):
 def test_parallel_seed(fidelity):
     parallel_seed_test(lambda: PursuitParallelEnv(default_config(fidelity=fidelity, random_obstacles=2, max_steps=30)), num_cycles=40)
 
+
+
+@pytest.mark.filterwarnings("ignore:.*space value is .*infinity")  # the Boxes are unbounded on purpose
+@pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
+def test_the_aec_conversion_passes_the_aec_tests(fidelity):
+    config = default_config(fidelity=fidelity, random_obstacles=2, max_steps=30, n_pursuers=2, n_evaders=2)
+    api_test(parallel_to_aec(PursuitParallelEnv(config)), num_cycles=60)
+    seed_test(lambda: parallel_to_aec(PursuitParallelEnv(config)), num_cycles=30)
+    state_test(parallel_to_aec(PursuitParallelEnv(config)), PursuitParallelEnv(config), num_cycles=30)
+
+
+def _drive(env, policy):
+    """Plays one episode from reset(seed=0), checking every observation and state against the spaces;
+    returns the last step's (terminations, truncations, infos) and the agents alive before it."""
+    obs, _ = env.reset(seed=0)
+    while True:
+        for agent, o in obs.items():
+            assert o.dtype == np.float32 and env.observation_space(agent).contains(o)
+        assert env.state_space.contains(env.state())
+        if not env.agents:
+            return last, alive
+        alive = list(env.agents)
+        obs, _, terms, truncs, infos = env.step(policy(obs))
+        last = terms, truncs, infos
+        assert set(obs) == set(terms) == set(truncs) == set(infos) == set(alive)
+
+
+@pytest.mark.parametrize("outcome, config, policy", [
+    ("success", default_config(fidelity="point", n_pursuers=4, observability="full", random_obstacles=0), "heuristic"),
+    ("collision", default_config(fidelity="quadrotor", n_pursuers=2, n_evaders=2), (1.0, 0.0)),
+    ("timeout", default_config(fidelity="point", n_pursuers=1, n_evaders=3, max_steps=15), (0.0, 0.0)),
+])
+def test_every_ending_ends_every_agent_with_observations_in_their_space(outcome, config, policy):
+    env = PursuitParallelEnv(config)
+    if policy == "heuristic":
+        team = HeuristicTeam.from_config(config)
+        team.reset(1)
+        act = lambda obs: dict(zip(env.agents, team.act(np.stack(list(obs.values()))[None], env.obs_spec)[0]))
+    else:
+        act = lambda obs: {a: np.array(policy) for a in env.agents}
+    (terms, truncs, infos), alive = _drive(env, act)
+    assert alive == env.possible_agents and env.agents == []
+    assert all(terms[a] == (outcome != "timeout") and truncs[a] == (outcome == "timeout") for a in alive)
+    assert {i["outcome"] for i in infos.values()} == {outcome}
+    with pytest.raises(ValueError, match="finished episode"):
+        env.step({a: np.zeros(2) for a in alive})
+    env.close()
+    env.close()  # closing twice is harmless
 
 def test_action_dict_errors_name_the_agent():
     env = PursuitParallelEnv(default_config(fidelity="point", random_obstacles=0))
