@@ -113,6 +113,8 @@ class PursuitParallelEnv(ParallelEnv):
 
     def state(self) -> np.ndarray:
         """The global state (state_dim,) float32 of the one world (PursuitEnv.global_state)."""
+        if not self._started:
+            raise RuntimeError("state() called before reset(): call reset() first")
         return self._env.global_state()[0]
 
     def _as_dict(self, obs: np.ndarray) -> dict[str, np.ndarray]:

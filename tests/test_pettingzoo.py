@@ -116,6 +116,8 @@ def test_agent_names_and_call_order_are_checked():
     env = PursuitParallelEnv(default_config(fidelity="point", random_obstacles=0))
     with pytest.raises(ValueError, match="before reset"):
         env.step({f"pursuer_{i}": np.zeros(2) for i in range(3)})
+    with pytest.raises(RuntimeError, match="^state\\(\\) called before reset\\(\\)"):  # not the batched env's global_state()
+        env.state()
     with pytest.raises(ValueError, match="no agent 'evader_0'"):
         env.observation_space("evader_0")
 
