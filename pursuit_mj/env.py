@@ -241,7 +241,7 @@ class PursuitEnv:
             raise ValueError(f"reset_worlds world_ids: expected integer world indices, got {world_ids!r}")
         ids = raw.astype(np.int64)
         if ids.size and (ids.min() < 0 or ids.max() >= self.n_worlds or len(np.unique(ids)) != ids.size):
-            raise ValueError(f"reset_worlds world_ids: expected distinct indices in 0..{self.n_worlds - 1}, got {list(world_ids)}")
+            raise ValueError(f"reset_worlds world_ids: expected distinct indices in 0..{self.n_worlds - 1}, got {ids.tolist()}")
         explicit = None if seeds is None else check_seeds(seeds, len(ids), "reset_worlds seeds")
         self.episode[ids] += 1
         self._start_episodes(ids, explicit)

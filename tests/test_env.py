@@ -1,5 +1,7 @@
 """The batched environment: outcomes, auto-reset, determinism, bad input, both fidelities."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -182,8 +184,9 @@ def test_bad_episode_seeds_are_refused():
         env.reset_worlds([0], [-3])
     with pytest.raises(ValueError, match="reset seeds"):
         env.reset(seeds=[1.5, 2.0])
-    with pytest.raises(ValueError, match="world_ids"):
-        env.reset_worlds([2])
+    for ids, shown in (([2], "[2]"), (5, "[5]"), (np.int64(7), "[7]"), (np.array([1, 1]), "[1, 1]")):  # a scalar was a TypeError
+        with pytest.raises(ValueError, match=f"world_ids: expected distinct indices in 0..1, got {re.escape(shown)}$"):
+            env.reset_worlds(ids)
 
 
 def test_observe_as_gives_a_privileged_view_of_the_same_state_and_changes_nothing():
