@@ -3,6 +3,7 @@
 Agents are the pursuers `pursuer_0 ... pursuer_{N-1}`; evaders are part of the environment.
 Observations follow obs_spec.py; actions are desired world-frame velocities in [-1, 1]^2
 as a fraction of pursuer_speed. `state()` is the global state for centralised critics.
+With `render_mode="rgb_array"`, `render()` returns the frame `pursuit-mj render` would draw.
 """
 
 from __future__ import annotations
@@ -19,17 +20,24 @@ from .env import PursuitEnv
 
 
 class PursuitParallelEnv(ParallelEnv):
-    metadata = {"name": "pursuit_mj_v0", "render_modes": []}
+    metadata = {"name": "pursuit_mj_v0", "render_modes": ["rgb_array"]}
 
-    def __init__(self, config: TaskConfig | None = None, seed: int = 0, render_mode: str | None = None):
-        if render_mode is not None:  # pettingzoo's convention: refuse a mode not in metadata["render_modes"]
-            raise ValueError(f"render_mode: {render_mode!r} is not supported, PursuitParallelEnv draws nothing "
-                             "(render_mode None); for pictures record `env.batched.snapshot()` (docs/rendering.md)")
+    def __init__(self, config: TaskConfig | None = None, seed: int = 0, render_mode: str | None = None,
+                 render_settings=None):
+        """render_mode None (render() draws nothing) or 'rgb_array' (render() returns the current
+        frame (H, W, 3) uint8, top view with trails, caption and colour key); render_settings a
+        pursuit_mj.render.RenderSettings (size, camera, quality; default 640 x 480 top view)."""
+        if render_mode not in (None, "rgb_array"):  # pettingzoo's convention: only the modes of metadata
+            raise ValueError(f"render_mode: {render_mode!r} is not supported (supported: None, 'rgb_array')")
         self.config = config or default_config()
+        self.metadata = {**self.metadata, "render_fps": 1.0 / self.config.control_dt}  # one frame per decision step
         self._env = PursuitEnv(self.config, n_worlds=1, seed=seed, auto_reset=False)
         self.possible_agents = [f"pursuer_{i}" for i in range(self.config.n_pursuers)]
         self.agents: list[str] = []
-        self.render_mode = None
+        self.render_mode = render_mode
+        self._render_settings = render_settings
+        self._frames = None  # the FrameMaker of rgb_array mode, made at the first reset
+        self._episode = -1
         self._started = False
         self._obs_space = spaces.Box(-np.inf, np.inf, (self._env.obs_dim,), np.float32)
         self._act_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
@@ -47,11 +55,16 @@ class PursuitParallelEnv(ParallelEnv):
         if agent not in self.possible_agents:
             raise ValueError(f"{where}: no agent {agent!r} (agents: {self.possible_agents})")
 
-    def render(self) -> None:
-        """Draws nothing (render_mode None, as gymnasium does without a mode) and says where pictures come from."""
-        warnings.warn("PursuitParallelEnv draws nothing itself: record `env.batched.snapshot()` each step "
-                      "(pursuit_mj.render, docs/rendering.md) or use `pursuit-mj render`", stacklevel=2)
-        return None
+    def render(self) -> np.ndarray | None:
+        """The current frame (H, W, 3) uint8 in rgb_array mode; without a mode nothing is drawn
+        (as gymnasium does), with a warning that says how to get pictures."""
+        if self.render_mode is None:
+            warnings.warn("PursuitParallelEnv was made without render_mode and draws nothing: pass "
+                          "render_mode='rgb_array', or use `pursuit-mj render`", stacklevel=2)
+            return None
+        if self._frames is None:
+            raise RuntimeError("render() called before reset(): call reset() first")
+        return self._frames.draw(self._env.snapshot(0), self._episode)
 
     @property
     def obs_spec(self):
@@ -68,7 +81,10 @@ class PursuitParallelEnv(ParallelEnv):
         own API test passes some); the task is set by the config."""
         obs = self._env.reset(seed=seed)
         self._started = True
+        self._episode += 1
         self.agents = list(self.possible_agents)
+        if self.render_mode == "rgb_array":
+            self._start_frames()
         return self._as_dict(obs[0]), {a: {} for a in self.agents}
 
     def step(self, actions: dict):
@@ -95,6 +111,8 @@ class PursuitParallelEnv(ParallelEnv):
         }
         if term[0] or trunc[0]:
             self.agents = []
+        if self._frames is not None:
+            self._frames.push(self._env.snapshot(0))
         return observations, rewards, terms, truncs, infos
 
     @staticmethod
@@ -120,5 +138,19 @@ class PursuitParallelEnv(ParallelEnv):
     def _as_dict(self, obs: np.ndarray) -> dict[str, np.ndarray]:
         return {a: obs[i] for i, a in enumerate(self.possible_agents)}
 
+    def _start_frames(self) -> None:
+        """Make the renderer (once: an OpenGL context) and start this episode's trails."""
+        if self._frames is None:
+            from .render.episodes import FrameMaker
+            from .render.renderer import RenderSettings
+
+            settings = self._render_settings or RenderSettings()
+            self._frames = FrameMaker(self.config, self._env.world_layouts[0], settings, "pursuit_mj_v0", trail_length=30)
+        self._frames.start_episode()
+        self._frames.push(self._env.snapshot(0))
+
     def close(self) -> None:
-        pass
+        """Free the renderer, if one was made; harmless to call again."""
+        if self._frames is not None:
+            self._frames.close()
+            self._frames = None

@@ -122,13 +122,33 @@ def test_agent_names_and_call_order_are_checked():
         env.observation_space("evader_0")
 
 
-def test_render_mode_none_is_accepted_and_other_modes_are_refused_by_name():
+def test_render_mode_none_draws_nothing_and_unknown_modes_are_refused_by_name():
     config = default_config(fidelity="point", random_obstacles=0)
     env = PursuitParallelEnv(config, render_mode=None)  # what generic tooling passes
-    assert env.render_mode is None and env.metadata["render_modes"] == []
-    for mode in ("rgb_array", "human"):
-        with pytest.raises(ValueError, match=f"render_mode: '{mode}' is not supported"):
-            PursuitParallelEnv(config, render_mode=mode)
+    env.reset(seed=0)
+    with pytest.warns(UserWarning, match="render_mode='rgb_array'"):
+        assert env.render() is None
+    with pytest.raises(ValueError, match="render_mode: 'human' is not supported"):
+        PursuitParallelEnv(config, render_mode="human")
+
+
+def test_rgb_array_mode_renders_each_step_as_the_render_command_draws_it():
+    from pursuit_mj.render.renderer import RenderSettings
+
+    config = default_config(fidelity="point", random_obstacles=0)
+    env = PursuitParallelEnv(config, render_mode="rgb_array", render_settings=RenderSettings(240, 180))
+    assert env.metadata["render_fps"] == pytest.approx(1.0 / config.control_dt)
+    with pytest.raises(RuntimeError, match="before reset"):
+        env.render()
+    obs, _ = env.reset(seed=0)
+    first = env.render()
+    assert first.shape == (180, 240, 3) and first.dtype == np.uint8 and first.std() > 0
+    for _ in range(5):
+        env.step({a: np.array([1.0, 0.0]) for a in env.agents})
+    moved = env.render()
+    assert moved.shape == first.shape and np.abs(moved.astype(int) - first).sum() > 0  # the drones flew east
+    env.close()
+    env.close()  # harmless twice
 
 
 @pytest.mark.parametrize("actions", [np.zeros((3, 2)), [np.zeros(2)] * 3, None])
