@@ -1,0 +1,137 @@
+"""Every `pursuit-mj ...` command the docs show still works with today's command line.
+
+Commands are taken from README.md, pretrained/README.md, docs/*.md, the comments of
+configs/**/*.yaml, the examples in every subcommand's --help, and the example lines of the
+code (module docstrings, the next steps `pursuit-mj demo` prints). Each is parsed by the real
+parser (a renamed or removed flag fails here), and its config (the task's, or the train
+config's for `train`) is resolved, so a renamed config key in `--set` fails too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+
+from pursuit_cli import build_parser
+from pursuit_cli.common import task_config_from_args
+from pursuit_cli.train_cmd import _flags, _flags_typed
+from train.config import load_train_config
+
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = ["README.md", "pretrained/README.md", *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "docs").glob("*.md"))]
+#: subcommands whose task flags resolve through common.task_config_from_args
+TASK_COMMANDS = {"config", "simulate", "eval", "study", "render", "demo"}
+#: written in place of a placeholder word (MODEL, DIR, B ...) so that the flags around it still parse
+PLACEHOLDER = re.compile(r"^[A-Z][A-Z_]*$")
+
+
+def _from_markdown(text: str) -> list[str]:
+    """Commands in code blocks (one a line, `\\` continuations joined, comments cut) and in inline code."""
+    found = []
+    for block in re.findall(r"```[a-z]*\n(.*?)```", text, re.S):
+        for line in block.replace("\\\n", " ").splitlines():
+            line = line.split(" #")[0].strip()
+            if line.startswith("pursuit-mj "):
+                found.append(line)
+    prose = re.sub(r"```.*?```", "", text, flags=re.S)
+    found += [" ".join(span.split()) for span in re.findall(r"`([^`]+)`", prose) if span.startswith("pursuit-mj ")]
+    return found
+
+
+def _from_yaml_comments(text: str) -> list[str]:
+    return [m.group(1).split(" #")[0].strip() for m in re.finditer(r"#\s*(pursuit-mj [^\n]*)", text)]
+
+
+def _from_code(text: str) -> list[str]:
+    return [m.group(1).split(" #")[0].strip() for m in re.finditer(r"^\s*(pursuit-mj [a-z][^\n]*)", text, re.M)]
+
+
+def _from_help(parser: argparse.ArgumentParser) -> list[str]:
+    found = []
+    for text in (parser.description or "", parser.epilog or ""):
+        found += [m.group(1).strip() for m in re.finditer(r"^\s*(pursuit-mj [^\n]*)", text, re.M)]
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                found += _from_help(sub)
+    return found
+
+
+def _alternatives(command: str) -> list[str]:
+    """`pursuit-mj bench physics | env | render` as the three commands it stands for."""
+    first, *rest = command.split(" | ")
+    stem = first.rsplit(" ", 1)[0]
+    return [first, *(f"{stem} {alt}" for alt in rest)]
+
+
+def _documented() -> list[tuple[str, str]]:
+    found = [(name, cmd) for name in DOCS for cmd in _from_markdown((ROOT / name).read_text())]
+    for path in sorted((ROOT / "configs").rglob("*.yaml")):
+        found += [(str(path.relative_to(ROOT)), cmd) for cmd in _from_yaml_comments(path.read_text())]
+    found += [("--help", cmd) for cmd in _from_help(PARSER)]
+    for package in ("pursuit_cli", "pursuit_mj", "train"):
+        for path in sorted((ROOT / package).rglob("*.py")):
+            found += [(str(path.relative_to(ROOT)), cmd) for cmd in _from_code(path.read_text())]
+    return [(where, one) for where, cmd in found for one in _alternatives(cmd)]
+
+
+def _options(parser: argparse.ArgumentParser) -> set[str]:
+    """Every flag spelled out in full, of the parser and its subcommands (argparse also takes prefixes)."""
+    found = set()
+    for action in parser._actions:
+        found |= set(action.option_strings)
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                found |= _options(sub)
+    return found
+
+
+PARSER = build_parser()
+OPTIONS = _options(PARSER)
+COMMANDS = _documented()
+
+
+def test_the_docs_show_commands_of_every_kind():
+    shown = {shlex.split(cmd)[1] for _, cmd in COMMANDS}
+    assert {"train", "eval", "render", "fly", "layout", "plot", "study", "demo", "bench"} <= shown
+    assert len(COMMANDS) > 80
+
+
+@pytest.mark.parametrize("where, command", COMMANDS, ids=[f"{w}: {c[:70]}" for w, c in COMMANDS])
+def test_documented_command_parses_and_resolves(where, command, capsys, monkeypatch):
+    monkeypatch.chdir(ROOT)  # the docs' relative paths are from the repository root
+    if "<" in command:
+        pytest.skip("a pattern (<subcommand>), not a command")
+    words = [w.strip("[]") for w in shlex.split(command)[1:] if w != "..."]
+    placeholders = any(PLACEHOLDER.match(w) for w in words)
+    argv = ["1" if PLACEHOLDER.match(w) else w for w in words]
+    if _names_subcommands(argv):
+        return  # a mention in prose (`pursuit-mj layout show`)
+    try:
+        args = PARSER.parse_args(argv)
+    except SystemExit as exc:
+        assert exc.code == 0, f"{where}: {command!r} does not parse: {capsys.readouterr().err.strip()}"
+        return  # --help
+    spelled = {w.split("=")[0] for w in argv if w.startswith("-") and not w[1:2].isdigit()}
+    assert spelled <= OPTIONS, f"{where}: {command!r}: {sorted(spelled - OPTIONS)} only abbreviate a flag"
+    if placeholders:
+        return
+    if args.command == "train" and not (args.export or args.resume):
+        load_train_config(args.config, args.overrides, _flags(args), _flags_typed(args))  # as -sc does, without torch
+    elif args.command in TASK_COMMANDS:
+        task_config_from_args(args)  # a ConfigError names the bad key
+
+
+def _names_subcommands(words: list[str]) -> bool:
+    """True when every word is a subcommand (or a subcommand's action) of the one before it."""
+    parser = PARSER
+    for word in words:
+        subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        if not subs or word not in subs[0].choices:
+            return False
+        parser = subs[0].choices[word]
+    return True
