@@ -135,3 +135,21 @@ def _names_subcommands(words: list[str]) -> bool:
             return False
         parser = subs[0].choices[word]
     return True
+
+
+def test_the_regime_table_of_docs_training_md_lists_every_train_preset_with_its_settings():
+    from pursuit_mj.config import preset_names
+
+    text = (ROOT / "docs/training.md").read_text()
+    table = text.split("## Regimes", 1)[1].split("\n\n", 1)[0]
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in table.splitlines() if line.startswith("| ") and
+            ".yaml" in line]
+    assert sorted(r[0].removesuffix(".yaml") for r in rows) == preset_names("train")
+    for file, algo, observability, gamma, clip, envs, speeds in rows:
+        cfg = load_train_config([ROOT / "configs/train" / file])
+        assert algo.split(",")[0].split(" ")[0] == cfg.algo, file
+        assert observability.split(" ")[0].strip(",") == cfg.task.observability, file
+        assert float(gamma) == cfg.ppo.gamma, file
+        assert (clip == "-") if cfg.algo == "dagger" else (float(clip) == cfg.ppo.clip), file
+        assert int(envs) == cfg.n_envs, file
+        assert [float(v) for v in speeds.split("/")] == [cfg.task.pursuer_speed, cfg.task.evader_speed], file
