@@ -153,3 +153,19 @@ def test_the_regime_table_of_docs_training_md_lists_every_train_preset_with_its_
         assert (clip == "-") if cfg.algo == "dagger" else (float(clip) == cfg.ppo.clip), file
         assert int(envs) == cfg.n_envs, file
         assert [float(v) for v in speeds.split("/")] == [cfg.task.pursuer_speed, cfg.task.evader_speed], file
+
+
+def test_docs_training_md_names_every_pursuit_mj_module_that_train_imports():
+    import ast
+
+    used = set()
+    for path in (ROOT / "train").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "pursuit_mj":
+                parts = node.module.split(".")
+                used |= {parts[1]} if len(parts) > 1 else {alias.name for alias in node.names}
+            elif isinstance(node, ast.Import):
+                used |= {a.name.split(".")[1] for a in node.names if a.name.startswith("pursuit_mj.")}
+    intro = (ROOT / "docs/training.md").read_text().split("## Commands", 1)[0]
+    named = set(re.findall(r"`(\w+)`", intro))
+    assert used <= named, f"docs/training.md does not name {sorted(used - named)} among the modules train/ uses"
