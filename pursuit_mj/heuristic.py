@@ -43,7 +43,7 @@ _TINY = 1e-9
 class HeuristicParams:
     """Tuning of the team. Distances in m, times in s, gains dimensionless unless stated.
 
-    safety_buffer .. mate_memory tune the team's SafetyShield (see ShieldParams, same defaults).
+    safety_buffer .. noise_margin tune the team's SafetyShield (see ShieldParams, same defaults).
     """
 
     lead_time_max: float = 1.5  # longest prediction horizon for a visible target (s)
