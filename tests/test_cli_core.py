@@ -137,3 +137,11 @@ print('\\n'.join(bad) or 'ok')
 """
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert out.stdout.strip() == "ok", out.stdout + out.stderr
+
+
+def test_python_dash_m_pursuit_cli_is_the_pursuit_mj_command():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "pursuit_cli", "layout", "check", "7"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and out.stderr.startswith("pursuit-mj layout check: error: layout 7"), out.stderr
