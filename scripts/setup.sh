@@ -11,8 +11,9 @@ fi
 stamp=.venv/.pursuit-mj-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   .venv/bin/python -m pip install --quiet --upgrade pip
-  # torch==2.13.0 is pinned in pyproject.toml; installing it first keeps pip on the CPU build.
-  .venv/bin/python -m pip install --quiet "torch==2.13.0"
+  # torch==2.13.0 is pinned in pyproject.toml and installed first, from TORCH_INDEX_URL if set:
+  # plain PyPI serves Linux the CUDA build (GBs); https://download.pytorch.org/whl/cpu the CPU one.
+  .venv/bin/python -m pip install --quiet ${TORCH_INDEX_URL:+--index-url "$TORCH_INDEX_URL"} "torch==2.13.0"
   .venv/bin/python -m pip install --quiet -e ".[test]"
   touch "$stamp"
 fi
