@@ -79,7 +79,8 @@ def _text(path: Path, what: str) -> str:
 
 def read_training_log(path: str | Path) -> list[dict[str, float]]:
     """Flattened rows of a JSONL log. A malformed line is a ValueError naming file and line,
-    except a cut-off last line (a run killed mid-write), which is skipped."""
+    except a cut-off last line (a run killed mid-write), which is skipped. Rows are those of
+    the latest session: see `latest_session`."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"training log {path}: file not found")
@@ -99,7 +100,19 @@ def read_training_log(path: str | Path) -> list[dict[str, float]]:
         rows.append(flatten(obj))
     if not rows:
         raise ValueError(f"training log {path}: no rows (a metrics.jsonl of pursuit-mj train has one JSON object per line)")
-    return rows
+    return latest_session(rows)
+
+
+def latest_session(rows: Sequence[dict[str, float]]) -> list[dict[str, float]]:
+    """`rows` where an 'update' that is not past the previous one replaces the rows from that
+    update on: a run killed before its first checkpoint and started again in the same folder
+    logs its updates anew after the old ones, and a curve must not run back over itself."""
+    out: list[dict[str, float]] = []
+    for r in rows:
+        while "update" in r and out and out[-1].get("update", -math.inf) >= r["update"]:
+            out.pop()
+        out.append(r)
+    return out
 
 
 def x_key(runs: Mapping[str, Sequence[Mapping[str, float]]], requested: str | None = None) -> str:

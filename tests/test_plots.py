@@ -55,6 +55,20 @@ def test_training_log_is_flattened_and_a_cut_last_line_is_skipped(tmp_path):
     assert "loss.value" not in rows[2] and rows[2]["loss.policy"] == -0.01
 
 
+def test_a_run_started_again_in_its_folder_is_plotted_from_its_latest_rows(tmp_path):
+    """Killed before its first checkpoint and started again: the log holds updates 1-5, then 1-3
+    anew. The curve shows the new 1-3 and no x twice (it would run back over itself)."""
+    old, new = _log(tmp_path / "old.jsonl", n=5), _log(tmp_path / "new.jsonl", n=3, scale=0.5)
+    log = tmp_path / "m.jsonl"
+    log.write_text(old.read_text() + new.read_text())
+    rows = read_training_log(log)
+    assert [r["update"] for r in rows] == [1, 2, 3]
+    assert [r["train.success"] for r in rows] == pytest.approx([0.5 / 3, 1 / 3, 0.5])
+    # a resume whose log kept updates 6-7 past its checkpoint at 5: 6 and 7 logged again replace them
+    log.write_text(_log(tmp_path / "a.jsonl", n=7).read_text() + "\n".join(_log(tmp_path / "b.jsonl", n=8).read_text().splitlines()[5:]))
+    assert [r["update"] for r in read_training_log(log)] == list(range(1, 9))
+
+
 def test_malformed_line_is_named(tmp_path):
     p = tmp_path / "bad.jsonl"
     p.write_text('{"update": 1}\nnot json\n{"update": 2}\n')
