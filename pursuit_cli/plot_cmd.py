@@ -1,6 +1,6 @@
 """`pursuit-mj plot`: training curves and evaluation bar charts as PNG.
 
-    pursuit-mj plot --log runs/classic/metrics.jsonl --log runs/mappo/metrics.jsonl -o plots/
+    pursuit-mj plot --log runs/classic/metrics.jsonl --log runs/mappo -o plots/
     pursuit-mj plot --log classic=runs/classic/metrics.jsonl --metric validation.success -o plots/
     pursuit-mj plot --eval results/table.json -o plots/
 """
@@ -21,7 +21,7 @@ def register(sub) -> None:
                     "policy and layout with 95 % confidence intervals.",
     )
     p.add_argument("--log", action="append", default=[], metavar="[LABEL=]FILE",
-                   help="training log (JSONL, e.g. runs/NAME/metrics.jsonl); repeatable, one line per run")
+                   help="training log (JSONL, e.g. runs/NAME/metrics.jsonl) or a run folder (runs/NAME); repeatable, one line per run")
     p.add_argument("--eval", action="append", default=[], metavar="FILE",
                    help="evaluation JSON written by `pursuit-mj eval --json` (repeatable; rows are combined)")
     p.add_argument("--metric", action="append", default=[], metavar="KEY",
@@ -37,6 +37,8 @@ def _label_and_path(text: str) -> tuple[str, Path]:
     if sep and label and not Path(text).exists():
         return label, Path(path)
     p = Path(text)
+    if p.is_dir():  # a run folder: named as its run
+        return p.resolve().name, p
     return (p.parent.name if p.name == "metrics.jsonl" and p.parent.name else p.stem), p
 
 

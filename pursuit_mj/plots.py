@@ -78,10 +78,15 @@ def _text(path: Path, what: str) -> str:
 
 
 def read_training_log(path: str | Path) -> list[dict[str, float]]:
-    """Flattened rows of a JSONL log. A malformed line is a ValueError naming file and line,
+    """Flattened rows of a JSONL log (or of a run folder's metrics.jsonl). A malformed line is a ValueError naming file and line,
     except a cut-off last line (a run killed mid-write), which is skipped. Rows are those of
     the latest session: see `latest_session`."""
     path = Path(path)
+    if path.is_dir():  # a run folder
+        if not (path / "metrics.jsonl").is_file():
+            raise ValueError(f"training log {path}: a folder without metrics.jsonl (give a run folder of pursuit-mj train "
+                             "or a metrics file)")
+        path = path / "metrics.jsonl"
     if not path.is_file():
         raise ValueError(f"training log {path}: file not found")
     lines = _text(path, "training log").splitlines()
@@ -201,6 +206,8 @@ def plot_training(runs: Mapping[str, Sequence[Mapping[str, float]]], folder: str
 def read_eval_rows(path: str | Path) -> list[dict[str, Any]]:
     """Rows of an evaluation JSON ({"rows": [...]} or a list); ValueError naming what is missing."""
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"evaluation results {path}: a folder, expected the JSON file of pursuit-mj eval --json")
     if not path.is_file():
         raise ValueError(f"evaluation results {path}: file not found")
     try:

@@ -163,6 +163,21 @@ def test_a_layout_s_bars_are_centred_on_it_and_a_pair_given_twice_is_refused(tmp
         plot_eval(rows + rows[:1], tmp_path / "again")
 
 
+def test_plot_command_takes_a_run_folder_and_names_a_folder_it_cannot_use(tmp_path, capsys):
+    run = tmp_path / "runs" / "classic"
+    run.mkdir(parents=True)
+    _log(run / "metrics.jsonl")
+    assert main(["plot", "--log", str(run), "--metric", "train.success", "-o", str(tmp_path / "out")]) == 0
+    assert (tmp_path / "out" / "curve_train_success.png").is_file()
+    from pursuit_cli.plot_cmd import _label_and_path
+
+    assert _label_and_path(str(run) + "/") == ("classic", run)
+    for flag, message in (("--log", "a folder without metrics.jsonl"), ("--eval", "a folder, expected the JSON file")):
+        assert main(["plot", flag, str(tmp_path / "runs"), "-o", str(tmp_path / "out")]) == 2
+        err = capsys.readouterr().err
+        assert f"{tmp_path / 'runs'}: {message}" in err and len(err.strip().splitlines()) == 1
+
+
 def test_plot_command_tells_apart_a_policy_that_two_files_hold(tmp_path, capsys):
     one, two = _eval_json(tmp_path / "one.json"), _eval_json(tmp_path / "two.json", policies=("heuristic", "mappo"))
     assert main(["plot", "--eval", str(one), "--eval", str(two), "-o", str(tmp_path / "out")]) == 0
