@@ -35,6 +35,9 @@ EVAL_METRICS = (
      "mean_steps_success_ci_hi"),
 )
 
+#: the keys of an evaluation row that hold numbers (or null)
+NUMBER_KEYS = ("episodes",) + tuple(k for m in EVAL_METRICS for k in m[2:])
+
 
 def _plt():
     import matplotlib
@@ -220,6 +223,13 @@ def read_eval_rows(path: str | Path) -> list[dict[str, Any]]:
     for i, r in enumerate(rows):
         if not isinstance(r, Mapping) or "policy" not in r or "layout" not in r:
             raise ValueError(f"evaluation results {path}: row {i} lacks 'policy' or 'layout'")
+        for key in NUMBER_KEYS:
+            v = r.get(key)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
+                raise ValueError(f"evaluation results {path}: row {i} ({r['policy']} on layout {r['layout']}): "
+                                 f"{key} is {v!r}, expected a number or null")
+    if not any(r.get(m[2]) is not None for r in rows for m in EVAL_METRICS):
+        raise ValueError(f"evaluation results {path}: no row has any of {', '.join(m[2] for m in EVAL_METRICS)}")
     return [dict(r) for r in rows]
 
 

@@ -115,6 +115,16 @@ def test_eval_json_errors_are_named(tmp_path):
     p.write_text("{")
     with pytest.raises(ValueError, match="e.json: not JSON"):
         read_eval_rows(p)
+    for value, shown in (("abc", "'abc'"), (True, "True"), ([1], r"\[1\]")):
+        p.write_text(json.dumps({"rows": [{"policy": "a", "layout": "0", "success_pct": 50}, {"policy": "b", "layout": "0", "mean_steps": value}]}))
+        with pytest.raises(ValueError, match=rf"e.json: row 1 \(b on layout 0\): mean_steps is {shown}, expected a number or null"):
+            read_eval_rows(p)
+    p.write_text(json.dumps([{"policy": "a", "layout": "0", "episodes": "many", "success_pct": 50}]))
+    with pytest.raises(ValueError, match="row 0 .*episodes is 'many'"):
+        read_eval_rows(p)
+    p.write_text(json.dumps([{"policy": "a", "layout": "0", "score": 3}]))  # some other table
+    with pytest.raises(ValueError, match="e.json: no row has any of success_pct"):
+        read_eval_rows(p)
 
 
 def test_a_binary_file_given_as_a_log_or_results_is_named(tmp_path):
