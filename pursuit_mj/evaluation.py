@@ -277,10 +277,48 @@ def write_json(rows: Sequence[Row], path: str | Path, config: TaskConfig | None 
     return atomic_write_text(path, json.dumps(data, indent=2) + "\n")
 
 
-def read_csv(path: str | Path) -> list[dict[str, str]]:
-    """The flat rows of a CSV written by `write_csv` (values as strings)."""
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
+_TEXT_FIELDS = ("policy", "layout", "fidelity")
+_INT_FIELDS = ("episodes", "seed") + tuple(f"{o}_count" for o in OUTCOMES)
+
+
+def read_csv(path: str | Path) -> list[dict[str, object]]:
+    """The flat rows of a CSV written by `write_csv`, typed as `Row.flat` has them (read back
+    equals written; an empty cell is None); ValueError naming the file and line of a bad one."""
+    path = Path(path)
+    rows: list[dict[str, object]] = []
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            reader = csv.reader(f)
+            head = next(reader, [])
+            if "policy" not in head or "layout" not in head:
+                raise ValueError(f"evaluation CSV {path}: line 1 is not a header with policy and layout columns "
+                                 f"(as pursuit-mj eval --csv writes)")
+            for cells in reader:
+                if not cells:
+                    continue
+                if len(cells) != len(head):
+                    raise ValueError(f"evaluation CSV {path}, line {reader.line_num}: {len(cells)} values under "
+                                     f"{len(head)} columns (a file cut short?)")
+                rows.append({k: _cell(k, v, f"evaluation CSV {path}, line {reader.line_num}") for k, v in zip(head, cells)})
+    except UnicodeDecodeError:
+        raise ValueError(f"evaluation CSV {path}: not a text file") from None
+    except csv.Error as exc:
+        raise ValueError(f"evaluation CSV {path}: not CSV ({exc})") from None
+    except OSError as exc:
+        raise ValueError(f"evaluation CSV {path}: cannot be read ({exc.strerror})") from None
+    return rows
+
+
+def _cell(key: str, text: str, where: str) -> object:
+    """A CSV cell as `Row.flat` holds it: text columns as they are, numbers typed, '' None."""
+    if key in _TEXT_FIELDS or key not in FIELDS:
+        return text
+    if text == "":
+        return None
+    try:
+        return int(text) if key in _INT_FIELDS else float(text)
+    except ValueError:
+        raise ValueError(f"{where}: {key} is {text!r}, expected {'an integer' if key in _INT_FIELDS else 'a number'}") from None
 
 
 def plot_rows(rows: Sequence[Row], folder: str | Path) -> list[Path]:

@@ -10,7 +10,7 @@ import pytest
 from pursuit_cli import main
 from pursuit_mj.config import default_config, load_task_config
 from pursuit_mj.env import EpisodeRecord
-from pursuit_mj.evaluation import FIELDS, evaluate, format_table, read_csv, run_episodes, summarise
+from pursuit_mj.evaluation import FIELDS, evaluate, format_table, read_csv, run_episodes, summarise, write_csv, write_json
 from pursuit_mj.heuristic import HeuristicTeam
 from pursuit_mj.layout import builtin_layout_path, load_layout
 from pursuit_mj.recording.rrd_read import read_entities
@@ -85,6 +85,34 @@ def test_summarise_counts_outcomes_and_steps():
     flat = row.flat()
     assert tuple(flat) == FIELDS
     assert flat["success_pct"] == 50.0 and flat["collision_count"] == 1
+
+
+def test_csv_and_json_read_back_equal_what_was_written(tmp_path):
+    """Names a CSV must quote or could mistake for numbers, no success (no steps-if-success mean),
+    one episode (no interval), an all-success row (a 100 % rate)."""
+    rows = [summarise('net, "v2"', "my layouts/a b.yaml", "point", 7, [record("success", 12), record("timeout", 40)], 40),
+            summarise("007", "0", "point", 7, [record("collision", 3)], 40),
+            summarise("heuristic", "1", "quadrotor", 2**62, [record("success", 31)] * 3 + [record("success", 17)], 40)]
+    assert rows[1].steps_success.mean is None and rows[1].steps.lo is None
+    written = [r.flat() for r in rows]
+    assert read_csv(write_csv(rows, tmp_path / "t.csv")) == written
+    back = json.loads(write_json(rows, tmp_path / "t.json").read_text())["rows"]
+    assert [{k: v for k, v in r.items() if k != "per_episode"} for r in back] == written
+
+
+def test_a_foreign_or_cut_csv_is_named(tmp_path):
+    p = tmp_path / "t.csv"
+    write_csv([summarise("a", "0", "point", 1, [record("success", 5)], 40)], p)
+    text = p.read_text()
+    p.write_text(text[: len(text) - 20])  # cut mid-line
+    with pytest.raises(ValueError, match=r"t.csv, line 2: \d+ values under 23 columns \(a file cut short\?\)"):
+        read_csv(p)
+    p.write_text(text.replace(",point,1,", ",point,one,"))
+    with pytest.raises(ValueError, match=r"t.csv, line 2: episodes is 'one', expected an integer"):
+        read_csv(p)
+    p.write_text("name,score\nx,1\n")
+    with pytest.raises(ValueError, match="t.csv: line 1 is not a header with policy and layout"):
+        read_csv(p)
 
 
 def quick_config(**changes):
@@ -174,7 +202,7 @@ def test_eval_cli_writes_csv_json_and_plots(tmp_path, capsys):
     assert [(r["policy"], r["layout"]) for r in rows] == [("heuristic", "0"), ("heuristic", layout_file), ("random", "0"), ("random", layout_file)]
     data = json.loads((tmp_path / "table.json").read_text())
     assert data["config"]["fidelity"] == "point" and data["config"]["max_steps"] == 20
-    assert [str(r["success_pct"]) for r in data["rows"]] == [r["success_pct"] for r in rows]
+    assert [{k: v for k, v in r.items() if k != "per_episode"} for r in data["rows"]] == rows  # the same table
     assert "paired with heuristic on the same episodes" in printed  # heuristic and others: paired by default
     assert [(p["policy"], p["versus"], p["layout"]) for p in data["paired"]] == [("random", "heuristic", "0"), ("random", "heuristic", layout_file)]
     for r in data["rows"]:
