@@ -2,7 +2,7 @@
 
     pursuit-mj plot --log runs/classic/metrics.jsonl --log runs/mappo -o plots/
     pursuit-mj plot --log classic=runs/classic/metrics.jsonl --metric validation.success -o plots/
-    pursuit-mj plot --eval results/table.json -o plots/
+    pursuit-mj plot --eval results/table.json -o plots/     (or results/table.csv)
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from pursuit_mj.io_utils import check_writable_folder
 def register(sub) -> None:
     p = sub.add_parser(
         "plot",
-        help="training curves (JSONL logs) and evaluation bar charts (eval JSON) as PNG",
+        help="training curves (JSONL logs) and evaluation bar charts (eval JSON or CSV) as PNG",
         description="Training logs: one chart per metric with a line per run (success, collision, mean steps "
                     "and reward terms by default). Evaluation results: one bar chart per metric, a bar per "
                     "policy and layout with 95 % confidence intervals.",
@@ -23,7 +23,7 @@ def register(sub) -> None:
     p.add_argument("--log", action="append", default=[], metavar="[LABEL=]FILE",
                    help="training log (JSONL, e.g. runs/NAME/metrics.jsonl) or a run folder (runs/NAME); repeatable, one line per run")
     p.add_argument("--eval", action="append", default=[], metavar="FILE",
-                   help="evaluation JSON written by `pursuit-mj eval --json` (repeatable; rows are combined)")
+                   help="evaluation JSON or CSV written by `pursuit-mj eval --json/--csv` (repeatable; rows are combined)")
     p.add_argument("--metric", action="append", default=[], metavar="KEY",
                    help="training metric to plot: a dotted key or its last part, e.g. validation.success or success "
                         "(repeatable; default: success, collision, mean steps and reward terms)")

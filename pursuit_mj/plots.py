@@ -207,17 +207,23 @@ def plot_training(runs: Mapping[str, Sequence[Mapping[str, float]]], folder: str
 
 
 def read_eval_rows(path: str | Path) -> list[dict[str, Any]]:
-    """Rows of an evaluation JSON ({"rows": [...]} or a list); ValueError naming what is missing."""
+    """Rows of an evaluation JSON ({"rows": [...]} or a list) or CSV (*.csv, of `pursuit-mj eval
+    --csv`); ValueError naming what is missing."""
     path = Path(path)
     if path.is_dir():
-        raise ValueError(f"evaluation results {path}: a folder, expected the JSON file of pursuit-mj eval --json")
+        raise ValueError(f"evaluation results {path}: a folder, expected the JSON or CSV file of pursuit-mj eval")
     if not path.is_file():
         raise ValueError(f"evaluation results {path}: file not found")
-    try:
-        data = json.loads(_text(path, "evaluation results"))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"evaluation results {path}: not JSON ({exc.msg}, line {exc.lineno})") from None
-    rows = data.get("rows") if isinstance(data, Mapping) else data
+    if path.suffix.lower() == ".csv":  # the CSV of pursuit-mj eval --csv
+        from .evaluation import read_csv
+
+        rows: Any = read_csv(path)
+    else:
+        try:
+            data = json.loads(_text(path, "evaluation results"))
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"evaluation results {path}: not JSON ({exc.msg}, line {exc.lineno})") from None
+        rows = data.get("rows") if isinstance(data, Mapping) else data
     if not isinstance(rows, list) or not rows:
         raise ValueError(f"evaluation results {path}: expected a non-empty list of rows (or {{\"rows\": [...]}})")
     for i, r in enumerate(rows):

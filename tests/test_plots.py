@@ -182,10 +182,29 @@ def test_plot_command_takes_a_run_folder_and_names_a_folder_it_cannot_use(tmp_pa
     from pursuit_cli.plot_cmd import _label_and_path
 
     assert _label_and_path(str(run) + "/") == ("classic", run)
-    for flag, message in (("--log", "a folder without metrics.jsonl"), ("--eval", "a folder, expected the JSON file")):
+    for flag, message in (("--log", "a folder without metrics.jsonl"), ("--eval", "a folder, expected the JSON or CSV file")):
         assert main(["plot", flag, str(tmp_path / "runs"), "-o", str(tmp_path / "out")]) == 2
         err = capsys.readouterr().err
         assert f"{tmp_path / 'runs'}: {message}" in err and len(err.strip().splitlines()) == 1
+
+
+def test_plot_command_draws_the_csv_of_an_eval_as_its_json(tmp_path, capsys):
+    from pursuit_mj.env import EpisodeRecord
+    from pursuit_mj.evaluation import summarise, write_csv, write_json
+
+    def row(policy, layout, outcomes):
+        return summarise(policy, layout, "point", 0, [EpisodeRecord(0, 0, 0, o, s, None, {}, 0, layout) for o, s in outcomes], 40)
+
+    rows = [row("heuristic", "0", [("success", 12), ("timeout", 40)]), row("random", "0", [("collision", 3)])]  # no success
+    write_csv(rows, tmp_path / "t.csv")
+    write_json(rows, tmp_path / "t.json")
+    assert read_eval_rows(tmp_path / "t.csv") == [{k: v for k, v in r.items() if k != "per_episode"} for r in read_eval_rows(tmp_path / "t.json")]
+    assert main(["plot", "--eval", str(tmp_path / "t.csv"), "-o", str(tmp_path / "out")]) == 0
+    assert {p.name for p in (tmp_path / "out").iterdir()} >= {"eval_success.png", "eval_steps_success.png"}
+    (tmp_path / "cut.csv").write_text((tmp_path / "t.csv").read_text()[:-30])
+    assert main(["plot", "--eval", str(tmp_path / "cut.csv"), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "cut.csv, line 3:" in err and "cut short" in err and len(err.strip().splitlines()) == 1
 
 
 def test_plot_command_tells_apart_a_policy_that_two_files_hold(tmp_path, capsys):
