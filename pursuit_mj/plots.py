@@ -288,10 +288,12 @@ def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str
                 if v is None:
                     continue
                 lo, hi = r.get(lo_key), r.get(hi_key)
-                err = [[0.0 if lo is None else float(v) - float(lo)], [0.0 if hi is None else float(hi) - float(v)]]
+                # a mean of one episode has no interval: no whisker, rather than one of width 0 (a sure value)
+                err = None if lo is None and hi is None else [[0.0 if lo is None else float(v) - float(lo)],
+                                                              [0.0 if hi is None else float(hi) - float(v)]]
                 centre = x + (i - (len(here) - 1) / 2) * width
                 ax.bar(centre, float(v), width, yerr=err, capsize=3, color=colour[pol], label=None if pol in shown else pol)
-                tip = float(v) + err[1][0]
+                tip = float(v) + (0.0 if err is None else err[1][0])
                 values.append((centre, tip, float(v)))  # each bar's value written above its whisker: a 0 % bar shows "0"
                 top = max(top, tip)
                 shown.add(pol)

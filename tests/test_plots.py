@@ -207,6 +207,24 @@ def test_plot_command_draws_the_csv_of_an_eval_as_its_json(tmp_path, capsys):
     assert "cut.csv, line 3:" in err and "cut short" in err and len(err.strip().splitlines()) == 1
 
 
+def test_a_mean_of_one_episode_has_no_whisker(tmp_path, monkeypatch):
+    import matplotlib.pyplot as plt
+
+    from pursuit_mj.env import EpisodeRecord
+    from pursuit_mj.evaluation import plot_rows, summarise
+
+    one = summarise("a", "0", "point", 0, [EpisodeRecord(0, 0, 0, "success", 12, None, {}, 0, "0")], 40)
+    same = summarise("b", "0", "point", 0, [EpisodeRecord(0, k, 0, "success", 12, None, {}, 0, "0") for k in range(3)], 40)
+    assert one.steps.lo is None and same.steps.lo == same.steps.hi == 12  # no interval / an interval of width 0
+    whiskers = []
+    real_bar = plt.Axes.bar
+    monkeypatch.setattr(plt.Axes, "bar", lambda self, *a, **kw: whiskers.append(kw.get("yerr")) or real_bar(self, *a, **kw))
+    plot_rows([one, same], tmp_path)
+    success, _, _, steps, steps_success = [whiskers[i:i + 2] for i in range(0, 10, 2)]
+    assert success[0] is not None and steps[0] is None and steps_success[0] is None
+    assert steps[1] == [[0.0], [0.0]]
+
+
 def test_plot_command_tells_apart_a_policy_that_two_files_hold(tmp_path, capsys):
     one, two = _eval_json(tmp_path / "one.json"), _eval_json(tmp_path / "two.json", policies=("heuristic", "mappo"))
     assert main(["plot", "--eval", str(one), "--eval", str(two), "-o", str(tmp_path / "out")]) == 0
