@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -244,6 +245,25 @@ def _layout_name(layout: Any) -> str:
     return f"layout {s}" if s.isdigit() else Path(s).stem
 
 
+def layout_key(layout: Any) -> str:
+    """One name per layout, however a table named it: a built-in index ('0', '00' or its file
+    configs/layouts/0_open.yaml) as the index, another file as its normalised path."""
+    from .layout import LayoutError, builtin_layout_path
+
+    s = str(layout).strip()
+    if s.isdigit():
+        return str(int(s))
+    path = Path(os.path.normpath(s))
+    index = path.name.split("_", 1)[0]
+    if index.isdigit():
+        try:
+            if builtin_layout_path(int(index)).resolve() == path.resolve():
+                return str(int(index))
+        except LayoutError:
+            pass
+    return str(path)
+
+
 def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str = "eval_") -> list[Path]:
     """Bar charts, one PNG (<prefix><metric>.png) per metric present: layouts on x, a bar per
     policy with its 95 % CI whiskers, each layout's bars centred on it (a policy without a row
@@ -253,10 +273,10 @@ def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str
     rows = list(rows)
     folder = Path(folder)
     policies = list(dict.fromkeys(str(r["policy"]) for r in rows))
-    layouts = list(dict.fromkeys(str(r["layout"]) for r in rows))
+    layouts = list(dict.fromkeys(layout_key(r["layout"]) for r in rows))
     table: dict[tuple[str, str], Mapping[str, Any]] = {}
     for r in rows:
-        pair = (str(r["policy"]), str(r["layout"]))
+        pair = (str(r["policy"]), layout_key(r["layout"]))
         if pair in table:
             raise ValueError(f"evaluation results: policy {pair[0]} on layout {pair[1]} is given twice; "
                              f"rename one (e.g. eval --model with another run name) or plot them apart")

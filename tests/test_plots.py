@@ -225,6 +225,28 @@ def test_a_mean_of_one_episode_has_no_whisker(tmp_path, monkeypatch):
     assert steps[1] == [[0.0], [0.0]]
 
 
+def test_one_bar_group_per_layout_however_the_tables_named_it(tmp_path, monkeypatch):
+    import matplotlib.pyplot as plt
+
+    from pursuit_mj.layout import builtin_layout_path
+
+    zero = builtin_layout_path(0)
+    a = read_eval_rows(_eval_json(tmp_path / "a.json", policies=("heuristic",), layouts=("0", "my/maze.yaml")))
+    b = read_eval_rows(_eval_json(tmp_path / "b.json", policies=("classic",), layouts=(str(zero), "my/./maze.yaml")))
+    ticks = []
+    real = plt.Axes.set_xticks
+    monkeypatch.setattr(plt.Axes, "set_xticks", lambda self, at, labels, **kw: ticks.append(list(labels)) or real(self, at, labels, **kw))
+    plot_eval(a + b, tmp_path / "plots")
+    assert ticks[0] == ["layout 0", "maze"]
+    with pytest.raises(ValueError, match="policy heuristic on layout 0 is given twice"):
+        plot_eval(a + [dict(a[0], layout=str(zero))], tmp_path / "again")
+    from pursuit_mj.plots import layout_key
+
+    assert layout_key("00") == layout_key(0) == layout_key(f"{zero.parent}/../layouts/{zero.name}") == "0"
+    (tmp_path / "0_open.yaml").write_text(zero.read_text())  # a copy elsewhere is another file
+    assert layout_key(tmp_path / "0_open.yaml") == str(tmp_path / "0_open.yaml")
+
+
 def test_plot_command_tells_apart_a_policy_that_two_files_hold(tmp_path, capsys):
     one, two = _eval_json(tmp_path / "one.json"), _eval_json(tmp_path / "two.json", policies=("heuristic", "mappo"))
     assert main(["plot", "--eval", str(one), "--eval", str(two), "-o", str(tmp_path / "out")]) == 0
