@@ -265,9 +265,9 @@ def layout_key(layout: Any) -> str:
 
 
 def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str = "eval_") -> list[Path]:
-    """Bar charts, one PNG (<prefix><metric>.png) per metric present: layouts on x, a bar per
-    policy with its 95 % CI whiskers, each layout's bars centred on it (a policy without a row
-    there leaves no gap), one colour per policy in every chart. A (policy, layout) pair given
+    """Bar charts, one PNG (<prefix><metric>.png) per metric the rows hold: layouts on x, a bar per
+    policy with its 95 % CI whiskers ("none" where its value is null), each layout's bars centred
+    on it (a policy without a row there leaves no gap), one colour per policy in every chart. A (policy, layout) pair given
     twice is a ValueError: which of the two would the bar show?"""
     plt = _plt()
     rows = list(rows)
@@ -292,10 +292,14 @@ def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str
     if fidelities:
         about.append(f"{', '.join(fidelities)} fidelity")
     n_text = "" if not about else "\n" + ", ".join(about)  # a second title line: narrow charts clip long titles
+    if not any(r.get(m[2]) is not None for r in rows for m in EVAL_METRICS):
+        raise ValueError("evaluation results: rows have none of success_pct, collision_pct, timeout_pct, mean_steps")
     paths = []
-    values: list[tuple[float, float, float]] = []
+    values: list[tuple[float, float, float | None]] = []
     for stem, label, key, lo_key, hi_key in EVAL_METRICS:
-        if not any(r.get(key) is not None for r in rows):
+        # a metric the rows hold is drawn even where every value is null (no success: no steps
+        # of the successes), so that a chart left in the folder by an earlier table is replaced
+        if not any(key in r for r in rows):
             continue
         fig, ax = plt.subplots(figsize=(2.6 + 1.2 * len(layouts) * max(slots, 2) / 2, 3.8))
         shown: set[str] = set()
@@ -305,13 +309,16 @@ def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str
             for i, pol in enumerate(here):
                 r = table[(pol, lay)]
                 v = r.get(key)
-                if v is None:
+                centre = x + (i - (len(here) - 1) / 2) * width
+                if v is None:  # no value (no success to average): marked "none", not left blank
+                    ax.bar(centre, 0.0, width, color=colour[pol], label=None if pol in shown else pol)
+                    values.append((centre, 0.0, None))
+                    shown.add(pol)
                     continue
                 lo, hi = r.get(lo_key), r.get(hi_key)
                 # a mean of one episode has no interval: no whisker, rather than one of width 0 (a sure value)
                 err = None if lo is None and hi is None else [[0.0 if lo is None else float(v) - float(lo)],
                                                               [0.0 if hi is None else float(hi) - float(v)]]
-                centre = x + (i - (len(here) - 1) / 2) * width
                 ax.bar(centre, float(v), width, yerr=err, capsize=3, color=colour[pol], label=None if pol in shown else pol)
                 tip = float(v) + (0.0 if err is None else err[1][0])
                 values.append((centre, tip, float(v)))  # each bar's value written above its whisker: a 0 % bar shows "0"
@@ -319,7 +326,7 @@ def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str
                 shown.add(pol)
         pad = 0.02 * (100.0 if key.endswith("_pct") else max(top, 1.0))
         for centre, tip, v in values:
-            ax.text(centre, tip + pad, f"{v:.0f}", ha="center", va="bottom", fontsize=7)
+            ax.text(centre, tip + pad, "none" if v is None else f"{v:.0f}", ha="center", va="bottom", fontsize=7)
         values.clear()
         ax.set_xticks(np.arange(len(layouts)), [_layout_name(l) for l in layouts])
         ax.set_ylabel(label)
@@ -336,6 +343,4 @@ def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str
         ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
         fig.tight_layout()
         paths.append(_save(fig, folder / f"{prefix}{stem}.png"))
-    if not paths:
-        raise ValueError("evaluation results: rows have none of success_pct, collision_pct, timeout_pct, mean_steps")
     return paths

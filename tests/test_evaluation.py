@@ -216,7 +216,8 @@ def test_eval_cli_writes_csv_json_and_plots(tmp_path, capsys):
     assert all(a == b for a, b in by_layout.values())  # the same episodes for both policies
     code_meta = data["code"]
     assert len(code_meta["drone_model_sha256"]) == 64 and "git_commit" in code_meta and "version" in code_meta
-    assert sorted(p.name for p in (tmp_path / "plots").iterdir()) == ["collision.png", "mean_steps.png", "success.png", "timeout.png"]
+    assert sorted(p.name for p in (tmp_path / "plots").iterdir()) == ["collision.png", "mean_steps.png", "steps_success.png",
+                                                                      "success.png", "timeout.png"]
     assert (tmp_path / "plots" / "success.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     recorded = {e for e in read_entities(tmp_path / "eval.rrd") if e.startswith("/__properties/episode_")}
     assert len(recorded) == 4  # one episode per policy and layout

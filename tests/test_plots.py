@@ -247,6 +247,23 @@ def test_one_bar_group_per_layout_however_the_tables_named_it(tmp_path, monkeypa
     assert layout_key(tmp_path / "0_open.yaml") == str(tmp_path / "0_open.yaml")
 
 
+def test_a_table_without_success_replaces_the_steps_of_successes_chart_of_an_earlier_one(tmp_path):
+    from pursuit_mj.env import EpisodeRecord
+    from pursuit_mj.evaluation import plot_rows, summarise
+
+    def row(policy, outcome):
+        return summarise(policy, "0", "point", 0, [EpisodeRecord(0, k, 0, outcome, 20 + k, None, {}, 0, "0") for k in range(4)], 40)
+
+    first = plot_rows([row("a", "success"), row("b", "success")], tmp_path)
+    before = (tmp_path / "steps_success.png").read_bytes()
+    again = plot_rows([row("a", "timeout"), row("b", "success")], tmp_path)  # a: no success, no steps to show
+    assert [p.name for p in again] == [p.name for p in first]
+    assert (tmp_path / "steps_success.png").read_bytes() != before
+    none = plot_rows([row("a", "timeout"), row("b", "collision")], tmp_path)  # no success at all
+    assert [p.name for p in none] == [p.name for p in first]
+    assert _ink(tmp_path / "steps_success.png") < _ink(first[-1].with_name("mean_steps.png"))
+
+
 def test_plot_command_tells_apart_a_policy_that_two_files_hold(tmp_path, capsys):
     one, two = _eval_json(tmp_path / "one.json"), _eval_json(tmp_path / "two.json", policies=("heuristic", "mappo"))
     assert main(["plot", "--eval", str(one), "--eval", str(two), "-o", str(tmp_path / "out")]) == 0
