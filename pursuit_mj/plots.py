@@ -264,6 +264,18 @@ def layout_key(layout: Any) -> str:
     return str(path)
 
 
+def _fit_title(fig, ax) -> None:
+    """Widen `fig` until the title of `ax` fits in it (a chart of one layout is narrower than its title)."""
+    for _ in range(3):
+        box = ax.title.get_window_extent(fig.canvas.get_renderer())
+        over = max(0.0, -box.x0, box.x1 - fig.bbox.width) / fig.dpi
+        if over <= 0:
+            return
+        w, h = fig.get_size_inches()
+        fig.set_size_inches(w + 2 * over + 0.1, h)
+        fig.tight_layout()
+
+
 def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str = "eval_") -> list[Path]:
     """Bar charts, one PNG (<prefix><metric>.png) per metric the rows hold: layouts on x, a bar per
     policy with its 95 % CI whiskers ("none" where its value is null), each layout's bars centred
@@ -342,5 +354,6 @@ def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str
         ax.grid(axis="y", alpha=0.3)
         ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
         fig.tight_layout()
+        _fit_title(fig, ax)
         paths.append(_save(fig, folder / f"{prefix}{stem}.png"))
     return paths

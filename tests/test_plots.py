@@ -264,6 +264,24 @@ def test_a_table_without_success_replaces_the_steps_of_successes_chart_of_an_ear
     assert _ink(tmp_path / "steps_success.png") < _ink(first[-1].with_name("mean_steps.png"))
 
 
+def test_a_chart_of_one_layout_holds_its_whole_title(tmp_path, monkeypatch):
+    import pursuit_mj.plots as plots
+
+    rows = read_eval_rows(_eval_json(tmp_path / "t.json", layouts=("0",)))
+    rows = [dict(r, fidelity=f, episodes=n, mean_steps_success=250.0) for r, f, n in zip(rows, ("point", "quadrotor"), (10, 150))]
+    spans = []
+    real_save = plots._save
+
+    def save(fig, path):
+        box = fig.axes[0].title.get_window_extent(fig.canvas.get_renderer())
+        spans.append((path.name, box.x0 >= 0 and box.x1 <= fig.bbox.width))
+        return real_save(fig, path)
+
+    monkeypatch.setattr(plots, "_save", save)
+    plot_eval(rows, tmp_path / "plots")
+    assert spans and all(inside for _, inside in spans), spans
+
+
 def test_plot_command_tells_apart_a_policy_that_two_files_hold(tmp_path, capsys):
     one, two = _eval_json(tmp_path / "one.json"), _eval_json(tmp_path / "two.json", policies=("heuristic", "mappo"))
     assert main(["plot", "--eval", str(one), "--eval", str(two), "-o", str(tmp_path / "out")]) == 0
