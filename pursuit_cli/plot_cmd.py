@@ -43,7 +43,7 @@ def _label_and_path(text: str) -> tuple[str, Path]:
 
 
 def run(args) -> int:
-    from pursuit_mj.plots import plot_eval, plot_training, read_eval_rows, read_training_log
+    from pursuit_mj.plots import curve_keys, plot_eval, plot_training, read_eval_rows, read_training_log, x_key
 
     if not args.log and not args.eval:
         raise ValueError("nothing to plot: give --log FILE (training) and/or --eval FILE (evaluation)")
@@ -57,12 +57,15 @@ def run(args) -> int:
             label = f"{label} ({path})"
         runs[label] = read_training_log(path)
     rows = _combined_rows([(f, read_eval_rows(f)) for f in args.eval])
+    if runs:  # refused before any chart is written
+        x_key(runs, args.x)
+        curve_keys(runs, args.metric or None)
     check_writable_folder(out, f"--out {out}")
     paths = []
+    if rows:  # first: it refuses a bar given twice before drawing
+        paths += plot_eval(rows, out)
     if runs:
         paths += plot_training(runs, out, args.metric or None, args.x)
-    if rows:
-        paths += plot_eval(rows, out)
     for p in paths:
         print(f"wrote {p}")
     return 0

@@ -227,9 +227,14 @@ def read_eval_rows(path: str | Path) -> list[dict[str, Any]]:
         rows = data.get("rows") if isinstance(data, Mapping) else data
     if not isinstance(rows, list) or not rows:
         raise ValueError(f"evaluation results {path}: expected a non-empty list of rows (or {{\"rows\": [...]}})")
+    seen: dict[tuple[str, str], int] = {}
     for i, r in enumerate(rows):
         if not isinstance(r, Mapping) or "policy" not in r or "layout" not in r:
             raise ValueError(f"evaluation results {path}: row {i} lacks 'policy' or 'layout'")
+        pair = (str(r["policy"]), layout_key(r["layout"]))
+        if pair in seen:
+            raise ValueError(f"evaluation results {path}: rows {seen[pair]} and {i} both hold policy {pair[0]} on layout {pair[1]}")
+        seen[pair] = i
         for key in NUMBER_KEYS:
             v = r.get(key)
             if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):

@@ -282,6 +282,19 @@ def test_a_chart_of_one_layout_holds_its_whole_title(tmp_path, monkeypatch):
     assert spans and all(inside for _, inside in spans), spans
 
 
+def test_a_refused_plot_command_writes_no_chart(tmp_path, capsys):
+    log, ev = _log(tmp_path / "a.jsonl"), _eval_json(tmp_path / "t.json")
+    data = json.loads(ev.read_text())
+    (tmp_path / "dup.json").write_text(json.dumps(dict(data, rows=data["rows"] + data["rows"][:1])))
+    out = tmp_path / "out"
+    for extra, message in ((["--eval", str(tmp_path / "dup.json")], "dup.json: rows 0 and 8 both hold policy heuristic on layout 0"),
+                           (["--eval", str(ev), "--eval", str(ev)], "policy heuristic on layout 0 is given twice"),
+                           (["--eval", str(ev), "--metric", "nope"], "--metric 'nope': no such key")):
+        assert main(["plot", "--log", str(log)] + extra + ["-o", str(out)]) == 2
+        assert message in capsys.readouterr().err
+        assert not out.exists() or not list(out.iterdir()), extra
+
+
 def test_plot_command_tells_apart_a_policy_that_two_files_hold(tmp_path, capsys):
     one, two = _eval_json(tmp_path / "one.json"), _eval_json(tmp_path / "two.json", policies=("heuristic", "mappo"))
     assert main(["plot", "--eval", str(one), "--eval", str(two), "-o", str(tmp_path / "out")]) == 0
