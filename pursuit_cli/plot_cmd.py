@@ -2,7 +2,8 @@
 
     pursuit-mj plot --log runs/classic/metrics.jsonl --log runs/mappo -o plots/
     pursuit-mj plot --log classic=runs/classic/metrics.jsonl --metric validation.success -o plots/
-    pursuit-mj plot --eval results/table.json -o plots/     (or results/table.csv)
+    pursuit-mj plot --eval results/table.json -o plots/
+    pursuit-mj plot --eval results/table.csv -o plots/
 """
 
 from __future__ import annotations
