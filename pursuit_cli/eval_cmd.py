@@ -58,12 +58,15 @@ def _outputs(args) -> tuple[Path | None, Path | None]:
     for path, what in ((csv_path, "--csv"), (json_path, "--json")):
         if path is not None:
             check_writable(path, what)
-    if csv_path is not None and json_path is not None and csv_path.resolve() == json_path.resolve():
-        raise ValueError(f"--csv and --json: both name {csv_path}; the JSON would overwrite the CSV")
     if args.rerun:
         from pursuit_mj.recording import check_rrd_path
 
         check_rrd_path(args.rerun)
+    files = [(p, flag) for p, flag in ((csv_path, "--csv"), (json_path, "--json"), (args.rerun and Path(args.rerun), "--rerun")) if p]
+    for i, (path, flag) in enumerate(files):
+        for other, other_flag in files[i + 1:]:
+            if path.resolve() == other.resolve():
+                raise ValueError(f"{flag} and {other_flag}: both name {path}; one output would overwrite the other")
     if args.plots:
         check_writable_folder(args.plots, f"--plots {args.plots}")
     return csv_path, json_path

@@ -259,6 +259,7 @@ def test_eval_cli_runs_a_trained_model_beside_the_heuristic(tmp_path, capsys):
         (["--layouts", "0", str(builtin_layout_path(0))], "0_open.yaml is given twice (as 0 and"),
         (["--plots", "/dev/null/plots"], "--plots /dev/null/plots: cannot create the folder"),
         (["--csv", "same.txt", "--json", "same.txt"], "both name same.txt"),
+        (["--json", "run.rrd", "--rerun", "run.rrd"], "--json and --rerun: both name run.rrd"),
     ],
 )
 def test_eval_cli_bad_input_exits_2_with_a_clear_message(args, message, capsys, tmp_path):
