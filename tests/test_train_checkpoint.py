@@ -331,3 +331,26 @@ def test_a_resume_with_nothing_left_to_train_says_which_limit_ended_the_run(tmp_
     result = Trainer.resume(timed.run_dir, total_steps=32 * 200, log=said.append).train()
     assert result["counters"]["update"] == 1
     assert any("max_minutes 0.0001" in s and "--max-minutes" in s for s in said)
+
+
+def test_a_run_that_crashed_before_its_first_checkpoint_starts_afresh_with_its_log(tmp_path, monkeypatch):
+    """A crash (or kill -9) before the first last.pt leaves rows but nothing to resume: the new
+    start must not append its rows after them (the log read 1, 2, 1, 2)."""
+    cfg = tiny_config(tmp_path, updates=10, extra=["run.checkpoint_every=10"])
+    trainer = Trainer(cfg, log=lambda s: None)
+    real, calls = trainer.collector.collect, {"n": 0}
+
+    def crash_in_the_third_rollout(buffer):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise MemoryError
+        return real(buffer)
+
+    monkeypatch.setattr(trainer.collector, "collect", crash_in_the_third_rollout)
+    with pytest.raises(MemoryError):
+        trainer.train()
+    assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2] and not (cfg.run_dir / "last.pt").exists()
+    said = []
+    assert Trainer(tiny_config(tmp_path, updates=2), log=said.append).train()["status"] == "done"
+    assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2]
+    assert "dropping 2 rows" in said[0]
