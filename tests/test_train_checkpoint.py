@@ -354,3 +354,35 @@ def test_a_run_that_crashed_before_its_first_checkpoint_starts_afresh_with_its_l
     assert Trainer(tiny_config(tmp_path, updates=2), log=said.append).train()["status"] == "done"
     assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2]
     assert "dropping 2 rows" in said[0]
+
+
+def test_a_checkpoint_whose_entries_do_not_fit_is_refused_in_one_line_naming_it(tmp_path):
+    """Entries of the wrong kind, weights, optimiser state, counters or random state that do not
+    fit: each was a traceback (or a resume with a broken optimiser); a counter missing from an
+    older layout keeps its default."""
+    from train.checkpoint import save_checkpoint
+
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    good = load_checkpoint(cfg.run_dir / "last.pt")
+    body = {k: v for k, v in good.items() if k not in ("format", "version")}
+    moments = {"step": torch.tensor(1.0), "exp_avg": torch.zeros(1), "exp_avg_sq": torch.zeros(1)}
+    for changes, words in (
+        ({"actor": [1, 2]}, "entry actor is a list, not a dict"),
+        ({"obs_spec": {}}, "obs_spec lacks"),
+        ({"critic": {k: torch.zeros(1) for k in good["critic"]}}, "cannot resume from its critic weights \\(size mismatch"),
+        ({"train_config": {**good["train_config"], "algo": "mappo"}}, "cannot resume from its critic weights"),
+        ({"optimizer": {**good["optimizer"], "state": {0: moments}}}, "optimiser state .*shapes"),
+        ({"rng": {"torch": good["rng"]["torch"]}}, "random state"),
+        ({"counters": {**good["counters"], "update": "two"}}, "counter update is 'two'"),
+        ({"counters": {**good["counters"], "old_counter": 1}}, "unknown counters \\['old_counter'\\]"),
+    ):
+        save_checkpoint(cfg.run_dir / "last.pt", {**body, **changes})
+        with pytest.raises(ValueError, match=words) as err:
+            Trainer.resume(cfg.run_dir, total_steps=96, log=lambda s: None)
+        assert str(cfg.run_dir / "last.pt") in str(err.value) and "\n" not in str(err.value)
+    save_checkpoint(cfg.run_dir / "last.pt", {k: v for k, v in body.items() if k != "rng"})
+    with pytest.raises(ValueError, match=r"lacks \['rng'\], which a resume needs"):
+        Trainer.resume(cfg.run_dir, log=lambda s: None)
+    save_checkpoint(cfg.run_dir / "last.pt", {**body, "counters": {"update": 1, "world_steps": 32}})
+    assert Trainer.resume(cfg.run_dir, log=lambda s: None).counters.validation_seconds == 0.0

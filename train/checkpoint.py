@@ -27,6 +27,7 @@ from pursuit_mj.obs_spec import ObsSpec
 FORMAT = "pursuit-mj-checkpoint"
 VERSION = 1
 REQUIRED = ("format", "version", "train_config", "obs_spec", "actor", "counters")
+DICTS = ("train_config", "obs_spec", "actor", "counters", "critic", "optimizer", "rng", "value_norm", "discount")
 
 
 def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
@@ -68,11 +69,29 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     missing = [k for k in REQUIRED if k not in data]
     if missing:
         raise ValueError(f"checkpoint {path}: missing entries {missing}")
+    for key in DICTS:
+        if key in data and not isinstance(data[key], dict):
+            raise ValueError(f"checkpoint {path}: entry {key} is a {type(data[key]).__name__}, not a dict (damaged, or "
+                             f"not written by pursuit-mj)")
     for net in ("actor", "critic"):
-        for name, value in (data.get(net) or {}).items():
+        if any(not torch.is_tensor(v) for v in data.get(net, {}).values()):
+            raise ValueError(f"checkpoint {path}: entry {net} holds values other than tensors (damaged, or not written by pursuit-mj)")
+    lacking = [k for k in ("n_pursuers", "n_evaders", "n_rays", "groups") if k not in data["obs_spec"]]
+    if lacking:
+        raise ValueError(f"checkpoint {path}: its obs_spec lacks {lacking}")
+    for net in ("actor", "critic"):
+        for name, value in data.get(net, {}).items():
             if torch.is_tensor(value) and value.is_floating_point() and not torch.isfinite(value).all():
                 raise ValueError(f"checkpoint {path}: non-finite weights (NaN or inf) in {net}.{name}")
     return data
+
+
+def load_error(exc: Exception) -> str:
+    """The telling line of a failed load_state_dict (torch's first line only says that it failed)."""
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    if len(lines) > 1 and lines[0].startswith("Error(s) in loading"):
+        return lines[1] + (f" (and {len(lines) - 2} more)" if len(lines) > 2 else "")
+    return lines[0] if lines else type(exc).__name__
 
 
 def is_training_checkpoint(data: dict[str, Any]) -> bool:

@@ -23,7 +23,7 @@ from pursuit_mj.policies import make_policy
 from pursuit_mj.residual import acting_team
 from pursuit_mj.shield import SafetyShield
 
-from .checkpoint import check_obs_spec, load_checkpoint
+from .checkpoint import check_obs_spec, load_checkpoint, load_error
 from .config import NetConfig, ResidualConfig
 from .networks import Actor, flush_tiny
 
@@ -105,7 +105,7 @@ def actor_from_checkpoint(data: dict, spec: ObsSpec, source: str) -> Actor:
     try:
         actor.load_state_dict(data["actor"])
     except RuntimeError as exc:
-        raise ValueError(f"checkpoint {source}: actor weights do not fit net {net.kind} for this environment ({str(exc).splitlines()[0]})") from None
+        raise ValueError(f"checkpoint {source}: actor weights do not fit net {net.kind} for this environment ({load_error(exc)})") from None
     return actor
 
 

@@ -32,7 +32,7 @@ from pursuit_mj.policies import make_policy
 from pursuit_mj.sensing import privileged_config
 
 from .agent import ActorCritic
-from .checkpoint import check_obs_spec, is_training_checkpoint, load_checkpoint, save_checkpoint
+from .checkpoint import check_obs_spec, is_training_checkpoint, load_checkpoint, load_error, save_checkpoint
 from .config import TrainConfig, train_config_from_dict
 from .discount import Discount
 from .imitation import DaggerCollector, Demonstrations, imitation_update, teacher_share
@@ -79,7 +79,8 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.counters = Counters()
         self.generator = torch.Generator().manual_seed(cfg.seed)
-        start_update = checkpoint["counters"]["update"] if checkpoint else 0
+        restored = read_counters(checkpoint, self.run_dir / "last.pt") if checkpoint else None
+        start_update = restored.update if restored else 0
         self.env = make_training_env(cfg, start_update)
         self.spec = self.env.obs_spec
         self.model = ActorCritic(self.spec, self.env.state_dim, cfg)
@@ -87,7 +88,7 @@ class Trainer:
         p = cfg.ppo
         self.discount = Discount(p.gamma, p.learnable_gamma, p.gamma_meta_lr, p.gamma_outer)
         if checkpoint is not None:
-            self._restore(checkpoint)
+            self._restore(checkpoint, restored)
         elif cfg.init_from:
             self._init_from(cfg.init_from)
         self.buffer = Rollout(cfg.rollout_steps(), cfg.n_envs, self.env.n_pursuers, self.env.obs_dim,
@@ -131,6 +132,10 @@ class Trainer:
         runs before anything is restored (to refuse a resume asked with other settings)."""
         path = Path(run_dir) / "last.pt"
         data = load_checkpoint(path)
+        if not is_training_checkpoint(data) and "exported_from" not in data:
+            lacking = [k for k in ("critic", "optimizer", "rng") if k not in data]
+            raise ValueError(f"--resume {run_dir}: {path} lacks {lacking}, which a resume needs (damaged, or written "
+                             f"by other code)")
         if not is_training_checkpoint(data):
             raise ValueError(f"--resume {run_dir}: {path} is a policy-only export (of {data.get('exported_from', 'a run')}), "
                              f"not a training checkpoint: it holds no critic, optimiser or random state to resume from")
@@ -149,19 +154,32 @@ class Trainer:
             cfg = dataclasses.replace(cfg, max_minutes=max_minutes)
         return cls(cfg, checkpoint=data, log=log)
 
-    def _restore(self, data: dict) -> None:
-        check_obs_spec(data, self.spec, self.run_dir / "last.pt")
-        self.model.actor.load_state_dict(data["actor"])
-        self.model.critic.load_state_dict(data["critic"])
-        if "optimizer" in data:
+    def _restore(self, data: dict, counters: Counters) -> None:
+        path = self.run_dir / "last.pt"
+        check_obs_spec(data, self.spec, path)
+        part = "actor weights"
+        try:  # a damaged or hand-edited file, or one whose train_config no longer builds the network it holds
+            self.model.actor.load_state_dict(data["actor"])
+            part = "critic weights"
+            self.model.critic.load_state_dict(data["critic"])
+            part = "optimiser state"
             self.optimizer.load_state_dict(data["optimizer"])
-        if self.model.value_norm is not None and "value_norm" in data:
-            self.model.value_norm.load_state_dict(data["value_norm"])
-        if "discount" in data:
-            self.discount.load_state_dict(data["discount"])
-        self.counters = Counters(**data["counters"])
-        self.generator.set_state(data["rng"]["sampler"])
-        torch.set_rng_state(data["rng"]["torch"])
+            if any(torch.is_tensor(v) and k != "step" and v.shape != p.shape for p, s in self.optimizer.state.items() for k, v in s.items()):
+                raise ValueError("its moments do not match the parameters' shapes")
+            part = "value normalisation"
+            if self.model.value_norm is not None and "value_norm" in data:
+                self.model.value_norm.load_state_dict(data["value_norm"])
+            part = "discount state"
+            if "discount" in data:
+                self.discount.load_state_dict(data["discount"])
+            part = "random state (rng)"
+            sampler, global_rng = data["rng"]["sampler"], data["rng"]["torch"]
+            self.generator.set_state(sampler)
+            torch.set_rng_state(global_rng)
+        except (RuntimeError, KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise ValueError(f"checkpoint {path}: cannot resume from its {part} ({load_error(exc)}); the file is damaged, or "
+                             f"its train_config builds another network than it holds") from None
+        self.counters = counters
         # a row still pending may have reached the log before the run was stopped: it is logged again
         logged = self.counters.update - (1 if data.get("pending_row") else 0)
         MetricsLog(self.run_dir / "metrics.jsonl").truncate_after(logged)
@@ -179,7 +197,7 @@ class Trainer:
         try:
             self.model.actor.load_state_dict(data["actor"])
         except RuntimeError as exc:
-            raise ValueError(f"init_from {path}: actor weights do not fit this network ({str(exc).splitlines()[0]})") from None
+            raise ValueError(f"init_from {path}: actor weights do not fit this network ({load_error(exc)})") from None
         src = data["train_config"]
         src_algo = src.get("algo")
         same_critic = (src_algo == "mappo") == (self.cfg.algo == "mappo")  # dagger trains a ppo-style critic
@@ -449,6 +467,21 @@ class Trainer:
             if bar is not None:
                 bar.close()
         return {"status": status, "counters": dataclasses.asdict(c), "validation": last_val, "run_dir": str(self.run_dir)}
+
+
+def read_counters(data: dict, path: Path) -> Counters:
+    """A checkpoint's counters (ValueError naming `path` if one is unknown or not a number); a
+    counter added since the file was written keeps its default."""
+    stored = data["counters"]
+    fields = {f.name: f.type for f in dataclasses.fields(Counters)}
+    unknown = sorted(set(stored) - set(fields))
+    if unknown:
+        raise ValueError(f"checkpoint {path}: unknown counters {unknown} (known: {', '.join(fields)})")
+    for name, value in stored.items():
+        whole = fields[name] == "int"
+        if isinstance(value, bool) or not isinstance(value, int if whole else (int, float)):
+            raise ValueError(f"checkpoint {path}: counter {name} is {value!r}, expected {'a whole number' if whole else 'a number'}")
+    return Counters(**stored)
 
 
 def _mean_returns(episodes) -> dict[str, float]:
