@@ -386,3 +386,16 @@ def test_a_checkpoint_whose_entries_do_not_fit_is_refused_in_one_line_naming_it(
         Trainer.resume(cfg.run_dir, log=lambda s: None)
     save_checkpoint(cfg.run_dir / "last.pt", {**body, "counters": {"update": 1, "world_steps": 32}})
     assert Trainer.resume(cfg.run_dir, log=lambda s: None).counters.validation_seconds == 0.0
+
+
+def test_a_run_folder_that_cannot_be_written_is_refused_before_training_naming_it(tmp_path):
+    """It was a NotADirectoryError traceback from deep inside the trainer (or after an update's work)."""
+    from train.checkpoint import save_checkpoint
+
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(ValueError, match=f"run folder \\(run.runs_dir {blocker}, name run\\): cannot create") as err:
+        Trainer(tiny_config(blocker), log=lambda s: None)
+    assert "\n" not in str(err.value)
+    with pytest.raises(ValueError, match=f"checkpoint {blocker / 'last.pt'}: cannot write it"):
+        save_checkpoint(blocker / "last.pt", {})

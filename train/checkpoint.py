@@ -33,8 +33,12 @@ DICTS = ("train_config", "obs_spec", "actor", "counters", "critic", "optimizer",
 def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
     """Write `payload` (plus format/version) to `path` atomically; returns the path."""
     data = {"format": FORMAT, "version": VERSION, **payload}
-    with atomic_path(path) as tmp:
-        torch.save(data, tmp)
+    try:
+        with atomic_path(path) as tmp:
+            torch.save(data, tmp)
+    except OSError as exc:  # a full disk, a folder made read-only or removed during the run
+        where = f": {exc.filename}" if exc.filename and str(exc.filename) != str(path) else ""
+        raise ValueError(f"checkpoint {path}: cannot write it ({exc.strerror or exc}{where})") from None
     return Path(path)
 
 

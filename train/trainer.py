@@ -27,7 +27,7 @@ import torch
 
 from pursuit_mj.configio import dump_yaml, to_dict
 from pursuit_mj.evaluation import capture_steps
-from pursuit_mj.io_utils import atomic_write_text
+from pursuit_mj.io_utils import atomic_write_text, check_writable_folder
 from pursuit_mj.policies import make_policy
 from pursuit_mj.sensing import privileged_config
 
@@ -76,6 +76,7 @@ class Trainer:
         self.log = log
         self.run_dir = cfg.run_dir
         self.resume_command = f"pursuit-mj train --resume {self.run_dir}"  # what an interrupted run tells the user
+        check_writable_folder(self.run_dir, f"run folder (run.runs_dir {cfg.run.runs_dir}, name {cfg.name})")
         torch.manual_seed(cfg.seed)
         self.counters = Counters()
         self.generator = torch.Generator().manual_seed(cfg.seed)
