@@ -399,3 +399,15 @@ def test_a_run_folder_that_cannot_be_written_is_refused_before_training_naming_i
     assert "\n" not in str(err.value)
     with pytest.raises(ValueError, match=f"checkpoint {blocker / 'last.pt'}: cannot write it"):
         save_checkpoint(blocker / "last.pt", {})
+
+
+def test_a_run_whose_last_pt_is_damaged_is_told_how_to_go_on_from_its_intact_best_pt(tmp_path):
+    cfg = tiny_config(tmp_path, updates=2, extra=["run.validate_every=1"])
+    Trainer(cfg, log=lambda s: None).train()
+    last = cfg.run_dir / "last.pt"
+    last.write_bytes(last.read_bytes()[:1000])
+    with pytest.raises(ValueError, match=f"checkpoint {last}: .*cut short.*; its best.pt \\(update [12]\\) is intact: copy it over last.pt"):
+        Trainer.resume(cfg.run_dir, log=lambda s: None)
+    (cfg.run_dir / "best.pt").write_text("")
+    with pytest.raises(ValueError, match="cut short\\)$"):  # no advice when best.pt is damaged too
+        Trainer.resume(cfg.run_dir, log=lambda s: None)

@@ -132,7 +132,10 @@ class Trainer:
         run (total_steps, max_minutes), the progress bar and rerun streaming may change. `check(stored config)`
         runs before anything is restored (to refuse a resume asked with other settings)."""
         path = Path(run_dir) / "last.pt"
-        data = load_checkpoint(path)
+        try:
+            data = load_checkpoint(path)
+        except ValueError as exc:
+            raise ValueError(f"{exc}{_best_instead(Path(run_dir))}") from None
         if not is_training_checkpoint(data) and "exported_from" not in data:
             lacking = [k for k in ("critic", "optimizer", "rng") if k not in data]
             raise ValueError(f"--resume {run_dir}: {path} lacks {lacking}, which a resume needs (damaged, or written "
@@ -468,6 +471,18 @@ class Trainer:
             if bar is not None:
                 bar.close()
         return {"status": status, "counters": dataclasses.asdict(c), "validation": last_val, "run_dir": str(self.run_dir)}
+
+
+def _best_instead(run_dir: Path) -> str:
+    """How to go on from the run's best.pt when its last.pt is unusable ('' if best.pt is unusable too)."""
+    try:
+        best = load_checkpoint(run_dir / "best.pt")
+    except ValueError:
+        return ""
+    if not is_training_checkpoint(best):
+        return ""
+    return (f"; its best.pt (update {best['counters'].get('update')}) is intact: copy it over last.pt to resume from "
+            f"there (the updates after it are trained again)")
 
 
 def read_counters(data: dict, path: Path) -> Counters:
