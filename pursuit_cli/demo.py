@@ -63,7 +63,7 @@ def run(args) -> int:
         raise ValueError(f"--worlds: expected an integer >= 1, got {args.worlds}")
     layouts = checked_layouts(args.layouts)  # a typo in the last layout must not cost the earlier ones' minutes
     model = Path(args.model)
-    if not model.is_file():
+    if not model.exists():
         raise ValueError(f"--model {model}: no such file (the pretrained policy ships in pretrained/ of the repository)")
     config = task_config_from_args(args)
     policy = load_model(model, _spec(config), config)

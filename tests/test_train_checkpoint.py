@@ -411,3 +411,18 @@ def test_a_run_whose_last_pt_is_damaged_is_told_how_to_go_on_from_its_intact_bes
     (cfg.run_dir / "best.pt").write_text("")
     with pytest.raises(ValueError, match="cut short\\)$"):  # no advice when best.pt is damaged too
         Trainer.resume(cfg.run_dir, log=lambda s: None)
+
+
+def test_a_run_folder_given_for_a_checkpoint_file_is_named_as_a_folder(tmp_path, capsys):
+    """--init-from, --export and demo --model said 'no such checkpoint' / 'file not found' of a folder."""
+    from pursuit_cli import main
+
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    folder = f"a folder, not a checkpoint file; did you mean {cfg.run_dir / 'best.pt'}\\?"
+    with pytest.raises(ValueError, match=f"checkpoint {cfg.run_dir}: {folder}"):
+        load_checkpoint(cfg.run_dir)
+    with pytest.raises(ValueError, match=folder):
+        Trainer(tiny_config(tmp_path, name="ft", extra=[f"init_from={cfg.run_dir}"]), log=lambda s: None)
+    assert main(["demo", "-m", str(cfg.run_dir)]) == 2
+    assert f"--model {cfg.run_dir}: a folder" in capsys.readouterr().err

@@ -45,6 +45,9 @@ def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
     """Read a checkpoint; a missing, truncated, foreign or tampered file is a ValueError naming it."""
     path = Path(path)
+    if path.is_dir():
+        hint = next((f"; did you mean {path / n}?" for n in ("best.pt", "last.pt") if (path / n).is_file()), "")
+        raise ValueError(f"checkpoint {path}: a folder, not a checkpoint file{hint}")
     if not path.is_file():
         raise ValueError(f"checkpoint {path}: file not found")
     if not zipfile.is_zipfile(path):

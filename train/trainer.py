@@ -191,7 +191,7 @@ class Trainer:
 
     def _init_from(self, path: str) -> None:
         """Start from another run's weights (fine_tune): actor always, critic when it fits."""
-        if not Path(path).is_file():
+        if not Path(path).exists():
             hint = (" fine_tune starts from a full_obs run: train one first (pursuit-mj train --config full_obs), "
                     "then pass its best.pt" if self.cfg.regime == "fine_tune" else "")
             raise ValueError(f"init_from {path}: no such checkpoint (set it with --init-from or --set init_from=...)."
