@@ -354,6 +354,10 @@ def test_a_run_that_crashed_before_its_first_checkpoint_starts_afresh_with_its_l
     assert Trainer(tiny_config(tmp_path, updates=2), log=said.append).train()["status"] == "done"
     assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2]
     assert "dropping 2 rows" in said[0]
+    (cfg.run_dir / "last.pt").unlink()
+    (cfg.run_dir / "metrics.jsonl").write_text('{"update": 1, "world_st')  # killed while writing its first row
+    Trainer(tiny_config(tmp_path, updates=1), log=lambda s: None).train()
+    assert [r["update"] for r in rows(cfg.run_dir)] == [1]
 
 
 def test_a_checkpoint_whose_entries_do_not_fit_is_refused_in_one_line_naming_it(tmp_path):

@@ -437,8 +437,8 @@ class Trainer:
         cfg, c = self.cfg, self.counters
         self.run_dir.mkdir(parents=True, exist_ok=True)
         atomic_write_text(self.run_dir / "config.yaml", dump_yaml(cfg))
-        if self._saved_update < 0 and self.metrics.rows():
-            # rows of a run killed before its first checkpoint: it starts afresh, and so does its log
+        if self._saved_update < 0 and self.metrics.path.is_file() and self.metrics.path.stat().st_size:
+            # rows (or a cut-off line) of a run killed before its first checkpoint: it starts afresh, and so does its log
             self.log(f"{self.metrics.path}: dropping {len(self.metrics.rows())} rows of a run stopped before its first checkpoint")
             self.metrics.truncate_after(0)
         bar = _progress(cfg, self.progress())
