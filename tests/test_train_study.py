@@ -113,3 +113,17 @@ def test_an_interrupted_study_resumes_keeping_its_finished_arms(tmp_path, capsys
     assert len({r["policy"] for r in table["rows"]}) == 10  # the heuristic team and all nine arms
     assert main(["study", "--budget-minutes", "0.6", "--resume", *args, "--train-set", "n_envs=3"]) == 2
     assert "give the same --train-fidelity and --train-set" in capsys.readouterr().err
+
+
+def test_a_resumed_study_whose_kept_arm_lost_its_best_pt_is_refused_before_anything_runs(tmp_path, capsys):
+    """It was found only when an arm started from it, or at the evaluation after every other arm had trained."""
+    out_dir = tmp_path / "study"
+    (out_dir / "runs" / "full_obs").mkdir(parents=True)
+    (out_dir / "runs" / "full_obs" / "best.pt").write_bytes(b"")
+    state = {"train_overrides": ["task.fidelity=point"], "arms": {"full_obs": {"train_seconds": 1.0}}}
+    (out_dir / "study.json").write_text(json.dumps(state))
+    assert main(["study", "--budget-minutes", "1", "--resume", "--out", str(out_dir)]) == 2
+    err = capsys.readouterr().err
+    assert f"the full_obs arm is kept as finished in {out_dir / 'study.json'}, but checkpoint " in err
+    assert "best.pt: not a pursuit-mj checkpoint" in err and "delete its entry" in err
+    assert not (out_dir / "runs" / "fine_tune").exists()

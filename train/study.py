@@ -40,6 +40,7 @@ from pursuit_mj.io_utils import atomic_write_text
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import make_policy
 
+from .checkpoint import load_checkpoint
 from .config import load_train_config
 from .policy import load_policy
 from .trainer import Trainer
@@ -112,6 +113,13 @@ def _load_state(plan: StudyPlan) -> dict:
     if stored != list(plan.train_overrides):
         raise ValueError(f"--resume: the study in {plan.out} was trained with {stored or 'no train overrides'}, not "
                          f"{list(plan.train_overrides)}; give the same --train-fidelity and --train-set")
+    for arm in ARMS:  # checked now, not at the evaluation after every other arm has trained
+        if arm.name in arms:
+            try:
+                load_checkpoint(plan.out / "runs" / arm.name / "best.pt")
+            except ValueError as exc:
+                raise ValueError(f"--resume: the {arm.name} arm is kept as finished in {path}, but {exc}; delete its "
+                                 f"entry under \"arms\" there to train it again") from None
     return {"train_overrides": stored, "arms": arms}
 
 
@@ -271,8 +279,6 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
 
 def _spent_minutes(run_dir: Path) -> float:
     """Minutes an interrupted run has trained so far (its checkpoint's counters)."""
-    from .checkpoint import load_checkpoint
-
     return float(load_checkpoint(run_dir / "last.pt")["counters"]["seconds"]) / 60.0
 
 
