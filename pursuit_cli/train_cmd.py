@@ -147,7 +147,7 @@ def _progress(args) -> bool | None:
 def run(args) -> int:
     from pursuit_mj.configio import dump_yaml
     from train.config import load_train_config
-    from train.trainer import Trainer
+    from train.trainer import Trainer, best_instead
 
     if args.export:
         from pursuit_mj.io_utils import check_writable
@@ -180,7 +180,7 @@ def run(args) -> int:
         if not run_dir.is_dir():
             raise ValueError(f"--resume {args.resume}: no such run folder")
         if not (run_dir / "last.pt").is_file():
-            raise ValueError(f"--resume {args.resume}: no last.pt in {run_dir}")
+            raise ValueError(f"--resume {args.resume}: no last.pt in {run_dir}{best_instead(run_dir)}")
         trainer = Trainer.resume(run_dir, args.total_steps, max_minutes=args.max_minutes, progress=_progress(args),
                                  rerun=True if args.rerun else None)
     else:
@@ -191,7 +191,7 @@ def run(args) -> int:
         last = cfg.run_dir / "last.pt"
         if args.resume:
             if not last.is_file():
-                raise ValueError(f"--resume: no checkpoint {last} to continue from")
+                raise ValueError(f"--resume: no checkpoint {last} to continue from{best_instead(cfg.run_dir)}")
             trainer = Trainer.resume(cfg.run_dir, args.total_steps, max_minutes=args.max_minutes, progress=_progress(args),
                                      check=lambda stored: _check_same(cfg, stored), rerun=True if args.rerun else None)
         else:

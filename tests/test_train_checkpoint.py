@@ -405,9 +405,16 @@ def test_a_run_folder_that_cannot_be_written_is_refused_before_training_naming_i
         save_checkpoint(blocker / "last.pt", {})
 
 
-def test_a_run_whose_last_pt_is_damaged_is_told_how_to_go_on_from_its_intact_best_pt(tmp_path):
+def test_a_run_whose_last_pt_is_damaged_is_told_how_to_go_on_from_its_intact_best_pt(tmp_path, capsys):
+    from pursuit_cli import main
+
     cfg = tiny_config(tmp_path, updates=2, extra=["run.validate_every=1"])
     Trainer(cfg, log=lambda s: None).train()
+    kept = (cfg.run_dir / "last.pt").read_bytes()
+    (cfg.run_dir / "last.pt").unlink()
+    assert main(["train", "--resume", str(cfg.run_dir)]) == 2
+    assert f"no last.pt in {cfg.run_dir}; its best.pt (update" in capsys.readouterr().err
+    (cfg.run_dir / "last.pt").write_bytes(kept)
     last = cfg.run_dir / "last.pt"
     last.write_bytes(last.read_bytes()[:1000])
     with pytest.raises(ValueError, match=f"checkpoint {last}: .*cut short.*; its best.pt \\(update [12]\\) is intact: copy it over last.pt"):

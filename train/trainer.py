@@ -135,7 +135,7 @@ class Trainer:
         try:
             data = load_checkpoint(path)
         except ValueError as exc:
-            raise ValueError(f"{exc}{_best_instead(Path(run_dir))}") from None
+            raise ValueError(f"{exc}{best_instead(Path(run_dir))}") from None
         if not is_training_checkpoint(data) and "exported_from" not in data:
             lacking = [k for k in ("critic", "optimizer", "rng") if k not in data]
             raise ValueError(f"--resume {run_dir}: {path} lacks {lacking}, which a resume needs (damaged, or written "
@@ -473,7 +473,7 @@ class Trainer:
         return {"status": status, "counters": dataclasses.asdict(c), "validation": last_val, "run_dir": str(self.run_dir)}
 
 
-def _best_instead(run_dir: Path) -> str:
+def best_instead(run_dir: Path) -> str:
     """How to go on from the run's best.pt when its last.pt is unusable ('' if best.pt is unusable too)."""
     try:
         best = load_checkpoint(run_dir / "best.pt")
