@@ -102,10 +102,18 @@ def test_an_interrupted_study_resumes_keeping_its_finished_arms(tmp_path, capsys
     kept = (out_dir / "runs" / "full_obs" / "metrics.jsonl").read_text()
     classic_rows = len((out_dir / "runs" / "classic" / "metrics.jsonl").read_text().splitlines())
 
+    # as if stopped after fine_tune ended but before study.json recorded it: it is not trained again
+    state = json.loads((out_dir / "study.json").read_text())
+    del state["arms"]["fine_tune"]
+    (out_dir / "study.json").write_text(json.dumps(state))
+    fine_tune_log = (out_dir / "runs" / "fine_tune" / "metrics.jsonl").read_text()
+
     monkeypatch.setattr(Trainer, "train_one_update", real_update)
     assert main(["study", "--budget-minutes", "0.6", "--resume", *args]) == 0
     out = capsys.readouterr().out
     assert "full_obs: trained in an earlier session, kept" in out and "resuming classic" in out
+    assert "fine_tune: finished in an earlier session (stopped before the study recorded it), kept" in out
+    assert (out_dir / "runs" / "fine_tune" / "metrics.jsonl").read_text() == fine_tune_log
     assert (out_dir / "runs" / "full_obs" / "metrics.jsonl").read_text() == kept
     updates = [json.loads(x)["update"] for x in (out_dir / "runs" / "classic" / "metrics.jsonl").read_text().splitlines()]
     assert updates[:classic_rows] == list(range(1, classic_rows + 1)) and len(updates) > classic_rows  # continued

@@ -40,8 +40,8 @@ from pursuit_mj.io_utils import atomic_write_text
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import make_policy
 
-from .checkpoint import load_checkpoint
-from .config import load_train_config
+from .checkpoint import is_training_checkpoint, load_checkpoint
+from .config import load_train_config, train_config_from_dict
 from .policy import load_policy
 from .trainer import Trainer
 
@@ -241,6 +241,14 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
         interrupted = (cfg.run_dir / "last.pt").exists()
         if interrupted and not plan.resume:
             raise ValueError(f"study folder {plan.out}: {cfg.run_dir} already holds a run; choose another --out")
+        finished_s = _finished_seconds(cfg.run_dir) if interrupted else None
+        if finished_s is not None:  # stopped after the arm ended, before study.json said so: not trained again
+            checkpoints[regime] = run_dir / "best.pt"
+            timings[f"{regime} (train, earlier session)"] = finished_s
+            state["arms"][regime] = {"train_seconds": round(finished_s, 1)}
+            atomic_write_text(plan.out / STATE_FILE, json.dumps(state, indent=2) + "\n")
+            log(f"[study] {regime}: finished in an earlier session (stopped before the study recorded it), kept")
+            continue
         i = todo.index(arm)
         left_s = train_end - time.perf_counter() - ARM_START_S * (len(todo) - i)  # this and every later arm's start
         minutes, val_episodes = arm_budget(left_s, arm.share, sum(a.share for a in todo[i:]),
@@ -275,6 +283,18 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
     timings["total"] = time.perf_counter() - t_start
     _write(plan, rows, timings, episodes)
     return {"rows": rows, "timings": timings, "episodes": episodes}
+
+
+def _finished_seconds(run_dir: Path) -> float | None:
+    """Training seconds of a run whose last.pt shows it ended on its own (its max_minutes or
+    total_steps used, its last row logged); None if it was interrupted before that."""
+    data = load_checkpoint(run_dir / "last.pt")
+    if not is_training_checkpoint(data) or data.get("pending_row"):
+        return None
+    cfg, c = train_config_from_dict(data["train_config"], str(run_dir / "last.pt")), data["counters"]
+    seconds, steps = float(c.get("seconds", 0.0)), c.get("world_steps", 0)
+    by_time = cfg.max_minutes > 0 and seconds >= 60.0 * cfg.max_minutes
+    return seconds if by_time or steps >= cfg.total_steps else None
 
 
 def _spent_minutes(run_dir: Path) -> float:
