@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
 from pathlib import Path
 
 from .common import finite_float
@@ -136,10 +135,6 @@ def _check_same(asked, stored) -> None:
                          f"folder alone (--resume RUN_DIR); only {RESUMABLE_FLAGS} can change")
 
 
-def _stop_on_sigterm(signum, frame) -> None:
-    raise KeyboardInterrupt  # handled like Ctrl-C: keep the last finished update, exit cleanly
-
-
 def _progress(args) -> bool | None:
     return False if args.no_progress else None
 
@@ -199,7 +194,7 @@ def run(args) -> int:
                 raise ValueError(f"run folder {cfg.run_dir} already has a checkpoint: continue it with --resume, "
                                  f"or start another run with --name")
             trainer = Trainer(cfg)
-    signal.signal(signal.SIGTERM, _stop_on_sigterm)
+    # SIGTERM stops it like Ctrl-C (pursuit_cli.termination_as_interrupt): the last finished update is kept
     seconds_before = trainer.counters.seconds  # a resumed run's counters hold its earlier sessions too
     result = trainer.train()
     c = result["counters"]

@@ -1,4 +1,4 @@
-"""A real training process killed with kill -9 or Ctrl-C (SIGINT) loses at most one update."""
+"""A real training process killed with kill -9, Ctrl-C (SIGINT) or SIGTERM loses at most one update."""
 
 import json
 import os
@@ -46,10 +46,11 @@ def rows(run_dir):
     return [json.loads(line) for line in (Path(run_dir) / "metrics.jsonl").read_text().splitlines()]
 
 
-@pytest.mark.parametrize("overlap", [False, True])
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
-def test_kill_9_or_ctrl_c_loses_at_most_one_update(tmp_path, sig, overlap):
-    """Also with a rollout worker (run.overlap), which must not outlive its trainer."""
+@pytest.mark.parametrize("sig, overlap", [(signal.SIGKILL, False), (signal.SIGKILL, True), (signal.SIGINT, False),
+                                          (signal.SIGINT, True), (signal.SIGTERM, False)])
+def test_kill_9_ctrl_c_or_sigterm_loses_at_most_one_update(tmp_path, sig, overlap):
+    """Also with a rollout worker (run.overlap), which must not outlive its trainer; SIGTERM
+    (kill, a batch scheduler's stop) is handled as Ctrl-C."""
     args = [sys.executable, "-c", "import sys; from pursuit_cli import main; sys.exit(main())", "train", "--no-progress", "--total-steps", "100000"]
     for s in TINY + [f"run.runs_dir={tmp_path}", "name=killed", f"run.overlap={str(overlap).lower()}"]:
         args += ["--set", s]
@@ -72,7 +73,7 @@ def test_kill_9_or_ctrl_c_loses_at_most_one_update(tmp_path, sig, overlap):
     assert not any(alive(pid) for pid in workers), "the rollout worker outlived its trainer"
     out, err = proc.stdout.read().decode(), proc.stderr.read().decode()
     assert log.exists(), err
-    if sig == signal.SIGINT:
+    if sig in (signal.SIGINT, signal.SIGTERM):
         assert code == 130 and "interrupted" in out and "--resume" in out and "Traceback" not in err, err
     logged = len(log.read_text().splitlines())
     saved = load_checkpoint(tmp_path / "killed" / "last.pt")["counters"]["update"]
