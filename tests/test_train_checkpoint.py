@@ -437,3 +437,20 @@ def test_a_run_folder_given_for_a_checkpoint_file_is_named_as_a_folder(tmp_path,
         Trainer(tiny_config(tmp_path, name="ft", extra=[f"init_from={cfg.run_dir}"]), log=lambda s: None)
     assert main(["demo", "-m", str(cfg.run_dir)]) == 2
     assert f"--model {cfg.run_dir}: a folder" in capsys.readouterr().err
+
+
+def test_a_second_trainer_on_a_folder_in_use_is_refused_and_the_folder_is_free_after_the_first_ends(tmp_path):
+    """Two runs in one folder (the same --resume in two terminals) would interleave their
+    metrics rows and overwrite each other's checkpoints."""
+    cfg = tiny_config(tmp_path, updates=1)
+    first = Trainer(cfg, log=lambda s: None)
+    with pytest.raises(ValueError, match=rf"run folder {cfg.run_dir} is in use by another trainer \(pid \d+\)"):
+        Trainer(cfg, log=lambda s: None)
+    assert first.train()["status"] == "done"  # ending a run frees its folder
+    again = Trainer.resume(cfg.run_dir, total_steps=64, log=lambda s: None)
+    assert again.train()["counters"]["update"] == 2
+    # a run that cannot start frees the folder too
+    (cfg.run_dir / "last.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError):
+        Trainer(cfg, checkpoint={"counters": {"bogus": 1}}, log=lambda s: None)
+    Trainer(tiny_config(tmp_path, updates=1), log=lambda s: None).close()

@@ -18,6 +18,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import json
+import os
 import time
 from pathlib import Path
 from typing import Callable
@@ -77,6 +78,16 @@ class Trainer:
         self.run_dir = cfg.run_dir
         self.resume_command = f"pursuit-mj train --resume {self.run_dir}"  # what an interrupted run tells the user
         check_writable_folder(self.run_dir, f"run folder (run.runs_dir {cfg.run.runs_dir}, name {cfg.name})")
+        self._lock = lock_run_folder(self.run_dir)  # before anything in the folder is read or written
+        try:
+            self._build(checkpoint)
+        except BaseException:
+            self._lock.close()  # a run that cannot start leaves the folder free
+            raise
+
+    def _build(self, checkpoint: dict | None) -> None:
+        """Everything else of __init__: env, networks, optimiser, restored state, collectors, logs."""
+        cfg = self.cfg
         torch.manual_seed(cfg.seed)
         self.counters = Counters()
         self.generator = torch.Generator().manual_seed(cfg.seed)
@@ -329,6 +340,9 @@ class Trainer:
             self.worker = None
         if self.rerun is not None:
             self.rerun.close()
+        if self._lock is not None:
+            self._lock.close()  # releases the run folder
+            self._lock = None
 
     def train_one_update(self) -> dict:
         """Collect one rollout (or take the one collected meanwhile, with overlap), learn from it,
@@ -471,6 +485,29 @@ class Trainer:
             if bar is not None:
                 bar.close()
         return {"status": status, "counters": dataclasses.asdict(c), "validation": last_val, "run_dir": str(self.run_dir)}
+
+
+def lock_run_folder(run_dir: Path):
+    """An open file holding an exclusive lock on `run_dir` (released when closed, or when the
+    process dies); ValueError if another trainer holds it: two runs in one folder would
+    interleave their metrics rows and overwrite each other's checkpoints."""
+    import fcntl
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    handle = open(run_dir / ".lock", "a+")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.seek(0)
+        holder = handle.read().strip() or "another process"
+        handle.close()
+        raise ValueError(f"run folder {run_dir} is in use by another trainer ({holder}): wait for it to end or stop "
+                         f"it, or train under another name") from None
+    handle.seek(0)
+    handle.truncate()
+    handle.write(f"pid {os.getpid()}")
+    handle.flush()
+    return handle
 
 
 def best_instead(run_dir: Path) -> str:
