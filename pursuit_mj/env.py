@@ -22,7 +22,7 @@ from .obs_spec import ObsSpec
 from .physics import BatchedPhysics
 from .randomness import WorldRandom, world_keys
 from .rewards import REWARD_TERMS, detect_events, reward_terms
-from .sensing import CAUGHT_BODY_RADIUS, INITIAL_HEADING, PERCEPTION_KEYS, Perception, WorldView, perceive, update_heading
+from .sensing import CAUGHT_BODY_RADIUS, INITIAL_HEADING, PERCEPTION_KEYS, Perception, WorldView, heading_min_speed, perceive, update_heading
 
 SENSING_DOMAIN = 1  # keeps perception's random streams apart from the evaders' (same episode seed)
 
@@ -341,7 +341,7 @@ class PursuitEnv:
 
         pos = self.physics.positions()[..., :2]
         vel = self.physics.velocities()[..., :2]
-        self.heading = update_heading(self.heading, vel[:, :N])
+        self.heading = update_heading(self.heading, vel[:, :N], heading_min_speed(cfg.pursuer_speed))
         events = detect_events(pos[:, :N], pos[:, N:], self.captured, contacts[:, :N], self._obstacles, cfg)
         terms = reward_terms(cfg, events, pos0[:, :N], pos[:, :N], pos[:, N:], pos0[:, N:], free_before)
         terms["progress"][diverged] = 0.0  # positions of a diverged world are not meaningful

@@ -80,17 +80,27 @@ def privileged_config(config: TaskConfig, view: str) -> TaskConfig:
 
 #: a pursuer faces +y (into the arena) at the start of an episode
 INITIAL_HEADING = np.pi / 2
-HEADING_MIN_SPEED = 0.05  # m/s: below this a pursuer keeps its previous heading
+HEADING_MIN_SPEED = 0.05  # m/s: below this a pursuer keeps its previous heading (see heading_min_speed)
 # m: a caught evader blocks sight and range readings as the drone it is (a Crazyflie's rotors
 # reach about 0.05 m from its centre), not as its capture disc, which holds the pursuer that
 # caught it: from inside, every ray and line of sight would be blocked at once
 CAUGHT_BODY_RADIUS = 0.05
 
 
-def update_heading(heading: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-    """The direction each pursuer faces (..., N) rad: along its velocity (..., N, 2) m/s when moving."""
+def heading_min_speed(pursuer_speed: float) -> float:
+    """The speed (m/s) above which a pursuer of max speed `pursuer_speed` (m/s) faces where it flies.
+
+    HEADING_MIN_SPEED, or half the max speed for pursuers slower than 0.1 m/s: with a fixed
+    floor, pursuers whose max speed is 0.05 m/s or less would face their start heading forever.
+    """
+    return min(HEADING_MIN_SPEED, 0.5 * pursuer_speed)
+
+
+def update_heading(heading: np.ndarray, velocity: np.ndarray, min_speed: float) -> np.ndarray:
+    """The direction each pursuer faces (..., N) rad: along its velocity (..., N, 2) m/s when
+    faster than min_speed (m/s, `heading_min_speed` of the task), else the previous heading."""
     speed = np.hypot(velocity[..., 0], velocity[..., 1])
-    return np.where(speed > HEADING_MIN_SPEED, np.arctan2(velocity[..., 1], velocity[..., 0]), heading)
+    return np.where(speed > min_speed, np.arctan2(velocity[..., 1], velocity[..., 0]), heading)
 
 
 @functools.lru_cache(maxsize=None)

@@ -48,7 +48,7 @@ import numpy as np
 from .obs_spec import ObsSpec, named_views
 from .planar import EPS, clip_unit, limit_closing, norm, unit
 from .policy import Policy, check_observations
-from .sensing import HEADING_MIN_SPEED
+from .sensing import heading_min_speed
 
 MIN_RAYS = 8  # range readings the shield (and the heuristic team) need to keep off walls: they see walls through nothing else
 
@@ -241,7 +241,7 @@ class SafetyShield:
             return near
         speed = norm(mate_vel)
         cos_to_me = -np.einsum("wnmk,wnmk->wnm", u, mate_vel) / np.maximum(speed, EPS)
-        return near & (speed > HEADING_MIN_SPEED) & (cos_to_me >= math.cos(self.field_of_view / 2))
+        return near & (speed > heading_min_speed(self.speed)) & (cos_to_me >= math.cos(self.field_of_view / 2))
 
     def _limit_closing(self, v: np.ndarray, o: dict) -> np.ndarray:
         """Cap the speed toward each hazard (module docstring) by projection; v (W, N, 2) m/s."""

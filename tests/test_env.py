@@ -352,3 +352,17 @@ def test_reading_the_state_before_reset_is_refused_and_works_after():
 def test_clearances_the_spawn_spacing_breaks_are_refused_naming_the_key(key, value):
     with pytest.raises(ConfigError, match=f"'{key}'.*collision before any action"):
         default_config(**{key: value})
+
+
+@pytest.mark.parametrize("speed", [0.3, 0.04])
+def test_the_field_of_view_turns_with_the_direction_of_flight_at_any_pursuer_speed(speed):
+    """A fixed 0.05 m/s floor on the speed that sets a pursuer's heading kept pursuers of max
+    speed 0.05 m/s or less facing +y (their start) wherever they flew."""
+    cfg = default_config(fidelity="point", random_obstacles=0, pursuer_speed=speed, field_of_view=1.0)
+    env = PursuitEnv(cfg, n_worlds=1, seed=0)
+    env.reset()
+    actions = np.zeros((1, 3, 2))
+    actions[..., 0] = -1.0
+    for _ in range(15):
+        env.step(actions)
+    assert np.cos(env.heading[0]) == pytest.approx(-1.0), "flying along -x, the pursuers look along -x"

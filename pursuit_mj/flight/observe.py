@@ -18,7 +18,7 @@ from ..layout import Layout
 from ..obs_spec import ObsSpec
 from ..observations import build_observations
 from ..rewards import detect_events
-from ..sensing import CAUGHT_BODY_RADIUS, INITIAL_HEADING, Perception, WorldView, perceive, update_heading
+from ..sensing import CAUGHT_BODY_RADIUS, INITIAL_HEADING, Perception, WorldView, heading_min_speed, perceive, update_heading
 
 
 class FlightObserver:
@@ -52,7 +52,7 @@ class FlightObserver:
 
     def observe(self, pursuer_pos: np.ndarray, pursuer_vel: np.ndarray, evader_pos: np.ndarray, evader_vel: np.ndarray) -> np.ndarray:
         """Observations (1, N, spec.dim) float32 from pursuer_pos/vel (N, 2) and evader_pos/vel (M, 2)."""
-        self.heading = update_heading(self.heading, pursuer_vel[None])
+        self.heading = update_heading(self.heading, pursuer_vel[None], heading_min_speed(self.config.pursuer_speed))
         self.view = WorldView(pursuer_pos[None], pursuer_vel[None], self.heading, evader_pos[None], evader_vel[None], self.captured.copy(), self.obstacles_now(evader_pos))
         self.perception = perceive(self.view, self.config, self.rng)
         return build_observations(self.view, self.perception, self.spec)
