@@ -23,6 +23,7 @@ from .common import add_task_args, finite_float, seed_arg, task_config_from_args
 
 SPAWN_SEPARATION = 0.35  # m between spawned drones
 SEPARATION = 0.25  # m: drones closer than this steer apart
+MAX_SECONDS = 86400.0  # --seconds at most (a simulated day per run): far larger values overflowed the step count
 
 
 @dataclasses.dataclass
@@ -115,7 +116,7 @@ def register(sub) -> None:
         help="fly a scripted pattern in each built-in layout in both fidelities and print what happened",
         description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
     )
-    p.add_argument("--seconds", type=finite_float, default=5.0, help="simulated seconds per layout and fidelity (default 5)")
+    p.add_argument("--seconds", type=finite_float, default=5.0, help="simulated seconds per layout and fidelity (default 5, at most 86400)")
     p.add_argument("--seed", type=seed_arg, default=0, help="seed of the random obstacles and spawn points (default 0)")
     add_task_args(p)
     p.set_defaults(func=run)
@@ -144,6 +145,8 @@ def _chosen(args, config: TaskConfig, key: str) -> bool:
 def run(args) -> int:
     if not np.isfinite(args.seconds) or args.seconds <= 0:
         raise ValueError(f"--seconds: must be > 0, got {args.seconds}")
+    if args.seconds > MAX_SECONDS:
+        raise ValueError(f"--seconds: must be at most {MAX_SECONDS:g} (a simulated day per run), got {args.seconds:g}")
     base = task_config_from_args(args)
     layouts = [base.layout] if _chosen(args, base, "layout") else list(range(N_BUILTIN))
     fidelities = [base.fidelity] if _chosen(args, base, "fidelity") else ["quadrotor", "point"]

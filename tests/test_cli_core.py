@@ -80,6 +80,10 @@ def test_bench_physics_prints_the_table(capsys):
         (["simulate", "--set", "n_pursuers=40"], "key 'n_pursuers': 40 is out of range"),
         (["bench", "physics", "--worlds", "0"], "--worlds: world counts must be >= 1, got 0"),
         (["bench", "physics", "--seconds", "-1"], "--seconds: must be > 0"),
+        # a huge finite value used to overflow the step or block count into an OverflowError traceback
+        (["simulate", "--seconds", "1e308"], "--seconds: must be at most 86400 (a simulated day per run), got 1e+308"),
+        (["bench", "physics", "--seconds", "1e308"], "--seconds: must be at most 3600 (an hour per configuration)"),
+        (["bench", "env", "--seconds", "1e308"], "--seconds: must be at most 3600 (an hour per configuration)"),
     ],
 )
 def test_bad_input_exits_2_with_one_line(argv, message, capsys):

@@ -12,11 +12,15 @@ import resource
 import sys
 from typing import Any, Callable, Sequence
 
+MAX_SECONDS = 3600.0  # --seconds at most (an hour per configuration): far larger values overflowed block counts
+
 
 def check_common_args(args: Any) -> None:
-    """Refuse a non-positive --seconds or a world count below 1 before any work."""
+    """Refuse a --seconds outside (0, MAX_SECONDS] or a world count below 1 before any work."""
     if not math.isfinite(args.seconds) or args.seconds <= 0:
         raise ValueError(f"--seconds: must be > 0, got {args.seconds}")
+    if args.seconds > MAX_SECONDS:
+        raise ValueError(f"--seconds: must be at most {MAX_SECONDS:g} (an hour per configuration), got {args.seconds:g}")
     bad = [w for w in args.worlds if w < 1]
     if bad:
         raise ValueError(f"--worlds: world counts must be >= 1, got {bad[0]}")

@@ -61,7 +61,7 @@ class PhysicsBench:
 
 def add_arguments(p) -> None:
     p.add_argument("--worlds", nargs="+", type=int, default=[1, 16, 64], metavar="W", help="world counts (default 1 16 64)")
-    p.add_argument("--seconds", type=finite_float, default=3.0, help="measuring time per configuration, raw and ours together (default 3)")
+    p.add_argument("--seconds", type=finite_float, default=3.0, help="measuring time per configuration, raw and ours together (default 3, at most 3600)")
     p.add_argument("--fidelity", nargs="+", choices=("quadrotor", "point"), default=["quadrotor", "point"], help="fidelities (default both)")
     p.add_argument("--nthread", type=int, default=0, help="MuJoCo batch threads (default 0: all CPUs)")
     p.add_argument("--seed", type=seed_arg, default=0, help="seed of the random obstacles and start positions (default 0)")
