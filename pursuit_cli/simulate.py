@@ -148,11 +148,14 @@ def run(args) -> int:
     if args.seconds > MAX_SECONDS:
         raise ValueError(f"--seconds: must be at most {MAX_SECONDS:g} (a simulated day per run), got {args.seconds:g}")
     base = task_config_from_args(args)
+    if args.seconds < base.control_dt:  # fly() flies whole decision steps: this would be rounded up to one
+        raise ValueError(f"--seconds: {args.seconds:g} is shorter than one decision step (control_dt {base.control_dt:g} s)")
+    n_steps = int(round(args.seconds / base.control_dt))
     layouts = [base.layout] if _chosen(args, base, "layout") else list(range(N_BUILTIN))
     fidelities = [base.fidelity] if _chosen(args, base, "fidelity") else ["quadrotor", "point"]
     team = f"{base.n_pursuers} pursuer{'s' if base.n_pursuers > 1 else ''} + {base.n_evaders} evader{'s' if base.n_evaders > 1 else ''}"
     print(f"scripted flight: {team} fly to the middle, then circle it; "
-          f"{args.seconds:g} s per run, control_dt {base.control_dt:g} s, physics_dt {base.physics_dt:g} s")
+          f"{n_steps * base.control_dt:g} s ({n_steps} decision steps) per run, control_dt {base.control_dt:g} s, physics_dt {base.physics_dt:g} s")
     print(f"{'layout':<10} {'fidelity':<9} {'sim s':>6} {'wall s':>7} {'RTF':>7} {'max|dz| cm':>10} {'tilt deg':>9}  contacts (drone x steps)")
     total = time.perf_counter()
     for ref in layouts:

@@ -18,6 +18,7 @@ def test_simulate_prints_a_row_per_layout_and_fidelity(capsys):
     rows = [line for line in out.splitlines() if line.startswith("cluttered")]
     assert [r.split()[1] for r in rows] == ["quadrotor", "point"]
     assert out.count("final xy (m): pursuer_0") == 2 and "total wall time" in out
+    assert "0.3 s (3 decision steps) per run" in out and [r.split()[2] for r in rows] == ["0.3", "0.3"]
 
 
 def test_simulate_flies_only_the_layout_and_fidelity_chosen_through_set(capsys):
@@ -81,6 +82,7 @@ def test_bench_physics_prints_the_table(capsys):
         (["bench", "physics", "--worlds", "0"], "--worlds: world counts must be >= 1, got 0"),
         (["bench", "physics", "--seconds", "-1"], "--seconds: must be > 0"),
         # a huge finite value used to overflow the step or block count into an OverflowError traceback
+        (["simulate", "--seconds", "0.05"], "--seconds: 0.05 is shorter than one decision step (control_dt 0.1 s)"),  # flew 0.1 s
         (["simulate", "--seconds", "1e308"], "--seconds: must be at most 86400 (a simulated day per run), got 1e+308"),
         (["bench", "physics", "--seconds", "1e308"], "--seconds: must be at most 3600 (an hour per configuration)"),
         (["bench", "env", "--seconds", "1e308"], "--seconds: must be at most 3600 (an hour per configuration)"),
