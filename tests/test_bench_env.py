@@ -38,10 +38,13 @@ def test_bench_env_prints_rates_overhead_and_profile(capsys):
         (["physics", "--fidelity", "point", "quadrotor", "--set", "fidelity=point"], "--set fidelity=point: this benchmark measures"),
         (["physics", "--seed", "-1"], "argument --seed: expected an integer >= 0"),
         (["render", "--seed", "-1"], "argument --seed: expected an integer >= 0"),
+        # bench train measured the --set value under the --fidelity / --collection label
+        (["train", "--fidelity", "point", "--set", "task.fidelity=quadrotor"], "--set task.fidelity=quadrotor: this benchmark sets that key from --fidelity"),
+        (["train", "--collection", "in-turn", "--set", "run.overlap=true"], "--set run.overlap=true: this benchmark sets that key from --collection"),
     ],
 )
 def test_bench_env_bad_input_exits_2(args, message, capsys):
-    kind = args.pop(0) if args[0] in ("physics", "render") else "env"
+    kind = args.pop(0) if args[0] in ("physics", "render", "train") else "env"
     with pytest.raises(SystemExit) if "argument" in message else contextlib.nullcontext() as exited:  # argparse exits, our checks return 2
         code = main(["bench", kind] + args)
     code = exited.value.code if exited is not None else code

@@ -199,6 +199,11 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--profile: must be >= 0, got {args.profile}")
     if args.n_envs is not None and args.n_envs < 1:
         raise ValueError(f"--n-envs: expected an integer >= 1, got {args.n_envs}")
+    own = {"task.fidelity": "--fidelity", "run.overlap": "--collection"}  # measure() sets these; a --set would win and mislabel the row
+    for text in args.overrides:
+        flag = own.get(text.split("=", 1)[0].strip())
+        if flag:
+            raise ValueError(f"--set {text}: this benchmark sets that key from {flag}; use {flag}")
     modes = {"both": ["false", "true"], "in-turn": ["false"], "overlapped": ["true"]}[args.collection]
     results = []
     for f in args.fidelity:
