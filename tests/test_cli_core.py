@@ -81,6 +81,10 @@ def test_bench_physics_prints_the_table(capsys):
         (["simulate", "--set", "n_pursuers=40"], "key 'n_pursuers': 40 is out of range"),
         (["bench", "physics", "--worlds", "0"], "--worlds: world counts must be >= 1, got 0"),
         (["bench", "physics", "--seconds", "-1"], "--seconds: must be > 0"),
+        (["bench", "physics", "--nthread", "-1"], "--nthread: must be in 0..256, got -1"),
+        (["bench", "physics", "--nthread", "3000000000"], "--nthread: must be in 0..256, got 3000000000"),  # a TypeError traceback
+        (["bench", "physics", "--worlds", "4", "3000000000"], "--worlds: world counts must be at most 4096, got 3000000000"),  # hung
+        (["bench", "env", "--worlds", "5000"], "--worlds: world counts must be at most 4096, got 5000"),
         # a huge finite value used to overflow the step or block count into an OverflowError traceback
         (["simulate", "--seconds", "0.05"], "--seconds: 0.05 is shorter than one decision step (control_dt 0.1 s)"),  # flew 0.1 s
         (["simulate", "--seconds", "1e308"], "--seconds: must be at most 86400 (a simulated day per run), got 1e+308"),

@@ -12,11 +12,12 @@ import resource
 import sys
 from typing import Any, Callable, Sequence
 
+MAX_WORLDS = 4096  # as the train config's n_envs; about 1 MiB each, and far more hung building layouts
 MAX_SECONDS = 3600.0  # --seconds at most (an hour per configuration): far larger values overflowed block counts
 
 
 def check_common_args(args: Any) -> None:
-    """Refuse a --seconds outside (0, MAX_SECONDS] or a world count below 1 before any work."""
+    """Refuse a --seconds outside (0, MAX_SECONDS] or a world count outside 1..MAX_WORLDS before any work."""
     if not math.isfinite(args.seconds) or args.seconds <= 0:
         raise ValueError(f"--seconds: must be > 0, got {args.seconds}")
     if args.seconds > MAX_SECONDS:
@@ -24,6 +25,9 @@ def check_common_args(args: Any) -> None:
     bad = [w for w in args.worlds if w < 1]
     if bad:
         raise ValueError(f"--worlds: world counts must be >= 1, got {bad[0]}")
+    huge = [w for w in args.worlds if w > MAX_WORLDS]
+    if huge:
+        raise ValueError(f"--worlds: world counts must be at most {MAX_WORLDS}, got {huge[0]}")
 
 
 def peak_rss_mb() -> float:

@@ -56,7 +56,7 @@ class EnvBench:
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--worlds", nargs="+", type=int, default=[1, 16, 64], metavar="W", help="world counts (default 1 16 64)")
+    p.add_argument("--worlds", nargs="+", type=int, default=[1, 16, 64], metavar="W", help="world counts, 1-4096 (default 1 16 64)")
     p.add_argument("--seconds", type=finite_float, default=4.0, help="measuring time per configuration, all kinds together (default 4, at most 3600)")
     p.add_argument("--fidelity", nargs="+", choices=("quadrotor", "point"), default=["quadrotor", "point"], help="fidelities (default both)")
     p.add_argument("--seed", type=seed_arg, default=0, help="environment seed (default 0)")

@@ -33,6 +33,7 @@ BLOCK_SECONDS = 0.2  # wall time of one timed block
 MAX_BLOCK_STEPS = 40  # decision steps per block at most (4 s simulated)
 #: DESIGN aim for the ratio ours/raw at 64 worlds
 AIM = {"quadrotor": 0.70, "point": 0.50}
+MAX_NTHREAD = 256  # as the train config's run.sim_threads; MuJoCo refused 2**31 and more with a TypeError traceback
 
 
 @dataclasses.dataclass
@@ -60,10 +61,10 @@ class PhysicsBench:
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--worlds", nargs="+", type=int, default=[1, 16, 64], metavar="W", help="world counts (default 1 16 64)")
+    p.add_argument("--worlds", nargs="+", type=int, default=[1, 16, 64], metavar="W", help="world counts, 1-4096 (default 1 16 64)")
     p.add_argument("--seconds", type=finite_float, default=3.0, help="measuring time per configuration, raw and ours together (default 3, at most 3600)")
     p.add_argument("--fidelity", nargs="+", choices=("quadrotor", "point"), default=["quadrotor", "point"], help="fidelities (default both)")
-    p.add_argument("--nthread", type=int, default=0, help="MuJoCo batch threads (default 0: all CPUs)")
+    p.add_argument("--nthread", type=int, default=0, help="MuJoCo batch threads, 0-256 (default 0: all CPUs)")
     p.add_argument("--seed", type=seed_arg, default=0, help="seed of the random obstacles and start positions (default 0)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="change a task setting from its default, e.g. --set controller_hz=100 (repeatable)")
@@ -124,8 +125,8 @@ def _row(r: PhysicsBench) -> list[str]:
 
 def run(args) -> int:
     check_common_args(args)
-    if args.nthread < 0:
-        raise ValueError(f"--nthread: must be >= 0, got {args.nthread}")
+    if not 0 <= args.nthread <= MAX_NTHREAD:
+        raise ValueError(f"--nthread: must be in 0..{MAX_NTHREAD}, got {args.nthread}")
     cfg = [task_config(f, args.overrides) for f in args.fidelity][0]  # refuses bad --set values before any work
     print(f"physics benchmark: {cfg.n_pursuers} pursuers + {cfg.n_evaders} evader(s) per world, layout {cfg.layout} with "
           f"{cfg.random_obstacle_count(load_layout(cfg.layout))} random obstacles per world; a decision step is control_dt {cfg.control_dt:g} s = "
