@@ -40,6 +40,7 @@ def test_bench_env_prints_rates_overhead_and_profile(capsys):
         (["render", "--seed", "-1"], "argument --seed: expected an integer >= 0"),
         # bench train measured the --set value under the --fidelity / --collection label
         (["train", "--fidelity", "point", "--set", "task.fidelity=quadrotor"], "--set task.fidelity=quadrotor: this benchmark sets that key from --fidelity"),
+        (["train", "--n-envs", "5000"], "--n-envs 5000: key 'n_envs': 5000 is out of range"),  # it named --set n_envs=5000
         (["train", "--collection", "in-turn", "--set", "run.overlap=true"], "--set run.overlap=true: this benchmark sets that key from --collection"),
     ],
 )

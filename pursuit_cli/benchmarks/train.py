@@ -141,9 +141,8 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
 
     with tempfile.TemporaryDirectory() as tmp:
         extra = [f"task.fidelity={fidelity}", f"run.runs_dir={tmp}", "run.progress=false", "run.validate_every=0"]
-        if n_envs is not None:
-            extra.append(f"n_envs={n_envs}")
-        cfg = load_train_config([config], extra + list(overrides))
+        flags = {"n_envs": n_envs} if n_envs is not None else None  # a flag, so that an error names --n-envs
+        cfg = load_train_config([config], extra + list(overrides), flags, f"--n-envs {n_envs}")
         trainer = Trainer(cfg, log=lambda s: None)
         try:
             trainer.train_one_update()  # warm-up: first forward/backward, allocator, caches, the rollout worker
