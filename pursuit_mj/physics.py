@@ -201,6 +201,17 @@ class BatchedPhysics:
             raise ValueError(f"{source}: repeated world index in {ids.tolist()}")
         return ids
 
+    def _drone_ids(self, worlds, drones, source: str) -> tuple[np.ndarray, np.ndarray]:
+        """(worlds, drones) as equal-length 1-D int arrays in range (negative indices would wrap)."""
+        w, d = np.asarray(worlds), np.asarray(drones)
+        if w.ndim != 1 or d.shape != w.shape or (w.size and not (np.issubdtype(w.dtype, np.integer) and np.issubdtype(d.dtype, np.integer))):
+            raise ValueError(f"{source}: expected two 1-D integer arrays of equal length (worlds, drones), got {worlds!r} and {drones!r}")
+        w, d = w.astype(np.int64), d.astype(np.int64)
+        if w.size and (w.min() < 0 or w.max() >= self.n_worlds or d.min() < 0 or d.max() >= self.n_drones):
+            raise ValueError(f"{source}: index out of range (worlds 0..{self.n_worlds - 1}, drones 0..{self.n_drones - 1}) "
+                             f"in worlds {w.tolist()}, drones {d.tolist()}")
+        return w, d
+
     # ------------------------------------------------------------------ reset
 
     def reset_all_default(self) -> None:
@@ -258,7 +269,7 @@ class BatchedPhysics:
         For a caught evader: commanded to stop, it would coast on for a few tenths of a second,
         into the pursuer that just caught it. A quadrotor is also levelled (its yaw kept) and its
         rotors set to hover thrust: caught while tilted, it would accelerate off again."""
-        worlds, drones = np.asarray(worlds, np.int64), np.asarray(drones, np.int64)
+        worlds, drones = self._drone_ids(worlds, drones, "halt")
         for w in np.unique(worlds):
             these = drones[worlds == w]
             qvel = self.qvel[[w]]

@@ -186,3 +186,21 @@ def test_a_diverged_world_is_reported_by_index():
         physics.step(np.zeros((2, 4, 2)))
     physics.reset([1], SPREAD_XY[None])  # a reset heals it
     physics.step(np.zeros((2, 4, 2)))
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_halt_stops_only_the_named_drones_and_refuses_bad_indices(fidelity):
+    physics = make_physics(fidelity, n_worlds=2)
+    for c in random_commands(physics, 3, seed=7):
+        physics.step(c)
+    before = full_state(physics)
+    for worlds, drones, message in [([-1], [0], "index out of range"), ([0], [-4], "index out of range"),  # wrapped silently
+                                    ([0], [4], "index out of range"), ([0, 1], [1], "equal length"), ([0.0], [1], "integer")]:
+        with pytest.raises(ValueError, match=message):
+            physics.halt(np.array(worlds), np.array(drones))
+        assert np.array_equal(full_state(physics), before)  # nothing changed before the refusal
+    physics.halt(np.array([1, 1]), np.array([0, 3]))
+    v = physics.velocities()
+    assert (v[1, [0, 3]] == 0).all() and (v[1, [1, 2]] != 0).any() and (v[0] != 0).any()
+    assert np.array_equal(full_state(physics)[0], before[0])
+    np.testing.assert_allclose(physics.quaternions()[1, [0, 3], 1:3], 0.0, atol=1e-12)  # levelled, yaw kept
