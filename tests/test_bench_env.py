@@ -58,6 +58,13 @@ def _fail(message):
     raise ValueError(message)
 
 
+def _die_of_sigkill():
+    import os
+    import signal
+
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
 def test_isolated_benchmarks_return_results_and_raise_errors_from_their_own_process():
     import os
 
@@ -66,6 +73,9 @@ def test_isolated_benchmarks_return_results_and_raise_errors_from_their_own_proc
     assert run_isolated(os.getpid) != os.getpid()
     with pytest.raises(ValueError, match="--seed"):
         run_isolated(_fail, "--seed: bad")
+    # killed from outside (the out-of-memory killer): one clear line, not a traceback
+    with pytest.raises(ValueError, match="the benchmark process died \\(killed by SIGKILL\\); if the machine ran out"):
+        run_isolated(_die_of_sigkill)
 
 
 def test_a_forked_worker_dies_of_sigterm_while_its_parent_turns_it_into_an_interrupt():

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import multiprocessing
 import resource
+import signal
 import sys
 from typing import Any, Callable, Sequence
 
@@ -61,7 +62,11 @@ def run_isolated(fn: Callable[..., Any], *args: Any) -> Any:
         ok, value = recv.recv()
     except EOFError:
         proc.join()
-        raise RuntimeError(f"the benchmark process died (exit code {proc.exitcode})") from None
+        code = proc.exitcode
+        how = f"killed by {signal.Signals(-code).name}" if code is not None and code < 0 else f"exit code {code}"
+        # a ValueError, so the command ends in one line (pursuit_cli.main) rather than a traceback
+        raise ValueError(f"the benchmark process died ({how}); if the machine ran out of memory, measure fewer worlds "
+                         f"or a shorter run") from None
     finally:
         recv.close()
         if proc.is_alive() and proc.exitcode is None:
