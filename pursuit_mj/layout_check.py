@@ -100,41 +100,45 @@ def check_spawn_gap(layout, capture_radius: float, source: str = "capture_radius
                           f"move the regions apart")
 
 
-def reachable(layout, start, goal, clearance: float = PASSAGE_CLEARANCE) -> bool:
-    """Whether a drone centre keeping `clearance` (m) from the border and the fixed obstacles can fly
-    from some free point of Region `start` to some free point of Region `goal` (8-connected grid)."""
+def spawn_components(layout, clearance: float = PASSAGE_CLEARANCE) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Which connected free space each free spawn point lies in, for a drone centre keeping
+    `clearance` (m) from the border and the fixed obstacles (8-connected grid).
+
+    Returns {"pursuers": (points (K, 2), labels (K,)), "evaders": ...}: points with the same
+    label can fly to each other; -1 for a point whose grid cell is not free (coarse grids only).
+    """
     step = max(GRID_STEP, max(layout.width, layout.height) / GRID_CELLS)
     xs = np.arange(step / 2, layout.width, step)
     ys = np.arange(step / 2, layout.height, step)
     grid = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1)  # (X, Y, 2) cell centres, m
     flat = grid.reshape(-1, 2)
     free = (inside_boundary(layout, flat) & (obstacle_distance(flat, ObstacleSet.from_layout(layout)) >= clearance)).reshape(grid.shape[:2])
-
-    def cells_in(region) -> np.ndarray:
-        x, y = grid[..., 0], grid[..., 1]
-        cells = free & (x >= region.x[0]) & (x <= region.x[1]) & (y >= region.y[0]) & (y <= region.y[1])
-        # a region thinner than a cell holds no cell centre: start from the cells its spawn points lie in
-        pts = free_spawn_points(layout, region)
-        i = np.clip((pts[:, 0] // step).astype(int), 0, free.shape[0] - 1)
-        j = np.clip((pts[:, 1] // step).astype(int), 0, free.shape[1] - 1)
-        cells[i, j] |= free[i, j]
-        return cells
-
-    target = cells_in(goal)
-    seen = cells_in(start).copy()
-    queue = deque(zip(*np.nonzero(seen)))
+    label = np.full(free.shape, -1)
     nx, ny = free.shape
-    while queue:
-        i, j = queue.popleft()
-        if target[i, j]:
-            return True
-        for di in (-1, 0, 1):
-            for dj in (-1, 0, 1):
-                a, b = i + di, j + dj
-                if 0 <= a < nx and 0 <= b < ny and free[a, b] and not seen[a, b]:
-                    seen[a, b] = True
-                    queue.append((a, b))
-    return False
+
+    def flood(i: int, j: int, k: int) -> None:
+        label[i, j] = k
+        queue = deque([(i, j)])
+        while queue:
+            i, j = queue.popleft()
+            for di in (-1, 0, 1):
+                for dj in (-1, 0, 1):
+                    a, b = i + di, j + dj
+                    if 0 <= a < nx and 0 <= b < ny and free[a, b] and label[a, b] < 0:
+                        label[a, b] = k
+                        queue.append((a, b))
+
+    out = {}
+    for name, region in (("pursuers", layout.spawn_pursuers), ("evaders", layout.spawn_evaders)):
+        # the cells the spawn points lie in (a region thinner than a cell holds no cell centre)
+        pts = free_spawn_points(layout, region)
+        i = np.clip((pts[:, 0] // step).astype(int), 0, nx - 1)
+        j = np.clip((pts[:, 1] // step).astype(int), 0, ny - 1)
+        for a, b in zip(i, j):
+            if free[a, b] and label[a, b] < 0:
+                flood(a, b, int(label.max()) + 1)
+        out[name] = (pts, label[i, j])
+    return out
 
 
 def polygon_crossing(points) -> tuple[int, int] | None:
@@ -168,8 +172,8 @@ def _describe(o) -> str:
 
 
 def check_layout(layout) -> None:
-    """Raise LayoutError if an obstacle leaves the arena, a spawn region has no free room, or the
-    evaders' spawn region cannot be reached from the pursuers' past the fixed obstacles."""
+    """Raise LayoutError if an obstacle leaves the arena, a spawn region has no free room, or some
+    free spawn point cannot be reached from the other team's spawn region past the fixed obstacles."""
     from .layout import LayoutError
 
     src = layout.source
@@ -198,8 +202,24 @@ def check_layout(layout) -> None:
                 f"{src}: spawn.{name} x={list(region.x)} y={list(region.y)} has no free point "
                 f"{SPAWN_CLEARANCE} m away from obstacles and the border (spawn region inside an obstacle?)"
             )
-    if not reachable(layout, layout.spawn_pursuers, layout.spawn_evaders):
+    comp = spawn_components(layout)
+    shared = set(comp["pursuers"][1].tolist()) & set(comp["evaders"][1].tolist()) - {-1}
+    if not shared:
         raise LayoutError(
             f"{src}: the evaders' spawn region cannot be reached from the pursuers': walls or obstacles cut the "
             f"arena in two (a passage needs {2 * PASSAGE_CLEARANCE:g} m between them)"
         )
+    # every spawn point must lie in the space both teams share: an evader spawned in a closed
+    # pocket of its region could never be caught, a pursuer spawned in one never help
+    labels = np.concatenate([comp["pursuers"][1], comp["evaders"][1]])
+    main = max(shared, key=lambda k: int(np.sum(labels == k)))
+    for (name, region), (pts, lab) in zip((("pursuers", layout.spawn_pursuers), ("evaders", layout.spawn_evaders)), comp.values()):
+        cut = (lab != main) & (lab >= 0)
+        if cut.any():
+            p = [round(float(v), 3) for v in pts[np.flatnonzero(cut)[0]]]
+            raise LayoutError(
+                f"{src}: spawn.{name} x={list(region.x)} y={list(region.y)} "
+                f"reaches into a pocket cut off from the other team by walls or obstacles (e.g. at {p}; a passage "
+                f"needs {2 * PASSAGE_CLEARANCE:g} m): a drone spawned there could never meet the other team; "
+                f"open the pocket or keep the spawn region out of it"
+            )

@@ -170,6 +170,11 @@ def test_malformed_layouts_are_refused_naming_the_entry(data, message, tmp_path)
         (dict(CIRCLE, obstacles=[{"cylinder": {"center": [0.2, 0.2], "radius": 0.1}}]), r"obstacles\[0\] \(cylinder .*\) has its centre outside the circle boundary"),
         (base_dict(obstacles=[{"wall": {"from": [0.0, 2.5], "to": [3.6, 2.5]}}]), r"evaders' spawn region cannot be reached from the pursuers'"),
         (base_dict(obstacles=[{"wall": {"from": [0.0, 2.5], "to": [3.45, 2.5]}}]), r"cannot be reached"),  # a 0.15 m gap: too narrow
+        # a closed room in a corner of the evaders' band: an evader spawned in it could never be caught
+        (base_dict(obstacles=[{"wall": {"from": [0.0, 3.8], "to": [1.2, 3.8]}}, {"wall": {"from": [1.2, 3.8], "to": [1.2, 5.0]}}]),
+         r"spawn.evaders x=\[0.2, 3.4\] y=\[4.2, 4.8\] reaches into a pocket cut off from the other team .* at \[0.2, 4.2\]"),
+        (base_dict(obstacles=[{"wall": {"from": [2.4, 0.0], "to": [2.4, 1.2]}}, {"wall": {"from": [2.4, 1.2], "to": [3.6, 1.2]}}]),
+         r"spawn.pursuers .* reaches into a pocket cut off from the other team"),
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [1, 5], [3.6, 4]]}), r"boundary.polygon: edge \[3.6, 0.0\] -> \[1.0, 5.0\] crosses edge"),
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 5], [3.6, 0], [0, 5]]}), r"must not cross itself"),
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [3.6, 5], [0, 5], [3.6, 0]]}), r"point 4 \[3.6, 0.0\] repeats point 1"),
