@@ -6,7 +6,8 @@ import numpy as np
 
 from .geometry import ObstacleSet, border_distance, inside_boundary, obstacle_distance
 
-MAX_TRIES = 1000
+MAX_TRIES = 1000  # draws for one obstacle
+RESTARTS = 10  # placements of all obstacles, before no room is reported
 
 
 def _spawn_distance(layout, pts: np.ndarray) -> np.ndarray:
@@ -20,14 +21,34 @@ def _spawn_distance(layout, pts: np.ndarray) -> np.ndarray:
 
 
 def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearance: float) -> list:
-    """Draw `count` obstacles of the layout's kinds and size range; LayoutError if no room."""
-    from .layout import Box, Cylinder, LayoutError
+    """Draw `count` obstacles of the layout's kinds and size range; LayoutError if no room.
+
+    Obstacles are placed one by one; when one finds no room, the placement starts over (up to
+    RESTARTS times, drawing on from the same rng): early obstacles can block the rest in one
+    draw and leave room in another, and one episode's unlucky draw must not stop a run.
+    """
+    from .layout import LayoutError
+
+    spec = layout.random_obstacles
+    border = layout.border()
+    for _ in range(RESTARTS):
+        placed = _place_once(layout, rng, count, clearance, border)
+        if len(placed) == count:
+            return placed
+    raise LayoutError(
+        f"{layout.source}: no room for random obstacle {len(placed) + 1} of {count} "
+        f"(sizes {list(spec.size)} m, clearance {clearance} m); lower random_obstacles.count or .size"
+    )
+
+
+def _place_once(layout, rng: np.random.Generator, count: int, clearance: float, border: np.ndarray) -> list:
+    """Up to `count` obstacles placed one by one; fewer if one finds no room in MAX_TRIES draws."""
+    from .layout import Box, Cylinder
 
     spec = layout.random_obstacles
     placed: list = []
-    border = layout.border()
     others = ObstacleSet.from_layout(layout, include_border=False)
-    for k in range(count):
+    for _ in range(count):
         for _ in range(MAX_TRIES):
             kind = spec.kinds[rng.integers(len(spec.kinds))]
             size = rng.uniform(spec.size[0], spec.size[1])
@@ -52,10 +73,7 @@ def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearan
             others = ObstacleSet.from_layout(_with(layout, placed), include_border=False)
             break
         else:
-            raise LayoutError(
-                f"{layout.source}: no room for random obstacle {k + 1} of {count} "
-                f"(sizes {list(spec.size)} m, clearance {clearance} m); lower random_obstacles.count or .size"
-            )
+            return placed
     return placed
 
 

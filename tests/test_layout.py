@@ -115,6 +115,13 @@ def test_random_obstacles_are_seeded_and_keep_off_spawn_regions_and_each_other(i
             assert not inside.any()
 
 
+def test_a_draw_that_blocks_its_own_last_obstacles_starts_over_instead_of_failing_the_episode():
+    layout = load_layout(3)
+    for seed in (4, 37):  # with 10 obstacles, these draws once boxed in their 9th or 10th and stopped the run
+        a = layout.with_random_obstacles(np.random.default_rng(seed), 10)
+        assert a.n_random == 10 and a == layout.with_random_obstacles(np.random.default_rng(seed), 10)
+
+
 def _outline(layout_with_one_obstacle) -> np.ndarray:
     """Points (K, 2) on the boundary of the layout's only obstacle."""
     grid = np.stack(np.meshgrid(np.linspace(0, 3.6, 181), np.linspace(0, 5.0, 251)), -1).reshape(-1, 2)
