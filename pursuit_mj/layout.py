@@ -293,12 +293,16 @@ def layout_from_dict(data: Mapping[str, Any], source: str = "<layout>") -> Layou
         if side > MAX_ARENA_SIDE:
             raise LayoutError(f"{source}: arena.{key}: {side:g} m is beyond the {MAX_ARENA_SIDE:g} m this simulator "
                               f"handles (an indoor flight arena is a few metres)")
-    obstacles_raw = m.get("obstacles") or []
+    obstacles_raw = m.get("obstacles")
+    if obstacles_raw is None:  # `obstacles:` with nothing after it
+        obstacles_raw = []
     if not isinstance(obstacles_raw, list):
         raise LayoutError(f"{source}: obstacles: expected a list, got {obstacles_raw!r}")
     obstacles = tuple(_parse_obstacle(o, f"{source}: obstacles[{i}]") for i, o in enumerate(obstacles_raw))
     spawn = _mapping(m["spawn"], f"{source}: spawn", ("pursuers", "evaders"), ("pursuers", "evaders"))
-    name = str(m.get("name", Path(source).stem))
+    name = m.get("name", Path(source).stem)
+    if not isinstance(name, str):
+        raise LayoutError(f"{source}: name {name!r}: expected text (quote it in YAML)")
     if not name.strip() or any(c in name for c in "/\\") or not name.isprintable():
         raise LayoutError(f"{source}: name {name!r}: must be a plain label (no slashes; output files are named after it)")
     layout = Layout(
