@@ -199,7 +199,7 @@ def _parse_boundary(value: Any, where: str) -> Boundary:
             if not isinstance(body, (list, tuple)) or len(body) < 3:
                 raise LayoutError(f"{where}.polygon: expected at least 3 [x, y] points, got {body!r}")
             pts = tuple(_pair(p, f"{where}.polygon[{i}]") for i, p in enumerate(body))
-            from .layout_check import polygon_crossing
+            from .layout_check import polygon_crossing, polygon_touch
 
             for i, p in enumerate(pts):
                 if p in pts[:i]:
@@ -216,6 +216,11 @@ def _parse_boundary(value: Any, where: str) -> Boundary:
                 i, j = crossing
                 raise LayoutError(f"{where}.polygon: edge {list(pts[i])} -> {list(pts[(i + 1) % len(pts)])} crosses edge "
                                   f"{list(pts[j])} -> {list(pts[(j + 1) % len(pts)])}: the border must not cross itself")
+            touch = polygon_touch(pts)
+            if touch is not None:  # its walls, built outside each edge, would stand in the flyable region
+                i, k = touch
+                raise LayoutError(f"{where}.polygon: point {k} {list(pts[k])} lies on edge {list(pts[i])} -> "
+                                  f"{list(pts[(i + 1) % len(pts)])}: the border must not touch itself")
             area = _signed_area(pts)
             if abs(area) < 1e-6:
                 raise LayoutError(f"{where}.polygon: the points enclose no area")

@@ -159,6 +159,22 @@ def polygon_crossing(points) -> tuple[int, int] | None:
     return None
 
 
+def polygon_touch(points, tol: float = 1e-9) -> tuple[int, int] | None:
+    """The first (i, k) where corner k lies on edge i (from point i to i+1) without being one of its
+    ends, within `tol` m: a border that touches or runs along itself without crossing; or None."""
+    p = np.asarray(points, dtype=float)
+    n = len(p)
+    a, ab = p[:, None], (np.roll(p, -1, axis=0) - p)[:, None]  # edges (n, 1, 2)
+    aq = p[None] - a  # (n edges, n corners, 2)
+    length = np.hypot(ab[..., 0], ab[..., 1])
+    along = (ab * aq).sum(-1)
+    on = (np.abs(ab[..., 0] * aq[..., 1] - ab[..., 1] * aq[..., 0]) <= tol * length) & (along >= -tol * length) & (along <= length * (length + tol))
+    ends = np.arange(n)
+    on[ends, ends] = on[ends, (ends + 1) % n] = False
+    hits = np.argwhere(on)
+    return None if len(hits) == 0 else (int(hits[0][0]), int(hits[0][1]))
+
+
 def _describe(o) -> str:
     from .layout import Box, Cylinder, Wall
 

@@ -189,6 +189,10 @@ def test_malformed_layouts_are_refused_naming_the_entry(data, message, tmp_path)
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [1, 5], [3.6, 4]]}), r"boundary.polygon: edge \[3.6, 0.0\] -> \[1.0, 5.0\] crosses edge"),
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 5], [3.6, 0], [0, 5]]}), r"must not cross itself"),
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [3.6, 5], [0, 5], [3.6, 0]]}), r"point 4 \[3.6, 0.0\] repeats point 1"),
+        # a notch whose sides come back along the top edge: the border runs over itself from x 2.0 to 2.5, and the
+        # walls outside its edges stood 5 cm into the flyable region
+        (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [3.6, 5], [2.0, 5], [2.0, 3], [2.5, 3], [2.5, 5], [0, 5]]}),
+         r"boundary.polygon: point 6 \[2.5, 5.0\] lies on edge \[3.6, 5.0\] -> \[2.0, 5.0\]: the border must not touch itself"),
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [3.6, 5], [3.6, 2], [0, 5]]}), r"at \[3.6, 5.0\] the border turns straight back"),
         (base_dict(arena={"width": 1e6, "height": 5.0}), r"arena.width: 1e\+06 m is beyond the 50 m"),
         # an inward spike sharper than a right angle: box walls outside its edges would stand in the arena
