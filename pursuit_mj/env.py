@@ -181,7 +181,8 @@ class PursuitEnv:
             base_i = int(rng.integers(len(self.pool))) if self.config.random_layout else int(self._base_index[w])
             base = self.pool[base_i]
             count = self.config.random_obstacle_count(base)
-            inst = base.with_random_obstacles(rng, count) if count else base
+            given = None if self.config.random_obstacles is None else f"task.random_obstacles (now {count})"
+            inst = base.with_random_obstacles(rng, count, count_source=given) if count else base
             pts_p, pts_e = self._spawn_points[id(base)]
             pur = sample_separated(pts_p, self.n_pursuers, rng, SPAWN_SEPARATION)
             eva = sample_separated(pts_e, self.n_evaders, rng, SPAWN_SEPARATION)

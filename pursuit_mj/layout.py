@@ -108,16 +108,18 @@ class Layout:
         """Border segments, shape (S, 4): x0, y0, x1, y1 (m); the inside is on the left."""
         return boundary_segments(self)
 
-    def with_random_obstacles(self, rng: np.random.Generator, count: int | None = None, clearance: float = 0.3) -> "Layout":
+    def with_random_obstacles(self, rng: np.random.Generator, count: int | None = None, clearance: float = 0.3,
+                              count_source: str | None = None) -> "Layout":
         """A copy with `count` (default: the layout's) random obstacles placed and made concrete.
 
         Random obstacles keep `clearance` (m) from spawn regions, fixed obstacles, the
-        border and each other. Raises LayoutError if there is no room for them.
+        border and each other. Raises LayoutError if there is no room for them, naming
+        `count_source` (where `count` came from) or else the file's random_obstacles.count.
         """
         from .layout_random import place_random_obstacles
 
         n = self.random_obstacles.count if count is None else count
-        extra = place_random_obstacles(self, rng, n, clearance)
+        extra = place_random_obstacles(self, rng, n, clearance, count_source)
         return dataclasses.replace(self, obstacles=self.obstacles + tuple(extra), n_random=self.n_random + len(extra),
                                    random_obstacles=dataclasses.replace(self.random_obstacles, count=0))
 

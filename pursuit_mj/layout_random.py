@@ -20,8 +20,9 @@ def _spawn_distance(layout, pts: np.ndarray) -> np.ndarray:
     return out
 
 
-def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearance: float) -> list:
-    """Draw `count` obstacles of the layout's kinds and size range; LayoutError if no room.
+def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearance: float, count_source: str | None = None) -> list:
+    """Draw `count` obstacles of the layout's kinds and size range; LayoutError if no room, naming
+    `count_source` (where the count came from; default: the file's random_obstacles.count).
 
     Obstacles are placed one by one; when one finds no room, the placement starts over (up to
     RESTARTS times, drawing on from the same rng): early obstacles can block the rest in one
@@ -37,7 +38,8 @@ def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearan
             return placed
     raise LayoutError(
         f"{layout.source}: no room for random obstacle {len(placed) + 1} of {count} "
-        f"(sizes {list(spec.size)} m, clearance {clearance} m); lower random_obstacles.count or .size"
+        f"(sizes {list(spec.size)} m, clearance {clearance} m); "
+        + (f"lower {count_source}" if count_source else "lower random_obstacles.count or .size")
     )
 
 

@@ -122,6 +122,12 @@ def test_a_draw_that_blocks_its_own_last_obstacles_starts_over_instead_of_failin
         assert a.n_random == 10 and a == layout.with_random_obstacles(np.random.default_rng(seed), 10)
 
 
+def test_no_room_for_the_tasks_random_obstacle_count_names_the_task_key_not_the_file():
+    env = PursuitEnv(default_config(layout=3, random_obstacles=30, fidelity="point"), seed=0)
+    with pytest.raises(LayoutError, match=r"3_cluttered.yaml: no room for random obstacle \d+ of 30 .*; lower task.random_obstacles \(now 30\)$"):
+        env.reset()
+
+
 def _outline(layout_with_one_obstacle) -> np.ndarray:
     """Points (K, 2) on the boundary of the layout's only obstacle."""
     grid = np.stack(np.meshgrid(np.linspace(0, 3.6, 181), np.linspace(0, 5.0, 251)), -1).reshape(-1, 2)
