@@ -50,7 +50,7 @@ def _register_new(lsub) -> None:
     p.add_argument("--center", nargs=2, type=finite_float, metavar=("X", "Y"), help="circle centre for --border circle (default: arena centre)")
     p.add_argument("--radius", type=finite_float, help="circle radius for --border circle (default: fits the arena)")
     p.add_argument("--box", nargs="+", type=finite_float, action="append", default=[], metavar="V",
-                   help="add a box: CX CY SX SY [YAW] (centre, full size, yaw); repeatable")
+                   help="add a box: CX CY SX SY [YAW] (centre, full size, yaw in rad); repeatable")
     p.add_argument("--cylinder", nargs=3, type=finite_float, action="append", default=[], metavar=("CX", "CY", "R"),
                    help="add a cylinder: centre and radius; repeatable")
     p.add_argument("--wall", nargs="+", type=finite_float, action="append", default=[], metavar="V",

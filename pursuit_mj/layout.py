@@ -179,7 +179,10 @@ def _parse_obstacle(entry: Any, where: str) -> Obstacle:
         size = _pair(m["size"], f"{w}.size")
         if min(size) <= 0:
             raise LayoutError(f"{w}.size: extents must be > 0, got {list(size)}")
-        return Box(_pair(m["center"], f"{w}.center"), size, _number(m.get("yaw", 0.0), f"{w}.yaw"))
+        yaw = _number(m.get("yaw", 0.0), f"{w}.yaw")
+        if abs(yaw) > 2 * math.pi:  # as the flight transform's yaw: a larger angle is degrees by mistake
+            raise LayoutError(f"{w}.yaw: {yaw:g} is beyond +-2 pi: yaw is in radians, not degrees")
+        return Box(_pair(m["center"], f"{w}.center"), size, yaw)
     if kind == "cylinder":
         m = _mapping(body, w, ("center", "radius"), ("center", "radius"))
         return Cylinder(_pair(m["center"], f"{w}.center"), _number(m["radius"], f"{w}.radius", positive=True))

@@ -152,6 +152,8 @@ def test_no_room_for_random_obstacles_is_refused():
         (base_dict(obstacles=[{"sphere": {"center": [1, 1], "radius": 0.2}}]), r"obstacles\[0\]: unknown obstacle kind 'sphere'"),
         (base_dict(obstacles=[{"box": {"center": [1, 1]}}]), r"obstacles\[0\] \(box\): missing key 'size'"),
         (base_dict(obstacles=[{"box": {"center": [1, "a"], "size": [1, 1]}}]), r"obstacles\[0\] \(box\).center: expected two finite numbers"),
+        (base_dict(obstacles=[{"box": {"center": [1.8, 2.5], "size": [0.6, 0.2], "yaw": 45}}]),
+         r"bad.yaml: obstacles\[0\] \(box\).yaw: 45 is beyond \+-2 pi: yaw is in radians, not degrees"),
         (base_dict(obstacles=[{"cylinder": {"center": [1, 1], "radius": -0.2}}]), r"obstacles\[0\] \(cylinder\).radius: must be > 0, got -0.2"),
         (base_dict(obstacles=[{"wall": {"from": [1, 1], "to": [1, 1]}}]), r"obstacles\[0\] \(wall\): 'from' and 'to' are the same point"),
         (base_dict(arena={"width": "wide", "height": 5}), r"arena.width: expected a number, got 'wide'"),
