@@ -16,7 +16,8 @@ from .config import TaskConfig, checked_task_config
 from .evader import EscapeModel
 from .geometry import ObstacleSet
 from .layout import N_BUILTIN, Layout, LayoutError, load_layout
-from .layout_check import SPAWN_SEPARATION, check_spawn_capacity, check_spawn_gap, free_spawn_points, sample_separated
+from .layout_check import (PASSAGE_CLEARANCE, SPAWN_SEPARATION, check_passages, check_spawn_capacity, check_spawn_gap,
+                           free_spawn_points, sample_separated)
 from .observations import build_global_state, build_observations, global_state_dim
 from .obs_spec import ObsSpec
 from .physics import BatchedPhysics
@@ -163,6 +164,8 @@ class PursuitEnv:
         """Refuse a task whose spawn regions cannot hold its drones (clear error, early)."""
         check_spawn_capacity(layout, self.n_pursuers, self.n_evaders, SPAWN_SEPARATION)
         check_spawn_gap(layout, self.config.capture_radius)
+        if self.config.obstacle_clearance > PASSAGE_CLEARANCE:  # the layout's own check allowed narrower passages
+            check_passages(layout, self.config.obstacle_clearance, "task.obstacle_clearance")
 
     def _start_episodes(self, ids: np.ndarray, seeds: np.ndarray | None = None) -> None:
         """Begin a new episode in each listed world: new random obstacles, spawn, counters.

@@ -141,6 +141,31 @@ def spawn_components(layout, clearance: float = PASSAGE_CLEARANCE) -> dict[str, 
     return out
 
 
+def check_passages(layout, clearance: float = PASSAGE_CLEARANCE, source: str | None = None) -> None:
+    """LayoutError unless every free spawn point of both teams lies in one free space for a drone
+    centre keeping `clearance` (m) from walls and obstacles; `source` names where it came from."""
+    from .layout import LayoutError
+
+    src = layout.source
+    needs = f"a passage needs {2 * clearance:g} m" + (f" at {source} {clearance:g} m" if source else "")
+    comp = spawn_components(layout, clearance)
+    shared = set(comp["pursuers"][1].tolist()) & set(comp["evaders"][1].tolist()) - {-1}
+    if not shared:
+        raise LayoutError(f"{src}: the evaders' spawn region cannot be reached from the pursuers': walls or obstacles "
+                          f"cut the arena in two ({needs})")
+    # every spawn point must lie in the space both teams share: an evader spawned in a closed
+    # pocket of its region could never be caught, a pursuer spawned in one never help
+    labels = np.concatenate([comp["pursuers"][1], comp["evaders"][1]])
+    main = max(shared, key=lambda k: int(np.sum(labels == k)))
+    for (name, region), (pts, lab) in zip((("pursuers", layout.spawn_pursuers), ("evaders", layout.spawn_evaders)), comp.values()):
+        cut = (lab != main) & (lab >= 0)
+        if cut.any():
+            p = [round(float(v), 3) for v in pts[np.flatnonzero(cut)[0]]]
+            raise LayoutError(f"{src}: spawn.{name} x={list(region.x)} y={list(region.y)} reaches into a pocket cut off "
+                              f"from the other team by walls or obstacles (e.g. at {p}; {needs}): a drone spawned there "
+                              f"could never meet the other team; open the pocket or keep the spawn region out of it")
+
+
 def polygon_crossing(points) -> tuple[int, int] | None:
     """The first pair (i, j) of non-adjacent edges that cross (edge i runs from point i to i+1), or None."""
     p = np.asarray(points, dtype=float)
@@ -218,24 +243,4 @@ def check_layout(layout) -> None:
                 f"{src}: spawn.{name} x={list(region.x)} y={list(region.y)} has no free point "
                 f"{SPAWN_CLEARANCE} m away from obstacles and the border (spawn region inside an obstacle?)"
             )
-    comp = spawn_components(layout)
-    shared = set(comp["pursuers"][1].tolist()) & set(comp["evaders"][1].tolist()) - {-1}
-    if not shared:
-        raise LayoutError(
-            f"{src}: the evaders' spawn region cannot be reached from the pursuers': walls or obstacles cut the "
-            f"arena in two (a passage needs {2 * PASSAGE_CLEARANCE:g} m between them)"
-        )
-    # every spawn point must lie in the space both teams share: an evader spawned in a closed
-    # pocket of its region could never be caught, a pursuer spawned in one never help
-    labels = np.concatenate([comp["pursuers"][1], comp["evaders"][1]])
-    main = max(shared, key=lambda k: int(np.sum(labels == k)))
-    for (name, region), (pts, lab) in zip((("pursuers", layout.spawn_pursuers), ("evaders", layout.spawn_evaders)), comp.values()):
-        cut = (lab != main) & (lab >= 0)
-        if cut.any():
-            p = [round(float(v), 3) for v in pts[np.flatnonzero(cut)[0]]]
-            raise LayoutError(
-                f"{src}: spawn.{name} x={list(region.x)} y={list(region.y)} "
-                f"reaches into a pocket cut off from the other team by walls or obstacles (e.g. at {p}; a passage "
-                f"needs {2 * PASSAGE_CLEARANCE:g} m): a drone spawned there could never meet the other team; "
-                f"open the pocket or keep the spawn region out of it"
-            )
+    check_passages(layout)

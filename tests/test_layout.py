@@ -217,6 +217,14 @@ def test_a_passage_just_wide_enough_is_accepted():
     layout_from_dict(base_dict(obstacles=[{"wall": {"from": [0.0, 2.5], "to": [3.3, 2.5]}}]), "gap.yaml")  # 0.3 m minus the wall's half-thickness
 
 
+def test_a_passage_too_narrow_for_the_tasks_obstacle_clearance_is_refused_naming_the_key(tmp_path):
+    path = tmp_path / "gap.yaml"
+    path.write_text(yaml.safe_dump(base_dict(obstacles=[{"wall": {"from": [0.0, 2.5], "to": [3.35, 2.5]}}])))  # a 0.25 m gap
+    PursuitEnv(default_config(layout=str(path), fidelity="point"))  # passable keeping the default 0.1 m
+    with pytest.raises(LayoutError, match=r"gap.yaml: the evaders' spawn region cannot be reached .* \(a passage needs 0.3 m at task.obstacle_clearance 0.15 m\)"):
+        PursuitEnv(default_config(layout=str(path), fidelity="point", obstacle_clearance=0.15))
+
+
 def test_a_spawn_strip_thinner_than_the_reachability_grid_is_accepted_and_spawns_on_it(tmp_path):
     strip = {"pursuers": {"x": [1.81, 1.82], "y": [0.2, 1.4]}, "evaders": SPAWN["evaders"]}  # 1 cm wide, 5 cm grid
     path = tmp_path / "strip.yaml"
