@@ -85,7 +85,8 @@ def circle_commands(xy: np.ndarray, center: np.ndarray, radii: np.ndarray, speed
 def fly(config: TaskConfig, layout: Layout, seconds: float, seed: int = 0) -> FlightReport:
     """Fly the scripted pattern for `seconds` in one world of `layout` (random obstacles of `seed`)."""
     rng = np.random.default_rng(seed)
-    world = layout.with_random_obstacles(rng, config.random_obstacles)
+    given = None if config.random_obstacles is None else f"the task's random_obstacles (now {config.random_obstacles})"
+    world = layout.with_random_obstacles(rng, config.random_obstacles, count_source=given)
     physics = BatchedPhysics(config, [world], nthread=1)
     physics.reset([0], spawn_positions(world, config.n_pursuers, config.n_evaders, rng)[None])
     seg = world.border()

@@ -79,6 +79,7 @@ def test_bench_physics_prints_the_table(capsys):
         (["simulate", "--seconds", "0"], "--seconds: must be > 0"),
         (["simulate", "--layout", "8"], "flag --layout 8: key 'layout': 8 is not a built-in layout index (0-3)"),
         (["simulate", "--set", "n_pursuers=40"], "key 'n_pursuers': 40 is out of range"),
+        (["simulate", "--layout", "3", "--set", "random_obstacles=40", "--seconds", "0.3"], "lower the task's random_obstacles (now 40)"),
         (["bench", "physics", "--worlds", "0"], "--worlds: world counts must be >= 1, got 0"),
         (["bench", "physics", "--seconds", "-1"], "--seconds: must be > 0"),
         (["bench", "physics", "--nthread", "-1"], "--nthread: must be in 0..256, got -1"),

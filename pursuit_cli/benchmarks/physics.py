@@ -87,7 +87,8 @@ def measure(fidelity: str, n_worlds: int, seconds: float, nthread: int = 0, seed
     config = task_config(fidelity, overrides)
     rng = np.random.default_rng(seed)
     base = load_layout(config.layout)
-    layouts = [base.with_random_obstacles(rng, config.random_obstacles) for _ in range(n_worlds)]
+    given = None if config.random_obstacles is None else f"the task's random_obstacles (now {config.random_obstacles})"
+    layouts = [base.with_random_obstacles(rng, config.random_obstacles, count_source=given) for _ in range(n_worlds)]
     physics = BatchedPhysics(config, layouts, nthread=nthread)
     worlds = np.arange(n_worlds)
     xy = np.stack([spawn_positions(l, config.n_pursuers, config.n_evaders, rng) for l in layouts])
