@@ -111,6 +111,9 @@ class TaskConfig:
         if isinstance(self.layout, int) and not 0 <= self.layout < N_BUILTIN:
             raise ConfigError(f"{source}: key 'layout': {self.layout} is not a built-in layout index "
                               f"(0-{N_BUILTIN - 1}) or a file")
+        if self.random_layout and not isinstance(self.layout, int):
+            raise ConfigError(f"{source}: key 'random_layout' draws each episode's layout from the built-in 0-"
+                              f"{N_BUILTIN - 1}, so layout {self.layout} would be ignored: set one or the other")
         substeps = self.control_dt / self.physics_dt
         if round(substeps) < 1:  # 1e-9 s is "a whole number" (0) of physics steps within the tolerance below
             raise ConfigError(
