@@ -228,6 +228,9 @@ def run(args) -> int:
         task_tag = "".join(f"_{Path(f).stem}" for f in args.task_files or [])  # --task hard: not the default task's files
         stem = f"{label}{task_tag}_layout{Path(str(config.layout)).stem}_{config.fidelity}_seed{args.seed}"
         videos, finals = target.paths(args.episodes, stem, video, final)
+        for path in (videos or []) + (finals or []):
+            if path.is_dir():  # found now, not by the rename after the episode is played
+                raise ValueError(f"-s {args.save_path}: {path} is a folder, expected a file name there")
     outputs = EpisodeOutputs(videos, finals, fps=fps, trail_length=args.trail)
 
     def report(k, record, written) -> None:

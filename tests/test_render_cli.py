@@ -81,6 +81,17 @@ def test_cli_refuses_an_unwritable_save_path(tmp_path, capsys):
     assert f"-s {blocker / 'sub'}: cannot create the folder" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("name, extra", [("random_layout0_point_seed0_ep001.mp4", []),
+                                         ("random_layout0_point_seed0_ep001_final.png", ["--final-frame", "--no-video"])])
+def test_a_folder_where_an_output_file_goes_is_refused_before_any_episode(tmp_path, capsys, name, extra):
+    out = tmp_path / "renders"
+    (out / name).mkdir(parents=True)
+    assert _cli(tmp_path, "-s", str(out), "--episodes", "2", *extra) == 2
+    err = capsys.readouterr()
+    assert f"-s {out}: {out / name} is a folder, expected a file name there" in err.err and "episode 0" not in err.out
+    assert [p.name for p in out.iterdir()] == [name]
+
+
 def test_cli_checkpoints_another_observation_spec_refused_matching_one_used(tmp_path, capsys):
     from train.config import load_train_config
     from train.trainer import Trainer
