@@ -137,11 +137,13 @@ def choose_policy(args, config: TaskConfig, train_cfg):
 
 @dataclasses.dataclass(frozen=True)
 class SaveTarget:
-    """Where -s points: a folder, the file stem when -s names a video file (else None), the video format."""
+    """Where -s points: a folder, the file stem when -s names a video file (else None), the video format,
+    and the file's extension as the user spelled it (.MP4 stays .MP4)."""
 
     folder: Path
     file_stem: str | None
     fmt: str
+    suffix: str = ""
 
     def paths(self, episodes: int, stem: str, video: bool, final: bool) -> tuple[list[Path] | None, list[Path] | None]:
         """(videos, final PNGs) per episode: `<stem>_ep<k>` in a folder; the file name as given for one
@@ -149,7 +151,8 @@ class SaveTarget:
         base = self.file_stem or stem
         numbered = self.file_stem is None or episodes > 1
         names = [f"{base}_ep{k:03d}" if numbered else base for k in range(episodes)]
-        return ([self.folder / f"{n}.{self.fmt}" for n in names] if video else None,
+        suffix = self.suffix or f".{self.fmt}"
+        return ([self.folder / f"{n}{suffix}" for n in names] if video else None,
                 [self.folder / f"{n}_final.png" for n in names] if final else None)
 
 
@@ -170,7 +173,7 @@ def save_target(save_path: str, fmt: str | None) -> SaveTarget:
             raise ValueError(f"-s {save_path}: unknown video extension {path.suffix!r} (use .mp4 or .gif, or a folder)")
         if fmt is not None and fmt != suffix:
             raise ValueError(f"--format {fmt} contradicts -s {save_path}")
-        target = SaveTarget(path.parent, path.stem, suffix)
+        target = SaveTarget(path.parent, path.stem, suffix, path.suffix)
     else:
         target = SaveTarget(path, None, fmt or "mp4")
     return target

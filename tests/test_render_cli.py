@@ -41,6 +41,8 @@ def test_a_save_path_ending_in_a_slash_is_a_folder_even_with_a_dot_in_its_name(t
 def test_cli_single_file_and_no_video(tmp_path):
     assert _cli(tmp_path, "-s", str(tmp_path / "one.mp4")) == 0
     assert (tmp_path / "one.mp4").is_file()
+    assert _cli(tmp_path, "-s", str(tmp_path / "Two.GIF"), "--episodes", "2") == 0  # the name as given, upper case too
+    assert sorted(p.name for p in tmp_path.glob("Two*")) == ["Two_ep000.GIF", "Two_ep001.GIF"]
     assert _cli(tmp_path, "-s", str(tmp_path / "finals"), "--no-video", "--final-frame", "--episodes", "3") == 0
     assert len(list((tmp_path / "finals").glob("*_final.png"))) == 3
     assert not list((tmp_path / "finals").glob("*.mp4"))
