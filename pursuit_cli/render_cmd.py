@@ -213,18 +213,19 @@ def run(args) -> int:
         raise ValueError("--no-video without --final-frame or --rerun leaves nothing to write")
     settings = RenderSettings(args.width, args.height, args.camera, args.quality, key=not args.no_key)
     policy, label = shield_if_asked(args, *choose_policy(args, config, train_cfg), config)  # before any folder is made
-    if args.rerun:
-        from pursuit_mj.recording import RerunEpisodeRecording, check_rrd_path
-
-        check_rrd_path(args.rerun, "--rerun")
-    target = None
-    if video or final:
-        target = save_target(args.save_path, args.format)
+    target = save_target(args.save_path, args.format) if video or final else None
+    if target is not None:
         check_render_settings(settings, config)  # the size range first: an odd size matters only inside it
         if video:
             check_frame_size(target.fmt, args.width, args.height)
             check_video_fps(target.fmt, fps, "--fps" if args.fps else f"--fps (default 1/control_dt = {fps:g})")
             ensure_ffmpeg()
+    # the checks that make folders last, so that bad input leaves none behind
+    if args.rerun:
+        from pursuit_mj.recording import RerunEpisodeRecording, check_rrd_path
+
+        check_rrd_path(args.rerun, "--rerun")
+    if target is not None:
         _writable_folder(target.folder, "-s")
     videos = finals = None
     if target is not None:

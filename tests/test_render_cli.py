@@ -61,6 +61,8 @@ def test_cli_single_file_and_no_video(tmp_path):
     (["--height", "42"], "--height 42: too small to hold the caption band (27 px) and the colour key (15 px)"),
     (["--height", "20", "--no-key"], "--height 20: too small to hold the caption band (27 px) and the scene"),
     (["--rerun", "x.txt"], "expected a file name ending in .rrd"),
+    (["--rerun", "rec/x.rrd", "--camera", "side"], "--camera 'side': no such camera"),
+    (["--rerun", "rec/x.rrd", "--width", "161"], "mp4 (h264) needs even frame sizes"),
     (["--no-video"], "leaves nothing to write"),
     (["-s", "out/x.gif", "--fps", "60"], "--fps: 60 frames per second is beyond what a GIF plays"),
     (["-s", "out/", "--format", "gif", "--set", "control_dt=0.01"], "--fps (default 1/control_dt = 100): 100 frames per second"),
