@@ -140,9 +140,9 @@ def run(args) -> int:
     config = task_config_from_args(args)
     # a bad or repeated layout refused before any episode runs
     layouts = checked_layouts(args.layouts) if args.layouts else [config.layout]
-    csv_path, json_path = _outputs(args)
     policies = _policies(args, config)
     versus = _versus(args, policies)
+    csv_path, json_path = _outputs(args)  # makes folders: after every other check, so that bad input leaves none
     with contextlib.ExitStack() as stack:
         recording = None
         if args.rerun:

@@ -184,6 +184,14 @@ def test_render_command_records_rerun_without_video(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.rrd"]
 
 
+@pytest.mark.parametrize("bad, message", [(["-m", "missing.pt"], "no such checkpoint file"), (["--versus", "nobody"], "not a policy of this table")])
+def test_eval_refusing_its_policies_leaves_no_folder_for_its_recording(tmp_path, capsys, monkeypatch, bad, message):
+    monkeypatch.chdir(tmp_path)
+    assert main(["eval", "--fidelity", "point", "--set", "max_steps=4", "--rerun", "rec/e.rrd", *bad]) == 2
+    assert message in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_env_recorder_follows_a_multi_world_evaluation_loop(tmp_path):
     """The loop of pursuit_mj.evaluation.run_episodes (parallel worlds, restarts) with a recorder attached."""
     config = default_config(fidelity="point", max_steps=5, random_obstacles=0)
