@@ -137,6 +137,15 @@ def test_an_interrupted_recording_keeps_its_finished_episodes_beside_the_whole_o
     assert ent["/__properties/interrupted"].static["finished_episodes"] == [2]
 
 
+def test_a_folder_where_the_interrupted_recording_would_go_is_refused_up_front(tmp_path, capsys):
+    (tmp_path / "x.interrupted.rrd").mkdir()
+    assert main(["render", "--policy", "random", "--fidelity", "point", "--set", "max_steps=3", "--no-video",
+                 "--rerun", str(tmp_path / "x.rrd")]) == 2
+    captured = capsys.readouterr()
+    assert f"--rerun {tmp_path / 'x.rrd'}: {tmp_path / 'x.interrupted.rrd'} is a folder" in captured.err
+    assert "episode 0" not in captured.out and sorted(p.name for p in tmp_path.iterdir()) == ["x.interrupted.rrd"]
+
+
 def test_rrd_path_is_checked(tmp_path):
     with pytest.raises(ValueError, match="--rerun .*x.rr: expected a file name ending in .rrd"):
         check_rrd_path(tmp_path / "x.rr")

@@ -100,6 +100,9 @@ class RerunEpisodeRecording:
 
     def __init__(self, path: str | Path, trail_length: int = 30, application_id: str = APPLICATION_ID, source: str = "--rerun"):
         self.path = check_rrd_path(path, source)
+        if self.partial_path.is_dir():  # found now, not by the rename when the run is interrupted
+            raise ValueError(f"{source} {path}: {self.partial_path} is a folder; an interrupted run keeps its finished "
+                             f"episodes under that name, so it must be free for a file")
         if trail_length < 1:
             raise ValueError(f"trail length: {trail_length} must be >= 1 step")
         self.trail_length = int(trail_length)
