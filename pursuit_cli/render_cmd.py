@@ -220,6 +220,10 @@ def run(args) -> int:
             check_frame_size(target.fmt, args.width, args.height)
             check_video_fps(target.fmt, fps, "--fps" if args.fps else f"--fps (default 1/control_dt = {fps:g})")
             ensure_ffmpeg()
+    if args.rerun and target is not None:
+        rrd, folder = Path(args.rerun).resolve(), target.folder.resolve()
+        if rrd == folder or rrd in folder.parents:
+            raise ValueError(f"-s {args.save_path} and --rerun {args.rerun}: the recording would be written where -s makes its folder")
     # the checks that make folders last, so that bad input leaves none behind
     if args.rerun:
         from pursuit_mj.recording import RerunEpisodeRecording, check_rrd_path

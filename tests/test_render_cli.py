@@ -62,6 +62,8 @@ def test_cli_single_file_and_no_video(tmp_path):
     (["--height", "20", "--no-key"], "--height 20: too small to hold the caption band (27 px) and the scene"),
     (["--rerun", "x.txt"], "expected a file name ending in .rrd"),
     (["--rerun", "rec/x.rrd", "--camera", "side"], "--camera 'side': no such camera"),
+    (["-s", "out.rrd/", "--rerun", "out.rrd"], "-s out.rrd/ and --rerun out.rrd: the recording would be written where -s makes its folder"),
+    (["-s", "out.rrd/sub/", "--final-frame", "--no-video", "--rerun", "out.rrd"], "the recording would be written where -s"),
     (["--rerun", "rec/x.rrd", "--width", "161"], "mp4 (h264) needs even frame sizes"),
     (["--no-video"], "leaves nothing to write"),
     (["-s", "out/x.gif", "--fps", "60"], "--fps: 60 frames per second is beyond what a GIF plays"),
