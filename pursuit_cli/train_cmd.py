@@ -57,7 +57,7 @@ def register(sub) -> None:
     p.add_argument("--fidelity", choices=("point", "quadrotor"), help="physics fidelity (task.fidelity)")
     p.add_argument("--layout", action="append", metavar="INDEX|FILE",
                    help="training layout; repeat for a list (one per world in turn)")
-    p.add_argument("--random-layout", action="store_true", help="a random built-in layout per episode")
+    p.add_argument("--random-layout", action="store_true", help="a random built-in layout per episode (with several --layout: one of those)")
     p.add_argument("--init-from", metavar="CHECKPOINT", help="start from these weights (fine_tune)")
     p.add_argument("--learnable-gamma", action="store_true", help="learn the discount by meta-gradient")
     p.add_argument("--resume", nargs="?", const=True, metavar="RUN_DIR",
@@ -84,6 +84,12 @@ def _flags(args) -> dict:
         task["random_layout"] = True
     if args.layout:
         refs = [int(x) if x.strip().isdigit() else x for x in args.layout]
+        if len(refs) == 1 and args.random_layout:  # the env would draw from every built-in layout, ignoring it
+            from pursuit_mj.layout import N_BUILTIN
+
+            raise ValueError(f"--layout {args.layout[0]} with --random-layout: each episode's layout is drawn from the "
+                             f"built-in 0-{N_BUILTIN - 1}, so --layout would be ignored; give one or the other, or "
+                             f"several --layout to draw among them")
         if len(refs) == 1:
             task["layout"] = refs[0]
             flags["layouts"] = []

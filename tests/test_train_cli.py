@@ -61,6 +61,12 @@ def test_train_show_config_and_bad_input(tmp_path, capsys):
     assert main(["train", "--resume", str(tmp_path / "nothing")]) == 2
     err = capsys.readouterr().err
     assert "no such run folder" in err and "Traceback" not in err
+    # one --layout would be ignored by --random-layout; several are the pool it draws from
+    assert main(["train", "--config", "classic", "--layout", "2", "--random-layout", "-sc"]) == 2
+    err = capsys.readouterr().err
+    assert "--layout 2 with --random-layout" in err and "would be ignored" in err and len(err.splitlines()) == 1
+    assert main(["train", "--config", "classic", "--layout", "0", "--layout", "2", "--random-layout", "-sc"]) == 0
+    assert "random_layout: true" in capsys.readouterr().out
 
 
 @pytest.fixture(scope="module")
