@@ -81,6 +81,9 @@ def run(args) -> int:
     print(f"demo: {len(policies)} policies x {len(layouts)} layouts x {args.episodes} episodes, "
           f"{config.fidelity} fidelity, {config.n_pursuers} pursuers ({config.pursuer_speed} m/s) vs "
           f"{config.n_evaders} evader ({config.evader_speed} m/s), {config.observability} observability", file=sys.stderr)
+    shipped = model.resolve() == PRETRAINED.resolve()
+    print(f"model: {policy.name} = {model}" + (" (the small policy shipped with the repository, nothing trained needed; "
+          "pretrained/README.md gives the command that made it)" if shipped else ""), file=sys.stderr)
     rows = []
     t_all = time.perf_counter()
     for label, pol in policies:

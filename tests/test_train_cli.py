@@ -80,13 +80,19 @@ def test_demo_prints_the_table_and_how_to_train(tiny_model, capsys):
     code = main(["demo", "--model", str(tiny_model), "--episodes", "2", "--worlds", "2", "--layouts", "0", "1",
                  "--fidelity", "point", "--set", "max_steps=20"])
     assert code == 0
-    out = capsys.readouterr().out
+    captured = capsys.readouterr()
+    out = captured.out
+    assert f"model: m = {tiny_model}\n" in captured.err  # which file the table's rows are
     assert "heuristic" in out and "m " in out and "m+shield " in out and "pursuit-mj train" in out
     assert "paired with heuristic on the same episodes" in out
     assert main(["demo", "--model", str(tiny_model.parent / "missing.pt")]) == 2
     code = main(["demo", "--model", str(tiny_model), "--episodes", "1", "--worlds", "1", "--layouts", "0", "--no-shield",
                  "--no-heuristic", "--fidelity", "point", "--set", "max_steps=5"])
     assert code == 0 and "+shield" not in capsys.readouterr().out
+    # with no --model it shows the shipped policy and says so
+    code = main(["demo", "--episodes", "1", "--worlds", "1", "--layouts", "0", "--no-heuristic", "--fidelity", "point",
+                 "--set", "max_steps=5"])
+    assert code == 0 and "pursuers.pt (the small policy shipped with the repository" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("args, message", [
