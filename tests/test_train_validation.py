@@ -36,3 +36,22 @@ def test_the_heuristic_team_against_itself_is_level_to_the_step():
     _, again = validator.run(make_policy("heuristic", task))  # a fresh team, the same episodes
     out = versus(again, first, task.max_steps)
     assert out["vs_heuristic_steps"] == out["vs_heuristic_lo"] == out["vs_heuristic_hi"] == 0.0
+
+
+def test_progress_bar_labels_its_throughput_and_shows_no_rates_before_an_episode_ends():
+    import io
+
+    from tqdm import tqdm
+
+    from train.trainer import _advance
+
+    row = {"world_steps": 342, "agent_steps_per_s": 900.0}
+    out = io.StringIO()
+    bar = tqdm(total=100.0, file=out)
+    _advance(bar, row, [], {}, 0.5, note="validating")
+    assert "steps=342" in out.getvalue() and "agent_sps=900" in out.getvalue()  # not a rate of `steps`
+    assert "succ=-" in out.getvalue() and "ep_len=-" in out.getvalue() and "nan" not in out.getvalue()
+    ended = [EpisodeRecord(0, 0, 0, "success", 40, 4.0, {}, 1, "open"), EpisodeRecord(1, 0, 0, "collision", 20, None, {}, 0, "open")]
+    _advance(bar, row, ended, {}, 0.6, note="validating")
+    assert "succ=50%" in out.getvalue() and "coll=50%" in out.getvalue() and "ep_len=30" in out.getvalue()
+    bar.close()

@@ -560,10 +560,10 @@ def _advance(bar, row: dict, recent, last_val: dict, done: float, note: str = ""
         return
     s = summarise(list(recent)) if recent else {}
     post = {
-        "steps": row["world_steps"],
-        "succ": f"{s.get('success', 0):.0%}", "coll": f"{s.get('collision', 0):.0%}",
-        "ep_len": f"{s.get('mean_steps', float('nan')):.0f}",
-        "sps": f"{row['agent_steps_per_s']:.0f}",
+        "steps": row["world_steps"],  # "-" below: no episode has ended yet
+        "succ": f"{s['success']:.0%}" if s else "-", "coll": f"{s['collision']:.0%}" if s else "-",
+        "ep_len": f"{s['mean_steps']:.0f}" if s else "-",
+        "agent_sps": f"{row['agent_steps_per_s']:.0f}",  # pursuer transitions, not the world steps of `steps`
     }
     if "gamma_meta_grad" in row:
         post["gamma"] = f"{row['gamma']:.4f}"
