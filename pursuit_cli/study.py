@@ -75,6 +75,6 @@ def run(args) -> int:
         raise
     print((out / "table.txt").read_text(), end="")
     print(f"\n{result['episodes']} episodes per policy and layout; time per part:")
-    print(format_timings(result["timings"]))
+    print(format_timings(result["timings"], args.budget_minutes))
     print(f"table, charts and runs in {out}/")
     return 0

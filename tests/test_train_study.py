@@ -135,3 +135,11 @@ def test_a_resumed_study_whose_kept_arm_lost_its_best_pt_is_refused_before_anyth
     assert f"the full_obs arm is kept as finished in {out_dir / 'study.json'}, but checkpoint " in err
     assert "best.pt: not a pursuit-mj checkpoint" in err and "delete its entry" in err
     assert not (out_dir / "runs" / "fine_tune").exists()
+
+
+def test_the_timings_compare_the_total_with_the_budget():
+    from train.study import format_timings
+
+    over = format_timings({"heuristic (eval)": 6.0, "total": 138.0}, 1.5).splitlines()
+    assert over[0] == "  heuristic (eval)     0.1 min" and over[1].endswith("2.3 min (budget 1.5 min, 0.8 min over)")
+    assert format_timings({"total": 80.0}, 1.5).endswith("1.3 min (budget 1.5 min)")

@@ -313,6 +313,11 @@ def _write(plan: StudyPlan, rows: Sequence, timings: dict[str, float], episodes:
     atomic_write_text(plan.out / "timings.json", json.dumps({k: round(v, 1) for k, v in timings.items()}, indent=2) + "\n")
 
 
-def format_timings(timings: dict[str, float]) -> str:
+def format_timings(timings: dict[str, float], budget_minutes: float) -> str:
+    """One line per part; the total says how it compares with the budget (a busy machine, or arms
+    that each need at least one update and a validation, can take the study over it)."""
     width = max(len(k) for k in timings)
-    return "\n".join(f"  {k.ljust(width)}  {v / 60.0:6.1f} min" for k, v in timings.items())
+    lines = [f"  {k.ljust(width)}  {v / 60.0:6.1f} min" for k, v in timings.items()]
+    over = timings["total"] / 60.0 - budget_minutes
+    lines[-1] += f" (budget {budget_minutes:g} min" + (f", {over:.1f} min over)" if over >= 0.05 else ")")
+    return "\n".join(lines)
