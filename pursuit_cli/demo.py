@@ -80,7 +80,7 @@ def run(args) -> int:
         policies.append(("heuristic", make_policy("heuristic", config)))
     print(f"demo: {len(policies)} policies x {len(layouts)} layouts x {args.episodes} episodes, "
           f"{config.fidelity} fidelity, {config.n_pursuers} pursuers ({config.pursuer_speed} m/s) vs "
-          f"{config.n_evaders} evader ({config.evader_speed} m/s), {config.observability} observability", file=sys.stderr)
+          f"{config.n_evaders} evader{'s' if config.n_evaders > 1 else ''} ({config.evader_speed} m/s), {config.observability} observability", file=sys.stderr)
     shipped = model.resolve() == PRETRAINED.resolve()
     print(f"model: {policy.name} = {model}" + (" (the small policy shipped with the repository, nothing trained needed; "
           "pretrained/README.md gives the command that made it)" if shipped else ""), file=sys.stderr)
