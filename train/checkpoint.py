@@ -80,15 +80,15 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
         if key in data and not isinstance(data[key], dict):
             raise ValueError(f"checkpoint {path}: entry {key} is a {type(data[key]).__name__}, not a dict (damaged, or "
                              f"not written by pursuit-mj)")
-    for net in ("actor", "critic"):
-        if any(not torch.is_tensor(v) for v in data.get(net, {}).values()):
-            raise ValueError(f"checkpoint {path}: entry {net} holds values other than tensors (damaged, or not written by pursuit-mj)")
     lacking = [k for k in ("n_pursuers", "n_evaders", "n_rays", "groups") if k not in data["obs_spec"]]
     if lacking:
         raise ValueError(f"checkpoint {path}: its obs_spec lacks {lacking}")
     for net in ("actor", "critic"):
         for name, value in data.get(net, {}).items():
-            if torch.is_tensor(value) and value.is_floating_point() and not torch.isfinite(value).all():
+            if not torch.is_tensor(value):
+                raise ValueError(f"checkpoint {path}: entry {net} holds values other than tensors (damaged, or not "
+                                 f"written by pursuit-mj)")
+            if value.is_floating_point() and not torch.isfinite(value).all():
                 raise ValueError(f"checkpoint {path}: non-finite weights (NaN or inf) in {net}.{name}")
     return data
 
