@@ -52,3 +52,16 @@ def nearest_allowed_on_a_grid(want: np.ndarray, dirs: np.ndarray, caps: np.ndarr
     grid = np.stack(np.meshgrid(axis, axis), -1).reshape(-1, 2)
     ok = np.all(grid @ dirs.T <= caps, axis=1)
     return float(np.min(np.linalg.norm(grid[ok] - want, axis=1)))
+
+
+def _pin_xdist_worker_to_one_core() -> None:
+    """Under `pytest -n N` each worker gets a core of its own: torch's OpenMP threads spin while they
+    wait, and two workers each spinning on every core slowed the training tests about threefold."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    if not worker.startswith("gw") or not hasattr(os, "sched_setaffinity"):
+        return
+    cores = sorted(os.sched_getaffinity(0))
+    os.sched_setaffinity(0, {cores[int(worker[2:]) % len(cores)]})
+
+
+_pin_xdist_worker_to_one_core()

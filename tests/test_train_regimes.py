@@ -1,6 +1,7 @@
 """Training regimes and configs: the shipped YAMLs, fine_tune from full_obs, MAPPO, learnable discount."""
 
 import json
+import os
 
 import pytest
 import torch
@@ -56,6 +57,18 @@ def test_update_threads_take_the_cores_the_collection_leaves_idle():
     assert run.update_threads(overlapped=True, cores=1) == 1
     fixed = load_train_config(["classic"], ["run.torch_threads=3"]).run
     assert fixed.update_threads(overlapped=False, cores=8) == fixed.update_threads(overlapped=True, cores=8) == 3
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="no CPU affinity on this OS")
+def test_update_threads_count_only_the_cores_this_process_may_use():
+    """Under `taskset -c 0` (or a container's CPU set) the update must not start a thread per machine core."""
+    run = load_train_config(["classic"]).run
+    allowed = os.sched_getaffinity(0)
+    try:
+        os.sched_setaffinity(0, {min(allowed)})
+        assert run.update_threads(overlapped=False) == 1
+    finally:
+        os.sched_setaffinity(0, allowed)
 
 
 def test_fine_tune_starts_from_full_obs_weights_and_switches_observability(tmp_path):

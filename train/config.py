@@ -92,6 +92,13 @@ class NetConfig:
             raise ConfigError(f"{source}: net.critic_hidden {list(self.critic_hidden)} must list positive widths")
 
 
+def usable_cores() -> int:
+    """CPUs this process may run on: its affinity mask (taskset, containers) where the OS has one."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return os.cpu_count() or 1
+
+
 @dataclasses.dataclass(frozen=True)
 class RunConfig:
     """Where and how often: run folder, validation, checkpoints, logging, threads."""
@@ -116,10 +123,10 @@ class RunConfig:
     def update_threads(self, overlapped: bool, cores: int | None = None) -> int:
         """Torch threads for the update: torch_threads when set, else the cores idle during it
         (all of them when collection waits for the update, one fewer when a rollout worker
-        collects meanwhile), at least 1. cores: os.cpu_count() unless given."""
+        collects meanwhile), at least 1. cores: the CPUs this process may run on unless given."""
         if self.torch_threads:
             return self.torch_threads
-        cores = cores or os.cpu_count() or 1
+        cores = cores or usable_cores()
         return max(1, cores - 1) if overlapped else cores
 
 
