@@ -110,6 +110,20 @@ def test_fine_tune_without_its_full_obs_checkpoint_says_how_to_get_one(tmp_path)
         Trainer(ft, **QUIET)
 
 
+def test_fine_tune_from_a_partially_observed_run_is_refused_and_custom_takes_it(tmp_path):
+    """fine_tune means continuing a full_obs run under partial observability; from a classic run it
+    was accepted with only a line in the log saying which observability the weights had."""
+    base = TINY + [f"run.runs_dir={tmp_path}", "total_steps=32"]
+    classic = load_train_config(["classic"], base + ["name=src"])
+    Trainer(classic, **QUIET).train()
+    start = f"init_from={classic.run_dir / 'best.pt'}"
+    with pytest.raises(ValueError, match=r"src.best.pt: fine_tune starts from a full_obs run, and this checkpoint was "
+                                         r"trained with observability partial; .*--set regime=custom"):
+        Trainer(load_train_config(["fine_tune"], base + [start]), **QUIET)
+    custom = Trainer(load_train_config(["fine_tune"], base + [start, "regime=custom", "name=custom"]), **QUIET)
+    assert custom.counters.update == 0
+
+
 def test_mappo_trains_with_a_centralised_normalised_critic(tmp_path):
     cfg = load_train_config(["mappo"], TINY + [f"run.runs_dir={tmp_path}", "total_steps=96"])
     trainer = Trainer(cfg, **QUIET)

@@ -214,6 +214,11 @@ class Trainer:
         except RuntimeError as exc:
             raise ValueError(f"init_from {path}: actor weights do not fit this network ({load_error(exc)})") from None
         src = data["train_config"]
+        src_observability = src["task"]["observability"]
+        if self.cfg.regime == "fine_tune" and src_observability != "full":
+            raise ValueError(f"init_from {path}: fine_tune starts from a full_obs run, and this checkpoint was trained with "
+                             f"observability {src_observability}; to continue it under partial observability, use "
+                             f"--set regime=custom with the same init_from")
         src_algo = src.get("algo")
         same_critic = (src_algo == "mappo") == (self.cfg.algo == "mappo")  # dagger trains a ppo-style critic
         notes = []
@@ -236,7 +241,7 @@ class Trainer:
         if bool(src.get("shield", False)) != self.cfg.shield:
             notes.append(f"it was trained {'behind' if src.get('shield') else 'without'} the shield, this run is "
                          f"{'behind' if self.cfg.shield else 'without'} it")
-        self.log(f"initialised from {path} (trained with observability {src['task']['observability']}, "
+        self.log(f"initialised from {path} (trained with observability {src_observability}, "
                  f"now {self.cfg.task.observability})" + "".join(f"; note: {n}" for n in notes))
 
     # ------------------------------------------------------------------ checkpoints
