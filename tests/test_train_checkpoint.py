@@ -454,3 +454,26 @@ def test_a_second_trainer_on_a_folder_in_use_is_refused_and_the_folder_is_free_a
     with pytest.raises(ValueError):
         Trainer(cfg, checkpoint={"counters": {"bogus": 1}}, log=lambda s: None)
     Trainer(tiny_config(tmp_path, updates=1), log=lambda s: None).close()
+
+
+def test_a_checkpoint_written_before_a_setting_existed_resumes_saying_which_defaults_it_took(tmp_path):
+    """A stored train_config missing a whole section (or a key) was filled with today's defaults without a word."""
+    from train.checkpoint import save_checkpoint
+
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    good = load_checkpoint(cfg.run_dir / "last.pt")
+    body = {k: v for k, v in good.items() if k not in ("format", "version")}
+    old = {k: v for k, v in good["train_config"].items() if k != "imitation"}
+    old["ppo"] = {k: v for k, v in old["ppo"].items() if k != "vf_coef"}
+    save_checkpoint(cfg.run_dir / "last.pt", {**body, "train_config": old})
+    said: list[str] = []
+    resumed = Trainer.resume(cfg.run_dir, total_steps=96, log=said.append)
+    assert resumed.cfg.imitation == cfg.imitation and resumed.cfg.ppo.vf_coef == cfg.ppo.vf_coef
+    notes = [s for s in said if s.startswith("note:")]
+    assert len(notes) == 1 and "resumes with today's defaults for them: ppo.vf_coef, imitation" in notes[0], said
+    resumed.close()
+    save_checkpoint(cfg.run_dir / "last.pt", body)  # a whole config: nothing to say
+    said.clear()
+    Trainer.resume(cfg.run_dir, total_steps=96, log=said.append).close()
+    assert not [s for s in said if s.startswith("note:")]

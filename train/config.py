@@ -258,8 +258,25 @@ def load_train_config(
 
 
 def train_config_from_dict(data: Mapping[str, Any], source: str) -> TrainConfig:
-    """Rebuild a config stored in a checkpoint (a plain dict)."""
+    """Rebuild a config stored in a checkpoint (a plain dict); keys it lacks take today's defaults
+    (`defaults_filled_in` names them)."""
     return build(TrainConfig, data, source)
 
 
-__all__ = ["PPOConfig", "ImitationConfig", "ResidualConfig", "NetConfig", "RunConfig", "TrainConfig", "load_train_config", "train_config_from_dict", "REGIMES"]
+def defaults_filled_in(data: Mapping[str, Any], cfg: TrainConfig) -> list[str]:
+    """Dotted keys of `cfg` that the stored dict `data` it was built from lacks (a checkpoint written
+    before those settings existed): a whole missing section is one entry, `imitation`, not its keys."""
+    missing: list[str] = []
+
+    def walk(stored: Mapping[str, Any], full: Mapping[str, Any], prefix: str) -> None:
+        for key, value in full.items():
+            if key not in stored:
+                missing.append(prefix + key)
+            elif isinstance(value, dict) and isinstance(stored[key], Mapping):
+                walk(stored[key], value, f"{prefix}{key}.")
+
+    walk(data, to_dict(cfg), "")
+    return missing
+
+
+__all__ = ["PPOConfig", "ImitationConfig", "ResidualConfig", "NetConfig", "RunConfig", "TrainConfig", "load_train_config", "train_config_from_dict", "defaults_filled_in", "REGIMES"]

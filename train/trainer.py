@@ -34,7 +34,7 @@ from pursuit_mj.sensing import privileged_config
 
 from .agent import ActorCritic
 from .checkpoint import check_obs_spec, is_training_checkpoint, load_checkpoint, load_error, save_checkpoint
-from .config import TrainConfig, train_config_from_dict
+from .config import TrainConfig, defaults_filled_in, train_config_from_dict
 from .discount import Discount
 from .imitation import DaggerCollector, Demonstrations, imitation_update, teacher_share
 from .metrics_log import MetricsLog, json_ready
@@ -157,6 +157,10 @@ class Trainer:
         cfg = train_config_from_dict(data["train_config"], f"checkpoint {path}: train_config")
         if check is not None:
             check(cfg)
+        filled = defaults_filled_in(data["train_config"], cfg)
+        if filled:
+            shown = ", ".join(filled[:6]) + (f" and {len(filled) - 6} more" if len(filled) > 6 else "")
+            log(f"note: {path} was written before these settings existed, and resumes with today's defaults for them: {shown}")
         run = dataclasses.replace(cfg.run, runs_dir=str(Path(run_dir).parent))
         if progress is not None:
             run = dataclasses.replace(run, progress=progress)
