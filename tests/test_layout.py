@@ -398,3 +398,12 @@ def test_an_integer_too_long_for_a_float_is_refused_naming_the_entry(tmp_path):
     path.write_text(path.read_text().replace(f"width: {huge}", "width: 3.6"))
     with pytest.raises(LayoutError, match=r"huge.yaml: obstacles\[0\] \(cylinder\).center: expected two finite numbers"):
         load_layout(path)
+
+
+def test_a_missing_random_obstacles_section_means_none_and_an_empty_one_the_documented_defaults():
+    """DESIGN.md section 2: no section, no random obstacles; `{}` takes count 5, both kinds, 0.15-0.4 m."""
+    without = base_dict()
+    del without["random_obstacles"]
+    assert layout_from_dict(without, "<t>").random_obstacles.count == 0
+    empty = layout_from_dict(base_dict(random_obstacles={}), "<t>").random_obstacles
+    assert (empty.count, tuple(empty.kinds), tuple(empty.size)) == (5, ("box", "cylinder"), (0.15, 0.4))
