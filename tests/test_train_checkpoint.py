@@ -477,3 +477,27 @@ def test_a_checkpoint_written_before_a_setting_existed_resumes_saying_which_defa
     said.clear()
     Trainer.resume(cfg.run_dir, total_steps=96, log=said.append).close()
     assert not [s for s in said if s.startswith("note:")]
+
+
+def test_a_diverged_update_is_refused_before_a_checkpoint_holds_its_nan_weights(tmp_path, monkeypatch):
+    """A run whose weights went NaN saved them over a good last.pt (which then could not be loaded)
+    and stopped one rollout later on 'actions: non-finite value nan'."""
+    real_update = trainer_module.ppo_update
+    calls = []
+
+    def nan_on_the_second(model, *args, **kwargs):
+        losses = real_update(model, *args, **kwargs)
+        calls.append(1)
+        if len(calls) == 2:
+            with torch.no_grad():
+                model.actor.log_std.fill_(float("nan"))
+        return losses
+
+    monkeypatch.setattr(trainer_module, "ppo_update", nan_on_the_second)
+    cfg = tiny_config(tmp_path, updates=3)
+    with pytest.raises(ValueError, match=r"training diverged at update 2: the weights actor.log_std are no longer finite "
+                                         r"\(losses: .*\); .*last.pt keeps update 1, from which a new run can start "
+                                         r"\(--init-from .*last.pt --set ppo.lr=...\). Try a lower ppo.lr"):
+        Trainer(cfg, log=lambda s: None).train()
+    assert load_checkpoint(cfg.run_dir / "last.pt")["counters"]["update"] == 1
+    assert [r["update"] for r in rows(cfg.run_dir)] == [1]

@@ -375,6 +375,7 @@ class Trainer:
             losses = ppo_update(self.model, self.optimizer, buf, cfg.ppo, self.discount.value, self.generator,
                                 lagged=self.overlap)
         t2 = time.perf_counter()
+        self._check_finite(losses)
         c.update += 1
         c.world_steps += buf.T * buf.W
         c.agent_steps += buf.n_transitions
@@ -399,6 +400,22 @@ class Trainer:
         self._pending_row = row
         self._consistent = True
         return row
+
+    def _check_finite(self, losses: dict) -> None:
+        """Refuse an update that left a weight NaN or infinite (training diverged), before any
+        checkpoint holds it: last.pt keeps the update before, from which a new run can start."""
+        bad = next((name for name, p in self.model.named_parameters() if not torch.isfinite(p).all()), None)
+        if bad is None:
+            return
+        section = "imitation" if self.demos is not None else "ppo"
+        lr_key = f"{section}.lr"
+        lr = self.cfg.imitation.lr if self.demos is not None else self.cfg.ppo.lr
+        shown = ", ".join(f"{k} {v:.3g}" for k, v in losses.items() if k in ("policy_loss", "bc_loss", "value_loss", "grad_norm"))
+        kept = (f"{self.run_dir / 'last.pt'} keeps update {self._saved_update}, from which a new run can start "
+                f"(--init-from {self.run_dir / 'last.pt'} --set {lr_key}=...)" if self._saved_update > 0
+                else "no update was saved")
+        raise ValueError(f"training diverged at update {self.counters.update + 1}: the weights {bad} are no longer finite "
+                         f"(losses: {shown or 'none'}); {kept}. Try a lower {lr_key} (now {lr:g}) or {section}.max_grad_norm")
 
     def _why_done(self) -> str:
         """What ended the run already, for a resume that finds nothing left to do."""
