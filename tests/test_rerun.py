@@ -136,6 +136,12 @@ def test_an_interrupted_recording_keeps_its_finished_episodes_beside_the_whole_o
     assert "/episode_0/outcome" in ent and "/episode_1/outcome" in ent
     assert ent["/__properties/interrupted"].static["finished_episodes"] == [2]
 
+    with RerunEpisodeRecording(earlier) as whole:  # a later run that ends: the stale partial one is pointed out, kept
+        buf = EpisodeBuffer()
+        buf.append(env.snapshot(0))
+        whole.add_episode(buf)
+    assert whole.summary().endswith(f"; {partial} beside it is from an earlier, interrupted run") and partial.is_file()
+
 
 def test_a_folder_where_the_interrupted_recording_would_go_is_refused_up_front(tmp_path, capsys):
     (tmp_path / "x.interrupted.rrd").mkdir()

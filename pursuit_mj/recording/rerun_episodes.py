@@ -290,7 +290,9 @@ class RerunEpisodeRecording:
         """One line for the user about where the episodes went, once closed."""
         n = f"{self.n_episodes} episode{'' if self.n_episodes == 1 else 's'}"
         if self.kept == self.path:
-            return f"wrote {self.path} ({n}; open with: rerun {self.path})"
+            stale = (f"; {self.partial_path} beside it is from an earlier, interrupted run"
+                     if self.partial_path.is_file() else "")
+            return f"wrote {self.path} ({n}; open with: rerun {self.path}){stale}"
         if self.kept is not None:
             return f"interrupted: the {n} finished before it are in {self.kept} (open with: rerun {self.kept}); {self.path} was not written"
         return f"interrupted before any episode finished: {self.path} was not written"
