@@ -407,9 +407,8 @@ class Trainer:
         bad = next((name for name, p in self.model.named_parameters() if not torch.isfinite(p).all()), None)
         if bad is None:
             return
-        section = "imitation" if self.demos is not None else "ppo"
-        lr_key = f"{section}.lr"
-        lr = self.cfg.imitation.lr if self.demos is not None else self.cfg.ppo.lr
+        section = "imitation" if self.demos is not None else "ppo"  # whose lr and max_grad_norm drove the update
+        lr_key, lr = f"{section}.lr", getattr(self.cfg, section).lr
         shown = ", ".join(f"{k} {v:.3g}" for k, v in losses.items() if k in ("policy_loss", "bc_loss", "value_loss", "grad_norm"))
         kept = (f"{self.run_dir / 'last.pt'} keeps update {self._saved_update}, from which a new run can start "
                 f"(--init-from {self.run_dir / 'last.pt'} --set {lr_key}=...)" if self._saved_update > 0
