@@ -84,26 +84,33 @@ def mujoco_import_error() -> str | None:
 
 
 @contextlib.contextmanager
-def termination_as_interrupt():
+def termination_as_interrupt(stops: list[str] | None = None):
     """Within: SIGTERM and SIGHUP (kill, a closed terminal) stop a command as Ctrl-C does, so
     its half-written outputs are removed and its checkpoints saved the same way. Signals
-    already handled or ignored (nohup) are left alone; off the main thread, nothing changes."""
+    already handled or ignored (nohup) are left alone; off the main thread, nothing changes.
+    Each stop signal's name (SIGINT for Ctrl-C) is appended to `stops` when it arrives."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     owner = os.getpid()
+    stops = [] if stops is None else stops
 
     def raise_interrupt(signum, frame):
+        name = signal.Signals(signum).name
         if os.getpid() != owner:  # a forked worker (a pool's) inherits this: it must die as told
+            if signum == signal.SIGINT:
+                raise KeyboardInterrupt
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
             return
-        raise KeyboardInterrupt(signal.Signals(signum).name)
+        stops.append(name)
+        raise KeyboardInterrupt(*([] if signum == signal.SIGINT else [name]))
 
     taken = {}
-    for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
-        if sig is not None and signal.getsignal(sig) == signal.SIG_DFL:
+    for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None), signal.SIGINT):
+        default = signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL
+        if sig is not None and signal.getsignal(sig) == default:
             taken[sig] = signal.signal(sig, raise_interrupt)
     try:
         yield
@@ -123,21 +130,31 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help(sys.stderr)
         return 2
     args = parser.parse_args(argv)
+    stops: list[str] = []
     try:
-        with termination_as_interrupt():
+        with termination_as_interrupt(stops):
             return int(args.func(args) or 0)
-    except ValueError as exc:
+    except KeyboardInterrupt as exc:
+        return _interrupted(args, str(exc.args[0]) if exc.args else "")
+    except BrokenPipeError:  # output piped into `head` and the like
+        sys.stderr.close()
+        return 0
+    except Exception as exc:
+        if stops:  # the interrupt raised inside a library call, which reported it as its own error (pybind11: TypeError)
+            return _interrupted(args, stops[0])
+        if not isinstance(exc, ValueError):
+            raise
         action = next((getattr(args, d) for d in ("layout_command", "bench_target", "fly_action") if getattr(args, d, None)), None)
         command = " ".join(filter(None, (args.command, action)))  # e.g. 'layout show', as argparse's own errors say
         print(f"pursuit-mj {command}: error: {exc}", file=sys.stderr)
         return 2
-    except BrokenPipeError:  # output piped into `head` and the like
-        sys.stderr.close()
-        return 0
-    except KeyboardInterrupt as exc:
-        signal_name = f" by {exc.args[0]}" if exc.args and str(exc.args[0]).startswith("SIG") else ""
-        print(f"pursuit-mj {args.command}: interrupted{signal_name}", file=sys.stderr)
-        return 130
+
+
+def _interrupted(args: argparse.Namespace, signal_name: str) -> int:
+    """Say that the command was stopped (by SIGTERM/SIGHUP when one of them did it); exit code 130."""
+    by = f" by {signal_name}" if signal_name.startswith("SIG") and signal_name != "SIGINT" else ""
+    print(f"pursuit-mj {args.command}: interrupted{by}", file=sys.stderr)
+    return 130
 
 
 if __name__ == "__main__":

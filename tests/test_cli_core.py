@@ -156,3 +156,35 @@ def test_python_dash_m_pursuit_cli_is_the_pursuit_mj_command():
 
     out = subprocess.run([sys.executable, "-m", "pursuit_cli", "layout", "check", "7"], capture_output=True, text=True, timeout=120)
     assert out.returncode == 2 and out.stderr.startswith("pursuit-mj layout check: error: layout 7"), out.stderr
+
+
+@pytest.mark.parametrize("sig, said", [("SIGTERM", "interrupted by SIGTERM\n"), ("SIGINT", "interrupted\n")])
+def test_a_stop_signal_that_a_library_call_reports_as_its_own_error_still_ends_as_an_interrupt(monkeypatch, capsys, sig, said):
+    """A SIGTERM (or Ctrl-C) landing while mujoco's bindings convert an argument came out as their
+    TypeError ('incompatible function arguments'): a traceback and exit code 1 instead of 130."""
+    import os
+    import signal
+
+    import mujoco
+
+    import pursuit_cli.config_cmd as config_cmd
+
+    class StopWhileConverted:  # the signal arrives while the binding reads this sequence
+        def __len__(self):
+            return 2
+
+        def __getitem__(self, i):
+            if i == 0:
+                os.kill(os.getpid(), getattr(signal, sig))
+            if i >= 2:
+                raise IndexError(i)
+            return 1.0
+
+    def build_a_scene(args):
+        mujoco.MjSpec().add_material().texrepeat = StopWhileConverted()
+        return 0
+
+    monkeypatch.setattr(config_cmd, "run", build_a_scene)
+    assert main(["config"]) == 130
+    assert capsys.readouterr().err.endswith(f"pursuit-mj config: {said}")
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handlers given back
