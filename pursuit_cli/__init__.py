@@ -88,7 +88,8 @@ def termination_as_interrupt(stops: list[str] | None = None):
     """Within: SIGTERM and SIGHUP (kill, a closed terminal) stop a command as Ctrl-C does, so
     its half-written outputs are removed and its checkpoints saved the same way. Signals
     already handled or ignored (nohup) are left alone; off the main thread, nothing changes.
-    Each stop signal's name (SIGINT for Ctrl-C) is appended to `stops` when it arrives."""
+    Ctrl-C is taken too, only to append each stop signal's name (SIGINT for it) to `stops`:
+    a library call can report the interrupt as its own error, and `main` then tells it apart."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -97,15 +98,15 @@ def termination_as_interrupt(stops: list[str] | None = None):
     stops = [] if stops is None else stops
 
     def raise_interrupt(signum, frame):
-        name = signal.Signals(signum).name
         if os.getpid() != owner:  # a forked worker (a pool's) inherits this: it must die as told
             if signum == signal.SIGINT:
                 raise KeyboardInterrupt
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
             return
+        name = signal.Signals(signum).name
         stops.append(name)
-        raise KeyboardInterrupt(*([] if signum == signal.SIGINT else [name]))
+        raise KeyboardInterrupt(*([] if signum == signal.SIGINT else [name]))  # Ctrl-C: Python's own, no name
 
     taken = {}
     for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None), signal.SIGINT):
