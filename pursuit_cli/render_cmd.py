@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
+import json
 import os
 import sys
 from pathlib import Path
@@ -113,6 +115,30 @@ def task_config(args, base: TaskConfig | None) -> TaskConfig:
     if args.show_config:
         print(dump_yaml(cfg))
     return cfg
+
+
+def checkpoint_file(args, train_cfg) -> Path | None:
+    """The checkpoint choose_policy loads: -m FILE, else the -mc run's best.pt unless --policy; None for a hand-made team."""
+    if args.model:
+        return Path(args.model)
+    if args.policy is None and train_cfg is not None:
+        return train_cfg.run_dir / "best.pt"
+    return None
+
+
+def render_digest(config: TaskConfig, label: str, checkpoint: Path | None, frames: dict) -> str:
+    """Six hex digits of everything that decides what a render shows (the seed aside, which the
+    name spells out): the task with its layout's content, the policy (a checkpoint by its bytes)
+    and the frame settings. Files named alike hold the same pictures, so a render replaces only
+    its own earlier copy, never a render of another model, task or camera."""
+    h = hashlib.sha256()
+    h.update(json.dumps(to_dict(config), sort_keys=True, default=str).encode())
+    h.update(repr(load_layout(config.layout)).encode())
+    h.update(label.encode())
+    if checkpoint is not None:
+        h.update(hashlib.sha256(checkpoint.read_bytes()).digest())
+    h.update(json.dumps(frames, sort_keys=True).encode())
+    return h.hexdigest()[:6]
 
 
 def choose_policy(args, config: TaskConfig, train_cfg):
@@ -234,7 +260,9 @@ def run(args) -> int:
     videos = finals = None
     if target is not None:
         task_tag = "".join(f"_{Path(f).stem}" for f in args.task_files or [])  # --task hard: not the default task's files
-        stem = f"{label}{task_tag}_layout{Path(str(config.layout)).stem}_{config.fidelity}_seed{args.seed}"
+        frames = {**dataclasses.asdict(settings), "fps": fps, "trail": args.trail, "format": target.fmt}
+        digest = render_digest(config, label, checkpoint_file(args, train_cfg), frames)
+        stem = f"{label}{task_tag}_layout{Path(str(config.layout)).stem}_{config.fidelity}_seed{args.seed}_{digest}"
         videos, finals = target.paths(args.episodes, stem, video, final)
         for path in (videos or []) + (finals or []):
             if path.is_dir():  # found now, not by the rename after the episode is played

@@ -28,14 +28,16 @@ def test_cli_writes_videos_finals_and_reference_flags_work(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "perception_radius: 1.5" in text and "pursuer_speed: 0.4" in text and "random_obstacles: 2" in text
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["random_layout2_point_seed0_ep000.gif", "random_layout2_point_seed0_ep000_final.png",
-                     "random_layout2_point_seed0_ep001.gif", "random_layout2_point_seed0_ep001_final.png"]
+    digest = names[0].split("_")[4]
+    assert len(digest) == 6 and int(digest, 16) >= 0
+    stem = f"random_layout2_point_seed0_{digest}"
+    assert names == [f"{stem}_ep000.gif", f"{stem}_ep000_final.png", f"{stem}_ep001.gif", f"{stem}_ep001_final.png"]
 
 
 def test_a_save_path_ending_in_a_slash_is_a_folder_even_with_a_dot_in_its_name(tmp_path):
     out = tmp_path / "renders.v0.2"
     assert _cli(tmp_path, "-s", f"{out}/", "--format", "gif") == 0
-    assert [p.name for p in out.iterdir()] == ["random_layout0_point_seed0_ep000.gif"]
+    assert [p.name[:26] + p.name[33:] for p in out.iterdir()] == ["random_layout0_point_seed0_ep000.gif"]
 
 
 def test_cli_single_file_and_no_video(tmp_path):
@@ -87,11 +89,48 @@ def test_cli_refuses_an_unwritable_save_path(tmp_path, capsys):
     assert f"-s {blocker / 'sub'}: cannot create the folder" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("name, extra", [("random_layout0_point_seed0_ep001.mp4", []),
-                                         ("random_layout0_point_seed0_ep001_final.png", ["--final-frame", "--no-video"])])
-def test_a_folder_where_an_output_file_goes_is_refused_before_any_episode(tmp_path, capsys, name, extra):
+def test_renders_that_differ_in_anything_they_show_get_names_of_their_own(tmp_path, capsys):
     out = tmp_path / "renders"
-    (out / name).mkdir(parents=True)
+    assert _cli(tmp_path, "-s", str(out), "--format", "gif") == 0
+    first = sorted(p.name for p in out.iterdir())
+    assert _cli(tmp_path, "-s", str(out), "--format", "gif") == 0  # the same render again replaces its own copy
+    assert sorted(p.name for p in out.iterdir()) == first
+    for extra in (["--set", "evader_speed=0.3"], ["--camera", "angled"], ["--trail", "5"]):
+        assert _cli(tmp_path, "-s", str(out), "--format", "gif", *extra) == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert len(names) == 4 and len({n.split("_")[4] for n in names}) == 4
+    assert all(n.startswith("random_layout0_point_seed0_") and n.endswith("_ep000.gif") for n in names)
+
+
+def test_the_render_digest_follows_the_checkpoint_bytes_and_the_layout_file_content(tmp_path):
+    from pursuit_cli.render_cmd import render_digest
+    from pursuit_mj.config import TaskConfig
+    from pursuit_mj.layout import LAYOUT_DIR
+
+    layout = tmp_path / "arena.yaml"
+    layout.write_text((LAYOUT_DIR / "1_walls.yaml").read_text())
+    config = TaskConfig(layout=str(layout))
+    model = tmp_path / "best.pt"
+    model.write_bytes(b"weights of update 10")
+    before = render_digest(config, "classic", model, {"camera": "top"})
+    assert render_digest(config, "classic", model, {"camera": "top"}) == before
+    model.write_bytes(b"weights of update 20")  # trained on: the same file name, another policy
+    after_training = render_digest(config, "classic", model, {"camera": "top"})
+    layout.write_text(layout.read_text().replace("\n", "\n\n", 1))  # the same layout, written differently
+    assert render_digest(config, "classic", model, {"camera": "top"}) == after_training
+    layout.write_text((LAYOUT_DIR / "2_bars.yaml").read_text())  # another layout under the same name
+    assert len({before, after_training, render_digest(config, "classic", model, {"camera": "top"})}) == 3
+
+
+@pytest.mark.parametrize("suffix, extra", [(".mp4", []), ("_final.png", ["--final-frame", "--no-video"])])
+def test_a_folder_where_an_output_file_goes_is_refused_before_any_episode(tmp_path, capsys, suffix, extra):
+    out = tmp_path / "renders"
+    assert _cli(tmp_path, "-s", str(out), *extra) == 0  # learns the name of episode 0
+    (written,) = out.iterdir()
+    written.unlink()
+    name = written.name.replace(f"_ep000{suffix}", f"_ep001{suffix}")
+    (out / name).mkdir()
+    capsys.readouterr()
     assert _cli(tmp_path, "-s", str(out), "--episodes", "2", *extra) == 2
     err = capsys.readouterr()
     assert f"-s {out}: {out / name} is a folder, expected a file name there" in err.err and "episode 0" not in err.out
