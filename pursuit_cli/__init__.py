@@ -132,6 +132,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     args = parser.parse_args(argv)
     stops: list[str] = []
+    args.stop_signals = stops  # read by commands that end gracefully on a stop (train)
     try:
         with termination_as_interrupt(stops):
             return int(args.func(args) or 0)

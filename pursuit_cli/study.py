@@ -66,9 +66,12 @@ def run(args) -> int:
     check_writable_folder(out, f"--out {out}")
     if not args.resume and any((out / "runs").glob("*/last.pt")):
         raise ValueError(f"--out {out}: already holds study runs; continue them with --resume, or choose another folder")
+    stops = getattr(args, "stop_signals", [])  # a stop signal can surface as a library's own error
     try:
-        result = run_study(plan)
-    except KeyboardInterrupt:
+        result = run_study(plan, stop_requested=lambda: bool(stops))
+    except (KeyboardInterrupt, Exception) as exc:
+        if not (isinstance(exc, KeyboardInterrupt) or stops):
+            raise
         print(f"[study] interrupted; the finished arms are kept: continue with pursuit-mj study --resume --out {out} "
               f"--budget-minutes M (the time for what is left) and the same task, --train-fidelity and --train-set flags",
               file=sys.stderr)

@@ -202,7 +202,8 @@ def run(args) -> int:
             trainer = Trainer(cfg)
     # SIGTERM stops it like Ctrl-C (pursuit_cli.termination_as_interrupt): the last finished update is kept
     seconds_before = trainer.counters.seconds  # a resumed run's counters hold its earlier sessions too
-    result = trainer.train()
+    stops = getattr(args, "stop_signals", [])
+    result = trainer.train(stop_requested=lambda: bool(stops))
     c = result["counters"]
     earlier = f"; {c['seconds'] - seconds_before:.0f} s of it in this session" if seconds_before > 0 else ""
     print(f"{result['status']}: {c['update']} updates, {c['world_steps']} world steps, "

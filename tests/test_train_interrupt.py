@@ -82,3 +82,42 @@ def test_kill_9_ctrl_c_or_sigterm_loses_at_most_one_update(tmp_path, sig, overla
     assert resumed.counters.update == saved
     assert resumed.train()["counters"]["update"] == saved + 1
     assert [r["update"] for r in rows(tmp_path / "killed")] == list(range(1, saved + 2))
+
+
+def test_a_sigterm_that_mujoco_reports_as_a_type_error_still_saves_and_says_how_to_resume(tmp_path, monkeypatch, capsys):
+    """mujoco's bindings report a signal that lands while they convert an argument as their own
+    TypeError; training used to end on that traceback, without its last update saved or the
+    resume command printed."""
+    import mujoco
+
+    from pursuit_cli import main
+    from pursuit_mj.env import PursuitEnv
+
+    class SigtermWhileConverted:  # the signal arrives while the binding reads this sequence
+        def __len__(self):
+            return 2
+
+        def __getitem__(self, i):
+            if i == 0:
+                os.kill(os.getpid(), signal.SIGTERM)
+            if i >= 2:
+                raise IndexError(i)
+            return 1.0
+
+    steps = {"n": 0}
+    step = PursuitEnv.step
+
+    def step_then_stopped(self, actions):
+        steps["n"] += 1
+        if steps["n"] == 30:  # in the second update's rollout (16 steps of 2 worlds x 2 pursuers each)
+            mujoco.MjSpec().add_material().texrepeat = SigtermWhileConverted()
+        return step(self, actions)
+
+    monkeypatch.setattr(PursuitEnv, "step", step_then_stopped)
+    sets = [a for kv in TINY + [f"run.runs_dir={tmp_path}", "name=typed"] for a in ("--set", kv)]
+    assert main(["train", "--config", "classic", *sets, "--total-steps", "100000"]) == 130
+    out = capsys.readouterr()
+    assert f"interrupted: state of update 1 is in {tmp_path / 'typed' / 'last.pt'}" in out.out + out.err
+    assert f"pursuit-mj train --resume {tmp_path / 'typed'}" in out.out + out.err
+    assert load_checkpoint(tmp_path / "typed" / "last.pt")["counters"]["update"] == 1
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers given back

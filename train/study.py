@@ -188,7 +188,7 @@ def check_train_overrides(plan: StudyPlan) -> None:
             raise ValueError(f"--train-set: the {arm.name} arm ({arm.config} config) refuses it: {exc}") from None
 
 
-def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
+def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requested: Callable[[], bool] | None = None) -> dict:
     """Train, evaluate, write the table and charts; returns {'rows', 'timings', 'episodes'}."""
     check_train_overrides(plan)
     plan.out.mkdir(parents=True, exist_ok=True)
@@ -264,7 +264,7 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print) -> dict:
                 f"({cfg.task.fidelity} fidelity)")
             trainer = Trainer(cfg, log=log)
         trainer.resume_command = "pursuit-mj study --resume (the whole study; see below)"
-        result = trainer.train()
+        result = trainer.train(stop_requested)  # see Trainer.train: a stop signal reported as another error
         timings[f"{regime} (train)"] = time.perf_counter() - t0
         if result["status"] != "done":
             raise KeyboardInterrupt

@@ -471,8 +471,13 @@ class Trainer:
             self.cfg.ppo.gae_lambda, max(self.learning_rate(), 1e-8), sample,
         )
 
-    def train(self) -> dict:
-        """Train until total_steps; returns {'status': 'done'|'interrupted', counters, last validation}."""
+    def train(self, stop_requested: Callable[[], bool] | None = None) -> dict:
+        """Train until total_steps; returns {'status': 'done'|'interrupted', counters, last validation}.
+
+        Ctrl-C (KeyboardInterrupt) interrupts. So does any error raised once stop_requested()
+        is true: a stop signal that lands inside a library call can come out as that call's own
+        error (mujoco's bindings turn it into a TypeError), and it must still save and say how
+        to resume."""
         cfg, c = self.cfg, self.counters
         self.run_dir.mkdir(parents=True, exist_ok=True)
         atomic_write_text(self.run_dir / "config.yaml", dump_yaml(cfg))
@@ -499,7 +504,9 @@ class Trainer:
                 self._log_row(row, bar, last_val)
             if self._saved_update != c.update:
                 self.save()
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, Exception) as exc:
+            if not isinstance(exc, KeyboardInterrupt) and not (stop_requested is not None and stop_requested()):
+                raise
             status = "interrupted"
             if self._consistent and (self._saved_update != c.update or self._pending_row):
                 self.save()
