@@ -11,10 +11,10 @@ import sys
 import time
 from pathlib import Path
 
-from pursuit_mj.config import REPO_ROOT
+from pursuit_mj.shipped import shipped_dir
 from .common import add_task_args, checked_layouts, load_model, seed_arg, task_config_from_args
 
-PRETRAINED = REPO_ROOT / "pretrained" / "pursuers.pt"
+PRETRAINED = shipped_dir("pretrained") / "pursuers.pt"
 
 HOW_TO_TRAIN = """\
 Next steps:
@@ -52,6 +52,14 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _shown(path: Path) -> str:
+    """path relative to the working folder when it lies within it (pretrained/README.md in a checkout), else whole."""
+    try:
+        return str(path.relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
+
+
 def run(args) -> int:
     from pursuit_mj.comparison import paired_report
     from pursuit_mj.evaluation import evaluate, format_table
@@ -64,7 +72,7 @@ def run(args) -> int:
     layouts = checked_layouts(args.layouts)  # a typo in the last layout must not cost the earlier ones' minutes
     model = Path(args.model)
     if not model.exists():
-        raise ValueError(f"--model {model}: no such file (the pretrained policy ships in pretrained/ of the repository)")
+        raise ValueError(f"--model {model}: no such file (the pretrained policy ships as {_shown(PRETRAINED)})")
     config = task_config_from_args(args)
     policy = load_model(model, _spec(config), config)
     policies = [(policy.name, policy)]  # the training run's name, as eval and render call it
@@ -83,7 +91,7 @@ def run(args) -> int:
           f"{config.n_evaders} evader{'s' if config.n_evaders > 1 else ''} ({config.evader_speed} m/s), {config.observability} observability", file=sys.stderr)
     shipped = model.resolve() == PRETRAINED.resolve()
     print(f"model: {policy.name} = {model}" + (" (the small policy shipped with the repository, nothing trained needed; "
-          "pretrained/README.md gives the command that made it)" if shipped else ""), file=sys.stderr)
+          f"{_shown(PRETRAINED.parent / 'README.md')} gives the command that made it)" if shipped else ""), file=sys.stderr)
     rows = []
     t_all = time.perf_counter()
     for label, pol in policies:

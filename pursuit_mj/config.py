@@ -14,8 +14,9 @@ from typing import Sequence
 from .configio import ConfigError, build, dump_yaml, load, spec, to_dict
 from .layout import N_BUILTIN
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-CONFIG_DIR = REPO_ROOT / "configs"
+from .shipped import shipped_dir
+
+CONFIG_DIR = shipped_dir("configs")
 #: m between two drone centres when their collision cylinders touch (2 x the 0.0685 m radius
 #: of the "collision" geom in models/crazyflie.xml; a test checks the two agree)
 DRONE_CONTACT_DISTANCE = 2 * 0.0685

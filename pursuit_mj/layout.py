@@ -17,8 +17,9 @@ import yaml
 
 from .configio import ConfigError, read_text, safe_load, yaml_error_text
 from .geometry import ObstacleSet, boundary_segments
+from .shipped import shipped_dir
 
-LAYOUT_DIR = Path(__file__).resolve().parent.parent / "configs" / "layouts"
+LAYOUT_DIR = shipped_dir("configs") / "layouts"
 N_BUILTIN = 4
 
 

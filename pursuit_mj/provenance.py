@@ -6,11 +6,9 @@ from __future__ import annotations
 import hashlib
 import subprocess
 from importlib import metadata
-from pathlib import Path
 
 from .scene import DRONE_FILE
-
-REPO_ROOT = Path(__file__).resolve().parent.parent
+from .shipped import REPO_ROOT
 
 
 def _git(*args: str) -> str | None:

@@ -11,15 +11,15 @@ from __future__ import annotations
 import dataclasses
 import math
 from functools import lru_cache
-from pathlib import Path
 
 import mujoco
 import numpy as np
 
 from .layout import Box, Cylinder, Layout, Wall
 from .palette import BORDER_RGBA, OBSTACLE_RGBA, ROLE_RGBA
+from .shipped import shipped_dir
 
-MODEL_DIR = Path(__file__).resolve().parent.parent / "models"
+MODEL_DIR = shipped_dir("models")
 DRONE_FILE = MODEL_DIR / "crazyflie.xml"
 
 OBSTACLE_HEIGHT = 1.2  # m, at least; and at least OBSTACLE_HEADROOM above the flight height
