@@ -55,7 +55,8 @@ def register(sub) -> None:
 
 
 def _flight_args(p) -> None:
-    p.add_argument("--flight", required=False, metavar="FILE.yaml", help="the flight file (see configs/flight/example.yaml)")
+    p.add_argument("--flight", required=False, metavar="FILE.yaml|PRESET",
+                   help="the flight file, or a preset of configs/flight/ by name: example, lighthouse (see configs/flight/example.yaml)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a task key of the flight, e.g. --set pursuer_speed=0.25 (repeatable)")
 

@@ -173,7 +173,7 @@ def preset_or_file(ref: str | Path, kind: str) -> Path:
 
 
 def preset_names(kind: str) -> list[str]:
-    """Names of the presets in configs/<kind>/ ('task' or 'train'), sorted."""
+    """Names of the presets in configs/<kind>/ ('task', 'train' or 'flight'), sorted."""
     return sorted(p.stem for p in (CONFIG_DIR / kind).glob("*.yaml"))
 
 

@@ -622,3 +622,15 @@ def test_plan_warnings_are_printed_once_with_the_plan_and_logged_in_the_event_lo
     warned = [r for r in records if r["kind"] == "plan_warning"]
     assert [r["kind"] for r in records][:2] == ["start", "plan_warning"] and len(warned) == 1
     assert warned[0]["level"] == "warn" and "inside safety.geofence_margin 0.2 m" in warned[0]["warning"]
+
+
+def test_a_flight_preset_is_found_by_name_from_any_folder(tmp_path, monkeypatch, capsys):
+    from pursuit_cli import main
+
+    monkeypatch.chdir(tmp_path)  # configs/flight/ is not below here: found beside the code
+    assert main(["fly", "check", "--flight", "lighthouse"]) == 0
+    assert "no radio was touched" in capsys.readouterr().out
+    assert main(["fly", "check", "--flight", "examples"]) == 2
+    assert "examples: no such file, nor a flight preset of that name (presets: example, lighthouse)" in capsys.readouterr().err
+    assert main(["fly", "check", "--flight", "lab.yaml"]) == 2
+    assert "lab.yaml: no such file" in capsys.readouterr().err

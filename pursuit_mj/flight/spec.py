@@ -29,6 +29,7 @@ import re
 from pathlib import Path
 from typing import Any, Mapping
 
+from ..config import preset_or_file
 from ..configio import ConfigError, build, load_yaml, spec
 from .board import HISTORY
 
@@ -284,8 +285,10 @@ def flight_from_dict(data: Mapping[str, Any], source: str = "<flight>") -> Fligh
 
 
 def load_flight(path: str | Path) -> FlightSpec:
-    """Read and validate a flight file. Raises ConfigError naming the file and the key."""
-    return flight_from_dict(load_yaml(path), str(path))
+    """Read and validate a flight file, or a preset of configs/flight/ by bare name ('example').
+    Raises ConfigError naming the file and the key."""
+    found = preset_or_file(path, "flight")
+    return flight_from_dict(load_yaml(found), str(found))
 
 
 __all__ = ["DroneSpec", "TransformSpec", "LabBounds", "SafetyLimits", "FlightSpec", "load_flight", "flight_from_dict", "check_uri", "link_key", "drone_names", "ROLES", "POSITIONING"]
