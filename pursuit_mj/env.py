@@ -154,7 +154,8 @@ class PursuitEnv:
         self.last_terms = {k: np.zeros((W, N), np.float32) for k in REWARD_TERMS}
         self._episode_seeds = np.zeros(W, np.int64)
         self._sensing_keys = np.zeros(W, np.uint64)  # per-world keys of perception noise (randomness.py)
-        self._obstacles = ObstacleSet.stack([l.obstacle_set() for l in self.world_layouts])
+        self._world_obstacles = [l.obstacle_set() for l in self.world_layouts]  # each world's, kept between its episodes
+        self._obstacles = ObstacleSet.stack(self._world_obstacles)
         self._perception: Perception | None = None
         self._obs: np.ndarray | None = None
 
@@ -179,6 +180,7 @@ class PursuitEnv:
         if seeds is None:
             seeds = np.array([episode_seed(self.seed, int(w), int(self.episode[w])) for w in ids], np.int64)
         layouts, xy = [], []
+        new_obstacles = False
         for w, s in zip(ids, seeds):
             rng = np.random.default_rng(int(s))
             base_i = int(rng.integers(len(self.pool))) if self.config.random_layout else int(self._base_index[w])
@@ -195,6 +197,9 @@ class PursuitEnv:
                                       f"{SPAWN_SEPARATION} m apart in the spawn region; make it larger or use fewer {team}")
             layouts.append(inst)
             xy.append(np.concatenate([pur, eva]))
+            if inst is not self.world_layouts[w]:  # new random obstacles or another layout: its arrays anew
+                self._world_obstacles[w] = inst.obstacle_set()
+                new_obstacles = True
             self.world_layouts[w] = inst
         if self._random_obstacles or self.config.random_layout:
             self.physics.set_layouts(ids, layouts)
@@ -211,7 +216,8 @@ class PursuitEnv:
         for k in REWARD_TERMS:
             self.returns[k][ids] = 0.0
             self.last_terms[k][ids] = 0.0
-        self._obstacles = ObstacleSet.stack([l.obstacle_set() for l in self.world_layouts])
+        if new_obstacles:
+            self._obstacles = ObstacleSet.stack(self._world_obstacles)
 
     def reset(self, seed: int | None = None, seeds: Sequence[int] | None = None) -> np.ndarray:
         """Start new episodes in every world. Obs (W, N, dim).

@@ -366,3 +366,21 @@ def test_the_field_of_view_turns_with_the_direction_of_flight_at_any_pursuer_spe
     for _ in range(15):
         env.step(actions)
     assert np.cos(env.heading[0]) == pytest.approx(-1.0), "flying along -x, the pursuers look along -x"
+
+
+@pytest.mark.parametrize("changes", [{"random_obstacles": 3}, {"random_layout": True}, {}])
+def test_the_obstacles_sensed_and_collided_with_are_each_worlds_current_ones_after_resets(changes):
+    """Each world's obstacle arrays are rebuilt only when its episode brings new obstacles (a
+    speed-up of resets); after any sequence of resets they must still be the worlds' own."""
+    from pursuit_mj.geometry import ObstacleSet
+
+    env = PursuitEnv(default_config(fidelity="point", max_steps=4, **changes), n_worlds=4, seed=3)
+    env.reset()
+    for ids in ([1], [0, 3], [2], [1]):
+        env.reset_worlds(np.array(ids), np.array([7 * i + len(ids) for i in ids]))
+    for _ in range(9):  # and through auto-reset at the 4-step timeouts
+        env.step(np.zeros((4, env.n_pursuers, 2)))
+    want = ObstacleSet.stack([layout.obstacle_set() for layout in env.world_layouts])
+    got = env._obstacles
+    for field in ("boxes", "box_valid", "cylinders", "cylinder_valid", "border", "border_valid"):
+        np.testing.assert_array_equal(getattr(got, field), getattr(want, field), err_msg=field)
