@@ -51,8 +51,13 @@ def _umask() -> int:
 
 
 def atomic_write_text(path: str | Path, text: str) -> Path:
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
+    """Write `text` to `path` atomically; ValueError naming the file if it cannot be written
+    (a full disk, a folder made read-only or removed)."""
+    try:
+        with atomic_path(path) as tmp:
+            tmp.write_text(text)
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot write it ({exc.strerror or exc})") from None
     return Path(path)
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -52,6 +53,46 @@ def nearest_allowed_on_a_grid(want: np.ndarray, dirs: np.ndarray, caps: np.ndarr
     grid = np.stack(np.meshgrid(axis, axis), -1).reshape(-1, 2)
     ok = np.all(grid @ dirs.T <= caps, axis=1)
     return float(np.min(np.linalg.norm(grid[ok] - want, axis=1)))
+
+
+@pytest.fixture
+def make_unwritable():
+    """make_unwritable(path): no file can be created in the folder `path` (or appended to the
+    file `path`) until the test ends. Tried in turn: permission bits (enough unless root), then
+    the immutable attribute (chattr +i, which binds root too, on file systems that have it);
+    the test is skipped where neither holds."""
+    import shutil
+    import stat
+    import subprocess
+
+    undo = []
+
+    def writable(path: Path) -> bool:
+        try:
+            if path.is_dir():
+                (path / ".probe").touch()
+                (path / ".probe").unlink()
+            else:
+                with open(path, "a"):
+                    pass
+            return True
+        except OSError:
+            return False
+
+    def make(path):
+        path = Path(path)
+        mode = path.stat().st_mode
+        path.chmod(mode & ~(stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH))
+        undo.append(lambda: path.chmod(mode))
+        if writable(path) and shutil.which("chattr"):
+            if subprocess.run(["chattr", "+i", str(path)], capture_output=True).returncode == 0:
+                undo.append(lambda: subprocess.run(["chattr", "-i", str(path)], capture_output=True))
+        if writable(path):
+            pytest.skip(f"cannot make {path} unwritable here (root without chattr +i)")
+
+    yield make
+    for step in reversed(undo):
+        step()
 
 
 def _pin_xdist_worker_to_one_core() -> None:

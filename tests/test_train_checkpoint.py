@@ -501,3 +501,34 @@ def test_a_diverged_update_is_refused_before_a_checkpoint_holds_its_nan_weights(
         Trainer(cfg, log=lambda s: None).train()
     assert load_checkpoint(cfg.run_dir / "last.pt")["counters"]["update"] == 1
     assert [r["update"] for r in rows(cfg.run_dir)] == [1]
+
+
+@pytest.mark.parametrize("blocked", ["folder", "folder mid-update", "log"])
+def test_a_run_folder_that_cannot_be_written_stops_the_run_saying_what_is_kept_and_how_to_go_on(tmp_path, make_unwritable, blocked):
+    """A full disk or a folder made read-only: the run's config (folder, at the start), its
+    checkpoint (folder mid-update) or its metrics row (log) cannot be written. The run stops
+    naming the file, the update last.pt keeps and the resume command."""
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    trainer = Trainer.resume(cfg.run_dir, total_steps=32 * 3, log=lambda s: None)
+    if blocked == "folder mid-update":  # after config.yaml is written, during the next update
+        update = trainer.train_one_update
+
+        def update_then_block():
+            row = update()
+            make_unwritable(cfg.run_dir)
+            return row
+
+        trainer.train_one_update = update_then_block
+    else:
+        make_unwritable(cfg.run_dir if blocked == "folder" else cfg.run_dir / "metrics.jsonl")
+    with pytest.raises(ValueError) as caught:
+        trainer.train()
+    said = str(caught.value)
+    what = {"folder": f"{cfg.run_dir / 'config.yaml'}: cannot write it",
+            "folder mid-update": f"checkpoint {cfg.run_dir / 'last.pt'}: cannot write it",
+            "log": f"metrics log {cfg.run_dir / 'metrics.jsonl'}: cannot append to it"}[blocked]
+    assert said.startswith(what), said
+    assert said.endswith(f"; last.pt keeps update 1; once the folder has room and write access, continue with: "
+                         f"pursuit-mj train --resume {cfg.run_dir}"), said
+    assert load_checkpoint(cfg.run_dir / "last.pt")["counters"]["update"] == 1

@@ -26,10 +26,15 @@ class MetricsLog:
         self.path.parent.mkdir(parents=True, exist_ok=True)
 
     def append(self, row: dict[str, Any]) -> None:
-        with open(self.path, "a") as f:
-            f.write(json.dumps(json_ready(row)) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
+        """Append one row; ValueError naming the file if it cannot be written (a line cut short
+        by a full disk is skipped by `rows`)."""
+        try:
+            with open(self.path, "a") as f:
+                f.write(json.dumps(json_ready(row)) + "\n")
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as exc:
+            raise ValueError(f"metrics log {self.path}: cannot append to it ({exc.strerror or exc})") from None
 
     def rows(self) -> list[dict[str, Any]]:
         """Every complete row (a line cut short by a crash is skipped)."""

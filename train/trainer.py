@@ -268,7 +268,10 @@ class Trainer:
         }
 
     def save(self, name: str = "last.pt") -> Path:
-        path = save_checkpoint(self.run_dir / name, self.checkpoint_payload())
+        try:
+            path = save_checkpoint(self.run_dir / name, self.checkpoint_payload())
+        except ValueError as exc:  # a full disk, a folder made read-only: say what is kept and how to go on
+            raise self._cannot_write(exc) from None
         if name == "last.pt":
             self._saved_update = self.counters.update
         return path
@@ -451,13 +454,25 @@ class Trainer:
 
     def _log_row(self, row: dict, bar, last_val: dict) -> None:
         """Append an update's row to the log (and rerun), then checkpoint on schedule."""
-        self.metrics.append(row)
+        try:
+            self.metrics.append(row)
+        except ValueError as exc:
+            raise self._cannot_write(exc) from None
         self._pending_row = {}
         if self.rerun is not None:
             self.rerun.log(int(row["world_steps"]), row)
         if self.counters.update % self.cfg.run.checkpoint_every == 0:  # after the log: a resume truncates the log to it
             self.save()
         _advance(bar, row, self.recent, last_val, self.progress())
+
+    def _cannot_write(self, exc: ValueError) -> ValueError:
+        """exc (a file of the run could not be written) with what the run folder still holds."""
+        if self._saved_update >= 0:
+            kept = (f"last.pt keeps update {self._saved_update}; once the folder has room and write access, "
+                    f"continue with: {self.resume_command}")
+        else:
+            kept = "no checkpoint was written yet: start the run again once the folder has room and write access"
+        return ValueError(f"{exc}; {kept}")
 
     def _learn_discount(self) -> float:
         buf = self.buffer
@@ -480,7 +495,10 @@ class Trainer:
         to resume."""
         cfg, c = self.cfg, self.counters
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(self.run_dir / "config.yaml", dump_yaml(cfg))
+        try:
+            atomic_write_text(self.run_dir / "config.yaml", dump_yaml(cfg))
+        except ValueError as exc:
+            raise self._cannot_write(exc) from None
         if self._saved_update < 0 and self.metrics.path.is_file() and self.metrics.path.stat().st_size:
             # rows (or a cut-off line) of a run killed before its first checkpoint: it starts afresh, and so does its log
             self.log(f"{self.metrics.path}: dropping {len(self.metrics.rows())} rows of a run stopped before its first checkpoint")
