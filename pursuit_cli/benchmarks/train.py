@@ -2,11 +2,12 @@
 
 For each fidelity, the command builds a `train.trainer.Trainer` from the train config (the
 reference hyperparameters unless --set changes them), runs one warm-up update, then
-`--updates` measured updates back to back. Then a second env of the same task and worlds
-(its own seed) steps as many decision steps as the measured rollouts, with uniform random
-actions: the bare env rate, in the same process, after training (with `run.overlap` a
-rollout worker runs beside the update, so stepping the bare env between updates would
-compete with it). Rates are agent-steps per second (decision steps x worlds x pursuers)
+`--updates` measured updates. A second env of the same task and worlds (its own seed)
+steps as many decision steps as a rollout with uniform random actions, the bare env rate:
+in turn, one such block after each update, so that both meet the machine in the same state
+(on a shared machine wall time swings, and the ratio of paired blocks swings less than
+either rate); with `run.overlap` a rollout worker runs beside the update, so the bare env
+steps after training instead. Rates are agent-steps per second (decision steps x worlds x pursuers)
 from the median times over the measured updates (wall clock); a training step is what the
 run waits for: rollout + update in turn, about the longer of them with overlap. Aims
 (issue 4): the update takes less time than the rollout it learns from, and training runs
@@ -144,34 +145,47 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
         flags = {"n_envs": n_envs} if n_envs is not None else None  # a flag, so that an error names --n-envs
         cfg = load_train_config([config], extra + list(overrides), flags, f"--n-envs {n_envs}")
         trainer = Trainer(cfg, log=lambda s: None)
-        try:
-            trainer.train_one_update()  # warm-up: first forward/backward, allocator, caches, the rollout worker
-            rollout, update, wall = [], [], []
-            idle = _watch_worker_cpu(trainer.worker)
-            c0 = time.process_time()
-            for _ in range(updates):
-                row = trainer.train_one_update()
-                rollout.append(row["rollout_s"])
-                update.append(row["update_s"])
-                wall.append(row["wall_s"])
-            if trainer.worker is not None:
-                trainer.worker.result(trainer.model)  # the rollout collected meanwhile, to the end of its CPU
-            # the worker's CPU between its first and last idle moments: `updates` whole rollouts (the
-            # 2nd to the last collected; the 1st began during the warm-up update, before any reading)
-            train_cpu = time.process_time() - c0 + (idle[-1] - idle[0] if idle else 0.0)
-        finally:
-            trainer.close()
-        # the bare env after training (not between updates: a rollout worker would run beside it)
+        # the bare env: the same task and worlds, its own seed
         env = PursuitEnv(cfg.task, n_worlds=cfg.n_envs, seed=cfg.seed + 1, layouts=list(cfg.layouts) or None,
                          nthread=cfg.run.sim_threads)
         env.reset()
         rng = np.random.default_rng(0)
         _bare_env_block(env, 2, rng)
         bare, env_cpu = [], 0.0
-        for _ in range(updates):  # as many rollouts as the CPU above holds, in turn or overlapped
-            wall_s, cpu = _bare_env_block(env, trainer.buffer.T, rng)
-            bare.append(wall_s)
-            env_cpu += cpu
+        try:
+            trainer.train_one_update()  # warm-up: first forward/backward, allocator, caches, the rollout worker
+            # in turn, a bare-env block follows each update, so both see the machine as it is then
+            # (their ratio is then steadier than either rate); with a rollout worker, which runs
+            # beside the update, the bare env steps after training instead
+            interleave = trainer.worker is None
+            rollout, update, wall = [], [], []
+            idle = _watch_worker_cpu(trainer.worker)
+            train_cpu = 0.0
+            for _ in range(updates):
+                c0 = time.process_time()
+                row = trainer.train_one_update()
+                train_cpu += time.process_time() - c0
+                rollout.append(row["rollout_s"])
+                update.append(row["update_s"])
+                wall.append(row["wall_s"])
+                if interleave:
+                    wall_s, cpu = _bare_env_block(env, trainer.buffer.T, rng)
+                    bare.append(wall_s)
+                    env_cpu += cpu
+            if trainer.worker is not None:
+                c0 = time.process_time()
+                trainer.worker.result(trainer.model)  # the rollout collected meanwhile, to the end of its CPU
+                train_cpu += time.process_time() - c0
+            # the worker's CPU between its first and last idle moments: `updates` whole rollouts (the
+            # 2nd to the last collected; the 1st began during the warm-up update, before any reading)
+            train_cpu += idle[-1] - idle[0] if idle else 0.0
+        finally:
+            trainer.close()
+        if not interleave:
+            for _ in range(updates):  # as many rollouts as the CPU above holds
+                wall_s, cpu = _bare_env_block(env, trainer.buffer.T, rng)
+                bare.append(wall_s)
+                env_cpu += cpu
         profile = ""
         if profile_top > 0:
             torch.set_num_threads(1)
@@ -209,11 +223,12 @@ def run(args: argparse.Namespace) -> int:
         for overlap in modes:
             results.append(measure(args.config, f, args.n_envs, args.updates, args.overrides + [f"run.overlap={overlap}"],
                                    args.profile))
+            when = "between them" if results[-1].collection == "in turn" else "after them"
             print(f"  measured {f}, {results[-1].collection}: {args.updates} updates after one warm-up, bare env stepped "
-                  "after them", flush=True)
+                  f"{when}", flush=True)
     print(f"train benchmark, config {args.config}: {results[0].settings}")
     print("rates in agent-steps/s (decision steps x worlds x pursuers) from median wall times; bare env = the same task "
-          "with random actions, stepped after training; cpu = process time of training (rollout worker included) over that of the bare env")
+          "with random actions, stepped between updates (in turn) or after training (overlapped); cpu = process time of training (rollout worker included) over that of the bare env")
     head = ["fidelity", "collection", "worlds x pursuers", "update threads", "rollout ag-steps/s", "update ag-steps/s", "s per update",
             "training ag-steps/s", "bare env ag-steps/s", "update / rollout", "env / training", "cpu: env / training"]
     rows = [[r.fidelity, r.collection, f"{r.worlds} x {r.pursuers}", str(r.update_threads), f"{r.rate(r.rollout_s):.0f}", f"{r.rate(r.update_s):.0f}",
