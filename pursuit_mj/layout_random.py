@@ -44,39 +44,77 @@ def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearan
 
 
 def _place_once(layout, rng: np.random.Generator, count: int, clearance: float, border: np.ndarray) -> list:
-    """Up to `count` obstacles placed one by one; fewer if one finds no room in MAX_TRIES draws."""
-    from .layout import Box, Cylinder
+    """Up to `count` obstacles placed one by one; fewer if one finds no room in MAX_TRIES draws.
 
-    spec = layout.random_obstacles
+    Each obstacle takes the first of its draws that fits. The draws are judged in batches (the
+    geometry is vectorised over points); the generator is then wound back to the batch's start
+    and redrawn up to the one taken, so it is left exactly where drawing them one at a time
+    would leave it, and a seed places the same obstacles either way.
+    """
     placed: list = []
     others = ObstacleSet.from_layout(layout, include_border=False)
     for _ in range(count):
-        for _ in range(MAX_TRIES):
-            kind = spec.kinds[rng.integers(len(spec.kinds))]
-            size = rng.uniform(spec.size[0], spec.size[1])
-            center = np.array([rng.uniform(0, layout.width), rng.uniform(0, layout.height)])
-            if kind == "cylinder":
-                cand = Cylinder((float(center[0]), float(center[1])), float(size / 2))
-                reach = size / 2
-            else:
-                aspect = rng.uniform(0.5, 1.0)
-                cand = Box((float(center[0]), float(center[1])), (float(size), float(size * aspect)), float(rng.uniform(0, np.pi)))
-                reach = 0.5 * np.hypot(size, size * aspect)
-            pts = center[None]
-            if not inside_boundary(layout, pts)[0]:
-                continue
-            if border_distance(pts, border)[0] < reach + clearance:
-                continue
-            if _spawn_distance(layout, pts)[0] < reach + clearance:
-                continue
-            if obstacle_distance(pts, others, with_border=False)[0] < reach + clearance:
-                continue
-            placed.append(cand)
-            others = ObstacleSet.from_layout(_with(layout, placed), include_border=False)
-            break
+        tries, batch = 0, FIRST_BATCH
+        while tries < MAX_TRIES:
+            k = min(batch, MAX_TRIES - tries)
+            start = rng.bit_generator.state
+            draws = np.array([_draw(layout, rng) for _ in range(k)])  # (k, 6)
+            fits = _fits(layout, border, others, draws[:, 2:4], _reach(draws), clearance)
+            if fits.any():
+                j = int(np.argmax(fits))
+                rng.bit_generator.state = start
+                for _ in range(j + 1):
+                    taken = _draw(layout, rng)
+                placed.append(_obstacle(layout, taken))
+                others = ObstacleSet.from_layout(_with(layout, placed), include_border=False)
+                break
+            tries += k
+            batch = min(2 * batch, MAX_BATCH)
         else:
             return placed
     return placed
+
+
+FIRST_BATCH, MAX_BATCH = 8, 64  # draws judged at once: few while most fit, more where room is scarce
+
+
+def _draw(layout, rng: np.random.Generator) -> tuple[float, ...]:
+    """One candidate's numbers, drawn from rng in a fixed order: (kind index into
+    random_obstacles.kinds, size m, centre x m, centre y m, aspect, yaw rad); a cylinder draws
+    no aspect or yaw (NaN)."""
+    spec = layout.random_obstacles
+    kind = int(rng.integers(len(spec.kinds)))
+    size = rng.uniform(spec.size[0], spec.size[1])
+    x, y = rng.uniform(0, layout.width), rng.uniform(0, layout.height)
+    if spec.kinds[kind] == "cylinder":
+        return kind, size, x, y, np.nan, np.nan
+    return kind, size, x, y, rng.uniform(0.5, 1.0), rng.uniform(0, np.pi)
+
+
+def _reach(draws: np.ndarray) -> np.ndarray:
+    """(K,) m: how far each drawn obstacle (draws (K, 6) of `_draw`) extends from its centre."""
+    size, aspect = draws[:, 1], draws[:, 4]
+    return np.where(np.isnan(aspect), size / 2, 0.5 * np.hypot(size, size * np.nan_to_num(aspect)))
+
+
+def _obstacle(layout, draw: tuple[float, ...]):
+    """The Cylinder or Box of one `_draw`."""
+    from .layout import Box, Cylinder
+
+    kind, size, x, y, aspect, yaw = draw
+    if layout.random_obstacles.kinds[kind] == "cylinder":
+        return Cylinder((float(x), float(y)), float(size / 2))
+    return Box((float(x), float(y)), (float(size), float(size * aspect)), float(yaw))
+
+
+def _fits(layout, border: np.ndarray, others: ObstacleSet, centers: np.ndarray, reach: np.ndarray, clearance: float) -> np.ndarray:
+    """(K,) bool: the candidates with centres (K, 2) m and reaches (K,) m lie inside the border
+    and keep `clearance` from it, from the spawn regions and from the obstacles already there."""
+    need = reach + clearance
+    return (inside_boundary(layout, centers)
+            & ~(border_distance(centers, border) < need)
+            & ~(_spawn_distance(layout, centers) < need)
+            & ~(obstacle_distance(centers, others, with_border=False) < need))
 
 
 def _with(layout, extra: list):

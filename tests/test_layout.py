@@ -115,6 +115,56 @@ def test_random_obstacles_are_seeded_and_keep_off_spawn_regions_and_each_other(i
             assert not inside.any()
 
 
+def _placed_one_draw_at_a_time(layout, rng, count, clearance=0.3):
+    """The placement rule in its plainest form: draw a candidate, keep it if it fits, else draw
+    again (up to 1000 draws an obstacle, 10 starts over); None if there is no room."""
+    from pursuit_mj.geometry import border_distance
+    from pursuit_mj.layout import Box
+    from pursuit_mj.layout_random import _spawn_distance
+
+    spec, border = layout.random_obstacles, layout.border()
+    for _ in range(10):
+        placed = []
+        for _ in range(count):
+            for _ in range(1000):
+                kind = spec.kinds[rng.integers(len(spec.kinds))]
+                size = rng.uniform(spec.size[0], spec.size[1])
+                c = np.array([[rng.uniform(0, layout.width), rng.uniform(0, layout.height)]])
+                if kind == "cylinder":
+                    cand, reach = Cylinder((float(c[0, 0]), float(c[0, 1])), float(size / 2)), size / 2
+                else:
+                    aspect = rng.uniform(0.5, 1.0)
+                    cand = Box((float(c[0, 0]), float(c[0, 1])), (float(size), float(size * aspect)), float(rng.uniform(0, np.pi)))
+                    reach = 0.5 * np.hypot(size, size * aspect)
+                others = ObstacleSet.from_layout(dataclasses.replace(layout, obstacles=layout.obstacles + tuple(placed)),
+                                                 include_border=False)
+                if (inside_boundary(layout, c)[0] and not border_distance(c, border)[0] < reach + clearance
+                        and not _spawn_distance(layout, c)[0] < reach + clearance
+                        and not obstacle_distance(c, others, with_border=False)[0] < reach + clearance):
+                    placed.append(cand)
+                    break
+            else:
+                break
+        if len(placed) == count:
+            return placed
+    return None
+
+
+@pytest.mark.parametrize("index, count", [(0, 5), (1, 5), (2, 5), (3, 5), (3, 12)])
+def test_batched_placement_places_what_drawing_one_at_a_time_places_and_leaves_the_generator_alike(index, count):
+    """layout_random judges draws in batches and winds the generator back: the obstacles, and
+    the generator's state after them (the spawn is drawn next), must be those of the plain rule."""
+    layout = load_layout(index)
+    for seed in range(12):
+        fast, plain = np.random.default_rng(seed), np.random.default_rng(seed)
+        try:
+            got = layout.with_random_obstacles(fast, count).obstacles[len(layout.obstacles):]
+        except LayoutError:
+            got = None
+        assert got == (None if (want := _placed_one_draw_at_a_time(layout, plain, count)) is None else tuple(want)), seed
+        assert fast.bit_generator.state == plain.bit_generator.state, seed
+
+
 def test_a_draw_that_blocks_its_own_last_obstacles_starts_over_instead_of_failing_the_episode():
     layout = load_layout(3)
     for seed in (4, 37):  # with 10 obstacles, these draws once boxed in their 9th or 10th and stopped the run
