@@ -50,11 +50,41 @@ class OneLineErrorParser(argparse.ArgumentParser):
         return super()._parse_optional(arg_string)
 
 
+class VersionAction(argparse.Action):
+    """--version: this package's version and git commit, and the versions of the libraries that
+    decide results (read from the installed metadata, nothing imported), for bug reports."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        import platform
+        from importlib import metadata
+
+        from pursuit_mj.provenance import provenance
+
+        def version(dist: str) -> str:
+            try:
+                return metadata.version(dist)
+            except metadata.PackageNotFoundError:
+                return "not installed"
+
+        p = provenance()
+        if p["git_commit"] is None:
+            where = "no git checkout"
+        else:
+            where = f"git {str(p['git_commit'])[:10]}" + (", with local changes" if p["git_dirty"] else "")
+        libs = ", ".join(f"{d} {version(d)}" for d in ("mujoco", "numpy", "torch", "rerun-sdk", "cflib"))
+        print(f"pursuit-mj {p['version'] or version('pursuit-mj')} ({where})\npython {platform.python_version()}, {libs}")
+        parser.exit(0)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineErrorParser(
         prog="pursuit-mj",
         description="Quadrotor pursuit-evasion in MuJoCo: layouts, physics, training, evaluation, rendering, flights.",
     )
+    parser.add_argument("--version", action=VersionAction, help="show the version, git commit and library versions, and exit")
     sub = parser.add_subparsers(dest="command", metavar="<command>")
     sub.required = True
     for name in SUBCOMMANDS:

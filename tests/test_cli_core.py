@@ -188,3 +188,15 @@ def test_a_stop_signal_that_a_library_call_reports_as_its_own_error_still_ends_a
     assert main(["config"]) == 130
     assert capsys.readouterr().err.endswith(f"pursuit-mj config: {said}")
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handlers given back
+
+
+def test_version_names_the_package_commit_and_the_libraries_that_decide_results(capsys):
+    import subprocess
+
+    with pytest.raises(SystemExit) as done:
+        main(["--version"])
+    assert done.value.code == 0
+    first, second = capsys.readouterr().out.splitlines()
+    head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+    assert first.startswith("pursuit-mj 0.1.0 (") and (not head or f"git {head[:10]}" in first), first
+    assert second.startswith("python 3.11") and "mujoco 4.0.0" in second and "torch 2.13.0" in second, second
