@@ -23,9 +23,9 @@ Next steps:
   pursuit-mj train --config imitate                              # DAgger from the heuristic team (a warm start)
   pursuit-mj train --config finetune_ppo --set init_from=runs/imitate/best.pt --set task.fidelity=quadrotor
   pursuit-mj train --config residual                             # PPO learns a correction to the heuristic team
-  pursuit-mj train --config configs/train/full_obs.yaml          # the reference regimes: PPO from scratch
-  pursuit-mj train --config configs/train/fine_tune.yaml         # ... then fine-tune it under partial observability
-  pursuit-mj train --config configs/train/classic.yaml --set task.fidelity=point   # faster physics, same actions
+  pursuit-mj train --config full_obs                             # the reference regimes (configs/train/): PPO from scratch
+  pursuit-mj train --config fine_tune                            # ... then fine-tune it under partial observability
+  pursuit-mj train --config classic --set task.fidelity=point    # faster physics, same actions
   pursuit-mj eval --model runs/fine_tune/best.pt --policy heuristic --layouts 0 1 2 3 --plots results/plots
   pursuit-mj study --budget-minutes 120                          # the whole reference experiment
 """
