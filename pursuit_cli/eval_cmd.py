@@ -93,10 +93,31 @@ def _report_interrupted(recording) -> None:
         print(recording.summary(), file=sys.stderr, flush=True)
 
 
-def _run_table(args, config, layouts, policies, recording) -> list:
+def interrupted_path(path: Path) -> Path:
+    """Where an interrupted eval keeps its finished rows: table.json -> table.interrupted.json."""
+    return path.with_name(f"{path.stem}.interrupted{path.suffix}")
+
+
+def _keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, config, meta: dict) -> None:
+    """After an interrupt: show the rows of the finished policy-layout cells and write them beside
+    the asked-for files (interrupted_path), so that an earlier whole table there stays whole."""
+    from pursuit_mj.evaluation import format_table, write_csv, write_json
+
+    if not rows:
+        return
+    print(f"[eval] interrupted; the {len(rows)} finished policy-layout cells:\n{format_table(rows)}", file=sys.stderr, flush=True)
+    if csv_path:
+        print(f"[eval] wrote {write_csv(rows, interrupted_path(csv_path))}", file=sys.stderr, flush=True)
+    if json_path:
+        print(f"[eval] wrote {write_json(rows, interrupted_path(json_path), config, {**meta, 'interrupted': True})}",
+              file=sys.stderr, flush=True)
+
+
+def _run_table(args, config, layouts, policies, recording, rows: list) -> list:
+    """Evaluate every policy on every layout, appending each finished cell's row to `rows`
+    (which holds the finished ones if this is interrupted)."""
     from pursuit_mj.evaluation import evaluate
 
-    rows = []
     for label, policy in policies:
         for ref in layouts:
             watch = None
@@ -106,12 +127,17 @@ def _run_table(args, config, layouts, policies, recording) -> list:
                 tags = {"policy": label, "layout": str(ref)}
                 watch = lambda env, tags=tags: EnvRecorder(recording, env, label=tags, max_episodes=args.rerun_episodes)
             t0 = time.perf_counter()
-            rows += evaluate(policy, config, [ref], args.episodes, args.seed, args.worlds, label=label, watch=watch)
+            rows.extend(evaluate(policy, config, [ref], args.episodes, args.seed, args.worlds, label=label, watch=watch))
             if not args.quiet:
                 r = rows[-1]
                 print(f"[eval] {label} layout {r.layout}: {r.episodes} episodes in {time.perf_counter() - t0:.1f} s, "
                       f"success {100 * r.success.p:.1f} %", file=sys.stderr, flush=True)
     return rows
+
+
+def _meta(args, policies, code: dict) -> dict:
+    return {"episodes": args.episodes, "worlds": args.worlds, "seed": args.seed, "policies": [label for label, _ in policies],
+            "models": list(args.model), "shield": bool(args.shield), "code": code}
 
 
 def _versus(args, policies) -> str | None:
@@ -151,11 +177,16 @@ def run(args) -> int:
             recording = RerunEpisodeRecording(args.rerun)
             stack.callback(_report_interrupted, recording)  # runs after the recording is closed
             stack.enter_context(recording)
-        rows = _run_table(args, config, layouts, policies, recording)
+        rows: list = []
+        try:
+            _run_table(args, config, layouts, policies, recording, rows)
+        except (KeyboardInterrupt, Exception) as exc:
+            # Ctrl-C, SIGTERM, or a stop signal a library call reported as its own error (pursuit_cli.main)
+            if isinstance(exc, KeyboardInterrupt) or getattr(args, "stop_signals", None):
+                _keep_finished(rows, csv_path, json_path, config, _meta(args, policies, provenance()))
+            raise
     print(format_table(rows))
-    meta = {"episodes": args.episodes, "worlds": args.worlds, "seed": args.seed,
-            "policies": [label for label, _ in policies], "models": list(args.model),
-            "shield": bool(args.shield), "code": provenance()}
+    meta = _meta(args, policies, provenance())
     if versus is not None:
         text, pairs = paired_report(rows, versus, config.max_steps)
         print(f"\n{text}")

@@ -269,3 +269,34 @@ def test_eval_cli_bad_input_exits_2_with_a_clear_message(args, message, capsys, 
     assert err.startswith("pursuit-mj eval: error:") and message in err
     assert len(err.strip().splitlines()) == 1
     assert not (tmp_path / "t.csv").exists()
+
+
+def test_an_interrupted_eval_keeps_its_finished_cells_beside_the_table_it_was_asked_for(tmp_path, monkeypatch, capsys):
+    """SIGTERM (or Ctrl-C) while the third policy-layout cell runs: the two finished cells are
+    printed and written to t.interrupted.json / .csv; a whole t.json from before stays whole."""
+    import os
+    import signal
+
+    import pursuit_mj.evaluation as evaluation
+
+    whole = tmp_path / "t.json"
+    whole.write_text('{"rows": "an earlier, whole table"}\n')
+    real, cells = evaluation.evaluate, []
+
+    def evaluate_then_stopped(*a, **k):
+        cells.append(k["label"])
+        if len(cells) == 3:
+            os.kill(os.getpid(), signal.SIGTERM)  # arrives inside this cell, before its row exists
+        return real(*a, **k)
+
+    monkeypatch.setattr(evaluation, "evaluate", evaluate_then_stopped)
+    code = main(["eval", "--policy", "heuristic", "--policy", "random", "--layouts", "0", "1", "--episodes", "2",
+                 "--worlds", "2", "--fidelity", "point", "--set", "max_steps=20", "--out", str(tmp_path / "t"), "-q"])
+    assert code == 130
+    err = capsys.readouterr().err
+    assert "[eval] interrupted; the 2 finished policy-layout cells:" in err and err.endswith("pursuit-mj eval: interrupted by SIGTERM\n")
+    kept = json.loads((tmp_path / "t.interrupted.json").read_text())
+    assert kept["interrupted"] is True and [(r["policy"], r["layout"]) for r in kept["rows"]] == [("heuristic", "0"), ("heuristic", "1")]
+    assert all(len(r["per_episode"]["seed"]) == 2 for r in kept["rows"])
+    assert len(read_csv(tmp_path / "t.interrupted.csv")) == 2
+    assert whole.read_text() == '{"rows": "an earlier, whole table"}\n' and not (tmp_path / "t.csv").exists()
