@@ -47,6 +47,9 @@ def register(sub) -> None:
     p.add_argument("--rerun", metavar="FILE.rrd", help="record the first episodes of each policy and layout for the rerun viewer")
     p.add_argument("--rerun-episodes", type=int, default=3, metavar="N",
                    help="episodes recorded per policy and layout with --rerun (default 3)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted eval: take the rows it finished from PREFIX.interrupted.json (--out "
+                        "PREFIX or --json FILE) and run only the rest, with the same command otherwise")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
     add_task_args(p)
     p.set_defaults(func=run)
@@ -113,13 +116,17 @@ def _keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, co
               file=sys.stderr, flush=True)
 
 
-def _run_table(args, config, layouts, policies, recording, rows: list) -> list:
+def _run_table(args, config, layouts, policies, recording, rows: list, done: dict | None = None) -> list:
     """Evaluate every policy on every layout, appending each finished cell's row to `rows`
-    (which holds the finished ones if this is interrupted)."""
-    from pursuit_mj.evaluation import evaluate
+    (which holds the finished ones if this is interrupted); a cell in `done` (by (policy,
+    layout label), see finished_rows) is taken from there instead."""
+    from pursuit_mj.evaluation import evaluate, layout_label
 
     for label, policy in policies:
         for ref in layouts:
+            if done and (label, layout_label(ref)) in done:
+                rows.append(done[(label, layout_label(ref))])
+                continue
             watch = None
             if recording is not None:
                 from pursuit_mj.recording import EnvRecorder
@@ -137,7 +144,63 @@ def _run_table(args, config, layouts, policies, recording, rows: list) -> list:
 
 def _meta(args, policies, code: dict) -> dict:
     return {"episodes": args.episodes, "worlds": args.worlds, "seed": args.seed, "policies": [label for label, _ in policies],
-            "models": list(args.model), "shield": bool(args.shield), "code": code}
+            "models": list(args.model), "model_sha256": [_sha256(m) for m in args.model], "shield": bool(args.shield),
+            "code": code}
+
+
+def _sha256(path: str) -> str:
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+#: what an interrupted eval and its resumption must share, so that the finished rows are what this run would play
+RESUME_KEYS = ("episodes", "seed", "policies", "model_sha256", "shield")
+
+
+def finished_rows(json_path: Path | None, config, meta: dict) -> dict[tuple[str, str], object]:
+    """--resume: the rows (as evaluation.Row, by (policy, layout)) of the interrupted eval kept in
+    interrupted_path(json_path); ValueError naming what differs if it is not this eval's."""
+    import json
+    from types import SimpleNamespace
+
+    from pursuit_mj.configio import to_dict
+    from pursuit_mj.evaluation import summarise
+
+    if json_path is None:
+        raise ValueError("--resume: needs --out PREFIX or --json FILE, where the interrupted eval kept its rows")
+    kept = interrupted_path(json_path)
+    if not kept.is_file():
+        raise ValueError(f"--resume: no interrupted eval at {kept} (an eval stopped by Ctrl-C or SIGTERM leaves one)")
+    try:
+        data = json.loads(kept.read_text())
+        stored = {k: data.get(k) for k in RESUME_KEYS}
+        rows = data["rows"]
+    except (ValueError, KeyError, TypeError, AttributeError):
+        raise ValueError(f"--resume: {kept} is not an interrupted eval's JSON") from None
+    for key in RESUME_KEYS:
+        if stored[key] != meta[key]:
+            raise ValueError(f"--resume: {key} differs from the interrupted eval's ({stored[key]!r} in {kept}, "
+                             f"{meta[key]!r} now): give the same command, or run it again without --resume")
+    if data.get("config") != json.loads(json.dumps(to_dict(config))):
+        raise ValueError(f"--resume: the task config differs from the interrupted eval's (its config in {kept}): "
+                         f"give the same task flags, or run it again without --resume")
+    code, was = meta["code"], data.get("code") or {}
+    for key in ("git_commit", "drone_model_sha256"):
+        if was.get(key) != code.get(key):
+            raise ValueError(f"--resume: the code changed since the interrupted eval ({key} {was.get(key)} there, "
+                             f"{code.get(key)} now), so its rows need not be what this code plays: run it again without --resume")
+    out = {}
+    try:
+        for r in rows:
+            log = r["per_episode"]
+            records = [SimpleNamespace(seed=sd, outcome=o, steps=st, captured=c)
+                       for sd, o, st, c in zip(log["seed"], log["outcome"], log["steps"], log["captured"])]
+            out[(r["policy"], r["layout"])] = summarise(r["policy"], r["layout"], r["fidelity"], r["seed"], records,
+                                                        config.max_steps)
+    except (KeyError, TypeError, ValueError):
+        raise ValueError(f"--resume: {kept} lacks the episodes of its rows (per_episode)") from None
+    return out
 
 
 def _versus(args, policies) -> str | None:
@@ -168,7 +231,12 @@ def run(args) -> int:
     layouts = checked_layouts(args.layouts) if args.layouts else [config.layout]
     policies = _policies(args, config)
     versus = _versus(args, policies)
+    if args.resume and args.rerun:
+        raise ValueError("--resume with --rerun: the recording would hold only the rows run now; record in an eval of its own")
     csv_path, json_path = _outputs(args)  # makes folders: after every other check, so that bad input leaves none
+    done = finished_rows(json_path, config, _meta(args, policies, provenance())) if args.resume else None
+    if done is not None and not args.quiet:
+        print(f"[eval] resuming: {len(done)} finished rows from {interrupted_path(json_path)}", file=sys.stderr, flush=True)
     with contextlib.ExitStack() as stack:
         recording = None
         if args.rerun:
@@ -179,7 +247,7 @@ def run(args) -> int:
             stack.enter_context(recording)
         rows: list = []
         try:
-            _run_table(args, config, layouts, policies, recording, rows)
+            _run_table(args, config, layouts, policies, recording, rows, done)
         except (KeyboardInterrupt, Exception) as exc:
             # Ctrl-C, SIGTERM, or a stop signal a library call reported as its own error (pursuit_cli.main)
             if isinstance(exc, KeyboardInterrupt) or getattr(args, "stop_signals", None):
@@ -200,4 +268,8 @@ def run(args) -> int:
             print(f"wrote {path}")
     if args.rerun:
         print(f"wrote {args.rerun} (view with: rerun {args.rerun})")
+    if done is not None:  # the whole table holds them now
+        for path in (csv_path, json_path):
+            if path is not None:
+                interrupted_path(path).unlink(missing_ok=True)
     return 0

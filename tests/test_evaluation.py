@@ -300,3 +300,41 @@ def test_an_interrupted_eval_keeps_its_finished_cells_beside_the_table_it_was_as
     assert all(len(r["per_episode"]["seed"]) == 2 for r in kept["rows"])
     assert len(read_csv(tmp_path / "t.interrupted.csv")) == 2
     assert whole.read_text() == '{"rows": "an earlier, whole table"}\n' and not (tmp_path / "t.csv").exists()
+
+
+def test_resume_runs_only_the_rows_an_interrupted_eval_did_not_finish_and_gives_the_whole_table(tmp_path, monkeypatch, capsys):
+    import os
+    import signal
+
+    import pursuit_mj.evaluation as evaluation
+
+    cmd = ["eval", "--policy", "heuristic", "--policy", "random", "--layouts", "0", "1", "--episodes", "3", "--worlds", "2",
+           "--fidelity", "point", "--set", "max_steps=25", "-q"]
+    assert main(cmd + ["--out", str(tmp_path / "whole")]) == 0  # the table uninterrupted, to compare with
+    real, cells = evaluation.evaluate, []
+
+    def evaluate_counted(*a, **k):
+        cells.append(k["label"])
+        if len(cells) == 3 and os.environ.get("STOP_AT_THIRD") == "1":
+            os.kill(os.getpid(), signal.SIGTERM)
+        return real(*a, **k)
+
+    monkeypatch.setattr(evaluation, "evaluate", evaluate_counted)
+    monkeypatch.setenv("STOP_AT_THIRD", "1")
+    assert main(cmd + ["--out", str(tmp_path / "t")]) == 130
+    assert (tmp_path / "t.interrupted.json").is_file()
+    # the same command with another task setting, or other episodes, is refused
+    assert main(cmd + ["--out", str(tmp_path / "t"), "--resume", "--set", "evader_speed=0.5"]) == 2
+    assert "--resume: the task config differs from the interrupted eval's" in capsys.readouterr().err
+    assert main(cmd + ["--out", str(tmp_path / "t"), "--resume", "--episodes", "4"]) == 2
+    assert "--resume: episodes differs from the interrupted eval's (3 in" in capsys.readouterr().err
+    monkeypatch.setenv("STOP_AT_THIRD", "0")
+    cells.clear()
+    assert main(cmd + ["--out", str(tmp_path / "t"), "--resume", "--worlds", "3"]) == 0  # worlds do not change a table
+    assert cells == ["random", "random"]  # the two heuristic rows were finished
+    whole, resumed = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("whole", "t"))
+    assert resumed["rows"] == whole["rows"] and resumed["paired"] == whole["paired"]
+    assert (tmp_path / "t.csv").read_text() == (tmp_path / "whole.csv").read_text()
+    assert not (tmp_path / "t.interrupted.json").exists() and not (tmp_path / "t.interrupted.csv").exists()
+    assert main(cmd + ["--out", str(tmp_path / "t"), "--resume"]) == 2
+    assert f"--resume: no interrupted eval at {tmp_path / 't.interrupted.json'}" in capsys.readouterr().err
