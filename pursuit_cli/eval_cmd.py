@@ -18,6 +18,7 @@ from pursuit_mj.io_utils import check_writable, check_writable_folder
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
 from .common import SHIELD_HELP, add_shield_arg, add_task_args, checked_layouts, load_model, seed_arg, shield_if_asked, task_config_from_args
+from .eval_resume import file_sha256, finished_rows, interrupted_path, keep_finished
 
 
 def register(sub) -> None:
@@ -96,26 +97,6 @@ def _report_interrupted(recording) -> None:
         print(recording.summary(), file=sys.stderr, flush=True)
 
 
-def interrupted_path(path: Path) -> Path:
-    """Where an interrupted eval keeps its finished rows: table.json -> table.interrupted.json."""
-    return path.with_name(f"{path.stem}.interrupted{path.suffix}")
-
-
-def _keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, config, meta: dict) -> None:
-    """After an interrupt: show the rows of the finished policy-layout cells and write them beside
-    the asked-for files (interrupted_path), so that an earlier whole table there stays whole."""
-    from pursuit_mj.evaluation import format_table, write_csv, write_json
-
-    if not rows:
-        return
-    print(f"[eval] interrupted; the {len(rows)} finished policy-layout cells:\n{format_table(rows)}", file=sys.stderr, flush=True)
-    if csv_path:
-        print(f"[eval] wrote {write_csv(rows, interrupted_path(csv_path))}", file=sys.stderr, flush=True)
-    if json_path:
-        print(f"[eval] wrote {write_json(rows, interrupted_path(json_path), config, {**meta, 'interrupted': True})}",
-              file=sys.stderr, flush=True)
-
-
 def _run_table(args, config, layouts, policies, recording, rows: list, done: dict | None = None) -> list:
     """Evaluate every policy on every layout, appending each finished cell's row to `rows`
     (which holds the finished ones if this is interrupted); a cell in `done` (by (policy,
@@ -144,63 +125,8 @@ def _run_table(args, config, layouts, policies, recording, rows: list, done: dic
 
 def _meta(args, policies, code: dict) -> dict:
     return {"episodes": args.episodes, "worlds": args.worlds, "seed": args.seed, "policies": [label for label, _ in policies],
-            "models": list(args.model), "model_sha256": [_sha256(m) for m in args.model], "shield": bool(args.shield),
+            "models": list(args.model), "model_sha256": [file_sha256(m) for m in args.model], "shield": bool(args.shield),
             "code": code}
-
-
-def _sha256(path: str) -> str:
-    import hashlib
-
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
-#: what an interrupted eval and its resumption must share, so that the finished rows are what this run would play
-RESUME_KEYS = ("episodes", "seed", "policies", "model_sha256", "shield")
-
-
-def finished_rows(json_path: Path | None, config, meta: dict) -> dict[tuple[str, str], object]:
-    """--resume: the rows (as evaluation.Row, by (policy, layout)) of the interrupted eval kept in
-    interrupted_path(json_path); ValueError naming what differs if it is not this eval's."""
-    import json
-    from types import SimpleNamespace
-
-    from pursuit_mj.configio import to_dict
-    from pursuit_mj.evaluation import summarise
-
-    if json_path is None:
-        raise ValueError("--resume: needs --out PREFIX or --json FILE, where the interrupted eval kept its rows")
-    kept = interrupted_path(json_path)
-    if not kept.is_file():
-        raise ValueError(f"--resume: no interrupted eval at {kept} (an eval stopped by Ctrl-C or SIGTERM leaves one)")
-    try:
-        data = json.loads(kept.read_text())
-        stored = {k: data.get(k) for k in RESUME_KEYS}
-        rows = data["rows"]
-    except (ValueError, KeyError, TypeError, AttributeError):
-        raise ValueError(f"--resume: {kept} is not an interrupted eval's JSON") from None
-    for key in RESUME_KEYS:
-        if stored[key] != meta[key]:
-            raise ValueError(f"--resume: {key} differs from the interrupted eval's ({stored[key]!r} in {kept}, "
-                             f"{meta[key]!r} now): give the same command, or run it again without --resume")
-    if data.get("config") != json.loads(json.dumps(to_dict(config))):
-        raise ValueError(f"--resume: the task config differs from the interrupted eval's (its config in {kept}): "
-                         f"give the same task flags, or run it again without --resume")
-    code, was = meta["code"], data.get("code") or {}
-    for key in ("git_commit", "drone_model_sha256"):
-        if was.get(key) != code.get(key):
-            raise ValueError(f"--resume: the code changed since the interrupted eval ({key} {was.get(key)} there, "
-                             f"{code.get(key)} now), so its rows need not be what this code plays: run it again without --resume")
-    out = {}
-    try:
-        for r in rows:
-            log = r["per_episode"]
-            records = [SimpleNamespace(seed=sd, outcome=o, steps=st, captured=c)
-                       for sd, o, st, c in zip(log["seed"], log["outcome"], log["steps"], log["captured"])]
-            out[(r["policy"], r["layout"])] = summarise(r["policy"], r["layout"], r["fidelity"], r["seed"], records,
-                                                        config.max_steps)
-    except (KeyError, TypeError, ValueError):
-        raise ValueError(f"--resume: {kept} lacks the episodes of its rows (per_episode)") from None
-    return out
 
 
 def _versus(args, policies) -> str | None:
@@ -251,7 +177,7 @@ def run(args) -> int:
         except (KeyboardInterrupt, Exception) as exc:
             # Ctrl-C, SIGTERM, or a stop signal a library call reported as its own error (pursuit_cli.main)
             if isinstance(exc, KeyboardInterrupt) or getattr(args, "stop_signals", None):
-                _keep_finished(rows, csv_path, json_path, config, _meta(args, policies, provenance()))
+                keep_finished(rows, csv_path, json_path, config, _meta(args, policies, provenance()))
             raise
     print(format_table(rows))
     meta = _meta(args, policies, provenance())

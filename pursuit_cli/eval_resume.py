@@ -1,0 +1,85 @@
+"""An interrupted `pursuit-mj eval`: its finished rows kept on a stop, and taken back by --resume.
+
+A row is one policy on one layout. On Ctrl-C or SIGTERM the finished rows go to
+PREFIX.interrupted.csv / .json beside the files asked for; `--resume` reads the JSON back,
+checks that it is this eval's (RESUME_KEYS, the task config, the code), and the rows it holds
+are not played again. Episodes follow from the seed, so the table is an uninterrupted run's.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+
+def interrupted_path(path: Path) -> Path:
+    """Where an interrupted eval keeps its finished rows: table.json -> table.interrupted.json."""
+    return path.with_name(f"{path.stem}.interrupted{path.suffix}")
+
+
+def keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, config, meta: dict) -> None:
+    """After an interrupt: show the rows of the finished policy-layout cells and write them beside
+    the asked-for files (interrupted_path), so that an earlier whole table there stays whole."""
+    from pursuit_mj.evaluation import format_table, write_csv, write_json
+
+    if not rows:
+        return
+    print(f"[eval] interrupted; the {len(rows)} finished policy-layout cells:\n{format_table(rows)}", file=sys.stderr, flush=True)
+    if csv_path:
+        print(f"[eval] wrote {write_csv(rows, interrupted_path(csv_path))}", file=sys.stderr, flush=True)
+    if json_path:
+        print(f"[eval] wrote {write_json(rows, interrupted_path(json_path), config, {**meta, 'interrupted': True})}",
+              file=sys.stderr, flush=True)
+
+
+def file_sha256(path: str) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+#: what an interrupted eval and its resumption must share, so that the finished rows are what this run would play
+RESUME_KEYS = ("episodes", "seed", "policies", "model_sha256", "shield")
+
+
+def finished_rows(json_path: Path | None, config, meta: dict) -> dict[tuple[str, str], object]:
+    """--resume: the rows (as evaluation.Row, by (policy, layout)) of the interrupted eval kept in
+    interrupted_path(json_path); ValueError naming what differs if it is not this eval's."""
+    from pursuit_mj.configio import to_dict
+    from pursuit_mj.evaluation import summarise
+
+    if json_path is None:
+        raise ValueError("--resume: needs --out PREFIX or --json FILE, where the interrupted eval kept its rows")
+    kept = interrupted_path(json_path)
+    if not kept.is_file():
+        raise ValueError(f"--resume: no interrupted eval at {kept} (an eval stopped by Ctrl-C or SIGTERM leaves one)")
+    try:
+        data = json.loads(kept.read_text())
+        stored = {k: data.get(k) for k in RESUME_KEYS}
+        rows = data["rows"]
+    except (ValueError, KeyError, TypeError, AttributeError):
+        raise ValueError(f"--resume: {kept} is not an interrupted eval's JSON") from None
+    for key in RESUME_KEYS:
+        if stored[key] != meta[key]:
+            raise ValueError(f"--resume: {key} differs from the interrupted eval's ({stored[key]!r} in {kept}, "
+                             f"{meta[key]!r} now): give the same command, or run it again without --resume")
+    if data.get("config") != json.loads(json.dumps(to_dict(config))):
+        raise ValueError(f"--resume: the task config differs from the interrupted eval's (its config in {kept}): "
+                         f"give the same task flags, or run it again without --resume")
+    code, was = meta["code"], data.get("code") or {}
+    for key in ("git_commit", "drone_model_sha256"):
+        if was.get(key) != code.get(key):
+            raise ValueError(f"--resume: the code changed since the interrupted eval ({key} {was.get(key)} there, "
+                             f"{code.get(key)} now), so its rows need not be what this code plays: run it again without --resume")
+    out = {}
+    try:
+        for r in rows:
+            log = r["per_episode"]
+            records = [SimpleNamespace(seed=sd, outcome=o, steps=st, captured=c)
+                       for sd, o, st, c in zip(log["seed"], log["outcome"], log["steps"], log["captured"])]
+            out[(r["policy"], r["layout"])] = summarise(r["policy"], r["layout"], r["fidelity"], r["seed"], records,
+                                                        config.max_steps)
+    except (KeyError, TypeError, ValueError):
+        raise ValueError(f"--resume: {kept} lacks the episodes of its rows (per_episode)") from None
+    return out
