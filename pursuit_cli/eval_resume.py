@@ -73,13 +73,35 @@ def finished_rows(json_path: Path | None, config, meta: dict) -> dict[tuple[str,
             raise ValueError(f"--resume: the code changed since the interrupted eval ({key} {was.get(key)} there, "
                              f"{code.get(key)} now), so its rows need not be what this code plays: run it again without --resume")
     out = {}
-    try:
-        for r in rows:
-            log = r["per_episode"]
-            records = [SimpleNamespace(seed=sd, outcome=o, steps=st, captured=c)
-                       for sd, o, st, c in zip(log["seed"], log["outcome"], log["steps"], log["captured"])]
-            out[(r["policy"], r["layout"])] = summarise(r["policy"], r["layout"], r["fidelity"], r["seed"], records,
-                                                        config.max_steps)
-    except (KeyError, TypeError, ValueError):
-        raise ValueError(f"--resume: {kept} lacks the episodes of its rows (per_episode)") from None
+    for k, r in enumerate(rows):
+        records = _episodes(r, config, meta)
+        if records is None:
+            raise ValueError(f"--resume: {kept}, row {k + 1}: its episodes (per_episode) are not those this eval "
+                             f"would play (a damaged or edited file): run it again without --resume")
+        out[(r["policy"], r["layout"])] = summarise(r["policy"], r["layout"], config.fidelity, meta["seed"], records,
+                                                    config.max_steps)
     return out
+
+
+def _episodes(row, config, meta: dict) -> list | None:
+    """The episodes of one kept row as records `summarise` takes, or None unless they are what
+    this eval plays there: its episode count and seeds, known outcomes, steps within 1..max_steps
+    and evaders caught within 0..n_evaders."""
+    from pursuit_mj.evaluation import OUTCOMES, episode_seeds, layout_seed
+
+    try:
+        log, label = row["per_episode"], row["layout"]
+        if not (isinstance(row["policy"], str) and isinstance(label, str)):
+            return None
+        seeds, outcomes, steps, caught = (list(log[f]) for f in ("seed", "outcome", "steps", "captured"))
+        want_seeds = episode_seeds(layout_seed(meta["seed"], label), meta["episodes"]).tolist()
+    except (KeyError, TypeError, ValueError, AttributeError):
+        return None
+    whole = lambda v, hi: isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= hi  # noqa: E731
+    if (seeds != want_seeds or row.get("fidelity") != config.fidelity or row.get("seed") != meta["seed"]
+            or not all(isinstance(o, str) and o in OUTCOMES for o in outcomes)
+            or not all(whole(n, config.max_steps) and n >= 1 for n in steps)
+            or not all(whole(c, config.n_evaders) for c in caught)
+            or not len(outcomes) == len(steps) == len(caught) == len(seeds)):
+        return None
+    return [SimpleNamespace(seed=sd, outcome=o, steps=n, captured=c) for sd, o, n, c in zip(seeds, outcomes, steps, caught)]

@@ -338,3 +338,18 @@ def test_resume_runs_only_the_rows_an_interrupted_eval_did_not_finish_and_gives_
     assert not (tmp_path / "t.interrupted.json").exists() and not (tmp_path / "t.interrupted.csv").exists()
     assert main(cmd + ["--out", str(tmp_path / "t"), "--resume"]) == 2
     assert f"--resume: no interrupted eval at {tmp_path / 't.interrupted.json'}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("field, value", [("outcome", "escaped"), ("seed", 12345), ("steps", 0), ("captured", 3)])
+def test_resume_refuses_kept_rows_whose_episodes_this_eval_would_not_play(tmp_path, capsys, field, value):
+    """The kept rows are rebuilt from their episodes: a damaged or edited episode list (an unknown
+    outcome, another seed, steps or evaders caught out of range) must not enter the table."""
+    cmd = ["eval", "--policy", "heuristic", "--layouts", "0", "1", "--episodes", "2", "--worlds", "2", "--fidelity", "point",
+           "--set", "max_steps=20", "-q", "--out", str(tmp_path / "t")]
+    assert main(cmd) == 0
+    data = json.loads((tmp_path / "t.json").read_text())
+    data["rows"][1]["per_episode"][field][0] = value
+    (tmp_path / "t.interrupted.json").write_text(json.dumps(data))
+    assert main(cmd + ["--resume"]) == 2
+    assert f"--resume: {tmp_path / 't.interrupted.json'}, row 2: its episodes (per_episode) are not those this eval would play" \
+        in capsys.readouterr().err
