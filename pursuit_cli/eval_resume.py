@@ -97,7 +97,9 @@ def _episodes(row, config, meta: dict) -> list | None:
         want_seeds = episode_seeds(layout_seed(meta["seed"], label), meta["episodes"]).tolist()
     except (KeyError, TypeError, ValueError, AttributeError):
         return None
-    whole = lambda v, hi: isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= hi  # noqa: E731
+    def whole(v, hi: int) -> bool:  # an integer in 0..hi (JSON true/false are no counts)
+        return isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= hi
+
     if (seeds != want_seeds or row.get("fidelity") != config.fidelity or row.get("seed") != meta["seed"]
             or not all(isinstance(o, str) and o in OUTCOMES for o in outcomes)
             or not all(whole(n, config.max_steps) and n >= 1 for n in steps)
