@@ -17,7 +17,8 @@ def build_and_unpack_wheel(tmp: Path) -> Path:
     sources: not into the checkout under test), unpacked as pip installs a pure-Python wheel."""
     src = tmp / "src"
     shutil.copytree(REPO, src, symlinks=True, ignore=shutil.ignore_patterns(
-        ".git", ".venv", "build", "*.egg-info", "__pycache__", ".pytest_cache", "runs", "renders", "plots", "out"))
+        ".git", ".venv", "build", "*.egg-info", "__pycache__", ".pytest_cache", "runs", "renders", "plots", "out", "finals",
+        "flights", "*.rrd"))  # what .gitignore leaves out: outputs, not sources
     built = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp / "dist"), str(src)],
                            capture_output=True, text=True, timeout=300)
     assert built.returncode == 0, built.stdout + built.stderr
