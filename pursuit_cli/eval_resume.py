@@ -12,7 +12,6 @@ import hashlib
 import json
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 
 def interrupted_path(path: Path) -> Path:
@@ -47,7 +46,7 @@ def finished_rows(json_path: Path | None, config, meta: dict) -> dict[tuple[str,
     """--resume: the rows (as evaluation.Row, by (policy, layout)) of the interrupted eval kept in
     interrupted_path(json_path); ValueError naming what differs if it is not this eval's."""
     from pursuit_mj.configio import to_dict
-    from pursuit_mj.evaluation import summarise
+    from pursuit_mj.evaluation import row_from_record
 
     if json_path is None:
         raise ValueError("--resume: needs --out PREFIX or --json FILE, where the interrupted eval kept its rows")
@@ -74,36 +73,9 @@ def finished_rows(json_path: Path | None, config, meta: dict) -> dict[tuple[str,
                              f"{code.get(key)} now), so its rows need not be what this code plays: run it again without --resume")
     out = {}
     for k, r in enumerate(rows):
-        records = _episodes(r, config, meta)
-        if records is None:
+        row = row_from_record(r, config, meta["seed"], meta["episodes"])
+        if row is None:
             raise ValueError(f"--resume: {kept}, row {k + 1}: its episodes (per_episode) are not those this eval "
                              f"would play (a damaged or edited file): run it again without --resume")
-        out[(r["policy"], r["layout"])] = summarise(r["policy"], r["layout"], config.fidelity, meta["seed"], records,
-                                                    config.max_steps)
+        out[(row.policy, row.layout)] = row
     return out
-
-
-def _episodes(row, config, meta: dict) -> list | None:
-    """The episodes of one kept row as records `summarise` takes, or None unless they are what
-    this eval plays there: its episode count and seeds, known outcomes, steps within 1..max_steps
-    and evaders caught within 0..n_evaders."""
-    from pursuit_mj.evaluation import OUTCOMES, episode_seeds, layout_seed
-
-    try:
-        log, label = row["per_episode"], row["layout"]
-        if not (isinstance(row["policy"], str) and isinstance(label, str)):
-            return None
-        seeds, outcomes, steps, caught = (list(log[f]) for f in ("seed", "outcome", "steps", "captured"))
-        want_seeds = episode_seeds(layout_seed(meta["seed"], label), meta["episodes"]).tolist()
-    except (KeyError, TypeError, ValueError, AttributeError):
-        return None
-    def whole(v, hi: int) -> bool:  # an integer in 0..hi (JSON true/false are no counts)
-        return isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= hi
-
-    if (seeds != want_seeds or row.get("fidelity") != config.fidelity or row.get("seed") != meta["seed"]
-            or not all(isinstance(o, str) and o in OUTCOMES for o in outcomes)
-            or not all(whole(n, config.max_steps) and n >= 1 for n in steps)
-            or not all(whole(c, config.n_evaders) for c in caught)
-            or not len(outcomes) == len(steps) == len(caught) == len(seeds)):
-        return None
-    return [SimpleNamespace(seed=sd, outcome=o, steps=n, captured=c) for sd, o, n, c in zip(seeds, outcomes, steps, caught)]

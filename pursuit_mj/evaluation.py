@@ -17,6 +17,7 @@ import json
 import math
 import zlib
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Callable, Iterable, Protocol, Sequence
 
 import numpy as np
@@ -267,14 +268,44 @@ def write_json(rows: Sequence[Row], path: str | Path, config: TaskConfig | None 
     data: dict[str, object] = dict(meta or {})
     if config is not None:
         data["config"] = to_dict(config)
-    data["rows"] = []
-    for r in rows:
-        flat = r.flat()
-        if r.episode_log:
-            seeds, outcomes, steps, caught = zip(*r.episode_log)
-            flat["per_episode"] = {"seed": list(seeds), "outcome": list(outcomes), "steps": list(steps), "captured": list(caught)}
-        data["rows"].append(flat)
+    data["rows"] = [row_record(r) for r in rows]
     return atomic_write_text(path, json.dumps(data, indent=2) + "\n")
+
+
+def row_record(row: Row) -> dict[str, object]:
+    """A row as JSON files hold it: `Row.flat` and, when it has them, its episodes ("per_episode")."""
+    flat = row.flat()
+    if row.episode_log:
+        seeds, outcomes, steps, caught = zip(*row.episode_log)
+        flat["per_episode"] = {"seed": list(seeds), "outcome": list(outcomes), "steps": list(steps), "captured": list(caught)}
+    return flat
+
+
+def row_from_record(record: object, config: TaskConfig, seed: int, episodes: int) -> Row | None:
+    """The Row of a `row_record` read back, rebuilt from its episodes; None unless they are the
+    episodes `evaluate(..., episodes, seed)` plays on its layout under `config`: the count and
+    seeds, known outcomes, steps within 1..max_steps and evaders caught within 0..n_evaders (so
+    a damaged or edited record is not taken for a finished one)."""
+    def whole(v, hi: int) -> bool:  # an integer in 0..hi (JSON true/false are no counts)
+        return isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= hi
+
+    try:
+        log, policy, label = record["per_episode"], record["policy"], record["layout"]
+        if not (isinstance(policy, str) and isinstance(label, str)):
+            return None
+        seeds, outcomes, steps, caught = (list(log[f]) for f in ("seed", "outcome", "steps", "captured"))
+        want_seeds = episode_seeds(layout_seed(seed, label), episodes).tolist()
+        fidelity, row_seed = record.get("fidelity"), record.get("seed")
+    except (KeyError, TypeError, ValueError, AttributeError):
+        return None
+    if (seeds != want_seeds or fidelity != config.fidelity or row_seed != seed
+            or not all(isinstance(o, str) and o in OUTCOMES for o in outcomes)
+            or not all(whole(n, config.max_steps) and n >= 1 for n in steps)
+            or not all(whole(c, config.n_evaders) for c in caught)
+            or not len(outcomes) == len(steps) == len(caught) == len(seeds)):
+        return None
+    records = [SimpleNamespace(seed=sd, outcome=o, steps=n, captured=c) for sd, o, n, c in zip(seeds, outcomes, steps, caught)]
+    return summarise(policy, label, config.fidelity, seed, records, config.max_steps)
 
 
 _TEXT_FIELDS = ("policy", "layout", "fidelity")
