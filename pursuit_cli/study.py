@@ -34,7 +34,7 @@ def register(sub) -> None:
     p.add_argument("--train-set", dest="train_overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a train key in every regime, e.g. n_envs=16 (repeatable)")
     p.add_argument("--resume", action="store_true",
-                   help="continue the interrupted study in --out: finished arms are kept, the interrupted one resumes "
+                   help="continue the interrupted study in --out: finished arms and evaluations are kept, the interrupted one resumes "
                         "from its last checkpoint, the rest train; --budget-minutes is the time for what is left")
     add_task_args(p)
     p.set_defaults(func=run)
@@ -72,7 +72,7 @@ def run(args) -> int:
     except (KeyboardInterrupt, Exception) as exc:
         if not (isinstance(exc, KeyboardInterrupt) or stops):
             raise
-        print(f"[study] interrupted; the finished arms are kept: continue with pursuit-mj study --resume --out {out} "
+        print(f"[study] interrupted; the finished arms and evaluations are kept: continue with pursuit-mj study --resume --out {out} "
               f"--budget-minutes M (the time for what is left) and the same task, --train-fidelity and --train-set flags",
               file=sys.stderr)
         raise

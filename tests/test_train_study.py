@@ -79,7 +79,8 @@ def test_a_train_override_one_arm_refuses_is_found_before_anything_runs(tmp_path
     assert "--layouts: 01 is given twice" in capsys.readouterr().err and not out.exists()
 
 
-def test_an_interrupted_study_resumes_keeping_its_finished_arms(tmp_path, capsys, monkeypatch):
+def test_an_interrupted_study_resumes_keeping_its_finished_arms_and_evaluations(tmp_path, capsys, monkeypatch):
+    from train import study
     from train.trainer import Trainer
 
     out_dir = tmp_path / "study"
@@ -109,16 +110,51 @@ def test_an_interrupted_study_resumes_keeping_its_finished_arms(tmp_path, capsys
     fine_tune_log = (out_dir / "runs" / "fine_tune" / "metrics.jsonl").read_text()
 
     monkeypatch.setattr(Trainer, "train_one_update", real_update)
-    assert main(["study", "--budget-minutes", "0.6", "--resume", *args]) == 0
+    played = []
+    real_evaluate = study.evaluate
+
+    def evaluate_until_mappo(policy, config, layouts, *a, label=None, **k):
+        played.append(label)
+        if label == "mappo" and stop_at_mappo:
+            raise KeyboardInterrupt  # Ctrl-C during the evaluation, after every arm has trained
+        return real_evaluate(policy, config, layouts, *a, label=label, **k)
+
+    monkeypatch.setattr(study, "evaluate", evaluate_until_mappo)
+    stop_at_mappo = True
+    assert main(["study", "--budget-minutes", "0.6", "--resume", *args]) == 130
     out = capsys.readouterr().out
     assert "full_obs: trained in an earlier session, kept" in out and "resuming classic" in out
     assert "fine_tune: finished in an earlier session (stopped before the study recorded it), kept" in out
+    assert "heuristic: 1 of 1 layouts evaluated in an earlier session, kept" in out  # evaluated before classic stopped
+    assert played == ["full_obs", "fine_tune", "classic", "mappo"]
     assert (out_dir / "runs" / "fine_tune" / "metrics.jsonl").read_text() == fine_tune_log
     assert (out_dir / "runs" / "full_obs" / "metrics.jsonl").read_text() == kept
     updates = [json.loads(x)["update"] for x in (out_dir / "runs" / "classic" / "metrics.jsonl").read_text().splitlines()]
     assert updates[:classic_rows] == list(range(1, classic_rows + 1)) and len(updates) > classic_rows  # continued
+    assert not (out_dir / "table.json").exists()
+    cells = json.loads((out_dir / "study.json").read_text())["evaluation"]["cells"]
+    assert set(cells) == {"heuristic", "full_obs", "fine_tune", "classic"}
+
+    # resumed again: nothing left to train, and only the cells not played yet are played
+    played.clear()
+    stop_at_mappo = False
+    assert main(["study", "--budget-minutes", "0.1", "--resume", *args]) == 0
+    out = capsys.readouterr().out
+    assert played == ["mappo", "imitate", "imitate_ppo", "residual+shield", "belief+shield", "belief_ppo+shield"]
+    assert "classic: 1 of 1 layouts evaluated in an earlier session, kept" in out
     table = json.loads((out_dir / "table.json").read_text())
     assert len({r["policy"] for r in table["rows"]}) == 10  # the heuristic team and all nine arms
+    by_policy = {r["policy"]: r for r in table["rows"]}
+    for key in ("heuristic", "full_obs", "fine_tune", "classic"):
+        assert by_policy[key] == cells[key]["0"]["row"]  # the kept rows, episodes and all
+    timings = json.loads((out_dir / "timings.json").read_text())
+    assert "classic (eval, earlier session)" in timings and "classic (eval)" not in timings and "mappo (eval)" in timings
+
+    # another episode count asked for: nothing kept counts
+    played.clear()
+    assert main(["study", "--budget-minutes", "0.1", "--resume", *args[:1], "3", *args[2:]]) == 0
+    assert "every policy is evaluated again" in capsys.readouterr().out
+    assert len(played) == 10 + 1  # the speed probe, the team, nine arms
     assert main(["study", "--budget-minutes", "0.6", "--resume", *args, "--train-set", "n_envs=3"]) == 2
     assert "give the same --train-fidelity and --train-set" in capsys.readouterr().err
 
@@ -143,3 +179,52 @@ def test_the_timings_compare_the_total_with_the_budget():
     over = format_timings({"heuristic (eval)": 6.0, "total": 138.0}, 1.5).splitlines()
     assert over[0] == "  heuristic (eval)     0.1 min" and over[1].endswith("2.3 min (budget 1.5 min, 0.8 min over)")
     assert format_timings({"total": 80.0}, 1.5).endswith("1.3 min (budget 1.5 min)")
+
+
+def test_kept_evaluation_cells_are_taken_back_only_when_they_are_what_this_study_would_play(tmp_path):
+    import dataclasses
+
+    from pursuit_mj.config import load_task_config
+    from pursuit_mj.evaluation import evaluate
+    from pursuit_mj.policies import make_policy
+    from train.study import StudyPlan
+    from train.study_evaluation import KeptEvaluation
+
+    task = load_task_config([], ["fidelity=point", "max_steps=20"])
+    plan = StudyPlan(budget_minutes=1.0, out=tmp_path, eval_task=task, layouts=(0,), episodes=2, worlds=2, resume=True)
+    state: dict = {}
+    kept = KeptEvaluation(plan, state, lambda: None)
+    assert kept.episodes is None and not kept.covers("heuristic")
+    kept.start(2)
+    (row,) = evaluate(make_policy("heuristic", task), task, [0], 2, plan.seed, 2, label="heuristic")
+    kept.keep("heuristic", row, 1.5)
+    written = json.loads(json.dumps(state))  # as study.json holds it
+
+    again = KeptEvaluation(plan, json.loads(json.dumps(written)), lambda: None)
+    back = again.row("heuristic", "heuristic", 0)
+    assert back.flat() == row.flat() and back.episode_log == row.episode_log and again.seconds("heuristic") == 1.5
+    assert again.row("heuristic", "belief+shield", 0) is None and again.row("heuristic", "heuristic", 1) is None
+
+    damaged = json.loads(json.dumps(written))
+    damaged["evaluation"]["cells"]["heuristic"]["0"]["row"]["per_episode"]["steps"][0] = 21  # past max_steps
+    assert KeptEvaluation(plan, damaged, lambda: None).row("heuristic", "heuristic", 0) is None
+
+    for changed in (dataclasses.replace(plan, seed=1), dataclasses.replace(plan, episodes=3),
+                    dataclasses.replace(plan, eval_task=dataclasses.replace(task, max_steps=21))):
+        logs: list[str] = []
+        other = KeptEvaluation(changed, json.loads(json.dumps(written)), lambda: None, logs.append)
+        assert other.episodes is None and "every policy is evaluated again" in logs[0]
+    assert KeptEvaluation(dataclasses.replace(plan, resume=False), json.loads(json.dumps(written)), lambda: None).episodes is None
+
+    # a trained arm's cells belong to the best.pt they were played from
+    best = tmp_path / "best.pt"
+    best.write_bytes(b"weights 1")
+    kept.use_checkpoint("classic", best)
+    kept.keep("classic", dataclasses.replace(row, policy="classic"), 2.0)
+    assert kept.covers("classic", best) and kept.row("classic", "classic", 0) is not None
+    kept.use_checkpoint("classic", best)  # the same file: kept
+    assert kept.row("classic", "classic", 0) is not None
+    best.write_bytes(b"weights 2")  # trained again
+    assert not kept.covers("classic", best)
+    kept.use_checkpoint("classic", best)
+    assert kept.row("classic", "classic", 0) is None and kept.seconds("classic") == 0

@@ -18,9 +18,11 @@ partial observability: full_obs is trained with full observability but judged li
 
 An interrupted study continues with `resume=True` (`study --resume`): arms recorded as
 finished in <out>/study.json are kept, the interrupted one resumes from its last.pt with its
-share of the new budget added, and the rest train as before; everything is evaluated again.
+share of the new budget added, and the rest train as before. Evaluated cells (one policy on
+one layout) are kept in study.json as each ends and played again only when they no longer
+match (train/study_evaluation.py).
 
-Outputs in <out>/: runs/<regime>/ (checkpoints, metrics), study.json (the finished arms), table.txt (the table, then every arm
+Outputs in <out>/: runs/<regime>/ (checkpoints, metrics), study.json (the finished arms and evaluated cells), table.txt (the table, then every arm
 paired with the heuristic team on the same episodes, pursuit_mj.comparison), table.csv,
 table.json (rows, and the pairs under "paired"), plots/*.png, timings.json.
 """
@@ -43,6 +45,7 @@ from pursuit_mj.policies import make_policy
 from .checkpoint import is_training_checkpoint, load_checkpoint
 from .config import load_train_config, train_config_from_dict
 from .policy import load_policy
+from .study_evaluation import HEURISTIC, KeptEvaluation
 from .trainer import Trainer
 
 @dataclasses.dataclass(frozen=True)
@@ -92,7 +95,7 @@ class StudyPlan:
     resume: bool = False  # continue the study in `out`: keep its finished arms, resume its interrupted one
 
 
-STATE_FILE = "study.json"  # in <out>/: the arms trained so far, written as each one ends
+STATE_FILE = "study.json"  # in <out>/: the arms trained and cells evaluated so far, written as each ends
 
 
 def _load_state(plan: StudyPlan) -> dict:
@@ -101,7 +104,7 @@ def _load_state(plan: StudyPlan) -> dict:
     path = plan.out / STATE_FILE
     if not plan.resume:
         state = {"train_overrides": list(plan.train_overrides), "arms": {}}
-        atomic_write_text(path, json.dumps(state, indent=2) + "\n")
+        _save_state(plan, state)
         return state
     if not path.is_file():
         raise ValueError(f"--resume: {plan.out} holds no study to continue (no {STATE_FILE})")
@@ -120,7 +123,8 @@ def _load_state(plan: StudyPlan) -> dict:
             except ValueError as exc:
                 raise ValueError(f"--resume: the {arm.name} arm is kept as finished in {path}, but {exc}; delete its "
                                  f"entry under \"arms\" there to train it again") from None
-    return {"train_overrides": stored, "arms": arms}
+    kept = {"evaluation": state["evaluation"]} if isinstance(state, dict) and "evaluation" in state else {}
+    return {"train_overrides": stored, "arms": arms, **kept}  # the evaluation is checked by KeptEvaluation
 
 
 def _minutes(seconds: float) -> float:
@@ -145,20 +149,22 @@ def eval_seconds(probe_s: float, probe_episodes: int, episodes: int) -> float:
     return probe_s * (fraction if fraction >= 1.0 else BATCH_FLOOR + (1.0 - BATCH_FLOOR) * fraction)
 
 
-def fit_episodes(plan: StudyPlan, probe_s: float, probe_episodes: int, spent_s: float) -> tuple[int, float]:
+def fit_episodes(plan: StudyPlan, probe_s: float, probe_episodes: int, spent_s: float,
+                 arms_to_train: int = len(ARMS)) -> tuple[int, float]:
     """(episodes per policy and layout, minutes left for training) within the budget.
 
     The heuristic and the trained policies are evaluated with the same number of episodes;
-    it shrinks from plan.episodes when evaluation would take more than its share.
+    it shrinks from plan.episodes when evaluation would take more than its share (all of the
+    budget when no arm is left to train).
     """
     total_s = plan.budget_minutes * 60.0
     rounds = 1 + ARMS_EVAL_COST  # the team's evaluation and the arms'
-    cap = total_s * (1.0 - MIN_TRAIN_FRACTION) - spent_s
+    cap = total_s * (1.0 - (MIN_TRAIN_FRACTION if arms_to_train else 0.0)) - spent_s
     episodes = plan.episodes
     while episodes > 1 and rounds * eval_seconds(probe_s, probe_episodes, episodes) > cap:
         episodes = max(1, min(episodes - 1, int(episodes * cap / (rounds * eval_seconds(probe_s, probe_episodes, episodes)))))
     evaluation_s = rounds * eval_seconds(probe_s, probe_episodes, episodes)
-    return episodes, _minutes(total_s - spent_s - evaluation_s - ARM_START_S * len(ARMS))
+    return episodes, _minutes(total_s - spent_s - evaluation_s - ARM_START_S * arms_to_train)
 
 
 def arm_budget(left_s: float, share: float, shares_left: float, validation_episodes: int,
@@ -197,32 +203,47 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
     timings: dict[str, float] = {}
     t_start = time.perf_counter()
 
-    t0 = time.perf_counter()
     heuristic = make_policy("heuristic", plan.eval_task)
-    probe = max(2, min(plan.worlds, plan.episodes) // len(plan.layouts))  # per layout: they differ in length
-    evaluate(heuristic, plan.eval_task, list(plan.layouts), probe, plan.seed + 1, plan.worlds, label="heuristic")
-    timings["evaluation speed probe"] = time.perf_counter() - t0
-    episodes, train_minutes = fit_episodes(plan, timings["evaluation speed probe"], probe, time.perf_counter() - t_start)
-    if train_minutes < MIN_TRAIN_MINUTES:
-        needed = plan.budget_minutes + MIN_TRAIN_MINUTES - train_minutes
-        raise ValueError(f"--budget-minutes {plan.budget_minutes}: too small on this machine; evaluating {len(ARMS) + 1} "
-                         f"policies and starting {len(ARMS)} runs leave {max(train_minutes, 0.0) * 60:.0f} s for training "
-                         f"(raise the budget to about {needed:.0f} min)")
-    log(f"[study] {episodes} episodes per policy and layout; {_duration(train_minutes * 60)} left for training")
-    if episodes < min(plan.episodes, FEW_EPISODES):
-        log(f"[study] warning: {episodes} episodes per layout give wide intervals (a single episode decides "
-            f"{100 / episodes:.0f} points of success); a larger budget buys more")
-    t0 = time.perf_counter()
-    rows = evaluate(heuristic, plan.eval_task, list(plan.layouts), episodes, plan.seed, plan.worlds, label="heuristic")
-    timings["heuristic (eval)"] = time.perf_counter() - t0
-    seconds_per_episode = timings["heuristic (eval)"] / (episodes * len(plan.layouts))
-    train_end = t_start + plan.budget_minutes * 60.0 - ARMS_EVAL_COST * timings["heuristic (eval)"]
+    kept = KeptEvaluation(plan, state, lambda: _save_state(plan, state), log)
+    planned = None  # (seconds planned for the team's evaluation, for training) by a fresh plan
+    if kept.episodes is None:
+        t0 = time.perf_counter()
+        probe = max(2, min(plan.worlds, plan.episodes) // len(plan.layouts))  # per layout: they differ in length
+        evaluate(heuristic, plan.eval_task, list(plan.layouts), probe, plan.seed + 1, plan.worlds, label="heuristic")
+        timings["evaluation speed probe"] = time.perf_counter() - t0
+        episodes, train_minutes = fit_episodes(plan, timings["evaluation speed probe"], probe, time.perf_counter() - t_start,
+                                               len(todo))
+        if todo and train_minutes < MIN_TRAIN_MINUTES:
+            needed = plan.budget_minutes + MIN_TRAIN_MINUTES - train_minutes
+            raise ValueError(f"--budget-minutes {plan.budget_minutes}: too small on this machine; evaluating {len(ARMS) + 1} "
+                             f"policies and starting {len(todo)} runs leave {max(train_minutes, 0.0) * 60:.0f} s for training "
+                             f"(raise the budget to about {needed:.0f} min)")
+        kept.start(episodes)
+        planned = (eval_seconds(timings["evaluation speed probe"], probe, episodes), train_minutes * 60.0)
+        log(f"[study] {episodes} episodes per policy and layout" + (f"; {_duration(train_minutes * 60)} left for training" if todo else ""))
+        if episodes < min(plan.episodes, FEW_EPISODES):
+            log(f"[study] warning: {episodes} episodes per layout give wide intervals (a single episode decides "
+                f"{100 / episodes:.0f} points of success); a larger budget buys more")
+    else:
+        episodes = kept.episodes
+        log(f"[study] {episodes} episodes per policy and layout, as the earlier session chose")
+    rows, played_s = _evaluate_cells(kept, HEURISTIC, heuristic, "heuristic", plan, episodes, log)
+    _time_cells(timings, "heuristic", played_s, kept.seconds(HEURISTIC))
+    heuristic_s = kept.seconds(HEURISTIC)  # the whole team's evaluation, in whichever session it was played
+    seconds_per_episode = heuristic_s / (episodes * len(plan.layouts))
+    # arms whose cells are all kept (played from the best.pt they have now) cost no more evaluation
+    eval_cost = sum(arm.eval_cost for arm in ARMS
+                    if not (arm.name in state["arms"] and kept.covers(arm.name, plan.out / "runs" / arm.name / "best.pt")))
+    train_end = t_start + plan.budget_minutes * 60.0 - eval_cost * heuristic_s
     left_s = train_end - time.perf_counter() - ARM_START_S * len(todo)
-    if left_s < 0.5 * train_minutes * 60.0:
-        planned = eval_seconds(timings["evaluation speed probe"], probe, episodes)
-        log(f"[study] warning: the heuristic team's evaluation took {timings['heuristic (eval)']:.0f} s where "
-            f"{planned:.0f} s were planned (is the machine busy?); {_duration(max(left_s, 0.0))} are left for training, "
-            f"and the study may run over its budget")
+    if planned is None and todo and left_s < MIN_TRAIN_MINUTES * 60.0:  # a fresh plan checked this before any evaluation
+        raise ValueError(f"--budget-minutes {plan.budget_minutes}: too small on this machine; evaluating what is left "
+                         f"and starting {len(todo)} runs leave {max(left_s, 0.0):.0f} s for training (raise the budget "
+                         f"to about {plan.budget_minutes + (MIN_TRAIN_MINUTES * 60.0 - left_s) / 60.0:.0f} min)")
+    if planned is not None and left_s < 0.5 * planned[1]:
+        log(f"[study] warning: the heuristic team's evaluation took {played_s:.0f} s where {planned[0]:.0f} s were "
+            f"planned (is the machine busy?); {_duration(max(left_s, 0.0))} are left for training, and the study may "
+            f"run over its budget")
 
     checkpoints: dict[str, Path] = {}
     for arm in ARMS:
@@ -246,7 +267,7 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
             checkpoints[regime] = run_dir / "best.pt"
             timings[f"{regime} (train, earlier session)"] = finished_s
             state["arms"][regime] = {"train_seconds": round(finished_s, 1)}
-            atomic_write_text(plan.out / STATE_FILE, json.dumps(state, indent=2) + "\n")
+            _save_state(plan, state)
             log(f"[study] {regime}: finished in an earlier session (stopped before the study recorded it), kept")
             continue
         i = todo.index(arm)
@@ -270,19 +291,52 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
             raise KeyboardInterrupt
         checkpoints[regime] = run_dir / "best.pt"
         state["arms"][regime] = {"train_seconds": round(float(result["counters"]["seconds"]), 1)}
-        atomic_write_text(plan.out / STATE_FILE, json.dumps(state, indent=2) + "\n")
+        _save_state(plan, state)
 
     t = plan.eval_task
     spec = ObsSpec.make(t.n_pursuers, t.n_evaders, t.n_rays)
     for regime in (arm.name for arm in ARMS):
-        t0 = time.perf_counter()
+        kept.use_checkpoint(regime, checkpoints[regime])  # cells played from another best.pt are dropped
         policy = load_policy(checkpoints[regime], spec, name=regime, task=plan.eval_task)
         label = f"{regime}+shield" if getattr(policy, "has_shield", False) else regime  # as eval labels it
-        rows += evaluate(policy, plan.eval_task, list(plan.layouts), episodes, plan.seed, plan.worlds, label=label)
-        timings[f"{regime} (eval)"] = time.perf_counter() - t0
+        arm_rows, played_s = _evaluate_cells(kept, regime, policy, label, plan, episodes, log)
+        rows += arm_rows
+        _time_cells(timings, regime, played_s, kept.seconds(regime))
     timings["total"] = time.perf_counter() - t_start
     _write(plan, rows, timings, episodes)
     return {"rows": rows, "timings": timings, "episodes": episodes}
+
+
+def _evaluate_cells(kept: KeptEvaluation, key: str, policy, label: str, plan: StudyPlan, episodes: int,
+                    log: Callable[[str], None]) -> tuple[list, float]:
+    """(rows of `policy` on every layout, seconds spent playing them now): a cell kept from an
+    earlier session is taken back, any other is played and kept as it ends."""
+    rows, played_s, reused = [], 0.0, 0
+    for ref in plan.layouts:
+        row = kept.row(key, label, ref)
+        if row is None:
+            t0 = time.perf_counter()
+            (row,) = evaluate(policy, plan.eval_task, [ref], episodes, plan.seed, plan.worlds, label=label)
+            played_s += time.perf_counter() - t0
+            kept.keep(key, row, time.perf_counter() - t0)
+        else:
+            reused += 1
+        rows.append(row)
+    if reused:
+        log(f"[study] {label}: {reused} of {len(plan.layouts)} layouts evaluated in an earlier session, kept")
+    return rows, played_s
+
+
+def _time_cells(timings: dict[str, float], name: str, played_s: float, kept_s: float) -> None:
+    """The evaluation time of one policy: played now, and what its kept cells took before."""
+    if played_s > 0:
+        timings[f"{name} (eval)"] = played_s
+    if kept_s - played_s > 0.05:
+        timings[f"{name} (eval, earlier session)"] = kept_s - played_s
+
+
+def _save_state(plan: StudyPlan, state: dict) -> None:
+    atomic_write_text(plan.out / STATE_FILE, json.dumps(state, indent=2) + "\n")
 
 
 def _finished_seconds(run_dir: Path) -> float | None:
