@@ -228,3 +228,43 @@ def test_kept_evaluation_cells_are_taken_back_only_when_they_are_what_this_study
     assert not kept.covers("classic", best)
     kept.use_checkpoint("classic", best)
     assert kept.row("classic", "classic", 0) is None and kept.seconds("classic") == 0
+
+
+@pytest.mark.parametrize("damage", ["no_row", "seconds_text", "seconds_negative", "row_not_a_dict", "cells_a_list",
+                                    "evaluation_a_list", "episodes_zero"])
+def test_a_damaged_kept_evaluation_is_played_again_not_a_crash(tmp_path, damage):
+    from types import SimpleNamespace
+
+    from pursuit_mj.config import load_task_config
+    from pursuit_mj.evaluation import Row, episode_seeds, layout_seed, summarise
+    from train.study import StudyPlan
+    from train.study_evaluation import KeptEvaluation
+
+    task = load_task_config([], ["fidelity=point", "max_steps=20"])
+    plan = StudyPlan(budget_minutes=1.0, out=tmp_path, eval_task=task, layouts=(0,), episodes=2, worlds=2, resume=True)
+    state: dict = {}
+    kept = KeptEvaluation(plan, state, lambda: None)
+    kept.start(2)
+    seeds = episode_seeds(layout_seed(plan.seed, "0"), 2)
+    records = [SimpleNamespace(seed=int(s), outcome="timeout", steps=20, captured=0) for s in seeds]
+    kept.keep("heuristic", summarise("heuristic", "0", "point", plan.seed, records, 20), 1.0)
+    data = json.loads(json.dumps(state))
+    ev, cell = data["evaluation"], data["evaluation"]["cells"]["heuristic"]["0"]
+    if damage == "no_row":
+        del cell["row"]
+    elif damage == "seconds_text":
+        cell["seconds"] = "1 s"
+    elif damage == "seconds_negative":
+        cell["seconds"] = -1.0
+    elif damage == "row_not_a_dict":
+        cell["row"] = 5
+    elif damage == "cells_a_list":
+        ev["cells"]["heuristic"] = []
+    elif damage == "evaluation_a_list":
+        data["evaluation"] = []
+    elif damage == "episodes_zero":
+        ev["episodes"] = 0
+    again = KeptEvaluation(plan, data, lambda: None, lambda line: None)
+    assert again.row("heuristic", "heuristic", 0) is None and not again.covers("heuristic")
+    assert again.seconds("heuristic") == 0
+    assert isinstance(KeptEvaluation(plan, json.loads(json.dumps(state)), lambda: None).row("heuristic", "heuristic", 0), Row)

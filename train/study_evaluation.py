@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from pathlib import Path
 from typing import Callable
 
@@ -79,8 +80,8 @@ class KeptEvaluation:
     def row(self, key: str, label: str, layout) -> Row | None:
         """The kept Row of policy `key` (labelled `label`) on `layout`, None unless it is one this
         evaluation would play there."""
-        cell = self._data["cells"].get(key, {}).get(layout_label(layout))
-        if not isinstance(cell, dict):
+        cell = self._cell(key, layout_label(layout))
+        if cell is None:
             return None
         row = row_from_record(cell.get("row"), self._plan.eval_task, self._plan.seed, self.episodes)
         if row is None or row.policy != label or row.layout != layout_label(layout):
@@ -94,7 +95,7 @@ class KeptEvaluation:
 
     def seconds(self, key: str) -> float:
         """Seconds the kept cells of `key` took when they were played."""
-        return sum(float(c.get("seconds", 0.0)) for c in self._data["cells"].get(key, {}).values() if isinstance(c, dict))
+        return sum(self._cell(key, label)["seconds"] for label in self._data["cells"].get(key, {}) if self._cell(key, label))
 
     def covers(self, key: str, checkpoint: Path | None = None) -> bool:
         """Whether a cell of `key` is kept for every layout (played from `checkpoint`, when given);
@@ -102,8 +103,16 @@ class KeptEvaluation:
         if checkpoint is not None and (not Path(checkpoint).is_file()
                                        or self._data["checkpoints"].get(key) != file_sha256(checkpoint)):
             return False
-        cells = self._data["cells"].get(key, {})
-        return all(isinstance(cells.get(layout_label(ref)), dict) for ref in self._plan.layouts)
+        return all(self._cell(key, layout_label(ref)) is not None for ref in self._plan.layouts)
+
+    def _cell(self, key: str, label: str) -> dict | None:
+        """The kept cell of `key` on layout `label` if it has a row and its seconds (else None)."""
+        cell = self._data["cells"].get(key, {}).get(label)
+        if not isinstance(cell, dict) or not isinstance(cell.get("row"), dict):
+            return None
+        seconds = cell.get("seconds")
+        ok = isinstance(seconds, (int, float)) and not isinstance(seconds, bool) and math.isfinite(seconds) and seconds >= 0
+        return cell if ok else None
 
 
 def _well_formed(stored: dict) -> bool:
