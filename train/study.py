@@ -317,8 +317,9 @@ def _evaluate_cells(kept: KeptEvaluation, key: str, policy, label: str, plan: St
         if row is None:
             t0 = time.perf_counter()
             (row,) = evaluate(policy, plan.eval_task, [ref], episodes, plan.seed, plan.worlds, label=label)
-            played_s += time.perf_counter() - t0
-            kept.keep(key, row, time.perf_counter() - t0)
+            spent = time.perf_counter() - t0
+            played_s += spent
+            kept.keep(key, row, spent)
         else:
             reused += 1
         rows.append(row)
