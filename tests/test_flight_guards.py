@@ -197,3 +197,30 @@ def test_ctrl_backslash_cuts_the_motors_from_another_thread_than_the_signal_hand
     assert cut_on[0] == "emergency-stop"  # first from its own thread, then once more from the flight's
     assert events.of_kind("emergency_stop")[0]["reason"] == "Ctrl-\\ pressed"
     assert wait_for(lambda: not fleet.true_state()["motors"].any(), 1.0)
+
+
+def test_one_stop_signal_during_a_landing_for_another_reason_lets_it_land_a_second_cuts_the_motors(tmp_path):
+    """A single SIGTERM (`timeout`, a supervisor) or SIGHUP (the terminal closed) that arrives while a
+    capture or time-out landing runs is a first signal: everyone lands, as they are doing; only a
+    second one cuts the motors."""
+    sent = []
+
+    def signal_during_landing(fleet, bridge, count):
+        assert wait_for(lambda: "land" in bridge.events.kinds(), 10.0)
+        for _ in range(count):
+            time.sleep(0.15)
+            os.kill(os.getpid(), signal.SIGTERM)
+            sent.append(time.monotonic())
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=1.0), ScriptedTeam([[0.0, 0.0]]), tmp_path / "one",
+                                        during=lambda f, b: signal_during_landing(f, b, 1), handle_signals=True)
+    assert len(sent) == 1
+    assert result.outcome == "timeout" and result.landed, (result.outcome, result.reason)
+    assert "emergency_stop" not in events.kinds() and not fleet.true_state()["locked"].any()
+    assert events.of_kind("interrupt")[0]["during"] == "landing"
+    assert down(fleet)
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=1.0), ScriptedTeam([[0.0, 0.0]]), tmp_path / "two",
+                                        during=lambda f, b: signal_during_landing(f, b, 2), handle_signals=True)
+    assert result.outcome == "emergency_stop" and not result.landed
+    assert events.of_kind("emergency_stop")[0]["reason"] == "second SIGTERM during the landing"

@@ -181,6 +181,10 @@ class FlightBridge:
         self._stop.set()
         threading.Thread(target=self._cut_motors_and_log, args=(reason,), name="emergency-stop", daemon=True).start()
 
+    def _second_during_landing(self) -> bool:
+        """A stop signal now would be the second: the drones are landing and one came before."""
+        return self._landing and self._interrupt.is_set()
+
     def _cut_motors_and_log(self, reason: str) -> None:
         self._cut_motors()
         self.events.log("emergency_stop", reason=reason, level="error")
@@ -197,8 +201,10 @@ class FlightBridge:
         self._stop.set()
 
     def interrupt(self, reason: str = "Ctrl-C") -> None:
-        """What Ctrl-C does: everyone lands; during the landing, a second one cuts the motors."""
-        if self._landing:
+        """What Ctrl-C does: everyone lands. A second one during the landing (after an earlier
+        stop signal) cuts the motors; a first one during a landing begun for another reason
+        (capture, time-out, ...) lets that landing go on."""
+        if self._second_during_landing():
             self.emergency_stop(f"second {reason} during the landing")
             return
         self._interrupt_reason = reason
@@ -252,7 +258,7 @@ class FlightBridge:
             if not self._in_flight:
                 self._interrupt_reason = reason
                 raise KeyboardInterrupt(reason)
-            if self._landing:
+            if self._second_during_landing():
                 self._emergency_stop_soon(f"second {reason} during the landing")
             else:
                 self.interrupt(reason)
@@ -343,8 +349,12 @@ class FlightBridge:
         for link in up:
             link.land(0.0, duration)
         end = self.clock() + duration + limits.settle
+        signalled = self._interrupt.is_set()  # a stop signal that began this landing is logged already
         while self.clock() < end and not self._estop.is_set():
             self._stop.clear()  # earlier requests are served by this landing; an emergency stop sets it again
+            if self._interrupt.is_set() and not signalled:
+                signalled = True
+                self.events.log("interrupt", reason=self._interrupt_reason, during="landing", level="warn")
             self._record_only(self.board.snapshot())
             self._stop.wait(min(self.plan.dt, max(0.0, end - self.clock())))
         if self._estop.is_set():
