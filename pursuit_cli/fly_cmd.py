@@ -155,7 +155,12 @@ def run(args) -> int:
                 watcher.start()
 
         def confirm() -> bool:
-            go = input("preflight ok. Type 'fly' to take off: ").strip().lower() == "fly"
+            """The operator's go: 'fly' typed; anything else, or the end of input (Ctrl-D), is a no."""
+            try:
+                go = input("preflight ok. Type 'fly' to take off: ").strip().lower() == "fly"
+            except EOFError:
+                print()
+                return False
             if go:
                 watch_keys()
             return go

@@ -224,3 +224,35 @@ def test_one_stop_signal_during_a_landing_for_another_reason_lets_it_land_a_seco
                                         during=lambda f, b: signal_during_landing(f, b, 2), handle_signals=True)
     assert result.outcome == "emergency_stop" and not result.landed
     assert events.of_kind("emergency_stop")[0]["reason"] == "second SIGTERM during the landing"
+
+
+class _TerminalAtEnd:
+    """stdin of a terminal whose operator pressed Ctrl-D at the prompt (end of input)."""
+
+    def isatty(self) -> bool:
+        return True
+
+    def readline(self, *args) -> str:
+        return ""
+
+
+def test_end_of_input_at_the_go_no_go_prompt_declines_the_take_off_in_one_line(tmp_path, monkeypatch, capsys):
+    """A real flight (its radio links: here the udp:// links of virtual drones) asks for a go;
+    Ctrl-D there is a no, never a traceback, and nothing takes off."""
+    import yaml
+
+    from flight_rehearsal import FAST, quick_spec
+    from pursuit_cli import main
+    from pursuit_mj.flight.virtual.fleet import VirtualFleet
+
+    with VirtualFleet(quick_plan(), physics=FAST) as fleet:
+        data = quick_spec()
+        for drone, uri in zip(data["drones"], fleet.uris):  # file order is plan order here
+            drone["uri"] = uri
+        flight = tmp_path / "lab.yaml"
+        flight.write_text(yaml.safe_dump(data))
+        monkeypatch.setattr("sys.stdin", _TerminalAtEnd())
+        rc = main(["fly", "--flight", str(flight), "--policy", "heuristic", "--events", str(tmp_path / "f.jsonl")])
+        assert not any(r.kind == "takeoff" for i in range(4) for r in fleet.received(i))
+    err = capsys.readouterr().err
+    assert rc == 2 and "take-off declined" in err and "Traceback" not in err
