@@ -634,3 +634,23 @@ def test_a_flight_preset_is_found_by_name_from_any_folder(tmp_path, monkeypatch,
     assert "examples: no such file, nor a flight preset of that name (presets: example, lighthouse)" in capsys.readouterr().err
     assert main(["fly", "check", "--flight", "lab.yaml"]) == 2
     assert "lab.yaml: no such file" in capsys.readouterr().err
+
+
+def test_fly_align_writes_a_copy_elsewhere_that_still_finds_a_layout_kept_beside_the_flight_file(tmp_path, capsys):
+    from pursuit_cli import main
+
+    lab_dir, out_dir = tmp_path / "lab", tmp_path / "aligned"
+    lab_dir.mkdir()
+    (lab_dir / "arena.yaml").write_text(open("configs/layouts/1_walls.yaml").read())
+    data = yaml.safe_load(open("configs/flight/lighthouse.yaml"))
+    data["layout"] = "arena.yaml"  # beside the flight file
+    (lab_dir / "lab.yaml").write_text(yaml.safe_dump(data))
+    truth = LabTransform((4.2, 0.1), math.pi / 2, 1.25)
+    spots = np.array([[0.5, 0.625], [1.75, 0.625], [1.875, 4.0]])
+    fmt = lambda pts: " ".join(f"{x:.4f},{y:.4f}" for x, y in pts)  # noqa: E731
+    out = out_dir / "aligned.yaml"
+    rc = main(["fly", "align", "--flight", str(lab_dir / "lab.yaml"), "--lab", fmt(truth.to_lab(spots)), "--spots", fmt(spots),
+               "--write", str(out)])
+    assert rc == 0, capsys.readouterr().err
+    plan = load_plan(out)
+    assert plan.layout.name == "walls" and plan.transform.scale == pytest.approx(1.25, rel=1e-4)

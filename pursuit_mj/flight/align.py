@@ -10,6 +10,7 @@ window, and a least-squares similarity (origin, yaw, scale) is fitted (frames.fi
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 from typing import Sequence
@@ -91,17 +92,31 @@ def transform_yaml(fit: Fit) -> str:
 def write_with_transform(spec: FlightSpec, fit: Fit, out: str | Path, overrides: Sequence[str] = ()) -> Path:
     """A copy of the flight file with the measured transform (comments are not kept), written
     only if the flight still resolves with it: the arena in the lab, every start in the arena
-    and clear of its obstacles (what `fly check` checks, with the same --set overrides)."""
+    and clear of its obstacles (what `fly check` checks, with the same --set overrides). A
+    layout file kept beside the flight file is referred to from the copy's folder."""
     data = load_yaml(spec.source)
     data["transform"] = yaml.safe_load(transform_yaml(fit))["transform"]
+    beside = _layout_beside(spec)
     from .plan import resolve_flight
     from .spec import flight_from_dict
 
     try:
-        resolve_flight(flight_from_dict(data, str(out)), overrides)
+        resolve_flight(flight_from_dict({**data, "layout": str(beside) if beside else spec.layout}, str(out)), overrides)
     except ConfigError as exc:
         raise ValueError(f"the measured transform does not make a valid flight: {exc}") from None
+    if beside is not None:  # the copy finds it wherever it is written
+        data["layout"] = Path(os.path.relpath(beside, Path(out).parent.resolve())).as_posix()
     return atomic_write_text(out, yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+
+
+def _layout_beside(spec: FlightSpec) -> Path | None:
+    """The absolute path of the flight's layout file when it is found beside the flight file
+    (plan.resolve_flight's rule), else None (a built-in index, or a path read as given)."""
+    ref = spec.layout
+    if not isinstance(ref, str) or ref.strip().isdigit() or Path(ref).is_file():
+        return None
+    beside = Path(spec.source).parent / ref
+    return beside.resolve() if beside.is_file() else None
 
 
 def align(spec: FlightSpec, spots: Sequence[Sequence[float]], lab: Sequence[Sequence[float]] | None = None,
