@@ -654,3 +654,15 @@ def test_fly_align_writes_a_copy_elsewhere_that_still_finds_a_layout_kept_beside
     assert rc == 0, capsys.readouterr().err
     plan = load_plan(out)
     assert plan.layout.name == "walls" and plan.transform.scale == pytest.approx(1.25, rel=1e-4)
+
+
+def test_an_event_log_that_cannot_be_opened_is_refused_in_one_line_naming_it(tmp_path, capsys):
+    """A folder that can be written but a file that cannot be opened for appending (here a
+    link to a missing folder; for a user, a read-only log of an earlier flight)."""
+    from pursuit_cli import main
+
+    log = tmp_path / "earlier.events.jsonl"
+    log.symlink_to(tmp_path / "gone" / "x.jsonl")
+    rc = main(["fly", "--flight", EXAMPLE, "--policy", "heuristic", "--virtual", "--events", str(log)])
+    err = capsys.readouterr().err
+    assert rc == 2 and f"--events {log}" in err and "cannot be opened" in err, err

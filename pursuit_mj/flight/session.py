@@ -140,7 +140,10 @@ def run_flight(
         check_writable(events_path, "--events")
     if policy is None:
         policy = choose_policy(plan, policy_name, seed)
-    events = EventLog(events_path, echo=echo)
+    try:
+        events = EventLog(events_path, echo=echo)
+    except OSError as exc:  # a writable folder, a file that is not (read-only, a broken link)
+        raise ValueError(f"--events {events_path}: cannot be opened for appending ({exc.strerror or exc})") from None
     recorder = None
     fleet = None
     injector = None
