@@ -256,3 +256,19 @@ def test_end_of_input_at_the_go_no_go_prompt_declines_the_take_off_in_one_line(t
         assert not any(r.kind == "takeoff" for i in range(4) for r in fleet.received(i))
     err = capsys.readouterr().err
     assert rc == 2 and "take-off declined" in err and "Traceback" not in err
+
+
+def test_event_log_lines_are_strict_json_a_value_that_is_not_a_number_is_null(tmp_path):
+    """The diverged-estimate event carries NaN positions; a NaN or Infinity token is not JSON
+    (jq and other strict readers refuse the whole log)."""
+    import json
+
+    from pursuit_mj.flight.events import EventLog
+
+    def refuse(token):
+        raise ValueError(f"not JSON: {token}")
+
+    with EventLog(tmp_path / "e.jsonl") as log:
+        log.log("stale_land", pos=np.array([np.nan, 1.0, np.inf]), z=float("nan"), heights=[np.float32("nan"), 0.5], level="error")
+    record = json.loads((tmp_path / "e.jsonl").read_text().splitlines()[0], parse_constant=refuse)
+    assert record["pos"] == [None, 1.0, None] and record["z"] is None and record["heights"] == [None, 0.5]

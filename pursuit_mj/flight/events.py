@@ -1,7 +1,7 @@
 """The flight's event log: every event with its time, one JSON object per line, written as it happens.
 
 A line is {"t": s since the log opened (monotonic clock), "time": wall-clock ISO 8601 UTC,
-"kind": ..., ...fields}. Lines are appended and flushed one by one (safety events are also
+"kind": ..., ...fields}, strict JSON: a value that is not a finite number is null. Lines are appended and flushed one by one (safety events are also
 fsync'ed), so a crash or a power cut leaves every event written before it readable.
 Thread-safe: cflib's threads, key watchers and the flight loop all log here. Sinks (the
 terminal echo, the rerun recorder, the fault injector) each receive every non-routine
@@ -29,10 +29,11 @@ ROUTINE = frozenset({"step"})
 
 
 def _plain(value: Any) -> Any:
+    """`value` as plain JSON types; a float that is not finite becomes None (JSON has no NaN)."""
     if isinstance(value, np.ndarray):
-        return np.round(value, 6).tolist() if value.dtype.kind == "f" else value.tolist()
+        return _plain(value.tolist()) if value.dtype.kind == "f" else value.tolist()
     if isinstance(value, (np.floating, float)):
-        return round(float(value), 6)
+        return round(float(value), 6) if np.isfinite(value) else None
     if isinstance(value, np.integer):
         return int(value)
     if isinstance(value, np.bool_):
