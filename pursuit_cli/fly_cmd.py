@@ -126,8 +126,8 @@ def run(args) -> int:
     _quiet_cflib(args.verbose)
     plan = load_plan(_need_flight(args), args.overrides)
     if args.max_time is not None:
-        if not 0 < args.max_time <= 3600:
-            raise ValueError(f"--max-time {args.max_time}: expected seconds in (0, 3600]")
+        if not 1 <= args.max_time <= 3600:  # as the flight file's max_time
+            raise ValueError(f"--max-time {args.max_time}: expected seconds in [1, 3600]")
         plan = dataclasses.replace(plan, spec=dataclasses.replace(plan.spec, max_time=args.max_time))
     events_path = args.events or default_events_path(plan)
     if (args.policy is None) == (args.model is None):
@@ -188,6 +188,8 @@ def run_align(args) -> int:
     from pursuit_mj.flight.spec import drone_names, load_flight
 
     _quiet_cflib(False)
+    if not 0 < args.window <= 60:
+        raise ValueError(f"--window {args.window}: expected seconds in (0, 60]")
     spec = load_flight(_need_flight(args))
     spots = parse_points(args.spots, "--spots")
     lab = parse_points(args.lab, "--lab") if args.lab else None

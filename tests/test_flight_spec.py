@@ -666,3 +666,21 @@ def test_an_event_log_that_cannot_be_opened_is_refused_in_one_line_naming_it(tmp
     rc = main(["fly", "--flight", EXAMPLE, "--policy", "heuristic", "--virtual", "--events", str(log)])
     err = capsys.readouterr().err
     assert rc == 2 and f"--events {log}" in err and "cannot be opened" in err, err
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["fly", "check", "--flight", "example", "--set", "fidelity=point"], ["--set fidelity=point", "means nothing in a flight"]),
+    (["fly", "--flight", "example", "--policy", "heuristic", "--virtual", "--max-time", "0.5"],
+     ["--max-time 0.5", "[1, 3600]"]),  # what the flight file's max_time takes
+    (["fly", "align", "--flight", "lighthouse", "--virtual", "--window", "-1", "--spots", "0.5,0.6 1.7,0.6 1.8,4.0"],
+     ["--window -1.0", "(0, 60]"]),
+])
+def test_flight_flags_take_what_the_flight_file_takes(argv, words, capsys):
+    """--set fidelity, --max-time below a second and a --window of no time were taken and ended
+    in a silent no-op, a chase shorter than the file allows, or 'sent no position within -1 s'."""
+    from pursuit_cli import main
+
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    for w in words:
+        assert w in err, (w, err)

@@ -167,6 +167,9 @@ def _task_config(spec: FlightSpec, layout_ref, overrides: Sequence[str]) -> Task
     values = to_dict(base)
     for text in overrides:
         path, value = parse_override(text, f"--set {text}")
+        if path[0] == "fidelity":
+            raise ConfigError(f"--set {text}: 'fidelity' means nothing in a flight: the physics is the real world's "
+                              "(the policy is trained in either fidelity)")
         if path[0] in FIXED_TASK_KEYS:
             raise ConfigError(f"--set {text}: '{path[0]}' is set by the flight file (drones, layout, flight_height, decision_rate)")
         values = to_dict(build(TaskConfig, merge(values, path, value), f"--set {text}"))
