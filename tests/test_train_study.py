@@ -268,3 +268,18 @@ def test_a_damaged_kept_evaluation_is_played_again_not_a_crash(tmp_path, damage)
     assert again.row("heuristic", "heuristic", 0) is None and not again.covers("heuristic")
     assert again.seconds("heuristic") == 0
     assert isinstance(KeptEvaluation(plan, json.loads(json.dumps(state)), lambda: None).row("heuristic", "heuristic", 0), Row)
+
+
+def test_a_fresh_study_over_an_interrupted_ones_kept_evaluation_is_refused(tmp_path, capsys):
+    """A study stopped during the team's evaluation (no run yet) lost its evaluated cells to a
+    `study` without --resume in the same folder: study.json was written anew before anything ran."""
+    out_dir = tmp_path / "study"
+    out_dir.mkdir()
+    state = {"train_overrides": ["task.fidelity=point"], "arms": {},
+             "evaluation": {"identity": {}, "episodes": 2, "checkpoints": {},
+                            "cells": {"heuristic": {"0": {"row": {"policy": "heuristic"}, "seconds": 60.0}}}}}
+    (out_dir / "study.json").write_text(json.dumps(state))
+    assert main(["study", "--budget-minutes", "1", "--out", str(out_dir)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {out_dir}: its study.json keeps 1 evaluated policy-layout cell" in err and "--resume" in err
+    assert json.loads((out_dir / "study.json").read_text()) == state  # untouched

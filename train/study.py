@@ -127,6 +127,16 @@ def _load_state(plan: StudyPlan) -> dict:
     return {"train_overrides": stored, "arms": arms, **kept}  # the evaluation is checked by KeptEvaluation
 
 
+def kept_cells(out: Path) -> int:
+    """How many evaluated cells (one policy on one layout) <out>/study.json keeps: what a fresh
+    study there would throw away (0 when it holds none or is no study record)."""
+    try:
+        cells = json.loads((Path(out) / STATE_FILE).read_text())["evaluation"]["cells"]
+        return sum(len(by_layout) for by_layout in cells.values() if isinstance(by_layout, dict))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return 0
+
+
 def _minutes(seconds: float) -> float:
     return seconds / 60.0
 
