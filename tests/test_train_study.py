@@ -283,3 +283,26 @@ def test_a_fresh_study_over_an_interrupted_ones_kept_evaluation_is_refused(tmp_p
     err = capsys.readouterr().err
     assert f"--out {out_dir}: its study.json keeps 1 evaluated policy-layout cell" in err and "--resume" in err
     assert json.loads((out_dir / "study.json").read_text()) == state  # untouched
+
+
+def test_a_resumed_study_too_short_to_train_says_how_much_budget_would_do(tmp_path, monkeypatch):
+    """It said 'raise the budget to about 0 min' (minutes rounded to whole ones) for one run left."""
+    from pursuit_mj.config import load_task_config
+    from pursuit_mj.evaluation import evaluate
+    from pursuit_mj.policies import make_policy
+    from train import study
+    from train.study_evaluation import KeptEvaluation
+
+    monkeypatch.setattr(study, "ARMS", (study.Arm("classic", "classic", 1.0),))
+    task = load_task_config([], ["fidelity=point", "max_steps=20"])
+    plan = study.StudyPlan(budget_minutes=0.05, out=tmp_path, eval_task=task, layouts=(0,), episodes=2, worlds=2,
+                           train_overrides=("task.fidelity=point",), resume=True)
+    state = {"train_overrides": list(plan.train_overrides), "arms": {}}
+    kept = KeptEvaluation(plan, state, lambda: None)
+    kept.start(2)
+    (row,) = evaluate(make_policy("heuristic", task), task, [0], 2, plan.seed, 2, label="heuristic")
+    kept.keep("heuristic", row, 1.0)  # the team's evaluation took 1 s: 3 s of budget less 1 s, less 3 s to start
+    (tmp_path / study.STATE_FILE).write_text(json.dumps(state))
+    with pytest.raises(ValueError) as err:
+        study.run_study(plan, log=lambda line: None)
+    assert "starting 1 run leave 0 s for training (raise the budget to about 0.1 min)" in str(err.value)

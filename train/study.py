@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import time
 from pathlib import Path
 from typing import Callable, Sequence
@@ -141,6 +142,16 @@ def _minutes(seconds: float) -> float:
     return seconds / 60.0
 
 
+def _rounded_up(minutes: float) -> str:
+    """A budget that would do, rounded up: to 0.1 min below 10 min (a resumed study's last run
+    needs seconds, which whole minutes showed as 'about 0 min'), else to whole minutes."""
+    return f"{math.ceil(minutes * 10) / 10:.1f}" if minutes < 10 else f"{math.ceil(minutes)}"
+
+
+def _runs(n: int) -> str:
+    return f"{n} run{'s' if n != 1 else ''}"
+
+
 def _duration(seconds: float) -> str:
     """'42 s' below two minutes, else '3.5 min'."""
     return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60.0:.1f} min"
@@ -226,8 +237,8 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
         if todo and train_minutes < MIN_TRAIN_MINUTES:
             needed = plan.budget_minutes + MIN_TRAIN_MINUTES - train_minutes
             raise ValueError(f"--budget-minutes {plan.budget_minutes}: too small on this machine; evaluating {len(ARMS) + 1} "
-                             f"policies and starting {len(todo)} runs leave {max(train_minutes, 0.0) * 60:.0f} s for training "
-                             f"(raise the budget to about {needed:.0f} min)")
+                             f"policies and starting {_runs(len(todo))} leave {max(train_minutes, 0.0) * 60:.0f} s for training "
+                             f"(raise the budget to about {_rounded_up(needed)} min)")
         kept.start(episodes)
         planned = (eval_seconds(timings["evaluation speed probe"], probe, episodes), train_minutes * 60.0)
         log(f"[study] {episodes} episodes per policy and layout" + (f"; {_duration(train_minutes * 60)} left for training" if todo else ""))
@@ -248,8 +259,8 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
     left_s = train_end - time.perf_counter() - ARM_START_S * len(todo)
     if planned is None and todo and left_s < MIN_TRAIN_MINUTES * 60.0:  # a fresh plan checked this before any evaluation
         raise ValueError(f"--budget-minutes {plan.budget_minutes}: too small on this machine; evaluating what is left "
-                         f"and starting {len(todo)} runs leave {max(left_s, 0.0):.0f} s for training (raise the budget "
-                         f"to about {plan.budget_minutes + (MIN_TRAIN_MINUTES * 60.0 - left_s) / 60.0:.0f} min)")
+                         f"and starting {_runs(len(todo))} leave {max(left_s, 0.0):.0f} s for training (raise the budget "
+                         f"to about {_rounded_up(plan.budget_minutes + (MIN_TRAIN_MINUTES * 60.0 - left_s) / 60.0)} min)")
     if planned is not None and left_s < 0.5 * planned[1]:
         log(f"[study] warning: the heuristic team's evaluation took {played_s:.0f} s where {planned[0]:.0f} s were "
             f"planned (is the machine busy?); {_duration(max(left_s, 0.0))} are left for training, and the study may "
