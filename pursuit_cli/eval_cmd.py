@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import time
 from pathlib import Path
@@ -56,7 +57,17 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _check_prefix(prefix: str) -> None:
+    """--out is a file name prefix: one that ends in a folder (tables/, tables/.) would write the
+    hidden files tables/.csv and tables/.json; ValueError naming it and a prefix that would do."""
+    if os.path.basename(prefix) in ("", ".", ".."):
+        raise ValueError(f"--out {prefix}: names a folder, not a file name prefix (PREFIX.csv, PREFIX.json are "
+                         f"written); give e.g. --out {os.path.normpath(os.path.join(prefix, 'table'))}")
+
+
 def _outputs(args) -> tuple[Path | None, Path | None]:
+    if args.out:
+        _check_prefix(args.out)
     csv_path = Path(args.csv) if args.csv else (Path(f"{args.out}.csv") if args.out else None)
     json_path = Path(args.json) if args.json else (Path(f"{args.out}.json") if args.out else None)
     for path, what in ((csv_path, "--csv"), (json_path, "--json")):

@@ -271,6 +271,16 @@ def test_eval_cli_bad_input_exits_2_with_a_clear_message(args, message, capsys, 
     assert not (tmp_path / "t.csv").exists()
 
 
+@pytest.mark.parametrize("prefix", ["tables/", "tables/."])
+def test_eval_out_naming_a_folder_is_refused_not_written_as_hidden_files(prefix, tmp_path, capsys):
+    """--out tables/ wrote tables/.csv and tables/.json, files ls does not show."""
+    out = f"{tmp_path}/{prefix}"
+    assert main(["eval", "--fidelity", "point", "--episodes", "1", "-q", "--out", out]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {out}: names a folder, not a file name prefix" in err and f"give e.g. --out {tmp_path}/tables/table" in err
+    assert not (tmp_path / "tables").exists()
+
+
 def test_an_interrupted_eval_keeps_its_finished_cells_beside_the_table_it_was_asked_for(tmp_path, monkeypatch, capsys):
     """SIGTERM (or Ctrl-C) while the third policy-layout cell runs: the two finished cells are
     printed and written to t.interrupted.json / .csv; a whole t.json from before stays whole."""
