@@ -306,3 +306,31 @@ def test_a_resumed_study_too_short_to_train_says_how_much_budget_would_do(tmp_pa
     with pytest.raises(ValueError) as err:
         study.run_study(plan, log=lambda line: None)
     assert "starting 1 run leave 0 s for training (raise the budget to about 0.1 min)" in str(err.value)
+
+
+def test_kept_cells_of_a_layout_file_edited_since_are_played_again(tmp_path):
+    """Cells were keyed by the layout file's path alone: a resumed study took back the rows of
+    the arena as it was before the file was edited."""
+    from pursuit_mj.config import load_task_config
+    from pursuit_mj.evaluation import evaluate
+    from pursuit_mj.layout import builtin_layout_path
+    from pursuit_mj.policies import make_policy
+    from train.study import StudyPlan
+    from train.study_evaluation import KeptEvaluation
+
+    arena = tmp_path / "arena.yaml"
+    arena.write_text(builtin_layout_path(1).read_text())
+    task = load_task_config([], ["fidelity=point", "max_steps=20"])
+    plan = StudyPlan(budget_minutes=1.0, out=tmp_path, eval_task=task, layouts=(str(arena),), episodes=1, worlds=1,
+                     resume=True)
+    state: dict = {}
+    kept = KeptEvaluation(plan, state, lambda: None)
+    kept.start(1)
+    (row,) = evaluate(make_policy("heuristic", task), task, [str(arena)], 1, plan.seed, 1, label="heuristic")
+    kept.keep("heuristic", row, 1.0)
+    assert KeptEvaluation(plan, json.loads(json.dumps(state)), lambda: None).row("heuristic", "heuristic", str(arena))
+    arena.write_text(builtin_layout_path(2).read_text())  # another arena under the same name
+    logs: list[str] = []
+    again = KeptEvaluation(plan, json.loads(json.dumps(state)), lambda: None, logs.append)
+    assert again.episodes is None and again.row("heuristic", "heuristic", str(arena)) is None
+    assert "every policy is evaluated again" in logs[0]

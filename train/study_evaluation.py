@@ -2,9 +2,9 @@
 
 A cell is one policy on one layout (one `evaluation.Row` with its episodes). As each ends it
 is written into <out>/study.json under "evaluation", with the seconds it took, beside what
-makes it valid: the evaluation task, seed, layouts, the episodes asked for, the code (package
-version, git commit, drone model), the episode count the study chose, and for each trained
-arm the sha256 of the best.pt it was played with. A resumed study takes a kept cell back only
+makes it valid: the evaluation task, seed, layouts (and their files' sha256), the episodes
+asked for, the code (package version, git commit, drone model), the episode count the study
+chose, and for each trained arm the sha256 of the best.pt it was played with. A resumed study takes a kept cell back only
 when all of those are unchanged and its episodes are the ones it would play
 (`evaluation.row_from_record`); everything else is played again. The heuristic team's kept
 cells also say how long an evaluation takes, which the study's budget is planned from.
@@ -20,6 +20,7 @@ from typing import Callable
 
 from pursuit_mj.configio import to_dict
 from pursuit_mj.evaluation import Row, layout_label, row_from_record, row_record
+from pursuit_mj.layout import resolve_layout_ref
 from pursuit_mj.provenance import provenance
 
 HEURISTIC = "heuristic"  # the key of the heuristic team's cells; trained arms are keyed by their names
@@ -34,6 +35,8 @@ def identity(plan) -> dict:
     code = provenance()
     return json.loads(json.dumps({
         "task": to_dict(plan.eval_task), "seed": plan.seed, "layouts": [layout_label(l) for l in plan.layouts],
+        # a layout file is named by its path: edited since, its kept cells are another arena's
+        "layouts_sha256": [file_sha256(resolve_layout_ref(l)) for l in plan.layouts],
         "episodes_asked": plan.episodes,
         "code": {k: code[k] for k in ("version", "git_commit", "drone_model_sha256")},
     }))
