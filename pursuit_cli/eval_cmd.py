@@ -134,10 +134,13 @@ def _run_table(args, config, layouts, policies, recording, rows: list, done: dic
     return rows
 
 
-def _meta(args, policies, code: dict) -> dict:
+def _meta(args, policies, layouts, code: dict) -> dict:
+    from pursuit_mj.evaluation import layout_label
+    from pursuit_mj.layout import resolve_layout_ref
+
     return {"episodes": args.episodes, "worlds": args.worlds, "seed": args.seed, "policies": [label for label, _ in policies],
             "models": list(args.model), "model_sha256": [file_sha256(m) for m in args.model], "shield": bool(args.shield),
-            "code": code}
+            "layout_sha256": {layout_label(ref): file_sha256(resolve_layout_ref(ref)) for ref in layouts}, "code": code}
 
 
 def _versus(args, policies) -> str | None:
@@ -171,7 +174,7 @@ def run(args) -> int:
     if args.resume and args.rerun:
         raise ValueError("--resume with --rerun: the recording would hold only the rows run now; record in an eval of its own")
     csv_path, json_path = _outputs(args)  # makes folders: after every other check, so that bad input leaves none
-    done = finished_rows(json_path, config, _meta(args, policies, provenance())) if args.resume else None
+    done = finished_rows(json_path, config, _meta(args, policies, layouts, provenance())) if args.resume else None
     if done is not None and not args.quiet:
         print(f"[eval] resuming: {len(done)} finished rows from {interrupted_path(json_path)}", file=sys.stderr, flush=True)
     with contextlib.ExitStack() as stack:
@@ -188,10 +191,10 @@ def run(args) -> int:
         except (KeyboardInterrupt, Exception) as exc:
             # Ctrl-C, SIGTERM, or a stop signal a library call reported as its own error (pursuit_cli.main)
             if isinstance(exc, KeyboardInterrupt) or getattr(args, "stop_signals", None):
-                keep_finished(rows, csv_path, json_path, config, _meta(args, policies, provenance()))
+                keep_finished(rows, csv_path, json_path, config, _meta(args, policies, layouts, provenance()))
             raise
     print(format_table(rows))
-    meta = _meta(args, policies, provenance())
+    meta = _meta(args, policies, layouts, provenance())
     if versus is not None:
         text, pairs = paired_report(rows, versus, config.max_steps)
         print(f"\n{text}")

@@ -2,8 +2,9 @@
 
 A row is one policy on one layout. On Ctrl-C or SIGTERM the finished rows go to
 PREFIX.interrupted.csv / .json beside the files asked for; `--resume` reads the JSON back,
-checks that it is this eval's (RESUME_KEYS, the task config, the code), and the rows it holds
-are not played again. Episodes follow from the seed, so the table is an uninterrupted run's.
+checks that it is this eval's (RESUME_KEYS, the task config, the code, the layout files'
+contents), and the rows it holds are not played again. Episodes follow from the seed, so the
+table is an uninterrupted run's.
 """
 
 from __future__ import annotations
@@ -78,4 +79,16 @@ def finished_rows(json_path: Path | None, config, meta: dict) -> dict[tuple[str,
             raise ValueError(f"--resume: {kept}, row {k + 1}: its episodes (per_episode) are not those this eval "
                              f"would play (a damaged or edited file): run it again without --resume")
         out[(row.policy, row.layout)] = row
+    _check_layout_files(out, data.get("layout_sha256"), meta["layout_sha256"])
     return out
+
+
+def _check_layout_files(rows: dict, was: object, now: dict[str, str]) -> None:
+    """ValueError naming a layout file of this eval whose kept rows were played on other contents
+    (a file is named by its path alone: edited since, its rows are another arena's)."""
+    was = was if isinstance(was, dict) else {}
+    for label in dict.fromkeys(layout for _, layout in rows):
+        if label in now and was.get(label) != now[label]:
+            raise ValueError(f"--resume: the layout file {label} changed since the interrupted eval (sha256 "
+                             f"{was.get(label)} there, {now[label]} now), so its kept rows are another arena's: run "
+                             f"it again without --resume")

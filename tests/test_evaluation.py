@@ -363,3 +363,18 @@ def test_resume_refuses_kept_rows_whose_episodes_this_eval_would_not_play(tmp_pa
     assert main(cmd + ["--resume"]) == 2
     assert f"--resume: {tmp_path / 't.interrupted.json'}, row 2: its episodes (per_episode) are not those this eval would play" \
         in capsys.readouterr().err
+
+
+def test_resume_refuses_rows_kept_for_a_layout_file_edited_since(tmp_path, capsys):
+    """A kept row was tied to its layout by the file's path alone: after the file was edited,
+    --resume put the old arena's rows into the table."""
+    arena = tmp_path / "arena.yaml"
+    arena.write_text(builtin_layout_path(1).read_text())
+    cmd = ["eval", "--policy", "heuristic", "--layouts", "0", str(arena), "--episodes", "1", "--worlds", "1",
+           "--fidelity", "point", "--set", "max_steps=20", "-q", "--out", str(tmp_path / "t")]
+    assert main(cmd) == 0
+    (tmp_path / "t.interrupted.json").write_text((tmp_path / "t.json").read_text())  # as if stopped at the end
+    arena.write_text(builtin_layout_path(2).read_text())
+    assert main(cmd + ["--resume"]) == 2
+    err = capsys.readouterr().err
+    assert f"--resume: the layout file {arena} changed since the interrupted eval" in err
