@@ -22,10 +22,13 @@ def interrupted_path(path: Path) -> Path:
 
 def keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, config, meta: dict) -> None:
     """After an interrupt: show the rows of the finished policy-layout cells and write them beside
-    the asked-for files (interrupted_path), so that an earlier whole table there stays whole."""
+    the asked-for files (interrupted_path), so that an earlier whole table there stays whole; with
+    none finished, say that nothing is kept."""
     from pursuit_mj.evaluation import format_table, write_csv, write_json
 
     if not rows:
+        print("[eval] interrupted before any policy-layout cell finished: nothing is kept for --resume", file=sys.stderr,
+              flush=True)
         return
     print(f"[eval] interrupted; the {len(rows)} finished policy-layout cells:\n{format_table(rows)}", file=sys.stderr, flush=True)
     if csv_path:
@@ -53,7 +56,7 @@ def finished_rows(json_path: Path | None, config, meta: dict) -> dict[tuple[str,
         raise ValueError("--resume: needs --out PREFIX or --json FILE, where the interrupted eval kept its rows")
     kept = interrupted_path(json_path)
     if not kept.is_file():
-        raise ValueError(f"--resume: no interrupted eval at {kept} (an eval stopped by Ctrl-C or SIGTERM leaves one)")
+        raise ValueError(f"--resume: no interrupted eval at {kept} (an eval stopped by Ctrl-C or SIGTERM after its first policy-layout cell leaves one)")
     try:
         data = json.loads(kept.read_text())
         stored = {k: data.get(k) for k in RESUME_KEYS}

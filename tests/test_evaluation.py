@@ -378,3 +378,19 @@ def test_resume_refuses_rows_kept_for_a_layout_file_edited_since(tmp_path, capsy
     assert main(cmd + ["--resume"]) == 2
     err = capsys.readouterr().err
     assert f"--resume: the layout file {arena} changed since the interrupted eval" in err
+
+
+def test_an_eval_stopped_before_any_cell_finished_says_nothing_is_kept(tmp_path, monkeypatch, capsys):
+    """It said only 'interrupted'; its --resume then answered 'an eval stopped by Ctrl-C or SIGTERM
+    leaves one', as if the eval had not been stopped that way."""
+    import pursuit_mj.evaluation as evaluation
+
+    def stopped(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(evaluation, "evaluate", stopped)
+    cmd = ["eval", "--fidelity", "point", "--episodes", "1", "-q", "--out", str(tmp_path / "t")]
+    assert main(cmd) == 130
+    assert "[eval] interrupted before any policy-layout cell finished: nothing is kept for --resume" in capsys.readouterr().err
+    assert main(cmd + ["--resume"]) == 2
+    assert "(an eval stopped by Ctrl-C or SIGTERM after its first policy-layout cell leaves one)" in capsys.readouterr().err
