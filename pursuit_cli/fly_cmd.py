@@ -195,6 +195,10 @@ def run_align(args) -> int:
     lab = parse_points(args.lab, "--lab") if args.lab else None
     if lab is not None and args.virtual:
         raise ValueError("--lab and --virtual exclude each other")
+    n_drones = len(drone_names(spec))
+    for flag, points, what in (("--spots", spots, "spots"), ("--lab", lab, "points")):
+        if points is not None and len(points) != n_drones:
+            raise ValueError(f"{flag}: {len(points)} {what} for the flight's {n_drones} drones (one per drone, flight-file order)")
     if args.virtual:
         from pursuit_mj.flight.plan import resolve_flight
         from pursuit_mj.flight.virtual.fleet import VirtualFleet

@@ -385,7 +385,26 @@ def test_fly_align_from_given_lab_points_prints_and_writes_the_transform(tmp_pat
     t = load_plan(out).transform
     assert t.yaw == pytest.approx(math.pi / 2, abs=0.01) and t.scale == pytest.approx(1.25, rel=0.01)
     assert main(["fly", "align", "--flight", "configs/flight/lighthouse.yaml", "--lab", "1,1 2,2", "--spots", fmt(spots)]) == 2
-    assert "3 spots for 2 drones" in capsys.readouterr().err
+    assert "--lab: 2 points for the flight's 3 drones" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("lab, window, expected", [
+    ("1,1 1,1 1,1", "1", "--lab: the lab positions coincide"),
+    ("1,1 2,2 nan,3", "1", "--lab: 'nan,3' is not a point x,y"),
+    (None, "0", "--window 0.0: expected seconds in (0, 60]"),
+    (None, "-1", "--window -1.0: expected seconds in (0, 60]"),
+])
+def test_fly_align_names_the_flag_of_bad_lab_points_or_window(capsys, lab, window, expected):
+    from pursuit_cli import main
+
+    spots = "0.5,0.625 1.75,0.625 1.875,4.0"
+    argv = ["fly", "align", "--flight", "configs/flight/lighthouse.yaml", "--spots", spots, "--window", window]
+    argv += ["--lab", lab] if lab else ["--virtual"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert expected in err and "--spots" not in err.split("error:")[1], err
+    assert main(["fly", "align", "--flight", "configs/flight/lighthouse.yaml", "--spots", spots + " 3,3", "--lab", "1,1 2,2 3,1 4,4"]) == 2
+    assert "--spots: 4 spots for the flight's 3 drones" in capsys.readouterr().err
 
 
 def test_fly_align_does_not_write_a_transform_the_flight_cannot_resolve_with(tmp_path, capsys):

@@ -10,6 +10,7 @@ window, and a least-squares similarity (origin, yaw, scale) is fitted (frames.fi
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from pathlib import Path
@@ -34,9 +35,12 @@ def parse_points(text: str, source: str) -> np.ndarray:
         try:
             if len(parts) != 2:
                 raise ValueError
-            points.append([float(parts[0]), float(parts[1])])
+            point = [float(parts[0]), float(parts[1])]
+            if not all(math.isfinite(v) for v in point):
+                raise ValueError
         except ValueError:
             raise ValueError(f"{source}: '{item}' is not a point x,y (metres)") from None
+        points.append(point)
     if not points:
         raise ValueError(f"{source}: no points given")
     return np.array(points)
@@ -75,12 +79,15 @@ def measure_lab_positions(spec: FlightSpec, uris: Sequence[str] | None = None, f
     return sums / counts[:, None]
 
 
-def fit_transform(lab: np.ndarray, spots: np.ndarray, source: str = "--spots") -> Fit:
+def fit_transform(lab: np.ndarray, spots: np.ndarray, source: str = "--spots", lab_source: str = "the measured lab positions") -> Fit:
     """The similarity transform lab -> layout frame from matched points: lab (D, 2) m, where
     the drones stand in the lab frame (their position estimates), and spots (D, 2) m, where the
-    flight file says they stand in the layout frame, in the same (flight-file) order."""
+    flight file says they stand in the layout frame, in the same (flight-file) order. Errors
+    name `source` (the spots) or `lab_source` (the lab points), whichever is at fault."""
     if len(lab) != len(spots):
         raise ValueError(f"{source}: {len(spots)} spots for {len(lab)} drones (one spot per drone, flight-file order)")
+    if len(lab) >= 2 and float(((lab - lab.mean(0)) ** 2).sum()) < 1e-8:
+        raise ValueError(f"{lab_source}: the lab positions coincide; are the drones at their spots, a few centimetres apart at least?")
     return fit_similarity(lab, spots, source)
 
 
@@ -124,4 +131,4 @@ def align(spec: FlightSpec, spots: Sequence[Sequence[float]], lab: Sequence[Sequ
     """Fit the transform from spots (K, 2) m layout and lab positions (K, 2) m (measured if not given)."""
     spots = np.asarray(spots, np.float64)
     lab_pts = np.asarray(lab, np.float64) if lab is not None else measure_lab_positions(spec, uris, factory, window)
-    return fit_transform(lab_pts, spots), lab_pts
+    return fit_transform(lab_pts, spots, lab_source="--lab" if lab is not None else "the measured lab positions"), lab_pts
