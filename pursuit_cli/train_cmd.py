@@ -141,6 +141,20 @@ def _check_same(asked, stored) -> None:
                          f"folder alone (--resume RUN_DIR); only {RESUMABLE_FLAGS} can change")
 
 
+def _refuse_with_export(args) -> None:
+    """--export only copies a checkpoint: a training flag beside it would be silently ignored."""
+    given = [flag for flag, value in (("--config", args.config), ("--set", args.overrides), ("--name", args.name),
+                                      ("--total-steps", args.total_steps), ("--max-minutes", args.max_minutes),
+                                      ("--n-envs", args.n_envs), ("--seed", args.seed), ("--fidelity", args.fidelity),
+                                      ("--layout", args.layout), ("--random-layout", args.random_layout),
+                                      ("--init-from", args.init_from), ("--learnable-gamma", args.learnable_gamma),
+                                      ("--resume", args.resume), ("--rerun", args.rerun), ("-sc", args.show_config))
+             if value not in (None, False, [])]
+    if given:
+        raise ValueError(f"--export writes a policy-only copy and exits; {', '.join(given)} would be ignored: "
+                         f"export in a command of its own")
+
+
 def _progress(args) -> bool | None:
     return False if args.no_progress else None
 
@@ -152,6 +166,8 @@ def run(args) -> int:
 
     if args.export:
         from pursuit_mj.io_utils import check_writable
+
+        _refuse_with_export(args)
         from train.checkpoint import export_actor
 
         if Path(args.export[1]).is_dir():

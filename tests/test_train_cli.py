@@ -139,6 +139,16 @@ def test_export_writes_a_small_policy_only_checkpoint(tiny_model, tmp_path, caps
     assert (full.act(obs, spec) == small.act(obs, spec)).all()
 
 
+@pytest.mark.parametrize("extra", [["--resume", "runs/classic"], ["--config", "classic"], ["--total-steps", "2e6"],
+                                   ["--set", "ppo.lr=1e-4"], ["-sc"], ["--name", "x"], ["--random-layout"]])
+def test_export_with_training_flags_is_refused_naming_them(tiny_model, tmp_path, capsys, extra):
+    out = tmp_path / "small.pt"
+    assert main(["train", "--export", str(tiny_model), str(out)] + extra) == 2
+    err = capsys.readouterr().err
+    assert f"--export writes a policy-only copy and exits; {extra[0]} would be ignored" in err, err
+    assert not out.exists()
+
+
 def test_train_streams_its_scalars_to_rerun(tmp_path, capsys):
     from pursuit_mj.recording.rrd_read import read_entities
 
