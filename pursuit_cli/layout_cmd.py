@@ -196,7 +196,7 @@ def build_new_layout(args) -> Layout:
         x0, x1, y0, y1 = _finite(args.spawn_evaders, "--spawn-evaders")
         evaders = {"x": [x0, x1], "y": [y0, y1]}
     data = {
-        "name": args.name or Path(args.out).stem,
+        "name": args.name if args.name is not None else Path(args.out).stem,
         "arena": {"width": args.width, "height": args.height},
         "boundary": boundary,
         "obstacles": _obstacles(args),
@@ -206,13 +206,14 @@ def build_new_layout(args) -> Layout:
     source = f"layout new {args.out}"
     layout = layout_from_dict(data, source)
     if args.random:  # place the --random obstacles for good: they become fixed obstacles
-        layout = layout.with_random_obstacles(np.random.default_rng(args.seed), args.random)
+        layout = layout.with_random_obstacles(np.random.default_rng(args.seed), args.random,
+                                              count_source="--random or --obstacle-size")
     data = layout_to_dict(layout)
     n_given = len(data["obstacles"]) - args.random
     data["obstacles"][n_given:] = [_round_floats(o) for o in data["obstacles"][n_given:]]
     data["random_obstacles"]["count"] = args.episode_obstacles
     layout = layout_from_dict(data, source)
-    _check_random_fits(layout, "lower --episode-obstacles or --obstacle-size, or make room")
+    _check_random_fits(layout, "--episode-obstacles or --obstacle-size, or make room")
     _check_team_fits(layout, args.pursuers, args.evaders)
     return layout
 
@@ -249,18 +250,18 @@ def _check_random_fits(layout: Layout, hint: str, seeds: int = CHECK_SEEDS) -> i
         return 0
     for seed in range(seeds):
         try:
-            layout.with_random_obstacles(np.random.default_rng(seed))
+            layout.with_random_obstacles(np.random.default_rng(seed), count_source=hint)
         except LayoutError as exc:
             raise LayoutError(f"{exc} (the check places the {layout.random_obstacles.count} per-episode random obstacles "
-                              f"{seeds} times, with placement seeds 0-{seeds - 1}; seed {seed} found no room; {hint})") from None
+                              f"{seeds} times, with placement seeds 0-{seeds - 1}; seed {seed} found no room)") from None
     return seeds
 
 
 def run_new(args) -> int:
     out = Path(args.out)
+    check_writable(out, "OUT")  # a folder is named as one, not taken for a file --force would overwrite
     if out.exists() and not args.force:
         raise ValueError(f"OUT {out}: exists already (use --force to overwrite)")
-    check_writable(out, "OUT")
     layout = build_new_layout(args)
     save_layout(layout, out)
     print(f"wrote {out}: {_summary_line(layout)}")
@@ -330,7 +331,7 @@ def run_check(args) -> int:
     from pursuit_mj.scene import SceneSpec, build_model
 
     layout = load_layout(args.layout)
-    tried = _check_random_fits(layout, "lower random_obstacles.count or size in the file, or make room")
+    tried = _check_random_fits(layout, "random_obstacles.count or size in the file, or make room")
     _check_team_fits(layout, args.pursuers, args.evaders)
     placed = layout.with_random_obstacles(np.random.default_rng(0))
     models = {f: build_model(SceneSpec(placed, args.pursuers, args.evaders, f)) for f in ("point", "quadrotor")}

@@ -349,6 +349,8 @@ def test_layout_new_default_polygon_and_seeded_random_obstacles_are_reproducible
         (["layout", "new", "{out}", "--spawn-pursuers", "1", "2.6", "2", "3", "--spawn-evaders", "1", "2.6", "2", "3"],
          "spawn regions overlap"),
         (["layout", "new", "{out}", "--name", "../x"], "name '../x': must be a plain label"),
+        (["layout", "new", "{out}", "--name", ""], "name '': must be a plain label"),
+        (["layout", "new", "{out}", "--random", "60"], "no room for random obstacle"),
     ],
 )
 def test_layout_cli_bad_input_exits_2_with_one_line(argv, message, tmp_path, capsys):
@@ -357,6 +359,21 @@ def test_layout_cli_bad_input_exits_2_with_one_line(argv, message, tmp_path, cap
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err, err
     assert not (tmp_path / "out.yaml").exists()
+
+
+@pytest.mark.parametrize("argv, hint", [(["--random", "60"], "lower --random or --obstacle-size"),
+                                        (["--episode-obstacles", "60"], "lower --episode-obstacles or --obstacle-size")])
+def test_layout_new_without_room_names_the_flag_to_lower_once(argv, hint, tmp_path, capsys):
+    assert main(["layout", "new", str(tmp_path / "out.yaml")] + argv) == 2
+    err = capsys.readouterr().err
+    assert hint in err and "random_obstacles.count" not in err and err.count("lower") == 1, err
+
+
+def test_layout_new_into_a_folder_says_so_rather_than_asking_for_force(tmp_path, capsys):
+    for argv in ([str(tmp_path)], [str(tmp_path), "--force"]):
+        assert main(["layout", "new"] + argv) == 2
+        err = capsys.readouterr().err
+        assert f"OUT path {tmp_path}: is a folder, expected a file name" in err and "--force" not in err, err
 
 
 def test_layout_new_refuses_to_overwrite_without_force(tmp_path, capsys):
