@@ -65,9 +65,18 @@ def _check_prefix(prefix: str) -> None:
                          f"written); give e.g. --out {os.path.normpath(os.path.join(prefix, 'table'))}")
 
 
-def _outputs(args) -> tuple[Path | None, Path | None]:
+def _check_output_flags(args) -> None:
+    """Refuse an output path that would be ignored (an empty one) or turned into hidden files."""
+    for flag in ("out", "csv", "json", "plots", "rerun"):
+        value = getattr(args, flag)
+        if value is not None and not value.strip():
+            raise ValueError(f"--{flag} {value!r}: an empty path; give a file name or leave the flag out")
     if args.out:
         _check_prefix(args.out)
+
+
+def _outputs(args) -> tuple[Path | None, Path | None]:
+    _check_output_flags(args)
     csv_path = Path(args.csv) if args.csv else (Path(f"{args.out}.csv") if args.out else None)
     json_path = Path(args.json) if args.json else (Path(f"{args.out}.json") if args.out else None)
     for path, what in ((csv_path, "--csv"), (json_path, "--json")):

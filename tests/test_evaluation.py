@@ -281,6 +281,21 @@ def test_eval_out_naming_a_folder_is_refused_not_written_as_hidden_files(prefix,
     assert not (tmp_path / "tables").exists()
 
 
+@pytest.mark.parametrize("flag, value, message", [
+    ("--out", "", "--out '': an empty path"),
+    ("--csv", "", "--csv '': an empty path"),
+    ("--json", " ", "--json ' ': an empty path"),
+    ("--plots", "", "--plots '': an empty path"),
+    ("--rerun", "", "--rerun '': an empty path"),
+])
+def test_eval_refuses_an_empty_output_path_it_would_ignore(flag, value, message, capsys, tmp_path):
+    """--out '' (or another empty output path) ran the table and wrote nothing, without a word."""
+    assert main(["eval", "--fidelity", "point", "--episodes", "1", "--set", "max_steps=5", "-q", flag, value]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1, err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_an_interrupted_eval_keeps_its_finished_cells_beside_the_table_it_was_asked_for(tmp_path, monkeypatch, capsys):
     """SIGTERM (or Ctrl-C) while the third policy-layout cell runs: the two finished cells are
     printed and written to t.interrupted.json / .csv; a whole t.json from before stays whole."""
