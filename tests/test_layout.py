@@ -376,6 +376,15 @@ def test_layout_new_into_a_folder_says_so_rather_than_asking_for_force(tmp_path,
         assert f"OUT path {tmp_path}: is a folder, expected a file name" in err and "--force" not in err, err
 
 
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux /proc")
+def test_layout_show_into_a_folder_that_takes_no_new_files_is_one_line(capsys):
+    """/proc passes the access check as root, but no file can be made there: a FileNotFoundError
+    traceback from the temp file beside the PNG."""
+    assert main(["layout", "show", "0", "-o", "/proc/x.png"]) == 2
+    err = capsys.readouterr().err
+    assert "/proc/x.png" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+
+
 def test_layout_new_refuses_to_overwrite_without_force(tmp_path, capsys):
     out = tmp_path / "x.yaml"
     out.write_text("keep me")
