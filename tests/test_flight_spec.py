@@ -351,6 +351,9 @@ def test_faults_parse_with_drone_names_and_values():
                        ("drop_link:p0@1.2.3", "'drop_link:p0@1.2.3': expected KIND"), ("battery:e0@4=.", "'battery:e0@4=.': expected KIND")):
         with pytest.raises(ValueError, match=words):
             parse_fault(bad, plan)
+    with pytest.raises(ValueError, match=r"--fault 'freeze:p0@90': 90 s into the chase is not before its end \(max time 90 s\); "
+                                         r"the fault would never happen"):
+        parse_fault("freeze:p0@90", plan)  # the example's max_time is 90 s
 
 
 def test_keys_cut_the_motors_or_land_and_other_keys_do_nothing():
