@@ -9,17 +9,21 @@ from pathlib import Path
 from typing import Iterator
 
 
+class CannotWrite(ValueError):
+    """A file could not be written (its message names the file and the reason)."""
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside `path`; on success it is renamed onto `path`, else removed.
-    ValueError naming `path` if the temporary file cannot be made."""
+    CannotWrite (a ValueError) naming `path` if the temporary file cannot be made."""
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         # the extension in lower case: writers that pick or check the format by it (mediapy's gif) take .GIF too
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part" + path.suffix.lower(), dir=path.parent)
     except OSError as exc:  # a folder that passes the access check but takes no new file (/proc), a full disk
-        raise ValueError(f"{path}: cannot write it ({exc.strerror or exc})") from None
+        raise CannotWrite(f"{path}: cannot write it ({exc.strerror or exc})") from None
     os.close(fd)
     tmp_path = Path(tmp)
     os.chmod(tmp_path, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the usual mode

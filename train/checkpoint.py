@@ -21,7 +21,7 @@ from typing import Any
 
 import torch
 
-from pursuit_mj.io_utils import atomic_path
+from pursuit_mj.io_utils import CannotWrite, atomic_path
 from pursuit_mj.obs_spec import ObsSpec
 
 FORMAT = "pursuit-mj-checkpoint"
@@ -39,6 +39,8 @@ def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
     except OSError as exc:  # a full disk, a folder made read-only or removed during the run
         where = f": {exc.filename}" if exc.filename and str(exc.filename) != str(path) else ""
         raise ValueError(f"checkpoint {path}: cannot write it ({exc.strerror or exc}{where})") from None
+    except CannotWrite as exc:  # its temporary file could not be made
+        raise ValueError(f"checkpoint {exc}") from None
     return Path(path)
 
 
