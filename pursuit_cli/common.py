@@ -31,6 +31,15 @@ def finite_float(text: str) -> float:
     return value
 
 
+MAX_EPISODES = 1_000_000  # per policy and layout; more would run for weeks (and listing their seeds alone takes minutes)
+
+
+def check_episodes(episodes: int, flag: str = "--episodes") -> None:
+    """ValueError naming `flag` unless 1 <= episodes <= MAX_EPISODES."""
+    if not 1 <= episodes <= MAX_EPISODES:
+        raise ValueError(f"{flag}: expected an integer in 1..{MAX_EPISODES:,}, got {episodes}")
+
+
 def checked_layouts(refs: list[str], flag: str = "--layouts") -> list[int | str]:
     """Layout references from a CLI flag, each loaded once to refuse a bad one before any work,
     with digits read as built-in indices; the same layout given twice (0 and 00, a.yaml and

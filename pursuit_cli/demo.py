@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from pursuit_mj.shipped import shipped_dir
-from .common import add_task_args, checked_layouts, load_model, seed_arg, task_config_from_args
+from .common import add_task_args, check_episodes, checked_layouts, load_model, seed_arg, task_config_from_args
 
 PRETRAINED = shipped_dir("pretrained") / "pursuers.pt"
 
@@ -65,8 +65,7 @@ def run(args) -> int:
     from pursuit_mj.evaluation import evaluate, format_table
     from pursuit_mj.policies import make_policy
 
-    if args.episodes < 1:
-        raise ValueError(f"--episodes: expected an integer >= 1, got {args.episodes}")
+    check_episodes(args.episodes)
     if args.worlds < 1:
         raise ValueError(f"--worlds: expected an integer >= 1, got {args.worlds}")
     layouts = checked_layouts(args.layouts)  # a typo in the last layout must not cost the earlier ones' minutes

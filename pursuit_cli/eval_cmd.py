@@ -18,7 +18,7 @@ from pathlib import Path
 from pursuit_mj.io_utils import check_writable, check_writable_folder
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
-from .common import SHIELD_HELP, add_shield_arg, add_task_args, checked_layouts, load_model, seed_arg, shield_if_asked, task_config_from_args
+from .common import SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, checked_layouts, load_model, seed_arg, shield_if_asked, task_config_from_args
 from .eval_resume import file_sha256, finished_rows, interrupted_path, keep_finished
 
 
@@ -169,8 +169,7 @@ def run(args) -> int:
     from pursuit_mj.evaluation import format_table, plot_rows, write_csv, write_json
     from pursuit_mj.provenance import provenance
 
-    if args.episodes < 1:
-        raise ValueError(f"--episodes: expected an integer >= 1, got {args.episodes}")
+    check_episodes(args.episodes)
     if args.worlds < 1:
         raise ValueError(f"--worlds: expected an integer >= 1, got {args.worlds}")
     if args.rerun_episodes < 1:

@@ -25,7 +25,7 @@ from pursuit_mj.configio import build, dump_yaml, load, load_yaml, to_dict
 from pursuit_mj.layout import load_layout
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
-from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, flags_typed, load_model, seed_arg,
+from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, flags_typed, load_model, seed_arg,
                      finite_float, shield_if_asked, task_config_from_args)
 
 DEFAULT_SAVE = "renders"
@@ -225,8 +225,7 @@ def run(args) -> int:
     from pursuit_mj.render.renderer import RenderSettings
     from pursuit_mj.render.video import check_frame_size, check_video_fps, ensure_ffmpeg
 
-    if args.episodes < 1:
-        raise ValueError(f"--episodes: expected an integer >= 1, got {args.episodes}")
+    check_episodes(args.episodes)
     if args.trail < 0:
         raise ValueError(f"--trail: expected an integer >= 0, got {args.trail}")
     if args.fps is not None and not args.fps > 0:

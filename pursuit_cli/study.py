@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .common import add_task_args, checked_layouts, finite_float, seed_arg, task_config_from_args
+from .common import add_task_args, check_episodes, checked_layouts, finite_float, seed_arg, task_config_from_args
 
 
 def register(sub) -> None:
@@ -46,8 +46,7 @@ def run(args) -> int:
 
     if args.budget_minutes <= 0:
         raise ValueError(f"--budget-minutes: expected a positive number, got {args.budget_minutes}")
-    if args.episodes < 1:
-        raise ValueError(f"--episodes: expected an integer >= 1, got {args.episodes}")
+    check_episodes(args.episodes)
     if args.worlds < 1:
         raise ValueError(f"--worlds: expected an integer >= 1, got {args.worlds}")
     if not args.task_files:

@@ -164,11 +164,14 @@ def preset_or_file(ref: str | Path, kind: str) -> Path:
     path = Path(ref)
     if path.is_file():
         return path
-    if path.suffix or len(path.parts) > 1:
-        raise ConfigError(f"{ref}: no such file")
+    bare = not (path.suffix or len(path.parts) > 1)
     preset = CONFIG_DIR / kind / f"{ref}.yaml"
-    if preset.is_file():
+    if bare and preset.is_file():  # a preset's name, even beside a folder of that name
         return preset
+    if path.is_dir():
+        raise ConfigError(f"{ref}: a folder, not a {kind} file")
+    if not bare:
+        raise ConfigError(f"{ref}: no such file")
     raise ConfigError(f"{ref}: no such file, nor a {kind} preset of that name (presets: {', '.join(preset_names(kind))})")
 
 

@@ -26,6 +26,16 @@ class ConfigError(ValueError):
     """A bad config key or value; the message names the key, the value and its source."""
 
 
+SHOWN_CHARS = 80  # how much of a bad value an error message quotes
+
+
+def shown(value: Any) -> str:
+    """repr(value) for an error message, cut to SHOWN_CHARS (a whole file read as one string
+    would otherwise fill the terminal)."""
+    text = repr(value)
+    return text if len(text) <= SHOWN_CHARS else f"{text[:SHOWN_CHARS - 3]}... ({len(text)} characters)"
+
+
 def spec(
     default: Any = dataclasses.MISSING,
     *,
@@ -74,14 +84,14 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
     if hint is type(None):
         if value is None:
             return None
-        raise ConfigError(f"{where}: expected null, got {value!r}")
+        raise ConfigError(f"{where}: expected null, got {shown(value)}")
     if origin is typing.Literal:
         if value in args:
             return value
         raise ConfigError(f"{where}: {value!r} is not one of {list(args)}")
     if origin in (tuple, Sequence, list) or hint in (tuple, list):
         if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{where}: expected a list, got {value!r}")
+            raise ConfigError(f"{where}: expected a list, got {shown(value)}")
         if origin is tuple and args and args[-1] is not Ellipsis:
             if len(args) != len(value):
                 raise ConfigError(f"{where}: expected {len(args)} values, got {list(value)!r}")
@@ -92,28 +102,28 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
         if isinstance(value, hint):
             return value
         if not isinstance(value, Mapping):
-            raise ConfigError(f"{where}: expected a mapping of {hint.__name__} keys, got {value!r}")
+            raise ConfigError(f"{where}: expected a mapping of {hint.__name__} keys, got {shown(value)}")
         return build(hint, value, where)
     if hint is bool:
         if isinstance(value, bool):
             return value
-        raise ConfigError(f"{where}: expected true or false, got {value!r}")
+        raise ConfigError(f"{where}: expected true or false, got {shown(value)}")
     if hint is int:
         if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
             return int(value)
-        raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        raise ConfigError(f"{where}: expected an integer, got {shown(value)}")
     if hint is float:
         if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
             if not math.isfinite(float(value)):
-                raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+                raise ConfigError(f"{where}: expected a finite number, got {shown(value)}")
             return float(value)
-        raise ConfigError(f"{where}: expected a number, got {value!r}")
+        raise ConfigError(f"{where}: expected a number, got {shown(value)}")
     if hint is str:
         if isinstance(value, str):
             return value
         if isinstance(value, Path):  # a layout file given as a Path in Python
             return str(value)
-        raise ConfigError(f"{where}: expected a string, got {value!r}")
+        raise ConfigError(f"{where}: expected a string, got {shown(value)}")
     if isinstance(hint, type) and isinstance(value, hint):
         return value
     raise ConfigError(f"{where}: {value!r} does not fit type {hint}")

@@ -15,7 +15,7 @@ from typing import Any, Mapping, Sequence, Union
 import numpy as np
 import yaml
 
-from .configio import ConfigError, read_text, safe_load, yaml_error_text
+from .configio import ConfigError, read_text, safe_load, shown, yaml_error_text
 from .geometry import ObstacleSet, boundary_segments
 from .shipped import shipped_dir
 
@@ -141,26 +141,26 @@ def _finite_number(v: Any) -> bool:
 
 def _pair(value: Any, where: str) -> tuple[float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise LayoutError(f"{where}: expected [x, y], got {value!r}")
+        raise LayoutError(f"{where}: expected [x, y], got {shown(value)}")
     out = []
     for v in value:
         if not _finite_number(v):
-            raise LayoutError(f"{where}: expected two finite numbers, got {value!r}")
+            raise LayoutError(f"{where}: expected two finite numbers, got {shown(value)}")
         out.append(float(v))
     return out[0], out[1]
 
 
 def _number(value: Any, where: str, positive: bool = False) -> float:
     if not _finite_number(value):
-        raise LayoutError(f"{where}: expected a number, got {value!r}")
+        raise LayoutError(f"{where}: expected a number, got {shown(value)}")
     if positive and value <= 0:
-        raise LayoutError(f"{where}: must be > 0, got {value!r}")
+        raise LayoutError(f"{where}: must be > 0, got {shown(value)}")
     return float(value)
 
 
 def _mapping(value: Any, where: str, keys: Sequence[str], required: Sequence[str]) -> Mapping[str, Any]:
     if not isinstance(value, Mapping):
-        raise LayoutError(f"{where}: expected a mapping, got {value!r}")
+        raise LayoutError(f"{where}: expected a mapping, got {shown(value)}")
     for k in value:
         if k not in keys:
             raise LayoutError(f"{where}: unknown key '{k}' (valid: {', '.join(keys)})")
@@ -237,7 +237,7 @@ def _parse_boundary(value: Any, where: str) -> Boundary:
         if kind == "circle":
             m = _mapping(body, f"{where}.circle", ("center", "radius"), ("center", "radius"))
             return Boundary("circle", center=_pair(m["center"], f"{where}.circle.center"), radius=_number(m["radius"], f"{where}.circle.radius", positive=True))
-    raise LayoutError(f"{where}: expected 'rectangle', {{polygon: [...]}} or {{circle: {{center, radius}}}}, got {value!r}")
+    raise LayoutError(f"{where}: expected 'rectangle', {{polygon: [...]}} or {{circle: {{center, radius}}}}, got {shown(value)}")
 
 
 def _refuse_sharp_reflex_corners(pts: Sequence[tuple[float, float]], where: str) -> None:
@@ -377,6 +377,8 @@ def resolve_layout_ref(ref: int | str | Path) -> Path:
     if not isinstance(ref, (str, Path)):
         raise LayoutError(f"layout {ref!r}: expected a built-in index 0-{N_BUILTIN - 1} or a file path")
     path = Path(ref)
+    if path.is_dir():
+        raise LayoutError(f"layout '{ref}': a folder, not a layout file (or a built-in index 0-{N_BUILTIN - 1})")
     if not path.is_file():
         raise LayoutError(f"layout '{ref}': no such file, and not a built-in index 0-{N_BUILTIN - 1}")
     return path

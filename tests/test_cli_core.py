@@ -91,9 +91,18 @@ def test_bench_physics_prints_the_table(capsys):
         (["simulate", "--seconds", "1e308"], "--seconds: must be at most 86400 (a simulated day per run), got 1e+308"),
         (["bench", "physics", "--seconds", "1e308"], "--seconds: must be at most 3600 (an hour per configuration)"),
         (["bench", "env", "--seconds", "1e308"], "--seconds: must be at most 3600 (an hour per configuration)"),
+        # a count of episodes no machine plays: it sat silently listing seeds
+        (["eval", "--episodes", "100000000000"], "--episodes: expected an integer in 1..1,000,000, got 100000000000"),
+        (["demo", "--episodes", "2000000"], "--episodes: expected an integer in 1..1,000,000, got 2000000"),
+        (["study", "--budget-minutes", "1", "--episodes", "2000000", "--out", "{tmp}/s"], "--episodes: expected an integer in 1..1,000,000"),
+        # a folder where a file is meant: it said 'no such file'
+        (["config", "-i", "{tmp}"], "layout '{tmp}': a folder, not a layout file"),
+        (["config", "-ec", "{tmp}"], "{tmp}: a folder, not a task file"),
+        (["fly", "check", "--flight", "{tmp}"], "{tmp}: a folder, not a flight file"),
     ],
 )
-def test_bad_input_exits_2_with_one_line(argv, message, capsys):
+def test_bad_input_exits_2_with_one_line(argv, message, capsys, tmp_path):
+    argv, message = [a.replace("{tmp}", str(tmp_path)) for a in argv], message.replace("{tmp}", str(tmp_path))
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err, err
@@ -200,3 +209,12 @@ def test_version_names_the_package_commit_and_the_libraries_that_decide_results(
     head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
     assert first.startswith("pursuit-mj 0.1.0 (") and (not head or f"git {head[:10]}" in first), first
     assert second.startswith("python 3.11") and "mujoco 4.0.0" in second and "torch 2.13.0" in second, second
+
+
+def test_an_error_quotes_a_long_bad_value_in_part(tmp_path, capsys):
+    """A layout file that is one long line of text was echoed whole into the error."""
+    bad = tmp_path / "notes.yaml"
+    bad.write_text("just some notes " * 200 + "\n")
+    assert main(["config", "-i", str(bad)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"{bad}: expected a mapping, got 'just some notes" in err and "... (3201 characters)" in err and len(err) < 300, err

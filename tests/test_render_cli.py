@@ -59,7 +59,7 @@ def test_cli_single_file_and_no_video(tmp_path):
     (["--width", "161"], "mp4 (h264) needs even frame sizes"),
     (["--width", "4000"], "--width 4000: must be an integer in 16..1920 pixels"),
     (["--width", "-5"], "--width -5: must be an integer in 16..1920 pixels"),  # the range before the parity
-    (["--episodes", "0"], "--episodes: expected an integer >= 1, got 0"),
+    (["--episodes", "0"], "--episodes: expected an integer in 1..1,000,000, got 0"),
     (["--height", "42"], "--height 42: too small to hold the caption band (27 px) and the colour key (15 px)"),
     (["--height", "20", "--no-key"], "--height 20: too small to hold the caption band (27 px) and the scene"),
     (["--rerun", "x.txt"], "expected a file name ending in .rrd"),

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from ..config import preset_or_file
-from ..configio import ConfigError, build, load_yaml, spec
+from ..configio import ConfigError, build, load_yaml, shown, spec
 from .board import HISTORY
 
 ROLES = ("pursuer", "evader", "target")
@@ -257,7 +257,7 @@ def _check_keys(cls: type, data: Mapping[str, Any], where: str) -> None:
 def _build(cls: type, data: Any, where: str):
     """configio.build after `_check_keys`, so that a missing key is reported as such."""
     if not isinstance(data, Mapping):
-        raise ConfigError(f"{where}: expected a mapping, got {data!r}")
+        raise ConfigError(f"{where}: expected a mapping, got {shown(data)}")
     _check_keys(cls, data, where)
     return build(cls, data, where)
 
