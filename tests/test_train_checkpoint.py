@@ -532,3 +532,36 @@ def test_a_run_folder_that_cannot_be_written_stops_the_run_saying_what_is_kept_a
     assert said.endswith(f"; last.pt keeps update 1; once the folder has room and write access, continue with: "
                          f"pursuit-mj train --resume {cfg.run_dir}"), said
     assert load_checkpoint(cfg.run_dir / "last.pt")["counters"]["update"] == 1
+
+
+def test_a_resume_from_a_last_pt_older_than_best_pt_does_not_replace_it_with_a_worse_one(tmp_path, monkeypatch):
+    """A crash (kill -9, a full disk) after best.pt of update 2 was written but before last.pt
+    was: the resumed run starts from update 1, whose counters know an older best. best.pt
+    holds a better policy than the redone update 2's; it must stay, and the counters name it."""
+    cfg = tiny_config(tmp_path, updates=2, extra=["run.validate_every=1"])
+    real_validate = Trainer.validate
+    scripted = iter([0.1, 0.9, 0.5])  # update 1, update 2 (then the crash), update 2 again
+
+    def scripted_success(self):
+        out = real_validate(self)
+        out["success"] = next(scripted)
+        return out
+
+    real_append = trainer_module.MetricsLog.append
+
+    def crash_logging_update_2(self, row):
+        if row["update"] == 2:
+            raise MemoryError
+        return real_append(self, row)
+
+    monkeypatch.setattr(Trainer, "validate", scripted_success)
+    monkeypatch.setattr(trainer_module.MetricsLog, "append", crash_logging_update_2)
+    with pytest.raises(MemoryError):
+        Trainer(cfg, log=lambda s: None).train()
+    assert load_checkpoint(cfg.run_dir / "last.pt")["counters"]["update"] == 1
+    assert load_checkpoint(cfg.run_dir / "best.pt")["counters"]["best_success"] == 0.9
+    monkeypatch.setattr(trainer_module.MetricsLog, "append", real_append)
+    result = Trainer.resume(cfg.run_dir, log=lambda s: None).train()
+    assert load_checkpoint(cfg.run_dir / "best.pt")["counters"]["best_success"] == 0.9
+    assert result["counters"]["best_success"] == 0.9 and result["counters"]["best_update"] == 2
+    assert [r["validation"]["best"] for r in rows(cfg.run_dir)] == [True, False]

@@ -199,10 +199,23 @@ class Trainer:
             raise ValueError(f"checkpoint {path}: cannot resume from its {part} ({load_error(exc)}); the file is damaged, or "
                              f"its train_config builds another network than it holds") from None
         self.counters = counters
+        self._adopt_newer_best()
         # a row still pending may have reached the log before the run was stopped: it is logged again
         logged = self.counters.update - (1 if data.get("pending_row") else 0)
         MetricsLog(self.run_dir / "metrics.jsonl").truncate_after(logged)
         self.log(f"resumed {self.run_dir} at update {self.counters.update} ({self.counters.world_steps} world steps)")
+
+    def _adopt_newer_best(self) -> None:
+        """Take the best-validation record from best.pt when it is newer than last.pt's (a crash
+        after best.pt was written but before last.pt was): otherwise the resumed run judges its
+        validations against an older best and may replace best.pt with a worse policy."""
+        c = self.counters
+        try:
+            best = read_counters(load_checkpoint(self.run_dir / "best.pt"), self.run_dir / "best.pt")
+        except (ValueError, KeyError):
+            return  # none, or unusable: the next validation writes a new one
+        if best.best_update > c.best_update:
+            c.best_success, c.best_steps, c.best_update = best.best_success, best.best_steps, best.best_update
 
     def _init_from(self, path: str) -> None:
         """Start from another run's weights (fine_tune): actor always, critic when it fits."""
