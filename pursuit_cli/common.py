@@ -31,6 +31,14 @@ def finite_float(text: str) -> float:
     return value
 
 
+def path_arg(text: str) -> str:
+    """argparse type of a file or folder flag: not empty (an empty path was taken as the current
+    folder, or as no path at all, without a word)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"an empty path ({text!r}); give a path or leave the flag out")
+    return text
+
+
 MAX_EPISODES = 1_000_000  # per policy and layout; more would run for weeks (and listing their seeds alone takes minutes)
 
 

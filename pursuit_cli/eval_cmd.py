@@ -22,6 +22,9 @@ from .common import SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, 
 from .eval_resume import file_sha256, finished_rows, interrupted_path, keep_finished
 
 
+RERUN_EPISODES = 3  # recorded per policy and layout with --rerun
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "eval",
@@ -47,8 +50,8 @@ def register(sub) -> None:
     p.add_argument("--json", metavar="FILE", help="write the table and the resolved config as JSON")
     p.add_argument("--plots", metavar="DIR", help="write one bar chart per metric (PNG) into DIR")
     p.add_argument("--rerun", metavar="FILE.rrd", help="record the first episodes of each policy and layout for the rerun viewer")
-    p.add_argument("--rerun-episodes", type=int, default=3, metavar="N",
-                   help="episodes recorded per policy and layout with --rerun (default 3)")
+    p.add_argument("--rerun-episodes", type=int, metavar="N",
+                   help=f"episodes recorded per policy and layout with --rerun (default {RERUN_EPISODES})")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted eval: take the rows it finished from PREFIX.interrupted.json (--out "
                         "PREFIX or --json FILE) and run only the rest, with the same command otherwise")
@@ -172,6 +175,9 @@ def run(args) -> int:
     check_episodes(args.episodes)
     if args.worlds < 1:
         raise ValueError(f"--worlds: expected an integer >= 1, got {args.worlds}")
+    if args.rerun_episodes is not None and not args.rerun:
+        raise ValueError(f"--rerun-episodes {args.rerun_episodes}: records nothing without --rerun FILE.rrd")
+    args.rerun_episodes = RERUN_EPISODES if args.rerun_episodes is None else args.rerun_episodes
     if args.rerun_episodes < 1:
         raise ValueError(f"--rerun-episodes: expected an integer >= 1, got {args.rerun_episodes}")
     config = task_config_from_args(args)

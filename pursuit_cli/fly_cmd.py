@@ -13,7 +13,7 @@ import logging
 import math
 import sys
 
-from .common import add_shield_arg, finite_float, load_model, seed_arg, shield_if_asked
+from .common import add_shield_arg, finite_float, load_model, path_arg, seed_arg, shield_if_asked
 
 KEYS_HELP = "during a flight: e or space = emergency stop (motors off), l = land everyone, Ctrl-C = land everyone (twice: motors off), Ctrl-\\ = motors off"
 
@@ -33,7 +33,7 @@ def register(sub) -> None:
     p.add_argument("--fault", action="append", default=[], metavar="KIND:DRONE@S[=V]",
                    help="virtual only: inject a fault S seconds into the chase: drop_link:p1@3, freeze:p0@2, battery:e0@4=3.1 (repeatable)")
     p.add_argument("--rerun", metavar="FILE.rrd", help="record the flight for the rerun viewer")
-    p.add_argument("--events", metavar="FILE.jsonl", help="event log, appended to (default flights/<name>-<time>.events.jsonl)")
+    p.add_argument("--events", type=path_arg, metavar="FILE.jsonl", help="event log, appended to (default flights/<name>-<time>.events.jsonl)")
     p.add_argument("--max-time", type=finite_float, help="end the chase after this many seconds (overrides the flight file's max_time)")
     p.add_argument("--seed", type=seed_arg, default=0, help="seed of the sensing and escape-model randomness")
     p.add_argument("--yes", action="store_true", help="take off without asking after the preflight checks (real flights)")

@@ -12,7 +12,7 @@ from pursuit_mj.io_utils import check_writable
 from pursuit_mj.layout import Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout, save_layout
 from pursuit_mj.geometry import inside_polygon
 from pursuit_mj.layout_check import check_spawn_capacity, free_spawn_points
-from .common import finite_float, seed_arg
+from .common import finite_float, path_arg, seed_arg
 
 #: how many seeds `layout check` tries when placing the per-episode random obstacles
 CHECK_SEEDS = 20
@@ -274,7 +274,7 @@ def run_new(args) -> int:
 def _register_show(lsub) -> None:
     p = lsub.add_parser("show", help="save a top-down PNG of a layout (file or built-in index)")
     p.add_argument("layout", metavar="FILE|INDEX", help="layout file or built-in index 0-3")
-    p.add_argument("-o", "--out", help="PNG to write (default: layout_<name>.png)")
+    p.add_argument("-o", "--out", type=path_arg, help="PNG to write (default: layout_<name>.png)")
     p.add_argument("--seed", type=seed_arg, default=0,
                    help="seed of the random obstacles drawn (default 0); an episode's own seed, which render reports "
                         "(e.g. 'episode 0: success after 181 steps (seed 2968811710)'), draws that episode's, unless the task "

@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from pursuit_mj.io_utils import check_writable_folder
+from .common import path_arg
 
 
 def register(sub) -> None:
@@ -29,7 +30,7 @@ def register(sub) -> None:
                    help="training metric to plot: a dotted key or its last part, e.g. validation.success or success "
                         "(repeatable; default: success, collision, mean steps and reward terms)")
     p.add_argument("--x", metavar="KEY", help="x axis key of training logs (default: env_steps, world_steps, agent_steps or update)")
-    p.add_argument("-o", "--out", default="plots", metavar="DIR", help="output folder (default plots/)")
+    p.add_argument("-o", "--out", type=path_arg, default="plots", metavar="DIR", help="output folder (default plots/)")
     p.set_defaults(func=run)
 
 
@@ -48,6 +49,10 @@ def run(args) -> int:
 
     if not args.log and not args.eval:
         raise ValueError("nothing to plot: give --log FILE (training) and/or --eval FILE (evaluation)")
+    if not args.log and (args.metric or args.x):
+        flag = f"--metric {args.metric[0]}" if args.metric else f"--x {args.x}"
+        raise ValueError(f"{flag}: chooses what training logs (--log) are drawn by; there are none, and evaluation "
+                         "charts always show every rate and mean steps")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: exists and is not a folder")

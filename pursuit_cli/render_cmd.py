@@ -25,7 +25,7 @@ from pursuit_mj.configio import build, dump_yaml, load, load_yaml, to_dict
 from pursuit_mj.layout import load_layout
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
-from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, flags_typed, load_model, seed_arg,
+from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, flags_typed, load_model, path_arg, seed_arg,
                      finite_float, shield_if_asked, task_config_from_args)
 
 DEFAULT_SAVE = "renders"
@@ -47,7 +47,7 @@ def register(sub) -> None:
                      help="training config (file or preset, e.g. classic): its task is the base task and its run's best.pt the default model")
     add_shield_arg(who)
     out = p.add_argument_group("output")
-    out.add_argument("-s", "--save-path", default=DEFAULT_SAVE, metavar="DIR|FILE",
+    out.add_argument("-s", "--save-path", type=path_arg, default=DEFAULT_SAVE, metavar="DIR|FILE",
                      help=f"folder for videos and images, or a video file name (.mp4/.gif); a name ending in / is a folder "
                           f"(default {DEFAULT_SAVE}/). Files in a folder are named <policy>_layout<L>_<fidelity>_seed<S>_<digest>_ep<k>, "
                           f"the digest changing with anything else they show, so a render never overwrites another's")

@@ -99,6 +99,9 @@ def test_bench_physics_prints_the_table(capsys):
         (["config", "-i", "{tmp}"], "layout '{tmp}': a folder, not a layout file"),
         (["config", "-ec", "{tmp}"], "{tmp}: a folder, not a task file"),
         (["fly", "check", "--flight", "{tmp}"], "{tmp}: a folder, not a flight file"),
+        # flags that did nothing, without a word
+        (["eval", "--rerun-episodes", "5"], "--rerun-episodes 5: records nothing without --rerun FILE.rrd"),
+        (["plot", "--eval", "e.json", "--metric", "success"], "--metric success: chooses what training logs (--log) are drawn by"),
     ],
 )
 def test_bad_input_exits_2_with_one_line(argv, message, capsys, tmp_path):
@@ -218,3 +221,16 @@ def test_an_error_quotes_a_long_bad_value_in_part(tmp_path, capsys):
     assert main(["config", "-i", str(bad)]) == 2
     err = capsys.readouterr().err.strip()
     assert f"{bad}: expected a mapping, got 'just some notes" in err and "... (3201 characters)" in err and len(err) < 300, err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["plot", "-o", "", "--eval", "e.json"], "argument -o/--out: an empty path ('')"),  # plotted into the current folder
+    (["render", "-s", " "], "argument -s/--save-path: an empty path (' ')"),
+    (["layout", "show", "0", "-o", ""], "argument -o/--out: an empty path"),
+    (["fly", "--flight", "example", "--virtual", "--policy", "heuristic", "--events", ""], "argument --events: an empty path"),
+])
+def test_an_empty_output_path_is_a_usage_error_not_the_current_folder(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and len(err.splitlines()) == 1 and message in err, err
