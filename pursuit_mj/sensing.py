@@ -131,9 +131,10 @@ def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator | Wor
     With share_teammates every teammate is known at its true position (its own broadcast),
     whatever the radius, view, walls and position_noise; evaders are perceived as without it.
 
-    In `full` observability every entity is known (no masking); noise still applies. `rng`
-    draws the misses and the noise (arrays with worlds first): the simulator passes a
-    `WorldRandom` so that each world's draws depend on its own episode and step only.
+    In `full` observability every entity is known exactly (no masking, misses or noise). `rng`
+    draws the misses and the noise (arrays with worlds first, in a fixed order whatever the
+    miss probability): the simulator passes a `WorldRandom` so that each world's draws depend
+    on its own episode and step only.
     """
     W, N, _ = view.pursuer_pos.shape
     M = view.evader_pos.shape[1]
@@ -146,8 +147,8 @@ def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator | Wor
     if partial:
         visible = _visible(p, view.pursuer_heading, np.concatenate([view.evader_pos, p], axis=1), config, view.obstacles)
         seen, mates = visible[..., :M], visible[..., M:]
-        if config.miss_probability > 0:
-            seen &= rng.random((W, N, M)) >= config.miss_probability
+        # drawn at any miss_probability, so that the noise below keeps its numbers (observe_as)
+        seen &= rng.random((W, N, M)) >= config.miss_probability
     else:
         seen = np.ones((W, N, M), bool)
         mates = np.ones((W, N, N), bool)
@@ -162,7 +163,7 @@ def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator | Wor
 
     evader_est = np.broadcast_to(view.evader_pos[:, None], (W, N, M, 2)).copy()
     mate_est = np.broadcast_to(p[:, None], (W, N, N, 2)).copy()
-    if config.position_noise > 0:
+    if config.position_noise > 0 and partial:
         # one independent draw per (observer, target), relayed detections included (not the
         # noise of the teammate that saw it): simple, and identical in both fidelities
         evader_est += rng.normal(0.0, config.position_noise, evader_est.shape)

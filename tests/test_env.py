@@ -223,6 +223,20 @@ def test_observe_as_gives_a_privileged_view_of_the_same_state_and_changes_nothin
         env.observe_as(dataclasses.replace(hard, evader_speed=0.5))
 
 
+def test_observe_as_without_misses_keeps_the_tasks_position_noise():
+    """observe_as draws from the env's noise streams: a view that only drops the missed detections
+    sees the same noisy teammates (their noise used to shift to other numbers when no misses were drawn)."""
+    import dataclasses
+
+    hard = load_task_config(["hard"], flags=dict(FAST))
+    env = PursuitEnv(hard, n_worlds=4, seed=1)
+    obs = env.reset()
+    mates = env.obs_spec.group("teammates")
+    no_miss = env.observe_as(dataclasses.replace(hard, miss_probability=0.0))
+    assert mates.view(obs)[..., 4].any()
+    np.testing.assert_array_equal(mates.view(no_miss), mates.view(obs))
+
+
 def test_reset_without_a_seed_never_replays_an_episode():
     env = PursuitEnv(default_config(fidelity="point"), n_worlds=2, seed=4)
     first = env.reset()

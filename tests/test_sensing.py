@@ -107,6 +107,16 @@ def test_full_observability_masks_nothing():
     assert per.known.all() and per.teammate_visible[0, 0, 1] and per.teammate_visible[0, 1, 0]
 
 
+def test_full_observability_ignores_position_noise_and_misses():
+    """docs/DESIGN.md section 5: with observability full, miss_probability and position_noise have
+    no effect (noise used to be added to every position, the evaders' and the teammates')."""
+    view = _view([[2.0, 1.5], [0.5, 0.3]], [[2.0, 3.8]], _layout([WALL]).obstacle_set())
+    per = _perceive(view, observability="full", position_noise=0.2, miss_probability=1.0)
+    assert per.known.all() and per.seen.all()
+    np.testing.assert_array_equal(per.evader_pos_est[0], np.broadcast_to(view.evader_pos[0], (2, 1, 2)))
+    np.testing.assert_array_equal(per.teammate_pos_est[0], np.broadcast_to(view.pursuer_pos[0], (2, 2, 2)))
+
+
 def test_observation_index_map_matches_the_vector():
     view = _view([[1.0, 1.0], [2.0, 1.5], [3.0, 1.0]], [[1.5, 2.0]], _layout().obstacle_set())
     view.pursuer_vel[0, 0] = [0.1, -0.2]
