@@ -232,6 +232,8 @@ class _UniqueKeyLoader(yaml.SafeLoader):
     def construct_mapping(self, node, deep=False):
         first_line: dict[Any, int] = {}
         for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":  # '<<: *base' merges keys; the keys beside it win
+                continue
             key = self.construct_object(key_node, deep=deep)
             try:
                 duplicate = key in first_line

@@ -186,3 +186,14 @@ def test_negative_seed_is_refused_naming_the_flag(command, capsys):
         main([*command, "--seed", "-1"])
     assert exc.value.code == 2
     assert "argument --seed: expected an integer >= 0, got -1" in capsys.readouterr().err
+
+
+def test_yaml_merge_keys_and_aliases_are_read_and_a_key_twice_still_refused(tmp_path):
+    merged = tmp_path / "merged.yaml"
+    merged.write_text("evader:\n  <<: {panic_distance: 1.2, calm_distance: 4}\n  calm_distance: 5\n")
+    c = load_task_config([merged])
+    assert (c.evader.panic_distance, c.evader.calm_distance) == (1.2, 5.0)  # a key beside << wins over the merged one
+    twice = tmp_path / "twice.yaml"
+    twice.write_text("evader:\n  <<: {panic_distance: 1.2}\n  calm_distance: 4\n  calm_distance: 5\n")
+    with pytest.raises(ConfigError, match=r"twice.yaml: not valid YAML, line 4, column 3: key 'calm_distance' given twice"):
+        load_task_config([twice])
