@@ -246,10 +246,15 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep)
 
 
+class _Dumper(yaml.SafeDumper):
+    """yaml.SafeDumper that quotes the strings _UniqueKeyLoader reads as numbers (a run named '1e6')."""
+
+
 # YAML 1.1, which PyYAML follows, reads 1e6 and 1e-4 (no dot) as text; YAML 1.2 and every
 # user mean a number
-_UniqueKeyLoader.add_implicit_resolver(
-    "tag:yaml.org,2002:float", re.compile(r"^[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)[eE][-+]?[0-9]+$"), list("-+0123456789."))
+for _cls in (_UniqueKeyLoader, _Dumper):
+    _cls.add_implicit_resolver(
+        "tag:yaml.org,2002:float", re.compile(r"^[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)[eE][-+]?[0-9]+$"), list("-+0123456789."))
 
 
 def safe_load(text: str) -> Any:
@@ -367,4 +372,4 @@ def _deep_update(base: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, A
 
 def dump_yaml(obj: Any) -> str:
     """The resolved config as YAML text."""
-    return yaml.safe_dump(to_dict(obj), sort_keys=False)
+    return yaml.dump(to_dict(obj), Dumper=_Dumper, sort_keys=False)

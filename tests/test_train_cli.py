@@ -235,3 +235,12 @@ def test_bench_train_cpu_ratio_sets_as_many_bare_env_rollouts_as_training_ones(m
         assert r.env_cpu_s == 3.0  # one bare block per measured update
         if overlap == "true":
             assert r.train_cpu_s == 3.0 and r.env_over_training_cpu == 1.0
+
+
+def test_a_printed_config_with_a_number_like_name_loads_back(tmp_path, capsys):
+    # the loader reads 1e6 as a number (YAML 1.2), so the dump must quote the string '1e6'
+    assert main(["train", "--name", "1e6", "-sc"]) == 0
+    saved = tmp_path / "saved.yaml"
+    saved.write_text(capsys.readouterr().out)
+    assert main(["train", "--config", str(saved), "-sc"]) == 0
+    assert capsys.readouterr().out == saved.read_text()
