@@ -244,3 +244,16 @@ def test_a_printed_config_with_a_number_like_name_loads_back(tmp_path, capsys):
     saved.write_text(capsys.readouterr().out)
     assert main(["train", "--config", str(saved), "-sc"]) == 0
     assert capsys.readouterr().out == saved.read_text()
+
+
+def test_a_bad_value_in_an_earlier_train_config_names_that_file(tmp_path, capsys):
+    bad, fine = tmp_path / "bad.yaml", tmp_path / "fine.yaml"
+    bad.write_text("name: a\nppo: {lr: -1}\n")
+    fine.write_text("name: b\n")
+    assert main(["train", "--config", str(bad), "--config", str(fine), "-sc"]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}: key 'ppo': key 'lr': -1.0 is out of range" in err and "fine.yaml" not in err, err
+    typo = tmp_path / "typo.yaml"
+    typo.write_text("task: {evader_sped: 0.5}\n")
+    assert main(["train", "--config", str(typo), "--config", str(fine), "-sc"]) == 2
+    assert f"{typo}: key 'task': unknown key 'evader_sped'" in capsys.readouterr().err

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from pursuit_mj.config import TaskConfig, preset_or_file
-from pursuit_mj.configio import ConfigError, build, load, load_yaml, parse_override, spec, to_dict
+from pursuit_mj.configio import ConfigError, build, check_values, load, load_yaml, parse_override, spec, to_dict
 from pursuit_mj.sensing import PRIVILEGED_VIEWS
 
 REGIMES = ("classic", "full_obs", "fine_tune", "mappo", "custom")
@@ -241,6 +241,9 @@ def load_train_config(
         if not data:
             raise ConfigError(f"{p}: the file is empty; a train config sets at least its regime or name "
                               f"(see configs/train/*.yaml), and none at all means the defaults: leave out --config")
+        # each file's keys and values checked as read, so an error names the file that holds the bad one
+        # (an empty task: section beside a task_file is left to _with_task_file)
+        check_values(TrainConfig, {k: v for k, v in data.items() if not (k == "task" and v is None)}, str(p))
         merged = _deep_update(merged, data)
         source = str(p)
     rest = []
