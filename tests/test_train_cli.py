@@ -257,3 +257,11 @@ def test_a_bad_value_in_an_earlier_train_config_names_that_file(tmp_path, capsys
     typo.write_text("task: {evader_sped: 0.5}\n")
     assert main(["train", "--config", str(typo), "--config", str(fine), "-sc"]) == 2
     assert f"{typo}: key 'task': unknown key 'evader_sped'" in capsys.readouterr().err
+
+
+def test_a_bad_value_in_a_task_file_names_the_task_file(tmp_path, capsys):
+    task, train = tmp_path / "task.yaml", tmp_path / "train.yaml"
+    task.write_text("evader_speed: -1\n")
+    train.write_text(f"name: x\ntask_file: {task}\n")
+    assert main(["train", "--config", str(train), "-sc"]) == 2
+    assert f"task_file {task}: key 'evader_speed': -1.0 is out of range" in capsys.readouterr().err

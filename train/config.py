@@ -205,7 +205,9 @@ def _resolve_task_file(ref: str, source: str) -> dict[str, Any]:
         path = preset_or_file(ref, "task")
     except ConfigError as exc:
         raise ConfigError(f"{source}: task_file {exc}") from None
-    return load_yaml(path, f"{source}: task_file {ref}")
+    data = load_yaml(path, f"{source}: task_file {ref}")
+    check_values(TaskConfig, data, f"{source}: task_file {ref}")  # an error names the task file, not only the train config
+    return data
 
 
 def _with_task_file(data: Mapping[str, Any], source: str) -> dict[str, Any]:
