@@ -317,7 +317,7 @@ def load(
         path, value = parse_override(text, source)
         _check_path(cls, path, source)
         check_values(cls, merge({}, path, value), source)
-        merged = merge(merged, path, value)
+        merged = _deep_update(merged, merge({}, path, value))  # a mapping value updates its section, as a file does
         stages.append((source, merged))
     try:
         return build(cls, merged, stages[-1][0] if stages else "defaults")

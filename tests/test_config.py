@@ -197,3 +197,10 @@ def test_yaml_merge_keys_and_aliases_are_read_and_a_key_twice_still_refused(tmp_
     twice.write_text("evader:\n  <<: {panic_distance: 1.2}\n  calm_distance: 4\n  calm_distance: 5\n")
     with pytest.raises(ConfigError, match=r"twice.yaml: not valid YAML, line 4, column 3: key 'calm_distance' given twice"):
         load_task_config([twice])
+
+
+def test_a_mapping_given_by_set_updates_the_section_like_a_file_does(tmp_path):
+    ev = tmp_path / "ev.yaml"
+    ev.write_text("evader: {panic_distance: 2, calm_distance: 5}\n")
+    c = load_task_config([ev], ["evader={panic_distance: 1.2}"])
+    assert (c.evader.panic_distance, c.evader.calm_distance) == (1.2, 5.0)  # calm_distance was reset to 3.0
