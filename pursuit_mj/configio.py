@@ -246,6 +246,17 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep)
 
 
+def _construct_int(loader: yaml.SafeLoader, node: yaml.ScalarNode) -> int:
+    """YAML 1.1 reads 010 as octal 8; YAML 1.2 and every user mean ten (0x10 and 0b10 keep their bases)."""
+    text = loader.construct_scalar(node).replace("_", "")
+    if re.fullmatch(r"[-+]?0[0-9]+", text):
+        return int(text, 10)
+    return loader.construct_yaml_int(node)
+
+
+_UniqueKeyLoader.add_constructor("tag:yaml.org,2002:int", _construct_int)
+
+
 class _Dumper(yaml.SafeDumper):
     """yaml.SafeDumper that quotes the strings _UniqueKeyLoader reads as numbers (a run named '1e6')."""
 

@@ -204,3 +204,10 @@ def test_a_mapping_given_by_set_updates_the_section_like_a_file_does(tmp_path):
     ev.write_text("evader: {panic_distance: 2, calm_distance: 5}\n")
     c = load_task_config([ev], ["evader={panic_distance: 1.2}"])
     assert (c.evader.panic_distance, c.evader.calm_distance) == (1.2, 5.0)  # calm_distance was reset to 3.0
+
+
+def test_a_number_with_a_leading_zero_is_decimal_not_octal():
+    # YAML 1.1 reads 010 as octal 8; YAML 1.2 and every user mean ten
+    assert load_task_config([], ["n_pursuers=010", "max_steps=0100"]).n_pursuers == 10
+    assert load_task_config([], ["max_steps=0100"]).max_steps == 100
+    assert load_task_config([], ["max_steps=0x10"]).max_steps == 16
