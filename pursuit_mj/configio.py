@@ -246,15 +246,26 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep)
 
 
-def _construct_int(loader: yaml.SafeLoader, node: yaml.ScalarNode) -> int:
-    """YAML 1.1 reads 010 as octal 8; YAML 1.2 and every user mean ten (0x10 and 0b10 keep their bases)."""
+def _construct_int(loader: yaml.SafeLoader, node: yaml.ScalarNode) -> int | str:
+    """YAML 1.1 reads 010 as octal 8; YAML 1.2 and every user mean ten (0x10 and 0b10 keep their bases).
+    YAML 1.1 reads 1:30 as 90 (base 60); YAML 1.2 reads a string, which a number key then refuses."""
     text = loader.construct_scalar(node).replace("_", "")
+    if ":" in text:
+        return loader.construct_scalar(node)
     if re.fullmatch(r"[-+]?0[0-9]+", text):
         return int(text, 10)
     return loader.construct_yaml_int(node)
 
 
+def _construct_float(loader: yaml.SafeLoader, node: yaml.ScalarNode) -> float | str:
+    """As YAML 1.1 floats, except base 60 (1:30.5), which YAML 1.2 reads as a string."""
+    if ":" in loader.construct_scalar(node):
+        return loader.construct_scalar(node)
+    return loader.construct_yaml_float(node)
+
+
 _UniqueKeyLoader.add_constructor("tag:yaml.org,2002:int", _construct_int)
+_UniqueKeyLoader.add_constructor("tag:yaml.org,2002:float", _construct_float)
 
 
 class _Dumper(yaml.SafeDumper):

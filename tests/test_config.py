@@ -211,3 +211,11 @@ def test_a_number_with_a_leading_zero_is_decimal_not_octal():
     assert load_task_config([], ["n_pursuers=010", "max_steps=0100"]).n_pursuers == 10
     assert load_task_config([], ["max_steps=0100"]).max_steps == 100
     assert load_task_config([], ["max_steps=0x10"]).max_steps == 16
+
+
+def test_a_number_with_a_colon_is_refused_not_read_in_base_60():
+    # YAML 1.1 reads 1:30 as 90 and 1:30.5 as 90.5 (sexagesimal); YAML 1.2 reads strings
+    with pytest.raises(ConfigError, match="key 'max_steps': expected an integer, got '1:30'"):
+        load_task_config([], ["max_steps=1:30"])
+    with pytest.raises(ConfigError, match="key 'evader_speed': expected a number, got '1:30.5'"):
+        load_task_config([], ["evader_speed=1:30.5"])
