@@ -272,3 +272,40 @@ def test_event_log_lines_are_strict_json_a_value_that_is_not_a_number_is_null(tm
         log.log("stale_land", pos=np.array([np.nan, 1.0, np.inf]), z=float("nan"), heights=[np.float32("nan"), 0.5], level="error")
     record = json.loads((tmp_path / "e.jsonl").read_text().splitlines()[0], parse_constant=refuse)
     assert record["pos"] == [None, 1.0, None] and record["z"] is None and record["heights"] == [None, 0.5]
+
+
+def test_a_slow_go_has_the_batteries_and_states_checked_again_before_take_off(tmp_path, monkeypatch):
+    """The checks ran once, before the go/no-go prompt: a battery that sagged while the operator
+    took their time was flown on."""
+    import json
+
+    from pursuit_mj.flight import bridge as bridge_module
+
+    monkeypatch.setattr(bridge_module, "RECHECK_AFTER", 0.1)
+    fleet_box = {}
+
+    def go_after_the_battery_sagged():
+        fleet_box["fleet"].set_battery(1, 3.5)  # below battery_takeoff 3.8 V
+        time.sleep(0.5)  # the operator thinks; new health samples arrive
+        return True
+
+    plan = quick_plan(max_time=2.0)
+    from flight_rehearsal import VirtualFleet
+
+    original_init = VirtualFleet.__init__
+
+    def remember(self, *a, **k):
+        original_init(self, *a, **k)
+        fleet_box["fleet"] = self
+
+    monkeypatch.setattr(VirtualFleet, "__init__", remember)
+    result, events, fleet = fly_virtual(plan, ScriptedTeam([[0.0, 0.0]]), tmp_path, confirm=go_after_the_battery_sagged)
+    assert isinstance(result, Exception) and "battery 3.50 V is below 3.8 V" in str(result), result
+    kinds = [json.loads(line)["kind"] for line in (tmp_path / "events.jsonl").read_text().splitlines()]
+    assert "preflight_ok" in kinds and "takeoff" not in kinds and kinds.index("preflight_failed") > kinds.index("preflight_ok")
+
+    # a quick go, or a slow one with nothing changed, takes off as before
+    fleet_box.clear()
+    result, events, fleet = fly_virtual(plan, ScriptedTeam([[0.0, 0.0]]), tmp_path / "ok", confirm=lambda: time.sleep(0.3) or True)
+    assert result.outcome == "timeout" and result.landed
+    assert "preflight_recheck_ok" in [json.loads(x)["kind"] for x in (tmp_path / "ok" / "events.jsonl").read_text().splitlines()]

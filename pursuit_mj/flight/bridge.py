@@ -40,7 +40,7 @@ from .events import EventLog
 from .links import CrazyflieFactory, LinkError, LinkSet
 from .observe import EvaderPilot, FlightObserver
 from .plan import FlightPlan
-from .preflight import PreflightError, preflight
+from .preflight import RECHECK_AFTER, PreflightError, preflight, recheck
 from .safety import Fence, altitude_speed, clamp_speed, keep_apart_and_inside
 
 STATE_PERIOD = 0.02  # s between state-estimate log packets (50 Hz)
@@ -229,8 +229,12 @@ class FlightBridge:
                 for link in links:
                     link.start_logs(STATE_PERIOD, HEALTH_PERIOD)
                 preflight(links, self.board, plan, self.events, self.clock)
-                if self.confirm is not None and not self.confirm():
-                    raise PreflightError("take-off declined by the operator")
+                if self.confirm is not None:
+                    asked = self.clock()
+                    if not self.confirm():
+                        raise PreflightError("take-off declined by the operator")
+                    if self.clock() - asked > RECHECK_AFTER:
+                        recheck(self.board, plan, self.events, self.clock)
                 self._in_flight = True
                 return self._fly()
         except (LinkError, PreflightError) as exc:

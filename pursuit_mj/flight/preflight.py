@@ -160,6 +160,19 @@ def check_starts(board: StateBoard, plan: FlightPlan, events: EventLog) -> None:
                     f"{list(d.start)} (tolerance {plan.safety.start_tolerance:g} m): wrong spot or swapped URIs?")
 
 
+RECHECK_AFTER = 10.0  # s: a go given later than this after the checks has them looked at again
+
+
+def recheck(board: StateBoard, plan: FlightPlan, events: EventLog, clock: Callable[[], float] = time.monotonic) -> None:
+    """What can change while the operator decides, checked again before take-off: fresh states,
+    every battery above the take-off threshold, each drone still at its start (a drone moved or
+    a battery that sagged during a long wait at the go/no-go prompt). Raises PreflightError."""
+    wait_states(board, plan, events, plan.safety.estimator_timeout, clock)
+    check_battery(board, plan, events)
+    check_starts(board, plan, events)
+    events.log("preflight_recheck_ok", battery=board.snapshot().vbat[:, -1])
+
+
 def preflight(links: LinkSet, board: StateBoard, plan: FlightPlan, events: EventLog, clock: Callable[[], float] = time.monotonic) -> None:
     """Every check of the module docstring, in order; raises PreflightError on the first failure."""
     check_decks(links, plan, events)
