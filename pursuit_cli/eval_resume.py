@@ -71,7 +71,7 @@ def finished_rows(json_path: Path | None, config, meta: dict) -> dict[tuple[str,
         raise ValueError(f"--resume: the task config differs from the interrupted eval's (its config in {kept}): "
                          f"give the same task flags, or run it again without --resume")
     code, was = meta["code"], data.get("code") or {}
-    for key in ("git_commit", "drone_model_sha256"):
+    for key in ("source_sha256", "drone_model_sha256"):  # not git_commit: a docs-only commit keeps the rows
         if was.get(key) != code.get(key):
             raise ValueError(f"--resume: the code changed since the interrupted eval ({key} {was.get(key)} there, "
                              f"{code.get(key)} now), so its rows need not be what this code plays: run it again without --resume")

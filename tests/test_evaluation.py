@@ -395,6 +395,45 @@ def test_resume_refuses_rows_kept_for_a_layout_file_edited_since(tmp_path, capsy
     assert f"--resume: the layout file {arena} changed since the interrupted eval" in err
 
 
+def test_resume_keys_kept_rows_to_the_source_not_the_git_commit(tmp_path, monkeypatch, capsys):
+    """Kept rows were matched on the git commit: a docs-only commit threw them away, and an
+    uncommitted edit of the code that plays the episodes was not noticed at all."""
+    import pursuit_mj.provenance as provenance
+
+    cmd = ["eval", "--policy", "heuristic", "--layouts", "0", "--episodes", "1", "--worlds", "1", "--fidelity", "point",
+           "--set", "max_steps=20", "-q", "--out", str(tmp_path / "t")]
+    assert main(cmd) == 0
+    data = json.loads((tmp_path / "t.json").read_text())
+    assert data["code"]["source_sha256"] == provenance.source_sha256()
+    data["code"]["git_commit"] = "0" * 40  # another commit, the same source
+    (tmp_path / "t.interrupted.json").write_text(json.dumps(data))
+    assert main(cmd + ["--resume"]) == 0
+    (tmp_path / "t.interrupted.json").write_text((tmp_path / "t.json").read_text())
+    monkeypatch.setattr(provenance, "source_sha256", lambda: "f" * 64)  # as after an edit of the code
+    assert main(cmd + ["--resume"]) == 2
+    assert "--resume: the code changed since the interrupted eval (source_sha256" in capsys.readouterr().err
+
+
+def test_the_source_hash_follows_every_source_file_but_not_compiled_caches(tmp_path):
+    from pursuit_mj.provenance import source_digest
+
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "a.py").write_text("x = 1\n")
+    (pkg / "sub" / "model.xml").write_text("<mujoco/>")
+    first = source_digest({"pkg": pkg})
+    (pkg / "__pycache__").mkdir()
+    (pkg / "__pycache__" / "a.cpython-311.pyc").write_bytes(b"cache")
+    assert source_digest({"pkg": pkg}) == first
+    (pkg / "sub" / "model.xml").write_text("<mujoco />")
+    assert source_digest({"pkg": pkg}) != first
+    (pkg / "sub" / "model.xml").write_text("<mujoco/>")
+    assert source_digest({"pkg": pkg}) == first
+    (pkg / "b.py").write_text("")  # a new, empty module is a change too
+    assert source_digest({"pkg": pkg}) != first
+    assert source_digest({"other": pkg}) != source_digest({"pkg": pkg})
+
+
 def test_an_eval_stopped_before_any_cell_finished_says_nothing_is_kept(tmp_path, monkeypatch, capsys):
     """It said only 'interrupted'; its --resume then answered 'an eval stopped by Ctrl-C or SIGTERM
     leaves one', as if the eval had not been stopped that way."""

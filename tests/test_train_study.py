@@ -181,7 +181,7 @@ def test_the_timings_compare_the_total_with_the_budget():
     assert format_timings({"total": 80.0}, 1.5).endswith("1.3 min (budget 1.5 min)")
 
 
-def test_kept_evaluation_cells_are_taken_back_only_when_they_are_what_this_study_would_play(tmp_path):
+def test_kept_evaluation_cells_are_taken_back_only_when_they_are_what_this_study_would_play(tmp_path, monkeypatch):
     import dataclasses
 
     from pursuit_mj.config import load_task_config
@@ -215,6 +215,15 @@ def test_kept_evaluation_cells_are_taken_back_only_when_they_are_what_this_study
         other = KeptEvaluation(changed, json.loads(json.dumps(written)), lambda: None, logs.append)
         assert other.episodes is None and "every policy is evaluated again" in logs[0]
     assert KeptEvaluation(dataclasses.replace(plan, resume=False), json.loads(json.dumps(written)), lambda: None).episodes is None
+    # the cells belong to the source that played them, not to a git commit (a docs-only one keeps them)
+    import train.study_evaluation as study_evaluation
+
+    real = study_evaluation.provenance
+    monkeypatch.setattr(study_evaluation, "provenance", lambda: {**real(), "git_commit": "0" * 40})
+    assert KeptEvaluation(plan, json.loads(json.dumps(written)), lambda: None).episodes == 2
+    monkeypatch.setattr(study_evaluation, "provenance", lambda: {**real(), "source_sha256": "f" * 64})
+    assert KeptEvaluation(plan, json.loads(json.dumps(written)), lambda: None, lambda line: None).episodes is None
+    monkeypatch.setattr(study_evaluation, "provenance", real)
 
     # a trained arm's cells belong to the best.pt they were played from
     best = tmp_path / "best.pt"

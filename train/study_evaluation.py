@@ -3,7 +3,8 @@
 A cell is one policy on one layout (one `evaluation.Row` with its episodes). As each ends it
 is written into <out>/study.json under "evaluation", with the seconds it took, beside what
 makes it valid: the evaluation task, seed, layouts (and their files' sha256), the episodes
-asked for, the code (package version, git commit, drone model), the episode count the study
+asked for, the code (package version, the hash of its source, drone model; not the git commit,
+so a docs-only commit keeps the cells and an uncommitted edit does not), the episode count the study
 chose, and for each trained arm the sha256 of the best.pt it was played with. A resumed study takes a kept cell back only
 when all of those are unchanged and its episodes are the ones it would play
 (`evaluation.row_from_record`); everything else is played again. The heuristic team's kept
@@ -38,7 +39,7 @@ def identity(plan) -> dict:
         # a layout file is named by its path: edited since, its kept cells are another arena's
         "layouts_sha256": [file_sha256(resolve_layout_ref(l)) for l in plan.layouts],
         "episodes_asked": plan.episodes,
-        "code": {k: code[k] for k in ("version", "git_commit", "drone_model_sha256")},
+        "code": {k: code[k] for k in ("version", "source_sha256", "drone_model_sha256")},
     }))
 
 
