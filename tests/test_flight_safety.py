@@ -236,3 +236,76 @@ def test_the_landing_lasts_for_the_highest_commanded_drone_not_a_target_held_hig
     assert landing_duration(np.array([0.5, 0.4, 1.8]), commanded, 0.5, 0.25) == pytest.approx(2.0)
     assert landing_duration(np.array([np.nan, 0.4, 1.8]), commanded, 0.6, 0.25) == pytest.approx(2.4)  # unknown: flight height
     assert landing_duration(np.array([0.0, 0.02, 1.8]), commanded, 0.5, 0.25) == pytest.approx(0.4)  # at least 0.1 m
+
+
+class StallingTeam(ScriptedTeam):
+    """Flies along +x, but its `stall_at`-th decision takes `stall` s more (a slow policy, a
+    garbage-collection or swap pause)."""
+
+    def __init__(self, stall_at: int, stall: float):
+        super().__init__([[0.3, 0.0]])
+        self.stall_at, self.stall = stall_at, stall
+
+    def act(self, obs, spec):
+        if self.calls + 1 == self.stall_at:
+            time.sleep(self.stall)
+        return super().act(obs, spec)
+
+
+def _setpoint_gaps(fleet, i: int) -> np.ndarray:
+    """s (virtual clock) between consecutive low-level setpoints drone i received."""
+    return np.diff([r.t for r in fleet.received(i) if r.kind in ("velocity", "hover")])
+
+
+def test_a_stalled_decision_makes_the_drones_hover_instead_of_leaving_them_to_the_firmware_watchdog(tmp_path):
+    """The loop sent setpoints only when it decided: a decision that took 1.2 s let the
+    firmware's watchdog level every drone after 0.5 s (and stop the motors after 2 s)."""
+    plan = quick_plan(max_time=4.0, safety={"stall_hover": 0.2})
+    result, events, fleet = fly_virtual(plan, StallingTeam(stall_at=5, stall=1.2), tmp_path)
+    assert result.outcome == "timeout" and result.landed, (result.outcome, result.reason)
+    for i in range(plan.n_drones):
+        gaps = _setpoint_gaps(fleet, i)
+        assert len(gaps) > 15 and gaps.max() < 0.4, (plan.names[i], gaps.max())
+    (stall,) = events.of_kind("stall_hover")
+    assert stall["drones"] == plan.names and 0.29 <= stall["since_decision"] < 0.6
+    assert events.of_kind("stall_end")[0]["since_decision"] >= 1.2
+    kinds = [r.kind for r in fleet.received(0)]
+    first_hover = kinds.index("hover")  # held in place during the stall, flown on after it
+    assert "velocity" in kinds[:first_hover] and "velocity" in kinds[first_hover:]
+
+
+def test_decisions_slower_than_the_firmware_watchdog_have_their_setpoints_repeated(tmp_path):
+    """At 1 Hz the drones went 1 s between setpoints: the firmware levelled each of them for
+    half of every decision interval."""
+    plan = quick_plan(max_time=3.5, decision_rate=1.0, safety={"stall_hover": 0.2})
+    result, events, fleet = fly_virtual(plan, ScriptedTeam([[0.3, 0.0]]), tmp_path)
+    assert result.outcome == "timeout", (result.outcome, result.reason)
+    assert not events.of_kind("stall_hover")
+    for i in range(plan.n_drones - 1):  # the pursuers: the decision's own velocity, repeated
+        velocities = [r for r in fleet.received(i) if r.kind == "velocity"]
+        assert len(velocities) >= 12 and _setpoint_gaps(fleet, i).max() < 0.4
+        assert len({r.values[:2] for r in velocities}) <= 4  # a handful of decisions, each sent about 5 times
+
+
+def test_no_setpoint_follows_the_landing_or_an_emergency_stop(tmp_path):
+    """Once the chase ends its setpoints stop for good: a repeated velocity setpoint after the
+    landing's notify_setpoint_stop would take the drone back from the high-level commander."""
+    plan = quick_plan(max_time=1.5)
+    result, events, fleet = fly_virtual(plan, ScriptedTeam([[0.3, 0.0]]), tmp_path)
+    assert result.outcome == "timeout" and result.landed
+    for i in range(plan.n_drones):
+        kinds = [r.kind for r in fleet.received(i)]
+        land = kinds.index("land")
+        assert not {"velocity", "hover"} & set(kinds[land:]), kinds[land:]
+
+    def stop(fleet, bridge):
+        time.sleep(0.5)
+        bridge.emergency_stop("test")
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=3.0), ScriptedTeam([[0.3, 0.0]]), tmp_path / "estop", during=stop)
+    assert result.outcome == "emergency_stop"
+    time.sleep(0.4)  # a keepalive still running would send within 0.25 s
+    for i in range(plan.n_drones):
+        kinds = [r.kind for r in fleet.received(i)]
+        cut = kinds.index("emergency_stop")
+        assert not {"velocity", "hover"} & set(kinds[cut:]), kinds[cut:]

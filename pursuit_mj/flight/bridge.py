@@ -17,7 +17,10 @@ Every decision step (1 / decision_rate s):
    a command acts, the fence from each drone's own side of every surface), a vertical
    speed that holds the flight height, each drone's own frame;
 6. `send_velocity_world_setpoint` for every commanded drone, or a hover setpoint at the
-   flight height for a drone whose estimate is stale or an evader that was caught.
+   flight height for a drone whose estimate is stale or an evader that was caught. Between
+   decisions `keepalive.SetpointStream` repeats them every 0.2 s, and when a decision is
+   late by `stall_hover` s it sends hover setpoints instead, so the firmware's setpoint
+   watchdog (level after 0.5 s, motors off after 2 s) never takes over in the chase.
 Take-off and landing go through the high-level commander. Every event is logged with its
 time (events.py); `FlightResult.steps` keeps what each step saw and sent.
 """
@@ -37,6 +40,7 @@ from ..planar import clip_norm
 from ..policy import Policy
 from .board import BoardSnapshot, StateBoard
 from .events import EventLog
+from .keepalive import SetpointStream
 from .links import CrazyflieFactory, LinkError, LinkSet
 from .observe import EvaderPilot, FlightObserver
 from .plan import FlightPlan
@@ -158,6 +162,7 @@ class FlightBridge:
         self._landing = False
         self._lost_logged: set[int] = set()  # drones whose link_lost event is in the log
         self._in_flight = False  # past the checks: a stop signal lands instead of aborting
+        self._stream: SetpointStream | None = None  # the chase's setpoints (keepalive.py)
         if recorder is not None:
             events.add_sink("rerun", recorder.log_event)
 
@@ -190,10 +195,19 @@ class FlightBridge:
         self.events.log("emergency_stop", reason=reason, level="error")
 
     def _cut_motors(self) -> None:
+        """Every link's emergency stop at once, each from a thread of its own (a link whose radio
+        hangs must not hold back the others), after the chase's setpoints are stopped for good."""
+        stream = self._stream
+        if stream is not None:
+            stream.close(timeout=0.2)
         links = self.links  # may be cleared by the flight thread meanwhile
-        if links is not None:
-            for link in links:
-                link.emergency_stop()
+        if links is None:
+            return
+        threads = [threading.Thread(target=link.emergency_stop, name=f"emergency-stop-{link.name}", daemon=True) for link in links]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join(2.0)
 
     def request_land(self, reason: str = "landing requested") -> None:
         """End the run: everyone lands."""
@@ -385,20 +399,31 @@ class FlightBridge:
     # ------------------------------------------------------------------ the chase
 
     def _chase(self, observer: FlightObserver, pilot: EvaderPilot, steps: list[StepRecord], start: float) -> tuple[str, str]:
-        next_t = self.clock()
-        while True:
-            snap = self.board.snapshot()
-            self._check_abort(snap, start)
-            step = self._decide(snap, observer, pilot)
-            steps.append(step)
-            if observer.captured.all():
-                return "captured", f"all {self.plan.n_evaders} evader(s) captured after {self.clock() - start:.1f} s"
-            next_t += self.plan.dt
-            delay = next_t - self.clock()
-            if delay < -self.plan.dt:
-                self.events.log("overrun", late=-delay, level="warn")
-                next_t = self.clock()
-            self._stop.wait(max(0.0, delay))
+        plan = self.plan
+        names = plan.names
+        self._stream = SetpointStream(
+            list(self.links), self.clock, plan.dt, plan.safety.stall_hover, plan.height,
+            on_stall=lambda age, drones: self.events.log("stall_hover", since_decision=age, drones=[names[i] for i in drones], level="warn"),
+            on_resume=lambda age: self.events.log("stall_end", since_decision=age, level="warn"))
+        if self._estop.is_set():  # an emergency stop that came as the stream started
+            self._stream.close()
+        try:
+            next_t = self.clock()
+            while True:
+                snap = self.board.snapshot()
+                self._check_abort(snap, start)
+                step = self._decide(snap, observer, pilot)
+                steps.append(step)
+                if observer.captured.all():
+                    return "captured", f"all {plan.n_evaders} evader(s) captured after {self.clock() - start:.1f} s"
+                next_t += plan.dt
+                delay = next_t - self.clock()
+                if delay < -plan.dt:
+                    self.events.log("overrun", late=-delay, level="warn")
+                    next_t = self.clock()
+                self._stop.wait(max(0.0, delay))
+        finally:
+            self._stream.close()  # before the landing: nothing may follow its notify_setpoint_stop
 
     def _lab_state(self, snap: BoardSnapshot) -> tuple[np.ndarray, np.ndarray]:
         """(pos (D, 3) m, vel (D, 3) m/s) in the lab frame from the drones' estimates."""
@@ -482,11 +507,7 @@ class FlightBridge:
         unsendable = fly & ~np.isfinite(sent).all(axis=1)  # never a NaN setpoint: hold height instead
         hover, fly = hover | unsendable, fly & ~unsendable
         sent[unsendable] = np.nan
-        for i, link in enumerate(self.links):
-            if fly[i]:
-                link.velocity(sent[i])
-            elif hover[i]:
-                link.hover(plan.height)
+        self._stream.send({int(i): sent[i] for i in np.flatnonzero(fly)}, [int(i) for i in np.flatnonzero(hover)])
         for kind, flags in filtered.items():
             self.edges.update(kind, flags & fly, pos=pos_lab[:, :2], clearance=clearance)
         self.edges.update("stale_hover", stale & plan.commanded, age=snap.state_age)

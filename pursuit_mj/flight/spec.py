@@ -152,6 +152,7 @@ class SafetyLimits:
     response_time: float = spec(0.3, lo=0.0, hi=2.0, help="how long a drone takes to follow a new command; the guards judge positions this far ahead of its measured motion, plus one decision interval (s)")
     stale_hover: float = spec(0.3, lo=0.01, hi=5.0, help="no fresh estimate for this long: the drone hovers (s)")
     stale_land: float = spec(1.0, lo=0.02, hi=10.0, help="no fresh estimate for this long: everyone lands (s)")
+    stall_hover: float = spec(0.2, lo=0.01, hi=1.0, help="no decision for this long past its interval (a stalled policy or process): every commanded drone hovers until the next one (s)")
     link_timeout: float = spec(1.0, lo=0.05, hi=10.0, help="nothing heard from a drone for this long: link lost, everyone lands (s)")
     battery_takeoff: float = spec(3.8, lo=2.5, hi=4.4, help="refuse to take off below this battery voltage (V)")
     battery_land: float = spec(3.3, lo=2.5, hi=4.4, help="in flight below this voltage the drone lands and the run ends (V)")
