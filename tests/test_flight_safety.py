@@ -309,3 +309,28 @@ def test_no_setpoint_follows_the_landing_or_an_emergency_stop(tmp_path):
         kinds = [r.kind for r in fleet.received(i)]
         cut = kinds.index("emergency_stop")
         assert not {"velocity", "hover"} & set(kinds[cut:]), kinds[cut:]
+
+
+def test_an_emergency_stop_cuts_every_link_at_once_not_one_after_another(tmp_path):
+    """A link whose send hangs (a radio retrying) held back the cut of every link after it."""
+    cut_at: dict[str, float] = {}
+
+    def stop(fleet, bridge):
+        time.sleep(0.4)
+        first = bridge.links[0]
+        real = first.emergency_stop
+
+        def hanging():
+            time.sleep(1.0)
+            real()
+
+        first.emergency_stop = hanging
+        t0 = time.monotonic()
+        threading.Thread(target=bridge.emergency_stop, args=("test",), daemon=True).start()
+        if wait_for(lambda: not fleet.true_state()["motors"][1:].any(), 0.9):
+            cut_at["others"] = time.monotonic() - t0
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=3.0), ScriptedTeam([[0.3, 0.0]]), tmp_path, during=stop)
+    assert result.outcome == "emergency_stop"
+    assert cut_at.get("others", 9.0) < 0.5, cut_at  # the others did not wait for the hanging link
+    assert down(fleet)  # and the hanging one was cut too
