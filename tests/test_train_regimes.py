@@ -49,6 +49,23 @@ def test_overrides_flags_and_task_file():
         load_train_config([], ["ppo.batch_size=256", "ppo.minibatch_size=512"]).check_complete()
 
 
+def test_settings_this_combination_never_reads_are_named_when_the_run_starts(tmp_path):
+    """residual.scale without a base, ppo.value_scaling under MAPPO, MAPPO's critic widths or
+    DAgger settings under PPO were taken without a word: a user tuning them saw no effect."""
+    assert load_train_config(["classic"], []).idle_settings() == []
+    assert load_train_config(["residual"], ["residual.scale=0.5"]).idle_settings() == []
+    idle = load_train_config(["classic"], ["residual.scale=0.5", "net.critic_hidden=[64]", "imitation.lr=1e-4"]).idle_settings()
+    assert idle == ["residual.scale 0.5 does nothing without residual.base",
+                    "net.critic_hidden [64] does nothing under algo ppo (it sizes MAPPO's critic)",
+                    "imitation.lr do(es) nothing under algo ppo (DAgger settings)"]
+    assert load_train_config(["mappo"], ["ppo.value_scaling=false"]).idle_settings() == [
+        "ppo.value_scaling does nothing under algo mappo (its centralised critic normalises values)"]
+    lines: list[str] = []
+    cfg = load_train_config(["classic"], TINY + [f"run.runs_dir={tmp_path}", "residual.scale=0.5"])
+    Trainer(cfg, log=lines.append)
+    assert "[train] note: residual.scale 0.5 does nothing without residual.base" in lines
+
+
 def test_update_threads_take_the_cores_the_collection_leaves_idle():
     run = load_train_config(["classic"]).run
     assert run.torch_threads == 0  # auto by default

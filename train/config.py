@@ -183,6 +183,24 @@ class TrainConfig:
                                   f"only through range readings and need at least {MIN_RAYS}; {', '.join(users)} "
                                   f"use(s) them (raise task.n_rays, or turn those off)")
 
+    def idle_settings(self) -> list[str]:
+        """Settings changed from their defaults that this combination never reads, one line each
+        (not errors: a study's --train-set gives every arm the same values)."""
+        default = TrainConfig()
+        idle = []
+        if self.residual.base == "none" and self.residual.scale != default.residual.scale:
+            idle.append(f"residual.scale {self.residual.scale:g} does nothing without residual.base")
+        if self.algo == "mappo" and self.ppo.value_scaling != default.ppo.value_scaling:
+            idle.append("ppo.value_scaling does nothing under algo mappo (its centralised critic normalises values)")
+        if self.algo != "mappo" and self.net.critic_hidden != default.net.critic_hidden:
+            idle.append(f"net.critic_hidden {list(self.net.critic_hidden)} does nothing under algo {self.algo} (it sizes MAPPO's critic)")
+        if self.algo != "dagger":
+            changed = [f.name for f in dataclasses.fields(ImitationConfig)
+                       if getattr(self.imitation, f.name) != getattr(default.imitation, f.name)]
+            if changed:
+                idle.append(f"imitation.{', imitation.'.join(changed)} do(es) nothing under algo {self.algo} (DAgger settings)")
+        return idle
+
     @property
     def run_dir(self) -> Path:
         return Path(self.run.runs_dir) / self.name

@@ -75,6 +75,8 @@ class Trainer:
         cfg.check_complete()
         self.cfg = cfg
         self.log = log
+        for line in cfg.idle_settings():
+            log(f"[train] note: {line}")
         self.run_dir = cfg.run_dir
         self.resume_command = f"pursuit-mj train --resume {self.run_dir}"  # what an interrupted run tells the user
         check_writable_folder(self.run_dir, f"run folder (run.runs_dir {cfg.run.runs_dir}, name {cfg.name})")
