@@ -70,6 +70,8 @@ def test_cli_single_file_and_no_video(tmp_path):
     (["--no-video"], "leaves nothing to write"),
     (["-s", "out/x.gif", "--fps", "60"], "--fps: 60 frames per second is beyond what a GIF plays"),
     (["-s", "out/", "--format", "gif", "--set", "control_dt=0.01"], "--fps (default 1/control_dt = 100): 100 frames per second"),
+    (["--fps", "1e-9"], "--fps: 1e-09 frames per second is outside what ffmpeg writes correctly (0.01..1e+06)"),
+    (["--fps", "1e308"], "--fps: 1e+308 frames per second is outside what ffmpeg writes correctly (0.01..1e+06)"),
 ])
 def test_cli_refuses_bad_input_before_any_work(tmp_path, capsys, monkeypatch, args, message):
     monkeypatch.chdir(tmp_path)

@@ -54,12 +54,18 @@ def check_frame_size(fmt: str, width: int, height: int) -> None:
 
 
 GIF_MAX_FPS = 50.0  # GIF delays are whole hundredths of a second, and players slow any under 0.02 s
+#: frame rates (1/s) ffmpeg writes as asked: below, an mp4 drops frames (1e-4) or fails at the end
+#: (1e-6) and a GIF's delay overflows; above, an mp4 plays at another rate (1e7) or ffmpeg refuses it
+FPS_RANGE = (0.01, 1e6)
 
 
 def check_video_fps(fmt: str, fps: float, source: str = "fps") -> None:
     """Refuse a frame rate the format cannot play (ValueError naming `source`), before rendering anything."""
     if not (math.isfinite(fps) and fps > 0):
         raise ValueError(f"{source}: expected a positive frame rate, got {fps}")
+    lo, hi = FPS_RANGE
+    if not lo <= fps <= hi:
+        raise ValueError(f"{source}: {fps:g} frames per second is outside what ffmpeg writes correctly ({lo:g}..{hi:g})")
     if fmt == "gif" and fps > GIF_MAX_FPS:
         raise ValueError(f"{source}: {fps:g} frames per second is beyond what a GIF plays (at most {GIF_MAX_FPS:g}; "
                          f"its frame delays are whole hundredths of a second); lower --fps or write mp4")
