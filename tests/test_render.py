@@ -87,6 +87,23 @@ def test_interrupted_render_leaves_no_file_under_the_final_name(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("when", ["mid-stream", "at the end"])
+def test_an_encoder_that_stops_early_is_an_error_naming_the_file_and_leaves_nothing(tmp_path, when):
+    """A full disk or a killed ffmpeg: neither a silent exit 0 (a broken pipe) nor a traceback."""
+    from pursuit_mj.io_utils import CannotWrite
+    from pursuit_mj.render.video import video_file
+
+    target, frame = tmp_path / "chase.mp4", np.zeros((H, W, 3), np.uint8)
+    with pytest.raises(CannotWrite, match=f"{target}: cannot write it \\(the ffmpeg encoder stopped"):
+        with video_file(target, W, H, 10.0) as video:
+            video.add(frame)
+            video._writer._proc.kill()  # as a full disk would end it
+            video._writer._proc.wait()
+            if when == "mid-stream":
+                video.add(frame)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_quadrotor_attitude_reaches_the_rendered_model():
     config = default_config(fidelity="quadrotor")
     layout = load_layout(0)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 
 import contextlib
+import re
 import shutil
 from pathlib import Path
 from typing import Iterator
@@ -17,7 +18,7 @@ import mediapy
 import numpy as np
 from PIL import Image
 
-from ..io_utils import atomic_path
+from ..io_utils import CannotWrite, atomic_path
 
 VIDEO_CODECS = {"mp4": "h264", "gif": "gif"}
 #: h264 settings: mediapy's quality (qp 20) with a faster preset, since the encoder shares
@@ -92,24 +93,48 @@ class VideoFile:
             raise
 
     def add(self, frame: np.ndarray) -> None:
-        """Append one frame (H, W, 3) uint8 RGB of the size the file was opened with."""
-        self._writer.add_image(frame)
+        """Append one frame (H, W, 3) uint8 RGB of the size the file was opened with.
+
+        CannotWrite naming the file (and nothing left on disk) if the encoder has stopped."""
+        try:
+            self._writer.add_image(frame)
+        except (OSError, RuntimeError) as exc:  # a broken pipe: ffmpeg ended early (a full disk, killed)
+            raise self._encoder_stopped(exc) from None
         self.frames += 1
 
     def close(self, ok: bool = True) -> Path | None:
+        """ok: finish the file and rename it onto `path` (CannotWrite if the encoder fails); else discard it."""
         if self._writer is None:
             return None
-        writer, self._writer = self._writer, None
         if ok:
-            writer.__exit__(None, None, None)
+            try:
+                self._writer.__exit__(None, None, None)
+            except (OSError, RuntimeError) as exc:
+                raise self._encoder_stopped(exc) from None
+            self._writer = None
             self._atomic.__exit__(None, None, None)
             return self.path
-        err = RuntimeError("video abandoned")
-        with contextlib.suppress(Exception):
+        self._discard()
+        return None
+
+    def _discard(self) -> str:
+        """Stop the encoder and remove the temporary file; returns what ffmpeg said if it failed."""
+        writer, self._writer = self._writer, None
+        err, said = RuntimeError("video abandoned"), ""
+        try:
             writer.__exit__(RuntimeError, err, None)
+        except Exception as exc:
+            said = str(exc)
         with contextlib.suppress(RuntimeError):
             self._atomic.__exit__(RuntimeError, err, None)
-        return None
+        return said
+
+    def _encoder_stopped(self, exc: BaseException) -> CannotWrite:
+        """Discard the file; the error to raise, with ffmpeg's last message line."""
+        said = self._discard()
+        text = re.sub(r"Error writing '[^']*':", "", f"{exc}\n{said}")  # mediapy's wrapper names the temporary file
+        lines = [line.strip() for line in text.splitlines() if line.strip()]
+        return CannotWrite(f"{self.path}: cannot write it (the ffmpeg encoder stopped: {lines[-1] if lines else 'it exited without a message'})")
 
 
 @contextlib.contextmanager
