@@ -104,6 +104,22 @@ def test_an_encoder_that_stops_early_is_an_error_naming_the_file_and_leaves_noth
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_final_frame_that_does_not_fit_on_the_disk_is_an_error_naming_it(tmp_path, monkeypatch):
+    import errno
+
+    from pursuit_mj.io_utils import CannotWrite
+    from pursuit_mj.render.video import save_png
+
+    def full_disk(self, fp, *args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Image.Image, "save", full_disk)
+    target = tmp_path / "chase_final.png"
+    with pytest.raises(CannotWrite, match=f"{target}: cannot write it \\(No space left on device\\)"):
+        save_png(target, np.zeros((H, W, 3), np.uint8))
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_quadrotor_attitude_reaches_the_rendered_model():
     config = default_config(fidelity="quadrotor")
     layout = load_layout(0)

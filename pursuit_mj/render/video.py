@@ -150,7 +150,10 @@ def video_file(path: str | Path, width: int, height: int, fps: float) -> Iterato
 
 
 def save_png(path: str | Path, frame: np.ndarray) -> Path:
-    """Write frame (H, W, 3) uint8 as a PNG, atomically."""
-    with atomic_path(path) as tmp:
-        Image.fromarray(np.ascontiguousarray(frame)).save(tmp, format="PNG")
+    """Write frame (H, W, 3) uint8 as a PNG, atomically; CannotWrite naming it if it cannot be (a full disk)."""
+    try:
+        with atomic_path(path) as tmp:
+            Image.fromarray(np.ascontiguousarray(frame)).save(tmp, format="PNG")
+    except OSError as exc:
+        raise CannotWrite(f"{path}: cannot write it ({exc.strerror or exc})") from None
     return Path(path)
