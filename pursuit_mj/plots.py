@@ -17,7 +17,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .io_utils import atomic_path
+from .io_utils import CannotWrite, atomic_path
 
 X_KEYS = ("env_steps", "world_steps", "agent_steps", "update")
 #: default curves: (file stem, y label, accepted final key components)
@@ -50,9 +50,14 @@ def _plt():
 
 
 def _save(fig, path: Path) -> Path:
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    _plt().close(fig)
+    """Write `fig` as a PNG atomically and close it; CannotWrite naming `path` if it cannot be (a full disk)."""
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png", dpi=120)
+    except OSError as exc:
+        raise CannotWrite(f"{path}: cannot write it ({exc.strerror or exc})") from None
+    finally:
+        _plt().close(fig)
     return path
 
 

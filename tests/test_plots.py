@@ -312,3 +312,18 @@ def test_a_reward_term_named_like_an_outcome_is_not_drawn_as_a_rate():
     assert not is_rate("episode_returns.collision") and not is_rate("reward_terms_per_step.collision")
     assert _curve_label("episode_returns.collision") == "collision term (return per episode)"
     assert _curve_label("train.collision") == "train: collision rate (fraction)"
+
+
+def test_a_chart_that_does_not_fit_on_the_disk_is_an_error_naming_it(tmp_path, capsys, monkeypatch):
+    import errno
+
+    from matplotlib.figure import Figure
+
+    def full_disk(self, fname, *args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Figure, "savefig", full_disk)
+    out = tmp_path / "plots"
+    assert main(["plot", "--log", str(_log(tmp_path / "m.jsonl")), "-o", str(out)]) == 2
+    assert f"{out / 'curve_train_success.png'}: cannot write it (No space left on device)" in capsys.readouterr().err
+    assert list(out.iterdir()) == []
