@@ -281,6 +281,6 @@ def run(args) -> int:
     finally:
         if recording is not None:
             path = recording.close(ok=ok)
-            if path is not None:
+            if path is not None or recording.lost is not None:
                 print(recording.summary(), file=sys.stdout if ok else sys.stderr, flush=True)
     return 0

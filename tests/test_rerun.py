@@ -152,6 +152,37 @@ def test_a_folder_where_the_interrupted_recording_would_go_is_refused_up_front(t
     assert "episode 0" not in captured.out and sorted(p.name for p in tmp_path.iterdir()) == ["x.interrupted.rrd"]
 
 
+@pytest.mark.parametrize("interrupted", [False, True])
+def test_a_recording_that_does_not_fit_on_the_disk_is_an_error_naming_it(tmp_path, interrupted):
+    """A full disk, played by a file size limit on a child process: a one-line error, no traceback, no file."""
+    import subprocess
+    import sys
+
+    path = tmp_path / "r.rrd"
+    stop = ("from pursuit_mj.render import episodes\n"  # Ctrl-C in the second episode
+            "one = episodes._one_episode\n"
+            "def first_only(*a):\n"
+            "    if a[3]: raise KeyboardInterrupt\n"
+            "    return one(*a)\n"
+            "episodes._one_episode = first_only\n")
+    code = ("import resource, signal, sys\n"
+            "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"  # a write past the limit then fails with EFBIG, as on a full disk
+            "resource.setrlimit(resource.RLIMIT_FSIZE, (20000, resource.RLIM_INFINITY))\n"
+            "from pursuit_cli import main\n"
+            + (stop if interrupted else "") +
+            "sys.exit(main(['render', '--policy', 'random', '--fidelity', 'point', '--set', 'max_steps=30', '--episodes', '2',"
+            " '--no-video', '--rerun', sys.argv[1]]))\n")
+    proc = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=120)
+    assert "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    if interrupted:
+        assert proc.returncode == 130
+        assert f"the 1 episode recorded could not be written (" in proc.stderr
+        assert f"neither {path} nor {tmp_path / 'r.interrupted.rrd'} holds them" in proc.stderr
+    else:
+        assert proc.returncode == 2 and f"pursuit-mj render: error: {path}: cannot write it (rerun:" in proc.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_rrd_path_is_checked(tmp_path):
     with pytest.raises(ValueError, match="--rerun .*x.rr: expected a file name ending in .rrd"):
         check_rrd_path(tmp_path / "x.rr")

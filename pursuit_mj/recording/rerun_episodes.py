@@ -26,6 +26,7 @@ snapshot copy. The file is written under a temporary name and renamed on `close`
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import uuid
@@ -36,7 +37,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from ..io_utils import atomic_path, check_writable
+from ..io_utils import CannotWrite, atomic_path, check_writable
 from ..layout import Box, Cylinder, Layout, Wall
 from ..palette import BORDER_RGBA, OBSTACLE_RGBA, ROLE_RGBA, rgb255
 from ..scene import drone_names, wall_heights
@@ -108,6 +109,7 @@ class RerunEpisodeRecording:
         self.trail_length = int(trail_length)
         self.n_episodes = 0
         self.kept: Path | None = None  # where close() left the episodes: path, partial_path or nowhere
+        self.lost: str | None = None  # why close() could not write the file (a full disk), if it could not
         self._atomic = atomic_path(self.path)
         self._tmp = self._atomic.__enter__()
         self.stream = rr.RecordingStream(application_id, recording_id=uuid.uuid4())
@@ -295,12 +297,15 @@ class RerunEpisodeRecording:
             return f"wrote {self.path} ({n}; open with: rerun {self.path}){stale}"
         if self.kept is not None:
             return f"interrupted: the {n} finished before it are in {self.kept} (open with: rerun {self.kept}); {self.path} was not written"
+        if self.lost is not None and self.n_episodes:
+            return f"the {n} recorded could not be written ({self.lost}): neither {self.path} nor {self.partial_path} holds them"
         return f"interrupted before any episode finished: {self.path} was not written"
 
     def close(self, ok: bool = True) -> Path | None:
         """Finish the file; returns where its episodes are (also `kept`), None if nowhere.
 
-        ok: flush and rename it onto `path`. Not ok (an error, Ctrl-C, SIGTERM): the
+        ok: flush and rename it onto `path` (CannotWrite naming it if the file could not be
+        written, a full disk: nothing is left then). Not ok (an error, Ctrl-C, SIGTERM): the
         finished episodes are kept under `partial_path` with the recording property
         `interrupted`, so that `path` only ever holds a whole run (and an earlier one there
         survives); a recording without a finished episode is discarded.
@@ -313,8 +318,11 @@ class RerunEpisodeRecording:
             if not ok:
                 self.stream.send_property("interrupted", rr.AnyValues(finished_episodes=self.n_episodes))
             self.stream.send_blueprint(self.blueprint())
-        self.stream.flush()
-        self.stream.disconnect()
+        try:
+            self.stream.flush()
+            self.stream.disconnect()
+        except RuntimeError as exc:  # rerun's file writer stopped: a full disk
+            return self._lost(ok, exc)
         if ok:
             self._atomic.__exit__(None, None, None)
             self.kept = self.path
@@ -330,6 +338,16 @@ class RerunEpisodeRecording:
         except RuntimeError:
             pass
         return self.kept
+
+    def _lost(self, ok: bool, exc: RuntimeError) -> None:
+        """The file could not be written: remove it; CannotWrite naming it if the run had ended well
+        (an interrupted one stays interrupted; `summary` says its episodes are lost)."""
+        self.lost = str(exc)
+        with contextlib.suppress(RuntimeError):
+            self._atomic.__exit__(RuntimeError, exc, None)
+        if ok:
+            raise CannotWrite(f"{self.path}: cannot write it (rerun: {exc})") from None
+        return None
 
     def __enter__(self) -> "RerunEpisodeRecording":
         return self
