@@ -118,6 +118,11 @@ def task_config(args, base: TaskConfig | None) -> TaskConfig:
     return cfg
 
 
+def layout_tag(config: TaskConfig) -> str:
+    """The layout part of file names: its index or file stem, 'random' when each episode draws a built-in one."""
+    return "random" if config.random_layout else Path(str(config.layout)).stem
+
+
 def checkpoint_file(args, train_cfg) -> Path | None:
     """The checkpoint choose_policy loads: -m FILE, else the -mc run's best.pt unless --policy; None for a hand-made team."""
     if args.model:
@@ -262,7 +267,7 @@ def run(args) -> int:
         task_tag = "".join(f"_{Path(f).stem}" for f in args.task_files or [])  # --task hard: not the default task's files
         frames = {**dataclasses.asdict(settings), "fps": fps, "trail": args.trail, "format": target.fmt}
         digest = render_digest(config, label, checkpoint_file(args, train_cfg), frames)
-        stem = f"{label}{task_tag}_layout{Path(str(config.layout)).stem}_{config.fidelity}_seed{args.seed}_{digest}"
+        stem = f"{label}{task_tag}_layout{layout_tag(config)}_{config.fidelity}_seed{args.seed}_{digest}"
         videos, finals = target.paths(args.episodes, stem, video, final)
         for path in (videos or []) + (finals or []):
             if path.is_dir():  # found now, not by the rename after the episode is played
