@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from .layout import Box, Cylinder, Layout, Wall
-from .palette import BORDER_RGBA, OBSTACLE_RGBA, ROLE_RGBA
+from .palette import BORDER_RGBA, FLOOR_RGB, OBSTACLE_RGBA, ROLE_RGBA
 from .shipped import shipped_dir
 
 MODEL_DIR = shipped_dir("models")
@@ -180,7 +180,7 @@ def build_spec(scene: SceneSpec) -> mujoco.MjSpec:
     spec.visual.global_.offheight = 1080
     spec.stat.center = [layout.width / 2, layout.height / 2, 0.5]
     spec.stat.extent = max(layout.width, layout.height)
-    tex = spec.add_texture(name="grid", type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, rgb1=[0.92, 0.92, 0.9], rgb2=[0.85, 0.85, 0.83], width=512, height=512)
+    tex = spec.add_texture(name="grid", type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, rgb1=list(FLOOR_RGB[0]), rgb2=list(FLOOR_RGB[1]), width=512, height=512)
     mat = spec.add_material(name="floor")
     mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = tex.name
     mat.texrepeat = [layout.width / 0.5, layout.height / 0.5]

@@ -191,6 +191,12 @@ def test_colour_key_stays_in_its_band_and_lists_what_the_task_shows():
     full.reset()
     labels = [e.label for e in key_entries(full.snapshot(0), OverlayStyle())]
     assert labels == ["pursuer", "evader", "seen", "capture", "caught", "obstacle"]
+    # the caught disc is keyed as it looks over the floor: drawn at its translucent grey without
+    # the floor under it, it was (89, 89, 89) on a key band of about (85, 86, 87), invisible
+    floor = np.array([226, 226, 222], float)
+    band_rgb = floor * (85 / 255) + np.array([15, 18, 24]) * (170 / 255)
+    (caught,) = [e for e in key_entries(full.snapshot(0), OverlayStyle()) if e.label == "caught"]
+    assert np.abs(np.array(caught.rgb) - band_rgb).min() > 40, caught.rgb
 
 
 def test_colour_key_lists_no_relayed_line_for_a_lone_pursuer():

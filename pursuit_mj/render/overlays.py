@@ -16,7 +16,7 @@ import math
 import mujoco
 import numpy as np
 
-from ..palette import OBSTACLE_RGBA, ROLE_RGBA, rgb255
+from ..palette import OBSTACLE_RGBA, ROLE_RGBA, over_floor, rgb255
 from .caption import KeyEntry
 
 _EYE = np.eye(3).ravel()
@@ -206,7 +206,7 @@ def key_entries(snap, style: OverlayStyle) -> list[KeyEntry]:
     if partial and cfg.share_detections and cfg.n_pursuers > 1:  # a lone pursuer has no one to relay to it
         entries.append(KeyEntry("relayed", rgb255(style.relayed_rgba), "dash"))
     entries.append(KeyEntry("capture", rgb255(style.capture_rgba), "ring"))
-    entries.append(KeyEntry("caught", rgb255(style.captured_fill_rgba), "dot"))  # the filled capture disc
+    entries.append(KeyEntry("caught", rgb255(over_floor(style.captured_fill_rgba)), "dot"))  # the filled capture disc, as seen
     layout = snap.layout
     if len(layout.obstacles) > layout.n_random:
         entries.append(KeyEntry("obstacle", rgb255(OBSTACLE_RGBA["fixed"]), "square"))
