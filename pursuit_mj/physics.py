@@ -49,11 +49,16 @@ class DroneState:
 
 
 def check_commands(commands: np.ndarray, shape: tuple[int, ...], source: str = "commands") -> np.ndarray:
-    """Validate a command array: exact shape, finite values. Raises ValueError naming the problem."""
+    """Validate a command array: real numbers (ints or floats; not bools, text or complex
+    numbers, which numpy would turn into velocities), exact shape, finite values. Returns it
+    as float64; raises ValueError naming the problem."""
     try:
-        arr = np.asarray(commands, dtype=np.float64)
-    except (TypeError, ValueError):
+        raw = np.asarray(commands)
+    except (TypeError, ValueError):  # ragged nesting
         raise ValueError(f"{source}: expected a numeric array of shape {shape}, got {type(commands).__name__}") from None
+    if raw.dtype.kind not in "fiu":
+        raise ValueError(f"{source}: expected a numeric array of shape {shape} (real numbers), got an array of dtype {raw.dtype}")
+    arr = raw.astype(np.float64)
     if arr.shape != shape:
         raise ValueError(f"{source}: expected shape {shape} (worlds, drones, vx vy), got {arr.shape}")
     if not np.isfinite(arr).all():

@@ -155,6 +155,12 @@ def test_observers_run_after_every_physics_chunk(fidelity):
         (np.array([[[0, 0]] * 3 + [[np.nan, 0]]]), r"non-finite value nan at index \(0, 3, 0\)"),
         (np.array([[[0, 0], [0, np.inf], [0, 0], [0, 0]]]), r"non-finite value inf at index \(0, 1, 1\)"),
         ("fast", r"commands: expected a numeric array"),
+        # no velocities, though numpy would turn them into some: True is 1 m/s, "0.1" is 0.1 m/s,
+        # and 1+1j lost its imaginary part with only a warning
+        (np.ones((1, 4, 2), bool), r"commands: expected a numeric array .* got an array of dtype bool"),
+        (np.full((1, 4, 2), "0.1"), r"commands: expected a numeric array .* got an array of dtype <U3"),
+        (np.full((1, 4, 2), 1 + 1j), r"commands: expected a numeric array .* got an array of dtype complex128"),
+        ([[[0, 0], [0, 0], [0, 0], [0]]], r"commands: expected a numeric array"),  # ragged
     ],
 )
 def test_bad_commands_raise_value_error_naming_the_problem(commands, message):
