@@ -123,6 +123,10 @@ def params():
 
 
 def test_mixer_matches_hand_computed_allocation(params):
+    """The signs are the Crazyflie firmware's (powerDistributionForceTorque in
+    power_distribution_quadrotor.c): M1 = T/4 - roll - pitch - yaw, M2 = + pitch + yaw - roll,
+    M3 = + roll + pitch - yaw, M4 = + roll - pitch + yaw. So M1 and M3 spin counter-clockwise
+    seen from above (their reaction torque is clockwise, -z) and M2 and M4 clockwise."""
     arm = 0.046 / math.sqrt(2)  # motors on the diagonals, 46 mm from the centre
     ratio = 0.006  # reaction torque per newton of thrust (m)
     inv = VelocityController(params, 0.5).mixer_inv
@@ -130,7 +134,7 @@ def test_mixer_matches_hand_computed_allocation(params):
         (0.28, 0, 0, 0): [0.07, 0.07, 0.07, 0.07],
         (0, 1e-3, 0, 0): np.array([-1, -1, 1, 1]) * 1e-3 / (4 * arm),  # roll right-side-down: left rotors push
         (0, 0, 1e-3, 0): np.array([-1, 1, 1, -1]) * 1e-3 / (4 * arm),  # pitch nose-down: rear rotors push
-        (0, 0, 0, 1e-4): np.array([1, -1, 1, -1]) * 1e-4 / (4 * ratio),  # yaw left: clockwise rotors M1, M3
+        (0, 0, 0, 1e-4): np.array([-1, 1, -1, 1]) * 1e-4 / (4 * ratio),  # yaw left: clockwise rotors M2, M4 push
     }
     for wrench, expected in cases.items():
         np.testing.assert_allclose(inv @ np.array(wrench), expected, rtol=1e-3, atol=1e-9, err_msg=str(wrench))
