@@ -99,7 +99,6 @@ class BatchedPhysics:
         needed = max(_layout_slots(l) + config.random_obstacle_count(l) for l in self.layouts) + SPARE_SLOTS
         self.obstacle_slots = max(needed, obstacle_slots or 0)
         self.models = self._build_all(self.layouts)
-        self.ids = DroneIds.lookup(self.models[0], self.names, self.fidelity)
         self.max_speed = np.array([config.pursuer_speed] * config.n_pursuers + [config.evader_speed] * config.n_evaders)
         self.commands = np.zeros((self.n_worlds, self.n_drones, 2))  # last applied command, m/s world
         self.contacts = np.zeros((self.n_worlds, self.n_drones), bool)  # any contact in the last step
@@ -126,7 +125,10 @@ class BatchedPhysics:
         return [built[id(layout)] for layout in layouts]
 
     def _make_batch(self, state: np.ndarray | None = None) -> None:
-        """(Re)create the batch on self.models, optionally restoring state rows, and bind arrays."""
+        """(Re)create the batch on self.models, optionally restoring state rows, and bind arrays.
+
+        The drone ids are looked up again: more obstacle slots move the drones' geom ids."""
+        self.ids = DroneIds.lookup(self.models[0], self.names, self.fidelity)
         self.batch = mujoco.batch.Batch(self.models[0], self.n_worlds, nthread=self.nthread)
         self._set_models()
         if state is not None:

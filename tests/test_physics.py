@@ -114,6 +114,19 @@ def test_set_layouts_with_more_obstacles_rebuilds_and_keeps_state():
 
 
 @pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_drone_ids_still_name_the_drones_after_a_rebuild(fidelity):
+    """A rebuild for more obstacles adds padding geoms before the drones, so geom ids move:
+    physics.ids must be looked up again on the new models."""
+    physics = make_physics(fidelity, n_worlds=2)
+    many = [{"cylinder": {"center": [1.0 + 0.8 * k, 18.0], "radius": 0.2}} for k in range(20)]
+    physics.set_layouts([1], [open_layout(obstacles=many, name="many")])
+    for w in range(2):
+        model = physics.model(w)
+        assert [model.geom(g).name for g in physics.ids.collision_geom] == [f"{n}/collision" for n in physics.names]
+        assert [model.body(b).name for b in physics.ids.body] == [f"{n}/body" for n in physics.names]
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
 def test_state_arrays_have_documented_shapes(fidelity):
     physics = make_physics(fidelity, n_worlds=2)
     physics.step(np.zeros((2, 4, 2)))
