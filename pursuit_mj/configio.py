@@ -284,6 +284,12 @@ def safe_load(text: str) -> Any:
     return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
 
 
+def safe_dump(data: Any, **kwargs: Any) -> str:
+    """yaml.safe_dump (same keyword arguments) whose text `safe_load` reads back as `data`:
+    strings it would read as numbers (a name '1e6') are quoted."""
+    return yaml.dump(data, Dumper=_Dumper, **kwargs)
+
+
 def read_text(path: Path, source: str) -> str:
     """A file's text; ConfigError naming `source` when it is not UTF-8 text (an image, say)."""
     try:

@@ -15,7 +15,7 @@ from typing import Any, Mapping, Sequence, Union
 import numpy as np
 import yaml
 
-from .configio import ConfigError, read_text, safe_load, shown, yaml_error_text
+from .configio import ConfigError, read_text, safe_dump, safe_load, shown, yaml_error_text
 from .geometry import ObstacleSet, boundary_segments
 from .shipped import shipped_dir
 
@@ -398,5 +398,5 @@ def save_layout(layout: Layout, path: str | Path) -> Path:
     """Write a layout file atomically (a temp file renamed into place)."""
     from .io_utils import atomic_write_text
 
-    text = yaml.safe_dump(layout_to_dict(layout), sort_keys=False, default_flow_style=None)
+    text = safe_dump(layout_to_dict(layout), sort_keys=False, default_flow_style=None)
     return atomic_write_text(Path(path), text)

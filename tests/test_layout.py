@@ -71,6 +71,12 @@ def test_polygon_and_circle_layouts_round_trip(data, tmp_path):
     round_trip(layout.with_random_obstacles(np.random.default_rng(0)), tmp_path / "resolved.yaml")
 
 
+@pytest.mark.parametrize("name", ["1e6", "2E-3", "010", "1:30", "yes"])
+def test_a_saved_layout_whose_name_reads_as_a_number_loads_again(name, tmp_path):
+    # the loader reads 1e6 as a number (YAML 1.2); a name written unquoted came back as 1000000.0
+    round_trip(layout_from_dict(base_dict(name=name)), tmp_path / "named.yaml")
+
+
 def test_clockwise_polygon_is_stored_counter_clockwise():
     cw = base_dict(boundary={"polygon": [[0, 0], [0, 5], [3.6, 5], [3.6, 0]]})
     layout = layout_from_dict(cw)
