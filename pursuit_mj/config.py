@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Sequence
 
 from .configio import ConfigError, build, dump_yaml, load, spec, to_dict
-from .layout import N_BUILTIN
+from .layout import MAX_RANDOM_OBSTACLES, N_BUILTIN
 
 from .shipped import shipped_dir
 
@@ -71,7 +71,7 @@ class TaskConfig:
     max_steps: int = spec(1000, lo=1, help="decision steps before timeout")
     flight_height: float = spec(0.5, lo=0.1, hi=3.0, help="altitude the drones hold (m)")
     layout: int | str = spec(0, help="built-in layout index 0-3 or a layout file path")
-    random_obstacles: int | None = spec(None, lo=0, hi=64, help="random obstacles added per episode; null: each layout's own random_obstacles.count (5 in the built-in layouts)")
+    random_obstacles: int | None = spec(None, lo=0, hi=MAX_RANDOM_OBSTACLES, help="random obstacles added per episode; null: each layout's own random_obstacles.count (5 in the built-in layouts)")
     random_layout: bool = spec(False, help="draw a random built-in layout per episode")
     observability: str = spec("partial", choices=("partial", "full"), help="partial or full observability")
     share_detections: bool = spec(True, help="an evader seen by one pursuer is known to all (relayed)")

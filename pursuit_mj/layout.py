@@ -21,6 +21,9 @@ from .shipped import shipped_dir
 
 LAYOUT_DIR = shipped_dir("configs") / "layouts"
 N_BUILTIN = 4
+#: most random obstacles per episode (a file's random_obstacles.count, or task.random_obstacles):
+#: the physics reserves a geom for each in every world's model
+MAX_RANDOM_OBSTACLES = 64
 
 
 class LayoutError(ConfigError):
@@ -276,6 +279,9 @@ def _parse_random(value: Any, where: str) -> RandomObstacles:
     count = m.get("count", 5)
     if isinstance(count, bool) or not isinstance(count, int) or count < 0:
         raise LayoutError(f"{where}.count: expected an integer >= 0, got {count!r}")
+    if count > MAX_RANDOM_OBSTACLES:
+        raise LayoutError(f"{where}.count: {count} is more than {MAX_RANDOM_OBSTACLES}, the most random obstacles per "
+                          f"episode (as for task.random_obstacles)")
     raw_kinds = m.get("kinds", ("box", "cylinder"))
     if not isinstance(raw_kinds, (list, tuple)):
         raise LayoutError(f"{where}.kinds: expected a list such as [box, cylinder], got {raw_kinds!r}")

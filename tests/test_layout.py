@@ -222,6 +222,8 @@ def test_no_room_for_random_obstacles_is_refused():
         (base_dict(spawn={"pursuers": {"x": [3, 1], "y": [0.2, 0.8]}, "evaders": SPAWN["evaders"]}), r"spawn.pursuers: ranges must be \[low, high\]"),
         (base_dict(random_obstacles={"count": 2, "kinds": ["pyramid"]}), r"random_obstacles.kinds: unknown kind 'pyramid'"),
         (base_dict(random_obstacles={"count": -1}), r"random_obstacles.count: expected an integer >= 0, got -1"),
+        # the physics reserves a geom per random obstacle in every world: 10**7 hung PursuitEnv(), as task.random_obstacles would not
+        (base_dict(random_obstacles={"count": 10**7}), r"bad.yaml: random_obstacles.count: 10000000 is more than 64, the most .* task.random_obstacles"),
         (base_dict(boundary={"polygon": [[0, 0], [1, 1]]}), r"boundary.polygon: expected at least 3"),
         (base_dict(boundary="triangle"), r"boundary: expected 'rectangle'"),
     ],
