@@ -20,7 +20,7 @@ GRID_CELLS = 300
 
 
 def _obstacle_points(layout, obstacles) -> list[np.ndarray]:
-    """Outline sample points (K, 2) of each obstacle, for inside-the-arena checks."""
+    """Outline sample points (K, 2) of each obstacle, its centre last, for inside-the-arena checks."""
     from .layout import Box, Cylinder, Wall
 
     out = []
@@ -34,7 +34,8 @@ def _obstacle_points(layout, obstacles) -> list[np.ndarray]:
             out.append(np.asarray(o.center) + local @ np.array([[c, s], [-s, c]]))
         else:
             a = np.linspace(0, 2 * np.pi, 16, endpoint=False)
-            out.append(np.asarray(o.center) + o.radius * np.stack([np.cos(a), np.sin(a)], -1))
+            rim = np.asarray(o.center) + o.radius * np.stack([np.cos(a), np.sin(a)], -1)
+            out.append(np.vstack([rim, o.center]))
     return out
 
 

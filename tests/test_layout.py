@@ -245,6 +245,8 @@ def test_malformed_layouts_are_refused_naming_the_entry(data, message, tmp_path)
         (dict(CIRCLE, boundary={"circle": {"center": [2.0, 2.0], "radius": 2.5}}), r"boundary circle .* leaves the arena"),
         (dict(CIRCLE, spawn={"pursuers": {"x": [0.0, 0.4], "y": [0.0, 0.4]}, "evaders": CIRCLE["spawn"]["evaders"]}), r"spawn.pursuers .* has no free point"),
         (dict(CIRCLE, obstacles=[{"cylinder": {"center": [0.2, 0.2], "radius": 0.1}}]), r"obstacles\[0\] \(cylinder .*\) has its centre outside the circle boundary"),
+        # centre outside, but the rim point the check used to take for the centre inside
+        (dict(CIRCLE, obstacles=[{"cylinder": {"center": [0.2, 2.75], "radius": 0.15}}]), r"obstacles\[0\] \(cylinder .*\) has its centre outside the circle boundary"),
         (base_dict(obstacles=[{"wall": {"from": [0.0, 2.5], "to": [3.6, 2.5]}}]), r"evaders' spawn region cannot be reached from the pursuers'"),
         (base_dict(obstacles=[{"wall": {"from": [0.0, 2.5], "to": [3.45, 2.5]}}]), r"cannot be reached"),  # a 0.15 m gap: too narrow
         # a closed room in a corner of the evaders' band: an evader spawned in it could never be caught
@@ -269,6 +271,13 @@ def test_malformed_layouts_are_refused_naming_the_entry(data, message, tmp_path)
 def test_impossible_layouts_are_refused_naming_the_entry(data, message):
     with pytest.raises(LayoutError, match=message):
         layout_from_dict(data, "impossible.yaml")
+
+
+@pytest.mark.parametrize("kind", ["box", "cylinder"])
+def test_an_obstacle_centred_inside_a_round_border_may_reach_through_it_whatever_its_kind(kind):
+    # a cylinder was refused as "centre outside" when one point of its rim was: a box there was accepted
+    body = {"center": [3.5, 1.2], **({"radius": 0.3} if kind == "cylinder" else {"size": [0.6, 0.6]})}
+    layout_from_dict(dict(CIRCLE, obstacles=[{kind: body}]), "round.yaml")
 
 
 def test_a_passage_just_wide_enough_is_accepted():
