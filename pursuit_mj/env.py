@@ -15,7 +15,7 @@ import numpy as np
 from .config import TaskConfig, checked_task_config
 from .evader import EscapeModel
 from .geometry import ObstacleSet
-from .layout import N_BUILTIN, Layout, LayoutError, load_layout
+from .layout import N_BUILTIN, Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout
 from .layout_check import (PASSAGE_CLEARANCE, SPAWN_SEPARATION, check_passages, check_spawn_capacity, check_spawn_gap,
                            free_spawn_points, sample_separated)
 from .observations import build_global_state, build_observations, global_state_dim
@@ -101,7 +101,14 @@ def _layout_pool(config: TaskConfig, layouts: Sequence[int | str | Layout] | Non
         refs = [config.layout]
     if not refs:
         raise ValueError("layouts: the list of layouts is empty")
-    return [r if isinstance(r, Layout) else load_layout(r) for r in refs]
+    return [_checked_layout(r) if isinstance(r, Layout) else load_layout(r) for r in refs]
+
+
+def _checked_layout(layout: Layout) -> Layout:
+    """`layout` itself, once it passes every check its file would (a Layout made directly or
+    with dataclasses.replace skips the loader's); LayoutError naming its source otherwise."""
+    layout_from_dict(layout_to_dict(layout), layout.source)
+    return layout
 
 
 class PursuitEnv:

@@ -288,6 +288,23 @@ def test_configs_made_without_the_loader_are_checked_by_the_env():
     assert load_task_config("hard") == load_task_config(["hard"])
 
 
+def test_layout_objects_made_without_the_loader_are_checked_by_the_env():
+    """As configs are: a Layout made directly or with dataclasses.replace skips the loader's checks."""
+    import dataclasses
+
+    from pursuit_mj.layout import Box, LayoutError, RandomObstacles, load_layout
+
+    base = load_layout(0)
+    outside = dataclasses.replace(base, obstacles=(Box((10.0, 10.0), (1.0, 1.0)),))  # was simulated and drawn
+    with pytest.raises(LayoutError, match=r"0_open.yaml: obstacles\[0\] \(box centre \[10.0, 10.0\] .*\) lies \(partly\) outside"):
+        PursuitEnv(default_config(**FAST), layouts=[outside])
+    many = dataclasses.replace(base, random_obstacles=RandomObstacles(count=10**7))  # hung building ten million geoms
+    with pytest.raises(LayoutError, match="random_obstacles.count: 10000000 is more than 64"):
+        PursuitEnv(default_config(fidelity="point"), layouts=[many])
+    placed = base.with_random_obstacles(np.random.default_rng(0))  # a checked layout's own placement passes
+    assert PursuitEnv(default_config(**FAST), layouts=[placed]).world_layouts[0] is placed
+
+
 @pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
 def test_a_caught_evader_stops_at_once_while_the_chase_goes_on(fidelity):
     from pursuit_mj.heuristic import HeuristicTeam
