@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from pursuit_mj.io_utils import check_writable
-from pursuit_mj.layout import Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout, save_layout
+from pursuit_mj.layout import MAX_RANDOM_OBSTACLES, Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout, save_layout
 from pursuit_mj.geometry import inside_polygon
 from pursuit_mj.layout_check import check_spawn_capacity, free_spawn_points
 from .common import finite_float, path_arg, seed_arg
@@ -185,8 +185,8 @@ def build_new_layout(args) -> Layout:
             raise ValueError(f"{flag}: must be a number > 0, got {value}")
     if args.random < 0:
         raise ValueError(f"--random: must be >= 0, got {args.random}")
-    if args.episode_obstacles < 0:
-        raise ValueError(f"--episode-obstacles: must be >= 0, got {args.episode_obstacles}")
+    if not 0 <= args.episode_obstacles <= MAX_RANDOM_OBSTACLES:
+        raise ValueError(f"--episode-obstacles: {args.episode_obstacles} is out of range (0 to {MAX_RANDOM_OBSTACLES})")
     boundary, bbox = _boundary(args)
     pursuers, evaders = _default_spawn(args.border, bbox, boundary["polygon"] if args.border == "polygon" else None)
     if args.spawn_pursuers:

@@ -86,6 +86,8 @@ def test_bench_physics_prints_the_table(capsys):
         (["bench", "physics", "--nthread", "3000000000"], "--nthread: must be in 0..256, got 3000000000"),  # a TypeError traceback
         (["bench", "physics", "--worlds", "4", "3000000000"], "--worlds: world counts must be at most 4096, got 3000000000"),  # hung
         (["bench", "env", "--worlds", "5000"], "--worlds: world counts must be at most 4096, got 5000"),
+        # silently stepped the one layout of --set layout instead
+        (["bench", "physics", "--set", "random_layout=true"], "--set random_layout=true: this benchmark steps one layout"),
         # a huge finite value used to overflow the step or block count into an OverflowError traceback
         (["simulate", "--seconds", "0.05"], "--seconds: 0.05 is shorter than one decision step (control_dt 0.1 s)"),  # flew 0.1 s
         (["simulate", "--seconds", "1e308"], "--seconds: must be at most 86400 (a simulated day per run), got 1e+308"),

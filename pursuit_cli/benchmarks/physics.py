@@ -73,6 +73,9 @@ def add_arguments(p) -> None:
 def task_config(fidelity: str, overrides: Sequence[str] = ()) -> TaskConfig:
     """The default task in `fidelity`, with --set overrides."""
     config = load_task_config([], overrides, {"fidelity": fidelity})
+    if config.random_layout:
+        raise ValueError("--set random_layout=true: this benchmark steps one layout (--set layout=...); "
+                         "`pursuit-mj bench env` plays random layouts")
     if config.fidelity != fidelity:
         raise ValueError(f"--set fidelity={config.fidelity}: this benchmark measures the fidelities given by --fidelity; "
                          f"use --fidelity {config.fidelity}")
