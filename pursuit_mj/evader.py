@@ -42,7 +42,7 @@ import math
 
 import numpy as np
 
-from .config import DRONE_CONTACT_DISTANCE, TaskConfig
+from .config import DRONE_CONTACT_DISTANCE, TaskConfig, checked_task_config
 from .geometry import FAR, ObstacleSet, first_axis_last, last_axis_first, obstacle_distance
 from .planar import EPS, dot, limit_closing, norm, perp, rotate, unit
 from .randomness import TICK as _TICK, hash_uniform, splitmix64 as _splitmix64
@@ -239,6 +239,7 @@ class EscapeModel:
     def __init__(self, config: TaskConfig, n_worlds: int, seed: int):
         if isinstance(n_worlds, bool) or not isinstance(n_worlds, (int, np.integer)) or n_worlds < 1:
             raise ValueError(f"EscapeModel n_worlds: expected an integer >= 1, got {n_worlds!r}")
+        config = checked_task_config(config, "EscapeModel config")  # one made with dataclasses.replace skips the loader's checks
         self.config = config
         self.cfg = config.evader
         self.n_worlds = int(n_worlds)

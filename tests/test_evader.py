@@ -362,3 +362,14 @@ def test_evader_settings_are_validated():
     with pytest.raises(ConfigError, match="zigzag_angle"):
         load_task_config(overrides=["evader.zigzag_angle=4"])
     assert load_task_config(overrides=["evader.sense_radius=2.5"]).evader.sense_radius == 2.5
+
+
+def test_a_config_made_without_the_loader_is_checked():
+    # dataclasses.replace skips the loader's checks: calm_distance below panic_distance made
+    # panic 1 far from the chasers and 0 next to them, and an evader dict failed deep inside
+    config = default_config()
+    inverted = dataclasses.replace(config, evader=dataclasses.replace(config.evader, calm_distance=1.0))
+    with pytest.raises(ConfigError, match="EscapeModel config.*calm_distance"):
+        EscapeModel(inverted, 1, seed=0)
+    with pytest.raises(ConfigError, match="EscapeModel config: key 'evader'"):
+        EscapeModel(dataclasses.replace(config, evader={"calm_distance": 1.0}), 1, seed=0)
