@@ -21,11 +21,12 @@ constant `evader_speed`, through the same velocity interface as the pursuers:
 5. repulsion from obstacles within `wall_margin` and, weakly, from other free evaders, then
    smoothing with the last heading;
 6. look-ahead: RING directions around the wanted one are measured (the free length of a
-   corridor `2 * clearance` wide: one ray each against obstacles grown by `clearance`) and
-   scored by alignment with it, room (`room_weight`) and, when panicked, how far the evader
-   stays out of every chaser's reach along them (`safety_weight`); a direction whose corridor
-   is not free for `clearance + evader_speed * lookahead_time` is flown only if all are
-   blocked. A gap escape skips 4 to 6 (its path is already checked);
+   corridor `2 * clearance` wide: one ray each against obstacles grown by `clearance`, cut
+   short where it comes within `DRONE_CONTACT_DISTANCE + APART_BUFFER` of another free
+   evader) and scored by alignment with it, room (`room_weight`) and, when panicked, how far
+   the evader stays out of every chaser's reach along them (`safety_weight`); a direction
+   whose corridor is not free for `clearance + evader_speed * lookahead_time` is flown only
+   if all are blocked. A gap escape skips 4 to 6 (its path is already checked);
 7. keeping apart: each free evader's closing speed toward every other free evader is capped
    (planar.limit_closing, half the budget each, as the pursuers' shield does for teammates),
    so evaders slow down rather than fly into each other; only then do they fly slower than
@@ -343,7 +344,8 @@ class EscapeModel:
         want = unit(want + push + self._evader_push(e, active), want)
         want = unit((1.0 - cfg.smoothing) * want + cfg.smoothing * self.heading, want)
         survey = rotate(want[:, :, None, :], RING_ANGLES)  # (W, M, RING, 2); survey[:, :, 0] is want
-        best = self._choose(e, pp, sensed, want, survey, corridors.free(survey))
+        room = np.minimum(corridors.free(survey), self._evader_room(e, active, survey))
+        best = self._choose(e, pp, sensed, want, survey, room)
         chosen = np.take_along_axis(survey, best[..., None, None], 2)[:, :, 0]
         final = np.where(gap_on[..., None], through, chosen)
 
@@ -506,6 +508,20 @@ class EscapeModel:
             held, _ = limit_closing(v, dirs, np.concatenate([np.maximum(pair_cap, 0.0), wall_cap], axis=2))
             capped = np.where(met[..., None], capped, held)
         return np.where(active[..., None], capped, 0.0)
+
+    def _evader_room(self, e: np.ndarray, active: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+        """Free length (W, M, K) m along unit dirs (W, M, K, 2) from each evader before it comes
+        within DRONE_CONTACT_DISTANCE + APART_BUFFER of another free evader: FAR where none is
+        ahead, 0 along directions toward one already that close."""
+        if self.n_evaders < 2:
+            return np.full(dirs.shape[:-1], FAR)
+        rel = e[:, None, :, :] - e[:, :, None, :]  # (W, M, M, 2) m: from evader i to evader j
+        ahead = np.einsum("wikc,wijc->wikj", dirs, rel)  # (W, M, K, M) m along each direction
+        excess = (dot(rel, rel) - (DRONE_CONTACT_DISTANCE + APART_BUFFER) ** 2)[:, :, None, :]
+        disc = ahead * ahead - excess
+        t = np.where(excess > 0, ahead - np.sqrt(np.maximum(disc, 0.0)), 0.0)
+        other = (active[:, None, :] & ~np.eye(self.n_evaders, dtype=bool))[:, :, None, :]
+        return np.where(other & (ahead > 0) & (disc >= 0), t, FAR).min(-1)
 
     def _evader_push(self, e: np.ndarray, active: np.ndarray) -> np.ndarray:
         """Weak repulsion (W, M, 2) between free evaders closer than evader_spacing."""

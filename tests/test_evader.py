@@ -289,6 +289,23 @@ def test_evaders_never_fly_into_each_other(fidelity):
         assert np.all(gaps + np.eye(3) > DRONE_CONTACT_DISTANCE)
 
 
+def test_evaders_meeting_head_on_turn_aside():
+    # two evaders following the top wall toward each other, each pushed on by a chaser: the
+    # look-ahead did not see the other evader, so both kept choosing the way into it and step 7
+    # held them face to face, nearly still (about 0.01-0.04 m/s for 4-9 decisions here; in the
+    # env with a heuristic team, up to 5.8 s)
+    config = default_config(n_evaders=2)
+    model = EscapeModel(config, 1, seed=0)
+    e, v = np.array([[[1.0, 4.6], [1.25, 4.6]]]), np.array([[[0.1, 0.0], [-0.1, 0.0]]])
+    p = np.array([[[0.6, 4.3], [1.65, 4.3], [1.12, 3.0]]])
+    speeds = []
+    for _ in range(10):
+        v = model.compute(e, v, p, np.zeros_like(p), np.ones((1, 2), bool), arena_obstacles(1), DT)
+        e = e + v * DT
+        speeds.append(np.linalg.norm(v, axis=-1)[0])
+    assert np.min(speeds) > 0.5 * config.evader_speed
+
+
 def test_evaders_push_each_other_apart():
     config = default_config(n_evaders=2)
     lonely = dataclasses.replace(config, evader=dataclasses.replace(config.evader, evader_gain=0.0))
