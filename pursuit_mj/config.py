@@ -84,7 +84,7 @@ class TaskConfig:
     progress_reward: float = spec(1.0, help="scale of (d_prev - d)/0.3 toward the nearest free evader")
     collision_penalty: float = spec(-10.0, hi=0.0, help="reward on collision (<= 0)")
     proximity_penalty: float = spec(-0.1, hi=0.0, help="soft penalty scale near walls/teammates (<= 0)")
-    proximity_distance: float = spec(0.3, lo=0.0, help="distance below which the proximity penalty acts (m)")
+    proximity_distance: float = spec(0.3, lo=0.0, help="width of the soft zone beyond obstacle_clearance and teammate_clearance (centre distances) in which the proximity penalty grows from 0 to proximity_penalty (m)")
     spread_reward: float = spec(0.0, help="reward for spreading out (more_r); 0 = off")
     fidelity: str = spec("quadrotor", choices=("point", "quadrotor"), help="physics fidelity")
     physics_dt: float = spec(0.002, lo=0.0002, hi=0.01, help="MuJoCo timestep (s)")

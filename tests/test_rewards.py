@@ -91,3 +91,16 @@ def test_reward_terms_are_named_and_scaled():
     t2 = reward_terms(CFG, crash, prev, now, ev_pos, ev_pos, free)
     assert (t2["collision"] == CFG.collision_penalty).all(), "a collision fails the whole team"
     assert t2["proximity"][0, 0] < 0 and t2["proximity"][0, 1] == 0
+
+
+@pytest.mark.parametrize("beyond,share", [(0.0, 1.0), (0.5, 0.5), (1.0, 0.0), (1.1, 0.0)])
+def test_proximity_zone_lies_beyond_the_clearance(beyond, share):
+    # the soft zone is proximity_distance wide, starting at obstacle_clearance (centre to
+    # surface), not proximity_distance from the wall as the key's help once said
+    x = 1.8 - CFG.obstacle_clearance - beyond * CFG.proximity_distance  # the box's left face is at x = 1.8
+    p = np.array([[[x, 2.0]]])
+    ev_pos = np.array([[[3.5, 3.5]]])
+    free = np.ones((1, 1), bool)
+    events = detect_events(p, ev_pos, ~free, np.zeros((1, 1), bool), OBST, CFG)
+    terms = reward_terms(CFG, events, p, p, ev_pos, ev_pos, free)
+    assert terms["proximity"][0, 0] == pytest.approx(share * CFG.proximity_penalty, abs=1e-6)
