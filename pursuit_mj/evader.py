@@ -316,7 +316,8 @@ class EscapeModel:
         (not captured); obstacles: ObstacleSet stacked over worlds (arrays (W, ...)), border
         included; dt decision interval (s).
 
-        Returns desired velocities (W, M, 2) m/s world: norm evader_speed where active, else 0.
+        Returns desired velocities (W, M, 2) m/s world: norm evader_speed where active (less only
+        where step 7 slows an evader near another free one), else 0.
         """
         e, ev, pp, pv, active = self._check(evader_pos, evader_vel, pursuer_pos, pursuer_vel, active, obstacles, dt)
         cfg = self.cfg
