@@ -246,6 +246,8 @@ class EscapeModel:
         self.n_worlds = int(n_worlds)
         self.n_evaders = config.n_evaders
         self.n_pursuers = config.n_pursuers
+        if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f"EscapeModel seed: expected a non-negative integer, got {seed!r}")
         self.seed = int(seed)
         self._need = self.cfg.clearance + config.evader_speed * self.cfg.lookahead_time  # m of free corridor ahead
         W, M = self.n_worlds, self.n_evaders

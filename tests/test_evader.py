@@ -371,6 +371,9 @@ def test_bad_input_is_refused_by_name():
         model.reset(np.array([0, 1]), np.array([1]))
     with pytest.raises(ValueError, match="n_worlds"):
         EscapeModel(config, 0, seed=0)
+    for seed in (1.5, "7", -1, True):  # 1.5 ran as seed 1, "7" failed in int(), -1 only at reset(seeds)
+        with pytest.raises(ValueError, match="EscapeModel seed"):
+            EscapeModel(config, 1, seed=seed)
 
 
 def test_evader_settings_are_validated():
