@@ -49,8 +49,8 @@ def register(sub) -> None:
     out = p.add_argument_group("output")
     out.add_argument("-s", "--save-path", type=path_arg, default=DEFAULT_SAVE, metavar="DIR|FILE",
                      help=f"folder for videos and images, or a video file name (.mp4/.gif); a name ending in / is a folder "
-                          f"(default {DEFAULT_SAVE}/). Files in a folder are named <policy>_layout<L>_<fidelity>_seed<S>_<digest>_ep<k>, "
-                          f"the digest changing with anything else they show, so a render never overwrites another's")
+                          f"(default {DEFAULT_SAVE}/). Files in a folder are named <policy>[_<task>]_layout<L>_<fidelity>_seed<S>_<digest>_ep<k> "
+                          f"(<task>: each --task given), the digest changing with anything else they show, so a render never overwrites another's")
     out.add_argument("--format", choices=("mp4", "gif"), help="video format when -s is a folder (default mp4)")
     out.add_argument("--final-frame", action="store_true", help="also save the last frame of each episode as PNG")
     out.add_argument("--no-video", action="store_true", help="write no video (with --final-frame and/or --rerun)")
