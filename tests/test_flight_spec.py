@@ -593,7 +593,7 @@ def test_a_guard_lookahead_under_half_a_decision_interval_is_refused_under_one_w
     interval dt: the gap beyond the margin is multiplied by 1 - dt / lookahead each decision,
     which overshoots for lookahead < dt and swings ever wider for lookahead < dt / 2."""
     data = flight(safety={"lookahead": 0.06}, decision_rate=5)  # decisions every 0.2 s
-    with pytest.raises(ConfigError, match=r"lab.yaml: safety: key 'lookahead': 0.06 s is shorter than half a decision interval \(0.2 s\)"):
+    with pytest.raises(ConfigError, match=r"lab.yaml: safety: key 'lookahead': 0.06 s is shorter than half a decision interval \(0.1 s of 0.2 s\).*at least 0.1 s; under 0.2 s, one interval, the plan warns"):
         resolve_flight(flight_from_dict(data, "lab.yaml"))
     data = flight(safety={"lookahead": 0.05})  # decisions every 0.1 s: half of one is allowed
     resolve_flight(flight_from_dict(data, "lab.yaml"))

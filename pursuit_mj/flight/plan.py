@@ -330,8 +330,8 @@ def resolve_flight(spec: FlightSpec, overrides: Sequence[str] = ()) -> FlightPla
     if spec.safety.lookahead < task.control_dt / 2 - 1e-9:
         raise ConfigError(
             f"{spec.source}: safety: key 'lookahead': {spec.safety.lookahead:g} s is shorter than half a decision interval "
-            f"({task.control_dt:g} s): each decision the guards would let a drone cover over twice its way to the margin, "
-            f"so it would overshoot by more than it corrected and swing ever wider (use at least {task.control_dt:g} s)"
+            f"({task.control_dt / 2:g} s of {task.control_dt:g} s): each decision the guards would let a drone cover over twice its way to the margin, "
+            f"so it would overshoot by more than it corrected and swing ever wider (at least {task.control_dt / 2:g} s; under {task.control_dt:g} s, one interval, the plan warns)"
         )
     lab = _lab_bounds(spec, transform, layout)
     plan = FlightPlan(spec, task, layout, transform, lab, drones)
