@@ -272,43 +272,22 @@ def test_a_stalled_decision_makes_the_drones_hover_instead_of_leaving_them_to_th
     kinds = [r.kind for r in fleet.received(0)]
     first_hover = kinds.index("hover")  # held in place during the stall, flown on after it
     assert "velocity" in kinds[:first_hover] and "velocity" in kinds[first_hover:]
+    for i in range(plan.n_drones):  # the stream ends before the landing: a repeated setpoint after its
+        kinds = [r.kind for r in fleet.received(i)]  # notify_setpoint_stop would take the drone back from it
+        assert not {"velocity", "hover"} & set(kinds[kinds.index("land"):]), (plan.names[i], kinds[kinds.index("land"):])
 
 
 def test_decisions_slower_than_the_firmware_watchdog_have_their_setpoints_repeated(tmp_path):
     """At 1 Hz the drones went 1 s between setpoints: the firmware levelled each of them for
     half of every decision interval."""
-    plan = quick_plan(max_time=3.5, decision_rate=1.0, safety={"stall_hover": 0.2})
+    plan = quick_plan(max_time=2.5, decision_rate=1.0, safety={"stall_hover": 0.2})
     result, events, fleet = fly_virtual(plan, ScriptedTeam([[0.3, 0.0]]), tmp_path)
     assert result.outcome == "timeout", (result.outcome, result.reason)
     assert not events.of_kind("stall_hover")
     for i in range(plan.n_drones - 1):  # the pursuers: the decision's own velocity, repeated
         velocities = [r for r in fleet.received(i) if r.kind == "velocity"]
-        assert len(velocities) >= 12 and _setpoint_gaps(fleet, i).max() < 0.4
-        assert len({r.values[:2] for r in velocities}) <= 4  # a handful of decisions, each sent about 5 times
-
-
-def test_no_setpoint_follows_the_landing_or_an_emergency_stop(tmp_path):
-    """Once the chase ends its setpoints stop for good: a repeated velocity setpoint after the
-    landing's notify_setpoint_stop would take the drone back from the high-level commander."""
-    plan = quick_plan(max_time=1.5)
-    result, events, fleet = fly_virtual(plan, ScriptedTeam([[0.3, 0.0]]), tmp_path)
-    assert result.outcome == "timeout" and result.landed
-    for i in range(plan.n_drones):
-        kinds = [r.kind for r in fleet.received(i)]
-        land = kinds.index("land")
-        assert not {"velocity", "hover"} & set(kinds[land:]), kinds[land:]
-
-    def stop(fleet, bridge):
-        time.sleep(0.5)
-        bridge.emergency_stop("test")
-
-    result, events, fleet = fly_virtual(quick_plan(max_time=3.0), ScriptedTeam([[0.3, 0.0]]), tmp_path / "estop", during=stop)
-    assert result.outcome == "emergency_stop"
-    time.sleep(0.4)  # a keepalive still running would send within 0.25 s
-    for i in range(plan.n_drones):
-        kinds = [r.kind for r in fleet.received(i)]
-        cut = kinds.index("emergency_stop")
-        assert not {"velocity", "hover"} & set(kinds[cut:]), kinds[cut:]
+        assert len(velocities) >= 8 and _setpoint_gaps(fleet, i).max() < 0.4
+        assert len({r.values[:2] for r in velocities}) <= 3  # a few decisions, each sent about 5 times
 
 
 def test_an_emergency_stop_cuts_every_link_at_once_not_one_after_another(tmp_path):
@@ -334,3 +313,6 @@ def test_an_emergency_stop_cuts_every_link_at_once_not_one_after_another(tmp_pat
     assert result.outcome == "emergency_stop"
     assert cut_at.get("others", 9.0) < 0.5, cut_at  # the others did not wait for the hanging link
     assert down(fleet)  # and the hanging one was cut too
+    for i in range(fleet.plan.n_drones):  # no setpoint follows the emergency stop
+        kinds = [r.kind for r in fleet.received(i)]
+        assert not {"velocity", "hover"} & set(kinds[kinds.index("emergency_stop"):]), kinds
