@@ -20,6 +20,9 @@ CONFIG_DIR = shipped_dir("configs")
 #: m between two drone centres when their collision cylinders touch (2 x the 0.0685 m radius
 #: of the "collision" geom in models/crazyflie.xml; a test checks the two agree)
 DRONE_CONTACT_DISTANCE = 2 * 0.0685
+# every reward scale's magnitude limit: rewards are float32, and an episode's sum of steps of
+# the largest terms must stay finite and far from overflow
+REWARD_SCALE_LIMIT = 1e6
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,12 +83,12 @@ class TaskConfig:
     ray_range: float = spec(2.0, lo=0.0, lo_open=True, help="max range of the range readings (m)")
     position_noise: float = spec(0.0, lo=0.0, hi=1.0, help="std of noise on perceived positions (m)")
     miss_probability: float = spec(0.0, lo=0.0, hi=1.0, help="chance a visible evader is missed per step")
-    capture_reward: float = spec(10.0, help="team reward per captured evader")
-    progress_reward: float = spec(1.0, help="scale of (d_prev - d)/0.3 toward the nearest free evader")
-    collision_penalty: float = spec(-10.0, hi=0.0, help="reward on collision (<= 0)")
-    proximity_penalty: float = spec(-0.1, hi=0.0, help="soft penalty scale near walls/teammates (<= 0)")
+    capture_reward: float = spec(10.0, lo=0.0, hi=REWARD_SCALE_LIMIT, help="team reward per captured evader (>= 0)")
+    progress_reward: float = spec(1.0, lo=-REWARD_SCALE_LIMIT, hi=REWARD_SCALE_LIMIT, help="scale of (d_prev - d)/0.3 toward the nearest free evader")
+    collision_penalty: float = spec(-10.0, lo=-REWARD_SCALE_LIMIT, hi=0.0, help="reward on collision (<= 0)")
+    proximity_penalty: float = spec(-0.1, lo=-REWARD_SCALE_LIMIT, hi=0.0, help="soft penalty scale near walls/teammates (<= 0)")
     proximity_distance: float = spec(0.3, lo=0.0, help="width of the soft zone beyond obstacle_clearance and teammate_clearance (centre distances) in which the proximity penalty grows from 0 to proximity_penalty (m)")
-    spread_reward: float = spec(0.0, help="reward for spreading out (more_r); 0 = off")
+    spread_reward: float = spec(0.0, lo=-REWARD_SCALE_LIMIT, hi=REWARD_SCALE_LIMIT, help="reward for spreading out (more_r); 0 = off")
     fidelity: str = spec("quadrotor", choices=("point", "quadrotor"), help="physics fidelity")
     physics_dt: float = spec(0.002, lo=0.0002, hi=0.01, help="MuJoCo timestep (s)")
     controller_hz: float = spec(100.0, lo=100.0, hi=1000.0, help="quadrotor controller rate (Hz); at 50 Hz a full-speed reversal tilted to 22 deg, past the 15 deg limit")

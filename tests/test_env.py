@@ -126,6 +126,25 @@ def test_bad_task_settings_are_refused():
         PursuitEnv(default_config(**FAST), n_worlds=0)
 
 
+@pytest.mark.parametrize("key,value", [("capture_reward", -10.0), ("capture_reward", 1e308), ("progress_reward", -1e308),
+                                       ("spread_reward", 1e9), ("collision_penalty", -1e308), ("proximity_penalty", -1e7)])
+def test_reward_scales_that_reward_evasion_or_overflow_the_float32_rewards_are_refused(key, value):
+    with pytest.raises(ConfigError, match=key):
+        default_config(**{key: value})
+
+
+def test_reward_scales_at_their_bounds_give_finite_rewards():
+    from pursuit_mj.config import REWARD_SCALE_LIMIT
+
+    cfg = default_config(capture_reward=REWARD_SCALE_LIMIT, progress_reward=-REWARD_SCALE_LIMIT, collision_penalty=-REWARD_SCALE_LIMIT,
+                         proximity_penalty=-REWARD_SCALE_LIMIT, spread_reward=REWARD_SCALE_LIMIT, **FAST)
+    env = PursuitEnv(cfg, n_worlds=2, seed=0)
+    env.reset()
+    for _ in range(20):
+        _, reward, *_ = env.step(np.ones((2, 3, 2)))
+        assert np.isfinite(reward).all()
+
+
 def test_random_layout_and_several_evaders_run():
     env = PursuitEnv(default_config(fidelity="point", random_layout=True, n_evaders=2, n_pursuers=4), n_worlds=4, seed=3)
     obs = env.reset()
