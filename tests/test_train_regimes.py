@@ -37,8 +37,14 @@ def test_regime_files_carry_the_reference_hyperparameters(name, gamma, clip, env
 def test_overrides_flags_and_task_file():
     cfg = load_train_config(["classic"], ["ppo.lr=1e-4", "task.fidelity=point", "task_file=hard"], {"total_steps": 5000})
     assert cfg.ppo.lr == 1e-4 and cfg.task.fidelity == "point" and cfg.total_steps == 5000
-    assert cfg.task.evader_speed == 0.6  # the train file's task keys beat the task file's
-    assert cfg.task.miss_probability == load_task_config(["hard"]).miss_probability > 0  # from the hard preset
+    hard = load_task_config(["hard"])
+    # --set task_file applies its preset over the train file's task keys (classic's evader at
+    # 0.6 m/s trained a mix of the two tasks that `eval --task hard` did not play)
+    assert cfg.task.evader_speed == hard.evader_speed == 0.9
+    assert cfg.task.miss_probability == hard.miss_probability > 0
+    assert cfg.task.pursuer_speed == 0.3 and cfg.task.fidelity == "point"  # what the preset leaves, and later --set keys
+    later = load_train_config(["classic"], ["task.evader_speed=1.2", "task_file=hard"], {"task": {"perception_radius": 2.5}})
+    assert later.task.evader_speed == 1.2 and later.task.perception_radius == 2.5  # --set task.* and flags beat the preset
     with pytest.raises(ValueError, match="ppo.lrr.*did you mean 'lr'"):
         load_train_config(["classic"], ["ppo.lrr=1"])
     with pytest.raises(ValueError, match="pursuer_speed.*out of range"):
@@ -47,6 +53,23 @@ def test_overrides_flags_and_task_file():
         load_train_config(["fine_tune"], ["init_from=null"])
     with pytest.raises(ValueError, match="minibatch_size 512 exceeds ppo.batch_size 256"):
         load_train_config([], ["ppo.batch_size=256", "ppo.minibatch_size=512"]).check_complete()
+
+
+def test_a_task_file_applies_where_its_train_file_stands_in_the_order(tmp_path):
+    """Files apply in order, each with its task_file under its own task: keys: a later file's
+    task_file used to lose to an earlier file's task: keys."""
+    slow = tmp_path / "slow.yaml"
+    slow.write_text("name: x\ntask:\n  evader_speed: 0.5\n  pursuer_speed: 0.25\n")
+    hard = tmp_path / "hard_run.yaml"
+    hard.write_text("name: y\ntask_file: hard\n")
+    tuned = tmp_path / "tuned.yaml"
+    tuned.write_text("name: z\ntask_file: hard\ntask:\n  evader_speed: 0.7\n")
+    cfg = load_train_config([slow, hard], [])
+    assert (cfg.task.evader_speed, cfg.task.pursuer_speed, cfg.task.miss_probability) == (0.9, 0.25, 0.2)
+    assert load_train_config([slow, tuned], []).task.evader_speed == 0.7  # a file's own task keys beat its task_file
+    assert load_train_config([hard, slow], []).task.evader_speed == 0.5  # a later file beats an earlier task_file
+    assert load_train_config([hard, slow], []).task.miss_probability == 0.2
+    assert load_train_config([slow, hard], []).task_file == "hard"
 
 
 def test_settings_this_combination_never_reads_are_named_when_the_run_starts(tmp_path):

@@ -3,7 +3,9 @@
 YAML files under configs/train/ and `--set key=value` overrides go through
 `load_train_config`, the same path as the task config (pursuit_mj.configio). A train config
 embeds the task it trains on under `task:`; `task_file:` may name a task YAML (or a preset
-such as `reference`) whose keys are applied first, then the `task:` keys, then `--set task.x=`.
+such as `hard`). Files apply in order, each as a layer: its task_file's keys over the task so
+far, then its own `task:` keys. `--set task_file=X` is a layer over every file; flags and the
+other `--set` keys (`--set task.x=`) apply over it.
 """
 
 from __future__ import annotations
@@ -148,7 +150,8 @@ class TrainConfig:
                                     "load_policy puts it back on the trained policy")
     belief: bool = spec(False, help="append belief features (pursuit_mj/belief.py: remembered evaders, coverage-search "
                                     "waypoint) to the actor's and critic's observations; load_policy adds them back")
-    task_file: str | None = spec(None, help="task YAML file or preset name applied before the task: keys")
+    task_file: str | None = spec(None, help="task YAML file or preset name: its keys apply over the task of the files before, under this "
+                                          "file's own task: keys (--set task_file: over every file, under the other --set keys)")
     task: TaskConfig = spec(default_factory=TaskConfig, help="the task trained on")
     ppo: PPOConfig = spec(default_factory=PPOConfig, help="PPO hyperparameters")
     imitation: ImitationConfig = spec(default_factory=ImitationConfig, help="DAgger settings (algo dagger)")
@@ -228,18 +231,19 @@ def _resolve_task_file(ref: str, source: str) -> dict[str, Any]:
     return data
 
 
-def _with_task_file(data: Mapping[str, Any], source: str) -> dict[str, Any]:
-    """Put the named task file's keys under the YAML's own task: keys."""
-    out = dict(data)
-    ref = out.get("task_file")
+def _with_layer(merged: Mapping[str, Any], layer: Mapping[str, Any], source: str) -> dict[str, Any]:
+    """`merged` with one more layer of settings over it (a train file, or `--set task_file=X`):
+    the layer's task_file preset over the task keys so far, then the layer's own keys."""
+    ref = layer.get("task_file")
     if ref:
         if not isinstance(ref, str):
             raise ConfigError(f"{source}: key 'task_file': expected a string, got {ref!r}")
-        task = out.get("task") or {}
-        if not isinstance(task, Mapping):
+        task = layer.get("task")
+        if task is not None and not isinstance(task, Mapping):
             raise ConfigError(f"{source}: key 'task': expected a mapping, got {task!r}")
-        out["task"] = _deep_update(_resolve_task_file(ref, source), task)
-    return out
+        merged = _deep_update(merged, {"task": _resolve_task_file(ref, source)})
+    # an empty task: section (beside a task_file, say) leaves the task as it is
+    return _deep_update(merged, {k: v for k, v in layer.items() if not (k == "task" and v is None)})
 
 
 def load_train_config(
@@ -262,19 +266,18 @@ def load_train_config(
             raise ConfigError(f"{p}: the file is empty; a train config sets at least its regime or name "
                               f"(see configs/train/*.yaml), and none at all means the defaults: leave out --config")
         # each file's keys and values checked as read, so an error names the file that holds the bad one
-        # (an empty task: section beside a task_file is left to _with_task_file)
+        # (an empty task: section beside a task_file is left to _with_layer)
         check_values(TrainConfig, {k: v for k, v in data.items() if not (k == "task" and v is None)}, str(p))
-        merged = _deep_update(merged, data)
+        merged = _with_layer(merged, data, str(p))
         source = str(p)
     rest = []
-    for text in overrides:  # a task_file override must be resolved before the task: keys apply
+    for text in overrides:  # a task_file override applies its preset over the files, under the other --set keys
         path, value = parse_override(text, f"--set {text}")
         if path == ["task_file"]:
-            merged["task_file"] = value
             source = f"--set {text}"
+            merged = _with_layer(merged, {"task_file": value}, source)
         else:
             rest.append(text)
-    merged = _with_task_file(merged, source)
     cfg = build(TrainConfig, merged, source)
     extra = _deep_update(to_dict(cfg), dict(flags)) if flags else None
     return load(TrainConfig, (), rest, extra=extra or to_dict(cfg), extra_source=flags_source)
