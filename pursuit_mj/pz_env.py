@@ -37,6 +37,7 @@ class PursuitParallelEnv(ParallelEnv):
         self.render_mode = render_mode
         self._render_settings = render_settings
         self._frames = None  # the FrameMaker of rgb_array mode, made at the first reset
+        self._closed = False  # close() freed the renderer; a reset makes a new one
         self._episode = -1
         self._started = False
         self._obs_space = spaces.Box(-np.inf, np.inf, (self._env.obs_dim,), np.float32)
@@ -63,6 +64,8 @@ class PursuitParallelEnv(ParallelEnv):
                           "render_mode='rgb_array', or use `pursuit-mj render`", stacklevel=2)
             return None
         if self._frames is None:
+            if self._closed:
+                raise RuntimeError("render() called after close(): call reset() to draw again")
             raise RuntimeError("render() called before reset(): call reset() first")
         return self._frames.draw(self._env.snapshot(0), self._episode)
 
@@ -81,6 +84,7 @@ class PursuitParallelEnv(ParallelEnv):
         own API test passes some); the task is set by the config."""
         obs = self._env.reset(seed=seed)
         self._started = True
+        self._closed = False
         self._episode += 1
         self.agents = list(self.possible_agents)
         if self.render_mode == "rgb_array":
@@ -154,3 +158,4 @@ class PursuitParallelEnv(ParallelEnv):
         if self._frames is not None:
             self._frames.close()
             self._frames = None
+            self._closed = True

@@ -149,6 +149,11 @@ def test_rgb_array_mode_renders_each_step_as_the_render_command_draws_it():
     assert moved.shape == first.shape and np.abs(moved.astype(int) - first).sum() > 0  # the drones flew east
     env.close()
     env.close()  # harmless twice
+    with pytest.raises(RuntimeError, match=r"render\(\) called after close\(\): call reset\(\) to draw again"):
+        env.render()  # it said "called before reset()" of an env that had been reset
+    env.reset(seed=0)
+    assert env.render().shape == first.shape
+    env.close()
 
 
 @pytest.mark.parametrize("actions", [np.zeros((3, 2)), [np.zeros(2)] * 3, None])
