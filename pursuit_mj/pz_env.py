@@ -15,7 +15,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from .config import TaskConfig, default_config
+from .config import TaskConfig, checked_task_config, default_config
 from .env import PursuitEnv
 
 
@@ -29,7 +29,8 @@ class PursuitParallelEnv(ParallelEnv):
         pursuit_mj.render.RenderSettings (size, camera, quality; default 640 x 480 top view)."""
         if render_mode not in (None, "rgb_array"):  # pettingzoo's convention: only the modes of metadata
             raise ValueError(f"render_mode: {render_mode!r} is not supported (supported: None, 'rgb_array')")
-        self.config = config or default_config()
+        # an empty dict is not "no config": it and every other non-TaskConfig are refused by name
+        self.config = default_config() if config is None else checked_task_config(config, "PursuitParallelEnv config")
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.config.control_dt}  # one frame per decision step
         self._env = PursuitEnv(self.config, n_worlds=1, seed=seed, auto_reset=False)
         self.possible_agents = [f"pursuer_{i}" for i in range(self.config.n_pursuers)]

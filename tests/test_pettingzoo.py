@@ -163,3 +163,12 @@ def test_actions_that_are_not_a_dict_are_refused_clearly(actions):
     with pytest.raises(ValueError, match=f"actions: expected a dict .* got {type(actions).__name__}"):
         env.step(actions)
     assert env.batched.steps[0] == 0
+
+
+@pytest.mark.parametrize("config", [{}, {"n_pursuers": 4}, "hard"])
+def test_a_config_that_is_not_a_task_config_is_refused_by_name(config):
+    """{} passed as 'no config' and trained the default task; a filled dict crashed in an attribute lookup."""
+    from pursuit_mj.config import ConfigError
+
+    with pytest.raises(ConfigError, match=f"PursuitParallelEnv config: expected a TaskConfig .* got {type(config).__name__}"):
+        PursuitParallelEnv(config)
