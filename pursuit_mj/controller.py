@@ -100,6 +100,19 @@ def mixer_matrix(motor_xy: np.ndarray, yaw_ratio: np.ndarray) -> np.ndarray:
     return np.stack([np.ones(4), motor_xy[:, 1], -motor_xy[:, 0], yaw_ratio])
 
 
+def cap_thrusts(thrusts: np.ndarray, max_thrust: float) -> np.ndarray:
+    """Rotor thrusts (4, N) N brought within [0, max_thrust] as the Crazyflie firmware does
+    (powerDistributionCap): where a rotor asks for more than max_thrust, all four are lowered
+    by its excess, so their differences (the torques that hold the attitude) are kept and the
+    collective thrust gives; then any below 0 is raised to 0. Works in place; returns thrusts."""
+    excess = thrusts.max(0)
+    excess -= max_thrust
+    np.maximum(excess, 0.0, out=excess)
+    thrusts -= excess
+    np.maximum(thrusts, 0.0, out=thrusts)
+    return np.minimum(thrusts, max_thrust, out=thrusts)  # a - (a - max) may round one ulp above max
+
+
 class VelocityController:
     """Tracks a world-frame planar velocity at a constant altitude with yaw held at zero."""
 
@@ -142,7 +155,7 @@ class VelocityController:
         rot: np.ndarray | None = None,
         drag: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Rotor thrusts (4, N) in N, clipped to [0, max_thrust].
+        """Rotor thrusts (4, N) in N, within [0, max_thrust] (cap_thrusts).
 
         pos (3, N) m world, vel (3, N) m/s world, quat (4, N) body->world, angvel (3, N)
         rad/s body, v_cmd (2, N) m/s world; dt (s) is the time since the last call;
@@ -212,5 +225,4 @@ class VelocityController:
         gyro = angvel[_NEXT1] * angvel[_NEXT2]
         gyro *= self._gyro
         wrench[1:] += gyro
-        out = self.mixer_inv @ wrench
-        return np.minimum(np.maximum(out, 0.0, out=out), self.max_thrust, out=out)
+        return cap_thrusts(self.mixer_inv @ wrench, self.max_thrust)

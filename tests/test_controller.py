@@ -184,6 +184,21 @@ def test_altitude_integral_does_not_wind_up_while_the_rotors_saturate(params, he
     assert abs(released.sum() - params["mass"] * 9.81) < 1e-3
 
 
+def test_saturated_rotors_keep_the_torques_and_give_up_collective_thrust_as_the_firmware_does(params):
+    """Held 0.5 m below its height and tilted 20 deg in roll, a drone asks for more than full thrust.
+    Clipping each rotor alone (as before) left all four at full thrust: no torque to level it.
+    The firmware lowers all four by the excess instead (powerDistributionCap), keeping the
+    rotors' differences, so the righting torque survives and the collective thrust gives."""
+    ctrl = VelocityController(params, 1.0)
+    angle = math.radians(20.0)
+    tilted = np.array([[math.cos(angle / 2)], [math.sin(angle / 2)], [0.0], [0.0]])  # rolled about x
+    thrusts = ctrl.compute(np.array([[0.0], [0.0], [0.5]]), np.zeros((3, 1)), tilted, np.zeros((3, 1)), np.zeros((2, 1)), 0.01)
+    assert thrusts.max() == pytest.approx(params["max_thrust"]) and thrusts.min() < 0.9 * params["max_thrust"]
+    torque = mixer_matrix(params["motor_xy"], params["yaw_ratio"]) @ thrusts[:, 0]
+    assert torque[1] < -1e-4  # a negative roll torque, back toward level
+    assert (thrusts >= 0).all()
+
+
 def test_altitude_integral_still_removes_a_small_steady_offset(params):
     """Unsaturated, the integral grows: 1 cm below for 5 s adds thrust beyond the P term."""
     ctrl = VelocityController(params, 1.0)
