@@ -156,7 +156,8 @@ def _meta(args, policies, layouts, code: dict) -> dict:
 
 
 def _versus(args, policies) -> str | None:
-    """The label the others are paired against: --versus, else heuristic when others are there too."""
+    """The label the others are paired against: --versus, else heuristic when others are there too.
+    ValueError when --versus names no policy of the table, or the only one (nothing to pair it with)."""
     labels = [label for label, _ in policies]
     if args.versus is None:
         return "heuristic" if "heuristic" in labels and len(labels) > 1 else None
@@ -164,6 +165,9 @@ def _versus(args, policies) -> str | None:
         return None
     if args.versus not in labels:
         raise ValueError(f"--versus {args.versus!r}: not a policy of this table (policies: {', '.join(labels)})")
+    if len(labels) == 1:
+        raise ValueError(f"--versus {args.versus!r}: the table has no other policy to pair with it; add one "
+                         "(--policy NAME, --model FILE) or leave --versus out")
     return args.versus
 
 

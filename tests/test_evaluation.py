@@ -448,3 +448,14 @@ def test_an_eval_stopped_before_any_cell_finished_says_nothing_is_kept(tmp_path,
     assert "[eval] interrupted before any policy-layout cell finished: nothing is kept for --resume" in capsys.readouterr().err
     assert main(cmd + ["--resume"]) == 2
     assert "(an eval stopped by Ctrl-C or SIGTERM after its first policy-layout cell leaves one)" in capsys.readouterr().err
+
+
+def test_eval_versus_a_policy_with_no_other_to_pair_is_refused(capsys, tmp_path):
+    """--versus heuristic on a table of the heuristic team alone was taken, printed a blank line
+    and wrote "paired": [] without a word: the comparison asked for was never made."""
+    code = main(["eval", "--policy", "heuristic", "--versus", "heuristic", "--fidelity", "point", "--episodes", "1",
+                 "--set", "max_steps=5", "--json", str(tmp_path / "t.json"), "-q"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--versus 'heuristic': the table has no other policy to pair with it" in err, err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "t.json").exists()
