@@ -71,6 +71,25 @@ def checked_layouts(refs: list[str], flag: str = "--layouts") -> list[int | str]
     return layouts
 
 
+def table_layouts(args: argparse.Namespace, config: TaskConfig, default: list[str] | None = None) -> list[int | str]:
+    """The layouts of a table (eval, demo), each one column: --layouts, else the layout named by
+    --layout or --set layout=, else `default` (None: the task's layout), checked as
+    `checked_layouts` does. ValueError when --layouts and a single layout are both named (one
+    would be ignored), or when the task draws a layout per episode (random_layout), which a
+    table of one layout per column does not play."""
+    if config.random_layout:
+        raise ValueError("random_layout: the task draws a layout per episode, and a table plays each layout as a "
+                         "column of its own; give them with --layouts 0 1 2 3 and leave random_layout out")
+    named = [f"--set {o.strip()}" for o in args.overrides if o.split("=", 1)[0].strip() == "layout"]
+    named = ([f"--layout {args.layout}"] if args.layout is not None else []) + named
+    if args.layouts and named:
+        raise ValueError(f"{named[-1]} beside --layouts {' '.join(args.layouts)}: the table's layouts are --layouts; "
+                         "leave the single layout out (or give it among --layouts)")
+    if args.layouts:
+        return checked_layouts(args.layouts)
+    return [config.layout] if named or default is None else checked_layouts(default)
+
+
 def add_task_args(p: argparse.ArgumentParser) -> None:
     """Task config flags. Speeds and radii in m and m/s (the reference study used mm)."""
     g = p.add_argument_group("task")

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from pursuit_mj.shipped import shipped_dir
-from .common import add_task_args, check_episodes, checked_layouts, load_model, seed_arg, task_config_from_args
+from .common import add_task_args, check_episodes, load_model, seed_arg, table_layouts, task_config_from_args
 
 PRETRAINED = shipped_dir("pretrained") / "pursuers.pt"
 
@@ -40,7 +40,7 @@ def register(sub) -> None:
     )
     p.add_argument("-m", "--model", default=str(PRETRAINED), help="checkpoint to show (default: pretrained/pursuers.pt)")
     p.add_argument("--episodes", type=int, default=16, help="episodes per policy and layout (default 16)")
-    p.add_argument("--layouts", nargs="+", default=["0", "1", "2", "3"], metavar="LAYOUT", help="layouts (default 0 1 2 3)")
+    p.add_argument("--layouts", nargs="+", metavar="LAYOUT", help="layouts (default 0 1 2 3, or the one named by --layout)")
     p.add_argument("--worlds", type=int, default=16, help="parallel worlds (default 16)")
     p.add_argument("--seed", type=seed_arg, default=0, help="table seed")
     p.add_argument("--no-heuristic", action="store_true", help="evaluate the model only")
@@ -68,11 +68,12 @@ def run(args) -> int:
     check_episodes(args.episodes)
     if args.worlds < 1:
         raise ValueError(f"--worlds: expected an integer >= 1, got {args.worlds}")
-    layouts = checked_layouts(args.layouts)  # a typo in the last layout must not cost the earlier ones' minutes
+    config = task_config_from_args(args)
+    # a typo in the last layout must not cost the earlier ones' minutes
+    layouts = table_layouts(args, config, default=["0", "1", "2", "3"])
     model = Path(args.model)
     if not model.exists():
         raise ValueError(f"--model {model}: no such file (the pretrained policy ships as {_shown(PRETRAINED)})")
-    config = task_config_from_args(args)
     policy = load_model(model, _spec(config), config)
     policies = [(policy.name, policy)]  # the training run's name, as eval and render call it
     if getattr(policy, "has_shield", False):  # trained behind the shield: it comes with it (NAME+shield)

@@ -18,7 +18,7 @@ from pathlib import Path
 from pursuit_mj.io_utils import check_writable, check_writable_folder
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
-from .common import SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, checked_layouts, load_model, seed_arg, shield_if_asked, task_config_from_args
+from .common import SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, load_model, seed_arg, shield_if_asked, table_layouts, task_config_from_args
 from .eval_resume import file_sha256, finished_rows, interrupted_path, keep_finished
 
 
@@ -185,8 +185,8 @@ def run(args) -> int:
     if args.rerun_episodes < 1:
         raise ValueError(f"--rerun-episodes: expected an integer >= 1, got {args.rerun_episodes}")
     config = task_config_from_args(args)
-    # a bad or repeated layout refused before any episode runs
-    layouts = checked_layouts(args.layouts) if args.layouts else [config.layout]
+    # a bad, repeated or ignored layout refused before any episode runs
+    layouts = table_layouts(args, config)
     policies = _policies(args, config)
     versus = _versus(args, policies)
     if args.resume and args.rerun:

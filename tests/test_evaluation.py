@@ -459,3 +459,27 @@ def test_eval_versus_a_policy_with_no_other_to_pair_is_refused(capsys, tmp_path)
     err = capsys.readouterr().err
     assert "--versus 'heuristic': the table has no other policy to pair with it" in err, err
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "t.json").exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["eval", "--layouts", "0", "--layout", "2"], "--layout 2 beside --layouts 0: the table's layouts are --layouts"),
+    (["eval", "--layouts", "0", "--set", "layout=2"], "--set layout=2 beside --layouts 0: the table's layouts are --layouts"),
+    (["eval", "--set", "random_layout=true"], "random_layout: the task draws a layout per episode"),
+    (["demo", "--layouts", "0", "-i", "2"], "--layout 2 beside --layouts 0: the table's layouts are --layouts"),
+    (["demo", "--set", "random_layout=true"], "random_layout: the task draws a layout per episode"),
+])
+def test_a_layout_choice_the_table_would_not_play_is_refused(args, message, capsys):
+    """eval --layouts 0 --layout 2 played layout 0 only, and random_layout (which evaluate switches
+    off) played the task's one layout under its label, both without a word."""
+    assert main(args + ["--fidelity", "point", "--episodes", "1", "--set", "max_steps=5"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_demo_plays_the_layout_named_by_layout(capsys):
+    """demo --layout 2 played layouts 0, 1, 2 and 3: the flag was taken and ignored."""
+    code = main(["demo", "--layout", "2", "--no-heuristic", "--no-shield", "--episodes", "1", "--worlds", "1",
+                 "--fidelity", "point", "--set", "max_steps=5"])
+    assert code == 0
+    table = capsys.readouterr().out.split("\n\n")[0].splitlines()
+    assert [line.split()[1] for line in table[1:]] == ["2"]
