@@ -10,13 +10,16 @@ from pursuit_mj.config import TaskConfig, dump_yaml, load_task_config
 
 
 def seed_arg(text: str) -> int:
-    """argparse type of --seed: an integer >= 0 (numpy's seeding refuses negative ones)."""
+    """argparse type of --seed: an integer in 0 .. 2**63 - 1 (numpy's seeding refuses negative
+    ones; episode seeds are int64, so a larger one failed deep in the run, after folders were made)."""
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
+    if value >= 2**63:
+        raise argparse.ArgumentTypeError(f"expected an integer below 2**63, got {value}")
     return value
 
 

@@ -483,3 +483,14 @@ def test_demo_plays_the_layout_named_by_layout(capsys):
     assert code == 0
     table = capsys.readouterr().out.split("\n\n")[0].splitlines()
     assert [line.split()[1] for line in table[1:]] == ["2"]
+
+
+@pytest.mark.parametrize("command", [["eval"], ["demo"]])
+def test_a_seed_too_large_for_episode_seeds_is_refused_naming_the_flag(command, capsys, tmp_path):
+    """--seed 2**63 was taken by the parser, made the output folders, then failed as 'evaluate seed'."""
+    out = ["--out", str(tmp_path / "new" / "t")] if command == ["eval"] else []
+    with pytest.raises(SystemExit) as exc:
+        main([*command, "--seed", str(2**63), "--fidelity", "point", "--episodes", "1", *out])
+    assert exc.value.code == 2
+    assert f"argument --seed: expected an integer below 2**63, got {2**63}" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
