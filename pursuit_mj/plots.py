@@ -250,9 +250,11 @@ def read_eval_rows(path: str | Path) -> list[dict[str, Any]]:
     return [dict(r) for r in rows]
 
 
-def _layout_name(layout: Any) -> str:
-    s = str(layout)
-    return f"layout {s}" if s.isdigit() else Path(s).stem
+def _layout_names(layouts: Sequence[str]) -> list[str]:
+    """Axis labels of layout keys: 'layout 2' for a built-in one, a file's stem, or its path where
+    two files share a stem (v1/arena.yaml and v2/arena.yaml are two layouts, not one 'arena')."""
+    stems = [Path(s).stem for s in layouts]
+    return [f"layout {s}" if s.isdigit() else (stem if stems.count(stem) == 1 else s) for s, stem in zip(layouts, stems)]
 
 
 def layout_key(layout: Any) -> str:
@@ -350,7 +352,7 @@ def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str
         for centre, tip, v in values:
             ax.text(centre, tip + pad, "none" if v is None else f"{v:.0f}", ha="center", va="bottom", fontsize=7)
         values.clear()
-        ax.set_xticks(np.arange(len(layouts)), [_layout_name(l) for l in layouts])
+        ax.set_xticks(np.arange(len(layouts)), _layout_names(layouts))
         ax.set_ylabel(label)
         about_bars = n_text
         if key == "mean_steps_success" and n_text:

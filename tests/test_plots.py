@@ -327,3 +327,15 @@ def test_a_chart_that_does_not_fit_on_the_disk_is_an_error_naming_it(tmp_path, c
     assert main(["plot", "--log", str(_log(tmp_path / "m.jsonl")), "-o", str(out)]) == 2
     assert f"{out / 'curve_train_success.png'}: cannot write it (No space left on device)" in capsys.readouterr().err
     assert list(out.iterdir()) == []
+
+
+def test_two_layout_files_of_one_name_are_told_apart_on_the_axis(tmp_path, monkeypatch):
+    """v1/arena.yaml and v2/arena.yaml were both labelled 'arena': two bar groups under one name."""
+    import matplotlib.pyplot as plt
+
+    rows = read_eval_rows(_eval_json(tmp_path / "a.json", policies=("heuristic",), layouts=("0", "v1/arena.yaml", "v2/arena.yaml")))
+    ticks = []
+    real = plt.Axes.set_xticks
+    monkeypatch.setattr(plt.Axes, "set_xticks", lambda self, at, labels, **kw: ticks.append(list(labels)) or real(self, at, labels, **kw))
+    plot_eval(rows, tmp_path / "plots")
+    assert ticks[0] == ["layout 0", "v1/arena.yaml", "v2/arena.yaml"]
