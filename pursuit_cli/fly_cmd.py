@@ -15,7 +15,7 @@ import sys
 
 from .common import add_shield_arg, finite_float, load_model, path_arg, seed_arg, shield_if_asked
 
-KEYS_HELP = "during a flight: e or space = emergency stop (motors off), l = land everyone, Ctrl-C = land everyone (twice: motors off), Ctrl-\\ = motors off"
+KEYS_HELP = "during a flight: e or space = emergency stop (motors off), l = land everyone, Ctrl-C or Ctrl-Z = land everyone (twice: motors off), Ctrl-\\ = motors off"
 
 
 def register(sub) -> None:

@@ -65,6 +65,28 @@ def test_ctrl_c_or_sigterm_lands_everyone_and_restores_the_signal_handler(tmp_pa
     assert down(fleet)
 
 
+def test_ctrl_z_lands_everyone_instead_of_suspending_the_flight(tmp_path):
+    """Ctrl-Z (SIGTSTP) by default suspends the process: no setpoint leaves it, and the
+    firmware's watchdog stops every motor 2 s later, in the air. During a flight it lands
+    everyone, as Ctrl-C does."""
+    before = signal.getsignal(signal.SIGTSTP)
+    taken = []
+
+    def send(fleet, bridge):
+        time.sleep(0.3)
+        taken.append(signal.getsignal(signal.SIGTSTP) not in (signal.SIG_DFL, None))
+        # never suspend the test run itself: where Ctrl-Z is not taken, Ctrl-C ends the flight
+        os.kill(os.getpid(), signal.SIGTSTP if taken[0] else signal.SIGINT)
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=8.0), ScriptedTeam([[0.0, 0.0]]), tmp_path, during=send,
+                                        handle_signals=True)
+    assert taken == [True], "Ctrl-Z would suspend the flight process"
+    assert result.outcome == "interrupted" and result.reason == "Ctrl-Z" and result.landed
+    assert kinds_in_order(events, "chase", "interrupt", "land", "landed")
+    assert signal.getsignal(signal.SIGTSTP) is before
+    assert down(fleet)
+
+
 def test_a_keyboard_interrupt_inside_the_loop_lands_everyone(tmp_path):
     result, events, fleet = fly_virtual(quick_plan(max_time=8.0), ScriptedTeam([[0.2, 0.0]], raise_at=4), tmp_path)
     assert result.outcome == "interrupted" and result.landed and len(result.steps) == 3

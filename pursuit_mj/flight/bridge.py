@@ -129,8 +129,8 @@ class FlightBridge:
 
     factory: builds cflib's SyncCrazyflie per URI (default: TOC-cached, see links.py);
     recorder: optional FlightRecorder; seed: sensing and escape-model randomness;
-    handle_signals: in the main thread, Ctrl-C, SIGTERM and SIGHUP (a closed terminal; not when
-    started under nohup) land everyone (a second one cuts the motors), before take-off they
+    handle_signals: in the main thread, Ctrl-C, Ctrl-Z, SIGTERM and SIGHUP (a closed terminal; not
+    when started under nohup) land everyone (a second one cuts the motors), before take-off they
     end the run at once, and Ctrl-\\ cuts the motors; confirm(): asked after the preflight checks,
     False refuses the take-off (an operator's go / no-go).
     """
@@ -265,11 +265,13 @@ class FlightBridge:
     def _signals(self):
         """Stop signals from the connection to the end: before take-off they raise KeyboardInterrupt
         (the run ends, links close), once flying they land everyone (`interrupt`). SIGINT is taken
-        even where the shell started us ignoring it (a background job): a flight must be stoppable."""
+        even where the shell started us ignoring it (a background job): a flight must be stoppable.
+        Ctrl-Z (SIGTSTP) is a stop signal too: suspended, the process would send no setpoint and
+        the firmware's watchdog would stop every motor in the air."""
         if not (self.handle_signals and threading.current_thread() is threading.main_thread()):
             yield
             return
-        names = {signal.SIGINT: "Ctrl-C", signal.SIGTERM: "SIGTERM", signal.SIGHUP: "SIGHUP"}
+        names = {signal.SIGINT: "Ctrl-C", signal.SIGTERM: "SIGTERM", signal.SIGHUP: "SIGHUP", signal.SIGTSTP: "Ctrl-Z"}
 
         def on_stop(signum, frame):
             reason = names.get(signum, f"signal {signum}")
