@@ -515,6 +515,17 @@ def test_values_that_would_switch_a_guard_off_or_write_elsewhere_are_refused(cha
         flight_from_dict(data, "test.yaml")
 
 
+@pytest.mark.parametrize("separation", [0.1, 0.12, 0.137])
+def test_a_separation_guard_that_lets_two_crazyflies_touch_is_refused(separation):
+    """Drone centres closer than DRONE_CONTACT_DISTANCE (0.137 m, where the simulator counts a
+    collision) put two real Crazyflies' propellers into each other: the guard would hold them there."""
+    from flight_rehearsal import quick_spec
+
+    with pytest.raises(ConfigError, match=r"rehearsal.yaml: safety: key 'min_separation'.*0.137"):
+        flight_from_dict(quick_spec(safety={"min_separation": separation}), "rehearsal.yaml")
+    flight_from_dict(quick_spec(safety={"min_separation": 0.15}), "rehearsal.yaml")
+
+
 # ---------------------------------------------------------------------- the geofence margin and the starts
 
 

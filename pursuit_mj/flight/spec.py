@@ -29,7 +29,7 @@ import re
 from pathlib import Path
 from typing import Any, Mapping
 
-from ..config import preset_or_file
+from ..config import DRONE_CONTACT_DISTANCE, preset_or_file
 from ..configio import ConfigError, build, load_yaml, shown, spec
 from .board import HISTORY
 
@@ -147,7 +147,7 @@ class SafetyLimits:
     geofence_margin: float = spec(0.2, lo=0.0, hi=1.0, help="keep this far inside the arena border and from virtual obstacles (m); at least the task's obstacle_clearance, better the braking distance (docs/flight.md)")
     breach_distance: float = spec(0.15, lo=0.0, hi=1.0, help="beyond the border or inside an obstacle by more than this: everyone lands (m)")
     max_altitude: float = spec(1.5, lo=0.2, hi=5.0, help="above this height everyone lands (m)")
-    min_separation: float = spec(0.25, lo=0.1, hi=10.0, help="keep drone centres this far apart (m)")
+    min_separation: float = spec(0.25, lo=0.1, hi=10.0, help=f"keep drone centres this far apart (m); more than {DRONE_CONTACT_DISTANCE:g} m, where two Crazyflies' propellers touch")
     lookahead: float = spec(0.5, lo=0.05, hi=5.0, help="braking horizon of the geofence and separation guard (s)")
     response_time: float = spec(0.3, lo=0.0, hi=2.0, help="how long a drone takes to follow a new command; the guards judge positions this far ahead of its measured motion, plus one decision interval (s)")
     stale_hover: float = spec(0.3, lo=0.01, hi=5.0, help="no fresh estimate for this long: the drone hovers (s)")
@@ -168,6 +168,10 @@ class SafetyLimits:
     altitude_gain: float = spec(1.5, lo=0.0, hi=10.0, help="vertical speed per metre of height error while chasing (1/s)")
 
     def validate(self, source: str) -> None:
+        if self.min_separation <= DRONE_CONTACT_DISTANCE:
+            raise ConfigError(f"{source}: key 'min_separation': {self.min_separation:g} m is not beyond {DRONE_CONTACT_DISTANCE:g} m, "
+                              f"where two Crazyflies' propellers touch (the simulator counts a collision): the separation "
+                              f"guard would hold drones in contact")
         if self.stale_land <= self.stale_hover:
             raise ConfigError(f"{source}: key 'stale_land': {self.stale_land} s must be longer than stale_hover {self.stale_hover} s")
         if self.battery_land >= self.battery_takeoff:
