@@ -526,6 +526,19 @@ def test_a_separation_guard_that_lets_two_crazyflies_touch_is_refused(separation
     flight_from_dict(quick_spec(safety={"min_separation": 0.15}), "rehearsal.yaml")
 
 
+@pytest.mark.parametrize("height, tolerance", [(0.15, None), (0.2, None), (0.3, 0.25)])
+def test_a_flight_height_the_take_off_check_cannot_tell_from_the_floor_is_refused(height, tolerance):
+    """After take-off every drone must be within height_tolerance of the flight height; where
+    that band reaches below LANDED_HEIGHT, a drone that never left the floor passes (seen on
+    virtual drones: at 0.15 m a drone that missed its take-off, at 0.012 m, was logged airborne)."""
+    from flight_rehearsal import quick_spec
+
+    safety = {} if tolerance is None else {"height_tolerance": tolerance}
+    with pytest.raises(ConfigError, match=r"rehearsal.yaml: key 'flight_height'.*height_tolerance.*landed"):
+        flight_from_dict(quick_spec(flight_height=height, safety=safety), "rehearsal.yaml")
+    flight_from_dict(quick_spec(flight_height=0.25), "rehearsal.yaml")  # 0.25 - 0.15 m: a drone on the floor fails the check
+
+
 # ---------------------------------------------------------------------- the geofence margin and the starts
 
 

@@ -46,10 +46,10 @@ from .observe import EvaderPilot, FlightObserver
 from .plan import FlightPlan
 from .preflight import RECHECK_AFTER, PreflightError, preflight, recheck
 from .safety import Fence, altitude_speed, clamp_speed, keep_apart_and_inside
+from .spec import LANDED_HEIGHT  # m: a drone whose last height estimate is below this counts as landed
 
 STATE_PERIOD = 0.02  # s between state-estimate log packets (50 Hz)
 HEALTH_PERIOD = 0.05  # s between health log packets
-LANDED_HEIGHT = 0.1  # m: a drone whose last height estimate is below this counts as landed
 
 
 def landing_duration(heights: np.ndarray, commanded: np.ndarray, flight_height: float, landing_speed: float) -> float:

@@ -37,6 +37,8 @@ ROLES = ("pursuer", "evader", "target")
 NAME = r"[\w\-]+"  # a drone name: what `--fault KIND:NAME@S` can address
 POSITIONING = ("flow", "lighthouse", "loco")
 
+LANDED_HEIGHT = 0.1  # m: a drone whose height estimate is below this is on the floor (counts as landed)
+
 DATA_RATES = ("250K", "1M", "2M")  # spelled as cflib's radio driver compares them
 DEFAULT_RADIO_ADDRESS = 0xE7E7E7E7E7  # what cflib uses for a radio URI without an address
 
@@ -163,7 +165,7 @@ class SafetyLimits:
     connect_timeout: float = spec(10.0, lo=0.1, help="open every link within this time (s)")
     takeoff_speed: float = spec(0.3, lo=0.05, hi=1.0, help="climb speed of the take-off (m/s)")
     landing_speed: float = spec(0.25, lo=0.05, hi=1.0, help="descent speed of the landing (m/s)")
-    height_tolerance: float = spec(0.15, lo=0.01, hi=1.0, help="after take-off every drone must be this close to the flight height (m)")
+    height_tolerance: float = spec(0.15, lo=0.01, hi=1.0, help="after take-off every drone must be this close to the flight height (m); flight_height minus this must not reach below 0.1 m, where a drone counts as landed")
     settle: float = spec(0.5, lo=0.0, hi=10.0, help="wait this long after a take-off or landing trajectory ends (s)")
     altitude_gain: float = spec(1.5, lo=0.0, hi=10.0, help="vertical speed per metre of height error while chasing (1/s)")
 
@@ -219,6 +221,12 @@ class FlightSpec:
             raise ConfigError(f"{source}: key 'drones': two drones share the name '{_first_duplicate(names)}'")
         if self.decision_rate is not None and not (math.isfinite(self.decision_rate) and 1.0 <= self.decision_rate <= 100.0):
             raise ConfigError(f"{source}: key 'decision_rate': {self.decision_rate} Hz is out of range (1 to 100)")
+        if self.flight_height - self.safety.height_tolerance < LANDED_HEIGHT - 1e-9:
+            raise ConfigError(
+                f"{source}: key 'flight_height': {self.flight_height} m is within safety.height_tolerance "
+                f"{self.safety.height_tolerance} m of {LANDED_HEIGHT:g} m, below which a drone counts as landed: the "
+                f"take-off check would pass a drone that never left the floor (raise flight_height or lower height_tolerance)"
+            )
         if self.flight_height + 0.1 > self.safety.max_altitude:
             raise ConfigError(
                 f"{source}: key 'flight_height': {self.flight_height} m leaves less than 0.1 m below "
