@@ -55,3 +55,17 @@ def test_progress_bar_labels_its_throughput_and_shows_no_rates_before_an_episode
     _advance(bar, row, ended, {}, 0.6, note="validating")
     assert "succ=50%" in out.getvalue() and "coll=50%" in out.getvalue() and "ep_len=30" in out.getvalue()
     bar.close()
+
+
+def test_a_validation_layout_that_cannot_be_loaded_is_refused_before_any_update_naming_its_key(tmp_path):
+    from train.config import load_train_config
+    from train.trainer import Trainer
+
+    cfg = load_train_config([], ["task.fidelity=point", "n_envs=2", "ppo.batch_size=64", "ppo.minibatch_size=32",
+                                 "total_steps=64", "run.validate_every=0", "run.progress=false",
+                                 f"run.runs_dir={tmp_path}", "run.validation_layouts=[99]"])
+    # it was found only by the closing validation, after every update: the run crashed there, and
+    # a resume (which cannot change run.validation_layouts) trained the last update again to crash again
+    with pytest.raises(ValueError, match=r"run\.validation_layouts.*layout 99"):
+        Trainer(cfg, log=lambda s: None)
+    assert not (cfg.run_dir / "metrics.jsonl").exists() and not (cfg.run_dir / "last.pt").exists()

@@ -130,7 +130,7 @@ class Trainer:
             for row in self.metrics.rows():
                 self.rerun.log(int(row["world_steps"]), row)
         self.recent = collections.deque(maxlen=WINDOW)
-        self._validator: FixedSeedValidator | None = None
+        self._validator = self._make_validator()
         self._saved_update = self.counters.update if checkpoint else -1
         self._pending_row: dict = dict(checkpoint.get("pending_row") or {}) if checkpoint else {}
         self._consistent = True
@@ -293,11 +293,20 @@ class Trainer:
 
     # ------------------------------------------------------------------ validation
 
+    def _make_validator(self) -> FixedSeedValidator:
+        """The fixed validation episodes, built as the run starts: a validation layout that cannot be
+        loaded is refused before any update, naming its key (found at the first validation, it ended
+        the run there, and every resume of it)."""
+        r = self.cfg.run
+        key, layouts = ("run.validation_layouts", r.validation_layouts) if r.validation_layouts else ("layouts", self.cfg.layouts)
+        try:
+            return FixedSeedValidator(self.cfg.task, list(layouts) or None, r.validation_episodes, r.validation_seed,
+                                      r.sim_threads)
+        except ValueError as exc:
+            raise ValueError(f"{key} {list(layouts)}: {exc}") from None
+
     def validate(self) -> dict[str, float]:
         r = self.cfg.run
-        if self._validator is None:
-            layouts = list(r.validation_layouts) or list(self.cfg.layouts) or None
-            self._validator = FixedSeedValidator(self.cfg.task, layouts, r.validation_episodes, r.validation_seed, r.sim_threads)
         policy = trained_team(ActorPolicy(self.model.actor, self.cfg.name), self.cfg.task, self.cfg.shield, self.cfg.residual,
                               self.cfg.belief)
         summary, records = self._validator.run(policy)
