@@ -155,6 +155,19 @@ def _refuse_with_export(args) -> None:
                          f"export in a command of its own")
 
 
+def _resumable_given(args) -> set[str]:
+    """The keys a resume may change (total_steps, max_minutes, run.progress, run.rerun) that this
+    command gives, by flag or by --set: the run takes their resolved values, the others stay stored."""
+    from pursuit_mj.configio import parse_override
+
+    given = {".".join(parse_override(text, f"--set {text}")[0]) for text in args.overrides}
+    for key, flag in (("total_steps", args.total_steps is not None), ("max_minutes", args.max_minutes is not None),
+                      ("run.progress", args.no_progress), ("run.rerun", args.rerun)):
+        if flag:
+            given.add(key)
+    return given & {"total_steps", "max_minutes", "run.progress", "run.rerun"}
+
+
 def _progress(args) -> bool | None:
     return False if args.no_progress else None
 
@@ -209,8 +222,12 @@ def run(args) -> int:
         if args.resume:
             if not last.is_file():
                 raise ValueError(f"--resume: no checkpoint {last} to continue from{best_instead(cfg.run_dir)}")
-            trainer = Trainer.resume(cfg.run_dir, args.total_steps, max_minutes=args.max_minutes, progress=_progress(args),
-                                     check=lambda stored: _check_same(cfg, stored), rerun=True if args.rerun else None)
+            given = _resumable_given(args)
+            trainer = Trainer.resume(cfg.run_dir, cfg.total_steps if "total_steps" in given else None,
+                                     max_minutes=cfg.max_minutes if "max_minutes" in given else None,
+                                     progress=cfg.run.progress if "run.progress" in given else None,
+                                     check=lambda stored: _check_same(cfg, stored),
+                                     rerun=cfg.run.rerun if "run.rerun" in given else None)
         else:
             if last.exists():
                 raise ValueError(f"run folder {cfg.run_dir} already has a checkpoint: continue it with --resume, "

@@ -265,3 +265,16 @@ def test_a_bad_value_in_a_task_file_names_the_task_file(tmp_path, capsys):
     train.write_text(f"name: x\ntask_file: {task}\n")
     assert main(["train", "--config", str(train), "-sc"]) == 2
     assert f"task_file {task}: key 'evader_speed': -1.0 is out of range" in capsys.readouterr().err
+
+
+def test_a_resume_with_the_run_length_given_by_set_trains_to_it(tmp_path, capsys):
+    base = ["train", "--no-progress", "--name", "s"] + sets(TINY + [f"run.runs_dir={tmp_path}", "total_steps=32"])
+    assert main(base) == 0
+    # --set total_steps=64 is the --total-steps 64 of a resume (it was dropped: 'nothing to train')
+    assert main(base + ["--resume", "--set", "total_steps=64"]) == 0
+    out = capsys.readouterr().out
+    assert "nothing to train" not in out and "done: 2 updates" in out
+    assert [json.loads(x)["update"] for x in (tmp_path / "s" / "metrics.jsonl").read_text().splitlines()] == [1, 2]
+    # and --set max_minutes: stored with the run, as --max-minutes is
+    assert main(base + ["--resume", "--set", "total_steps=96", "--set", "max_minutes=5"]) == 0
+    assert torch.load(tmp_path / "s" / "last.pt", weights_only=True)["train_config"]["max_minutes"] == 5.0
