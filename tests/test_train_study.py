@@ -79,6 +79,19 @@ def test_a_train_override_one_arm_refuses_is_found_before_anything_runs(tmp_path
     assert "--layouts: 01 is given twice" in capsys.readouterr().err and not out.exists()
 
 
+@pytest.mark.parametrize("override, key", [("run.validation_layouts=[9]", "run.validation_layouts"),
+                                           ("layouts=[0,no_such.yaml]", "layouts"),
+                                           ("task.layout=no_such.yaml", "task.layout")])
+def test_a_train_override_naming_a_layout_that_cannot_be_loaded_is_found_before_anything_runs(tmp_path, capsys, override, key):
+    # found at the first arm's start, after the heuristic team's evaluation had been kept in study.json,
+    # which then refused a fresh study in that folder and a resume without the bad --train-set alike
+    out = tmp_path / "study"
+    assert main(["study", "--budget-minutes", "30", "--out", str(out), "--train-set", override]) == 2
+    err = capsys.readouterr().err
+    assert "--train-set" in err and f"{key} " in err and ("no_such.yaml" in err or "layout 9" in err), err
+    assert not out.exists()
+
+
 def test_an_interrupted_study_resumes_keeping_its_finished_arms_and_evaluations(tmp_path, capsys, monkeypatch):
     from train import study
     from train.trainer import Trainer

@@ -186,6 +186,20 @@ class TrainConfig:
                                   f"only through range readings and need at least {MIN_RAYS}; {', '.join(users)} "
                                   f"use(s) them (raise task.n_rays, or turn those off)")
 
+    def check_layouts(self, source: str = "train config") -> None:
+        """Load every layout the run names (task.layout, layouts, run.validation_layouts): ConfigError
+        naming the key of one that cannot be (no such index or file, a malformed file)."""
+        from pursuit_mj.layout import load_layout
+
+        for key, refs in (("task.layout", (self.task.layout,)), ("layouts", self.layouts),
+                          ("run.validation_layouts", self.run.validation_layouts)):
+            for ref in refs:
+                try:
+                    load_layout(ref)
+                except ValueError as exc:
+                    shown = ref if key == "task.layout" else list(refs)
+                    raise ConfigError(f"{source}: {key} {shown}: {exc}") from None
+
     def idle_settings(self) -> list[str]:
         """Settings changed from their defaults that this combination never reads, one line each
         (not errors: a study's --train-set gives every arm the same values)."""

@@ -205,12 +205,13 @@ def arm_budget(left_s: float, share: float, shares_left: float, validation_episo
 
 
 def check_train_overrides(plan: StudyPlan) -> None:
-    """Every arm's config with plan.train_overrides, before anything runs: ValueError naming
-    --train-set and the arm that refuses them (found at that arm's start, it cost the earlier arms' time)."""
+    """Every arm's config with plan.train_overrides, its layouts loaded, before anything runs: ValueError
+    naming --train-set and the arm that refuses them (found at that arm's start, it cost the earlier arms' time)."""
     for arm in ARMS:
         try:
             cfg = load_train_config([arm.config], ["name=check", "total_steps=1000000000", "task.layout=0", *plan.train_overrides])
             cfg.check_complete()
+            cfg.check_layouts()  # found at the arm's start, after the team's evaluation was kept in study.json
         except ValueError as exc:
             raise ValueError(f"--train-set: the {arm.name} arm ({arm.config} config) refuses it: {exc}") from None
 
