@@ -89,6 +89,19 @@ def test_settings_this_combination_never_reads_are_named_when_the_run_starts(tmp
     assert "[train] note: residual.scale 0.5 does nothing without residual.base" in lines
 
 
+def test_ppo_update_settings_under_dagger_are_named_as_idle_and_refuse_nothing():
+    """DAgger's update reads imitation.lr, minibatch_size, max_grad_norm: --config imitate --set
+    ppo.lr=1e-5 changed nothing without a word (imitation.lr under PPO was named), and
+    ppo.minibatch_size, which it never reads, refused a smaller ppo.batch_size."""
+    assert load_train_config(["imitate"], []).idle_settings() == []
+    assert load_train_config(["imitate"], ["ppo.lr=1e-5", "ppo.epochs=3"]).idle_settings() == [
+        "ppo.lr, ppo.epochs do(es) nothing under algo dagger (PPO's update; DAgger's are imitation.lr, "
+        "imitation.minibatch_size, imitation.max_grad_norm, imitation.grad_steps)"]
+    load_train_config(["imitate"], ["ppo.batch_size=128"]).check_complete()  # ppo.minibatch_size 256 is not used
+    with pytest.raises(ValueError, match="ppo.minibatch_size 256 exceeds ppo.batch_size 128"):
+        load_train_config(["classic"], ["ppo.batch_size=128"]).check_complete()
+
+
 def test_update_threads_take_the_cores_the_collection_leaves_idle():
     run = load_train_config(["classic"]).run
     assert run.torch_threads == 0  # auto by default

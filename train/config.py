@@ -45,6 +45,10 @@ class PPOConfig:
 
 
 
+#: PPOConfig keys only PPO's update reads (DAgger reads gamma, gae_lambda, batch_size, vf_coef, value_scaling, lr_decay)
+PPO_UPDATE_ONLY = ("lr", "clip", "epochs", "minibatch_size", "ent_coef", "max_grad_norm", "norm_adv")
+
+
 @dataclasses.dataclass(frozen=True)
 class ImitationConfig:
     """DAgger from a teacher team (`algo: dagger`, see train/imitation.py)."""
@@ -168,7 +172,7 @@ class TrainConfig:
 
     def check_complete(self, source: str = "train config") -> None:
         """Checks that span keys set by separate overrides (run once the config is final)."""
-        if self.ppo.minibatch_size > self.ppo.batch_size:
+        if self.algo != "dagger" and self.ppo.minibatch_size > self.ppo.batch_size:  # DAgger's is imitation.minibatch_size
             raise ConfigError(f"{source}: ppo.minibatch_size {self.ppo.minibatch_size} exceeds ppo.batch_size {self.ppo.batch_size}")
         if self.algo == "dagger" and self.ppo.learnable_gamma:
             raise ConfigError(f"{source}: ppo.learnable_gamma works with algo ppo or mappo, not dagger (imitation has no policy gradient)")
@@ -211,7 +215,12 @@ class TrainConfig:
             idle.append("ppo.value_scaling does nothing under algo mappo (its centralised critic normalises values)")
         if self.algo != "mappo" and self.net.critic_hidden != default.net.critic_hidden:
             idle.append(f"net.critic_hidden {list(self.net.critic_hidden)} does nothing under algo {self.algo} (it sizes MAPPO's critic)")
-        if self.algo != "dagger":
+        if self.algo == "dagger":
+            changed = [k for k in PPO_UPDATE_ONLY if getattr(self.ppo, k) != getattr(default.ppo, k)]
+            if changed:
+                idle.append(f"ppo.{', ppo.'.join(changed)} do(es) nothing under algo dagger (PPO's update; DAgger's are "
+                            "imitation.lr, imitation.minibatch_size, imitation.max_grad_norm, imitation.grad_steps)")
+        else:
             changed = [f.name for f in dataclasses.fields(ImitationConfig)
                        if getattr(self.imitation, f.name) != getattr(default.imitation, f.name)]
             if changed:
