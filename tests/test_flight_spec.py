@@ -730,3 +730,10 @@ def test_flight_flags_take_what_the_flight_file_takes(argv, words, capsys):
     err = capsys.readouterr().err
     for w in words:
         assert w in err, (w, err)
+
+
+@pytest.mark.parametrize("key", ["task", "safety", "transform"])
+def test_an_empty_section_means_its_defaults(key):
+    """`task:` with every line below it commented out (YAML null) was refused while an empty
+    `safety:` or `transform:` meant their defaults: all three now mean their defaults."""
+    assert flight_from_dict(flight(**{key: None}), "f.yaml") == flight_from_dict({k: v for k, v in flight().items() if k != key}, "f.yaml")

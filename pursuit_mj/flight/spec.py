@@ -290,7 +290,7 @@ def flight_from_dict(data: Mapping[str, Any], source: str = "<flight>") -> Fligh
             data[key] = _build(cls, data[key] if data[key] is not None else {}, f"{source}: {key}")
     if data.get("lab") is not None:
         data["lab"] = _build(LabBounds, data["lab"], f"{source}: lab")
-    if "task" in data and not isinstance(data["task"], Mapping):
+    if data.get("task") is not None and not isinstance(data["task"], Mapping):  # empty (null): no task keys, as for safety
         raise ConfigError(f"{source}: key 'task': expected a mapping of task keys, got {data['task']!r}")
     data["task"] = dict(data.get("task") or {})
     data["source"] = source
