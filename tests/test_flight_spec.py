@@ -127,6 +127,8 @@ def test_a_bad_flight_file_is_refused_naming_file_and_key(edit, words):
     [
         ({"transform": {"origin": [0, 0], "yaw": 0.5}, "lab": {"x": [0, 4], "y": [0, 5.2]}}, ["transform", "leaves the lab"]),
         ({"transform": {"origin": [0, 0], "scale": 0.5}, "lab": {"x": [0, 4], "y": [0, 5]}}, ["transform", "leaves the lab"]),
+        # a far origin is printed as a number, not as 300 digits
+        ({"transform": {"origin": [1e308, 0]}, "lab": {"x": [0, 4], "y": [0, 5.2]}}, ["transform", "lab x [1e+308, 1e+308]", "leaves the lab"]),
         ({"transform": {"origin": [5, 5]}, "lab": {"x": [0, 9], "y": [0, 11]}}, ["drone p0", "start", "outside the arena"]),
         ({"transform": {"origin": [5, 5]}}, ["drone p0", "start", "outside the lab"]),
         ({"transform": {"scale": 0.1}, "safety": {"min_separation": 3.5}}, ["min_separation", "no capture"]),

@@ -206,7 +206,7 @@ def _lab_bounds(spec: FlightSpec, transform: LabTransform, layout: Layout) -> La
     if lo[0] < lab.x[0] - tol or hi[0] > lab.x[1] + tol or lo[1] < lab.y[0] - tol or hi[1] > lab.y[1] + tol:
         raise ConfigError(
             f"{spec.source}: key 'transform': the {layout.width} x {layout.height} m arena maps to lab x "
-            f"[{lo[0]:.3f}, {hi[0]:.3f}], y [{lo[1]:.3f}, {hi[1]:.3f}] m, which leaves the lab "
+            f"[{lo[0]:.4g}, {hi[0]:.4g}], y [{lo[1]:.4g}, {hi[1]:.4g}] m, which leaves the lab "
             f"(lab: x {list(lab.x)}, y {list(lab.y)}): check origin, yaw and scale"
         )
     return lab
