@@ -84,6 +84,7 @@ def _flags(args) -> dict:
         task["random_layout"] = True
     if args.layout:
         refs = [int(x) if x.strip().isdigit() else x for x in args.layout]
+        _check_loads(args.layout, refs)
         if len(refs) == 1 and args.random_layout:  # the env would draw from every built-in layout, ignoring it
             from pursuit_mj.layout import N_BUILTIN
 
@@ -104,6 +105,18 @@ def _flags(args) -> dict:
     if args.rerun:
         flags.setdefault("run", {})["rerun"] = True
     return flags
+
+
+def _check_loads(texts: list[str], refs: list) -> None:
+    """Each --layout loaded once: ValueError naming the flag and the value of one that cannot be
+    (a repeat is allowed: the list gives the worlds their layouts in turn)."""
+    from pursuit_mj.layout import load_layout
+
+    for text, ref in zip(texts, refs):
+        try:
+            load_layout(ref)
+        except ValueError as exc:
+            raise ValueError(f"--layout {text}: {exc}") from None
 
 
 def _flags_typed(args) -> str:

@@ -67,6 +67,12 @@ def test_train_show_config_and_bad_input(tmp_path, capsys):
     assert "--layout 2 with --random-layout" in err and "would be ignored" in err and len(err.splitlines()) == 1
     assert main(["train", "--config", "classic", "--layout", "0", "--layout", "2", "--random-layout", "-sc"]) == 0
     assert "random_layout: true" in capsys.readouterr().out
+    # a layout that cannot be loaded is named with its flag (it was "layout 7: ..." from deep in the env)
+    for given in (["--layout", "0", "--layout", "7"], ["--layout", "nosuch.yaml"]):
+        assert main(["train", "--config", "classic", "--set", f"run.runs_dir={tmp_path}", *given]) == 2
+        err = capsys.readouterr().err
+        assert f"--layout {given[-1]}: layout" in err and len(err.splitlines()) == 1, err
+    assert not any(tmp_path.glob("classic*"))  # refused before the run folder was made
 
 
 @pytest.fixture(scope="module")
