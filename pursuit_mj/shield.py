@@ -16,7 +16,8 @@ same in simulation and on real drones. Every decision step, per pursuer:
    once). A negative cap backs the pursuer off. Where the passes leave a cap exceeded (two
    caps meeting at a sharp angle, as a wall and a teammate on either side), the velocity
    nearest the desired one within every cap is solved for exactly; where no velocity keeps
-   within them all (a teammate pressing the pursuer against a wall), the walls win.
+   within them all (a teammate pressing the pursuer against a wall, or the evader it just
+   caught beside a wall), the walls win.
 
 Teammates are remembered: one that drops out of sight (behind the pursuer, with a narrow
 field of view) stays a hazard for `mate_memory` s, at its last seen position moved along
@@ -281,13 +282,19 @@ class SafetyShield:
             return out
         # No velocity keeps within every cap: they conflict (a teammate presses the pursuer
         # against a wall). Then the static hazards (remembered hits, captured evaders) get the
-        # last word: a wall does not move, and a teammate's own shield makes it give way.
-        static = np.ones(cap.shape[-1], bool)
-        if o["mate_rel"].shape[2]:
-            n_hits = self._hits.shape[2] if o["rays"].shape[-1] else 0
-            static[n_hits : n_hits + o["mate_rel"].shape[2]] = False
+        # last word: a wall does not move, and a teammate's own shield makes it give way. Where
+        # those still conflict (a pursuer beside the evader it caught, whose 0.45 m hazard
+        # reaches far beyond its body, next to a wall), the walls alone: else the caught
+        # evader's cap, projected last, sent the pursuer into the wall at full speed.
+        n_hits = self._hits.shape[2] if o["rays"].shape[-1] else 0
+        caught = np.zeros(cap.shape[-1], bool)
+        caught[n_hits + o["mate_rel"].shape[2] :] = True
+        walls = np.zeros(cap.shape[-1], bool)
+        walls[:n_hits] = True
         w, n = np.nonzero(~met)
-        out[w, n], _ = limit_closing(out[w, n], u[w, n][:, static], cap[w, n][:, static], p.safety_passes)
+        out[w, n], met[w, n] = limit_closing(out[w, n], u[w, n][:, walls | caught], cap[w, n][:, walls | caught], p.safety_passes)
+        w, n = np.nonzero(~met & np.isfinite(cap[..., caught]).any(-1))
+        out[w, n], _ = limit_closing(out[w, n], u[w, n][:, walls], cap[w, n][:, walls], p.safety_passes)
         return out
 
 

@@ -326,6 +326,27 @@ def test_a_teammate_pressing_a_pursuer_against_a_wall_does_not_push_it_into_the_
     assert out[0] <= ShieldParams.approach_rate * (0.12 - 0.1 - ShieldParams.safety_buffer) + 1e-9
 
 
+@pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
+def test_a_pursuer_beside_the_evader_it_caught_still_stops_short_of_a_wall(fidelity):
+    # pursuer 0 catches evader 0 at once, 0.2 m east of it and 0.3 m from the west wall, then
+    # flies west: the caught evader (a hazard up to 0.45 m away) and the wall conflict near the
+    # wall, and the caught evader's cap, projected last, sent the pursuer into the wall
+    cfg = default_config(fidelity=fidelity, random_obstacles=0, n_evaders=2, layout=0, max_steps=40)
+    env = PursuitEnv(cfg, n_worlds=1, seed=0, auto_reset=False)
+    env.reset(seeds=[0])
+    env.physics.reset([0], np.array([[[0.3, 2.5], [2.0, 1.0], [3.0, 1.0], [0.5, 2.5], [3.0, 4.5]]]))
+    obs = env._obs = env._observe()
+    policy = shield_policy(Straight((-1.0, 0.0)), cfg)
+    policy.reset(1)
+    closest = np.inf
+    for _ in range(40):
+        obs, _, _, _, info = env.step(policy.act(obs, env.obs_spec))
+        assert env.captured[0, 0], "the test means something: the evader beside the pursuer is caught"
+        assert all(r.outcome != "collision" for r in info["episodes"])
+        closest = min(closest, float(env.physics.positions()[0, 0, 0]))  # m from the west wall
+    assert closest > cfg.obstacle_clearance
+
+
 @pytest.mark.parametrize("direction", [(-1.0, 0.3), (-1.0, -0.3)])
 def test_a_team_pushing_into_one_wall_keeps_off_it_and_off_each_other(direction):
     # every pursuer flies into the west wall at a slant: they pile up along it, each
