@@ -52,6 +52,7 @@ from .policy import Policy, check_observations
 from .sensing import heading_min_speed
 
 MIN_RAYS = 8  # range readings the shield (and the heuristic team) need to keep off walls: they see walls through nothing else
+# (8 is a floor, not a promise: 45 deg apart they first see a 0.065 m cylinder at the collision distance; 16 is the default)
 
 
 def check_rays(n_rays: int, who: str) -> None:
