@@ -165,7 +165,7 @@ class SafetyLimits:
     connect_timeout: float = spec(10.0, lo=0.1, help="open every link within this time (s)")
     takeoff_speed: float = spec(0.3, lo=0.05, hi=1.0, help="climb speed of the take-off (m/s)")
     landing_speed: float = spec(0.25, lo=0.05, hi=1.0, help="descent speed of the landing (m/s)")
-    height_tolerance: float = spec(0.15, lo=0.01, hi=1.0, help="after take-off every drone must be this close to the flight height (m); flight_height minus this must not reach below 0.1 m, where a drone counts as landed")
+    height_tolerance: float = spec(0.15, lo=0.01, hi=1.0, help=f"after take-off every drone must be this close to the flight height (m); flight_height minus this must not reach below {LANDED_HEIGHT:g} m, where a drone counts as landed")
     settle: float = spec(0.5, lo=0.0, hi=10.0, help="wait this long after a take-off or landing trajectory ends (s)")
     altitude_gain: float = spec(1.5, lo=0.0, hi=10.0, help="vertical speed per metre of height error while chasing (1/s)")
 
