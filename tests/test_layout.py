@@ -502,3 +502,37 @@ def test_a_missing_random_obstacles_section_means_none_and_an_empty_one_the_docu
     assert layout_from_dict(without, "<t>").random_obstacles.count == 0
     empty = layout_from_dict(base_dict(random_obstacles={}), "<t>").random_obstacles
     assert (empty.count, tuple(empty.kinds), tuple(empty.size)) == (5, ("box", "cylinder"), (0.15, 0.4))
+
+
+def _crossing_pairs_one_at_a_time(points) -> list[tuple[int, int]]:
+    """Every pair of non-adjacent edges that properly cross, found pair by pair (the reference)."""
+    p = np.asarray(points, float)
+    n = len(p)
+
+    def side(o, q, r):
+        return np.sign((q[0] - o[0]) * (r[1] - o[1]) - (q[1] - o[1]) * (r[0] - o[0]))
+
+    pairs = []
+    for i in range(n):
+        for j in range(i + 2, n):
+            if i == 0 and j == n - 1:
+                continue
+            a, b, c, d = p[i], p[(i + 1) % n], p[j], p[(j + 1) % n]
+            if side(a, b, c) * side(a, b, d) < 0 and side(c, d, a) * side(c, d, b) < 0:
+                pairs.append((i, j))
+    return pairs
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_the_border_crossing_check_finds_the_first_crossing_the_pair_by_pair_check_finds(seed):
+    from pursuit_mj.layout_check import polygon_crossing
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(3, 12))
+    if seed % 2:  # a star-shaped border: no crossing
+        angles = np.sort(rng.uniform(0, 2 * np.pi, n))
+        points = np.stack([np.cos(angles), np.sin(angles)], -1) * rng.uniform(0.5, 1.0, (n, 1))
+    else:  # points anywhere: mostly crossing
+        points = rng.uniform(0, 1, (n, 2))
+    pairs = _crossing_pairs_one_at_a_time(points)
+    assert polygon_crossing(points) == (pairs[0] if pairs else None)
