@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from collections import deque
-
 import numpy as np
 
 from .geometry import ObstacleSet, inside_boundary, obstacle_distance
@@ -101,9 +99,41 @@ def check_spawn_gap(layout, capture_radius: float, source: str = "capture_radius
                           f"move the regions apart")
 
 
+def grid_components(free: np.ndarray) -> np.ndarray:
+    """Labels (X, Y) of the 8-connected components of the True cells of `free` (X, Y): each
+    component's cells carry the smallest flat index among them; -1 on cells not free.
+
+    Vectorised: every free cell takes the smallest label in its 3 x 3 neighbourhood, then
+    follows its label to that cell's label (pointer jumping), until nothing changes. A label
+    is always a cell of the same component, no larger than the cell's own index, so the
+    fixed point labels each component with its smallest index.
+    """
+    nx, ny = free.shape
+    none = free.size  # the label of cells not free: larger than every index
+    label = np.where(free, np.arange(free.size).reshape(free.shape), none)
+    while True:
+        padded = np.pad(label, 1, constant_values=none)
+        low = label.copy()
+        for di in range(3):
+            for dj in range(3):
+                np.minimum(low, padded[di:di + nx, dj:dj + ny], out=low)
+        low[~free] = none
+        flat = np.append(low.ravel(), none)  # flat[none] == none
+        jumped = flat[flat[:-1]]
+        while True:  # a label's own label is no larger: follow the chain
+            again = flat[jumped]
+            if np.array_equal(again, jumped):
+                break
+            jumped = again
+        jumped = jumped.reshape(free.shape)
+        if np.array_equal(jumped, label):
+            return np.where(free, label, -1)
+        label = jumped
+
+
 def spawn_components(layout, clearance: float = PASSAGE_CLEARANCE) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Which connected free space each free spawn point lies in, for a drone centre keeping
-    `clearance` (m) from the border and the fixed obstacles (8-connected grid).
+    `clearance` (m) from the border and the layout's obstacles (8-connected grid).
 
     Returns {"pursuers": (points (K, 2), labels (K,)), "evaders": ...}: points with the same
     label can fly to each other; -1 for a point whose grid cell is not free (coarse grids only).
@@ -114,30 +144,14 @@ def spawn_components(layout, clearance: float = PASSAGE_CLEARANCE) -> dict[str, 
     grid = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1)  # (X, Y, 2) cell centres, m
     flat = grid.reshape(-1, 2)
     free = (inside_boundary(layout, flat) & (obstacle_distance(flat, ObstacleSet.from_layout(layout)) >= clearance)).reshape(grid.shape[:2])
-    label = np.full(free.shape, -1)
+    label = grid_components(free)
     nx, ny = free.shape
-
-    def flood(i: int, j: int, k: int) -> None:
-        label[i, j] = k
-        queue = deque([(i, j)])
-        while queue:
-            i, j = queue.popleft()
-            for di in (-1, 0, 1):
-                for dj in (-1, 0, 1):
-                    a, b = i + di, j + dj
-                    if 0 <= a < nx and 0 <= b < ny and free[a, b] and label[a, b] < 0:
-                        label[a, b] = k
-                        queue.append((a, b))
-
     out = {}
     for name, region in (("pursuers", layout.spawn_pursuers), ("evaders", layout.spawn_evaders)):
         # the cells the spawn points lie in (a region thinner than a cell holds no cell centre)
         pts = free_spawn_points(layout, region)
         i = np.clip((pts[:, 0] // step).astype(int), 0, nx - 1)
         j = np.clip((pts[:, 1] // step).astype(int), 0, ny - 1)
-        for a, b in zip(i, j):
-            if free[a, b] and label[a, b] < 0:
-                flood(a, b, int(label.max()) + 1)
         out[name] = (pts, label[i, j])
     return out
 

@@ -23,6 +23,7 @@ from pursuit_mj.layout import (
     load_layout,
     save_layout,
 )
+from pursuit_mj.layout_check import grid_components
 
 SPAWN = {"pursuers": {"x": [0.2, 3.4], "y": [0.2, 0.8]}, "evaders": {"x": [0.2, 3.4], "y": [4.2, 4.8]}}
 
@@ -195,6 +196,41 @@ def test_no_room_for_random_obstacles_is_refused():
     layout = layout_from_dict(base_dict(random_obstacles={"count": 40, "size": [0.5, 0.6]}), "crowded.yaml")
     with pytest.raises(LayoutError, match=r"crowded.yaml: no room for random obstacle \d+ of 40"):
         layout.with_random_obstacles(np.random.default_rng(0))
+
+
+def _components_by_flood_fill(free: np.ndarray) -> np.ndarray:
+    """The plain reference: a breadth-first flood fill from each unlabelled free cell (8-connected)."""
+    from collections import deque
+
+    label = np.full(free.shape, -1)
+    for start in zip(*np.nonzero(free)):
+        if label[start] >= 0:
+            continue
+        label[start] = k = label.max() + 1
+        queue = deque([start])
+        while queue:
+            i, j = queue.popleft()
+            for a in range(max(i - 1, 0), min(i + 2, free.shape[0])):
+                for b in range(max(j - 1, 0), min(j + 2, free.shape[1])):
+                    if free[a, b] and label[a, b] < 0:
+                        label[a, b] = k
+                        queue.append((a, b))
+    return label
+
+
+def test_grid_components_split_the_free_cells_as_a_flood_fill_does():
+    rng = np.random.default_rng(0)
+    snake = np.zeros((21, 21), bool)  # one winding corridor, against the order of the cell indices
+    snake[::4] = True
+    for r in range(0, 17, 4):
+        snake[r + 1:r + 4, 20 if r % 8 == 0 else 0] = True
+    grids = [rng.random((int(rng.integers(1, 25)), int(rng.integers(1, 25)))) < rng.uniform(0.2, 0.8) for _ in range(100)]
+    for free in grids + [snake, snake.T[::-1], np.zeros((3, 4), bool), np.ones((3, 4), bool)]:
+        got, want = grid_components(free), _components_by_flood_fill(free)
+        assert ((got < 0) == ~free).all() and ((want < 0) == ~free).all()
+        pairs = set(zip(got[free].tolist(), want[free].tolist()))  # the same partition: labels map one to one
+        assert len(pairs) == len({g for g, _ in pairs}) == len({w for _, w in pairs})
+    assert len(np.unique(grid_components(snake)[snake])) == 1
 
 
 # ----------------------------------------------------------------------------- malformed and impossible
