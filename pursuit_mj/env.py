@@ -194,7 +194,8 @@ class PursuitEnv:
             base = self.pool[base_i]
             count = self.config.random_obstacle_count(base)
             given = None if self.config.random_obstacles is None else f"task.random_obstacles (now {count})"
-            inst = base.with_random_obstacles(rng, count, count_source=given) if count else base
+            inst = base.with_random_obstacles(rng, count, count_source=given, passage_clearance=self.config.obstacle_clearance,
+                                              passage_source="task.obstacle_clearance") if count else base
             pts_p, pts_e = self._spawn_points[id(base)]
             pur = sample_separated(pts_p, self.n_pursuers, rng, SPAWN_SEPARATION)
             eva = sample_separated(pts_e, self.n_evaders, rng, SPAWN_SEPARATION)

@@ -113,17 +113,21 @@ class Layout:
         return boundary_segments(self)
 
     def with_random_obstacles(self, rng: np.random.Generator, count: int | None = None, clearance: float = 0.3,
-                              count_source: str | None = None) -> "Layout":
+                              count_source: str | None = None, passage_clearance: float = 0.0,
+                              passage_source: str = "passage_clearance") -> "Layout":
         """A copy with `count` (default: the layout's) random obstacles placed and made concrete.
 
         Random obstacles keep `clearance` (m) from spawn regions, fixed obstacles, the
         border and each other. Raises LayoutError if there is no room for them, naming
         `count_source` (where `count` came from) or else the file's random_obstacles.count.
+        With `passage_clearance` (m) over clearance / 2, they are drawn again (same rng) while
+        they cut a spawn point off from the other team for a drone centre keeping that far from
+        obstacles; LayoutError naming `passage_source` if no placement leaves the passages open.
         """
         from .layout_random import place_random_obstacles
 
         n = self.random_obstacles.count if count is None else count
-        extra = place_random_obstacles(self, rng, n, clearance, count_source)
+        extra = place_random_obstacles(self, rng, n, clearance, count_source, passage_clearance, passage_source)
         return dataclasses.replace(self, obstacles=self.obstacles + tuple(extra), n_random=self.n_random + len(extra),
                                    random_obstacles=dataclasses.replace(self.random_obstacles, count=0))
 

@@ -161,13 +161,21 @@ def check_passages(layout, clearance: float = PASSAGE_CLEARANCE, source: str | N
     centre keeping `clearance` (m) from walls and obstacles; `source` names where it came from."""
     from .layout import LayoutError
 
+    fault = passage_fault(layout, clearance, source)
+    if fault is not None:
+        raise LayoutError(fault)
+
+
+def passage_fault(layout, clearance: float = PASSAGE_CLEARANCE, source: str | None = None) -> str | None:
+    """What `check_passages` would refuse (its message), or None when every free spawn point can
+    reach the other team keeping `clearance` (m) from walls and obstacles."""
     src = layout.source
     needs = f"a passage needs {2 * clearance:g} m" + (f" at {source} {clearance:g} m" if source else "")
     comp = spawn_components(layout, clearance)
     shared = set(comp["pursuers"][1].tolist()) & set(comp["evaders"][1].tolist()) - {-1}
     if not shared:
-        raise LayoutError(f"{src}: the evaders' spawn region cannot be reached from the pursuers': walls or obstacles "
-                          f"cut the arena in two ({needs})")
+        return (f"{src}: the evaders' spawn region cannot be reached from the pursuers': walls or obstacles "
+                f"cut the arena in two ({needs})")
     # every spawn point must lie in the space both teams share: an evader spawned in a closed
     # pocket of its region could never be caught, a pursuer spawned in one never help
     labels = np.concatenate([comp["pursuers"][1], comp["evaders"][1]])
@@ -176,9 +184,10 @@ def check_passages(layout, clearance: float = PASSAGE_CLEARANCE, source: str | N
         cut = (lab != main) & (lab >= 0)
         if cut.any():
             p = [round(float(v), 3) for v in pts[np.flatnonzero(cut)[0]]]
-            raise LayoutError(f"{src}: spawn.{name} x={list(region.x)} y={list(region.y)} reaches into a pocket cut off "
-                              f"from the other team by walls or obstacles (e.g. at {p}; {needs}): a drone spawned there "
-                              f"could never meet the other team; open the pocket or keep the spawn region out of it")
+            return (f"{src}: spawn.{name} x={list(region.x)} y={list(region.y)} reaches into a pocket cut off "
+                    f"from the other team by walls or obstacles (e.g. at {p}; {needs}): a drone spawned there "
+                    f"could never meet the other team; open the pocket or keep the spawn region out of it")
+    return None
 
 
 def polygon_crossing(points) -> tuple[int, int] | None:

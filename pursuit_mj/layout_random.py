@@ -1,13 +1,16 @@
-"""Seeded placement of random obstacles that avoid spawn regions, the border and each other."""
+"""Seeded placement of random obstacles that avoid spawn regions, the border and each other,
+and leave the passages between the spawn regions open."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from .geometry import ObstacleSet, border_distance, inside_boundary, obstacle_distance
+from .layout_check import check_passages, passage_fault
 
 MAX_TRIES = 1000  # draws for one obstacle
 RESTARTS = 10  # placements of all obstacles, before no room is reported
+PASSAGE_DRAWS = 50  # placements that may close a passage, before the setting is reported impossible
 
 
 def _spawn_distance(layout, pts: np.ndarray) -> np.ndarray:
@@ -20,9 +23,35 @@ def _spawn_distance(layout, pts: np.ndarray) -> np.ndarray:
     return out
 
 
-def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearance: float, count_source: str | None = None) -> list:
+def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearance: float, count_source: str | None = None,
+                           passage_clearance: float = 0.0, passage_source: str = "passage_clearance") -> list:
     """Draw `count` obstacles of the layout's kinds and size range; LayoutError if no room, naming
     `count_source` (where the count came from; default: the file's random_obstacles.count).
+
+    Obstacles keep `clearance` (m) from each other, the fixed obstacles, the border and the
+    spawn regions. That leaves every passage of the layout open for a drone centre keeping
+    `passage_clearance` (m) from obstacles as long as 2 x passage_clearance <= clearance; above
+    that, a placement that cuts a spawn point off from the other team is drawn again from the
+    same rng (up to PASSAGE_DRAWS placements, then LayoutError naming `passage_source`).
+    """
+    for _ in range(PASSAGE_DRAWS):
+        placed = _place(layout, rng, count, clearance, count_source)
+        if 2 * passage_clearance <= clearance or passage_fault(_with(layout, placed), passage_clearance) is None:
+            return placed
+    check_passages(layout, passage_clearance, passage_source)  # the fixed obstacles alone close a passage
+    from .layout import LayoutError
+
+    spec, counts = layout.random_obstacles, count_source or "random_obstacles.count"
+    raise LayoutError(
+        f"{layout.source}: none of {PASSAGE_DRAWS} placements of {count} random obstacles (sizes {list(spec.size)} m, "
+        f"{clearance:g} m apart) left every spawn point reachable from the other team for a drone keeping "
+        f"{passage_source} {passage_clearance:g} m from obstacles (a passage needs {2 * passage_clearance:g} m); "
+        f"lower {passage_source}, {counts} or random_obstacles.size in {layout.source}"
+    )
+
+
+def _place(layout, rng: np.random.Generator, count: int, clearance: float, count_source: str | None) -> list:
+    """One placement of `count` obstacles `clearance` (m) apart; LayoutError if no room.
 
     Obstacles are placed one by one; when one finds no room, the placement starts over (up to
     RESTARTS times, drawing on from the same rng): early obstacles can block the rest in one

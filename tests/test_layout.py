@@ -11,7 +11,7 @@ import yaml
 
 from pursuit_cli import main
 from pursuit_mj.config import default_config
-from pursuit_mj.env import PursuitEnv
+from pursuit_mj.env import PursuitEnv, episode_seed
 from pursuit_mj.geometry import ObstacleSet, inside_boundary, obstacle_distance
 from pursuit_mj.layout import (
     N_BUILTIN,
@@ -23,7 +23,7 @@ from pursuit_mj.layout import (
     load_layout,
     save_layout,
 )
-from pursuit_mj.layout_check import grid_components
+from pursuit_mj.layout_check import check_passages, grid_components
 
 SPAWN = {"pursuers": {"x": [0.2, 3.4], "y": [0.2, 0.8]}, "evaders": {"x": [0.2, 3.4], "y": [4.2, 4.8]}}
 
@@ -183,6 +183,83 @@ def test_no_room_for_the_tasks_random_obstacle_count_names_the_task_key_not_the_
     env = PursuitEnv(default_config(layout=3, random_obstacles=30, fidelity="point"), seed=0)
     with pytest.raises(LayoutError, match=r"3_cluttered.yaml: no room for random obstacle \d+ of 30 .*; lower task.random_obstacles \(now 30\)$"):
         env.reset()
+
+
+# a 1.6 m corridor whose three random cylinders, 0.3 m apart, close it for drones keeping 0.19 m
+# in about half of the draws (passable keeping the default 0.1 m)
+CORRIDOR = """
+name: corridor
+arena: {width: 1.6, height: 3.0}
+obstacles: []
+random_obstacles: {count: 3, kinds: [cylinder], size: [0.2, 0.4]}
+spawn:
+  pursuers: {x: [0.2, 1.4], y: [0.2, 0.6]}
+  evaders: {x: [0.2, 1.4], y: [2.4, 2.8]}
+"""
+# 1.0 m wide: its one random cylinder (0.38-0.4 m, 0.3 m from both sides) always closes it at 0.19 m
+NARROW = CORRIDOR.replace("width: 1.6", "width: 1.0").replace("x: [0.2, 1.4]", "x: [0.2, 0.8]").replace(
+    "count: 3, kinds: [cylinder], size: [0.2, 0.4]", "count: 1, kinds: [cylinder], size: [0.38, 0.4]")
+
+
+def _closed(layout, clearance: float) -> bool:
+    """Whether walls or obstacles cut some spawn point off from the other team, for a drone keeping `clearance` (m)."""
+    try:
+        check_passages(layout, clearance)
+    except LayoutError:
+        return True
+    return False
+
+
+def test_random_obstacles_that_close_a_passage_for_the_tasks_obstacle_clearance_are_drawn_again():
+    layout = layout_from_dict(yaml.safe_load(CORRIDOR), "corridor.yaml")
+    env = PursuitEnv(default_config(obstacle_clearance=0.19, fidelity="point"), n_worlds=4, seed=0, layouts=[layout])
+    closed_before = 0
+    for episode in range(3):
+        seeds = [episode_seed(0, w, episode) for w in range(4)]
+        env.reset(seeds=seeds)
+        for w, s in enumerate(seeds):
+            assert env.world_layouts[w].n_random == 3
+            check_passages(env.world_layouts[w], 0.19)  # every episode can be won
+            plain = layout.with_random_obstacles(np.random.default_rng(s))  # the placement without the re-check
+            closed_before += _closed(plain, 0.19)
+            if not _closed(plain, 0.19):  # a passable first draw is kept: the same obstacles as without the check
+                assert env.world_layouts[w] == plain
+    assert closed_before > 0  # these episodes would have had their evaders cut off
+
+
+def test_the_passage_recheck_is_seeded_and_keeps_a_passable_draw_and_the_generator_alike():
+    layout = layout_from_dict(yaml.safe_load(CORRIDOR), "corridor.yaml")
+    for seed in range(8):
+        checked, plain = np.random.default_rng(seed), np.random.default_rng(seed)
+        a = layout.with_random_obstacles(checked, passage_clearance=0.19)
+        assert a == layout.with_random_obstacles(np.random.default_rng(seed), passage_clearance=0.19)
+        check_passages(a, 0.19)
+        b = layout.with_random_obstacles(plain)
+        if not _closed(b, 0.19):
+            assert a == b and checked.bit_generator.state == plain.bit_generator.state, seed
+
+
+@pytest.mark.parametrize("clearance", [0.1, 0.15])
+def test_random_obstacles_at_obstacle_clearances_their_separation_keeps_passable_are_those_without_a_check(clearance):
+    """2 x obstacle_clearance within the random obstacles' 0.3 m separation: no re-check, the same
+    obstacles as before it existed, and the same spawn (the episode's rng draws nothing more)."""
+    layout = layout_from_dict(yaml.safe_load(CORRIDOR), "corridor.yaml")
+    env = PursuitEnv(default_config(obstacle_clearance=clearance, fidelity="point"), n_worlds=4, seed=0, layouts=[layout])
+    env.reset()
+    for w in range(4):
+        checked, plain = np.random.default_rng(episode_seed(0, w, 0)), np.random.default_rng(episode_seed(0, w, 0))
+        want = layout.with_random_obstacles(plain)
+        assert env.world_layouts[w] == want == layout.with_random_obstacles(checked, passage_clearance=clearance)
+        assert checked.bit_generator.state == plain.bit_generator.state
+
+
+def test_random_obstacles_that_always_close_a_passage_are_refused_naming_the_settings():
+    layout = layout_from_dict(yaml.safe_load(NARROW), "narrow.yaml")
+    env = PursuitEnv(default_config(obstacle_clearance=0.19, fidelity="point"), seed=0, layouts=[layout])
+    with pytest.raises(LayoutError, match=r"narrow.yaml: .*task.obstacle_clearance.* 0.19 m.*; lower task.obstacle_clearance, "
+                                          r"random_obstacles.count or random_obstacles.size in narrow.yaml"):
+        env.reset()
+    PursuitEnv(default_config(obstacle_clearance=0.15, fidelity="point"), seed=0, layouts=[layout]).reset()
 
 
 def _outline(layout_with_one_obstacle) -> np.ndarray:
