@@ -15,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Sequence
 
-from .evaluation import Row
+from .evaluation import Row, layout_identity
 from .stats import Mean, mean_interval
 
 
@@ -57,7 +57,9 @@ class Paired:
 
 def pair(row: Row, reference: Row, max_steps: float) -> Paired:
     """Compare two rows of one table (same layout, seed and episodes); ValueError if they differ."""
-    if (row.layout, row.seed, row.fidelity) != (reference.layout, reference.seed, reference.fidelity):
+    # a layout named two ways (0 and the built-in's file, x.yaml and ./x.yaml) plays the same episodes
+    if ((layout_identity(row.layout), row.seed, row.fidelity)
+            != (layout_identity(reference.layout), reference.seed, reference.fidelity)):
         raise ValueError(f"paired comparison: {row.policy} (layout {row.layout}, seed {row.seed}, {row.fidelity}) and "
                          f"{reference.policy} (layout {reference.layout}, seed {reference.seed}, {reference.fidelity}) "
                          "did not play the same episodes")
@@ -87,11 +89,12 @@ def _successes(row: Row, max_steps: float) -> list[bool]:
 def pair_table(rows: Sequence[Row], reference: str, max_steps: float) -> list[Paired]:
     """Every other policy of `rows` against `reference`, layout by layout (ValueError if
     `reference` is not among them)."""
-    refs = {r.layout: r for r in rows if r.policy == reference}
+    refs = {layout_identity(r.layout): r for r in rows if r.policy == reference}
     if not refs:
         names = ", ".join(dict.fromkeys(r.policy for r in rows))
         raise ValueError(f"--versus {reference!r}: no such policy in the table (policies: {names})")
-    return [pair(r, refs[r.layout], max_steps) for r in rows if r.policy != reference and r.layout in refs]
+    keyed = [(r, layout_identity(r.layout)) for r in rows if r.policy != reference]
+    return [pair(r, refs[key], max_steps) for r, key in keyed if key in refs]
 
 
 def format_pairs(pairs: Sequence[Paired]) -> str:

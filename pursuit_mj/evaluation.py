@@ -15,6 +15,7 @@ import dataclasses
 import io
 import json
 import math
+import os
 import zlib
 from pathlib import Path
 from types import SimpleNamespace
@@ -26,7 +27,7 @@ from .config import TaskConfig
 from .configio import to_dict
 from .env import EpisodeRecord, PursuitEnv, check_seed
 from .io_utils import atomic_write_text
-from .layout import load_layout
+from .layout import N_BUILTIN, builtin_layout_path, load_layout
 from .policy import Policy
 from .stats import Mean, Rate, mean_interval, rate
 
@@ -84,9 +85,29 @@ def layout_label(ref: int | str | Path) -> str:
     return str(ref).strip()
 
 
-def layout_seed(seed: int, label: str) -> int:
-    """The environment seed for one layout of a table, from the table seed and the layout label."""
-    return int(np.random.SeedSequence([int(seed), zlib.crc32(label.encode())]).generate_state(1)[0])
+def layout_identity(ref: int | str | Path) -> str:
+    """What a layout reference names, the same however it is spelled: a built-in index, or a path
+    that is the same file as a built-in layout, as its index ('0'); any other path in its normal
+    form ('./x.yaml' and 'x.yaml' as 'x.yaml'; relative paths stay relative, so that it does not
+    depend on the machine). A path that is not a file now (a row read back) keeps its normal form."""
+    label = layout_label(ref)
+    if label.isdigit():
+        return str(int(label))
+    for index in range(N_BUILTIN):
+        try:
+            if os.path.samefile(label, builtin_layout_path(index)):
+                return str(index)
+        except (OSError, ValueError):  # no such file, or an unreadable one: not that built-in
+            continue
+    return Path(os.path.normpath(label)).as_posix()
+
+
+def layout_seed(seed: int, label: int | str | Path) -> int:
+    """The environment seed for one layout of a table, from the table seed and the layout's
+    identity (`layout_identity`), so that `0` and the built-in's file path, or `./x.yaml` and
+    `x.yaml`, play the same episodes; an index seeds as it always has (its label's digits)."""
+    ident = layout_identity(label)
+    return int(np.random.SeedSequence([int(seed), zlib.crc32(ident.encode())]).generate_state(1)[0])
 
 
 def episode_seeds(seed: int, count: int) -> np.ndarray:

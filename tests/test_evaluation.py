@@ -181,6 +181,58 @@ def test_random_and_trained_policies_play_the_same_episodes_whatever_the_number_
     np.testing.assert_array_equal(policy.act(obs[9:], spec), whole[9:])
 
 
+def _episodes(config, layout, seed=3):
+    (row,) = evaluate(HeuristicTeam.from_config(config), config, [layout], episodes=3, seed=seed, n_worlds=3)
+    return row
+
+
+def test_a_built_in_layout_named_by_its_file_plays_the_episodes_of_its_index(tmp_path, monkeypatch):
+    import os
+    import zlib
+
+    import numpy as np
+
+    from pursuit_mj.comparison import pair
+    from pursuit_mj.evaluation import layout_seed
+
+    config = quick_config()
+    by_index = _episodes(config, 0)
+    # the index seeds as it always did (documented numbers measured with indexes stay)
+    assert layout_seed(3, "0") == int(np.random.SeedSequence([3, zlib.crc32(b"0")]).generate_state(1)[0])
+    assert by_index.seed == 3 and by_index.episode_log[0][0] != 0
+    builtin = builtin_layout_path(0)
+    monkeypatch.chdir(builtin.parent.parent.parent)  # the repository: configs/layouts/0_*.yaml
+    relative = os.path.relpath(builtin)
+    link = tmp_path / "mine.yaml"
+    link.symlink_to(builtin)
+    for ref in (relative, f"./{relative}", str(builtin), str(link)):
+        row = _episodes(config, ref)
+        assert row.layout == ref  # shown as given
+        assert row.episode_log == by_index.episode_log, ref  # the same seeds, outcomes and steps
+        assert pair(row, by_index, config.max_steps).steps.mean == 0.0  # paired with the index's row
+    assert _episodes(config, 1).episode_log != by_index.episode_log
+
+
+def test_a_layout_file_plays_the_same_episodes_however_its_path_is_spelled(tmp_path, monkeypatch):
+    import zlib
+
+    import numpy as np
+
+    from pursuit_mj.evaluation import layout_seed
+
+    config = quick_config()
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "x.yaml").write_text(builtin_layout_path(1).read_text())  # a copy: a layout of its own
+    monkeypatch.chdir(tmp_path)
+    plain = _episodes(config, "x.yaml")
+    for ref in ("./x.yaml", "sub/../x.yaml", ".//x.yaml"):
+        row = _episodes(config, ref)
+        assert row.layout == ref and row.episode_log == plain.episode_log, ref
+    # a path in its normal form seeds as it always did; a copy of a built-in is not that built-in
+    assert layout_seed(3, "x.yaml") == int(np.random.SeedSequence([3, zlib.crc32(b"x.yaml")]).generate_state(1)[0])
+    assert layout_seed(3, "x.yaml") != layout_seed(3, "1")
+
+
 def test_evaluate_refuses_bad_layouts_and_counts_before_running():
     config = quick_config()
     team = HeuristicTeam.from_config(config)
