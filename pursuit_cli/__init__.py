@@ -12,6 +12,7 @@ import contextlib
 import importlib
 import os
 import re
+import select
 import signal
 import sys
 import threading
@@ -168,18 +169,70 @@ def main(argv: list[str] | None = None) -> int:
             return int(args.func(args) or 0)
     except KeyboardInterrupt as exc:
         return _interrupted(args, str(exc.args[0]) if exc.args else "")
-    except BrokenPipeError:  # output piped into `head` and the like
-        sys.stderr.close()
-        return 0
+    except BrokenPipeError as exc:
+        if _stdout_is_broken():  # output piped into `head` and the like: the reader has all it wanted
+            sys.stderr.close()  # (and no word about the output Python cannot flush at exit)
+            return 0
+        # another pipe or socket (an encoder's, a link's) closed under the command: a failure
+        print(f"pursuit-mj {_command_name(args)}: error: {exc} {_where(exc)} (a pipe or socket other than the "
+              "standard output closed: the process or peer reading it ended)", file=sys.stderr)
+        return 1
     except Exception as exc:
         if stops:  # the interrupt raised inside a library call, which reported it as its own error (pybind11: TypeError)
             return _interrupted(args, stops[0])
         if not isinstance(exc, ValueError):
             raise
-        action = next((getattr(args, d) for d in ("layout_command", "bench_target", "fly_action") if getattr(args, d, None)), None)
-        command = " ".join(filter(None, (args.command, action)))  # e.g. 'layout show', as argparse's own errors say
-        print(f"pursuit-mj {command}: error: {exc}", file=sys.stderr)
+        print(f"pursuit-mj {_command_name(args)}: error: {exc}", file=sys.stderr)
         return 2
+
+
+def _command_name(args: argparse.Namespace) -> str:
+    """The command as typed, e.g. 'layout show', as argparse's own errors say."""
+    action = next((getattr(args, d) for d in ("layout_command", "bench_target", "fly_action") if getattr(args, d, None)), None)
+    return " ".join(filter(None, (args.command, action)))
+
+
+def _stdout_is_broken() -> bool:
+    """Whether standard output's reader has gone (`| head` ended): flushing it fails with a broken
+    pipe, or the system reports its descriptor in error (nothing left to flush). False for a
+    BrokenPipeError of anything else while standard output is still read."""
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        return True
+    except (OSError, ValueError, AttributeError):  # closed or replaced: ask the descriptor
+        pass
+    try:
+        fd = sys.stdout.fileno()
+    except (OSError, ValueError, AttributeError):
+        return False
+    if not hasattr(select, "poll"):  # Windows: the flush is all there is to go by
+        return False
+    poller = select.poll()
+    poller.register(fd, select.POLLOUT)
+    # a pipe's (or socket's) write end whose reader closed polls as in error (Linux) or hung up
+    return any(events & (select.POLLERR | select.POLLHUP) for _, events in poller.poll(0))
+
+
+def _where(exc: BaseException) -> str:
+    """Where an exception was raised: the innermost line of this project's code, and the
+    innermost of all when that is a library's ('in pursuit_mj/render/video.py:98, write_frame')."""
+    import traceback
+
+    frames = traceback.extract_tb(exc.__traceback__)
+    if not frames:
+        return ""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+    def shown(f: traceback.FrameSummary) -> str:
+        path = os.path.relpath(f.filename, root) if f.filename.startswith(root + os.sep) else os.path.basename(f.filename)
+        return f"{path}:{f.lineno}, {f.name}"
+
+    here = os.path.abspath(__file__)  # main's own frame, which called the command
+    ours = [f for f in frames if f.filename.startswith(root + os.sep) and os.path.abspath(f.filename) != here]
+    if ours and ours[-1] is not frames[-1]:
+        return f"in {shown(ours[-1])} (raised in {shown(frames[-1])})"
+    return f"in {shown(frames[-1])}"
 
 
 def _interrupted(args: argparse.Namespace, signal_name: str) -> int:

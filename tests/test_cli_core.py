@@ -172,6 +172,52 @@ def test_python_dash_m_pursuit_cli_is_the_pursuit_mj_command():
     assert out.returncode == 2 and out.stderr.startswith("pursuit-mj layout check: error: layout 7"), out.stderr
 
 
+_BROKEN_PIPE_COMMAND = """
+import os, subprocess, sys
+import pursuit_cli, pursuit_cli.config_cmd as command
+def run(args):
+    if sys.argv[1] == "print":  # `pursuit-mj ... | head`: print into a reader that has gone
+        while True:
+            print("a line of the table")
+    if sys.argv[1] == "os.write":  # the same below Python's buffer (nothing left to flush)
+        while True:
+            os.write(sys.stdout.fileno(), b"a line of the table\\n" * 1000)
+    print("the table so far", flush=True)  # another pipe breaks while standard output is read
+    encoder = subprocess.Popen([sys.executable, "-c", "pass"], stdin=subprocess.PIPE)
+    encoder.wait()
+    encoder.stdin.write(b"a frame" * 200_000)
+    encoder.stdin.flush()
+command.run = run
+sys.exit(pursuit_cli.main(["config"]))
+"""
+
+
+@pytest.mark.parametrize("mode", ["print", "os.write"])
+def test_output_piped_into_head_ends_quietly_and_successfully(mode):
+    import subprocess
+    import sys
+
+    cli = subprocess.Popen([sys.executable, "-c", _BROKEN_PIPE_COMMAND, mode], stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE)
+    assert cli.stdout.readline().startswith(b"a line")
+    cli.stdout.close()  # head has the lines it wanted
+    _, err = cli.communicate(timeout=120)
+    assert (cli.returncode, err) == (0, b"")
+
+
+def test_a_broken_pipe_other_than_the_output_is_an_error_naming_where_it_broke():
+    """An encoder (ffmpeg) or a link that ends early is a failure, not `| head`: it exited 0."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _BROKEN_PIPE_COMMAND, "encoder"], capture_output=True, text=True,
+                         timeout=120)
+    assert out.stdout == "the table so far\n"
+    assert out.returncode == 1, out.stderr
+    assert out.stderr.startswith("pursuit-mj config: error: [Errno 32] Broken pipe in <string>:"), out.stderr
+    assert ", run (a pipe or socket other than the standard output closed" in out.stderr
+
+
 @pytest.mark.parametrize("sig, said", [("SIGTERM", "interrupted by SIGTERM\n"), ("SIGINT", "interrupted\n")])
 def test_a_stop_signal_that_a_library_call_reports_as_its_own_error_still_ends_as_an_interrupt(monkeypatch, capsys, sig, said):
     """A SIGTERM (or Ctrl-C) landing while mujoco's bindings convert an argument came out as their
