@@ -151,6 +151,49 @@ def test_impossible_transforms_and_settings_are_refused(changes, words):
         assert w in str(err.value), (w, str(err.value))
 
 
+@pytest.mark.parametrize(
+    "changes, words",
+    [
+        # a start far out, with the lab given or taken from the arena: refused before the geometry squares it
+        ({"lab": {"x": [0, 4], "y": [0, 5.2]}, "drones": [dict(BASE["drones"][0], start=[1e308, 1.0])] + BASE["drones"][1:]},
+         ["drone p0", "key 'start'", "[1e+308, 1.0] is outside the lab"]),
+        ({"drones": BASE["drones"][:2] + [dict(BASE["drones"][2], start=[2.5, -1e308])]},
+         ["drone p1", "key 'start'", "[2.5, -1e+308] is outside the lab"]),
+        # a lab that big would let such a start in
+        ({"lab": {"x": [-1e308, 1e308], "y": [0, 5.2]}, "drones": [dict(BASE["drones"][0], start=[1e308, 1.0])] + BASE["drones"][1:]},
+         ["lab: key 'x'", "-1e+308 m in [-1e+308, 1e+308] is farther than 1000 m"]),
+        ({"lab": {"x": [0, 4], "y": [0, 1e300]}}, ["lab: key 'y'", "1e+300 m in [0.0, 1e+300] is farther than 1000 m"]),
+    ],
+)
+def test_a_far_start_or_lab_is_refused_clearly_without_an_overflow_warning(changes, words):
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy's RuntimeWarning: overflow encountered ... would fail here
+        with pytest.raises(ConfigError) as err:
+            resolve_flight(flight_from_dict(flight(**changes), "lab.yaml"))
+    message = str(err.value)
+    assert message.startswith("lab.yaml"), message
+    for w in words:
+        assert w in message, (w, message)
+
+
+def test_fly_align_refuses_a_far_point_without_an_overflow_warning(capsys):
+    import warnings
+
+    from pursuit_cli import main
+
+    spots = "0.5,0.625 1.75,0.625 1.875,4.0"
+    for flag, points, item in (("--lab", "1e308,0 1,0 0,1", "'1e308,0'"), ("--spots", "0.5,0.625 1.75,-1e308 1.875,4.0", "'1.75,-1e308'")):
+        argv = ["fly", "align", "--flight", "configs/flight/lighthouse.yaml", "--spots", spots, "--lab", "1,1 2,1 1,3"]
+        argv[argv.index(flag) + 1] = points
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"{flag}: {item}: " in err and "e+308 m is farther than 1000 m" in err, err
+
+
 def test_a_start_inside_a_virtual_obstacle_or_too_close_to_another_is_refused():
     data = flight(layout=1)  # a wall along y = 1.9 from x = 0 to 2.2
     data["drones"][0]["start"] = [1.0, 1.9]

@@ -24,11 +24,12 @@ from ..io_utils import atomic_write_text
 from .board import StateBoard
 from .frames import Fit, fit_similarity
 from .links import CrazyflieFactory, LinkSet
-from .spec import FlightSpec, drone_names
+from .spec import LAB_EXTENT, FlightSpec, drone_names
 
 
 def parse_points(text: str, source: str) -> np.ndarray:
-    """'x,y x,y ...' (spaces or semicolons between points) -> (K, 2) m."""
+    """'x,y x,y ...' (spaces or semicolons between points) -> (K, 2) m, each coordinate within
+    LAB_EXTENT of the origin (the fit squares them: 1e308 would overflow)."""
     points = []
     for item in text.replace(";", " ").split():
         parts = item.split(",")
@@ -40,6 +41,10 @@ def parse_points(text: str, source: str) -> np.ndarray:
                 raise ValueError
         except ValueError:
             raise ValueError(f"{source}: '{item}' is not a point x,y (metres)") from None
+        far = max(point, key=abs)
+        if abs(far) > LAB_EXTENT:
+            raise ValueError(f"{source}: '{item}': {far:g} m is farther than {LAB_EXTENT:g} m from the origin: no flight "
+                             f"space is that big (points are metres)")
         points.append(point)
     if not points:
         raise ValueError(f"{source}: no points given")

@@ -262,6 +262,10 @@ def _check_starts(spec: FlightSpec, plan_drones: Sequence[FlightDrone], plan: Fl
     apart (else ConfigError); returns warnings for starts inside the geofence margin."""
     starts = np.array([d.start for d in plan_drones], np.float64)
     lab = plan.lab
+    for d, p in zip(plan_drones, starts):  # before any arithmetic on them: a start of 1e308 overflows it
+        if not (lab.x[0] <= p[0] <= lab.x[1] and lab.y[0] <= p[1] <= lab.y[1]):
+            raise ConfigError(f"{spec.source}: drone {d.name} ({d.uri}): key 'start': {p.tolist()} is outside the lab "
+                              f"(x {list(lab.x)}, y {list(lab.y)})")
     margin = spec.safety.geofence_margin
     layout_xy = plan.transform.to_layout(starts)
     inside = inside_boundary(plan.layout, layout_xy)
@@ -271,8 +275,6 @@ def _check_starts(spec: FlightSpec, plan_drones: Sequence[FlightDrone], plan: Fl
     warnings = []
     for d, p, q, ok, g, b in zip(plan_drones, starts, layout_xy, inside, gap, to_border):
         where = f"{spec.source}: drone {d.name} ({d.uri}): key 'start'"
-        if not (lab.x[0] <= p[0] <= lab.x[1] and lab.y[0] <= p[1] <= lab.y[1]):
-            raise ConfigError(f"{where}: {p.tolist()} is outside the lab (x {list(lab.x)}, y {list(lab.y)})")
         if not ok:
             raise ConfigError(f"{where}: lab {p.tolist()} is layout [{q[0]:.3f}, {q[1]:.3f}], outside the arena of {plan.layout.source}")
         if g < touching:

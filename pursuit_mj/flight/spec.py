@@ -38,6 +38,9 @@ NAME = r"[\w\-]+"  # a drone name: what `--fault KIND:NAME@S` can address
 POSITIONING = ("flow", "lighthouse", "loco")
 
 LANDED_HEIGHT = 0.1  # m: a drone whose height estimate is below this is on the floor (counts as landed)
+#: m: the farthest a lab bound may lie from the lab's origin. No flight space is this big, and the
+#: starts, checked to lie inside the lab before anything is computed from them, stay far from float overflow
+LAB_EXTENT = 1000.0
 
 DATA_RATES = ("250K", "1M", "2M")  # spelled as cflib's radio driver compares them
 DEFAULT_RADIO_ADDRESS = 0xE7E7E7E7E7  # what cflib uses for a radio URI without an address
@@ -138,6 +141,10 @@ class LabBounds:
         for key, (lo, hi) in (("x", self.x), ("y", self.y)):
             if not lo < hi:
                 raise ConfigError(f"{source}: key '{key}': expected [min, max] with min < max, got {[lo, hi]}")
+            far = max((lo, hi), key=abs)
+            if abs(far) > LAB_EXTENT:
+                raise ConfigError(f"{source}: key '{key}': {far:g} m in {[lo, hi]} is farther than {LAB_EXTENT:g} m from "
+                                  f"the lab's origin: no flight space is that big (lab coordinates are metres)")
 
 
 @dataclasses.dataclass(frozen=True)
