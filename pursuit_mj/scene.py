@@ -45,6 +45,7 @@ class SceneSpec:
     physics_dt: float = 0.002
     flight_height: float = 0.5
     obstacle_slots: int = 0  # pad obstacles + border to this many geoms, so worlds share sizes
+    drone_mass: float | None = None  # kg, each drone's take-off mass; None: the model file's (drone_parameters)
 
 
 @lru_cache(maxsize=1)
@@ -52,14 +53,32 @@ def _drone_template_xml() -> str:
     return DRONE_FILE.read_text()
 
 
-def drone_parameters() -> dict[str, np.ndarray | float]:
+def drone_parameters(mass: float | None = None) -> dict[str, np.ndarray | float]:
     """Physical parameters of one drone read from models/crazyflie.xml (SI units).
 
     mass (kg), inertia (3,) kg m^2, motor_xy (4, 2) m in the body frame, yaw_ratio (4,) m
     (signed torque per newton of thrust), max_thrust (N), motor_tau (s), drag (3,) N s/m,
     point_time_constant (s), point_max_accel (m/s^2). A fresh copy on every call.
+
+    `mass` (kg), if given, replaces the file's and scales the inertia with it (see
+    `scaled_inertia`); everything else is the file's. The scene builder applies the same.
     """
-    return {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in _read_drone_parameters().items()}
+    params = {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in _read_drone_parameters().items()}
+    if mass is not None:
+        params["inertia"] = scaled_inertia(params["inertia"], params["mass"], mass)
+        params["mass"] = float(mass)
+    return params
+
+
+def scaled_inertia(inertia: np.ndarray, file_mass: float, mass: float) -> np.ndarray:
+    """Principal inertia (3,) kg m^2 of a drone of `mass` kg whose model file gives `inertia` at
+    `file_mass` kg: scaled by mass / file_mass, as if the added mass (deck, markers, a bigger
+    battery) were spread like the airframe's own. Decks and batteries sit near the centre, so
+    a real drone's inertia grows less than this; the scaled one errs on the sluggish side
+    (more rotor thrust difference for the same turn). A ratio of exactly 1 leaves it as is."""
+    if not mass > 0.0:
+        raise ValueError(f"drone mass: {mass!r} kg is not positive")
+    return inertia * (float(mass) / file_mass)
 
 
 @lru_cache(maxsize=1)
@@ -81,9 +100,16 @@ def _read_drone_parameters() -> dict[str, np.ndarray | float]:
     }
 
 
-def _drone_spec(role: str, fidelity: str) -> mujoco.MjSpec:
-    """A new spec of one drone of `role` in `fidelity`, to attach to a scene."""
-    return _drone_spec_template(role, fidelity).copy()  # a copy costs a twentieth of building one
+def _drone_spec(role: str, fidelity: str, mass: float | None = None) -> mujoco.MjSpec:
+    """A new spec of one drone of `role` in `fidelity`, to attach to a scene; `mass` (kg), if
+    given, replaces the file's, with the inertia scaled as drone_parameters(mass) gives it."""
+    child = _drone_spec_template(role, fidelity).copy()  # a copy costs a twentieth of building one
+    if mass is not None:
+        params = drone_parameters(mass)
+        body = child.body("body")
+        body.mass = params["mass"]
+        body.inertia = params["inertia"]
+    return child
 
 
 @lru_cache(maxsize=None)
@@ -208,7 +234,7 @@ def build_spec(scene: SceneSpec) -> mujoco.MjSpec:
         frame = w.add_frame(pos=[0.3 + 0.3 * i, 0.3, scene.flight_height if scene.fidelity == "point" else 0.0])
         if scene.fidelity == "point":
             frame.pos = [0.0, 0.0, scene.flight_height]
-        spec.attach(_drone_spec(role, scene.fidelity), prefix=f"{name}/", frame=frame)
+        spec.attach(_drone_spec(role, scene.fidelity, scene.drone_mass), prefix=f"{name}/", frame=frame)
         sensor = spec.add_sensor(name=f"{name}/contact", type=mujoco.mjtSensor.mjSENS_CONTACT, objtype=mujoco.mjtObj.mjOBJ_GEOM, objname=f"{name}/collision")
         sensor.intprm[0] = 1  # data: "found" (number of contacts)
         sensor.intprm[2] = 1  # num: one slot

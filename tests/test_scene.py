@@ -133,3 +133,34 @@ def test_point_and_quadrotor_bodies_share_mass_and_collision_volume():
     for name in ("pursuer_0", "evader_0"):
         assert quad.body(f"{name}/body").mass[0] == point.body(f"{name}/body").mass[0]
         np.testing.assert_array_equal(quad.geom(f"{name}/collision").size, point.geom(f"{name}/collision").size)
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_drone_mass_sets_every_drones_body_mass_and_scales_its_inertia(fidelity):
+    """Both fidelities, every drone; the inertia scaled by the mass ratio, as drone_parameters
+    gives it to the controller."""
+    base = drone_parameters()
+    model = build_model(SceneSpec(load_layout(0), 3, 1, fidelity, drone_mass=0.033))
+    for name in drone_names(3, 1):
+        body = model.body(f"{name}/body")
+        assert body.mass[0] == 0.033
+        np.testing.assert_allclose(body.inertia, base["inertia"] * 0.033 / 0.027, rtol=1e-12)
+    np.testing.assert_allclose(drone_parameters(0.033)["inertia"], base["inertia"] * 0.033 / 0.027, rtol=1e-12)
+    assert drone_parameters(0.033)["mass"] == 0.033
+
+
+def test_scenes_of_different_drone_masses_are_built_apart():
+    """The drone spec template is cached per role and fidelity: a mass set on one scene's copy
+    must not reach the template or the next scene, whichever order they are built in."""
+    layout = load_layout(0)
+    specs = [SceneSpec(layout, 1, 1, "quadrotor", drone_mass=m) for m in (0.035, None, 0.030, 0.027)]
+    assert len(set(specs)) == len(specs)  # distinct keys wherever a SceneSpec is cached or compared
+    masses = [build_model(s).body("pursuer_0/body").mass[0] for s in specs]
+    assert masses == [0.035, 0.027, 0.030, 0.027]
+
+
+def test_a_non_positive_drone_mass_is_refused_by_the_scene():
+    with pytest.raises(ValueError, match=r"drone mass: 0.0 kg is not positive"):
+        drone_parameters(0.0)
+    with pytest.raises(ValueError, match=r"drone mass: -0.03 kg is not positive"):
+        build_model(SceneSpec(load_layout(0), 1, 1, "quadrotor", drone_mass=-0.03))
