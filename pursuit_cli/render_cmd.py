@@ -216,8 +216,7 @@ def check_render_settings(settings, config: TaskConfig) -> None:
     from pursuit_mj.render.camera import CameraSpec
     from pursuit_mj.scene import SceneSpec, build_model, drone_names
 
-    model = build_model(SceneSpec(load_layout(config.layout), config.n_pursuers, config.n_evaders, config.fidelity,
-                                  config.physics_dt, config.flight_height))
+    model = build_model(SceneSpec.for_task(config, load_layout(config.layout)))
     settings.check(model)
     CameraSpec.parse(settings.camera, model, drone_names(config.n_pursuers, config.n_evaders))
 

@@ -20,6 +20,15 @@ CONFIG_DIR = shipped_dir("configs")
 #: m between two drone centres when their collision cylinders touch (2 x the 0.0685 m radius
 #: of the "collision" geom in models/crazyflie.xml; a test checks the two agree)
 DRONE_CONTACT_DISTANCE = 2 * 0.0685
+#: kg, the take-off mass of models/crazyflie.xml (a bare Crazyflie 2.1; a test checks the two agree)
+DRONE_FILE_MASS = 0.027
+#: N, the thrust of all four rotors at their limit in models/crazyflie.xml (4 x 0.15 N; a test checks)
+DRONE_MAX_THRUST = 4 * 0.15
+#: the least thrust-to-weight ratio accepted: the rotors must lift this many times the drone's
+#: weight (see TaskConfig.validate for why)
+MIN_THRUST_TO_WEIGHT = 1.5
+#: kg, the heaviest drone_mass accepted: DRONE_MAX_THRUST / (g MIN_THRUST_TO_WEIGHT)
+DRONE_MAX_MASS = DRONE_MAX_THRUST / (9.81 * MIN_THRUST_TO_WEIGHT)
 # every reward scale's magnitude limit: rewards are float32, and an episode's sum of steps of
 # the largest terms must stay finite and far from overflow
 REWARD_SCALE_LIMIT = 1e6
@@ -92,6 +101,7 @@ class TaskConfig:
     fidelity: str = spec("quadrotor", choices=("point", "quadrotor"), help="physics fidelity")
     physics_dt: float = spec(0.002, lo=0.0002, hi=0.01, help="MuJoCo timestep (s)")
     controller_hz: float = spec(100.0, lo=100.0, hi=1000.0, help="quadrotor controller rate (Hz); at 50 Hz a full-speed reversal tilted to 22 deg, past the 15 deg limit")
+    drone_mass: float = spec(DRONE_FILE_MASS, lo=0.0, lo_open=True, help=f"every drone's take-off mass (kg): the quadrotor's body (inertia scaled with it) and its controller's weight feed-forward; default the bare Crazyflie 2.1 of models/crazyflie.xml; set it to your drones' weighed mass (with decks, markers, battery); at most {DRONE_MAX_MASS:.4f} kg, where the rotors lift {MIN_THRUST_TO_WEIGHT:g} times the weight")
     evader: EvaderConfig = spec(default_factory=EvaderConfig, help="escape model settings")
 
     def validate(self, source: str = "config") -> None:
@@ -118,6 +128,12 @@ class TaskConfig:
         if self.random_layout and not isinstance(self.layout, int):
             raise ConfigError(f"{source}: key 'random_layout' draws each episode's layout from the built-in 0-"
                               f"{N_BUILTIN - 1}, so layout {self.layout} would be ignored: set one or the other")
+        if self.drone_mass > DRONE_MAX_MASS:
+            raise ConfigError(
+                f"{source}: key 'drone_mass': {self.drone_mass} kg is more than the rotors can fly: their "
+                f"{DRONE_MAX_THRUST:g} N at full thrust must lift at least {MIN_THRUST_TO_WEIGHT:g} times the "
+                f"weight (at most {DRONE_MAX_MASS:.4f} kg), keeping thrust in reserve to tilt, climb back and "
+                f"turn at once")
         substeps = self.control_dt / self.physics_dt
         if round(substeps) < 1:  # 1e-9 s is "a whole number" (0) of physics steps within the tolerance below
             raise ConfigError(

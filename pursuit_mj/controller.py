@@ -114,7 +114,15 @@ def cap_thrusts(thrusts: np.ndarray, max_thrust: float) -> np.ndarray:
 
 
 class VelocityController:
-    """Tracks a world-frame planar velocity at a constant altitude with yaw held at zero."""
+    """Tracks a world-frame planar velocity at a constant altitude with yaw held at zero.
+
+    `params` as scene.drone_parameters(mass) gives them for the drones flown. The controller
+    knows their mass: the weight is fed forward (the hover thrust) and every force gain and the
+    rate loop's inertia scale with it, so a heavier drone (task key drone_mass) flies the same
+    closed loop while its rotors have the headroom. We take it that a flyer who sets drone_mass
+    to their drones' weight also sets the firmware's base thrust (posCtlPid.thrustBase of its PID
+    controller) to match; the altitude integrator only removes small biases (lag, drag).
+    """
 
     def __init__(self, params: dict, flight_height: float, gains: ControllerGains | None = None):
         g = self.gains = gains or ControllerGains()

@@ -92,7 +92,7 @@ class BatchedPhysics:
         self.n_drones = len(self.names)
         self.fidelity = config.fidelity
         self.nthread = nthread
-        self.params = drone_parameters()
+        self.params = drone_parameters(config.drone_mass)  # mass and inertia as configured
         self.drag = np.asarray(self.params["drag"], dtype=np.float64)
         check_symmetric_drag(self.drag, "models/crazyflie.xml numeric 'drag'")
         self.layouts = list(layouts)
@@ -113,8 +113,7 @@ class BatchedPhysics:
     # ------------------------------------------------------------------ models and layouts
 
     def _build(self, layout: Layout) -> mujoco.MjModel:
-        c = self.config
-        return build_model(SceneSpec(layout, c.n_pursuers, c.n_evaders, c.fidelity, c.physics_dt, c.flight_height, self.obstacle_slots))
+        return build_model(SceneSpec.for_task(self.config, layout, self.obstacle_slots))
 
     def _build_all(self, layouts: Sequence[Layout]) -> list[mujoco.MjModel]:
         """One model per world; worlds given the same Layout object share one model."""
@@ -354,7 +353,10 @@ class BatchedPhysics:
     def _step_point(self, cmd: np.ndarray) -> None:
         """Every controller tick: the force that moves each drone's velocity toward cmd as a
         first-order lag of point_time_constant would over the tick (exact for an unlimited
-        one), its acceleration capped in norm at point_max_accel."""
+        one), its acceleration capped in norm at point_max_accel. Neither follows drone_mass:
+        the quadrotor's controller scales its forces with the mass, and its tilt limit, not its
+        thrust, caps the acceleration while the rotors lift config.MIN_THRUST_TO_WEIGHT times
+        the weight (tests/test_controller.py checks the match at the heaviest mass accepted)."""
         k = self.config.substeps_per_control
         tick = k * self.config.physics_dt
         rate = -np.expm1(-tick / self.params["point_time_constant"]) / tick  # 1/s

@@ -47,6 +47,12 @@ class SceneSpec:
     obstacle_slots: int = 0  # pad obstacles + border to this many geoms, so worlds share sizes
     drone_mass: float | None = None  # kg, each drone's take-off mass; None: the model file's (drone_parameters)
 
+    @staticmethod
+    def for_task(config, layout: Layout, obstacle_slots: int = 0) -> "SceneSpec":
+        """The scene of a task config (pursuit_mj.config.TaskConfig) in `layout`."""
+        c = config
+        return SceneSpec(layout, c.n_pursuers, c.n_evaders, c.fidelity, c.physics_dt, c.flight_height, obstacle_slots, c.drone_mass)
+
 
 @lru_cache(maxsize=1)
 def _drone_template_xml() -> str:

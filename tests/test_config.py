@@ -110,6 +110,11 @@ def test_dumped_config_loads_back_identical(tmp_path):
         (["controller_hz=50"], r"key 'controller_hz': 50.0 is out of range \(must be >= 100.0\)"),
         (["perception_radius=0.2"], r"perception_radius 0.2 is below capture_radius 0.3"),
         (["capture_radius=0.1"], r"capture_radius 0.1 m is not beyond 0.137 m, where two drones' collision volumes touch"),
+        (["drone_mass=0"], r"key 'drone_mass': 0.0 is out of range \(must be > 0.0\)"),
+        (["drone_mass=-0.03"], r"key 'drone_mass': -0.03 is out of range \(must be > 0.0\)"),
+        (["drone_mass=0.045"], r"key 'drone_mass': 0.045 kg is more than the rotors can fly: their 0.6 N at full thrust "
+                               r"must lift at least 1.5 times the weight \(at most 0.0408 kg\)"),
+        (["drone_mass=heavy"], r"key 'drone_mass': expected a number, got 'heavy'"),
         (["n_pursuers"], r"'n_pursuers' is not of the form key=value"),
         (["evader=3"], r"key 'evader': expected a mapping of EvaderConfig keys, got 3"),
         (["n_pursuers.x=1"], r"'n_pursuers' has no sub-keys"),
@@ -127,6 +132,20 @@ def test_the_contact_distance_is_twice_the_drone_models_collision_radius():
 
     model = mujoco.MjModel.from_xml_path("models/crazyflie.xml")
     assert DRONE_CONTACT_DISTANCE == pytest.approx(2 * model.geom("collision").size[0])
+
+
+def test_drone_mass_defaults_to_the_drone_models_and_its_limit_to_the_models_thrust():
+    """Default configs keep the model file's mass (every documented number stays); the limit
+    is the models' full thrust over 1.5 times g, and a mass just under it is accepted."""
+    from pursuit_mj.config import DRONE_MAX_MASS, DRONE_MAX_THRUST, MIN_THRUST_TO_WEIGHT
+    from pursuit_mj.scene import drone_parameters
+
+    params = drone_parameters()
+    assert TaskConfig().drone_mass == params["mass"] == 0.027
+    assert DRONE_MAX_THRUST == pytest.approx(4 * params["max_thrust"], rel=1e-12)
+    assert DRONE_MAX_MASS == pytest.approx(4 * params["max_thrust"] / (9.81 * MIN_THRUST_TO_WEIGHT))
+    assert load_task_config([], [f"drone_mass={DRONE_MAX_MASS}"]).drone_mass == DRONE_MAX_MASS
+    assert load_task_config([], ["drone_mass=0.033"]).drone_mass == 0.033
 
 
 def test_bad_yaml_files_name_the_file(tmp_path):

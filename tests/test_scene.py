@@ -164,3 +164,18 @@ def test_a_non_positive_drone_mass_is_refused_by_the_scene():
         drone_parameters(0.0)
     with pytest.raises(ValueError, match=r"drone mass: -0.03 kg is not positive"):
         build_model(SceneSpec(load_layout(0), 1, 1, "quadrotor", drone_mass=-0.03))
+
+
+def test_the_default_drone_mass_builds_the_model_files_drone_exactly():
+    """drone_mass at its default (the file's 0.027 kg) gives the same model, bit for bit, as
+    leaving the model file's mass alone, so no episode of a default task changes."""
+    from pursuit_mj.config import default_config
+
+    layout = load_layout(1)
+    configured = build_model(SceneSpec.for_task(default_config(), layout))
+    untouched = build_model(SceneSpec(layout, 3, 1, "quadrotor"))
+    for field in ("body_mass", "body_inertia", "body_ipos", "body_iquat", "dof_invweight0", "body_invweight0"):
+        assert np.array_equal(getattr(configured, field), getattr(untouched, field)), field
+    assert drone_parameters(0.027).keys() == drone_parameters().keys()
+    for key, value in drone_parameters(0.027).items():
+        assert np.array_equal(value, drone_parameters()[key]), key

@@ -98,8 +98,7 @@ class SceneRenderer:
     # ------------------------------------------------------------------ model binding
 
     def _build(self, layout: Layout) -> mujoco.MjModel:
-        c = self.config
-        return build_model(SceneSpec(layout, c.n_pursuers, c.n_evaders, c.fidelity, c.physics_dt, c.flight_height))
+        return build_model(SceneSpec.for_task(self.config, layout))
 
     def bind(self, layout: Layout) -> None:
         """Draw the scene of `layout` from now on; free when it is the layout already bound."""
