@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from flight_rehearsal import FAST, fly_virtual, kinds_in_order, quick_spec, wait_for
+from flight_rehearsal import FAST, fly_virtual, kinds_in_order, quick_plan, quick_spec, wait_for
 from pursuit_cli import main
 from pursuit_mj.flight.board import StateBoard
 from pursuit_mj.flight.events import read_events
@@ -230,3 +230,22 @@ def test_fly_align_measures_a_rotated_scaled_transform_from_virtual_lighthouse_d
     t = load_plan(out_file).transform
     assert t.yaw == pytest.approx(math.pi / 2, abs=1e-5) and t.scale == pytest.approx(1.25, abs=1e-5)
     np.testing.assert_allclose(t.origin, [4.2, 0.1], atol=1e-4)
+
+
+def test_virtual_crazyflies_weigh_the_flight_tasks_drone_mass():
+    """A flight file's task key drone_mass (say, decked drones of 35 g) makes the rehearsal's
+    bodies that heavy, and their controller carries that weight: climbed to 0.5 m, the rotors
+    hold 0.035 kg x g."""
+    plan = quick_plan(task={"drone_mass": 0.035})
+    fleet = VirtualFleet(plan, physics=FAST)
+    try:
+        airframe = fleet.airframe
+        assert [airframe.model.body(f"{n}/body").mass[0] for n in airframe.ids.names] == [0.035] * plan.n_drones
+        assert airframe.params["mass"] == 0.035
+        on = np.ones(plan.n_drones, bool)
+        for _ in range(300):  # 3 s
+            airframe.step(0.01, np.zeros((plan.n_drones, 2)), np.full(plan.n_drones, 0.5), np.zeros(plan.n_drones), on)
+        np.testing.assert_allclose(airframe.pos[:, 2], 0.5, atol=0.03)
+        np.testing.assert_allclose(airframe.thrust.sum(1), 0.035 * 9.81, rtol=0.01)
+    finally:
+        fleet.stop()

@@ -33,19 +33,22 @@ def lab_layout(x: tuple[float, float], y: tuple[float, float]) -> Layout:
 class Airframe:
     """D drones in one MuJoCo world, stepped in fixed ticks of `tick` seconds.
 
+    `mass` (kg): every drone's take-off mass, as the task key drone_mass sets it (body, inertia
+    and controller alike); None: the model file's.
+
     Commands per tick: v_xy (D, 2) m/s world, z_ref (D,) m, vz_ff (D,) m/s, motors (D,) bool. State:
     pos (D, 3) m, vel (D, 3) m/s (world = shifted lab), quat (D, 4) w x y z, thrust (D, 4) N.
     """
 
     def __init__(self, n_pursuers: int, n_others: int, lab_x: tuple[float, float], lab_y: tuple[float, float],
-                 starts: np.ndarray, physics_dt: float = 0.002, controller_hz: float = 250.0):
+                 starts: np.ndarray, physics_dt: float = 0.002, controller_hz: float = 250.0, mass: float | None = None):
         self.offset = np.array([lab_x[0], lab_y[0]])
         self.n = n_pursuers + n_others
         layout = lab_layout(lab_x, lab_y)
-        self.model = build_model(SceneSpec(layout, n_pursuers, n_others, "quadrotor", physics_dt, 0.5))
+        self.model = build_model(SceneSpec(layout, n_pursuers, n_others, "quadrotor", physics_dt, 0.5, drone_mass=mass))
         self.data = mujoco.MjData(self.model)
         self.ids = DroneIds.lookup(self.model, drone_names(n_pursuers, n_others), "quadrotor")
-        self.params = drone_parameters()
+        self.params = drone_parameters(mass)
         self.drag = np.asarray(self.params["drag"], np.float64)
         self.controller = VelocityController(self.params, 1.0)
         self.controller.reset(self.n)

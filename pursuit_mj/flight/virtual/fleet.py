@@ -76,7 +76,7 @@ class VirtualFleet:
         self.max_duration = float(max_duration)
         self.constants = physics or VirtualPhysics()
         starts = np.array([d.start for d in plan.drones], np.float64)
-        self.airframe = Airframe(plan.n_pursuers, n - plan.n_pursuers, plan.lab.x, plan.lab.y, starts)
+        self.airframe = Airframe(plan.n_pursuers, n - plan.n_pursuers, plan.lab.x, plan.lab.y, starts, mass=plan.task.drone_mass)
         self.commander = cmd.Commander(n)
         # estimate frames: flow decks measure from their last reset, at their start heading
         self.est_yaw = np.array([d.start_yaw for d in plan.drones]) if plan.spec.positioning == "flow" else np.zeros(n)
