@@ -173,7 +173,7 @@ def shield_if_asked(args: argparse.Namespace, policy, label: str, config: TaskCo
 
 #: task keys whose change between training and use a loaded model's user is told of
 TRAINED_TASK_KEYS = ("observability", "pursuer_speed", "evader_speed", "perception_radius", "field_of_view", "fidelity",
-                     "n_pursuers", "n_evaders")
+                     "n_pursuers", "n_evaders", "drone_mass")
 
 
 def load_model(path, spec, task: TaskConfig, flag: str = "--model"):

@@ -174,9 +174,11 @@ def test_train_streams_its_scalars_to_rerun(tmp_path, capsys):
 
 def test_a_model_used_in_another_task_than_it_learned_says_so(tiny_model, capsys):
     assert main(["eval", "--model", str(tiny_model), "--layouts", "0", "--episodes", "1", "--fidelity", "point",
-                 "--pursuers", "2", "--set", "max_steps=10", "-q", "--observability", "full", "-ev", "0.5"]) == 0
+                 "--pursuers", "2", "--set", "max_steps=10", "-q", "--observability", "full", "-ev", "0.5",
+                 "--set", "drone_mass=0.033"]) == 0
     err = capsys.readouterr().err
-    assert "was trained with observability partial (this task: full), evader_speed 0.6 (this task: 0.5)" in err
+    assert ("was trained with observability partial (this task: full), evader_speed 0.6 (this task: 0.5), "
+            "drone_mass 0.027 (this task: 0.033)") in err
 
 
 def test_an_empty_train_config_file_is_refused(tmp_path, capsys):
