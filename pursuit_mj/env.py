@@ -361,8 +361,12 @@ class PursuitEnv:
         vel = self.physics.velocities()[..., :2]
         self.heading = update_heading(self.heading, vel[:, :N], heading_min_speed(cfg.pursuer_speed))
         events = detect_events(pos[:, :N], pos[:, N:], self.captured, contacts[:, :N], self._obstacles, cfg)
+        # a diverged world's positions are MuJoCo's reset (a point world's drones all on one
+        # spot), not the drones': no captures from them, no terms measured on them
+        events.new_captures &= ~diverged[:, None]
         terms = reward_terms(cfg, events, pos0[:, :N], pos[:, :N], pos[:, N:], pos0[:, N:], free_before)
-        terms["progress"][diverged] = 0.0  # positions of a diverged world are not meaningful
+        for k in ("progress", "proximity", "spread"):
+            terms[k] = np.where(diverged[:, None], np.float32(0.0), terms[k])
         for k in terms:
             terms[k] = terms[k] * active[:, None]
         self.captured |= events.new_captures & active[:, None]

@@ -166,6 +166,26 @@ def test_a_world_whose_physics_diverges_ends_as_a_collision_without_stopping_the
     assert np.isfinite(obs).all()
 
 
+def test_a_diverged_world_pays_the_collision_and_nothing_its_reset_positions_suggest():
+    """MuJoCo puts a diverged point world's drones all on one spot: that step used to pay a
+    capture of every evader (+20 with two, more than the -10 of the crash) and count them caught."""
+    import warnings
+
+    env = PursuitEnv(default_config(fidelity="point", random_obstacles=0, n_evaders=2), n_worlds=2, seed=0)
+    env.reset()
+    env.physics.qvel[0, :] = 1e12
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _, reward, term, _, info = env.step(np.zeros((2, 3, 2)))
+    assert info["outcome"].tolist() == ["collision", ""] and term.tolist() == [True, False]
+    record = info["episodes"][0]
+    assert record.captured == 0 and record.returns["capture"] == 0.0
+    for name, value in info["reward_terms"].items():
+        want = env.config.collision_penalty if name == "collision" else 0.0
+        np.testing.assert_array_equal(value[0], want, err_msg=name)
+    np.testing.assert_array_equal(reward[0], env.config.collision_penalty)
+
+
 @pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
 def test_reset_worlds_with_a_seed_replays_an_episode_exactly(fidelity):
     """An episode is a function of its seed and actions: noise, misses, obstacles and the
