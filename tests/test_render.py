@@ -300,3 +300,17 @@ def test_backend_errors_name_what_to_install(monkeypatch):
         gl.choose_backend()
     text = gl._explain({"egl": "no device", "osmesa": "library not found"})
     assert "egl: no device" in text and "libegl1" in text and "libosmesa6" in text
+
+
+def test_a_pyopengl_platform_set_alone_is_the_only_backend_tried_and_the_error_says_so(monkeypatch):
+    from pursuit_mj.render import gl
+
+    tried = []
+    monkeypatch.setattr(gl, "_chosen", None)
+    monkeypatch.setattr(gl, "_pinned_platform", lambda: None)
+    monkeypatch.setattr(gl, "_probe", lambda backend: tried.append(backend) or "library not found")
+    monkeypatch.delenv("MUJOCO_GL", raising=False)
+    monkeypatch.setenv("PYOPENGL_PLATFORM", "osmesa")  # egl would fail in-process under it, whatever a probe said
+    with pytest.raises(gl.RenderBackendError, match="osmesa: library not found.*PYOPENGL_PLATFORM=osmesa asks for it"):
+        gl.choose_backend()
+    assert tried == ["osmesa"]

@@ -194,6 +194,19 @@ def test_a_mujoco_gl_value_mujoco_rejects_is_one_line_naming_it_even_for_help(va
     assert err.startswith(f"pursuit-mj: error: environment variable MUJOCO_GL={value!r}") and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.parametrize("env, names", [({"MUJOCO_GL": "egl", "PYOPENGL_PLATFORM": "osmesa"}, "MUJOCO_GL=egl and PYOPENGL_PLATFORM=osmesa"),
+                                        ({"MUJOCO_GL": "", "PYOPENGL_PLATFORM": "glx"}, "PYOPENGL_PLATFORM='glx'")])
+def test_a_pyopengl_platform_at_odds_with_offscreen_rendering_is_named_not_blamed_on_the_install(tmp_path, env, names):
+    """A Docker image's PYOPENGL_PLATFORM left over under another MUJOCO_GL: PyOpenGL must use the backend
+    rendered with, so the error names the variable to change, not a library to install that is there."""
+    proc = _cli_process(["render", "--policy", "random", "--fidelity", "point", "--set", "max_steps=2",
+                         "--width", str(W), "--height", str(H), "-s", str(tmp_path / "a.gif")], env)
+    out, err = proc.communicate(timeout=180)
+    assert proc.returncode == 2 and not (tmp_path / "a.gif").exists()
+    assert names in err and "PYOPENGL_PLATFORM" in err.split(names, 1)[1] and "install" not in err, err
+    assert len(err.strip().splitlines()) == 1, err
+
+
 @pytest.mark.parametrize("sig", ["SIGTERM", "SIGHUP"])
 def test_a_render_killed_by_sigterm_or_sighup_leaves_no_partial_video(tmp_path, sig):
     import signal

@@ -3,7 +3,9 @@
 The backend is fixed per process at the first `import OpenGL.GL` (PyOpenGL reads
 PYOPENGL_PLATFORM then), so candidates cannot be tried one after the other in-process.
 `MUJOCO_GL=egl|osmesa|glfw` picks one explicitly; otherwise each candidate is tried in a
-short child process first and the first that creates a context is used here.
+short child process first and the first that creates a context is used here. A
+PYOPENGL_PLATFORM already set must agree (it alone, when MUJOCO_GL is unset, is the only
+candidate tried).
 """
 
 from __future__ import annotations
@@ -36,9 +38,10 @@ class RenderBackendError(ValueError):
     """No OpenGL backend could create an offscreen context; the message says what to install."""
 
 
-def _explain(tried: dict[str, str]) -> str:
+def _explain(tried: dict[str, str], platform: str = "") -> str:
     lines = [f"{b}: {why}; needs {INSTALL_HINT[b]}" for b, why in tried.items()]
-    return "no offscreen OpenGL backend works here (" + " | ".join(lines) + "); install one, or set MUJOCO_GL"
+    only = f" (the only one tried: environment variable PYOPENGL_PLATFORM={platform} asks for it; unset it to try all)" if platform else ""
+    return "no offscreen OpenGL backend works here (" + " | ".join(lines) + ")" + only + "; install one, or set MUJOCO_GL"
 
 
 def _probe(backend: str, timeout: float = 60.0) -> str | None:
@@ -69,22 +72,29 @@ def choose_backend() -> str:
         return _chosen
     requested = os.environ.get("MUJOCO_GL", "").strip().lower()
     pinned = _pinned_platform()
+    platform = os.environ.get("PYOPENGL_PLATFORM", "").strip().lower()
     if requested:
         if requested not in SUPPORTED:
             raise RenderBackendError(f"environment variable MUJOCO_GL={requested!r}: offscreen rendering needs one of {', '.join(SUPPORTED)}")
+        if requested in CANDIDATES and platform not in ("", requested):  # mujoco's EGL/OSMesa loaders refuse it
+            raise RenderBackendError(f"environment variables MUJOCO_GL={requested} and PYOPENGL_PLATFORM={platform} disagree: "
+                                     f"unset PYOPENGL_PLATFORM, or set it to {requested} too")
         _chosen = requested
         return _chosen
     if pinned is not None:
         _chosen = pinned
         return _chosen
+    if platform and platform not in CANDIDATES:
+        raise RenderBackendError(f"environment variable PYOPENGL_PLATFORM={platform!r}: offscreen rendering needs "
+                                 f"{' or '.join(CANDIDATES)}; unset it, or set MUJOCO_GL and PYOPENGL_PLATFORM both to one of them")
     tried = {}
-    for backend in CANDIDATES:
+    for backend in (platform,) if platform else CANDIDATES:  # a platform PyOpenGL is told to use rules the others out
         why = _probe(backend)
         if why is None:
             _chosen = backend
             return backend
         tried[backend] = why
-    raise RenderBackendError(_explain(tried))
+    raise RenderBackendError(_explain(tried, platform))
 
 
 def create_context(width: int, height: int):
