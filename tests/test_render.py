@@ -176,6 +176,24 @@ def test_caption_band_differs_with_outcome():
     assert np.abs(a[:band].astype(int) - b[:band].astype(int)).sum() > 0
 
 
+@pytest.mark.parametrize("width, height", [(320, 240), (640, 480), (160, 120)])
+def test_a_long_title_and_status_stay_clear_of_the_outcome(width, height):
+    """A checkpoint's name behind the shield on a named layout: the caption's lines are fitted to the
+    room left of the widest outcome word, so COLLISION is never drawn over them."""
+    from pursuit_mj.render.caption import OUTCOME_RGB
+
+    frame = np.zeros((height, width, 3), np.uint8)
+    band = band_height(height)
+    title = "finetune_ppo+shield | layout warehouse_with_long_name | quadrotor | episode 123"
+    for outcome in ("collision", "success", "timeout"):
+        full = draw_caption(frame, Caption(title, 1000, 1000, 100.0, outcome))[:band].astype(int)
+        bare = draw_caption(frame, Caption("", 0, 0, 0.0, outcome))[:band].astype(int)
+        word = np.nonzero((np.abs(bare - OUTCOME_RGB[outcome]).sum(-1) < 60).any(0))[0]
+        lines = np.nonzero((np.abs(full - bare).sum(-1) > 60).any(0))[0]
+        assert len(word) and len(lines), "the outcome or the caption lines were not drawn"
+        assert lines.max() < word.min(), f"{outcome}: the caption lines reach x={lines.max()}, the outcome starts at x={word.min()}"
+
+
 def test_colour_key_stays_in_its_band_and_lists_what_the_task_shows():
     frame = np.full((H, W, 3), 200, np.uint8)
     keyed = draw_key(frame, [KeyEntry("pursuer", (40, 115, 240), "dot"), KeyEntry("random", (209, 138, 46), "square")])

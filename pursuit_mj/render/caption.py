@@ -51,20 +51,40 @@ def band_height(height: int) -> int:
     return _metrics(height)[2]
 
 
+MIN_FONT = 8  # px: the smallest text the caption and the key shrink to
+
+
+def _fit(d: ImageDraw.ImageDraw, text: str, size: int, room: float) -> tuple[ImageFont.ImageFont, str]:
+    """(font, text) for one line at most `room` pixels wide: the font shrunk from `size` down to
+    MIN_FONT, then the text cut short with an ellipsis."""
+    for fsize in range(size, MIN_FONT - 1, -1):
+        font = _font(fsize)
+        if d.textlength(text, font=font) <= room:
+            return font, text
+    while text and d.textlength(text + "…", font=font) > room:
+        text = text[:-1]
+    return font, (text + "…" if text else "")
+
+
 def draw_caption(frame: np.ndarray, caption: Caption) -> np.ndarray:
-    """A copy of frame (H, W, 3) uint8 with a translucent band across the top holding the caption."""
+    """A copy of frame (H, W, 3) uint8 with a translucent band across the top holding the caption.
+
+    The two lines on the left are fitted (`_fit`) to the room left of the widest outcome word,
+    so that no outcome runs over them and the title keeps one size from the first frame to the last."""
     h, w = frame.shape[:2]
     size, pad, band = _metrics(h)
     img = Image.fromarray(frame)
     overlay = Image.new("RGBA", (w, band), (15, 18, 24, 170))
     img.paste(overlay, (0, 0), overlay)
     d = ImageDraw.Draw(img)
-    font = _font(size)
-    d.text((pad, pad), caption.title, font=font, fill=(245, 245, 245))
-    d.text((pad, 2 * pad + size), caption.status(), font=font, fill=(220, 220, 220))
     text = caption.outcome_text()
     big = _font(int(size * 1.3))
     tw = d.textlength(text, font=big)
+    widest = max(d.textlength(Caption("", 0, 0, 0.0, o).outcome_text(), font=big) for o in OUTCOME_RGB)
+    room = w - 3 * pad - widest
+    for line, y, fill in ((caption.title, pad, (245, 245, 245)), (caption.status(), 2 * pad + size, (220, 220, 220))):
+        font, line = _fit(d, line, size, room)
+        d.text((pad, y), line, font=font, fill=fill)
     d.text((w - pad - tw, (band - int(size * 1.3)) // 2), text, font=big, fill=OUTCOME_RGB.get(caption.outcome, OUTCOME_RGB[""]))
     return np.asarray(img)
 
@@ -119,7 +139,7 @@ def draw_key(frame: np.ndarray, entries: list[KeyEntry]) -> np.ndarray:
     overlay = Image.new("RGBA", (w, band), (15, 18, 24, 170))
     img.paste(overlay, (0, h - band), overlay)
     d = ImageDraw.Draw(img)
-    for fsize in range(size, 7, -1):
+    for fsize in range(size, MIN_FONT - 1, -1):
         font = _font(fsize)
         widths = [fsize + fsize // 3 + d.textlength(e.label, font=font) for e in entries]
         if sum(widths) + fsize * (len(entries) - 1) + 2 * pad <= w:
