@@ -27,10 +27,24 @@ constant `evader_speed`, through the same velocity interface as the pursuers:
    the evader stays out of every chaser's reach along them (`safety_weight`); a direction
    whose corridor is not free for `clearance + evader_speed * lookahead_time` is flown only
    if all are blocked. A gap escape skips 4 to 6 (its path is already checked);
-7. keeping apart: each free evader's closing speed toward every other free evader is capped
+7. braking (only when `evader_speed` exceeds WALL_SPEED): the fixed margins above keep an
+   evader off walls up to WALL_SPEED (measured: >= 0.11 m at 0.9 m/s, both fidelities), but a
+   faster one cannot shed its speed within them (a Crazyflie tilted 15 deg stops from v in
+   v**2 / (2 * 2.6 m/s**2): 0.43 m from 1.5 m/s, 1.7 m from 3) and touched walls from 1.5 m/s
+   on, its momentum carrying it on while it turned. So its speed along the chosen
+   direction is lowered until, along every RING direction, the velocity component is at most
+   sqrt(floor**2 + 2 * BRAKE_ACCEL * left): left the free length of that direction's corridor
+   less BRAKE_MARGIN and what the evader's current closing speed along it covers in
+   BRAKE_RESPONSE, floor = WALL_SPEED**2 / evader_speed (the closing speed it may keep at the
+   margin falls as its speed grows: turning a faster flight takes more of its thrust). Flying
+   away from or along an obstacle is not slowed. Measured against the heuristic team (16
+   worlds on layouts 0-3, 40 s): >= 0.13 m from walls at 1.5-3 m/s in both fidelities
+   (0.01-0.065 m before); in these small arenas such an evader then averages 0.8-0.9 m/s,
+   about as a 0.9 m/s one does, and is caught more often than before;
+8. keeping apart: each free evader's closing speed toward every other free evader is capped
    (planar.limit_closing, half the budget each, as the pursuers' shield does for teammates),
-   so evaders slow down rather than fly into each other; only then do they fly slower than
-   `evader_speed`.
+   so evaders slow down rather than fly into each other; only steps 7 and 8 make them fly
+   slower than `evader_speed`.
 
 Captured evaders output zero. Chasers are sensed through walls (by distance only). Random
 numbers come from a counter-based hash of (episode seed, step, evader, stream), so a
@@ -61,12 +75,17 @@ HORIZON = 1.5  # m, how far along a candidate the safety score looks
 SLACK_SCALE = 1.0  # m, safety margins beyond this count as safe
 DANGER = 3.0  # factor on negative safety margins: entering a chaser's reach costs more than room gains
 NORMAL_STEP = 0.02  # m, finite-difference step of obstacle normals
-# step 7: two evaders' closing speed is at most APART_RATE * (gap - APART_BUFFER), the gap
+# step 8: two evaders' closing speed is at most APART_RATE * (gap - APART_BUFFER), the gap
 # (m) between their collision volumes shortened by what the closing speed covers in
 # APART_RESPONSE (s): a drone does not stop at once
 APART_RATE = 1.5  # 1/s
 APART_BUFFER = 0.1  # m
 APART_RESPONSE = 0.35  # s
+# step 7: braking near obstacles, for evaders faster than WALL_SPEED only (slower ones are unchanged)
+WALL_SPEED = 0.9  # m/s, the fastest evader the fixed margins keep off walls
+BRAKE_ACCEL = 1.3  # m/s^2, about half a Crazyflie's 15 deg tilt limit (2.6): the rest is left for turning
+BRAKE_MARGIN = 0.1  # m beyond the look-ahead corridor's edge where braking ends
+BRAKE_RESPONSE = 0.3  # s, a decision interval plus the drone's lag: closing speed covers this before braking acts
 _PATH_FRACTIONS = np.linspace(0.0, 1.0, PATH_SAMPLES)  # where along a path its samples lie
 _HORIZON_SAMPLES = np.linspace(0.0, HORIZON, PATH_SAMPLES)  # m flown at the samples of a candidate
 _FAR32 = np.float32(FAR)
@@ -319,7 +338,8 @@ class EscapeModel:
         included; dt decision interval (s).
 
         Returns desired velocities (W, M, 2) m/s world: norm evader_speed where active (less only
-        where step 7 slows an evader near another free one), else 0.
+        where step 7 brakes an evader faster than WALL_SPEED near an obstacle, or step 8 slows
+        an evader near another free one), else 0.
         """
         e, ev, pp, pv, active = self._check(evader_pos, evader_vel, pursuer_pos, pursuer_vel, active, obstacles, dt)
         cfg = self.cfg
@@ -347,7 +367,8 @@ class EscapeModel:
         want = unit(want + push + self._evader_push(e, active), want)
         want = unit((1.0 - cfg.smoothing) * want + cfg.smoothing * self.heading, want)
         survey = rotate(want[:, :, None, :], RING_ANGLES)  # (W, M, RING, 2); survey[:, :, 0] is want
-        room = np.minimum(corridors.free(survey), self._evader_room(e, active, survey))
+        obstacle_room = corridors.free(survey)
+        room = np.minimum(obstacle_room, self._evader_room(e, active, survey))
         best = self._choose(e, pp, sensed, want, survey, room)
         chosen = np.take_along_axis(survey, best[..., None, None], 2)[:, :, 0]
         final = np.where(gap_on[..., None], through, chosen)
@@ -356,9 +377,26 @@ class EscapeModel:
         self.has_heading |= active
         self.gap = gap_on
         self.tick += np.uint64(1)
-        return self._keep_apart(e, ev, final * (self.config.evader_speed * active)[..., None], active, n0)
+        speed = self._braking_speed(final, ev, survey, obstacle_room)
+        return self._keep_apart(e, ev, final * (speed * active)[..., None], active, n0)
 
     # ------------------------------------------------------------------ behaviours
+
+    def _braking_speed(self, final: np.ndarray, evader_vel: np.ndarray, survey: np.ndarray, room: np.ndarray):
+        """The speed (W, M) m/s to fly unit direction final (W, M, 2) at (module docstring, step 7),
+        given the evader's velocity (W, M, 2) m/s and the obstacles' room (W, M, RING) m along the
+        RING unit directions survey (W, M, RING, 2). The plain evader_speed (a float) when it is
+        at most WALL_SPEED: slower evaders are unchanged."""
+        speed = self.config.evader_speed
+        if speed <= WALL_SPEED:
+            return speed
+        closing = np.maximum(dot(survey, evader_vel[:, :, None, :]), 0.0)  # (W, M, RING) m/s
+        left = np.maximum(room - BRAKE_MARGIN - BRAKE_RESPONSE * closing, 0.0)
+        floor = WALL_SPEED * WALL_SPEED / speed
+        cap = np.sqrt(floor * floor + 2.0 * BRAKE_ACCEL * left)  # (W, M, RING) m/s along each direction
+        along = dot(survey, final[:, :, None, :])
+        limit = np.where(along > EPS, cap / np.maximum(along, EPS), np.inf).min(-1)
+        return np.minimum(speed, limit)
 
     def _start_headings(self, evader_vel: np.ndarray, flee: np.ndarray) -> None:
         """Evaders new to an episode start along their velocity, else away from the chasers
@@ -491,7 +529,7 @@ class EscapeModel:
         return np.argmax(score, axis=-1)
 
     def _keep_apart(self, e: np.ndarray, ev: np.ndarray, v: np.ndarray, active: np.ndarray, wall_normal: np.ndarray) -> np.ndarray:
-        """v (W, M, 2) m/s with every free pair's closing speed capped (module docstring, step 7),
+        """v (W, M, 2) m/s with every free pair's closing speed capped (module docstring, step 8),
         never turned further toward the nearest obstacle (wall_normal (W, M, 2), pointing away
         from it) than v already was; where both cannot hold, the obstacle wins and the pair
         only stops closing in."""

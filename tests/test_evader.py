@@ -13,6 +13,7 @@ from pursuit_mj.evader import EscapeModel, panic_level
 from pursuit_mj.geometry import ObstacleSet, inside_boundary, obstacle_distance
 from pursuit_mj.layout import load_layout
 from pursuit_mj.physics import BatchedPhysics
+from pursuit_mj.policies import make_policy
 
 DT = 0.1
 
@@ -123,6 +124,33 @@ def test_it_never_flies_into_walls_or_obstacles(layout_index, speed):
         caught = np.linalg.norm(physics.positions()[:, :N, :2] - after[:, None], axis=-1).min(-1) < config.capture_radius
         running &= ~caught
     assert np.all(closest > 0.08), closest
+
+
+@pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
+@pytest.mark.parametrize("speed", [2.0, 3.0])
+def test_a_fast_evader_chased_by_the_heuristic_team_keeps_off_walls(fidelity, speed):
+    # the fixed margins kept evaders up to 0.9 m/s >= 0.11 m off walls, but a faster one could
+    # not shed its speed within them: here every run of both speeds touched a wall within 60
+    # steps (0.01-0.065 m centre to wall: its collision volume pressed in); step 7 brakes it
+    config = default_config(fidelity=fidelity, evader_speed=speed, layout=0)
+    W, N = 4, config.n_pursuers
+    env = PursuitEnv(config, n_worlds=W, seed=0, auto_reset=False, nthread=1)
+    team = make_policy("heuristic", config)
+    closest = np.full(W, np.inf)
+
+    def watch(physics):  # every controller tick, not only at decisions
+        d = obstacle_distance(physics.positions()[:, N:, :2], env._obstacles)[:, 0]
+        closest[:] = np.where(env.done | env.captured[:, 0], closest, np.minimum(closest, d))
+
+    env.physics.observers.append(watch)
+    obs = env.reset()
+    team.reset(W)
+    for _ in range(100):
+        running = ~env.done & ~env.captured[:, 0]
+        obs, *_ = env.step(team.act(obs, env.obs_spec))
+        assert not (env.physics.contacts[:, N] & running).any(), "the evader touched something"
+    body = DRONE_CONTACT_DISTANCE / 2
+    assert np.all(closest > body + 0.03), f"closest approach to a wall per world {closest.round(3)} m (body radius {body} m)"
 
 
 # ----------------------------------------------------------------------------- panic and zigzag
@@ -267,7 +295,7 @@ def test_output_speed_and_captured_evaders():
         speed = np.linalg.norm(v, axis=-1)
         d = np.linalg.norm(e[:, :, None] - e[:, None], axis=-1)
         d = np.where(active[:, None, :] & ~np.eye(3, dtype=bool), d, np.inf).min(-1)
-        alone = active & (d > 2.0)  # no other free evader near enough to slow it (step 7)
+        alone = active & (d > 2.0)  # no other free evader near enough to slow it (step 8)
         assert alone.sum() >= 3
         np.testing.assert_allclose(speed[alone], config.evader_speed, rtol=1e-9)
         assert np.all(speed[active] <= config.evader_speed * (1 + 1e-9))
@@ -276,7 +304,7 @@ def test_output_speed_and_captured_evaders():
 
 @pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
 def test_evaders_never_fly_into_each_other(fidelity):
-    # hovering pursuers: three evaders zigzag about the same arena (before step 7 they touched
+    # hovering pursuers: three evaders zigzag about the same arena (before step 8 they touched
     # in 5 of 8 worlds in quadrotor fidelity and tumbled to the floor)
     config = default_config(fidelity=fidelity, n_evaders=3, layout=0)
     env = PursuitEnv(config, n_worlds=6, seed=1, auto_reset=False)
@@ -291,7 +319,7 @@ def test_evaders_never_fly_into_each_other(fidelity):
 
 def test_evaders_meeting_head_on_turn_aside():
     # two evaders following the top wall toward each other, each pushed on by a chaser: the
-    # look-ahead did not see the other evader, so both kept choosing the way into it and step 7
+    # look-ahead did not see the other evader, so both kept choosing the way into it and step 8
     # held them face to face, nearly still (about 0.01-0.04 m/s for 4-9 decisions here; in the
     # env with a heuristic team, up to 5.8 s)
     config = default_config(n_evaders=2)
