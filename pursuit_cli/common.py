@@ -105,7 +105,7 @@ def add_task_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--pursuers", type=int, dest="n_pursuers", help="number of pursuers")
     g.add_argument("--evaders", type=int, dest="n_evaders", help="number of evaders")
     g.add_argument("-rv", "--pursuer-speed", "--r-velocity", type=finite_float, dest="pursuer_speed", help="pursuer max speed (m/s)")
-    g.add_argument("-ev", "--evader-speed", "--e-velocity", type=finite_float, dest="evader_speed", help="evader speed (m/s)")
+    g.add_argument("-ev", "--evader-speed", "--e-velocity", type=finite_float, dest="evader_speed", help="evader speed (m/s; above 0.9 it brakes near walls and obstacles)")
     g.add_argument("--perception-radius", "--r-perception", type=finite_float, dest="perception_radius", help="perception radius (m)")
     g.add_argument("--random-obstacles", "--obstacle-num", type=int, dest="random_obstacles", help="random obstacles per episode (default: the layout file's random_obstacles.count)")
     g.add_argument("--delta-t", "--control-dt", type=finite_float, dest="control_dt", help="decision interval (s)")

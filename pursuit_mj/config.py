@@ -73,7 +73,7 @@ class TaskConfig:
     n_pursuers: int = spec(3, lo=1, hi=16, help="number of pursuers")
     n_evaders: int = spec(1, lo=1, hi=8, help="number of evaders")
     pursuer_speed: float = spec(0.3, lo=0.0, lo_open=True, hi=3.0, help="pursuer max speed (m/s)")
-    evader_speed: float = spec(0.6, lo=0.0, lo_open=True, hi=3.0, help="evader speed (m/s)")
+    evader_speed: float = spec(0.6, lo=0.0, lo_open=True, hi=3.0, help="evader speed (m/s); above 0.9 it brakes near walls and obstacles (pursuit_mj/evader.py, step 7)")
     perception_radius: float = spec(2.0, lo=0.0, lo_open=True, help="pursuer perception radius (m)")
     field_of_view: float = spec(2 * math.pi, lo=0.0, lo_open=True, hi=2 * math.pi, help="pursuer field of view (rad)")
     capture_radius: float = spec(0.3, lo=0.0, lo_open=True, help="capture distance pursuer-evader (m)")
