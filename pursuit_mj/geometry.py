@@ -216,6 +216,32 @@ def boundary_segments(layout: "Layout", circle_segments: int = 48) -> np.ndarray
     return np.concatenate([pts, np.roll(pts, -1, axis=0)], -1)
 
 
+#: full thickness (m) of the walls a scene builds outside each border segment
+BORDER_THICKNESS = 0.05
+
+
+def border_walls(segments: np.ndarray, thickness: float = BORDER_THICKNESS) -> np.ndarray:
+    """The boxes a scene builds along border segments (S, 4) (counter-clockwise, inside on the
+    left), as (S, 5) [cx, cy, hx, hy, yaw] (m, rad): each wall `thickness` thick, just outside
+    (right of) its segment, lengthened by `thickness` past its convex (or straight) ends to close
+    the corner, but not past reflex ones, where the lengthened part would stand in the flyable region."""
+    seg = np.asarray(segments, dtype=np.float64)
+    d = seg[:, 2:4] - seg[:, 0:2]
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    nxt = np.roll(d, -1, axis=0)
+    convex_end = d[:, 0] * nxt[:, 1] - d[:, 1] * nxt[:, 0] > -1e-9  # a left (convex) turn at each segment's end
+    convex_start = np.roll(convex_end, 1)
+    out = np.empty((len(seg), 5))
+    for k, (x0, y0, x1, y1) in enumerate(seg.tolist()):
+        length, yaw = math.hypot(x1 - x0, y1 - y0), math.atan2(y1 - y0, x1 - x0)
+        ux, uy = math.cos(yaw), math.sin(yaw)
+        e0, e1 = thickness * bool(convex_start[k]), thickness * bool(convex_end[k])
+        shift = (e1 - e0) / 2  # along the segment; the wall's centre thickness / 2 to its right (uy, -ux)
+        out[k] = ((x0 + x1) / 2 + uy * thickness / 2 + ux * shift, (y0 + y1) / 2 - ux * thickness / 2 + uy * shift,
+                  length / 2 + (e0 + e1) / 2, thickness / 2, yaw)
+    return out
+
+
 def inside_boundary(layout: "Layout", points: np.ndarray) -> np.ndarray:
     """Whether each point (..., 2) lies inside the layout's border, (...) bool."""
     b = layout.boundary

@@ -240,6 +240,7 @@ def _parse_boundary(value: Any, where: str) -> Boundary:
             if area < 0:  # keep counter-clockwise so the inside is on the left of each edge
                 pts = pts[::-1]
             _refuse_sharp_reflex_corners(pts, where)
+            _refuse_narrow_gaps_outside(pts, where)
             return Boundary("polygon", points=pts)
         if kind == "circle":
             m = _mapping(body, f"{where}.circle", ("center", "radius"), ("center", "radius"))
@@ -260,6 +261,48 @@ def _refuse_sharp_reflex_corners(pts: Sequence[tuple[float, float]], where: str)
             raise LayoutError(f"{where}.polygon: at {list(pts[(i + 1) % n])} the border turns into the arena at an inside "
                               f"angle of {inside:.0f} deg, over 270: its walls cannot be built there without standing in "
                               f"the flyable region; widen that notch to a right angle or more, or use a wall obstacle")
+
+
+#: m: how far a border wall may reach into the flyable region past another part of the border
+BORDER_TOLERANCE = 1e-3
+
+
+def _refuse_narrow_gaps_outside(pts: Sequence[tuple[float, float]], where: str) -> None:
+    """LayoutError where the border runs past itself, outside the flyable region, closer than the
+    scene's border walls are thick (a slit or notch narrower than BORDER_THICKNESS; pts
+    counter-clockwise): a wall built outside one side would stand in the flyable region on the
+    other, where the 2D geometry sees free space. Found as a border edge entering a wall's box
+    deeper than BORDER_TOLERANCE: the edge a wall stands on and its neighbours only touch its
+    faces, and on a finely sampled curve a wall lengthened past a corner grazes the next few
+    edges by a fraction of a millimetre."""
+    from .geometry import BORDER_THICKNESS, border_walls
+
+    seg = np.array([[*pts[i], *pts[(i + 1) % len(pts)]] for i in range(len(pts))])
+    walls = border_walls(seg)
+    eps = BORDER_TOLERANCE
+    for k, (cx, cy, hx, hy, yaw) in enumerate(walls):
+        c, s = math.cos(yaw), math.sin(yaw)
+        px, py = seg[:, 0] - cx, seg[:, 1] - cy  # every edge in the wall's frame: p + t d, t in [0, 1]
+        qx, qy = seg[:, 2] - cx, seg[:, 3] - cy
+        p = np.stack([c * px + s * py, -s * px + c * py], -1)
+        d = np.stack([c * qx + s * qy, -s * qx + c * qy], -1) - p
+        lo, hi = np.zeros(len(seg)), np.ones(len(seg))
+        for axis, half in ((0, hx - eps), (1, hy - eps)):  # clip each edge to the open box (Liang-Barsky)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t0, t1 = (-half - p[:, axis]) / d[:, axis], (half - p[:, axis]) / d[:, axis]
+            flat = np.abs(d[:, axis]) < 1e-15
+            inside = np.abs(p[:, axis]) < half
+            lo = np.where(flat, np.where(inside, lo, np.inf), np.maximum(lo, np.minimum(t0, t1)))
+            hi = np.where(flat, np.where(inside, hi, -np.inf), np.minimum(hi, np.maximum(t0, t1)))
+        enters = hi > lo
+        enters[k] = False
+        if enters.any():
+            j = int(np.argmax(enters))
+            a, b = list(pts[k]), list(pts[(k + 1) % len(pts)])
+            raise LayoutError(f"{where}.polygon: outside edge {a} -> {b} the border comes back within {BORDER_THICKNESS:g} m "
+                              f"(edge {list(pts[j])} -> {list(pts[(j + 1) % len(pts)])}): the scene's {BORDER_THICKNESS:g} m "
+                              f"border wall there would stand in the flyable region on the other side; widen that gap to "
+                              f"{BORDER_THICKNESS:g} m or more, or close it and use a wall obstacle")
 
 
 def _signed_area(pts: Sequence[tuple[float, float]]) -> float:

@@ -15,6 +15,7 @@ from functools import lru_cache
 import mujoco
 import numpy as np
 
+from .geometry import border_walls
 from .layout import Box, Cylinder, Layout, Wall
 from .palette import BORDER_RGBA, FLOOR_RGB, OBSTACLE_RGBA, ROLE_RGBA
 from .shipped import shipped_dir
@@ -25,7 +26,6 @@ DRONE_FILE = MODEL_DIR / "crazyflie.xml"
 OBSTACLE_HEIGHT = 1.2  # m, at least; and at least OBSTACLE_HEADROOM above the flight height
 BORDER_HEIGHT = 0.6  # m, at least (low, so that the angled camera sees in); likewise
 OBSTACLE_HEADROOM = 0.3  # m: walls reach this far above the flight height, so no drone flies over one
-BORDER_THICKNESS = 0.05  # m
 GROUP_OBSTACLE = 1
 
 
@@ -173,32 +173,8 @@ def _add_obstacles(spec: mujoco.MjSpec, layout: Layout, flight_height: float) ->
                 group=GROUP_OBSTACLE,
             )
     # The border: one thin box per boundary segment, just outside the flyable region.
-    segments = layout.border()
-    extend = _border_extensions(segments)
-    for k, (x0, y0, x1, y1) in enumerate(segments):
-        length = math.hypot(x1 - x0, y1 - y0)
-        yaw = math.atan2(y1 - y0, x1 - x0)
-        # the inside is on the left of each segment: shift the wall to the right; lengthen it
-        # past its convex ends (closing the corner) but not past reflex ones, where the
-        # lengthened part would stand inside the flyable region
-        ux, uy = math.cos(yaw), math.sin(yaw)
-        nx, ny = uy, -ux
-        e0, e1 = extend[k]
-        shift = (e1 - e0) / 2
-        c = ((x0 + x1) / 2 + nx * BORDER_THICKNESS / 2 + ux * shift, (y0 + y1) / 2 + ny * BORDER_THICKNESS / 2 + uy * shift)
-        _add_box(world, f"border_{k}", c, (length / 2 + (e0 + e1) / 2, BORDER_THICKNESS / 2), yaw, BORDER_RGBA, border_height)
-
-
-def _border_extensions(segments: np.ndarray) -> list[tuple[float, float]]:
-    """How far (m) each border wall reaches past its start and its end: BORDER_THICKNESS at a
-    convex (or straight) corner, 0 at a reflex one (segments (S, 4), counter-clockwise)."""
-    d = segments[:, 2:4] - segments[:, 0:2]
-    d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    nxt = np.roll(d, -1, axis=0)
-    turn = d[:, 0] * nxt[:, 1] - d[:, 1] * nxt[:, 0]  # > 0: a left (convex) turn at each segment's end
-    convex_end = turn > -1e-9
-    convex_start = np.roll(convex_end, 1)
-    return [(BORDER_THICKNESS * bool(s), BORDER_THICKNESS * bool(e)) for s, e in zip(convex_start, convex_end)]
+    for k, (cx, cy, hx, hy, yaw) in enumerate(border_walls(layout.border())):
+        _add_box(world, f"border_{k}", (cx, cy), (hx, hy), yaw, BORDER_RGBA, border_height)
 
 
 def build_spec(scene: SceneSpec) -> mujoco.MjSpec:

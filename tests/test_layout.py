@@ -376,6 +376,11 @@ def test_malformed_layouts_are_refused_naming_the_entry(data, message, tmp_path)
          r"boundary.polygon: point 6 \[2.5, 5.0\] lies on edge \[3.6, 5.0\] -> \[2.0, 5.0\]: the border must not touch itself"),
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [3.6, 5], [3.6, 2], [0, 5]]}), r"at \[3.6, 5.0\] the border turns straight back"),
         (base_dict(arena={"width": 1e6, "height": 5.0}), r"arena.width: 1e\+06 m is beyond the 50 m"),
+        # a slit 4 cm wide cut into the border (a thin wall drawn as a notch): the 5 cm wall outside each
+        # side stood 1 cm into the flyable region on the other, where the 2D geometry saw free space
+        (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [3.6, 5], [0, 5], [0, 2.52], [2.6, 2.52], [2.6, 2.48], [0, 2.48]]}),
+         r"boundary.polygon: outside edge \[0.0, 2.52\] -> \[2.6, 2.52\] the border comes back within 0.05 m \(edge "
+         r"\[2.6, 2.48\] -> \[0.0, 2.48\]\)"),
         # an inward spike sharper than a right angle: box walls outside its edges would stand in the arena
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [3.6, 5], [2.8, 5], [1.8, 3.5], [0.8, 5], [0, 5]]}),
          r"boundary.polygon: at \[1.8, 3.5\] the border turns into the arena at an inside angle of 293 deg, over 270"),
