@@ -60,7 +60,8 @@ def _register_new(lsub) -> None:
     p.add_argument("--episode-obstacles", type=int, default=5, metavar="K",
                    help="random obstacles drawn per episode (the file's random_obstacles.count, default 5)")
     p.add_argument("--obstacle-size", nargs=2, type=finite_float, default=(0.15, 0.4), metavar=("MIN", "MAX"),
-                   help="size range of random obstacles (m, default 0.15 0.4)")
+                   help="size range of random obstacles (m, default 0.15 0.4): a cylinder's diameter, a box's longer side "
+                        "(its shorter side 0.5-1 times that)")
     p.add_argument("--obstacle-kinds", nargs="+", choices=("box", "cylinder"), default=["box", "cylinder"],
                    help="kinds of random obstacles (default: box cylinder)")
     p.add_argument("--spawn-pursuers", nargs=4, type=finite_float, metavar=("X0", "X1", "Y0", "Y1"),

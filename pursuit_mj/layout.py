@@ -76,7 +76,9 @@ class Boundary:
 
 @dataclasses.dataclass(frozen=True)
 class RandomObstacles:
-    """Random obstacles drawn per episode: how many, which kinds, size range (m)."""
+    """Random obstacles drawn per episode: how many, which kinds, size range (m): each one's size
+    is drawn uniformly from it and is a cylinder's diameter or a box's longer side (the shorter
+    side 0.5-1 times that, the yaw uniform in [0, pi))."""
 
     count: int = 5
     kinds: tuple[str, ...] = ("box", "cylinder")

@@ -554,6 +554,17 @@ def test_the_example_in_layout_new_help_works(tmp_path, capsys):
     assert main(example) == 0, capsys.readouterr().err
 
 
+def test_what_random_obstacles_size_measures_is_said_where_it_is_set(capsys):
+    """A cylinder's diameter or a box's longer side, as placement draws it (checked in
+    test_random_obstacles_are_seeded_and_keep_off_spawn_regions_and_each_other); it was said nowhere."""
+    with pytest.raises(SystemExit):
+        main(["layout", "new", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "a cylinder's diameter, a box's longer side" in help_text
+    design = " ".join((Path(__file__).parents[1] / "docs" / "DESIGN.md").read_text().split())
+    assert "a cylinder's diameter, or a box's longer side" in design
+
+
 def test_layout_new_puts_default_spawn_bands_inside_a_polygon(tmp_path):
     from pursuit_mj.geometry import inside_polygon
 
