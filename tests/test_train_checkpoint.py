@@ -565,3 +565,34 @@ def test_a_resume_from_a_last_pt_older_than_best_pt_does_not_replace_it_with_a_w
     assert load_checkpoint(cfg.run_dir / "best.pt")["counters"]["best_success"] == 0.9
     assert result["counters"]["best_success"] == 0.9 and result["counters"]["best_update"] == 2
     assert [r["validation"]["best"] for r in rows(cfg.run_dir)] == [True, False]
+
+
+@pytest.fixture
+def file_size_limit():
+    """file_size_limit(n): no file of this process grows past n bytes until the test ends (a
+    full disk, as a write sees it: the write fails with an OSError; root is bound too)."""
+    import resource
+    import signal
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    previous = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # else the write kills the process
+    yield lambda n: resource.setrlimit(resource.RLIMIT_FSIZE, (n, hard))
+    resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+    signal.signal(signal.SIGXFSZ, previous)
+
+
+def test_a_checkpoint_that_does_not_fit_on_the_disk_stops_the_run_naming_it_and_keeps_the_one_before(tmp_path, file_size_limit):
+    """torch reports a failed write (a full disk) as a bare RuntimeError: the run must still say
+    which file could not be written and what last.pt keeps, not end in torch's traceback."""
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    trainer = Trainer.resume(cfg.run_dir, total_steps=32 * 3, log=lambda s: None)
+    file_size_limit((cfg.run_dir / "last.pt").stat().st_size // 2)  # the log and config.yaml still fit
+    with pytest.raises(ValueError) as caught:
+        trainer.train()
+    said = str(caught.value)
+    assert said.startswith(f"checkpoint {cfg.run_dir / 'last.pt'}: cannot write it ("), said
+    assert said.endswith(f"; last.pt keeps update 1; once the folder has room and write access, continue with: "
+                         f"pursuit-mj train --resume {cfg.run_dir}"), said
+    assert load_checkpoint(cfg.run_dir / "last.pt")["counters"]["update"] == 1
+    assert not [p.name for p in cfg.run_dir.iterdir() if ".part" in p.name]

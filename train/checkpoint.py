@@ -14,6 +14,7 @@ A checkpoint is a dict of plain values and tensors (never pickled objects):
 
 from __future__ import annotations
 
+import io
 import pickle
 import zipfile
 from pathlib import Path
@@ -33,9 +34,14 @@ DICTS = ("train_config", "obs_spec", "actor", "counters", "critic", "optimizer",
 def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
     """Write `payload` (plus format/version) to `path` atomically; returns the path."""
     data = {"format": FORMAT, "version": VERSION, **payload}
+    # serialised in memory first: torch reports a failed write to a file (a full disk) as a bare
+    # RuntimeError, where Python's own write raises the OSError that says why
+    buffer = io.BytesIO()
+    torch.save(data, buffer)
     try:
         with atomic_path(path) as tmp:
-            torch.save(data, tmp)
+            with open(tmp, "wb") as f:
+                f.write(buffer.getbuffer())
     except OSError as exc:  # a full disk, a folder made read-only or removed during the run
         where = f": {exc.filename}" if exc.filename and str(exc.filename) != str(path) else ""
         raise ValueError(f"checkpoint {path}: cannot write it ({exc.strerror or exc}{where})") from None
