@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Iterator
@@ -36,6 +37,25 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+#: the temporary files atomic_path makes: `.NAME.XXXXXXXX.partSUFFIX` (mkstemp's eight random characters)
+_PART = re.compile(r"\..+\.[a-z0-9_]{8}\.part(\.[^.]*)?")
+
+
+def remove_leftover_parts(folder: str | Path) -> list[Path]:
+    """Remove the temporary files of atomic writes into `folder` that a kill -9 or a power cut left
+    behind (each as large as the file it was to become); only for a folder that no other process
+    writes in (a locked run folder). Returns those removed."""
+    removed = []
+    for path in Path(folder).iterdir():
+        if _PART.fullmatch(path.name) and path.is_file():
+            try:
+                path.unlink()
+            except OSError:
+                continue
+            removed.append(path)
+    return removed
 
 
 def _fsync_folder(folder: Path) -> None:

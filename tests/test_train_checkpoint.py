@@ -596,3 +596,24 @@ def test_a_checkpoint_that_does_not_fit_on_the_disk_stops_the_run_naming_it_and_
                          f"pursuit-mj train --resume {cfg.run_dir}"), said
     assert load_checkpoint(cfg.run_dir / "last.pt")["counters"]["update"] == 1
     assert not [p.name for p in cfg.run_dir.iterdir() if ".part" in p.name]
+
+
+def test_a_save_cut_short_by_kill_9_leaves_no_temporary_file_behind_once_the_run_goes_on(tmp_path):
+    """kill -9 during a save leaves its temporary file (as large as a checkpoint) beside last.pt;
+    the next trainer in the folder removes it, and nothing else."""
+    import subprocess
+    import sys
+
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    cut_short = ("import os, sys; from pursuit_mj.io_utils import atomic_path\n"
+                 "with atomic_path(sys.argv[1]) as tmp:\n    tmp.write_bytes(b'half a checkpoint'); os._exit(9)")
+    subprocess.run([sys.executable, "-c", cut_short, str(cfg.run_dir / "last.pt")], check=False,
+                   cwd=Path(__file__).resolve().parents[1])
+    (left,) = [p for p in cfg.run_dir.iterdir() if ".part" in p.name]
+    (cfg.run_dir / "notes.part.txt").write_text("the user's")
+    said = []
+    Trainer.resume(cfg.run_dir, total_steps=32 * 2, log=said.append).train()
+    assert not left.exists() and (cfg.run_dir / "notes.part.txt").is_file()
+    assert any(left.name in line for line in said), said
+    assert load_checkpoint(cfg.run_dir / "last.pt")["counters"]["update"] == 2

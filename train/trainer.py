@@ -28,7 +28,7 @@ import torch
 
 from pursuit_mj.configio import dump_yaml, to_dict
 from pursuit_mj.evaluation import capture_steps
-from pursuit_mj.io_utils import atomic_write_text, check_writable_folder
+from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, remove_leftover_parts
 from pursuit_mj.policies import make_policy
 from pursuit_mj.sensing import privileged_config
 
@@ -82,6 +82,10 @@ class Trainer:
         check_writable_folder(self.run_dir, f"run folder (run.runs_dir {cfg.run.runs_dir}, name {cfg.name})")
         self._lock = lock_run_folder(self.run_dir)  # before anything in the folder is read or written
         try:
+            left = remove_leftover_parts(self.run_dir)  # of saves a kill -9 cut short: no other process writes here
+            if left:
+                log(f"[train] removed {len(left)} temporary file{'s' if len(left) > 1 else ''} of a save cut short "
+                    f"in {self.run_dir}: {', '.join(p.name for p in left)}")
             self._build(checkpoint)
         except BaseException:
             self._lock.close()  # a run that cannot start leaves the folder free
