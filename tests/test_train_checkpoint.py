@@ -617,3 +617,32 @@ def test_a_save_cut_short_by_kill_9_leaves_no_temporary_file_behind_once_the_run
     assert not left.exists() and (cfg.run_dir / "notes.part.txt").is_file()
     assert any(left.name in line for line in said), said
     assert load_checkpoint(cfg.run_dir / "last.pt")["counters"]["update"] == 2
+
+
+def test_a_checkpoint_whose_spec_config_or_pending_row_is_of_the_wrong_kind_is_refused_in_one_line_naming_it(tmp_path):
+    """A file that passes its checksums but whose obs_spec, train_config sections, pending row or
+    counters are of the wrong kind (damaged, hand-edited, written by other code) ended resume and
+    load_policy in a TypeError traceback (or a message naming no file)."""
+    from train.checkpoint import save_checkpoint
+
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    path = cfg.run_dir / "last.pt"
+    good = load_checkpoint(path)
+    body = {k: v for k, v in good.items() if k not in ("format", "version")}
+    for changes, words, resume_only in (
+        ({"obs_spec": {**good["obs_spec"], "groups": 5}}, "obs_spec entry groups is not a list", False),
+        ({"obs_spec": {**good["obs_spec"], "groups": [1, 2]}}, "obs_spec entry groups is not a list", False),
+        ({"obs_spec": {**good["obs_spec"], "n_rays": "8"}}, "obs_spec entry n_rays is '8', not a whole number", False),
+        ({"train_config": {**good["train_config"], "task": 3}}, "train_config entry task is a int, not a dict", False),
+        ({"pending_row": [1, 2]}, "entry pending_row is a list, not a dict", False),
+        ({"counters": {**good["counters"], "update": -5}}, "counter update is -5, expected at least 0", True),
+    ):
+        save_checkpoint(path, {**body, **changes})
+        loads = [lambda: Trainer.resume(cfg.run_dir, total_steps=96, log=lambda s: None)]
+        if not resume_only:
+            loads.append(lambda: load_policy(path, ObsSpec.make(2, 1, 16)))
+        for load in loads:
+            with pytest.raises(ValueError, match=words) as err:
+                load()
+            assert str(err.value).startswith(f"checkpoint {path}: ") and "\n" not in str(err.value)

@@ -28,7 +28,9 @@ from pursuit_mj.obs_spec import ObsSpec
 FORMAT = "pursuit-mj-checkpoint"
 VERSION = 1
 REQUIRED = ("format", "version", "train_config", "obs_spec", "actor", "counters")
-DICTS = ("train_config", "obs_spec", "actor", "counters", "critic", "optimizer", "rng", "value_norm", "discount")
+DICTS = ("train_config", "obs_spec", "actor", "counters", "critic", "optimizer", "rng", "value_norm", "discount",
+         "pending_row")
+CONFIG_SECTIONS = ("task", "ppo", "imitation", "residual", "net", "run")  # dicts inside train_config
 
 
 def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
@@ -91,6 +93,11 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     lacking = [k for k in ("n_pursuers", "n_evaders", "n_rays", "groups") if k not in data["obs_spec"]]
     if lacking:
         raise ValueError(f"checkpoint {path}: its obs_spec lacks {lacking}")
+    damage = _spec_damage(data["obs_spec"]) or next(
+        (f"train_config entry {k} is a {type(v).__name__}, not a dict" for k, v in data["train_config"].items()
+         if k in CONFIG_SECTIONS and not isinstance(v, dict)), None)
+    if damage:
+        raise ValueError(f"checkpoint {path}: {damage} (damaged, or not written by pursuit-mj)")
     for net in ("actor", "critic"):
         for name, value in data.get(net, {}).items():
             if not torch.is_tensor(value):
@@ -99,6 +106,20 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
             if value.is_floating_point() and not torch.isfinite(value).all():
                 raise ValueError(f"checkpoint {path}: non-finite weights (NaN or inf) in {net}.{name}")
     return data
+
+
+def _spec_damage(spec: dict) -> str | None:
+    """What makes a stored obs_spec (ObsSpec.to_dict) unreadable, or None."""
+    for key in ("n_pursuers", "n_evaders", "n_rays"):
+        value = spec[key]
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            return f"obs_spec entry {key} is {value!r}, not a whole number"
+    groups = spec["groups"]
+    if not isinstance(groups, (list, tuple)) or not all(
+            isinstance(g, (list, tuple)) and len(g) == 3 and isinstance(g[0], str) and isinstance(g[1], int)
+            and isinstance(g[2], (list, tuple)) for g in groups):
+        return "obs_spec entry groups is not a list of [name, width, features]"
+    return None
 
 
 def load_error(exc: Exception) -> str:

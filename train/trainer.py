@@ -612,6 +612,9 @@ def read_counters(data: dict, path: Path) -> Counters:
         whole = fields[name] == "int"
         if isinstance(value, bool) or not isinstance(value, int if whole else (int, float)):
             raise ValueError(f"checkpoint {path}: counter {name} is {value!r}, expected {'a whole number' if whole else 'a number'}")
+        least = -1 if name in ("best_success", "best_update") else 0  # -1: no validation yet
+        if value < least:
+            raise ValueError(f"checkpoint {path}: counter {name} is {value!r}, expected at least {least}")
     return Counters(**stored)
 
 
