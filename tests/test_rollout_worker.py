@@ -86,6 +86,35 @@ def test_a_failing_worker_raises_its_traceback_in_the_parent(tmp_path):
     assert not worker.process.is_alive()
 
 
+def test_a_worker_killed_mid_run_stops_the_run_in_one_line_saying_what_last_pt_keeps(tmp_path):
+    """The out-of-memory killer (or kill -9) takes the worker after update 1: the run stops naming
+    how it ended, the update last.pt keeps and the resume command (it said 'exited (code -9)
+    before its first rollout; its error is printed above', in a traceback), and it resumes."""
+    import os
+    import signal
+
+    cfg = tiny(tmp_path, "total_steps=96")
+    trainer = Trainer(cfg, log=lambda s: None)
+    update = trainer.train_one_update
+
+    def update_then_kill_the_worker():
+        row = update()
+        if row["update"] == 1:
+            os.kill(trainer.worker.process.pid, signal.SIGKILL)
+            trainer.worker.process.join(5)
+        return row
+
+    trainer.train_one_update = update_then_kill_the_worker
+    with pytest.raises(ValueError) as caught:
+        trainer.train()
+    said = str(caught.value)
+    assert said.startswith(f"rollout worker rollout-{cfg.name} was killed by SIGKILL (the system's out-of-memory killer, "
+                           f"or kill -9) without finishing its rollout; "), said
+    assert said.endswith(f"; last.pt keeps update 1; continue with: pursuit-mj train --resume {cfg.run_dir}"), said
+    assert trainer.worker is None
+    assert Trainer.resume(cfg.run_dir, log=lambda s: None).train()["counters"]["update"] == 3
+
+
 def test_a_training_script_without_a_main_guard_trains_once(tmp_path):
     """The worker is spawned without re-running the parent's script (which would train again)."""
     import os

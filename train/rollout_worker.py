@@ -121,6 +121,10 @@ def _shutdown(process, conn) -> None:
     conn.close()
 
 
+class WorkerExited(RuntimeError):
+    """The worker process ended (killed, or crashed before it could report an error)."""
+
+
 class RolloutWorker:
     """A child process that collects rollouts of `cfg`'s training env, one request at a time.
 
@@ -141,6 +145,7 @@ class RolloutWorker:
         child_conn.close()
         self._next = 0  # the buffer the next request fills
         self._pending: int | None = None
+        self._served = 0  # rollouts returned so far
         self._finalizer = weakref.finalize(self, _shutdown, self.process, self._conn)
 
     def start(self, model: ActorCritic) -> None:
@@ -150,23 +155,40 @@ class RolloutWorker:
             self._conn.send(("collect", self._next, model_weights(model)))
         except (BrokenPipeError, ConnectionResetError):
             self.process.join(STOP_TIMEOUT_S)
-            raise RuntimeError(f"rollout worker {self.process.name} exited (code {self.process.exitcode}) before "
-                               "its first rollout; its error is printed above (run.overlap=false collects in this "
-                               "process instead)") from None
+            if self._served == 0 and (self.process.exitcode or 0) > 0:  # it failed to start: its traceback is the news
+                raise RuntimeError(f"rollout worker {self.process.name} exited (code {self.process.exitcode}) before "
+                                   "its first rollout; its error is printed above (run.overlap=false collects in this "
+                                   "process instead)") from None
+            raise WorkerExited(f"rollout worker {self.process.name} {self._ended()} between two rollouts") from None
         self._pending, self._next = self._next, 1 - self._next
 
     def result(self, model: ActorCritic) -> tuple[Rollout, RolloutStats]:
         if self._pending is None:
             self.start(model)
-        while not self._conn.poll(POLL_S):
+        while not self._conn.poll(POLL_S):  # (a dead child's closed pipe polls as readable)
             if not self.process.is_alive():
-                raise RuntimeError(f"rollout worker {self.process.name} exited (code {self.process.exitcode}) "
-                                   "without finishing its rollout")
-        kind, payload = self._conn.recv()
+                raise WorkerExited(f"rollout worker {self.process.name} {self._ended()} without finishing its rollout")
+        try:
+            kind, payload = self._conn.recv()
+        except (EOFError, ConnectionResetError):
+            self.process.join(STOP_TIMEOUT_S)
+            raise WorkerExited(f"rollout worker {self.process.name} {self._ended()} without finishing its rollout") from None
         if kind == "error":
             raise RuntimeError(f"rollout worker {self.process.name} failed:\n{payload}")
         index, self._pending = self._pending, None
+        self._served += 1
         return self.buffers[index], payload
+
+    def _ended(self) -> str:
+        """How the dead child ended: 'was killed by SIGKILL (...)' or 'exited (code N)'."""
+        code = self.process.exitcode
+        if code is None or code >= 0:
+            return f"exited (code {code})"
+        try:
+            name = signal.Signals(-code).name
+        except ValueError:
+            name = f"signal {-code}"
+        return f"was killed by {name}" + (" (the system's out-of-memory killer, or kill -9)" if -code == signal.SIGKILL else "")
 
     def close(self) -> None:
         self._finalizer()

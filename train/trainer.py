@@ -42,7 +42,7 @@ from pursuit_mj.recording.rerun_scalars import RerunScalarLogger
 from .policy import ActorPolicy, trained_team
 from .ppo import advantages_and_returns, ppo_update
 from .rollout import Collector, RolloutStats, hand_made_team, make_action_path, make_training_env
-from .rollout_worker import RolloutWorker
+from .rollout_worker import RolloutWorker, WorkerExited
 from .storage import Rollout
 from .validation import FixedSeedValidator, summarise, versus
 
@@ -362,8 +362,11 @@ class Trainer:
                 # its env and noise are seeded from the update it starts at, like a resumed run's
                 self.worker = RolloutWorker(self.cfg, self.counters.update, buf.T, buf.W, buf.N, self.env.obs_dim,
                                             buf.states.shape[-1])
-            buf, stats = self.worker.result(self.model)
-            self.worker.start(self.model)  # the next rollout, collected while this one is learned from
+            try:
+                buf, stats = self.worker.result(self.model)
+                self.worker.start(self.model)  # the next rollout, collected while this one is learned from
+            except WorkerExited as exc:  # killed (the out-of-memory killer): the run folder is as last saved
+                raise ValueError(f"{exc}; {self._kept('')}") from None
             return buf, stats
         torch.set_num_threads(1)  # per-step forwards of a few dozen rows: threads only add overhead
         if self.demos is not None:
@@ -495,12 +498,13 @@ class Trainer:
 
     def _cannot_write(self, exc: ValueError) -> ValueError:
         """exc (a file of the run could not be written) with what the run folder still holds."""
+        return ValueError(f"{exc}; {self._kept('once the folder has room and write access')}")
+
+    def _kept(self, once: str) -> str:
+        """What the run folder holds after a stop, and how to go on `once` a condition is met ('' if none)."""
         if self._saved_update >= 0:
-            kept = (f"last.pt keeps update {self._saved_update}; once the folder has room and write access, "
-                    f"continue with: {self.resume_command}")
-        else:
-            kept = "no checkpoint was written yet: start the run again once the folder has room and write access"
-        return ValueError(f"{exc}; {kept}")
+            return f"last.pt keeps update {self._saved_update}; {once + ', ' if once else ''}continue with: {self.resume_command}"
+        return f"no checkpoint was written yet: start the run again{' ' + once if once else ''}"
 
     def _learn_discount(self) -> float:
         buf = self.buffer
