@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pursuit_mj.config import default_config
 from pursuit_mj.io_utils import check_writable
 from pursuit_mj.layout import MAX_RANDOM_OBSTACLES, Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout, save_layout
 from pursuit_mj.geometry import inside_polygon
@@ -16,6 +17,8 @@ from .common import finite_float, path_arg, seed_arg
 
 #: how many seeds `layout check` tries when placing the per-episode random obstacles
 CHECK_SEEDS = 20
+#: `layout show --obstacle-clearance` default (m): the reference task's
+DEFAULT_OBSTACLE_CLEARANCE = default_config().obstacle_clearance
 
 
 def register(sub) -> None:
@@ -279,8 +282,12 @@ def _register_show(lsub) -> None:
     p.add_argument("--seed", type=seed_arg, default=0,
                    help="seed of the random obstacles drawn (default 0); an episode's own seed, which render reports "
                         "(e.g. 'episode 0: success after 181 steps (seed 2968811710)'), draws that episode's, unless the task "
-                        "drew its layout too (random_layout) or set its own random_obstacles count (then give it with --count)")
+                        "drew its layout too (random_layout) or set its own random_obstacles count (then give it with --count) "
+                        "or an obstacle_clearance over 0.15 m (then give it with --obstacle-clearance)")
     p.add_argument("--count", type=int, help="random obstacles to draw (default: the layout's random_obstacles.count)")
+    p.add_argument("--obstacle-clearance", type=finite_float, default=DEFAULT_OBSTACLE_CLEARANCE, metavar="M",
+                   help="the task's obstacle_clearance (m; default %(default)g, the reference task's): above 0.15 m an episode "
+                        "draws random obstacles that close a passage between the spawn regions again, and so does this")
     p.add_argument("--no-random", action="store_true", help="draw no random obstacles")
     p.set_defaults(func=run_show)
 
@@ -291,12 +298,16 @@ def run_show(args) -> int:
     layout = load_layout(args.layout)
     if args.count is not None and args.count < 0:
         raise ValueError(f"--count: must be >= 0, got {args.count}")
+    if args.obstacle_clearance < 0:
+        raise ValueError(f"--obstacle-clearance: must be >= 0, got {args.obstacle_clearance:g}")
     out = Path(args.out or f"layout_{layout.name}.png")
     if out.suffix.lower() != ".png":
         raise ValueError(f"--out {out}: expected a .png file name")
     check_writable(out, "--out")
     try:
-        save_layout_png(layout, out, seed=None if args.no_random else args.seed, count=args.count)
+        save_layout_png(layout, out, seed=None if args.no_random else args.seed, count=args.count,
+                        passage_clearance=args.obstacle_clearance,
+                        passage_source="--obstacle-clearance")
     except LayoutError as exc:
         if args.count is None:
             raise

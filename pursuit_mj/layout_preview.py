@@ -88,16 +88,28 @@ def draw_layout(ax, layout: Layout, random_obstacles: tuple = (), random_label: 
     ax.set_axisbelow(True)
 
 
-def save_layout_png(layout: Layout, path: str | Path, seed: int | None = 0, count: int | None = None, dpi: int = 120) -> Path:
+def preview_layout(layout: Layout, seed: int, count: int | None = None, passage_clearance: float = 0.0,
+                   passage_source: str = "obstacle_clearance") -> Layout:
+    """`layout` with the random obstacles an episode of seed `seed` draws (Layout.with_random_obstacles).
+
+    passage_clearance (m): the task's obstacle_clearance; above 0.15 m the env draws placements
+    that close a passage again, and so does this. Raises LayoutError if they do not fit.
+    """
+    return layout.with_random_obstacles(np.random.default_rng(seed), count, passage_clearance=passage_clearance,
+                                        passage_source=passage_source)
+
+
+def save_layout_png(layout: Layout, path: str | Path, seed: int | None = 0, count: int | None = None, dpi: int = 120,
+                    passage_clearance: float = 0.0, passage_source: str = "obstacle_clearance") -> Path:
     """Write a top-down PNG of `layout` atomically; with a seed, its random obstacles are drawn too.
 
-    count: random obstacles to place (default: the layout's random_obstacles.count).
-    Raises LayoutError if they do not fit.
+    count: random obstacles to place (default: the layout's random_obstacles.count);
+    passage_clearance, passage_source: as for `preview_layout`. Raises LayoutError if they do not fit.
     """
     extra: tuple = ()
     label = "random obstacles"
     if seed is not None:
-        placed = layout.with_random_obstacles(np.random.default_rng(seed), count)
+        placed = preview_layout(layout, seed, count, passage_clearance, passage_source)
         extra = placed.obstacles[len(layout.obstacles):]
         label = f"random obstacles, seed {seed}"
     fig, ax = plt.subplots(figsize=(4.2 * max(layout.width / layout.height, 0.6) + 1.6, 6.4), dpi=dpi)

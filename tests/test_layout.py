@@ -253,6 +253,37 @@ def test_random_obstacles_at_obstacle_clearances_their_separation_keeps_passable
         assert checked.bit_generator.state == plain.bit_generator.state
 
 
+def test_layout_show_draws_an_episodes_obstacles_with_the_tasks_obstacle_clearance(tmp_path):
+    """Above 0.15 m the env draws closed placements again; the preview of an episode's seed must too."""
+    from pursuit_mj.layout_preview import preview_layout
+
+    layout = layout_from_dict(yaml.safe_load(CORRIDOR), "corridor.yaml")
+    env = PursuitEnv(default_config(obstacle_clearance=0.19, fidelity="point"), n_worlds=4, seed=0, layouts=[layout])
+    redrawn = 0
+    for episode in range(3):
+        seeds = [episode_seed(0, w, episode) for w in range(4)]
+        env.reset(seeds=seeds)
+        for w, s in enumerate(seeds):
+            assert preview_layout(layout, s, passage_clearance=0.19) == env.world_layouts[w]
+            redrawn += preview_layout(layout, s) != env.world_layouts[w]
+    assert redrawn > 0  # without the task's clearance, some previews showed obstacles the episode never had
+    path = tmp_path / "corridor.yaml"
+    path.write_text(CORRIDOR)
+    assert main(["layout", "show", str(path), "--seed", str(seeds[0]), "--obstacle-clearance", "0.19",
+                 "-o", str(tmp_path / "c.png")]) == 0
+
+
+def test_layout_show_names_its_obstacle_clearance_flag_when_no_placement_keeps_the_passages_open(tmp_path, capsys):
+    path = tmp_path / "narrow.yaml"
+    path.write_text(NARROW)
+    assert main(["layout", "show", str(path), "-o", str(tmp_path / "a.png"), "--obstacle-clearance", "0.19"]) == 2
+    err = capsys.readouterr().err
+    assert "--obstacle-clearance 0.19" in err and "task.obstacle_clearance" not in err and len(err.strip().splitlines()) == 1, err
+    assert main(["layout", "show", str(path), "-o", str(tmp_path / "b.png")]) == 0  # the default: the reference task's 0.1 m
+    assert main(["layout", "show", str(path), "-o", str(tmp_path / "c.png"), "--obstacle-clearance", "-0.1"]) == 2
+    assert "--obstacle-clearance: must be >= 0, got -0.1" in capsys.readouterr().err
+
+
 def test_random_obstacles_that_always_close_a_passage_are_refused_naming_the_settings():
     layout = layout_from_dict(yaml.safe_load(NARROW), "narrow.yaml")
     env = PursuitEnv(default_config(obstacle_clearance=0.19, fidelity="point"), seed=0, layouts=[layout])
