@@ -351,6 +351,9 @@ MAX_ARENA_SIDE = 50.0  # m: the checks grid the arena, and Crazyflie arenas are 
 
 def layout_from_dict(data: Mapping[str, Any], source: str = "<layout>") -> Layout:
     """Parse and validate a layout mapping; errors name `source` and the entry."""
+    if data is None:  # YAML of nothing but comments or blank lines
+        raise LayoutError(f"{source}: the file holds no layout; a layout sets at least arena and spawn "
+                          f"(see configs/layouts/*.yaml, or write one with `pursuit-mj layout new`)")
     m = _mapping(data, source, ("name", "arena", "boundary", "obstacles", "random_obstacles", "spawn"), ("arena", "spawn"))
     arena = _mapping(m["arena"], f"{source}: arena", ("width", "height"), ("width", "height"))
     width = _number(arena["width"], f"{source}: arena.width", positive=True)

@@ -469,6 +469,14 @@ def test_invalid_yaml_is_refused_with_the_file_name(tmp_path):
         load_layout(path)
 
 
+@pytest.mark.parametrize("text", ["", "# a comment, nothing else\n", "---\n"])
+def test_an_empty_layout_file_is_refused_as_empty(text, tmp_path):
+    path = tmp_path / "empty.yaml"
+    path.write_text(text)
+    with pytest.raises(LayoutError, match=r"empty.yaml: the file holds no layout; a layout sets at least arena and spawn"):
+        load_layout(path)
+
+
 # ----------------------------------------------------------------------------- CLI
 
 
