@@ -152,11 +152,20 @@ def termination_as_interrupt(stops: list[str] | None = None):
 
 
 def main(argv: list[str] | None = None) -> int:
-    broken = mujoco_import_error()
-    if broken is not None:
-        print(f"pursuit-mj: error: {broken}", file=sys.stderr)
-        return 2
-    parser = build_parser()
+    starting: list[str] = []
+    try:  # the imports take a second or more: a Ctrl-C or kill meanwhile is a stop, not a crash
+        with termination_as_interrupt(starting):
+            broken = mujoco_import_error()
+            if starting:  # mujoco's start-up reports an interrupt as its own ImportError
+                raise KeyboardInterrupt(starting[0])
+            if broken is not None:
+                print(f"pursuit-mj: error: {broken}", file=sys.stderr)
+                return 2
+            parser = build_parser()
+    except KeyboardInterrupt:
+        by = f" by {starting[0]}" if starting and starting[0] != "SIGINT" else ""
+        print(f"pursuit-mj: interrupted{by} while starting", file=sys.stderr)
+        return 130
     argv = sys.argv[1:] if argv is None else list(argv)
     if not argv:  # a bare `pursuit-mj`: show what there is
         parser.print_help(sys.stderr)

@@ -250,6 +250,48 @@ def test_a_stop_signal_that_a_library_call_reports_as_its_own_error_still_ends_a
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handlers given back
 
 
+@pytest.mark.parametrize("phase", ["build_parser", "mujoco_import_error"])
+def test_ctrl_c_while_the_command_starts_up_is_one_line_not_a_traceback(monkeypatch, capsys, phase):
+    """Ctrl-C while the subcommands' modules (numpy, torch ...) or mujoco import: it printed a traceback."""
+    import os
+    import signal
+
+    import pursuit_cli
+
+    original = getattr(pursuit_cli, phase)
+
+    def interrupted_on_the_way(*args):
+        os.kill(os.getpid(), signal.SIGINT)
+        return original(*args)
+
+    monkeypatch.setattr(pursuit_cli, phase, interrupted_on_the_way)
+    assert main(["config"]) == 130
+    assert capsys.readouterr().err == "pursuit-mj: interrupted while starting\n"
+
+
+def test_ctrl_c_that_mujocos_start_up_reports_as_an_import_error_is_an_interrupt(monkeypatch, capsys):
+    """Seen with a real Ctrl-C 0.1 s after start: mujoco's import failed with 'ImportError:
+    initialization failed', and the command blamed MUJOCO_GL."""
+    import builtins
+    import os
+    import signal
+
+    real_import = builtins.__import__
+
+    def import_cut_short(name, *args, **kwargs):
+        if name == "mujoco":  # its C start-up turns the interrupt into a failed initialisation
+            try:
+                os.kill(os.getpid(), signal.SIGINT)
+            except KeyboardInterrupt:
+                raise ImportError("initialization failed") from None
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", import_cut_short)
+    assert main(["config"]) == 130
+    assert capsys.readouterr().err == "pursuit-mj: interrupted while starting\n"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handlers given back
+
+
 def test_version_names_the_package_commit_and_the_libraries_that_decide_results(capsys):
     import subprocess
 
