@@ -29,6 +29,8 @@ DRONE_MAX_THRUST = 4 * 0.15
 MIN_THRUST_TO_WEIGHT = 1.5
 #: kg, the heaviest drone_mass accepted: DRONE_MAX_THRUST / (g MIN_THRUST_TO_WEIGHT)
 DRONE_MAX_MASS = DRONE_MAX_THRUST / (9.81 * MIN_THRUST_TO_WEIGHT)
+#: DRONE_MAX_MASS as messages write it: rounded down, so that the mass named is accepted (0.0408 is not)
+DRONE_MAX_MASS_TEXT = f"{math.floor(DRONE_MAX_MASS * 1e5) / 1e5:.5f}"
 # every reward scale's magnitude limit: rewards are float32, and an episode's sum of steps of
 # the largest terms must stay finite and far from overflow
 REWARD_SCALE_LIMIT = 1e6
@@ -101,7 +103,7 @@ class TaskConfig:
     fidelity: str = spec("quadrotor", choices=("point", "quadrotor"), help="physics fidelity")
     physics_dt: float = spec(0.002, lo=0.0002, hi=0.01, help="MuJoCo timestep (s)")
     controller_hz: float = spec(100.0, lo=100.0, hi=1000.0, help="quadrotor controller rate (Hz); at 50 Hz a full-speed reversal tilted to 22 deg, past the 15 deg limit")
-    drone_mass: float = spec(DRONE_FILE_MASS, lo=0.0, lo_open=True, help=f"every drone's take-off mass (kg): the quadrotor's body (inertia scaled with it) and its controller's weight feed-forward; default the bare Crazyflie 2.1 of models/crazyflie.xml; set it to your drones' weighed mass (with decks, markers, battery); at most {DRONE_MAX_MASS:.4f} kg, where the rotors lift {MIN_THRUST_TO_WEIGHT:g} times the weight")
+    drone_mass: float = spec(DRONE_FILE_MASS, lo=0.0, lo_open=True, help=f"every drone's take-off mass (kg): the quadrotor's body (inertia scaled with it) and its controller's weight feed-forward; default the bare Crazyflie 2.1 of models/crazyflie.xml; set it to your drones' weighed mass (with decks, markers, battery); at most {DRONE_MAX_MASS_TEXT} kg, where the rotors lift {MIN_THRUST_TO_WEIGHT:g} times the weight")
     evader: EvaderConfig = spec(default_factory=EvaderConfig, help="escape model settings")
 
     def validate(self, source: str = "config") -> None:
@@ -132,7 +134,7 @@ class TaskConfig:
             raise ConfigError(
                 f"{source}: key 'drone_mass': {self.drone_mass} kg is more than the rotors can fly: their "
                 f"{DRONE_MAX_THRUST:g} N at full thrust must lift at least {MIN_THRUST_TO_WEIGHT:g} times the "
-                f"weight (at most {DRONE_MAX_MASS:.4f} kg), keeping thrust in reserve to tilt, climb back and "
+                f"weight (at most {DRONE_MAX_MASS_TEXT} kg), keeping thrust in reserve to tilt, climb back and "
                 f"turn at once")
         substeps = self.control_dt / self.physics_dt
         if round(substeps) < 1:  # 1e-9 s is "a whole number" (0) of physics steps within the tolerance below

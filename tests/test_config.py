@@ -113,7 +113,7 @@ def test_dumped_config_loads_back_identical(tmp_path):
         (["drone_mass=0"], r"key 'drone_mass': 0.0 is out of range \(must be > 0.0\)"),
         (["drone_mass=-0.03"], r"key 'drone_mass': -0.03 is out of range \(must be > 0.0\)"),
         (["drone_mass=0.045"], r"key 'drone_mass': 0.045 kg is more than the rotors can fly: their 0.6 N at full thrust "
-                               r"must lift at least 1.5 times the weight \(at most 0.0408 kg\)"),
+                               r"must lift at least 1.5 times the weight \(at most 0.04077 kg\)"),
         (["drone_mass=heavy"], r"key 'drone_mass': expected a number, got 'heavy'"),
         (["n_pursuers"], r"'n_pursuers' is not of the form key=value"),
         (["evader=3"], r"key 'evader': expected a mapping of EvaderConfig keys, got 3"),
@@ -123,6 +123,25 @@ def test_dumped_config_loads_back_identical(tmp_path):
 def test_bad_overrides_raise_naming_key_value_and_source(overrides, message):
     with pytest.raises(ConfigError, match=message):
         load_task_config([], overrides)
+
+
+def test_the_heaviest_drone_mass_the_refusal_names_is_accepted():
+    """The bound printed was rounded to 0.0408 kg, just above the real one (0.040775): a flyer who
+    set drone_mass=0.0408 was refused with 'at most 0.0408 kg'. The bound named, in the refusal
+    and in the key's help, is itself accepted (rounded down)."""
+    import re
+
+    from pursuit_mj.config import DRONE_MAX_MASS
+
+    with pytest.raises(ConfigError) as refused:
+        load_task_config([], ["drone_mass=0.0408"])
+    named = [float(x) for x in re.findall(r"at most ([0-9.]+) kg", str(refused.value))]
+    help_text = next(f.metadata["help"] for f in dataclasses.fields(TaskConfig) if f.name == "drone_mass")
+    named += [float(x) for x in re.findall(r"at most ([0-9.]+) kg", help_text)]
+    assert len(named) == 2
+    for bound in named:
+        assert DRONE_MAX_MASS - 1e-5 <= bound <= DRONE_MAX_MASS
+        assert load_task_config([], [f"drone_mass={bound}"]).drone_mass == bound
 
 
 def test_the_contact_distance_is_twice_the_drone_models_collision_radius():
