@@ -304,7 +304,7 @@ def _time_to_90_percent(physics, start: float, target: float, steps: int) -> flo
 @pytest.mark.parametrize("start, target", [(0.0, 0.3), (0.6, -0.6)], ids=["step", "reversal"])
 def test_point_fidelity_matches_the_quadrotor_closed_loop(start, target, mass):
     """DESIGN.md section 3: the point drone's lag and acceleration limit are matched to the
-    quadrotor's closed loop, so that it neither turns nor dodges faster than a Crazyflie:
+    quadrotor's closed loop (in distance it still stops sooner; see the test below):
     the time to 90 % of a velocity step (lag-bound) or of a reversal (limit-bound) agrees
     within 0.05 s (measured: 0.46 vs 0.47 s and 0.58 vs 0.56 s at the default rates). The
     match holds for any accepted drone_mass (0.45 and 0.58 s at 40.8 g): the controller scales
@@ -313,3 +313,36 @@ def test_point_fidelity_matches_the_quadrotor_closed_loop(start, target, mass):
     times = {fid: _time_to_90_percent(make_physics(fid, pursuer_speed=0.6, drone_mass=mass), start, target, 15)
              for fid in ("quadrotor", "point")}
     assert abs(times["point"] - times["quadrotor"]) <= 0.05, times
+
+
+def _run_on(fidelity: str, speed: float, then: float) -> float:
+    """m pursuer_0 travels on along +x after flying at `speed` m/s and being commanded to
+    `then` x speed (0: stop, -1: reverse), measured at every controller tick."""
+    physics = make_physics(fidelity, pursuer_speed=max(speed, 0.3))
+    cmd = np.zeros((1, 4, 2))
+    cmd[0, 0, 0] = speed
+    for _ in range(20):
+        physics.step(cmd)
+    start, xs = physics.positions()[0, 0, 0], []
+    physics.observers.append(lambda p: xs.append(p.positions()[0, 0, 0]))
+    cmd[0, 0, 0] = then * speed
+    for _ in range(15):
+        physics.step(cmd)
+    return max(xs) - start
+
+
+def test_design_md_states_how_much_sooner_a_point_drone_stops_than_the_quadrotor():
+    """DESIGN.md section 3 said the matched lag and limit keep a point drone from turning or
+    dodging faster than a Crazyflie; in distance it does both faster (the quadrotor first has to
+    tilt: about 0.1 s before its velocity moves). The run-on distances it states now are these
+    flights' (cm, within 0.3 cm)."""
+    import re
+    from pathlib import Path
+
+    text = " ".join((Path(__file__).resolve().parent.parent / "docs" / "DESIGN.md").read_text().split())
+    found = re.search(r"commanded to stop from 0\.3 m/s a point drone runs on ([0-9.]+) cm, a quadrotor ([0-9.]+); "
+                      r"reversed, ([0-9.]+) and ([0-9.]+) cm \(from 0\.6 m/s: ([0-9.]+) and ([0-9.]+), ([0-9.]+) and ([0-9.]+)\)", text)
+    assert found, "DESIGN.md section 3 does not state the point and quadrotor run-on distances"
+    stated = [float(x) / 100 for x in found.groups()]
+    measured = [_run_on(fid, speed, then) for speed in (0.3, 0.6) for then in (0.0, -1.0) for fid in ("point", "quadrotor")]
+    np.testing.assert_allclose(measured, stated, atol=0.003)
