@@ -101,7 +101,7 @@ def test_full_speed_reversal_stays_stable(rate):
 @pytest.mark.parametrize("rate", RATES + HEAVY)
 def test_random_command_sequence_stays_stable(rate):
     """With a new command every 0.1 s the rotors run out of headroom first on a heavy drone:
-    at the heaviest drone_mass (thrust-to-weight 1.5) it sags 1.3 cm; at 1.36 (45 g) it
+    at the heaviest drone_mass (thrust-to-weight 1.5) it sags 1.4 cm; at 1.36 (45 g) it
     would sag 3.5 cm, past MAX_ALT_ERROR, and at 1.22 (50 g) 18 cm."""
     physics = make_physics(**rate)
     rng = np.random.default_rng(7)
