@@ -58,7 +58,7 @@ def _register_new(lsub) -> None:
                    help="add a cylinder: centre and radius; repeatable")
     p.add_argument("--wall", nargs="+", type=finite_float, action="append", default=[], metavar="V",
                    help="add a thin wall: X0 Y0 X1 Y1 [THICKNESS] (default thickness 0.05); repeatable")
-    p.add_argument("--random", type=int, default=0, metavar="N", help="add N fixed obstacles placed at random (with --seed)")
+    p.add_argument("--random", type=int, default=0, metavar="N", help="add N fixed obstacles (0-64) placed at random (with --seed)")
     p.add_argument("--seed", type=seed_arg, default=0, help="seed for --random (default 0)")
     p.add_argument("--episode-obstacles", type=int, default=5, metavar="K",
                    help="random obstacles drawn per episode (the file's random_obstacles.count, default 5)")
@@ -187,8 +187,8 @@ def build_new_layout(args) -> Layout:
     for flag, value in (("--width", args.width), ("--height", args.height)):
         if not math.isfinite(value) or value <= 0:
             raise ValueError(f"{flag}: must be a number > 0, got {value}")
-    if args.random < 0:
-        raise ValueError(f"--random: must be >= 0, got {args.random}")
+    if not 0 <= args.random <= MAX_RANDOM_OBSTACLES:
+        raise ValueError(f"--random: {args.random} is out of range (0 to {MAX_RANDOM_OBSTACLES})")
     if not 0 <= args.episode_obstacles <= MAX_RANDOM_OBSTACLES:
         raise ValueError(f"--episode-obstacles: {args.episode_obstacles} is out of range (0 to {MAX_RANDOM_OBSTACLES})")
     boundary, bbox = _boundary(args)

@@ -527,6 +527,8 @@ def test_layout_new_default_polygon_and_seeded_random_obstacles_are_reproducible
         (["layout", "new", "{out}", "--random", "60"], "no room for random obstacle"),
         # above the file format's bound: the error named the file key random_obstacles.count
         (["layout", "new", "{out}", "--episode-obstacles", "100"], "--episode-obstacles: 100 is out of range (0 to 64)"),
+        # --random places fixed obstacles: the error named random_obstacles.count, the per-episode ones
+        (["layout", "new", "{out}", "--random", "100"], "--random: 100 is out of range (0 to 64)"),
     ],
 )
 def test_layout_cli_bad_input_exits_2_with_one_line(argv, message, tmp_path, capsys):
