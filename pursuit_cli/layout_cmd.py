@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 from pathlib import Path
 
@@ -44,8 +45,8 @@ def _register_new(lsub) -> None:
     )
     p.add_argument("out", metavar="OUT.yaml", help="file to write")
     p.add_argument("--name", help="layout name (default: the file name)")
-    p.add_argument("--pursuers", type=int, default=3, help="team size whose spawn room is checked (default 3)")
-    p.add_argument("--evaders", type=int, default=1, help="evaders whose spawn room is checked (default 1)")
+    p.add_argument("--pursuers", type=int, default=3, help="team size whose spawn room is checked (1-16, default 3)")
+    p.add_argument("--evaders", type=int, default=1, help="evaders whose spawn room is checked (1-8, default 1)")
     p.add_argument("--width", type=finite_float, default=3.6, help="arena width along x (m, default 3.6)")
     p.add_argument("--height", type=finite_float, default=5.0, help="arena height along y (m, default 5.0)")
     p.add_argument("--border", choices=("rectangle", "polygon", "circle"), default="rectangle", help="border shape")
@@ -184,6 +185,7 @@ def _obstacles(args) -> list[dict]:
 
 def build_new_layout(args) -> Layout:
     """The validated layout that `layout new` would write (fixed random obstacles placed)."""
+    _check_team_size(args.pursuers, args.evaders)
     for flag, value in (("--width", args.width), ("--height", args.height)):
         if not math.isfinite(value) or value <= 0:
             raise ValueError(f"{flag}: must be a number > 0, got {value}")
@@ -228,13 +230,22 @@ def _check_team_fits(layout: Layout, n_pursuers: int, n_evaders: int) -> None:
     from pursuit_mj.config import default_config
     from pursuit_mj.layout_check import SPAWN_SEPARATION, check_spawn_gap
 
-    if n_pursuers < 1 or n_evaders < 1:
-        raise ValueError(f"--pursuers {n_pursuers} / --evaders {n_evaders}: each must be >= 1")
     try:
         check_spawn_capacity(layout, n_pursuers, n_evaders, SPAWN_SEPARATION)
     except LayoutError as exc:
         raise LayoutError(f"{exc} (checked for --pursuers {n_pursuers} --evaders {n_evaders})") from None
     check_spawn_gap(layout, default_config().capture_radius, "default capture_radius")
+
+
+def _check_team_size(n_pursuers: int, n_evaders: int) -> None:
+    """ValueError naming the flag if a team size is outside what every task allows (TaskConfig's bounds)."""
+    from pursuit_mj.config import TaskConfig
+
+    meta = {f.name: f.metadata for f in dataclasses.fields(TaskConfig)}
+    for flag, key, n in (("--pursuers", "n_pursuers", n_pursuers), ("--evaders", "n_evaders", n_evaders)):
+        lo, hi = meta[key]["lo"], meta[key]["hi"]
+        if not lo <= n <= hi:
+            raise ValueError(f"{flag}: {n} is out of range ({lo} to {hi}, the task's {key})")
 
 
 def _round_floats(value, digits: int = 3):
@@ -323,8 +334,8 @@ def run_show(args) -> int:
 def _register_check(lsub) -> None:
     p = lsub.add_parser("check", help="validate a layout file and print a summary")
     p.add_argument("layout", metavar="FILE|INDEX", help="layout file or built-in index 0-3")
-    p.add_argument("--pursuers", type=int, default=3, help="team size whose spawn room is checked (default 3)")
-    p.add_argument("--evaders", type=int, default=1, help="evaders whose spawn room is checked (default 1)")
+    p.add_argument("--pursuers", type=int, default=3, help="team size whose spawn room is checked (1-16, default 3)")
+    p.add_argument("--evaders", type=int, default=1, help="evaders whose spawn room is checked (1-8, default 1)")
     p.set_defaults(func=run_check)
 
 
@@ -342,6 +353,7 @@ def run_check(args) -> int:
     from pursuit_mj.layout_check import SPAWN_SEPARATION
     from pursuit_mj.scene import SceneSpec, build_model
 
+    _check_team_size(args.pursuers, args.evaders)
     layout = load_layout(args.layout)
     tried = _check_random_fits(layout, "random_obstacles.count or size in the file, or make room")
     _check_team_fits(layout, args.pursuers, args.evaders)

@@ -578,11 +578,27 @@ def test_layout_check_says_valid_only_after_every_check_and_checks_the_team_size
     assert main(["layout", "check", str(crowded)]) == 2
     captured = capsys.readouterr()
     assert "valid" not in captured.out and "no room for random obstacle" in captured.err
-    assert main(["layout", "check", "0", "--pursuers", "30"]) == 2
-    assert "cannot reliably hold 30 pursuers 0.4 m apart" in capsys.readouterr().err
+    assert main(["layout", "check", "0", "--pursuers", "16"]) == 2
+    assert "cannot reliably hold 16 pursuers 0.4 m apart" in capsys.readouterr().err
     assert main(["layout", "check", "0", "--pursuers", "5", "--evaders", "2"]) == 0
     out = capsys.readouterr().out
     assert "room for 5 pursuers and 2 evader(s)" in out and "(point, 5+2 drones, seed 0): compiles" in out
+
+
+@pytest.mark.parametrize("team, message", [(["--pursuers", "17"], "--pursuers: 17 is out of range (1 to 16, the task's n_pursuers)"),
+                                           (["--evaders", "9"], "--evaders: 9 is out of range (1 to 8, the task's n_evaders)"),
+                                           (["--pursuers", "0"], "--pursuers: 0 is out of range (1 to 16")])
+def test_layout_commands_refuse_a_team_no_task_can_have(team, message, tmp_path, capsys):
+    """A 20 x 20 m layout has room for 40 pursuers, but every task refuses more than 16: check said 'valid'."""
+    big = tmp_path / "big.yaml"
+    assert main(["layout", "new", str(big), "--width", "20", "--height", "20", "--spawn-pursuers", "1", "19", "1", "5",
+                 "--spawn-evaders", "1", "19", "15", "19"]) == 0
+    capsys.readouterr()
+    for argv in (["layout", "check", str(big)], ["layout", "new", str(tmp_path / "other.yaml"), "--width", "20", "--height", "20"]):
+        assert main(argv + team) == 2
+        captured = capsys.readouterr()
+        assert message in captured.err and "valid" not in captured.out, captured
+    assert not (tmp_path / "other.yaml").exists()
 
 
 def test_the_example_in_layout_new_help_works(tmp_path, capsys):
