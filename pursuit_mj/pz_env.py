@@ -29,6 +29,12 @@ class PursuitParallelEnv(ParallelEnv):
         pursuit_mj.render.RenderSettings (size, camera, quality; default 640 x 480 top view)."""
         if render_mode not in (None, "rgb_array"):  # pettingzoo's convention: only the modes of metadata
             raise ValueError(f"render_mode: {render_mode!r} is not supported (supported: None, 'rgb_array')")
+        if render_settings is not None:
+            from .render.renderer import RenderSettings
+
+            if not isinstance(render_settings, RenderSettings):  # else a deep AttributeError at the first reset
+                raise ValueError(f"render_settings: expected a pursuit_mj.render.renderer.RenderSettings (size, camera, "
+                                 f"quality, key), got {type(render_settings).__name__} {render_settings!r}")
         # an empty dict is not "no config": it and every other non-TaskConfig are refused by name
         self.config = default_config() if config is None else checked_task_config(config, "PursuitParallelEnv config")
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.config.control_dt}  # one frame per decision step

@@ -172,3 +172,10 @@ def test_a_config_that_is_not_a_task_config_is_refused_by_name(config):
 
     with pytest.raises(ConfigError, match=f"PursuitParallelEnv config: expected a TaskConfig .* got {type(config).__name__}"):
         PursuitParallelEnv(config)
+
+
+@pytest.mark.parametrize("settings", [(320, 240), "big", {"width": 320}])
+def test_render_settings_that_are_not_render_settings_are_refused_by_name_when_made(settings):
+    """A (width, height) tuple passed, then failed at the first reset with "'tuple' object has no attribute 'check'"."""
+    with pytest.raises(ValueError, match=f"render_settings: expected a pursuit_mj.render.renderer.RenderSettings .*got {type(settings).__name__}"):
+        PursuitParallelEnv(default_config(fidelity="point"), render_mode="rgb_array", render_settings=settings)
