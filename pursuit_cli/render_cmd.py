@@ -20,8 +20,8 @@ import sys
 from pathlib import Path
 
 from pursuit_mj.io_utils import check_writable_folder
-from pursuit_mj.config import TaskConfig, preset_or_file
-from pursuit_mj.configio import build, dump_yaml, load, load_yaml, to_dict
+from pursuit_mj.config import TaskConfig, load_task_yaml, preset_or_file
+from pursuit_mj.configio import build, dump_yaml, load, to_dict
 from pursuit_mj.layout import load_layout
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
@@ -104,7 +104,7 @@ def task_config(args, base: TaskConfig | None) -> TaskConfig:
     merged = to_dict(base)
     for f in args.task_files:
         p = preset_or_file(f, "task")
-        merged = _merge(merged, load_yaml(p))
+        merged = _merge(merged, load_task_yaml(p))
         build(TaskConfig, merged, str(p))  # errors name the file that caused them
     flags = {}
     for key in TASK_FLAG_KEYS:

@@ -13,8 +13,7 @@ import time
 
 import numpy as np
 
-from pursuit_mj.config import TaskConfig, default_config, preset_or_file
-from pursuit_mj.configio import load_yaml
+from pursuit_mj.config import TaskConfig, default_config, load_task_yaml, preset_or_file
 from pursuit_mj.controller import tilt_angle
 from pursuit_mj.layout import N_BUILTIN, Layout, load_layout
 from pursuit_mj.layout_check import free_spawn_points
@@ -138,7 +137,7 @@ def _chosen(args, config: TaskConfig, key: str) -> bool:
     value): then only that value is flown."""
     named = {o.split("=", 1)[0].strip() for o in args.overrides}
     for ref in args.task_files or []:
-        data = load_yaml(preset_or_file(ref, "task"))
+        data = load_task_yaml(preset_or_file(ref, "task"))
         named |= set(data) if isinstance(data, dict) else set()
     return getattr(args, key) is not None or key in named or getattr(config, key) != getattr(default_config(), key)
 

@@ -9,10 +9,10 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
-from .configio import ConfigError, build, dump_yaml, load, spec, to_dict
-from .layout import MAX_RANDOM_OBSTACLES, N_BUILTIN
+from .configio import ConfigError, build, dump_yaml, load, load_yaml, spec, to_dict
+from .layout import MAX_RANDOM_OBSTACLES, N_BUILTIN, layout_ref_beside
 
 from .shipped import shipped_dir
 
@@ -201,6 +201,15 @@ def preset_names(kind: str) -> list[str]:
     return sorted(p.stem for p in (CONFIG_DIR / kind).glob("*.yaml"))
 
 
+def load_task_yaml(path: str | Path, source: str | None = None) -> dict[str, Any]:
+    """A task YAML file's mapping (configio.load_yaml), its `layout` found beside the file when it
+    is not found from the current folder (layout.layout_ref_beside)."""
+    data = load_yaml(path, source)
+    if "layout" in data:
+        data["layout"] = layout_ref_beside(data["layout"], path)
+    return data
+
+
 def load_task_config(
     files: Sequence[str | Path] = (),
     overrides: Sequence[str] = (),
@@ -214,7 +223,7 @@ def load_task_config(
     files = [files] if isinstance(files, (str, Path)) else files
     overrides = [overrides] if isinstance(overrides, str) else overrides
     resolved = [preset_or_file(f, "task") for f in files]
-    return load(TaskConfig, resolved, overrides, extra=flags, extra_source=flags_source)
+    return load(TaskConfig, resolved, overrides, extra=flags, extra_source=flags_source, read=load_task_yaml)
 
 
 def default_config(**changes) -> TaskConfig:

@@ -14,7 +14,7 @@ import re
 import types
 import typing
 from pathlib import Path
-from typing import Any, Mapping, Sequence, TypeVar
+from typing import Any, Callable, Mapping, Sequence, TypeVar
 
 import numpy as np
 import yaml
@@ -298,6 +298,17 @@ def read_text(path: Path, source: str) -> str:
         raise ConfigError(f"{source}: not a text (YAML) file") from None
 
 
+def found_beside(ref: Any, file: str | Path) -> Any:
+    """A file path read from the config file `file`: one that is relative, not a file from the
+    current folder but one beside `file`, becomes that path (as the file's author meant it);
+    anything else (not a string, found from here, found nowhere) is returned unchanged, so a
+    path from the current folder keeps working."""
+    if not isinstance(ref, str) or not ref or Path(ref).is_absolute() or Path(ref).is_file():
+        return ref
+    beside = Path(file).parent / ref
+    return str(beside) if beside.is_file() else ref
+
+
 def load_yaml(path: str | Path, source: str | None = None) -> dict[str, Any]:
     """Read a YAML mapping; a missing file or non-mapping content is a ConfigError."""
     path = Path(path)
@@ -321,6 +332,7 @@ def load(
     overrides: Sequence[str] = (),
     extra: Mapping[str, Any] | None = None,
     extra_source: str = "command line",
+    read: Callable[[Path], dict[str, Any]] | None = None,
 ) -> T:
     """Defaults <- each YAML file in order <- `extra` (flags) <- `--set` overrides.
 
@@ -328,11 +340,11 @@ def load(
     that holds the bad value; the checks across keys (validate) judge the whole, so a later
     source may repair what an earlier one left inconsistent (--set evader.panic_distance=3.5
     --set evader.calm_distance=5), and their error names the source after which the config
-    stayed inconsistent."""
+    stayed inconsistent. `read` reads a file (default load_yaml)."""
     merged: dict[str, Any] = {}
     stages: list[tuple[str, dict[str, Any]]] = []  # (source, merged after it)
     for f in files:
-        data = load_yaml(f)
+        data = (read or load_yaml)(f)
         check_values(cls, data, str(f))
         merged = _deep_update(merged, data)
         stages.append((str(f), merged))

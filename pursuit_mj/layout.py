@@ -15,7 +15,7 @@ from typing import Any, Mapping, Sequence, Union
 import numpy as np
 import yaml
 
-from .configio import ConfigError, read_text, safe_dump, safe_load, shown, yaml_error_text
+from .configio import ConfigError, found_beside, read_text, safe_dump, safe_load, shown, yaml_error_text
 from .geometry import ObstacleSet, boundary_segments
 from .shipped import shipped_dir
 
@@ -438,8 +438,17 @@ def resolve_layout_ref(ref: int | str | Path) -> Path:
     if path.is_dir():
         raise LayoutError(f"layout '{ref}': a folder, not a layout file (or a built-in index 0-{N_BUILTIN - 1})")
     if not path.is_file():
-        raise LayoutError(f"layout '{ref}': no such file, and not a built-in index 0-{N_BUILTIN - 1}")
+        where = f" in the current folder ({Path.cwd()}) or beside a task, train or flight file naming it" if not path.is_absolute() else ""
+        raise LayoutError(f"layout '{ref}': no such file{where}, and not a built-in index 0-{N_BUILTIN - 1}")
     return path
+
+
+def layout_ref_beside(ref: Any, file: str | Path) -> Any:
+    """A layout reference read from `file` (a task, train or flight file): a built-in index as it
+    is, a file path as configio.found_beside finds it (beside `file` when not from here)."""
+    if isinstance(ref, str) and ref.strip().isdigit():
+        return ref
+    return found_beside(ref, file)
 
 
 def load_layout(ref: int | str | Path) -> Layout:

@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from pursuit_cli import main
-from pursuit_mj.layout import load_layout
+from pursuit_mj.layout import builtin_layout_path, load_layout
 from pursuit_mj.config import ConfigError, TaskConfig, default_config, dump_yaml, load_task_config
 
 
@@ -257,3 +257,51 @@ def test_a_number_with_a_colon_is_refused_not_read_in_base_60():
         load_task_config([], ["max_steps=1:30"])
     with pytest.raises(ConfigError, match="key 'evader_speed': expected a number, got '1:30.5'"):
         load_task_config([], ["evader_speed=1:30.5"])
+
+
+def _experiment_folder(tmp_path):
+    """exp/arena.yaml beside exp/task.yaml and exp/train.yaml, which name it by its bare file name."""
+    exp = tmp_path / "exp"
+    exp.mkdir()
+    (exp / "arena.yaml").write_text(builtin_layout_path(2).read_text())
+    (exp / "task.yaml").write_text("layout: arena.yaml\nfidelity: point\n")
+    (exp / "train.yaml").write_text("name: exp\ntask:\n  layout: arena.yaml\nlayouts: [arena.yaml, 0]\n"
+                                    "run:\n  validation_layouts: [arena.yaml]\n")
+    (exp / "train_task_file.yaml").write_text("name: exp2\ntask_file: task.yaml\n")
+    return exp
+
+
+def test_a_layout_file_named_in_a_task_or_train_file_is_found_beside_that_file(tmp_path, monkeypatch, capsys):
+    from train.config import load_train_config
+
+    exp = _experiment_folder(tmp_path)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)  # the run starts in another folder: "arena.yaml" is not there
+    beside = str(exp / "arena.yaml")
+    assert load_task_config([str(exp / "task.yaml")]).layout == beside
+    cfg = load_train_config([str(exp / "train.yaml")])
+    assert (cfg.task.layout, cfg.layouts, cfg.run.validation_layouts) == (beside, (beside, 0), (beside,))
+    cfg.check_layouts()
+    assert load_train_config([str(exp / "train_task_file.yaml")]).task.layout == beside
+    assert main(["config", "--task", str(exp / "task.yaml")]) == 0
+    assert f"layout: {beside}" in capsys.readouterr().out
+    assert main(["simulate", "--task", str(exp / "task.yaml"), "--seconds", "0.2"]) == 0
+
+
+def test_a_layout_file_in_the_current_folder_wins_over_one_beside_the_task_file(tmp_path, monkeypatch):
+    exp = _experiment_folder(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "arena.yaml").write_text(builtin_layout_path(1).read_text())
+    assert load_task_config([str(exp / "task.yaml")]).layout == "arena.yaml"  # as before: from the current folder
+
+
+def test_a_layout_file_found_nowhere_says_where_it_was_looked_for(tmp_path, monkeypatch):
+    exp = tmp_path / "exp"
+    exp.mkdir()
+    (exp / "task.yaml").write_text("layout: arena.yaml\n")
+    monkeypatch.chdir(tmp_path)
+    from pursuit_mj.env import PursuitEnv
+
+    with pytest.raises(ValueError, match=rf"layout 'arena.yaml': no such file in the current folder \({tmp_path}\)"):
+        PursuitEnv(load_task_config([str(exp / "task.yaml")]))

@@ -15,8 +15,9 @@ import os
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from pursuit_mj.config import TaskConfig, preset_or_file
-from pursuit_mj.configio import ConfigError, build, check_values, load, load_yaml, parse_override, spec, to_dict
+from pursuit_mj.config import TaskConfig, load_task_yaml, preset_or_file
+from pursuit_mj.configio import ConfigError, build, check_values, found_beside, load, load_yaml, parse_override, spec, to_dict
+from pursuit_mj.layout import layout_ref_beside
 from pursuit_mj.sensing import PRIVILEGED_VIEWS
 
 REGIMES = ("classic", "full_obs", "fine_tune", "mappo", "custom")
@@ -244,12 +245,26 @@ def _deep_update(base: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, A
     return out
 
 
+def _paths_beside(data: dict[str, Any], path: Path) -> None:
+    """In a train file's (checked) mapping, the task file and layout files named by a path relative
+    to the file's folder and not found from the current folder are found there (configio.found_beside)."""
+    if "task_file" in data:
+        data["task_file"] = found_beside(data["task_file"], path)
+    task, run = data.get("task"), data.get("run")
+    if isinstance(task, dict) and "layout" in task:
+        task["layout"] = layout_ref_beside(task["layout"], path)
+    if isinstance(data.get("layouts"), list):
+        data["layouts"] = [layout_ref_beside(r, path) for r in data["layouts"]]
+    if isinstance(run, dict) and isinstance(run.get("validation_layouts"), list):
+        run["validation_layouts"] = [layout_ref_beside(r, path) for r in run["validation_layouts"]]
+
+
 def _resolve_task_file(ref: str, source: str) -> dict[str, Any]:
     try:
         path = preset_or_file(ref, "task")
     except ConfigError as exc:
         raise ConfigError(f"{source}: task_file {exc}") from None
-    data = load_yaml(path, f"{source}: task_file {ref}")
+    data = load_task_yaml(path, f"{source}: task_file {ref}")
     check_values(TaskConfig, data, f"{source}: task_file {ref}")  # an error names the task file, not only the train config
     return data
 
@@ -291,6 +306,7 @@ def load_train_config(
         # each file's keys and values checked as read, so an error names the file that holds the bad one
         # (an empty task: section beside a task_file is left to _with_layer)
         check_values(TrainConfig, {k: v for k, v in data.items() if not (k == "task" and v is None)}, str(p))
+        _paths_beside(data, p)
         merged = _with_layer(merged, data, str(p))
         source = str(p)
     rest = []

@@ -26,7 +26,7 @@ import numpy as np
 from ..config import TaskConfig
 from ..configio import ConfigError, build, merge, parse_override, to_dict
 from ..geometry import border_distance, inside_boundary, obstacle_distance
-from ..layout import Layout, load_layout
+from ..layout import Layout, layout_ref_beside, load_layout
 from ..obs_spec import ObsSpec
 from .frames import DroneFrames, LabTransform
 from .spec import FlightSpec, LabBounds, check_uri, drone_names
@@ -143,13 +143,8 @@ class FlightPlan:
 
 
 def _resolve_layout(spec: FlightSpec) -> Layout:
-    ref = spec.layout
-    if isinstance(ref, str) and not ref.strip().isdigit():
-        beside = Path(spec.source).parent / ref
-        if not Path(ref).is_file() and beside.is_file():
-            ref = str(beside)
     try:
-        return load_layout(ref)
+        return load_layout(layout_ref_beside(spec.layout, spec.source))
     except ConfigError as exc:
         raise ConfigError(f"{spec.source}: key 'layout': {exc}") from None
 
