@@ -47,8 +47,8 @@ def _register_new(lsub) -> None:
     p.add_argument("--name", help="layout name (default: the file name)")
     p.add_argument("--pursuers", type=int, default=3, help="team size whose spawn room is checked (1-16, default 3)")
     p.add_argument("--evaders", type=int, default=1, help="evaders whose spawn room is checked (1-8, default 1)")
-    p.add_argument("--width", type=finite_float, default=3.6, help="arena width along x (m, default 3.6)")
-    p.add_argument("--height", type=finite_float, default=5.0, help="arena height along y (m, default 5.0)")
+    p.add_argument("--width", type=finite_float, help="arena width along x (m; default 3.6, with --points their largest x)")
+    p.add_argument("--height", type=finite_float, help="arena height along y (m; default 5.0, with --points their largest y)")
     p.add_argument("--border", choices=("rectangle", "polygon", "circle"), default="rectangle", help="border shape")
     p.add_argument("--points", nargs="+", metavar="X,Y", help="polygon corners for --border polygon (default: the arena with its corners cut)")
     p.add_argument("--center", nargs=2, type=finite_float, metavar=("X", "Y"), help="circle centre for --border circle (default: arena centre)")
@@ -186,6 +186,7 @@ def _obstacles(args) -> list[dict]:
 def build_new_layout(args) -> Layout:
     """The validated layout that `layout new` would write (fixed random obstacles placed)."""
     _check_team_size(args.pursuers, args.evaders)
+    _default_arena(args)
     for flag, value in (("--width", args.width), ("--height", args.height)):
         if not math.isfinite(value) or value <= 0:
             raise ValueError(f"{flag}: must be a number > 0, got {value}")
@@ -210,7 +211,12 @@ def build_new_layout(args) -> Layout:
         "spawn": {"pursuers": pursuers, "evaders": evaders},
     }
     source = f"layout new {args.out}"
-    layout = layout_from_dict(data, source)
+    try:
+        layout = layout_from_dict(data, source)
+    except LayoutError as exc:
+        if args.points and "boundary polygon point" in str(exc):
+            raise LayoutError(f"{exc} (--width and --height set the arena; left out, they fit the points)") from None
+        raise
     if args.random:  # place the --random obstacles for good: they become fixed obstacles
         layout = layout.with_random_obstacles(np.random.default_rng(args.seed), args.random,
                                               count_source="--random or --obstacle-size")
@@ -222,6 +228,16 @@ def build_new_layout(args) -> Layout:
     _check_random_fits(layout, "--episode-obstacles or --obstacle-size, or make room")
     _check_team_fits(layout, args.pursuers, args.evaders)
     return layout
+
+
+def _default_arena(args) -> None:
+    """Fill in --width and --height left out: the largest x and y of --points, else 3.6 x 5.0 m."""
+    xs, ys = [3.6], [5.0]
+    if args.border == "polygon" and args.points:
+        pts = _parse_points(args.points)
+        xs, ys = [p[0] for p in pts], [p[1] for p in pts]
+    args.width = max(xs) if args.width is None else args.width
+    args.height = max(ys) if args.height is None else args.height
 
 
 def _check_team_fits(layout: Layout, n_pursuers: int, n_evaders: int) -> None:
@@ -309,6 +325,8 @@ def run_show(args) -> int:
     layout = load_layout(args.layout)
     if args.count is not None and args.count < 0:
         raise ValueError(f"--count: must be >= 0, got {args.count}")
+    if args.count is not None and args.no_random:
+        raise ValueError(f"--count {args.count}: draws random obstacles, which --no-random leaves out; give one of them")
     if args.obstacle_clearance < 0:
         raise ValueError(f"--obstacle-clearance: must be >= 0, got {args.obstacle_clearance:g}")
     out = Path(args.out or f"layout_{layout.name}.png")

@@ -497,6 +497,17 @@ def test_layout_new_writes_a_valid_file_and_show_draws_it(tmp_path, capsys):
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temp files left
 
 
+def test_layout_new_with_polygon_points_sizes_the_arena_to_them_unless_told(tmp_path, capsys):
+    out = tmp_path / "pentagon.yaml"
+    assert main(["layout", "new", str(out), "--border", "polygon", "--points", "0,0", "5,0", "5,4", "2.5,6", "0,4"]) == 0
+    layout = load_layout(out)
+    assert (layout.width, layout.height) == (5.0, 6.0)
+    assert main(["layout", "new", str(tmp_path / "x.yaml"), "--border", "polygon", "--points", "0,0", "5,0", "5,5", "0,5",
+                 "--width", "4"]) == 2
+    err = capsys.readouterr().err
+    assert "lies outside the 4.0 x 5.0 m arena" in err and "--width" in err, err
+
+
 def test_layout_new_default_polygon_and_seeded_random_obstacles_are_reproducible(tmp_path):
     a, b = tmp_path / "a.yaml", tmp_path / "b.yaml"
     for path in (a, b):
@@ -517,6 +528,7 @@ def test_layout_new_default_polygon_and_seeded_random_obstacles_are_reproducible
         (["layout", "show", "7"], "layout 7: no built-in layout with this index"),
         (["layout", "show", "0", "-o", "{out}"], "expected a .png file name"),
         (["layout", "show", "0", "--count", "500", "-o", "{out}.png"], "layout show: error: --count 500: "),
+        (["layout", "show", "0", "--count", "2", "--no-random", "-o", "{out}.png"], "--count 2: draws random obstacles, which --no-random leaves out"),
         (["layout", "check", "missing.yaml"], "layout 'missing.yaml': no such file"),
         (["layout", "new", "{out}", "--width", "0.7", "--height", "3", "--episode-obstacles", "0"],
          "cannot reliably hold 3 pursuers 0.4 m apart"),  # the file would be refused by every command
