@@ -16,7 +16,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from .config import TaskConfig, checked_task_config, default_config
-from .env import PursuitEnv
+from .env import PursuitEnv, check_seed
 
 
 class PursuitParallelEnv(ParallelEnv):
@@ -38,7 +38,7 @@ class PursuitParallelEnv(ParallelEnv):
         # an empty dict is not "no config": it and every other non-TaskConfig are refused by name
         self.config = default_config() if config is None else checked_task_config(config, "PursuitParallelEnv config")
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.config.control_dt}  # one frame per decision step
-        self._env = PursuitEnv(self.config, n_worlds=1, seed=seed, auto_reset=False)
+        self._env = PursuitEnv(self.config, n_worlds=1, seed=check_seed(seed, "PursuitParallelEnv seed"), auto_reset=False)
         self.possible_agents = [f"pursuer_{i}" for i in range(self.config.n_pursuers)]
         self.agents: list[str] = []
         self.render_mode = render_mode

@@ -179,3 +179,8 @@ def test_render_settings_that_are_not_render_settings_are_refused_by_name_when_m
     """A (width, height) tuple passed, then failed at the first reset with "'tuple' object has no attribute 'check'"."""
     with pytest.raises(ValueError, match=f"render_settings: expected a pursuit_mj.render.renderer.RenderSettings .*got {type(settings).__name__}"):
         PursuitParallelEnv(default_config(fidelity="point"), render_mode="rgb_array", render_settings=settings)
+
+
+def test_a_bad_seed_is_refused_naming_the_env_the_user_made():
+    with pytest.raises(ValueError, match=r"^PursuitParallelEnv seed: expected a non-negative integer below 2\*\*63, got -1"):
+        PursuitParallelEnv(seed=-1)
