@@ -96,3 +96,27 @@ def test_a_forked_worker_dies_of_sigterm_while_its_parent_turns_it_into_an_inter
         assert worker.exitcode == -signal.SIGTERM
         with pytest.raises(KeyboardInterrupt, match="SIGTERM"):
             signal.raise_signal(signal.SIGTERM)
+
+
+def test_an_aim_verdict_never_sits_beside_a_number_printed_as_the_aim():
+    # rounded to the table's digits these read "+30 %, NOT met", "0.70, NOT met" and "1.00, met"
+    from pursuit_cli.benchmarks import env, physics, train
+
+    over = env.EnvBench("point", 64, 3, raw_s=0.01, physics_s=0.01, env_s=0.013004, blocks=2, peak_rss_mb=1.0)
+    assert env.aim_line(over).endswith("<= 30 %: +30.04 %, NOT met")
+    slow = physics.PhysicsBench("quadrotor", 64, 50, raw_s=0.00696, ours_s=0.01, raw_median_s=0.007, ours_median_s=0.01,
+                                blocks=2, peak_rss_mb=1.0)
+    assert physics.aim_line(slow).endswith(">= 0.70: 0.696, NOT met")
+    bench = train.TrainBench("point", "in turn", 6, 3, 1026, "", rollout_s=1.0, update_s=0.998, wall_s=1.998, env_s=0.998,
+                             train_cpu_s=2.0, env_cpu_s=1.0)
+    assert "ratio < 1): 0.998, met; training within 2x of the bare env: 2.002x, NOT met" in train.aim_line(bench)
+    # away from the bound, the table's digits
+    far = env.EnvBench("point", 64, 3, raw_s=0.01, physics_s=0.01, env_s=0.0116, blocks=2, peak_rss_mb=1.0)
+    assert env.aim_line(far).endswith("+16 %, met")
+    from pursuit_cli.benchmarks.render import RenderBenchResult
+
+    # 99 frames in 4.96 s: 19.96 frames/s, "20.0 frames/s ... NOT met" at one decimal
+    lines = RenderBenchResult("point", 98, 99, 1, 640, 480, sim_s=1.0, snapshot_s=0.1, render_s=4.0, encode_s=0.96,
+                              rerun_send_s=0.09996).lines()
+    assert "19.96 frames/s   target >= 20: NOT met" in lines[2]
+    assert "19.996 % of simulation   target < 20 %: met" in lines[4]

@@ -79,6 +79,17 @@ def run_isolated(fn: Callable[..., Any], *args: Any) -> Any:
     return value
 
 
+def against_aim(value: float, aim: float, decimals: int, sign: str = "") -> str:
+    """`value` as text beside a verdict on `aim`: with `decimals` decimals, or up to four more
+    where fewer would print it equal to an aim it misses or only just meets (1.003 beside "ratio
+    < 1 ... NOT met", not 1.00). `sign`: "+" to show it always."""
+    for d in range(decimals, decimals + 5):
+        text = f"{value:{sign}.{d}f}"
+        if value == aim or text != f"{aim:{sign}.{d}f}":
+            return text
+    return text
+
+
 def format_table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
     """Right-aligned columns, the first left-aligned; floats as given by the caller (pre-formatted strings)."""
     cells = [list(map(str, headers))] + [[str(c) for c in r] for r in rows]

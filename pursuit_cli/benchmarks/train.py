@@ -28,7 +28,7 @@ import time
 
 import numpy as np
 
-from . import format_table, profile_call
+from . import against_aim, format_table, profile_call
 
 HELP = "training throughput: agent-steps/s of rollout and of update, time per update, vs the bare env"
 AIM_UPDATE_OVER_ROLLOUT = 1.0  # the update must take less time than the rollout
@@ -205,6 +205,15 @@ def _verdict(ok: bool) -> str:
     return "met" if ok else "NOT met"
 
 
+def aim_line(r: TrainBench) -> str:
+    """The verdicts on both aims for one measured fidelity and collection."""
+    return (f"aims {r.fidelity}, {r.collection}: update faster than its rollout (ratio < {AIM_UPDATE_OVER_ROLLOUT:g}): "
+            f"{against_aim(r.update_over_rollout, AIM_UPDATE_OVER_ROLLOUT, 2)}, "
+            f"{_verdict(r.update_over_rollout < AIM_UPDATE_OVER_ROLLOUT)}; training within {AIM_ENV_OVER_TRAINING:g}x "
+            f"of the bare env: {against_aim(r.env_over_training, AIM_ENV_OVER_TRAINING, 2)}x, "
+            f"{_verdict(r.env_over_training <= AIM_ENV_OVER_TRAINING)}")
+
+
 def run(args: argparse.Namespace) -> int:
     if args.updates < 1:
         raise ValueError(f"--updates: expected an integer >= 1, got {args.updates}")
@@ -236,10 +245,7 @@ def run(args: argparse.Namespace) -> int:
              f"{r.update_over_rollout:.2f}", f"{r.env_over_training:.2f}x", f"{r.env_over_training_cpu:.2f}x"] for r in results]
     print(format_table(head, rows))
     for r in results:
-        print(f"aims {r.fidelity}, {r.collection}: update faster than its rollout (ratio < {AIM_UPDATE_OVER_ROLLOUT:g}): "
-              f"{r.update_over_rollout:.2f}, {_verdict(r.update_over_rollout < AIM_UPDATE_OVER_ROLLOUT)}; training within "
-              f"{AIM_ENV_OVER_TRAINING:g}x of the bare env: {r.env_over_training:.2f}x, "
-              f"{_verdict(r.env_over_training <= AIM_ENV_OVER_TRAINING)}")
+        print(aim_line(r))
     for r in results:
         if r.profile:
             print(f"\nwhere training spends its time ({r.fidelity}, {r.collection}; own time, cProfile):\n{r.profile}")
