@@ -75,7 +75,10 @@ def run(args) -> int:
     if not model.exists():
         raise ValueError(f"--model {model}: no such file (the pretrained policy ships as {_shown(PRETRAINED)})")
     policy = load_model(model, _spec(config), config)
-    policies = [(policy.name, policy)]  # the training run's name, as eval and render call it
+    # the training run's name, as eval and render call it; the hand-made team keeps its own (the
+    # paired table is keyed on it), a model trained as run 'heuristic' gets eval's label for a repeat
+    name = f"{policy.name}#2" if policy.name == "heuristic" and not args.no_heuristic else policy.name
+    policies = [(name, policy)]
     if getattr(policy, "has_shield", False):  # trained behind the shield: it comes with it (NAME+shield)
         if args.no_shield:
             print(f"demo: {model} was trained behind the safety shield and always runs with it; "
@@ -83,14 +86,14 @@ def run(args) -> int:
     elif not args.no_shield:
         from pursuit_mj.shield import shield_policy
 
-        policies.append((f"{policy.name}+shield", shield_policy(policy, config)))
+        policies.append((f"{name}+shield", shield_policy(policy, config)))
     if not args.no_heuristic:
         policies.append(("heuristic", make_policy("heuristic", config)))
     print(f"demo: {len(policies)} policies x {len(layouts)} layouts x {args.episodes} episodes, "
           f"{config.fidelity} fidelity, {config.n_pursuers} pursuers ({config.pursuer_speed} m/s) vs "
           f"{config.n_evaders} evader{'s' if config.n_evaders > 1 else ''} ({config.evader_speed} m/s), {config.observability} observability", file=sys.stderr)
     shipped = model.resolve() == PRETRAINED.resolve()
-    print(f"model: {policy.name} = {model}" + (" (the small policy shipped with the repository, nothing trained needed; "
+    print(f"model: {name} = {model}" + (" (the small policy shipped with the repository, nothing trained needed; "
           f"{_shown(PRETRAINED.parent / 'README.md')} gives the command that made it)" if shipped else ""), file=sys.stderr)
     rows = []
     t_all = time.perf_counter()

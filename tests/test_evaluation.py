@@ -546,3 +546,28 @@ def test_a_seed_too_large_for_episode_seeds_is_refused_naming_the_flag(command, 
     assert exc.value.code == 2
     assert f"argument --seed: expected an integer below 2**63, got {2**63}" in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
+
+
+def test_demo_tells_a_model_named_heuristic_from_the_heuristic_team_and_pairs_both_its_rows(tmp_path, capsys):
+    """A model trained as run 'heuristic' gave demo two rows called heuristic: the bare model was
+    paired with nothing (with --no-shield there was no paired table at all)."""
+    import torch
+
+    from pursuit_mj.configio import to_dict
+    from pursuit_mj.obs_spec import ObsSpec
+    from train.checkpoint import save_checkpoint
+    from train.config import load_train_config
+    from train.networks import Actor
+
+    torch.manual_seed(0)
+    cfg = load_train_config([], ["name=heuristic"])
+    spec = ObsSpec.make(3, 1, 16)
+    save_checkpoint(tmp_path / "m.pt", {"train_config": to_dict(cfg), "obs_spec": spec.to_dict(),
+                                         "actor": Actor(spec, cfg.net).state_dict(), "counters": {"update": 0}})
+    code = main(["demo", "-m", str(tmp_path / "m.pt"), "--layouts", "0", "--episodes", "2", "--worlds", "2",
+                 "--fidelity", "point", "--set", "max_steps=10"])
+    assert code == 0
+    table, paired = capsys.readouterr().out.split("\n\n")[:2]
+    assert [line.split()[0] for line in table.splitlines()[1:]] == ["heuristic#2", "heuristic#2+shield", "heuristic"]
+    assert [line.split()[:2] for line in paired.splitlines()[2:]] == [["heuristic#2", "heuristic"],
+                                                                      ["heuristic#2+shield", "heuristic"]]
