@@ -30,6 +30,8 @@ def test_bench_env_prints_rates_overhead_and_profile(capsys):
     "args, message",
     [
         (["--worlds", "0"], "--worlds: world counts must be >= 1, got 0"),
+        (["--worlds", "64", "16", "64"], "--worlds: 64 given twice"),  # the verdict judged the first 64 only
+        (["physics", "--worlds", "8", "8"], "--worlds: 8 given twice"),
         (["--seconds", "0"], "--seconds: must be > 0"),
         (["--set", "evader_speed=0"], "evader_speed"),
         (["--task", "no_such_preset"], "no_such_preset"),

@@ -29,6 +29,9 @@ def check_common_args(args: Any) -> None:
     huge = [w for w in args.worlds if w > MAX_WORLDS]
     if huge:
         raise ValueError(f"--worlds: world counts must be at most {MAX_WORLDS}, got {huge[0]}")
+    twice = sorted({w for w in args.worlds if args.worlds.count(w) > 1})
+    if twice:  # the verdict would judge the first of them only
+        raise ValueError(f"--worlds: {twice[0]} given twice; give each world count once")
 
 
 def peak_rss_mb() -> float:

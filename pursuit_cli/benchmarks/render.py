@@ -60,7 +60,7 @@ class RenderBenchResult:
     def lines(self) -> list[str]:
         ok = lambda good: "met" if good else "NOT met"  # noqa: E731
         return [
-            f"render bench, {self.fidelity} fidelity: {self.steps} decision steps in {self.episodes} episodes of the heuristic team, "
+            f"render bench, {self.fidelity} fidelity: {self.steps} decision steps in {self.episodes} episode{'' if self.episodes == 1 else 's'} of the heuristic team, "
             f"{self.frames} frames at {self.width}x{self.height}",
             f"  simulation (env + policy)         {self.sim_s:7.2f} s   {self.steps / self.sim_s:7.1f} steps/s",
             f"  video: draw {self.render_s:6.2f} s + encode {self.encode_s:5.2f} s   {against_aim(self.video_fps, TARGET_FPS, 1):>7} frames/s   target >= {TARGET_FPS:.0f}: {ok(self.video_fps >= TARGET_FPS)}",
