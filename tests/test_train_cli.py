@@ -286,3 +286,20 @@ def test_a_resume_with_the_run_length_given_by_set_trains_to_it(tmp_path, capsys
     # and --set max_minutes: stored with the run, as --max-minutes is
     assert main(base + ["--resume", "--set", "total_steps=96", "--set", "max_minutes=5"]) == 0
     assert torch.load(tmp_path / "s" / "last.pt", weights_only=True)["train_config"]["max_minutes"] == 5.0
+
+
+@pytest.mark.parametrize("given, message", [
+    ("layouts=[0,7]", "--set layouts=[0,7]: key 'layouts': 7 is not a built-in layout index (0-3)"),
+    ("run.validation_layouts=[9]",
+     "--set run.validation_layouts=[9]: key 'run': key 'validation_layouts': 9 is not a built-in layout index (0-3)"),
+    ("layouts=[nosuch.yaml]", "layouts ['nosuch.yaml']: layout 'nosuch.yaml': no such file"),
+    ("task.layout=nosuch.yaml", "task.layout nosuch.yaml: layout 'nosuch.yaml': no such file"),
+])
+def test_a_layout_key_that_cannot_be_loaded_is_refused_naming_the_key(tmp_path, capsys, given, message):
+    """--set layouts=[7] ended in 'layout 7: no built-in layout ...' from deep in the env, naming neither
+    the key nor the --set, and left an empty run folder behind; -sc printed it as a valid config."""
+    args = ["train", "--config", "classic", "--name", "bad", "--set", f"run.runs_dir={tmp_path}", "--set", given]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "bad").exists()  # refused before the run folder was made

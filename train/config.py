@@ -17,7 +17,7 @@ from typing import Any, Mapping, Sequence
 
 from pursuit_mj.config import TaskConfig, load_task_yaml, preset_or_file
 from pursuit_mj.configio import ConfigError, build, check_values, found_beside, load, load_yaml, parse_override, spec, to_dict
-from pursuit_mj.layout import layout_ref_beside
+from pursuit_mj.layout import N_BUILTIN, layout_ref_beside
 from pursuit_mj.sensing import PRIVILEGED_VIEWS
 
 REGIMES = ("classic", "full_obs", "fine_tune", "mappo", "custom")
@@ -99,6 +99,14 @@ class NetConfig:
             raise ConfigError(f"{source}: net.critic_hidden {list(self.critic_hidden)} must list positive widths")
 
 
+def check_indices(key: str, refs: Sequence[int | str], source: str) -> None:
+    """ConfigError naming `key` and `source` for a built-in layout index out of range in `refs` (files
+    are loaded only as a run starts: `TrainConfig.check_layouts`)."""
+    for ref in refs:
+        if isinstance(ref, int) and not 0 <= ref < N_BUILTIN:
+            raise ConfigError(f"{source}: key '{key}': {ref} is not a built-in layout index (0-{N_BUILTIN - 1}) or a file")
+
+
 def usable_cores() -> int:
     """CPUs this process may run on: its affinity mask (taskset, containers) where the OS has one."""
     if hasattr(os, "sched_getaffinity"):
@@ -126,6 +134,9 @@ class RunConfig:
     sim_threads: int = spec(0, lo=0, hi=256, help="mujoco.batch threads (0: its default)")
     progress: bool = spec(True, help="show the tqdm progress bar")
     rerun: bool = spec(False, help="also stream every logged scalar to <run>/metrics.rrd (open with `rerun`)")
+
+    def validate(self, source: str = "config") -> None:
+        check_indices("validation_layouts", self.validation_layouts, source)
 
     def update_threads(self, overlapped: bool, cores: int | None = None) -> int:
         """Torch threads for the update: torch_threads when set, else the cores idle during it
@@ -168,6 +179,7 @@ class TrainConfig:
         """Per-field checks run at every override; cross-field ones run in `check_complete`."""
         if not self.name or "/" in self.name or self.name in (".", ".."):
             raise ConfigError(f"{source}: key 'name': {self.name!r} is not a usable run folder name")
+        check_indices("layouts", self.layouts, source)
         if self.regime == "fine_tune" and not self.init_from:
             raise ConfigError(f"{source}: regime fine_tune needs init_from (a full_obs checkpoint)")
 

@@ -73,6 +73,7 @@ class Trainer:
 
     def __init__(self, cfg: TrainConfig, checkpoint: dict | None = None, log: Callable[[str], None] = print):
         cfg.check_complete()
+        cfg.check_layouts()  # before the run folder is made: a bad one named with its key, not from deep in the env
         self.cfg = cfg
         self.log = log
         for line in cfg.idle_settings():
