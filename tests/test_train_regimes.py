@@ -102,6 +102,19 @@ def test_ppo_update_settings_under_dagger_are_named_as_idle_and_refuse_nothing()
         load_train_config(["classic"], ["ppo.batch_size=128"]).check_complete()
 
 
+def test_settings_idle_under_mlp_a_fixed_discount_or_dagger_are_named():
+    """net.encoder_width and net.use_rays under net.kind mlp, the meta-gradient's settings without
+    ppo.learnable_gamma and run.overlap under DAgger changed nothing without a word."""
+    assert load_train_config(["classic"], ["net.kind=mlp", "net.encoder_width=64", "net.use_rays=false"]).idle_settings() == [
+        "net.encoder_width, net.use_rays do(es) nothing under net.kind mlp (the reference network's entity encoders)"]
+    assert load_train_config(["classic"], ["ppo.gamma_meta_lr=0.01", "ppo.gamma_outer=0.9"]).idle_settings() == [
+        "ppo.gamma_meta_lr, ppo.gamma_outer do(es) nothing without ppo.learnable_gamma (they tune the learned discount)"]
+    assert load_train_config(["classic"], ["ppo.learnable_gamma=true", "ppo.gamma_outer=0.9"]).idle_settings() == []
+    assert load_train_config(["imitate"], ["run.overlap=true"]).idle_settings() == [
+        "run.overlap does nothing under algo dagger (it always collects in turn: the teacher's labels feed the update)"]
+    assert load_train_config(["classic"], ["run.overlap=true", "net.use_rays=false"]).idle_settings() == []
+
+
 def test_update_threads_take_the_cores_the_collection_leaves_idle():
     run = load_train_config(["classic"]).run
     assert run.torch_threads == 0  # auto by default

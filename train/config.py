@@ -228,6 +228,16 @@ class TrainConfig:
             idle.append("ppo.value_scaling does nothing under algo mappo (its centralised critic normalises values)")
         if self.algo != "mappo" and self.net.critic_hidden != default.net.critic_hidden:
             idle.append(f"net.critic_hidden {list(self.net.critic_hidden)} does nothing under algo {self.algo} (it sizes MAPPO's critic)")
+        if self.net.kind == "mlp":
+            changed = [k for k in ("encoder_width", "use_rays") if getattr(self.net, k) != getattr(default.net, k)]
+            if changed:
+                idle.append(f"net.{', net.'.join(changed)} do(es) nothing under net.kind mlp (the reference network's entity encoders)")
+        if not self.ppo.learnable_gamma:
+            changed = [k for k in ("gamma_meta_lr", "gamma_outer") if getattr(self.ppo, k) != getattr(default.ppo, k)]
+            if changed:
+                idle.append(f"ppo.{', ppo.'.join(changed)} do(es) nothing without ppo.learnable_gamma (they tune the learned discount)")
+        if self.algo == "dagger" and self.run.overlap:
+            idle.append("run.overlap does nothing under algo dagger (it always collects in turn: the teacher's labels feed the update)")
         if self.algo == "dagger":
             changed = [k for k in PPO_UPDATE_ONLY if getattr(self.ppo, k) != getattr(default.ppo, k)]
             if changed:
