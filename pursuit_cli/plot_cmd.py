@@ -79,14 +79,18 @@ def run(args) -> int:
 
 def _combined_rows(files: list[tuple[str, list[dict]]]) -> list[dict]:
     """The rows of several eval files; a policy name that more than one file holds (the
-    heuristic team, typically) is labelled 'NAME (file stem)' in each, so no bar hides another."""
-    holders: dict[str, set[str]] = {}
+    heuristic team, typically) is labelled 'NAME (file stem)' in each, or 'NAME (file path)'
+    where two of those files share a stem (a/eval.json, b/eval.json), so no bar hides another."""
+    holders: dict[str, set[Path]] = {}  # by resolved path: one file named twice (x.json, ./x.json) stays one
     for f, rows in files:
         for r in rows:
-            holders.setdefault(str(r["policy"]), set()).add(f)
+            holders.setdefault(str(r["policy"]), set()).add(Path(f).resolve())
     out = []
     for f, rows in files:
         for r in rows:
             name = str(r["policy"])
-            out.append(dict(r, policy=f"{name} ({Path(f).stem})") if len(holders[name]) > 1 else r)
+            if len(holders[name]) > 1:
+                stems = [h.stem for h in holders[name]]
+                r = dict(r, policy=f"{name} ({Path(f).stem if stems.count(Path(f).stem) == 1 else f})")
+            out.append(r)
     return out

@@ -305,6 +305,21 @@ def test_plot_command_tells_apart_a_policy_that_two_files_hold(tmp_path, capsys)
     assert names == {"heuristic (one)", "heuristic (two)", "classic", "mappo"}
 
 
+def test_plot_command_tells_apart_a_policy_that_two_files_of_one_name_hold(tmp_path, capsys):
+    """a/eval.json and b/eval.json (two runs' tables) both labelled their heuristic 'heuristic (eval)'
+    and the command refused them as one bar given twice; so did a table's CSV beside its JSON."""
+    (tmp_path / "a").mkdir(), (tmp_path / "b").mkdir()
+    one, two = _eval_json(tmp_path / "a" / "eval.json"), _eval_json(tmp_path / "b" / "eval.json", policies=("heuristic", "mappo"))
+    assert main(["plot", "--eval", str(one), "--eval", str(two), "-o", str(tmp_path / "out")]) == 0, capsys.readouterr().err
+    from pursuit_cli.plot_cmd import _combined_rows
+
+    names = {r["policy"] for r in _combined_rows([(str(one), read_eval_rows(one)), (str(two), read_eval_rows(two))])}
+    assert names == {f"heuristic ({one})", f"heuristic ({two})", "classic", "mappo"}
+    again = tmp_path / "a" / ".." / "a" / "eval.json"  # one file twice, by two names
+    assert main(["plot", "--eval", str(one), "--eval", str(again), "-o", str(tmp_path / "out")]) == 2
+    assert "policy heuristic on layout 0 is given twice" in capsys.readouterr().err
+
+
 def test_a_reward_term_named_like_an_outcome_is_not_drawn_as_a_rate():
     from pursuit_mj.plots import _curve_label, is_rate
 
