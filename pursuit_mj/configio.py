@@ -60,7 +60,24 @@ def _type_hints(cls: type) -> dict[str, Any]:
     return typing.get_type_hints(cls)
 
 
-def _suggest(name: str, valid: Sequence[str]) -> str:
+def _nested_keys(cls: type, name: str, prefix: str = "") -> list[str]:
+    """Dotted keys ending in `name` in the sections (nested configs) of `cls`, at any depth."""
+    out = []
+    for f in dataclasses.fields(cls):
+        hint = _type_hints(cls)[f.name]
+        if dataclasses.is_dataclass(hint):
+            if name in {g.name for g in dataclasses.fields(hint)}:
+                out.append(f"{prefix}{f.name}.{name}")
+            out += _nested_keys(hint, name, f"{prefix}{f.name}.")
+    return out
+
+
+def _suggest(name: str, valid: Sequence[str], cls: type | None = None, prefix: str = "") -> str:
+    """' (did you mean ...?)' for an unknown key `name` among `valid`, the keys of `cls`: the key of
+    that name in one of its sections first (evader_speed -> task.evader_speed), else a close spelling."""
+    nested = _nested_keys(cls, name, prefix) if cls is not None else []
+    if nested:
+        return f" (did you mean {' or '.join(repr(k) for k in nested)}?)"
     close = difflib.get_close_matches(name, list(valid), n=1, cutoff=0.5)
     return f" (did you mean '{close[0]}'?)" if close else f" (valid keys: {', '.join(sorted(valid))})"
 
@@ -152,7 +169,7 @@ def _known_fields(cls: type, values: Mapping[str, Any], source: str) -> dict[str
     unknown = [k for k in values if k not in fields]
     if unknown:
         key = unknown[0]
-        raise ConfigError(f"{source}: unknown key '{key}'{_suggest(str(key), list(fields))}")
+        raise ConfigError(f"{source}: unknown key '{key}'{_suggest(str(key), list(fields), cls)}")
     return fields
 
 
@@ -396,7 +413,8 @@ def _check_path(cls: type, path: list[str], source: str) -> None:
             raise ConfigError(f"{source}: '{'.'.join(path[:i])}' has no sub-keys")
         names = [f.name for f in dataclasses.fields(current)]
         if part not in names:
-            raise ConfigError(f"{source}: unknown key '{'.'.join(path[: i + 1])}'{_suggest(part, names)}")
+            raise ConfigError(f"{source}: unknown key '{'.'.join(path[: i + 1])}'"
+                              f"{_suggest(part, names, current, ''.join(p + '.' for p in path[:i]))}")
         current = _type_hints(current)[part]
 
 

@@ -303,3 +303,25 @@ def test_a_layout_key_that_cannot_be_loaded_is_refused_naming_the_key(tmp_path, 
     err = capsys.readouterr().err
     assert message in err and len(err.splitlines()) == 1, err
     assert not (tmp_path / "bad").exists()  # refused before the run folder was made
+
+
+@pytest.mark.parametrize("given, message", [
+    (["--set", "evader_speed=0.5"], "--set evader_speed=0.5: unknown key 'evader_speed' (did you mean 'task.evader_speed'?)"),
+    (["--set", "hidden=[64]"], "unknown key 'hidden' (did you mean 'net.hidden'?)"),
+    (["--set", "lr=1e-4"], "unknown key 'lr' (did you mean 'ppo.lr' or 'imitation.lr'?)"),
+    (["--set", "panic_distance=1"], "unknown key 'panic_distance' (did you mean 'task.evader.panic_distance'?)"),
+    (["--set", "task.panic_distance=1"], "unknown key 'task.panic_distance' (did you mean 'task.evader.panic_distance'?)"),
+    (["--set", "ppo.lrr=1"], "unknown key 'ppo.lrr' (did you mean 'lr'?)"),  # a typo: the close key, as before
+])
+def test_a_key_given_outside_its_section_is_pointed_to_it(capsys, given, message):
+    """--set evader_speed=0.5 was answered 'did you mean seed?', --set hidden=[64] 'did you mean shield?':
+    a key that lives in a section is now named with its section."""
+    assert main(["train", "--config", "classic", *given, "-sc"]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_a_train_file_with_a_task_key_at_the_top_is_pointed_to_task(tmp_path, capsys):
+    path = tmp_path / "mine.yaml"
+    path.write_text("regime: classic\nevader_speed: 0.5\n")
+    assert main(["train", "--config", str(path), "-sc"]) == 2
+    assert f"{path}: unknown key 'evader_speed' (did you mean 'task.evader_speed'?)" in capsys.readouterr().err
