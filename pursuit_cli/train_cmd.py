@@ -220,6 +220,9 @@ def run(args) -> int:
                 raise ValueError(f"--resume {args.resume}: a run resumes from its last.pt, not {run_dir.name}; "
                                  f"give the folder ({run_dir.parent}), or start a new run from it with --init-from")
             run_dir = run_dir.parent
+        if run_dir.is_file():
+            raise ValueError(f"--resume {args.resume}: a file, not a run folder; give its folder ({run_dir.parent}) "
+                             f"if that is the run")
         if not run_dir.is_dir():
             raise ValueError(f"--resume {args.resume}: no such run folder")
         if not (run_dir / "last.pt").is_file():

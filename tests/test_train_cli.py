@@ -336,3 +336,12 @@ def test_a_whole_count_written_as_a_float_says_how_to_write_it(capsys):
             "(write it as 20000, without a decimal point or exponent)") in err
     assert main(["train", "--config", "classic", "--set", "ppo.epochs=2.5", "-sc"]) == 2
     assert "expected an integer, got 2.5\n" in capsys.readouterr().err  # not a whole number: nothing to suggest
+
+
+def test_resume_of_a_file_says_it_is_a_file(tmp_path, capsys):
+    """--resume runs/x/metrics.jsonl said 'no such run folder' of a file that exists."""
+    log = tmp_path / "metrics.jsonl"
+    log.write_text("{}\n")
+    assert main(["train", "--resume", str(log)]) == 2
+    err = capsys.readouterr().err
+    assert f"--resume {log}: a file, not a run folder; give its folder ({tmp_path})" in err, err
