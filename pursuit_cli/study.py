@@ -32,7 +32,8 @@ def register(sub) -> None:
     p.add_argument("--out", default="runs/study", help="output folder (default runs/study)")
     p.add_argument("--train-fidelity", choices=("point", "quadrotor"), default="point", help="fidelity for training (default point)")
     p.add_argument("--train-set", dest="train_overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a train key in every regime, e.g. n_envs=16 (repeatable)")
+                   help="override a train key in every regime, e.g. n_envs=16 (repeatable; not name, run.runs_dir, "
+                        "max_minutes or init_from, which the study sets for each arm)")
     p.add_argument("--resume", action="store_true",
                    help="continue the interrupted study in --out: finished arms and evaluations are kept, the interrupted one resumes "
                         "from its last checkpoint, the rest train; --budget-minutes is the time for what is left")

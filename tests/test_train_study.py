@@ -93,6 +93,17 @@ def test_a_train_override_naming_a_layout_that_cannot_be_loaded_is_found_before_
     assert not out.exists()
 
 
+@pytest.mark.parametrize("override", ["name=mine", "run.runs_dir=elsewhere", "max_minutes=1", "init_from=x.pt"])
+def test_a_train_override_of_a_key_the_study_sets_per_arm_is_refused_before_anything_runs(tmp_path, capsys, override):
+    """--train-set name=x put every arm in runs/x: the second arm stopped the study after the first had
+    trained ('already holds a run; choose another --out'); max_minutes was overwritten without a word."""
+    out = tmp_path / "study"
+    assert main(["study", "--budget-minutes", "30", "--out", str(out), "--train-set", override]) == 2
+    err = capsys.readouterr().err
+    assert f"--train-set {override}: the study sets {override.split('=')[0]} for each arm" in err, err
+    assert not out.exists()
+
+
 def test_an_interrupted_study_resumes_keeping_its_finished_arms_and_evaluations(tmp_path, capsys, monkeypatch):
     from train import study
     from train.trainer import Trainer

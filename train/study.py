@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from pursuit_mj.config import TaskConfig
+from pursuit_mj.configio import parse_override
 from pursuit_mj.comparison import paired_report, pairs_to_dicts
 from pursuit_mj.evaluation import evaluate, format_table, plot_rows, write_csv, write_json
 from pursuit_mj.io_utils import atomic_write_text
@@ -204,9 +205,19 @@ def arm_budget(left_s: float, share: float, shares_left: float, validation_episo
     return max(arm_s - episodes * per_episode, 0.0) / 60.0, episodes
 
 
+#: train keys the study sets for each arm itself, and why (a --train-set of them is refused)
+STUDY_SETS = {"name": "its run goes to <out>/runs/<arm>", "run.runs_dir": "its run goes to <out>/runs/<arm>",
+              "max_minutes": "its share of the budget", "init_from": "the best.pt of the arm it continues"}
+
+
 def check_train_overrides(plan: StudyPlan) -> None:
     """Every arm's config with plan.train_overrides, its layouts loaded, before anything runs: ValueError
-    naming --train-set and the arm that refuses them (found at that arm's start, it cost the earlier arms' time)."""
+    naming --train-set and the arm that refuses them (found at that arm's start, it cost the earlier arms' time),
+    or a key the study sets for each arm (STUDY_SETS)."""
+    for text in plan.train_overrides:
+        key = ".".join(parse_override(text, f"--train-set {text}")[0])
+        if key in STUDY_SETS:
+            raise ValueError(f"--train-set {text}: the study sets {key} for each arm ({STUDY_SETS[key]}); leave it out")
     for arm in ARMS:
         try:
             cfg = load_train_config([arm.config], ["name=check", "total_steps=1000000000", "task.layout=0", *plan.train_overrides])
