@@ -263,7 +263,7 @@ def run(args) -> int:
         print(f"best validation success {c['best_success']:.1%} (update {c['best_update']}): {Path(result['run_dir']) / 'best.pt'}")
     val = result["validation"]
     if "vs_heuristic_steps" in val:
-        print(f"last validation ({val['episodes']} fixed episodes): success {val['success']:.1%}, {val['mean_steps']:.1f} mean steps; "
+        print(f"last validation ({val['episodes']} fixed episode{'' if val['episodes'] == 1 else 's'}): success {val['success']:.1%}, {val['mean_steps']:.1f} mean steps; "
               f"the heuristic team {val['heuristic_success']:.1%}, {val['heuristic_mean_steps']:.1f}; paired, "
               f"{val['vs_heuristic_steps']:+.1f} "
               + ("[no interval: 1 episode]" if val["vs_heuristic_lo"] is None else

@@ -345,3 +345,8 @@ def test_resume_of_a_file_says_it_is_a_file(tmp_path, capsys):
     assert main(["train", "--resume", str(log)]) == 2
     err = capsys.readouterr().err
     assert f"--resume {log}: a file, not a run folder; give its folder ({tmp_path})" in err, err
+
+
+def test_an_empty_runs_dir_is_refused_rather_than_training_into_the_current_folder(capsys):
+    assert main(["train", "--config", "classic", "--set", "run.runs_dir=", "-sc"]) == 2
+    assert "key 'run.runs_dir': empty" in capsys.readouterr().err
