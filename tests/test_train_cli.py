@@ -349,4 +349,4 @@ def test_resume_of_a_file_says_it_is_a_file(tmp_path, capsys):
 
 def test_an_empty_runs_dir_is_refused_rather_than_training_into_the_current_folder(capsys):
     assert main(["train", "--config", "classic", "--set", "run.runs_dir=", "-sc"]) == 2
-    assert "key 'run.runs_dir': empty" in capsys.readouterr().err
+    assert "key 'run': key 'runs_dir': empty" in capsys.readouterr().err

@@ -138,7 +138,7 @@ class RunConfig:
     def validate(self, source: str = "config") -> None:
         check_indices("validation_layouts", self.validation_layouts, source)
         if not self.runs_dir.strip():  # Path("") is the current folder: runs would land among the user's files
-            raise ConfigError(f"{source}: key 'run.runs_dir': empty; name a folder (default runs)")
+            raise ConfigError(f"{source}: key 'runs_dir': empty; name a folder (default runs)")
 
     def update_threads(self, overlapped: bool, cores: int | None = None) -> int:
         """Torch threads for the update: torch_threads when set, else the cores idle during it
