@@ -201,9 +201,9 @@ def test_a_resumed_study_whose_kept_arm_lost_its_best_pt_is_refused_before_anyth
 def test_the_timings_compare_the_total_with_the_budget():
     from train.study import format_timings
 
-    over = format_timings({"heuristic (eval)": 6.0, "total": 138.0}, 1.5).splitlines()
-    assert over[0] == "  heuristic (eval)     0.1 min" and over[1].endswith("2.3 min (budget 1.5 min, 0.8 min over)")
-    assert format_timings({"total": 80.0}, 1.5).endswith("1.3 min (budget 1.5 min)")
+    over = format_timings({"heuristic (eval)": 1.2, "total": 138.0}, 1.5).splitlines()
+    assert over[0] == "  heuristic (eval)       1 s" and over[1].endswith("2.3 min (budget 1.5 min, 0.8 min over)")  # it read 0.0 min
+    assert format_timings({"total": 80.0}, 1.5).endswith("80 s (budget 1.5 min)")
 
 
 def test_kept_evaluation_cells_are_taken_back_only_when_they_are_what_this_study_would_play(tmp_path, monkeypatch):

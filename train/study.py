@@ -405,7 +405,7 @@ def format_timings(timings: dict[str, float], budget_minutes: float) -> str:
     """One line per part; the total says how it compares with the budget (a busy machine, or arms
     that each need at least one update and a validation, can take the study over it)."""
     width = max(len(k) for k in timings)
-    lines = [f"  {k.ljust(width)}  {v / 60.0:6.1f} min" for k, v in timings.items()]
+    lines = [f"  {k.ljust(width)}  {_duration(v):>8}" for k, v in timings.items()]
     over = timings["total"] / 60.0 - budget_minutes
     lines[-1] += f" (budget {budget_minutes:g} min" + (f", {over:.1f} min over)" if over >= 0.05 else ")")
     return "\n".join(lines)
