@@ -232,6 +232,7 @@ def run(args) -> int:
     else:
         cfg = load_train_config(args.config, args.overrides, _flags(args), _flags_typed(args))
         if args.show_config:
+            cfg.check_complete()  # what training would refuse, -sc refuses too
             print(dump_yaml(cfg), end="")
             return 0
         last = cfg.run_dir / "last.pt"

@@ -350,3 +350,10 @@ def test_resume_of_a_file_says_it_is_a_file(tmp_path, capsys):
 def test_an_empty_runs_dir_is_refused_rather_than_training_into_the_current_folder(capsys):
     assert main(["train", "--config", "classic", "--set", "run.runs_dir=", "-sc"]) == 2
     assert "key 'run': key 'runs_dir': empty" in capsys.readouterr().err
+
+
+def test_show_config_refuses_what_training_would_refuse(capsys):
+    """-sc printed a config that spans keys training then refused (learnable discount under DAgger)."""
+    assert main(["train", "--config", "imitate", "--set", "ppo.learnable_gamma=true", "-sc"]) == 2
+    err = capsys.readouterr().err
+    assert "ppo.learnable_gamma works with algo ppo or mappo, not dagger" in err and len(err.strip().splitlines()) == 1
