@@ -61,11 +61,15 @@ def test_a_validation_layout_that_cannot_be_loaded_is_refused_before_any_update_
     from train.config import load_train_config
     from train.trainer import Trainer
 
-    cfg = load_train_config([], ["task.fidelity=point", "n_envs=2", "ppo.batch_size=64", "ppo.minibatch_size=32",
-                                 "total_steps=64", "run.validate_every=0", "run.progress=false",
-                                 f"run.runs_dir={tmp_path}", "run.validation_layouts=[99]"])
+    base = ["task.fidelity=point", "n_envs=2", "ppo.batch_size=64", "ppo.minibatch_size=32", "total_steps=64",
+            "run.validate_every=0", "run.progress=false", f"run.runs_dir={tmp_path}"]
     # it was found only by the closing validation, after every update: the run crashed there, and
-    # a resume (which cannot change run.validation_layouts) trained the last update again to crash again
-    with pytest.raises(ValueError, match=r"run\.validation_layouts.*layout 99"):
+    # a resume (which cannot change run.validation_layouts) trained the last update again to crash again.
+    # A built-in index out of range is refused as the config is read, naming the --set it came from
+    with pytest.raises(ValueError, match=r"--set run\.validation_layouts=\[99\]: .*'validation_layouts': 99 is not a built-in"):
+        load_train_config([], base + ["run.validation_layouts=[99]"])
+    # a file that does not load, as the run starts, before any update
+    cfg = load_train_config([], base + [f"run.validation_layouts=[{tmp_path / 'missing.yaml'}]"])
+    with pytest.raises(ValueError, match=r"run\.validation_layouts.*missing\.yaml"):
         Trainer(cfg, log=lambda s: None)
     assert not (cfg.run_dir / "metrics.jsonl").exists() and not (cfg.run_dir / "last.pt").exists()
