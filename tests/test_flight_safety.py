@@ -266,9 +266,12 @@ def test_a_stalled_decision_makes_the_drones_hover_instead_of_leaving_them_to_th
     for i in range(plan.n_drones):
         gaps = _setpoint_gaps(fleet, i)
         assert len(gaps) > 15 and gaps.max() < 0.4, (plan.names[i], gaps.max())
-    (stall,) = events.of_kind("stall_hover")
+    # the 1.2 s stall (on a loaded machine an ordinary decision can run past its interval + 0.2 s too,
+    # and hover the drones briefly: a stall of its own, ended by that decision)
+    stalls = [(s, e) for s, e in zip(events.of_kind("stall_hover"), events.of_kind("stall_end")) if e["since_decision"] >= 1.2]
+    assert len(stalls) == 1, events.of_kind("stall_hover")
+    stall = stalls[0][0]
     assert stall["drones"] == plan.names and 0.29 <= stall["since_decision"] < 0.6
-    assert events.of_kind("stall_end")[0]["since_decision"] >= 1.2
     kinds = [r.kind for r in fleet.received(0)]
     first_hover = kinds.index("hover")  # held in place during the stall, flown on after it
     assert "velocity" in kinds[:first_hover] and "velocity" in kinds[first_hover:]
