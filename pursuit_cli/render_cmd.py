@@ -213,12 +213,9 @@ def save_target(save_path: str, fmt: str | None) -> SaveTarget:
 
 def check_render_settings(settings, config: TaskConfig) -> None:
     """Refuse a bad size or an unknown --camera against the task's own scene, before any episode runs."""
-    from pursuit_mj.render.camera import CameraSpec
-    from pursuit_mj.scene import SceneSpec, build_model, drone_names
+    from pursuit_mj.render.renderer import check_settings
 
-    model = build_model(SceneSpec.for_task(config, load_layout(config.layout)))
-    settings.check(model)
-    CameraSpec.parse(settings.camera, model, drone_names(config.n_pursuers, config.n_evaders))
+    check_settings(settings, config, load_layout(config.layout))
 
 
 # ---------------------------------------------------------------------- run

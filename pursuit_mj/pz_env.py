@@ -39,6 +39,10 @@ class PursuitParallelEnv(ParallelEnv):
         self.config = default_config() if config is None else checked_task_config(config, "PursuitParallelEnv config")
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.config.control_dt}  # one frame per decision step
         self._env = PursuitEnv(self.config, n_worlds=1, seed=check_seed(seed, "PursuitParallelEnv seed"), auto_reset=False)
+        if render_mode == "rgb_array" and render_settings is not None:  # now, naming its fields, not at the first reset
+            from .render.renderer import check_settings
+
+            check_settings(render_settings, self.config, self._env.world_layouts[0], "render_settings.")
         self.possible_agents = [f"pursuer_{i}" for i in range(self.config.n_pursuers)]
         self.agents: list[str] = []
         self.render_mode = render_mode

@@ -1,5 +1,7 @@
 """PettingZoo's own conformance tests on the ParallelEnv (and its AEC conversion), in both fidelities."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, seed_test, state_test
@@ -184,3 +186,20 @@ def test_render_settings_that_are_not_render_settings_are_refused_by_name_when_m
 def test_a_bad_seed_is_refused_naming_the_env_the_user_made():
     with pytest.raises(ValueError, match=r"^PursuitParallelEnv seed: expected a non-negative integer below 2\*\*63, got -1"):
         PursuitParallelEnv(seed=-1)
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"width": 5}, r"render_settings.width 5: must be an integer in 16\.\.\d+ pixels"),
+    ({"height": 20}, r"render_settings.height 20: too small to hold"),
+    ({"quality": "ultra"}, r"render_settings.quality 'ultra': choose from fast, high"),
+    ({"camera": "side"}, r"render_settings.camera 'side': no such camera"),
+    ({"camera": "follow:evader_9"}, r"render_settings.camera 'follow:evader_9': no drone named 'evader_9'"),
+])
+def test_bad_render_settings_values_are_refused_by_their_field_when_made(changes, message):
+    """They were accepted, then refused at the first reset() naming render's CLI flags (--width 5, --camera),
+    which a PettingZoo user never passed."""
+    from pursuit_mj.render.renderer import RenderSettings
+
+    settings = dataclasses.replace(RenderSettings(), **changes)
+    with pytest.raises(ValueError, match=f"^{message}"):
+        PursuitParallelEnv(default_config(fidelity="point"), render_mode="rgb_array", render_settings=settings)

@@ -50,18 +50,28 @@ class RenderSettings:
         bottom = key_band_height(self.height) if self.key else 0
         return band_height(self.height) / self.height, bottom / self.height
 
-    def check(self, model: mujoco.MjModel) -> None:
-        """Raise ValueError naming the flag if the size or quality cannot be rendered."""
-        for flag, value, limit in (("--width", self.width, model.vis.global_.offwidth), ("--height", self.height, model.vis.global_.offheight)):
+    def check(self, model: mujoco.MjModel, prefix: str = "--") -> None:
+        """Raise ValueError naming the setting if the size or quality cannot be rendered; `prefix`
+        names where it came from ('--': render's flags, --width; 'render_settings.': a field)."""
+        for name, value, limit in (("width", self.width, model.vis.global_.offwidth), ("height", self.height, model.vis.global_.offheight)):
             if not isinstance(value, int) or not 16 <= value <= limit:
-                raise ValueError(f"{flag} {value}: must be an integer in 16..{limit} pixels")
+                raise ValueError(f"{prefix}{name} {value}: must be an integer in 16..{limit} pixels")
         caption, key = band_height(self.height), (key_band_height(self.height) if self.key else 0)
         if caption + key >= self.height:  # the cameras frame the arena between the bands: no room would be left
             bands = f"the caption band ({caption} px) and the colour key ({key} px)" if key else f"the caption band ({caption} px)"
-            raise ValueError(f"--height {self.height}: too small to hold {bands} and the scene between them; "
-                             f"use --height {caption + key + 1} or more" + (" (or --no-key)" if key else ""))
+            no_key = "--no-key" if prefix == "--" else f"{prefix}key False"
+            raise ValueError(f"{prefix}height {self.height}: too small to hold {bands} and the scene between them; "
+                             f"use {prefix}height {caption + key + 1} or more" + (f" (or {no_key})" if key else ""))
         if self.quality not in QUALITIES:
-            raise ValueError(f"--quality {self.quality!r}: choose from {', '.join(QUALITIES)}")
+            raise ValueError(f"{prefix}quality {self.quality!r}: choose from {', '.join(QUALITIES)}")
+
+
+def check_settings(settings: RenderSettings, config: TaskConfig, layout: Layout, prefix: str = "--") -> None:
+    """Refuse a bad size, quality or camera for the scenes of `config` (drones) and `layout`
+    before any GL context is made; ValueError naming the setting with `prefix` (see check)."""
+    model = build_model(SceneSpec.for_task(config, layout))
+    settings.check(model, prefix)
+    CameraSpec.parse(settings.camera, model, drone_names(config.n_pursuers, config.n_evaders), f"{prefix}camera")
 
 
 DrawFn = Callable[[mujoco.MjvScene], None]
