@@ -31,6 +31,9 @@ MIN_THRUST_TO_WEIGHT = 1.5
 DRONE_MAX_MASS = DRONE_MAX_THRUST / (9.81 * MIN_THRUST_TO_WEIGHT)
 #: DRONE_MAX_MASS as messages write it: rounded down, so that the mass named is accepted (0.0408 is not)
 DRONE_MAX_MASS_TEXT = f"{math.floor(DRONE_MAX_MASS * 1e5) / 1e5:.5f}"
+#: m, the largest distance setting: twice the largest arena (layout.MAX_ARENA_SIDE); far more is a
+#: unit slip (the reference study's perception radius of 2000 was in mm)
+MAX_DISTANCE = 100.0
 # every reward scale's magnitude limit: rewards are float32, and an episode's sum of steps of
 # the largest terms must stay finite and far from overflow
 REWARD_SCALE_LIMIT = 1e6
@@ -40,22 +43,22 @@ REWARD_SCALE_LIMIT = 1e6
 class EvaderConfig:
     """Escape model after Janosov et al. 2017 (pursuit_mj/evader.py); distances in m, times in s."""
 
-    panic_distance: float = spec(1.5, lo=0.0, lo_open=True, help="chaser distance at which panic is full (m)")
-    calm_distance: float = spec(3.0, lo=0.0, lo_open=True, help="chaser distance beyond which the evader is calm (m)")
-    sense_radius: float = spec(4.0, lo=0.0, lo_open=True, help="how far the evader senses chasers (m)")
+    panic_distance: float = spec(1.5, lo=0.0, lo_open=True, hi=MAX_DISTANCE, help="chaser distance at which panic is full (m)")
+    calm_distance: float = spec(3.0, lo=0.0, lo_open=True, hi=MAX_DISTANCE, help="chaser distance beyond which the evader is calm (m)")
+    sense_radius: float = spec(4.0, lo=0.0, lo_open=True, hi=MAX_DISTANCE, help="how far the evader senses chasers (m)")
     lead_time: float = spec(0.3, lo=0.0, hi=2.0, help="how far ahead the evader extrapolates chasers' motion when fleeing (s)")
     zigzag_rate: float = spec(1.0, lo=0.0, help="rate of random heading changes when calm (1/s)")
     zigzag_angle: float = spec(0.8, lo=0.0, hi=math.pi, help="amplitude of random heading changes (rad)")
     room_weight: float = spec(1.0, lo=0.0, help="preference for directions with free room (up to 1 m) over the wanted one")
     safety_weight: float = spec(1.0, lo=0.0, help="preference for directions that stay out of the chasers' reach over fleeing straight")
-    wall_margin: float = spec(0.45, lo=0.0, lo_open=True, help="distance from walls and obstacles at which repulsion starts (m)")
+    wall_margin: float = spec(0.45, lo=0.0, lo_open=True, hi=MAX_DISTANCE, help="distance from walls and obstacles at which repulsion starts (m)")
     wall_gain: float = spec(1.5, lo=0.0, help="weight of wall repulsion against fleeing")
-    follow_distance: float = spec(0.8, lo=0.0, lo_open=True, help="an obstacle closer than this ahead turns the evader along it (m)")
+    follow_distance: float = spec(0.8, lo=0.0, lo_open=True, hi=MAX_DISTANCE, help="an obstacle closer than this ahead turns the evader along it (m)")
     gap_escape: bool = spec(True, help="slip between two closing chasers when it can get there first")
-    gap_margin: float = spec(0.1, lo=0.0, help="clearance beyond capture_radius it keeps from chasers while slipping through (m)")
+    gap_margin: float = spec(0.1, lo=0.0, hi=MAX_DISTANCE, help="clearance beyond capture_radius it keeps from chasers while slipping through (m)")
     clearance: float = spec(0.15, lo=0.07, hi=1.0, help="half-width of the look-ahead corridor; closest approach to obstacles it plans for (m)")
     lookahead_time: float = spec(0.5, lo=0.0, hi=5.0, help="seconds of flight the corridor ahead must be free for")
-    evader_spacing: float = spec(0.6, lo=0.0, help="distance below which evaders push each other apart (m)")
+    evader_spacing: float = spec(0.6, lo=0.0, hi=MAX_DISTANCE, help="distance below which evaders push each other apart (m)")
     evader_gain: float = spec(0.4, lo=0.0, help="weight of the push between evaders")
     smoothing: float = spec(0.25, lo=0.0, hi=0.9, help="weight of the previous heading in each new heading")
 
@@ -76,11 +79,11 @@ class TaskConfig:
     n_evaders: int = spec(1, lo=1, hi=8, help="number of evaders")
     pursuer_speed: float = spec(0.3, lo=0.0, lo_open=True, hi=3.0, help="pursuer max speed (m/s)")
     evader_speed: float = spec(0.6, lo=0.0, lo_open=True, hi=3.0, help="evader speed (m/s); above 0.9 it brakes near walls and obstacles (pursuit_mj/evader.py, step 7)")
-    perception_radius: float = spec(2.0, lo=0.0, lo_open=True, help="pursuer perception radius (m)")
+    perception_radius: float = spec(2.0, lo=0.0, lo_open=True, hi=MAX_DISTANCE, help="pursuer perception radius (m)")
     field_of_view: float = spec(2 * math.pi, lo=0.0, lo_open=True, hi=2 * math.pi, help="pursuer field of view (rad)")
-    capture_radius: float = spec(0.3, lo=0.0, lo_open=True, help="capture distance pursuer-evader (m)")
-    obstacle_clearance: float = spec(0.1, lo=0.0, help="collision if a pursuer centre comes closer to an obstacle (m)")
-    teammate_clearance: float = spec(0.2, lo=0.0, help="collision if two pursuer centres come closer (m)")
+    capture_radius: float = spec(0.3, lo=0.0, lo_open=True, hi=MAX_DISTANCE, help="capture distance pursuer-evader (m)")
+    obstacle_clearance: float = spec(0.1, lo=0.0, hi=MAX_DISTANCE, help="collision if a pursuer centre comes closer to an obstacle (m)")
+    teammate_clearance: float = spec(0.2, lo=0.0, hi=MAX_DISTANCE, help="collision if two pursuer centres come closer (m)")
     control_dt: float = spec(0.1, lo=0.0, lo_open=True, hi=1.0, help="decision interval (s)")
     max_steps: int = spec(1000, lo=1, help="decision steps before timeout")
     flight_height: float = spec(0.5, lo=0.1, hi=3.0, help="altitude the drones hold (m)")
@@ -91,14 +94,14 @@ class TaskConfig:
     share_detections: bool = spec(True, help="an evader seen by one pursuer is known to all (relayed)")
     share_teammates: bool = spec(False, help="pursuers broadcast their own positions: every teammate is known exactly, whatever the radius, view and walls")
     n_rays: int = spec(16, lo=0, hi=128, help="range readings around each pursuer")
-    ray_range: float = spec(2.0, lo=0.0, lo_open=True, help="max range of the range readings (m)")
+    ray_range: float = spec(2.0, lo=0.0, lo_open=True, hi=MAX_DISTANCE, help="max range of the range readings (m)")
     position_noise: float = spec(0.0, lo=0.0, hi=1.0, help="std of noise on perceived positions (m)")
     miss_probability: float = spec(0.0, lo=0.0, hi=1.0, help="chance a visible evader is missed per step")
     capture_reward: float = spec(10.0, lo=0.0, hi=REWARD_SCALE_LIMIT, help="team reward per captured evader (>= 0)")
     progress_reward: float = spec(1.0, lo=-REWARD_SCALE_LIMIT, hi=REWARD_SCALE_LIMIT, help="scale of (d_prev - d)/0.3 toward the nearest free evader")
     collision_penalty: float = spec(-10.0, lo=-REWARD_SCALE_LIMIT, hi=0.0, help="reward on collision (<= 0)")
     proximity_penalty: float = spec(-0.1, lo=-REWARD_SCALE_LIMIT, hi=0.0, help="soft penalty scale near walls/teammates (<= 0)")
-    proximity_distance: float = spec(0.3, lo=0.0, help="width of the soft zone beyond obstacle_clearance and teammate_clearance (centre distances) in which the proximity penalty grows from 0 to proximity_penalty (m)")
+    proximity_distance: float = spec(0.3, lo=0.0, hi=MAX_DISTANCE, help="width of the soft zone beyond obstacle_clearance and teammate_clearance (centre distances) in which the proximity penalty grows from 0 to proximity_penalty (m)")
     spread_reward: float = spec(0.0, lo=-REWARD_SCALE_LIMIT, hi=REWARD_SCALE_LIMIT, help="reward for spreading out (more_r); 0 = off")
     fidelity: str = spec("quadrotor", choices=("point", "quadrotor"), help="physics fidelity")
     physics_dt: float = spec(0.002, lo=0.0002, hi=0.01, help="MuJoCo timestep (s)")

@@ -305,3 +305,13 @@ def test_a_layout_file_found_nowhere_says_where_it_was_looked_for(tmp_path, monk
 
     with pytest.raises(ValueError, match=rf"layout 'arena.yaml': no such file in the current folder \({tmp_path}\)"):
         PursuitEnv(load_task_config([str(exp / "task.yaml")]))
+
+
+@pytest.mark.parametrize("argv, key", [(["--r_perception", "2000"], "perception_radius"),  # the reference study's mm
+                                       (["--set", "ray_range=1500"], "ray_range"),
+                                       (["--set", "evader.sense_radius=4000"], "sense_radius")])
+def test_a_distance_far_beyond_any_arena_is_refused_as_a_unit_slip(argv, key, capsys):
+    """2000 (mm) was taken as 2000 m: partial observability quietly became an unlimited view."""
+    assert main(["config"] + argv) == 2
+    err = capsys.readouterr().err
+    assert f"key '{key}'" in err and "out of range (must be <= 100.0)" in err, err
