@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 
 import numpy as np
 
@@ -105,6 +106,9 @@ class HeuristicTeam:
         position_noise: float = 0.0,
         share_teammates: bool = False,
     ):
+        if not isinstance(pursuer_speed, numbers.Real):  # HeuristicTeam(config) failed deep in math.isfinite
+            raise TypeError(f"HeuristicTeam: pursuer_speed must be a number, got {type(pursuer_speed).__name__}; "
+                            f"for a task config use HeuristicTeam.from_config(config)")
         for key, value in (("pursuer_speed", pursuer_speed), ("control_dt", control_dt), ("ray_range", ray_range)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"HeuristicTeam: {key} must be a positive number, got {value!r}")

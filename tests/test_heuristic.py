@@ -164,3 +164,11 @@ def test_a_narrow_view_team_keeps_off_its_teammates_when_they_share_positions():
     shared = evaluate(HeuristicTeam.from_config(shared_config), shared_config, **kwargs)[0]
     assert blind.collision.count >= 1, "the unshared team collides here (2 of 8 when written): else the test shows nothing"
     assert shared.collision.count == 0
+
+
+def test_a_team_made_from_a_task_config_by_mistake_says_to_use_from_config():
+    from pursuit_mj.config import default_config
+    from pursuit_mj.heuristic import HeuristicTeam
+
+    with pytest.raises(TypeError, match=r"got TaskConfig; for a task config use HeuristicTeam.from_config\(config\)"):
+        HeuristicTeam(default_config())
