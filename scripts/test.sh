@@ -4,5 +4,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-export MUJOCO_GL=${MUJOCO_GL:-egl}
+# the offscreen OpenGL the renderer would pick here (EGL, else OSMesa), found once for every worker
+export MUJOCO_GL=${MUJOCO_GL:-$(.venv/bin/python -c "from pursuit_mj.render.gl import choose_backend; print(choose_backend())" 2>/dev/null || echo egl)}
 exec .venv/bin/python -m pytest -n auto --dist worksteal "$@"

@@ -8,7 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+if "MUJOCO_GL" not in os.environ:  # before mujoco is imported: the backend the renderer would pick (EGL, else OSMesa)
+    from pursuit_mj.render.gl import RenderBackendError, choose_backend
+
+    try:
+        os.environ["MUJOCO_GL"] = choose_backend()
+    except RenderBackendError:  # none works: the render tests say why
+        os.environ["MUJOCO_GL"] = "egl"
 
 from pursuit_mj.config import default_config  # noqa: E402
 from pursuit_mj.layout import Layout, layout_from_dict  # noqa: E402
