@@ -109,4 +109,4 @@ def reward_terms(
     proximity = config.proximity_penalty * (wall_zone + mate_zone)
     spread = config.spread_reward * np.minimum(1.0, np.where(np.isfinite(events.nearest_mate), events.nearest_mate, 1.0))
     terms = {"capture": capture, "progress": progress, "collision": collision, "proximity": proximity, "spread": spread}
-    return {k: np.asarray(v, dtype=np.float32) for k, v in terms.items()}
+    return {k: np.asarray(v, dtype=np.float32) + np.float32(0.0) for k, v in terms.items()}  # + 0: no -0.0 from a negative scale

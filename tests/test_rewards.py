@@ -87,6 +87,8 @@ def test_reward_terms_are_named_and_scaled():
     assert terms["progress"][0, 0] == pytest.approx(CFG.progress_reward * 1.0)
     assert terms["progress"][0, 1] == pytest.approx(0.0)
     assert (terms["capture"] == 0).all() and (terms["collision"] == 0).all()
+    for name, values in terms.items():  # a negative scale times nothing was -0.0, logged and shown as such
+        assert not np.signbit(values[values == 0]).any(), name
     crash = detect_events(np.array([[[0.05, 1.0], [3.0, 1.0]]]), ev_pos, ~free, np.zeros((1, 2), bool), OBST, CFG)
     t2 = reward_terms(CFG, crash, prev, now, ev_pos, ev_pos, free)
     assert (t2["collision"] == CFG.collision_penalty).all(), "a collision fails the whole team"
