@@ -217,6 +217,16 @@ def test_learnable_discount_moves_and_is_logged(tmp_path):
     assert {json.loads(x)["gamma"] for x in (fixed.run_dir / "metrics.jsonl").read_text().splitlines()} == {0.99}
 
 
+@pytest.mark.parametrize("gamma", ["1", "0", "0.99999"])
+def test_a_learned_discount_that_cannot_start_at_ppo_gamma_is_refused_by_name(gamma):
+    """It started silently at 0.9999 (or 0.0001) instead, where the sigmoid barely moves."""
+    cfg = load_train_config(["classic"], [f"ppo.gamma={gamma}", "ppo.learnable_gamma=true"])
+    with pytest.raises(ConfigError, match=rf"ppo.gamma {gamma} .*ppo.learnable_gamma"):
+        cfg.check_complete()
+    load_train_config(["classic"], [f"ppo.gamma={gamma}"]).check_complete()  # a fixed discount may be 0 or 1
+    load_train_config(["classic"], ["ppo.gamma=0.9999", "ppo.learnable_gamma=true"]).check_complete()
+
+
 def test_training_on_a_list_of_layouts_gives_each_world_its_layout(tmp_path):
     cfg = load_train_config([], TINY + [f"run.runs_dir={tmp_path}", "total_steps=32", "n_envs=4", "layouts=[0, 2]"])
     trainer = Trainer(cfg, **QUIET)

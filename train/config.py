@@ -191,6 +191,13 @@ class TrainConfig:
             raise ConfigError(f"{source}: ppo.minibatch_size {self.ppo.minibatch_size} exceeds ppo.batch_size {self.ppo.batch_size}")
         if self.algo == "dagger" and self.ppo.learnable_gamma:
             raise ConfigError(f"{source}: ppo.learnable_gamma works with algo ppo or mappo, not dagger (imitation has no policy gradient)")
+        if self.ppo.learnable_gamma:
+            from .discount import LEARNABLE_START
+
+            lo, hi = LEARNABLE_START
+            if not lo <= self.ppo.gamma <= hi:
+                raise ConfigError(f"{source}: ppo.gamma {self.ppo.gamma:g} cannot start ppo.learnable_gamma: the learned "
+                                  f"discount is sigmoid(logit) and starts in [{lo:g}, {hi:g}] (e.g. ppo.gamma=0.99)")
         if self.algo == "dagger" and self.residual.base != "none":
             raise ConfigError(f"{source}: residual.base {self.residual.base!r} works with algo ppo or mappo, not dagger "
                               "(a residual starts as its base team; there is nothing to imitate)")

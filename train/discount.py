@@ -24,10 +24,18 @@ from .gae import compute_gae
 from .losses import normalise
 
 
+#: where a learned gamma may start: sigmoid(logit) reaches 0 and 1 only at an infinite logit,
+#: and near them one Adam step on the logit hardly moves gamma
+LEARNABLE_START = (1e-4, 1.0 - 1e-4)
+
+
 class Discount:
     """gamma as a float (fixed) or sigmoid(logit) with an Adam optimiser (learned)."""
 
     def __init__(self, gamma: float, learnable: bool, meta_lr: float, outer_gamma: float):
+        lo, hi = LEARNABLE_START
+        if learnable and not lo <= gamma <= hi:
+            raise ValueError(f"learnable discount: start gamma {gamma:g} lies outside [{lo:g}, {hi:g}]")
         self.learnable = learnable
         self.outer_gamma = outer_gamma
         g = min(max(gamma, 1e-4), 1.0 - 1e-4)
