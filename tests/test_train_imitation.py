@@ -160,3 +160,22 @@ def test_a_privileged_teacher_labels_the_students_states_from_its_own_fuller_vie
     np.testing.assert_array_equal(raw.group("self").view(seen[5][0]), raw.group("self").view(seen[5][1][..., : raw.dim]))
     with pytest.raises(ConfigError, match="teacher_sees"):
         load_train_config([], ["imitation.teacher_sees=psychic"])
+
+
+def test_ppo_started_from_a_dagger_student_names_the_noise_it_keeps_over_net_init_log_std(tmp_path):
+    """The checkpoint's log std replaced the run's net.init_log_std without a word."""
+    small = ["task.fidelity=point", "task.n_pursuers=2", "n_envs=2", "net.encoder_width=8", "net.hidden=[8]",
+             "run.validation_episodes=1", "run.progress=false", f"run.runs_dir={tmp_path}"]
+    student = Trainer(load_train_config([], small + ["name=student", "algo=dagger", "net.init_log_std=-1.6"]), log=lambda s: None)
+    student.save()
+    student.close()
+    start = [f"init_from={tmp_path / 'student' / 'last.pt'}"]
+    lines = []
+    ppo = Trainer(load_train_config([], small + ["name=ppo", "net.init_log_std=-0.5"] + start), log=lines.append)
+    ppo.close()
+    assert ppo.model.actor.log_std.tolist() == pytest.approx([-1.6, -1.6])
+    note = next(line for line in lines if line.startswith("initialised from"))
+    assert "its log std -1.6 replaces net.init_log_std -0.5" in note
+    lines.clear()
+    Trainer(load_train_config([], small + ["name=same", "net.init_log_std=-1.6"] + start), log=lines.append).close()
+    assert "log std" not in next(line for line in lines if line.startswith("initialised from"))

@@ -237,6 +237,12 @@ class Trainer:
             self.model.actor.load_state_dict(data["actor"])
         except RuntimeError as exc:
             raise ValueError(f"init_from {path}: actor weights do not fit this network ({load_error(exc)})") from None
+        notes = []
+        log_std = self.model.actor.log_std.detach()
+        if not torch.allclose(log_std, torch.full_like(log_std, self.cfg.net.init_log_std)):
+            shown = ", ".join(sorted({f"{x:g}" for x in log_std.tolist()}))
+            notes.append(f"its log std {shown} replaces net.init_log_std {self.cfg.net.init_log_std:g} (the exploration "
+                         f"noise continues from the checkpoint)")
         src = data["train_config"]
         src_observability = src["task"]["observability"]
         if self.cfg.regime == "fine_tune" and src_observability != "full":
@@ -245,7 +251,6 @@ class Trainer:
                              f"--set regime=custom with the same init_from")
         src_algo = src.get("algo")
         same_critic = (src_algo == "mappo") == (self.cfg.algo == "mappo")  # dagger trains a ppo-style critic
-        notes = []
         if "critic" not in data:
             notes.append("it is a policy-only export: the critic starts fresh")
         elif not same_critic:
