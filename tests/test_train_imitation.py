@@ -27,6 +27,22 @@ def test_teacher_share_falls_linearly_to_zero_and_stays_there():
     assert teacher_share(ImitationConfig(beta_updates=0), 0) == 0.0
 
 
+def test_the_teacher_drives_each_world_at_a_share_beta_of_its_steps(tmp_path):
+    """beta is a per-world, per-step chance, not a share of whole worlds (as the docs once said)."""
+    cfg = load_train_config([], ["name=beta", "algo=dagger", "task.fidelity=point", "task.n_pursuers=2", "n_envs=4",
+                                 "ppo.batch_size=400", "net.encoder_width=8", "net.hidden=[8]", "run.progress=false",
+                                 "run.validation_episodes=1", f"run.runs_dir={tmp_path}"])
+    trainer = Trainer(cfg, log=lambda s: None)
+    trainer.collector.beta = 0.5
+    buf = trainer.buffer
+    trainer.collector.collect(buf)
+    trainer.close()
+    labels = trainer.demos.actions[: buf.n_transitions].reshape(buf.T, buf.W, buf.N, 2)
+    by_teacher = (buf.actions == labels).all(-1).all(-1).float()  # (T, W): the world stepped with the labels
+    assert 0.35 < float(by_teacher.mean()) < 0.65
+    assert ((by_teacher.min(0).values == 0) & (by_teacher.max(0).values == 1)).all()  # every world: both drove
+
+
 def test_learnable_discount_is_refused_with_dagger():
     with pytest.raises(ValueError, match="learnable_gamma"):
         load_train_config([], ["algo=dagger", "ppo.learnable_gamma=true"]).check_complete()

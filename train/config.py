@@ -60,7 +60,7 @@ class ImitationConfig:
                                   "exact, no misses: pursuit_mj.sensing.PRIVILEGED_VIEWS) or full (everything, exactly); "
                                   "a privileged teacher labels the student's observations with what it would do knowing more")
     lr: float = spec(1e-3, lo=0.0, lo_open=True, help="Adam learning rate at the start (decays like ppo.lr if ppo.lr_decay)")
-    beta_start: float = spec(1.0, lo=0.0, hi=1.0, help="share of worlds the teacher drives in the first update")
+    beta_start: float = spec(1.0, lo=0.0, hi=1.0, help="chance that the teacher drives a world at a decision step, in the first update")
     beta_updates: int = spec(20, lo=0, help="updates over which the teacher's share falls linearly to 0")
     dataset_size: int = spec(400_000, lo=1, help="pursuer observations kept (the oldest are dropped first)")
     grad_steps: int = spec(60, lo=1, help="gradient steps per update")
