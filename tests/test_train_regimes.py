@@ -115,6 +115,16 @@ def test_settings_idle_under_mlp_a_fixed_discount_or_dagger_are_named():
     assert load_train_config(["classic"], ["run.overlap=true", "net.use_rays=false"]).idle_settings() == []
 
 
+def test_a_teacher_share_that_never_applies_is_named_as_idle():
+    """With imitation.beta_updates 0 the teacher never drives, whatever imitation.beta_start says
+    (and with beta_start 0 the length of its fall is moot): both changed nothing without a word."""
+    assert load_train_config(["imitate"], ["imitation.beta_updates=0", "imitation.beta_start=0.5"]).idle_settings() == [
+        "imitation.beta_start 0.5 does nothing with imitation.beta_updates 0 (the teacher never drives; it labels only)"]
+    assert load_train_config(["imitate"], ["imitation.beta_start=0"]).idle_settings() == [
+        "imitation.beta_updates 40 does nothing with imitation.beta_start 0 (the teacher never drives; it labels only)"]
+    assert load_train_config(["imitate"], ["imitation.beta_start=0.5"]).idle_settings() == []
+
+
 def test_update_threads_take_the_cores_the_collection_leaves_idle():
     run = load_train_config(["classic"]).run
     assert run.torch_threads == 0  # auto by default

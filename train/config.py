@@ -248,6 +248,11 @@ class TrainConfig:
         if self.algo == "dagger" and self.run.overlap:
             idle.append("run.overlap does nothing under algo dagger (it always collects in turn: the teacher's labels feed the update)")
         if self.algo == "dagger":
+            im, never = self.imitation, "(the teacher never drives; it labels only)"
+            if im.beta_updates == 0 and im.beta_start != default.imitation.beta_start:
+                idle.append(f"imitation.beta_start {im.beta_start:g} does nothing with imitation.beta_updates 0 {never}")
+            if im.beta_start == 0 and im.beta_updates != default.imitation.beta_updates:
+                idle.append(f"imitation.beta_updates {im.beta_updates} does nothing with imitation.beta_start 0 {never}")
             changed = [k for k in PPO_UPDATE_ONLY if getattr(self.ppo, k) != getattr(default.ppo, k)]
             if changed:
                 idle.append(f"ppo.{', ppo.'.join(changed)} do(es) nothing under algo dagger (PPO's update; DAgger's are "
