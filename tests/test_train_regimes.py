@@ -227,6 +227,21 @@ def test_learnable_discount_moves_and_is_logged(tmp_path):
     assert {json.loads(x)["gamma"] for x in (fixed.run_dir / "metrics.jsonl").read_text().splitlines()} == {0.99}
 
 
+def test_a_run_started_from_a_learned_discount_says_it_starts_its_own(tmp_path):
+    """init_from takes weights, not the discount the source learned: that went without a word."""
+    learned = load_train_config(["classic"], TINY + [f"run.runs_dir={tmp_path}", "name=src", "ppo.learnable_gamma=true"])
+    src = Trainer(learned, **QUIET)
+    with torch.no_grad():
+        src.discount.logit.fill_(5.0)  # gamma 0.9933
+    src.save()
+    src.close()
+    lines = []
+    start = [f"run.runs_dir={tmp_path}", f"init_from={tmp_path / 'src' / 'last.pt'}"]
+    Trainer(load_train_config(["classic"], TINY + start + ["name=dst"]), log=lines.append).close()
+    note = next(line for line in lines if line.startswith("initialised from"))
+    assert "its learned discount 0.9933 is not carried over: gamma starts at ppo.gamma 0.99" in note
+
+
 @pytest.mark.parametrize("gamma", ["1", "0", "0.99999"])
 def test_a_learned_discount_that_cannot_start_at_ppo_gamma_is_refused_by_name(gamma):
     """It started silently at 0.9999 (or 0.0001) instead, where the sigmoid barely moves."""

@@ -263,6 +263,12 @@ class Trainer:
             else:  # a normalised critic's outputs mean nothing without the statistics they were scaled by
                 if self.model.value_norm is not None and data.get("value_norm"):
                     self.model.value_norm.load_state_dict(data["value_norm"])
+        logit = (data.get("discount") or {}).get("logit")
+        if (src.get("ppo") or {}).get("learnable_gamma") and torch.is_tensor(logit) and logit.numel() == 1:
+            learned = float(torch.sigmoid(logit.float()))
+            if abs(learned - self.cfg.ppo.gamma) > 5e-5:
+                notes.append(f"its learned discount {learned:.4f} is not carried over: gamma starts at ppo.gamma "
+                             f"{self.cfg.ppo.gamma:g}")
         src_base = (src.get("residual") or {}).get("base", "none")
         if src_base != self.cfg.residual.base:
             notes.append(f"its actor was trained as a correction to base team {src_base!r}, here it acts on base "
