@@ -35,6 +35,8 @@ class PursuitParallelEnv(ParallelEnv):
             if not isinstance(render_settings, RenderSettings):  # else a deep AttributeError at the first reset
                 raise ValueError(f"render_settings: expected a pursuit_mj.render.renderer.RenderSettings (size, camera, "
                                  f"quality, key), got {type(render_settings).__name__} {render_settings!r}")
+            if render_mode is None:  # it would be ignored: render() draws nothing without a render mode
+                raise ValueError("render_settings: given without render_mode='rgb_array', which it needs to draw anything")
         # an empty dict is not "no config": it and every other non-TaskConfig are refused by name
         self.config = default_config() if config is None else checked_task_config(config, "PursuitParallelEnv config")
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.config.control_dt}  # one frame per decision step

@@ -203,3 +203,10 @@ def test_bad_render_settings_values_are_refused_by_their_field_when_made(changes
     settings = dataclasses.replace(RenderSettings(), **changes)
     with pytest.raises(ValueError, match=f"^{message}"):
         PursuitParallelEnv(default_config(fidelity="point"), render_mode="rgb_array", render_settings=settings)
+
+
+def test_render_settings_without_a_render_mode_are_refused_rather_than_ignored():
+    from pursuit_mj.render.renderer import RenderSettings
+
+    with pytest.raises(ValueError, match=r"render_settings: given without render_mode='rgb_array'"):
+        PursuitParallelEnv(render_settings=RenderSettings())
