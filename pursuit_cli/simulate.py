@@ -154,12 +154,12 @@ def run(args) -> int:
     layouts = [base.layout] if _chosen(args, base, "layout") else list(range(N_BUILTIN))
     fidelities = [base.fidelity] if _chosen(args, base, "fidelity") else ["quadrotor", "point"]
     team = f"{base.n_pursuers} pursuer{'s' if base.n_pursuers > 1 else ''} + {base.n_evaders} evader{'s' if base.n_evaders > 1 else ''}"
+    loaded = [load_layout(ref) for ref in layouts]  # a bad layout is refused before the table starts
     print(f"scripted flight: {team} fly to the middle, then circle it; "
           f"{n_steps * base.control_dt:g} s ({n_steps} decision steps) per run, control_dt {base.control_dt:g} s, physics_dt {base.physics_dt:g} s")
     print(f"{'layout':<10} {'fidelity':<9} {'sim s':>6} {'wall s':>7} {'RTF':>7} {'max|dz| cm':>10} {'tilt deg':>9}  contacts (drone x steps)")
     total = time.perf_counter()
-    for ref in layouts:
-        layout = load_layout(ref)
+    for layout in loaded:
         for fidelity in fidelities:
             config = dataclasses.replace(base, fidelity=fidelity)
             for line in _format(fly(config, layout, args.seconds, args.seed)):

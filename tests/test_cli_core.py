@@ -21,6 +21,12 @@ def test_simulate_prints_a_row_per_layout_and_fidelity(capsys):
     assert "0.3 s (3 decision steps) per run" in out and [r.split()[2] for r in rows] == ["0.3", "0.3"]
 
 
+def test_simulate_refuses_a_missing_layout_before_printing_its_table(tmp_path, capsys):
+    assert main(["simulate", "-i", str(tmp_path / "none.yaml")]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and "none.yaml': no such file" in err
+
+
 def test_simulate_flies_only_the_layout_and_fidelity_chosen_through_set(capsys):
     assert main(["simulate", "--seconds", "0.2", "--set", "fidelity=point", "--set", "layout=1"]) == 0
     rows = [line.split()[:2] for line in capsys.readouterr().out.splitlines() if line.split()[:1] in (["open"], ["walls"], ["bars"], ["cluttered"])]
