@@ -312,10 +312,16 @@ def test_an_emergency_stop_cuts_every_link_at_once_not_one_after_another(tmp_pat
         if wait_for(lambda: not fleet.true_state()["motors"][1:].any(), 0.9):
             cut_at["others"] = time.monotonic() - t0
 
-    result, events, fleet = fly_virtual(quick_plan(max_time=3.0), ScriptedTeam([[0.3, 0.0]]), tmp_path, during=stop)
+    fell: dict[str, bool] = {}
+
+    def settle(fleet):  # the hanging link's cut lands 1 s late: give its drone the time to fall, drones still live
+        fell["down"] = wait_for(lambda: down(fleet), 3.0)
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=3.0), ScriptedTeam([[0.3, 0.0]]), tmp_path, during=stop,
+                                        aftermath=settle)
     assert result.outcome == "emergency_stop"
     assert cut_at.get("others", 9.0) < 0.5, cut_at  # the others did not wait for the hanging link
-    assert down(fleet)  # and the hanging one was cut too
+    assert fell["down"]  # and the hanging one was cut too
     for i in range(fleet.plan.n_drones):  # no setpoint follows the emergency stop
         kinds = [r.kind for r in fleet.received(i)]
         assert not {"velocity", "hover"} & set(kinds[kinds.index("emergency_stop"):]), kinds
