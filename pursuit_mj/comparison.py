@@ -16,10 +16,11 @@ import dataclasses
 from typing import Sequence
 
 from .evaluation import Row, layout_identity
-from .stats import Mean, mean_interval
+from .stats import Mean, mean_interval, sign_flip_p
 
 
 MIN_VERDICT_EPISODES = 5  # paired episodes below which no faster/slower verdict is given
+VERDICT_LEVEL = 0.05  # a verdict needs the sign-flip test's p below this, beside the 95 % interval
 
 
 @dataclasses.dataclass(frozen=True)
@@ -29,7 +30,8 @@ class Paired:
     steps: mean of (policy - reference) capture time per episode, decision steps, with its
     95 % t interval (negative: the policy catches sooner). faster / slower: episodes where
     the policy's capture time is lower / higher. only_policy / only_reference: episodes that
-    only that one of the two ended in success.
+    only that one of the two ended in success. p_value: two-sided p of the exact sign-flip
+    test (stats.sign_flip_p); None above stats.SIGN_FLIP_MAX_TERMS nonzero differences.
     """
 
     policy: str
@@ -41,13 +43,19 @@ class Paired:
     slower: int
     only_policy: int
     only_reference: int
+    p_value: float | None = None
 
     @property
     def verdict(self) -> str:
-        """'faster' / 'slower' when the 95 % interval excludes 0, 'level' when it holds it, 'too few'
-        below MIN_VERDICT_EPISODES pairs (a t interval of two or three identical differences has width 0)."""
+        """'faster' / 'slower' when the 95 % interval excludes 0 and the sign-flip test agrees
+        (p below VERDICT_LEVEL), else 'level'; 'too few' below MIN_VERDICT_EPISODES pairs (a t
+        interval of two or three identical differences has width 0). The t interval alone is
+        anti-conservative on a few differences that are mostly 0 (ties where both policies
+        played alike), where the exact test is not."""
         if self.steps.n < MIN_VERDICT_EPISODES:
             return "too few"
+        if self.p_value is not None and self.p_value >= VERDICT_LEVEL:
+            return "level"
         if self.steps.hi is not None and self.steps.hi < 0:
             return "faster"
         if self.steps.lo is not None and self.steps.lo > 0:
@@ -75,7 +83,7 @@ def pair(row: Row, reference: Row, max_steps: float) -> Paired:
     only_ref = sum(y and not x for x, y in zip(won_a, won_b))
     return Paired(row.policy, reference.policy, row.layout, len(diffs),
                   mean_interval(diffs, (-float(max_steps), float(max_steps))),
-                  sum(d < 0 for d in diffs), sum(d > 0 for d in diffs), only_row, only_ref)
+                  sum(d < 0 for d in diffs), sum(d > 0 for d in diffs), only_row, only_ref, sign_flip_p(diffs))
 
 
 def _successes(row: Row, max_steps: float) -> list[bool]:
@@ -100,13 +108,19 @@ def pair_table(rows: Sequence[Row], reference: str, max_steps: float) -> list[Pa
 def format_pairs(pairs: Sequence[Paired]) -> str:
     """A plain-text table of paired comparisons, one line each."""
     head = ["policy", "versus", "layout", "episodes", "capture steps, policy - versus [95% CI]", "faster / slower",
-            "caught only by policy / versus", "verdict"]
+            "caught only by policy / versus", "p (sign-flip)", "verdict"]
     body = [[p.policy, p.reference, p.layout, str(p.episodes),
              f"{p.steps.mean:+7.1f} " + ("[no interval]" if p.steps.lo is None else f"[{p.steps.lo:+7.1f}, {p.steps.hi:+7.1f}]"),
              f"{p.faster} / {p.slower}",
-             f"{p.only_policy} / {p.only_reference}", p.verdict] for p in pairs]
+             f"{p.only_policy} / {p.only_reference}", _p_text(p.p_value), p.verdict] for p in pairs]
     widths = [max(len(x) for x in col) for col in zip(head, *body)]
     return "\n".join("  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in [head] + body)
+
+
+def _p_text(p: float | None) -> str:
+    if p is None:
+        return "-"
+    return "<0.001" if p < 0.001 else f"{p:.3g}"
 
 
 def pairs_to_dicts(pairs: Sequence[Paired]) -> list[dict]:
@@ -115,7 +129,7 @@ def pairs_to_dicts(pairs: Sequence[Paired]) -> list[dict]:
              "capture_steps_diff": p.steps.mean, "capture_steps_diff_ci_lo": p.steps.lo,
              "capture_steps_diff_ci_hi": p.steps.hi, "faster": p.faster, "slower": p.slower,
              "caught_only_by_policy": p.only_policy, "caught_only_by_versus": p.only_reference,
-             "verdict": p.verdict} for p in pairs]
+             "sign_flip_p": p.p_value, "verdict": p.verdict} for p in pairs]
 
 
 def paired_report(rows: Sequence[Row], reference: str, max_steps: float) -> tuple[str, list[Paired]]:

@@ -81,3 +81,34 @@ def test_no_verdict_and_no_interval_from_too_few_episodes():
     assert "[no interval]" in format_pairs([one])
     two = pair(row("net", [("success", 400), ("success", 500)]), row("heuristic", [("success", 300), ("success", 400)]), MAX)
     assert two.steps.lo == two.steps.hi == 100 and two.verdict == "too few"  # a t interval of width 0 proves nothing
+
+
+def test_a_few_large_differences_among_ties_are_not_called_slower():
+    """Twelve episodes, eight identical and four slower: a t interval excludes 0, but of the
+    16 equally likely sign patterns of the four, two are as extreme (p = 0.125)."""
+    lengths = [150, 420, 260, 610, 330, 180, 505, 240, 300, 350, 280, 220]
+    extra = [0] * 8 + [30, 40, 25, 50]
+    ref = row("heuristic", [("success", s) for s in lengths])
+    pol = row("net", [("success", s + e) for s, e in zip(lengths, extra)])
+    p = pair(pol, ref, MAX)
+    assert p.steps.lo > 0  # the t interval alone would say slower
+    assert p.p_value == pytest.approx(0.125)
+    assert p.verdict == "level"
+    head, line = format_pairs([p]).splitlines()
+    assert head.split("  ")[-2:] == ["p (sign-flip)", "verdict"]
+    assert line.split()[-2:] == ["0.125", "level"]
+
+
+def test_sign_flip_p_counts_every_sign_pattern():
+    from itertools import product
+
+    from pursuit_mj.stats import sign_flip_p
+
+    for diffs in ([3, -1, 4, 0, -5, 9, 2], [7, 7, 7, 7, 7], [0, 0], [-12, 30, 5, 5, -1, 8, 0, 13]):
+        observed = abs(sum(diffs))
+        patterns = list(product((1, -1), repeat=len(diffs)))
+        exact = sum(abs(sum(s * d for s, d in zip(signs, diffs))) >= observed for signs in patterns) / len(patterns)
+        assert sign_flip_p(diffs) == pytest.approx(exact, abs=1e-12)
+    assert sign_flip_p([-10] * 5) == pytest.approx(2 / 32)  # five of five sooner: not yet below 0.05
+    with pytest.raises(ValueError, match="whole numbers.*2.5"):
+        sign_flip_p([1, 2.5])
