@@ -242,8 +242,18 @@ def evaluate(
 # ---------------------------------------------------------------------- output
 
 
+def percent_text(fraction: float) -> str:
+    """A fraction as percent with one decimal, or as many more as keep a value that is neither
+    0 nor 1 from printing as 0.0 or 100.0 (one collision in 2500 episodes is 0.04, not 0.0)."""
+    value = 100.0 * fraction
+    decimals = 1
+    while 0.0 < fraction < 1.0 and round(value, decimals) in (0.0, 100.0) and decimals < 12:
+        decimals += 1
+    return f"{value:.{decimals}f}"
+
+
 def _pct(r: Rate) -> str:
-    return f"{100 * r.p:5.1f} [{100 * r.lo:5.1f}, {100 * r.hi:5.1f}]"
+    return f"{percent_text(r.p):>5} [{percent_text(r.lo):>5}, {percent_text(r.hi):>5}]"
 
 
 def _steps(m: Mean) -> str:

@@ -571,3 +571,16 @@ def test_demo_tells_a_model_named_heuristic_from_the_heuristic_team_and_pairs_bo
     assert [line.split()[0] for line in table.splitlines()[1:]] == ["heuristic#2", "heuristic#2+shield", "heuristic"]
     assert [line.split()[:2] for line in paired.splitlines()[2:]] == [["heuristic#2", "heuristic"],
                                                                       ["heuristic#2+shield", "heuristic"]]
+
+
+def test_a_rare_outcome_in_a_large_table_does_not_print_as_zero_or_all():
+    from pursuit_mj.evaluation import percent_text
+
+    assert percent_text(1 / 2500) == "0.04"  # one collision in 2500 episodes: not "0.0"
+    assert percent_text(2499 / 2500) == "99.96"  # and the successes beside it not "100.0"
+    assert percent_text(1 / 3_000_000) == "0.00003"
+    assert percent_text(0.0) == "0.0" and percent_text(1.0) == "100.0" and percent_text(0.125) == "12.5"
+    records = [EpisodeRecord(0, k, 0, "collision" if k == 0 else "success", 100, None, {}, 0, "0") for k in range(2500)]
+    table = format_table([summarise("p", "0", "point", 0, records, 1000)])
+    line = table.splitlines()[-1]
+    assert " 99.96 [" in line and " 0.04 [" in line
