@@ -1,5 +1,6 @@
 """`pursuit-mj study` end to end on a tiny budget: every regime trains, everything is evaluated."""
 
+import dataclasses
 import json
 
 import pytest
@@ -368,3 +369,21 @@ def test_kept_cells_of_a_layout_file_edited_since_are_played_again(tmp_path):
     again = KeptEvaluation(plan, json.loads(json.dumps(state)), lambda: None, logs.append)
     assert again.episodes is None and again.row("heuristic", "heuristic", str(arena)) is None
     assert "every policy is evaluated again" in logs[0]
+
+
+def test_a_resume_may_change_how_training_is_shown_but_not_what_is_trained(tmp_path):
+    """`train --resume` lets the progress bar and rerun streaming change; `study --resume` refused
+    a different --train-set run.progress=... as a study trained with other settings."""
+    from pursuit_mj.config import default_config
+    from train.study import StudyPlan, _load_state
+
+    out_dir = tmp_path / "study"
+    out_dir.mkdir()
+    state = {"train_overrides": ["task.fidelity=point", "run.progress=false", "ppo.lr=0.0001"], "arms": {}}
+    (out_dir / "study.json").write_text(json.dumps(state))
+    plan = StudyPlan(1.0, out_dir, default_config(), train_overrides=("task.fidelity=point", "ppo.lr=0.0001", "run.rerun=true"),
+                     resume=True)
+    assert _load_state(plan)["arms"] == {}
+    other = dataclasses.replace(plan, train_overrides=("task.fidelity=point", "ppo.lr=0.0002"))
+    with pytest.raises(ValueError, match="was trained with .*ppo.lr=0.0001.*give the same"):
+        _load_state(other)

@@ -115,7 +115,7 @@ def _load_state(plan: StudyPlan) -> dict:
         arms, stored = dict(state["arms"]), list(state["train_overrides"])
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"--resume: {path} is not a study record ({exc})") from None
-    if stored != list(plan.train_overrides):
+    if _what_is_trained(stored) != _what_is_trained(plan.train_overrides):
         raise ValueError(f"--resume: the study in {plan.out} was trained with {stored or 'no train overrides'}, not "
                          f"{list(plan.train_overrides)}; give the same --train-fidelity and --train-set")
     for arm in ARMS:  # checked now, not at the evaluation after every other arm has trained
@@ -309,7 +309,8 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
                                            cfg.run.validation_episodes, seconds_per_episode, cfg.run.validation_vs_heuristic)
         t0 = time.perf_counter()
         if interrupted:  # its own config, with the time it had plus its share of this session's
-            trainer = Trainer.resume(cfg.run_dir, log=log, max_minutes=_spent_minutes(cfg.run_dir) + max(minutes, 0.01))
+            trainer = Trainer.resume(cfg.run_dir, log=log, max_minutes=_spent_minutes(cfg.run_dir) + max(minutes, 0.01),
+                                     progress=cfg.run.progress, rerun=cfg.run.rerun)
             log(f"[study] resuming {regime} for {_duration(minutes * 60)} more")
         else:
             cfg = load_train_config([arm.config], overrides + [f"max_minutes={max(minutes, 0.01):.4f}",
@@ -367,6 +368,14 @@ def _time_cells(timings: dict[str, float], name: str, played_s: float, kept_s: f
         timings[f"{name} (eval)"] = played_s
     if kept_s - played_s > 0.05:
         timings[f"{name} (eval, earlier session)"] = kept_s - played_s
+
+
+SHOWING_KEYS = ("run.progress", "run.rerun")  # how training is shown: may change on --resume, as with train --resume
+
+
+def _what_is_trained(overrides) -> list[str]:
+    """The train overrides that change what is trained (all but SHOWING_KEYS), in order."""
+    return [text for text in overrides if text.split("=", 1)[0].strip() not in SHOWING_KEYS]
 
 
 def _save_state(plan: StudyPlan, state: dict) -> None:
