@@ -18,8 +18,8 @@ def test_study_end_to_end_on_a_tiny_budget(tmp_path, capsys):
                 + sum((["--train-set", s] for s in TRAIN), []))
     assert code == 0
     out = capsys.readouterr().out
-    names = {"heuristic", "full_obs", "fine_tune", "classic", "mappo", "imitate", "imitate_ppo", "residual+shield",
-             "belief+shield", "belief_ppo+shield"}  # the arms trained behind the shield say so
+    names = {"heuristic", "full_obs", "fine_tune", "classic", "mappo", "imitate", "imitate_ppo", "residual@heuristic+shield",
+             "belief+shield", "belief_ppo+shield"}  # the arms trained behind the shield say so, as eval names them
     for name in names:
         assert name in out
     assert "min" in out  # the timings
@@ -166,7 +166,7 @@ def test_an_interrupted_study_resumes_keeping_its_finished_arms_and_evaluations(
     stop_at_mappo = False
     assert main(["study", "--budget-minutes", "0.1", "--resume", *args]) == 0
     out = capsys.readouterr().out
-    assert played == ["mappo", "imitate", "imitate_ppo", "residual+shield", "belief+shield", "belief_ppo+shield"]
+    assert played == ["mappo", "imitate", "imitate_ppo", "residual@heuristic+shield", "belief+shield", "belief_ppo+shield"]
     assert "classic: 1 of 1 layouts evaluated in an earlier session, kept" in out
     table = json.loads((out_dir / "table.json").read_text())
     assert len({r["policy"] for r in table["rows"]}) == 10  # the heuristic team and all nine arms

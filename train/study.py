@@ -332,7 +332,7 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
     for regime in (arm.name for arm in ARMS):
         kept.use_checkpoint(regime, checkpoints[regime])  # cells played from another best.pt are dropped
         policy = load_policy(checkpoints[regime], spec, name=regime, task=plan.eval_task)
-        label = f"{regime}+shield" if getattr(policy, "has_shield", False) else regime  # as eval labels it
+        label = policy.name  # as eval labels it: NAME+shield behind the shield, NAME@BASE for a correction
         arm_rows, played_s = _evaluate_cells(kept, regime, policy, label, plan, episodes, log)
         rows += arm_rows
         _time_cells(timings, regime, played_s, kept.seconds(regime))
