@@ -6,7 +6,11 @@ import torch
 
 
 class RunningMeanStd:
-    """Mean and std of every value seen so far; state is three floats, saved in checkpoints."""
+    """Mean and std of every value seen so far; state is three floats, saved in checkpoints.
+
+    Cumulative, not a moving average: MAPPO's own ValueNorm (Yu et al. 2022) is a debiased
+    exponential average with beta = 0.99999 per update, whose memory of 1e5 updates is longer
+    than any run here; with equal batches both weight every update alike."""
 
     def __init__(self, epsilon: float = 1e-4):
         self.mean = 0.0
