@@ -112,3 +112,35 @@ def _pin_xdist_worker_to_one_core() -> None:
 
 
 _pin_xdist_worker_to_one_core()
+
+
+_STOP_SIGNALS = [s for s in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGTSTP") if hasattr(__import__("signal"), s)]
+
+
+@pytest.fixture(autouse=True)
+def _signal_handlers_given_back():
+    """Every test leaves the stop signals' handlers as it found them: a handler left behind
+    changes how the later tests of the same worker see Ctrl-C and kill (the CLI takes only
+    signals still at their defaults), so they pass or fail by test order. Fails the test that
+    left one, naming the signal."""
+    import signal
+
+    before = {name: signal.getsignal(getattr(signal, name)) for name in _STOP_SIGNALS}
+    yield
+    after = {name: signal.getsignal(getattr(signal, name)) for name in _STOP_SIGNALS}
+    changed = {name: (before[name], after[name]) for name in before if after[name] != before[name]}
+    for name, (handler, _) in changed.items():
+        signal.signal(getattr(signal, name), handler)  # the next test starts clean either way
+    assert not changed, f"this test left signal handlers changed (before, after): {changed}"
+
+
+@pytest.fixture
+def ctrl_c_as_in_a_terminal():
+    """SIGINT handled by Python's default_int_handler during the test, as at a terminal: a suite
+    started in the background (`bash scripts/test.sh &`, nohup) inherits SIGINT ignored, and
+    the CLI rightly leaves an ignored signal alone."""
+    import signal
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)

@@ -225,6 +225,7 @@ def test_a_broken_pipe_other_than_the_output_is_an_error_naming_where_it_broke()
 
 
 @pytest.mark.parametrize("sig, said", [("SIGTERM", "interrupted by SIGTERM\n"), ("SIGINT", "interrupted\n")])
+@pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
 def test_a_stop_signal_that_a_library_call_reports_as_its_own_error_still_ends_as_an_interrupt(monkeypatch, capsys, sig, said):
     """A SIGTERM (or Ctrl-C) landing while mujoco's bindings convert an argument came out as their
     TypeError ('incompatible function arguments'): a traceback and exit code 1 instead of 130."""
@@ -257,6 +258,7 @@ def test_a_stop_signal_that_a_library_call_reports_as_its_own_error_still_ends_a
 
 
 @pytest.mark.parametrize("phase", ["build_parser", "mujoco_import_error"])
+@pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
 def test_ctrl_c_while_the_command_starts_up_is_one_line_not_a_traceback(monkeypatch, capsys, phase):
     """Ctrl-C while the subcommands' modules (numpy, torch ...) or mujoco import: it printed a traceback."""
     import os
@@ -275,6 +277,7 @@ def test_ctrl_c_while_the_command_starts_up_is_one_line_not_a_traceback(monkeypa
     assert capsys.readouterr().err == "pursuit-mj: interrupted while starting\n"
 
 
+@pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
 def test_ctrl_c_that_mujocos_start_up_reports_as_an_import_error_is_an_interrupt(monkeypatch, capsys):
     """Seen with a real Ctrl-C 0.1 s after start: mujoco's import failed with 'ImportError:
     initialization failed', and the command blamed MUJOCO_GL."""
