@@ -134,6 +134,16 @@ def _signal_handlers_given_back():
     assert not changed, f"this test left signal handlers changed (before, after): {changed}"
 
 
+def stop_signals_at_their_defaults() -> None:
+    """preexec_fn for a CLI subprocess a test stops with a signal: SIGINT, SIGTERM and SIGHUP at
+    their defaults, as a terminal starts a command. Under `nohup` or `&` the suite inherits
+    SIGHUP or SIGINT ignored, and the CLI rightly leaves an ignored signal alone."""
+    import signal
+
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)
+
+
 @pytest.fixture
 def ctrl_c_as_in_a_terminal():
     """SIGINT handled by Python's default_int_handler during the test, as at a terminal: a suite

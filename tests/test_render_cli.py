@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from conftest import stop_signals_at_their_defaults
 from pursuit_cli import main
 from pursuit_mj.render.video import ensure_ffmpeg
 
@@ -182,6 +183,7 @@ def _cli_process(args, env_changes=None, **popen):
 
     env = {**os.environ, **(env_changes or {})}
     code = "import sys; from pursuit_cli import main; sys.exit(main(sys.argv[1:]))"
+    popen.setdefault("preexec_fn", stop_signals_at_their_defaults)  # the signal tests work under nohup too
     return subprocess.Popen([sys.executable, "-c", code, *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, **popen)
 

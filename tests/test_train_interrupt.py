@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from conftest import stop_signals_at_their_defaults
 from train.checkpoint import load_checkpoint
 from train.trainer import Trainer
 
@@ -55,10 +56,10 @@ def test_kill_9_ctrl_c_or_sigterm_loses_at_most_one_update(tmp_path, sig, overla
     for s in TINY + [f"run.runs_dir={tmp_path}", "name=killed", f"run.overlap={str(overlap).lower()}"]:
         args += ["--set", s]
     env = dict(os.environ, MUJOCO_GL="egl")
-    # a shell that starts the suite in the background makes it ignore SIGINT, and children inherit
-    # that: give the trainer the default disposition, as a terminal's Ctrl-C would find it
+    # a shell that starts the suite in the background makes it ignore SIGINT (nohup: SIGHUP), and
+    # children inherit that: give the trainer the defaults, as a terminal's Ctrl-C would find them
     proc = subprocess.Popen(args, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                            preexec_fn=stop_signals_at_their_defaults)
     log = tmp_path / "killed" / "metrics.jsonl"
     deadline = time.time() + 120  # the loop ends at the third row; the margin is for a machine under load
     while time.time() < deadline and proc.poll() is None and (not log.exists() or len(log.read_text().splitlines()) < 3):
