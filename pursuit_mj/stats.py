@@ -1,4 +1,5 @@
-"""Confidence intervals for evaluation tables: Wilson score intervals for rates, t intervals for means.
+"""Confidence intervals for evaluation tables: Wilson score intervals for rates, t intervals for means,
+and the exact sign-flip test of paired differences.
 
 No SciPy: the 97.5 % Student t quantile comes from a table (4 decimals) up to 9 degrees
 of freedom and from a Cornish-Fisher expansion (error below 1e-4) beyond.
@@ -9,6 +10,8 @@ from __future__ import annotations
 import dataclasses
 import math
 from typing import Sequence
+
+import numpy as np
 
 Z95 = 1.959963984540054  # two-sided 95 % normal quantile
 
@@ -116,8 +119,6 @@ def sign_flip_p(diffs: Sequence[float]) -> float | None:
         return 1.0
     if len(sizes) > SIGN_FLIP_MAX_TERMS:
         return None
-    import numpy as np
-
     total = sum(sizes)
     observed = abs(int(round(math.fsum(diffs))))
     # prob[s]: chance that the differences given a + sign sum to s; the signed sum is then 2 s - total
