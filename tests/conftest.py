@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -114,7 +115,7 @@ def _pin_xdist_worker_to_one_core() -> None:
 _pin_xdist_worker_to_one_core()
 
 
-_STOP_SIGNALS = [s for s in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGTSTP") if hasattr(__import__("signal"), s)]
+_STOP_SIGNALS = [s for s in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGTSTP") if hasattr(signal, s)]
 
 
 @pytest.fixture(autouse=True)
@@ -123,8 +124,6 @@ def _signal_handlers_given_back():
     changes how the later tests of the same worker see Ctrl-C and kill (the CLI takes only
     signals still at their defaults), so they pass or fail by test order. Fails the test that
     left one, naming the signal."""
-    import signal
-
     before = {name: signal.getsignal(getattr(signal, name)) for name in _STOP_SIGNALS}
     yield
     after = {name: signal.getsignal(getattr(signal, name)) for name in _STOP_SIGNALS}
@@ -138,8 +137,6 @@ def stop_signals_at_their_defaults() -> None:
     """preexec_fn for a CLI subprocess a test stops with a signal: SIGINT, SIGTERM and SIGHUP at
     their defaults, as a terminal starts a command. Under `nohup` or `&` the suite inherits
     SIGHUP or SIGINT ignored, and the CLI rightly leaves an ignored signal alone."""
-    import signal
-
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, signal.SIG_DFL)
 
@@ -149,8 +146,6 @@ def ctrl_c_as_in_a_terminal():
     """SIGINT handled by Python's default_int_handler during the test, as at a terminal: a suite
     started in the background (`bash scripts/test.sh &`, nohup) inherits SIGINT ignored, and
     the CLI rightly leaves an ignored signal alone."""
-    import signal
-
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     yield
     signal.signal(signal.SIGINT, previous)
