@@ -57,4 +57,4 @@ def test_a_wheel_carries_the_shipped_files_and_runs_away_from_any_checkout(tmp_p
     shipped = assets / "pretrained"
     assert f"= {shipped / 'pursuers.pt'} (the small policy shipped" in out.stderr
     assert f"{shipped / 'README.md'} gives the command that made it" in out.stderr
-    assert "belhs+shield" in out.stdout  # the table
+    assert "bel2e+shield" in out.stdout  # the table

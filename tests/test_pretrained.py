@@ -1,0 +1,30 @@
+"""The policy shipped in pretrained/ as a user meets it: loaded by path, run on the task's own
+observations. Issue 4 promises that one network serves other team sizes because its encoders
+pool over entities; these check that it also still catches them (measured tables:
+pretrained/README.md)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from pursuit_mj.config import default_config
+from pursuit_mj.evaluation import run_episodes
+from pursuit_mj.shipped import shipped_dir
+from train.policy import load_policy
+
+
+def _successes(n_pursuers: int, n_evaders: int, layout: int, episodes: int) -> int:
+    task = dataclasses.replace(default_config(), n_pursuers=n_pursuers, n_evaders=n_evaders, layout=layout, fidelity="point")
+    policy = load_policy(shipped_dir("pretrained") / "pursuers.pt", task=task)
+    records = run_episodes(policy, task, episodes=episodes, seed=0, n_worlds=episodes)
+    return sum(r.outcome == "success" for r in records)
+
+
+@pytest.mark.parametrize("n_evaders", [1, 2])
+def test_the_shipped_policy_catches_one_evader_or_two_on_a_walled_layout(n_evaders):
+    # layout 1 (two offset walls): a network that learned only one evader averaged the
+    # memories of two into a point behind a wall and pushed against the wall there until the
+    # timeout (the network shipped before: 5 of 12 in point fidelity, 14 of 32 in quadrotor)
+    assert _successes(3, n_evaders, layout=1, episodes=8) >= 7
