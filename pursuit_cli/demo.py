@@ -18,7 +18,7 @@ PRETRAINED = shipped_dir("pretrained") / "pursuers.pt"
 
 HOW_TO_TRAIN = """\
 Next steps:
-  pursuit-mj train --config belief --set task.n_evaders=2       # DAgger with belief features (how the demo's model was made)
+  pursuit-mj train --config belief --set task.n_evaders=2        # DAgger with belief features (how the demo's model was made)
   pursuit-mj train --config belief_ppo --set init_from=runs/belief/best.pt   # ... then PPO from it
   pursuit-mj train --config imitate                              # DAgger from the heuristic team (a warm start)
   pursuit-mj train --config finetune_ppo --set init_from=runs/imitate/best.pt --set task.fidelity=quadrotor

@@ -11,13 +11,14 @@ import pytest
 
 from pursuit_mj.config import default_config
 from pursuit_mj.evaluation import run_episodes
+from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.shipped import shipped_dir
 from train.policy import load_policy
 
 
 def _successes(n_pursuers: int, n_evaders: int, layout: int, episodes: int) -> int:
     task = dataclasses.replace(default_config(), n_pursuers=n_pursuers, n_evaders=n_evaders, layout=layout, fidelity="point")
-    policy = load_policy(shipped_dir("pretrained") / "pursuers.pt", task=task)
+    policy = load_policy(shipped_dir("pretrained") / "pursuers.pt", ObsSpec.make(n_pursuers, n_evaders, task.n_rays), task=task)
     records = run_episodes(policy, task, episodes=episodes, seed=0, n_worlds=episodes)
     return sum(r.outcome == "success" for r in records)
 
