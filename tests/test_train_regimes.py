@@ -34,6 +34,28 @@ def test_regime_files_carry_the_reference_hyperparameters(name, gamma, clip, env
     assert cfg.regime == name
 
 
+@pytest.mark.parametrize("path", sorted(str(p) for p in __import__("pathlib").Path("configs/train").glob("*.yaml")))
+def test_every_shipped_config_trains_at_least_two_episodes_long_between_validations(path):
+    """A validation plays its episodes to the last one (up to max_steps in all its worlds at once)
+    and costs about as much as max_steps decision steps of training; more often than every 2 x
+    max_steps steps per world it took 40-70 % of a run's time (docs/training.md)."""
+    cfg = load_train_config([path])
+    assert cfg.run.validate_every > 0
+    assert cfg.rollout_steps() * cfg.run.validate_every >= 2 * cfg.task.max_steps
+
+
+def test_validating_changes_nothing_that_is_trained(tmp_path):
+    """Validation plays its own env with its own seeds: the trained weights do not depend on how often it runs."""
+    weights = []
+    for every in (0, 1):
+        cfg = load_train_config([], TINY + [f"run.validate_every={every}", f"run.runs_dir={tmp_path}", f"name=v{every}",
+                                            "total_steps=60"])
+        Trainer(cfg, **QUIET).train()
+        weights.append(load_checkpoint(cfg.run_dir / "last.pt")["actor"])
+    assert weights[0].keys() == weights[1].keys()
+    assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
+
+
 def test_overrides_flags_and_task_file():
     cfg = load_train_config(["classic"], ["ppo.lr=1e-4", "task.fidelity=point", "task_file=hard"], {"total_steps": 5000})
     assert cfg.ppo.lr == 1e-4 and cfg.task.fidelity == "point" and cfg.total_steps == 5000
