@@ -352,7 +352,8 @@ class PursuitEnv:
         )
         evader_cmd = np.where((free_before & active[:, None])[..., None], evader_cmd, 0.0)
         pursuer_cmd = a * cfg.pursuer_speed * active[:, None, None]
-        contacts = self.physics.step(np.concatenate([pursuer_cmd, evader_cmd], axis=1), strict=False)
+        # an ended episode's world (no auto_reset) waits for its reset unsimulated
+        contacts = self.physics.step(np.concatenate([pursuer_cmd, evader_cmd], axis=1), strict=False, worlds=active)
         # a world whose physics went bad (a violent crash) ends as a collision
         diverged = self.physics.diverged & active
         contacts[diverged] = True

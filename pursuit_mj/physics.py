@@ -331,26 +331,55 @@ class BatchedPhysics:
 
     # ------------------------------------------------------------------ stepping
 
-    def step(self, commands: np.ndarray, strict: bool = True) -> np.ndarray:
+    def step(self, commands: np.ndarray, strict: bool = True, worlds: np.ndarray | None = None) -> np.ndarray:
         """Advance every world by control_dt under velocity commands (W, D, 2) m/s world.
 
         Commands are clipped to each drone's max speed. Returns contacts (W, D) bool: the
         drone touched a wall, an obstacle or another drone during the step. A world whose
         physics went bad raises FloatingPointError, or with strict=False is flagged in
-        `self.diverged` (W,) bool for the caller to end and reset.
+        `self.diverged` (W,) bool for the caller to end and reset. With `worlds` (W,) bool
+        only those worlds are simulated; the others keep their drones' state and their clock
+        (no contacts) until they are reset, and the stepped ones move exactly as in a step of
+        all.
         """
         cmd = check_commands(commands, (self.n_worlds, self.n_drones, 2))
         cmd = clip_norm(cmd, self.max_speed)
+        ids = self._stepped_ids(worlds)
         self.commands[:] = cmd
-        if self.fidelity == "quadrotor":
-            self._step_quadrotor(cmd)
+        if ids is not None and len(ids) == 0:
+            self.contacts[:] = False
+        elif self.fidelity == "quadrotor":
+            self._step_quadrotor(cmd, ids)
         else:
-            self._step_point(cmd)
-        self.time += self.config.control_dt
+            self._step_point(cmd, ids)
+        if ids is None:
+            self.time += self.config.control_dt
+        else:
+            self.time[ids] += self.config.control_dt
         self._check_health(strict)
         return self.contacts.copy()
 
-    def _step_point(self, cmd: np.ndarray) -> None:
+    def _stepped_ids(self, worlds: np.ndarray | None) -> np.ndarray | None:
+        """The indices of the worlds to simulate, or None for all of them."""
+        if worlds is None:
+            return None
+        mask = np.asarray(worlds)
+        if mask.shape != (self.n_worlds,) or mask.dtype != bool:
+            raise ValueError(f"worlds: expected a ({self.n_worlds},) bool mask, got {mask.dtype} of shape {mask.shape}")
+        return None if mask.all() else np.flatnonzero(mask)
+
+    def _rollout_contacts(self, k: int, ids: np.ndarray | None) -> np.ndarray:
+        """Run k physics steps of the worlds ids (None: all); (W, D) bool: drones in contact
+        in any of them (False in the worlds not run)."""
+        if ids is None:
+            rec = self.batch.rollout(k, record=("sensordata",), out=self._record)["sensordata"]
+            return (rec[:, :, self.ids.contact_adr] > 0).any(axis=1)
+        rec = self.batch.rollout(k, record=("sensordata",), ids=ids)["sensordata"]
+        touched = np.zeros((self.n_worlds, self.n_drones), bool)
+        touched[ids] = (rec[:, :, self.ids.contact_adr] > 0).any(axis=1)
+        return touched
+
+    def _step_point(self, cmd: np.ndarray, ids: np.ndarray | None = None) -> None:
         """Every controller tick: the force that moves each drone's velocity toward cmd as a
         first-order lag of point_time_constant would over the tick (exact for an unlimited
         one), its acceleration capped in norm at point_max_accel. Neither follows drone_mass:
@@ -366,12 +395,11 @@ class BatchedPhysics:
         for _ in range(self.config.substeps // k):
             accel = clip_norm(rate * (cmd - self.qvel[:, self._qvel_idx]), limit)  # (W, D, 2) m/s^2
             self._state[:, self._write_cols] = (mass * accel).reshape(self.n_worlds, -1)
-            rec = self.batch.rollout(k, record=("sensordata",), out=self._record)["sensordata"]
-            contacts |= (rec[:, :, self.ids.contact_adr] > 0).any(axis=1)
+            contacts |= self._rollout_contacts(k, ids)
             for observer in self.observers:
                 observer(self)
 
-    def _step_quadrotor(self, cmd: np.ndarray) -> None:
+    def _step_quadrotor(self, cmd: np.ndarray, ids: np.ndarray | None = None) -> None:
         k = self.config.substeps_per_control
         dt = k * self.config.physics_dt
         state_t, out, W, D = self._state.T, self._out, self.n_worlds, self.n_drones
@@ -385,8 +413,7 @@ class BatchedPhysics:
             out[4:] = linear_drag(rot, x[7:10], self.drag)  # held for the k physics steps
             out[:4] = self.controller.compute(x[:3], x[7:10], x[3:7], x[10:13], cmd_t, dt, rot, out[4:])
             state_t[self._write_cols] = out_t
-            rec = self.batch.rollout(k, record=("sensordata",), out=self._record)["sensordata"]
-            contacts |= (rec[:, :, self.ids.contact_adr] > 0).any(axis=1)
+            contacts |= self._rollout_contacts(k, ids)
             for observer in self.observers:
                 observer(self)
 

@@ -68,6 +68,22 @@ def test_frozen_worlds_without_auto_reset():
     assert env.done.tolist() == [True, False]
 
 
+def test_an_ended_world_stands_still_until_its_reset():
+    """Without auto_reset an ended episode's world is not simulated (eval and validation wait in
+    them for the last episode): its drones stay where the episode ended, its clock stops."""
+    env = PursuitEnv(default_config(max_steps=3, **FAST), n_worlds=2, seed=0, auto_reset=False)
+    env.reset()
+    env.step(np.ones((2, 3, 2)))
+    env.reset_worlds([1])
+    for _ in range(2):
+        env.step(np.ones((2, 3, 2)))
+    assert env.done.tolist() == [True, False]
+    ended, clock = env.physics.positions()[0], env.physics.time[0]
+    env.step(np.ones((2, 3, 2)))
+    assert np.array_equal(env.physics.positions()[0], ended) and env.physics.time[0] == clock
+    assert env.done.all()
+
+
 def test_same_seed_same_trajectory_and_different_seed_differs():
     def run(seed):
         env = PursuitEnv(default_config(fidelity="point", random_obstacles=3), n_worlds=3, seed=seed)

@@ -57,6 +57,29 @@ def test_resetting_some_worlds_leaves_the_others_untouched(fidelity):
     assert np.array_equal(untouched, full_state(reference)[[0, 2]])
 
 
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_stepping_some_worlds_leaves_the_others_as_they_were_and_the_stepped_as_if_alone(fidelity):
+    reference, physics = make_physics(fidelity, n_worlds=3), make_physics(fidelity, n_worlds=3)
+    cmds = random_commands(physics, 10, seed=6)
+    for c in cmds[:4]:
+        reference.step(c)
+        physics.step(c)
+    def drones(p):  # positions, velocities, attitudes of world 1 (the inputs written to it may change)
+        return np.concatenate([p.positions()[1], p.velocities()[1], p.quaternions()[1]], -1)
+
+    paused, clock = drones(physics), physics.time[1]
+    for c in cmds[4:]:
+        reference.step(c)
+        physics.step(c, worlds=np.array([True, False, True]))
+    assert np.array_equal(drones(physics), paused) and physics.time[1] == clock
+    assert np.array_equal(full_state(physics)[[0, 2]], full_state(reference)[[0, 2]])
+    assert (physics.time[[0, 2]] == reference.time[[0, 2]]).all() and not physics.diverged.any()
+    physics.step(cmds[0], worlds=np.zeros(3, bool))  # none: nothing moves
+    assert np.array_equal(drones(physics), paused) and not physics.contacts.any()
+    with pytest.raises(ValueError, match=r"worlds: expected a \(3,\) bool mask"):
+        physics.step(cmds[0], worlds=np.array([True, False]))
+
+
 @pytest.mark.parametrize("fidelity,flight_height", [("point", 0.5), ("quadrotor", 0.5), ("point", 2.0), ("quadrotor", 1.0)])
 def test_contact_with_a_wall_is_reported_for_that_drone_only(fidelity, flight_height):
     xy = SPREAD_XY.copy()
