@@ -16,9 +16,9 @@ from pursuit_mj.shipped import shipped_dir
 from train.policy import load_policy
 
 
-def _successes(n_pursuers: int, n_evaders: int, layout: int, episodes: int) -> int:
+def _successes(n_pursuers: int, n_evaders: int, layout: int, episodes: int, model: str = "pursuers.pt") -> int:
     task = dataclasses.replace(default_config(), n_pursuers=n_pursuers, n_evaders=n_evaders, layout=layout, fidelity="point")
-    policy = load_policy(shipped_dir("pretrained") / "pursuers.pt", ObsSpec.make(n_pursuers, n_evaders, task.n_rays), task=task)
+    policy = load_policy(shipped_dir("pretrained") / model, ObsSpec.make(n_pursuers, n_evaders, task.n_rays), task=task)
     records = run_episodes(policy, task, episodes=episodes, seed=0, n_worlds=episodes)
     return sum(r.outcome == "success" for r in records)
 
@@ -29,3 +29,8 @@ def test_the_shipped_policy_catches_one_evader_or_two_on_a_walled_layout(n_evade
     # memories of two into a point behind a wall and pushed against the wall there until the
     # timeout (the network shipped before: 5 of 12 in point fidelity, 14 of 32 in quadrotor)
     assert _successes(3, n_evaders, layout=1, episodes=8) >= 7
+
+
+def test_the_kept_candidate_catches_the_evader_on_the_cluttered_layout():
+    # belppo_point.pt (pretrained/README.md): PPO from the belief student, the closest to issue 4's reference aim
+    assert _successes(3, 1, layout=3, episodes=8, model="belppo_point.pt") >= 7
