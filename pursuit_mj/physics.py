@@ -339,8 +339,9 @@ class BatchedPhysics:
         physics went bad raises FloatingPointError, or with strict=False is flagged in
         `self.diverged` (W,) bool for the caller to end and reset. With `worlds` (W,) bool
         only those worlds are simulated; the others keep their drones' state and their clock
-        (no contacts) until they are reset, and the stepped ones move exactly as in a step of
-        all.
+        (no contacts), and the stepped ones move exactly as in a step of all. A paused world is
+        meant to be reset before it is stepped again: the quadrotor controller's memory (its
+        integrators) still runs for it.
         """
         cmd = check_commands(commands, (self.n_worlds, self.n_drones, 2))
         cmd = clip_norm(cmd, self.max_speed)

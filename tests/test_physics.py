@@ -59,14 +59,14 @@ def test_resetting_some_worlds_leaves_the_others_untouched(fidelity):
 
 @pytest.mark.parametrize("fidelity", FIDELITIES)
 def test_stepping_some_worlds_leaves_the_others_as_they_were_and_the_stepped_as_if_alone(fidelity):
+    def drones(p):  # positions, velocities, attitudes of world 1 (the inputs written to it may change)
+        return np.concatenate([p.positions()[1], p.velocities()[1], p.quaternions()[1]], -1)
+
     reference, physics = make_physics(fidelity, n_worlds=3), make_physics(fidelity, n_worlds=3)
     cmds = random_commands(physics, 10, seed=6)
     for c in cmds[:4]:
         reference.step(c)
         physics.step(c)
-    def drones(p):  # positions, velocities, attitudes of world 1 (the inputs written to it may change)
-        return np.concatenate([p.positions()[1], p.velocities()[1], p.quaternions()[1]], -1)
-
     paused, clock = drones(physics), physics.time[1]
     for c in cmds[4:]:
         reference.step(c)

@@ -2,6 +2,7 @@
 
 import json
 import os
+from pathlib import Path
 
 import pytest
 import torch
@@ -34,7 +35,7 @@ def test_regime_files_carry_the_reference_hyperparameters(name, gamma, clip, env
     assert cfg.regime == name
 
 
-@pytest.mark.parametrize("path", sorted(str(p) for p in __import__("pathlib").Path("configs/train").glob("*.yaml")))
+@pytest.mark.parametrize("path", sorted(str(p) for p in Path("configs/train").glob("*.yaml")))
 def test_every_shipped_config_trains_at_least_two_episodes_long_between_validations(path):
     """A validation plays its episodes to the last one (up to max_steps in all its worlds at once)
     and costs about as much as max_steps decision steps of training; more often than every 2 x
