@@ -9,7 +9,7 @@ import torch
 from pursuit_mj.obs_spec import ObsSpec
 from train.config import NetConfig
 from train.gae import compute_gae, next_values_from
-from train.losses import behaviour_weights, clipped_policy_loss, normalise, scaled_value_loss
+from train.losses import behaviour_weights, clipped_policy_loss, gaussian_kl, normalise, scaled_value_loss
 from train.networks import Actor, Critic, EntityEncoder, gaussian_entropy, gaussian_log_prob, masked_mean, tanh
 from train.running_norm import RunningMeanStd
 
@@ -89,6 +89,21 @@ def test_clipped_policy_loss_hand_computed():
     assert frac.item() == pytest.approx(0.75)
 
 
+def test_gaussian_kl_hand_computed_and_as_torch_computes_it():
+    # KL(N(0, 1) || N(1, 2)) = log 2 + (1 + 1) / 8 - 1/2 per dimension; identical Gaussians: 0
+    mean_p, log_std_p = torch.zeros(1, 2), torch.zeros(1, 2)
+    mean_q, log_std_q = torch.ones(1, 2), torch.full((1, 2), math.log(2.0))
+    kl = gaussian_kl(mean_p, log_std_p, mean_q, log_std_q)
+    assert kl.shape == (1,)
+    assert kl.item() == pytest.approx(2 * (math.log(2.0) + 2 / 8 - 0.5))
+    assert gaussian_kl(mean_q, log_std_q, mean_q, log_std_q).item() == 0.0
+    g = torch.Generator().manual_seed(0)
+    mp, mq, sp, sq = (torch.randn(5, 2, generator=g) for _ in range(4))
+    expected = torch.distributions.kl_divergence(torch.distributions.Normal(mp, sp.exp()),
+                                                 torch.distributions.Normal(mq, sq.exp())).sum(-1)
+    torch.testing.assert_close(gaussian_kl(mp, sp, mq, sq), expected)
+
+
 def test_decoupled_objective_weights_each_sample_by_its_capped_importance():
     behaviour = torch.log(torch.tensor([0.5, 0.2, 0.4, 0.1]))
     prox = torch.log(torch.tensor([0.25, 0.2, 0.8, 0.1]))  # the model now: half as likely, same, twice, same
@@ -132,6 +147,41 @@ def test_a_lagged_update_of_fresh_samples_is_plain_ppo():
     assert stats["behaviour_weight"] == pytest.approx(1.0)
     for k in plain:
         torch.testing.assert_close(decoupled[k], plain[k], rtol=1e-4, atol=1e-5)
+
+
+def test_an_anchored_update_stays_nearer_the_anchor_and_logs_its_kl():
+    """ppo.anchor_coef adds coef x KL(policy || anchor) to the loss: from the same start and
+    rollout, the anchored update ends nearer the anchor (the start) than the plain one."""
+    import copy
+
+    from train.agent import ActorCritic
+    from train.config import load_train_config
+    from train.ppo import ppo_update
+    from train.storage import Rollout
+
+    spec = ObsSpec.make(2, 1, 4)
+    T, W, N = 16, 2, 2
+    torch.manual_seed(0)
+    buf = Rollout(T, W, N, spec.dim)
+    buf.obs.uniform_(-1, 1)
+    buf.rewards.normal_()
+    drift = {}
+    for coef in (0.0, 50.0):
+        cfg = load_train_config([], ["ppo.epochs=8", "ppo.minibatch_size=16", "net.encoder_width=8", "net.hidden=[8]",
+                                     f"ppo.anchor_coef={coef}"])
+        torch.manual_seed(1)
+        model = ActorCritic(spec, 0, cfg)
+        anchor = copy.deepcopy(model.actor).requires_grad_(False)
+        with torch.no_grad():
+            mean, log_std = model.actor(buf.obs, spec)
+            buf.actions.copy_(mean + 0.3 * torch.randn(mean.shape, generator=torch.Generator().manual_seed(2)))
+            buf.logp.copy_(gaussian_log_prob(mean, log_std.exp(), buf.actions).sum(-1))
+        opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+        stats = ppo_update(model, opt, buf, cfg.ppo, 0.99, torch.Generator().manual_seed(3), anchor=anchor)
+        with torch.no_grad():
+            drift[coef] = float(gaussian_kl(*model.actor(buf.obs, spec), *anchor(buf.obs, spec)).mean())
+        assert ("anchor_kl" in stats) == (coef > 0)  # an update without anchor logs none
+    assert drift[50.0] < 0.5 * drift[0.0]
 
 
 def test_clipped_loss_gradient_vanishes_outside_the_trust_region():

@@ -202,6 +202,62 @@ def test_a_mappo_run_started_from_a_mappo_checkpoint_keeps_its_critics_value_sca
         assert torch.equal(torch.as_tensor(child.model.value_norm.state_dict()[k]), torch.as_tensor(v)), k
 
 
+def test_an_anchor_needs_a_start_and_is_idle_under_dagger():
+    with pytest.raises(ConfigError, match=r"ppo.anchor_coef 0.5 needs init_from"):
+        load_train_config(["classic"], ["ppo.anchor_coef=0.5"]).check_complete()
+    assert load_train_config(["imitate"], ["ppo.anchor_coef=0.5"]).idle_settings() == [
+        "ppo.anchor_coef do(es) nothing under algo dagger (PPO's update; DAgger's are imitation.lr, "
+        "imitation.minibatch_size, imitation.max_grad_norm, imitation.grad_steps)"]
+    with pytest.raises(ConfigError, match=r"ppo.anchor_coef.*-1"):
+        load_train_config(["classic"], ["ppo.anchor_coef=-1"])
+
+
+def test_an_anchored_run_keeps_its_start_as_anchor_through_a_resume(tmp_path):
+    """The anchor is the init_from actor, frozen; the checkpoint carries it, so a resume keeps
+    it even when the file it started from is gone, and the log shows the KL to it."""
+    base = TINY + [f"run.runs_dir={tmp_path}"]
+    src = load_train_config(["classic"], base + ["name=src", "total_steps=32"])
+    Trainer(src, **QUIET).train()
+    start = tmp_path / "start.pt"
+    (src.run_dir / "last.pt").rename(start)
+    cfg = load_train_config(["classic"], base + ["name=anchored", "total_steps=64", f"init_from={start}",
+                                                 "ppo.anchor_coef=1.0", "ppo.lr=3e-3"])
+    trainer = Trainer(cfg, **QUIET)
+    trainer.train_one_update()
+    trainer.save()
+    trainer.close()
+    start_actor = load_checkpoint(start)["actor"]
+    saved = load_checkpoint(cfg.run_dir / "last.pt")
+    for k, v in start_actor.items():
+        assert torch.equal(saved["anchor_actor"][k], v), k
+    assert any(not torch.equal(saved["actor"][k], v) for k, v in start_actor.items())
+    start.unlink()
+    resumed = Trainer.resume(cfg.run_dir, **QUIET)
+    for k, v in start_actor.items():
+        assert torch.equal(resumed.anchor.state_dict()[k], v), k
+    assert all(not p.requires_grad for p in resumed.anchor.parameters())
+    resumed.train()
+    rows = [json.loads(line) for line in (cfg.run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert all(row["loss"]["anchor_kl"] >= 0.0 for row in rows) and rows[-1]["loss"]["anchor_kl"] > 0.0
+
+
+def test_an_anchored_checkpoint_without_its_anchor_is_refused_on_resume(tmp_path):
+    base = TINY + [f"run.runs_dir={tmp_path}"]
+    src = load_train_config(["classic"], base + ["name=src", "total_steps=32"])
+    Trainer(src, **QUIET).train()
+    cfg = load_train_config(["classic"], base + ["name=anchored", "total_steps=64",
+                                                 f"init_from={src.run_dir / 'last.pt'}", "ppo.anchor_coef=1.0"])
+    trainer = Trainer(cfg, **QUIET)
+    trainer.train_one_update()
+    data = trainer.checkpoint_payload()
+    trainer.close()
+    del data["anchor_actor"]
+    from train.checkpoint import save_checkpoint
+    save_checkpoint(cfg.run_dir / "last.pt", data)
+    with pytest.raises(ValueError, match=r"cannot resume from its anchor actor"):
+        Trainer.resume(cfg.run_dir, **QUIET)
+
+
 def test_fine_tune_without_its_full_obs_checkpoint_says_how_to_get_one(tmp_path):
     ft = load_train_config(["fine_tune"], TINY + [f"run.runs_dir={tmp_path}", f"init_from={tmp_path / 'nope.pt'}"])
     with pytest.raises(ValueError, match=r"init_from .*nope.pt: no such checkpoint .*--init-from.*"

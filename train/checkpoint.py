@@ -6,6 +6,7 @@ A checkpoint is a dict of plain values and tensors (never pickled objects):
     obs_spec               ObsSpec.to_dict() of the environment it was trained in
     state_dim              global state length (MAPPO critic input)
     actor, critic          state_dicts
+    anchor_actor           the frozen init_from actor of an anchored run (ppo.anchor_coef > 0)
     optimizer              Adam state_dict (absent in weights-only exports)
     value_norm, discount   MAPPO running stats, discount logit + its optimiser
     counters               update, world_steps, agent_steps, episodes, best_success ...
@@ -29,7 +30,7 @@ FORMAT = "pursuit-mj-checkpoint"
 VERSION = 1
 REQUIRED = ("format", "version", "train_config", "obs_spec", "actor", "counters")
 DICTS = ("train_config", "obs_spec", "actor", "counters", "critic", "optimizer", "rng", "value_norm", "discount",
-         "pending_row")
+         "pending_row", "anchor_actor")
 CONFIG_SECTIONS = ("task", "ppo", "imitation", "residual", "net", "run")  # dicts inside train_config
 
 

@@ -43,11 +43,13 @@ class PPOConfig:
     learnable_gamma: bool = spec(False, help="learn the discount by meta-gradient (see train/discount.py); gamma is its start")
     gamma_meta_lr: float = spec(3e-3, lo=0.0, lo_open=True, help="Adam step size for the discount's logit")
     gamma_outer: float = spec(0.995, lo=0.0, hi=1.0, help="fixed discount of the meta objective that judges gamma")
+    anchor_coef: float = spec(0.0, lo=0.0, help="weight of KL(policy || anchor) in the loss, the anchor being the init_from "
+                                                "actor, frozen: PPO improves on its start without drifting far from it (0: off)")
 
 
 
 #: PPOConfig keys only PPO's update reads (DAgger reads gamma, gae_lambda, batch_size, vf_coef, value_scaling, lr_decay)
-PPO_UPDATE_ONLY = ("lr", "clip", "epochs", "minibatch_size", "ent_coef", "max_grad_norm", "norm_adv")
+PPO_UPDATE_ONLY = ("lr", "clip", "epochs", "minibatch_size", "ent_coef", "max_grad_norm", "norm_adv", "anchor_coef")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -189,6 +191,9 @@ class TrainConfig:
         """Checks that span keys set by separate overrides (run once the config is final)."""
         if self.algo != "dagger" and self.ppo.minibatch_size > self.ppo.batch_size:  # DAgger's is imitation.minibatch_size
             raise ConfigError(f"{source}: ppo.minibatch_size {self.ppo.minibatch_size} exceeds ppo.batch_size {self.ppo.batch_size}")
+        if self.algo != "dagger" and self.ppo.anchor_coef > 0 and not self.init_from:
+            raise ConfigError(f"{source}: ppo.anchor_coef {self.ppo.anchor_coef:g} needs init_from: the anchor is the actor "
+                              f"the run starts from (set --init-from, or ppo.anchor_coef=0)")
         if self.algo == "dagger" and self.ppo.learnable_gamma:
             raise ConfigError(f"{source}: ppo.learnable_gamma works with algo ppo or mappo, not dagger (imitation has no policy gradient)")
         if self.ppo.learnable_gamma:

@@ -34,6 +34,13 @@ def behaviour_weights(prox_logp: torch.Tensor, behaviour_logp: torch.Tensor, cap
     return torch.exp(prox_logp - behaviour_logp).clamp(max=cap)
 
 
+def gaussian_kl(mean_p: torch.Tensor, log_std_p: torch.Tensor, mean_q: torch.Tensor, log_std_q: torch.Tensor) -> torch.Tensor:
+    """KL(p || q) (...,) of two diagonal Gaussians given as means and log stds (..., D), summed over D."""
+    var_ratio = torch.exp(2.0 * (log_std_p - log_std_q))
+    mean_term = ((mean_p - mean_q) * torch.exp(-log_std_q)) ** 2
+    return 0.5 * (var_ratio + mean_term - 1.0).sum(-1) + (log_std_q - log_std_p).sum(-1)
+
+
 def scaled_value_loss(values: torch.Tensor, targets: torch.Tensor, target_std: float | torch.Tensor | None) -> torch.Tensor:
     """mean((V - target)^2) / std(targets) (the reference study's scaling); unscaled when target_std is None.
 

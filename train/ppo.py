@@ -8,7 +8,7 @@ from torch import nn
 from .agent import ActorCritic
 from .config import PPOConfig
 from .gae import compute_gae, next_values_from
-from .losses import behaviour_weights, clipped_policy_loss, normalise, scaled_value_loss
+from .losses import behaviour_weights, clipped_policy_loss, gaussian_kl, normalise, scaled_value_loss
 from .networks import gaussian_entropy, gaussian_log_prob
 from .storage import Rollout
 
@@ -31,7 +31,8 @@ def explained_variance(pred: torch.Tensor, target: torch.Tensor) -> float:
 
 
 def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollout, cfg: PPOConfig,
-               gamma: float, generator: torch.Generator, lagged: bool = False) -> dict[str, float]:
+               gamma: float, generator: torch.Generator, lagged: bool = False,
+               anchor: nn.Module | None = None) -> dict[str, float]:
     """Run cfg.epochs passes of minibatch gradient steps; returns mean loss statistics.
 
     lagged: the rollout was sampled by an older policy than the model's (run.overlap); the
@@ -52,6 +53,11 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
         weights = behaviour_weights(prox_logp, old_logp)
         old_logp = prox_logp
     adv, ret = adv.reshape(n), ret.reshape(n)
+    anchored = anchor is not None and cfg.anchor_coef > 0
+    if anchored:
+        with torch.no_grad():  # the anchor never moves: its outputs are computed once per update
+            anchor_mean, anchor_log_std = anchor(obs, model.spec)
+    anchor_kls: list[torch.Tensor] = []
     states = None
     if model.algo == "mappo":
         states = buf.states.unsqueeze(2).expand(-1, -1, buf.N, -1).reshape(n, -1)
@@ -78,6 +84,10 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
             v = model.raw_value(mb_obs, states[idx] if states is not None else None)
             v_loss = scaled_value_loss(v, targets[idx], target_std)
             loss = pg_loss + cfg.vf_coef * v_loss - cfg.ent_coef * entropy
+            if anchored:
+                anchor_kl = gaussian_kl(mean, log_std, anchor_mean[idx], anchor_log_std[idx]).mean()
+                loss = loss + cfg.anchor_coef * anchor_kl
+                anchor_kls.append(anchor_kl.detach())
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             grad_norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
@@ -93,6 +103,8 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
     out["explained_variance"] = explained_variance(pred, ret)
     out["return_std"] = float(ret.std(unbiased=False))
     out["log_std"] = float(model.actor.log_std.detach().mean())
+    if anchored:
+        out["anchor_kl"] = float(torch.stack(anchor_kls).mean())
     if weights is not None:
         out["behaviour_weight"] = float(weights.mean())  # 1: the lag changed nothing
     return out

@@ -16,6 +16,7 @@ metrics.jsonl, so an interrupted run neither loses nor repeats a row.
 from __future__ import annotations
 
 import collections
+import copy
 import dataclasses
 import json
 import os
@@ -106,6 +107,7 @@ class Trainer:
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=self._base_lr(), eps=1e-5, fused=True)
         p = cfg.ppo
         self.discount = Discount(p.gamma, p.learnable_gamma, p.gamma_meta_lr, p.gamma_outer)
+        self.anchor: torch.nn.Module | None = None  # the frozen start of an anchored run (ppo.anchor_coef)
         if checkpoint is not None:
             self._restore(checkpoint, restored)
         elif cfg.init_from:
@@ -198,6 +200,10 @@ class Trainer:
             part = "discount state"
             if "discount" in data:
                 self.discount.load_state_dict(data["discount"])
+            if self._anchored:
+                part = "anchor actor"
+                self.anchor = self._frozen_actor()
+                self.anchor.load_state_dict(data["anchor_actor"])
             part = "random state (rng)"
             sampler, global_rng = data["rng"]["sampler"], data["rng"]["torch"]
             self.generator.set_state(sampler)
@@ -238,6 +244,9 @@ class Trainer:
         except RuntimeError as exc:
             raise ValueError(f"init_from {path}: actor weights do not fit this network ({load_error(exc)})") from None
         notes = []
+        if self._anchored:
+            self.anchor = self._frozen_actor()
+            notes.append(f"it is also the anchor, kept by KL weight ppo.anchor_coef {self.cfg.ppo.anchor_coef:g}")
         log_std = self.model.actor.log_std.detach()
         if not torch.allclose(log_std, torch.full_like(log_std, self.cfg.net.init_log_std)):
             shown = ", ".join(sorted({f"{x:g}" for x in log_std.tolist()}))
@@ -279,6 +288,14 @@ class Trainer:
         self.log(f"initialised from {path} (trained with observability {src_observability}, "
                  f"now {self.cfg.task.observability})" + "".join(f"; note: {n}" for n in notes))
 
+    @property
+    def _anchored(self) -> bool:
+        return self.cfg.algo != "dagger" and self.cfg.ppo.anchor_coef > 0
+
+    def _frozen_actor(self) -> torch.nn.Module:
+        """A copy of the actor as it is now, out of the optimiser's reach."""
+        return copy.deepcopy(self.model.actor).requires_grad_(False)
+
     # ------------------------------------------------------------------ checkpoints
 
     def checkpoint_payload(self) -> dict:
@@ -291,6 +308,7 @@ class Trainer:
             "optimizer": self.optimizer.state_dict(),
             "value_norm": self.model.value_norm.state_dict() if self.model.value_norm else {},
             "discount": self.discount.state_dict(),
+            **({"anchor_actor": self.anchor.state_dict()} if self.anchor is not None else {}),
             "counters": dataclasses.asdict(self.counters),
             "rng": {"sampler": self.generator.get_state(), "torch": torch.get_rng_state()},
             # the log row of an update whose validation Ctrl-C cut short (plain JSON values): a resume
@@ -419,7 +437,7 @@ class Trainer:
             losses["teacher_share"] = self.collector.beta
         else:
             losses = ppo_update(self.model, self.optimizer, buf, cfg.ppo, self.discount.value, self.generator,
-                                lagged=self.overlap)
+                                lagged=self.overlap, anchor=self.anchor)
         t2 = time.perf_counter()
         self._check_finite(losses)
         c.update += 1
