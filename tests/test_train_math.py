@@ -116,30 +116,43 @@ def test_decoupled_objective_weights_each_sample_by_its_capped_importance():
     assert frac.item() == pytest.approx(0.75)
 
 
-def test_a_lagged_update_of_fresh_samples_is_plain_ppo():
-    """When the policy that acted is the model itself, every weight is 1 and the decoupled update
-    moves the weights as plain PPO does."""
-    from train.agent import ActorCritic
-    from train.config import load_train_config
-    from train.ppo import ppo_update
+def _random_rollout(spec: ObsSpec, T: int, W: int = 2, N: int = 2):
+    """A rollout (T, W, N) of uniform observations and normal rewards, seeded; actions unset."""
     from train.storage import Rollout
 
-    cfg = load_train_config([], ["ppo.epochs=2", "ppo.minibatch_size=16", "net.encoder_width=8", "net.hidden=[8]"])
-    spec = ObsSpec.make(2, 1, 4)
-    T, W, N = 8, 2, 2
     torch.manual_seed(0)
     buf = Rollout(T, W, N, spec.dim)
     buf.obs.uniform_(-1, 1)
     buf.rewards.normal_()
+    return buf
+
+
+def _model_that_acted(buf, spec: ObsSpec, cfg):
+    """A seeded ActorCritic; buf's actions and log-probs become samples of its own actor."""
+    from train.agent import ActorCritic
+
+    torch.manual_seed(1)
+    model = ActorCritic(spec, 0, cfg)
+    with torch.no_grad():
+        mean, log_std = model.actor(buf.obs, spec)
+        buf.actions.copy_(mean + 0.3 * torch.randn(mean.shape, generator=torch.Generator().manual_seed(2)))
+        buf.logp.copy_(gaussian_log_prob(mean, log_std.exp(), buf.actions).sum(-1))
+    return model
+
+
+def test_a_lagged_update_of_fresh_samples_is_plain_ppo():
+    """When the policy that acted is the model itself, every weight is 1 and the decoupled update
+    moves the weights as plain PPO does."""
+    from train.config import load_train_config
+    from train.ppo import ppo_update
+
+    cfg = load_train_config([], ["ppo.epochs=2", "ppo.minibatch_size=16", "net.encoder_width=8", "net.hidden=[8]"])
+    spec = ObsSpec.make(2, 1, 4)
+    buf = _random_rollout(spec, T=8)
     buf.terminated[3, 0] = True
     results = []
     for lagged in (False, True):
-        torch.manual_seed(1)
-        model = ActorCritic(spec, 0, cfg)
-        with torch.no_grad():
-            mean, log_std = model.actor(buf.obs, spec)
-            buf.actions.copy_(mean + 0.3 * torch.randn(mean.shape, generator=torch.Generator().manual_seed(2)))
-            buf.logp.copy_(gaussian_log_prob(mean, log_std.exp(), buf.actions).sum(-1))
+        model = _model_that_acted(buf, spec, cfg)
         opt = torch.optim.Adam(model.parameters(), lr=1e-3)
         stats = ppo_update(model, opt, buf, cfg.ppo, 0.99, torch.Generator().manual_seed(3), lagged=lagged)
         results.append((model.state_dict(), stats))
@@ -154,28 +167,17 @@ def test_an_anchored_update_stays_nearer_the_anchor_and_logs_its_kl():
     rollout, the anchored update ends nearer the anchor (the start) than the plain one."""
     import copy
 
-    from train.agent import ActorCritic
     from train.config import load_train_config
     from train.ppo import ppo_update
-    from train.storage import Rollout
 
     spec = ObsSpec.make(2, 1, 4)
-    T, W, N = 16, 2, 2
-    torch.manual_seed(0)
-    buf = Rollout(T, W, N, spec.dim)
-    buf.obs.uniform_(-1, 1)
-    buf.rewards.normal_()
+    buf = _random_rollout(spec, T=16)
     drift = {}
     for coef in (0.0, 50.0):
         cfg = load_train_config([], ["ppo.epochs=8", "ppo.minibatch_size=16", "net.encoder_width=8", "net.hidden=[8]",
                                      f"ppo.anchor_coef={coef}"])
-        torch.manual_seed(1)
-        model = ActorCritic(spec, 0, cfg)
+        model = _model_that_acted(buf, spec, cfg)
         anchor = copy.deepcopy(model.actor).requires_grad_(False)
-        with torch.no_grad():
-            mean, log_std = model.actor(buf.obs, spec)
-            buf.actions.copy_(mean + 0.3 * torch.randn(mean.shape, generator=torch.Generator().manual_seed(2)))
-            buf.logp.copy_(gaussian_log_prob(mean, log_std.exp(), buf.actions).sum(-1))
         opt = torch.optim.Adam(model.parameters(), lr=3e-3)
         stats = ppo_update(model, opt, buf, cfg.ppo, 0.99, torch.Generator().manual_seed(3), anchor=anchor)
         with torch.no_grad():
