@@ -25,6 +25,7 @@ SUBCOMMANDS = [
     "simulate",
     "bench",
     "eval_cmd",
+    "pool_cmd",
     "train_cmd",
     "study",
     "render_cmd",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 
 from pursuit_mj.config import TaskConfig, dump_yaml, load_task_config
@@ -43,6 +44,30 @@ def path_arg(text: str) -> str:
 
 
 MAX_EPISODES = 1_000_000  # per policy and layout; more would run for weeks (and listing their seeds alone takes minutes)
+
+
+def check_out_prefix(prefix: str) -> None:
+    """--out is a file name prefix: one that ends in a folder (tables/, tables/.) would write the
+    hidden files tables/.csv and tables/.json; ValueError naming it and a prefix that would do."""
+    if os.path.basename(prefix) in ("", ".", ".."):
+        raise ValueError(f"--out {prefix}: names a folder, not a file name prefix (PREFIX.csv, PREFIX.json are "
+                         f"written); give e.g. --out {os.path.normpath(os.path.join(prefix, 'table'))}")
+
+
+def pick_versus(flag: str | None, labels: list[str], where: str, add: str) -> str | None:
+    """The policy label the others of a table are paired against: --versus `flag`, else heuristic
+    when others are there too; None for 'none'. ValueError when the flag names no policy of
+    `where` (e.g. "this table"), or the only one; `add` says how to add another."""
+    if flag is None:
+        return "heuristic" if "heuristic" in labels and len(labels) > 1 else None
+    if flag == "none":
+        return None
+    if flag not in labels:
+        raise ValueError(f"--versus {flag!r}: not a policy of {where} (policies: {', '.join(labels)})")
+    if len(labels) == 1:
+        raise ValueError(f"--versus {flag!r}: {where} has no other policy to pair with it; add one {add} "
+                         "or leave --versus out")
+    return flag
 
 
 def check_episodes(episodes: int, flag: str = "--episodes") -> None:

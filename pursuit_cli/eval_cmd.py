@@ -10,7 +10,6 @@
 from __future__ import annotations
 
 import contextlib
-import os
 import sys
 import time
 from pathlib import Path
@@ -18,7 +17,7 @@ from pathlib import Path
 from pursuit_mj.io_utils import check_writable, check_writable_folder
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
-from .common import SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, load_model, seed_arg, shield_if_asked, table_layouts, task_config_from_args
+from .common import SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, check_out_prefix, pick_versus, load_model, seed_arg, shield_if_asked, table_layouts, task_config_from_args
 from .eval_resume import file_sha256, finished_rows, interrupted_path, keep_finished
 
 
@@ -60,14 +59,6 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _check_prefix(prefix: str) -> None:
-    """--out is a file name prefix: one that ends in a folder (tables/, tables/.) would write the
-    hidden files tables/.csv and tables/.json; ValueError naming it and a prefix that would do."""
-    if os.path.basename(prefix) in ("", ".", ".."):
-        raise ValueError(f"--out {prefix}: names a folder, not a file name prefix (PREFIX.csv, PREFIX.json are "
-                         f"written); give e.g. --out {os.path.normpath(os.path.join(prefix, 'table'))}")
-
-
 def _check_output_flags(args) -> None:
     """Refuse an output path that would be ignored (an empty one) or turned into hidden files."""
     for flag in ("out", "csv", "json", "plots", "rerun"):
@@ -75,7 +66,7 @@ def _check_output_flags(args) -> None:
         if value is not None and not value.strip():
             raise ValueError(f"--{flag} {value!r}: an empty path; give a file name or leave the flag out")
     if args.out:
-        _check_prefix(args.out)
+        check_out_prefix(args.out)
 
 
 def _outputs(args) -> tuple[Path | None, Path | None]:
@@ -156,19 +147,8 @@ def _meta(args, policies, layouts, code: dict) -> dict:
 
 
 def _versus(args, policies) -> str | None:
-    """The label the others are paired against: --versus, else heuristic when others are there too.
-    ValueError when --versus names no policy of the table, or the only one (nothing to pair it with)."""
-    labels = [label for label, _ in policies]
-    if args.versus is None:
-        return "heuristic" if "heuristic" in labels and len(labels) > 1 else None
-    if args.versus == "none":
-        return None
-    if args.versus not in labels:
-        raise ValueError(f"--versus {args.versus!r}: not a policy of this table (policies: {', '.join(labels)})")
-    if len(labels) == 1:
-        raise ValueError(f"--versus {args.versus!r}: the table has no other policy to pair with it; add one "
-                         "(--policy NAME, --model FILE) or leave --versus out")
-    return args.versus
+    """The label the others are paired against (common.pick_versus)."""
+    return pick_versus(args.versus, [label for label, _ in policies], "this table", "(--policy NAME, --model FILE)")
 
 
 def run(args) -> int:

@@ -509,7 +509,7 @@ def test_eval_versus_a_policy_with_no_other_to_pair_is_refused(capsys, tmp_path)
                  "--set", "max_steps=5", "--json", str(tmp_path / "t.json"), "-q"])
     assert code == 2
     err = capsys.readouterr().err
-    assert "--versus 'heuristic': the table has no other policy to pair with it" in err, err
+    assert "--versus 'heuristic': this table has no other policy to pair with it" in err, err
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "t.json").exists()
 
 

@@ -1,0 +1,66 @@
+"""`pursuit-mj pool`: several evaluation tables (eval --out JSON files) as one, episodes pooled.
+
+    pursuit-mj pool results/s0.json results/s1.json results/s2.json
+    pursuit-mj pool results/team_s*.json results/net_s*.json --versus heuristic --out results/pooled --plots plots/
+
+Tables run with different --seed hold different episodes; pooled, each row has them all (an
+episode in two files counts once), and every policy is paired with the reference on the
+episodes both played (pursuit_mj/pooling.py).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pursuit_mj.io_utils import check_writable, check_writable_folder
+from .common import check_out_prefix, path_arg, pick_versus
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "pool",
+        help="pool the episodes of several evaluation tables (eval --out JSON files) into one table",
+        description="Read evaluation JSON files of one task (e.g. the same policies run with different --seed), "
+                    "print one table over all their episodes (an episode in two files counts once) and pair every "
+                    "policy with the reference on the episodes both played.",
+    )
+    p.add_argument("files", nargs="+", type=path_arg, metavar="FILE.json", help="tables written by `pursuit-mj eval --out/--json`")
+    p.add_argument("--versus", metavar="POLICY",
+                   help="pair every other policy with this one (default: heuristic when it is there with others; 'none': no pairing)")
+    p.add_argument("--out", metavar="PREFIX", help="write PREFIX.csv and PREFIX.json")
+    p.add_argument("--plots", metavar="DIR", help="write one bar chart per metric (PNG) into DIR")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from pursuit_mj.comparison import format_pairs, pairs_to_dicts
+    from pursuit_mj.evaluation import format_table, plot_rows, write_csv, write_json
+    from pursuit_mj.pooling import pool_tables, pooled_pairs
+
+    pooled = pool_tables(args.files)
+    labels = list(dict.fromkeys(r.policy for r in pooled.rows))
+    versus = pick_versus(args.versus, labels, "these tables", "(a table that holds another)")
+    if args.out:
+        check_out_prefix(args.out)
+        for suffix in (".csv", ".json"):
+            check_writable(Path(args.out + suffix), "--out")
+    if args.plots:
+        check_writable_folder(args.plots, "--plots")
+    for note in pooled.notes:
+        print(note)
+    print(f"pooled {len(args.files)} tables")
+    print(format_table(pooled.rows))
+    meta: dict = {"pooled_from": list(args.files)}
+    if versus is not None:
+        pairs = pooled_pairs(pooled.rows, versus, pooled.max_steps)
+        print(f"\npaired with {versus} on the episodes both played (capture steps: steps of a success, "
+              f"{pooled.max_steps} for a failure; negative = sooner):")
+        print(format_pairs(pairs))
+        meta["paired"] = pairs_to_dicts(pairs)
+    if args.out:
+        print(f"wrote {write_csv(pooled.rows, args.out + '.csv')}")
+        print(f"wrote {write_json(pooled.rows, args.out + '.json', meta=meta | {'config': pooled.config})}")
+    if args.plots:
+        for path in plot_rows(pooled.rows, args.plots):
+            print(f"wrote {path}")
+    return 0

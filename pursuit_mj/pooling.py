@@ -1,0 +1,164 @@
+"""Pooling evaluation tables: the episodes of several `pursuit-mj eval --out` JSON files as one table.
+
+An episode is known by its seed (evaluation.episode_seeds: the table seed and the layout fix
+it). So a row can gather the episodes of tables run with different `--seed`s, an episode met
+twice (the heuristic team in every table of one seed) counts once, and two policies from
+different files are paired on the episodes both played. The files must hold one task (their
+configs equal but for the layout and fidelity, which each row names), and a policy label must
+name one model throughout.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Sequence
+
+from .comparison import Paired, pair
+from .evaluation import OUTCOMES, Row, layout_identity, summarise
+
+POOLED_SEED = -1  # Row.seed of a pooled row: its episodes come from tables of several seeds
+PER_ROW_KEYS = ("layout", "fidelity")  # config keys a table's rows may set apart from the task
+
+
+@dataclasses.dataclass(frozen=True)
+class Pooled:
+    """rows: one per policy, layout and fidelity, episodes in seed order; max_steps: the task's
+    episode limit (decision steps); config: the task (as the first file holds it); notes: what
+    a reader should know (tables from several code versions)."""
+
+    rows: list[Row]
+    max_steps: int
+    config: dict
+    notes: list[str]
+
+
+def _read(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text())
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    except ValueError as exc:
+        raise ValueError(f"{path}: not a JSON file ({exc})") from None
+    if not (isinstance(data, dict) and isinstance(data.get("rows"), list) and isinstance(data.get("config"), dict)):
+        raise ValueError(f"{path}: not an evaluation table written by `pursuit-mj eval --out/--json` (no 'rows' and 'config')")
+    return data
+
+
+def _first_difference(a: object, b: object, where: str = "") -> tuple[str, object, object] | None:
+    """(dotted key, a's value, b's value) of the first place two config dicts differ, or None."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for key in list(a) + [k for k in b if k not in a]:
+            found = _first_difference(a.get(key), b.get(key), f"{where}{key}.")
+            if found:
+                return found
+        return None
+    return None if a == b else (where.rstrip("."), a, b)
+
+
+def _task(config: dict) -> dict:
+    return {k: v for k, v in config.items() if k not in PER_ROW_KEYS}
+
+
+def _models(data: dict) -> dict[str, str]:
+    """label -> sha256 of the checkpoint behind it; eval lists the models last, in order."""
+    labels, shas = data.get("policies") or [], data.get("model_sha256") or []
+    return dict(zip(labels[len(labels) - len(shas):], shas)) if shas else {}
+
+
+def _episodes(path: Path, record: dict) -> tuple[str, str, str, list[tuple[int, str, int, int]]]:
+    """(policy, layout, fidelity, episodes as (seed, outcome, steps, caught)) of one row record."""
+    policy, layout, fidelity = record.get("policy"), record.get("layout"), record.get("fidelity")
+    log = record.get("per_episode")
+    if not isinstance(log, dict):
+        raise ValueError(f"{path}: row {policy} on layout {layout} has no per-episode records; run that evaluation "
+                         "again with this version of pursuit-mj")
+    try:
+        episodes = list(zip(*(log[k] for k in ("seed", "outcome", "steps", "captured")), strict=True))
+    except (KeyError, TypeError, ValueError):
+        raise ValueError(f"{path}: row {policy} on layout {layout}: per_episode needs lists 'seed', 'outcome', "
+                         "'steps' and 'captured' of one length") from None
+    bad = [o for _, o, _, _ in episodes if o not in OUTCOMES]
+    if bad:
+        raise ValueError(f"{path}: row {policy} on layout {layout}: outcome {bad[0]!r} is not one of {', '.join(OUTCOMES)}")
+    return str(policy), str(layout), str(fidelity), episodes
+
+
+def pool_tables(paths: Sequence[str | Path]) -> Pooled:
+    """The rows of all `paths` pooled by policy, layout and fidelity; ValueError naming the file
+    for a file that is no table, a task that differs, a label naming two models, or an episode
+    (same seed) that ended differently in two files."""
+    if not paths:
+        raise ValueError("pool: name at least one evaluation JSON file")
+    first_path, first = None, None
+    model_of: dict[str, tuple[str, Path]] = {}
+    episodes: dict[tuple[str, str, str], dict[int, tuple[tuple[str, int, int], Path]]] = {}
+    labels: dict[tuple[str, str, str], str] = {}
+    commits: dict[str, Path] = {}
+    for path in map(Path, paths):
+        data = _read(path)
+        if first is None:
+            first_path, first = path, data
+        else:
+            diff = _first_difference(_task(first["config"]), _task(data["config"]))
+            if diff:
+                key, a, b = diff
+                raise ValueError(f"{path}: its task differs from {first_path}'s at {key} ({b!r} there, {a!r} in "
+                                 f"{first_path}); pool only tables of one task")
+        for label, sha in _models(data).items():
+            seen = model_of.setdefault(label, (sha, path))
+            if seen[0] != sha:
+                raise ValueError(f"policy {label!r} is two different models: checkpoint {seen[0][:12]} in {seen[1]} and "
+                                 f"{sha[:12]} in {path}")
+        code = data.get("code") if isinstance(data.get("code"), dict) else {}
+        commits.setdefault(str(code.get("git_commit", "unknown")), path)
+        for record in data["rows"]:
+            policy, layout, fidelity, eps = _episodes(path, record if isinstance(record, dict) else {})
+            key = (policy, layout_identity(layout), fidelity)
+            labels.setdefault(key, layout)
+            known = episodes.setdefault(key, {})
+            for seed, outcome, steps, caught in eps:
+                end = (outcome, int(steps), int(caught))
+                if seed in known and known[seed][0] != end:
+                    was, where = known[seed]
+                    raise ValueError(f"{policy} on layout {layout}: episode seed {seed} ended {was[0]} after {was[1]} "
+                                     f"steps in {where} but {end[0]} after {end[1]} in {path}; these tables were not "
+                                     "made by the same code and task")
+                known.setdefault(seed, (end, path))
+    max_steps = int(first["config"].get("max_steps", 0)) or None
+    if max_steps is None:
+        raise ValueError(f"{first_path}: its config has no max_steps")
+    rows = []
+    for key, known in episodes.items():
+        records = [SimpleNamespace(seed=s, outcome=end[0], steps=end[1], captured=end[2]) for s, (end, _) in sorted(known.items())]
+        rows.append(summarise(key[0], labels[key], key[2], POOLED_SEED, records, max_steps))
+    notes = []
+    if len(commits) > 1:
+        notes.append("note: the tables come from several code versions (git commits "
+                     + ", ".join(f"{c[:10]} in {p}" for c, p in commits.items()) + ")")
+    return Pooled(rows, max_steps, first["config"], notes)
+
+
+def _restricted(row: Row, seeds: set[int], max_steps: int) -> Row:
+    records = [SimpleNamespace(seed=s, outcome=o, steps=n, captured=c) for s, o, n, c in row.episode_log if s in seeds]
+    return summarise(row.policy, row.layout, row.fidelity, POOLED_SEED, records, max_steps)
+
+
+def pooled_pairs(rows: Sequence[Row], reference: str, max_steps: int) -> list[Paired]:
+    """Every other policy against `reference`, per layout and fidelity, on the episodes both
+    played (comparison.pair on those); ValueError if `reference` is not among the rows."""
+    refs = {(layout_identity(r.layout), r.fidelity): r for r in rows if r.policy == reference}
+    if not refs:
+        names = ", ".join(dict.fromkeys(r.policy for r in rows))
+        raise ValueError(f"--versus {reference!r}: no such policy in the tables (policies: {names})")
+    out = []
+    for row in rows:
+        ref = refs.get((layout_identity(row.layout), row.fidelity))
+        if row.policy == reference or ref is None:
+            continue
+        common = {e[0] for e in row.episode_log} & {e[0] for e in ref.episode_log}
+        if common:
+            out.append(pair(_restricted(row, common, max_steps), _restricted(ref, common, max_steps), max_steps))
+    return out

@@ -1,0 +1,100 @@
+"""Pooling evaluation tables (pursuit_mj.pooling, `pursuit-mj pool`): episodes are known by their
+seeds, so tables of several seeds make one table, an episode met twice counts once, and policies
+from different files pair on the episodes both played. Tables come from real point-fidelity
+episodes of the heuristic team and the random policy."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+
+from pursuit_mj.config import default_config
+from pursuit_mj.evaluation import evaluate, write_json
+from pursuit_mj.policies import make_policy
+from pursuit_mj.pooling import POOLED_SEED, pool_tables, pooled_pairs
+
+TASK = dataclasses.replace(default_config(), fidelity="point", max_steps=120)
+
+
+def _table(tmp_path, name, seed, policies=("heuristic",), task=TASK, meta=None):
+    rows = []
+    for label in policies:
+        rows += evaluate(make_policy(label, task, seed), task, [0], 3, seed, 3)
+    return write_json(rows, tmp_path / f"{name}.json", task, meta or {"policies": list(policies), "models": [], "model_sha256": []})
+
+
+@pytest.fixture(scope="module")
+def tables(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("pool")
+    return {"h0": _table(tmp, "h0", 0), "h1": _table(tmp, "h1", 1), "hr0": _table(tmp, "hr0", 0, ("heuristic", "random")),
+            "tmp": tmp}
+
+
+def test_tables_of_two_seeds_pool_into_one_row_and_a_repeated_episode_counts_once(tables):
+    pooled = pool_tables([tables["h0"], tables["h1"], tables["hr0"]])
+    team = [r for r in pooled.rows if r.policy == "heuristic"]
+    assert len(team) == 1 and team[0].episodes == 6  # 3 of seed 0 (in two files) + 3 of seed 1
+    assert team[0].seed == POOLED_SEED
+    seeds = [e[0] for e in team[0].episode_log]
+    assert seeds == sorted(seeds) and len(set(seeds)) == 6
+    single = {json.dumps(r["per_episode"]["seed"]) for f in (tables["h0"], tables["h1"]) for r in json.loads(f.read_text())["rows"]}
+    assert set(seeds) == {s for text in single for s in json.loads(text)}
+    successes = sum(r["success_count"] for f in (tables["h0"], tables["h1"]) for r in json.loads(f.read_text())["rows"])
+    assert team[0].success.count == successes
+
+
+def test_pairs_are_made_on_the_episodes_both_played(tables):
+    pooled = pool_tables([tables["h0"], tables["h1"], tables["hr0"]])
+    pairs = pooled_pairs(pooled.rows, "heuristic", pooled.max_steps)
+    assert [(p.policy, p.episodes) for p in pairs] == [("random", 3)]  # random played seed 0 only
+    with pytest.raises(ValueError, match="--versus 'greedy'"):
+        pooled_pairs(pooled.rows, "greedy", pooled.max_steps)
+
+
+def test_tables_of_different_tasks_are_refused_naming_the_setting(tables):
+    other = _table(tables["tmp"], "fast", 0, task=dataclasses.replace(TASK, evader_speed=0.7))
+    with pytest.raises(ValueError, match=r"fast\.json.*evader_speed.*0\.7"):
+        pool_tables([tables["h0"], other])
+
+
+def test_one_label_for_two_models_is_refused(tables):
+    a = _table(tables["tmp"], "ma", 0, meta={"policies": ["heuristic"], "models": ["a.pt"], "model_sha256": ["aaaa"]})
+    b = _table(tables["tmp"], "mb", 1, meta={"policies": ["heuristic"], "models": ["b.pt"], "model_sha256": ["bbbb"]})
+    with pytest.raises(ValueError, match="'heuristic' is two different models"):
+        pool_tables([a, b])
+
+
+def test_an_episode_that_ended_differently_in_two_files_is_refused(tables):
+    data = json.loads(tables["h0"].read_text())
+    log = data["rows"][0]["per_episode"]
+    log["steps"][0] = 1 if log["steps"][0] != 1 else 2
+    edited = tables["tmp"] / "edited.json"
+    edited.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="episode seed .* ended"):
+        pool_tables([tables["h0"], edited])
+
+
+@pytest.mark.parametrize("content, match", [
+    ("not json", "not a JSON file"),
+    ('{"rows": []}', "not an evaluation table"),
+    ('{"rows": [{"policy": "heuristic", "layout": "0", "fidelity": "point"}], "config": {}}', "no per-episode records"),
+])
+def test_files_that_are_not_tables_are_refused_by_name(tmp_path, content, match):
+    bad = tmp_path / "bad.json"
+    bad.write_text(content)
+    with pytest.raises(ValueError, match=f"bad.json.*{match}"):
+        pool_tables([bad])
+
+
+def test_the_command_prints_the_pooled_table_and_writes_it(tables, tmp_path, capsys):
+    from pursuit_cli import main
+
+    assert main(["pool", str(tables["h0"]), str(tables["hr0"]), str(tables["h1"]), "--out", str(tmp_path / "all")]) == 0
+    out = capsys.readouterr().out
+    assert "heuristic" in out and "paired with heuristic" in out
+    written = json.loads((tmp_path / "all.json").read_text())
+    assert {r["policy"]: r["episodes"] for r in written["rows"]} == {"heuristic": 6, "random": 3}
+    assert written["pooled_from"] == [str(tables[k]) for k in ("h0", "hr0", "h1")]
+    assert written["paired"][0]["episodes"] == 3
