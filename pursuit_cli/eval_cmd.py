@@ -17,7 +17,8 @@ from pathlib import Path
 from pursuit_mj.io_utils import check_writable, check_writable_folder
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
-from .common import SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, check_out_prefix, pick_versus, load_model, seed_arg, shield_if_asked, table_layouts, task_config_from_args
+from .common import (SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, check_out_prefix, load_model, pick_versus,
+                     seed_arg, shield_if_asked, table_layouts, task_config_from_args)
 from .eval_resume import file_sha256, finished_rows, interrupted_path, keep_finished
 
 
