@@ -83,6 +83,11 @@ def _episodes(path: Path, record: dict) -> tuple[str, str, str, list[tuple[int, 
     bad = [o for _, o, _, _ in episodes if o not in OUTCOMES]
     if bad:
         raise ValueError(f"{path}: row {policy} on layout {layout}: outcome {bad[0]!r} is not one of {', '.join(OUTCOMES)}")
+    counts = [v for seed, _, steps, caught in episodes for v in (seed, steps, caught)]
+    bad_count = next((v for v in counts if not isinstance(v, int) or isinstance(v, bool) or v < 0), None)
+    if bad_count is not None:
+        raise ValueError(f"{path}: row {policy} on layout {layout}: per_episode holds {bad_count!r} where a seed, "
+                         "step count or evaders caught (a whole number >= 0) belongs")
     return str(policy), str(layout), str(fidelity), episodes
 
 
@@ -127,9 +132,9 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
                                      f"steps in {where} but {end[0]} after {end[1]} in {path}; these tables were not "
                                      "made by the same code and task")
                 known.setdefault(seed, (end, path))
-    max_steps = int(first["config"].get("max_steps", 0)) or None
-    if max_steps is None:
-        raise ValueError(f"{first_path}: its config has no max_steps")
+    max_steps = first["config"].get("max_steps")
+    if not isinstance(max_steps, int) or isinstance(max_steps, bool) or max_steps < 1:
+        raise ValueError(f"{first_path}: its config's max_steps is {max_steps!r}, not a whole number >= 1")
     rows = []
     for key, known in episodes.items():
         records = [SimpleNamespace(seed=s, outcome=end[0], steps=end[1], captured=end[2]) for s, (end, _) in sorted(known.items())]

@@ -80,6 +80,9 @@ def test_an_episode_that_ended_differently_in_two_files_is_refused(tables):
     ("not json", "not a JSON file"),
     ('{"rows": []}', "not an evaluation table"),
     ('{"rows": [{"policy": "heuristic", "layout": "0", "fidelity": "point"}], "config": {}}', "no per-episode records"),
+    ('{"rows": [{"policy": "heuristic", "layout": "0", "fidelity": "point", "per_episode": {"seed": [1], '
+     '"outcome": ["success"], "steps": ["ten"], "captured": [1]}}], "config": {"max_steps": 100}}', "holds 'ten'"),
+    ('{"rows": [], "config": {"max_steps": "long"}}', "max_steps is 'long'"),
 ])
 def test_files_that_are_not_tables_are_refused_by_name(tmp_path, content, match):
     bad = tmp_path / "bad.json"
