@@ -245,6 +245,24 @@ def test_bench_train_cpu_ratio_sets_as_many_bare_env_rollouts_as_training_ones(m
             assert r.train_cpu_s == 3.0 and r.env_over_training_cpu == 1.0
 
 
+def test_bench_train_counts_the_critic_process_cpu_in_training(monkeypatch):
+    """In turn on two cores the critic learns in a child process (run.split_update): its CPU
+    time over the measured updates (here 5 s before them, 8 s after) belongs to training."""
+    import types
+
+    import pursuit_cli.benchmarks.train as bench
+    import train.trainer as trainer_module
+
+    readings = iter([5.0, 8.0])
+    monkeypatch.setattr(trainer_module, "usable_cores", lambda: 2)
+    monkeypatch.setattr(bench, "_child_cpu_s", lambda pid: next(readings) if pid is not None else 0.0)
+    monkeypatch.setattr(bench, "_bare_env_block", lambda env, steps, rng: (0.01, 1.0))
+    monkeypatch.setattr(bench, "time", types.SimpleNamespace(perf_counter=bench.time.perf_counter, process_time=lambda: 0.0))
+    r = bench.measure("classic", "point", 2, 3, TINY[1:-2] + ["run.overlap=false"])
+    assert r.split and r.threads == "1 + 1 (split)"
+    assert r.train_cpu_s == 3.0 and r.env_cpu_s == 3.0
+
+
 def test_a_printed_config_with_a_number_like_name_loads_back(tmp_path, capsys):
     # the loader reads 1e6 as a number (YAML 1.2), so the dump must quote the string '1e6'
     assert main(["train", "--name", "1e6", "-sc"]) == 0

@@ -7,6 +7,7 @@ from torch import nn
 
 from .agent import ActorCritic
 from .config import PPOConfig
+from .critic_worker import CriticWorker
 from .gae import compute_gae, next_values_from
 from .losses import behaviour_weights, clipped_policy_loss, gaussian_kl, normalise, scaled_value_loss
 from .networks import gaussian_entropy, gaussian_log_prob
@@ -32,13 +33,15 @@ def explained_variance(pred: torch.Tensor, target: torch.Tensor) -> float:
 
 def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollout, cfg: PPOConfig,
                gamma: float, generator: torch.Generator, lagged: bool = False,
-               anchor: nn.Module | None = None) -> dict[str, float]:
+               anchor: nn.Module | None = None, critic_worker: CriticWorker | None = None) -> dict[str, float]:
     """Run cfg.epochs passes of minibatch gradient steps; returns mean loss statistics.
 
     lagged: the rollout was sampled by an older policy than the model's (run.overlap); the
     update then uses the decoupled objective (losses.behaviour_weights): ratios against the
     model as it is now, each sample weighted by how much likelier the model finds it than
     the policy that acted. Without lag the two policies are one and this is plain PPO.
+    critic_worker: computes the critic's half of every gradient step in its own process, on
+    the model's (shared) critic, while this one computes the actor's (train/critic_worker.py).
     """
     adv, ret, _ = advantages_and_returns(buf, gamma, cfg.gae_lambda)
     n = buf.n_transitions
@@ -66,6 +69,8 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
     else:
         targets = ret
         target_std = float(ret.std(unbiased=False)) if cfg.value_scaling else None
+    if critic_worker is not None:
+        critic_worker.load(obs, states, targets, target_std, cfg.vf_coef)
     # n // minibatch_size minibatches per epoch; a remainder (1026 = 4 x 256 + 2 in classic) is
     # shared among them (sizes differ by at most one), so every transition is used once per epoch
     n_minibatches = max(n // cfg.minibatch_size, 1)
@@ -73,6 +78,8 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
     for _ in range(cfg.epochs):
         perm = torch.randperm(n, generator=generator)
         for idx in torch.tensor_split(perm, n_minibatches):
+            if critic_worker is not None:
+                critic_worker.request(idx)  # the critic's gradient, computed meanwhile in its process
             mb_obs, mb_old_logp = obs[idx], old_logp[idx]
             mean, log_std = model.actor(mb_obs, model.spec)
             std = log_std.exp()
@@ -81,15 +88,20 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
             a = normalise(adv[idx]) if cfg.norm_adv else adv[idx]
             pg_loss, clip_frac = clipped_policy_loss(new_logp, mb_old_logp, a, cfg.clip,
                                                      weights[idx] if weights is not None else None)
-            v = model.raw_value(mb_obs, states[idx] if states is not None else None)
-            v_loss = scaled_value_loss(v, targets[idx], target_std)
-            loss = pg_loss + cfg.vf_coef * v_loss - cfg.ent_coef * entropy
+            if critic_worker is None:
+                v = model.raw_value(mb_obs, states[idx] if states is not None else None)
+                v_loss = scaled_value_loss(v, targets[idx], target_std)
+                loss = pg_loss + cfg.vf_coef * v_loss - cfg.ent_coef * entropy
+            else:
+                loss = pg_loss - cfg.ent_coef * entropy
             if anchored:
                 anchor_kl = gaussian_kl(mean, log_std, anchor_mean[idx], anchor_log_std[idx]).mean()
                 loss = loss + cfg.anchor_coef * anchor_kl
                 anchor_kls.append(anchor_kl.detach())
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
+            if critic_worker is not None:
+                v_loss = critic_worker.collect()  # and the critic's .grad is set
             grad_norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
             optimizer.step()
             with torch.no_grad():

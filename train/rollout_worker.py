@@ -21,24 +21,17 @@ closes, so a killed parent leaves nothing running.
 
 from __future__ import annotations
 
-import contextlib
-import signal
-import sys
 import time
-import traceback
 import weakref
 
 import numpy as np
 import torch
-import torch.multiprocessing as mp
 
 from .agent import ActorCritic
+from .child_process import POLL_S, STOP_TIMEOUT_S, WorkerExited, how_it_ended, ignore_ctrl_c, report_error, shutdown, spawn
 from .config import TrainConfig
 from .rollout import Collector, RolloutStats, make_action_path, make_training_env
 from .storage import Rollout
-
-POLL_S = 0.2  # how often a waiting parent checks that the child is alive
-STOP_TIMEOUT_S = 5.0
 
 
 def sampler_seed(seed: int, update: int) -> int:
@@ -60,7 +53,7 @@ def _load_weights(model: ActorCritic, weights: dict) -> None:
 
 def _serve(conn, cfg: TrainConfig, start_update: int, buffers: list[Rollout]) -> None:
     """The child: build the env and networks, then fill buffers on request until told to stop."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    ignore_ctrl_c()
     torch.set_num_threads(1)
     try:
         env = make_training_env(cfg, start_update)
@@ -80,49 +73,7 @@ def _serve(conn, cfg: TrainConfig, start_update: int, buffers: list[Rollout]) ->
     except (EOFError, BrokenPipeError, ConnectionResetError):
         return  # the parent is gone
     except BaseException:  # noqa: BLE001 - everything goes back to the parent, which raises it
-        try:
-            conn.send(("error", traceback.format_exc()))
-        except (BrokenPipeError, ConnectionResetError):
-            pass
-
-
-@contextlib.contextmanager
-def _main_script_hidden():
-    """While a child is spawned, hide where the parent's __main__ came from.
-
-    A spawned child normally re-imports the parent's main script or module before it runs
-    its target, and a user's training script without an `if __name__ == "__main__":` guard
-    would then start another training run inside the child. The worker needs only train.*
-    modules, so the child is told of no main script at all (multiprocessing.spawn reads
-    __main__.__spec__ and __main__.__file__ while Process.start() runs, and only then).
-    """
-    main = sys.modules.get("__main__")
-    saved = {k: main.__dict__[k] for k in ("__spec__", "__file__") if main is not None and k in main.__dict__}
-    try:
-        if "__spec__" in saved:
-            main.__spec__ = None
-        if "__file__" in saved:
-            del main.__file__
-        yield
-    finally:
-        if main is not None:
-            main.__dict__.update(saved)
-
-
-def _shutdown(process, conn) -> None:
-    try:
-        conn.send(("stop",))
-    except (BrokenPipeError, ConnectionResetError, OSError):
-        pass
-    process.join(STOP_TIMEOUT_S)
-    if process.is_alive():
-        process.terminate()
-        process.join(STOP_TIMEOUT_S)
-    conn.close()
-
-
-class WorkerExited(RuntimeError):
-    """The worker process ended (killed, or crashed before it could report an error)."""
+        report_error(conn)
 
 
 class RolloutWorker:
@@ -136,17 +87,11 @@ class RolloutWorker:
 
     def __init__(self, cfg: TrainConfig, start_update: int, T: int, W: int, N: int, obs_dim: int, state_dim: int):
         self.buffers = [Rollout(T, W, N, obs_dim, state_dim).share_memory() for _ in range(2)]
-        ctx = mp.get_context("spawn")  # a fresh interpreter: no forked MuJoCo or torch thread state
-        self._conn, child_conn = ctx.Pipe()
-        self.process = ctx.Process(target=_serve, args=(child_conn, cfg, start_update, self.buffers),
-                                   name=f"rollout-{cfg.name}", daemon=True)
-        with _main_script_hidden():
-            self.process.start()
-        child_conn.close()
+        self.process, self._conn = spawn(_serve, (cfg, start_update, self.buffers), f"rollout-{cfg.name}")
         self._next = 0  # the buffer the next request fills
         self._pending: int | None = None
         self._served = 0  # rollouts returned so far
-        self._finalizer = weakref.finalize(self, _shutdown, self.process, self._conn)
+        self._finalizer = weakref.finalize(self, shutdown, self.process, self._conn)
 
     def start(self, model: ActorCritic) -> None:
         if self._pending is not None:
@@ -180,15 +125,7 @@ class RolloutWorker:
         return self.buffers[index], payload
 
     def _ended(self) -> str:
-        """How the dead child ended: 'was killed by SIGKILL (...)' or 'exited (code N)'."""
-        code = self.process.exitcode
-        if code is None or code >= 0:
-            return f"exited (code {code})"
-        try:
-            name = signal.Signals(-code).name
-        except ValueError:
-            name = f"signal {-code}"
-        return f"was killed by {name}" + (" (the system's out-of-memory killer, or kill -9)" if -code == signal.SIGKILL else "")
+        return how_it_ended(self.process)
 
     def close(self) -> None:
         self._finalizer()

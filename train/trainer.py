@@ -35,7 +35,9 @@ from pursuit_mj.sensing import privileged_config
 
 from .agent import ActorCritic
 from .checkpoint import check_obs_spec, is_training_checkpoint, load_checkpoint, load_error, save_checkpoint
-from .config import TrainConfig, defaults_filled_in, train_config_from_dict
+from .child_process import WorkerExited
+from .config import TrainConfig, defaults_filled_in, train_config_from_dict, usable_cores
+from .critic_worker import CriticWorker
 from .discount import Discount
 from .imitation import DaggerCollector, Demonstrations, imitation_update, teacher_share
 from .metrics_log import MetricsLog, json_ready
@@ -43,7 +45,7 @@ from pursuit_mj.recording.rerun_scalars import RerunScalarLogger
 from .policy import ActorPolicy, trained_team
 from .ppo import advantages_and_returns, ppo_update
 from .rollout import Collector, RolloutStats, hand_made_team, make_action_path, make_training_env
-from .rollout_worker import RolloutWorker, WorkerExited
+from .rollout_worker import RolloutWorker
 from .storage import Rollout
 from .validation import FixedSeedValidator, summarise, versus
 
@@ -117,7 +119,11 @@ class Trainer:
         self.demos: Demonstrations | None = None
         self.overlap = cfg.run.overlap and cfg.algo != "dagger"
         self._heuristic_records: list | None = None  # the heuristic team's validation episodes (validation_vs_heuristic)
-        self.update_threads = cfg.run.update_threads(self.overlap)
+        cores = usable_cores()
+        # the critic's half of each update in a child process: only where a core would idle otherwise
+        self.split_update = cfg.run.split_update and not self.overlap and cfg.algo != "dagger" and cores >= 2
+        self.update_threads = cfg.run.update_threads(self.overlap, cores, self.split_update)
+        self.critic_worker: CriticWorker | None = None  # started with the first rollout (split_update)
         self.collector: Collector | DaggerCollector | None = None  # in-process collection (overlap off)
         self.worker: RolloutWorker | None = None  # collection in a child process (overlap on), started on first use
         if cfg.algo == "dagger":
@@ -398,6 +404,8 @@ class Trainer:
             except WorkerExited as exc:  # killed (the out-of-memory killer): the run folder is as last saved
                 raise ValueError(f"{exc}; {self._kept('')}") from None
             return buf, stats
+        if self.split_update and self.critic_worker is None:  # it starts up while the rollout is collected
+            self.critic_worker = CriticWorker(self.model, self.cfg, self.buffer.n_transitions, self.update_threads)
         torch.set_num_threads(1)  # per-step forwards of a few dozen rows: threads only add overhead
         if self.demos is not None:
             self.collector.beta = teacher_share(self.cfg.imitation, self.counters.update)
@@ -411,6 +419,9 @@ class Trainer:
         if self.worker is not None:
             self.worker.close()
             self.worker = None
+        if self.critic_worker is not None:
+            self.critic_worker.close()
+            self.critic_worker = None
         if self.rerun is not None:
             self.rerun.close()
         if self._lock is not None:
@@ -436,8 +447,13 @@ class Trainer:
                                       self.discount.value, self.generator)
             losses["teacher_share"] = self.collector.beta
         else:
-            losses = ppo_update(self.model, self.optimizer, buf, cfg.ppo, self.discount.value, self.generator,
-                                lagged=self.overlap, anchor=self.anchor)
+            try:
+                losses = ppo_update(self.model, self.optimizer, buf, cfg.ppo, self.discount.value, self.generator,
+                                    lagged=self.overlap, anchor=self.anchor, critic_worker=self.critic_worker)
+            except WorkerExited as exc:  # killed (the out-of-memory killer): the run folder is as last saved
+                self.critic_worker.close()
+                self.critic_worker = None
+                raise ValueError(f"{exc}; {self._kept('')}") from None
         t2 = time.perf_counter()
         self._check_finite(losses)
         c.update += 1

@@ -67,6 +67,11 @@ class TrainBench:
     env_cpu_s: float
     profile: str = ""
     update_threads: int = 1  # torch threads of the update (the rollout's forwards use one)
+    split: bool = False  # the critic's half of the update ran in a child process with as many threads (run.split_update)
+
+    @property
+    def threads(self) -> str:
+        return f"{self.update_threads} + {self.update_threads} (split)" if self.split else str(self.update_threads)
 
     def rate(self, seconds: float) -> float:
         return self.batch / seconds
@@ -160,7 +165,8 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
             interleave = trainer.worker is None
             rollout, update, wall = [], [], []
             idle = _watch_worker_cpu(trainer.worker)
-            train_cpu = 0.0
+            critic_pid = trainer.critic_worker.process.pid if trainer.critic_worker is not None else None
+            train_cpu = -_child_cpu_s(critic_pid)  # the critic's process works only inside updates
             for _ in range(updates):
                 c0 = time.process_time()
                 row = trainer.train_one_update()
@@ -172,6 +178,7 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
                     wall_s, cpu = _bare_env_block(env, trainer.buffer.T, rng)
                     bare.append(wall_s)
                     env_cpu += cpu
+            train_cpu += _child_cpu_s(critic_pid)
             if trainer.worker is not None:
                 c0 = time.process_time()
                 trainer.worker.result(trainer.model)  # the rollout collected meanwhile, to the end of its CPU
@@ -194,11 +201,13 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
             torch.set_num_threads(trainer.update_threads)
             upd = profile_call(lambda: ppo_update(trainer.model, trainer.optimizer, trainer.buffer, cfg.ppo,
                                               trainer.discount.value, trainer.generator), profile_top)
-            profile = f"rollout:\n{roll}\n\nupdate:\n{upd}"
+            whole = " (actor and critic in this process)" if trainer.split_update else ""
+            profile = f"rollout:\n{roll}\n\nupdate{whole}:\n{upd}"
         med = statistics.median
         collection = "overlapped" if trainer.overlap else "in turn"
         return TrainBench(fidelity, collection, cfg.n_envs, cfg.task.n_pursuers, trainer.buffer.n_transitions, _settings(cfg, trainer),
-                          med(rollout), med(update), med(wall), med(bare), train_cpu, env_cpu, profile, trainer.update_threads)
+                          med(rollout), med(update), med(wall), med(bare), train_cpu, env_cpu, profile, trainer.update_threads,
+                          trainer.split_update)
 
 
 def _verdict(ok: bool) -> str:
@@ -237,10 +246,11 @@ def run(args: argparse.Namespace) -> int:
                   f"{when}", flush=True)
     print(f"train benchmark, config {args.config}: {results[0].settings}")
     print("rates in agent-steps/s (decision steps x worlds x pursuers) from median wall times; bare env = the same task "
-          "with random actions, stepped between updates (in turn) or after training (overlapped); cpu = process time of training (rollout worker included) over that of the bare env")
+          "with random actions, stepped between updates (in turn) or after training (overlapped); cpu = process time of training (rollout worker and critic process included) over that of the bare env; "
+          "update threads: torch threads of the update, and of the critic's process when the update is split (run.split_update)")
     head = ["fidelity", "collection", "worlds x pursuers", "update threads", "rollout ag-steps/s", "update ag-steps/s", "s per update",
             "training ag-steps/s", "bare env ag-steps/s", "update / rollout", "env / training", "cpu: env / training"]
-    rows = [[r.fidelity, r.collection, f"{r.worlds} x {r.pursuers}", str(r.update_threads), f"{r.rate(r.rollout_s):.0f}", f"{r.rate(r.update_s):.0f}",
+    rows = [[r.fidelity, r.collection, f"{r.worlds} x {r.pursuers}", r.threads, f"{r.rate(r.rollout_s):.0f}", f"{r.rate(r.update_s):.0f}",
              f"{r.update_s:.2f}", f"{r.rate(r.wall_s):.0f}", f"{r.rate(r.env_s):.0f}",
              f"{r.update_over_rollout:.2f}", f"{r.env_over_training:.2f}x", f"{r.env_over_training_cpu:.2f}x"] for r in results]
     print(format_table(head, rows))
