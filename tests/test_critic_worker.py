@@ -65,9 +65,35 @@ def test_a_split_update_gives_the_weights_and_losses_of_the_update_in_one_proces
         torch.testing.assert_close(opt_split["state"][pid]["exp_avg_sq"], state["exp_avg_sq"], rtol=1e-4, atol=1e-9)
 
 
+def test_a_split_dagger_update_gives_the_weights_of_the_update_in_one_process(tmp_path):
+    from train.imitation import imitation_update
+
+    cfg = tiny(tmp_path, "algo=dagger", "run.split_update=false", "imitation.max_grad_norm=0.05")
+    trainer = Trainer(cfg, log=lambda s: None)
+    buf, _ = trainer._next_rollout()
+    runs = []
+    for split in (False, True):
+        model = copy.deepcopy(trainer.model)
+        optimizer = torch.optim.Adam(model.parameters(), lr=1e-3, eps=1e-5, fused=True)
+        worker = CriticWorker(model, cfg, buf.n_transitions, threads=1) if split else None
+        try:
+            stats = imitation_update(model, optimizer, trainer.demos, buf, cfg.imitation, cfg.ppo, 0.99,
+                                     torch.Generator().manual_seed(5), critic_worker=worker)
+        finally:
+            if worker is not None:
+                worker.close()
+        runs.append((model.state_dict(), stats))
+    (alone, s1), (split, t1) = runs
+    for key in alone:
+        torch.testing.assert_close(split[key], alone[key], rtol=1e-5, atol=1e-6, msg=key)
+    assert not torch.equal(alone["critic.head.weight"], trainer.model.state_dict()["critic.head.weight"])
+    assert s1.keys() == t1.keys() and all(t1[k] == pytest.approx(s1[k], rel=1e-4, abs=1e-6) for k in s1)
+    assert s1["grad_norm"] > cfg.imitation.max_grad_norm
+
+
 def test_the_trainer_splits_the_update_in_turn_on_two_cores_and_not_otherwise(tmp_path, monkeypatch):
     cases = ((2, [], True), (1, [], False), (2, ["run.split_update=false"], False), (2, ["run.overlap=true"], False),
-             (2, ["algo=dagger"], False), (2, ["algo=mappo"], True))
+             (2, ["algo=dagger"], True), (2, ["algo=mappo"], True))
     for i, (cores, extra, expected) in enumerate(cases):
         monkeypatch.setattr(trainer_module, "usable_cores", lambda: cores)
         trainer = Trainer(tiny(tmp_path, f"name=r{i}", *extra), log=lambda s: None)

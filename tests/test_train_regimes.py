@@ -57,6 +57,22 @@ def test_validating_changes_nothing_that_is_trained(tmp_path):
     assert all(torch.equal(weights[0][k], weights[1][k]) for k in weights[0])
 
 
+def test_the_initial_weights_do_not_depend_on_the_torch_thread_count(tmp_path):
+    """Orthogonal init goes through a QR decomposition whose rounding depends on the threads
+    it runs on: a second run in one process (after an update on one thread) started from
+    weights 1e-8 away from the first's and trained differently."""
+    weights, before = [], torch.get_num_threads()
+    try:
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            cfg = load_train_config([], TINY + [f"run.runs_dir={tmp_path}", f"name=t{threads}"])
+            weights.append(Trainer(cfg, **QUIET).model.state_dict())
+    finally:
+        torch.set_num_threads(before)
+    for key in weights[0]:
+        assert torch.equal(weights[0][key], weights[1][key]), key
+
+
 def test_overrides_flags_and_task_file():
     cfg = load_train_config(["classic"], ["ppo.lr=1e-4", "task.fidelity=point", "task_file=hard"], {"total_steps": 5000})
     assert cfg.ppo.lr == 1e-4 and cfg.task.fidelity == "point" and cfg.total_steps == 5000
@@ -136,6 +152,9 @@ def test_settings_idle_under_mlp_a_fixed_discount_or_dagger_are_named():
     assert load_train_config(["imitate"], ["run.overlap=true"]).idle_settings() == [
         "run.overlap does nothing under algo dagger (it always collects in turn: the teacher's labels feed the update)"]
     assert load_train_config(["classic"], ["run.overlap=true", "net.use_rays=false"]).idle_settings() == []
+    assert load_train_config(["classic"], ["run.overlap=true", "run.split_update=false"]).idle_settings() == [
+        "run.split_update false does nothing with run.overlap (its update runs in one process)"]
+    assert load_train_config(["classic"], ["run.split_update=false"]).idle_settings() == []
 
 
 def test_a_teacher_share_that_never_applies_is_named_as_idle():

@@ -132,7 +132,7 @@ class RunConfig:
                                                   "meanwhile: all of them in turn, half each with split_update, one fewer "
                                                   "with overlap); the rollout uses 1")
     split_update: bool = spec(True, help="learn the critic in a child process while the actor learns in this one "
-                                         "(train/critic_worker.py), when collecting in turn on 2+ cores with ppo or mappo: "
+                                         "(train/critic_worker.py), when collecting in turn on 2+ cores (not with run.overlap): "
                                          "the update takes about half as long; same results up to float rounding")
     overlap: bool = spec(False, help="collect the next rollout in a child process while the update runs (train/rollout_worker.py): "
                                      "a training step costs about the longer of the two on 2+ cores, at one update of policy lag "
@@ -259,6 +259,8 @@ class TrainConfig:
                 idle.append(f"ppo.{', ppo.'.join(changed)} do(es) nothing without ppo.learnable_gamma (they tune the learned discount)")
         if self.algo == "dagger" and self.run.overlap:
             idle.append("run.overlap does nothing under algo dagger (it always collects in turn: the teacher's labels feed the update)")
+        if not self.run.split_update and self.run.overlap and self.algo != "dagger":
+            idle.append("run.split_update false does nothing with run.overlap (its update runs in one process)")
         if self.algo == "dagger":
             im, never = self.imitation, "(the teacher never drives; it labels only)"
             if im.beta_updates == 0 and im.beta_start != default.imitation.beta_start:

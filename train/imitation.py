@@ -32,6 +32,7 @@ from torch import nn
 
 from .agent import ActorCritic
 from .config import ImitationConfig, PPOConfig
+from .critic_worker import CriticWorker
 from .losses import scaled_value_loss
 from .networks import flush_tiny, gaussian_log_prob
 from .ppo import advantages_and_returns, explained_variance
@@ -176,25 +177,37 @@ def cloning_loss(mean: torch.Tensor, target: torch.Tensor, kind: str) -> torch.T
 
 
 def imitation_update(model: ActorCritic, optimizer: torch.optim.Optimizer, demos: Demonstrations, buf: Rollout,
-                     cfg: ImitationConfig, ppo: PPOConfig, gamma: float, generator: torch.Generator) -> dict[str, float]:
+                     cfg: ImitationConfig, ppo: PPOConfig, gamma: float, generator: torch.Generator,
+                     critic_worker: CriticWorker | None = None) -> dict[str, float]:
     """cfg.grad_steps steps, each on a minibatch of demonstrations (behaviour cloning) and one of
-    the rollout's transitions (value regression to GAE returns); returns mean loss statistics."""
+    the rollout's transitions (value regression to GAE returns); returns mean loss statistics.
+    critic_worker: computes the value regression's gradient in its own process meanwhile
+    (train/critic_worker.py), as in ppo_update."""
     _, ret, _ = advantages_and_returns(buf, gamma, ppo.gae_lambda)
     n = buf.n_transitions
     obs = buf.obs.reshape(n, -1)
     ret = ret.reshape(n)
     target_std = float(ret.std(unbiased=False)) if ppo.value_scaling else None
     mb = min(cfg.minibatch_size, n)
+    if critic_worker is not None:
+        critic_worker.load(obs, None, ret, target_std, ppo.vf_coef)
     sums = {"bc_loss": 0.0, "value_loss": 0.0, "grad_norm": 0.0}
     for _ in range(cfg.grad_steps):
         d_obs, d_act = demos.sample(cfg.minibatch_size, generator)
+        idx = torch.randint(0, n, (mb,), generator=generator)
+        if critic_worker is not None:
+            critic_worker.request(idx)
         mean, _ = model.actor(d_obs, model.spec)
         bc = cloning_loss(mean, d_act, cfg.loss)
-        idx = torch.randint(0, n, (mb,), generator=generator)
-        v_loss = scaled_value_loss(model.raw_value(obs[idx], None), ret[idx], target_std)
-        loss = bc + ppo.vf_coef * v_loss
+        if critic_worker is None:
+            v_loss = scaled_value_loss(model.raw_value(obs[idx], None), ret[idx], target_std)
+            loss = bc + ppo.vf_coef * v_loss
+        else:
+            loss = bc
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
+        if critic_worker is not None:
+            v_loss = critic_worker.collect()
         grad_norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
         optimizer.step()
         for k, x in (("bc_loss", bc), ("value_loss", v_loss), ("grad_norm", grad_norm)):

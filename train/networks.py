@@ -69,7 +69,16 @@ class Tanh(nn.Module):
 
 
 def init_linear(layer: nn.Linear, gain: float = math.sqrt(2.0)) -> nn.Linear:
-    nn.init.orthogonal_(layer.weight, gain)
+    """Orthogonal weight (gain), zero bias. The QR decomposition behind orthogonal_ rounds
+    differently on one thread than on two, so it always runs on one: the same seed gives the
+    same weights whatever thread count the process was left at (a second run in one process
+    otherwise started 1e-8 away from the first and trained differently)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        nn.init.orthogonal_(layer.weight, gain)
+    finally:
+        torch.set_num_threads(threads)
     nn.init.zeros_(layer.bias)
     return layer
 

@@ -121,7 +121,7 @@ class Trainer:
         self._heuristic_records: list | None = None  # the heuristic team's validation episodes (validation_vs_heuristic)
         cores = usable_cores()
         # the critic's half of each update in a child process: only where a core would idle otherwise
-        self.split_update = cfg.run.split_update and not self.overlap and cfg.algo != "dagger" and cores >= 2
+        self.split_update = cfg.run.split_update and not self.overlap and cores >= 2
         self.update_threads = cfg.run.update_threads(self.overlap, cores, self.split_update)
         self.critic_worker: CriticWorker | None = None  # started with the first rollout (split_update)
         self.collector: Collector | DaggerCollector | None = None  # in-process collection (overlap off)
@@ -442,18 +442,18 @@ class Trainer:
             group["lr"] = lr
         self._consistent = False
         meta_grad = self._learn_discount() if cfg.ppo.learnable_gamma else None
-        if self.demos is not None:
-            losses = imitation_update(self.model, self.optimizer, self.demos, buf, cfg.imitation, cfg.ppo,
-                                      self.discount.value, self.generator)
-            losses["teacher_share"] = self.collector.beta
-        else:
-            try:
+        try:
+            if self.demos is not None:
+                losses = imitation_update(self.model, self.optimizer, self.demos, buf, cfg.imitation, cfg.ppo,
+                                          self.discount.value, self.generator, critic_worker=self.critic_worker)
+                losses["teacher_share"] = self.collector.beta
+            else:
                 losses = ppo_update(self.model, self.optimizer, buf, cfg.ppo, self.discount.value, self.generator,
                                     lagged=self.overlap, anchor=self.anchor, critic_worker=self.critic_worker)
-            except WorkerExited as exc:  # killed (the out-of-memory killer): the run folder is as last saved
-                self.critic_worker.close()
-                self.critic_worker = None
-                raise ValueError(f"{exc}; {self._kept('')}") from None
+        except WorkerExited as exc:  # the critic's process was killed (the out-of-memory killer): the run folder is as last saved
+            self.critic_worker.close()
+            self.critic_worker = None
+            raise ValueError(f"{exc}; {self._kept('')}") from None
         t2 = time.perf_counter()
         self._check_finite(losses)
         c.update += 1
