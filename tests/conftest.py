@@ -149,3 +149,23 @@ def ctrl_c_as_in_a_terminal():
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     yield
     signal.signal(signal.SIGINT, previous)
+
+
+def train_killing_a_child_after_update_1(trainer, child) -> str:
+    """Run trainer.train(), kill -9 the process `child(trainer)` names right after update 1,
+    and return what the ValueError that stopped the run said (as the out-of-memory killer
+    would take a trainer's child process)."""
+    update = trainer.train_one_update
+
+    def update_then_kill():
+        row = update()
+        if row["update"] == 1:
+            process = child(trainer)
+            os.kill(process.pid, signal.SIGKILL)
+            process.join(5)
+        return row
+
+    trainer.train_one_update = update_then_kill
+    with pytest.raises(ValueError) as caught:
+        trainer.train()
+    return str(caught.value)

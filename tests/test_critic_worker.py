@@ -1,13 +1,12 @@
 """run.split_update: the critic learns in a child process while the actor learns in the trainer."""
 
 import copy
-import os
-import signal
 
 import pytest
 import torch
 
 import train.trainer as trainer_module
+from conftest import train_killing_a_child_after_update_1
 from train.config import load_train_config
 from train.critic_worker import CriticWorker
 from train.ppo import ppo_update
@@ -127,19 +126,7 @@ def test_the_critic_process_starts_with_the_first_rollout_and_ends_with_the_run(
 def test_a_killed_critic_process_stops_the_run_in_one_line_saying_what_last_pt_keeps(tmp_path, two_cores):
     cfg = tiny(tmp_path, "total_steps=96")
     trainer = Trainer(cfg, log=lambda s: None)
-    update = trainer.train_one_update
-
-    def update_then_kill_the_critic():
-        row = update()
-        if row["update"] == 1:
-            os.kill(trainer.critic_worker.process.pid, signal.SIGKILL)
-            trainer.critic_worker.process.join(5)
-        return row
-
-    trainer.train_one_update = update_then_kill_the_critic
-    with pytest.raises(ValueError) as caught:
-        trainer.train()
-    said = str(caught.value)
+    said = train_killing_a_child_after_update_1(trainer, lambda t: t.critic_worker.process)
     assert said.startswith(f"critic process critic-{cfg.name} was killed by SIGKILL (the system's out-of-memory killer, "
                            "or kill -9) during an update; "), said
     assert said.endswith(f"; last.pt keeps update 1; continue with: pursuit-mj train --resume {cfg.run_dir}"), said

@@ -7,6 +7,7 @@ import pytest
 import torch
 
 import train.trainer as trainer_module
+from conftest import train_killing_a_child_after_update_1
 from train.config import load_train_config
 from train.networks import gaussian_log_prob
 from train.rollout_worker import RolloutWorker
@@ -90,24 +91,9 @@ def test_a_worker_killed_mid_run_stops_the_run_in_one_line_saying_what_last_pt_k
     """The out-of-memory killer (or kill -9) takes the worker after update 1: the run stops naming
     how it ended, the update last.pt keeps and the resume command (it said 'exited (code -9)
     before its first rollout; its error is printed above', in a traceback), and it resumes."""
-    import os
-    import signal
-
     cfg = tiny(tmp_path, "total_steps=96")
     trainer = Trainer(cfg, log=lambda s: None)
-    update = trainer.train_one_update
-
-    def update_then_kill_the_worker():
-        row = update()
-        if row["update"] == 1:
-            os.kill(trainer.worker.process.pid, signal.SIGKILL)
-            trainer.worker.process.join(5)
-        return row
-
-    trainer.train_one_update = update_then_kill_the_worker
-    with pytest.raises(ValueError) as caught:
-        trainer.train()
-    said = str(caught.value)
+    said = train_killing_a_child_after_update_1(trainer, lambda t: t.worker.process)
     assert said.startswith(f"rollout worker rollout-{cfg.name} was killed by SIGKILL (the system's out-of-memory killer, "
                            f"or kill -9) without finishing its rollout; "), said
     assert said.endswith(f"; last.pt keeps update 1; continue with: pursuit-mj train --resume {cfg.run_dir}"), said

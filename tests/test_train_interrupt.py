@@ -12,7 +12,6 @@ import pytest
 
 from conftest import stop_signals_at_their_defaults
 from train.checkpoint import load_checkpoint
-from train.config import usable_cores
 from train.trainer import Trainer
 
 REPO = Path(__file__).resolve().parent.parent
@@ -58,10 +57,13 @@ def test_kill_9_ctrl_c_or_sigterm_loses_at_most_one_update(tmp_path, sig, overla
     for s in TINY + [f"run.runs_dir={tmp_path}", "name=killed", f"run.overlap={str(overlap).lower()}"]:
         args += ["--set", s]
     env = dict(os.environ, MUJOCO_GL="egl")
+    # the machine's cores, not this xdist worker's one (conftest pins it): in turn on 2+ cores the
+    # critic learns in a child process, which must not outlive its trainer either
+    cores = os.sched_getaffinity(os.getppid())
     # a shell that starts the suite in the background makes it ignore SIGINT (nohup: SIGHUP), and
     # children inherit that: give the trainer the defaults, as a terminal's Ctrl-C would find them
     proc = subprocess.Popen(args, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            preexec_fn=stop_signals_at_their_defaults)
+                            preexec_fn=lambda: (stop_signals_at_their_defaults(), os.sched_setaffinity(0, cores)))
     log = tmp_path / "killed" / "metrics.jsonl"
     deadline = time.time() + 120  # the loop ends at the third row; the margin is for a machine under load
     while time.time() < deadline and proc.poll() is None and (not log.exists() or len(log.read_text().splitlines()) < 3):
@@ -69,7 +71,7 @@ def test_kill_9_ctrl_c_or_sigterm_loses_at_most_one_update(tmp_path, sig, overla
     assert log.exists(), (proc.stderr.read().decode() if proc.poll() is not None
                           else "no update logged in 120 s: the kill would test nothing")
     workers = children(proc.pid)  # the rollout worker, or in turn on 2+ cores the critic's (run.split_update)
-    assert bool(workers) == (overlap or usable_cores() >= 2), workers
+    assert bool(workers) == (overlap or len(cores) >= 2), workers
     os.kill(proc.pid, sig)
     code = proc.wait(timeout=90)
     deadline = time.time() + 15
