@@ -146,3 +146,18 @@ def test_a_failing_critic_process_raises_its_traceback_in_the_parent(tmp_path):
     finally:
         worker.close()
     assert not worker.process.is_alive()
+
+
+def test_a_critic_process_that_cannot_start_leaves_the_update_in_one_process_with_a_note(tmp_path, two_cores, monkeypatch):
+    """No room in /dev/shm (a container's 64 MB default, filled by something else) must not stop
+    training: the run says why and learns as it did before the split existed."""
+    def no_shared_memory(*args, **kwargs):
+        raise RuntimeError("unable to open shared memory object </torch_1_2> in read-write mode: No space left on device (28)")
+
+    monkeypatch.setattr(trainer_module, "CriticWorker", no_shared_memory)
+    said = []
+    trainer = Trainer(tiny(tmp_path, "total_steps=64"), log=said.append)
+    assert trainer.train()["status"] == "done"
+    assert not trainer.split_update and trainer.update_threads == 2
+    notes = [s for s in said if "critic process could not start" in s]
+    assert len(notes) == 1 and "No space left on device" in notes[0] and "--set run.split_update=false" in notes[0], said

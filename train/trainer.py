@@ -405,7 +405,7 @@ class Trainer:
                 raise ValueError(f"{exc}; {self._kept('')}") from None
             return buf, stats
         if self.split_update and self.critic_worker is None:  # it starts up while the rollout is collected
-            self.critic_worker = CriticWorker(self.model, self.cfg, self.buffer.n_transitions, self.update_threads)
+            self._start_critic_worker()
         torch.set_num_threads(1)  # per-step forwards of a few dozen rows: threads only add overhead
         if self.demos is not None:
             self.collector.beta = teacher_share(self.cfg.imitation, self.counters.update)
@@ -413,6 +413,17 @@ class Trainer:
         stats = self.collector.collect(self.buffer)
         stats.seconds = time.perf_counter() - t0
         return self.buffer, stats
+
+    def _start_critic_worker(self) -> None:
+        """Start the critic's process (run.split_update); where it cannot start (no shared memory,
+        no processes allowed), say why and update in this process instead: training goes on."""
+        try:
+            self.critic_worker = CriticWorker(self.model, self.cfg, self.buffer.n_transitions, self.update_threads)
+        except (OSError, RuntimeError) as exc:
+            self.split_update = False
+            self.update_threads = self.cfg.run.update_threads(self.overlap, usable_cores(), split=False)
+            self.log(f"[train] note: the critic process could not start ({exc}); the update runs in this process "
+                     f"(--set run.split_update=false says so from the start)")
 
     def close(self) -> None:
         """Stop the rollout worker, if one runs, and finish metrics.rrd (train() does this when it returns)."""
