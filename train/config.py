@@ -133,7 +133,7 @@ class RunConfig:
                                                   "with overlap); the rollout uses 1")
     split_update: bool = spec(True, help="learn the critic in a child process while the actor learns in this one "
                                          "(train/critic_worker.py), when collecting in turn on 2+ cores (not with run.overlap): "
-                                         "1.2-1.8x faster updates at minibatches of 256 on 2 cores, little at 1024 (docs/training.md); "
+                                         "1.15-1.8x faster updates at minibatches of 256 on 2 cores, little at 1024 (docs/training.md); "
                                          "same results up to float rounding")
     overlap: bool = spec(False, help="collect the next rollout in a child process while the update runs (train/rollout_worker.py): "
                                      "a training step costs about the longer of the two on 2+ cores, at one update of policy lag "

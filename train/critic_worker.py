@@ -3,7 +3,7 @@
 Actor and critic are separate networks, so each minibatch step's gradient splits in two
 independent halves: the policy loss and entropy for the actor, the value loss for the
 critic. The trainer computes the actor's half while this child computes the critic's: on
-two cores the update ran 1.2-1.8x faster at minibatches of 256, and stayed
+two cores the update ran 1.15-1.8x faster at minibatches of 256, and stayed
 fast beside other work, where two torch threads in one process slow down threefold
 (docs/training.md, "Training speed").
 
