@@ -74,7 +74,7 @@ def _wait_for_close(conn) -> None:
 
 
 class CriticWorker:
-    """A child process that computes the critic's gradient for `ppo_update`, minibatch by minibatch.
+    """A child process that computes the critic's gradient for `ppo_update` and `imitation_update`, step by step.
 
     model: the trainer's ActorCritic; its critic's parameters are moved into shared memory in
     place (the optimiser keeps the same Parameter objects). n: transitions per rollout.
