@@ -7,7 +7,11 @@ spawned, how the obstacles fell); their mean has a much narrower interval than t
 between two independent means, and says with confidence when a policy is faster.
 
 An episode's capture time here is its steps when it ended in success and max_steps when it
-did not, so a policy gains nothing by crashing early.
+did not, so a policy gains nothing by crashing early. Success is judged apart, on the episodes
+only one of the two won (the exact McNemar test): those both won or both lost say nothing
+about which is surer. A policy compared on two or more layouts gets one more comparison over
+all their episodes (layout ALL_LAYOUTS), where a difference too small to show on one layout
+may show on the whole.
 """
 
 from __future__ import annotations
@@ -16,11 +20,12 @@ import dataclasses
 from typing import Sequence
 
 from .evaluation import Row, layout_identity
-from .stats import Mean, mean_interval, sign_flip_p
+from .stats import Mean, mcnemar_p, mean_interval, sign_flip_p
 
 
 MIN_VERDICT_EPISODES = 5  # paired episodes below which no faster/slower verdict is given
-VERDICT_LEVEL = 0.05  # a verdict needs the sign-flip test's p below this, beside the 95 % interval
+VERDICT_LEVEL = 0.05  # a verdict needs the test's p below this (for steps: beside the 95 % interval)
+ALL_LAYOUTS = "all"  # the layout label of a comparison over every layout's episodes
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,6 +49,16 @@ class Paired:
     only_policy: int
     only_reference: int
     p_value: float | None = None
+    success_p: float = 1.0
+
+    @property
+    def success_verdict(self) -> str:
+        """'surer' / 'less sure' when the policy won more / fewer of the episodes only one of the
+        two won and the exact McNemar test's p is below VERDICT_LEVEL, else 'level' (six to none
+        is the fewest that can be called)."""
+        if self.success_p >= VERDICT_LEVEL:
+            return "level"
+        return "surer" if self.only_policy > self.only_reference else "less sure"
 
     @property
     def verdict(self) -> str:
@@ -75,15 +90,41 @@ def pair(row: Row, reference: Row, max_steps: float) -> Paired:
     if len(a) != len(b) or len(a) != row.episodes or len(b) != reference.episodes:
         raise ValueError(f"paired comparison on layout {row.layout}: {row.policy} has {len(a)} episode times and "
                          f"{reference.policy} {len(b)}; both need one per episode of the same table")
+    return _compare(row.policy, reference.policy, row.layout, a, b, _successes(row, max_steps),
+                    _successes(reference, max_steps), max_steps)
+
+
+def _compare(policy: str, reference: str, layout: str, a: Sequence[float], b: Sequence[float],
+             won_a: Sequence[bool], won_b: Sequence[bool], max_steps: float) -> Paired:
+    """The Paired of capture times a, b and outcomes won_a, won_b (one per episode, same order)."""
     diffs = [x - y for x, y in zip(a, b)]
     # a success beats a failure; two failures (both at max_steps) tie. From the outcomes where
     # the rows carry them: a capture on the very last step costs max_steps too
-    won_a, won_b = _successes(row, max_steps), _successes(reference, max_steps)
     only_row = sum(x and not y for x, y in zip(won_a, won_b))
     only_ref = sum(y and not x for x, y in zip(won_a, won_b))
-    return Paired(row.policy, reference.policy, row.layout, len(diffs),
+    return Paired(policy, reference, layout, len(diffs),
                   mean_interval(diffs, (-float(max_steps), float(max_steps))),
-                  sum(d < 0 for d in diffs), sum(d > 0 for d in diffs), only_row, only_ref, sign_flip_p(diffs))
+                  sum(d < 0 for d in diffs), sum(d > 0 for d in diffs), only_row, only_ref, sign_flip_p(diffs),
+                  mcnemar_p(only_row, only_ref))
+
+
+def pair_matches(matches: Sequence[tuple[Row, Row]], max_steps: float) -> list[Paired]:
+    """`pair` on each (row, reference) of `matches` (each already on the same episodes), then,
+    for every policy matched on two or more layouts (of one fidelity), one more Paired over all
+    those episodes (layout ALL_LAYOUTS), after the per-layout ones."""
+    out = [pair(r, ref, max_steps) for r, ref in matches]
+    by_policy: dict[tuple[str, str, str], list[tuple[Row, Row]]] = {}
+    for r, ref in matches:
+        by_policy.setdefault((r.policy, ref.policy, r.fidelity), []).append((r, ref))
+    for (policy, reference, _), group in by_policy.items():
+        if len(group) < 2:
+            continue
+        a = [x for r, _ in group for x in r.capture_steps]
+        b = [x for _, ref in group for x in ref.capture_steps]
+        won_a = [w for r, _ in group for w in _successes(r, max_steps)]
+        won_b = [w for _, ref in group for w in _successes(ref, max_steps)]
+        out.append(_compare(policy, reference, ALL_LAYOUTS, a, b, won_a, won_b, max_steps))
+    return out
 
 
 def _successes(row: Row, max_steps: float) -> list[bool]:
@@ -95,24 +136,24 @@ def _successes(row: Row, max_steps: float) -> list[bool]:
 
 
 def pair_table(rows: Sequence[Row], reference: str, max_steps: float) -> list[Paired]:
-    """Every other policy of `rows` against `reference`, layout by layout (ValueError if
-    `reference` is not among them)."""
+    """Every other policy of `rows` against `reference`, layout by layout, and over all layouts
+    where there are two or more (pair_matches; ValueError if `reference` is not among them)."""
     refs = {layout_identity(r.layout): r for r in rows if r.policy == reference}
     if not refs:
         names = ", ".join(dict.fromkeys(r.policy for r in rows))
         raise ValueError(f"--versus {reference!r}: no such policy in the table (policies: {names})")
     keyed = [(r, layout_identity(r.layout)) for r in rows if r.policy != reference]
-    return [pair(r, refs[key], max_steps) for r, key in keyed if key in refs]
+    return pair_matches([(r, refs[key]) for r, key in keyed if key in refs], max_steps)
 
 
 def format_pairs(pairs: Sequence[Paired]) -> str:
     """A plain-text table of paired comparisons, one line each."""
     head = ["policy", "versus", "layout", "episodes", "capture steps, policy - versus [95% CI]", "faster / slower",
-            "caught only by policy / versus", "p (sign-flip)", "verdict"]
+            "p (sign-flip)", "steps verdict", "caught only by policy / versus", "p (McNemar)", "success verdict"]
     body = [[p.policy, p.reference, p.layout, str(p.episodes),
              f"{p.steps.mean:+7.1f} " + ("[no interval]" if p.steps.lo is None else f"[{p.steps.lo:+7.1f}, {p.steps.hi:+7.1f}]"),
-             f"{p.faster} / {p.slower}",
-             f"{p.only_policy} / {p.only_reference}", _p_text(p.p_value), p.verdict] for p in pairs]
+             f"{p.faster} / {p.slower}", _p_text(p.p_value), p.verdict,
+             f"{p.only_policy} / {p.only_reference}", _p_text(p.success_p), p.success_verdict] for p in pairs]
     widths = [max(len(x) for x in col) for col in zip(head, *body)]
     return "\n".join("  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in [head] + body)
 
@@ -129,7 +170,8 @@ def pairs_to_dicts(pairs: Sequence[Paired]) -> list[dict]:
              "capture_steps_diff": p.steps.mean, "capture_steps_diff_ci_lo": p.steps.lo,
              "capture_steps_diff_ci_hi": p.steps.hi, "faster": p.faster, "slower": p.slower,
              "caught_only_by_policy": p.only_policy, "caught_only_by_versus": p.only_reference,
-             "sign_flip_p": p.p_value, "verdict": p.verdict} for p in pairs]
+             "sign_flip_p": p.p_value, "verdict": p.verdict,
+             "mcnemar_p": p.success_p, "success_verdict": p.success_verdict} for p in pairs]
 
 
 def paired_report(rows: Sequence[Row], reference: str, max_steps: float) -> tuple[str, list[Paired]]:
@@ -139,5 +181,5 @@ def paired_report(rows: Sequence[Row], reference: str, max_steps: float) -> tupl
         return "", []
     pairs = pair_table(rows, reference, max_steps)
     head = (f"paired with {reference} on the same episodes (capture steps: steps of a success, {max_steps:g} "
-            "for a failure; negative = sooner):")
+            "for a failure; negative = sooner; success: judged on the episodes only one of the two won):")
     return head + "\n" + format_pairs(pairs), pairs

@@ -16,7 +16,7 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Sequence
 
-from .comparison import Paired, pair
+from .comparison import Paired, pair_matches
 from .evaluation import OUTCOMES, Row, layout_identity, summarise
 
 POOLED_SEED = -1  # Row.seed of a pooled row: its episodes come from tables of several seeds
@@ -153,17 +153,18 @@ def _restricted(row: Row, seeds: set[int], max_steps: int) -> Row:
 
 def pooled_pairs(rows: Sequence[Row], reference: str, max_steps: int) -> list[Paired]:
     """Every other policy against `reference`, per layout and fidelity, on the episodes both
-    played (comparison.pair on those); ValueError if `reference` is not among the rows."""
+    played, and over all layouts where there are two or more (comparison.pair_matches on
+    those); ValueError if `reference` is not among the rows."""
     refs = {(layout_identity(r.layout), r.fidelity): r for r in rows if r.policy == reference}
     if not refs:
         names = ", ".join(dict.fromkeys(r.policy for r in rows))
         raise ValueError(f"--versus {reference!r}: no such policy in the tables (policies: {names})")
-    out = []
+    matches = []
     for row in rows:
         ref = refs.get((layout_identity(row.layout), row.fidelity))
         if row.policy == reference or ref is None:
             continue
         common = {e[0] for e in row.episode_log} & {e[0] for e in ref.episode_log}
         if common:
-            out.append(pair(_restricted(row, common, max_steps), _restricted(ref, common, max_steps), max_steps))
-    return out
+            matches.append((_restricted(row, common, max_steps), _restricted(ref, common, max_steps)))
+    return pair_matches(matches, max_steps)

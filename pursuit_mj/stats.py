@@ -1,5 +1,5 @@
 """Confidence intervals for evaluation tables: Wilson score intervals for rates, t intervals for means,
-and the exact sign-flip test of paired differences.
+the exact sign-flip test of paired differences, and the exact McNemar test of paired outcomes.
 
 No SciPy: the 97.5 % Student t quantile comes from a table (4 decimals) up to 9 degrees
 of freedom and from a Cornish-Fisher expansion (error below 1e-4) beyond.
@@ -131,3 +131,22 @@ def sign_flip_p(diffs: Sequence[float]) -> float | None:
         reach += a
     signed = 2 * np.arange(total + 1) - total
     return float(min(1.0, prob[np.abs(signed) >= observed].sum()))
+
+
+def mcnemar_p(only_a: int, only_b: int) -> float:
+    """Two-sided p-value of the exact McNemar test that two policies playing the same episodes
+    succeed equally often.
+
+    Only the discordant episodes count (`only_a`: won by policy a alone, `only_b`: by b alone);
+    under the null each of them is a fair coin, so p = min(1, 2 P(X <= min(only_a, only_b)))
+    with X ~ Binomial(only_a + only_b, 1/2). Exact (integer arithmetic) for any counts; 1.0
+    when no episode was won by one side alone.
+    """
+    for name, v in (("only_a", only_a), ("only_b", only_b)):
+        if isinstance(v, bool) or int(v) != v or v < 0:
+            raise ValueError(f"mcnemar_p: {name} must be a count >= 0, got {v!r}")
+    n, k = int(only_a) + int(only_b), int(min(only_a, only_b))
+    if n == 0:
+        return 1.0
+    tail = sum(math.comb(n, i) for i in range(k + 1))
+    return min(1.0, 2 * tail / 2**n)  # int / int: correctly rounded at any size

@@ -13,6 +13,14 @@ from pursuit_mj.stats import t_quantile_975
 MAX = 1000
 
 
+def cells(table: str) -> dict[str, str]:
+    """The first body line of a format_pairs table, by column heading (columns start where their heading does)."""
+    head, line = table.splitlines()[:2]
+    names = [h for h in head.split("  ") if h.strip()]
+    starts = [head.index(h) for h in names] + [None]
+    return {h.strip(): line[a:b].strip() for h, a, b in zip(names, starts, starts[1:])}
+
+
 def row(policy, episodes, seed=5, layout="0"):
     records = [EpisodeRecord(0, k, 0, outcome, steps, None, {}, 0, layout) for k, (outcome, steps) in enumerate(episodes)]
     return summarise(policy, layout, "point", seed, records, MAX)
@@ -94,9 +102,8 @@ def test_a_few_large_differences_among_ties_are_not_called_slower():
     assert p.steps.lo > 0  # the t interval alone would say slower
     assert p.p_value == pytest.approx(0.125)
     assert p.verdict == "level"
-    head, line = format_pairs([p]).splitlines()
-    assert head.split("  ")[-2:] == ["p (sign-flip)", "verdict"]
-    assert line.split()[-2:] == ["0.125", "level"]
+    got = cells(format_pairs([p]))
+    assert got["p (sign-flip)"] == "0.125" and got["steps verdict"] == "level"
 
 
 def test_sign_flip_p_counts_every_sign_pattern():
@@ -112,3 +119,57 @@ def test_sign_flip_p_counts_every_sign_pattern():
     assert sign_flip_p([-10] * 5) == pytest.approx(2 / 32)  # five of five sooner: not yet below 0.05
     with pytest.raises(ValueError, match="whole numbers.*2.5"):
         sign_flip_p([1, 2.5])
+
+
+def test_mcnemar_p_is_the_exact_binomial_test_on_the_episodes_only_one_policy_won():
+    from math import comb
+
+    from pursuit_mj.stats import mcnemar_p
+
+    for b, c in ((6, 0), (10, 2), (3, 4), (40, 25), (1, 0)):
+        n, k = b + c, min(b, c)
+        tail = sum(comb(n, i) for i in range(k + 1)) / 2**n
+        assert mcnemar_p(b, c) == pytest.approx(min(1.0, 2 * tail), abs=1e-12)
+        assert mcnemar_p(c, b) == mcnemar_p(b, c)
+    assert mcnemar_p(0, 0) == 1.0
+    assert mcnemar_p(6, 0) == pytest.approx(1 / 32)  # six of six: the fewest that can be called
+    assert mcnemar_p(5, 0) == pytest.approx(1 / 16)
+    assert mcnemar_p(2000, 1900) == pytest.approx(0.1136, abs=2e-3)  # large counts stay finite and exact
+    with pytest.raises(ValueError, match="-1"):
+        mcnemar_p(-1, 3)
+
+
+def test_catching_more_is_called_surer_only_when_the_episodes_won_by_one_side_say_so():
+    """Success is judged on the episodes only one of the two won (McNemar): those both won or
+    both lost say nothing about which is surer."""
+    def pair_of(only_pol, only_ref, both=10, neither=4):
+        ref = row("heuristic", [("success", 300)] * (both + only_ref) + [("timeout", MAX)] * (only_pol + neither))
+        pol = row("net", [("success", 300)] * both + [("timeout", MAX)] * only_ref + [("success", 300)] * only_pol
+                  + [("timeout", MAX)] * neither)
+        return pair(pol, ref, MAX)
+
+    six = pair_of(6, 0)
+    assert (six.only_policy, six.only_reference) == (6, 0)
+    assert six.success_p == pytest.approx(1 / 32) and six.success_verdict == "surer"
+    assert pair_of(0, 6).success_verdict == "less sure"
+    assert pair_of(5, 0).success_verdict == "level"  # p = 1/16
+    assert pair_of(7, 2).success_verdict == "level"  # p = 0.18
+    none = pair_of(0, 0)
+    assert none.success_p == 1.0 and none.success_verdict == "level"
+    got = cells(format_pairs([six]))
+    assert (got["caught only by policy / versus"], got["p (McNemar)"], got["success verdict"]) == ("6 / 0", "0.0312", "surer")
+
+
+def test_two_layouts_or_more_get_one_more_line_over_all_their_episodes():
+    ref0 = row("heuristic", [("success", 200), ("success", 300), ("timeout", MAX)], layout="0")
+    pol0 = row("net", [("success", 180), ("success", 320), ("success", 700)], layout="0")
+    ref1 = row("heuristic", [("success", 400), ("collision", 20)], layout="1")
+    pol1 = row("net", [("timeout", MAX), ("success", 500)], layout="1")
+    pairs = pair_table([ref0, pol0, ref1, pol1], "heuristic", MAX)
+    assert [p.layout for p in pairs] == ["0", "1", "all"]
+    total = pairs[-1]
+    diffs = [-20, 20, 700 - MAX, MAX - 400, 500 - MAX]
+    assert total.episodes == 5 and total.steps.mean == pytest.approx(sum(diffs) / 5)
+    assert (total.only_policy, total.only_reference) == (2, 1)
+    assert (total.faster, total.slower) == (3, 2)
+    assert [p.layout for p in pair_table([ref0, pol0], "heuristic", MAX)] == ["0"]  # one layout: nothing to pool

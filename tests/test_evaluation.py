@@ -256,7 +256,9 @@ def test_eval_cli_writes_csv_json_and_plots(tmp_path, capsys):
     assert data["config"]["fidelity"] == "point" and data["config"]["max_steps"] == 20
     assert [{k: v for k, v in r.items() if k != "per_episode"} for r in data["rows"]] == rows  # the same table
     assert "paired with heuristic on the same episodes" in printed  # heuristic and others: paired by default
-    assert [(p["policy"], p["versus"], p["layout"]) for p in data["paired"]] == [("random", "heuristic", "0"), ("random", "heuristic", layout_file)]
+    assert [(p["policy"], p["versus"], p["layout"]) for p in data["paired"]] == [
+        ("random", "heuristic", "0"), ("random", "heuristic", layout_file), ("random", "heuristic", "all")]  # and over both layouts
+    assert data["paired"][-1]["episodes"] == 6 and {"mcnemar_p", "success_verdict"} <= data["paired"][-1].keys()
     for r in data["rows"]:
         assert r["episodes"] == 3
         assert r["success_count"] + r["collision_count"] + r["timeout_count"] == 3

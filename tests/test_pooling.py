@@ -53,6 +53,17 @@ def test_pairs_are_made_on_the_episodes_both_played(tables):
         pooled_pairs(pooled.rows, "greedy", pooled.max_steps)
 
 
+def test_pooled_pairs_over_two_layouts_end_with_the_line_over_all_episodes(tmp_path):
+    rows = []
+    for label in ("heuristic", "random"):
+        rows += evaluate(make_policy(label, TASK, 0), TASK, [0, 1], 3, 0, 3)
+    path = write_json(rows, tmp_path / "two.json", TASK, {"policies": ["heuristic", "random"], "models": [], "model_sha256": []})
+    pooled = pool_tables([path])
+    pairs = pooled_pairs(pooled.rows, "heuristic", pooled.max_steps)
+    assert [(p.layout, p.episodes) for p in pairs] == [("0", 3), ("1", 3), ("all", 6)]
+    assert pairs[-1].only_reference == pairs[0].only_reference + pairs[1].only_reference
+
+
 def test_tables_of_different_tasks_are_refused_naming_the_setting(tables):
     other = _table(tables["tmp"], "fast", 0, task=dataclasses.replace(TASK, evader_speed=0.7))
     with pytest.raises(ValueError, match=r"fast\.json.*evader_speed.*0\.7"):

@@ -26,7 +26,7 @@ def test_study_end_to_end_on_a_tiny_budget(tmp_path, capsys):
     table = json.loads((out_dir / "table.json").read_text())
     assert {r["policy"] for r in table["rows"]} == names
     assert "paired with heuristic on the same episodes" in out  # every arm against the team, episode by episode
-    assert {(p["policy"], p["layout"]) for p in table["paired"]} == {(n, l) for n in names - {"heuristic"} for l in ("0", "1")}
+    assert {(p["policy"], p["layout"]) for p in table["paired"]} == {(n, l) for n in names - {"heuristic"} for l in ("0", "1", "all")}
     assert (out_dir / "plots" / "success.png").is_file() and (out_dir / "timings.json").is_file()
     ft = json.loads((out_dir / "runs" / "fine_tune" / "metrics.jsonl").read_text().splitlines()[0])
     assert ft["update"] == 1
