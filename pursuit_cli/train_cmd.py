@@ -269,6 +269,8 @@ def run(args) -> int:
               f"{val['vs_heuristic_steps']:+.1f} "
               + ("[no interval: 1 episode]" if val["vs_heuristic_lo"] is None else
                  f"[{val['vs_heuristic_lo']:+.1f}, {val['vs_heuristic_hi']:+.1f}]") + " capture steps "
-              f"per episode (negative: sooner)")
+              f"per episode (negative: sooner)"
+              + (f"; caught by one side only: policy {val['vs_heuristic_only_policy']}, team {val['vs_heuristic_only_heuristic']} "
+                 f"(McNemar p {val['vs_heuristic_success_p']:.3g})" if "vs_heuristic_success_p" in val else ""))
     print(f"last checkpoint: {Path(result['run_dir']) / 'last.pt'}; metrics: {Path(result['run_dir']) / 'metrics.jsonl'}")
     return 130 if result["status"] == "interrupted" else 0

@@ -25,6 +25,9 @@ def test_versus_pairs_capture_steps_episode_by_episode():
     assert out["vs_heuristic_steps"] == pytest.approx(1.25)
     assert out["vs_heuristic_lo"] < 1.25 < out["vs_heuristic_hi"]
     assert out["heuristic_success"] == 1.0 and out["heuristic_mean_steps"] == pytest.approx(33.75)
+    # success on the episodes one side alone won: the team caught 2 the policy lost, none the other way
+    assert (out["vs_heuristic_only_policy"], out["vs_heuristic_only_heuristic"]) == (0, 2)
+    assert out["vs_heuristic_success_p"] == pytest.approx(0.5)
     with pytest.raises(ValueError, match="same episodes"):
         versus(policy, [dataclasses.replace(r, seed=r.seed + 1) for r in heuristic], max_steps=50)
 

@@ -36,14 +36,18 @@ def versus(records: Sequence[EpisodeRecord], reference: Sequence[EpisodeRecord],
 
     {name}_success, {name}_mean_steps: the reference's rates; vs_{name}_steps with _lo / _hi:
     the mean per-episode difference in capture steps (policy - reference; negative: sooner)
-    with its 95 % t interval. ValueError if the two did not play the same episodes.
+    with its 95 % t interval; vs_{name}_only_policy / vs_{name}_only_{name}: episodes only that
+    one won, and vs_{name}_success_p the exact McNemar p on them (comparison.Paired).
+    ValueError if the two did not play the same episodes.
     """
     if [(r.world, r.seed) for r in records] != [(r.world, r.seed) for r in reference]:
         raise ValueError("validation: the policy and its reference did not play the same episodes")
     ref = _row(name, reference, max_steps)
     paired = pair(_row("policy", records, max_steps), ref, max_steps)
     return {f"{name}_success": ref.success.p, f"{name}_mean_steps": _number(ref.steps.mean),
-            f"vs_{name}_steps": paired.steps.mean, f"vs_{name}_lo": paired.steps.lo, f"vs_{name}_hi": paired.steps.hi}
+            f"vs_{name}_steps": paired.steps.mean, f"vs_{name}_lo": paired.steps.lo, f"vs_{name}_hi": paired.steps.hi,
+            f"vs_{name}_only_policy": paired.only_policy, f"vs_{name}_only_{name}": paired.only_reference,
+            f"vs_{name}_success_p": paired.success_p}
 
 
 def _row(policy: str, records: Sequence[EpisodeRecord], max_steps: float = float("inf")) -> evaluation.Row:
