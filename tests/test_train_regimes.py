@@ -368,3 +368,38 @@ def test_preset_name_wins_over_a_folder_of_the_same_name(tmp_path, monkeypatch):
     (tmp_path / "classic").mkdir()
     monkeypatch.chdir(tmp_path)
     assert load_train_config(["classic"]).regime == "classic"
+
+
+@pytest.mark.parametrize("split", ["true", "false"])
+def test_a_critic_warmup_holds_the_actor_while_a_fresh_critic_learns(tmp_path, split, monkeypatch):
+    """From a policy-only export the critic starts fresh, and its first advantages are noise:
+    ppo.critic_warmup updates train the critic alone, then both learn."""
+    from train.checkpoint import export_actor
+
+    import train.trainer as trainer_module
+
+    if split == "true":
+        monkeypatch.setattr(trainer_module, "usable_cores", lambda: 2)  # the split needs two cores
+    base = TINY + [f"run.runs_dir={tmp_path}", "ppo.lr=3e-3", f"run.split_update={split}"]
+    src = load_train_config(["classic"], base + ["name=src", "total_steps=32"])
+    Trainer(src, **QUIET).train()
+    start = export_actor(src.run_dir / "last.pt", tmp_path / "policy.pt")
+    cfg = load_train_config(["classic"], base + ["name=warm", "total_steps=10000", f"init_from={start}", "ppo.critic_warmup=2"])
+    said = []
+    trainer = Trainer(cfg, log=said.append)
+    assert any("policy-only export: the critic starts fresh (2 update(s) train it alone, ppo.critic_warmup)" in s for s in said)
+    actor0 = {k: v.clone() for k, v in trainer.model.actor.state_dict().items()}
+    critic0 = {k: v.clone() for k, v in trainer.model.critic.state_dict().items()}
+    rows = [trainer.train_one_update() for _ in range(2)]
+    assert (trainer.critic_worker is not None) == (split == "true")
+    for k, v in actor0.items():
+        assert torch.equal(trainer.model.actor.state_dict()[k], v), k  # held, log std included
+    assert any(not torch.equal(trainer.model.critic.state_dict()[k], v) for k, v in critic0.items())
+    assert all(row["loss"]["critic_only"] == 1.0 for row in rows)
+    row = trainer.train_one_update()  # the third update: the actor learns again
+    assert row["loss"]["critic_only"] == 0.0
+    assert any(not torch.equal(trainer.model.actor.state_dict()[k], v) for k, v in actor0.items())
+    trainer.close()
+    with pytest.raises(ConfigError, match=r"ppo.critic_warmup.*-1"):
+        load_train_config(["classic"], ["ppo.critic_warmup=-1"])
+    assert load_train_config(["imitate"], ["ppo.critic_warmup=3"]).idle_settings()[0].startswith("ppo.critic_warmup do(es) nothing")

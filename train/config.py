@@ -45,11 +45,14 @@ class PPOConfig:
     gamma_outer: float = spec(0.995, lo=0.0, hi=1.0, help="fixed discount of the meta objective that judges gamma")
     anchor_coef: float = spec(0.0, lo=0.0, help="weight of KL(policy || anchor) in the loss, the anchor being the init_from "
                                                 "actor, frozen: PPO improves on its start without drifting far from it (0: off)")
+    critic_warmup: int = spec(0, lo=0, help="updates at the start of a run in which only the critic learns and the actor "
+                                            "is held: for a start whose critic is fresh (a policy-only export)")
 
 
 
 #: PPOConfig keys only PPO's update reads (DAgger reads gamma, gae_lambda, batch_size, vf_coef, value_scaling, lr_decay)
-PPO_UPDATE_ONLY = ("lr", "clip", "epochs", "minibatch_size", "ent_coef", "max_grad_norm", "norm_adv", "anchor_coef")
+PPO_UPDATE_ONLY = ("lr", "clip", "epochs", "minibatch_size", "ent_coef", "max_grad_norm", "norm_adv", "anchor_coef",
+                   "critic_warmup")
 
 
 @dataclasses.dataclass(frozen=True)

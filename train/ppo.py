@@ -33,7 +33,8 @@ def explained_variance(pred: torch.Tensor, target: torch.Tensor) -> float:
 
 def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollout, cfg: PPOConfig,
                gamma: float, generator: torch.Generator, lagged: bool = False,
-               anchor: nn.Module | None = None, critic_worker: CriticWorker | None = None) -> dict[str, float]:
+               anchor: nn.Module | None = None, critic_worker: CriticWorker | None = None,
+               critic_only: bool = False) -> dict[str, float]:
     """Run cfg.epochs passes of minibatch gradient steps; returns mean loss statistics.
 
     lagged: the rollout was sampled by an older policy than the model's (run.overlap); the
@@ -42,6 +43,9 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
     the policy that acted. Without lag the two policies are one and this is plain PPO.
     critic_worker: computes the critic's half of every gradient step in its own process, on
     the model's (shared) critic, while this one computes the actor's (train/critic_worker.py).
+    critic_only: the actor is held (no gradient reaches it, so Adam leaves it and its moments
+    alone) and only the critic learns: ppo.critic_warmup, after a start with a fresh critic.
+    The policy statistics are still computed, on the held actor.
     """
     adv, ret, _ = advantages_and_returns(buf, gamma, cfg.gae_lambda)
     n = buf.n_transitions
@@ -88,18 +92,19 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
             a = normalise(adv[idx]) if cfg.norm_adv else adv[idx]
             pg_loss, clip_frac = clipped_policy_loss(new_logp, mb_old_logp, a, cfg.clip,
                                                      weights[idx] if weights is not None else None)
+            actor_loss = pg_loss - cfg.ent_coef * entropy
+            if anchored:
+                anchor_kl = gaussian_kl(mean, log_std, anchor_mean[idx], anchor_log_std[idx]).mean()
+                actor_loss = actor_loss + cfg.anchor_coef * anchor_kl
+                anchor_kls.append(anchor_kl.detach())
+            loss = None if critic_only else actor_loss
             if critic_worker is None:
                 v = model.raw_value(mb_obs, states[idx] if states is not None else None)
                 v_loss = scaled_value_loss(v, targets[idx], target_std)
-                loss = pg_loss + cfg.vf_coef * v_loss - cfg.ent_coef * entropy
-            else:
-                loss = pg_loss - cfg.ent_coef * entropy
-            if anchored:
-                anchor_kl = gaussian_kl(mean, log_std, anchor_mean[idx], anchor_log_std[idx]).mean()
-                loss = loss + cfg.anchor_coef * anchor_kl
-                anchor_kls.append(anchor_kl.detach())
+                loss = cfg.vf_coef * v_loss if loss is None else loss + cfg.vf_coef * v_loss
             optimizer.zero_grad(set_to_none=True)
-            loss.backward()
+            if loss is not None:
+                loss.backward()
             if critic_worker is not None:
                 v_loss = critic_worker.collect()  # and the critic's .grad is set
             grad_norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
@@ -115,6 +120,7 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
     out["explained_variance"] = explained_variance(pred, ret)
     out["return_std"] = float(ret.std(unbiased=False))
     out["log_std"] = float(model.actor.log_std.detach().mean())
+    out["critic_only"] = float(critic_only)
     if anchored:
         out["anchor_kl"] = float(torch.stack(anchor_kls).mean())
     if weights is not None:

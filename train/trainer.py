@@ -266,15 +266,18 @@ class Trainer:
                              f"--set regime=custom with the same init_from")
         src_algo = src.get("algo")
         same_critic = (src_algo == "mappo") == (self.cfg.algo == "mappo")  # dagger trains a ppo-style critic
+        fresh = ("" if self.cfg.algo == "dagger" else
+                 f" ({self.cfg.ppo.critic_warmup} update(s) train it alone, ppo.critic_warmup)" if self.cfg.ppo.critic_warmup
+                 else " (ppo.critic_warmup=N would train it alone for N updates before the actor moves)")
         if "critic" not in data:
-            notes.append("it is a policy-only export: the critic starts fresh")
+            notes.append(f"it is a policy-only export: the critic starts fresh{fresh}")
         elif not same_critic:
-            notes.append(f"its critic ({src_algo}) is not this run's ({self.cfg.algo}): the critic starts fresh")
+            notes.append(f"its critic ({src_algo}) is not this run's ({self.cfg.algo}): the critic starts fresh{fresh}")
         else:
             try:
                 self.model.critic.load_state_dict(data["critic"])
             except RuntimeError:
-                notes.append("its critic does not fit (other team size or network): the critic starts fresh")
+                notes.append(f"its critic does not fit (other team size or network): the critic starts fresh{fresh}")
             else:  # a normalised critic's outputs mean nothing without the statistics they were scaled by
                 if self.model.value_norm is not None and data.get("value_norm"):
                     self.model.value_norm.load_state_dict(data["value_norm"])
@@ -460,7 +463,8 @@ class Trainer:
                 losses["teacher_share"] = self.collector.beta
             else:
                 losses = ppo_update(self.model, self.optimizer, buf, cfg.ppo, self.discount.value, self.generator,
-                                    lagged=self.overlap, anchor=self.anchor, critic_worker=self.critic_worker)
+                                    lagged=self.overlap, anchor=self.anchor, critic_worker=self.critic_worker,
+                                    critic_only=c.update < cfg.ppo.critic_warmup)
         except WorkerExited as exc:  # the critic's process was killed (the out-of-memory killer): the run folder is as last saved
             self.critic_worker.close()
             self.critic_worker = None
