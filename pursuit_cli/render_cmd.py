@@ -56,8 +56,12 @@ def register(sub) -> None:
     out.add_argument("--no-video", action="store_true", help="write no video (with --final-frame and/or --rerun)")
     out.add_argument("--rerun", metavar="FILE.rrd", help="record all episodes for the rerun viewer (rerun FILE.rrd)")
     run_g = p.add_argument_group("episodes and frames")
-    run_g.add_argument("--episodes", type=int, default=1, help="episodes to play (default 1)")
+    run_g.add_argument("--episodes", type=int, help="episodes to play (default 1)")
     run_g.add_argument("--seed", type=seed_arg, default=0, help="environment seed (default 0)")
+    run_g.add_argument("--episode-seed", type=seed_arg, action="append", metavar="N", dest="episode_seeds",
+                       help="play the episode of this episode seed instead (repeatable); eval's JSON lists each "
+                            "episode's seed (rows[].per_episode.seed), so an episode of an evaluation table replays "
+                            "here with the same task flags; files are named ..._episode<N>")
     run_g.add_argument("--width", type=int, default=640, help="frame width in pixels (default 640)")
     run_g.add_argument("--height", type=int, default=480, help="frame height in pixels (default 480)")
     run_g.add_argument("--fps", type=finite_float, help="video frames per second, 0.01 to 1e6 (default: real time, 1/control_dt; a GIF at most 50)")
@@ -177,12 +181,14 @@ class SaveTarget:
     fmt: str
     suffix: str = ""
 
-    def paths(self, episodes: int, stem: str, video: bool, final: bool) -> tuple[list[Path] | None, list[Path] | None]:
-        """(videos, final PNGs) per episode: `<stem>_ep<k>` in a folder; the file name as given for one
-        episode, numbered `<name>_ep<k>` for several."""
+    def paths(self, episodes: int, stem: str, video: bool, final: bool,
+              tags: list[str] | None = None) -> tuple[list[Path] | None, list[Path] | None]:
+        """(videos, final PNGs) per episode: `<stem>_<tag>` in a folder; the file name as given for one
+        episode, `<name>_<tag>` for several. The tags default to ep<k> (000, 001, ...)."""
         base = self.file_stem or stem
         numbered = self.file_stem is None or episodes > 1
-        names = [f"{base}_ep{k:03d}" if numbered else base for k in range(episodes)]
+        tags = tags or [f"ep{k:03d}" for k in range(episodes)]
+        names = [f"{base}_{tag}" if numbered else base for tag in tags]
         suffix = self.suffix or f".{self.fmt}"
         return ([self.folder / f"{n}{suffix}" for n in names] if video else None,
                 [self.folder / f"{n}_final.png" for n in names] if final else None)
@@ -226,7 +232,12 @@ def run(args) -> int:
     from pursuit_mj.render.renderer import RenderSettings
     from pursuit_mj.render.video import check_frame_size, check_video_fps, ensure_ffmpeg
 
-    check_episodes(args.episodes)
+    seeds = args.episode_seeds
+    if seeds and args.episodes is not None and args.episodes != len(seeds):
+        raise ValueError(f"--episodes {args.episodes} and {len(seeds)} --episode-seed: give one or the other "
+                         f"(with --episode-seed, one episode per seed)")
+    episodes = len(seeds) if seeds else 1 if args.episodes is None else args.episodes
+    check_episodes(episodes)
     if args.trail < 0:
         raise ValueError(f"--trail: expected an integer >= 0, got {args.trail}")
     if args.fps is not None and not args.fps > 0:
@@ -263,8 +274,12 @@ def run(args) -> int:
         task_tag = "".join(f"_{Path(f).stem}" for f in args.task_files or [])  # --task hard: not the default task's files
         frames = {**dataclasses.asdict(settings), "fps": fps, "trail": args.trail, "format": target.fmt}
         digest = render_digest(config, label, checkpoint_file(args, train_cfg), frames)
-        stem = f"{label}{task_tag}_layout{layout_tag(config)}_{config.fidelity}_seed{args.seed}_{digest}"
-        videos, finals = target.paths(args.episodes, stem, video, final)
+        if seeds:  # each file is named after its episode's seed, which --seed has no part in
+            stem = f"{label}{task_tag}_layout{layout_tag(config)}_{config.fidelity}_{digest}"
+            videos, finals = target.paths(episodes, stem, video, final, [f"episode{n}" for n in seeds])
+        else:
+            stem = f"{label}{task_tag}_layout{layout_tag(config)}_{config.fidelity}_seed{args.seed}_{digest}"
+            videos, finals = target.paths(episodes, stem, video, final)
         for path in (videos or []) + (finals or []):
             if path.is_dir():  # found now, not by the rename after the episode is played
                 raise ValueError(f"-s {args.save_path}: {path} is a folder, expected a file name there")
@@ -277,7 +292,8 @@ def run(args) -> int:
     recording = RerunEpisodeRecording(args.rerun, trail_length=max(args.trail, 1)) if args.rerun else None
     ok = False
     try:
-        run_episodes(config, policy, args.episodes, args.seed, settings, outputs, recording, label, on_episode=report)
+        run_episodes(config, policy, episodes, args.seed, settings, outputs, recording, label, on_episode=report,
+                     episode_seeds=seeds)
         ok = True
     finally:
         if recording is not None:

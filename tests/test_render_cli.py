@@ -59,6 +59,34 @@ def test_cli_single_file_and_no_video(tmp_path):
     assert not list((tmp_path / "finals").glob("*.mp4"))
 
 
+def test_an_episode_of_an_evaluation_table_replays_by_its_episode_seed(tmp_path, capsys):
+    """eval's JSON lists each episode's seed; render --episode-seed plays that very episode
+    (an episode depends on its seed alone), named after it."""
+    from pursuit_mj.config import default_config
+    from pursuit_mj.evaluation import evaluate
+    from pursuit_mj.policies import make_policy
+
+    task = default_config(fidelity="point", max_steps=60, layout=2)
+    [row] = evaluate(make_policy("heuristic", task), task, [2], episodes=3, seed=4, n_worlds=3)
+    seeds, outcomes = [e[0] for e in row.episode_log], [(e[1], e[2]) for e in row.episode_log]
+    out = tmp_path / "renders"
+    code = main(["render", "--policy", "heuristic", "--fidelity", "point", "--set", "max_steps=60", "-i", "2",
+                 "--width", str(W), "--height", str(H), "-s", str(out), "--format", "gif",
+                 "--episode-seed", str(seeds[2]), "--episode-seed", str(seeds[0])])
+    assert code == 0
+    lines = [l for l in capsys.readouterr().out.splitlines() if l.startswith("episode ")]
+    for line, k in zip(lines, (2, 0)):
+        assert line.startswith(f"episode {0 if k == 2 else 1}: {outcomes[k][0]} after {outcomes[k][1]} steps (seed {seeds[k]})")
+    names = sorted(p.name for p in out.iterdir())
+    assert len(names) == 2 and all(n.startswith("heuristic_layout2_point_") for n in names)
+    assert {n.rsplit("_", 1)[1] for n in names} == {f"episode{seeds[2]}.gif", f"episode{seeds[0]}.gif"}
+    assert _cli(tmp_path, "-s", str(out), "--format", "gif", "--episode-seed", "7", "--episodes", "2") == 2
+    assert "--episodes 2 and 1 --episode-seed: give one or the other" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        _cli(tmp_path, "--episode-seed", "-3")
+    assert "argument --episode-seed: expected an integer >= 0, got -3" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("args, message", [
     (["-s", "out.avi"], "unknown video extension '.avi'"),
     (["-s", "x.mp4", "--format", "gif"], "--format gif contradicts"),

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Callable, Sequence
 import numpy as np
 
 from ..config import TaskConfig
-from ..env import EpisodeRecord, PursuitEnv, Snapshot
+from ..env import EpisodeRecord, PursuitEnv, Snapshot, check_seeds
 from ..layout import Layout
 from ..policy import Policy
 from .caption import Caption, draw_caption, draw_key
@@ -95,8 +95,13 @@ def run_episodes(
     recording: RerunEpisodeRecording | None = None,
     title: str | None = None,
     on_episode: Callable[[int, EpisodeRecord, list[Path]], None] | None = None,
+    episode_seeds: Sequence[int] | None = None,
 ) -> list[EpisodeRecord]:
     """Play `episodes` episodes in one world, writing videos / final PNGs / rerun as asked.
+
+    episode_seeds: play the episodes of these seeds (one each, `episodes` must be their number)
+    instead of those the env draws from `seed`; an episode depends on its seed alone, so this
+    replays an episode of an evaluation table (evaluation.Row.episode_log holds the seeds).
 
     Frames are rendered only when a video or final image of that episode is wanted (for
     final images only the last state is rendered). `on_episode(k, record, written_paths)` is
@@ -109,8 +114,12 @@ def run_episodes(
         if paths is not None and len(paths) != episodes:
             raise ValueError(f"{name} paths: {len(paths)} given for {episodes} episodes")
     wants_frames = outputs.video_paths is not None or outputs.final_paths is not None
+    if episode_seeds is not None:
+        episode_seeds = check_seeds(episode_seeds, len(episode_seeds), "episode seeds")
+        if len(episode_seeds) != episodes:
+            raise ValueError(f"episode seeds: {len(episode_seeds)} given for {episodes} episodes")
     env = PursuitEnv(config, n_worlds=1, seed=seed, auto_reset=False)
-    obs = env.reset()
+    obs = env.reset(seeds=episode_seeds[:1]) if episode_seeds is not None else env.reset()
     policy.reset(1)
     label = title or getattr(policy, "name", "policy")
     maker = FrameMaker(config, env.world_layouts[0], settings or RenderSettings(), label, outputs.trail_length) if wants_frames else None
@@ -118,7 +127,7 @@ def run_episodes(
     try:
         for k in range(episodes):
             if k:
-                obs = env.reset_worlds([0])
+                obs = env.reset_worlds([0], episode_seeds[k : k + 1] if episode_seeds is not None else None)
                 policy.reset(1, np.array([0]))
             if maker is not None:
                 maker.start_episode()
