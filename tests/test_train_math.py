@@ -373,3 +373,37 @@ def test_every_transition_is_used_once_per_epoch_when_the_minibatch_does_not_div
     assert [len(s) for s in seen] == [5, 5] * 3  # n // minibatch = 2 steps per epoch, the remainder shared
     for epoch in range(3):
         assert sorted(seen[2 * epoch] + seen[2 * epoch + 1]) == [float(k) for k in range(1, 11)]
+
+
+def test_a_kickstarted_update_moves_the_mean_toward_the_teachers_actions_and_logs_the_error():
+    """ppo.teacher_coef adds weight x the squared distance of the actor's mean from the teacher's
+    action (stored per transition by the collector): from the same start and rollout, the
+    kickstarted update ends nearer the teacher than the plain one."""
+    from train.config import load_train_config
+    from train.ppo import ppo_update
+
+    spec = ObsSpec.make(2, 1, 4)
+    buf = _random_rollout(spec, T=16)
+    buf.teacher_actions.copy_(buf.obs[..., :2])  # a teacher whose action is a function of what it sees
+    error = {}
+    for weight in (0.0, 5.0):
+        cfg = load_train_config([], ["ppo.epochs=20", "ppo.minibatch_size=16", "net.encoder_width=8", "net.hidden=[8]"])
+        model = _model_that_acted(buf, spec, cfg)
+        opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+        stats = ppo_update(model, opt, buf, cfg.ppo, 0.99, torch.Generator().manual_seed(3), teacher_weight=weight)
+        with torch.no_grad():
+            error[weight] = float(((model.actor(buf.obs, spec)[0] - buf.teacher_actions) ** 2).sum(-1).mean())
+        assert ("teacher_mse" in stats) == (weight > 0)  # an update without a teacher logs none
+    assert error[5.0] < 0.5 * error[0.0]
+
+
+@pytest.mark.parametrize("coef,updates,update,expected", [
+    (2.0, 0, 0, 2.0), (2.0, 0, 500, 2.0),  # no decay: constant
+    (2.0, 10, 0, 2.0), (2.0, 10, 5, 1.0), (2.0, 10, 10, 0.0), (2.0, 10, 30, 0.0),  # linear to 0
+    (0.0, 10, 0, 0.0),
+])
+def test_the_teachers_weight_falls_linearly_over_teacher_updates(coef, updates, update, expected):
+    from train.config import PPOConfig
+    from train.ppo import teacher_weight
+
+    assert teacher_weight(PPOConfig(teacher_coef=coef, teacher_updates=updates), update) == pytest.approx(expected)

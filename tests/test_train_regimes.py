@@ -403,3 +403,28 @@ def test_a_critic_warmup_holds_the_actor_while_a_fresh_critic_learns(tmp_path, s
     with pytest.raises(ConfigError, match=r"ppo.critic_warmup.*-1"):
         load_train_config(["classic"], ["ppo.critic_warmup=-1"])
     assert load_train_config(["imitate"], ["ppo.critic_warmup=3"]).idle_settings()[0].startswith("ppo.critic_warmup do(es) nothing")
+
+
+@pytest.mark.parametrize("overlap", ["false", "true"])
+def test_a_kickstarted_run_logs_the_teachers_error_and_weight(tmp_path, overlap):
+    """ppo.teacher_coef: the heuristic team labels the rollout (in this process, or in the
+    rollout worker's with run.overlap), the update pulls toward it with a weight that falls
+    over ppo.teacher_updates, and the metrics log both."""
+    cfg = load_train_config(["classic"], TINY + [f"run.runs_dir={tmp_path}", "name=kick", "total_steps=192",
+                                                 "ppo.teacher_coef=2", "ppo.teacher_updates=2", f"run.overlap={overlap}"])
+    Trainer(cfg, **QUIET).train()
+    rows = [json.loads(line) for line in (cfg.run_dir / "metrics.jsonl").read_text().splitlines()]
+    updates = [r for r in rows if "loss" in r]
+    assert [r["loss"]["teacher_weight"] for r in updates[:3]] == [2.0, 1.0, 0.0]
+    assert updates[0]["loss"]["teacher_mse"] > 0
+    assert "teacher_mse" not in updates[2]["loss"]  # weight 0: no teacher term
+
+
+def test_a_teacher_is_refused_under_a_residual_and_idle_under_dagger():
+    with pytest.raises(ConfigError, match=r"ppo.teacher_coef 1 .*residual.base 'heuristic'"):
+        load_train_config(["residual"], ["ppo.teacher_coef=1"]).check_complete()
+    assert load_train_config(["imitate"], ["ppo.teacher_coef=1"]).idle_settings()[0].startswith("ppo.teacher_coef do(es) nothing")
+    with pytest.raises(ConfigError, match=r"ppo.teacher_coef.*-1"):
+        load_train_config(["classic"], ["ppo.teacher_coef=-1"])
+    assert load_train_config(["classic"], ["ppo.teacher_updates=5"]).idle_settings() == [
+        "ppo.teacher_updates 5 does nothing without ppo.teacher_coef (it schedules the teacher's weight)"]

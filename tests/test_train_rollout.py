@@ -24,3 +24,27 @@ def test_stored_log_probs_and_values_match_the_networks_on_the_stored_data():
         torch.testing.assert_close(buf.values, model.value(buf.obs, None), rtol=1e-5, atol=1e-5)
         assert bool((buf.final_values[~buf.truncated] == 0).all()) and bool((buf.final_values[buf.truncated] != 0).all())
     assert not buf.last_value.is_inference()  # the update may use it with autograd on
+
+
+def test_a_teacher_labels_every_stored_observation_with_the_action_it_would_take_there():
+    """With a teacher (ppo.teacher_coef), the collector stores the team's action for each stored
+    observation; the team keeps memory, so a second team fed the same observations and episode
+    ends must give the same labels. The worlds are still driven by the policy's samples."""
+    from pursuit_mj.heuristic import HeuristicTeam
+    from train.rollout import forget_ended
+
+    torch.manual_seed(0)
+    task = default_config(fidelity="point", random_obstacles=0, max_steps=6)
+    env = PursuitEnv(task, n_worlds=2, seed=3, nthread=1)
+    model = ActorCritic(env.obs_spec, env.state_dim, TrainConfig())
+    buf = Rollout(8, 2, env.n_pursuers, env.obs_dim)
+    Collector(env, model, torch.Generator().manual_seed(1), teacher=HeuristicTeam.from_config(task)).collect(buf)
+    assert bool(buf.truncated.any())  # labels run across an episode end
+    replay = HeuristicTeam.from_config(task)
+    replay.reset(2)
+    for t in range(buf.T):
+        expected = replay.act(buf.obs[t].numpy(), env.obs_spec)
+        torch.testing.assert_close(buf.teacher_actions[t], torch.as_tensor(expected, dtype=torch.float32))
+        forget_ended(replay, (buf.terminated[t] | buf.truncated[t]).numpy())
+    assert float(buf.teacher_actions.abs().max()) > 0.1
+    assert not torch.allclose(buf.actions.clamp(-1, 1), buf.teacher_actions)  # the policy drove, not the teacher

@@ -47,12 +47,17 @@ class PPOConfig:
                                                 "actor, frozen: PPO improves on its start without drifting far from it (0: off)")
     critic_warmup: int = spec(0, lo=0, help="updates at the start of a run in which only the critic learns and the actor "
                                             "is held: for a start whose critic is fresh (a policy-only export)")
+    teacher_coef: float = spec(0.0, lo=0.0, help="weight of the squared distance between the actor's mean and the heuristic "
+                                                 "team's action on each rollout observation (kickstarting; the team labels, "
+                                                 "never drives; 0: off)")
+    teacher_updates: int = spec(0, lo=0, help="updates over which the teacher's weight falls linearly from teacher_coef to 0 "
+                                              "(0: it stays at teacher_coef)")
 
 
 
 #: PPOConfig keys only PPO's update reads (DAgger reads gamma, gae_lambda, batch_size, vf_coef, value_scaling, lr_decay)
 PPO_UPDATE_ONLY = ("lr", "clip", "epochs", "minibatch_size", "ent_coef", "max_grad_norm", "norm_adv", "anchor_coef",
-                   "critic_warmup")
+                   "critic_warmup", "teacher_coef", "teacher_updates")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -214,6 +219,10 @@ class TrainConfig:
             if not lo <= self.ppo.gamma <= hi:
                 raise ConfigError(f"{source}: ppo.gamma {self.ppo.gamma:g} cannot start ppo.learnable_gamma: the learned "
                                   f"discount is sigmoid(logit) and starts in [{lo:g}, {hi:g}] (e.g. ppo.gamma=0.99)")
+        if self.algo != "dagger" and self.ppo.teacher_coef > 0 and self.residual.base != "none":
+            raise ConfigError(f"{source}: ppo.teacher_coef {self.ppo.teacher_coef:g} cannot work with residual.base "
+                              f"{self.residual.base!r}: the actor's output is then a correction to that team, not an action "
+                              "the teacher would take (set ppo.teacher_coef=0, or residual.base=none)")
         if self.algo == "dagger" and self.residual.base != "none":
             raise ConfigError(f"{source}: residual.base {self.residual.base!r} works with algo ppo or mappo, not dagger "
                               "(a residual starts as its base team; there is nothing to imitate)")
@@ -261,6 +270,9 @@ class TrainConfig:
             changed = [k for k in ("gamma_meta_lr", "gamma_outer") if getattr(self.ppo, k) != getattr(default.ppo, k)]
             if changed:
                 idle.append(f"ppo.{', ppo.'.join(changed)} do(es) nothing without ppo.learnable_gamma (they tune the learned discount)")
+        if self.algo != "dagger" and self.ppo.teacher_coef == 0 and self.ppo.teacher_updates != default.ppo.teacher_updates:
+            idle.append(f"ppo.teacher_updates {self.ppo.teacher_updates} does nothing without ppo.teacher_coef (it schedules "
+                        "the teacher's weight)")
         if self.algo == "dagger" and self.run.overlap:
             idle.append("run.overlap does nothing under algo dagger (it always collects in turn: the teacher's labels feed the update)")
         if not self.run.split_update and self.run.overlap and self.algo != "dagger":

@@ -31,10 +31,18 @@ def explained_variance(pred: torch.Tensor, target: torch.Tensor) -> float:
     return float("nan") if var < 1e-12 else float(1.0 - (target - pred).var(unbiased=False) / var)
 
 
+def teacher_weight(cfg: PPOConfig, update: int) -> float:
+    """The teacher's weight in the update about to run (0-based count of finished updates):
+    cfg.teacher_coef, falling linearly to 0 over cfg.teacher_updates updates when that is set."""
+    if cfg.teacher_updates <= 0:
+        return cfg.teacher_coef
+    return cfg.teacher_coef * max(1.0 - update / cfg.teacher_updates, 0.0)
+
+
 def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollout, cfg: PPOConfig,
                gamma: float, generator: torch.Generator, lagged: bool = False,
                anchor: nn.Module | None = None, critic_worker: CriticWorker | None = None,
-               critic_only: bool = False) -> dict[str, float]:
+               critic_only: bool = False, teacher_weight: float = 0.0) -> dict[str, float]:
     """Run cfg.epochs passes of minibatch gradient steps; returns mean loss statistics.
 
     lagged: the rollout was sampled by an older policy than the model's (run.overlap); the
@@ -46,6 +54,9 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
     critic_only: the actor is held (no gradient reaches it, so Adam leaves it and its moments
     alone) and only the critic learns: ppo.critic_warmup, after a start with a fresh critic.
     The policy statistics are still computed, on the held actor.
+    teacher_weight: adds weight x the squared distance of the actor's mean from the teacher's
+    action stored with each transition (buf.teacher_actions): kickstarting (Schmitt et al.
+    2018), a pull toward the team in the states the policy itself visits.
     """
     adv, ret, _ = advantages_and_returns(buf, gamma, cfg.gae_lambda)
     n = buf.n_transitions
@@ -65,6 +76,9 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
         with torch.no_grad():  # the anchor never moves: its outputs are computed once per update
             anchor_mean, anchor_log_std = anchor(obs, model.spec)
     anchor_kls: list[torch.Tensor] = []
+    taught = teacher_weight > 0
+    teacher_actions = buf.teacher_actions.reshape(n, 2)
+    teacher_errors: list[torch.Tensor] = []
     states = None
     if model.algo == "mappo":
         states = buf.states.unsqueeze(2).expand(-1, -1, buf.N, -1).reshape(n, -1)
@@ -97,6 +111,10 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
                 anchor_kl = gaussian_kl(mean, log_std, anchor_mean[idx], anchor_log_std[idx]).mean()
                 actor_loss = actor_loss + cfg.anchor_coef * anchor_kl
                 anchor_kls.append(anchor_kl.detach())
+            if taught:
+                teacher_error = ((mean - teacher_actions[idx]) ** 2).sum(-1).mean()
+                actor_loss = actor_loss + teacher_weight * teacher_error
+                teacher_errors.append(teacher_error.detach())
             loss = None if critic_only else actor_loss
             if critic_worker is None:
                 v = model.raw_value(mb_obs, states[idx] if states is not None else None)
@@ -123,6 +141,8 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
     out["critic_only"] = float(critic_only)
     if anchored:
         out["anchor_kl"] = float(torch.stack(anchor_kls).mean())
+    if taught:
+        out["teacher_mse"] = float(torch.stack(teacher_errors).mean())
     if weights is not None:
         out["behaviour_weight"] = float(weights.mean())  # 1: the lag changed nothing
     return out

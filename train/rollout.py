@@ -53,6 +53,13 @@ def make_action_path(cfg: TrainConfig, env=None) -> "ActionPath":
     return ActionPath(shield, base, cfg.residual.scale)
 
 
+def make_collector(cfg: TrainConfig, env, model: ActorCritic, generator: torch.Generator) -> "Collector":
+    """The PPO / MAPPO collector of this run: its action path, and with ppo.teacher_coef the
+    heuristic team labelling each observation (kickstarting)."""
+    teacher = hand_made_team("heuristic", cfg, env, "ppo.teacher_coef") if cfg.ppo.teacher_coef > 0 else None
+    return Collector(env, model, generator, make_action_path(cfg, env), teacher=teacher)
+
+
 @dataclasses.dataclass
 class RolloutStats:
     """What one rollout saw: finished episodes and the mean per-step reward terms (per pursuer)."""
@@ -68,17 +75,23 @@ class Collector:
     Observations come from the env already free of denormal floats (pursuit_mj.observations);
     the MAPPO global state is flushed here. The env is stepped with what `path` makes of the
     samples (a base team's actions added, a shield); the buffer keeps the policy's own samples,
-    so to PPO both are part of the environment.
+    so to PPO both are part of the environment. A `teacher` (a Policy with memory) only labels:
+    its action for every stored observation goes to buf.teacher_actions.
     """
 
-    def __init__(self, env, model: ActorCritic, generator: torch.Generator, path: "ActionPath | None" = None):
+    def __init__(self, env, model: ActorCritic, generator: torch.Generator, path: "ActionPath | None" = None,
+                 teacher: Policy | None = None):
         self.env = env
         self.model = model
         self.generator = generator
         self.path = path or ActionPath()
+        self.teacher = teacher
         self.needs_state = model.algo == "mappo"
-        self.obs = torch.as_tensor(env.reset())
+        self.obs_np = env.reset()
+        self.obs = torch.as_tensor(self.obs_np)
         self.path.reset(env.n_worlds)
+        if teacher is not None:
+            teacher.reset(env.n_worlds)
         self.state = self._state()
 
     def _state(self) -> torch.Tensor | None:
@@ -98,6 +111,8 @@ class Collector:
             buf.logp[t] = gaussian_log_prob(mean, std, action).sum(-1)
             if state is not None:
                 buf.states[t] = state
+            if self.teacher is not None:  # before the step: the team's memory takes this observation in
+                buf.teacher_actions[t] = torch.as_tensor(self.teacher.act(self.obs_np, self.model.spec))
             next_obs, reward, terminated, truncated, info = self.env.step(self.path(action, obs, self.model.spec))
             buf.rewards[t] = torch.as_tensor(reward)
             buf.terminated[t] = torch.as_tensor(terminated)
@@ -111,6 +126,9 @@ class Collector:
                 term_sums[k] = term_sums.get(k, 0.0) + float(v.mean())
             stats.episodes.extend(info["episodes"])
             self.path.forget_ended(terminated | truncated)
+            if self.teacher is not None:
+                forget_ended(self.teacher, terminated | truncated)
+            self.obs_np = next_obs
             self.obs = torch.as_tensor(next_obs)
             self.state = self._state()
         buf.last_value.copy_(self.model.world_value(self.obs, self.state))

@@ -30,7 +30,7 @@ import torch
 from .agent import ActorCritic
 from .child_process import POLL_S, STOP_TIMEOUT_S, WorkerExited, how_it_ended, ignore_ctrl_c, report_error, shutdown, spawn
 from .config import TrainConfig
-from .rollout import Collector, RolloutStats, make_action_path, make_training_env
+from .rollout import RolloutStats, make_collector, make_training_env
 from .storage import Rollout
 
 
@@ -59,7 +59,7 @@ def _serve(conn, cfg: TrainConfig, start_update: int, buffers: list[Rollout]) ->
         env = make_training_env(cfg, start_update)
         model = ActorCritic(env.obs_spec, env.state_dim, cfg)
         generator = torch.Generator().manual_seed(sampler_seed(cfg.seed, start_update))
-        collector = Collector(env, model, generator, make_action_path(cfg, env))
+        collector = make_collector(cfg, env, model, generator)
         while True:
             request = conn.recv()
             if request[0] == "stop":

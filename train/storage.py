@@ -13,7 +13,8 @@ class Rollout:
     units); rewards (T, W, N); terminated / truncated (T, W) bool episode ends after the step;
     final_values (T, W, N) values of info["final_obs"] where truncated (else 0);
     states (T, W, S) global states (MAPPO only, S = 0 otherwise); last_value (W, N) value of
-    the observation after the last step (the bootstrap).
+    the observation after the last step (the bootstrap); teacher_actions (T, W, N, 2) the
+    teacher team's actions for the stored observations, in [-1, 1] (ppo.teacher_coef; else 0).
     """
 
     def __init__(self, T: int, W: int, N: int, obs_dim: int, state_dim: int = 0):
@@ -28,6 +29,7 @@ class Rollout:
         self.final_values = torch.zeros(T, W, N)
         self.states = torch.zeros(T, W, state_dim)
         self.last_value = torch.zeros(W, N)
+        self.teacher_actions = torch.zeros(T, W, N, 2)
 
     def share_memory(self) -> "Rollout":
         """Moves every tensor into shared memory (a rollout filled by another process); returns self."""

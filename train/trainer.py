@@ -43,8 +43,8 @@ from .imitation import DaggerCollector, Demonstrations, imitation_update, teache
 from .metrics_log import MetricsLog, json_ready
 from pursuit_mj.recording.rerun_scalars import RerunScalarLogger
 from .policy import ActorPolicy, trained_team
-from .ppo import advantages_and_returns, ppo_update
-from .rollout import Collector, RolloutStats, hand_made_team, make_action_path, make_training_env
+from .ppo import advantages_and_returns, ppo_update, teacher_weight
+from .rollout import Collector, RolloutStats, hand_made_team, make_action_path, make_collector, make_training_env
 from .rollout_worker import RolloutWorker
 from .storage import Rollout
 from .validation import FixedSeedValidator, summarise, versus
@@ -136,7 +136,7 @@ class Trainer:
             self.collector = DaggerCollector(self.env, self.model, teacher, self.demos, self.generator, make_action_path(cfg, self.env),
                                              teacher_task=None if teacher_task is cfg.task else teacher_task)
         elif not self.overlap:
-            self.collector = Collector(self.env, self.model, self.generator, make_action_path(cfg, self.env))
+            self.collector = make_collector(cfg, self.env, self.model, self.generator)
         self.metrics = MetricsLog(self.run_dir / "metrics.jsonl")
         self.rerun = RerunScalarLogger(self.run_dir / "metrics.rrd", run_name=cfg.name) if cfg.run.rerun else None
         if self.rerun is not None and checkpoint:  # the file starts afresh: the curves so far come from the log
@@ -462,9 +462,12 @@ class Trainer:
                                           self.discount.value, self.generator, critic_worker=self.critic_worker)
                 losses["teacher_share"] = self.collector.beta
             else:
+                weight = teacher_weight(cfg.ppo, c.update)
                 losses = ppo_update(self.model, self.optimizer, buf, cfg.ppo, self.discount.value, self.generator,
                                     lagged=self.overlap, anchor=self.anchor, critic_worker=self.critic_worker,
-                                    critic_only=c.update < cfg.ppo.critic_warmup)
+                                    critic_only=c.update < cfg.ppo.critic_warmup, teacher_weight=weight)
+                if cfg.ppo.teacher_coef > 0:
+                    losses["teacher_weight"] = weight
         except WorkerExited as exc:  # the critic's process was killed (the out-of-memory killer): the run folder is as last saved
             self.critic_worker.close()
             self.critic_worker = None
