@@ -141,8 +141,8 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
 
     from pursuit_mj.env import PursuitEnv
     from train.config import load_train_config
-    from train.ppo import ppo_update
-    from train.rollout import Collector, make_action_path
+    from train.ppo import ppo_update, teacher_weight
+    from train.rollout import make_collector
     from train.trainer import Trainer
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -196,11 +196,12 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
         profile = ""
         if profile_top > 0:
             torch.set_num_threads(1)
-            collector = trainer.collector or Collector(trainer.env, trainer.model, trainer.generator, make_action_path(cfg, trainer.env))
+            collector = trainer.collector or make_collector(cfg, trainer.env, trainer.model, trainer.generator)
             roll = profile_call(lambda: collector.collect(trainer.buffer), profile_top)
             torch.set_num_threads(trainer.update_threads)
             upd = profile_call(lambda: ppo_update(trainer.model, trainer.optimizer, trainer.buffer, cfg.ppo,
-                                              trainer.discount.value, trainer.generator), profile_top)
+                                              trainer.discount.value, trainer.generator,
+                                              teacher_weight=teacher_weight(cfg.ppo, trainer.counters.update)), profile_top)
             whole = " (actor and critic in this process)" if trainer.split_update else ""
             profile = f"rollout:\n{roll}\n\nupdate{whole}:\n{upd}"
         med = statistics.median
