@@ -397,6 +397,41 @@ def test_a_kickstarted_update_moves_the_mean_toward_the_teachers_actions_and_log
     assert error[5.0] < 0.5 * error[0.0]
 
 
+def test_a_masked_out_teacher_label_pulls_on_nothing():
+    """buf.teacher_mask (ppo.teacher_from_step) says which labels count: with every label masked
+    out the kickstarted update is the plain one to the bit; with half masked out, the mean
+    moves toward the labels that count and not toward the others (which disagree with them)."""
+    from train.config import load_train_config
+    from train.ppo import ppo_update
+
+    spec = ObsSpec.make(2, 1, 4)
+    buf = _random_rollout(spec, T=16)
+    buf.teacher_actions[:, 0] = buf.obs[:, 0, ..., :2]  # world 0's labels count
+    buf.teacher_actions[:, 1] = -buf.obs[:, 1, ..., :2]  # world 1's contradict them and are masked out
+    cfg = load_train_config([], ["ppo.epochs=20", "ppo.minibatch_size=16", "net.encoder_width=8", "net.hidden=[8]"])
+
+    def update(weight: float, mask: torch.Tensor):
+        buf.teacher_mask.copy_(mask)
+        model = _model_that_acted(buf, spec, cfg)
+        stats = ppo_update(model, torch.optim.Adam(model.parameters(), lr=3e-3), buf, cfg.ppo, 0.99,
+                           torch.Generator().manual_seed(3), teacher_weight=weight)
+        with torch.no_grad():
+            error = ((model.actor(buf.obs, spec)[0] - buf.teacher_actions) ** 2).sum(-1).mean((0, 2))
+        return model, stats, error
+
+    plain, _, plain_error = update(0.0, torch.ones(16, 2))
+    masked, stats, _ = update(5.0, torch.zeros(16, 2))
+    for a, b in zip(plain.parameters(), masked.parameters()):
+        assert torch.equal(a, b)
+    assert stats["teacher_coverage"] == 0.0
+    half = torch.zeros(16, 2)
+    half[:, 0] = 1
+    _, stats, error = update(5.0, half)
+    assert stats["teacher_coverage"] == pytest.approx(0.5)
+    assert error[0] < 0.5 * plain_error[0]  # pulled toward the labels that count
+    assert error[1] > plain_error[1]  # and so away from the contradicting ones, never toward them
+
+
 @pytest.mark.parametrize("coef,updates,update,expected", [
     (2.0, 0, 0, 2.0), (2.0, 0, 500, 2.0),  # no decay: constant
     (2.0, 10, 0, 2.0), (2.0, 10, 5, 1.0), (2.0, 10, 10, 0.0), (2.0, 10, 30, 0.0),  # linear to 0

@@ -409,14 +409,17 @@ def test_a_critic_warmup_holds_the_actor_while_a_fresh_critic_learns(tmp_path, s
 def test_a_kickstarted_run_logs_the_teachers_error_and_weight(tmp_path, overlap):
     """ppo.teacher_coef: the heuristic team labels the rollout (in this process, or in the
     rollout worker's with run.overlap), the update pulls toward it with a weight that falls
-    over ppo.teacher_updates, and the metrics log both."""
+    over ppo.teacher_updates, and the metrics log both; with ppo.teacher_from_step only the
+    labels of steps that far into an episode count, and the log says what share that was."""
     cfg = load_train_config(["classic"], TINY + [f"run.runs_dir={tmp_path}", "name=kick", "total_steps=192",
-                                                 "ppo.teacher_coef=2", "ppo.teacher_updates=2", f"run.overlap={overlap}"])
+                                                 "ppo.teacher_coef=2", "ppo.teacher_updates=2", f"run.overlap={overlap}",
+                                                 "ppo.teacher_from_step=5"])
     Trainer(cfg, **QUIET).train()
     rows = [json.loads(line) for line in (cfg.run_dir / "metrics.jsonl").read_text().splitlines()]
     updates = [r for r in rows if "loss" in r]
     assert [r["loss"]["teacher_weight"] for r in updates[:3]] == [2.0, 1.0, 0.0]
     assert updates[0]["loss"]["teacher_mse"] > 0
+    assert 0.5 < updates[0]["loss"]["teacher_coverage"] < 1  # 16 steps a rollout, the first 5 of an episode not taught
     assert "teacher_mse" not in updates[2]["loss"]  # weight 0: no teacher term
 
 
@@ -428,3 +431,5 @@ def test_a_teacher_is_refused_under_a_residual_and_idle_under_dagger():
         load_train_config(["classic"], ["ppo.teacher_coef=-1"])
     assert load_train_config(["classic"], ["ppo.teacher_updates=5"]).idle_settings() == [
         "ppo.teacher_updates 5 does nothing without ppo.teacher_coef (it schedules the teacher's weight)"]
+    assert load_train_config(["classic"], ["ppo.teacher_from_step=100"]).idle_settings() == [
+        "ppo.teacher_from_step 100 does nothing without ppo.teacher_coef (it says where the teacher's labels count)"]

@@ -1,5 +1,6 @@
 """The rollout stores exactly what the update recomputes: log-probabilities and values of its own data."""
 
+import numpy as np
 import torch
 
 from pursuit_mj.config import default_config
@@ -48,3 +49,22 @@ def test_a_teacher_labels_every_stored_observation_with_the_action_it_would_take
         forget_ended(replay, (buf.terminated[t] | buf.truncated[t]).numpy())
     assert float(buf.teacher_actions.abs().max()) > 0.1
     assert not torch.allclose(buf.actions.clamp(-1, 1), buf.teacher_actions)  # the policy drove, not the teacher
+    assert bool((buf.teacher_mask == 1).all())  # without ppo.teacher_from_step every label counts
+
+
+def test_a_teacher_from_a_step_on_counts_only_where_the_episode_has_run_that_long():
+    """ppo.teacher_from_step K: a label counts (teacher_mask 1) only for observations met after
+    K or more decision steps of their episode; the count starts again when an episode ends."""
+    from pursuit_mj.heuristic import HeuristicTeam
+
+    task = default_config(fidelity="point", random_obstacles=0, max_steps=6)
+    env = PursuitEnv(task, n_worlds=2, seed=3, nthread=1)
+    model = ActorCritic(env.obs_spec, env.state_dim, TrainConfig())
+    buf = Rollout(14, 2, env.n_pursuers, env.obs_dim)
+    Collector(env, model, torch.Generator().manual_seed(1), teacher=HeuristicTeam.from_config(task),
+              teacher_from_step=3).collect(buf)
+    episode_step = np.zeros(2, np.int64)  # decision steps taken before each stored observation
+    for t in range(buf.T):
+        np.testing.assert_array_equal(buf.teacher_mask[t].numpy(), (episode_step >= 3).astype(np.float32))
+        episode_step = np.where((buf.terminated[t] | buf.truncated[t]).numpy(), 0, episode_step + 1)
+    assert 0 < float(buf.teacher_mask.mean()) < 1

@@ -52,12 +52,16 @@ class PPOConfig:
                                                  "never drives; 0: off)")
     teacher_updates: int = spec(0, lo=0, help="updates over which the teacher's weight falls linearly from teacher_coef to 0 "
                                               "(0: it stays at teacher_coef)")
+    teacher_from_step: int = spec(0, lo=0, help="the teacher's labels count only for observations met this many decision "
+                                                "steps or more into their episode: a pull toward the team in long chases, "
+                                                "none in the rest (0: everywhere)")
 
 
 
 #: PPOConfig keys only PPO's update reads (DAgger reads gamma, gae_lambda, batch_size, vf_coef, value_scaling, lr_decay)
 PPO_UPDATE_ONLY = ("lr", "clip", "epochs", "minibatch_size", "ent_coef", "max_grad_norm", "norm_adv", "anchor_coef",
-                   "critic_warmup", "teacher_coef", "teacher_updates")
+                   "critic_warmup", "teacher_coef", "teacher_updates",
+                   "teacher_from_step")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -273,6 +277,9 @@ class TrainConfig:
         if self.algo != "dagger" and self.ppo.teacher_coef == 0 and self.ppo.teacher_updates != default.ppo.teacher_updates:
             idle.append(f"ppo.teacher_updates {self.ppo.teacher_updates} does nothing without ppo.teacher_coef (it schedules "
                         "the teacher's weight)")
+        if self.algo != "dagger" and self.ppo.teacher_coef == 0 and self.ppo.teacher_from_step != default.ppo.teacher_from_step:
+            idle.append(f"ppo.teacher_from_step {self.ppo.teacher_from_step} does nothing without ppo.teacher_coef (it says "
+                        "where the teacher's labels count)")
         if self.algo == "dagger" and self.run.overlap:
             idle.append("run.overlap does nothing under algo dagger (it always collects in turn: the teacher's labels feed the update)")
         if not self.run.split_update and self.run.overlap and self.algo != "dagger":

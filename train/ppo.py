@@ -56,7 +56,8 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
     The policy statistics are still computed, on the held actor.
     teacher_weight: adds weight x the squared distance of the actor's mean from the teacher's
     action stored with each transition (buf.teacher_actions): kickstarting (Schmitt et al.
-    2018), a pull toward the team in the states the policy itself visits.
+    2018), a pull toward the team in the states the policy itself visits. Only where
+    buf.teacher_mask is 1: elsewhere the label pulls on nothing (ppo.teacher_from_step).
     """
     adv, ret, _ = advantages_and_returns(buf, gamma, cfg.gae_lambda)
     n = buf.n_transitions
@@ -78,6 +79,7 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
     anchor_kls: list[torch.Tensor] = []
     taught = teacher_weight > 0
     teacher_actions = buf.teacher_actions.reshape(n, 2)
+    teacher_mask = buf.teacher_mask.unsqueeze(-1).expand(-1, -1, buf.N).reshape(n)
     teacher_errors: list[torch.Tensor] = []
     states = None
     if model.algo == "mappo":
@@ -112,9 +114,12 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
                 actor_loss = actor_loss + cfg.anchor_coef * anchor_kl
                 anchor_kls.append(anchor_kl.detach())
             if taught:
-                teacher_error = ((mean - teacher_actions[idx]) ** 2).sum(-1).mean()
-                actor_loss = actor_loss + teacher_weight * teacher_error
-                teacher_errors.append(teacher_error.detach())
+                # the mean over the whole minibatch: a label that counts pulls as hard however
+                # few others count beside it
+                mask = teacher_mask[idx]
+                squared = ((mean - teacher_actions[idx]) ** 2).sum(-1)
+                actor_loss = actor_loss + teacher_weight * (mask * squared).mean()
+                teacher_errors.append(torch.stack([(mask * squared).sum().detach(), mask.sum()]))
             loss = None if critic_only else actor_loss
             if critic_worker is None:
                 v = model.raw_value(mb_obs, states[idx] if states is not None else None)
@@ -142,7 +147,10 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
     if anchored:
         out["anchor_kl"] = float(torch.stack(anchor_kls).mean())
     if taught:
-        out["teacher_mse"] = float(torch.stack(teacher_errors).mean())
+        error_sum, counted = torch.stack(teacher_errors).sum(0).tolist()
+        if counted > 0:  # the squared distance where labels count
+            out["teacher_mse"] = error_sum / counted
+        out["teacher_coverage"] = float(teacher_mask.mean())
     if weights is not None:
         out["behaviour_weight"] = float(weights.mean())  # 1: the lag changed nothing
     return out

@@ -57,7 +57,8 @@ def make_collector(cfg: TrainConfig, env, model: ActorCritic, generator: torch.G
     """The PPO / MAPPO collector of this run: its action path, and with ppo.teacher_coef the
     heuristic team labelling each observation (kickstarting)."""
     teacher = hand_made_team("heuristic", cfg, env, "ppo.teacher_coef") if cfg.ppo.teacher_coef > 0 else None
-    return Collector(env, model, generator, make_action_path(cfg, env), teacher=teacher)
+    return Collector(env, model, generator, make_action_path(cfg, env), teacher=teacher,
+                     teacher_from_step=cfg.ppo.teacher_from_step)
 
 
 @dataclasses.dataclass
@@ -76,16 +77,18 @@ class Collector:
     the MAPPO global state is flushed here. The env is stepped with what `path` makes of the
     samples (a base team's actions added, a shield); the buffer keeps the policy's own samples,
     so to PPO both are part of the environment. A `teacher` (a Policy with memory) only labels:
-    its action for every stored observation goes to buf.teacher_actions.
+    its action for every stored observation goes to buf.teacher_actions, and buf.teacher_mask
+    says whether the observation's episode had run `teacher_from_step` decision steps or more.
     """
 
     def __init__(self, env, model: ActorCritic, generator: torch.Generator, path: "ActionPath | None" = None,
-                 teacher: Policy | None = None):
+                 teacher: Policy | None = None, teacher_from_step: int = 0):
         self.env = env
         self.model = model
         self.generator = generator
         self.path = path or ActionPath()
         self.teacher = teacher
+        self.teacher_from_step = teacher_from_step
         self.needs_state = model.algo == "mappo"
         self.obs_np = env.reset()
         self.obs = torch.as_tensor(self.obs_np)
@@ -113,6 +116,7 @@ class Collector:
                 buf.states[t] = state
             if self.teacher is not None:  # before the step: the team's memory takes this observation in
                 buf.teacher_actions[t] = torch.as_tensor(self.teacher.act(self.obs_np, self.model.spec))
+                buf.teacher_mask[t] = torch.as_tensor(self.env.steps >= self.teacher_from_step)
             next_obs, reward, terminated, truncated, info = self.env.step(self.path(action, obs, self.model.spec))
             buf.rewards[t] = torch.as_tensor(reward)
             buf.terminated[t] = torch.as_tensor(terminated)

@@ -14,7 +14,8 @@ class Rollout:
     final_values (T, W, N) values of info["final_obs"] where truncated (else 0);
     states (T, W, S) global states (MAPPO only, S = 0 otherwise); last_value (W, N) value of
     the observation after the last step (the bootstrap); teacher_actions (T, W, N, 2) the
-    teacher team's actions for the stored observations, in [-1, 1] (ppo.teacher_coef; else 0).
+    teacher team's actions for the stored observations, in [-1, 1] (ppo.teacher_coef; else 0);
+    teacher_mask (T, W) 1 where those labels count, 0 where not (ppo.teacher_from_step).
     """
 
     def __init__(self, T: int, W: int, N: int, obs_dim: int, state_dim: int = 0):
@@ -30,6 +31,7 @@ class Rollout:
         self.states = torch.zeros(T, W, state_dim)
         self.last_value = torch.zeros(W, N)
         self.teacher_actions = torch.zeros(T, W, N, 2)
+        self.teacher_mask = torch.ones(T, W)
 
     def share_memory(self) -> "Rollout":
         """Moves every tensor into shared memory (a rollout filled by another process); returns self."""
