@@ -31,8 +31,9 @@ def test_the_shipped_policy_catches_one_evader_or_two_on_a_walled_layout(n_evade
     assert _successes(3, n_evaders, layout=1, episodes=8) >= 7
 
 
-@pytest.mark.parametrize("model", ["belppo_point.pt", "belppo_quad.pt"])
+@pytest.mark.parametrize("model", ["belppo_point.pt", "belppo_quad.pt", "belppo_kick.pt"])
 def test_the_kept_candidates_catch_the_evader_on_the_cluttered_layout(model):
     # pretrained/README.md: PPO from the belief student in point fidelity (belppo_point), then a
-    # PPO stage in quadrotor fidelity (belppo_quad), which meets issue 4's reference numbers
+    # PPO stage in quadrotor fidelity (belppo_quad), then one with the team as a teacher in long
+    # chases (belppo_kick), which meets issue 4's reference numbers
     assert _successes(3, 1, layout=3, episodes=8, model=model) >= 7
