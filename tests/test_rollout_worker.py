@@ -68,6 +68,22 @@ def test_an_overlapped_run_is_reproducible_and_logs_its_timing(tmp_path):
     assert last["rollout_s"] > 0 and last["wall_s"] >= last["update_s"]
 
 
+def test_the_worker_stops_labelling_once_the_teachers_weight_has_reached_0(tmp_path):
+    """With ppo.teacher_updates 1 only the first rollout feeds an update that uses the labels;
+    the worker knows which update each rollout feeds, also in a resumed run."""
+    cfg = tiny(tmp_path, "ppo.teacher_coef=1", "ppo.teacher_updates=1")
+    T = cfg.rollout_steps()
+    for start, expected in ((0, [T, 0, 0]), (1, [0, 0])):
+        trainer = Trainer(cfg, log=lambda s: None)
+        buf = trainer.buffer
+        worker = RolloutWorker(cfg, start, buf.T, buf.W, buf.N, buf.obs.shape[-1], 0)
+        try:
+            assert [worker.result(trainer.model)[1].teacher_steps for _ in expected] == expected
+        finally:
+            worker.close()
+            trainer.close()
+
+
 def test_overlap_off_and_dagger_collect_in_turn(tmp_path):
     assert not Trainer(tiny(tmp_path, "run.overlap=false"), log=lambda s: None).overlap
     dagger = Trainer(tiny(tmp_path, "algo=dagger", "name=d"), log=lambda s: None)

@@ -423,6 +423,20 @@ def test_a_kickstarted_run_logs_the_teachers_error_and_weight(tmp_path, overlap)
     assert "teacher_mse" not in updates[2]["loss"]  # weight 0: no teacher term
 
 
+def test_a_run_in_turn_stops_labelling_once_the_teachers_weight_has_reached_0(tmp_path):
+    """The team labels (one step of it per decision step) only the rollouts of updates whose
+    teacher weight is above 0."""
+    cfg = load_train_config(["classic"], TINY + [f"run.runs_dir={tmp_path}", "name=kick1", "total_steps=96",
+                                                 "ppo.teacher_coef=2", "ppo.teacher_updates=1", "run.overlap=false"])
+    trainer = Trainer(cfg, **QUIET)
+    teacher, calls = trainer.collector.teacher, []
+    real = teacher.act
+    teacher.act = lambda obs, spec: calls.append(1) or real(obs, spec)
+    trainer.train()
+    assert trainer.counters.update == 3
+    assert len(calls) == cfg.rollout_steps()  # the first update's rollout only
+
+
 def test_a_teacher_is_refused_under_a_residual_and_idle_under_dagger():
     with pytest.raises(ConfigError, match=r"ppo.teacher_coef 1 .*residual.base 'heuristic'"):
         load_train_config(["residual"], ["ppo.teacher_coef=1"]).check_complete()

@@ -68,3 +68,49 @@ def test_a_teacher_from_a_step_on_counts_only_where_the_episode_has_run_that_lon
         np.testing.assert_array_equal(buf.teacher_mask[t].numpy(), (episode_step >= 3).astype(np.float32))
         episode_step = np.where((buf.terminated[t] | buf.truncated[t]).numpy(), 0, episode_step + 1)
     assert 0 < float(buf.teacher_mask.mean()) < 1
+
+
+class _CountingTeam:
+    """A heuristic team that counts the decision steps it was asked to act at."""
+
+    def __init__(self, task):
+        from pursuit_mj.heuristic import HeuristicTeam
+
+        self.team = HeuristicTeam.from_config(task)
+        self.calls = 0
+
+    def reset(self, n_worlds, world_ids=None):
+        self.team.reset(n_worlds, world_ids)
+
+    def act(self, obs, spec):
+        self.calls += 1
+        return self.team.act(obs, spec)
+
+
+def test_a_teacher_not_teaching_labels_nothing_and_starts_afresh_when_it_teaches_again():
+    """Collector.teaching False (the teacher's weight has reached 0): the team is not stepped at
+    all and no label counts. Teaching again, it labels every step, its memory reset (it missed
+    the steps between), so its labels equal a fresh team's on this rollout's observations."""
+    from pursuit_mj.heuristic import HeuristicTeam
+    from train.rollout import forget_ended
+
+    task = default_config(fidelity="point", random_obstacles=0, max_steps=6)
+    env = PursuitEnv(task, n_worlds=2, seed=3, nthread=1)
+    model = ActorCritic(env.obs_spec, env.state_dim, TrainConfig())
+    buf = Rollout(4, 2, env.n_pursuers, env.obs_dim)
+    teacher = _CountingTeam(task)
+    collector = Collector(env, model, torch.Generator().manual_seed(1), teacher=teacher)
+    collector.teaching = False
+    stats = collector.collect(buf)
+    assert teacher.calls == 0 and stats.teacher_steps == 0
+    assert float(buf.teacher_mask.abs().sum()) == 0
+    collector.teaching = True
+    stats = collector.collect(buf)
+    assert teacher.calls == buf.T and stats.teacher_steps == buf.T
+    assert bool((buf.teacher_mask == 1).all())
+    replay = HeuristicTeam.from_config(task)
+    replay.reset(2)
+    for t in range(buf.T):
+        expected = replay.act(buf.obs[t].numpy(), env.obs_spec)
+        torch.testing.assert_close(buf.teacher_actions[t], torch.as_tensor(expected, dtype=torch.float32))
+        forget_ended(replay, (buf.terminated[t] | buf.truncated[t]).numpy())

@@ -31,6 +31,11 @@ def explained_variance(pred: torch.Tensor, target: torch.Tensor) -> float:
     return float("nan") if var < 1e-12 else float(1.0 - (target - pred).var(unbiased=False) / var)
 
 
+def teacher_labels_needed(cfg: PPOConfig, update: int) -> bool:
+    """Whether the update about to run uses the teacher's labels (its rollout must carry them)."""
+    return teacher_weight(cfg, update) > 0
+
+
 def teacher_weight(cfg: PPOConfig, update: int) -> float:
     """The teacher's weight in the update about to run (0-based count of finished updates):
     cfg.teacher_coef, falling linearly to 0 over cfg.teacher_updates updates when that is set."""

@@ -68,6 +68,7 @@ class RolloutStats:
     episodes: list = dataclasses.field(default_factory=list)
     reward_terms: dict[str, float] = dataclasses.field(default_factory=dict)
     seconds: float = 0.0
+    teacher_steps: int = 0  # decision steps the teacher labelled
 
 
 class Collector:
@@ -79,6 +80,8 @@ class Collector:
     so to PPO both are part of the environment. A `teacher` (a Policy with memory) only labels:
     its action for every stored observation goes to buf.teacher_actions, and buf.teacher_mask
     says whether the observation's episode had run `teacher_from_step` decision steps or more.
+    Set `teaching` False when no update will use the labels (the teacher's weight has reached
+    0): the team is then not stepped, and no label counts.
     """
 
     def __init__(self, env, model: ActorCritic, generator: torch.Generator, path: "ActionPath | None" = None,
@@ -89,6 +92,8 @@ class Collector:
         self.path = path or ActionPath()
         self.teacher = teacher
         self.teacher_from_step = teacher_from_step
+        self.teaching = teacher is not None
+        self._teacher_behind = False  # it skipped steps: its memory no longer matches the worlds
         self.needs_state = model.algo == "mappo"
         self.obs_np = env.reset()
         self.obs = torch.as_tensor(self.obs_np)
@@ -104,6 +109,12 @@ class Collector:
     def collect(self, buf: Rollout) -> RolloutStats:
         stats = RolloutStats()
         term_sums: dict[str, float] = {}
+        labelling = self.teacher is not None and self.teaching
+        if labelling and self._teacher_behind:
+            self.teacher.reset(self.env.n_worlds)
+        self._teacher_behind = self.teacher is not None and not labelling
+        if not labelling:
+            buf.teacher_mask.zero_()
         for t in range(buf.T):
             obs, state = self.obs, self.state
             mean, log_std = self.model.actor(obs, self.model.spec)
@@ -114,7 +125,7 @@ class Collector:
             buf.logp[t] = gaussian_log_prob(mean, std, action).sum(-1)
             if state is not None:
                 buf.states[t] = state
-            if self.teacher is not None:  # before the step: the team's memory takes this observation in
+            if labelling:  # before the step: the team's memory takes this observation in
                 buf.teacher_actions[t] = torch.as_tensor(self.teacher.act(self.obs_np, self.model.spec))
                 buf.teacher_mask[t] = torch.as_tensor(self.env.steps >= self.teacher_from_step)
             next_obs, reward, terminated, truncated, info = self.env.step(self.path(action, obs, self.model.spec))
@@ -130,7 +141,7 @@ class Collector:
                 term_sums[k] = term_sums.get(k, 0.0) + float(v.mean())
             stats.episodes.extend(info["episodes"])
             self.path.forget_ended(terminated | truncated)
-            if self.teacher is not None:
+            if labelling:
                 forget_ended(self.teacher, terminated | truncated)
             self.obs_np = next_obs
             self.obs = torch.as_tensor(next_obs)
@@ -142,6 +153,7 @@ class Collector:
         states = buf.states.flatten(0, 1) if self.needs_state else None
         buf.values.copy_(self.model.world_value(buf.obs.flatten(0, 1), states).view(T, W, -1))
         stats.reward_terms = {k: v / buf.T for k, v in term_sums.items()}
+        stats.teacher_steps = buf.T if labelling else 0
         return stats
 
 

@@ -21,6 +21,7 @@ closes, so a killed parent leaves nothing running.
 
 from __future__ import annotations
 
+import itertools
 import time
 import weakref
 
@@ -30,6 +31,7 @@ import torch
 from .agent import ActorCritic
 from .child_process import POLL_S, STOP_TIMEOUT_S, WorkerExited, how_it_ended, ignore_ctrl_c, report_error, shutdown, spawn
 from .config import TrainConfig
+from .ppo import teacher_labels_needed
 from .rollout import RolloutStats, make_collector, make_training_env
 from .storage import Rollout
 
@@ -60,12 +62,13 @@ def _serve(conn, cfg: TrainConfig, start_update: int, buffers: list[Rollout]) ->
         model = ActorCritic(env.obs_spec, env.state_dim, cfg)
         generator = torch.Generator().manual_seed(sampler_seed(cfg.seed, start_update))
         collector = make_collector(cfg, env, model, generator)
-        while True:
+        for served in itertools.count():  # rollout k feeds update start_update + k
             request = conn.recv()
             if request[0] == "stop":
                 return
             _, index, weights = request
             _load_weights(model, weights)
+            collector.teaching = teacher_labels_needed(cfg.ppo, start_update + served)
             t0 = time.perf_counter()
             stats = collector.collect(buffers[index])
             stats.seconds = time.perf_counter() - t0

@@ -43,7 +43,7 @@ from .imitation import DaggerCollector, Demonstrations, imitation_update, teache
 from .metrics_log import MetricsLog, json_ready
 from pursuit_mj.recording.rerun_scalars import RerunScalarLogger
 from .policy import ActorPolicy, trained_team
-from .ppo import advantages_and_returns, ppo_update, teacher_weight
+from .ppo import advantages_and_returns, ppo_update, teacher_labels_needed, teacher_weight
 from .rollout import Collector, RolloutStats, hand_made_team, make_action_path, make_collector, make_training_env
 from .rollout_worker import RolloutWorker
 from .storage import Rollout
@@ -412,6 +412,8 @@ class Trainer:
         torch.set_num_threads(1)  # per-step forwards of a few dozen rows: threads only add overhead
         if self.demos is not None:
             self.collector.beta = teacher_share(self.cfg.imitation, self.counters.update)
+        else:
+            self.collector.teaching = teacher_labels_needed(self.cfg.ppo, self.counters.update)
         t0 = time.perf_counter()
         stats = self.collector.collect(self.buffer)
         stats.seconds = time.perf_counter() - t0
