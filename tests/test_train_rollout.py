@@ -27,12 +27,25 @@ def test_stored_log_probs_and_values_match_the_networks_on_the_stored_data():
     assert not buf.last_value.is_inference()  # the update may use it with autograd on
 
 
+def _assert_labels_of_a_fresh_team(buf: Rollout, task, spec) -> None:
+    """buf.teacher_actions are what a team with empty memory says when fed the rollout's
+    observations and episode ends in order (the team keeps memory per world)."""
+    from pursuit_mj.heuristic import HeuristicTeam
+    from train.rollout import forget_ended
+
+    replay = HeuristicTeam.from_config(task)
+    replay.reset(buf.W)
+    for t in range(buf.T):
+        expected = replay.act(buf.obs[t].numpy(), spec)
+        torch.testing.assert_close(buf.teacher_actions[t], torch.as_tensor(expected, dtype=torch.float32))
+        forget_ended(replay, (buf.terminated[t] | buf.truncated[t]).numpy())
+
+
 def test_a_teacher_labels_every_stored_observation_with_the_action_it_would_take_there():
     """With a teacher (ppo.teacher_coef), the collector stores the team's action for each stored
     observation; the team keeps memory, so a second team fed the same observations and episode
     ends must give the same labels. The worlds are still driven by the policy's samples."""
     from pursuit_mj.heuristic import HeuristicTeam
-    from train.rollout import forget_ended
 
     torch.manual_seed(0)
     task = default_config(fidelity="point", random_obstacles=0, max_steps=6)
@@ -41,12 +54,7 @@ def test_a_teacher_labels_every_stored_observation_with_the_action_it_would_take
     buf = Rollout(8, 2, env.n_pursuers, env.obs_dim)
     Collector(env, model, torch.Generator().manual_seed(1), teacher=HeuristicTeam.from_config(task)).collect(buf)
     assert bool(buf.truncated.any())  # labels run across an episode end
-    replay = HeuristicTeam.from_config(task)
-    replay.reset(2)
-    for t in range(buf.T):
-        expected = replay.act(buf.obs[t].numpy(), env.obs_spec)
-        torch.testing.assert_close(buf.teacher_actions[t], torch.as_tensor(expected, dtype=torch.float32))
-        forget_ended(replay, (buf.terminated[t] | buf.truncated[t]).numpy())
+    _assert_labels_of_a_fresh_team(buf, task, env.obs_spec)
     assert float(buf.teacher_actions.abs().max()) > 0.1
     assert not torch.allclose(buf.actions.clamp(-1, 1), buf.teacher_actions)  # the policy drove, not the teacher
     assert bool((buf.teacher_mask == 1).all())  # without ppo.teacher_from_step every label counts
@@ -91,8 +99,6 @@ def test_a_teacher_not_teaching_labels_nothing_and_starts_afresh_when_it_teaches
     """Collector.teaching False (the teacher's weight has reached 0): the team is not stepped at
     all and no label counts. Teaching again, it labels every step, its memory reset (it missed
     the steps between), so its labels equal a fresh team's on this rollout's observations."""
-    from pursuit_mj.heuristic import HeuristicTeam
-    from train.rollout import forget_ended
 
     task = default_config(fidelity="point", random_obstacles=0, max_steps=6)
     env = PursuitEnv(task, n_worlds=2, seed=3, nthread=1)
@@ -108,9 +114,4 @@ def test_a_teacher_not_teaching_labels_nothing_and_starts_afresh_when_it_teaches
     stats = collector.collect(buf)
     assert teacher.calls == buf.T and stats.teacher_steps == buf.T
     assert bool((buf.teacher_mask == 1).all())
-    replay = HeuristicTeam.from_config(task)
-    replay.reset(2)
-    for t in range(buf.T):
-        expected = replay.act(buf.obs[t].numpy(), env.obs_spec)
-        torch.testing.assert_close(buf.teacher_actions[t], torch.as_tensor(expected, dtype=torch.float32))
-        forget_ended(replay, (buf.terminated[t] | buf.truncated[t]).numpy())
+    _assert_labels_of_a_fresh_team(buf, task, env.obs_spec)
