@@ -60,8 +60,7 @@ class PPOConfig:
 
 #: PPOConfig keys only PPO's update reads (DAgger reads gamma, gae_lambda, batch_size, vf_coef, value_scaling, lr_decay)
 PPO_UPDATE_ONLY = ("lr", "clip", "epochs", "minibatch_size", "ent_coef", "max_grad_norm", "norm_adv", "anchor_coef",
-                   "critic_warmup", "teacher_coef", "teacher_updates",
-                   "teacher_from_step")
+                   "critic_warmup", "teacher_coef", "teacher_updates", "teacher_from_step")
 
 
 @dataclasses.dataclass(frozen=True)
