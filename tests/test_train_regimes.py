@@ -447,3 +447,6 @@ def test_a_teacher_is_refused_under_a_residual_and_idle_under_dagger():
         "ppo.teacher_updates 5 does nothing without ppo.teacher_coef (it schedules the teacher's weight)"]
     assert load_train_config(["classic"], ["ppo.teacher_from_step=100"]).idle_settings() == [
         "ppo.teacher_from_step 100 does nothing without ppo.teacher_coef (it says where the teacher's labels count)"]
+    assert load_train_config(["classic"], ["ppo.teacher_coef=1", "ppo.teacher_from_step=1000"]).idle_settings() == [
+        "ppo.teacher_coef 1 does nothing with ppo.teacher_from_step 1000 and task.max_steps 1000 (no episode runs "
+        "that long, so no label counts)"]

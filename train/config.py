@@ -279,6 +279,10 @@ class TrainConfig:
         if self.algo != "dagger" and self.ppo.teacher_coef == 0 and self.ppo.teacher_from_step != default.ppo.teacher_from_step:
             idle.append(f"ppo.teacher_from_step {self.ppo.teacher_from_step} does nothing without ppo.teacher_coef (it says "
                         "where the teacher's labels count)")
+        if self.algo != "dagger" and self.ppo.teacher_coef > 0 and self.ppo.teacher_from_step >= self.task.max_steps:
+            idle.append(f"ppo.teacher_coef {self.ppo.teacher_coef:g} does nothing with ppo.teacher_from_step "
+                        f"{self.ppo.teacher_from_step} and task.max_steps {self.task.max_steps} (no episode runs that long, "
+                        "so no label counts)")
         if self.algo == "dagger" and self.run.overlap:
             idle.append("run.overlap does nothing under algo dagger (it always collects in turn: the teacher's labels feed the update)")
         if not self.run.split_update and self.run.overlap and self.algo != "dagger":
