@@ -32,7 +32,7 @@ case "$seed" in
 esac
 for arg in "$@"; do
   case "$arg" in
-    run.runs_dir=*|--name|--resume|--init-from)
+    run.runs_dir=*|--name|--name=*|--resume|--resume=*|--init-from|--init-from=*)
       echo "train_recipe.sh: $arg is set by the recipe itself (use --runs-dir DIR, --name NAME)" >&2; exit 2 ;;
   esac
 done

@@ -64,6 +64,7 @@ def test_recipe_chains_the_four_stages_and_resumes_finished_ones(tmp_path):
     (["--seed"], "--seed needs a value"),
     (["--set", "run.runs_dir=elsewhere"], "run.runs_dir=elsewhere is set by the recipe itself"),
     (["--init-from", "a.pt"], "--init-from is set by the recipe itself"),
+    (["--name=other"], "--name=other is set by the recipe itself"),
 ])
 def test_recipe_refuses_bad_flags_before_training(tmp_path, args, message):
     out = run_recipe("--runs-dir", str(tmp_path / "runs"), *args)
