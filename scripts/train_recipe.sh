@@ -7,17 +7,17 @@
 #   4. NAME_kick   PPO from NAME_quad's best checkpoint with the team as a teacher from step 200
 #                  of each episode on; its last.pt is the result
 # --seed sets the seed of stages 1 and 2; stages 3 and 4 keep the seeds of the runs behind
-# pretrained/belppo_kick.pt (0 and 3). The run folders go into --runs-dir (default runs). A
-# stage whose run folder already has a last.pt is resumed (a finished one returns at once), so
-# after Ctrl-C or a crash the same command continues where it stopped. Flags after the options
+# pretrained/belppo_kick.pt (0 and 3). The run folders go into --runs-dir (default: the
+# repository's runs/; a relative DIR is taken from the current folder). A stage whose run
+# folder already has a last.pt is resumed (a finished one returns at once), so after Ctrl-C
+# or a crash the same command continues where it stopped. Flags after the options
 # (e.g. `--set run.torch_threads=1`) go to every stage's `pursuit-mj train`. PURSUIT_MJ names
 # the command to run instead of the one scripts/setup.sh installs into .venv.
 # Usage: bash scripts/train_recipe.sh [--seed S] [--name NAME] [--runs-dir DIR] [train flags...]
 set -euo pipefail
-cd "$(dirname "$0")/.."
 seed=1
 name=recipe
-runs_dir=runs
+runs_dir=
 while [ $# -gt 0 ]; do
   case "$1" in
     --seed|--name|--runs-dir)
@@ -27,6 +27,12 @@ while [ $# -gt 0 ]; do
     *) break ;;
   esac
 done
+case "$runs_dir" in
+  '') runs_dir=runs ;;  # the repository's runs/, as in the docs
+  /*) ;;
+  *) runs_dir="$(pwd)/$runs_dir" ;;  # a relative --runs-dir is taken from where the command was run
+esac
+cd "$(dirname "$0")/.."
 case "$seed" in
   ''|*[!0-9]*) echo "train_recipe.sh: --seed must be a non-negative integer, got '$seed'" >&2; exit 2 ;;
 esac

@@ -20,10 +20,10 @@ TINY = ["--set", "n_envs=2", "--set", "total_steps=256", "--set", "ppo.batch_siz
 STAGES = ("t_bel", "t_ppo", "t_quad", "t_kick")
 
 
-def run_recipe(*args: str) -> subprocess.CompletedProcess:
+def run_recipe(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     assert CLI.is_file(), f"no pursuit-mj console script beside {sys.executable}"
     env = dict(os.environ, PURSUIT_MJ=str(CLI))
-    return subprocess.run(["bash", str(SCRIPT), *args], capture_output=True, text=True, env=env, timeout=900)
+    return subprocess.run(["bash", str(SCRIPT), *args], capture_output=True, text=True, env=env, timeout=900, cwd=cwd)
 
 
 def stored_config(runs: Path, stage: str) -> dict:
@@ -35,8 +35,8 @@ def metric_rows(runs: Path, stage: str) -> int:
 
 
 def test_recipe_chains_the_four_stages_and_resumes_finished_ones(tmp_path):
-    runs = tmp_path / "runs"
-    out = run_recipe("--seed", "5", "--name", "t", "--runs-dir", str(runs), *TINY)
+    runs = tmp_path / "runs"  # given relative to the folder the command runs in
+    out = run_recipe("--seed", "5", "--name", "t", "--runs-dir", "runs", *TINY, cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
     configs = {s: stored_config(runs, s) for s in STAGES}
     assert [configs[s]["algo"] for s in STAGES] == ["dagger", "ppo", "ppo", "ppo"]
@@ -53,7 +53,7 @@ def test_recipe_chains_the_four_stages_and_resumes_finished_ones(tmp_path):
     assert "the policy is" in out.stderr and str(runs / "t_kick" / "last.pt") in out.stderr
     rows = {s: metric_rows(runs, s) for s in STAGES}
 
-    again = run_recipe("--seed", "5", "--name", "t", "--runs-dir", str(runs), *TINY)
+    again = run_recipe("--seed", "5", "--name", "t", "--runs-dir", str(runs), *TINY)  # the same folder, absolute
     assert again.returncode == 0, again.stderr[-3000:]
     assert again.stdout.count("nothing to train") == 4, again.stdout[-3000:]
     assert {s: metric_rows(runs, s) for s in STAGES} == rows  # no stage trained again
