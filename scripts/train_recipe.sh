@@ -32,6 +32,9 @@ case "$runs_dir" in
   /*) ;;
   *) runs_dir="$(pwd)/$runs_dir" ;;  # a relative --runs-dir is taken from where the command was run
 esac
+case "${PURSUIT_MJ:-}" in
+  */*) [ "${PURSUIT_MJ#/}" != "$PURSUIT_MJ" ] || PURSUIT_MJ="$(pwd)/$PURSUIT_MJ" ;;  # a relative path, before the cd
+esac
 cd "$(dirname "$0")/.."
 case "$seed" in
   ''|*[!0-9]*) echo "train_recipe.sh: --seed must be a non-negative integer, got '$seed'" >&2; exit 2 ;;
