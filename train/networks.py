@@ -51,9 +51,12 @@ SIGMOID_TANH_MIN_SIZE = 4096  # elements; below this torch.tanh is as fast
 
 
 def tanh(x: torch.Tensor) -> torch.Tensor:
-    """tanh, within 2e-7 of torch.tanh. On large tensors it is computed through sigmoid: torch's
-    CPU tanh kernel is several times slower than its sigmoid (70 vs 16 us on 256 x 128 here),
-    and the update's minibatches made tanh 15 % of its time."""
+    """tanh, within 2e-7 of torch.tanh. On large tensors it is computed through sigmoid: when
+    this was tuned, torch's tanh kernel was several times slower than its sigmoid (70 vs
+    16 us on 256 x 128), and the update's minibatches made tanh 15 % of its time. It can be the
+    other way round (8.9 vs 26 us on a later day: docs/experiments.md, section 7); the
+    formula stays, because changing it changes every trained network's numbers in their last
+    bits, and with them the episode-by-episode replay of every documented table."""
     if x.numel() < SIGMOID_TANH_MIN_SIZE:
         return torch.tanh(x)
     if x.requires_grad and torch.is_grad_enabled():
