@@ -10,8 +10,10 @@
 # pretrained/belppo_kick.pt (0 and 3). The run folders go into --runs-dir (default: the
 # repository's runs/; a relative DIR is taken from the current folder). A stage whose run
 # folder already has a last.pt is resumed (a finished one returns at once), so after Ctrl-C
-# or a crash the same command continues where it stopped. Flags after the options
-# (e.g. `--set run.torch_threads=1`) go to every stage's `pursuit-mj train`. PURSUIT_MJ names
+# or a crash the same command continues where it stopped. Every stage runs one torch thread
+# per process (`--set run.torch_threads=1`), so the weights do not depend on the core count.
+# Flags after the options (e.g. `--set run.torch_threads=0` to use more threads, which changes
+# the weights in their last bits) go to every stage's `pursuit-mj train`. PURSUIT_MJ names
 # the command to run instead of the one scripts/setup.sh installs into .venv.
 # Usage: bash scripts/train_recipe.sh [--seed S] [--name NAME] [--runs-dir DIR] [train flags...]
 set -euo pipefail
@@ -58,7 +60,11 @@ stage() {
   local resume=()
   [ -f "$runs_dir/$run/last.pt" ] && resume=(--resume)
   echo "== train_recipe.sh: $run" >&2
-  "$PURSUIT_MJ" train --name "$run" --set run.runs_dir="$runs_dir" "$@" ${resume[@]+"${resume[@]}"}
+  # one torch thread per process: more threads round the update differently, so without this
+  # a machine with 4+ cores would train other weights than the documented chains (2 cores split
+  # the update into two processes of one thread each anyway)
+  "$PURSUIT_MJ" train --name "$run" --set run.runs_dir="$runs_dir" --set run.torch_threads=1 "$@" \
+    ${resume[@]+"${resume[@]}"}
 }
 
 stage "${name}_bel" --config belief --set task.fidelity=point --set seed="$seed" --set total_steps=193536 "$@"
