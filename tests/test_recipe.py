@@ -50,7 +50,7 @@ def test_recipe_chains_the_four_stages_and_resumes_finished_ones(tmp_path):
     assert (kick["teacher_coef"], kick["teacher_from_step"], kick["critic_warmup"]) == (2.0, 200, 48)
     assert configs["t_quad"]["ppo"]["teacher_coef"] == 0.0
     assert all(configs[s]["total_steps"] == 256 for s in STAGES)  # the extra flags won over the recipe's
-    # one torch thread per process whatever the core count: the same weights on any machine
+    # one torch thread per process whatever the core count: the same weights on any core count
     assert all(configs[s]["run"]["torch_threads"] == 1 for s in STAGES)
     assert "the policy is" in out.stderr and str(runs / "t_kick" / "last.pt") in out.stderr
     rows = {s: metric_rows(runs, s) for s in STAGES}
