@@ -646,3 +646,19 @@ def test_a_checkpoint_whose_spec_config_or_pending_row_is_of_the_wrong_kind_is_r
             with pytest.raises(ValueError, match=words) as err:
                 load()
             assert str(err.value).startswith(f"checkpoint {path}: ") and "\n" not in str(err.value)
+
+
+def test_a_run_refused_at_the_start_leaves_no_folder_it_made(tmp_path):
+    """A missing --init-from checkpoint left runs/<name>/ holding only .lock, which a later
+    `--resume` then took for a run ("no last.pt in ...")."""
+    missing = tmp_path / "nope" / "best.pt"
+    cfg = tiny_config(tmp_path, name="refused", extra=[f"init_from={missing}"])
+    with pytest.raises(ValueError, match="no such checkpoint"):
+        Trainer(cfg, log=lambda s: None)
+    assert not cfg.run_dir.exists()
+    # a folder the user made (or an earlier run) is left where it was, with what it held
+    cfg.run_dir.mkdir()
+    (cfg.run_dir / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match="no such checkpoint"):
+        Trainer(cfg, log=lambda s: None)
+    assert sorted(p.name for p in cfg.run_dir.iterdir()) == [".lock", "notes.txt"]

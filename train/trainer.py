@@ -20,6 +20,7 @@ import copy
 import dataclasses
 import json
 import os
+import shutil
 import time
 from pathlib import Path
 from typing import Callable
@@ -83,6 +84,7 @@ class Trainer:
             log(f"[train] note: {line}")
         self.run_dir = cfg.run_dir
         self.resume_command = f"pursuit-mj train --resume {self.run_dir}"  # what an interrupted run tells the user
+        made_folder = not self.run_dir.exists()
         check_writable_folder(self.run_dir, f"run folder (run.runs_dir {cfg.run.runs_dir}, name {cfg.name})")
         self._lock = lock_run_folder(self.run_dir)  # before anything in the folder is read or written
         try:
@@ -93,6 +95,8 @@ class Trainer:
             self._build(checkpoint)
         except BaseException:
             self._lock.close()  # a run that cannot start leaves the folder free
+            if made_folder:  # and leaves no folder a later --resume would take for a run
+                shutil.rmtree(self.run_dir, ignore_errors=True)
             raise
 
     def _build(self, checkpoint: dict | None) -> None:
