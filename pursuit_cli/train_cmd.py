@@ -233,6 +233,7 @@ def run(args) -> int:
         cfg = load_train_config(args.config, args.overrides, _flags(args), _flags_typed(args))
         if args.show_config:
             cfg.check_complete()  # what training would refuse, -sc refuses too
+            cfg.check_layouts()
             print(dump_yaml(cfg), end="")
             return 0
         last = cfg.run_dir / "last.pt"

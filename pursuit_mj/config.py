@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from .configio import ConfigError, build, dump_yaml, load, load_yaml, spec, to_dict
-from .layout import MAX_RANDOM_OBSTACLES, N_BUILTIN, layout_ref_beside
+from .layout import MAX_RANDOM_OBSTACLES, N_BUILTIN, found_layout_ref
 
 from .shipped import shipped_dir
 
@@ -206,10 +206,10 @@ def preset_names(kind: str) -> list[str]:
 
 def load_task_yaml(path: str | Path, source: str | None = None) -> dict[str, Any]:
     """A task YAML file's mapping (configio.load_yaml), its `layout` found beside the file when it
-    is not found from the current folder (layout.layout_ref_beside)."""
+    is not found from the current folder (layout.found_layout_ref: ConfigError if found nowhere)."""
     data = load_yaml(path, source)
     if "layout" in data:
-        data["layout"] = layout_ref_beside(data["layout"], path)
+        data["layout"] = found_layout_ref(data["layout"], path, "layout")
     return data
 
 

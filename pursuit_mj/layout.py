@@ -438,7 +438,7 @@ def resolve_layout_ref(ref: int | str | Path) -> Path:
     if path.is_dir():
         raise LayoutError(f"layout '{ref}': a folder, not a layout file (or a built-in index 0-{N_BUILTIN - 1})")
     if not path.is_file():
-        where = f" in the current folder ({Path.cwd()}) or beside a task, train or flight file naming it" if not path.is_absolute() else ""
+        where = f" in the current folder ({Path.cwd()})" if not path.is_absolute() else ""
         raise LayoutError(f"layout '{ref}': no such file{where}, and not a built-in index 0-{N_BUILTIN - 1}")
     return path
 
@@ -449,6 +449,20 @@ def layout_ref_beside(ref: Any, file: str | Path) -> Any:
     if isinstance(ref, str) and ref.strip().isdigit():
         return ref
     return found_beside(ref, file)
+
+
+def found_layout_ref(ref: Any, file: str | Path, key: str) -> Any:
+    """layout_ref_beside for the value of `key` in `file`; a file path found neither from the current
+    folder nor beside `file` is a ConfigError naming both (not left to fail when the layout loads,
+    where the file that named it is no longer known)."""
+    found = layout_ref_beside(ref, file)
+    if isinstance(found, str) and not found.strip().isdigit() and found and not Path(found).exists():
+        folder, here = Path(file).parent, Path.cwd()
+        beside = "" if folder.resolve() == here.resolve() else f" or beside {folder}"
+        where = "" if Path(found).is_absolute() else f" in the current folder ({here}){beside}"
+        raise ConfigError(f"{file}: key '{key}': layout '{ref}': no such file{where}, "
+                          f"and not a built-in index 0-{N_BUILTIN - 1}")
+    return found
 
 
 def load_layout(ref: int | str | Path) -> Layout:

@@ -296,15 +296,33 @@ def test_a_layout_file_in_the_current_folder_wins_over_one_beside_the_task_file(
     assert load_task_config([str(exp / "task.yaml")]).layout == "arena.yaml"  # as before: from the current folder
 
 
-def test_a_layout_file_found_nowhere_says_where_it_was_looked_for(tmp_path, monkeypatch):
+def test_a_layout_file_found_nowhere_is_refused_naming_the_file_and_key_that_named_it(tmp_path, monkeypatch, capsys):
+    """It was refused only when the layout loaded, without the file that named it; and
+    `train -sc` printed such a config and exited 0."""
+    from train.config import load_train_config
+
     exp = tmp_path / "exp"
     exp.mkdir()
-    (exp / "task.yaml").write_text("layout: arena.yaml\n")
+    task, train = exp / "task.yaml", exp / "train.yaml"
+    task.write_text("layout: arena.yaml\n")
     monkeypatch.chdir(tmp_path)
-    from pursuit_mj.env import PursuitEnv
-
-    with pytest.raises(ValueError, match=rf"layout 'arena.yaml': no such file in the current folder \({tmp_path}\)"):
-        PursuitEnv(load_task_config([str(exp / "task.yaml")]))
+    looked = rf"no such file in the current folder \({tmp_path}\) or beside {exp}"
+    with pytest.raises(ConfigError, match=rf"{task}: key 'layout': layout 'arena.yaml': {looked}"):
+        load_task_config([str(task)])
+    for key, text in (("task.layout", "task: {layout: arena.yaml}"), ("layouts", "layouts: [0, arena.yaml]"),
+                      ("run.validation_layouts", "run: {validation_layouts: [arena.yaml]}")):
+        train.write_text(f"name: exp\n{text}\n")
+        with pytest.raises(ConfigError, match=rf"{train}: key '{key}': layout 'arena.yaml': {looked}"):
+            load_train_config([str(train)])
+    train.write_text(f"name: exp\ntask_file: {task}\n")
+    assert main(["train", "--config", str(train), "-sc"]) == 2
+    assert f"{task}: key 'layout'" in capsys.readouterr().err
+    assert main(["train", "--config", "classic", "--set", "run.validation_layouts=[0,nothere.yaml]", "-sc"]) == 2
+    assert "run.validation_layouts [0, 'nothere.yaml']: layout 'nothere.yaml': no such file" in capsys.readouterr().err
+    # a path given on the command line names only the current folder
+    assert main(["layout", "check", "arena.yaml"]) == 2
+    err = capsys.readouterr().err
+    assert f"layout 'arena.yaml': no such file in the current folder ({tmp_path})," in err and "beside" not in err
 
 
 @pytest.mark.parametrize("argv, key", [(["--r_perception", "2000"], "perception_radius"),  # the reference study's mm

@@ -17,7 +17,7 @@ from typing import Any, Mapping, Sequence
 
 from pursuit_mj.config import TaskConfig, load_task_yaml, preset_or_file
 from pursuit_mj.configio import ConfigError, build, check_values, found_beside, load, load_yaml, parse_override, spec, to_dict
-from pursuit_mj.layout import N_BUILTIN, layout_ref_beside
+from pursuit_mj.layout import N_BUILTIN, found_layout_ref
 from pursuit_mj.sensing import PRIVILEGED_VIEWS
 
 REGIMES = ("classic", "full_obs", "fine_tune", "mappo", "custom")
@@ -328,11 +328,11 @@ def _paths_beside(data: dict[str, Any], path: Path) -> None:
         data["task_file"] = found_beside(data["task_file"], path)
     task, run = data.get("task"), data.get("run")
     if isinstance(task, dict) and "layout" in task:
-        task["layout"] = layout_ref_beside(task["layout"], path)
+        task["layout"] = found_layout_ref(task["layout"], path, "task.layout")
     if isinstance(data.get("layouts"), list):
-        data["layouts"] = [layout_ref_beside(r, path) for r in data["layouts"]]
+        data["layouts"] = [found_layout_ref(r, path, "layouts") for r in data["layouts"]]
     if isinstance(run, dict) and isinstance(run.get("validation_layouts"), list):
-        run["validation_layouts"] = [layout_ref_beside(r, path) for r in run["validation_layouts"]]
+        run["validation_layouts"] = [found_layout_ref(r, path, "run.validation_layouts") for r in run["validation_layouts"]]
 
 
 def _resolve_task_file(ref: str, source: str) -> dict[str, Any]:

@@ -26,7 +26,7 @@ import numpy as np
 from ..config import TaskConfig
 from ..configio import ConfigError, build, merge, parse_override, to_dict
 from ..geometry import border_distance, inside_boundary, obstacle_distance
-from ..layout import Layout, layout_ref_beside, load_layout
+from ..layout import Layout, found_layout_ref, load_layout
 from ..obs_spec import ObsSpec
 from .frames import DroneFrames, LabTransform
 from .spec import FlightSpec, LabBounds, check_uri, drone_names
@@ -143,8 +143,9 @@ class FlightPlan:
 
 
 def _resolve_layout(spec: FlightSpec) -> Layout:
+    ref = found_layout_ref(spec.layout, spec.source, "layout")
     try:
-        return load_layout(layout_ref_beside(spec.layout, spec.source))
+        return load_layout(ref)
     except ConfigError as exc:
         raise ConfigError(f"{spec.source}: key 'layout': {exc}") from None
 
