@@ -11,7 +11,7 @@ import math
 from pathlib import Path
 from typing import Any, Sequence
 
-from .configio import ConfigError, build, dump_yaml, load, load_yaml, spec, to_dict
+from .configio import ConfigError, build, dump_yaml, key_where, load, load_yaml, spec, to_dict
 from .layout import MAX_RANDOM_OBSTACLES, N_BUILTIN, found_layout_ref
 
 from .shipped import shipped_dir
@@ -125,17 +125,17 @@ class TaskConfig:
         for key, value, room, what in (("obstacle_clearance", self.obstacle_clearance, SPAWN_CLEARANCE, "from walls"),
                                        ("teammate_clearance", self.teammate_clearance, SPAWN_SEPARATION, "apart")):
             if value >= room:
-                raise ConfigError(f"{source}: key '{key}': {value} m is not below the {room} m that drones spawn "
+                raise ConfigError(f"{key_where(source, key)}: {value} m is not below the {room} m that drones spawn "
                                   f"{what}: episodes would end in a collision before any action")
         if isinstance(self.layout, int) and not 0 <= self.layout < N_BUILTIN:
-            raise ConfigError(f"{source}: key 'layout': {self.layout} is not a built-in layout index "
+            raise ConfigError(f"{key_where(source, 'layout')}: {self.layout} is not a built-in layout index "
                               f"(0-{N_BUILTIN - 1}) or a file")
         if self.random_layout and not isinstance(self.layout, int):
-            raise ConfigError(f"{source}: key 'random_layout' draws each episode's layout from the built-in 0-"
+            raise ConfigError(f"{key_where(source, 'random_layout')} draws each episode's layout from the built-in 0-"
                               f"{N_BUILTIN - 1}, so layout {self.layout} would be ignored: set one or the other")
         if self.drone_mass > DRONE_MAX_MASS:
             raise ConfigError(
-                f"{source}: key 'drone_mass': {self.drone_mass} kg is more than the rotors can fly: their "
+                f"{key_where(source, 'drone_mass')}: {self.drone_mass} kg is more than the rotors can fly: their "
                 f"{DRONE_MAX_THRUST:g} N at full thrust must lift at least {MIN_THRUST_TO_WEIGHT:g} times the "
                 f"weight (at most {DRONE_MAX_MASS_TEXT} kg), keeping thrust in reserve to tilt, climb back and "
                 f"turn at once")

@@ -79,7 +79,23 @@ def _suggest(name: str, valid: Sequence[str], cls: type | None = None, prefix: s
     if nested:
         return f" (did you mean {' or '.join(repr(k) for k in nested)}?)"
     close = difflib.get_close_matches(name, list(valid), n=1, cutoff=0.5)
-    return f" (did you mean '{close[0]}'?)" if close else f" (valid keys: {', '.join(sorted(valid))})"
+    return f" (did you mean '{prefix}{close[0]}'?)" if close else f" (valid keys: {', '.join(sorted(valid))})"
+
+
+def _split_where(source: str) -> tuple[str, str]:
+    """(where the values came from, the dotted section they belong to + '.') of an error's `source`:
+    a nested section's values arrive with the source "f.yaml: key 'evader'", and their errors
+    name the whole path ("f.yaml: key 'evader.panic_distance'") rather than one key after another."""
+    head, sep, tail = source.rpartition(": key '")
+    if sep and tail.endswith("'") and "'" not in tail[:-1]:
+        return head, tail[:-1] + "."
+    return source, ""
+
+
+def key_where(source: str, name: str) -> str:
+    """"source: key 'name'", with `name` joined to the section `source` names (_split_where)."""
+    head, section = _split_where(source)
+    return f"{head}: key '{section}{name}'"
 
 
 def _coerce(value: Any, hint: Any, where: str) -> Any:
@@ -172,7 +188,8 @@ def _known_fields(cls: type, values: Mapping[str, Any], source: str) -> dict[str
     unknown = [k for k in values if k not in fields]
     if unknown:
         key = unknown[0]
-        raise ConfigError(f"{source}: unknown key '{key}'{_suggest(str(key), list(fields), cls)}")
+        head, section = _split_where(source)
+        raise ConfigError(f"{head}: unknown key '{section}{key}'{_suggest(str(key), list(fields), cls, section)}")
     return fields
 
 
@@ -186,7 +203,7 @@ def build(cls: type[T], values: Mapping[str, Any] | None, source: str = "config"
     hints = _type_hints(cls)
     kwargs = {}
     for name, value in values.items():
-        where = f"{source}: key '{name}'"
+        where = key_where(source, name)
         coerced = _coerce(value, hints[name], where)
         _check_range(coerced, fields[name].metadata, where)
         kwargs[name] = coerced
@@ -401,7 +418,7 @@ def check_values(cls: type, values: Mapping[str, Any], source: str) -> None:
     fields = _known_fields(cls, values, source)
     hints = _type_hints(cls)
     for name, value in values.items():
-        where = f"{source}: key '{name}'"
+        where = key_where(source, name)
         if dataclasses.is_dataclass(hints[name]) and isinstance(value, Mapping):
             check_values(hints[name], value, where)
         else:

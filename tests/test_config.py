@@ -94,7 +94,7 @@ def test_dumped_config_loads_back_identical(tmp_path):
     "overrides, message",
     [
         (["n_persuers=2"], r"--set n_persuers=2: unknown key 'n_persuers' \(did you mean 'n_pursuers'\?\)"),
-        (["evader.panic_dist=1"], r"unknown key 'evader.panic_dist' \(did you mean 'panic_distance'\?\)"),
+        (["evader.panic_dist=1"], r"unknown key 'evader.panic_dist' \(did you mean 'evader.panic_distance'\?\)"),
         (["n_pursuers=2.5"], r"key 'n_pursuers': expected an integer, got 2.5"),
         (["n_pursuers=true"], r"key 'n_pursuers': expected an integer, got True"),
         (["pursuer_speed=fast"], r"key 'pursuer_speed': expected a number, got 'fast'"),
@@ -327,9 +327,22 @@ def test_a_layout_file_found_nowhere_is_refused_naming_the_file_and_key_that_nam
 
 @pytest.mark.parametrize("argv, key", [(["--r_perception", "2000"], "perception_radius"),  # the reference study's mm
                                        (["--set", "ray_range=1500"], "ray_range"),
-                                       (["--set", "evader.sense_radius=4000"], "sense_radius")])
+                                       (["--set", "evader.sense_radius=4000"], "evader.sense_radius")])
 def test_a_distance_far_beyond_any_arena_is_refused_as_a_unit_slip(argv, key, capsys):
     """2000 (mm) was taken as 2000 m: partial observability quietly became an unlimited view."""
     assert main(["config"] + argv) == 2
     err = capsys.readouterr().err
     assert f"key '{key}'" in err and "out of range (must be <= 100.0)" in err, err
+
+
+def test_a_bad_nested_key_is_named_by_its_dotted_path_and_its_suggestion_too(tmp_path):
+    task = tmp_path / "t.yaml"
+    task.write_text("evader:\n  panic_distance: -1\n")
+    with pytest.raises(ConfigError, match=rf"{task}: key 'evader.panic_distance': -1.0 is out of range"):
+        load_task_config([str(task)])
+    task.write_text("evader:\n  panic_distnce: 1\n")
+    with pytest.raises(ConfigError, match=rf"{task}: unknown key 'evader.panic_distnce' "
+                                          r"\(did you mean 'evader.panic_distance'\?\)"):
+        load_task_config([str(task)])
+    with pytest.raises(ConfigError, match=r"--set evader.panic_distance=0: key 'evader.panic_distance': 0.0 is out"):
+        load_task_config([], ["evader.panic_distance=0"])

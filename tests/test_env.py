@@ -325,7 +325,7 @@ def test_configs_made_without_the_loader_are_checked_by_the_env():
         PursuitEnv(TaskConfig(fidelity="pointy"))
     with pytest.raises(ConfigError, match="key 'max_steps': 0"):
         PursuitEnv(dataclasses.replace(default_config(**FAST), max_steps=0))
-    with pytest.raises(ConfigError, match="unknown key 'x'"):
+    with pytest.raises(ConfigError, match="unknown key 'evader.x'"):
         PursuitEnv(TaskConfig(evader={"x": 1}, fidelity="point"))
     with pytest.raises(ConfigError, match="expected a TaskConfig .* got dict"):
         PursuitEnv({"fidelity": "point"})

@@ -56,7 +56,7 @@ def test_train_show_config_and_bad_input(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "lr: 0.0001" in out and "fidelity: point" in out
     assert main(["train", "--config", "classic", "--set", "ppo.clip=7"]) == 2
-    assert "--set ppo.clip=7: key 'ppo': key 'clip': 7.0 is out of range" in capsys.readouterr().err
+    assert "--set ppo.clip=7: key 'ppo.clip': 7.0 is out of range" in capsys.readouterr().err
     assert main(["train", "--config", "no_such_regime"]) == 2
     assert main(["train", "--resume", str(tmp_path / "nothing")]) == 2
     err = capsys.readouterr().err
@@ -278,11 +278,11 @@ def test_a_bad_value_in_an_earlier_train_config_names_that_file(tmp_path, capsys
     fine.write_text("name: b\n")
     assert main(["train", "--config", str(bad), "--config", str(fine), "-sc"]) == 2
     err = capsys.readouterr().err
-    assert f"{bad}: key 'ppo': key 'lr': -1.0 is out of range" in err and "fine.yaml" not in err, err
+    assert f"{bad}: key 'ppo.lr': -1.0 is out of range" in err and "fine.yaml" not in err, err
     typo = tmp_path / "typo.yaml"
     typo.write_text("task: {evader_sped: 0.5}\n")
     assert main(["train", "--config", str(typo), "--config", str(fine), "-sc"]) == 2
-    assert f"{typo}: key 'task': unknown key 'evader_sped'" in capsys.readouterr().err
+    assert f"{typo}: unknown key 'task.evader_sped' (did you mean 'task.evader_speed'?)" in capsys.readouterr().err
 
 
 def test_a_bad_value_in_a_task_file_names_the_task_file(tmp_path, capsys):
@@ -309,7 +309,7 @@ def test_a_resume_with_the_run_length_given_by_set_trains_to_it(tmp_path, capsys
 @pytest.mark.parametrize("given, message", [
     ("layouts=[0,7]", "--set layouts=[0,7]: key 'layouts': 7 is not a built-in layout index (0-3)"),
     ("run.validation_layouts=[9]",
-     "--set run.validation_layouts=[9]: key 'run': key 'validation_layouts': 9 is not a built-in layout index (0-3)"),
+     "--set run.validation_layouts=[9]: key 'run.validation_layouts': 9 is not a built-in layout index (0-3)"),
     ("layouts=[nosuch.yaml]", "layouts ['nosuch.yaml']: layout 'nosuch.yaml': no such file"),
     ("task.layout=nosuch.yaml", "task.layout nosuch.yaml: layout 'nosuch.yaml': no such file"),
 ])
@@ -329,7 +329,7 @@ def test_a_layout_key_that_cannot_be_loaded_is_refused_naming_the_key(tmp_path, 
     (["--set", "lr=1e-4"], "unknown key 'lr' (did you mean 'ppo.lr' or 'imitation.lr'?)"),
     (["--set", "panic_distance=1"], "unknown key 'panic_distance' (did you mean 'task.evader.panic_distance'?)"),
     (["--set", "task.panic_distance=1"], "unknown key 'task.panic_distance' (did you mean 'task.evader.panic_distance'?)"),
-    (["--set", "ppo.lrr=1"], "unknown key 'ppo.lrr' (did you mean 'lr'?)"),  # a typo: the close key, as before
+    (["--set", "ppo.lrr=1"], "unknown key 'ppo.lrr' (did you mean 'ppo.lr'?)"),  # a typo: the close key, as before
 ])
 def test_a_key_given_outside_its_section_is_pointed_to_it(capsys, given, message):
     """--set evader_speed=0.5 was answered 'did you mean seed?', --set hidden=[64] 'did you mean shield?':
@@ -367,7 +367,7 @@ def test_resume_of_a_file_says_it_is_a_file(tmp_path, capsys):
 
 def test_an_empty_runs_dir_is_refused_rather_than_training_into_the_current_folder(capsys):
     assert main(["train", "--config", "classic", "--set", "run.runs_dir=", "-sc"]) == 2
-    assert "key 'run': key 'runs_dir': empty" in capsys.readouterr().err
+    assert "key 'run.runs_dir': empty" in capsys.readouterr().err
 
 
 def test_show_config_refuses_what_training_would_refuse(capsys):

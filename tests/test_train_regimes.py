@@ -84,7 +84,7 @@ def test_overrides_flags_and_task_file():
     assert cfg.task.pursuer_speed == 0.3 and cfg.task.fidelity == "point"  # what the preset leaves, and later --set keys
     later = load_train_config(["classic"], ["task.evader_speed=1.2", "task_file=hard"], {"task": {"perception_radius": 2.5}})
     assert later.task.evader_speed == 1.2 and later.task.perception_radius == 2.5  # --set task.* and flags beat the preset
-    with pytest.raises(ValueError, match="ppo.lrr.*did you mean 'lr'"):
+    with pytest.raises(ValueError, match="ppo.lrr.*did you mean 'ppo.lr'"):
         load_train_config(["classic"], ["ppo.lrr=1"])
     with pytest.raises(ValueError, match="pursuer_speed.*out of range"):
         load_train_config(["classic"], ["task.pursuer_speed=-1"])

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from pursuit_mj.config import TaskConfig, load_task_yaml, preset_or_file
-from pursuit_mj.configio import ConfigError, build, check_values, found_beside, load, load_yaml, parse_override, spec, to_dict
+from pursuit_mj.configio import ConfigError, build, check_values, found_beside, key_where, load, load_yaml, parse_override, spec, to_dict
 from pursuit_mj.layout import N_BUILTIN, found_layout_ref
 from pursuit_mj.sensing import PRIVILEGED_VIEWS
 
@@ -117,7 +117,7 @@ def check_indices(key: str, refs: Sequence[int | str], source: str) -> None:
     are loaded only as a run starts: `TrainConfig.check_layouts`)."""
     for ref in refs:
         if isinstance(ref, int) and not 0 <= ref < N_BUILTIN:
-            raise ConfigError(f"{source}: key '{key}': {ref} is not a built-in layout index (0-{N_BUILTIN - 1}) or a file")
+            raise ConfigError(f"{key_where(source, key)}: {ref} is not a built-in layout index (0-{N_BUILTIN - 1}) or a file")
 
 
 def usable_cores() -> int:
@@ -156,7 +156,7 @@ class RunConfig:
     def validate(self, source: str = "config") -> None:
         check_indices("validation_layouts", self.validation_layouts, source)
         if not self.runs_dir.strip():  # Path("") is the current folder: runs would land among the user's files
-            raise ConfigError(f"{source}: key 'runs_dir': empty; name a folder (default runs)")
+            raise ConfigError(f"{key_where(source, 'runs_dir')}: empty; name a folder (default runs)")
 
     def update_threads(self, overlapped: bool, cores: int | None = None, split: bool = False) -> int:
         """Torch threads for the update, per process: torch_threads when set, else the cores idle
@@ -201,7 +201,7 @@ class TrainConfig:
     def validate(self, source: str = "config") -> None:
         """Per-field checks run at every override; cross-field ones run in `check_complete`."""
         if not self.name or "/" in self.name or self.name in (".", ".."):
-            raise ConfigError(f"{source}: key 'name': {self.name!r} is not a usable run folder name")
+            raise ConfigError(f"{key_where(source, 'name')}: {self.name!r} is not a usable run folder name")
         check_indices("layouts", self.layouts, source)
         if self.regime == "fine_tune" and not self.init_from:
             raise ConfigError(f"{source}: regime fine_tune needs init_from (a full_obs checkpoint)")
@@ -351,10 +351,10 @@ def _with_layer(merged: Mapping[str, Any], layer: Mapping[str, Any], source: str
     ref = layer.get("task_file")
     if ref:
         if not isinstance(ref, str):
-            raise ConfigError(f"{source}: key 'task_file': expected a string, got {ref!r}")
+            raise ConfigError(f"{key_where(source, 'task_file')}: expected a string, got {ref!r}")
         task = layer.get("task")
         if task is not None and not isinstance(task, Mapping):
-            raise ConfigError(f"{source}: key 'task': expected a mapping, got {task!r}")
+            raise ConfigError(f"{key_where(source, 'task')}: expected a mapping, got {task!r}")
         merged = _deep_update(merged, {"task": _resolve_task_file(ref, source)})
     # an empty task: section (beside a task_file, say) leaves the task as it is
     return _deep_update(merged, {k: v for k, v in layer.items() if not (k == "task" and v is None)})

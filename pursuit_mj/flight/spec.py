@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from ..config import DRONE_CONTACT_DISTANCE, preset_or_file
-from ..configio import ConfigError, build, load_yaml, shown, spec
+from ..configio import ConfigError, build, key_where, load_yaml, shown, spec
 from .board import HISTORY
 
 ROLES = ("pursuer", "evader", "target")
@@ -111,9 +111,9 @@ class DroneSpec:
     name: str = spec("", help="a label for logs; default role + index")
 
     def validate(self, source: str) -> None:
-        check_uri(self.uri, f"{source}: key 'uri'")
+        check_uri(self.uri, key_where(source, 'uri'))
         if self.name and not re.fullmatch(NAME, self.name):
-            raise ConfigError(f"{source}: key 'name': {self.name!r} is not a plain label (letters, digits, _ and -; "
+            raise ConfigError(f"{key_where(source, 'name')}: {self.name!r} is not a plain label (letters, digits, _ and -; "
                               f"no spaces): it names the drone in --fault KIND:NAME@S and in the records")
 
 
@@ -127,7 +127,7 @@ class TransformSpec:
 
     def validate(self, source: str) -> None:
         if not 0.05 <= self.scale <= 20.0:
-            raise ConfigError(f"{source}: key 'scale': {self.scale} is not a plausible scale (0.05 to 20 layout m per lab m)")
+            raise ConfigError(f"{key_where(source, 'scale')}: {self.scale} is not a plausible scale (0.05 to 20 layout m per lab m)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,10 +140,10 @@ class LabBounds:
     def validate(self, source: str) -> None:
         for key, (lo, hi) in (("x", self.x), ("y", self.y)):
             if not lo < hi:
-                raise ConfigError(f"{source}: key '{key}': expected [min, max] with min < max, got {[lo, hi]}")
+                raise ConfigError(f"{key_where(source, key)}: expected [min, max] with min < max, got {[lo, hi]}")
             far = max((lo, hi), key=abs)
             if abs(far) > LAB_EXTENT:
-                raise ConfigError(f"{source}: key '{key}': {far:g} m in {[lo, hi]} is farther than {LAB_EXTENT:g} m from "
+                raise ConfigError(f"{key_where(source, key)}: {far:g} m in {[lo, hi]} is farther than {LAB_EXTENT:g} m from "
                                   f"the lab's origin: no flight space is that big (lab coordinates are metres)")
 
 
@@ -178,13 +178,13 @@ class SafetyLimits:
 
     def validate(self, source: str) -> None:
         if self.min_separation <= DRONE_CONTACT_DISTANCE:
-            raise ConfigError(f"{source}: key 'min_separation': {self.min_separation:g} m is not beyond {DRONE_CONTACT_DISTANCE:g} m, "
+            raise ConfigError(f"{key_where(source, 'min_separation')}: {self.min_separation:g} m is not beyond {DRONE_CONTACT_DISTANCE:g} m, "
                               f"where two Crazyflies' propellers touch (the simulator counts a collision): the separation "
                               f"guard would hold drones in contact")
         if self.stale_land <= self.stale_hover:
-            raise ConfigError(f"{source}: key 'stale_land': {self.stale_land} s must be longer than stale_hover {self.stale_hover} s")
+            raise ConfigError(f"{key_where(source, 'stale_land')}: {self.stale_land} s must be longer than stale_hover {self.stale_hover} s")
         if self.battery_land >= self.battery_takeoff:
-            raise ConfigError(f"{source}: key 'battery_land': {self.battery_land} V must be below battery_takeoff {self.battery_takeoff} V")
+            raise ConfigError(f"{key_where(source, 'battery_land')}: {self.battery_land} V must be below battery_takeoff {self.battery_takeoff} V")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -206,15 +206,15 @@ class FlightSpec:
 
     def validate(self, source: str) -> None:
         if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", self.name) or ".." in self.name:
-            raise ConfigError(f"{source}: key 'name': {self.name!r} is not a plain label (letters, digits, _ . -): "
+            raise ConfigError(f"{key_where(source, 'name')}: {self.name!r} is not a plain label (letters, digits, _ . -): "
                               f"it names the default event log file")
         if not self.drones:
-            raise ConfigError(f"{source}: key 'drones': the list is empty")
+            raise ConfigError(f"{key_where(source, 'drones')}: the list is empty")
         roles = [d.role for d in self.drones]
         if "pursuer" not in roles:
-            raise ConfigError(f"{source}: key 'drones': no drone has role 'pursuer'")
+            raise ConfigError(f"{key_where(source, 'drones')}: no drone has role 'pursuer'")
         if not ({"evader", "target"} & set(roles)):
-            raise ConfigError(f"{source}: key 'drones': no drone has role 'evader' or 'target' (nothing to chase)")
+            raise ConfigError(f"{key_where(source, 'drones')}: no drone has role 'evader' or 'target' (nothing to chase)")
         seen: dict[tuple, int] = {}
         for i, d in enumerate(self.drones):
             key = link_key(d.uri, f"{source}: drones[{i}]: key 'uri'")
@@ -225,18 +225,18 @@ class FlightSpec:
             seen[key] = i
         names = drone_names(self)
         if len(set(names)) != len(names):
-            raise ConfigError(f"{source}: key 'drones': two drones share the name '{_first_duplicate(names)}'")
+            raise ConfigError(f"{key_where(source, 'drones')}: two drones share the name '{_first_duplicate(names)}'")
         if self.decision_rate is not None and not (math.isfinite(self.decision_rate) and 1.0 <= self.decision_rate <= 100.0):
-            raise ConfigError(f"{source}: key 'decision_rate': {self.decision_rate} Hz is out of range (1 to 100)")
+            raise ConfigError(f"{key_where(source, 'decision_rate')}: {self.decision_rate} Hz is out of range (1 to 100)")
         if self.flight_height - self.safety.height_tolerance < LANDED_HEIGHT - 1e-9:
             raise ConfigError(
-                f"{source}: key 'flight_height': {self.flight_height} m is within safety.height_tolerance "
+                f"{key_where(source, 'flight_height')}: {self.flight_height} m is within safety.height_tolerance "
                 f"{self.safety.height_tolerance} m of {LANDED_HEIGHT:g} m, below which a drone counts as landed: the "
                 f"take-off check would pass a drone that never left the floor (raise flight_height or lower height_tolerance)"
             )
         if self.flight_height + 0.1 > self.safety.max_altitude:
             raise ConfigError(
-                f"{source}: key 'flight_height': {self.flight_height} m leaves less than 0.1 m below "
+                f"{key_where(source, 'flight_height')}: {self.flight_height} m leaves less than 0.1 m below "
                 f"safety.max_altitude {self.safety.max_altitude} m"
             )
 
@@ -290,7 +290,7 @@ def flight_from_dict(data: Mapping[str, Any], source: str = "<flight>") -> Fligh
     _check_keys(FlightSpec, data, source)
     raw_drones = data["drones"]
     if not isinstance(raw_drones, (list, tuple)):
-        raise ConfigError(f"{source}: key 'drones': expected a list of {{uri, role, start}}, got {raw_drones!r}")
+        raise ConfigError(f"{key_where(source, 'drones')}: expected a list of {{uri, role, start}}, got {raw_drones!r}")
     data["drones"] = tuple(_build(DroneSpec, d, f"{source}: drones[{i}]") for i, d in enumerate(raw_drones))
     for key, cls in (("transform", TransformSpec), ("safety", SafetyLimits)):
         if key in data:
@@ -298,7 +298,7 @@ def flight_from_dict(data: Mapping[str, Any], source: str = "<flight>") -> Fligh
     if data.get("lab") is not None:
         data["lab"] = _build(LabBounds, data["lab"], f"{source}: lab")
     if data.get("task") is not None and not isinstance(data["task"], Mapping):  # empty (null): no task keys, as for safety
-        raise ConfigError(f"{source}: key 'task': expected a mapping of task keys, got {data['task']!r}")
+        raise ConfigError(f"{key_where(source, 'task')}: expected a mapping of task keys, got {data['task']!r}")
     data["task"] = dict(data.get("task") or {})
     data["source"] = source
     return build(FlightSpec, data, source)
