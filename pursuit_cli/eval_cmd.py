@@ -14,12 +14,12 @@ import sys
 import time
 from pathlib import Path
 
-from pursuit_mj.io_utils import check_writable, check_writable_folder
+from pursuit_mj.io_utils import check_writable, check_writable_folder, file_sha256
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
 from .common import (SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, check_out_prefix, load_model, pick_versus,
                      seed_arg, shield_if_asked, table_layouts, task_config_from_args)
-from .eval_resume import file_sha256, finished_rows, interrupted_path, keep_finished
+from .eval_resume import finished_rows, interrupted_path, keep_finished
 
 
 RERUN_EPISODES = 3  # recorded per policy and layout with --rerun

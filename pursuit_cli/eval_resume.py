@@ -9,7 +9,6 @@ table is an uninterrupted run's.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import sys
 from pathlib import Path
@@ -36,10 +35,6 @@ def keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, con
     if json_path:
         print(f"[eval] wrote {write_json(rows, interrupted_path(json_path), config, {**meta, 'interrupted': True})}",
               file=sys.stderr, flush=True)
-
-
-def file_sha256(path: str) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 #: what an interrupted eval and its resumption must share, so that the finished rows are what this run would play

@@ -244,7 +244,7 @@ def run(args) -> int:
             trainer = Trainer.resume(cfg.run_dir, cfg.total_steps if "total_steps" in given else None,
                                      max_minutes=cfg.max_minutes if "max_minutes" in given else None,
                                      progress=cfg.run.progress if "run.progress" in given else None,
-                                     check=lambda stored: _check_same(cfg, stored),
+                                     check=lambda stored: _check_same(cfg.with_absolute_layout_files(), stored),
                                      rerun=cfg.run.rerun if "run.rerun" in given else None)
         else:
             if last.exists():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import re
 import tempfile
@@ -111,3 +112,8 @@ def check_writable(path: str | Path, what: str = "output") -> Path:
     if path.is_dir():
         raise ValueError(f"{what} path {path}: is a folder, expected a file name")
     return path
+
+
+def file_sha256(path: str | Path) -> str:
+    """The hex sha256 of a file's bytes (to tell whether a file changed since it was used)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()

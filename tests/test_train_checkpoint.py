@@ -662,3 +662,24 @@ def test_a_run_refused_at_the_start_leaves_no_folder_it_made(tmp_path):
     with pytest.raises(ValueError, match="no such checkpoint"):
         Trainer(cfg, log=lambda s: None)
     assert sorted(p.name for p in cfg.run_dir.iterdir()) == [".lock", "notes.txt"]
+
+
+def test_a_run_on_a_layout_file_resumes_from_any_folder_and_not_on_a_changed_file(tmp_path, monkeypatch):
+    """The stored config kept the path as typed: a relative one failed to load when the run was
+    resumed from another folder; and a layout file edited in between was trained on silently."""
+    from pursuit_mj.layout import builtin_layout_path
+
+    start, elsewhere = tmp_path / "start", tmp_path / "elsewhere"
+    start.mkdir(), elsewhere.mkdir()
+    (start / "arena.yaml").write_text(builtin_layout_path(1).read_text())
+    monkeypatch.chdir(start)
+    cfg = tiny_config(tmp_path, updates=1, extra=["task.layout=arena.yaml", "layouts=[arena.yaml, 0]"])
+    Trainer(cfg, log=lambda s: None).train()
+    stored = load_checkpoint(cfg.run_dir / "last.pt")["train_config"]
+    assert (stored["task"]["layout"], stored["layouts"]) == (str(start / "arena.yaml"), [str(start / "arena.yaml"), 0])
+    monkeypatch.chdir(elsewhere)
+    assert Trainer.resume(cfg.run_dir, total_steps=64, log=lambda s: None).train()["counters"]["update"] == 2
+    (start / "arena.yaml").write_text(builtin_layout_path(2).read_text())
+    with pytest.raises(ValueError, match=rf"--resume {cfg.run_dir}: layout file {start / 'arena.yaml'} \(task.layout\) "
+                                         r"has changed since the run started"):
+        Trainer.resume(cfg.run_dir, total_steps=96, log=lambda s: None)

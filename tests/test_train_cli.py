@@ -306,6 +306,18 @@ def test_a_resume_with_the_run_length_given_by_set_trains_to_it(tmp_path, capsys
     assert torch.load(tmp_path / "s" / "last.pt", weights_only=True)["train_config"]["max_minutes"] == 5.0
 
 
+def test_the_command_that_started_a_run_on_a_relative_layout_file_resumes_it(tmp_path, capsys, monkeypatch):
+    """The stored config holds the file's absolute path; the same command gives it relative."""
+    from pursuit_mj.layout import builtin_layout_path
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "arena.yaml").write_text(builtin_layout_path(1).read_text())
+    base = ["train", "--no-progress", "--name", "rel", "--layout", "arena.yaml"] + sets(TINY + [f"run.runs_dir={tmp_path}"])
+    assert main(base + ["--total-steps", "32"]) == 0
+    assert main(base + ["--resume", "--total-steps", "64"]) == 0, capsys.readouterr().err
+    assert "done: 2 updates" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize("given, message", [
     ("layouts=[0,7]", "--set layouts=[0,7]: key 'layouts': 7 is not a built-in layout index (0-3)"),
     ("run.validation_layouts=[9]",

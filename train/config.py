@@ -240,6 +240,23 @@ class TrainConfig:
                                   f"only through range readings and need at least {MIN_RAYS}; {', '.join(users)} "
                                   f"use(s) them (raise task.n_rays, or turn those off)")
 
+    def layout_files(self) -> list[tuple[str, str]]:
+        """(key, path) of every layout file the run names (task.layout, layouts,
+        run.validation_layouts), in that order; built-in indices are left out."""
+        return [(key, str(ref)) for key, refs in (("task.layout", (self.task.layout,)), ("layouts", self.layouts),
+                                                   ("run.validation_layouts", self.run.validation_layouts))
+                for ref in refs if _is_file_ref(ref)]
+
+    def with_absolute_layout_files(self) -> "TrainConfig":
+        """This config with every layout file path made absolute (from the current folder): the
+        stored config of a run then loads them wherever the run is resumed."""
+        def absolute(ref):
+            return os.path.abspath(ref) if _is_file_ref(ref) else ref
+
+        task = dataclasses.replace(self.task, layout=absolute(self.task.layout))
+        run = dataclasses.replace(self.run, validation_layouts=tuple(absolute(r) for r in self.run.validation_layouts))
+        return dataclasses.replace(self, task=task, run=run, layouts=tuple(absolute(r) for r in self.layouts))
+
     def check_layouts(self, source: str = "train config") -> None:
         """Load every layout the run names (task.layout, layouts, run.validation_layouts): ConfigError
         naming the key of one that cannot be (no such index or file, a malformed file)."""
@@ -319,6 +336,11 @@ def _deep_update(base: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, A
     for k, v in new.items():
         out[k] = _deep_update(out[k], v) if isinstance(v, Mapping) and isinstance(out.get(k), Mapping) else v
     return out
+
+
+def _is_file_ref(ref: Any) -> bool:
+    """Whether a layout reference names a file (not a built-in index such as 2 or '2')."""
+    return isinstance(ref, (str, Path)) and not str(ref).strip().isdigit()
 
 
 def _paths_beside(data: dict[str, Any], path: Path) -> None:

@@ -13,7 +13,6 @@ cells also say how long an evaluation takes, which the study's budget is planned
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 from pathlib import Path
@@ -21,14 +20,13 @@ from typing import Callable
 
 from pursuit_mj.configio import to_dict
 from pursuit_mj.evaluation import Row, layout_label, row_from_record, row_record
+from pursuit_mj.io_utils import file_sha256
 from pursuit_mj.layout import resolve_layout_ref
 from pursuit_mj.provenance import provenance
 
 HEURISTIC = "heuristic"  # the key of the heuristic team's cells; trained arms are keyed by their names
 
 
-def file_sha256(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def identity(plan) -> dict:

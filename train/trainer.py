@@ -30,7 +30,7 @@ import torch
 
 from pursuit_mj.configio import dump_yaml, to_dict
 from pursuit_mj.evaluation import capture_steps
-from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, remove_leftover_parts
+from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, file_sha256, remove_leftover_parts
 from pursuit_mj.policies import make_policy
 from pursuit_mj.sensing import privileged_config
 
@@ -78,6 +78,9 @@ class Trainer:
     def __init__(self, cfg: TrainConfig, checkpoint: dict | None = None, log: Callable[[str], None] = print):
         cfg.check_complete()
         cfg.check_layouts()  # before the run folder is made: a bad one named with its key, not from deep in the env
+        if checkpoint is None:
+            cfg = cfg.with_absolute_layout_files()  # so that the stored config loads them from any folder
+        self._layout_sha256 = {path: file_sha256(path) for _, path in cfg.layout_files()}  # kept: a resume checks them
         self.cfg = cfg
         self.log = log
         for line in cfg.idle_settings():
@@ -176,6 +179,7 @@ class Trainer:
         cfg = train_config_from_dict(data["train_config"], f"checkpoint {path}: train_config")
         if check is not None:
             check(cfg)
+        _check_layout_files(cfg, data.get("layout_sha256", {}), run_dir)
         filled = defaults_filled_in(data["train_config"], cfg)
         if filled:
             shown = ", ".join(filled[:6]) + (f" and {len(filled) - 6} more" if len(filled) > 6 else "")
@@ -327,6 +331,7 @@ class Trainer:
             # the log row of an update whose validation Ctrl-C cut short (plain JSON values): a resume
             # validates it and writes the row, so no update goes unlogged or unvalidated
             "pending_row": json.loads(json.dumps(json_ready(self._pending_row))) if self._pending_row else {},
+            "layout_sha256": self._layout_sha256,
         }
 
     def save(self, name: str = "last.pt") -> Path:
@@ -637,6 +642,23 @@ class Trainer:
             if bar is not None:
                 bar.close()
         return {"status": status, "counters": dataclasses.asdict(c), "validation": last_val, "run_dir": str(self.run_dir)}
+
+
+def _check_layout_files(cfg: TrainConfig, trained: dict, run_dir: str | Path) -> None:
+    """Refuse to resume a run whose layout files cannot be loaded from here or differ from the
+    ones it trained on (sha256 in `trained`, by path; runs saved before it was kept are not checked)."""
+    try:
+        cfg.check_layouts(f"--resume {run_dir}: the run's stored config")
+    except ValueError as exc:
+        relative = [path for _, path in cfg.layout_files() if not os.path.isabs(path)]
+        hint = (f"; the run stored {relative[0]} relative to the folder it started in: resume from that folder"
+                if relative else "")
+        raise ValueError(f"{exc}{hint}") from None
+    for key, path in cfg.layout_files():
+        if path in trained and file_sha256(path) != trained[path]:
+            raise ValueError(f"--resume {run_dir}: layout file {path} ({key}) has changed since the run started: "
+                             f"the rest of the run would train and validate in another arena than the first part. "
+                             f"Restore the file, or start a new run from this one with --init-from {Path(run_dir) / 'last.pt'}")
 
 
 def lock_run_folder(run_dir: Path):
