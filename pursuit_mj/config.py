@@ -85,7 +85,7 @@ class TaskConfig:
     obstacle_clearance: float = spec(0.1, lo=0.0, hi=MAX_DISTANCE, help="collision if a pursuer centre comes closer to an obstacle (m)")
     teammate_clearance: float = spec(0.2, lo=0.0, hi=MAX_DISTANCE, help="collision if two pursuer centres come closer (m)")
     control_dt: float = spec(0.1, lo=0.0, lo_open=True, hi=1.0, help="decision interval (s)")
-    max_steps: int = spec(1000, lo=1, help="decision steps before timeout")
+    max_steps: int = spec(1000, lo=1, hi=100_000, help="decision steps before timeout")
     flight_height: float = spec(0.5, lo=0.1, hi=3.0, help="altitude the drones hold (m)")
     layout: int | str = spec(0, help="built-in layout index 0-3 or a layout file path")
     random_obstacles: int | None = spec(None, lo=0, hi=MAX_RANDOM_OBSTACLES, help="random obstacles added per episode; null: each layout's own random_obstacles.count (5 in the built-in layouts)")

@@ -387,3 +387,16 @@ def test_show_config_refuses_what_training_would_refuse(capsys):
     assert main(["train", "--config", "imitate", "--set", "ppo.learnable_gamma=true", "-sc"]) == 2
     err = capsys.readouterr().err
     assert "ppo.learnable_gamma works with algo ppo or mappo, not dagger" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("given, message", [
+    ("net.hidden=[100000000]", "key 'net.hidden': [100000000] is not a list of widths 1-4096"),
+    ("net.critic_hidden=[64, 100000000]", "key 'net.critic_hidden': [64, 100000000] is not a list of widths 1-4096"),
+    ("ppo.batch_size=1000000000", "key 'ppo.batch_size': 1000000000 is out of range (must be <= 1048576)"),
+    ("imitation.dataset_size=1000000000", "key 'imitation.dataset_size': 1000000000 is out of range (must be <= 5000000)"),
+    ("task.max_steps=100000000", "key 'task.max_steps': 100000000 is out of range (must be <= 100000)"),
+])
+def test_a_size_beyond_any_machine_is_refused_naming_its_key(given, message, capsys):
+    """These had no upper bound: a slip of a few zeros failed deep in torch's allocator, or hung."""
+    assert main(["train", "--config", "classic", "--set", given, "-sc"]) == 2
+    assert message in capsys.readouterr().err

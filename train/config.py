@@ -33,7 +33,7 @@ class PPOConfig:
     gae_lambda: float = spec(0.95, lo=0.0, hi=1.0, help="GAE lambda")
     clip: float = spec(0.2, lo=0.0, lo_open=True, hi=1.0, help="PPO ratio clip epsilon")
     epochs: int = spec(10, lo=1, hi=100, help="passes over each rollout batch")
-    batch_size: int = spec(1024, lo=2, help="pursuer transitions per update (rollout length = ceil(batch / (n_envs * pursuers)))")
+    batch_size: int = spec(1024, lo=2, hi=2**20, help="pursuer transitions per update (rollout length = ceil(batch / (n_envs * pursuers)))")
     minibatch_size: int = spec(256, lo=1, help="pursuer transitions per gradient step")
     ent_coef: float = spec(0.0, lo=0.0, help="weight of the entropy bonus")
     vf_coef: float = spec(0.5, lo=0.0, help="weight of the value loss")
@@ -75,7 +75,7 @@ class ImitationConfig:
     lr: float = spec(1e-3, lo=0.0, lo_open=True, help="Adam learning rate at the start (decays like ppo.lr if ppo.lr_decay)")
     beta_start: float = spec(1.0, lo=0.0, hi=1.0, help="chance that the teacher drives a world at a decision step, in the first update")
     beta_updates: int = spec(20, lo=0, help="updates over which the teacher's share falls linearly to 0")
-    dataset_size: int = spec(400_000, lo=1, help="pursuer observations kept (the oldest are dropped first)")
+    dataset_size: int = spec(400_000, lo=1, hi=5_000_000, help="pursuer observations kept (the oldest are dropped first)")
     grad_steps: int = spec(60, lo=1, help="gradient steps per update")
     minibatch_size: int = spec(1024, lo=1, help="demonstrations (and rollout transitions for the critic) per gradient step")
     max_grad_norm: float = spec(1.0, lo=0.0, lo_open=True, help="global gradient-norm clip")
@@ -94,22 +94,24 @@ class ResidualConfig:
     scale: float = spec(0.3, lo=0.0, lo_open=True, hi=2.0, help="weight of the actor's output in the sum, in fractions of max speed")
 
 
+MAX_WIDTH = 4096  # widest network layer accepted: far beyond any use here, so a slip of a few zeros fails early
+
+
 @dataclasses.dataclass(frozen=True)
 class NetConfig:
     """Network shape. `reference`: per-entity encoders with masked mean pooling (DESIGN.md 6)."""
 
     kind: str = spec("reference", choices=("reference", "mlp"), help="actor/critic network family")
-    encoder_width: int = spec(128, lo=1, hi=4096, help="width of each per-entity encoder")
+    encoder_width: int = spec(128, lo=1, hi=MAX_WIDTH, help="width of each per-entity encoder")
     hidden: tuple[int, ...] = spec((128, 128), help="widths of the fused trunk after the encoders")
     use_rays: bool = spec(True, help="encode the range readings (the reference study had none)")
     init_log_std: float = spec(-0.5, lo=-5.0, hi=2.0, help="initial log std of the Gaussian head")
     critic_hidden: tuple[int, ...] = spec((256, 256), help="MAPPO centralised critic widths")
 
     def validate(self, source: str = "config") -> None:
-        if not self.hidden or any(h < 1 for h in self.hidden):
-            raise ConfigError(f"{source}: net.hidden {list(self.hidden)} must list positive widths")
-        if not self.critic_hidden or any(h < 1 for h in self.critic_hidden):
-            raise ConfigError(f"{source}: net.critic_hidden {list(self.critic_hidden)} must list positive widths")
+        for key, widths in (("hidden", self.hidden), ("critic_hidden", self.critic_hidden)):
+            if not widths or any(not 1 <= h <= MAX_WIDTH for h in widths):
+                raise ConfigError(f"{key_where(source, key)}: {list(widths)} is not a list of widths 1-{MAX_WIDTH}")
 
 
 def check_indices(key: str, refs: Sequence[int | str], source: str) -> None:
