@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import glob
 import hashlib
 import os
 import re
@@ -23,7 +24,9 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         # the extension in lower case: writers that pick or check the format by it (mediapy's gif) take .GIF too
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part" + path.suffix.lower(), dir=path.parent)
+        # the writer's pid in the name: a later write of `path` removes what a killed one left (_remove_dead_parts)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}-", suffix=".part" + path.suffix.lower(),
+                                   dir=path.parent)
     except OSError as exc:  # a folder that passes the access check but takes no new file (/proc), a full disk
         raise CannotWrite(f"{path}: cannot write it ({exc.strerror or exc})") from None
     os.close(fd)
@@ -35,13 +38,45 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             os.fsync(f.fileno())
         os.replace(tmp_path, path)
         _fsync_folder(path.parent)  # the rename itself survives a power cut only once its folder is on disk
+        _remove_dead_parts(path)
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
 
 
-#: the temporary files atomic_path makes: `.NAME.XXXXXXXX.partSUFFIX` (mkstemp's eight random characters)
-_PART = re.compile(r"\..+\.[a-z0-9_]{8}\.part(\.[^.]*)?")
+#: the temporary files atomic_path makes: `.NAME.PID-XXXXXXXX.partSUFFIX` (mkstemp's eight random
+#: characters; `.NAME.XXXXXXXX.partSUFFIX` before the writer's pid was part of it)
+_PART = re.compile(r"\.(?P<name>.+)\.((?P<pid>\d+)-)?[a-z0-9_]{8}\.part(\.[^.]*)?")
+
+
+def _remove_dead_parts(path: Path) -> None:
+    """Remove the temporary files of earlier writes of `path` whose writer has died (kill -9, a
+    power cut); those of a live process (another write of the same file going on) stay."""
+    try:
+        siblings = list(path.parent.glob(f".{glob.escape(path.name)}.*.part*"))
+    except OSError:
+        return
+    for part in siblings:
+        match = _PART.fullmatch(part.name)
+        if match is None or match["name"] != path.name or match["pid"] is None or _alive(int(match["pid"])):
+            continue
+        try:
+            part.unlink()
+        except OSError:
+            pass
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process with this pid exists (one of another user's counts as alive)."""
+    if os.name == "nt":  # os.kill would end the process there, not probe it
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):
+        return True
+    return True
 
 
 def remove_leftover_parts(folder: str | Path) -> list[Path]:

@@ -333,3 +333,27 @@ def test_an_empty_output_path_is_a_usage_error_not_the_current_folder(argv, mess
         main(argv)
     err = capsys.readouterr().err.strip()
     assert exit_.value.code == 2 and len(err.splitlines()) == 1 and message in err, err
+
+
+def test_a_file_written_again_removes_what_a_killed_write_of_it_left_and_nothing_else(tmp_path):
+    """kill -9 during an eval or render left `.NAME.*.part*` (as large as the file) for good."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from pursuit_mj.io_utils import atomic_write_text
+
+    target = tmp_path / "v.mp4"
+    cut_short = ("import os, sys; from pursuit_mj.io_utils import atomic_path\n"
+                 "with atomic_path(sys.argv[1]) as tmp:\n    tmp.write_bytes(b'half a video'); os._exit(9)")
+    for name in ("v.mp4", "other.mp4"):
+        subprocess.run([sys.executable, "-c", cut_short, str(tmp_path / name)], check=False,
+                       cwd=Path(__file__).resolve().parents[1])
+    (left,) = tmp_path.glob(".v.mp4.*.part.mp4")
+    (other,) = tmp_path.glob(".other.mp4.*.part.mp4")
+    in_progress = tmp_path / f".v.mp4.{os.getppid()}-abcd1234.part.mp4"  # a live process's write
+    in_progress.write_bytes(b"being written")
+    atomic_write_text(target, "done")
+    assert target.read_text() == "done"
+    assert not left.exists() and other.exists() and in_progress.exists()
