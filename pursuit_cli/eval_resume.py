@@ -44,7 +44,7 @@ RESUME_KEYS = ("episodes", "seed", "policies", "model_sha256", "shield")
 def finished_rows(json_path: Path | None, config, meta: dict) -> dict[tuple[str, str], object]:
     """--resume: the rows (as evaluation.Row, by (policy, layout)) of the interrupted eval kept in
     interrupted_path(json_path); ValueError naming what differs if it is not this eval's."""
-    from pursuit_mj.configio import to_dict
+    from pursuit_mj.configio import first_difference, to_dict
     from pursuit_mj.evaluation import row_from_record
 
     if json_path is None:
@@ -62,9 +62,11 @@ def finished_rows(json_path: Path | None, config, meta: dict) -> dict[tuple[str,
         if stored[key] != meta[key]:
             raise ValueError(f"--resume: {key} differs from the interrupted eval's ({stored[key]!r} in {kept}, "
                              f"{meta[key]!r} now): give the same command, or run it again without --resume")
-    if data.get("config") != json.loads(json.dumps(to_dict(config))):
-        raise ValueError(f"--resume: the task config differs from the interrupted eval's (its config in {kept}): "
-                         f"give the same task flags, or run it again without --resume")
+    diff = first_difference(data.get("config"), json.loads(json.dumps(to_dict(config))))
+    if diff:
+        key, was, now = diff
+        raise ValueError(f"--resume: the task config differs from the interrupted eval's at {key or 'config'} ({was!r} "
+                         f"in {kept}, {now!r} now): give the same task flags, or run it again without --resume")
     code, was = meta["code"], data.get("code") or {}
     for key in ("source_sha256", "drone_model_sha256"):  # not git_commit: a docs-only commit keeps the rows
         if was.get(key) != code.get(key):

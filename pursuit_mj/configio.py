@@ -451,3 +451,14 @@ def _deep_update(base: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, A
 def dump_yaml(obj: Any) -> str:
     """The resolved config as YAML text."""
     return yaml.dump(to_dict(obj), Dumper=_Dumper, sort_keys=False)
+
+
+def first_difference(a: object, b: object, where: str = "") -> tuple[str, object, object] | None:
+    """(dotted key, a's value, b's value) of the first place two config dicts differ, or None."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for key in list(a) + [k for k in b if k not in a]:
+            found = first_difference(a.get(key), b.get(key), f"{where}{key}.")
+            if found:
+                return found
+        return None
+    return None if a == b else (where.rstrip("."), a, b)

@@ -17,6 +17,7 @@ from types import SimpleNamespace
 from typing import Sequence
 
 from .comparison import Paired, pair_matches
+from .configio import first_difference
 from .evaluation import OUTCOMES, Row, layout_identity, summarise
 
 POOLED_SEED = -1  # Row.seed of a pooled row: its episodes come from tables of several seeds
@@ -45,17 +46,6 @@ def _read(path: Path) -> dict:
     if not (isinstance(data, dict) and isinstance(data.get("rows"), list) and isinstance(data.get("config"), dict)):
         raise ValueError(f"{path}: not an evaluation table written by `pursuit-mj eval --out/--json` (no 'rows' and 'config')")
     return data
-
-
-def _first_difference(a: object, b: object, where: str = "") -> tuple[str, object, object] | None:
-    """(dotted key, a's value, b's value) of the first place two config dicts differ, or None."""
-    if isinstance(a, dict) and isinstance(b, dict):
-        for key in list(a) + [k for k in b if k not in a]:
-            found = _first_difference(a.get(key), b.get(key), f"{where}{key}.")
-            if found:
-                return found
-        return None
-    return None if a == b else (where.rstrip("."), a, b)
 
 
 def _task(config: dict) -> dict:
@@ -107,7 +97,7 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
         if first is None:
             first_path, first = path, data
         else:
-            diff = _first_difference(_task(first["config"]), _task(data["config"]))
+            diff = first_difference(_task(first["config"]), _task(data["config"]))
             if diff:
                 key, a, b = diff
                 raise ValueError(f"{path}: its task differs from {first_path}'s at {key} ({b!r} there, {a!r} in "

@@ -404,7 +404,7 @@ def test_resume_runs_only_the_rows_an_interrupted_eval_did_not_finish_and_gives_
     assert (tmp_path / "t.interrupted.json").is_file()
     # the same command with another task setting, or other episodes, is refused
     assert main(cmd + ["--out", str(tmp_path / "t"), "--resume", "--set", "evader_speed=0.5"]) == 2
-    assert "--resume: the task config differs from the interrupted eval's" in capsys.readouterr().err
+    assert "--resume: the task config differs from the interrupted eval's at evader_speed (0.6 in" in capsys.readouterr().err
     assert main(cmd + ["--out", str(tmp_path / "t"), "--resume", "--episodes", "4"]) == 2
     assert "--resume: episodes differs from the interrupted eval's (3 in" in capsys.readouterr().err
     monkeypatch.setenv("STOP_AT_THIRD", "0")
