@@ -52,6 +52,10 @@ def check_out_prefix(prefix: str) -> None:
     if os.path.basename(prefix) in ("", ".", ".."):
         raise ValueError(f"--out {prefix}: names a folder, not a file name prefix (PREFIX.csv, PREFIX.json are "
                          f"written); give e.g. --out {os.path.normpath(os.path.join(prefix, 'table'))}")
+    stem, ext = os.path.splitext(prefix)
+    if ext.lower() in (".csv", ".json"):  # PREFIX.json.csv and PREFIX.json.json would be written
+        raise ValueError(f"--out {prefix}: a file name prefix, to which .csv and .json are added ({prefix}.csv, "
+                         f"{prefix}.json); give --out {stem}")
 
 
 def pick_versus(flag: str | None, labels: list[str], where: str, add: str) -> str | None:

@@ -37,11 +37,12 @@ def run(args) -> int:
     from pursuit_mj.evaluation import format_table, plot_rows, write_csv, write_json
     from pursuit_mj.pooling import pool_tables, pooled_pairs
 
+    if args.out:
+        check_out_prefix(args.out)  # a usage error, before the tables are read
     pooled = pool_tables(args.files)
     labels = list(dict.fromkeys(r.policy for r in pooled.rows))
     versus = pick_versus(args.versus, labels, "these tables", "(a table that holds another)")
     if args.out:
-        check_out_prefix(args.out)
         for suffix in (".csv", ".json"):
             check_writable(Path(args.out + suffix), "--out")
     if args.plots:

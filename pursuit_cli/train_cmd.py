@@ -239,7 +239,10 @@ def run(args) -> int:
         last = cfg.run_dir / "last.pt"
         if args.resume:
             if not last.is_file():
-                raise ValueError(f"--resume: no checkpoint {last} to continue from{best_instead(cfg.run_dir)}")
+                named = ("" if args.config or args.name or best_instead(cfg.run_dir) else
+                         f" (with no --config or --name, --resume continues the run named {cfg.name!r}, the default; "
+                         f"give the run's folder instead: --resume {cfg.run.runs_dir}/NAME)")
+                raise ValueError(f"--resume: no checkpoint {last} to continue from{best_instead(cfg.run_dir)}{named}")
             given = _resumable_given(args)
             trainer = Trainer.resume(cfg.run_dir, cfg.total_steps if "total_steps" in given else None,
                                      max_minutes=cfg.max_minutes if "max_minutes" in given else None,

@@ -335,6 +335,16 @@ def test_eval_out_naming_a_folder_is_refused_not_written_as_hidden_files(prefix,
     assert not (tmp_path / "tables").exists()
 
 
+@pytest.mark.parametrize("command", ["eval", "pool"])
+def test_an_out_prefix_ending_in_a_table_extension_is_refused(command, tmp_path, capsys):
+    """--out o.json wrote o.json.csv and o.json.json."""
+    out = f"{tmp_path}/o.json"
+    args = ["--fidelity", "point", "--episodes", "1", "-q"] if command == "eval" else [str(tmp_path / "t.json")]
+    assert main([command, *args, "--out", out]) == 2
+    assert f"--out {out}: a file name prefix, to which .csv and .json are added" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("flag, value, message", [
     ("--out", "", "--out '': an empty path"),
     ("--csv", "", "--csv '': an empty path"),

@@ -400,3 +400,11 @@ def test_a_size_beyond_any_machine_is_refused_naming_its_key(given, message, cap
     """These had no upper bound: a slip of a few zeros failed deep in torch's allocator, or hung."""
     assert main(["train", "--config", "classic", "--set", given, "-sc"]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_a_bare_resume_says_it_looked_for_the_default_run_name(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "no checkpoint runs/run/last.pt" in err and "continues the run named 'run', the default" in err
+    assert "--resume runs/NAME" in err
