@@ -227,6 +227,14 @@ def check_render_settings(settings, config: TaskConfig) -> None:
 # ---------------------------------------------------------------------- run
 
 
+def table_episode_seeds(config, seed: int, episodes: int) -> list[int]:
+    """The seeds of episodes 0..episodes-1 that `eval --seed seed` plays on config's layout: render
+    --seed S shows the first episodes of that table."""
+    from pursuit_mj.evaluation import episode_seeds, layout_seed
+
+    return episode_seeds(layout_seed(seed, config.layout), episodes).tolist()
+
+
 def run(args) -> int:
     from pursuit_mj.render.episodes import EpisodeOutputs, run_episodes
     from pursuit_mj.render.renderer import RenderSettings
@@ -293,7 +301,7 @@ def run(args) -> int:
     ok = False
     try:
         run_episodes(config, policy, episodes, args.seed, settings, outputs, recording, label, on_episode=report,
-                     episode_seeds=seeds)
+                     episode_seeds=seeds or table_episode_seeds(config, args.seed, episodes))
         ok = True
     finally:
         if recording is not None:

@@ -59,6 +59,23 @@ def test_cli_single_file_and_no_video(tmp_path):
     assert not list((tmp_path / "finals").glob("*.mp4"))
 
 
+def test_render_seed_plays_the_first_episodes_of_eval_with_that_seed(tmp_path, capsys):
+    """render --seed S --episodes K played other episodes than eval --seed S, its files named seedS all the same."""
+    from pursuit_mj.config import default_config
+    from pursuit_mj.evaluation import evaluate
+    from pursuit_mj.policies import make_policy
+
+    task = default_config(fidelity="point", max_steps=60, layout=2)
+    [row] = evaluate(make_policy("heuristic", task), task, [2], episodes=2, seed=4, n_worlds=2)
+    code = main(["render", "--policy", "heuristic", "--fidelity", "point", "--set", "max_steps=60", "-i", "2",
+                 "--seed", "4", "--episodes", "2", "--no-video", "--final-frame", "--width", str(W), "--height", str(H),
+                 "-s", str(tmp_path / "r")])
+    assert code == 0
+    lines = [l for l in capsys.readouterr().out.splitlines() if l.startswith("episode ")]
+    for k, (line, (seed, outcome, steps, *_)) in enumerate(zip(lines, row.episode_log)):
+        assert line.startswith(f"episode {k}: {outcome} after {steps} steps (seed {seed})"), (line, row.episode_log)
+
+
 def test_an_episode_of_an_evaluation_table_replays_by_its_episode_seed(tmp_path, capsys):
     """eval's JSON lists each episode's seed; render --episode-seed plays that very episode
     (an episode depends on its seed alone), named after it."""
