@@ -57,7 +57,7 @@ def register(sub) -> None:
     out.add_argument("--rerun", metavar="FILE.rrd", help="record all episodes for the rerun viewer (rerun FILE.rrd)")
     run_g = p.add_argument_group("episodes and frames")
     run_g.add_argument("--episodes", type=int, help="episodes to play (default 1)")
-    run_g.add_argument("--seed", type=seed_arg, default=0, help="environment seed (default 0)")
+    run_g.add_argument("--seed", type=seed_arg, default=0, help="table seed: plays the episodes eval --seed plays on the layout (default 0)")
     run_g.add_argument("--episode-seed", type=seed_arg, action="append", metavar="N", dest="episode_seeds",
                        help="play the episode of this episode seed instead (repeatable); eval's JSON lists each "
                             "episode's seed (rows[].per_episode.seed), so an episode of an evaluation table replays "
@@ -208,7 +208,8 @@ def save_target(save_path: str, fmt: str | None) -> SaveTarget:
     if path.suffix and not folder_meant:
         suffix = path.suffix.lower().lstrip(".")
         if suffix not in VIDEO_CODECS:
-            raise ValueError(f"-s {save_path}: unknown video extension {path.suffix!r} (use .mp4 or .gif, or a folder)")
+            raise ValueError(f"-s {save_path}: unknown video extension {path.suffix!r} (use .mp4 or .gif, which "
+                             f"--final-frame follows with _final.png; for a folder end the name with /: -s {save_path}/)")
         if fmt is not None and fmt != suffix:
             raise ValueError(f"--format {fmt} contradicts -s {save_path}")
         target = SaveTarget(path.parent, path.stem, suffix, path.suffix)

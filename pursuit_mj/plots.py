@@ -98,7 +98,9 @@ def read_training_log(path: str | Path) -> list[dict[str, float]]:
         path = path / "metrics.jsonl"
     if not path.is_file():
         raise ValueError(f"training log {path}: file not found")
-    lines = _text(path, "training log").splitlines()
+    text = _text(path, "training log")
+    _refuse_an_evaluation_table(text, path)
+    lines = text.splitlines()
     rows = []
     for i, line in enumerate(lines, 1):
         if not line.strip():
@@ -115,6 +117,20 @@ def read_training_log(path: str | Path) -> list[dict[str, float]]:
     if not rows:
         raise ValueError(f"training log {path}: no rows (a metrics.jsonl of pursuit-mj train has one JSON object per line)")
     return latest_session(rows)
+
+
+def _refuse_an_evaluation_table(text: str, path: Path) -> None:
+    """ValueError pointing to --eval when `text` is the JSON of an evaluation table (pursuit-mj eval
+    --json) rather than a training log (one JSON object per line)."""
+    if not text.lstrip().startswith("{"):
+        return
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError:
+        return
+    if isinstance(data, Mapping) and "rows" in data and "update" not in data:
+        raise ValueError(f"training log {path}: an evaluation table (pursuit-mj eval --json), not a training log: "
+                         f"plot it with --eval {path}")
 
 
 def latest_session(rows: Sequence[dict[str, float]]) -> list[dict[str, float]]:

@@ -78,6 +78,15 @@ def test_malformed_line_is_named(tmp_path):
         read_training_log(tmp_path / "none.jsonl")
 
 
+def test_an_evaluation_table_given_as_a_training_log_points_to_eval(tmp_path, capsys):
+    """It said 'line 1: not JSON (Expecting property name ...)' of eval's indented JSON."""
+    table = tmp_path / "s0.json"
+    table.write_text(json.dumps(json.loads(_eval_json(tmp_path / "t.json").read_text()), indent=2))
+    assert main(["plot", "--log", str(table), "--out", str(tmp_path / "plots")]) == 2
+    assert f"training log {table}: an evaluation table (pursuit-mj eval --json), not a training log: plot it with " \
+           f"--eval {table}" in capsys.readouterr().err
+
+
 def test_default_curves_and_x_axis(tmp_path):
     runs = {"a": read_training_log(_log(tmp_path / "a.jsonl"))}
     assert x_key(runs) == "world_steps"

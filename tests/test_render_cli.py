@@ -105,7 +105,7 @@ def test_an_episode_of_an_evaluation_table_replays_by_its_episode_seed(tmp_path,
 
 
 @pytest.mark.parametrize("args, message", [
-    (["-s", "out.avi"], "unknown video extension '.avi'"),
+    (["-s", "out.avi"], "-s out.avi: unknown video extension '.avi' (use .mp4 or .gif, which --final-frame follows with _final.png; for a folder end the name with /: -s out.avi/)"),
     (["-s", "x.mp4", "--format", "gif"], "--format gif contradicts"),
     (["--camera", "side"], "--camera 'side': no such camera"),
     (["--camera", "follow:pursuer_7"], "no drone named 'pursuer_7'"),
