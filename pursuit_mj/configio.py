@@ -124,7 +124,8 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
         raise ConfigError(f"{where}: {value!r} is not one of {list(args)}")
     if origin in (tuple, Sequence, list) or hint in (tuple, list):
         if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{where}: expected a list, got {shown(value)}")
+            how = f" (write it as [{value}])" if isinstance(value, str) and "," in value else ""
+            raise ConfigError(f"{where}: expected a list, got {shown(value)}{how}")
         if origin is tuple and args and args[-1] is not Ellipsis:
             if len(args) != len(value):
                 raise ConfigError(f"{where}: expected {len(args)} values, got {list(value)!r}")

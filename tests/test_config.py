@@ -346,3 +346,10 @@ def test_a_bad_nested_key_is_named_by_its_dotted_path_and_its_suggestion_too(tmp
         load_task_config([str(task)])
     with pytest.raises(ConfigError, match=r"--set evader.panic_distance=0: key 'evader.panic_distance': 0.0 is out"):
         load_task_config([], ["evader.panic_distance=0"])
+
+
+def test_a_list_written_without_brackets_is_shown_with_them():
+    from train.config import load_train_config
+
+    with pytest.raises(ConfigError, match=r"--set layouts=0,1: key 'layouts': expected a list, got '0,1' \(write it as \[0,1\]\)"):
+        load_train_config([], ["layouts=0,1"])
