@@ -226,3 +226,8 @@ def load_model(path, spec, task: TaskConfig, flag: str = "--model"):
     if differ:  # legitimate (the study judges full_obs under partial observability), but worth knowing
         print(f"note: {flag} {path} was trained with {', '.join(differ)}", file=sys.stderr)
     return policy
+
+
+def counted(n: int, noun: str, plural: str | None = None) -> str:
+    """'1 update', '2 updates' (`plural` for nouns that do not take an s: policy, policies)."""
+    return f"{n} {noun if n == 1 else plural or noun + 's'}"

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from pursuit_mj.shipped import shipped_dir
-from .common import add_task_args, check_episodes, load_model, seed_arg, table_layouts, task_config_from_args
+from .common import add_task_args, check_episodes, counted, load_model, seed_arg, table_layouts, task_config_from_args
 
 PRETRAINED = shipped_dir("pretrained") / "pursuers.pt"
 
@@ -90,7 +90,8 @@ def run(args) -> int:
         policies.append((f"{name}+shield", shield_policy(policy, config)))
     if not args.no_heuristic:
         policies.append(("heuristic", make_policy("heuristic", config)))
-    print(f"demo: {len(policies)} policies x {len(layouts)} layouts x {args.episodes} episodes, "
+    print(f"demo: {counted(len(policies), 'policy', 'policies')} x {counted(len(layouts), 'layout')} x "
+          f"{counted(args.episodes, 'episode')}, "
           f"{config.fidelity} fidelity, {config.n_pursuers} pursuers ({config.pursuer_speed} m/s) vs "
           f"{config.n_evaders} evader{'s' if config.n_evaders > 1 else ''} ({config.evader_speed} m/s), {config.observability} observability", file=sys.stderr)
     shipped = model.resolve() == PRETRAINED.resolve()

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .common import add_task_args, check_episodes, checked_layouts, finite_float, seed_arg, task_config_from_args
+from .common import add_task_args, check_episodes, counted, checked_layouts, finite_float, seed_arg, task_config_from_args
 
 
 def register(sub) -> None:
@@ -82,7 +82,7 @@ def run(args) -> int:
               file=sys.stderr)
         raise
     print((out / "table.txt").read_text(), end="")
-    print(f"\n{result['episodes']} episodes per policy and layout; time per part:")
+    print(f"\n{counted(result['episodes'], 'episode')} per policy and layout; time per part:")
     print(format_timings(result["timings"], args.budget_minutes))
     print(f"table, charts and runs in {out}/")
     return 0

@@ -6,7 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
-from .common import finite_float
+from .common import counted, finite_float
 
 
 def steps_arg(text: str) -> int:
@@ -260,8 +260,8 @@ def run(args) -> int:
     result = trainer.train(stop_requested=lambda: bool(stops))
     c = result["counters"]
     earlier = f"; {c['seconds'] - seconds_before:.0f} s of it in this session" if seconds_before > 0 else ""
-    print(f"{result['status']}: {c['update']} updates, {c['world_steps']} world steps, "
-          f"{c['agent_steps']} agent steps, {c['episodes']} episodes in {c['seconds']:.0f} s "
+    print(f"{result['status']}: {counted(c['update'], 'update')}, {c['world_steps']} world steps, "
+          f"{c['agent_steps']} agent steps, {counted(c['episodes'], 'episode')} in {c['seconds']:.0f} s "
           f"({c['seconds'] - c.get('validation_seconds', 0.0):.0f} s training, {c.get('validation_seconds', 0.0):.0f} s validating"
           f"{earlier})")
     if c["best_update"] >= 0:

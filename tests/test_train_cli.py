@@ -28,7 +28,7 @@ def test_train_then_resume_from_the_command_line(tmp_path, capsys):
     base = ["train", "--no-progress", "--name", "cli", "--total-steps", "32"] + sets(TINY + [f"run.runs_dir={tmp_path}"])
     assert main(base) == 0
     out = capsys.readouterr().out
-    assert "2 updates" not in out and "1 updates" in out and "best validation success" in out
+    assert "2 updates" not in out and "done: 1 update," in out and "best validation success" in out
     assert "the heuristic team" in out and "capture steps per episode" in out  # validation paired with it
     assert main(["train", "--no-progress", "--resume", str(tmp_path / "cli"), "--total-steps", "64"]) == 0
     rows = [json.loads(x) for x in (tmp_path / "cli" / "metrics.jsonl").read_text().splitlines()]

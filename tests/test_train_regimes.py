@@ -119,7 +119,7 @@ def test_settings_this_combination_never_reads_are_named_when_the_run_starts(tmp
     idle = load_train_config(["classic"], ["residual.scale=0.5", "net.critic_hidden=[64]", "imitation.lr=1e-4"]).idle_settings()
     assert idle == ["residual.scale 0.5 does nothing without residual.base",
                     "net.critic_hidden [64] does nothing under algo ppo (it sizes MAPPO's critic)",
-                    "imitation.lr do(es) nothing under algo ppo (DAgger settings)"]
+                    "imitation.lr does nothing under algo ppo (DAgger settings)"]
     assert load_train_config(["mappo"], ["ppo.value_scaling=false"]).idle_settings() == [
         "ppo.value_scaling does nothing under algo mappo (its centralised critic normalises values)"]
     lines: list[str] = []
@@ -134,7 +134,7 @@ def test_ppo_update_settings_under_dagger_are_named_as_idle_and_refuse_nothing()
     ppo.minibatch_size, which it never reads, refused a smaller ppo.batch_size."""
     assert load_train_config(["imitate"], []).idle_settings() == []
     assert load_train_config(["imitate"], ["ppo.lr=1e-5", "ppo.epochs=3"]).idle_settings() == [
-        "ppo.lr, ppo.epochs do(es) nothing under algo dagger (PPO's update; DAgger's are imitation.lr, "
+        "ppo.lr, ppo.epochs do nothing under algo dagger (PPO's update; DAgger's are imitation.lr, "
         "imitation.minibatch_size, imitation.max_grad_norm, imitation.grad_steps)"]
     load_train_config(["imitate"], ["ppo.batch_size=128"]).check_complete()  # ppo.minibatch_size 256 is not used
     with pytest.raises(ValueError, match="ppo.minibatch_size 256 exceeds ppo.batch_size 128"):
@@ -145,9 +145,9 @@ def test_settings_idle_under_mlp_a_fixed_discount_or_dagger_are_named():
     """net.encoder_width and net.use_rays under net.kind mlp, the meta-gradient's settings without
     ppo.learnable_gamma and run.overlap under DAgger changed nothing without a word."""
     assert load_train_config(["classic"], ["net.kind=mlp", "net.encoder_width=64", "net.use_rays=false"]).idle_settings() == [
-        "net.encoder_width, net.use_rays do(es) nothing under net.kind mlp (the reference network's entity encoders)"]
+        "net.encoder_width, net.use_rays do nothing under net.kind mlp (the reference network's entity encoders)"]
     assert load_train_config(["classic"], ["ppo.gamma_meta_lr=0.01", "ppo.gamma_outer=0.9"]).idle_settings() == [
-        "ppo.gamma_meta_lr, ppo.gamma_outer do(es) nothing without ppo.learnable_gamma (they tune the learned discount)"]
+        "ppo.gamma_meta_lr, ppo.gamma_outer do nothing without ppo.learnable_gamma (they tune the learned discount)"]
     assert load_train_config(["classic"], ["ppo.learnable_gamma=true", "ppo.gamma_outer=0.9"]).idle_settings() == []
     assert load_train_config(["imitate"], ["run.overlap=true"]).idle_settings() == [
         "run.overlap does nothing under algo dagger (it always collects in turn: the teacher's labels feed the update)"]
@@ -225,7 +225,7 @@ def test_an_anchor_needs_a_start_and_is_idle_under_dagger():
     with pytest.raises(ConfigError, match=r"ppo.anchor_coef 0.5 needs init_from"):
         load_train_config(["classic"], ["ppo.anchor_coef=0.5"]).check_complete()
     assert load_train_config(["imitate"], ["ppo.anchor_coef=0.5"]).idle_settings() == [
-        "ppo.anchor_coef do(es) nothing under algo dagger (PPO's update; DAgger's are imitation.lr, "
+        "ppo.anchor_coef does nothing under algo dagger (PPO's update; DAgger's are imitation.lr, "
         "imitation.minibatch_size, imitation.max_grad_norm, imitation.grad_steps)"]
     with pytest.raises(ConfigError, match=r"ppo.anchor_coef.*-1"):
         load_train_config(["classic"], ["ppo.anchor_coef=-1"])
@@ -402,7 +402,7 @@ def test_a_critic_warmup_holds_the_actor_while_a_fresh_critic_learns(tmp_path, s
     trainer.close()
     with pytest.raises(ConfigError, match=r"ppo.critic_warmup.*-1"):
         load_train_config(["classic"], ["ppo.critic_warmup=-1"])
-    assert load_train_config(["imitate"], ["ppo.critic_warmup=3"]).idle_settings()[0].startswith("ppo.critic_warmup do(es) nothing")
+    assert load_train_config(["imitate"], ["ppo.critic_warmup=3"]).idle_settings()[0].startswith("ppo.critic_warmup does nothing")
 
 
 @pytest.mark.parametrize("overlap", ["false", "true"])
@@ -440,7 +440,7 @@ def test_a_run_in_turn_stops_labelling_once_the_teachers_weight_has_reached_0(tm
 def test_a_teacher_is_refused_under_a_residual_and_idle_under_dagger():
     with pytest.raises(ConfigError, match=r"ppo.teacher_coef 1 .*residual.base 'heuristic'"):
         load_train_config(["residual"], ["ppo.teacher_coef=1"]).check_complete()
-    assert load_train_config(["imitate"], ["ppo.teacher_coef=1"]).idle_settings()[0].startswith("ppo.teacher_coef do(es) nothing")
+    assert load_train_config(["imitate"], ["ppo.teacher_coef=1"]).idle_settings()[0].startswith("ppo.teacher_coef does nothing")
     with pytest.raises(ConfigError, match=r"ppo.teacher_coef.*-1"):
         load_train_config(["classic"], ["ppo.teacher_coef=-1"])
     assert load_train_config(["classic"], ["ppo.teacher_updates=5"]).idle_settings() == [

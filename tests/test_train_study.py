@@ -151,7 +151,7 @@ def test_an_interrupted_study_resumes_keeping_its_finished_arms_and_evaluations(
     out = capsys.readouterr().out
     assert "full_obs: trained in an earlier session, kept" in out and "resuming classic" in out
     assert "fine_tune: finished in an earlier session (stopped before the study recorded it), kept" in out
-    assert "heuristic: 1 of 1 layouts evaluated in an earlier session, kept" in out  # evaluated before classic stopped
+    assert "heuristic: 1 of 1 layout evaluated in an earlier session, kept" in out  # evaluated before classic stopped
     assert played == ["full_obs", "fine_tune", "classic", "mappo"]
     assert (out_dir / "runs" / "fine_tune" / "metrics.jsonl").read_text() == fine_tune_log
     assert (out_dir / "runs" / "full_obs" / "metrics.jsonl").read_text() == kept
@@ -167,7 +167,7 @@ def test_an_interrupted_study_resumes_keeping_its_finished_arms_and_evaluations(
     assert main(["study", "--budget-minutes", "0.1", "--resume", *args]) == 0
     out = capsys.readouterr().out
     assert played == ["mappo", "imitate", "imitate_ppo", "residual@heuristic+shield", "belief+shield", "belief_ppo+shield"]
-    assert "classic: 1 of 1 layouts evaluated in an earlier session, kept" in out
+    assert "classic: 1 of 1 layout evaluated in an earlier session, kept" in out
     table = json.loads((out_dir / "table.json").read_text())
     assert len({r["policy"] for r in table["rows"]}) == 10  # the heuristic team and all nine arms
     by_policy = {r["policy"]: r for r in table["rows"]}

@@ -240,7 +240,7 @@ class TrainConfig:
             if users:
                 raise ConfigError(f"{source}: task.n_rays {self.task.n_rays}: the heuristic team and the shield see walls "
                                   f"only through range readings and need at least {MIN_RAYS}; {', '.join(users)} "
-                                  f"use(s) them (raise task.n_rays, or turn those off)")
+                                  f"{'uses' if len(users) == 1 else 'use'} them (raise task.n_rays, or turn those off)")
 
     def layout_files(self) -> list[tuple[str, str]]:
         """(key, path) of every layout file the run names (task.layout, layouts,
@@ -287,11 +287,11 @@ class TrainConfig:
         if self.net.kind == "mlp":
             changed = [k for k in ("encoder_width", "use_rays") if getattr(self.net, k) != getattr(default.net, k)]
             if changed:
-                idle.append(f"net.{', net.'.join(changed)} do(es) nothing under net.kind mlp (the reference network's entity encoders)")
+                idle.append(f"net.{', net.'.join(changed)} {_do(changed)} nothing under net.kind mlp (the reference network's entity encoders)")
         if not self.ppo.learnable_gamma:
             changed = [k for k in ("gamma_meta_lr", "gamma_outer") if getattr(self.ppo, k) != getattr(default.ppo, k)]
             if changed:
-                idle.append(f"ppo.{', ppo.'.join(changed)} do(es) nothing without ppo.learnable_gamma (they tune the learned discount)")
+                idle.append(f"ppo.{', ppo.'.join(changed)} {_do(changed)} nothing without ppo.learnable_gamma (they tune the learned discount)")
         if self.algo != "dagger" and self.ppo.teacher_coef == 0 and self.ppo.teacher_updates != default.ppo.teacher_updates:
             idle.append(f"ppo.teacher_updates {self.ppo.teacher_updates} does nothing without ppo.teacher_coef (it schedules "
                         "the teacher's weight)")
@@ -314,13 +314,13 @@ class TrainConfig:
                 idle.append(f"imitation.beta_updates {im.beta_updates} does nothing with imitation.beta_start 0 {never}")
             changed = [k for k in PPO_UPDATE_ONLY if getattr(self.ppo, k) != getattr(default.ppo, k)]
             if changed:
-                idle.append(f"ppo.{', ppo.'.join(changed)} do(es) nothing under algo dagger (PPO's update; DAgger's are "
+                idle.append(f"ppo.{', ppo.'.join(changed)} {_do(changed)} nothing under algo dagger (PPO's update; DAgger's are "
                             "imitation.lr, imitation.minibatch_size, imitation.max_grad_norm, imitation.grad_steps)")
         else:
             changed = [f.name for f in dataclasses.fields(ImitationConfig)
                        if getattr(self.imitation, f.name) != getattr(default.imitation, f.name)]
             if changed:
-                idle.append(f"imitation.{', imitation.'.join(changed)} do(es) nothing under algo {self.algo} (DAgger settings)")
+                idle.append(f"imitation.{', imitation.'.join(changed)} {_do(changed)} nothing under algo {self.algo} (DAgger settings)")
         return idle
 
     @property
@@ -338,6 +338,11 @@ def _deep_update(base: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, A
     for k, v in new.items():
         out[k] = _deep_update(out[k], v) if isinstance(v, Mapping) and isinstance(out.get(k), Mapping) else v
     return out
+
+
+def _do(names: Sequence[str]) -> str:
+    """The verb for a list of settings: 'ppo.lr does', 'ppo.lr, ppo.clip do'."""
+    return "does" if len(names) == 1 else "do"
 
 
 def _is_file_ref(ref: Any) -> bool:

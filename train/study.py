@@ -150,7 +150,11 @@ def _rounded_up(minutes: float) -> str:
 
 
 def _runs(n: int) -> str:
-    return f"{n} run{'s' if n != 1 else ''}"
+    return _count(n, "run")
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}{'s' if n != 1 else ''}"
 
 
 def _duration(seconds: float) -> str:
@@ -253,13 +257,13 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
                              f"(raise the budget to about {_rounded_up(needed)} min)")
         kept.start(episodes)
         planned = (eval_seconds(timings["evaluation speed probe"], probe, episodes), train_minutes * 60.0)
-        log(f"[study] {episodes} episodes per policy and layout" + (f"; {_duration(train_minutes * 60)} left for training" if todo else ""))
+        log(f"[study] {_count(episodes, 'episode')} per policy and layout" + (f"; {_duration(train_minutes * 60)} left for training" if todo else ""))
         if episodes < min(plan.episodes, FEW_EPISODES):
             log(f"[study] warning: {episodes} episodes per layout give wide intervals (a single episode decides "
                 f"{100 / episodes:.0f} points of success); a larger budget buys more")
     else:
         episodes = kept.episodes
-        log(f"[study] {episodes} episodes per policy and layout, as the earlier session chose")
+        log(f"[study] {_count(episodes, 'episode')} per policy and layout, as the earlier session chose")
     rows, played_s = _evaluate_cells(kept, HEURISTIC, heuristic, "heuristic", plan, episodes, log)
     _time_cells(timings, "heuristic", played_s, kept.seconds(HEURISTIC))
     heuristic_s = kept.seconds(HEURISTIC)  # the whole team's evaluation, in whichever session it was played
@@ -358,7 +362,7 @@ def _evaluate_cells(kept: KeptEvaluation, key: str, policy, label: str, plan: St
             reused += 1
         rows.append(row)
     if reused:
-        log(f"[study] {label}: {reused} of {len(plan.layouts)} layouts evaluated in an earlier session, kept")
+        log(f"[study] {label}: {reused} of {_count(len(plan.layouts), 'layout')} evaluated in an earlier session, kept")
     return rows, played_s
 
 
