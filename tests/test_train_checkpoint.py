@@ -683,3 +683,14 @@ def test_a_run_on_a_layout_file_resumes_from_any_folder_and_not_on_a_changed_fil
     with pytest.raises(ValueError, match=rf"--resume {cfg.run_dir}: layout file {start / 'arena.yaml'} \(task.layout\) "
                                          r"has changed since the run started"):
         Trainer.resume(cfg.run_dir, total_steps=96, log=lambda s: None)
+
+
+def test_a_resume_says_which_rows_its_metrics_log_has_lost(tmp_path):
+    """A deleted (or cut) metrics.jsonl went unnoticed: the log went on from the next update."""
+    cfg = tiny_config(tmp_path, updates=2)
+    Trainer(cfg, log=lambda s: None).train()
+    (cfg.run_dir / "metrics.jsonl").unlink()
+    said = []
+    Trainer.resume(cfg.run_dir, total_steps=32 * 3, log=said.append).train()
+    assert any("metrics.jsonl lacks the rows of updates 1-2" in line for line in said), said
+    assert [r["update"] for r in rows(cfg.run_dir)] == [3]

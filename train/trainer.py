@@ -229,7 +229,15 @@ class Trainer:
         self._adopt_newer_best()
         # a row still pending may have reached the log before the run was stopped: it is logged again
         logged = self.counters.update - (1 if data.get("pending_row") else 0)
-        MetricsLog(self.run_dir / "metrics.jsonl").truncate_after(logged)
+        metrics = MetricsLog(self.run_dir / "metrics.jsonl")
+        metrics.truncate_after(logged)
+        missing = sorted(set(range(1, logged + 1)) - {r.get("update") for r in metrics.rows()})
+        if missing:  # the file deleted or cut by hand: the curves will have a gap
+            span = f"{missing[0]}-{missing[-1]}" if len(missing) > 1 else f"{missing[0]}"
+            if missing[-1] - missing[0] + 1 != len(missing):
+                span += f" ({len(missing)} of them)"
+            self.log(f"note: {metrics.path} lacks the rows of updates {span} (deleted or cut since they were "
+                     f"logged); the log goes on from update {logged + 1}")
         self.log(f"resumed {self.run_dir} at update {self.counters.update} ({self.counters.world_steps} world steps)")
 
     def _adopt_newer_best(self) -> None:
