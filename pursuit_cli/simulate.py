@@ -16,7 +16,7 @@ import numpy as np
 from pursuit_mj.config import TaskConfig, default_config, load_task_yaml, preset_or_file
 from pursuit_mj.controller import tilt_angle
 from pursuit_mj.layout import N_BUILTIN, Layout, load_layout
-from pursuit_mj.layout_check import free_spawn_points
+from pursuit_mj.layout_check import check_spawn_capacity, free_spawn_points
 from pursuit_mj.physics import BatchedPhysics
 from .common import add_task_args, finite_float, seed_arg, task_config_from_args
 
@@ -155,6 +155,8 @@ def run(args) -> int:
     fidelities = [base.fidelity] if _chosen(args, base, "fidelity") else ["quadrotor", "point"]
     team = f"{base.n_pursuers} pursuer{'s' if base.n_pursuers > 1 else ''} + {base.n_evaders} evader{'s' if base.n_evaders > 1 else ''}"
     loaded = [load_layout(ref) for ref in layouts]  # a bad layout is refused before the table starts
+    for layout in loaded:  # and so is a spawn region the team does not fit
+        check_spawn_capacity(layout, base.n_pursuers, base.n_evaders, SPAWN_SEPARATION)
     print(f"scripted flight: {team} fly to the middle, then circle it; "
           f"{n_steps * base.control_dt:g} s ({n_steps} decision steps) per run, control_dt {base.control_dt:g} s, physics_dt {base.physics_dt:g} s")
     print(f"{'layout':<10} {'fidelity':<9} {'sim s':>6} {'wall s':>7} {'RTF':>7} {'max|dz| cm':>10} {'tilt deg':>9}  contacts (drone x steps)")

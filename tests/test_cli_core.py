@@ -27,6 +27,17 @@ def test_simulate_refuses_a_missing_layout_before_printing_its_table(tmp_path, c
     assert out == "" and "none.yaml': no such file" in err
 
 
+def test_simulate_refuses_a_spawn_region_too_small_for_the_team_before_printing_its_table(tmp_path, capsys):
+    """It printed the table's header, then the error."""
+    small = tmp_path / "small.yaml"
+    small.write_text("name: small\narena: {width: 3.6, height: 5.0}\n"
+                     "spawn:\n  pursuers: {x: [0.2, 0.3], y: [0.2, 0.3]}\n  evaders: {x: [0.2, 3.4], y: [4.2, 4.8]}\n")
+    assert main(["simulate", "-i", str(small)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert f"the spawn region of {small} (x=[0.2, 0.3], y=[0.2, 0.3]) cannot reliably hold 3 pursuers 0.35 m apart" in captured.err
+
+
 def test_simulate_flies_only_the_layout_and_fidelity_chosen_through_set(capsys):
     assert main(["simulate", "--seconds", "0.2", "--set", "fidelity=point", "--set", "layout=1"]) == 0
     rows = [line.split()[:2] for line in capsys.readouterr().out.splitlines() if line.split()[:1] in (["open"], ["walls"], ["bars"], ["cluttered"])]
