@@ -153,6 +153,16 @@ def termination_as_interrupt(stops: list[str] | None = None):
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The `pursuit-mj` command: `argv` (default sys.argv[1:]) -> exit code."""
+    try:
+        return _run(argv)
+    finally:
+        if argv is None and threading.current_thread() is threading.main_thread():
+            # the process itself (not a caller in Python) ends now: a Ctrl-C during Python's exit
+            signal.signal(signal.SIGINT, signal.SIG_IGN)  # handlers would only print a traceback
+
+
+def _run(argv: list[str] | None) -> int:
     starting: list[str] = []
     try:  # the imports take a second or more: a Ctrl-C or kill meanwhile is a stop, not a crash
         with termination_as_interrupt(starting):

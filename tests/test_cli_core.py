@@ -368,3 +368,21 @@ def test_a_file_written_again_removes_what_a_killed_write_of_it_left_and_nothing
     atomic_write_text(target, "done")
     assert target.read_text() == "done"
     assert not left.exists() and other.exists() and in_progress.exists()
+
+
+def test_a_ctrl_c_while_the_command_line_process_exits_prints_no_traceback():
+    """Ctrl-C pressed again while Python ran its exit handlers (torch's, after a run had been
+    stopped and saved) printed 'Exception ignored in atexit callback ... KeyboardInterrupt'."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import atexit, os, signal, sys, time\n"
+            "atexit.register(lambda: (os.kill(os.getpid(), signal.SIGINT), time.sleep(0.2)))\n"
+            "sys.argv = ['pursuit-mj', 'config', '--set', 'max_steps=5']\n"
+            "from pursuit_cli import main\n"
+            "sys.exit(main())\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                          cwd=Path(__file__).resolve().parents[1])
+    assert proc.returncode == 0 and "max_steps: 5" in proc.stdout
+    assert "KeyboardInterrupt" not in proc.stderr and "Exception ignored" not in proc.stderr, proc.stderr
