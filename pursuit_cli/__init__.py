@@ -176,7 +176,7 @@ def _run(argv: list[str] | None) -> int:
     except KeyboardInterrupt:
         by = f" by {starting[0]}" if starting and starting[0] != "SIGINT" else ""
         print(f"pursuit-mj: interrupted{by} while starting", file=sys.stderr)
-        return 130
+        return stop_exit_code(starting[0] if starting else "SIGINT")
     argv = sys.argv[1:] if argv is None else list(argv)
     if not argv:  # a bare `pursuit-mj`: show what there is
         parser.print_help(sys.stderr)
@@ -256,10 +256,20 @@ def _where(exc: BaseException) -> str:
 
 
 def _interrupted(args: argparse.Namespace, signal_name: str) -> int:
-    """Say that the command was stopped (by SIGTERM/SIGHUP when one of them did it); exit code 130."""
+    """Say that the command was stopped (by SIGTERM/SIGHUP when one of them did it); returns its
+    exit code (stop_exit_code)."""
     by = f" by {signal_name}" if signal_name.startswith("SIG") and signal_name != "SIGINT" else ""
     print(f"pursuit-mj {args.command}: interrupted{by}", file=sys.stderr)
-    return 130
+    return stop_exit_code(signal_name)
+
+
+def stop_exit_code(signal_name: str) -> int:
+    """The exit code of a command stopped by a signal, as a shell reports a process it ended:
+    128 + its number (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP); 130 when no signal is named."""
+    try:
+        return 128 + signal.Signals[signal_name].value
+    except KeyError:
+        return 130
 
 
 if __name__ == "__main__":

@@ -277,4 +277,8 @@ def run(args) -> int:
               + (f"; caught by one side only: policy {val['vs_heuristic_only_policy']}, team {val['vs_heuristic_only_heuristic']} "
                  f"(McNemar p {val['vs_heuristic_success_p']:.3g})" if "vs_heuristic_success_p" in val else ""))
     print(f"last checkpoint: {Path(result['run_dir']) / 'last.pt'}; metrics: {Path(result['run_dir']) / 'metrics.jsonl'}")
-    return 130 if result["status"] == "interrupted" else 0
+    if result["status"] != "interrupted":
+        return 0
+    from . import stop_exit_code
+
+    return stop_exit_code(stops[0] if stops else "SIGINT")

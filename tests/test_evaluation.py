@@ -381,7 +381,7 @@ def test_an_interrupted_eval_keeps_its_finished_cells_beside_the_table_it_was_as
     monkeypatch.setattr(evaluation, "evaluate", evaluate_then_stopped)
     code = main(["eval", "--policy", "heuristic", "--policy", "random", "--layouts", "0", "1", "--episodes", "2",
                  "--worlds", "2", "--fidelity", "point", "--set", "max_steps=20", "--out", str(tmp_path / "t"), "-q"])
-    assert code == 130
+    assert code == 143  # 128 + SIGTERM
     err = capsys.readouterr().err
     assert "[eval] interrupted; the 2 finished policy-layout cells:" in err and err.endswith("pursuit-mj eval: interrupted by SIGTERM\n")
     kept = json.loads((tmp_path / "t.interrupted.json").read_text())
@@ -410,7 +410,7 @@ def test_resume_runs_only_the_rows_an_interrupted_eval_did_not_finish_and_gives_
 
     monkeypatch.setattr(evaluation, "evaluate", evaluate_counted)
     monkeypatch.setenv("STOP_AT_THIRD", "1")
-    assert main(cmd + ["--out", str(tmp_path / "t")]) == 130
+    assert main(cmd + ["--out", str(tmp_path / "t")]) == 143  # stopped by SIGTERM
     assert (tmp_path / "t.interrupted.json").is_file()
     # the same command with another task setting, or other episodes, is refused
     assert main(cmd + ["--out", str(tmp_path / "t"), "--resume", "--set", "evader_speed=0.5"]) == 2
