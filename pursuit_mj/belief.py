@@ -27,7 +27,7 @@ import numpy as np
 
 from .heuristic import HeuristicTeam
 from .obs_spec import ObsSpec
-from .policy import Policy
+from .policy import Policy, check_world_ids
 
 AGE_CAP = 5.0  # s: older knowledge reads as this old (keeps the input in a tanh encoder's range)
 
@@ -120,6 +120,7 @@ class BeliefPolicy:
         self.has_shield = bool(getattr(policy, "has_shield", False))
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
+        world_ids = check_world_ids(world_ids, n_worlds, f"policy {self.name}")
         self.belief.reset(n_worlds, world_ids)
         self.policy.reset(n_worlds, world_ids)
 

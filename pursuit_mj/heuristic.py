@@ -33,7 +33,7 @@ import numpy as np
 
 from .coverage import CoverageMap, CoverageParams
 from .obs_spec import ObsSpec, named_views
-from .policy import check_observations
+from .policy import check_observations, check_world_ids
 from .planar import clip_unit, unit
 from .shield import SafetyShield, ShieldParams, check_rays
 
@@ -139,6 +139,7 @@ class HeuristicTeam:
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
         """Forget the listed worlds (all, and resize, when world_ids is None)."""
+        world_ids = check_world_ids(world_ids, n_worlds, f"policy {self.name}")
         self.shield.reset(n_worlds, world_ids)
         if world_ids is None or self._n_worlds != n_worlds:
             self._n_worlds = int(n_worlds)

@@ -35,6 +35,21 @@ def check_observations(obs, spec: ObsSpec, who: str) -> np.ndarray:
     return a
 
 
+def check_world_ids(world_ids, n_worlds: int, who: str) -> np.ndarray | None:
+    """world_ids as an int64 array (None stays None), or ValueError naming `who` for ids that are
+    not worlds 0..n_worlds-1 (a world whose memory a wrong id leaves would go on remembering)."""
+    if world_ids is None:
+        return None
+    ids = np.asarray(world_ids)
+    if ids.ndim != 1 or not (np.issubdtype(ids.dtype, np.integer) or ids.size == 0):
+        raise ValueError(f"{who}: world ids must be a 1-D list of integers, got {world_ids!r}")
+    ids = ids.astype(np.int64)
+    bad = ids[(ids < 0) | (ids >= n_worlds)]
+    if bad.size:
+        raise ValueError(f"{who}: world ids {bad.tolist()} are not among the {n_worlds} worlds (0-{n_worlds - 1})")
+    return ids
+
+
 class RandomPolicy:
     """Uniform random actions; a floor every policy must beat.
 
@@ -51,6 +66,7 @@ class RandomPolicy:
         self._steps = np.zeros(0, np.int64)  # (W,) decision steps since each world's reset
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
+        world_ids = check_world_ids(world_ids, n_worlds, f"policy {self.name}")
         if world_ids is None or len(self._steps) != n_worlds:
             self._steps = np.zeros(n_worlds, np.int64)
         else:

@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from .obs_spec import ObsSpec
-from .policy import Policy
+from .policy import Policy, check_world_ids
 from .planar import clip_unit
 from .shield import SafetyShield, Shielded
 
@@ -47,6 +47,7 @@ class ResidualTeam:
         self.name = f"{correction.name}@{base.name}"
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
+        world_ids = check_world_ids(world_ids, n_worlds, f"policy {self.name}")
         self.base.reset(n_worlds, world_ids)
         self.correction.reset(n_worlds, world_ids)
 

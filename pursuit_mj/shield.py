@@ -48,7 +48,7 @@ import numpy as np
 
 from .obs_spec import ObsSpec, named_views
 from .planar import EPS, clip_unit, limit_closing, norm, unit
-from .policy import Policy, check_observations
+from .policy import Policy, check_observations, check_world_ids
 from .sensing import heading_min_speed
 
 MIN_RAYS = 8  # range readings the shield (and the heuristic team) need to keep off walls: they see walls through nothing else
@@ -316,6 +316,7 @@ class Shielded:
         self.name = f"{self._inner}+shield"
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
+        world_ids = check_world_ids(world_ids, n_worlds, f"policy {self.name}")
         self.policy.reset(n_worlds, world_ids)
         self.shield.reset(n_worlds, world_ids)
 

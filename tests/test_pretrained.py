@@ -6,6 +6,7 @@ pretrained/README.md)."""
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import pytest
 
@@ -37,3 +38,26 @@ def test_the_kept_candidates_catch_the_evader_on_the_cluttered_layout(model):
     # PPO stage in quadrotor fidelity (belppo_quad), then one with the team as a teacher in long
     # chases (belppo_kick), which meets issue 4's reference numbers
     assert _successes(3, 1, layout=3, episodes=8, model=model) >= 7
+
+
+@pytest.mark.parametrize("kind", ["random", "heuristic", "pursuers.pt", "belppo_kick.pt", "residual"])
+def test_a_reset_of_worlds_that_do_not_exist_is_refused_naming_the_policy(kind):
+    """The heuristic team and loaded networks ignored ids past the worlds (a world's memory was
+    then never cleared); the random team failed with numpy's IndexError."""
+    from pursuit_mj.policies import make_policy
+    from pursuit_mj.residual import ResidualTeam
+
+    task = default_config(fidelity="point")
+    spec = ObsSpec.make(task.n_pursuers, task.n_evaders, task.n_rays)
+    if kind.endswith(".pt"):
+        policy = load_policy(shipped_dir("pretrained") / kind, spec, task=task)
+    elif kind == "residual":
+        policy = ResidualTeam(make_policy("heuristic", task), make_policy("random", task), 0.5)
+    else:
+        policy = make_policy(kind, task)
+    policy.reset(2)
+    with pytest.raises(ValueError, match=rf"policy {re.escape(policy.name)}: world ids \[5\] are not among the 2 worlds \(0-1\)"):
+        policy.reset(2, [0, 5])
+    with pytest.raises(ValueError, match=rf"policy {re.escape(policy.name)}: world ids must be a 1-D list of integers"):
+        policy.reset(2, [0.5])
+    policy.reset(2, [1])  # a good id is taken

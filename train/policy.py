@@ -18,7 +18,7 @@ from pursuit_mj.belief import Belief, BeliefPolicy, BeliefTeam, belief_spec
 from pursuit_mj.config import TaskConfig
 from pursuit_mj.configio import build
 from pursuit_mj.obs_spec import ObsSpec
-from pursuit_mj.policy import Policy
+from pursuit_mj.policy import Policy, check_world_ids
 from pursuit_mj.policies import make_policy
 from pursuit_mj.residual import acting_team
 from pursuit_mj.shield import SafetyShield
@@ -64,7 +64,8 @@ class ActorPolicy:
         self.generator = torch.Generator().manual_seed(seed)
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
-        """The reference actor has no memory; nothing to forget."""
+        """The reference actor has no memory; nothing to forget (the ids are checked all the same)."""
+        check_world_ids(world_ids, n_worlds, f"policy {self.name}")
 
     def _forward(self, rows: torch.Tensor, spec: ObsSpec) -> tuple[torch.Tensor, torch.Tensor]:
         """The actor on rows (R, dim) in blocks of exactly ROWS_PER_FORWARD (the last padded).
