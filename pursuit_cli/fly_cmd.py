@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import logging
 import math
@@ -42,22 +43,25 @@ def register(sub) -> None:
 
     actions = p.add_subparsers(dest="fly_action", metavar="[check | align]")
     c = actions.add_parser("check", help="validate a flight file and show the plan; no radio is touched")
-    _flight_args(c)
+    _flight_args(c, given_before=True)
     c.set_defaults(func=run_check)
     a = actions.add_parser("align", help="measure the lab -> layout transform from drones placed at known layout spots (Lighthouse/Loco)")
-    _flight_args(a)
+    _flight_args(a, given_before=True)
     a.add_argument("--spots", required=True, help="the layout spots of the drones, flight-file order: 'x,y x,y ...' (m)")
     a.add_argument("--lab", help="lab positions 'x,y x,y ...' (m) measured otherwise; skips the radio")
-    a.add_argument("--virtual", action="store_true", help="measure virtual drones standing at their starts")
+    a.add_argument("--virtual", action="store_true", default=argparse.SUPPRESS, help="measure virtual drones standing at their starts")
     a.add_argument("--window", type=finite_float, default=1.0, help="seconds of estimates averaged per drone")
     a.add_argument("--write", metavar="OUT.yaml", help="write a copy of the flight file with the measured transform (comments are not kept)")
     a.set_defaults(func=run_align)
 
 
-def _flight_args(p) -> None:
-    p.add_argument("--flight", required=False, metavar="FILE.yaml|PRESET",
+def _flight_args(p, given_before: bool = False) -> None:
+    """--flight and --set; on `check` and `align` (given_before) they default to what was given
+    before the action (`fly --flight F check`), which argparse would otherwise drop."""
+    flight_default, set_default = (argparse.SUPPRESS, argparse.SUPPRESS) if given_before else (None, [])
+    p.add_argument("--flight", required=False, default=flight_default, metavar="FILE.yaml|PRESET",
                    help="the flight file, or a preset of configs/flight/ by name: example, lighthouse (see configs/flight/example.yaml)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+    p.add_argument("--set", dest="overrides", action="append", default=set_default, metavar="KEY=VALUE",
                    help="override a task key of the flight, e.g. --set pursuer_speed=0.25 (repeatable)")
 
 
@@ -180,7 +184,15 @@ def run(args) -> int:
     print(f"outcome: {result.outcome} ({result.reason}); chase {result.chase_time:.1f} s, {result.captures} capture(s), "
           f"{len(result.steps)} decision steps; landed: {_landed(result, plan)}")
     print(f"events: {events_path}" + (f"; rerun: {args.rerun}" if args.rerun else ""))
+    if result.outcome == "interrupted" and result.reason in STOP_SIGNALS:  # landed after a stop signal
+        from . import stop_exit_code
+
+        return stop_exit_code(STOP_SIGNALS[result.reason])
     return 0 if result.outcome in ("captured", "timeout") else 1
+
+
+#: the flight's names of the stop signals it lands on (flight.bridge), as signal names
+STOP_SIGNALS = {"Ctrl-C": "SIGINT", "SIGTERM": "SIGTERM", "SIGHUP": "SIGHUP", "Ctrl-Z": "SIGTSTP"}
 
 
 def run_align(args) -> int:

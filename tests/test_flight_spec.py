@@ -782,3 +782,29 @@ def test_an_empty_section_means_its_defaults(key):
     """`task:` with every line below it commented out (YAML null) was refused while an empty
     `safety:` or `transform:` meant their defaults: all three now mean their defaults."""
     assert flight_from_dict(flight(**{key: None}), "f.yaml") == flight_from_dict({k: v for k, v in flight().items() if k != key}, "f.yaml")
+
+
+def test_flight_options_given_before_check_or_align_are_kept(capsys):
+    """`fly --flight F check` said --flight was required, and `fly --set K=V check --flight F`
+    showed the plan without the override: the action's own defaults replaced them."""
+    from pursuit_cli import main
+
+    assert main(["fly", "--flight", EXAMPLE, "check"]) == 0
+    assert main(["fly", "--set", "pursuer_speed=0.2", "check", "--flight", EXAMPLE]) == 0
+    assert "pursuers 0.2 m/s" in capsys.readouterr().out
+    assert main(["fly", "--flight", "lighthouse", "align", "--spots", "0.5,0.625 1.75,0.625 1.875,4.0",
+                 "--lab", "0.5,0.625 1.75,0.625 1.875,4.0"]) == 0
+
+
+@pytest.mark.parametrize("reason, code", [("Ctrl-C", 130), ("SIGTERM", 143), ("SIGHUP", 129)])
+def test_a_flight_landed_after_a_stop_signal_exits_as_a_stopped_command_does(reason, code, monkeypatch):
+    """It exited 1, as after a failure; before take-off the same signal gave 130."""
+    from pursuit_cli import main
+    import pursuit_mj.flight.session as session
+    from pursuit_mj.flight.bridge import FlightResult
+
+    def landed_on(plan, policy, **kwargs):
+        return FlightResult("interrupted", reason, 3.0, 0, [], True, np.zeros(4)), None
+
+    monkeypatch.setattr(session, "run_flight", landed_on)
+    assert main(["fly", "--flight", EXAMPLE, "--policy", "heuristic", "--virtual", "--events", "/dev/null"]) == code
