@@ -134,6 +134,7 @@ def test_a_bad_flight_file_is_refused_naming_file_and_key(edit, words):
         ({"transform": {"scale": 0.1}, "safety": {"min_separation": 3.5}}, ["min_separation", "no capture"]),
         ({"safety": {"min_separation": 0.29}, "transform": {"scale": 1.2}}, ["min_separation", "capture distance"]),
         ({"task": {"n_pursuers": 5}}, ["task", "n_pursuers", "set by the flight"]),
+        ({"task": {"random_obstacles": 3}}, ["task", "random_obstacles", "none drawn at random"]),
         ({"task": {"fidelity": "point"}}, ["task", "'fidelity' means nothing in a flight"]),
         ({"decision_rate": 0.5}, ["decision_rate", "out of range"]),
         # a geofence margin of zero or inside the task's collision clearance
@@ -392,7 +393,7 @@ def test_faults_parse_with_drone_names_and_values():
     f = parse_fault("battery:e0@4.5=3.1", plan)
     assert (f.kind, f.drone, f.at, f.value) == ("battery", 3, 4.5, 3.1)
     assert parse_fault("drop_link:p1@.5", plan).at == 0.5 and parse_fault("battery:e0@3.=3", plan).value == 3.0
-    for bad, words in (("explode:p0@1", "unknown fault"), ("drop_link:p9@1", "no drone named 'p9'"), ("battery:p0@1", "needs a voltage"), ("p0", "expected KIND"),
+    for bad, words in (("explode:p0@1", "unknown fault"), ("drop_link:p9@1", "no drone named 'p9'"), ("battery:p0@1", "needs a voltage"), ("freeze:p0@2=3", r"'freeze' takes no value \(freeze:p0@2\)"), ("p0", "expected KIND"),
                        ("drop_link:p0@1.2.3", "'drop_link:p0@1.2.3': expected KIND"), ("battery:e0@4=.", "'battery:e0@4=.': expected KIND")):
         with pytest.raises(ValueError, match=words):
             parse_fault(bad, plan)

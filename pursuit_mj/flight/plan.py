@@ -36,6 +36,14 @@ FIXED_TASK_KEYS = ("n_pursuers", "n_evaders", "layout", "flight_height", "contro
                    "physics_dt", "controller_hz")
 
 
+def _why_fixed(key: str) -> str:
+    """Why a flight does not take task key `key` (one of FIXED_TASK_KEYS)."""
+    if key in ("random_obstacles", "random_layout"):
+        return ("a flight flies the layout file's own walls and obstacles, none drawn at random (put virtual "
+                "obstacles in the layout file)")
+    return "it is set by the flight file itself (drones, layout, flight_height, decision_rate)"
+
+
 @dataclasses.dataclass(frozen=True)
 class FlightDrone:
     """One drone of a plan: label, link, role, start spot (m, lab) and heading there (rad)."""
@@ -158,7 +166,7 @@ def _task_config(spec: FlightSpec, layout_ref, overrides: Sequence[str]) -> Task
             raise ConfigError(f"{src}: key 'fidelity' means nothing in a flight: the physics is the real world's "
                               "(the policy is trained in either fidelity)")
         if key in FIXED_TASK_KEYS:
-            raise ConfigError(f"{src}: key '{key}' is set by the flight itself (drones, layout, flight_height, decision_rate)")
+            raise ConfigError(f"{src}: key '{key}': {_why_fixed(key)}")
     base = build(TaskConfig, spec.task, src)
     values = to_dict(base)
     for text in overrides:
@@ -167,7 +175,7 @@ def _task_config(spec: FlightSpec, layout_ref, overrides: Sequence[str]) -> Task
             raise ConfigError(f"--set {text}: 'fidelity' means nothing in a flight: the physics is the real world's "
                               "(the policy is trained in either fidelity)")
         if path[0] in FIXED_TASK_KEYS:
-            raise ConfigError(f"--set {text}: '{path[0]}' is set by the flight file (drones, layout, flight_height, decision_rate)")
+            raise ConfigError(f"--set {text}: '{path[0]}': {_why_fixed(path[0])}")
         values = to_dict(build(TaskConfig, merge(values, path, value), f"--set {text}"))
     roles = [d.role for d in spec.drones]
     values.update(

@@ -53,7 +53,8 @@ def parse_fault(text: str, plan: FlightPlan, source: str = "--fault") -> Fault:
     if name not in plan.names:
         raise ValueError(f"{source} {text!r}: no drone named '{name}' (drones: {', '.join(plan.names)})")
     if (kind == "battery") != (value is not None):
-        raise ValueError(f"{source} {text!r}: 'battery' needs a voltage (battery:{name}@{at:g}=3.1), other faults none")
+        raise ValueError(f"{source} {text!r}: " + (f"'battery' needs a voltage (battery:{name}@{at:g}=3.1)" if kind == "battery"
+                         else f"'{kind}' takes no value ({kind}:{name}@{at:g})"))
     if at >= plan.spec.max_time:
         raise ValueError(f"{source} {text!r}: {at:g} s into the chase is not before its end (max time "
                          f"{plan.spec.max_time:g} s); the fault would never happen")
