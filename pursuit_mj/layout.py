@@ -372,7 +372,7 @@ def layout_from_dict(data: Mapping[str, Any], source: str = "<layout>") -> Layou
     name = m.get("name", Path(source).stem)
     if not isinstance(name, str):
         raise LayoutError(f"{source}: name {name!r}: expected text (quote it in YAML)")
-    if not name.strip() or any(c in name for c in "/\\") or not name.isprintable():
+    if not name.strip(" .") or any(c in name for c in "/\\") or not name.isprintable():  # '..': no file name
         raise LayoutError(f"{source}: name {name!r}: must be a plain label (no slashes; output files are named after it)")
     layout = Layout(
         name=name,

@@ -536,6 +536,7 @@ def test_layout_new_default_polygon_and_seeded_random_obstacles_are_reproducible
          "spawn regions overlap"),
         (["layout", "new", "{out}", "--name", "../x"], "name '../x': must be a plain label"),
         (["layout", "new", "{out}", "--name", ""], "name '': must be a plain label"),
+        (["layout", "new", "{out}", "--name", ".."], "name '..': must be a plain label"),
         (["layout", "new", "{out}", "--random", "60"], "no room for random obstacle"),
         # above the file format's bound: the error named the file key random_obstacles.count
         (["layout", "new", "{out}", "--episode-obstacles", "100"], "--episode-obstacles: 100 is out of range (0 to 64)"),
