@@ -191,6 +191,8 @@ def run(args) -> int:
     return 0 if result.outcome in ("captured", "timeout") else 1
 
 
+ALIGN_WARN_RMS = 0.05  # m: a fit worse than this is a placement or ordering mistake, not measurement noise
+
 #: the flight's names of the stop signals it lands on (flight.bridge), as signal names
 STOP_SIGNALS = {"Ctrl-C": "SIGINT", "SIGTERM": "SIGTERM", "SIGHUP": "SIGHUP", "Ctrl-Z": "SIGTSTP"}
 
@@ -224,6 +226,10 @@ def run_align(args) -> int:
     for name, p, q, r in zip(drone_names(spec), lab_pts, spots, fit.residuals):
         print(f"  {name:>10}: lab [{p[0]:.3f}, {p[1]:.3f}] -> spot [{q[0]:.3f}, {q[1]:.3f}], residual {r * 1000:.1f} mm")
     print(f"rms residual {fit.rms * 1000:.1f} mm (layout frame)")
+    if fit.rms > ALIGN_WARN_RMS:
+        print(f"warning: no rotation, scale and shift brings the drones within {ALIGN_WARN_RMS * 1000:.0f} mm of their "
+              f"spots: check that --spots follow the flight file's drone order ({', '.join(drone_names(spec))}) and "
+              f"that each drone stands on its spot")
     print(transform_yaml(fit), end="")
     if args.write:
         out = write_with_transform(spec, fit, args.write, args.overrides)

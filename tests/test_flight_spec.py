@@ -809,3 +809,15 @@ def test_a_flight_landed_after_a_stop_signal_exits_as_a_stopped_command_does(rea
 
     monkeypatch.setattr(session, "run_flight", landed_on)
     assert main(["fly", "--flight", EXAMPLE, "--policy", "heuristic", "--virtual", "--events", "/dev/null"]) == code
+
+
+def test_fly_align_warns_of_a_fit_no_placement_mistake_would_leave(capsys):
+    """A mirrored placement printed 'rms residual 1335.6 mm' and its transform without a word."""
+    from pursuit_cli import main
+
+    spots = "0.5,0.625 1.75,0.625 1.875,4.0"
+    assert main(["fly", "align", "--flight", "lighthouse", "--spots", spots, "--lab", "0,0 -1,0 -1,1"]) == 0
+    out = capsys.readouterr().out
+    assert "warning: no rotation, scale and shift brings the drones within 50 mm of their spots" in out
+    assert main(["fly", "align", "--flight", "lighthouse", "--spots", spots, "--lab", spots]) == 0
+    assert "warning" not in capsys.readouterr().out
