@@ -5,3 +5,10 @@ hand-made policies (heuristic, shield), evaluation, rendering and recording, and
 Importing the package imports nothing else: `pursuit_cli` checks that mujoco can start
 before any module here loads it.
 """
+
+from importlib import metadata as _metadata
+
+try:
+    __version__ = _metadata.version("pursuit-mj")  # the installed distribution's, as pyproject.toml gives it
+except _metadata.PackageNotFoundError:  # run from a source tree that was never installed
+    __version__ = "unknown"

@@ -58,3 +58,13 @@ def test_a_wheel_carries_the_shipped_files_and_runs_away_from_any_checkout(tmp_p
     assert f"= {shipped / 'pursuers.pt'} (the small policy shipped" in out.stderr
     assert f"{shipped / 'README.md'} gives the command that made it" in out.stderr
     assert "bel2e+shield" in out.stdout  # the table
+
+
+def test_the_package_says_its_version_as_the_project_file_gives_it():
+    import tomllib
+    from pathlib import Path
+
+    import pursuit_mj
+
+    project = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())["project"]
+    assert pursuit_mj.__version__ == project["version"]
