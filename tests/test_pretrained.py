@@ -61,3 +61,17 @@ def test_a_reset_of_worlds_that_do_not_exist_is_refused_naming_the_policy(kind):
     with pytest.raises(ValueError, match=rf"policy {re.escape(policy.name)}: world ids must be a 1-D list of integers"):
         policy.reset(2, [0.5])
     policy.reset(2, [1])  # a good id is taken
+
+
+def test_a_task_of_another_team_than_the_observations_is_refused():
+    """A shield and belief sized for 5 pursuers acted on observations of 3 without a word."""
+    task = default_config(fidelity="point")
+    spec = ObsSpec.make(task.n_pursuers, task.n_evaders, task.n_rays)
+    other = dataclasses.replace(task, n_pursuers=5, n_evaders=3)
+    with pytest.raises(ValueError, match=r"load_policy: task and env_spec are of different teams: n_pursuers 5 \(task\) "
+                                         r"vs 3 \(env_spec\); n_evaders 3 \(task\) vs 1 \(env_spec\)"):
+        load_policy(shipped_dir("pretrained") / "pursuers.pt", spec, task=other)
+    with pytest.raises(ValueError, match="load_policy: env_spec must be the environment's ObsSpec .*got TaskConfig"):
+        load_policy(shipped_dir("pretrained") / "pursuers.pt", task)
+    with pytest.raises(ValueError, match="load_policy: task must be a TaskConfig, got dict"):
+        load_policy(shipped_dir("pretrained") / "pursuers.pt", spec, task={"n_pursuers": 3})

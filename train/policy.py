@@ -122,6 +122,7 @@ def load_policy(path: str | Path, env_spec: ObsSpec | None = None, stochastic: b
     was trained on). A model trained with belief features (train config `belief: true`) comes
     back with its Belief in front, so it takes the environment's own observations.
     """
+    _check_spec_and_task(env_spec, task)
     data = load_checkpoint(path)
     stored = data["train_config"]
     belief = bool(stored.get("belief", False))
@@ -142,6 +143,20 @@ def load_policy(path: str | Path, env_spec: ObsSpec | None = None, stochastic: b
         team = trained_team(policy, run_task, bool(stored.get("shield", False)), residual, belief)
     team.trained_task = dict(stored.get("task", {}))  # the task it learned in, for callers to compare with theirs
     return team
+
+
+def _check_spec_and_task(env_spec, task) -> None:
+    """ValueError unless env_spec is an ObsSpec and task a TaskConfig (or None) of one team: a
+    shield or belief sized for one team and observations of another would act without a word."""
+    if env_spec is not None and not isinstance(env_spec, ObsSpec):
+        raise ValueError(f"load_policy: env_spec must be the environment's ObsSpec (env.obs_spec), got {type(env_spec).__name__}")
+    if task is not None and not isinstance(task, TaskConfig):
+        raise ValueError(f"load_policy: task must be a TaskConfig, got {type(task).__name__}")
+    if env_spec is not None and task is not None:
+        differ = [f"{k} {getattr(task, k)} (task) vs {getattr(env_spec, k)} (env_spec)"
+                  for k in ("n_pursuers", "n_evaders", "n_rays") if getattr(task, k) != getattr(env_spec, k)]
+        if differ:
+            raise ValueError(f"load_policy: task and env_spec are of different teams: {'; '.join(differ)}")
 
 
 def base_team(residual: ResidualConfig, task: TaskConfig) -> Policy | None:
