@@ -331,3 +331,13 @@ def test_a_slow_go_has_the_batteries_and_states_checked_again_before_take_off(tm
     result, events, fleet = fly_virtual(plan, ScriptedTeam([[0.0, 0.0]]), tmp_path / "ok", confirm=lambda: time.sleep(0.3) or True)
     assert result.outcome == "timeout" and result.landed
     assert "preflight_recheck_ok" in [json.loads(x)["kind"] for x in (tmp_path / "ok" / "events.jsonl").read_text().splitlines()]
+
+
+def test_an_event_log_on_a_device_that_cannot_be_fsynced_goes_on_being_written():
+    """`--events /dev/null` was dropped at the first safety event, whose fsync failed (EINVAL)."""
+    from pursuit_mj.flight.events import EventLog
+
+    log = EventLog("/dev/null")
+    log.log("geofence", drone="p0")  # safety-relevant: fsync'ed where the log is a file on disk
+    log.log("geofence", drone="p1")
+    assert log.failures == [] and len(log.records) == 2

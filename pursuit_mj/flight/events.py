@@ -16,6 +16,7 @@ from __future__ import annotations
 import datetime
 import json
 import os
+import stat
 import sys
 import threading
 import time
@@ -66,6 +67,8 @@ class EventLog:
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._file = open(self.path, "a", encoding="utf-8")
+        # only a file on disk can be fsync'ed: /dev/null or a pipe refuse it (EINVAL), and are written all the same
+        self._syncs = self._file is not None and stat.S_ISREG(os.fstat(self._file.fileno()).st_mode)
 
     def add_sink(self, name: str, sink: Callable[[dict], None]) -> None:
         """Call sink(record) for every non-routine event from now on, after the file is written.
@@ -95,7 +98,7 @@ class EventLog:
                 try:
                     self._file.write(json.dumps(record) + "\n")
                     self._file.flush()
-                    if kind not in ROUTINE:
+                    if kind not in ROUTINE and self._syncs:
                         os.fsync(self._file.fileno())
                 except (OSError, ValueError) as exc:
                     self._drop_file(f"event log {self.path} no longer written ({type(exc).__name__}: {exc})")
