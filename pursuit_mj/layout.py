@@ -443,20 +443,15 @@ def resolve_layout_ref(ref: int | str | Path) -> Path:
     return path
 
 
-def layout_ref_beside(ref: Any, file: str | Path) -> Any:
-    """A layout reference read from `file` (a task, train or flight file): a built-in index as it
-    is, a file path as configio.found_beside finds it (beside `file` when not from here)."""
+def found_layout_ref(ref: Any, file: str | Path, key: str) -> Any:
+    """A layout reference read as `key` of `file` (a task, train or flight file): a built-in index
+    as it is, a file path as configio.found_beside finds it (beside `file` when not from the
+    current folder). A path found in neither place is a ConfigError naming `file` and `key`, not
+    left to fail when the layout loads, where the file that named it is no longer known."""
     if isinstance(ref, str) and ref.strip().isdigit():
         return ref
-    return found_beside(ref, file)
-
-
-def found_layout_ref(ref: Any, file: str | Path, key: str) -> Any:
-    """layout_ref_beside for the value of `key` in `file`; a file path found neither from the current
-    folder nor beside `file` is a ConfigError naming both (not left to fail when the layout loads,
-    where the file that named it is no longer known)."""
-    found = layout_ref_beside(ref, file)
-    if isinstance(found, str) and not found.strip().isdigit() and found and not Path(found).exists():
+    found = found_beside(ref, file)
+    if isinstance(found, str) and found and not Path(found).exists():
         folder, here = Path(file).parent, Path.cwd()
         beside = "" if folder.resolve() == here.resolve() else f" or beside {folder}"
         where = "" if Path(found).is_absolute() else f" in the current folder ({here}){beside}"
