@@ -145,10 +145,9 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
     if hint is int:
         if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
             return int(value)
-        how = ""
-        if isinstance(value, float) and value.is_integer():  # YAML reads 2e4 and 20000.0 as floats
-            how = f" (write it as {int(value)}, without a decimal point or exponent)"
-        raise ConfigError(f"{where}: expected an integer, got {shown(value)}{how}")
+        if isinstance(value, (float, np.floating)) and float(value).is_integer():
+            return int(value)  # a count written 2e4 or 20000.0, as the CLI flags take it
+        raise ConfigError(f"{where}: expected an integer, got {shown(value)}")
     if hint is float:
         if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
             if not math.isfinite(float(value)):
