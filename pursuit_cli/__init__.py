@@ -202,8 +202,27 @@ def _run(argv: list[str] | None) -> int:
             return _interrupted(args, stops[0])
         if not isinstance(exc, ValueError):
             raise
-        print(f"pursuit-mj {_command_name(args)}: error: {exc}", file=sys.stderr)
+        print(f"pursuit-mj {_command_name(args)}: error: {_with_source(exc, args)}", file=sys.stderr)
         return 2
+
+
+def _with_source(exc: ValueError, args: argparse.Namespace) -> str:
+    """The error's message, naming the flag or task file that gave a task value it refuses."""
+    from pursuit_mj.configio import TaskValueError
+
+    if not isinstance(exc, TaskValueError):
+        return str(exc)
+    from .common import task_key_source
+
+    try:
+        source = task_key_source(args, exc.key)
+    except (OSError, ValueError):  # a task file changed since it was read: the message as it is
+        source = None
+    if source is None:
+        return str(exc)
+    if source.startswith("task file"):
+        return f"{source}: {exc.key} {exc.value}: {exc.reason}"
+    return f"{source}: {exc.reason}"
 
 
 def _command_name(args: argparse.Namespace) -> str:

@@ -7,7 +7,8 @@ import math
 import os
 import sys
 
-from pursuit_mj.config import TaskConfig, dump_yaml, load_task_config
+from pursuit_mj.config import TaskConfig, dump_yaml, load_task_config, preset_or_file
+from pursuit_mj.configio import load_yaml
 
 
 def seed_arg(text: str) -> int:
@@ -179,6 +180,23 @@ def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
     if getattr(args, "show_config", False):
         print(dump_yaml(cfg))
     return cfg
+
+
+def task_key_source(args: argparse.Namespace, key: str) -> str | None:
+    """Where the task value of top-level `key` came from, as the user gave it: '--set KEY=V',
+    the flag, or 'task file F' (the last that names it wins, as in task_config_from_args);
+    None when it is the default or the command takes no task flags."""
+    for override in reversed(getattr(args, "overrides", None) or []):
+        if override.split("=", 1)[0].strip() == key:
+            return f"--set {override.strip()}"
+    flag = TASK_FLAG_NAMES.get(key)
+    if flag is not None and getattr(args, key, None) is not None:
+        return f"{flag} {getattr(args, key)}"
+    for file in reversed(getattr(args, "task_files", None) or []):
+        path = preset_or_file(file, "task")
+        if key in load_yaml(path):
+            return f"task file {file}"
+    return None
 
 
 SHIELD_HELP = ("put the safety shield on the policy (pursuit_mj/shield.py): from the pursuer's own observation it caps "

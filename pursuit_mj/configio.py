@@ -26,6 +26,16 @@ class ConfigError(ValueError):
     """A bad config key or value; the message names the key, the value and its source."""
 
 
+class TaskValueError(ValueError):
+    """A task value that passed the config's checks but that a user of it cannot work with
+    (e.g. too few range readings for the heuristic team). The message is 'task KEY VALUE:
+    REASON'; a CLI, which knows where the value came from, names that instead (`key`, `reason`)."""
+
+    def __init__(self, key: str, value: Any, reason: str):
+        super().__init__(f"task {key} {value}: {reason}")
+        self.key, self.value, self.reason = key, value, reason
+
+
 SHOWN_CHARS = 80  # how much of a bad value an error message quotes
 
 

@@ -46,6 +46,7 @@ import math
 
 import numpy as np
 
+from .configio import TaskValueError
 from .obs_spec import ObsSpec, named_views
 from .planar import EPS, clip_unit, limit_closing, norm, unit
 from .policy import Policy, check_observations, check_world_ids
@@ -58,8 +59,8 @@ MIN_RAYS = 8  # range readings the shield (and the heuristic team) need to keep 
 def check_rays(n_rays: int, who: str) -> None:
     """ValueError unless the task gives `who` enough range readings (MIN_RAYS)."""
     if n_rays < MIN_RAYS:
-        raise ValueError(f"task n_rays {n_rays}: {who} sees walls only through range readings and needs at least "
-                         f"{MIN_RAYS} (set n_rays >= {MIN_RAYS})")
+        raise TaskValueError("n_rays", n_rays, f"{who} sees walls only through range readings and needs at least "
+                             f"{MIN_RAYS} (set n_rays >= {MIN_RAYS})")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -121,10 +121,14 @@ def test_bench_physics_prints_the_table(capsys):
         # flags that did nothing, without a word
         (["eval", "--rerun-episodes", "5"], "--rerun-episodes 5: records nothing without --rerun FILE.rrd"),
         (["plot", "--eval", "e.json", "--metric", "success"], "--metric success: chooses what training logs (--log) are drawn by"),
+        # a task value the heuristic team cannot work with: it did not say which flag or file gave it
+        (["eval", "--policy", "heuristic", "--set", "n_rays=4"], "--set n_rays=4: the heuristic team sees walls only through"),
+        (["eval", "--policy", "heuristic", "-ec", "{tmp}/rays.yaml"], "task file {tmp}/rays.yaml: n_rays 4: the heuristic team"),
     ],
 )
 def test_bad_input_exits_2_with_one_line(argv, message, capsys, tmp_path):
     argv, message = [a.replace("{tmp}", str(tmp_path)) for a in argv], message.replace("{tmp}", str(tmp_path))
+    (tmp_path / "rays.yaml").write_text("n_rays: 4\n")
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err, err
