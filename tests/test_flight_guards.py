@@ -94,6 +94,20 @@ def test_a_keyboard_interrupt_inside_the_loop_lands_everyone(tmp_path):
     assert down(fleet)
 
 
+def test_a_landing_asked_for_by_key_is_logged_and_everyone_lands(tmp_path):
+    """Key `l` ended the run with no event of its own in the log, unlike every other stop."""
+
+    def press_l(fleet, bridge):
+        time.sleep(0.3)
+        bridge.request_land("key pressed")
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=8.0), ScriptedTeam([[0.0, 0.0]]), tmp_path, during=press_l)
+    assert result.outcome == "land_requested" and result.landed
+    assert kinds_in_order(events, "chase", "land_requested", "land", "landed")
+    assert events.of_kind("land_requested")[0]["reason"] == "key pressed"
+    assert down(fleet)
+
+
 def test_the_emergency_stop_cuts_every_motor_at_once_and_nobody_lands(tmp_path):
     seen = {}
 

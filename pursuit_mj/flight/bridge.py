@@ -445,6 +445,7 @@ class FlightBridge:
             self.events.log("interrupt", reason=self._interrupt_reason, level="warn")
             raise _Abort("interrupted", self._interrupt_reason)
         if self._land_request:
+            self.events.log("land_requested", reason=self._land_request, level="warn")
             raise _Abort("land_requested", self._land_request)
         silent = snap.lost | (snap.silence > limits.link_timeout)
         if silent.any():
