@@ -51,6 +51,9 @@ def never_took_off(fleet) -> bool:
     [
         ([VirtualDrone(decks=()), VirtualDrone()], {}, ["preflight deck", "drone p0", "no Flow deck detected", "deck.bcFlow2 = 0"]),
         ([VirtualDrone(), VirtualDrone(battery=3.6)], {}, ["preflight battery", "drone e0", "3.60 V is below 3.8 V"]),
+        # every low battery is named, so that all of them are charged before the next try
+        ([VirtualDrone(battery=3.7), VirtualDrone(battery=3.6)], {},
+         ["preflight battery", "drone p0", "3.70 V", "drone e0", "3.60 V", "below 3.8 V"]),
         ([VirtualDrone(), VirtualDrone(converges=False)], {"estimator_timeout": 0.6}, ["preflight estimator", "drone e0", "did not converge"]),
     ],
 )

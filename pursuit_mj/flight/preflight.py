@@ -129,12 +129,15 @@ def wait_converged(board: StateBoard, plan: FlightPlan, events: EventLog, clock:
 
 
 def check_battery(board: StateBoard, plan: FlightPlan, events: EventLog) -> None:
+    """Refuse the take-off naming every drone whose battery reads no voltage or is below battery_takeoff."""
     vbat = board.snapshot().vbat[:, -1]
-    for d, v in zip(plan.drones, vbat):
-        if not np.isfinite(v):
-            _refuse(events, "battery", f"drone {d.name} ({d.uri}) reported no battery voltage")
-        if v < plan.safety.battery_takeoff:
-            _refuse(events, "battery", f"drone {d.name} ({d.uri}): battery {v:.2f} V is below {plan.safety.battery_takeoff:g} V (charge or swap it)")
+    silent = [f"drone {d.name} ({d.uri}) reported no battery voltage" for d, v in zip(plan.drones, vbat) if not np.isfinite(v)]
+    low = [f"drone {d.name} ({d.uri}): battery {v:.2f} V" for d, v in zip(plan.drones, vbat) if v < plan.safety.battery_takeoff]
+    if low:
+        silent.append(f"{', '.join(low)} {'is' if len(low) == 1 else 'are'} below {plan.safety.battery_takeoff:g} V "
+                      f"(charge or swap {'it' if len(low) == 1 else 'them'})")
+    if silent:
+        _refuse(events, "battery", "; ".join(silent))
 
 
 def wait_states(board: StateBoard, plan: FlightPlan, events: EventLog, timeout: float, clock: Callable[[], float] = time.monotonic) -> None:
