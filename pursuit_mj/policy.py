@@ -73,7 +73,7 @@ class RandomPolicy:
             self._steps[np.asarray(world_ids, dtype=np.int64)] = 0
 
     def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
-        a = np.ascontiguousarray(obs, dtype=np.float32)
+        a = np.ascontiguousarray(check_observations(obs, spec, f"policy {self.name}"), dtype=np.float32)
         W = a.shape[0]
         if len(self._steps) != W:
             self.reset(W)

@@ -172,3 +172,15 @@ def test_a_team_made_from_a_task_config_by_mistake_says_to_use_from_config():
 
     with pytest.raises(TypeError, match=r"got TaskConfig; for a task config use HeuristicTeam.from_config\(config\)"):
         HeuristicTeam(default_config())
+
+
+def test_the_random_policy_refuses_bad_observations_as_the_others_do():
+    """RandomPolicy.act drew actions for observations of any shape, NaN included."""
+    policy = RandomPolicy(0)
+    with pytest.raises(ValueError, match=r"policy random: expected observations \(worlds, 3, %d\)" % SPEC.dim):
+        policy.act(np.zeros((1, 3, SPEC.dim - 1)), SPEC)
+    bad = blank_obs()
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="policy random: observations contain NaN"):
+        policy.act(bad, SPEC)
+    assert policy.act(blank_obs(2), SPEC).shape == (2, 3, 2)
