@@ -317,11 +317,14 @@ class PursuitEnv:
     # ------------------------------------------------------------------ stepping
 
     def _check_actions(self, actions: np.ndarray) -> np.ndarray:
-        raw = np.asarray(actions)
+        shape = (self.n_worlds, self.n_pursuers, 2)
+        try:
+            raw = np.asarray(actions)
+        except ValueError:  # nested lists of unequal lengths
+            raise ValueError(f"actions: expected shape {shape} (worlds, pursuers, vx vy), got a ragged list") from None
         if raw.dtype.kind not in "fiu":  # bools, text, objects and complex numbers are no velocities
             raise ValueError(f"actions: expected real numbers (worlds, pursuers, vx vy), got an array of dtype {raw.dtype}")
         a = raw.astype(np.float64)
-        shape = (self.n_worlds, self.n_pursuers, 2)
         if a.shape != shape:
             raise ValueError(f"actions: expected shape {shape} (worlds, pursuers, vx vy), got {a.shape}")
         if not np.isfinite(a).all():

@@ -136,7 +136,10 @@ class PursuitParallelEnv(ParallelEnv):
     def _action(agent: str, value) -> np.ndarray:
         """One agent's action as float64 (2,), refused as PursuitEnv refuses it (bools, text, complex
         numbers, non-finite values), but naming the agent."""
-        raw = np.asarray(value)
+        try:
+            raw = np.asarray(value)
+        except ValueError:  # nested lists of unequal lengths
+            raise ValueError(f"actions[{agent!r}]: expected shape (2,), got a ragged list") from None
         if raw.shape != (2,):
             raise ValueError(f"actions[{agent!r}]: expected shape (2,), got {raw.shape}")
         if raw.dtype.kind not in "fiu":  # no silent cast: True would be full speed, 1+2j would lose its 2j

@@ -120,6 +120,8 @@ def test_quadrotor_fidelity_has_the_same_interface():
         (np.ones((1, 3, 2), bool), "dtype bool"),
         (np.full((1, 3, 2), 0.5 + 1j), "dtype complex128"),
         ([[[0.1, None]] * 3], "dtype object"),
+        # numpy's own 'inhomogeneous shape after 2 dimensions' before
+        ([[[0.1, 0.2], [0.1], [0.0, 0.0]]], r"actions: expected shape \(1, 3, 2\) \(worlds, pursuers, vx vy\), got a ragged list"),
     ],
 )
 def test_bad_actions_are_refused(actions, match):

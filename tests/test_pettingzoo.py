@@ -80,6 +80,8 @@ def test_action_dict_errors_name_the_agent():
         env.step({f"pursuer_{i}": np.zeros(2) for i in (0, 1, 2, 9)})
     with pytest.raises(ValueError, match="expected shape \\(2,\\)"):
         env.step({f"pursuer_{i}": np.zeros(3) for i in range(3)})
+    with pytest.raises(ValueError, match="actions\\['pursuer_0'\\]: expected shape \\(2,\\), got a ragged list"):
+        env.step({f"pursuer_{i}": [[0.1], 0.2] for i in range(3)})  # numpy's own message before
 
 
 @pytest.mark.parametrize("bad, message", [
