@@ -27,7 +27,7 @@ import numpy as np
 
 from .heuristic import HeuristicTeam
 from .obs_spec import ObsSpec
-from .policy import Policy, check_world_ids
+from .policy import Policy, check_world_count, check_world_ids
 
 AGE_CAP = 5.0  # s: older knowledge reads as this old (keeps the input in a tanh encoder's range)
 
@@ -118,14 +118,17 @@ class BeliefPolicy:
         self.belief = belief
         self.name = policy.name
         self.has_shield = bool(getattr(policy, "has_shield", False))
+        self._n_worlds: int | None = None  # as reset() was last called (None: not yet)
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
         world_ids = check_world_ids(world_ids, n_worlds, f"policy {self.name}")
+        self._n_worlds = int(n_worlds)
         self.belief.reset(n_worlds, world_ids)
         self.policy.reset(n_worlds, world_ids)
 
     def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
         """Actions (W, N, 2) in [-1, 1] from obs (W, N, spec.dim) without belief features."""
+        check_world_count(np.shape(obs)[0], self._n_worlds, f"policy {self.name}")
         return self.policy.act(self.belief.augment(obs, spec), belief_spec(spec))
 
 

@@ -33,7 +33,7 @@ import numpy as np
 
 from .coverage import CoverageMap, CoverageParams
 from .obs_spec import ObsSpec, named_views
-from .policy import check_observations, check_world_ids
+from .policy import check_observations, check_world_count, check_world_ids
 from .planar import clip_unit, unit
 from .shield import SafetyShield, ShieldParams, check_rays
 
@@ -209,8 +209,7 @@ class HeuristicTeam:
         W, N = obs.shape[:2]
         if self._n_worlds is None:
             self._n_worlds = W
-        if W != self._n_worlds:
-            raise ValueError(f"HeuristicTeam: got {W} worlds, but reset() was called for {self._n_worlds}")
+        check_world_count(W, self._n_worlds, f"policy {self.name}")
         o = _parse(obs, spec)
         mem = self._memory(W, N, spec.n_evaders, spec.n_rays)
         mate_abs = o["pos"][:, :, None] + o["mate_rel"]

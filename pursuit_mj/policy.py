@@ -50,6 +50,14 @@ def check_world_ids(world_ids, n_worlds: int, who: str) -> np.ndarray | None:
     return ids
 
 
+def check_world_count(n_obs: int, n_reset: int | None, who: str) -> None:
+    """ValueError naming `who` when observations come for n_obs worlds but reset() was called
+    for n_reset (None: never reset, any count is taken): a policy with memory would mix worlds up."""
+    if n_reset is not None and n_obs != n_reset:
+        raise ValueError(f"{who}: got observations of {n_obs} world{'' if n_obs == 1 else 's'}, but reset() was "
+                         f"called for {n_reset} (call reset({n_obs}) first)")
+
+
 class RandomPolicy:
     """Uniform random actions; a floor every policy must beat.
 

@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from .obs_spec import ObsSpec
-from .policy import Policy, check_world_ids
+from .policy import Policy, check_world_count, check_world_ids
 from .planar import clip_unit
 from .shield import SafetyShield, Shielded
 
@@ -45,14 +45,17 @@ class ResidualTeam:
         self.correction = correction
         self.scale = float(scale)
         self.name = f"{correction.name}@{base.name}"
+        self._n_worlds: int | None = None  # as reset() was last called (None: not yet)
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
         world_ids = check_world_ids(world_ids, n_worlds, f"policy {self.name}")
+        self._n_worlds = int(n_worlds)
         self.base.reset(n_worlds, world_ids)
         self.correction.reset(n_worlds, world_ids)
 
     def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
         """Actions (W, N, 2) within the unit disc from obs (W, N, spec.dim)."""
+        check_world_count(np.shape(obs)[0], self._n_worlds, f"policy {self.name}")
         correction = self.correction.act(obs, spec)  # first: a base acting from the correction's belief (BeliefTeam) needs it
         return combine(self.base.act(obs, spec), correction, self.scale)
 

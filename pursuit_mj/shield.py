@@ -49,7 +49,7 @@ import numpy as np
 from .configio import TaskValueError
 from .obs_spec import ObsSpec, named_views
 from .planar import EPS, clip_unit, limit_closing, norm, unit
-from .policy import Policy, check_observations, check_world_ids
+from .policy import Policy, check_observations, check_world_count, check_world_ids
 from .sensing import heading_min_speed
 
 MIN_RAYS = 8  # range readings the shield (and the heuristic team) need to keep off walls: they see walls through nothing else
@@ -193,8 +193,7 @@ class SafetyShield:
             raise ValueError("SafetyShield: desired velocities contain NaN or inf")
         if self._n_worlds is None:
             self._n_worlds = W
-        if W != self._n_worlds:
-            raise ValueError(f"SafetyShield: got {W} worlds, but reset() was called for {self._n_worlds}")
+        check_world_count(W, self._n_worlds, "SafetyShield")
         self._remember_hits(o)
         return self._limit_closing(v, self._with_remembered_mates(o))
 
@@ -315,15 +314,18 @@ class Shielded:
         self.shield = shield
         self._inner = str(getattr(policy, "name", type(policy).__name__))
         self.name = f"{self._inner}+shield"
+        self._n_worlds: int | None = None  # as reset() was last called (None: not yet)
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
         world_ids = check_world_ids(world_ids, n_worlds, f"policy {self.name}")
+        self._n_worlds = int(n_worlds)
         self.policy.reset(n_worlds, world_ids)
         self.shield.reset(n_worlds, world_ids)
 
     def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
         """Actions (W, N, 2) within the unit disc: desired world-frame velocity / pursuer_speed."""
         check_observations(obs, spec, f"policy {self.name}")
+        check_world_count(np.shape(obs)[0], self._n_worlds, f"policy {self.name}")
         a = np.asarray(self.policy.act(obs, spec), dtype=np.float64)
         want = tuple(np.shape(obs)[:2]) + (2,)
         if a.shape != want:

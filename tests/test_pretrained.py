@@ -75,3 +75,29 @@ def test_a_task_of_another_team_than_the_observations_is_refused():
         load_policy(shipped_dir("pretrained") / "pursuers.pt", task)
     with pytest.raises(ValueError, match="load_policy: task must be a TaskConfig, got dict"):
         load_policy(shipped_dir("pretrained") / "pursuers.pt", spec, task={"n_pursuers": 3})
+
+
+@pytest.mark.parametrize("kind", ["random", "heuristic", "pursuers.pt", "belppo_kick.pt", "residual"])
+def test_observations_of_another_world_count_than_the_reset_are_refused_naming_the_policy(kind):
+    """A loaded network said 'HeuristicTeam: got 1 worlds, ...', naming a part inside it."""
+    from pursuit_mj.env import PursuitEnv
+    from pursuit_mj.policies import make_policy
+    from pursuit_mj.residual import ResidualTeam
+
+    task = default_config(fidelity="point")
+    env = PursuitEnv(task, n_worlds=2)
+    obs = env.reset(seed=0)
+    if kind.endswith(".pt"):
+        policy = load_policy(shipped_dir("pretrained") / kind, env.obs_spec, task=task)
+    elif kind == "residual":
+        policy = ResidualTeam(make_policy("heuristic", task), make_policy("random", task), 0.5)
+    else:
+        policy = make_policy(kind, task)
+    policy.reset(2)
+    policy.act(obs, env.obs_spec)
+    if kind == "random":  # it keeps no memory of its worlds: any count is fine
+        policy.act(obs[:1], env.obs_spec)
+        return
+    with pytest.raises(ValueError, match=rf"^policy {re.escape(policy.name)}: got observations of 1 world, but reset\(\) "
+                                         r"was called for 2 \(call reset\(1\) first\)$"):
+        policy.act(obs[:1], env.obs_spec)
