@@ -138,12 +138,20 @@ class VelocityController:
         self._k_z = (m * g.pos_z, m * g.vel_z, m * g.int_z, m * GRAVITY)
         self._min_fz = 0.2 * m * GRAVITY
         self._max_fz = 4.0 * self.max_thrust  # N: the most vertical force all four rotors give, level
-        self._tan_tilt = float(np.tan(g.max_tilt))
+        self._tan_tilt: float | np.ndarray = float(np.tan(g.max_tilt))
         self._att = -0.5 * np.asarray(g.att, dtype=np.float64)[:, None]  # the 1/2 of vee(P - P^T) / 2
         self._rate_inertia = (self.inertia * np.asarray(g.rate, dtype=np.float64))[:, None]
         # omega x (I omega) = omega[_NEXT1] * omega[_NEXT2] * (I[_NEXT2] - I[_NEXT1])
         self._gyro = (self.inertia[_NEXT2] - self.inertia[_NEXT1])[:, None]
         self._z_integral = np.zeros(0)
+
+    def set_max_tilt(self, max_tilt: float | np.ndarray) -> None:
+        """Limit the commanded tilt to max_tilt rad: one value, or (n,) one per drone (as a
+        firmware parameter may differ between drones); 0 < max_tilt < pi/2."""
+        tilt = np.asarray(max_tilt, dtype=np.float64)
+        if not (np.isfinite(tilt).all() and (tilt > 0).all() and (tilt < np.pi / 2).all()):
+            raise ValueError(f"VelocityController.set_max_tilt: tilt limits must be in (0, pi/2) rad, got {tilt}")
+        self._tan_tilt = float(np.tan(tilt)) if tilt.ndim == 0 else np.tan(tilt)
 
     def reset(self, n: int, mask: np.ndarray | None = None) -> None:
         """Clear the altitude integrator of all N drones, or of those where mask (N,) is True."""

@@ -249,3 +249,47 @@ def test_virtual_crazyflies_weigh_the_flight_tasks_drone_mass():
         np.testing.assert_allclose(airframe.thrust.sum(1), 0.035 * 9.81, rtol=0.01)
     finally:
         fleet.stop()
+
+
+def test_virtual_crazyflies_tilt_as_far_as_their_firmware_velocity_loop_allows():
+    """The firmware's velocity loop tilts up to posCtlPid.rLimit / pLimit (20 deg by default); the
+    virtual drones honour those parameters, so a rehearsal without the bridge's setting shows the
+    faster reversals a real drone would fly."""
+    plan = quick_plan()
+    fleet = VirtualFleet(plan, physics=FAST)
+    try:
+        n = plan.n_drones
+        assert [fw.params["posCtlPid.rLimit"] for fw in fleet.firmware] == [20.0] * n  # the firmware's default
+        for fw in fleet.firmware[: n // 2]:
+            fw.params["posCtlPid.rLimit"] = fw.params["posCtlPid.pLimit"] = 10.0
+        fleet.apply_firmware_limits()  # what each tick of the running fleet does
+        on, airframe = np.ones(n, bool), fleet.airframe
+        for _ in range(200):  # up to 0.5 m first
+            airframe.step(0.01, np.zeros((n, 2)), np.full(n, 0.5), np.zeros(n), on)
+        push = np.tile([1.0, 0.0], (n, 1))
+        for _ in range(30):  # 0.3 s at a 1 m/s command
+            airframe.step(0.01, push, np.full(n, 0.5), np.zeros(n), on)
+        q = airframe.quat
+        tilt = np.degrees(np.arccos(np.clip(1 - 2 * (q[:, 1] ** 2 + q[:, 2] ** 2), -1, 1)))  # body z from vertical
+        assert (tilt[: n // 2] < 10.5).all() and (tilt[n // 2 :] > 14.0).all(), tilt
+    finally:
+        fleet.stop()
+
+
+def test_the_bridge_sets_the_firmware_tilt_limit_to_the_simulators(tmp_path):
+    """A policy learned with the simulator's 15 deg tilt limit flies real drones whose firmware
+    allows 20 deg: the bridge sets posCtlPid.rLimit and pLimit of every commanded drone to the
+    simulator's limit before take-off, and logs it."""
+    from flight_rehearsal import ScriptedTeam
+    from pursuit_mj.controller import ControllerGains
+
+    plan = quick_plan(max_time=1.0)
+    result, events, fleet = fly_virtual(plan, ScriptedTeam([[0.0, 0.0]]), tmp_path)
+    assert result.outcome == "timeout" and result.landed, result
+    limit = math.degrees(ControllerGains().max_tilt)
+    for fw, commanded in zip(fleet.firmware, plan.commanded):
+        want = limit if commanded else 20.0
+        assert (fw.params["posCtlPid.rLimit"], fw.params["posCtlPid.pLimit"]) == pytest.approx((want, want))
+    logged = events.of_kind("tilt_limit")
+    assert len(logged) == 1 and logged[0]["degrees"] == pytest.approx(limit)
+    assert kinds_in_order(events, "links_up", "tilt_limit", "preflight_ok", "takeoff")

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Protocol, Sequence
 
 import cflib.crtp
+import numpy as np
 from cflib.crazyflie import Crazyflie
 from cflib.crazyflie.log import LogConfig
 from cflib.crazyflie.syncCrazyflie import SyncCrazyflie
@@ -137,7 +138,7 @@ class DroneLink:
         done = threading.Event()
 
         def confirmed(full_name: str, value_s: str) -> None:
-            if float(value_s) == float(value):
+            if np.float32(value_s) == np.float32(value):  # float parameters travel as float32
                 done.set()
 
         self.cf.param.add_update_callback(group=group, name=short, cb=confirmed)

@@ -14,11 +14,13 @@ Lighthouse and Loco the variances themselves are below it.
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Callable
 
 import numpy as np
 
+from ..controller import ControllerGains
 from .board import StateBoard
 from .events import EventLog
 from .links import LinkSet
@@ -80,6 +82,29 @@ def check_supervisor(links: LinkSet, events: EventLog) -> None:
         for bit, what in BAD_STATES.items():
             if bits >> bit & 1:
                 _refuse(events, "state", f"drone {link.label} is {what}")
+
+
+TILT_PARAMS = ("posCtlPid.rLimit", "posCtlPid.pLimit")  # deg: the firmware velocity loop's roll and pitch limits
+
+
+def match_tilt_limit(links: LinkSet, plan: FlightPlan, events: EventLog, timeout: float = 2.0) -> None:
+    """Give the velocity loop of every commanded drone the simulator's tilt limit
+    (ControllerGains.max_tilt, 15 deg; the firmware's default is 20), so that it turns as fast
+    as the drones the policy learned with, not faster. Set in RAM only: a restart undoes it.
+    A drone without these parameters (other firmware) flies as it is, with a warning."""
+    degrees = round(math.degrees(ControllerGains().max_tilt), 3)
+    ours = [link for link, c in zip(links, plan.commanded) if c]
+    missing = [link.label for link in ours if any(link.param(n) is None for n in TILT_PARAMS)]
+    for link in ours:
+        if link.label not in missing:
+            for name in TILT_PARAMS:
+                link.set_param(name, degrees, timeout=timeout)
+    if missing:
+        events.log("tilt_limit_unknown", drones=missing, level="warn",
+                   reason=f"no {' / '.join(TILT_PARAMS)} parameters: their velocity loop keeps its own tilt limit")
+    matched = [link.label for link in ours if link.label not in missing]
+    if matched:
+        events.log("tilt_limit", degrees=degrees, drones=matched)
 
 
 def reset_estimators(links: LinkSet, plan: FlightPlan, timeout: float = 2.0) -> None:
@@ -180,6 +205,7 @@ def preflight(links: LinkSet, board: StateBoard, plan: FlightPlan, events: Event
     """Every check of the module docstring, in order; raises PreflightError on the first failure."""
     check_decks(links, plan, events)
     check_supervisor(links, events)
+    match_tilt_limit(links, plan, events)
     reset_estimators(links, plan)
     wait_converged(board, plan, events, clock)
     check_battery(board, plan, events)

@@ -19,6 +19,7 @@ from . import protocol as p
 
 LOG_TOC = p.Toc(p.LOG_VARIABLES, "log")
 PARAM_TOC = p.Toc(p.PARAM_VARIABLES, "param")
+FIRMWARE_TILT_LIMIT = 20.0  # deg: PID_VEL_ROLL_MAX and PID_VEL_PITCH_MAX of the firmware's platform_defaults_cf2.h
 _STATE_VARIABLES = {LOG_TOC.ids[v.name] for v in p.LOG_VARIABLES if v.name.startswith("stateEstimate.")}
 
 
@@ -62,7 +63,8 @@ class VirtualFirmware:
         self.params = {v.name: 0.0 for v in p.PARAM_VARIABLES}
         for positioning, name in p.DECK_PARAMS.items():
             self.params[name] = 1.0 if positioning in decks else 0.0
-        self.params.update({"stabilizer.estimator": 2.0, "stabilizer.controller": 1.0, "commander.enHighLevel": 1.0, "pm.lowVoltage": 3.2})
+        self.params.update({"stabilizer.estimator": 2.0, "stabilizer.controller": 1.0, "commander.enHighLevel": 1.0, "pm.lowVoltage": 3.2,
+                            "posCtlPid.rLimit": FIRMWARE_TILT_LIMIT, "posCtlPid.pLimit": FIRMWARE_TILT_LIMIT})
         self.blocks: dict[int, LogBlock] = {}
         self.group_mask = 0
         self.state_frozen = False  # fault: state-estimate log blocks stop coming

@@ -242,6 +242,7 @@ class VirtualFleet:
             # the airframe holds yaw 0 in the lab while the drone it stands for faces its start
             # heading, which is its estimate frame's x axis: its yaw in that frame is the airframe's
             yaw_est = _attitude(a.quat)[2]
+            self.apply_firmware_limits()
             v_est, z_ref, vz_ff, motors = self.commander.compute(self.time, pos_est, vel_est, yaw_est, self.tick)
             a.step(self.tick, rotate(v_est, self.est_yaw), z_ref, vz_ff, motors)
             self.time += self.tick
@@ -251,6 +252,13 @@ class VirtualFleet:
             logs = [fw.due_logs(self.time) for fw in self.firmware]
         for i, packets in enumerate(logs):
             self._send(i, packets)
+
+    def apply_firmware_limits(self) -> None:
+        """Fly each airframe with the tilt limit its firmware's velocity loop has now: the
+        smaller of posCtlPid.rLimit and pLimit (deg; the firmware limits roll and pitch
+        each, the controller the tilt of the thrust)."""
+        deg = [min(fw.params["posCtlPid.rLimit"], fw.params["posCtlPid.pLimit"]) for fw in self.firmware]
+        self.airframe.controller.set_max_tilt(np.radians(np.clip(deg, 1.0, 60.0)))  # the firmware takes any value
 
     # ------------------------------------------------------------------ estimates and sensors
 

@@ -154,6 +154,8 @@ PARAM_VARIABLES = [
     Variable("stabilizer.controller", "uint8_t"),
     Variable("commander.enHighLevel", "uint8_t"),
     Variable("pm.lowVoltage", "float"),
+    Variable("posCtlPid.rLimit", "float"),  # deg: the velocity loop's roll limit
+    Variable("posCtlPid.pLimit", "float"),  # deg: and its pitch limit
 ]
 
 DECK_PARAMS = {"flow": "deck.bcFlow2", "lighthouse": "deck.bcLighthouse4", "loco": "deck.bcLoco"}
