@@ -332,3 +332,20 @@ def test_a_pyopengl_platform_set_alone_is_the_only_backend_tried_and_the_error_s
     with pytest.raises(gl.RenderBackendError, match="osmesa: library not found.*PYOPENGL_PLATFORM=osmesa asks for it"):
         gl.choose_backend()
     assert tried == ["osmesa"]
+
+
+def test_a_long_trail_follows_the_path_and_starts_at_its_oldest_point():
+    """A 300-step trail was drawn through 13 of its points: chords of up to 1.5 m cut the
+    corners of the path, and its oldest 24 steps were left out."""
+    from pursuit_mj.render.overlays import OverlayStyle, trail_points
+
+    t = np.linspace(0.0, 6 * np.pi, 300)  # three laps of a 1 m circle, 6.3 cm a step
+    trails = np.stack([np.cos(t), np.sin(t), np.zeros_like(t)], -1)[:, None, :]  # (T, 1 drone, 3)
+    pts = trail_points(trails, OverlayStyle())
+    np.testing.assert_array_equal(pts[0], trails[0])  # the oldest point
+    np.testing.assert_array_equal(pts[-1], trails[-1])  # and the newest
+    chords = np.linalg.norm(np.diff(pts[:, 0], axis=0), axis=-1)
+    assert chords.max() < 0.07, chords.max()  # every step drawn
+    long = np.concatenate([trails] * 10)  # 3000 steps: thinned evenly, 8 steps a segment at most
+    chords = np.linalg.norm(np.diff(trail_points(long, OverlayStyle())[:, 0], axis=0), axis=-1)
+    assert chords.max() < 8 * 0.0632 and len(chords) <= OverlayStyle().trail_segments

@@ -38,7 +38,7 @@ class OverlayStyle:
     marker_radius: float = 0.1  # m: role disc under each drone, bigger than the 9 cm frame
     marker_alpha: float = 0.6
     circle_segments: int = 64  # a 2 m circle is then within 2.5 mm of round (24 showed facets at 1280 x 720)
-    trail_segments: int = 12  # a trail is drawn through at most this many + 1 of its points
+    trail_segments: int = 400  # a trail is drawn through at most this many + 1 of its points (every step up to 400)
     dash_length: float = 0.1  # m
 
 
@@ -153,13 +153,22 @@ def draw_markers(w: GeomWriter, snap, style: OverlayStyle) -> None:
             w.disc(p, style.marker_radius, c, mat, thickness=0.001)
 
 
+def trail_points(trails: np.ndarray, style: OverlayStyle) -> np.ndarray:
+    """The points (P, D, 3) a trail is drawn through: all of trails (T, D, 3) up to
+    style.trail_segments segments, evenly thinned beyond (each geom is a draw call), the
+    oldest and the newest point always among them."""
+    segments = len(trails) - 1
+    if segments <= style.trail_segments:
+        return trails
+    keep = np.unique(np.round(np.linspace(0, segments, style.trail_segments + 1)).astype(np.int64))
+    return trails[keep]
+
+
 def draw_trails(w: GeomWriter, trails: np.ndarray, n_pursuers: int, style: OverlayStyle) -> None:
     """Fading trail per drone; trails (T, D, 3) m world, oldest first, drones in scene order."""
     if len(trails) < 2:
         return
-    # every geom costs a draw call, so long trails are thinned (the newest point always kept)
-    stride = -(-(len(trails) - 1) // style.trail_segments)
-    pts = trails[::-1][::stride][::-1]
+    pts = trail_points(trails, style)
     for d in range(trails.shape[1]):
         c = _rgba(ROLE_RGBA["pursuer" if d < n_pursuers else "evader"])
         w.polyline(pts[:, d], c, style.trail_width, fade=True)
