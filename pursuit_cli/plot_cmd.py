@@ -63,6 +63,7 @@ def run(args) -> int:
             label = f"{label} ({path})"
         runs[label] = read_training_log(path)
     rows = _combined_rows([(f, read_eval_rows(f)) for f in args.eval])
+    _check_one_task(args.eval)
     if runs:  # refused before any chart is written
         x_key(runs, args.x)
         curve_keys(runs, args.metric or None)
@@ -75,6 +76,32 @@ def run(args) -> int:
     for p in paths:
         print(f"wrote {p}")
     return 0
+
+
+def _check_one_task(paths: list[str]) -> None:
+    """ValueError naming the --eval file whose task differs from the first's (JSON tables carry
+    their task; a CSV does not and is taken as it is)."""
+    import json
+
+    from pursuit_mj.configio import first_difference
+    from pursuit_mj.pooling import table_task
+
+    first = None
+    for path in paths:
+        if Path(path).suffix.lower() == ".csv":
+            continue
+        data = json.loads(Path(path).read_text())  # read_eval_rows read it already
+        config = data.get("config") if isinstance(data, dict) else None
+        if not isinstance(config, dict):
+            continue
+        if first is None:
+            first = (path, table_task(config))
+            continue
+        diff = first_difference(first[1], table_task(config))
+        if diff:
+            key, a, b = diff
+            raise ValueError(f"--eval {path}: its task differs from {first[0]}'s at {key} ({b!r} there, {a!r} in "
+                             f"{first[0]}); one chart compares policies on one task: plot them apart")
 
 
 def _combined_rows(files: list[tuple[str, list[dict]]]) -> list[dict]:

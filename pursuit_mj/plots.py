@@ -228,6 +228,14 @@ def plot_training(runs: Mapping[str, Sequence[Mapping[str, float]]], folder: str
 # ---------------------------------------------------------------------- evaluation bars
 
 
+def _first_line_is_an_object(path: Path) -> bool:
+    try:
+        with open(path, encoding="utf-8") as f:
+            return isinstance(json.loads(f.readline()), Mapping)
+    except (OSError, ValueError):
+        return False
+
+
 def read_eval_rows(path: str | Path) -> list[dict[str, Any]]:
     """Rows of an evaluation JSON ({"rows": [...]} or a list) or CSV (*.csv, of `pursuit-mj eval
     --csv`); ValueError naming what is missing."""
@@ -244,6 +252,9 @@ def read_eval_rows(path: str | Path) -> list[dict[str, Any]]:
         try:
             data = json.loads(_text(path, "evaluation results"))
         except json.JSONDecodeError as exc:
+            if exc.msg == "Extra data" and _first_line_is_an_object(path):
+                raise ValueError(f"evaluation results {path}: a training log (one JSON object a line), not an evaluation "
+                                 f"table: plot it with --log {path}") from None
             raise ValueError(f"evaluation results {path}: not JSON ({exc.msg}, line {exc.lineno})") from None
         rows = data.get("rows") if isinstance(data, Mapping) else data
     if not isinstance(rows, list) or not rows:

@@ -48,7 +48,8 @@ def _read(path: Path) -> dict:
     return data
 
 
-def _task(config: dict) -> dict:
+def table_task(config: dict) -> dict:
+    """The task of an evaluation table's config: all but the keys its rows may set apart."""
     return {k: v for k, v in config.items() if k not in PER_ROW_KEYS}
 
 
@@ -97,7 +98,7 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
         if first is None:
             first_path, first = path, data
         else:
-            diff = first_difference(_task(first["config"]), _task(data["config"]))
+            diff = first_difference(table_task(first["config"]), table_task(data["config"]))
             if diff:
                 key, a, b = diff
                 raise ValueError(f"{path}: its task differs from {first_path}'s at {key} ({b!r} there, {a!r} in "

@@ -363,3 +363,25 @@ def test_two_layout_files_of_one_name_are_told_apart_on_the_axis(tmp_path, monke
     monkeypatch.setattr(plt.Axes, "set_xticks", lambda self, at, labels, **kw: ticks.append(list(labels)) or real(self, at, labels, **kw))
     plot_eval(rows, tmp_path / "plots")
     assert ticks[0] == ["layout 0", "v1/arena.yaml", "v2/arena.yaml"]
+
+
+def test_plot_command_refuses_tables_of_different_tasks_on_one_chart(tmp_path, capsys):
+    """The heuristic team's rates of the reference task and of the hard one stood side by side
+    as 'heuristic (one)' and 'heuristic (two)', nothing naming the tasks."""
+    one, two = _eval_json(tmp_path / "one.json"), _eval_json(tmp_path / "two.json", policies=("heuristic", "mappo"))
+    for path, speed in ((one, 0.6), (two, 0.9)):
+        data = json.loads(path.read_text())
+        data["config"] = {"evader_speed": speed, "n_pursuers": 3, "layout": 0}
+        path.write_text(json.dumps(data))
+    assert main(["plot", "--eval", str(one), "--eval", str(two), "-o", str(tmp_path / "out")]) == 2
+    assert (f"--eval {two}: its task differs from {one}'s at evader_speed (0.9 there, 0.6 in {one}); one chart "
+            "compares policies on one task") in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_training_log_given_as_an_evaluation_table_points_to_log(tmp_path, capsys):
+    """It said 'not JSON (Extra data, line 2)'."""
+    log = _log(tmp_path / "metrics.jsonl")
+    assert main(["plot", "--eval", str(log), "-o", str(tmp_path / "out")]) == 2
+    assert f"evaluation results {log}: a training log (one JSON object a line), not an evaluation table: plot it " \
+           f"with --log {log}" in capsys.readouterr().err
