@@ -228,6 +228,15 @@ def plot_training(runs: Mapping[str, Sequence[Mapping[str, float]]], folder: str
 # ---------------------------------------------------------------------- evaluation bars
 
 
+def bar_label(value: float, percent: bool) -> str:
+    """A bar's value as its table shows it: a rate (%) to one decimal where it has one (62.5),
+    a mean step count whole; halves rounded up, not to even."""
+    if percent:
+        tenths = math.floor(value * 10 + 0.5)
+        return str(tenths // 10) if tenths % 10 == 0 else f"{tenths / 10:.1f}"
+    return str(math.floor(value + 0.5))
+
+
 def _first_line_is_an_object(path: Path) -> bool:
     try:
         with open(path, encoding="utf-8") as f:
@@ -377,7 +386,7 @@ def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str
                 shown.add(pol)
         pad = 0.02 * (100.0 if key.endswith("_pct") else max(top, 1.0))
         for centre, tip, v in values:
-            ax.text(centre, tip + pad, "none" if v is None else f"{v:.0f}", ha="center", va="bottom", fontsize=7)
+            ax.text(centre, tip + pad, "none" if v is None else bar_label(v, key.endswith("_pct")), ha="center", va="bottom", fontsize=7)
         values.clear()
         ax.set_xticks(np.arange(len(layouts)), _layout_names(layouts))
         ax.set_ylabel(label)

@@ -385,3 +385,11 @@ def test_a_training_log_given_as_an_evaluation_table_points_to_log(tmp_path, cap
     assert main(["plot", "--eval", str(log), "-o", str(tmp_path / "out")]) == 2
     assert f"evaluation results {log}: a training log (one JSON object a line), not an evaluation table: plot it " \
            f"with --log {log}" in capsys.readouterr().err
+
+
+def test_bar_labels_say_what_the_table_says():
+    """Labels rounded half to even: 62.5 % read '62' and 87.5 % '88' while the table said 62.5 and 87.5."""
+    from pursuit_mj.plots import bar_label
+
+    assert [bar_label(v, percent=True) for v in (62.5, 87.5, 100.0, 0.0, 97.44)] == ["62.5", "87.5", "100", "0", "97.4"]
+    assert [bar_label(v, percent=False) for v in (180.5, 181.5, 42.0)] == ["181", "182", "42"]
