@@ -28,7 +28,9 @@ constant `evader_speed`, through the same velocity interface as the pursuers:
    whose corridor is not free for `clearance + evader_speed * lookahead_time` is flown only
    if all are blocked. A gap escape skips 4 to 6 (its path is already checked);
 7. braking (only when `evader_speed` exceeds WALL_SPEED): the fixed margins above keep an
-   evader off walls up to WALL_SPEED (measured: >= 0.11 m at 0.9 m/s, both fidelities), but a
+   evader off walls up to WALL_SPEED (measured: >= 0.11 m at 0.9 m/s in point fidelity; in
+   quadrotor fidelity chased evaders at 0.9 m/s brushed cylinders on layouts 2 and 3, their
+   centres 0.07 m from the surface, 2026-12-06; an evader's contacts end nothing), but a
    faster one cannot shed its speed within them (a Crazyflie tilted 15 deg stops from v in
    v**2 / (2 * 2.6 m/s**2): 0.43 m from 1.5 m/s, 1.7 m from 3) and touched walls from 1.5 m/s
    on, its momentum carrying it on while it turned. So its speed along the chosen
