@@ -56,6 +56,8 @@ class PursuitParallelEnv(ParallelEnv):
         self._obs_space = spaces.Box(-np.inf, np.inf, (self._env.obs_dim,), np.float32)
         self._act_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self.state_space = spaces.Box(-np.inf, np.inf, (self._env.state_dim,), np.float32)
+        self.observation_spaces = {a: self._obs_space for a in self.possible_agents}  # as ParallelEnv declares them
+        self.action_spaces = {a: self._act_space for a in self.possible_agents}
 
     def observation_space(self, agent: str) -> spaces.Box:
         self._check_agent(agent, "observation_space")

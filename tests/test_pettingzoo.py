@@ -212,3 +212,13 @@ def test_render_settings_without_a_render_mode_are_refused_rather_than_ignored()
 
     with pytest.raises(ValueError, match=r"render_settings: given without render_mode='rgb_array'"):
         PursuitParallelEnv(render_settings=RenderSettings())
+
+
+def test_the_space_dicts_of_the_parallel_api_are_there():
+    """PettingZoo's ParallelEnv declares observation_spaces and action_spaces; tools that read
+    them (wrappers, SuperSuit) failed with an AttributeError."""
+    env = PursuitParallelEnv(default_config(fidelity="point", random_obstacles=0))
+    assert set(env.observation_spaces) == set(env.action_spaces) == set(env.possible_agents)
+    for agent in env.possible_agents:
+        assert env.observation_spaces[agent] == env.observation_space(agent)
+        assert env.action_spaces[agent] == env.action_space(agent)
