@@ -30,7 +30,12 @@ SENSING_DOMAIN = 1  # keeps perception's random streams apart from the evaders' 
 
 @dataclasses.dataclass
 class EpisodeRecord:
-    """One finished episode. returns: per term, summed over steps, mean over pursuers."""
+    """One finished episode. returns: per term, summed over steps, mean over pursuers.
+
+    outcome: success | collision | timeout; a collision in the step of the last capture is a
+    collision (failure) though both reward terms are paid. captured: evaders caught (a failed
+    episode may have some); time_to_capture (s): set for successes only, else None.
+    """
 
     world: int
     episode: int
