@@ -229,6 +229,12 @@ class VelocityController:
         # vee(P - P^T) with P_ij = des_i . col_j: (P21 - P12, P02 - P20, P10 - P01)
         e2 = (des[_NEXT2] * cols[_NEXT1]).sum(1)
         e2 -= (des[_NEXT1] * cols[_NEXT2]).sum(1)
+        # that error's yaw part is 2 sin(yaw): it fades beyond 90 deg and vanishes at 180, where
+        # a drone turned round would hold its yaw and ignore the tilt asked of it; there the
+        # yaw part is held at its 90 deg value, so the drone turns back the shorter way
+        away = cols[0, 0] < 0.0  # body x pointing against world x: |yaw| > 90 deg
+        if away.any():
+            e2[2, away] = np.where(cols[0, 1, away] >= 0.0, 2.0, -2.0)
         rate_des = self._att * e2
         max_rate = self.gains.max_rate
         np.minimum(np.maximum(rate_des, -max_rate, out=rate_des), max_rate, out=rate_des)

@@ -346,3 +346,24 @@ def test_design_md_states_how_much_sooner_a_point_drone_stops_than_the_quadrotor
     stated = [float(x) / 100 for x in found.groups()]
     measured = [_run_on(fid, speed, then) for speed in (0.3, 0.6) for then in (0.0, -1.0) for fid in ("point", "quadrotor")]
     np.testing.assert_allclose(measured, stated, atol=0.003)
+
+
+@pytest.mark.parametrize("yaw_deg", [90.0, 170.0, 180.0, -135.0])
+def test_a_drone_facing_away_from_yaw_zero_turns_back_and_follows_the_command(yaw_deg):
+    """The attitude error of the yaw-0 frame vanishes at a yaw of 180 deg: a drone turned round
+    ignored every velocity command, and at 170 deg still flew sideways half a second on."""
+    physics = make_physics("quadrotor")
+    yaw = math.radians(yaw_deg)
+    qpos = physics.qpos[[0]]
+    qpos[0, physics._qpos_idx[0, 3:7]] = [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
+    physics.qpos[[0]] = qpos
+    physics.batch.forward(np.array([0]))
+    commands = np.zeros((1, physics.n_drones, 2))
+    commands[0, 0] = [0.3, 0.0]
+    for _ in range(15):  # 1.5 s
+        physics.step(commands)
+    state = physics.state()
+    w, x, y, z = state.quat[0, 0]
+    assert abs(math.degrees(math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))) < 5.0
+    assert state.vel[0, 0, 0] > 0.25 and abs(state.vel[0, 0, 1]) < 0.05
+    assert abs(state.pos[0, 0, 2] - physics.config.flight_height) < 0.05
