@@ -694,3 +694,20 @@ def test_a_resume_says_which_rows_its_metrics_log_has_lost(tmp_path):
     Trainer.resume(cfg.run_dir, total_steps=32 * 3, log=said.append).train()
     assert any("metrics.jsonl lacks the rows of updates 1-2" in line for line in said), said
     assert [r["update"] for r in rows(cfg.run_dir)] == [3]
+
+
+def test_a_last_pt_older_than_the_log_is_refused_rather_than_cutting_the_log(tmp_path):
+    """A last.pt copied in from another run (or an old copy put back) made the resume cut the
+    metrics log back to that checkpoint's update: the rows of every later update were lost."""
+    old = tiny_config(tmp_path, name="other", updates=1)
+    Trainer(old, log=lambda s: None).train()
+    cfg = tiny_config(tmp_path, updates=4)
+    Trainer(cfg, log=lambda s: None).train()
+    log_before = (cfg.run_dir / "metrics.jsonl").read_text()
+    (cfg.run_dir / "last.pt").write_bytes((old.run_dir / "last.pt").read_bytes())
+    with pytest.raises(ValueError, match=r"last.pt is at update 1, but metrics.jsonl holds the rows of updates 2-4: "
+                                         r"it is not this run's latest checkpoint"):
+        Trainer.resume(cfg.run_dir, total_steps=32 * 6, log=lambda s: None)
+    assert (cfg.run_dir / "metrics.jsonl").read_text() == log_before
+    (cfg.run_dir / "metrics.jsonl").rename(cfg.run_dir / "metrics.old.jsonl")  # the way out it names
+    assert Trainer.resume(cfg.run_dir, total_steps=32 * 2, log=lambda s: None).train()["counters"]["update"] == 2

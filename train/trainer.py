@@ -230,6 +230,12 @@ class Trainer:
         # a row still pending may have reached the log before the run was stopped: it is logged again
         logged = self.counters.update - (1 if data.get("pending_row") else 0)
         metrics = MetricsLog(self.run_dir / "metrics.jsonl")
+        later = sorted(r.get("update", 0) for r in metrics.rows() if r.get("update", 0) > logged)
+        if len(later) > self.cfg.run.checkpoint_every + 1:  # more than a crash between checkpoints leaves
+            raise ValueError(f"--resume {self.run_dir}: last.pt is at update {logged}, but metrics.jsonl holds the rows of "
+                             f"updates {later[0]}-{later[-1]}: it is not this run's latest checkpoint (copied from another "
+                             f"run, or an older copy put back), and a resume would cut those rows from the log. Put the "
+                             f"run's own last.pt back, or move metrics.jsonl aside to go on from this one")
         metrics.truncate_after(logged)
         missing = sorted(set(range(1, logged + 1)) - {r.get("update") for r in metrics.rows()})
         if missing:  # the file deleted or cut by hand: the curves will have a gap
