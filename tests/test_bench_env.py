@@ -32,6 +32,12 @@ def test_bench_env_prints_rates_overhead_and_profile(capsys):
         (["--worlds", "0"], "--worlds: world counts must be >= 1, got 0"),
         (["--worlds", "64", "16", "64"], "--worlds: 64 given twice"),  # the verdict judged the first 64 only
         (["physics", "--worlds", "8", "8"], "--worlds: 8 given twice"),
+        # both ran and two identical verdict lines judged the first
+        (["--fidelity", "point", "point"], "--fidelity: point given twice"),
+        (["physics", "--fidelity", "quadrotor", "quadrotor"], "--fidelity: quadrotor given twice"),
+        # it named default_config()'s max_steps, or said an odd height needs to be even
+        (["render", "--steps", "100001"], "--steps: must be in 1..100000, got 100001"),
+        (["render", "--height", "-5"], "--height -5: must be an integer in 16..1080 pixels"),
         (["--seconds", "0"], "--seconds: must be > 0"),
         (["--set", "evader_speed=0"], "evader_speed"),
         (["--task", "no_such_preset"], "no_such_preset"),
@@ -122,3 +128,18 @@ def test_an_aim_verdict_never_sits_beside_a_number_printed_as_the_aim():
                               rerun_send_s=0.09996).lines()
     assert "19.96 frames/s   target >= 20: NOT met" in lines[2]
     assert "19.996 % of simulation   target < 20 %: met" in lines[4]
+
+
+def test_a_figure_no_machine_gives_is_called_unreliable_not_met():
+    """ours/raw 2.11 (ours does more than the raw ceiling) and a task overhead of -3 % (the env
+    does more than physics) came from a machine whose speed changed between blocks; they were
+    printed as 'met'."""
+    from pursuit_cli.benchmarks import env, physics
+
+    fast = physics.PhysicsBench("quadrotor", 64, 50, raw_s=0.02, ours_s=0.01, raw_median_s=0.02, ours_median_s=0.01,
+                                blocks=2, peak_rss_mb=1.0)
+    assert physics.aim_line(fast).endswith("ours/raw >= 0.70: 2.00, unreliable (above 1: ours does more work than raw; "
+                                           "the machine's speed changed between blocks; run it again on an idle machine)")
+    negative = env.EnvBench("point", 64, 3, raw_s=0.01, physics_s=0.01, env_s=0.0097, blocks=2, peak_rss_mb=1.0)
+    assert env.aim_line(negative).endswith("-3 %, unreliable (below 0: the env does more work than physics; the "
+                                           "machine's speed changed between blocks; run it again on an idle machine)")

@@ -32,6 +32,13 @@ def check_common_args(args: Any) -> None:
     twice = sorted({w for w in args.worlds if args.worlds.count(w) > 1})
     if twice:  # the verdict would judge the first of them only
         raise ValueError(f"--worlds: {twice[0]} given twice; give each world count once")
+    fidelities = list(getattr(args, "fidelity", None) or [])
+    again = next((f for f in fidelities if fidelities.count(f) > 1), None)
+    if again is not None:
+        raise ValueError(f"--fidelity: {again} given twice; give each fidelity once")
+
+
+UNRELIABLE = "the machine's speed changed between blocks; run it again on an idle machine"
 
 
 def peak_rss_mb() -> float:

@@ -70,6 +70,9 @@ class RenderBenchResult:
         ]
 
 
+MAX_STEPS = 100_000  # decision steps to play at most (some 3 hours of rendering)
+
+
 def _simulate(config: TaskConfig, steps: int, seed: int):
     """Play `steps` decision steps, restarting finished episodes.
 
@@ -142,7 +145,7 @@ def _record(episodes, folder: Path) -> float:
 
 
 def bench_render(fidelity: str = "quadrotor", steps: int = 1000, width: int = 640, height: int = 480, seed: int = 0) -> RenderBenchResult:
-    config = default_config(fidelity=fidelity, max_steps=steps)
+    config = default_config(fidelity=fidelity)
     _, episodes, sim, snap_t = _simulate(config, steps, seed)
     with tempfile.TemporaryDirectory(prefix="pursuit_render_bench_") as tmp:
         draw, enc = _render(config, episodes, Path(tmp), width, height)
@@ -160,10 +163,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.steps < 1:
-        raise ValueError(f"--steps: expected an integer >= 1, got {args.steps}")
+    if not 1 <= args.steps <= MAX_STEPS:
+        raise ValueError(f"--steps: must be in 1..{MAX_STEPS}, got {args.steps}")
+    from pursuit_mj.layout import load_layout
+    from pursuit_mj.render.renderer import RenderSettings, check_settings
     from pursuit_mj.render.video import check_frame_size, ensure_ffmpeg
 
+    config = default_config()
+    check_settings(RenderSettings(args.width, args.height, "top"), config, load_layout(config.layout))  # sizes first
     check_frame_size("mp4", args.width, args.height)
     ensure_ffmpeg()
     for fidelity in (("quadrotor", "point") if args.fidelity == "both" else (args.fidelity,)):
