@@ -28,6 +28,8 @@ def test_study_end_to_end_on_a_tiny_budget(tmp_path, capsys):
     assert "paired with heuristic on the same episodes" in out  # every arm against the team, episode by episode
     assert {(p["policy"], p["layout"]) for p in table["paired"]} == {(n, l) for n in names - {"heuristic"} for l in ("0", "1", "all")}
     assert (out_dir / "plots" / "success.png").is_file() and (out_dir / "timings.json").is_file()
+    # under a minute for nine runs: each is told it is left too little time to learn (they were not)
+    assert "warning: full_obs is left" in out and "too little to learn anything" in out
     ft = json.loads((out_dir / "runs" / "fine_tune" / "metrics.jsonl").read_text().splitlines()[0])
     assert ft["update"] == 1
     assert f"initialised from {out_dir / 'runs' / 'imitate' / 'best.pt'}" in out  # PPO continues the imitation

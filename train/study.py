@@ -82,6 +82,7 @@ FEW_EPISODES = 20  # fewer per layout than this and the study says its table is 
 MIN_TRAIN_FRACTION = 0.4  # evaluation may take at most the rest of the budget
 VALIDATION_SHARE = 0.3  # at most this part of an arm's time goes to its closing validation
 MIN_VALIDATION_EPISODES = 4
+MIN_ARM_TRAIN_S = 10.0  # s: an arm given less is told it will learn next to nothing
 
 
 @dataclasses.dataclass(frozen=True)
@@ -209,6 +210,14 @@ def arm_budget(left_s: float, share: float, shares_left: float, validation_episo
     return max(arm_s - episodes * per_episode, 0.0) / 60.0, episodes
 
 
+def short_arm_warning(regime: str, seconds: float) -> str:
+    """What the study says of an arm left under MIN_ARM_TRAIN_S of training."""
+    return (f"[study] warning: {regime} is left {seconds:.0f} s of training, too little to learn anything (the runs before "
+            f"took longer than planned: the closing validation of a barely trained policy plays to the time limit); "
+            f"its row in the table is of a nearly untrained policy, and the study may run over its budget. A larger "
+            f"--budget-minutes gives every run time to learn")
+
+
 #: train keys the study sets for each arm itself, and why (a --train-set of them is refused)
 STUDY_SETS = {"name": "its run goes to <out>/runs/<arm>", "run.runs_dir": "its run goes to <out>/runs/<arm>",
               "max_minutes": "its share of the budget", "init_from": "the best.pt of the arm it continues"}
@@ -311,6 +320,8 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
         left_s = train_end - time.perf_counter() - ARM_START_S * (len(todo) - i)  # this and every later arm's start
         minutes, val_episodes = arm_budget(left_s, arm.share, sum(a.share for a in todo[i:]),
                                            cfg.run.validation_episodes, seconds_per_episode, cfg.run.validation_vs_heuristic)
+        if minutes * 60.0 < MIN_ARM_TRAIN_S:
+            log(short_arm_warning(regime, minutes * 60.0))
         t0 = time.perf_counter()
         if interrupted:  # its own config, with the time it had plus its share of this session's
             trainer = Trainer.resume(cfg.run_dir, log=log, max_minutes=_spent_minutes(cfg.run_dir) + max(minutes, 0.01),
