@@ -119,13 +119,35 @@ def _check_loads(texts: list[str], refs: list) -> None:
             raise ValueError(f"--layout {text}: {exc}") from None
 
 
+FLAG_KEYS = {"name": "--name", "total_steps": "--total-steps", "max_minutes": "--max-minutes", "n_envs": "--n-envs",
+             "seed": "--seed", "init_from": "--init-from", "fidelity": "--fidelity"}  # attribute (and key) -> flag
+
+
+def _load_naming_one_flag(args):
+    """load_train_config of the command; an error of one flag's key names that flag alone, not
+    every flag typed (which is all the config loader knows of where the flags' values came from)."""
+    import re
+
+    from train.config import load_train_config
+    from .common import flags_typed
+
+    typed = _flags_typed(args)
+    try:
+        return load_train_config(args.config, args.overrides, _flags(args), typed)
+    except ValueError as exc:
+        text = str(exc)
+        found = re.match(re.escape(typed) + r": key '(?:task\.)?(\w+)'", text)
+        key = found.group(1) if found else None
+        if key not in FLAG_KEYS or getattr(args, key) is None or not typed.startswith("flags "):
+            raise
+        raise ValueError(flags_typed([(FLAG_KEYS[key], getattr(args, key))]) + text[len(typed):]) from None
+
+
 def _flags_typed(args) -> str:
     """The value-carrying flags given, as config errors name them (e.g. 'flag --seed -1')."""
     from .common import flags_typed
 
-    names = {"name": "--name", "total_steps": "--total-steps", "max_minutes": "--max-minutes", "n_envs": "--n-envs",
-             "seed": "--seed", "init_from": "--init-from", "fidelity": "--fidelity"}
-    pairs = [(flag, getattr(args, key)) for key, flag in names.items() if getattr(args, key) is not None]
+    pairs = [(flag, getattr(args, key)) for key, flag in FLAG_KEYS.items() if getattr(args, key) is not None]
     pairs += [("--layout", ref) for ref in args.layout or []]
     return flags_typed(pairs) if pairs else "command-line flag"
 
@@ -230,7 +252,7 @@ def run(args) -> int:
         trainer = Trainer.resume(run_dir, args.total_steps, max_minutes=args.max_minutes, progress=_progress(args),
                                  rerun=True if args.rerun else None)
     else:
-        cfg = load_train_config(args.config, args.overrides, _flags(args), _flags_typed(args))
+        cfg = _load_naming_one_flag(args)
         if args.show_config:
             cfg.check_complete()  # what training would refuse, -sc refuses too
             cfg.check_layouts()

@@ -406,3 +406,12 @@ def test_a_bare_resume_says_it_looked_for_the_default_run_name(tmp_path, capsys,
     err = capsys.readouterr().err
     assert "no checkpoint runs/run/last.pt" in err and "continues the run named 'run', the default" in err
     assert "--resume runs/NAME" in err
+
+
+def test_a_bad_flag_among_several_is_named_alone(capsys):
+    """'flags --name z1 --n-envs 0 --seed 2 --fidelity point: key 'n_envs'...' named every flag typed."""
+    assert main(["train", "--config", "classic", "--name", "z1", "--n-envs", "0", "--fidelity", "point", "--seed", "2", "-sc"]) == 2
+    err = capsys.readouterr().err
+    assert "error: flag --n-envs 0: key 'n_envs': 0 is out of range" in err, err
+    assert main(["train", "--config", "classic", "--name", "z1", "--seed", "-3", "--fidelity", "point", "-sc"]) == 2
+    assert "error: flag --seed -3: key 'seed'" in capsys.readouterr().err

@@ -75,6 +75,9 @@ def test_a_train_override_one_arm_refuses_is_found_before_anything_runs(tmp_path
     assert main(["study", "--budget-minutes", "30", "--out", str(out), "--train-set", "ppo.learnable_gamma=true"]) == 2
     err = capsys.readouterr().err
     assert "--train-set: the imitate arm" in err and "learnable_gamma" in err
+    assert main(["study", "--budget-minutes", "30", "--out", str(out), "--train-set", "foo=1"]) == 2
+    err = capsys.readouterr().err
+    assert "--train-set foo=1: unknown key 'foo'" in err and "--set foo" not in err.replace("--train-set foo", "")
     assert not out.exists()  # no arm trained, no evaluation run, not even the folder made
     assert main(["study", "--budget-minutes", "30", "--out", str(out), "--layouts", "0", "9"]) == 2
     assert "layout 9" in capsys.readouterr().err and not out.exists()

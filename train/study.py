@@ -237,7 +237,10 @@ def check_train_overrides(plan: StudyPlan) -> None:
             cfg.check_complete()
             cfg.check_layouts()  # found at the arm's start, after the team's evaluation was kept in study.json
         except ValueError as exc:
-            raise ValueError(f"--train-set: the {arm.name} arm ({arm.config} config) refuses it: {exc}") from None
+            said = str(exc)
+            for text in plan.train_overrides:  # the config names each as --set; the user typed --train-set
+                said = said.replace(f"--set {text}", f"--train-set {text}")
+            raise ValueError(f"--train-set: the {arm.name} arm ({arm.config} config) refuses it: {said}") from None
 
 
 def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requested: Callable[[], bool] | None = None) -> dict:
