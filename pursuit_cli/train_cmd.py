@@ -66,7 +66,10 @@ def register(sub) -> None:
                    help="write a small policy-only copy of CHECKPOINT (actor, config, spec) to OUT and exit")
     p.add_argument("--rerun", action="store_true", help="also stream the logged scalars to runs/<name>/metrics.rrd (run.rerun); a resumed run rewrites it "
                         "from the whole metrics log first")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar (logs still go to metrics.jsonl)")
+    bar = p.add_mutually_exclusive_group()
+    bar.add_argument("--no-progress", action="store_true", help="no progress bar (logs still go to metrics.jsonl)")
+    bar.add_argument("--progress", action="store_true", help="a progress bar (the default; on --resume, turns it back on "
+                                                           "for a run started with --no-progress)")
     p.add_argument("-sc", "--show-config", action="store_true", help="print the resolved config and exit")
     p.set_defaults(func=run)
 
@@ -100,8 +103,8 @@ def _flags(args) -> dict:
         flags["task"] = task
     if args.learnable_gamma:
         flags["ppo"] = {"learnable_gamma": True}
-    if args.no_progress:
-        flags.setdefault("run", {})["progress"] = False
+    if args.no_progress or args.progress:
+        flags.setdefault("run", {})["progress"] = bool(args.progress)
     if args.rerun:
         flags.setdefault("run", {})["rerun"] = True
     return flags
@@ -152,7 +155,7 @@ def _flags_typed(args) -> str:
     return flags_typed(pairs) if pairs else "command-line flag"
 
 
-RESUMABLE_FLAGS = "--total-steps, --max-minutes, --no-progress, --rerun"
+RESUMABLE_FLAGS = "--total-steps, --max-minutes, --no-progress, --progress, --rerun"
 
 
 def _check_same(asked, stored) -> None:
@@ -197,14 +200,15 @@ def _resumable_given(args) -> set[str]:
 
     given = {".".join(parse_override(text, f"--set {text}")[0]) for text in args.overrides}
     for key, flag in (("total_steps", args.total_steps is not None), ("max_minutes", args.max_minutes is not None),
-                      ("run.progress", args.no_progress), ("run.rerun", args.rerun)):
+                      ("run.progress", args.no_progress or args.progress), ("run.rerun", args.rerun)):
         if flag:
             given.add(key)
     return given & {"total_steps", "max_minutes", "run.progress", "run.rerun"}
 
 
 def _progress(args) -> bool | None:
-    return False if args.no_progress else None
+    """The progress bar a resume asks for: off, on, or as the run had it (None)."""
+    return False if args.no_progress else (True if args.progress else None)
 
 
 def run(args) -> int:

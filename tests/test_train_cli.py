@@ -415,3 +415,26 @@ def test_a_bad_flag_among_several_is_named_alone(capsys):
     assert "error: flag --n-envs 0: key 'n_envs': 0 is out of range" in err, err
     assert main(["train", "--config", "classic", "--name", "z1", "--seed", "-3", "--fidelity", "point", "-sc"]) == 2
     assert "error: flag --seed -3: key 'seed'" in capsys.readouterr().err
+
+
+def test_a_run_started_without_a_progress_bar_can_resume_with_one(tmp_path, monkeypatch):
+    """--no-progress stuck: a resume could only keep the bar off (--set run.progress=true is refused there)."""
+    from test_train_checkpoint import tiny_config
+    from train.trainer import Trainer
+
+    cfg = tiny_config(tmp_path, updates=1)  # run.progress=false
+    Trainer(cfg, log=lambda s: None).train()
+    seen = {}
+    real = Trainer.resume
+
+    def spy(*a, **k):
+        trainer = real(*a, **k)
+        seen["progress"] = trainer.cfg.run.progress
+        return trainer
+
+    monkeypatch.setattr(Trainer, "resume", spy)
+    assert main(["train", "--resume", str(cfg.run_dir), "--progress", "--total-steps", "64"]) == 0
+    assert seen["progress"] is True
+    with pytest.raises(SystemExit) as stop:  # argparse: the two flags exclude each other
+        main(["train", "--resume", str(cfg.run_dir), "--progress", "--no-progress"])
+    assert stop.value.code == 2
