@@ -74,7 +74,7 @@ def _outputs(args) -> tuple[Path | None, Path | None]:
     _check_output_flags(args)
     csv_path = Path(args.csv) if args.csv else (Path(f"{args.out}.csv") if args.out else None)
     json_path = Path(args.json) if args.json else (Path(f"{args.out}.json") if args.out else None)
-    for path, what in ((csv_path, "--csv"), (json_path, "--json")):
+    for path, what in ((csv_path, "--csv" if args.csv else f"--out {args.out}"), (json_path, "--json" if args.json else f"--out {args.out}")):
         if path is not None:
             check_writable(path, what)
     if args.rerun:

@@ -124,6 +124,8 @@ def test_bench_physics_prints_the_table(capsys):
         # a task value the heuristic team cannot work with: it did not say which flag or file gave it
         (["eval", "--policy", "heuristic", "--set", "n_rays=4"], "--set n_rays=4: the heuristic team sees walls only through"),
         (["eval", "--policy", "heuristic", "-ec", "{tmp}/rays.yaml"], "task file {tmp}/rays.yaml: n_rays 4: the heuristic team"),
+        # the folder of --out is a file: it named --csv, which was not given
+        (["eval", "--out", "{tmp}/rays.yaml/t"], "--out {tmp}/rays.yaml/t path {tmp}/rays.yaml/t.csv: {tmp}/rays.yaml exists and is not a folder"),
     ],
 )
 def test_bad_input_exits_2_with_one_line(argv, message, capsys, tmp_path):
