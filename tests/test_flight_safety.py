@@ -328,3 +328,31 @@ def test_an_emergency_stop_cuts_every_link_at_once_not_one_after_another(tmp_pat
     for i in range(fleet.plan.n_drones):  # no setpoint follows the emergency stop
         kinds = [r.kind for r in fleet.received(i)]
         assert not {"velocity", "hover"} & set(kinds[kinds.index("emergency_stop"):]), kinds
+
+
+def test_a_drone_without_the_tilt_parameters_flies_with_its_own_limit_and_a_warning():
+    """Firmware without posCtlPid.rLimit / pLimit: the others get the simulator's limit, the
+    preflight goes on, and the log names the drone whose velocity loop keeps its own."""
+    from pursuit_mj.flight.events import EventLog
+    from pursuit_mj.flight.preflight import match_tilt_limit
+
+    class Link:  # cflib's link as the preflight uses it: parameters by name
+        def __init__(self, label, has):
+            self.label, self.has, self.set = label, has, {}
+
+        def param(self, name):
+            return 20.0 if self.has else None
+
+        def set_param(self, name, value, timeout=None):
+            self.set[name] = value
+
+    class Plan:
+        commanded = [True, True, False]
+
+    links = [Link("p0", True), Link("p1", False), Link("t0", True)]
+    events = EventLog(None)
+    match_tilt_limit(links, Plan(), events)
+    assert links[0].set == {"posCtlPid.rLimit": 15.0, "posCtlPid.pLimit": 15.0}
+    assert links[1].set == {} and links[2].set == {}  # the target is not ours to set
+    assert events.of_kind("tilt_limit_unknown")[0]["drones"] == ["p1"]
+    assert events.of_kind("tilt_limit")[0]["drones"] == ["p0"]
