@@ -166,6 +166,20 @@ def flags_typed(pairs) -> str:
     return ("flag " if len(typed) == 1 else "flags ") + " ".join(typed)
 
 
+def one_flag_named(exc: ValueError, typed: str, given: dict, flag_of: dict) -> ValueError:
+    """`exc` of a config loaded with several flags (named together as `typed`, e.g. 'flags
+    --seed -1 --name x'), naming only the flag of the key it is about when that key has one.
+    given: flag -> value typed; flag_of: config key -> flag."""
+    import re
+
+    text = str(exc)
+    found = re.match(re.escape(typed) + r": key '(?:task\.)?(\w+)'", text)
+    flag = flag_of.get(found.group(1)) if found else None
+    if flag is None or flag not in given or not typed.startswith("flags "):
+        return exc
+    return ValueError(flags_typed([(flag, given[flag])]) + text[len(typed):])
+
+
 def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
     """Resolve defaults <- task files <- flags <- --set, and print it if asked."""
     flags = {}
@@ -175,8 +189,11 @@ def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
             if key == "layout" and isinstance(value, str) and value.strip().isdigit():
                 value = int(value)
             flags[key] = value
-    cfg = load_task_config(args.task_files, args.overrides, flags,
-                           flags_typed((TASK_FLAG_NAMES[k], v) for k, v in flags.items()))
+    typed = flags_typed((TASK_FLAG_NAMES[k], v) for k, v in flags.items())
+    try:
+        cfg = load_task_config(args.task_files, args.overrides, flags, typed)
+    except ValueError as exc:
+        raise one_flag_named(exc, typed, {TASK_FLAG_NAMES[k]: v for k, v in flags.items()}, TASK_FLAG_NAMES) from None
     if getattr(args, "show_config", False):
         print(dump_yaml(cfg))
     return cfg

@@ -129,21 +129,15 @@ FLAG_KEYS = {"name": "--name", "total_steps": "--total-steps", "max_minutes": "-
 def _load_naming_one_flag(args):
     """load_train_config of the command; an error of one flag's key names that flag alone, not
     every flag typed (which is all the config loader knows of where the flags' values came from)."""
-    import re
-
     from train.config import load_train_config
-    from .common import flags_typed
+    from .common import one_flag_named
 
     typed = _flags_typed(args)
     try:
         return load_train_config(args.config, args.overrides, _flags(args), typed)
     except ValueError as exc:
-        text = str(exc)
-        found = re.match(re.escape(typed) + r": key '(?:task\.)?(\w+)'", text)
-        key = found.group(1) if found else None
-        if key not in FLAG_KEYS or getattr(args, key) is None or not typed.startswith("flags "):
-            raise
-        raise ValueError(flags_typed([(FLAG_KEYS[key], getattr(args, key))]) + text[len(typed):]) from None
+        given = {flag: getattr(args, key) for key, flag in FLAG_KEYS.items() if getattr(args, key) is not None}
+        raise one_flag_named(exc, typed, given, FLAG_KEYS) from None
 
 
 def _flags_typed(args) -> str:

@@ -202,13 +202,13 @@ def test_bad_keyword_to_default_config_names_the_nearest_key():
     [
         (["config", "--set", "bogus=1"], "unknown key 'bogus'"),
         (["config", "--pursuers", "0"], "flag --pursuers 0: key 'n_pursuers': 0 is out of range"),
-        (["config", "-ev", "0.5", "--pursuers", "0"], "flags --pursuers 0 --evader-speed 0.5: key 'n_pursuers'"),
+        (["config", "-ev", "0.5", "--pursuers", "0"], "flag --pursuers 0: key 'n_pursuers'"),
         (["config", "-i", "7"], "flag --layout 7: key 'layout': 7 is not a built-in layout index (0-3)"),
         (["config", "--set", "layout=9"], "--set layout=9: key 'layout': 9 is not a built-in layout index"),
         (["config", "--set", "random_layout=true", "--set", "layout=configs/layouts/1_walls.yaml"],
          "key 'random_layout' draws each episode's layout from the built-in 0-3, so layout configs/layouts/1_walls.yaml would be ignored"),
         (["config", "-i", "no_such_layout.yaml"], "layout 'no_such_layout.yaml': no such file"),
-        (["train", "--seed", "-1", "--total-steps", "10"], "flags --total-steps 10 --seed -1: key 'seed': -1 is out of range"),
+        (["train", "--seed", "-1", "--total-steps", "10"], "flag --seed -1: key 'seed': -1 is out of range"),
         (["config", "--set", "evader_speed=-1"], "--set evader_speed=-1: key 'evader_speed': -1.0 is out of range"),
     ],
 )

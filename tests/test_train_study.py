@@ -94,7 +94,7 @@ def test_a_train_override_naming_a_layout_that_cannot_be_loaded_is_found_before_
     out = tmp_path / "study"
     assert main(["study", "--budget-minutes", "30", "--out", str(out), "--train-set", override]) == 2
     err = capsys.readouterr().err
-    assert "--train-set" in err and (f"{key} " in err or f"--set {key}=" in err), err
+    assert "--train-set" in err and (f"{key} " in err or f"--train-set {key}=" in err), err
     assert "no_such.yaml" in err or "9 is not a built-in layout index" in err, err
     assert not out.exists()
 
