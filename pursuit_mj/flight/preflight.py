@@ -94,17 +94,17 @@ def match_tilt_limit(links: LinkSet, plan: FlightPlan, events: EventLog, timeout
     A drone without these parameters (other firmware) flies as it is, with a warning."""
     degrees = round(math.degrees(ControllerGains().max_tilt), 3)
     ours = [link for link, c in zip(links, plan.commanded) if c]
-    missing = [link.label for link in ours if any(link.param(n) is None for n in TILT_PARAMS)]
+    has = {link.label: all(link.param(n) is not None for n in TILT_PARAMS) for link in ours}
     for link in ours:
-        if link.label not in missing:
+        if has[link.label]:
             for name in TILT_PARAMS:
                 link.set_param(name, degrees, timeout=timeout)
+    missing = [label for label, ok in has.items() if not ok]
     if missing:
         events.log("tilt_limit_unknown", drones=missing, level="warn",
                    reason=f"no {' / '.join(TILT_PARAMS)} parameters: their velocity loop keeps its own tilt limit")
-    matched = [link.label for link in ours if link.label not in missing]
-    if matched:
-        events.log("tilt_limit", degrees=degrees, drones=matched)
+    if len(missing) < len(has):
+        events.log("tilt_limit", degrees=degrees, drones=[label for label, ok in has.items() if ok])
 
 
 def reset_estimators(links: LinkSet, plan: FlightPlan, timeout: float = 2.0) -> None:
