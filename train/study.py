@@ -12,7 +12,9 @@ the reserve for the arms' evaluations; the rest is training time, handed out arm
 their shares in ARMS of what is left (so an arm that ran over takes from the later ones, not
 from the budget). Each run stops at its max_minutes, its learning rate decaying over it, and
 that time is its share less its closing validation (fewer validation episodes when they
-would take more than VALIDATION_SHARE of it). All
+would take more than VALIDATION_SHARE of it), priced at the time limit, where a barely
+trained policy's episodes end. A budget whose plan leaves any arm under MIN_ARM_TRAIN_S is
+refused with one that would do. All
 policies are evaluated on the same task (the reference preset unless told otherwise) with
 partial observability: full_obs is trained with full observability but judged like the rest.
 
@@ -82,7 +84,7 @@ FEW_EPISODES = 20  # fewer per layout than this and the study says its table is 
 MIN_TRAIN_FRACTION = 0.4  # evaluation may take at most the rest of the budget
 VALIDATION_SHARE = 0.3  # at most this part of an arm's time goes to its closing validation
 MIN_VALIDATION_EPISODES = 4
-MIN_ARM_TRAIN_S = 10.0  # s: an arm given less is told it will learn next to nothing
+MIN_ARM_TRAIN_S = 10.0  # s: a budget planned to leave an arm less is refused; an arm left less by overruns is warned
 
 
 @dataclasses.dataclass(frozen=True)
@@ -194,20 +196,75 @@ def fit_episodes(plan: StudyPlan, probe_s: float, probe_episodes: int, spent_s: 
     return episodes, _minutes(total_s - spent_s - evaluation_s - ARM_START_S * arms_to_train)
 
 
+def timeout_episode_seconds(seconds_per_episode: float, team_steps: float, max_steps: int) -> float:
+    """Seconds of an episode played to the time limit of `max_steps` decision steps, from the team's
+    `seconds_per_episode` over episodes of `team_steps` mean steps: a barely trained policy's
+    validation episodes end there, not at the team's length (a 4-episode validation priced at the
+    team's length took 16 s for the 3.5 planned)."""
+    return seconds_per_episode * max(max_steps / max(team_steps, 1.0), 1.0)
+
+
+def team_mean_steps(rows: Sequence) -> float:
+    """Mean decision steps per episode over evaluation `Row`s (the heuristic team's), weighted by episodes."""
+    episodes = sum(r.episodes for r in rows)
+    return sum(r.steps.mean * r.episodes for r in rows if r.steps.mean is not None) / max(episodes, 1)
+
+
 def arm_budget(left_s: float, share: float, shares_left: float, validation_episodes: int,
-               seconds_per_episode: float, vs_heuristic: bool) -> tuple[float, int]:
+               policy_episode_s: float, team_episode_s: float) -> tuple[float, int]:
     """(max_minutes, validation episodes) of the next arm.
 
     Its time is `share` / `shares_left` of the `left_s` training seconds still unspent. The run
-    ends with a validation outside max_minutes: `validation_episodes` episodes, played by the
-    heuristic team too when `vs_heuristic`, at `seconds_per_episode`. That is reserved out of
-    its time, with fewer episodes when they would take more than VALIDATION_SHARE of it.
+    ends with a validation outside max_minutes: `validation_episodes` episodes, each costing
+    `policy_episode_s` (priced at the time limit, `timeout_episode_seconds`) plus `team_episode_s`
+    when the heuristic team plays them too (0 when it does not). That is reserved out of its
+    time, with fewer episodes when they would take more than VALIDATION_SHARE of it.
     """
     arm_s = max(left_s, 0.0) * share / shares_left
-    per_episode = seconds_per_episode * (2 if vs_heuristic else 1)
+    per_episode = policy_episode_s + team_episode_s
     fits = int(VALIDATION_SHARE * arm_s / max(per_episode, 1e-9))
     episodes = min(validation_episodes, max(MIN_VALIDATION_EPISODES, fits))
     return max(arm_s - episodes * per_episode, 0.0) / 60.0, episodes
+
+
+@dataclasses.dataclass(frozen=True)
+class ArmValidation:
+    """What an arm's closing validation costs: its time limit (decision steps), its episode count,
+    and whether the heuristic team plays the same episodes."""
+
+    max_steps: int
+    episodes: int
+    vs_heuristic: bool
+
+    @classmethod
+    def of(cls, cfg) -> "ArmValidation":
+        return cls(cfg.task.max_steps, cfg.run.validation_episodes, cfg.run.validation_vs_heuristic)
+
+    def budget(self, left_s: float, share: float, shares_left: float, seconds_per_episode: float,
+               team_steps: float) -> tuple[float, int]:
+        """arm_budget for this arm, its episodes priced at its time limit."""
+        return arm_budget(left_s, share, shares_left, self.episodes,
+                          timeout_episode_seconds(seconds_per_episode, team_steps, self.max_steps),
+                          seconds_per_episode if self.vs_heuristic else 0.0)
+
+
+def planned_training_seconds(train_s: float, arms: Sequence[Arm], validations: dict[str, ArmValidation],
+                             seconds_per_episode: float, team_steps: float) -> dict[str, float]:
+    """{arm name: seconds of training} when `train_s` seconds are handed to `arms` by their shares
+    and every arm takes just its time (each then gets its share of the whole)."""
+    shares = sum(a.share for a in arms)
+    return {a.name: 60.0 * validations[a.name].budget(train_s, a.share, shares, seconds_per_episode, team_steps)[0]
+            for a in arms}
+
+
+def training_seconds_needed(arms: Sequence[Arm], validations: dict[str, ArmValidation], seconds_per_episode: float,
+                            team_steps: float) -> float:
+    """The fewest training seconds, all arms together, that leave each of `arms` MIN_ARM_TRAIN_S
+    beside its closing validation (to within 1 %)."""
+    need = MIN_ARM_TRAIN_S
+    while min(planned_training_seconds(need, arms, validations, seconds_per_episode, team_steps).values()) < MIN_ARM_TRAIN_S:
+        need *= 1.01
+    return need
 
 
 def short_arm_warning(regime: str, seconds: float) -> str:
@@ -253,20 +310,31 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
     t_start = time.perf_counter()
 
     heuristic = make_policy("heuristic", plan.eval_task)
+    validations = {arm.name: ArmValidation.of(load_train_config([arm.config], _arm_overrides(plan, arm))) for arm in todo}
     kept = KeptEvaluation(plan, state, lambda: _save_state(plan, state), log)
     planned = None  # (seconds planned for the team's evaluation, for training) by a fresh plan
     if kept.episodes is None:
         t0 = time.perf_counter()
         probe = max(2, min(plan.worlds, plan.episodes) // len(plan.layouts))  # per layout: they differ in length
-        evaluate(heuristic, plan.eval_task, list(plan.layouts), probe, plan.seed + 1, plan.worlds, label="heuristic")
+        probe_rows = evaluate(heuristic, plan.eval_task, list(plan.layouts), probe, plan.seed + 1, plan.worlds, label="heuristic")
         timings["evaluation speed probe"] = time.perf_counter() - t0
         episodes, train_minutes = fit_episodes(plan, timings["evaluation speed probe"], probe, time.perf_counter() - t_start,
                                                len(todo))
+        probe_steps = team_mean_steps(probe_rows)
+
+        def fresh_needed() -> float:
+            return _fresh_budget_needed(plan, todo, validations, timings["evaluation speed probe"], probe, probe_steps,
+                                        time.perf_counter() - t_start)
+
         if todo and train_minutes < MIN_TRAIN_MINUTES:
-            needed = plan.budget_minutes + MIN_TRAIN_MINUTES - train_minutes
+            needed = max(plan.budget_minutes + MIN_TRAIN_MINUTES - train_minutes, fresh_needed())
             raise ValueError(f"--budget-minutes {plan.budget_minutes}: too small on this machine; evaluating {len(ARMS) + 1} "
                              f"policies and starting {_runs(len(todo))} leave {max(train_minutes, 0.0) * 60:.0f} s for training "
                              f"(raise the budget to about {_rounded_up(needed)} min)")
+        if todo:
+            _refuse_short_arms(plan, todo, validations, train_minutes * 60.0,
+                               _team_episode_seconds(plan, timings["evaluation speed probe"], probe, episodes), probe_steps,
+                               fresh_needed)
         kept.start(episodes)
         planned = (eval_seconds(timings["evaluation speed probe"], probe, episodes), train_minutes * 60.0)
         log(f"[study] {_count(episodes, 'episode')} per policy and layout" + (f"; {_duration(train_minutes * 60)} left for training" if todo else ""))
@@ -280,15 +348,20 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
     _time_cells(timings, "heuristic", played_s, kept.seconds(HEURISTIC))
     heuristic_s = kept.seconds(HEURISTIC)  # the whole team's evaluation, in whichever session it was played
     seconds_per_episode = heuristic_s / (episodes * len(plan.layouts))
+    team_steps = team_mean_steps(rows)
     # arms whose cells are all kept (played from the best.pt they have now) cost no more evaluation
     eval_cost = sum(arm.eval_cost for arm in ARMS
                     if not (arm.name in state["arms"] and kept.covers(arm.name, plan.out / "runs" / arm.name / "best.pt")))
     train_end = t_start + plan.budget_minutes * 60.0 - eval_cost * heuristic_s
     left_s = train_end - time.perf_counter() - ARM_START_S * len(todo)
-    if planned is None and todo and left_s < MIN_TRAIN_MINUTES * 60.0:  # a fresh plan checked this before any evaluation
-        raise ValueError(f"--budget-minutes {plan.budget_minutes}: too small on this machine; evaluating what is left "
-                         f"and starting {_runs(len(todo))} leave {max(left_s, 0.0):.0f} s for training (raise the budget "
-                         f"to about {_rounded_up(plan.budget_minutes + (MIN_TRAIN_MINUTES * 60.0 - left_s) / 60.0)} min)")
+    if planned is None and todo:  # a fresh plan checked these before any evaluation
+        need_s = max(training_seconds_needed(todo, validations, seconds_per_episode, team_steps), MIN_TRAIN_MINUTES * 60.0)
+        if left_s < MIN_TRAIN_MINUTES * 60.0:
+            raise ValueError(f"--budget-minutes {plan.budget_minutes}: too small on this machine; evaluating what is left "
+                             f"and starting {_runs(len(todo))} leave {max(left_s, 0.0):.0f} s for training (raise the budget "
+                             f"to about {_rounded_up(plan.budget_minutes + (need_s - left_s) / 60.0)} min)")
+        _refuse_short_arms(plan, todo, validations, left_s, seconds_per_episode, team_steps,
+                           lambda: plan.budget_minutes + (need_s - left_s) / 60.0)
     if planned is not None and left_s < 0.5 * planned[1]:
         log(f"[study] warning: the heuristic team's evaluation took {played_s:.0f} s where {planned[0]:.0f} s were "
             f"planned (is the machine busy?); {_duration(max(left_s, 0.0))} are left for training, and the study may "
@@ -303,8 +376,7 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
             timings[f"{regime} (train, earlier session)"] = float(state["arms"][regime]["train_seconds"])
             log(f"[study] {regime}: trained in an earlier session, kept")
             continue
-        overrides = [f"name={arm.name}", f"run.runs_dir={plan.out / 'runs'}", "total_steps=1000000000", "task.layout=0",
-                     *plan.train_overrides]
+        overrides = _arm_overrides(plan, arm)
         if arm.start_from:
             overrides.append(f"init_from={checkpoints[arm.start_from]}")
         cfg = load_train_config([arm.config], overrides)
@@ -321,8 +393,8 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
             continue
         i = todo.index(arm)
         left_s = train_end - time.perf_counter() - ARM_START_S * (len(todo) - i)  # this and every later arm's start
-        minutes, val_episodes = arm_budget(left_s, arm.share, sum(a.share for a in todo[i:]),
-                                           cfg.run.validation_episodes, seconds_per_episode, cfg.run.validation_vs_heuristic)
+        minutes, val_episodes = ArmValidation.of(cfg).budget(left_s, arm.share, sum(a.share for a in todo[i:]),
+                                                             seconds_per_episode, team_steps)
         if minutes * 60.0 < MIN_ARM_TRAIN_S:
             log(short_arm_warning(regime, minutes * 60.0))
         t0 = time.perf_counter()
@@ -357,6 +429,46 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
     timings["total"] = time.perf_counter() - t_start
     _write(plan, rows, timings, episodes)
     return {"rows": rows, "timings": timings, "episodes": episodes}
+
+
+def _arm_overrides(plan: StudyPlan, arm: Arm) -> list[str]:
+    """The train overrides the study gives `arm` (its init_from aside)."""
+    return [f"name={arm.name}", f"run.runs_dir={plan.out / 'runs'}", "total_steps=1000000000", "task.layout=0",
+            *plan.train_overrides]
+
+
+def _team_episode_seconds(plan: StudyPlan, probe_s: float, probe_episodes: int, episodes: int) -> float:
+    """Seconds per episode of the team's evaluation with `episodes` per layout, as the plan prices it."""
+    return eval_seconds(probe_s, probe_episodes, episodes) / (episodes * len(plan.layouts))
+
+
+def _fresh_budget_needed(plan: StudyPlan, todo: Sequence[Arm], validations: dict[str, ArmValidation], probe_s: float,
+                         probe_episodes: int, team_steps: float, spent_s: float) -> float:
+    """The smallest budget (min, to within 2 %) whose fresh plan leaves every arm MIN_ARM_TRAIN_S."""
+    budget = plan.budget_minutes
+    while True:
+        budget = budget * 1.02 + 0.01
+        trial = dataclasses.replace(plan, budget_minutes=budget)
+        episodes, train_minutes = fit_episodes(trial, probe_s, probe_episodes, spent_s, len(todo))
+        per_episode = _team_episode_seconds(trial, probe_s, probe_episodes, episodes)
+        if min(planned_training_seconds(train_minutes * 60.0, todo, validations, per_episode, team_steps).values()) >= MIN_ARM_TRAIN_S:
+            return budget
+
+
+def _refuse_short_arms(plan: StudyPlan, todo: Sequence[Arm], validations: dict[str, ArmValidation], train_s: float,
+                       seconds_per_episode: float, team_steps: float, budget_needed: Callable[[], float]) -> None:
+    """ValueError naming the arm that `train_s` seconds of training, shared out as planned, leave
+    under MIN_ARM_TRAIN_S beside its closing validation, and the budget that would do."""
+    planned = planned_training_seconds(train_s, todo, validations, seconds_per_episode, team_steps)
+    name = min(planned, key=planned.get)
+    if planned[name] >= MIN_ARM_TRAIN_S:
+        return
+    v = validations[name]
+    raise ValueError(f"--budget-minutes {plan.budget_minutes}: too small on this machine; the {name} arm would be left "
+                     f"{max(planned[name], 0.0):.0f} s of training (every run needs at least "
+                     f"{MIN_ARM_TRAIN_S:.0f} s to learn anything, beside a closing validation priced at its time limit "
+                     f"of {v.max_steps} steps, where a barely trained policy's episodes end) (raise the budget to about "
+                     f"{_rounded_up(budget_needed())} min)")
 
 
 def _evaluate_cells(kept: KeptEvaluation, key: str, policy, label: str, plan: StudyPlan, episodes: int,
