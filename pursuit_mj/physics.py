@@ -276,24 +276,25 @@ class BatchedPhysics:
         into the pursuer that just caught it. A quadrotor is also levelled (its yaw kept) and its
         rotors set to hover thrust: caught while tilted, it would accelerate off again."""
         worlds, drones = self._drone_ids(worlds, drones, "halt")
-        for w in np.unique(worlds):
-            these = drones[worlds == w]
-            qvel = self.qvel[[w]]
-            qvel[0, self._qvel_idx[these]] = 0.0
-            self.qvel[[w]] = qvel
-            if self.fidelity == "quadrotor":
-                qpos = self.qpos[[w]]
-                qw, qx, qy, qz = np.moveaxis(qpos[0, self._qpos_idx[these, 3:7]], -1, 0)
-                half_yaw = 0.5 * np.arctan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy**2 + qz**2))
-                level = np.zeros((len(these), 4))
-                level[:, 0], level[:, 3] = np.cos(half_yaw), np.sin(half_yaw)
-                qpos[0, self._qpos_idx[these, 3:7]] = level
-                self.qpos[[w]] = qpos
-                act, ctrl = self.act[[w]], self.ctrl[[w]]
-                act[0, self._act_idx[these]] = ctrl[0, self._ctrl_idx[these]] = self._hover_thrust()
-                self.act[[w]], self.ctrl[[w]] = act, ctrl
+        touched, row = np.unique(worlds, return_inverse=True)  # row[k]: drone k's world among the touched ones
+        rows = row[:, None]
+        qvel = self.qvel[touched]
+        qvel[rows, self._qvel_idx[drones]] = 0.0
+        self.qvel[touched] = qvel
         if self.fidelity == "quadrotor":
-            self.batch.forward(np.unique(worlds))
+            qpos = self.qpos[touched]
+            quat_cols = self._qpos_idx[drones, 3:7]  # (K, 4): w, x, y, z
+            qw, qx, qy, qz = np.moveaxis(qpos[rows, quat_cols], -1, 0)
+            half_yaw = 0.5 * np.arctan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy**2 + qz**2))
+            level = np.zeros((len(drones), 4))
+            level[:, 0], level[:, 3] = np.cos(half_yaw), np.sin(half_yaw)
+            qpos[rows, quat_cols] = level
+            self.qpos[touched] = qpos
+            act, ctrl = self.act[touched], self.ctrl[touched]
+            act[rows, self._act_idx[drones]] = ctrl[rows, self._ctrl_idx[drones]] = self._hover_thrust()
+            self.act[touched], self.ctrl[touched] = act, ctrl
+        if self.fidelity == "quadrotor":
+            self.batch.forward(touched)
 
     # ------------------------------------------------------------------ state
 

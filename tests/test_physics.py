@@ -231,6 +231,20 @@ def test_a_diverged_world_is_reported_by_index():
 
 
 @pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_halting_drones_of_several_worlds_at_once_is_halting_each_world_in_turn(fidelity):
+    together, in_turn = make_physics(fidelity, n_worlds=3), make_physics(fidelity, n_worlds=3)
+    for c in random_commands(together, 3, seed=11):
+        together.step(c)
+        in_turn.step(c)
+    worlds, drones = np.array([2, 0, 2, 1]), np.array([1, 3, 0, 3])
+    together.halt(worlds, drones)
+    for w in (0, 1, 2):
+        in_turn.halt(worlds[worlds == w], drones[worlds == w])
+    assert np.array_equal(full_state(together), full_state(in_turn))
+    assert (together.velocities()[worlds, drones] == 0).all()
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
 def test_halt_stops_only_the_named_drones_and_refuses_bad_indices(fidelity):
     physics = make_physics(fidelity, n_worlds=2)
     for c in random_commands(physics, 3, seed=7):
