@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import ObstacleSet, inside_boundary, obstacle_distance
+from .geometry import ObstacleSet, boundary_segments, inside_boundary, obstacle_distance
 
 #: a spawn point needs this much room to the nearest obstacle or border (m)
 SPAWN_CLEARANCE = 0.2
@@ -131,6 +131,79 @@ def grid_components(free: np.ndarray) -> np.ndarray:
         label = jumped
 
 
+def thinnest_obstacle(layout) -> float:
+    """The smallest extent (m) of any of the layout's obstacles: a wall's thickness, a box's
+    shorter side, a cylinder's diameter (inf without obstacles)."""
+    from .layout import Cylinder, Wall
+
+    sizes = [o.thickness if isinstance(o, Wall) else 2 * o.radius if isinstance(o, Cylinder) else min(o.size)
+             for o in layout.obstacles]
+    return min(sizes, default=np.inf)
+
+
+def grid_step(layout, clearance: float) -> float:
+    """Pitch (m) of the reachability grid: GRID_STEP, coarser in big arenas (GRID_CELLS a side),
+    but never so coarse that a diagonal move between two free cells hops over an obstacle. The
+    cells a wall of thickness t blocks form a band t + 2 x clearance wide; a diagonal step spans
+    sqrt(2) x pitch of it, so the pitch stays under (t + 2 x clearance) / sqrt(2)."""
+    from .layout import LayoutError
+
+    coarse = max(GRID_STEP, max(layout.width, layout.height) / GRID_CELLS)
+    band = thinnest_obstacle(layout) + 2 * clearance
+    step = min(coarse, 0.99 * band / np.sqrt(2))
+    if max(layout.width, layout.height) / step > MAX_GRID_CELLS:
+        raise LayoutError(f"{layout.source}: its {thinnest_obstacle(layout):g} m thin obstacle, with {clearance:g} m of "
+                          f"clearance, needs a reachability grid over {MAX_GRID_CELLS} cells a side in a "
+                          f"{max(layout.width, layout.height):g} m arena; make the obstacle thicker")
+    return step
+
+
+MAX_GRID_CELLS = 3000  # a side: 9 million cells, about a minute of checking
+
+
+def free_cells(layout, xs: np.ndarray, ys: np.ndarray, clearance: float) -> np.ndarray:
+    """(X, Y) bool: which grid points (xs[i], ys[j]) (m) lie inside the border and at least
+    `clearance` (m) from it and from every obstacle.
+
+    The same test as `inside_boundary(p) & (obstacle_distance(p, ObstacleSet.from_layout(layout))
+    >= clearance)` on every point, cell for cell, without arrays of points x border segments
+    (gigabytes for a border of a thousand points): the inside test runs row by row, and each
+    border segment is measured only against the cells near it.
+    """
+    X, Y = len(xs), len(ys)
+    if layout.boundary.kind == "circle":
+        gx, gy = np.meshgrid(xs, ys, indexing="ij")
+        free = inside_boundary(layout, np.stack([gx, gy], -1))
+    else:
+        free = np.zeros((X, Y), bool)
+        x0, y0, x1, y1 = boundary_segments(layout).T
+        for j, y in enumerate(ys):  # crossing number of a ray to the right, as geometry._inside_polygon counts it
+            crosses = (y0 > y) != (y1 > y)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                xi = np.sort((x0 + (y - y0) * (x1 - x0) / (y1 - y0))[crosses])
+            free[:, j] = (len(xi) - np.searchsorted(xi, xs, side="right")) % 2 == 1
+    obstacles = ObstacleSet.from_layout(layout)
+    rows = max(1, CHUNK_POINTS // max(Y, 1))
+    for i in range(0, X, rows):  # fixed obstacles, a block of rows at a time
+        gx, gy = np.meshgrid(xs[i:i + rows], ys, indexing="ij")
+        free[i:i + rows] &= obstacle_distance(np.stack([gx, gy], -1).reshape(-1, 2), obstacles, with_border=False).reshape(gx.shape) >= clearance
+    ax, ay, abx, aby = (np.ravel(v) for v in obstacles.distance_targets[2])
+    for a_x, a_y, ab_x, ab_y in zip(ax, ay, abx, aby):  # each border segment, on the cells within reach of it
+        lo_x, hi_x = min(a_x, a_x + ab_x) - clearance, max(a_x, a_x + ab_x) + clearance
+        lo_y, hi_y = min(a_y, a_y + ab_y) - clearance, max(a_y, a_y + ab_y) + clearance
+        i0, i1 = np.searchsorted(xs, lo_x, side="left"), np.searchsorted(xs, hi_x, side="right")
+        j0, j1 = np.searchsorted(ys, lo_y, side="left"), np.searchsorted(ys, hi_y, side="right")
+        if i0 >= i1 or j0 >= j1:
+            continue
+        apx, apy = xs[i0:i1, None] - a_x, ys[None, j0:j1] - a_y
+        t = np.clip((apx * ab_x + apy * ab_y) / max(ab_x * ab_x + ab_y * ab_y, 1e-12), 0.0, 1.0)
+        free[i0:i1, j0:j1] &= ~(np.hypot(apx - t * ab_x, apy - t * ab_y) < clearance)
+    return free
+
+
+CHUNK_POINTS = 1 << 16  # grid points measured against the obstacles at once
+
+
 def spawn_components(layout, clearance: float = PASSAGE_CLEARANCE) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Which connected free space each free spawn point lies in, for a drone centre keeping
     `clearance` (m) from the border and the layout's obstacles (8-connected grid).
@@ -138,12 +211,10 @@ def spawn_components(layout, clearance: float = PASSAGE_CLEARANCE) -> dict[str, 
     Returns {"pursuers": (points (K, 2), labels (K,)), "evaders": ...}: points with the same
     label can fly to each other; -1 for a point whose grid cell is not free (coarse grids only).
     """
-    step = max(GRID_STEP, max(layout.width, layout.height) / GRID_CELLS)
+    step = grid_step(layout, clearance)
     xs = np.arange(step / 2, layout.width, step)
     ys = np.arange(step / 2, layout.height, step)
-    grid = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1)  # (X, Y, 2) cell centres, m
-    flat = grid.reshape(-1, 2)
-    free = (inside_boundary(layout, flat) & (obstacle_distance(flat, ObstacleSet.from_layout(layout)) >= clearance)).reshape(grid.shape[:2])
+    free = free_cells(layout, xs, ys, clearance)
     label = grid_components(free)
     nx, ny = free.shape
     out = {}

@@ -341,6 +341,45 @@ def test_grid_components_split_the_free_cells_as_a_flood_fill_does():
     assert len(np.unique(grid_components(snake)[snake])) == 1
 
 
+def _free_by_brute_force(layout, xs, ys, clearance):
+    grid = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1)
+    flat = grid.reshape(-1, 2)
+    return (inside_boundary(layout, flat) & (obstacle_distance(flat, ObstacleSet.from_layout(layout)) >= clearance)).reshape(grid.shape[:2])
+
+
+def test_the_reachability_grids_free_cells_are_the_point_by_point_tests_cell_for_cell():
+    from pursuit_mj.layout_check import free_cells, grid_step
+
+    layouts = [load_layout(i) for i in range(4)] + [layout_from_dict(d, "x.yaml") for d in (POLYGON, CIRCLE)]
+    layouts += [load_layout(3).with_random_obstacles(np.random.default_rng(k), 8) for k in range(2)]
+    for layout in layouts:
+        for clearance in (0.1, 0.25):
+            step = grid_step(layout, clearance)
+            xs, ys = np.arange(step / 2, layout.width, step), np.arange(step / 2, layout.height, step)
+            assert np.array_equal(free_cells(layout, xs, ys, clearance), _free_by_brute_force(layout, xs, ys, clearance))
+
+
+@pytest.mark.parametrize("side", [30.0, 50.0])
+def test_a_thin_diagonal_wall_cutting_a_big_arena_in_two_is_refused(side):
+    """Above about 42 m the grid's diagonal step hopped over the wall's 0.21 m band, and the layout was accepted."""
+    e = 0.01
+    data = base_dict(arena={"width": side, "height": side},
+                     obstacles=[{"wall": {"from": [e, e], "to": [side - e, side - e], "thickness": 0.01}}],
+                     spawn={"pursuers": {"x": [side - 3, side - 1], "y": [1, 3]}, "evaders": {"x": [1, 3], "y": [side - 3, side - 1]}})
+    with pytest.raises(LayoutError, match="cannot be reached from the pursuers'"):
+        layout_from_dict(data, "big.yaml")
+
+
+def test_an_obstacle_too_thin_for_any_reachability_grid_is_refused_naming_it():
+    from pursuit_mj.layout_check import spawn_components
+
+    data = base_dict(arena={"width": 50.0, "height": 50.0}, obstacles=[{"wall": {"from": [1, 25], "to": [20, 25], "thickness": 0.001}}],
+                     spawn={"pursuers": {"x": [30, 32], "y": [1, 3]}, "evaders": {"x": [30, 32], "y": [45, 47]}})
+    layout = layout_from_dict(data, "thin.yaml")  # at the 0.1 m clearance of the check a grid of 354 cells a side does
+    with pytest.raises(LayoutError, match=r"thin.yaml: its 0.001 m thin obstacle, with 0 m of clearance, needs a reachability grid"):
+        spawn_components(layout, clearance=0.0)
+
+
 # ----------------------------------------------------------------------------- malformed and impossible
 
 
