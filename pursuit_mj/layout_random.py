@@ -82,18 +82,19 @@ def _place_once(layout, rng: np.random.Generator, count: int, clearance: float, 
     """
     placed: list = []
     others = ObstacleSet.from_layout(layout, include_border=False)
+    region = draw_region(layout)
     for _ in range(count):
         tries, batch = 0, FIRST_BATCH
         while tries < MAX_TRIES:
             k = min(batch, MAX_TRIES - tries)
             start = rng.bit_generator.state
-            draws = np.array([_draw(layout, rng) for _ in range(k)])  # (k, 6)
+            draws = np.array([_draw(layout, region, rng) for _ in range(k)])  # (k, 6)
             fits = _fits(layout, border, others, draws[:, 2:4], _reach(draws), clearance)
             if fits.any():
                 j = int(np.argmax(fits))
                 rng.bit_generator.state = start
                 for _ in range(j + 1):
-                    taken = _draw(layout, rng)
+                    taken = _draw(layout, region, rng)
                 placed.append(_obstacle(layout, taken))
                 others = ObstacleSet.from_layout(_with(layout, placed), include_border=False)
                 break
@@ -107,14 +108,29 @@ def _place_once(layout, rng: np.random.Generator, count: int, clearance: float, 
 FIRST_BATCH, MAX_BATCH = 8, 64  # draws judged at once: few while most fit, more where room is scarce
 
 
-def _draw(layout, rng: np.random.Generator) -> tuple[float, ...]:
+def draw_region(layout) -> tuple[float, float, float, float]:
+    """(x0, x1, y0, y1) m: the box random obstacle centres are drawn in, the border's bounding box
+    within the arena. For the built-in layouts it is the arena itself; a small round border in a
+    big arena would waste most draws outside it and report no room where there is."""
+    b = layout.boundary
+    if b.kind == "circle":
+        x0, x1, y0, y1 = b.center[0] - b.radius, b.center[0] + b.radius, b.center[1] - b.radius, b.center[1] + b.radius
+    elif b.kind == "polygon":
+        p = np.asarray(b.points, dtype=np.float64)
+        x0, x1, y0, y1 = p[:, 0].min(), p[:, 0].max(), p[:, 1].min(), p[:, 1].max()
+    else:
+        x0, x1, y0, y1 = 0.0, layout.width, 0.0, layout.height
+    return float(max(x0, 0.0)), float(min(x1, layout.width)), float(max(y0, 0.0)), float(min(y1, layout.height))
+
+
+def _draw(layout, region: tuple[float, float, float, float], rng: np.random.Generator) -> tuple[float, ...]:
     """One candidate's numbers, drawn from rng in a fixed order: (kind index into
     random_obstacles.kinds, size m, centre x m, centre y m, aspect, yaw rad); a cylinder draws
-    no aspect or yaw (NaN)."""
+    no aspect or yaw (NaN). The centre is uniform in `region` (`draw_region`)."""
     spec = layout.random_obstacles
     kind = int(rng.integers(len(spec.kinds)))
     size = rng.uniform(spec.size[0], spec.size[1])
-    x, y = rng.uniform(0, layout.width), rng.uniform(0, layout.height)
+    x, y = rng.uniform(region[0], region[1]), rng.uniform(region[2], region[3])
     if spec.kinds[kind] == "cylinder":
         return kind, size, x, y, np.nan, np.nan
     return kind, size, x, y, rng.uniform(0.5, 1.0), rng.uniform(0, np.pi)

@@ -172,6 +172,22 @@ def test_batched_placement_places_what_drawing_one_at_a_time_places_and_leaves_t
         assert fast.bit_generator.state == plain.bit_generator.state, seed
 
 
+def test_random_obstacles_in_a_small_round_border_of_a_big_arena_are_drawn_inside_its_reach():
+    """Centres were drawn over the whole 50 x 50 m arena: 11 of 20 seeds found no room in a 2 m circle."""
+    from pursuit_mj.layout_random import draw_region
+
+    data = base_dict(arena={"width": 50.0, "height": 50.0}, boundary={"circle": {"center": [25.0, 25.0], "radius": 2.0}},
+                     random_obstacles={"count": 5}, spawn={"pursuers": {"x": [24.0, 26.0], "y": [23.3, 23.6]},
+                                                           "evaders": {"x": [24.0, 26.0], "y": [26.4, 26.7]}})
+    layout = layout_from_dict(data, "round.yaml")
+    assert draw_region(layout) == (23.0, 27.0, 23.0, 27.0)
+    for seed in range(20):
+        assert len(layout.with_random_obstacles(np.random.default_rng(seed)).obstacles) == 5
+    for i in range(N_BUILTIN):  # the arena itself: every built-in layout draws the obstacles it always drew
+        built_in = load_layout(i)
+        assert draw_region(built_in) == (0.0, built_in.width, 0.0, built_in.height)
+
+
 def test_a_draw_that_blocks_its_own_last_obstacles_starts_over_instead_of_failing_the_episode():
     layout = load_layout(3)
     for seed in (4, 37):  # with 10 obstacles, these draws once boxed in their 9th or 10th and stopped the run
