@@ -188,6 +188,15 @@ def test_random_obstacles_in_a_small_round_border_of_a_big_arena_are_drawn_insid
         assert draw_region(built_in) == (0.0, built_in.width, 0.0, built_in.height)
 
 
+def test_layout_check_refuses_a_random_obstacle_count_that_fits_most_draws_but_not_all(tmp_path, capsys):
+    """Seeds 0-19 all fitted, so it said valid; 2 in 100 episodes would then stop a run."""
+    path = tmp_path / "twenty.yaml"
+    path.write_text(yaml.safe_dump(base_dict(name="twenty", random_obstacles={"count": 20})))
+    assert main(["layout", "check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "no room for random obstacle" in err and "placement seeds 0-99: seeds 29, 35 found no room" in err
+
+
 def test_a_draw_that_blocks_its_own_last_obstacles_starts_over_instead_of_failing_the_episode():
     layout = load_layout(3)
     for seed in (4, 37):  # with 10 obstacles, these draws once boxed in their 9th or 10th and stopped the run
