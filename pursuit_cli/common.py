@@ -9,6 +9,7 @@ import sys
 
 from pursuit_mj.config import TaskConfig, dump_yaml, load_task_config, preset_or_file
 from pursuit_mj.configio import load_yaml
+from pursuit_mj.layout import is_index_text
 
 
 def seed_arg(text: str) -> int:
@@ -90,7 +91,7 @@ def checked_layouts(refs: list[str], flag: str = "--layouts") -> list[int | str]
     layouts: list[int | str] = []
     seen: dict = {}
     for text in refs:
-        ref = int(text) if text.strip().isdigit() else text
+        ref = int(text) if is_index_text(text) else text
         try:
             load_layout(ref)
         except ValueError as exc:
@@ -186,7 +187,7 @@ def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
     for key in TASK_FLAG_KEYS:
         value = getattr(args, key, None)
         if value is not None:
-            if key == "layout" and isinstance(value, str) and value.strip().isdigit():
+            if key == "layout" and is_index_text(value):
                 value = int(value)
             flags[key] = value
     typed = flags_typed((TASK_FLAG_NAMES[k], v) for k, v in flags.items())

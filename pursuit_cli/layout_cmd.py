@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -107,6 +108,8 @@ def _boundary(args) -> tuple[object, tuple[float, float, float, float]]:
     if args.border == "circle":
         cx, cy = _finite(args.center, "--center") if args.center else (w / 2, h / 2)
         r = args.radius if args.radius is not None else min(w, h) / 2
+        if not (math.isfinite(r) and r > 0):
+            raise ValueError(f"--radius: must be a number > 0, got {r}")
         return {"circle": {"center": [cx, cy], "radius": r}}, (cx - r, cx + r, cy - r, cy + r)
     if args.border == "polygon":
         if args.points:
@@ -183,6 +186,18 @@ def _obstacles(args) -> list[dict]:
     return out
 
 
+def _obstacle_flag(args, index: int) -> str:
+    """Which flag made obstacle `index` of `_obstacles(args)` (boxes, then cylinders, then walls),
+    as the user typed it: 'the 2nd --box'."""
+    for flag, given in (("--box", args.box), ("--cylinder", args.cylinder), ("--wall", args.wall)):
+        if index < len(given):
+            n = index + 1
+            suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+            return f"the {n}{suffix} {flag} {' '.join(f'{v:g}' for v in given[index])}"
+        index -= len(given)
+    return f"obstacles[{index}]"
+
+
 def build_new_layout(args) -> Layout:
     """The validated layout that `layout new` would write (fixed random obstacles placed)."""
     _check_team_size(args.pursuers, args.evaders)
@@ -216,7 +231,8 @@ def build_new_layout(args) -> Layout:
     except LayoutError as exc:
         if args.points and "boundary polygon point" in str(exc):
             raise LayoutError(f"{exc} (--width and --height set the arena; left out, they fit the points)") from None
-        raise
+        said = re.sub(r"obstacles\[(\d+)\]", lambda m: _obstacle_flag(args, int(m.group(1))), str(exc), count=1)
+        raise LayoutError(said) from None
     if args.random:  # place the --random obstacles for good: they become fixed obstacles
         layout = layout.with_random_obstacles(np.random.default_rng(args.seed), args.random,
                                               count_source="--random or --obstacle-size")
@@ -306,6 +322,8 @@ MAX_FAILED_SEEDS = 5
 def run_new(args) -> int:
     out = Path(args.out)
     check_writable(out, "OUT")  # a folder is named as one, not taken for a file --force would overwrite
+    if out.suffix.lower() not in (".yaml", ".yml"):
+        raise ValueError(f"OUT {out}: expected a .yaml file name (a layout file is YAML)")
     if out.exists() and not args.force:
         raise ValueError(f"OUT {out}: exists already (use --force to overwrite)")
     layout = build_new_layout(args)
@@ -350,11 +368,11 @@ def run_show(args) -> int:
     check_writable(out, "--out")
     try:
         save_layout_png(layout, out, seed=None if args.no_random else args.seed, count=args.count,
-                        passage_clearance=args.obstacle_clearance,
-                        passage_source="--obstacle-clearance")
+                        passage_clearance=args.obstacle_clearance, passage_source="--obstacle-clearance",
+                        count_source=None if args.count is None else f"--count {args.count}")
     except LayoutError as exc:
-        if args.count is None:
-            raise
+        if args.count is None or "no room for random obstacle" not in str(exc):
+            raise  # the fixed walls close a passage, or the placements' message names --count already
         found = str(exc).split(" (sizes")[0]  # the file's own advice does not apply to a count from the flag
         raise LayoutError(f"--count {args.count}: {found}; draw fewer") from None
     print(f"wrote {out}")

@@ -6,6 +6,8 @@ import argparse
 import math
 from pathlib import Path
 
+from pursuit_mj.layout import is_index_text
+
 from .common import counted, finite_float
 
 
@@ -86,7 +88,7 @@ def _flags(args) -> dict:
     if args.random_layout:
         task["random_layout"] = True
     if args.layout:
-        refs = [int(x) if x.strip().isdigit() else x for x in args.layout]
+        refs = [int(x) if is_index_text(x) else x for x in args.layout]
         _check_loads(args.layout, refs)
         if len(refs) == 1 and args.random_layout:  # the env would draw from every built-in layout, ignoring it
             from pursuit_mj.layout import N_BUILTIN

@@ -27,7 +27,7 @@ from .config import TaskConfig
 from .configio import to_dict
 from .env import EpisodeRecord, PursuitEnv, check_seed
 from .io_utils import atomic_write_text
-from .layout import N_BUILTIN, builtin_layout_path, load_layout
+from .layout import N_BUILTIN, builtin_layout_path, is_index_text, load_layout
 from .policy import Policy
 from .stats import Mean, Rate, mean_interval, rate
 
@@ -91,7 +91,7 @@ def layout_identity(ref: int | str | Path) -> str:
     form ('./x.yaml' and 'x.yaml' as 'x.yaml'; relative paths stay relative, so that it does not
     depend on the machine). A path that is not a file now (a row read back) keeps its normal form."""
     label = layout_label(ref)
-    if label.isdigit():
+    if is_index_text(label):
         return str(int(label))
     for index in range(N_BUILTIN):
         try:
@@ -233,7 +233,7 @@ def evaluate(
     rows = []
     for ref in refs:
         name = layout_label(ref)
-        cfg = dataclasses.replace(config, layout=int(name) if name.isdigit() else name, random_layout=False)
+        cfg = dataclasses.replace(config, layout=int(name) if is_index_text(name) else name, random_layout=False)
         records = run_episodes(policy, cfg, episodes, layout_seed(seed, name), n_worlds, on_episode, watch)
         rows.append(summarise(label or policy.name, name, cfg.fidelity, seed, records, cfg.max_steps))
     return rows

@@ -428,10 +428,17 @@ def builtin_layout_path(index: int) -> Path:
     return matches[0]
 
 
+def is_index_text(ref: Any) -> bool:
+    """Whether `ref` is text of a built-in index ('2'; not '²', which str.isdigit also takes)."""
+    return isinstance(ref, str) and ref.strip().isascii() and ref.strip().isdigit()
+
+
 def resolve_layout_ref(ref: int | str | Path) -> Path:
     """A layout index ('2', 2) or a file path -> the file path; errors name the reference."""
-    if isinstance(ref, (int, np.integer)) and not isinstance(ref, (bool, np.bool_)) or (isinstance(ref, str) and ref.strip().isdigit()):
+    if isinstance(ref, (int, np.integer)) and not isinstance(ref, (bool, np.bool_)) or is_index_text(ref):
         return builtin_layout_path(int(ref))
+    if isinstance(ref, str) and not ref.strip():
+        raise LayoutError(f"layout '{ref}': empty; expected a built-in index 0-{N_BUILTIN - 1} or a file path")
     if not isinstance(ref, (str, Path)):
         raise LayoutError(f"layout {ref!r}: expected a built-in index 0-{N_BUILTIN - 1} or a file path")
     path = Path(ref)
@@ -448,7 +455,7 @@ def found_layout_ref(ref: Any, file: str | Path, key: str) -> Any:
     as it is, a file path as configio.found_beside finds it (beside `file` when not from the
     current folder). A path found in neither place is a ConfigError naming `file` and `key`, not
     left to fail when the layout loads, where the file that named it is no longer known."""
-    if isinstance(ref, str) and ref.strip().isdigit():
+    if is_index_text(ref):
         return ref
     found = found_beside(ref, file)
     if isinstance(found, str) and found and not Path(found).exists():

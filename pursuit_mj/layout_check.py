@@ -338,6 +338,9 @@ def check_layout(layout) -> None:
         if region.x[0] < 0 or region.y[0] < 0 or region.x[1] > layout.width or region.y[1] > layout.height:
             raise LayoutError(f"{src}: spawn.{name} x={list(region.x)} y={list(region.y)} leaves the arena")
         if len(free_spawn_points(layout, region)) == 0:
+            if b.kind != "rectangle" and len(free_spawn_points(layout, region, clearance=-np.inf)) == 0:  # no point inside
+                raise LayoutError(f"{src}: spawn.{name} x={list(region.x)} y={list(region.y)} lies outside the "
+                                  f"{b.kind} boundary")
             raise LayoutError(
                 f"{src}: spawn.{name} x={list(region.x)} y={list(region.y)} has no free point "
                 f"{SPAWN_CLEARANCE} m away from obstacles and the border (spawn region inside an obstacle?)"

@@ -89,27 +89,29 @@ def draw_layout(ax, layout: Layout, random_obstacles: tuple = (), random_label: 
 
 
 def preview_layout(layout: Layout, seed: int, count: int | None = None, passage_clearance: float = 0.0,
-                   passage_source: str = "obstacle_clearance") -> Layout:
+                   passage_source: str = "obstacle_clearance", count_source: str | None = None) -> Layout:
     """`layout` with the random obstacles an episode of seed `seed` draws (Layout.with_random_obstacles).
 
     passage_clearance (m): the task's obstacle_clearance; above 0.15 m the env draws placements
-    that close a passage again, and so does this. Raises LayoutError if they do not fit.
+    that close a passage again, and so does this. Raises LayoutError if they do not fit, naming
+    `count_source` (where `count` came from; default: the file's random_obstacles.count).
     """
-    return layout.with_random_obstacles(np.random.default_rng(seed), count, passage_clearance=passage_clearance,
-                                        passage_source=passage_source)
+    return layout.with_random_obstacles(np.random.default_rng(seed), count, count_source=count_source,
+                                        passage_clearance=passage_clearance, passage_source=passage_source)
 
 
 def save_layout_png(layout: Layout, path: str | Path, seed: int | None = 0, count: int | None = None, dpi: int = 120,
-                    passage_clearance: float = 0.0, passage_source: str = "obstacle_clearance") -> Path:
+                    passage_clearance: float = 0.0, passage_source: str = "obstacle_clearance",
+                    count_source: str | None = None) -> Path:
     """Write a top-down PNG of `layout` atomically; with a seed, its random obstacles are drawn too.
 
     count: random obstacles to place (default: the layout's random_obstacles.count);
-    passage_clearance, passage_source: as for `preview_layout`. Raises LayoutError if they do not fit.
+    passage_clearance, passage_source, count_source: as for `preview_layout`. Raises LayoutError if they do not fit.
     """
     extra: tuple = ()
     label = "random obstacles"
     if seed is not None:
-        placed = preview_layout(layout, seed, count, passage_clearance, passage_source)
+        placed = preview_layout(layout, seed, count, passage_clearance, passage_source, count_source)
         extra = placed.obstacles[len(layout.obstacles):]
         label = f"random obstacles, seed {seed}"
     fig, ax = plt.subplots(figsize=(4.2 * max(layout.width / layout.height, 0.6) + 1.6, 6.4), dpi=dpi)

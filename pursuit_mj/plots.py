@@ -296,14 +296,14 @@ def _layout_names(layouts: Sequence[str]) -> list[str]:
 def layout_key(layout: Any) -> str:
     """One name per layout, however a table named it: a built-in index ('0', '00' or its file
     configs/layouts/0_open.yaml) as the index, another file as its normalised path."""
-    from .layout import LayoutError, builtin_layout_path
+    from .layout import LayoutError, builtin_layout_path, is_index_text
 
     s = str(layout).strip()
-    if s.isdigit():
+    if is_index_text(s):
         return str(int(s))
     path = Path(os.path.normpath(s))
     index = path.name.split("_", 1)[0]
-    if index.isdigit():
+    if is_index_text(index):
         try:
             if builtin_layout_path(int(index)).resolve() == path.resolve():
                 return str(int(index))

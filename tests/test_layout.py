@@ -451,7 +451,8 @@ def test_malformed_layouts_are_refused_naming_the_entry(data, message, tmp_path)
         (base_dict(obstacles=[{"wall": {"from": [-0.5, 2.5], "to": [1.0, 2.5]}}]), r"obstacles\[0\] \(wall from \[-0.5, 2.5\] to \[1.0, 2.5\]\) lies \(partly\) outside"),
         (base_dict(spawn={"pursuers": {"x": [0.2, 4.0], "y": [0.2, 0.8]}, "evaders": SPAWN["evaders"]}), r"spawn.pursuers .* leaves the arena"),
         (dict(CIRCLE, boundary={"circle": {"center": [2.0, 2.0], "radius": 2.5}}), r"boundary circle .* leaves the arena"),
-        (dict(CIRCLE, spawn={"pursuers": {"x": [0.0, 0.4], "y": [0.0, 0.4]}, "evaders": CIRCLE["spawn"]["evaders"]}), r"spawn.pursuers .* has no free point"),
+        (dict(CIRCLE, spawn={"pursuers": {"x": [0.0, 0.4], "y": [0.0, 0.4]}, "evaders": CIRCLE["spawn"]["evaders"]}),
+         r"spawn.pursuers x=\[0.0, 0.4\] y=\[0.0, 0.4\] lies outside the circle boundary"),
         (dict(CIRCLE, obstacles=[{"cylinder": {"center": [0.2, 0.2], "radius": 0.1}}]), r"obstacles\[0\] \(cylinder .*\) has its centre outside the circle boundary"),
         # centre outside, but the rim point the check used to take for the centre inside
         (dict(CIRCLE, obstacles=[{"cylinder": {"center": [0.2, 2.75], "radius": 0.15}}]), r"obstacles\[0\] \(cylinder .*\) has its centre outside the circle boundary"),
@@ -479,6 +480,10 @@ def test_malformed_layouts_are_refused_naming_the_entry(data, message, tmp_path)
         # an inward spike sharper than a right angle: box walls outside its edges would stand in the arena
         (base_dict(boundary={"polygon": [[0, 0], [3.6, 0], [3.6, 5], [2.8, 5], [1.8, 3.5], [0.8, 5], [0, 5]]}),
          r"boundary.polygon: at \[1.8, 3.5\] the border turns into the arena at an inside angle of 293 deg, over 270"),
+        # in the corner an octagon cuts off: it said "spawn region inside an obstacle?"
+        (base_dict(boundary={"polygon": [[0.6, 0], [3.0, 0], [3.6, 0.6], [3.6, 4.4], [3.0, 5], [0.6, 5], [0, 4.4], [0, 0.6]]},
+                   spawn={"pursuers": {"x": [0.0, 0.25], "y": [0.0, 0.25]}, "evaders": SPAWN["evaders"]}),
+         r"spawn.pursuers x=\[0.0, 0.25\] y=\[0.0, 0.25\] lies outside the polygon boundary"),
     ],
 )
 def test_impossible_layouts_are_refused_naming_the_entry(data, message):
@@ -584,14 +589,25 @@ def test_layout_new_default_polygon_and_seeded_random_obstacles_are_reproducible
     "argv, message",
     [
         (["layout", "new", "{out}", "--box", "1", "2", "3"], "--box: expected CX CY SX SY [YAW], got 3 numbers"),
-        (["layout", "new", "{out}", "--box", "5", "2", "0.3", "0.3"], "obstacles[0] (box centre [5.0, 2.0] size [0.3, 0.3]) lies (partly) outside"),
+        (["layout", "new", "{out}", "--box", "5", "2", "0.3", "0.3"], "the 1st --box 5 2 0.3 0.3 (box centre [5.0, 2.0] size [0.3, 0.3]) lies (partly) outside"),
+        # the file lists boxes, then cylinders, then walls: obstacles[0] was the third flag typed
+        (["layout", "new", "{out}", "--cylinder", "1", "2", "0.3", "--wall", "1", "3", "2", "3", "--box", "5", "2", "0.3", "0.3"],
+         "the 1st --box 5 2 0.3 0.3 (box centre"),
+        (["layout", "new", "{out}", "--cylinder", "1", "2", "0.3", "--cylinder", "2", "1", "0"], "the 2nd --cylinder 2 1 0 (cylinder).radius: must be > 0"),
+        (["layout", "new", "{out}", "--border", "circle", "--radius", "-1"], "--radius: must be a number > 0, got -1.0"),
         (["layout", "new", "{out}", "--border", "polygon", "--points", "0,0", "1,x"], "--points: '1,x' is not X,Y"),
         (["layout", "new", "{out}", "--width", "-1"], "--width: must be a number > 0, got -1.0"),
         (["layout", "new", "{out}", "--episode-obstacles", "60"], "no room for random obstacle"),
         (["layout", "new", "{out}", "--radius", "1"], "--center/--radius: only used with --border circle"),
         (["layout", "show", "7"], "layout 7: no built-in layout with this index"),
+        (["layout", "show", "\u00b2"], "layout '\u00b2': no such file"),  # a digit to str.isdigit, not to int()
+        (["layout", "check", ""], "layout '': empty; expected a built-in index 0-3 or a file path"),
+        (["layout", "new", "{out}.png"], ".png: expected a .yaml file name"),
         (["layout", "show", "0", "-o", "{out}"], "expected a .png file name"),
         (["layout", "show", "0", "--count", "500", "-o", "{out}.png"], "layout show: error: --count 500: "),
+        # the fixed walls close the passage at that clearance: --count has no part in it
+        (["layout", "show", "3", "--count", "0", "--obstacle-clearance", "0.29", "-o", "{out}.png"],
+         "layout show: error: /"),
         (["layout", "show", "0", "--count", "2", "--no-random", "-o", "{out}.png"], "--count 2: draws random obstacles, which --no-random leaves out"),
         (["layout", "check", "missing.yaml"], "layout 'missing.yaml': no such file"),
         (["layout", "new", "{out}", "--width", "0.7", "--height", "3", "--episode-obstacles", "0"],

@@ -21,6 +21,7 @@ import yaml
 
 from ..configio import ConfigError, load_yaml
 from ..io_utils import atomic_write_text
+from ..layout import is_index_text
 from .board import StateBoard
 from .frames import Fit, fit_similarity
 from .links import CrazyflieFactory, LinkSet
@@ -125,7 +126,7 @@ def _layout_beside(spec: FlightSpec) -> Path | None:
     """The absolute path of the flight's layout file when it is found beside the flight file
     (plan.resolve_flight's rule), else None (a built-in index, or a path read as given)."""
     ref = spec.layout
-    if not isinstance(ref, str) or ref.strip().isdigit() or Path(ref).is_file():
+    if not isinstance(ref, str) or is_index_text(ref) or Path(ref).is_file():
         return None
     beside = Path(spec.source).parent / ref
     return beside.resolve() if beside.is_file() else None
