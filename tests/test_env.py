@@ -58,6 +58,35 @@ def test_capture_is_a_success_and_final_obs_precedes_the_reset():
     assert obs[0, 0, spec.index("evaders", 0, "captured")] == 0, "the returned obs starts a new episode"
 
 
+def test_a_capture_on_the_last_step_is_a_success_not_a_timeout():
+    env = PursuitEnv(default_config(max_steps=1, **FAST), n_worlds=1, seed=2)
+    env.reset()
+    _place(env, 0, [[1.8, 3.0], [0.8, 1.0], [2.8, 1.0], [1.8, 3.2]])
+    obs, reward, term, trunc, info = env.step(np.zeros((1, 3, 2)))
+    assert term[0] and not trunc[0] and info["outcome"][0] == "success"
+
+
+def test_events_are_judged_where_the_drones_are_after_the_step():
+    """0.105 m from the wall, flying at it: the step takes it inside the 0.1 m clearance, and that step collides."""
+    env = PursuitEnv(default_config(**FAST), n_worlds=1, seed=1)
+    env.reset()
+    _place(env, 0, [[0.105, 1.0], [1.5, 1.0], [2.5, 1.0], [1.8, 4.5]])
+    actions = np.zeros((1, 3, 2))
+    actions[0, 0] = [-1.0, 0.0]
+    obs, reward, term, trunc, info = env.step(actions)
+    assert term[0] and info["outcome"][0] == "collision"
+
+
+def test_two_evaders_caught_in_one_step_pay_two_captures():
+    config = default_config(n_evaders=2, **FAST)
+    env = PursuitEnv(config, n_worlds=1, seed=2)
+    env.reset()
+    _place(env, 0, [[1.0, 3.0], [0.8, 1.0], [2.8, 1.0], [1.0, 3.2], [2.8, 1.2]])
+    obs, reward, term, trunc, info = env.step(np.zeros((1, 3, 2)))
+    assert info["outcome"][0] == "success"
+    assert np.all(info["reward_terms"]["capture"] == 2 * config.capture_reward)
+
+
 def test_frozen_worlds_without_auto_reset():
     env = PursuitEnv(default_config(max_steps=3, **FAST), n_worlds=2, seed=0, auto_reset=False)
     env.reset()

@@ -212,6 +212,18 @@ def test_it_follows_a_wall_away_from_the_chaser():
     assert min(ys) > 0.2, "it keeps off the wall"
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_unchased_close_to_a_wall_it_moves_off_it(seed):
+    """The wall push points away from the wall: 0.15 m from it, with no chaser in sight, five
+    steps take it past 0.3 m (pushed the wrong way it stayed at 0.21-0.22 m in three of these seeds)."""
+    model = EscapeModel(default_config(n_pursuers=1), 1, seed=seed)
+    e, p = np.array([[[1.5, 0.15]]]), np.array([[[3.3, 4.7]]])  # the chaser far beyond its sensing
+    for _ in range(5):
+        v = model.compute(e, np.zeros_like(e), p, np.zeros_like(p), np.ones((1, 1), bool), arena_obstacles(1), DT)
+        e = e + v * DT
+    assert e[0, 0, 1] > 0.3
+
+
 def test_it_slips_through_a_gap_it_can_reach_first():
     config = default_config()
     model = EscapeModel(config, 1, seed=0)

@@ -71,6 +71,37 @@ def test_field_of_view_masks_entities_behind_the_pursuer():
     assert not per.teammate_visible[0, 0, 1], "teammate behind pursuer 0"
 
 
+@pytest.mark.parametrize("fov, seen_deg, unseen_deg", [(math.pi / 2, 40, 50), (1.2 * math.pi, 100, 115)])
+def test_the_field_of_view_is_centred_on_the_heading_and_half_of_it_each_side(fov, seen_deg, unseen_deg):
+    """A 90 deg view sees 40 deg off the heading and not 50; a 216 deg view (over pi, still masked) sees 100 and not 115."""
+    offsets = [seen_deg, -seen_deg, unseen_deg, -unseen_deg]
+    heading = 0.3
+    evaders = [[2.0 + math.cos(heading + math.radians(a)), 2.0 + math.sin(heading + math.radians(a))] for a in offsets]
+    view = _view([[2.0, 2.0]], evaders, _layout().obstacle_set(), heading=[heading])
+    per = _perceive(view, field_of_view=fov, share_detections=False)
+    assert per.seen[0, 0].tolist() == [True, True, False, False]
+
+
+@pytest.mark.parametrize("heading", [math.pi - 0.01, -math.pi + 0.01])
+def test_a_pursuer_heading_near_pi_sees_across_the_seam_of_the_angle(heading):
+    """Angles wrap at +-pi: a target 0.1 rad off the heading on the far side of the seam is in a 1 rad view."""
+    target_angle = heading + (0.1 if heading > 0 else -0.1)  # just past +-pi
+    view = _view([[2.0, 2.0]], [[2.0 + math.cos(target_angle), 2.0 + math.sin(target_angle)]], _layout().obstacle_set(),
+                 heading=[heading])
+    assert _perceive(view, field_of_view=1.0, share_detections=False).seen[0, 0, 0]
+
+
+def test_a_hidden_teammate_leaves_every_feature_of_its_slot_zero():
+    """The flat mlp network reads every slot: a hidden teammate's position must not leak into it."""
+    view = _view([[2.0, 2.0], [1.0, 2.0]], [[3.0, 2.0]], _layout().obstacle_set(), heading=[0.0, math.pi])
+    config = default_config(random_obstacles=0, field_of_view=math.pi / 2, share_detections=False, share_teammates=False)
+    per = perceive(view, config, np.random.default_rng(0))
+    assert not per.teammate_visible[0, 0, 1]  # pursuer 1 is behind pursuer 0
+    obs = build_observations(view, per, ObsSpec.make(2, 1, config.n_rays))
+    mates = ObsSpec.make(2, 1, config.n_rays).group("teammates").view(obs)
+    assert (mates[0, 0] == 0).all()
+
+
 def test_relayed_detection_is_known_to_all_and_flagged():
     obstacles = _layout([WALL]).obstacle_set()
     view = _view([[2.0, 1.5], [0.3, 2.4]], [[2.0, 2.6]], obstacles)
@@ -164,3 +195,15 @@ def test_world_random_draws_depend_on_their_own_world_only():
     assert abs(z.mean()) < 0.02 and abs(z.std() - 1.0) < 0.02
     with pytest.raises(ValueError, match="number of worlds"):
         three.random((2, 4))
+
+
+def test_a_stored_spec_whose_features_are_renamed_or_reordered_is_not_compatible():
+    """Checkpoints store their spec: the same groups and widths with other features must be refused."""
+    spec = ObsSpec.make(3, 1, 16)
+    assert spec.compatible(spec.to_dict()) is None
+    assert spec.compatible(ObsSpec.make(5, 2, 16).to_dict()) is None  # other team sizes: pooled encoders take them
+    for change in (lambda f: f[:1] + ["speed"] + f[2:], lambda f: [f[1], f[0]] + f[2:]):
+        stored = spec.to_dict()
+        group = next(g for g in stored["groups"] if g[0] == "evaders")
+        group[2] = change(list(group[2]))
+        assert "observation features differ" in spec.compatible(stored)

@@ -442,3 +442,125 @@ def test_the_teachers_weight_falls_linearly_over_teacher_updates(coef, updates, 
     from train.ppo import teacher_weight
 
     assert teacher_weight(PPOConfig(teacher_coef=coef, teacher_updates=updates), update) == pytest.approx(expected)
+
+
+# ----------------------------------------------------------------------------- the update's wiring
+
+
+def test_a_rollouts_advantages_are_the_plain_loops_with_its_own_terminations_and_truncations():
+    """compute_gae is tested alone above; this is what the update feeds it from a Rollout."""
+    from train.ppo import advantages_and_returns
+    from train.storage import Rollout
+
+    T, W, N = 9, 3, 2
+    g = torch.Generator().manual_seed(5)
+    buf = Rollout(T, W, N, 4)
+    buf.rewards.normal_(generator=g)
+    buf.values.normal_(generator=g)
+    buf.last_value.normal_(generator=g)
+    buf.terminated[2, 0] = buf.terminated[6, 1] = True
+    buf.truncated[4, 0] = buf.truncated[3, 2] = buf.truncated[8, 1] = True
+    buf.final_values[buf.truncated] = torch.randn(int(buf.truncated.sum()) * N, generator=g).view(-1, N)
+    gamma, lam = 0.9, 0.8
+    adv, ret, _ = advantages_and_returns(buf, gamma, lam)
+    for w in range(W):
+        for i in range(N):
+            b = w * N + i
+            values = buf.values[:, w, i].double().numpy()
+            obs_next = np.append(values[1:], float(buf.last_value[w, i]))
+            want_adv, want_ret = reference_gae(buf.rewards[:, w, i].double().numpy(), values, obs_next,
+                                               buf.final_values[:, w, i].double().numpy(), buf.terminated[:, w].numpy(),
+                                               buf.truncated[:, w].numpy(), gamma, lam)
+            np.testing.assert_allclose(adv[:, b].numpy(), want_adv, rtol=1e-5, atol=1e-5)
+            np.testing.assert_allclose(ret[:, b].numpy(), want_ret, rtol=1e-5, atol=1e-5)
+
+
+def _acted(buf, spec, overrides):
+    """(model, cfg): a seeded model of one gradient step over all of `buf` per update, whose actor
+    sampled buf's actions and whose critic gave its values, as the collector stores them."""
+    from train.config import load_train_config
+
+    cfg = load_train_config([], ["ppo.epochs=1", f"ppo.minibatch_size={buf.n_transitions}", "net.encoder_width=8",
+                                 "net.hidden=[8]", *overrides])
+    model = _model_that_acted(buf, spec, cfg)
+    with torch.no_grad():
+        buf.values.copy_(model.value(buf.obs, None))
+    return model, cfg
+
+
+def _update_once(model, buf, cfg, lagged=False):
+    """(the model before, stats) of one ppo_update of `model` on `buf`."""
+    import copy
+
+    from train.ppo import ppo_update
+
+    before = copy.deepcopy(model)
+    opt = torch.optim.Adam(model.parameters(), lr=1e-2)
+    return before, ppo_update(model, opt, buf, cfg.ppo, cfg.ppo.gamma, torch.Generator().manual_seed(3), lagged=lagged)
+
+
+def test_advantage_normalisation_makes_the_policy_step_blind_to_a_constant_added_to_every_reward():
+    spec = ObsSpec.make(2, 1, 4)
+    actors = []
+    for shift in (0.0, 5.0):
+        buf = _random_rollout(spec, T=8)
+        model, cfg = _acted(buf, spec, ["ppo.gamma=0", "ppo.gae_lambda=0", "ppo.vf_coef=0"])
+        buf.rewards += shift  # at gamma 0 every advantage moves by the same constant
+        _update_once(model, buf, cfg)
+        actors.append(model.actor.state_dict())
+    for k in actors[0]:
+        torch.testing.assert_close(actors[1][k], actors[0][k], rtol=1e-5, atol=1e-6)
+
+
+def test_the_logged_value_loss_is_scaled_by_the_std_of_the_returns():
+    from train.ppo import advantages_and_returns
+
+    spec = ObsSpec.make(2, 1, 4)
+    buf = _random_rollout(spec, T=8)
+    buf.rewards *= 7.0
+    model, cfg = _acted(buf, spec, [])
+    before, stats = _update_once(model, buf, cfg)
+    _, ret, _ = advantages_and_returns(buf, cfg.ppo.gamma, cfg.ppo.gae_lambda)
+    with torch.no_grad():
+        v = before.raw_value(buf.obs.reshape(buf.n_transitions, -1), None)
+    want = float(((v - ret.reshape(-1)) ** 2).mean() / ret.std(unbiased=False))
+    assert stats["value_loss"] == pytest.approx(want, rel=1e-4)
+
+
+def test_the_entropy_bonus_widens_the_policy_where_advantages_say_nothing():
+    spec = ObsSpec.make(2, 1, 4)
+    buf = _random_rollout(spec, T=8)
+    model, cfg = _acted(buf, spec, ["ppo.gamma=0", "ppo.gae_lambda=0", "ppo.ent_coef=0.1", "ppo.norm_adv=false", "ppo.vf_coef=0"])
+    buf.rewards.copy_(buf.values)  # at gamma 0 every advantage is reward - value: 0
+    before, _ = _update_once(model, buf, cfg)
+    assert bool((model.actor.log_std > before.actor.log_std).all())
+
+
+def test_a_lagged_update_takes_its_ratios_against_the_model_as_it_is_not_the_policy_that_acted():
+    """In the first gradient step of a lagged update every ratio is 1, however far the acting policy was."""
+    spec = ObsSpec.make(2, 1, 4)
+    buf = _random_rollout(spec, T=8)
+    model, cfg = _acted(buf, spec, [])
+    buf.logp += 1.0  # the policy that acted found every sample e times likelier than the model does now
+    _, stats = _update_once(model, buf, cfg, lagged=True)
+    assert stats["clip_frac"] == 0.0 and abs(stats["approx_kl"]) < 1e-6
+    assert stats["behaviour_weight"] == pytest.approx(math.exp(-1.0), rel=1e-4)  # each sample weighted by model / acting
+
+
+def test_every_gradient_step_is_clipped_to_max_grad_norm(monkeypatch):
+    from torch import nn
+
+    calls = []
+    real = nn.utils.clip_grad_norm_
+
+    def recording(parameters, max_norm, *a, **k):
+        parameters = list(parameters)
+        calls.append((len(parameters), max_norm))
+        return real(parameters, max_norm, *a, **k)
+
+    monkeypatch.setattr(nn.utils, "clip_grad_norm_", recording)
+    spec = ObsSpec.make(2, 1, 4)
+    buf = _random_rollout(spec, T=8)
+    model, cfg = _acted(buf, spec, ["ppo.max_grad_norm=0.25"])
+    _update_once(model, buf, cfg)
+    assert calls == [(len(list(model.parameters())), 0.25)]  # actor and critic, one joint norm

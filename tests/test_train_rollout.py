@@ -115,3 +115,27 @@ def test_a_teacher_not_teaching_labels_nothing_and_starts_afresh_when_it_teaches
     assert teacher.calls == buf.T and stats.teacher_steps == buf.T
     assert bool((buf.teacher_mask == 1).all())
     _assert_labels_of_a_fresh_team(buf, task, env.obs_spec)
+
+
+def test_a_truncated_episode_bootstraps_from_its_own_last_observation_not_the_next_episodes_first():
+    torch.manual_seed(0)
+    env = PursuitEnv(default_config(fidelity="point", random_obstacles=0, max_steps=6), n_worlds=2, seed=3, nthread=1)
+    model = ActorCritic(env.obs_spec, env.state_dim, TrainConfig())
+    final_obs = {}
+    real_step = env.step
+
+    def recording_step(actions):
+        out = real_step(actions)
+        if out[3].any():
+            final_obs[len(final_obs)] = (out[3].copy(), out[4]["final_obs"].copy())
+        return out
+
+    env.step = recording_step
+    buf = Rollout(8, 2, env.n_pursuers, env.obs_dim)
+    Collector(env, model, torch.Generator().manual_seed(1)).collect(buf)
+    (truncated, last_obs), = final_obs.values()  # both worlds time out at step 6
+    t = int(torch.nonzero(buf.truncated.any(1))[0])
+    with torch.no_grad():
+        idx = np.flatnonzero(truncated)
+        torch.testing.assert_close(buf.final_values[t, idx], model.world_value(torch.as_tensor(last_obs[idx]), None))
+        assert not torch.allclose(buf.final_values[t, idx], model.world_value(buf.obs[t + 1, idx], None))  # the reset's
