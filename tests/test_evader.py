@@ -224,6 +224,24 @@ def test_unchased_close_to_a_wall_it_moves_off_it(seed):
     assert e[0, 0, 1] > 0.3
 
 
+def test_the_flee_vector_weights_each_chasers_direction_by_one_over_its_distance_squared():
+    from pursuit_mj.evader import flee_vector
+
+    away = np.array([[[[1.0, 0.0], [0.0, 2.0], [5.0, 5.0]]]])  # evader minus chaser, (W, M, N, 2)
+    sensed = np.array([[[True, True, False]]])
+    np.testing.assert_allclose(flee_vector(away, sensed), [[[1.0, 0.25]]])  # (1, 0) / 1 + (0, 1) / 4; the third unsensed
+
+
+def test_it_flees_from_where_a_moving_chaser_will_be():
+    """A chaser 0.8 m below, flying right at 0.3 m/s: it flees from 0.3 x lead_time further right, so a little left."""
+    config = default_config(n_pursuers=1)
+    model = EscapeModel(config, 1, seed=0)
+    e, p, pv = np.array([[[1.8, 2.5]]]), np.array([[[1.8, 1.7]]]), np.array([[[0.3, 0.0]]])
+    v = model.compute(e, np.zeros_like(e), p, pv, np.ones((1, 1), bool), arena_obstacles(1), DT)[0, 0]
+    ahead = 0.3 * model.cfg.lead_time
+    np.testing.assert_allclose(v, config.evader_speed * np.array([-ahead, 0.8]) / np.hypot(ahead, 0.8), rtol=1e-6)
+
+
 def test_it_slips_through_a_gap_it_can_reach_first():
     config = default_config()
     model = EscapeModel(config, 1, seed=0)
