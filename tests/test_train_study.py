@@ -376,8 +376,9 @@ def test_a_fresh_study_over_an_interrupted_ones_kept_evaluation_is_refused(tmp_p
     assert json.loads((out_dir / "study.json").read_text()) == state  # untouched
 
 
-def test_a_resumed_study_too_short_to_train_says_how_much_budget_would_do(tmp_path, monkeypatch):
-    """It said 'raise the budget to about 0 min' (minutes rounded to whole ones) for one run left."""
+def _resumed_classic_study_refusal(tmp_path, monkeypatch, budget_minutes: float) -> str:
+    """The refusal of a resumed study of the classic arm alone, whose team evaluation (kept) took
+    1 s, with `budget_minutes` for what is left."""
     from pursuit_mj.config import load_task_config
     from pursuit_mj.evaluation import evaluate
     from pursuit_mj.policies import make_policy
@@ -385,41 +386,33 @@ def test_a_resumed_study_too_short_to_train_says_how_much_budget_would_do(tmp_pa
     from train.study_evaluation import KeptEvaluation
 
     monkeypatch.setattr(study, "ARMS", (study.Arm("classic", "classic", 1.0),))
-    monkeypatch.setattr(study, "MIN_ARM_TRAIN_S", 0.0)  # the budget that gives training any time at all
     task = load_task_config([], ["fidelity=point", "max_steps=20"])
-    plan = study.StudyPlan(budget_minutes=0.05, out=tmp_path, eval_task=task, layouts=(0,), episodes=2, worlds=2,
+    plan = study.StudyPlan(budget_minutes=budget_minutes, out=tmp_path, eval_task=task, layouts=(0,), episodes=2, worlds=2,
                            train_overrides=("task.fidelity=point",), resume=True)
     state = {"train_overrides": list(plan.train_overrides), "arms": {}}
     kept = KeptEvaluation(plan, state, lambda: None)
     kept.start(2)
     (row,) = evaluate(make_policy("heuristic", task), task, [0], 2, plan.seed, 2, label="heuristic")
-    kept.keep("heuristic", row, 1.0)  # the team's evaluation took 1 s: 3 s of budget less 1 s, less 3 s to start
+    kept.keep("heuristic", row, 1.0)
     (tmp_path / study.STATE_FILE).write_text(json.dumps(state))
     with pytest.raises(ValueError) as err:
         study.run_study(plan, log=lambda line: None)
-    assert "starting 1 run leave 0 s for training (raise the budget to about 0.1 min)" in str(err.value)
+    return str(err.value)
+
+
+def test_a_resumed_study_too_short_to_train_says_how_much_budget_would_do(tmp_path, monkeypatch):
+    """It said 'raise the budget to about 0 min' (minutes rounded to whole ones) for one run left."""
+    from train import study
+
+    monkeypatch.setattr(study, "MIN_ARM_TRAIN_S", 0.0)  # the budget that gives training any time at all
+    # 3 s of budget less 1 s for the team's evaluation and 1 s for the arm's, less 3 s to start
+    said = _resumed_classic_study_refusal(tmp_path, monkeypatch, 0.05)
+    assert "starting 1 run leave 0 s for training (raise the budget to about 0.1 min)" in said
 
 
 def test_a_resumed_study_that_would_leave_an_arm_under_the_floor_says_how_much_budget_would_do(tmp_path, monkeypatch):
-    from pursuit_mj.config import load_task_config
-    from pursuit_mj.evaluation import evaluate
-    from pursuit_mj.policies import make_policy
-    from train import study
-    from train.study_evaluation import KeptEvaluation
-
-    monkeypatch.setattr(study, "ARMS", (study.Arm("classic", "classic", 1.0),))
-    task = load_task_config([], ["fidelity=point", "max_steps=20"])
-    plan = study.StudyPlan(budget_minutes=0.2, out=tmp_path, eval_task=task, layouts=(0,), episodes=2, worlds=2,
-                           train_overrides=("task.fidelity=point",), resume=True)
-    state = {"train_overrides": list(plan.train_overrides), "arms": {}}
-    kept = KeptEvaluation(plan, state, lambda: None)
-    kept.start(2)
-    (row,) = evaluate(make_policy("heuristic", task), task, [0], 2, plan.seed, 2, label="heuristic")
-    kept.keep("heuristic", row, 1.0)  # 12 s of budget, 1 s for the team and 1 s for the arm's evaluation, 3 s to start
-    (tmp_path / study.STATE_FILE).write_text(json.dumps(state))
-    with pytest.raises(ValueError) as err:
-        study.run_study(plan, log=lambda line: None)
-    said = str(err.value)
+    # 12 s of budget, 1 s for the team and 1 s for the arm's evaluation, 3 s to start
+    said = _resumed_classic_study_refusal(tmp_path, monkeypatch, 0.2)
     # its episodes of up to 1000 steps (classic's own task) cost 1000 / (the team's <= 20 steps) as much as the team's
     assert "the classic arm would be left 0 s of training" in said and "time limit of 1000 steps" in said
     needed = float(said.split("raise the budget to about ")[1].split(" min")[0])
