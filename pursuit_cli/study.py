@@ -80,6 +80,8 @@ def run(args) -> int:
         print(f"[study] interrupted; the finished arms and evaluations are kept: continue with pursuit-mj study --resume --out {out} "
               f"--budget-minutes M (the time for what is left) and the same task, --train-fidelity and --train-set flags",
               file=sys.stderr)
+        if stops and not (isinstance(exc, KeyboardInterrupt) and exc.args):  # the run stopped itself on the signal
+            raise KeyboardInterrupt(*([] if stops[-1] == "SIGINT" else [stops[-1]])) from None
         raise
     print((out / "table.txt").read_text(), end="")
     print(f"\n{counted(result['episodes'], 'episode')} per policy and layout; time per part:")

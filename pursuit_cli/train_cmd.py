@@ -298,7 +298,9 @@ def run(args) -> int:
               f"per episode (negative: sooner)"
               + (f"; caught by one side only: policy {val['vs_heuristic_only_policy']}, team {val['vs_heuristic_only_heuristic']} "
                  f"(McNemar p {val['vs_heuristic_success_p']:.3g})" if "vs_heuristic_success_p" in val else ""))
-    print(f"last checkpoint: {Path(result['run_dir']) / 'last.pt'}; metrics: {Path(result['run_dir']) / 'metrics.jsonl'}")
+    last = Path(result["run_dir"]) / "last.pt"
+    print(f"last checkpoint: {last}; metrics: {Path(result['run_dir']) / 'metrics.jsonl'}" if last.is_file()
+          else f"no checkpoint yet in {result['run_dir']}")
     if result["status"] != "interrupted":
         return 0
     from . import stop_exit_code

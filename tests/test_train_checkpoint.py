@@ -711,3 +711,17 @@ def test_a_last_pt_older_than_the_log_is_refused_rather_than_cutting_the_log(tmp
     assert (cfg.run_dir / "metrics.jsonl").read_text() == log_before
     (cfg.run_dir / "metrics.jsonl").rename(cfg.run_dir / "metrics.old.jsonl")  # the way out it names
     assert Trainer.resume(cfg.run_dir, total_steps=32 * 2, log=lambda s: None).train()["counters"]["update"] == 2
+
+
+def test_a_run_stopped_before_its_first_checkpoint_says_there_is_nothing_to_resume(tmp_path, monkeypatch):
+    """It said 'state of update -1 is in .../last.pt; continue with --resume', and there was no last.pt."""
+    def stopped(*args, **kwargs):  # Ctrl-C in the first update's gradient steps, its state half changed
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(trainer_module, "ppo_update", stopped)
+    lines: list[str] = []
+    cfg = tiny_config(tmp_path)
+    result = Trainer(cfg, log=lines.append).train()
+    assert result["status"] == "interrupted" and not (cfg.run_dir / "last.pt").exists()
+    said = "\n".join(lines)
+    assert "interrupted before the first checkpoint: nothing to resume" in said and "--resume" not in said

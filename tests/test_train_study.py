@@ -463,3 +463,24 @@ def test_a_resume_may_change_how_training_is_shown_but_not_what_is_trained(tmp_p
     other = dataclasses.replace(plan, train_overrides=("task.fidelity=point", "ppo.lr=0.0002"))
     with pytest.raises(ValueError, match="was trained with .*ppo.lr=0.0001.*give the same"):
         _load_state(other)
+
+
+def test_a_study_stopped_by_sigterm_while_an_arm_trains_exits_143_saying_so(tmp_path, capsys, monkeypatch, no_training_floor):
+    """The arm's run stopped on the signal and the study raised a bare interrupt: exit 130, "interrupted"."""
+    import os
+    import signal
+
+    from train.trainer import Trainer
+
+    real_update = Trainer.train_one_update
+
+    def sigterm_in_full_obs(self):
+        if self.counters.update >= 1:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return real_update(self)
+
+    monkeypatch.setattr(Trainer, "train_one_update", sigterm_in_full_obs)
+    args = ["--episodes", "2", "--worlds", "2", "--layouts", "0", "--out", str(tmp_path / "study"), "--fidelity", "point",
+            "--set", "max_steps=20"] + sum((["--train-set", s] for s in TRAIN), [])
+    assert main(["study", "--budget-minutes", "0.8", *args]) == 143
+    assert "pursuit-mj study: interrupted by SIGTERM" in capsys.readouterr().err

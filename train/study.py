@@ -127,7 +127,8 @@ def _load_state(plan: StudyPlan) -> dict:
                 load_checkpoint(plan.out / "runs" / arm.name / "best.pt")
             except ValueError as exc:
                 raise ValueError(f"--resume: the {arm.name} arm is kept as finished in {path}, but {exc}; delete its "
-                                 f"entry under \"arms\" there to train it again") from None
+                                 f"entry under \"arms\" there and its run folder {plan.out / 'runs' / arm.name} to train "
+                                 f"it again") from None
     kept = {"evaluation": state["evaluation"]} if isinstance(state, dict) and "evaluation" in state else {}
     return {"train_overrides": stored, "arms": arms, **kept}  # the evaluation is checked by KeptEvaluation
 
@@ -385,6 +386,11 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
             raise ValueError(f"study folder {plan.out}: {cfg.run_dir} already holds a run; choose another --out")
         finished_s = _finished_seconds(cfg.run_dir) if interrupted else None
         if finished_s is not None:  # stopped after the arm ended, before study.json said so: not trained again
+            try:
+                load_checkpoint(run_dir / "best.pt")
+            except ValueError as exc:
+                raise ValueError(f"--resume: the {regime} arm finished in an earlier session, but {exc}; delete its run "
+                                 f"folder {run_dir} to train it again") from None
             checkpoints[regime] = run_dir / "best.pt"
             timings[f"{regime} (train, earlier session)"] = finished_s
             state["arms"][regime] = {"train_seconds": round(finished_s, 1)}

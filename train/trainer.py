@@ -649,8 +649,12 @@ class Trainer:
             status = "interrupted"
             if self._consistent and (self._saved_update != c.update or self._pending_row):
                 self.save()
-            self.log(f"\ninterrupted: state of update {self._saved_update} is in {self.run_dir / 'last.pt'}; "
-                     f"continue with: {self.resume_command}")
+            if (self.run_dir / "last.pt").is_file():
+                self.log(f"\ninterrupted: state of update {self._saved_update} is in {self.run_dir / 'last.pt'}; "
+                         f"continue with: {self.resume_command}")
+            else:  # stopped before the first checkpoint: there is nothing to resume
+                self.log(f"\ninterrupted before the first checkpoint: nothing to resume in {self.run_dir}; "
+                         f"run the same command again to start afresh")
         finally:
             self.close()
             if bar is not None:
