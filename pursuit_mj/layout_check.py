@@ -149,10 +149,10 @@ def grid_step(layout, clearance: float) -> float:
     from .layout import LayoutError
 
     coarse = max(GRID_STEP, max(layout.width, layout.height) / GRID_CELLS)
-    band = thinnest_obstacle(layout) + 2 * clearance
-    step = min(coarse, 0.99 * band / np.sqrt(2))
+    thinnest = thinnest_obstacle(layout)
+    step = min(coarse, 0.99 * (thinnest + 2 * clearance) / np.sqrt(2))
     if max(layout.width, layout.height) / step > MAX_GRID_CELLS:
-        raise LayoutError(f"{layout.source}: its {thinnest_obstacle(layout):g} m thin obstacle, with {clearance:g} m of "
+        raise LayoutError(f"{layout.source}: its {thinnest:g} m thin obstacle, with {clearance:g} m of "
                           f"clearance, needs a reachability grid over {MAX_GRID_CELLS} cells a side in a "
                           f"{max(layout.width, layout.height):g} m arena; make the obstacle thicker")
     return step
