@@ -725,3 +725,108 @@ def test_a_run_stopped_before_its_first_checkpoint_says_there_is_nothing_to_resu
     assert result["status"] == "interrupted" and not (cfg.run_dir / "last.pt").exists()
     said = "\n".join(lines)
     assert "interrupted before the first checkpoint: nothing to resume" in said and "--resume" not in said
+
+
+@pytest.mark.parametrize("damage", ["missing", "cut short"])
+def test_a_resume_whose_best_pt_is_lost_says_so_and_writes_a_new_one_at_its_next_validation(tmp_path, damage):
+    """The counters kept naming a best.pt that was gone or damaged, and it stayed so until a later
+    validation beat the lost record (perhaps never): the run ended with no usable best.pt."""
+    cfg = tiny_config(tmp_path, updates=2, extra=["run.validate_every=1"])
+    Trainer(cfg, log=lambda s: None).train()
+    best = cfg.run_dir / "best.pt"
+    if damage == "missing":
+        best.unlink()
+    else:
+        best.write_bytes(best.read_bytes()[:1000])
+    said: list[str] = []
+    trainer = Trainer.resume(cfg.run_dir, total_steps=32 * 3, log=said.append)
+    assert trainer.counters.best_update == -1 and trainer.counters.best_success == -1
+    note = [line for line in said if "best.pt" in line]
+    assert note and f"{best}" in note[0] and "the next validation writes a new one" in note[0], said
+    trainer.train()
+    assert load_checkpoint(best)["counters"]["best_update"] == 3
+
+
+def test_a_damaged_last_pt_replaced_by_the_runs_own_best_pt_resumes_from_it_as_the_hint_says(tmp_path, monkeypatch):
+    """The hint for a damaged last.pt ('copy best.pt over it') led to a refusal: the metrics log
+    held the rows of the updates after best.pt's, which looked like a last.pt from another run."""
+    cfg = tiny_config(tmp_path, updates=4, extra=["run.validate_every=1"])
+    real_validate = Trainer.validate
+
+    def best_at_update_2(self):
+        out = real_validate(self)
+        out["success"] = 0.9 if self.counters.update == 2 else 0.1
+        return out
+
+    monkeypatch.setattr(Trainer, "validate", best_at_update_2)
+    Trainer(cfg, log=lambda s: None).train()
+    last, best = cfg.run_dir / "last.pt", cfg.run_dir / "best.pt"
+    last.write_bytes(last.read_bytes()[:1000])
+    with pytest.raises(ValueError, match="copy it over last.pt"):
+        Trainer.resume(cfg.run_dir, log=lambda s: None)
+    last.write_bytes(best.read_bytes())
+    said: list[str] = []
+    result = Trainer.resume(cfg.run_dir, log=said.append).train()
+    assert result["counters"]["update"] == 4
+    assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2, 3, 4]
+    assert any("last.pt is this run's best.pt (update 2)" in line and "updates 2-4" in line for line in said), said
+    assert load_checkpoint(best)["counters"]["best_update"] == 2
+
+
+def test_a_checkpoint_with_a_huge_update_count_resumes_without_exhausting_memory(tmp_path):
+    """The lost-rows check built the set of every update number up to the checkpoint's count: a
+    damaged or hand-edited count of 3e8 took gigabytes and ended in a MemoryError."""
+    from train.checkpoint import save_checkpoint
+
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    data = load_checkpoint(cfg.run_dir / "last.pt")
+    data["counters"]["update"] = 10 ** 12
+    save_checkpoint(cfg.run_dir / "last.pt", {k: v for k, v in data.items() if k not in ("format", "version")})
+    said: list[str] = []
+    trainer = Trainer.resume(cfg.run_dir, log=said.append)
+    assert trainer.counters.update == 10 ** 12
+    assert any(f"lacks the rows of updates 2-{10 ** 12} ({10 ** 12 - 1} of them)" in line
+               or f"lacks the rows of updates 2-{10 ** 12}" in line for line in said), said
+
+
+def test_missing_updates_names_the_gaps_without_listing_every_number():
+    from train.metrics_log import missing_updates
+
+    assert missing_updates({1, 2, 3}, 3) is None
+    assert missing_updates(set(), 0) is None
+    assert missing_updates({2, 3}, 3) == (1, 1, 1)
+    assert missing_updates({1, 3}, 5) == (2, 5, 3)
+    assert missing_updates({1, 5, 9}, 10 ** 15) == (2, 10 ** 15, 10 ** 15 - 3)
+    assert missing_updates({7, 8}, 3) == (1, 3, 3)  # rows past the count are not the count's
+
+
+def test_a_resume_cuts_the_metrics_log_in_place_without_room_for_a_second_copy(tmp_path, file_size_limit):
+    """The resume rewrote the whole log into a temporary file even when nothing was dropped: on a
+    full disk a resume failed for want of room for a second copy of metrics.jsonl."""
+    from train.metrics_log import MetricsLog
+
+    log = MetricsLog(tmp_path / "metrics.jsonl")
+    for u in (1, 2, 3):
+        log.append({"update": u, "loss": 0.5})
+    with open(log.path, "a") as f:
+        f.write('{"update": 4, "lo')  # a row cut short by a kill
+    file_size_limit(0)  # no file can grow: a copy of the log cannot be written
+    log.truncate_after(3)
+    assert log.path.read_text().splitlines()[-1] == '{"update": 3, "loss": 0.5}' and log.path.read_text().endswith("\n")
+    log.truncate_after(2)
+    assert [r["update"] for r in log.rows()] == [1, 2]
+    log.truncate_after(5)
+    assert [r["update"] for r in log.rows()] == [1, 2]
+    assert not [p.name for p in tmp_path.iterdir() if ".part" in p.name]
+
+
+def test_a_new_run_on_a_full_disk_is_refused_in_one_line_and_leaves_no_folder(tmp_path, file_size_limit):
+    """The folder's lock file could not be written: an OSError traceback from lock_run_folder."""
+    cfg = tiny_config(tmp_path, updates=1)
+    file_size_limit(0)
+    with pytest.raises(ValueError) as caught:
+        Trainer(cfg, log=lambda s: None)
+    said = str(caught.value)
+    assert said.startswith(f"run folder {cfg.run_dir}: cannot write its lock file") and "\n" not in said, said
+    assert not cfg.run_dir.exists()

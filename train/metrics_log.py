@@ -49,6 +49,53 @@ class MetricsLog:
         return out
 
     def truncate_after(self, update: int) -> None:
-        """Drop rows of updates after `update` (written before a crash lost their checkpoint)."""
-        rows = [r for r in self.rows() if r.get("update", 0) <= update]
-        atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in rows))
+        """Drop rows of updates after `update` (written before a crash lost their checkpoint) and a
+        last line cut short. When what goes is the file's tail (the usual case: rows are appended in
+        update order) the file is cut in place, which needs no free space, so a full disk does not
+        stop a resume; otherwise it is rewritten."""
+        if not self.path.exists():
+            return
+        lines = self.path.read_bytes().splitlines(keepends=True)
+        numbers = [_row_update(line) for line in lines]
+        tail = len(lines)  # lines[tail:] all go: cut short, or of later updates
+        while tail and (numbers[tail - 1] is None or numbers[tail - 1] > update):
+            tail -= 1
+        if any(n is not None and n > update for n in numbers[:tail]):
+            rows = [r for r in self.rows() if r.get("update", 0) <= update]  # a later row inside the file
+            atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in rows))
+        elif tail < len(lines):
+            try:
+                os.truncate(self.path, sum(len(line) for line in lines[:tail]))
+            except OSError as exc:
+                raise ValueError(f"metrics log {self.path}: cannot cut it back to update {update} "
+                                 f"({exc.strerror or exc})") from None
+
+
+def _row_update(line: bytes) -> int | None:
+    """The update number of a complete row line (0 if it names none); None for a line cut short or garbled."""
+    if not line.endswith(b"\n"):
+        return None
+    try:
+        row = json.loads(line)
+    except json.JSONDecodeError:
+        return None
+    if not isinstance(row, dict):
+        return None
+    number = row.get("update", 0)
+    return number if isinstance(number, int) else 0
+
+
+def missing_updates(present: set[int], logged: int) -> tuple[int, int, int] | None:
+    """The updates 1..logged without a row in `present`, as (first, last, how many), or None if
+    none is missing. Costs O(len(present)), whatever `logged` is (a damaged count may be huge)."""
+    have = {u for u in present if isinstance(u, int) and 1 <= u <= logged}
+    count = logged - len(have)
+    if count <= 0:
+        return None
+    first = 1
+    while first in have:
+        first += 1
+    last = logged
+    while last in have:
+        last -= 1
+    return first, last, count

@@ -41,7 +41,7 @@ from .config import TrainConfig, defaults_filled_in, train_config_from_dict, usa
 from .critic_worker import CriticWorker
 from .discount import Discount
 from .imitation import DaggerCollector, Demonstrations, imitation_update, teacher_share
-from .metrics_log import MetricsLog, json_ready
+from .metrics_log import MetricsLog, json_ready, missing_updates
 from pursuit_mj.recording.rerun_scalars import RerunScalarLogger
 from .policy import ActorPolicy, trained_team
 from .ppo import advantages_and_returns, ppo_update, teacher_labels_needed, teacher_weight
@@ -89,7 +89,12 @@ class Trainer:
         self.resume_command = f"pursuit-mj train --resume {self.run_dir}"  # what an interrupted run tells the user
         made_folder = not self.run_dir.exists()
         check_writable_folder(self.run_dir, f"run folder (run.runs_dir {cfg.run.runs_dir}, name {cfg.name})")
-        self._lock = lock_run_folder(self.run_dir)  # before anything in the folder is read or written
+        try:
+            self._lock = lock_run_folder(self.run_dir)  # before anything in the folder is read or written
+        except ValueError:
+            if made_folder:
+                shutil.rmtree(self.run_dir, ignore_errors=True)
+            raise
         try:
             left = remove_leftover_parts(self.run_dir)  # of saves a kill -9 cut short: no other process writes here
             if left:
@@ -231,17 +236,21 @@ class Trainer:
         logged = self.counters.update - (1 if data.get("pending_row") else 0)
         metrics = MetricsLog(self.run_dir / "metrics.jsonl")
         later = sorted(r.get("update", 0) for r in metrics.rows() if r.get("update", 0) > logged)
-        if len(later) > self.cfg.run.checkpoint_every + 1:  # more than a crash between checkpoints leaves
+        if later and self._last_is_own_best():  # as best_instead advises for a damaged last.pt
+            self.log(f"note: last.pt is this run's best.pt (update {self.counters.update}): the run goes on from it, and the "
+                     f"rows of updates {later[0]}-{later[-1]} leave metrics.jsonl and are written again as it goes")
+        elif len(later) > self.cfg.run.checkpoint_every + 1:  # more than a crash between checkpoints leaves
             raise ValueError(f"--resume {self.run_dir}: last.pt is at update {logged}, but metrics.jsonl holds the rows of "
                              f"updates {later[0]}-{later[-1]}: it is not this run's latest checkpoint (copied from another "
                              f"run, or an older copy put back), and a resume would cut those rows from the log. Put the "
                              f"run's own last.pt back, or move metrics.jsonl aside to go on from this one")
         metrics.truncate_after(logged)
-        missing = sorted(set(range(1, logged + 1)) - {r.get("update") for r in metrics.rows()})
+        missing = missing_updates({r.get("update") for r in metrics.rows()}, logged)
         if missing:  # the file deleted or cut by hand: the curves will have a gap
-            span = f"{missing[0]}-{missing[-1]}" if len(missing) > 1 else f"{missing[0]}"
-            if missing[-1] - missing[0] + 1 != len(missing):
-                span += f" ({len(missing)} of them)"
+            first, last, count = missing
+            span = f"{first}-{last}" if count > 1 else f"{first}"
+            if last - first + 1 != count:
+                span += f" ({count} of them)"
             self.log(f"note: {metrics.path} lacks the rows of updates {span} (deleted or cut since they were "
                      f"logged); the log goes on from update {logged + 1}")
         self.log(f"resumed {self.run_dir} at update {self.counters.update} ({self.counters.world_steps} world steps)")
@@ -250,13 +259,26 @@ class Trainer:
         """Take the best-validation record from best.pt when it is newer than last.pt's (a crash
         after best.pt was written but before last.pt was): otherwise the resumed run judges its
         validations against an older best and may replace best.pt with a worse policy."""
-        c = self.counters
+        c, path = self.counters, self.run_dir / "best.pt"
         try:
-            best = read_counters(load_checkpoint(self.run_dir / "best.pt"), self.run_dir / "best.pt")
-        except (ValueError, KeyError):
-            return  # none, or unusable: the next validation writes a new one
+            best = read_counters(load_checkpoint(path), path)
+        except (ValueError, KeyError) as exc:
+            if c.best_update >= 0:  # the record names a policy no longer on disk: forget it, so a new one is written
+                why = "it is gone" if not path.exists() else f"it is unusable: {load_error(exc)}"
+                self.log(f"note: {path} of update {c.best_update} (validation success {c.best_success:.3f}) is lost ({why}); "
+                         f"its record is dropped, and the next validation writes a new one")
+                c.best_success, c.best_steps, c.best_update = Counters.best_success, Counters.best_steps, Counters.best_update
+            return
         if best.best_update > c.best_update:
             c.best_success, c.best_steps, c.best_update = best.best_success, best.best_steps, best.best_update
+
+    def _last_is_own_best(self) -> bool:
+        """Whether last.pt is a byte copy of this run's best.pt (put there to go on from it)."""
+        last, best = self.run_dir / "last.pt", self.run_dir / "best.pt"
+        try:
+            return best.is_file() and best.stat().st_size == last.stat().st_size and best.read_bytes() == last.read_bytes()
+        except OSError:
+            return False
 
     def _init_from(self, path: str) -> None:
         """Start from another run's weights (fine_tune): actor always, critic when it fits."""
@@ -685,8 +707,11 @@ def lock_run_folder(run_dir: Path):
     interleave their metrics rows and overwrite each other's checkpoints."""
     import fcntl
 
-    run_dir.mkdir(parents=True, exist_ok=True)
-    handle = open(run_dir / ".lock", "a+")
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        handle = open(run_dir / ".lock", "a+")
+    except OSError as exc:
+        raise ValueError(f"run folder {run_dir}: cannot write its lock file ({exc.strerror or exc})") from None
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
@@ -695,10 +720,12 @@ def lock_run_folder(run_dir: Path):
         handle.close()
         raise ValueError(f"run folder {run_dir} is in use by another trainer ({holder}): wait for it to end or stop "
                          f"it, or train under another name") from None
-    handle.seek(0)
-    handle.truncate()
-    handle.write(f"pid {os.getpid()}")
-    handle.flush()
+    try:  # unbuffered: nothing is left to flush (and fail) when the handle closes
+        os.ftruncate(handle.fileno(), 0)
+        os.pwrite(handle.fileno(), f"pid {os.getpid()}".encode(), 0)
+    except OSError as exc:  # a full disk: the lock is held, but the holder's pid could not be written
+        handle.close()
+        raise ValueError(f"run folder {run_dir}: cannot write its lock file ({exc.strerror or exc})") from None
     return handle
 
 
