@@ -161,3 +161,26 @@ def test_a_critic_process_that_cannot_start_leaves_the_update_in_one_process_wit
     assert not trainer.split_update and trainer.update_threads == 2
     notes = [s for s in said if "critic process could not start" in s]
     assert len(notes) == 1 and "No space left on device" in notes[0] and "--set run.split_update=false" in notes[0], said
+
+
+def test_a_child_ignores_ctrl_c_from_its_first_instant_while_it_still_imports_torch(capfd):
+    """Ctrl-C reaches the whole process group. In the first seconds of a run a child was still
+    importing torch, before it could ignore the signal, and printed a KeyboardInterrupt
+    traceback over the parent's tidy 'interrupted' message."""
+    import os
+    import signal
+    import time
+
+    from train.child_process import spawn
+    from train.critic_worker import _wait_for_close
+
+    process, conn = spawn(_wait_for_close, (), "ctrl-c probe")
+    end = time.monotonic() + 3.0  # covers the child's start and its import of torch
+    while time.monotonic() < end and process.is_alive():
+        os.kill(process.pid, signal.SIGINT)
+        time.sleep(0.02)
+    assert process.is_alive()
+    conn.send(("stop",))
+    process.join(10)
+    assert process.exitcode == 0
+    assert "KeyboardInterrupt" not in capfd.readouterr().err

@@ -1,8 +1,8 @@
 """What the trainer's child processes share: how they are spawned, stopped, waited for and reported.
 
 A child is spawned (a fresh interpreter: no forked MuJoCo or torch thread state) without
-re-running the parent's main script, ignores Ctrl-C (the parent handles it and stops the
-child), and exits when the parent's end of its pipe closes, so a killed parent leaves
+re-running the parent's main script, ignores Ctrl-C from its start (the parent handles it and
+stops the child), and exits when the parent's end of its pipe closes, so a killed parent leaves
 nothing running. Used by train/rollout_worker.py and train/critic_worker.py.
 """
 
@@ -46,12 +46,30 @@ def _main_script_hidden():
             main.__dict__.update(saved)
 
 
+@contextlib.contextmanager
+def _ctrl_c_ignored_by_new_processes():
+    """While a child is spawned, Ctrl-C is ignored (SIG_IGN), a disposition a new process inherits
+    and keeps through exec: the child ignores Ctrl-C from its first instant, while it still imports
+    torch, instead of only once its target runs (a Ctrl-C then printed a KeyboardInterrupt traceback
+    from the child). A Ctrl-C in the parent during these milliseconds is ignored too."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is None:
+        yield  # only the main thread may set handlers, and a handler set outside Python cannot be put back
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def spawn(target, args: tuple, name: str):
     """Start `target(child_conn, *args)` in a spawned daemon process; returns (process, parent_conn)."""
     ctx = mp.get_context("spawn")
     conn, child_conn = ctx.Pipe()
     process = ctx.Process(target=target, args=(child_conn, *args), name=name, daemon=True)
-    with _main_script_hidden():
+    with _main_script_hidden(), _ctrl_c_ignored_by_new_processes():
         process.start()
     child_conn.close()
     return process, conn
