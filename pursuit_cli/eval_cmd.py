@@ -19,7 +19,7 @@ from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
 from .common import (SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, check_out_prefix, load_model, pick_versus,
                      seed_arg, shield_if_asked, table_layouts, task_config_from_args)
-from .eval_resume import finished_rows, interrupted_path, keep_finished
+from .eval_resume import drop_finished, finished_rows, interrupted_path, keep_finished, write_finished
 
 
 RERUN_EPISODES = 3  # recorded per policy and layout with --rerun
@@ -112,10 +112,11 @@ def _report_interrupted(recording) -> None:
         print(recording.summary(), file=sys.stderr, flush=True)
 
 
-def _run_table(args, config, layouts, policies, recording, rows: list, done: dict | None = None) -> list:
+def _run_table(args, config, layouts, policies, recording, rows: list, done: dict | None = None,
+               finished=lambda rows: None) -> list:
     """Evaluate every policy on every layout, appending each finished cell's row to `rows`
-    (which holds the finished ones if this is interrupted); a cell in `done` (by (policy,
-    layout label), see finished_rows) is taken from there instead."""
+    (which holds the finished ones if this is interrupted) and calling finished(rows); a cell in
+    `done` (by (policy, layout label), see finished_rows) is taken from there instead."""
     from pursuit_mj.evaluation import evaluate, layout_label
 
     for label, policy in policies:
@@ -131,6 +132,7 @@ def _run_table(args, config, layouts, policies, recording, rows: list, done: dic
                 watch = lambda env, tags=tags: EnvRecorder(recording, env, label=tags, max_episodes=args.rerun_episodes)
             t0 = time.perf_counter()
             rows.extend(evaluate(policy, config, [ref], args.episodes, args.seed, args.worlds, label=label, watch=watch))
+            finished(rows)
             if not args.quiet:
                 r = rows[-1]
                 print(f"[eval] {label} layout {r.layout}: {r.episodes} episodes in {time.perf_counter() - t0:.1f} s, "
@@ -185,15 +187,16 @@ def run(args) -> int:
             stack.callback(_report_interrupted, recording)  # runs after the recording is closed
             stack.enter_context(recording)
         rows: list = []
+        meta = _meta(args, policies, layouts, provenance())
         try:
-            _run_table(args, config, layouts, policies, recording, rows, done)
+            _run_table(args, config, layouts, policies, recording, rows, done,
+                       finished=lambda rows: write_finished(rows, csv_path, json_path, config, meta))
         except (KeyboardInterrupt, Exception) as exc:
             # Ctrl-C, SIGTERM, or a stop signal a library call reported as its own error (pursuit_cli.main)
             if isinstance(exc, KeyboardInterrupt) or getattr(args, "stop_signals", None):
-                keep_finished(rows, csv_path, json_path, config, _meta(args, policies, layouts, provenance()))
+                keep_finished(rows, csv_path, json_path, config, meta)
             raise
     print(format_table(rows))
-    meta = _meta(args, policies, layouts, provenance())
     if versus is not None:
         text, pairs = paired_report(rows, versus, config.max_steps)
         print(f"\n{text}")
@@ -207,8 +210,5 @@ def run(args) -> int:
             print(f"wrote {path}")
     if args.rerun:
         print(f"wrote {args.rerun} (view with: rerun {args.rerun})")
-    if done is not None:  # the whole table holds them now
-        for path in (csv_path, json_path):
-            if path is not None:
-                interrupted_path(path).unlink(missing_ok=True)
+    drop_finished(csv_path, json_path)  # the whole table holds them now
     return 0

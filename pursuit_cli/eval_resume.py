@@ -1,7 +1,8 @@
 """An interrupted `pursuit-mj eval`: its finished rows kept on a stop, and taken back by --resume.
 
-A row is one policy on one layout. On Ctrl-C or SIGTERM the finished rows go to
-PREFIX.interrupted.csv / .json beside the files asked for; `--resume` reads the JSON back,
+A row is one policy on one layout. As each row is finished, the finished rows go to
+PREFIX.interrupted.csv / .json beside the files asked for (so a kill -9 keeps them too), and a
+whole table removes them; `--resume` reads the JSON back,
 checks that it is this eval's (RESUME_KEYS, the task config, the code, the layout files'
 contents), and the rows it holds are not played again. Episodes follow from the seed, so the
 table is an uninterrupted run's.
@@ -19,22 +20,40 @@ def interrupted_path(path: Path) -> Path:
     return path.with_name(f"{path.stem}.interrupted{path.suffix}")
 
 
+def write_finished(rows: list, csv_path: Path | None, json_path: Path | None, config, meta: dict) -> list[Path]:
+    """Write the finished policy-layout cells beside the asked-for files (interrupted_path), so
+    that an earlier whole table there stays whole; called as each cell ends, so that even a
+    kill -9 leaves them for --resume. Returns the paths written."""
+    from pursuit_mj.evaluation import write_csv, write_json
+
+    out = []
+    if csv_path:
+        out.append(write_csv(rows, interrupted_path(csv_path)))
+    if json_path:
+        out.append(write_json(rows, interrupted_path(json_path), config, {**meta, "interrupted": True}))
+    return out
+
+
+def drop_finished(csv_path: Path | None, json_path: Path | None) -> None:
+    """Remove the kept cells once the whole table is written (it holds them)."""
+    for path in (csv_path, json_path):
+        if path is not None:
+            interrupted_path(path).unlink(missing_ok=True)
+
+
 def keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, config, meta: dict) -> None:
-    """After an interrupt: show the rows of the finished policy-layout cells and write them beside
-    the asked-for files (interrupted_path), so that an earlier whole table there stays whole; with
-    none finished, say that nothing is kept."""
-    from pursuit_mj.evaluation import format_table, write_csv, write_json
+    """After an interrupt: show the rows of the finished policy-layout cells and say where they are
+    kept (written again: the last cell may have ended as the stop came); with none finished, say
+    that nothing is kept."""
+    from pursuit_mj.evaluation import format_table
 
     if not rows:
         print("[eval] interrupted before any policy-layout cell finished: nothing is kept for --resume", file=sys.stderr,
               flush=True)
         return
     print(f"[eval] interrupted; the {len(rows)} finished policy-layout cells:\n{format_table(rows)}", file=sys.stderr, flush=True)
-    if csv_path:
-        print(f"[eval] wrote {write_csv(rows, interrupted_path(csv_path))}", file=sys.stderr, flush=True)
-    if json_path:
-        print(f"[eval] wrote {write_json(rows, interrupted_path(json_path), config, {**meta, 'interrupted': True})}",
-              file=sys.stderr, flush=True)
+    for path in write_finished(rows, csv_path, json_path, config, meta):
+        print(f"[eval] wrote {path}", file=sys.stderr, flush=True)
 
 
 #: what an interrupted eval and its resumption must share, so that the finished rows are what this run would play
@@ -51,7 +70,7 @@ def finished_rows(json_path: Path | None, config, meta: dict) -> dict[tuple[str,
         raise ValueError("--resume: needs --out PREFIX or --json FILE, where the interrupted eval kept its rows")
     kept = interrupted_path(json_path)
     if not kept.is_file():
-        raise ValueError(f"--resume: no interrupted eval at {kept} (an eval stopped by Ctrl-C or SIGTERM after its first policy-layout cell leaves one)")
+        raise ValueError(f"--resume: no interrupted eval at {kept} (an eval stopped after its first policy-layout cell leaves one)")
     try:
         data = json.loads(kept.read_text())
         stored = {k: data.get(k) for k in RESUME_KEYS}

@@ -511,7 +511,7 @@ def test_an_eval_stopped_before_any_cell_finished_says_nothing_is_kept(tmp_path,
     assert main(cmd) == 130
     assert "[eval] interrupted before any policy-layout cell finished: nothing is kept for --resume" in capsys.readouterr().err
     assert main(cmd + ["--resume"]) == 2
-    assert "(an eval stopped by Ctrl-C or SIGTERM after its first policy-layout cell leaves one)" in capsys.readouterr().err
+    assert "(an eval stopped after its first policy-layout cell leaves one)" in capsys.readouterr().err
 
 
 def test_eval_versus_a_policy_with_no_other_to_pair_is_refused(capsys, tmp_path):
@@ -596,3 +596,43 @@ def test_a_rare_outcome_in_a_large_table_does_not_print_as_zero_or_all():
     table = format_table([summarise("p", "0", "point", 0, records, 1000)])
     line = table.splitlines()[-1]
     assert " 99.96 [" in line and " 0.04 [" in line
+
+
+def test_an_eval_killed_with_kill_9_keeps_its_finished_cells_for_resume(tmp_path):
+    """kill -9 (or the out-of-memory killer) leaves no moment to write the finished cells: they
+    were lost, and only Ctrl-C or SIGTERM kept them. Each finished cell is now kept as it ends."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    cmd = ["eval", "--policy", "heuristic", "--policy", "random", "--layouts", "0", "1", "--episodes", "2",
+           "--worlds", "2", "--fidelity", "point", "--set", "max_steps=20", "--out", str(tmp_path / "t"), "-q"]
+    killed_at_third_cell = (
+        "import os, signal, sys\n"
+        "import pursuit_mj.evaluation as evaluation\n"
+        "from pursuit_cli import main\n"
+        "real, cells = evaluation.evaluate, []\n"
+        "def evaluate(*a, **k):\n"
+        "    cells.append(k['label'])\n"
+        "    if len(cells) == 3:\n"
+        "        os.kill(os.getpid(), signal.SIGKILL)\n"
+        "    return real(*a, **k)\n"
+        "evaluation.evaluate = evaluate\n"
+        "main(sys.argv[1:])\n")
+    proc = subprocess.run([sys.executable, "-c", killed_at_third_cell, *cmd], capture_output=True, text=True, timeout=300,
+                          cwd=Path(__file__).resolve().parents[1])
+    assert proc.returncode == -9, proc.stderr[-2000:]
+    kept = json.loads((tmp_path / "t.interrupted.json").read_text())
+    assert [(r["policy"], r["layout"]) for r in kept["rows"]] == [("heuristic", "0"), ("heuristic", "1")]
+    assert len(read_csv(tmp_path / "t.interrupted.csv")) == 2
+    assert main(cmd + ["--resume"]) == 0
+    assert [(r["policy"], r["layout"]) for r in json.loads((tmp_path / "t.json").read_text())["rows"]] == [
+        ("heuristic", "0"), ("heuristic", "1"), ("random", "0"), ("random", "1")]
+    assert not (tmp_path / "t.interrupted.json").exists() and not (tmp_path / "t.interrupted.csv").exists()
+
+
+def test_a_whole_eval_leaves_no_interrupted_files_of_its_own_or_of_an_earlier_stop(tmp_path):
+    (tmp_path / "t.interrupted.json").write_text('{"rows": []}')  # an earlier stop, not resumed
+    assert main(["eval", "--policy", "random", "--layouts", "0", "--episodes", "1", "--fidelity", "point",
+                 "--set", "max_steps=5", "--out", str(tmp_path / "t"), "-q"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir() if "interrupted" in p.name) == []
