@@ -66,6 +66,35 @@ def _remove_dead_parts(path: Path) -> None:
             pass
 
 
+def unfinished_path(path: str | Path) -> Path:
+    """Where this process streams a recording of `path` until it is finished (then renamed onto
+    it): `NAME.unfinished-PID.SUFFIX`, visible and readable by the viewer, so that a writer killed
+    mid-way (kill -9, a power cut) leaves what it had recorded for the user."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.unfinished-{os.getpid()}{path.suffix}")
+
+
+def killed_unfinished(path: str | Path) -> list[Path]:
+    """The unfinished recordings of `path` (unfinished_path) whose writer has died: kept for the
+    user, never removed here."""
+    path = Path(path)
+    pattern = re.compile(re.escape(path.stem) + r"\.unfinished-(\d+)" + re.escape(path.suffix))
+    try:
+        siblings = sorted(path.parent.glob(f"{glob.escape(path.stem)}.unfinished-*{glob.escape(path.suffix)}"))
+    except OSError:
+        return []
+    return [p for p in siblings if (m := pattern.fullmatch(p.name)) and p.is_file() and not _alive(int(m[1]))]
+
+
+def move_into_place(tmp: str | Path, path: str | Path) -> Path:
+    """Rename the finished file `tmp` onto `path` durably: its data, then the folder's entry."""
+    with open(tmp, "rb") as f:
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    _fsync_folder(Path(path).parent)
+    return Path(path)
+
+
 def _alive(pid: int) -> bool:
     """Whether a process with this pid exists (one of another user's counts as alive)."""
     if os.name == "nt":  # os.kill would end the process there, not probe it

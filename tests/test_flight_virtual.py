@@ -7,6 +7,8 @@ drones backed by pursuit_mj's quadrotor physics.
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -184,9 +186,14 @@ def test_a_whole_virtual_flight_takes_off_chases_captures_lands_and_sends_what_t
 def test_fly_virtual_on_the_command_line_writes_its_event_log_and_rerun_file(tmp_path, capsys):
     flight = tmp_path / "quick.yaml"
     flight.write_text(yaml.safe_dump(quick_spec(task={"evader_speed": 0.3})))
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    killed = tmp_path / f"f.unfinished-{int(dead.stdout)}.rrd"  # what a flight killed mid-way (kill -9) left
+    killed.write_bytes(b"an earlier flight's episodes")
     rc = main(["fly", "--flight", str(flight), "--policy", "heuristic", "--virtual", "--max-time", "1.5",
                "--events", str(tmp_path / "f.jsonl"), "--rerun", str(tmp_path / "f.rrd")])
     out = capsys.readouterr().out
+    assert f"rerun_unfinished_kept: path={killed}" in out and killed.read_bytes() == b"an earlier flight's episodes"
+    assert sorted(p.name for p in tmp_path.glob("f.*.rrd")) == [killed.name]
     assert rc == 0 and "outcome: timeout" in out and "landed: yes (every commanded drone's last height estimate below 0.1 m)" in out
     records = read_events(tmp_path / "f.jsonl")
     times = [r["t"] for r in records]

@@ -11,8 +11,10 @@
 | `height/{name}`                | estimated height                                              |
 | `events`                       | every safety and flight event as a text log line              |
 
-Timeline `flight_time`: seconds since the event log opened. The file is written under a
-temporary name and renamed when the recorder closes, even if the flight ended badly.
+Timeline `flight_time`: seconds since the event log opened. The file is written as
+`NAME.unfinished-PID.rrd` and renamed when the recorder closes, even if the flight ended badly;
+a process killed mid-flight (kill -9) leaves that file, readable, and the next recording of the
+same name says where it is.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from ..io_utils import atomic_path
+from ..io_utils import CannotWrite, killed_unfinished, move_into_place, unfinished_path
 from ..layout import Box, Wall
 from ..palette import ROLE_RGBA, rgb255
 from .plan import FlightPlan
@@ -50,12 +52,20 @@ class FlightRecorder:
 
     def __init__(self, path: str | Path, plan: FlightPlan):
         self.plan = plan
-        self._stack = contextlib.ExitStack()
-        tmp = self._stack.enter_context(atomic_path(path))
-        self.rec = rr.RecordingStream("pursuit_mj_flight")
-        self.rec.save(tmp)
         self.path = Path(path)
-        self._log_static()
+        self.killed_before = killed_unfinished(self.path)  # what earlier recordings killed mid-way left: kept
+        self._tmp = unfinished_path(self.path)
+        self.rec = rr.RecordingStream("pursuit_mj_flight")
+        try:
+            self.rec.save(self._tmp)
+            self._log_static()
+            self.rec.flush()
+        except RuntimeError as exc:  # rerun's file writer failed: a full disk
+            with contextlib.suppress(RuntimeError):
+                self.rec.disconnect()
+            self._tmp.unlink(missing_ok=True)
+            raise CannotWrite(f"--rerun {self.path}: cannot write it (rerun: {exc})") from None
+        self._closed = False
 
     def _log_static(self) -> None:
         plan, rec = self.plan, self.rec
@@ -90,9 +100,21 @@ class FlightRecorder:
         self.rec.log("events", rr.TextLog(f"{record['kind']}: {details}" if details else record["kind"], level=LEVEL.get(record.get("level", "info"), "INFO")))
 
     def close(self) -> None:
-        """Finish the file (renamed into place)."""
+        """Finish the file and rename it into place, however the flight ended; CannotWrite if the
+        disk took only part of it (what it took is still renamed into place)."""
+        if self._closed:
+            return
+        self._closed = True
+        failed = None
         try:
             self.rec.flush()
             self.rec.disconnect()
-        finally:
-            self._stack.close()
+        except RuntimeError as exc:  # rerun's file writer stopped: a full disk
+            failed = exc
+        try:
+            move_into_place(self._tmp, self.path)
+        except OSError as exc:
+            raise CannotWrite(f"--rerun {self.path}: cannot write it ({exc.strerror or exc}); what was recorded is in "
+                              f"{self._tmp}") from None
+        if failed is not None:
+            raise CannotWrite(f"--rerun {self.path}: the disk took only part of the flight (rerun: {failed})")

@@ -156,6 +156,9 @@ def run_flight(
             from .rerun_log import FlightRecorder
 
             recorder = FlightRecorder(rerun_path, plan)
+            for left in recorder.killed_before:
+                events.log("rerun_unfinished_kept", path=str(left), level="warn",
+                           why="a recording of this name killed before it finished (kill -9?) left it: open it with rerun")
         if virtual:
             from .virtual.fleet import VirtualFleet
 

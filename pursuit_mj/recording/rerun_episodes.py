@@ -21,14 +21,14 @@ property `episode_k` (outcome, steps, seed, layout, policy). Inside it:
 
 Timelines: `step` (decision steps since the episode began) and `sim_time` (s). Episodes are
 buffered in memory and sent as columns when they end, which keeps the per-step cost to a
-snapshot copy. The file is written under a temporary name and renamed on `close`.
+snapshot copy. The file is written as `NAME.unfinished-PID.rrd`, each episode flushed as it
+ends, and renamed on `close` (a recording killed mid-way, kill -9, leaves that file readable).
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
-import os
 import uuid
 from pathlib import Path
 from typing import Sequence
@@ -37,7 +37,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from ..io_utils import CannotWrite, atomic_path, check_writable
+from ..io_utils import CannotWrite, check_writable, killed_unfinished, move_into_place, unfinished_path
 from ..layout import Box, Cylinder, Layout, Wall
 from ..palette import BORDER_RGBA, OBSTACLE_RGBA, ROLE_RGBA, rgb255
 from ..scene import drone_names, wall_heights
@@ -110,11 +110,18 @@ class RerunEpisodeRecording:
         self.n_episodes = 0
         self.kept: Path | None = None  # where close() left the episodes: path, partial_path or nowhere
         self.lost: str | None = None  # why close() could not write the file (a full disk), if it could not
-        self._atomic = atomic_path(self.path)
-        self._tmp = self._atomic.__enter__()
+        self.killed_before = killed_unfinished(self.path)  # what earlier recordings killed mid-way left: kept
+        self._tmp = unfinished_path(self.path)
         self.stream = rr.RecordingStream(application_id, recording_id=uuid.uuid4())
-        self.stream.save(self._tmp)
-        self.stream.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        try:
+            self.stream.save(self._tmp)
+            self.stream.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+            self.stream.flush()
+        except RuntimeError as exc:  # rerun's file writer failed: a full disk
+            with contextlib.suppress(RuntimeError):
+                self.stream.disconnect()
+            self._tmp.unlink(missing_ok=True)
+            raise CannotWrite(f"{self.path}: cannot write it (rerun: {exc})") from None
         self._closed = False
         self._thrust = False
 
@@ -156,6 +163,11 @@ class RerunEpisodeRecording:
         self._thrust |= cfg.fidelity == "quadrotor"
         self._send_rewards(prefix, index, snaps, names[:N])
         self._log_outcome(prefix, buffer.label, last, record)
+        try:
+            self.stream.flush()  # on disk as each episode ends: a recording killed later (kill -9) keeps it
+        except RuntimeError as exc:  # rerun's file writer stopped: a full disk
+            self.lost = str(exc)
+            raise CannotWrite(f"{self.path}: cannot write it (rerun: {exc})") from None
         self.n_episodes += 1
         return prefix
 
@@ -294,6 +306,8 @@ class RerunEpisodeRecording:
         if self.kept == self.path:
             stale = (f"; {self.partial_path} beside it is from an earlier, interrupted run"
                      if self.partial_path.is_file() else "")
+            stale += "".join(f"; {p} beside it holds what a recording killed before it finished had written"
+                             for p in self.killed_before if p.is_file())
             return f"wrote {self.path} ({n}; open with: rerun {self.path}){stale}"
         if self.kept is not None:
             return f"interrupted: the {n} finished before it are in {self.kept} (open with: rerun {self.kept}); {self.path} was not written"
@@ -313,6 +327,11 @@ class RerunEpisodeRecording:
         if self._closed:
             return self.kept
         self._closed = True
+        if self.lost is not None:  # an episode could not be written (add_episode said so): nothing is kept
+            with contextlib.suppress(RuntimeError):
+                self.stream.disconnect()
+            self._tmp.unlink(missing_ok=True)
+            return None
         keep = ok or self.n_episodes > 0
         if keep:
             if not ok:
@@ -323,28 +342,22 @@ class RerunEpisodeRecording:
             self.stream.disconnect()
         except RuntimeError as exc:  # rerun's file writer stopped: a full disk
             return self._lost(ok, exc)
-        if ok:
-            self._atomic.__exit__(None, None, None)
-            self.kept = self.path
-            return self.kept
-        if keep:
-            with open(self._tmp, "rb") as f:
-                os.fsync(f.fileno())
-            os.replace(self._tmp, self.partial_path)
-            self.kept = self.partial_path
-        err = RuntimeError("recording abandoned")
         try:
-            self._atomic.__exit__(RuntimeError, err, None)
-        except RuntimeError:
-            pass
+            if ok:
+                self.kept = move_into_place(self._tmp, self.path)
+            elif keep:
+                self.kept = move_into_place(self._tmp, self.partial_path)
+        except OSError as exc:  # the data could not be flushed or the file renamed: a full disk, a removed folder
+            return self._lost(ok, exc)
+        finally:
+            self._tmp.unlink(missing_ok=True)  # a recording without a finished episode, or one that failed
         return self.kept
 
-    def _lost(self, ok: bool, exc: RuntimeError) -> None:
+    def _lost(self, ok: bool, exc: Exception) -> None:
         """The file could not be written: remove it; CannotWrite naming it if the run had ended well
         (an interrupted one stays interrupted; `summary` says its episodes are lost)."""
         self.lost = str(exc)
-        with contextlib.suppress(RuntimeError):
-            self._atomic.__exit__(RuntimeError, exc, None)
+        self._tmp.unlink(missing_ok=True)
         if ok:
             raise CannotWrite(f"{self.path}: cannot write it (rerun: {exc})") from None
         return None
