@@ -236,9 +236,9 @@ def test_the_landing_lasts_for_the_highest_commanded_drone_not_a_target_held_hig
     from pursuit_mj.flight.bridge import landing_duration
 
     commanded = np.array([True, True, False])  # two pursuers, a target someone carries
-    assert landing_duration(np.array([0.5, 0.4, 1.8]), commanded, 0.5, 0.25) == pytest.approx(2.0)
-    assert landing_duration(np.array([np.nan, 0.4, 1.8]), commanded, 0.6, 0.25) == pytest.approx(2.4)  # unknown: flight height
-    assert landing_duration(np.array([0.0, 0.02, 1.8]), commanded, 0.5, 0.25) == pytest.approx(0.4)  # at least 0.1 m
+    assert landing_duration(np.array([0.5, 0.4, 1.8]), commanded, 0.5, 0.25, ceiling=2.0) == pytest.approx(2.0)
+    assert landing_duration(np.array([np.nan, 0.4, 1.8]), commanded, 0.6, 0.25, ceiling=2.0) == pytest.approx(2.4)  # unknown: flight height
+    assert landing_duration(np.array([0.0, 0.02, 1.8]), commanded, 0.5, 0.25, ceiling=2.0) == pytest.approx(0.4)  # at least 0.1 m
 
 
 class StallingTeam(ScriptedTeam):
@@ -356,3 +356,107 @@ def test_a_drone_without_the_tilt_parameters_flies_with_its_own_limit_and_a_warn
     assert links[1].set == {} and links[2].set == {}  # the target is not ours to set
     assert events.of_kind("tilt_limit_unknown")[0]["drones"] == ["p1"]
     assert events.of_kind("tilt_limit")[0]["drones"] == ["p0"]
+
+
+class FailingRecorder:
+    """A rerun recorder whose writes fail from its `fail_at`-th step on (a full disk)."""
+
+    def __init__(self, fail_at: int):
+        self.fail_at, self.calls = fail_at, 0
+
+    def log_event(self, record: dict) -> None:
+        pass
+
+    def log_step(self, *args) -> None:
+        self.calls += 1
+        if self.calls >= self.fail_at:
+            raise RuntimeError("rerun: Failed to write: No space left on device")
+
+
+@pytest.mark.parametrize("fail_at", [5, 1000])  # in the chase; in the landing (found by counting)
+def test_a_recorder_that_fails_neither_ends_the_chase_nor_cuts_the_landing(tmp_path, fail_at):
+    """The landing loop called the recorder unguarded: its error left run(), the links closed,
+    and cflib's close sends zero thrust, so every drone fell from where it was."""
+    plan = quick_plan(max_time=2.0)
+    if fail_at == 1000:  # fail on the first recorder call of the landing
+        probe = FailingRecorder(10 ** 9)
+        _, events, _ = fly_virtual(plan, HOVER, tmp_path / "probe", recorder=probe)
+        fail_at = probe.calls - 5  # the landing's states are the last ones recorded
+    result, events, fleet = fly_virtual(plan, HOVER, tmp_path, recorder=FailingRecorder(fail_at))
+    assert not isinstance(result, Exception), result
+    assert result.outcome == "timeout" and result.landed, (result.outcome, result.reason)
+    assert kinds_in_order(events, "recorder_failed", "landed") and not events.of_kind("error")
+    assert "No space left on device" in events.of_kind("recorder_failed")[0]["reason"]
+    assert down(fleet)
+
+
+def test_the_landing_is_timed_for_a_believable_height_whatever_an_estimate_says():
+    """An infinite height made the landing 1.8e308 s long (cflib could not even pack it, and the
+    links closed with every motor cut); 1e6 m made every drone hover for 11 days."""
+    from pursuit_mj.flight.bridge import landing_duration
+
+    commanded = np.array([True, True, False])
+    assert landing_duration(np.array([np.inf, 0.4, 1.8]), commanded, 0.6, 0.25, ceiling=2.0) == pytest.approx(2.4)
+    assert landing_duration(np.array([-np.inf, 0.4, 1.8]), commanded, 0.6, 0.25, ceiling=2.0) == pytest.approx(2.4)
+    assert landing_duration(np.array([1e6, 0.4, 1.8]), commanded, 0.6, 0.25, ceiling=2.0) == pytest.approx(8.0)
+
+
+def test_a_drone_whose_link_was_lost_is_not_reported_landed(tmp_path):
+    """Its last estimate (from before the link dropped, on the floor) said it was down: 'landed:
+    yes' while it hovered at flight height, never having heard the landing."""
+    from flight_rehearsal import FAST, CachedFactory, EventLog, FlightBridge, VirtualFleet
+
+    plan = quick_plan(max_time=4.0)
+    events = EventLog(tmp_path / "events.jsonl")
+    fleet = VirtualFleet(plan, None, physics=FAST)
+    bridge = FlightBridge(plan.with_uris(fleet.uris), HOVER, events, factory=CachedFactory(tmp_path / "toc"), handle_signals=False)
+
+    def drop_e0_in_the_takeoff(record):
+        if record["kind"] == "takeoff":
+            threading.Timer(0.1, fleet.drop_link, args=(3,)).start()
+
+    events.add_sink("drop", drop_e0_in_the_takeoff)
+    with fleet:
+        result = bridge.run()
+        flying = fleet.true_state()["pos"][3, 2]
+    events.close()
+    assert result.outcome in ("link_lost", "takeoff_failed") and "e0" in result.reason, (result.outcome, result.reason)
+    assert flying > 0.2  # e0 finished its take-off and never heard the landing
+    assert not result.landed and "e0" in events.of_kind("landed")[0]["not_down"]
+
+
+def test_a_policy_raising_systemexit_still_lands_everyone_first(tmp_path):
+    """Only Exception was caught: a SystemExit (or another BaseException) from the policy went
+    straight to closing the links, which cuts every motor in the air."""
+    from pursuit_mj.flight.events import read_events
+
+    class Exits(ScriptedTeam):
+        def act(self, obs, spec):
+            if self.calls >= 3:
+                raise SystemExit("the policy quit")
+            return super().act(obs, spec)
+
+    with pytest.raises(SystemExit):
+        fly_virtual(quick_plan(max_time=4.0), Exits([[0.0, 0.0]]), tmp_path)
+    kinds = [r["kind"] for r in read_events(tmp_path / "events.jsonl")]
+    assert kinds_in_order(kinds, "chase", "land", "landed", "error", "links_closed"), kinds
+
+
+def test_a_hung_policy_does_not_keep_a_stop_request_from_landing_the_drones(tmp_path):
+    """The abort checks ran only between decisions: a policy that hung for 6 s left Ctrl-C (and a
+    lost link, a low battery...) unanswered for 6 s, and its late answer, computed from states
+    6 s old, was then sent as velocities after the stop."""
+    plan = quick_plan(max_time=8.0, safety={"stall_hover": 0.2})
+    asked = {}
+
+    def stop_during_the_hang(fleet, bridge):
+        time.sleep(1.0)  # the 5th decision hangs from about 0.4-0.5 s on
+        asked["t"] = bridge.events.now()
+        bridge.interrupt("Ctrl-C")
+
+    result, events, fleet = fly_virtual(plan, StallingTeam(stall_at=5, stall=6.0), tmp_path, during=stop_during_the_hang)
+    assert result.outcome == "interrupted" and result.landed, (result.outcome, result.reason)
+    land = events.of_kind("land")[0]
+    assert land["t"] - asked["t"] < 0.5, land["t"] - asked["t"]
+    assert not [r for r in events.of_kind("step") if r["t"] > asked["t"]]  # the late answer was never used
+    assert down(fleet)

@@ -49,14 +49,19 @@ from .safety import Fence, altitude_speed, clamp_speed, keep_apart_and_inside
 from .spec import LANDED_HEIGHT  # m: a drone whose last height estimate is below this counts as landed
 
 STATE_PERIOD = 0.02  # s between state-estimate log packets (50 Hz)
+LANDING_CEILING_MARGIN = 0.5  # m above safety.max_altitude: the highest height a landing is timed for
 HEALTH_PERIOD = 0.05  # s between health log packets
 
 
-def landing_duration(heights: np.ndarray, commanded: np.ndarray, flight_height: float, landing_speed: float) -> float:
-    """s for the landing: the highest commanded drone (heights (D,) m, lab; NaN: unknown, taken
-    as flight_height) comes down at landing_speed m/s. Targets are carried by someone else:
-    one held high must not slow everyone's descent."""
-    z = np.nan_to_num(np.asarray(heights, np.float64)[commanded], nan=flight_height)
+def landing_duration(heights: np.ndarray, commanded: np.ndarray, flight_height: float, landing_speed: float,
+                     ceiling: float) -> float:
+    """s for the landing: the highest commanded drone (heights (D,) m, lab; not finite: unknown,
+    taken as flight_height) comes down at landing_speed m/s. Targets are carried by someone else:
+    one held high must not slow everyone's descent. A height above `ceiling` m (no drone flies
+    there: the altitude check lands everyone well below it) is a broken estimate, timed as
+    `ceiling`: an infinite or absurd one must not hold every drone in the air for days."""
+    z = np.asarray(heights, np.float64)[commanded]
+    z = np.minimum(np.where(np.isfinite(z), z, flight_height), ceiling)
     return max(float(z.max(initial=0.0)), 0.1) / landing_speed
 
 
@@ -310,7 +315,7 @@ class FlightBridge:
             outcome, reason = stop.outcome, stop.reason
         except KeyboardInterrupt:
             outcome, reason = "interrupted", self._interrupt_reason
-        except Exception as exc:
+        except BaseException as exc:  # SystemExit from a policy too: the links closing would cut every motor
             try:
                 self._land_all("error")  # first: nothing may come between an error and the landing
             finally:
@@ -363,20 +368,27 @@ class FlightBridge:
         self._landing = True
         plan, limits = self.plan, self.plan.safety
         snap = self.board.snapshot()
-        duration = landing_duration(self._lab_state(snap)[0][:, 2], plan.commanded, plan.height, limits.landing_speed)
+        duration = landing_duration(self._lab_state(snap)[0][:, 2], plan.commanded, plan.height, limits.landing_speed,
+                                    limits.max_altitude + LANDING_CEILING_MARGIN)
         up = [link for link, ours in zip(self.links, plan.commanded) if ours and link.up]
         self.events.log("land", reason=why, duration=duration, drones=[l.name for l in up])
         for link in up:
             link.land(0.0, duration)
         end = self.clock() + duration + limits.settle
         signalled = self._interrupt.is_set()  # a stop signal that began this landing is logged already
-        while self.clock() < end and not self._estop.is_set():
-            self._stop.clear()  # earlier requests are served by this landing; an emergency stop sets it again
-            if self._interrupt.is_set() and not signalled:
-                signalled = True
-                self.events.log("interrupt", reason=self._interrupt_reason, during="landing", level="warn")
-            self._record_only(self.board.snapshot())
-            self._stop.wait(min(self.plan.dt, max(0.0, end - self.clock())))
+        try:
+            while self.clock() < end and not self._estop.is_set():
+                self._stop.clear()  # earlier requests are served by this landing; an emergency stop sets it again
+                if self._interrupt.is_set() and not signalled:
+                    signalled = True
+                    self.events.log("interrupt", reason=self._interrupt_reason, during="landing", level="warn")
+                self._record_only(self.board.snapshot())
+                self._stop.wait(min(self.plan.dt, max(0.0, end - self.clock())))
+        except BaseException:
+            # the landing is under way in the drones' own commanders: let it finish before anything
+            # closes the links (closing one sends zero thrust), unless the motors are cut meanwhile
+            self._estop.wait(max(0.0, end - self.clock()))
+            raise
         if self._estop.is_set():
             return False
         for link in up:
@@ -386,7 +398,8 @@ class FlightBridge:
         for i in np.flatnonzero(silent):  # links that dropped during the landing
             self._log_link_lost(int(i), snap.lost_reason[i] or f"nothing heard for {snap.silence[i]:.2f} s", during="landing")
         z = self._lab_state(snap)[0][:, 2]
-        down = z < LANDED_HEIGHT  # a missing estimate (NaN) does not count as down
+        # a missing estimate (NaN) does not count as down, nor one from a link gone silent (it predates the landing)
+        down = (z < LANDED_HEIGHT) & ~silent
         not_down = [n for n, ok, ours in zip(plan.names, down, plan.commanded) if ours and not ok]
         self.events.log("landed", heights=z, drones=[l.name for l in up], not_down=not_down, level="warn" if not_down else "info")
         self._airborne = False
@@ -414,7 +427,7 @@ class FlightBridge:
             while True:
                 snap = self.board.snapshot()
                 self._check_abort(snap, start)
-                step = self._decide(snap, observer, pilot)
+                step = self._decide(snap, observer, pilot, start)
                 steps.append(step)
                 if observer.captured.all():
                     return "captured", f"all {plan.n_evaders} evader(s) captured after {self.clock() - start:.1f} s"
@@ -487,7 +500,7 @@ class FlightBridge:
         if start is not None and self.clock() - start > plan.spec.max_time:
             raise _Abort("timeout", f"no capture within {plan.spec.max_time:g} s")
 
-    def _decide(self, snap: BoardSnapshot, observer: FlightObserver, pilot: EvaderPilot) -> StepRecord:
+    def _decide(self, snap: BoardSnapshot, observer: FlightObserver, pilot: EvaderPilot, start: float) -> StepRecord:
         """One decision step: task commands, safety filters, radio (module docstring, steps 3-6)."""
         plan, N = self.plan, self.plan.n_pursuers
         pos_lab, vel_lab = self._lab_state(snap)
@@ -497,7 +510,11 @@ class FlightBridge:
         for m in np.flatnonzero(newly):
             d = np.linalg.norm(pos[:N] - pos[N + m], axis=-1)
             self.events.log("capture", evader=plan.names[N + m], by=plan.names[int(np.argmin(d))], distance=float(d.min()))
-        obs, actions, wanted = self._task_commands(pos, vel, observer, pilot)
+        asked = self.clock()
+        obs, actions, wanted = self._task_commands(pos, vel, observer, pilot, start)
+        if self.clock() - asked > plan.safety.stall_hover:  # a slow decision: judge its commands where the drones are now
+            snap = self.board.snapshot()
+            pos_lab, vel_lab = self._lab_state(snap)
         v, filtered, clearance = self._guard(wanted, pos_lab, vel_lab)
 
         stale = snap.state_age > plan.safety.stale_hover
@@ -521,17 +538,27 @@ class FlightBridge:
         step = StepRecord(t, snap.pos.copy(), snap.vel.copy(), pos, vel, obs[0].copy(), actions, wanted, sent, mode, changed, observer.captured[0].copy())
         self.events.log("step", pos=pos, vel=vel, actions=actions, wanted=wanted, sent=np.where(np.isfinite(sent), sent, 0.0), mode=mode,
                         filtered=changed, captured=step.captured)
-        if self.recorder is not None:
-            self.recorder.log_step(t, np.column_stack([pos, pos_lab[:, 2]]), np.column_stack([vel, vel_lab[:, 2]]),
-                                   plan.transform.velocity_to_layout(v), snap.vbat[:, -1])
+        self._record(t, np.column_stack([pos, pos_lab[:, 2]]), np.column_stack([vel, vel_lab[:, 2]]),
+                     plan.transform.velocity_to_layout(v), snap.vbat[:, -1])
         return step
 
-    def _task_commands(self, pos: np.ndarray, vel: np.ndarray, observer: FlightObserver, pilot: EvaderPilot):
+    def _record(self, *step) -> None:
+        """One step to the rerun recorder, if any. A recorder that fails (a full disk) is logged and
+        dropped: the flight, and above all its landing, goes on as it would without one."""
+        if self.recorder is None:
+            return
+        try:
+            self.recorder.log_step(*step)
+        except Exception as exc:  # noqa: BLE001 - whatever the recording hit, the drones come first
+            self.recorder = None
+            self.events.log("recorder_failed", reason=f"{type(exc).__name__}: {exc}", level="error")
+
+    def _task_commands(self, pos: np.ndarray, vel: np.ndarray, observer: FlightObserver, pilot: EvaderPilot, start: float):
         """The task's commands from layout-frame states pos, vel (D, 2): (obs (1, N, dim),
         actions (N, 2) in [-1, 1], wanted (D, 2) m/s in the lab frame; targets 0)."""
         plan, task, N = self.plan, self.plan.task, self.plan.n_pursuers
         obs = observer.observe(pos[:N], vel[:N], pos[N:], vel[N:])
-        actions = np.asarray(self.policy.act(obs, observer.spec), np.float64)
+        actions = np.asarray(self._policy_actions(obs, observer.spec, start), np.float64)
         if actions.shape != (1, N, 2) or not np.isfinite(actions).all():
             raise ValueError(f"policy {getattr(self.policy, 'name', '?')}: expected finite actions of shape (1, {N}, 2), got {actions.shape}")
         actions = np.clip(actions, -1.0, 1.0)[0]
@@ -542,6 +569,29 @@ class FlightBridge:
             ev = pilot.command(observer, pos[N:], vel[N:], pos[:N], vel[:N])
             wanted[N:] = np.where(flown[:, None], clip_norm(ev, task.evader_speed), 0.0)
         return obs, actions, plan.transform.velocity_to_lab(wanted)
+
+    def _policy_actions(self, obs: np.ndarray, spec, start: float) -> np.ndarray:
+        """policy.act(obs, spec), asked in a thread of its own while this one goes on with the abort
+        checks at the decision rate: a policy that hangs (or takes seconds) must not keep Ctrl-C, a
+        land request, a lost link or a low battery from landing the drones (the setpoint stream
+        holds them in a hover meanwhile). A late answer after such a stop is never used."""
+        answer: dict = {}
+
+        def ask() -> None:
+            try:
+                answer["actions"] = self.policy.act(obs, spec)
+            except BaseException as exc:  # noqa: BLE001 - raised again in the flight's thread
+                answer["error"] = exc
+
+        thinking = threading.Thread(target=ask, name="policy", daemon=True)
+        thinking.start()
+        thinking.join(self.plan.dt)
+        while thinking.is_alive():
+            self._check_abort(self.board.snapshot(), start)
+            thinking.join(self.plan.dt)
+        if "error" in answer:
+            raise answer["error"]
+        return answer["actions"]
 
     def _guard(self, wanted: np.ndarray, pos_lab: np.ndarray, vel_lab: np.ndarray):
         """Safety filters on lab commands (D, 2) m/s: (commands, {filter: changed (D,) bool},
@@ -562,4 +612,4 @@ class FlightBridge:
         tr = self.plan.transform
         pos = np.column_stack([tr.to_layout(pos_lab[:, :2]), pos_lab[:, 2]])
         vel = np.column_stack([tr.velocity_to_layout(vel_lab[:, :2]), vel_lab[:, 2]])
-        self.recorder.log_step(self.events.now(), pos, vel, np.zeros((self.plan.n_drones, 2)), snap.vbat[:, -1])
+        self._record(self.events.now(), pos, vel, np.zeros((self.plan.n_drones, 2)), snap.vbat[:, -1])
