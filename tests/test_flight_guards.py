@@ -355,3 +355,32 @@ def test_an_event_log_on_a_device_that_cannot_be_fsynced_goes_on_being_written()
     log.log("geofence", drone="p0")  # safety-relevant: fsync'ed where the log is a file on disk
     log.log("geofence", drone="p1")
     assert log.failures == [] and len(log.records) == 2
+
+
+def test_a_late_go_is_refused_when_a_drone_sent_no_fresh_estimate_while_the_operator_decided(tmp_path, monkeypatch):
+    """The recheck asked only that some estimate had ever arrived: a drone whose estimates had
+    stopped during the wait was sent its take-off, and the flight then ended in takeoff_failed."""
+    import json
+
+    from pursuit_mj.flight import bridge as bridge_module
+    from flight_rehearsal import VirtualFleet
+
+    monkeypatch.setattr(bridge_module, "RECHECK_AFTER", 0.1)
+    fleet_box = {}
+    original_init = VirtualFleet.__init__
+
+    def remember(self, *a, **k):
+        original_init(self, *a, **k)
+        fleet_box["fleet"] = self
+
+    def go_after_p2_froze():
+        fleet_box["fleet"].freeze_estimates(2)
+        time.sleep(0.6)
+        return True
+
+    monkeypatch.setattr(VirtualFleet, "__init__", remember)
+    plan = quick_plan(max_time=2.0, safety={"stale_hover": 0.3, "estimator_timeout": 1.0})
+    result, events, fleet = fly_virtual(plan, ScriptedTeam([[0.0, 0.0]]), tmp_path, confirm=go_after_p2_froze)
+    assert isinstance(result, Exception) and "drone p2" in str(result) and "no fresh state estimate" in str(result), result
+    kinds = [json.loads(line)["kind"] for line in (tmp_path / "events.jsonl").read_text().splitlines()]
+    assert "takeoff" not in kinds and "preflight_failed" in kinds

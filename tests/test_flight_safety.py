@@ -460,3 +460,24 @@ def test_a_hung_policy_does_not_keep_a_stop_request_from_landing_the_drones(tmp_
     assert land["t"] - asked["t"] < 0.5, land["t"] - asked["t"]
     assert not [r for r in events.of_kind("step") if r["t"] > asked["t"]]  # the late answer was never used
     assert down(fleet)
+
+
+def test_a_drone_whose_estimates_stopped_before_the_landing_is_not_reported_landed(tmp_path):
+    """An estimate frozen on the floor before take-off (the drone then flew blind) said 'down'."""
+    from flight_rehearsal import FAST, CachedFactory, EventLog, FlightBridge, VirtualFleet
+
+    plan = quick_plan(max_time=2.0)
+    events = EventLog(tmp_path / "events.jsonl")
+    fleet = VirtualFleet(plan, None, physics=FAST)
+    bridge = FlightBridge(plan.with_uris(fleet.uris), HOVER, events, factory=CachedFactory(tmp_path / "toc"), handle_signals=False)
+
+    def freeze_p2(record):
+        if record["kind"] == "takeoff":
+            fleet.freeze_estimates(2)
+
+    events.add_sink("freeze", freeze_p2)
+    with fleet:
+        result = bridge.run()
+    events.close()
+    assert result.heights[2] < 0.1  # what its frozen estimate says
+    assert not result.landed and events.of_kind("landed")[0]["not_down"] == ["p2"]

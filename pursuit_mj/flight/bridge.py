@@ -374,7 +374,8 @@ class FlightBridge:
         self.events.log("land", reason=why, duration=duration, drones=[l.name for l in up])
         for link in up:
             link.land(0.0, duration)
-        end = self.clock() + duration + limits.settle
+        began = self.clock()
+        end = began + duration + limits.settle
         signalled = self._interrupt.is_set()  # a stop signal that began this landing is logged already
         try:
             while self.clock() < end and not self._estop.is_set():
@@ -398,8 +399,9 @@ class FlightBridge:
         for i in np.flatnonzero(silent):  # links that dropped during the landing
             self._log_link_lost(int(i), snap.lost_reason[i] or f"nothing heard for {snap.silence[i]:.2f} s", during="landing")
         z = self._lab_state(snap)[0][:, 2]
-        # a missing estimate (NaN) does not count as down, nor one from a link gone silent (it predates the landing)
-        down = (z < LANDED_HEIGHT) & ~silent
+        # a missing estimate (NaN) does not count as down, nor one from before the landing began (estimates
+        # that stopped, a link gone silent): it says nothing of where the drone is now
+        down = (z < LANDED_HEIGHT) & ~silent & (snap.state_time >= began)
         not_down = [n for n, ok, ours in zip(plan.names, down, plan.commanded) if ours and not ok]
         self.events.log("landed", heights=z, drones=[l.name for l in up], not_down=not_down, level="warn" if not_down else "info")
         self._airborne = False

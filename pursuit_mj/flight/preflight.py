@@ -188,6 +188,23 @@ def check_starts(board: StateBoard, plan: FlightPlan, events: EventLog) -> None:
                     f"{list(d.start)} (tolerance {plan.safety.start_tolerance:g} m): wrong spot or swapped URIs?")
 
 
+def wait_fresh_states(board: StateBoard, plan: FlightPlan, events: EventLog, timeout: float,
+                      clock: Callable[[], float] = time.monotonic) -> None:
+    """Wait up to `timeout` s until every drone's latest state estimate is at most
+    safety.stale_hover s old; refuse naming the first that stays older (its estimates stopped)."""
+    deadline = clock() + timeout
+    while True:
+        age = board.snapshot().state_age
+        stale = ~(age <= plan.safety.stale_hover)  # never sent one: infinite or NaN age
+        if not stale.any():
+            return
+        if clock() > deadline:
+            bad = int(np.flatnonzero(stale)[0])
+            _refuse(events, "state", f"drone {plan.drones[bad].name} ({plan.drones[bad].uri}) sent no fresh state estimate "
+                    f"within {timeout:g} s (the latest is {age[bad]:.1f} s old)")
+        time.sleep(POLL)
+
+
 RECHECK_AFTER = 10.0  # s: a go given later than this after the checks has them looked at again
 
 
@@ -195,7 +212,7 @@ def recheck(board: StateBoard, plan: FlightPlan, events: EventLog, clock: Callab
     """What can change while the operator decides, checked again before take-off: fresh states,
     every battery above the take-off threshold, each drone still at its start (a drone moved or
     a battery that sagged during a long wait at the go/no-go prompt). Raises PreflightError."""
-    wait_states(board, plan, events, plan.safety.estimator_timeout, clock)
+    wait_fresh_states(board, plan, events, plan.safety.estimator_timeout, clock)
     check_battery(board, plan, events)
     check_starts(board, plan, events)
     events.log("preflight_recheck_ok", battery=board.snapshot().vbat[:, -1])
