@@ -481,3 +481,32 @@ def test_a_drone_whose_estimates_stopped_before_the_landing_is_not_reported_land
     events.close()
     assert result.heights[2] < 0.1  # what its frozen estimate says
     assert not result.landed and events.of_kind("landed")[0]["not_down"] == ["p2"]
+
+
+def test_no_setpoint_goes_out_after_the_stream_is_closed_even_past_a_hanging_send():
+    """close() (the emergency stop) waits 0.2 s for a send in progress, then closes without the
+    lock; the send went on through the other drones and sent them velocities after the cut."""
+    from pursuit_mj.flight.keepalive import SetpointStream
+
+    log: list[tuple[float, int, str]] = []
+
+    class Link:
+        def __init__(self, i, hang=0.0):
+            self.i, self.hang = i, hang
+
+        def velocity(self, v):
+            time.sleep(self.hang)
+            log.append((time.monotonic(), self.i, "velocity"))
+
+        def hover(self, z):
+            log.append((time.monotonic(), self.i, "hover"))
+
+    links = [Link(0, hang=0.6), Link(1), Link(2)]
+    stream = SetpointStream(links, time.monotonic, 0.1, 5.0, 0.3, on_stall=lambda *a: None, on_resume=lambda *a: None)
+    sending = threading.Thread(target=stream.send, args=({i: np.zeros(3) for i in range(3)}, []))
+    sending.start()
+    time.sleep(0.1)  # drone 0's send hangs now
+    stream.close(timeout=0.2)
+    closed = time.monotonic()
+    sending.join(2.0)
+    assert not [entry for entry in log if entry[0] > closed and entry[1] != 0], log

@@ -9,7 +9,8 @@ sends each commanded drone's last one again whenever nothing went to it for `per
 no decision came for its interval plus `stall_hover` s it sends hover setpoints at the flight
 height instead (position hold), until the next decision. All sends go through one lock, so a
 repeated setpoint never overtakes a newer one, and after `close()` nothing more is sent: the
-landing and an emergency stop are never followed by a stray setpoint.
+landing and an emergency stop are never followed by a stray setpoint (a send that hangs past
+close's wait finishes only its own drone's setpoint; the drones after it get none).
 """
 
 from __future__ import annotations
@@ -84,6 +85,8 @@ class SetpointStream:
             self._thread.join(timeout)
 
     def _emit(self, i: int, setpoint: tuple[str, tuple[float, ...]], now: float) -> None:
+        if not self._open:  # closed while an earlier send of this round hung (close gave up waiting for the lock)
+            return
         kind, values = setpoint
         if kind == "velocity":
             self.links[i].velocity(values)
