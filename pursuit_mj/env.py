@@ -95,6 +95,25 @@ def check_seed(seed, source: str) -> int:
     return int(seed)
 
 
+class MaskedValues(ValueError):
+    """An array given with masked (missing) entries."""
+
+
+def plain_array(value, what: str) -> np.ndarray:
+    """`value` as a numpy array: a torch tensor (on any device, with or without grad, of any float
+    type) as its values; a masked array with masked entries is refused naming `what` (its hidden
+    values would be used as if they were given)."""
+    if type(value).__module__.split(".")[0] == "torch" and hasattr(value, "detach"):
+        value = value.detach().cpu()
+        if not value.dtype.is_complex and value.dtype.is_floating_point:
+            value = value.double()  # bfloat16 and half have no numpy type
+        return value.numpy()
+    if isinstance(value, np.ma.MaskedArray) and np.ma.getmaskarray(value).any():
+        raise MaskedValues(f"{what}: a masked array with {int(np.ma.getmaskarray(value).sum())} masked entries; give "
+                         f"every value (np.ma.filled(a, value) fills them)")
+    return np.asarray(value)
+
+
 def _layout_pool(config: TaskConfig, layouts: Sequence[int | str | Layout] | None) -> list[Layout]:
     if layouts is not None:
         if isinstance(layouts, (str, bytes, Layout)) or not isinstance(layouts, Sequence):
@@ -324,7 +343,9 @@ class PursuitEnv:
     def _check_actions(self, actions: np.ndarray) -> np.ndarray:
         shape = (self.n_worlds, self.n_pursuers, 2)
         try:
-            raw = np.asarray(actions)
+            raw = plain_array(actions, "actions")
+        except MaskedValues:
+            raise
         except ValueError:  # nested lists of unequal lengths
             raise ValueError(f"actions: expected shape {shape} (worlds, pursuers, vx vy), got a ragged list") from None
         if raw.dtype.kind not in "fiu":  # bools, text, objects and complex numbers are no velocities

@@ -23,12 +23,12 @@ from typing import Callable, Iterable, Protocol, Sequence
 
 import numpy as np
 
-from .config import TaskConfig
+from .config import TaskConfig, checked_task_config
 from .configio import to_dict
 from .env import EpisodeRecord, PursuitEnv, check_seed
 from .io_utils import atomic_write_text
-from .layout import N_BUILTIN, builtin_layout_path, is_index_text, load_layout
-from .policy import Policy
+from .layout import N_BUILTIN, Layout, builtin_layout_path, is_index_text, load_layout
+from .policy import Policy, check_policy
 from .stats import Mean, Rate, mean_interval, rate
 
 OUTCOMES = ("success", "collision", "timeout")
@@ -225,6 +225,14 @@ def evaluate(
     episode runs. `random_layout` is switched off: each row is one layout.
     """
     check_seed(seed, "evaluate seed")
+    check_policy(policy, "evaluate policy")
+    config = checked_task_config(config, "evaluate config")
+    name = label or getattr(policy, "name", None)
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"evaluate label: the policy has no name; give label=... (the name its rows carry), got {label!r}")
+    if layouts is not None and (isinstance(layouts, (str, bytes, Path, int, Layout)) or not isinstance(layouts, Sequence)):
+        raise ValueError(f"layouts: expected a list of layouts (indices or layout files), got {layouts!r}; for one "
+                         f"layout, give [{layouts!r}]")
     refs = [config.layout] if layouts is None else list(layouts)
     if not refs:
         raise ValueError("layouts: the list of layouts is empty")
@@ -232,10 +240,10 @@ def evaluate(
         load_layout(ref)
     rows = []
     for ref in refs:
-        name = layout_label(ref)
-        cfg = dataclasses.replace(config, layout=int(name) if is_index_text(name) else name, random_layout=False)
-        records = run_episodes(policy, cfg, episodes, layout_seed(seed, name), n_worlds, on_episode, watch)
-        rows.append(summarise(label or policy.name, name, cfg.fidelity, seed, records, cfg.max_steps))
+        layout = layout_label(ref)
+        cfg = dataclasses.replace(config, layout=int(layout) if is_index_text(layout) else layout, random_layout=False)
+        records = run_episodes(policy, cfg, episodes, layout_seed(seed, layout), n_worlds, on_episode, watch)
+        rows.append(summarise(name, layout, cfg.fidelity, seed, records, cfg.max_steps))
     return rows
 
 

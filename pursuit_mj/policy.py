@@ -25,6 +25,14 @@ class Policy(Protocol):
         """Actions (W, N, 2) in [-1, 1] (fraction of max speed, world x/y) from obs (W, N, spec.dim)."""
 
 
+def check_policy(policy, where: str) -> None:
+    """ValueError naming `where` unless `policy` can act as a Policy (callable act and reset): a
+    string or a class handed in by mistake is named at once, not after episodes have run."""
+    if not (callable(getattr(policy, "act", None)) and callable(getattr(policy, "reset", None))) or isinstance(policy, type):
+        raise ValueError(f"{where}: expected a Policy (with act and reset), got {policy!r}; make one with "
+                         f"pursuit_mj.policies.make_policy(name, config) or train.load_policy(path, spec)")
+
+
 def check_observations(obs, spec: ObsSpec, who: str) -> np.ndarray:
     """obs as a float64 array (W, N, spec.dim), or ValueError naming policy `who`."""
     a = np.asarray(obs, dtype=np.float64)

@@ -16,7 +16,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from .config import TaskConfig, checked_task_config, default_config
-from .env import PursuitEnv, check_seed
+from .env import MaskedValues, PursuitEnv, check_seed, plain_array
 
 
 class PursuitParallelEnv(ParallelEnv):
@@ -139,7 +139,9 @@ class PursuitParallelEnv(ParallelEnv):
         """One agent's action as float64 (2,), refused as PursuitEnv refuses it (bools, text, complex
         numbers, non-finite values), but naming the agent."""
         try:
-            raw = np.asarray(value)
+            raw = plain_array(value, f"actions[{agent!r}]")
+        except MaskedValues:
+            raise
         except ValueError:  # nested lists of unequal lengths
             raise ValueError(f"actions[{agent!r}]: expected shape (2,), got a ragged list") from None
         if raw.shape != (2,):

@@ -501,3 +501,21 @@ def test_the_obstacles_sensed_and_collided_with_are_each_worlds_current_ones_aft
     got = env._obstacles
     for field in ("boxes", "box_valid", "cylinders", "cylinder_valid", "border", "border_valid"):
         np.testing.assert_array_equal(getattr(got, field), getattr(want, field), err_msg=field)
+
+
+@pytest.mark.parametrize("kind", ["grad", "bfloat16", "masked"])
+def test_actions_as_torch_tensors_are_taken_and_masked_arrays_refused(kind):
+    """A tensor that requires grad, or of bfloat16, failed inside torch's numpy(); a masked
+    array's hidden values were flown as if given."""
+    import torch
+
+    env = PursuitEnv(default_config(fidelity="point", max_steps=5), n_worlds=2, seed=0)
+    env.reset()
+    if kind == "masked":
+        with pytest.raises(ValueError, match="actions: a masked array with 12 masked entries"):
+            env.step(np.ma.masked_array(np.zeros((2, 3, 2)), mask=True))
+        return
+    actions = torch.full((2, 3, 2), 0.5, requires_grad=True) if kind == "grad" else torch.full((2, 3, 2), 0.5, dtype=torch.bfloat16)
+    twin = PursuitEnv(default_config(fidelity="point", max_steps=5), n_worlds=2, seed=0)
+    twin.reset()
+    np.testing.assert_array_equal(env.step(actions)[0], twin.step(np.full((2, 3, 2), 0.5))[0])

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 
 from pursuit_cli import main
@@ -636,3 +637,43 @@ def test_a_whole_eval_leaves_no_interrupted_files_of_its_own_or_of_an_earlier_st
     assert main(["eval", "--policy", "random", "--layouts", "0", "--episodes", "1", "--fidelity", "point",
                  "--set", "max_steps=5", "--out", str(tmp_path / "t"), "-q"]) == 0
     assert sorted(p.name for p in tmp_path.iterdir() if "interrupted" in p.name) == []
+
+
+@pytest.mark.parametrize("layouts, said", [
+    ("configs/layouts/1_walls.yaml", "layouts: expected a list of layouts"),
+    ("12", "layouts: expected a list of layouts"),  # ran layouts 1 and 2
+    (0, "layouts: expected a list of layouts"),
+])
+def test_evaluate_refuses_one_layout_not_in_a_list_instead_of_reading_it_character_by_character(layouts, said):
+    from pursuit_mj.policy import RandomPolicy
+
+    with pytest.raises(ValueError, match=said) as err:
+        evaluate(RandomPolicy(), default_config(fidelity="point"), layouts=layouts, episodes=1)
+    assert f"[{layouts!r}]" in str(err.value)
+
+
+@pytest.mark.parametrize("policy, config, said", [
+    ("heuristic", "ok", "evaluate policy: expected a Policy (with act and reset), got 'heuristic'"),
+    ("random", None, "evaluate config: expected a TaskConfig (pursuit_mj.config.default_config"),
+])
+def test_evaluate_refuses_a_policy_or_config_of_the_wrong_kind_before_any_episode(policy, config, said):
+    from pursuit_mj.policy import RandomPolicy
+
+    policy = RandomPolicy() if policy == "random" else policy
+    config = default_config(fidelity="point", max_steps=3) if config == "ok" else config
+    with pytest.raises(ValueError, match=said.replace("(", "\\(").replace(")", "\\)")):
+        evaluate(policy, config, layouts=[0], episodes=1)
+
+
+def test_evaluate_asks_for_a_label_up_front_when_the_policy_has_no_name():
+    class Nameless:
+        def reset(self, n_worlds, world_ids=None):
+            pass
+
+        def act(self, obs, spec):
+            return np.zeros(obs.shape[:-1] + (2,))
+
+    with pytest.raises(ValueError, match="evaluate label: the policy has no name; give label="):
+        evaluate(Nameless(), default_config(fidelity="point", max_steps=3), layouts=[0], episodes=1)
+    (row,) = evaluate(Nameless(), default_config(fidelity="point", max_steps=3), layouts=[0], episodes=1, label="mine")
+    assert row.policy == "mine"

@@ -349,3 +349,20 @@ def test_a_long_trail_follows_the_path_and_starts_at_its_oldest_point():
     long = np.concatenate([trails] * 10)  # 3000 steps: thinned evenly, 8 steps a segment at most
     chords = np.linalg.norm(np.diff(trail_points(long, OverlayStyle())[:, 0], axis=0), axis=-1)
     assert chords.max() < 8 * 0.0632 and len(chords) <= OverlayStyle().trail_segments
+
+
+@pytest.mark.parametrize("change, said", [
+    ({"policy": "random"}, "run_episodes policy: expected a Policy"),
+    ({"recording": "x.rrd"}, "run_episodes recording: expected a RerunEpisodeRecording"),
+    ({"episode_seeds": 5}, "episode seeds: expected a list of seeds, got 5; for one, give \\[5\\]"),
+    ({"episodes": True}, "episodes \\(--episodes\\): expected an integer >= 1, got True"),
+])
+def test_run_episodes_refuses_arguments_of_the_wrong_kind_before_an_episode_plays(change, said):
+    """They failed deep inside (the recording only after a whole episode had played), or True ran one episode."""
+    from pursuit_mj.config import default_config
+    from pursuit_mj.policy import RandomPolicy
+    from pursuit_mj.render.episodes import run_episodes
+
+    args = {"config": default_config(fidelity="point", max_steps=3), "policy": RandomPolicy(0), "episodes": 1, **change}
+    with pytest.raises(ValueError, match=said):
+        run_episodes(**args)

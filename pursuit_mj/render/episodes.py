@@ -17,7 +17,7 @@ import numpy as np
 from ..config import TaskConfig
 from ..env import EpisodeRecord, PursuitEnv, Snapshot, check_seeds
 from ..layout import Layout
-from ..policy import Policy
+from ..policy import Policy, check_policy
 from .caption import Caption, draw_caption, draw_key
 from .overlays import OverlayStyle, TrailBuffer, draw_all, key_entries, overlay_geom_budget
 from .renderer import RenderSettings, SceneRenderer
@@ -107,14 +107,20 @@ def run_episodes(
     final images only the last state is rendered). `on_episode(k, record, written_paths)` is
     called after each episode.
     """
-    if not isinstance(episodes, int) or episodes < 1:
-        raise ValueError(f"--episodes: expected an integer >= 1, got {episodes!r}")
+    if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes < 1:
+        raise ValueError(f"episodes (--episodes): expected an integer >= 1, got {episodes!r}")
+    episodes = int(episodes)
+    check_policy(policy, "run_episodes policy")
+    if recording is not None and not callable(getattr(recording, "add_episode", None)):
+        raise ValueError(f"run_episodes recording: expected a RerunEpisodeRecording (pursuit_mj.recording), got {recording!r}")
     outputs = outputs or EpisodeOutputs()
     for name, paths in (("video", outputs.video_paths), ("final-frame", outputs.final_paths)):
         if paths is not None and len(paths) != episodes:
             raise ValueError(f"{name} paths: {len(paths)} given for {episodes} episodes")
     wants_frames = outputs.video_paths is not None or outputs.final_paths is not None
     if episode_seeds is not None:
+        if not hasattr(episode_seeds, "__len__") or isinstance(episode_seeds, (str, bytes)):
+            raise ValueError(f"episode seeds: expected a list of seeds, got {episode_seeds!r}; for one, give [{episode_seeds!r}]")
         episode_seeds = check_seeds(episode_seeds, len(episode_seeds), "episode seeds")
         if len(episode_seeds) != episodes:
             raise ValueError(f"episode seeds: {len(episode_seeds)} given for {episodes} episodes")
