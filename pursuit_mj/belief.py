@@ -27,7 +27,7 @@ import numpy as np
 
 from .heuristic import HeuristicTeam
 from .obs_spec import ObsSpec
-from .policy import Policy, check_world_count, check_world_ids
+from .policy import Policy, check_observations, check_world_count, check_world_ids
 
 AGE_CAP = 5.0  # s: older knowledge reads as this old (keeps the input in a tanh encoder's range)
 
@@ -128,7 +128,10 @@ class BeliefPolicy:
 
     def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
         """Actions (W, N, 2) in [-1, 1] from obs (W, N, spec.dim) without belief features."""
-        check_world_count(np.shape(obs)[0], self._n_worlds, f"policy {self.name}")
+        check_observations(obs, spec, f"policy {self.name}")  # checked only: the belief reads them as given
+        if not isinstance(obs, np.ndarray):  # a list: as the env would give it
+            obs = np.asarray(obs, np.float32)
+        check_world_count(obs.shape[0], self._n_worlds, f"policy {self.name}")
         return self.policy.act(self.belief.augment(obs, spec), belief_spec(spec))
 
 

@@ -143,8 +143,8 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
         inner = args[0] if args else Any
         return tuple(_coerce(v, inner, f"{where}[{i}]") for i, v in enumerate(value))
     if dataclasses.is_dataclass(hint):
-        if isinstance(value, hint):
-            return value
+        if isinstance(value, hint):  # made directly: its values checked as if read here
+            return build(hint, to_dict(value), where)
         if not isinstance(value, Mapping):
             raise ConfigError(f"{where}: expected a mapping of {hint.__name__} keys, got {shown(value)}")
         return build(hint, value, where)

@@ -1,6 +1,7 @@
 """Belief features (pursuit_mj/belief.py, train belief: true): memory appended to observations."""
 
 import copy
+import re
 
 import numpy as np
 import pytest
@@ -216,3 +217,19 @@ def test_the_env_wrapper_can_be_copied_and_passes_unknown_names_to_the_env():
     assert twin.env is env.env and twin.obs_dim == env.obs_dim and twin.n_worlds == 1
     with pytest.raises(AttributeError, match="no_such_thing"):
         env.no_such_thing
+
+
+def test_a_belief_policy_takes_observations_as_a_list_and_names_itself_for_bad_ones():
+    """A list failed deep inside the belief ('list' object has no attribute 'shape')."""
+    from pursuit_mj.config import default_config
+    from train.policy import load_policy
+
+    env = PursuitEnv(default_config(fidelity="point", max_steps=5), n_worlds=1, seed=0)
+    obs = env.reset()
+    policy = load_policy("pretrained/pursuers.pt", env.obs_spec)
+    twin = load_policy("pretrained/pursuers.pt", env.obs_spec)
+    policy.reset(1)
+    twin.reset(1)
+    np.testing.assert_array_equal(policy.act(obs.tolist(), env.obs_spec), twin.act(obs, env.obs_spec))
+    with pytest.raises(ValueError, match=re.escape(f"policy {policy.name}: expected observations")):
+        policy.act(obs[:, :, :3], env.obs_spec)

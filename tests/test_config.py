@@ -353,3 +353,24 @@ def test_a_list_written_without_brackets_is_shown_with_them():
 
     with pytest.raises(ConfigError, match=r"--set layouts=0,1: key 'layouts': expected a list, got '0,1' \(write it as \[0,1\]\)"):
         load_train_config([], ["layouts=0,1"])
+
+
+def test_load_train_config_takes_one_file_or_override_as_a_string_like_load_task_config():
+    """A string was read one character at a time: 'c: no such file', '--set p: not key=value'."""
+    from train.config import load_train_config
+
+    assert load_train_config("classic") == load_train_config(["classic"])
+    assert load_train_config((), "ppo.lr=1e-4").ppo.lr == 1e-4
+    with pytest.raises(ValueError, match="load_train_config files: expected a list, got None"):
+        load_train_config(None)
+
+
+def test_a_nested_config_object_is_checked_where_it_is_given():
+    """An EvaderConfig made directly skipped every check, and PursuitEnv then named itself as the source."""
+    from pursuit_mj.config import EvaderConfig
+
+    with pytest.raises(ValueError, match="default_config\\(\\).*evader.*panic_distance"):
+        default_config(evader=EvaderConfig(panic_distance=-5))
+    with pytest.raises(ValueError, match="panic_distance"):
+        load_task_config(flags={"evader": EvaderConfig(panic_distance=-5)})
+    assert default_config(evader=EvaderConfig()).evader == EvaderConfig()

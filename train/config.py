@@ -397,9 +397,15 @@ def load_train_config(
 ) -> TrainConfig:
     """Defaults <- YAML files (a bare name like 'classic' means configs/train/classic.yaml) <- flags <- --set.
 
+    `files` and `overrides` are lists; a single string is taken as a list of one.
     `flags` is a nested mapping (e.g. {"total_steps": 10000, "task": {"fidelity": "point"}});
     `flags_source` names them in errors (a CLI passes what was typed, e.g. '--seed -1').
     """
+    files = [files] if isinstance(files, (str, Path)) else files
+    overrides = [overrides] if isinstance(overrides, str) else overrides
+    for what, given in (("files", files), ("overrides", overrides)):
+        if not isinstance(given, Sequence):
+            raise ConfigError(f"load_train_config {what}: expected a list, got {given!r}")
     merged: dict[str, Any] = {}
     source = "defaults"
     for f in files:
