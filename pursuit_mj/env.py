@@ -16,6 +16,7 @@ from .config import TaskConfig, checked_task_config
 from .evader import EscapeModel
 from .geometry import ObstacleSet
 from .layout import N_BUILTIN, Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout
+from .layout_random import EPISODE_RESTARTS
 from .layout_check import (PASSAGE_CLEARANCE, SPAWN_SEPARATION, check_passages, check_spawn_capacity, check_spawn_gap,
                            free_spawn_points, sample_separated)
 from .observations import build_global_state, build_observations, global_state_dim
@@ -219,7 +220,7 @@ class PursuitEnv:
             count = self.config.random_obstacle_count(base)
             given = None if self.config.random_obstacles is None else f"task.random_obstacles (now {count})"
             inst = base.with_random_obstacles(rng, count, count_source=given, passage_clearance=self.config.obstacle_clearance,
-                                              passage_source="task.obstacle_clearance") if count else base
+                                              passage_source="task.obstacle_clearance", restarts=EPISODE_RESTARTS) if count else base
             pts_p, pts_e = self._spawn_points[id(base)]
             pur = sample_separated(pts_p, self.n_pursuers, rng, SPAWN_SEPARATION)
             eva = sample_separated(pts_e, self.n_evaders, rng, SPAWN_SEPARATION)

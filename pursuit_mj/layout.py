@@ -116,7 +116,7 @@ class Layout:
 
     def with_random_obstacles(self, rng: np.random.Generator, count: int | None = None, clearance: float = 0.3,
                               count_source: str | None = None, passage_clearance: float = 0.0,
-                              passage_source: str = "passage_clearance") -> "Layout":
+                              passage_source: str = "passage_clearance", restarts: int | None = None) -> "Layout":
         """A copy with `count` (default: the layout's) random obstacles placed and made concrete.
 
         Random obstacles keep `clearance` (m) from spawn regions, fixed obstacles, the
@@ -125,11 +125,13 @@ class Layout:
         With `passage_clearance` (m) over clearance / 2, they are drawn again (same rng) while
         they cut a spawn point off from the other team for a drone centre keeping that far from
         obstacles; LayoutError naming `passage_source` if no placement leaves the passages open.
+        `restarts`: placements tried before no room is reported (default layout_random.RESTARTS).
         """
-        from .layout_random import place_random_obstacles
+        from .layout_random import RESTARTS, place_random_obstacles
 
         n = self.random_obstacles.count if count is None else count
-        extra = place_random_obstacles(self, rng, n, clearance, count_source, passage_clearance, passage_source)
+        extra = place_random_obstacles(self, rng, n, clearance, count_source, passage_clearance, passage_source,
+                                       RESTARTS if restarts is None else restarts)
         return dataclasses.replace(self, obstacles=self.obstacles + tuple(extra), n_random=self.n_random + len(extra),
                                    random_obstacles=dataclasses.replace(self.random_obstacles, count=0))
 

@@ -9,7 +9,9 @@ from .geometry import ObstacleSet, border_distance, inside_boundary, obstacle_di
 from .layout_check import check_passages, passage_fault
 
 MAX_TRIES = 1000  # draws for one obstacle
-RESTARTS = 10  # placements of all obstacles, before no room is reported
+RESTARTS = 10  # placements of all obstacles, before no room is reported (layout check: stricter than an episode)
+EPISODE_RESTARTS = 200  # the same in an episode's reset: a crowded setting that finds room in 1 of 20
+# placements must not stop a run after hours (a seed that finds room within RESTARTS draws what it drew)
 PASSAGE_DRAWS = 50  # placements that may close a passage, before the setting is reported impossible
 
 
@@ -24,7 +26,8 @@ def _spawn_distance(layout, pts: np.ndarray) -> np.ndarray:
 
 
 def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearance: float, count_source: str | None = None,
-                           passage_clearance: float = 0.0, passage_source: str = "passage_clearance") -> list:
+                           passage_clearance: float = 0.0, passage_source: str = "passage_clearance",
+                           restarts: int = RESTARTS) -> list:
     """Draw `count` obstacles of the layout's kinds and size range; LayoutError if no room, naming
     `count_source` (where the count came from; default: the file's random_obstacles.count).
 
@@ -35,7 +38,7 @@ def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearan
     same rng (up to PASSAGE_DRAWS placements, then LayoutError naming `passage_source`).
     """
     for _ in range(PASSAGE_DRAWS):
-        placed = _place(layout, rng, count, clearance, count_source)
+        placed = _place(layout, rng, count, clearance, count_source, restarts)
         if 2 * passage_clearance <= clearance or passage_fault(_with(layout, placed), passage_clearance) is None:
             return placed
     check_passages(layout, passage_clearance, passage_source)  # the fixed obstacles alone close a passage
@@ -50,23 +53,24 @@ def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearan
     )
 
 
-def _place(layout, rng: np.random.Generator, count: int, clearance: float, count_source: str | None) -> list:
+def _place(layout, rng: np.random.Generator, count: int, clearance: float, count_source: str | None,
+           restarts: int = RESTARTS) -> list:
     """One placement of `count` obstacles `clearance` (m) apart; LayoutError if no room.
 
     Obstacles are placed one by one; when one finds no room, the placement starts over (up to
-    RESTARTS times, drawing on from the same rng): early obstacles can block the rest in one
+    `restarts` times, drawing on from the same rng): early obstacles can block the rest in one
     draw and leave room in another, and one episode's unlucky draw must not stop a run.
     """
     from .layout import LayoutError
 
     spec = layout.random_obstacles
     border = layout.border()
-    for _ in range(RESTARTS):
+    for _ in range(restarts):
         placed = _place_once(layout, rng, count, clearance, border)
         if len(placed) == count:
             return placed
     raise LayoutError(
-        f"{layout.source}: no room for random obstacle {len(placed) + 1} of {count} "
+        f"{layout.source}: no room for random obstacle {len(placed) + 1} of {count} in {restarts} placements "
         f"(sizes {list(spec.size)} m, clearance {clearance} m); "
         + (f"lower {count_source}" if count_source else "lower random_obstacles.count or .size")
     )

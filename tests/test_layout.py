@@ -24,6 +24,7 @@ from pursuit_mj.layout import (
     save_layout,
 )
 from pursuit_mj.layout_check import check_passages, grid_components
+from pursuit_mj.layout_random import EPISODE_RESTARTS
 
 SPAWN = {"pursuers": {"x": [0.2, 3.4], "y": [0.2, 0.8]}, "evaders": {"x": [0.2, 3.4], "y": [4.2, 4.8]}}
 
@@ -815,3 +816,22 @@ def test_the_border_crossing_check_finds_the_first_crossing_the_pair_by_pair_che
         points = rng.uniform(0, 1, (n, 2))
     pairs = _crossing_pairs_one_at_a_time(points)
     assert polygon_crossing(points) == (pairs[0] if pairs else None)
+
+
+def test_an_episode_tries_many_placements_before_a_crowded_setting_stops_the_run():
+    """13 random obstacles on layout 3 found no room in 10 placements for 5 of 30 episode seeds:
+    a run stopped after some hundreds of episodes. An episode now tries 200; a seed that found
+    room within 10 draws exactly what it drew."""
+    layout = load_layout(3)
+    for seed in range(12):
+        placed = layout.with_random_obstacles(np.random.default_rng(seed), 13, restarts=EPISODE_RESTARTS)
+        assert placed.n_random == 13
+        try:
+            strict = layout.with_random_obstacles(np.random.default_rng(seed), 13)
+        except LayoutError:
+            continue
+        assert strict == placed
+    env = PursuitEnv(default_config(layout=3, random_obstacles=13, fidelity="point", max_steps=2), n_worlds=4, seed=0)
+    env.reset()
+    for _ in range(16):  # 8 episodes in each world, as in the run that stopped
+        env.step(np.zeros((4, 3, 2)))
