@@ -110,8 +110,9 @@ def test_dumped_config_loads_back_identical(tmp_path):
         (["controller_hz=50"], r"key 'controller_hz': 50.0 is out of range \(must be >= 100.0\)"),
         (["perception_radius=0.2"], r"perception_radius 0.2 is below capture_radius 0.3"),
         (["capture_radius=0.1"], r"capture_radius 0.1 m is not beyond 0.137 m, where two drones' collision volumes touch"),
-        (["drone_mass=0"], r"key 'drone_mass': 0.0 is out of range \(must be > 0.0\)"),
-        (["drone_mass=-0.03"], r"key 'drone_mass': -0.03 is out of range \(must be > 0.0\)"),
+        (["drone_mass=0"], r"key 'drone_mass': 0.0 is out of range \(must be >= 0.01\)"),
+        (["drone_mass=-0.03"], r"key 'drone_mass': -0.03 is out of range \(must be >= 0.01\)"),
+        (["drone_mass=1e-5"], r"key 'drone_mass': 1e-05 is out of range \(must be >= 0.01\)"),
         (["drone_mass=0.045"], r"key 'drone_mass': 0.045 kg is more than the rotors can fly: their 0.6 N at full thrust "
                                r"must lift at least 1.5 times the weight \(at most 0.04077 kg\)"),
         (["drone_mass=heavy"], r"key 'drone_mass': expected a number, got 'heavy'"),
