@@ -96,6 +96,9 @@ def check_seed(seed, source: str) -> int:
     return int(seed)
 
 
+MAX_NTHREAD = 1024  # simulation threads a PursuitEnv may ask for (MuJoCo's batch takes a C int)
+
+
 class MaskedValues(ValueError):
     """An array given with masked (missing) entries."""
 
@@ -153,8 +156,8 @@ class PursuitEnv:
             raise ValueError(f"n_worlds: expected an integer >= 1, got {n_worlds!r}")
         if not isinstance(auto_reset, (bool, np.bool_)):
             raise ValueError(f"auto_reset: expected True or False, got {auto_reset!r}")
-        if isinstance(nthread, (bool, np.bool_)) or not isinstance(nthread, (int, np.integer)) or nthread < 0:
-            raise ValueError(f"nthread: expected an integer >= 0 (0: MuJoCo's choice), got {nthread!r}")
+        if isinstance(nthread, (bool, np.bool_)) or not isinstance(nthread, (int, np.integer)) or not 0 <= nthread <= MAX_NTHREAD:
+            raise ValueError(f"nthread: expected an integer in 0..{MAX_NTHREAD} (0: MuJoCo's choice), got {nthread!r}")
         self.config = config
         self.n_worlds = int(n_worlds)
         n_worlds = self.n_worlds

@@ -519,3 +519,10 @@ def test_actions_as_torch_tensors_are_taken_and_masked_arrays_refused(kind):
     twin = PursuitEnv(default_config(fidelity="point", max_steps=5), n_worlds=2, seed=0)
     twin.reset()
     np.testing.assert_array_equal(env.step(actions)[0], twin.step(np.full((2, 3, 2), 0.5))[0])
+
+
+@pytest.mark.parametrize("nthread", [-1, 2 ** 40, True, 1.5])
+def test_a_thread_count_out_of_range_is_refused_naming_it(nthread):
+    """2**40 reached MuJoCo's batch constructor, which refused it with a pybind signature dump."""
+    with pytest.raises(ValueError, match=re.escape(f"nthread: expected an integer in 0..1024 (0: MuJoCo's choice), got {nthread!r}")):
+        PursuitEnv(default_config(fidelity="point"), nthread=nthread)

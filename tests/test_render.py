@@ -366,3 +366,18 @@ def test_run_episodes_refuses_arguments_of_the_wrong_kind_before_an_episode_play
     args = {"config": default_config(fidelity="point", max_steps=3), "policy": RandomPolicy(0), "episodes": 1, **change}
     with pytest.raises(ValueError, match=said):
         run_episodes(**args)
+
+
+@pytest.mark.parametrize("field, value, said", [("key", "no", "key 'no': expected True or False"),
+                                                ("camera", None, "camera None: expected text")])
+def test_render_settings_of_the_wrong_kind_are_refused_naming_the_field(field, value, said):
+    """key='no' drew the key (any text is true); camera=None failed inside the camera parser."""
+    import dataclasses
+
+    from pursuit_mj.config import default_config
+    from pursuit_mj.layout import load_layout
+    from pursuit_mj.render.renderer import RenderSettings, check_settings
+
+    settings = dataclasses.replace(RenderSettings(), **{field: value})
+    with pytest.raises(ValueError, match=f"render_settings.{said}"):
+        check_settings(settings, default_config(), load_layout(0), prefix="render_settings.")

@@ -247,12 +247,17 @@ def test_scalar_logger_streams_nested_metrics(tmp_path):
     with RerunScalarLogger(path, run_name="tiny") as log:
         log.log(100, {"train": {"success": 0.25, "mean_steps": 300}, "lr": 3e-4, "skip": "text", "nan": math.nan})
         log.log(200, {"train": {"success": 0.5, "mean_steps": 250}, "lr": 2e-4})
-        with pytest.raises(ValueError, match="step must be an integer >= 0"):
+        with pytest.raises(ValueError, match="step must be an integer in 0..2\\^63-1, got -1"):
             log.log(-1, {"lr": 1.0})
+        with pytest.raises(ValueError, match="step must be an integer in 0..2\\^63-1"):
+            log.log(2 ** 70, {"lr": 1.0})  # was an OverflowError from inside rerun
+        with pytest.raises(ValueError, match="metrics must be a mapping of names to numbers, got None"):
+            log.log(300, None)
+        log.log(np.int64(300), {"lr": 1e-4})  # a numpy count, as a loop over np.arange gives it
     ent = read_entities(path)
     succ = ent["/train/train/success"].rows
     assert succ["env_steps"] == [100, 200] and succ["Scalars:scalars"] == [[0.25], [0.5]]
-    assert ent["/train/lr"].rows["Scalars:scalars"] == [[3e-4], [2e-4]]
+    assert ent["/train/lr"].rows["Scalars:scalars"] == [[3e-4], [2e-4], [1e-4]]
     assert "/train/skip" not in ent and "/train/nan" not in ent
 
 

@@ -13,6 +13,7 @@ import uuid
 from pathlib import Path
 from typing import Any, Mapping
 
+import numpy as np
 import rerun as rr
 
 from ..plots import flatten
@@ -40,8 +41,11 @@ class RerunScalarLogger:
         """Record every numeric entry of `metrics` (nested dicts allowed) at `step` env steps."""
         if self._closed:
             raise RuntimeError(f"rerun log {self.path}: log after close")
-        if isinstance(step, bool) or not isinstance(step, int) or step < 0:
-            raise ValueError(f"rerun log {self.path}: step must be an integer >= 0, got {step!r}")
+        if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or not 0 <= step < 2 ** 63:
+            raise ValueError(f"rerun log {self.path}: step must be an integer in 0..2^63-1, got {step!r}")
+        step = int(step)
+        if not isinstance(metrics, Mapping):
+            raise ValueError(f"rerun log {self.path}: metrics must be a mapping of names to numbers, got {metrics!r}")
         self.stream.set_time(self.timeline, sequence=step)
         for key, value in flatten_numbers(metrics).items():
             self.stream.log(f"train/{key}", rr.Scalars(value))

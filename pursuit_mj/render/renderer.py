@@ -64,6 +64,10 @@ class RenderSettings:
                              f"use {prefix}height {caption + key + 1} or more" + (f" (or {no_key})" if key else ""))
         if self.quality not in QUALITIES:
             raise ValueError(f"{prefix}quality {self.quality!r}: choose from {', '.join(QUALITIES)}")
+        if not isinstance(self.key, bool):  # 'no' would draw the key
+            raise ValueError(f"{prefix}key {self.key!r}: expected True or False")
+        if not isinstance(self.camera, str):
+            raise ValueError(f"{prefix}camera {self.camera!r}: expected text such as 'top', 'angled' or 'follow:p0'")
 
 
 def check_settings(settings: RenderSettings, config: TaskConfig, layout: Layout, prefix: str = "--") -> None:
