@@ -226,6 +226,9 @@ def load_task_config(
     `flags_source` names the flags in errors (a CLI passes what was typed, e.g. '--pursuers -2')."""
     files = [files] if isinstance(files, (str, Path)) else files
     overrides = [overrides] if isinstance(overrides, str) else overrides
+    for what, given, kinds in (("files", files, (str, Path)), ("overrides", overrides, str)):
+        if not isinstance(given, (list, tuple)) or not all(isinstance(g, kinds) for g in given):
+            raise ConfigError(f"load_task_config {what}: expected a list of {'paths or preset names' if what == 'files' else 'KEY=VALUE texts'}, got {given!r}")
     resolved = [preset_or_file(f, "task") for f in files]
     return load(TaskConfig, resolved, overrides, extra=flags, extra_source=flags_source, read=load_task_yaml)
 

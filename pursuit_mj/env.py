@@ -135,7 +135,12 @@ def _layout_pool(config: TaskConfig, layouts: Sequence[int | str | Layout] | Non
 def _checked_layout(layout: Layout) -> Layout:
     """`layout` itself, once it passes every check its file would (a Layout made directly or
     with dataclasses.replace skips the loader's); LayoutError naming its source otherwise."""
-    layout_from_dict(layout_to_dict(layout), layout.source)
+    try:
+        data = layout_to_dict(layout)
+    except (AttributeError, TypeError) as exc:  # a field replaced by something of another kind
+        raise LayoutError(f"{getattr(layout, 'source', 'layout')}: not a well-formed Layout ({exc}); load one with "
+                          f"pursuit_mj.layout.load_layout") from None
+    layout_from_dict(data, layout.source)
     return layout
 
 

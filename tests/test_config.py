@@ -375,3 +375,11 @@ def test_a_nested_config_object_is_checked_where_it_is_given():
     with pytest.raises(ValueError, match="panic_distance"):
         load_task_config(flags={"evader": EvaderConfig(panic_distance=-5)})
     assert default_config(evader=EvaderConfig()).evader == EvaderConfig()
+
+
+@pytest.mark.parametrize("args, said", [((None,), "load_task_config files: expected a list of paths or preset names, got None"),
+                                        (([3],), "load_task_config files: expected a list of paths or preset names, got \\[3\\]"),
+                                        (([], [None]), "load_task_config overrides: expected a list of KEY=VALUE texts, got \\[None\\]")])
+def test_load_task_config_refuses_arguments_of_the_wrong_kind_in_one_line(args, said):
+    with pytest.raises(ValueError, match=said):
+        load_task_config(*args)

@@ -526,3 +526,13 @@ def test_a_thread_count_out_of_range_is_refused_naming_it(nthread):
     """2**40 reached MuJoCo's batch constructor, which refused it with a pybind signature dump."""
     with pytest.raises(ValueError, match=re.escape(f"nthread: expected an integer in 0..1024 (0: MuJoCo's choice), got {nthread!r}")):
         PursuitEnv(default_config(fidelity="point"), nthread=nthread)
+
+
+def test_a_layout_object_with_a_field_of_the_wrong_kind_is_a_layout_error_naming_its_source():
+    import dataclasses
+
+    from pursuit_mj.layout import LayoutError, load_layout
+
+    broken = dataclasses.replace(load_layout(0), obstacles=({"a": 1},))
+    with pytest.raises(LayoutError, match="0_open.yaml: not a well-formed Layout"):
+        PursuitEnv(default_config(fidelity="point"), layouts=[broken])

@@ -350,3 +350,17 @@ def test_obstacles_are_coloured_by_origin_as_in_the_frames(recorded):
     assert len(rgb) == len(layout.obstacles) and layout.n_random > 0
     assert rgb.count(rgb255(OBSTACLE_RGBA["random"])) == layout.n_random
     assert rgb.count(rgb255(OBSTACLE_RGBA["fixed"])) == len(layout.obstacles) - layout.n_random
+
+
+def test_env_recorder_and_recording_refuse_arguments_of_the_wrong_kind(tmp_path):
+    env = PursuitEnv(default_config(fidelity="point", max_steps=3), seed=0, auto_reset=False)
+    with pytest.raises(ValueError, match="trail length: expected an integer >= 1 step, got 2.5"):
+        RerunEpisodeRecording(tmp_path / "x.rrd", trail_length=2.5)
+    with RerunEpisodeRecording(tmp_path / "x.rrd") as rec:
+        for kwargs, said in (({"max_episodes": "3"}, "max_episodes: expected an integer >= 1 or None, got '3'"),
+                             ({"label": "x"}, "EnvRecorder label: expected a mapping"),
+                             ({"env": object()}, "EnvRecorder env: expected a PursuitEnv, got object")):
+            with pytest.raises(ValueError, match=said):
+                EnvRecorder(rec, kwargs.pop("env", env), **kwargs)
+        with pytest.raises(ValueError, match="EnvRecorder recording: expected a RerunEpisodeRecording, got 'x.rrd'"):
+            EnvRecorder("x.rrd", env)

@@ -13,7 +13,7 @@ state is replaced by the next episode's first before a recorder can read it. Onl
 
 from __future__ import annotations
 
-from typing import Iterable
+from typing import Iterable, Mapping
 
 import numpy as np
 
@@ -24,10 +24,17 @@ class EnvRecorder:
     """Buffers every world's current episode and sends it when the environment reports it finished."""
 
     def __init__(self, recording: RerunEpisodeRecording, env, label: dict | None = None, max_episodes: int | None = None):
+        if not callable(getattr(recording, "add_episode", None)):
+            raise ValueError(f"EnvRecorder recording: expected a RerunEpisodeRecording, got {recording!r}")
+        if not hasattr(env, "auto_reset") or not callable(getattr(env, "snapshot", None)):
+            raise ValueError(f"EnvRecorder env: expected a PursuitEnv, got {type(env).__name__}")
         if env.auto_reset:
             raise ValueError("EnvRecorder: the environment must run with auto_reset=False (the final states are lost otherwise)")
-        if max_episodes is not None and max_episodes < 1:
+        if max_episodes is not None and (isinstance(max_episodes, bool) or not isinstance(max_episodes, (int, np.integer))
+                                         or max_episodes < 1):
             raise ValueError(f"max_episodes: expected an integer >= 1 or None, got {max_episodes!r}")
+        if label is not None and not isinstance(label, Mapping):
+            raise ValueError(f"EnvRecorder label: expected a mapping such as {{'policy': 'heuristic'}}, got {label!r}")
         self.recording = recording
         self.env = env
         self.label = dict(label or {})

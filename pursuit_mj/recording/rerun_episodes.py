@@ -104,8 +104,8 @@ class RerunEpisodeRecording:
         if self.partial_path.is_dir():  # found now, not by the rename when the run is interrupted
             raise ValueError(f"{source} {path}: {self.partial_path} is a folder; an interrupted run keeps its finished "
                              f"episodes under that name, so it must be free for a file")
-        if trail_length < 1:
-            raise ValueError(f"trail length: {trail_length} must be >= 1 step")
+        if isinstance(trail_length, bool) or not isinstance(trail_length, (int, np.integer)) or trail_length < 1:
+            raise ValueError(f"trail length: expected an integer >= 1 step, got {trail_length!r}")
         self.trail_length = int(trail_length)
         self.n_episodes = 0
         self.kept: Path | None = None  # where close() left the episodes: path, partial_path or nowhere
