@@ -7,6 +7,7 @@ import glob
 import hashlib
 import os
 import re
+import secrets
 import tempfile
 from pathlib import Path
 from typing import Iterator
@@ -66,24 +67,38 @@ def _remove_dead_parts(path: Path) -> None:
             pass
 
 
+#: the unfinished recordings this process streams to (a file of its pid that is not among them was left
+#: by an earlier process that had the same pid: pids come round again, in a container on every start)
+_OURS: set[Path] = set()
+
+
 def unfinished_path(path: str | Path) -> Path:
-    """Where this process streams a recording of `path` until it is finished (then renamed onto
-    it): `NAME.unfinished-PID.SUFFIX`, visible and readable by the viewer, so that a writer killed
-    mid-way (kill -9, a power cut) leaves what it had recorded for the user."""
+    """A new name for this process to stream a recording of `path` to until it is finished (then
+    renamed onto it): `NAME.unfinished-PID-XXXXXX.SUFFIX`, visible and readable by the viewer, so
+    that a writer killed mid-way (kill -9, a power cut) leaves what it had recorded for the user.
+    Each call gives another name (two recordings of one name in a process do not share a file)."""
     path = Path(path)
-    return path.with_name(f"{path.stem}.unfinished-{os.getpid()}{path.suffix}")
+    while True:
+        tmp = path.with_name(f"{path.stem}.unfinished-{os.getpid()}-{secrets.token_hex(3)}{path.suffix}")
+        if not tmp.exists() and tmp.absolute() not in _OURS:
+            _OURS.add(tmp.absolute())
+            return tmp
 
 
 def killed_unfinished(path: str | Path) -> list[Path]:
     """The unfinished recordings of `path` (unfinished_path) whose writer has died: kept for the
     user, never removed here."""
     path = Path(path)
-    pattern = re.compile(re.escape(path.stem) + r"\.unfinished-(\d+)" + re.escape(path.suffix))
+    pattern = re.compile(re.escape(path.stem) + r"\.unfinished-(\d+)(-[0-9a-f]+)?" + re.escape(path.suffix))
     try:
         siblings = sorted(path.parent.glob(f"{glob.escape(path.stem)}.unfinished-*{glob.escape(path.suffix)}"))
     except OSError:
         return []
-    return [p for p in siblings if (m := pattern.fullmatch(p.name)) and p.is_file() and not _alive(int(m[1]))]
+
+    def dead(p: Path, pid: int) -> bool:
+        return p.absolute() not in _OURS if pid == os.getpid() else not _alive(pid)
+
+    return [p for p in siblings if (m := pattern.fullmatch(p.name)) and p.is_file() and dead(p, int(m[1]))]
 
 
 def move_into_place(tmp: str | Path, path: str | Path) -> Path:

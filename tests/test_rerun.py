@@ -177,7 +177,7 @@ def test_the_episodes_of_a_recording_killed_with_kill_9_stay_readable_and_the_ne
     proc = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=120)
     assert proc.returncode == -9, proc.stderr[-2000:]
     (left,) = tmp_path.iterdir()
-    assert re.fullmatch(r"x\.unfinished-\d+\.rrd", left.name), left.name
+    assert re.fullmatch(r"x\.unfinished-\d+-[0-9a-f]{6}\.rrd", left.name), left.name
     ent = read_entities(left)
     assert "/episode_0/outcome" in ent and "/episode_1/outcome" in ent
     config = default_config(fidelity="point", max_steps=3)
@@ -364,3 +364,38 @@ def test_env_recorder_and_recording_refuse_arguments_of_the_wrong_kind(tmp_path)
                 EnvRecorder(rec, kwargs.pop("env", env), **kwargs)
         with pytest.raises(ValueError, match="EnvRecorder recording: expected a RerunEpisodeRecording, got 'x.rrd'"):
             EnvRecorder("x.rrd", env)
+
+
+def test_two_recordings_of_one_name_in_one_process_do_not_share_a_file(tmp_path):
+    """Both streamed into NAME.unfinished-PID.rrd: the first closed onto a corrupt x.rrd, the second failed."""
+    env = PursuitEnv(default_config(fidelity="point", max_steps=3), seed=0, auto_reset=False)
+    env.reset()
+    a, b = RerunEpisodeRecording(tmp_path / "x.rrd"), RerunEpisodeRecording(tmp_path / "x.rrd")
+    for rec, n in ((a, 2), (b, 1)):
+        for _ in range(n):
+            buf = EpisodeBuffer()
+            buf.append(env.snapshot(0))
+            rec.add_episode(buf)
+    a.close()
+    assert {"/episode_0/outcome", "/episode_1/outcome"} <= set(read_entities(tmp_path / "x.rrd"))
+    b.close()
+    ent = read_entities(tmp_path / "x.rrd")
+    assert "/episode_0/outcome" in ent and "/episode_1/outcome" not in ent  # b's whole recording, the later one
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.rrd"]
+
+
+def test_an_unfinished_recording_left_under_this_processs_pid_is_kept_and_named(tmp_path):
+    """A killed run whose pid comes round again (in a container, every start): its file was
+    taken as this process's own, truncated and renamed over x.rrd."""
+    import os
+
+    left = tmp_path / f"x.unfinished-{os.getpid()}-abc123.rrd"
+    left.write_bytes(b"the killed run's episodes")
+    env = PursuitEnv(default_config(fidelity="point", max_steps=3), seed=0, auto_reset=False)
+    env.reset()
+    with RerunEpisodeRecording(tmp_path / "x.rrd") as rec:
+        buf = EpisodeBuffer()
+        buf.append(env.snapshot(0))
+        rec.add_episode(buf)
+    assert left.read_bytes() == b"the killed run's episodes"
+    assert f"{left} beside it holds what a recording killed before it finished had written" in rec.summary()

@@ -830,3 +830,22 @@ def test_a_new_run_on_a_full_disk_is_refused_in_one_line_and_leaves_no_folder(tm
     said = str(caught.value)
     assert said.startswith(f"run folder {cfg.run_dir}: cannot write its lock file") and "\n" not in said, said
     assert not cfg.run_dir.exists()
+
+
+def test_a_run_refused_because_another_trainer_holds_its_folder_leaves_that_folder_alone(tmp_path, monkeypatch):
+    """The folder did not exist when this run looked, and another trainer made and locked it just
+    after: the refusal removed the other trainer's folder while it ran."""
+    cfg = tiny_config(tmp_path, updates=1)
+    real_lock = trainer_module.lock_run_folder
+    held = {}
+
+    def another_trainer_first(run_dir):
+        held["lock"] = real_lock(run_dir)  # the other trainer, between this one's look and its lock
+        (run_dir / "config.yaml").write_text("the other run's")
+        return real_lock(run_dir)
+
+    monkeypatch.setattr(trainer_module, "lock_run_folder", another_trainer_first)
+    with pytest.raises(ValueError, match="is in use by another trainer"):
+        Trainer(cfg, log=lambda s: None)
+    assert (cfg.run_dir / "config.yaml").read_text() == "the other run's"
+    held["lock"].close()

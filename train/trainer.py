@@ -91,7 +91,9 @@ class Trainer:
         check_writable_folder(self.run_dir, f"run folder (run.runs_dir {cfg.run.runs_dir}, name {cfg.name})")
         try:
             self._lock = lock_run_folder(self.run_dir)  # before anything in the folder is read or written
-        except ValueError:
+        except FolderInUse:  # another trainer made it meanwhile, perhaps: it is that one's
+            raise
+        except ValueError:  # it could not be written: remove what this run made
             if made_folder:
                 shutil.rmtree(self.run_dir, ignore_errors=True)
             raise
@@ -701,6 +703,10 @@ def _check_layout_files(cfg: TrainConfig, trained: dict, run_dir: str | Path) ->
                              f"Restore the file, or start a new run from this one with --init-from {Path(run_dir) / 'last.pt'}")
 
 
+class FolderInUse(ValueError):
+    """Another trainer holds the run folder's lock."""
+
+
 def lock_run_folder(run_dir: Path):
     """An open file holding an exclusive lock on `run_dir` (released when closed, or when the
     process dies); ValueError if another trainer holds it: two runs in one folder would
@@ -718,8 +724,8 @@ def lock_run_folder(run_dir: Path):
         handle.seek(0)
         holder = handle.read().strip() or "another process"
         handle.close()
-        raise ValueError(f"run folder {run_dir} is in use by another trainer ({holder}): wait for it to end or stop "
-                         f"it, or train under another name") from None
+        raise FolderInUse(f"run folder {run_dir} is in use by another trainer ({holder}): wait for it to end or stop "
+                          f"it, or train under another name") from None
     try:  # unbuffered: nothing is left to flush (and fail) when the handle closes
         os.ftruncate(handle.fileno(), 0)
         os.pwrite(handle.fileno(), f"pid {os.getpid()}".encode(), 0)

@@ -12,7 +12,7 @@
 | `events`                       | every safety and flight event as a text log line              |
 
 Timeline `flight_time`: seconds since the event log opened. The file is written as
-`NAME.unfinished-PID.rrd` and renamed when the recorder closes, even if the flight ended badly;
+`NAME.unfinished-PID-XXXXXX.rrd` and renamed when the recorder closes, even if the flight ended badly;
 a process killed mid-flight (kill -9) leaves that file, readable, and the next recording of the
 same name says where it is.
 """

@@ -21,7 +21,7 @@ property `episode_k` (outcome, steps, seed, layout, policy). Inside it:
 
 Timelines: `step` (decision steps since the episode began) and `sim_time` (s). Episodes are
 buffered in memory and sent as columns when they end, which keeps the per-step cost to a
-snapshot copy. The file is written as `NAME.unfinished-PID.rrd`, each episode flushed as it
+snapshot copy. The file is written as `NAME.unfinished-PID-XXXXXX.rrd`, each episode flushed as it
 ends, and renamed on `close` (a recording killed mid-way, kill -9, leaves that file readable).
 """
 
@@ -303,14 +303,15 @@ class RerunEpisodeRecording:
     def summary(self) -> str:
         """One line for the user about where the episodes went, once closed."""
         n = f"{self.n_episodes} episode{'' if self.n_episodes == 1 else 's'}"
+        killed = "".join(f"; {p} beside it holds what a recording killed before it finished had written"
+                         for p in self.killed_before if p.is_file())
         if self.kept == self.path:
             stale = (f"; {self.partial_path} beside it is from an earlier, interrupted run"
                      if self.partial_path.is_file() else "")
-            stale += "".join(f"; {p} beside it holds what a recording killed before it finished had written"
-                             for p in self.killed_before if p.is_file())
-            return f"wrote {self.path} ({n}; open with: rerun {self.path}){stale}"
+            return f"wrote {self.path} ({n}; open with: rerun {self.path}){stale}{killed}"
         if self.kept is not None:
-            return f"interrupted: the {n} finished before it are in {self.kept} (open with: rerun {self.kept}); {self.path} was not written"
+            return (f"interrupted: the {n} finished before it are in {self.kept} (open with: rerun {self.kept}); "
+                    f"{self.path} was not written{killed}")
         if self.lost is not None and self.n_episodes:
             return f"the {n} recorded could not be written ({self.lost}): neither {self.path} nor {self.partial_path} holds them"
         return f"interrupted before any episode finished: {self.path} was not written"
