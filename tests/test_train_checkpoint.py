@@ -849,3 +849,22 @@ def test_a_run_refused_because_another_trainer_holds_its_folder_leaves_that_fold
         Trainer(cfg, log=lambda s: None)
     assert (cfg.run_dir / "config.yaml").read_text() == "the other run's"
     held["lock"].close()
+
+
+def test_cutting_the_metrics_log_keeps_what_its_reader_reads(tmp_path):
+    """In place, a whole last row without its newline was dropped, a file of bare-CR lines was cut
+    to nothing, and a row numbered 7.0 after the cut was kept (and then logged twice)."""
+    from train.metrics_log import MetricsLog
+
+    log = MetricsLog(tmp_path / "m.jsonl")
+    log.path.write_bytes(b'{"update": 1}\n{"update": 2}\n{"update": 3}')
+    log.truncate_after(3)
+    assert [r["update"] for r in log.rows()] == [1, 2, 3] and log.path.read_bytes().endswith(b"\n")
+    log.append({"update": 4})
+    assert [r["update"] for r in log.rows()] == [1, 2, 3, 4]
+    log.path.write_bytes(b'{"update": 1}\r{"update": 2}\r')
+    log.truncate_after(2)
+    assert [r["update"] for r in log.rows()] == [1, 2]
+    log.path.write_bytes(b'{"update": 1}\n{"update": 7.0}\n')
+    log.truncate_after(1)
+    assert [r["update"] for r in log.rows()] == [1]

@@ -55,7 +55,8 @@ class MetricsLog:
         stop a resume; otherwise it is rewritten."""
         if not self.path.exists():
             return
-        lines = self.path.read_bytes().splitlines(keepends=True)
+        data = self.path.read_bytes()
+        lines = data.splitlines(keepends=True)
         numbers = [_row_update(line) for line in lines]
         tail = len(lines)  # lines[tail:] all go: cut short, or of later updates
         while tail and (numbers[tail - 1] is None or numbers[tail - 1] > update):
@@ -63,26 +64,32 @@ class MetricsLog:
         if any(n is not None and n > update for n in numbers[:tail]):
             rows = [r for r in self.rows() if r.get("update", 0) <= update]  # a later row inside the file
             atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in rows))
-        elif tail < len(lines):
-            try:
-                os.truncate(self.path, sum(len(line) for line in lines[:tail]))
-            except OSError as exc:
-                raise ValueError(f"metrics log {self.path}: cannot cut it back to update {update} "
-                                 f"({exc.strerror or exc})") from None
+            return
+        keep = sum(len(line) for line in lines[:tail])
+        try:
+            if keep < len(data):
+                os.truncate(self.path, keep)
+            if keep and not data[:keep].endswith((b"\n", b"\r")):  # a whole last row without its newline
+                with open(self.path, "ab") as f:  # the next row must not join its line
+                    f.write(b"\n")
+        except OSError as exc:
+            raise ValueError(f"metrics log {self.path}: cannot cut it back to update {update} "
+                             f"({exc.strerror or exc})") from None
 
 
 def _row_update(line: bytes) -> int | None:
-    """The update number of a complete row line (0 if it names none); None for a line cut short or garbled."""
-    if not line.endswith(b"\n"):
-        return None
+    """The update number of a whole row line (0 if it names none, as `rows` readers take it); None
+    for a line that is not a JSON object (cut short by a crash, garbled)."""
     try:
         row = json.loads(line)
-    except json.JSONDecodeError:
+    except (json.JSONDecodeError, UnicodeDecodeError):
         return None
     if not isinstance(row, dict):
         return None
     number = row.get("update", 0)
-    return number if isinstance(number, int) else 0
+    if isinstance(number, bool) or not isinstance(number, (int, float)) or not math.isfinite(number):
+        return 0
+    return int(number) if float(number).is_integer() else math.ceil(number)
 
 
 def missing_updates(present: set[int], logged: int) -> tuple[int, int, int] | None:
