@@ -359,34 +359,39 @@ def test_a_drone_without_the_tilt_parameters_flies_with_its_own_limit_and_a_warn
 
 
 class FailingRecorder:
-    """A rerun recorder whose writes fail from its `fail_at`-th step on (a full disk)."""
+    """A rerun recorder whose writes fail (a full disk) from its `fail_at`-th step on, or once
+    `bridge` (set when the chase starts) is landing."""
 
-    def __init__(self, fail_at: int):
-        self.fail_at, self.calls = fail_at, 0
+    def __init__(self, fail_at: int | None = None):
+        self.fail_at, self.calls, self.bridge = fail_at, 0, None
 
     def log_event(self, record: dict) -> None:
         pass
 
     def log_step(self, *args) -> None:
         self.calls += 1
-        if self.calls >= self.fail_at:
+        landing = self.fail_at is None and self.bridge is not None and self.bridge._landing
+        if landing or (self.fail_at is not None and self.calls >= self.fail_at):
             raise RuntimeError("rerun: Failed to write: No space left on device")
 
 
-@pytest.mark.parametrize("fail_at", [5, 1000])  # in the chase; in the landing (found by counting)
-def test_a_recorder_that_fails_neither_ends_the_chase_nor_cuts_the_landing(tmp_path, fail_at):
+@pytest.mark.parametrize("where", ["chase", "landing"])
+def test_a_recorder_that_fails_neither_ends_the_chase_nor_cuts_the_landing(tmp_path, where):
     """The landing loop called the recorder unguarded: its error left run(), the links closed,
     and cflib's close sends zero thrust, so every drone fell from where it was."""
-    plan = quick_plan(max_time=2.0)
-    if fail_at == 1000:  # fail on the first recorder call of the landing
-        probe = FailingRecorder(10 ** 9)
-        _, events, _ = fly_virtual(plan, HOVER, tmp_path / "probe", recorder=probe)
-        fail_at = probe.calls - 5  # the landing's states are the last ones recorded
-    result, events, fleet = fly_virtual(plan, HOVER, tmp_path, recorder=FailingRecorder(fail_at))
+    recorder = FailingRecorder(5 if where == "chase" else None)
+
+    def watch(fleet, bridge):
+        recorder.bridge = bridge
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=2.0), HOVER, tmp_path, recorder=recorder, during=watch)
     assert not isinstance(result, Exception), result
     assert result.outcome == "timeout" and result.landed, (result.outcome, result.reason)
-    assert kinds_in_order(events, "recorder_failed", "landed") and not events.of_kind("error")
-    assert "No space left on device" in events.of_kind("recorder_failed")[0]["reason"]
+    assert not events.of_kind("error") and "No space left on device" in events.of_kind("recorder_failed")[0]["reason"]
+    if where == "chase":
+        assert kinds_in_order(events, "recorder_failed", "land", "landed")
+    else:
+        assert kinds_in_order(events, "land", "recorder_failed", "landed")
     assert down(fleet)
 
 
@@ -460,6 +465,7 @@ def test_a_hung_policy_does_not_keep_a_stop_request_from_landing_the_drones(tmp_
     assert land["t"] - asked["t"] < 0.5, land["t"] - asked["t"]
     assert not [r for r in events.of_kind("step") if r["t"] > asked["t"]]  # the late answer was never used
     assert down(fleet)
+    assert events.of_kind("policy_still_running")  # said, so that the policy object is not flown again
 
 
 def test_a_drone_whose_estimates_stopped_before_the_landing_is_not_reported_landed(tmp_path):
@@ -510,3 +516,64 @@ def test_no_setpoint_goes_out_after_the_stream_is_closed_even_past_a_hanging_sen
     closed = time.monotonic()
     sending.join(2.0)
     assert not [entry for entry in log if entry[0] > closed and entry[1] != 0], log
+
+
+def test_a_drone_whose_estimates_stopped_after_the_checks_does_not_take_off(tmp_path):
+    """Only a go given over 10 s after the checks had the estimates looked at again: with a
+    quick go (or --yes) the frozen drone was sent its take-off, and the flight ended in takeoff_failed."""
+    plan = quick_plan(max_time=2.0, safety={"stale_hover": 0.3, "estimator_timeout": 1.0})
+    holder = {}
+
+    def go_after_p2_froze():
+        holder["fleet"].freeze_estimates(2)
+        time.sleep(0.5)
+        return True
+
+    from flight_rehearsal import VirtualFleet
+
+    original_init = VirtualFleet.__init__
+
+    def remember(self, *a, **k):
+        original_init(self, *a, **k)
+        holder["fleet"] = self
+
+    VirtualFleet.__init__ = remember
+    try:
+        result, events, fleet = fly_virtual(plan, HOVER, tmp_path, confirm=go_after_p2_froze)
+    finally:
+        VirtualFleet.__init__ = original_init
+    assert isinstance(result, Exception) and "drone p2" in str(result) and "no fresh state estimate" in str(result), result
+    assert "takeoff" not in events.kinds()
+
+
+def test_a_stop_that_comes_as_a_slow_answer_does_is_served_before_the_answer_is_sent(tmp_path):
+    class StopsAsItAnswers(ScriptedTeam):
+        bridge = None
+
+        def act(self, obs, spec):
+            if self.calls == 4:
+                time.sleep(0.5)
+                self.bridge.interrupt("Ctrl-C")
+            return super().act(obs, spec)
+
+    policy = StopsAsItAnswers([[0.3, 0.0]])
+
+    def watch(fleet, bridge):
+        policy.bridge = bridge
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=4.0), policy, tmp_path, during=watch)
+    assert result.outcome == "interrupted" and result.landed
+    stop = events.of_kind("interrupt")[0]["t"]
+    assert not [r for r in events.of_kind("step") if r["t"] > stop]
+
+
+def test_no_landing_is_sent_after_an_emergency_stop():
+    """A policy error right after an emergency stop had every drone sent a landing."""
+    from pursuit_mj.flight.bridge import FlightBridge
+    from pursuit_mj.flight.events import EventLog
+
+    plan = quick_plan()
+    bridge = FlightBridge(plan, HOVER, EventLog(), handle_signals=False)
+    bridge._airborne, bridge.links = True, []
+    bridge._estop.set()
+    assert bridge._land_all("error") is False and not bridge.events.of_kind("land")

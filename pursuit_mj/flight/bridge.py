@@ -44,7 +44,7 @@ from .keepalive import SetpointStream
 from .links import CrazyflieFactory, LinkError, LinkSet
 from .observe import EvaderPilot, FlightObserver
 from .plan import FlightPlan
-from .preflight import RECHECK_AFTER, PreflightError, preflight, recheck
+from .preflight import RECHECK_AFTER, PreflightError, preflight, recheck, wait_fresh_states
 from .safety import Fence, altitude_speed, clamp_speed, keep_apart_and_inside
 from .spec import LANDED_HEIGHT  # m: a drone whose last height estimate is below this counts as landed
 
@@ -168,6 +168,7 @@ class FlightBridge:
         self._lost_logged: set[int] = set()  # drones whose link_lost event is in the log
         self._in_flight = False  # past the checks: a stop signal lands instead of aborting
         self._stream: SetpointStream | None = None  # the chase's setpoints (keepalive.py)
+        self._thinking: threading.Thread | None = None  # the policy's latest decision (_policy_actions)
         if recorder is not None:
             events.add_sink("rerun", recorder.log_event)
 
@@ -254,6 +255,8 @@ class FlightBridge:
                         raise PreflightError("take-off declined by the operator")
                     if self.clock() - asked > RECHECK_AFTER:
                         recheck(self.board, plan, self.events, self.clock)
+                # whatever the wait: a drone whose estimates stopped since the checks does not take off
+                wait_fresh_states(self.board, plan, self.events, plan.safety.estimator_timeout, self.clock)
                 self._in_flight = True
                 return self._fly()
         except (LinkError, PreflightError) as exc:
@@ -265,6 +268,10 @@ class FlightBridge:
         finally:
             self.links = None
             self.events.log("links_closed")
+            if self._thinking is not None and self._thinking.is_alive():  # a hung decision the flight stopped waiting for
+                self.events.log("policy_still_running", level="warn",
+                                why="its last decision never returned; do not fly this policy object again in this process "
+                                    "(a new act or reset would run beside the old one)")
 
     @contextlib.contextmanager
     def _signals(self):
@@ -363,7 +370,7 @@ class FlightBridge:
     def _land_all(self, why: str) -> bool:
         """Everyone with a link lands through the high-level commander; returns whether every
         commanded drone was landed and its last height estimate is below LANDED_HEIGHT."""
-        if not self._airborne or self.links is None:
+        if not self._airborne or self.links is None or self._estop.is_set():  # after an emergency stop: no landing
             return False
         self._landing = True
         plan, limits = self.plan, self.plan.safety
@@ -514,16 +521,18 @@ class FlightBridge:
             self.events.log("capture", evader=plan.names[N + m], by=plan.names[int(np.argmin(d))], distance=float(d.min()))
         asked = self.clock()
         obs, actions, wanted = self._task_commands(pos, vel, observer, pilot, start)
-        if self.clock() - asked > plan.safety.stall_hover:  # a slow decision: judge its commands where the drones are now
-            snap = self.board.snapshot()
-            pos_lab, vel_lab = self._lab_state(snap)
-        v, filtered, clearance = self._guard(wanted, pos_lab, vel_lab)
+        now = snap
+        if self.clock() - asked > plan.safety.stall_hover:  # a slow decision: judged where the drones are now
+            now = self.board.snapshot()
+            self._check_abort(now, start)
+        now_lab, now_vel = self._lab_state(now) if now is not snap else (pos_lab, vel_lab)
+        v, filtered, clearance = self._guard(wanted, now_lab, now_vel)
 
-        stale = snap.state_age > plan.safety.stale_hover
+        stale = now.state_age > plan.safety.stale_hover
         caught = np.concatenate([np.zeros(N, bool), observer.captured[0] & (plan.roles[N:] == "evader")])
         hover = plan.commanded & (stale | caught)
         fly = plan.commanded & ~hover
-        vz = altitude_speed(pos_lab[:, 2], plan.height, plan.safety.altitude_gain, plan.safety.max_vertical_speed)
+        vz = altitude_speed(now_lab[:, 2], plan.height, plan.safety.altitude_gain, plan.safety.max_vertical_speed)
         sent = np.full((plan.n_drones, 3), np.nan)
         sent[fly] = np.column_stack([plan.frames.velocity_to_drone(v), vz])[fly]
         unsendable = fly & ~np.isfinite(sent).all(axis=1)  # never a NaN setpoint: hold height instead
@@ -531,8 +540,8 @@ class FlightBridge:
         sent[unsendable] = np.nan
         self._stream.send({int(i): sent[i] for i in np.flatnonzero(fly)}, [int(i) for i in np.flatnonzero(hover)])
         for kind, flags in filtered.items():
-            self.edges.update(kind, flags & fly, pos=pos_lab[:, :2], clearance=clearance)
-        self.edges.update("stale_hover", stale & plan.commanded, age=snap.state_age)
+            self.edges.update(kind, flags & fly, pos=now_lab[:, :2], clearance=clearance)
+        self.edges.update("stale_hover", stale & plan.commanded, age=now.state_age)
 
         changed = np.any([flags for flags in filtered.values()], axis=0) & fly
         mode = np.where(fly, "velocity", np.where(hover, "hover", "none"))
@@ -586,6 +595,7 @@ class FlightBridge:
                 answer["error"] = exc
 
         thinking = threading.Thread(target=ask, name="policy", daemon=True)
+        self._thinking = thinking
         thinking.start()
         thinking.join(self.plan.dt)
         while thinking.is_alive():
@@ -593,6 +603,8 @@ class FlightBridge:
             thinking.join(self.plan.dt)
         if "error" in answer:
             raise answer["error"]
+        if self._stop.is_set():  # a stop that came as the answer did: it is served first
+            self._check_abort(self.board.snapshot(), start)
         return answer["actions"]
 
     def _guard(self, wanted: np.ndarray, pos_lab: np.ndarray, vel_lab: np.ndarray):
