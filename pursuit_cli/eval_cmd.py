@@ -19,7 +19,7 @@ from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
 from .common import (SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, check_out_prefix, load_model, pick_versus,
                      seed_arg, shield_if_asked, table_layouts, task_config_from_args)
-from .eval_resume import drop_finished, finished_rows, interrupted_path, keep_finished, write_finished
+from .eval_resume import check_nothing_kept, drop_finished, finished_rows, interrupted_path, keep_finished, write_finished
 
 
 RERUN_EPISODES = 3  # recorded per policy and layout with --rerun
@@ -175,6 +175,8 @@ def run(args) -> int:
     if args.resume and args.rerun:
         raise ValueError("--resume with --rerun: the recording would hold only the rows run now; record in an eval of its own")
     csv_path, json_path = _outputs(args)  # makes folders: after every other check, so that bad input leaves none
+    if not args.resume:
+        check_nothing_kept(csv_path, json_path)
     done = finished_rows(json_path, config, _meta(args, policies, layouts, provenance())) if args.resume else None
     if done is not None and not args.quiet:
         print(f"[eval] resuming: {len(done)} finished rows from {interrupted_path(json_path)}", file=sys.stderr, flush=True)

@@ -34,6 +34,17 @@ def write_finished(rows: list, csv_path: Path | None, json_path: Path | None, co
     return out
 
 
+def check_nothing_kept(csv_path: Path | None, json_path: Path | None) -> None:
+    """ValueError if an interrupted eval's finished rows are kept where this one (not resuming)
+    would write its own: they are the user's until resumed or deleted (another eval to the same
+    prefix, or one running beside it, would overwrite them, and its whole table remove them)."""
+    kept = [interrupted_path(p) for p in (json_path, csv_path) if p is not None and interrupted_path(p).is_file()]
+    if kept:
+        how = "give --resume to go on from them, or delete " if json_path is not None and kept[0] == interrupted_path(json_path) else "delete "
+        raise ValueError(f"{kept[0]}: the finished rows of an interrupted eval are kept there; {how}"
+                         f"{' and '.join(str(p) for p in kept)} to start over")
+
+
 def drop_finished(csv_path: Path | None, json_path: Path | None) -> None:
     """Remove the kept cells once the whole table is written (it holds them)."""
     for path in (csv_path, json_path):

@@ -632,11 +632,19 @@ def test_an_eval_killed_with_kill_9_keeps_its_finished_cells_for_resume(tmp_path
     assert not (tmp_path / "t.interrupted.json").exists() and not (tmp_path / "t.interrupted.csv").exists()
 
 
-def test_a_whole_eval_leaves_no_interrupted_files_of_its_own_or_of_an_earlier_stop(tmp_path):
-    (tmp_path / "t.interrupted.json").write_text('{"rows": []}')  # an earlier stop, not resumed
-    assert main(["eval", "--policy", "random", "--layouts", "0", "--episodes", "1", "--fidelity", "point",
-                 "--set", "max_steps=5", "--out", str(tmp_path / "t"), "-q"]) == 0
-    assert sorted(p.name for p in tmp_path.iterdir() if "interrupted" in p.name) == []
+def test_an_eval_to_a_prefix_holding_an_interrupted_evals_rows_is_refused_unless_it_resumes(tmp_path, capsys):
+    """Another eval to the same prefix overwrote them as its cells finished and removed them at its
+    end: the interrupted eval's --resume then found nothing."""
+    kept = tmp_path / "t.interrupted.json"
+    kept.write_text('{"rows": []}')
+    cmd = ["eval", "--policy", "random", "--layouts", "0", "--episodes", "1", "--fidelity", "point",
+           "--set", "max_steps=5", "--out", str(tmp_path / "t"), "-q"]
+    assert main(cmd) == 2
+    assert (f"{kept}: the finished rows of an interrupted eval are kept there; give --resume to go on from them, or "
+            f"delete {kept} to start over") in capsys.readouterr().err
+    assert kept.read_text() == '{"rows": []}'
+    kept.unlink()
+    assert main(cmd) == 0 and sorted(p.name for p in tmp_path.iterdir() if "interrupted" in p.name) == []
 
 
 @pytest.mark.parametrize("layouts, said", [
