@@ -406,27 +406,31 @@ def test_the_landing_is_timed_for_a_believable_height_whatever_an_estimate_says(
     assert landing_duration(np.array([1e6, 0.4, 1.8]), commanded, 0.6, 0.25, ceiling=2.0) == pytest.approx(8.0)
 
 
-def test_a_drone_whose_link_was_lost_is_not_reported_landed(tmp_path):
-    """Its last estimate (from before the link dropped, on the floor) said it was down: 'landed:
-    yes' while it hovered at flight height, never having heard the landing."""
+def _fly_doing_at(kind: str, act, plan, tmp_path):
+    """Fly `plan` on virtual drones with act(fleet) done as the event `kind` is logged (in the
+    bridge's thread); returns (result, events, the drones' true state once run() returned)."""
     from flight_rehearsal import FAST, CachedFactory, EventLog, FlightBridge, VirtualFleet
 
-    plan = quick_plan(max_time=4.0)
     events = EventLog(tmp_path / "events.jsonl")
     fleet = VirtualFleet(plan, None, physics=FAST)
     bridge = FlightBridge(plan.with_uris(fleet.uris), HOVER, events, factory=CachedFactory(tmp_path / "toc"), handle_signals=False)
-
-    def drop_e0_in_the_takeoff(record):
-        if record["kind"] == "takeoff":
-            threading.Timer(0.1, fleet.drop_link, args=(3,)).start()
-
-    events.add_sink("drop", drop_e0_in_the_takeoff)
+    events.add_sink("act", lambda record: act(fleet) if record["kind"] == kind else None)
     with fleet:
         result = bridge.run()
-        flying = fleet.true_state()["pos"][3, 2]
+        state = fleet.true_state()
     events.close()
+    return result, events, state
+
+
+def test_a_drone_whose_link_was_lost_is_not_reported_landed(tmp_path):
+    """Its last estimate (from before the link dropped, on the floor) said it was down: 'landed:
+    yes' while it hovered at flight height, never having heard the landing."""
+    def drop_e0_soon(fleet):
+        threading.Timer(0.1, fleet.drop_link, args=(3,)).start()
+
+    result, events, state = _fly_doing_at("takeoff", drop_e0_soon, quick_plan(max_time=4.0), tmp_path)
     assert result.outcome in ("link_lost", "takeoff_failed") and "e0" in result.reason, (result.outcome, result.reason)
-    assert flying > 0.2  # e0 finished its take-off and never heard the landing
+    assert state["pos"][3, 2] > 0.2  # e0 finished its take-off and never heard the landing
     assert not result.landed and "e0" in events.of_kind("landed")[0]["not_down"]
 
 
@@ -470,21 +474,7 @@ def test_a_hung_policy_does_not_keep_a_stop_request_from_landing_the_drones(tmp_
 
 def test_a_drone_whose_estimates_stopped_before_the_landing_is_not_reported_landed(tmp_path):
     """An estimate frozen on the floor before take-off (the drone then flew blind) said 'down'."""
-    from flight_rehearsal import FAST, CachedFactory, EventLog, FlightBridge, VirtualFleet
-
-    plan = quick_plan(max_time=2.0)
-    events = EventLog(tmp_path / "events.jsonl")
-    fleet = VirtualFleet(plan, None, physics=FAST)
-    bridge = FlightBridge(plan.with_uris(fleet.uris), HOVER, events, factory=CachedFactory(tmp_path / "toc"), handle_signals=False)
-
-    def freeze_p2(record):
-        if record["kind"] == "takeoff":
-            fleet.freeze_estimates(2)
-
-    events.add_sink("freeze", freeze_p2)
-    with fleet:
-        result = bridge.run()
-    events.close()
+    result, events, _ = _fly_doing_at("takeoff", lambda fleet: fleet.freeze_estimates(2), quick_plan(max_time=2.0), tmp_path)
     assert result.heights[2] < 0.1  # what its frozen estimate says
     assert not result.landed and events.of_kind("landed")[0]["not_down"] == ["p2"]
 

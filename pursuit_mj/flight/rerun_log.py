@@ -19,14 +19,14 @@ same name says where it is.
 
 from __future__ import annotations
 
-import contextlib
 import math
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
 
-from ..io_utils import CannotWrite, killed_unfinished, move_into_place, unfinished_path
+from ..io_utils import CannotWrite, killed_unfinished, move_into_place
+from ..recording.unfinished import stream_to_unfinished
 from ..layout import Box, Wall
 from ..palette import ROLE_RGBA, rgb255
 from .plan import FlightPlan
@@ -54,17 +54,8 @@ class FlightRecorder:
         self.plan = plan
         self.path = Path(path)
         self.killed_before = killed_unfinished(self.path)  # what earlier recordings killed mid-way left: kept
-        self._tmp = unfinished_path(self.path)
         self.rec = rr.RecordingStream("pursuit_mj_flight")
-        try:
-            self.rec.save(self._tmp)
-            self._log_static()
-            self.rec.flush()
-        except RuntimeError as exc:  # rerun's file writer failed: a full disk
-            with contextlib.suppress(RuntimeError):
-                self.rec.disconnect()
-            self._tmp.unlink(missing_ok=True)
-            raise CannotWrite(f"--rerun {self.path}: cannot write it (rerun: {exc})") from None
+        self._tmp = stream_to_unfinished(self.rec, self.path, self._log_static, f"--rerun {self.path}")
         self._closed = False
 
     def _log_static(self) -> None:

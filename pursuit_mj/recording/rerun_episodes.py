@@ -37,7 +37,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from ..io_utils import CannotWrite, check_writable, killed_unfinished, move_into_place, unfinished_path
+from ..io_utils import CannotWrite, check_writable, killed_unfinished, move_into_place
+from .unfinished import stream_to_unfinished
 from ..layout import Box, Cylinder, Layout, Wall
 from ..palette import BORDER_RGBA, OBSTACLE_RGBA, ROLE_RGBA, rgb255
 from ..scene import drone_names, wall_heights
@@ -111,17 +112,9 @@ class RerunEpisodeRecording:
         self.kept: Path | None = None  # where close() left the episodes: path, partial_path or nowhere
         self.lost: str | None = None  # why close() could not write the file (a full disk), if it could not
         self.killed_before = killed_unfinished(self.path)  # what earlier recordings killed mid-way left: kept
-        self._tmp = unfinished_path(self.path)
         self.stream = rr.RecordingStream(application_id, recording_id=uuid.uuid4())
-        try:
-            self.stream.save(self._tmp)
-            self.stream.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-            self.stream.flush()
-        except RuntimeError as exc:  # rerun's file writer failed: a full disk
-            with contextlib.suppress(RuntimeError):
-                self.stream.disconnect()
-            self._tmp.unlink(missing_ok=True)
-            raise CannotWrite(f"{self.path}: cannot write it (rerun: {exc})") from None
+        self._tmp = stream_to_unfinished(self.stream, self.path, lambda: self.stream.log(
+            "/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True), str(self.path))
         self._closed = False
         self._thrust = False
 
