@@ -136,8 +136,11 @@ class FlightBridge:
     recorder: optional FlightRecorder; seed: sensing and escape-model randomness;
     handle_signals: in the main thread, Ctrl-C, Ctrl-Z, SIGTERM and SIGHUP (a closed terminal; not
     when started under nohup) land everyone (a second one cuts the motors), before take-off they
-    end the run at once, and Ctrl-\\ cuts the motors; confirm(): asked after the preflight checks,
-    False refuses the take-off (an operator's go / no-go).
+    end the run at once, and Ctrl-\\ cuts the motors. Without it (handle_signals False, or another
+    thread) a KeyboardInterrupt during the chase lands everyone, and one during the landing lets
+    the landing finish before it goes on up (closing the links would cut the motors in the air):
+    use emergency_stop() to cut them. confirm(): asked after the preflight checks, False refuses
+    the take-off (an operator's go / no-go).
     """
 
     def __init__(self, plan: FlightPlan, policy: Policy, events: EventLog, factory: CrazyflieFactory | None = None,
