@@ -49,8 +49,8 @@ from .safety import Fence, altitude_speed, clamp_speed, keep_apart_and_inside
 from .spec import LANDED_HEIGHT  # m: a drone whose last height estimate is below this counts as landed
 
 STATE_PERIOD = 0.02  # s between state-estimate log packets (50 Hz)
-LANDING_CEILING_MARGIN = 0.5  # m above safety.max_altitude: the highest height a landing is timed for
 HEALTH_PERIOD = 0.05  # s between health log packets
+LANDING_CEILING_MARGIN = 0.5  # m above safety.max_altitude: the highest height a landing is timed for
 
 
 def landing_duration(heights: np.ndarray, commanded: np.ndarray, flight_height: float, landing_speed: float,
