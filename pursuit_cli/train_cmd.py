@@ -175,6 +175,12 @@ def _check_same(asked, stored) -> None:
                          f"folder alone (--resume RUN_DIR); only {RESUMABLE_FLAGS} can change")
 
 
+def _given(value) -> bool:
+    """Whether a flag was given: its default is None, False or an empty list (a value of 0, which
+    equals False, is given: --seed 0)."""
+    return value is not None and value is not False and not (isinstance(value, (list, tuple)) and not value)
+
+
 def _refuse_with_export(args) -> None:
     """--export only copies a checkpoint: a training flag beside it would be silently ignored."""
     given = [flag for flag, value in (("--config", args.config), ("--set", args.overrides), ("--name", args.name),
@@ -183,7 +189,7 @@ def _refuse_with_export(args) -> None:
                                       ("--layout", args.layout), ("--random-layout", args.random_layout),
                                       ("--init-from", args.init_from), ("--learnable-gamma", args.learnable_gamma),
                                       ("--resume", args.resume), ("--rerun", args.rerun), ("-sc", args.show_config))
-             if value not in (None, False, [])]
+             if _given(value)]
     if given:
         raise ValueError(f"--export writes a policy-only copy and exits; {', '.join(given)} would be ignored: "
                          f"export in a command of its own")
@@ -229,7 +235,7 @@ def run(args) -> int:
                                            ("--n-envs", args.n_envs), ("--seed", args.seed), ("--fidelity", args.fidelity),
                                            ("--layout", args.layout), ("--init-from", args.init_from),
                                            ("--random-layout", args.random_layout), ("--learnable-gamma", args.learnable_gamma))
-                   if value]
+                   if _given(value)]
         if changed:
             raise ValueError(f"--resume {args.resume}: a run continues with its stored config; {', '.join(changed)} "
                              f"cannot change it (only {RESUMABLE_FLAGS} can)")

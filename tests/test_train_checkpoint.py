@@ -355,6 +355,7 @@ def test_a_run_that_crashed_before_its_first_checkpoint_starts_afresh_with_its_l
     assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2]
     assert "dropping 2 rows" in said[0]
     (cfg.run_dir / "last.pt").unlink()
+    (cfg.run_dir / "best.pt").unlink()  # (kept, that run's best.pt would have this one refused: test_train_cli)
     (cfg.run_dir / "metrics.jsonl").write_text('{"update": 1, "world_st')  # killed while writing its first row
     Trainer(tiny_config(tmp_path, updates=1), log=lambda s: None).train()
     assert [r["update"] for r in rows(cfg.run_dir)] == [1]

@@ -438,3 +438,44 @@ def test_a_run_started_without_a_progress_bar_can_resume_with_one(tmp_path, monk
     with pytest.raises(SystemExit) as stop:  # argparse: the two flags exclude each other
         main(["train", "--resume", str(cfg.run_dir), "--progress", "--no-progress"])
     assert stop.value.code == 2
+
+
+def test_run_folder_mistakes_from_the_run_folder_audit(tmp_path, monkeypatch, capsys):
+    """--resume . stored an empty run name (no later resume worked); --seed 0 beside --resume or
+    --export was ignored where --seed 5 was refused; --export wrote over the run's metrics log."""
+    import json
+
+    from train.checkpoint import load_checkpoint
+
+    base = ["train", "--config", "classic", "--no-progress", "--set", f"run.runs_dir={tmp_path}", "--name", "r"]
+    assert main(base + [*sum((["--set", s] for s in TINY), []), "--set", "total_steps=32"]) == 0
+    run = tmp_path / "r"
+    monkeypatch.chdir(run)
+    assert main(["train", "--resume", ".", "--total-steps", "64"]) == 0
+    assert load_checkpoint(run / "last.pt")["train_config"]["name"] == "r"
+    assert main(["train", "--resume", str(run), "--total-steps", "96"]) == 0
+    capsys.readouterr()
+    assert main(["train", "--resume", str(run), "--seed", "0"]) == 2
+    assert "--seed cannot change it" in capsys.readouterr().err
+    assert main(["train", "--export", str(run / "last.pt"), "x.pt", "--n-envs", "0"]) == 2
+    assert "--n-envs would be ignored" in capsys.readouterr().err
+    log = (run / "metrics.jsonl").read_text()
+    assert main(["train", "--export", str(run / "last.pt"), str(run / "metrics.jsonl")]) == 2
+    assert "OUT exists and is not a policy export" in capsys.readouterr().err
+    assert (run / "metrics.jsonl").read_text() == log and [json.loads(x)["update"] for x in log.splitlines()] == [1, 2, 3]
+
+
+def test_a_new_run_is_refused_in_a_folder_whose_earlier_run_lost_only_its_last_pt(tmp_path, capsys):
+    """It said 'dropping 3 rows of a run stopped before its first checkpoint', cut the log and
+    replaced best.pt."""
+    cmd = ["train", "--config", "classic", "--no-progress", "--set", f"run.runs_dir={tmp_path}", "--name", "b",
+           *sum((["--set", s] for s in TINY), []), "--set", "run.validate_every=1"]
+    assert main(cmd + ["--set", "total_steps=96"]) == 0
+    run = tmp_path / "b"
+    (run / "last.pt").unlink()
+    best, log = (run / "best.pt").read_bytes(), (run / "metrics.jsonl").read_text()
+    capsys.readouterr()
+    assert main(cmd + ["--set", "total_steps=32"]) == 2
+    err = capsys.readouterr().err
+    assert f"run folder {run} holds an earlier run (metrics.jsonl rows up to update 3" in err and "--name" in err
+    assert (run / "best.pt").read_bytes() == best and (run / "metrics.jsonl").read_text() == log

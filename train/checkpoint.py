@@ -149,8 +149,9 @@ def export_actor(src: str | Path, dst: str | Path) -> Path:
         try:
             replaced = load_checkpoint(dst)
         except ValueError:
-            replaced = None
-        if replaced is not None and is_training_checkpoint(replaced):
+            raise ValueError(f"--export {src} {dst}: OUT exists and is not a policy export (a log, a config, another "
+                             f"file of yours), which the export would replace; choose another file") from None
+        if is_training_checkpoint(replaced):
             raise ValueError(f"--export {src} {dst}: OUT is a training checkpoint, which the export would replace "
                              f"(losing its critic and optimiser state); choose another file")
     keep = {k: data[k] for k in ("train_config", "obs_spec", "state_dim", "actor", "counters") if k in data}

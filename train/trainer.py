@@ -102,6 +102,8 @@ class Trainer:
             if left:
                 log(f"[train] removed {len(left)} temporary file{'s' if len(left) > 1 else ''} of a save cut short "
                     f"in {self.run_dir}: {', '.join(p.name for p in left)}")
+            if checkpoint is None:
+                self._refuse_an_earlier_run()
             self._build(checkpoint)
         except BaseException:
             self._lock.close()  # a run that cannot start leaves the folder free
@@ -171,7 +173,8 @@ class Trainer:
         """Continue the run in `run_dir` from last.pt with its own config; only the length of the
         run (total_steps, max_minutes), the progress bar and rerun streaming may change. `check(stored config)`
         runs before anything is restored (to refuse a resume asked with other settings)."""
-        path = Path(run_dir) / "last.pt"
+        run_dir = Path(run_dir).resolve()  # `--resume .` from inside the folder: its name, not ''
+        path = run_dir / "last.pt"
         try:
             data = load_checkpoint(path)
         except ValueError as exc:
@@ -196,7 +199,7 @@ class Trainer:
             run = dataclasses.replace(run, progress=progress)
         if rerun is not None:
             run = dataclasses.replace(run, rerun=rerun)
-        cfg = dataclasses.replace(cfg, run=run, name=Path(run_dir).name)
+        cfg = dataclasses.replace(cfg, run=run, name=Path(run_dir).name)  # run_dir resolved above: '.' has no name
         if total_steps is not None:
             cfg = dataclasses.replace(cfg, total_steps=total_steps)
         if max_minutes is not None:
@@ -256,6 +259,26 @@ class Trainer:
             self.log(f"note: {metrics.path} lacks the rows of updates {span} (deleted or cut since they were "
                      f"logged); the log goes on from update {logged + 1}")
         self.log(f"resumed {self.run_dir} at update {self.counters.update} ({self.counters.world_steps} world steps)")
+
+    def _refuse_an_earlier_run(self) -> None:
+        """A new run in a folder whose last.pt is gone but whose log or best.pt reach past the first
+        checkpoint of an earlier run is refused: it would cut that log and replace that best.pt.
+        (A run killed before its first checkpoint leaves no more than that: it starts afresh.)"""
+        if (self.run_dir / "last.pt").exists():
+            return
+        first = max(self.cfg.run.checkpoint_every, _checkpoint_every_of(self.run_dir / "config.yaml"))
+        rows = [r.get("update") for r in MetricsLog(self.run_dir / "metrics.jsonl").rows()]
+        later = [u for u in rows if isinstance(u, int) and u > first]
+        try:
+            best = load_checkpoint(self.run_dir / "best.pt")["counters"].get("update", 0)
+        except (ValueError, KeyError, TypeError, AttributeError):
+            best = 0
+        best = best if isinstance(best, int) and best > first else 0
+        if later or best:
+            held = [f"metrics.jsonl rows up to update {max(later)}" if later else "", f"best.pt of update {best}" if best else ""]
+            raise ValueError(f"run folder {self.run_dir} holds an earlier run ({' and '.join(h for h in held if h)}) whose "
+                             f"last.pt is gone; a new run would cut its log and replace its best.pt. Go on from its "
+                             f"best.pt (copy it over last.pt, then --resume), or train under another --name")
 
     def _adopt_newer_best(self) -> None:
         """Take the best-validation record from best.pt when it is newer than last.pt's (a crash
@@ -733,6 +756,17 @@ def lock_run_folder(run_dir: Path):
         handle.close()
         raise ValueError(f"run folder {run_dir}: cannot write its lock file ({exc.strerror or exc})") from None
     return handle
+
+
+def _checkpoint_every_of(config_yaml: Path) -> int:
+    """run.checkpoint_every of the run whose config.yaml this is (1 if it cannot be read)."""
+    from pursuit_mj.configio import load_yaml
+
+    try:
+        every = load_yaml(config_yaml)["run"]["checkpoint_every"]
+    except Exception:  # noqa: BLE001 - missing, damaged or hand-edited: the new run's own setting decides
+        return 1
+    return every if isinstance(every, int) and not isinstance(every, bool) and every >= 1 else 1
 
 
 def best_instead(run_dir: Path) -> str:
