@@ -484,3 +484,16 @@ def test_a_study_stopped_by_sigterm_while_an_arm_trains_exits_143_saying_so(tmp_
             "--set", "max_steps=20"] + sum((["--train-set", s] for s in TRAIN), [])
     assert main(["study", "--budget-minutes", "0.8", *args]) == 143
     assert "pursuit-mj study: interrupted by SIGTERM" in capsys.readouterr().err
+
+
+def test_a_study_that_lost_its_record_says_how_to_go_on_instead_of_sending_the_user_round(tmp_path, capsys):
+    """Without study.json, --resume said 'no study to continue' and a fresh start said 'continue
+    them with --resume': each message sent the user to the other."""
+    out = tmp_path / "study"
+    (out / "runs" / "classic").mkdir(parents=True)
+    (out / "runs" / "classic" / "last.pt").write_bytes(b"a run")
+    assert main(["study", "--budget-minutes", "5", "--out", str(out), "--resume", "--fidelity", "point",
+                 "--layouts", "0", "--episodes", "2"]) == 2
+    err = capsys.readouterr().err
+    assert f"holds no study to continue (no study.json); its trained runs in {out / 'runs'} cannot be resumed" in err
+    assert "run the study again without --resume" in err

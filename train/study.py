@@ -111,13 +111,16 @@ def _load_state(plan: StudyPlan) -> dict:
         state = {"train_overrides": list(plan.train_overrides), "arms": {}}
         _save_state(plan, state)
         return state
+    runs = plan.out / "runs"
+    lost = (f"; its trained runs in {runs} cannot be resumed without it: move {runs} aside (its best.pt files stay "
+            f"usable with eval --model) and run the study again without --resume") if runs.is_dir() else ""
     if not path.is_file():
-        raise ValueError(f"--resume: {plan.out} holds no study to continue (no {STATE_FILE})")
+        raise ValueError(f"--resume: {plan.out} holds no study to continue (no {STATE_FILE}){lost}")
     try:
         state = json.loads(path.read_text())
         arms, stored = dict(state["arms"]), list(state["train_overrides"])
     except (ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"--resume: {path} is not a study record ({exc})") from None
+        raise ValueError(f"--resume: {path} is not a study record ({exc}){lost}") from None
     if _what_is_trained(stored) != _what_is_trained(plan.train_overrides):
         raise ValueError(f"--resume: the study in {plan.out} was trained with {stored or 'no train overrides'}, not "
                          f"{list(plan.train_overrides)}; give the same --train-fidelity and --train-set")
