@@ -222,8 +222,10 @@ def run(args) -> int:
         from pursuit_mj.io_utils import check_writable
 
         _refuse_with_export(args)
-        from train.checkpoint import export_actor
+        from train.checkpoint import export_actor, load_checkpoint
 
+        if not Path(args.export[0]).is_file():  # before OUT's folder is made: a refused export leaves nothing
+            load_checkpoint(args.export[0])  # names what is wrong with it (missing, a folder)
         if Path(args.export[1]).is_dir():
             raise ValueError(f"--export OUT {args.export[1]}: is a folder; give the file to write (e.g. {Path(args.export[1]) / 'policy.pt'})")
         check_writable(args.export[1], "--export OUT")
@@ -259,6 +261,9 @@ def run(args) -> int:
                                  rerun=True if args.rerun else None)
     else:
         cfg = _load_naming_one_flag(args)
+        if args.show_config and args.resume:
+            raise ValueError(f"--resume: -sc/--show-config does not resume; the run's config is in "
+                             f"{cfg.run_dir / 'config.yaml'}")
         if args.show_config:
             cfg.check_complete()  # what training would refuse, -sc refuses too
             cfg.check_layouts()

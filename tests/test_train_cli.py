@@ -479,3 +479,16 @@ def test_a_new_run_is_refused_in_a_folder_whose_earlier_run_lost_only_its_last_p
     err = capsys.readouterr().err
     assert f"run folder {run} holds an earlier run (metrics.jsonl rows up to update 3" in err and "--name" in err
     assert (run / "best.pt").read_bytes() == best and (run / "metrics.jsonl").read_text() == log
+
+
+def test_small_run_folder_refusals_leave_nothing_and_name_their_flag(tmp_path, capsys):
+    """An export of a missing checkpoint made OUT's folder; bare --resume with -sc printed a new
+    config; a folder given to --init-from was not named as --init-from's."""
+    assert main(["train", "--export", str(tmp_path / "nope.pt"), str(tmp_path / "new" / "x.pt")]) == 2
+    assert "nope.pt" in capsys.readouterr().err and not (tmp_path / "new").exists()
+    assert main(["train", "--resume", "-sc", "--set", f"run.runs_dir={tmp_path}"]) == 2
+    assert "--resume: -sc/--show-config does not resume" in capsys.readouterr().err
+    (tmp_path / "folder").mkdir()
+    assert main(["train", "--config", "classic", *sets(TINY), "--set", f"run.runs_dir={tmp_path}", "--name", "i",
+                 "--init-from", str(tmp_path / "folder")]) == 2
+    assert "init_from (--init-from): checkpoint" in capsys.readouterr().err

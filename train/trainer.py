@@ -312,7 +312,10 @@ class Trainer:
                     "then pass its best.pt" if self.cfg.regime == "fine_tune" else "")
             raise ValueError(f"init_from {path}: no such checkpoint (set it with --init-from or --set init_from=...)."
                              f"{hint}")
-        data = load_checkpoint(path)
+        try:
+            data = load_checkpoint(path)
+        except ValueError as exc:  # a folder, a damaged file: named with the key it came from
+            raise ValueError(f"init_from (--init-from): {exc}") from None
         check_obs_spec(data, self.spec, path)
         try:
             self.model.actor.load_state_dict(data["actor"])
