@@ -43,8 +43,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from pursuit_mj.io_utils import check_writable_folder
-    from train.study import STATE_FILE, StudyPlan, check_train_overrides, format_timings, kept_cells, run_study
+    from train.study import StudyPlan, format_timings, run_study
 
     if args.budget_minutes <= 0:
         raise ValueError(f"--budget-minutes: expected a positive number, got {args.budget_minutes}")
@@ -61,16 +60,6 @@ def run(args) -> int:
         worlds=args.worlds, seed=args.seed,
         train_overrides=(f"task.fidelity={args.train_fidelity}", *args.train_overrides), resume=args.resume,
     )
-    check_train_overrides(plan)
-    if args.resume and not out.is_dir():
-        raise ValueError(f"--resume: --out {out} is not a folder with a study to continue")
-    check_writable_folder(out, f"--out {out}")
-    if not args.resume and any((out / "runs").glob("*/last.pt")):
-        raise ValueError(f"--out {out}: already holds study runs; continue them with --resume, or choose another folder")
-    cells = 0 if args.resume else kept_cells(out)
-    if cells:  # a study stopped during its evaluation before any run: starting afresh would drop what it played
-        raise ValueError(f"--out {out}: its {STATE_FILE} keeps {cells} evaluated policy-layout cell{'s' if cells > 1 else ''} "
-                         f"of an interrupted study; continue it with --resume, or choose another folder")
     stops = getattr(args, "stop_signals", [])  # a stop signal can surface as a library's own error
     try:
         result = run_study(plan, stop_requested=lambda: bool(stops))

@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import os
 
 import pytest
 
@@ -231,6 +232,10 @@ def test_an_interrupted_study_resumes_keeping_its_finished_arms_and_evaluations(
         assert by_policy[key] == cells[key]["0"]["row"]  # the kept rows, episodes and all
     timings = json.loads((out_dir / "timings.json").read_text())
     assert "classic (eval, earlier session)" in timings and "classic (eval)" not in timings and "mappo (eval)" in timings
+    # the arms' training on their runs' own clock in every session; the total of all three sessions beside this one's
+    assert timings["classic (train, earlier session)"] == json.loads((out_dir / "study.json").read_text())["arms"]["classic"]["train_seconds"]
+    assert timings["total, all sessions"] > timings["total"] + timings["classic (train, earlier session)"]
+    assert json.loads((out_dir / "study.json").read_text())["seconds"] == pytest.approx(timings["total, all sessions"], abs=0.2)
 
     # another episode count asked for: nothing kept counts
     played.clear()
@@ -238,7 +243,7 @@ def test_an_interrupted_study_resumes_keeping_its_finished_arms_and_evaluations(
     assert "every policy is evaluated again" in capsys.readouterr().out
     assert len(played) == 10 + 1  # the speed probe, the team, nine arms
     assert main(["study", "--budget-minutes", "0.6", "--resume", *args, "--train-set", "n_envs=3"]) == 2
-    assert "give the same --train-fidelity and --train-set" in capsys.readouterr().err
+    assert "--train-set n_envs=3 (was n_envs=2). Give the same --train-fidelity and --train-set" in capsys.readouterr().err
 
 
 def test_a_resumed_study_whose_kept_arm_lost_its_best_pt_is_refused_before_anything_runs(tmp_path, capsys):
@@ -261,6 +266,8 @@ def test_the_timings_compare_the_total_with_the_budget():
     over = format_timings({"heuristic (eval)": 1.2, "total": 138.0}, 1.5).splitlines()
     assert over[0] == "  heuristic (eval)       1 s" and over[1].endswith("2.3 min (budget 1.5 min, 0.8 min over)")  # it read 0.0 min
     assert format_timings({"total": 80.0}, 1.5).endswith("80 s (budget 1.5 min)")
+    resumed = format_timings({"total": 80.0, "total, all sessions": 200.0}, 1.5).splitlines()
+    assert resumed[0].endswith("80 s (budget 1.5 min)") and resumed[1].endswith("3.3 min")  # the budget is this session's
 
 
 def test_kept_evaluation_cells_are_taken_back_only_when_they_are_what_this_study_would_play(tmp_path, monkeypatch):
@@ -461,8 +468,37 @@ def test_a_resume_may_change_how_training_is_shown_but_not_what_is_trained(tmp_p
                      resume=True)
     assert _load_state(plan)["arms"] == {}
     other = dataclasses.replace(plan, train_overrides=("task.fidelity=point", "ppo.lr=0.0002"))
-    with pytest.raises(ValueError, match="was trained with .*ppo.lr=0.0001.*give the same"):
+    with pytest.raises(ValueError, match=r"trained with other settings: --train-set ppo.lr=0.0002 \(was ppo.lr=0.0001\)\. "
+                                         r"Give the same"):
         _load_state(other)
+
+
+def test_a_resume_compares_the_settings_not_the_order_or_spelling_of_the_train_overrides(tmp_path):
+    """The resume compared the two lists of texts: the same values in another order were refused,
+    and the refusal printed both whole lists, leaving the user to find what differed."""
+    from pursuit_mj.config import default_config
+    from train.study import StudyPlan, _load_state
+
+    out_dir = tmp_path / "study"
+    out_dir.mkdir()
+    stored = ["task.fidelity=point", "n_envs=16", "ppo.lr=0.0001", "shield=true"]
+    (out_dir / "study.json").write_text(json.dumps({"train_overrides": stored, "arms": {}}))
+    plan = StudyPlan(1.0, out_dir, default_config(), resume=True,
+                     train_overrides=("task.fidelity=point", "shield=true", "ppo.lr=1e-4", "n_envs=8", "n_envs=16.0"))
+    assert _load_state(plan)["arms"] == {}  # another order, another spelling, a key given twice: the same settings
+    other = dataclasses.replace(plan, train_overrides=("task.fidelity=quadrotor", "n_envs=3", "ppo.lr=0.0001", "batch=2"))
+    with pytest.raises(ValueError) as refused:
+        _load_state(other)
+    said = str(refused.value)
+    assert ("other settings: --train-fidelity quadrotor (was point); --train-set batch=2 is new; --train-set n_envs=3 "
+            "(was n_envs=16); --train-set shield=true is missing. Give the same") in said, said
+    assert "ppo.lr" not in said  # what is the same is not listed
+    (out_dir / "study.json").write_text(json.dumps({"train_overrides": ["n_envs"], "arms": {}}))
+    with pytest.raises(ValueError, match=r"study.json, \"train_overrides\" 'n_envs': 'n_envs' is not of the form key=value"):
+        _load_state(plan)
+    (out_dir / "study.json").write_text(json.dumps({"train_overrides": [3], "arms": {}}))
+    with pytest.raises(ValueError, match="is not a study record .*not all KEY=VALUE strings"):
+        _load_state(plan)
 
 
 def test_a_study_stopped_by_sigterm_while_an_arm_trains_exits_143_saying_so(tmp_path, capsys, monkeypatch, no_training_floor):
@@ -497,3 +533,23 @@ def test_a_study_that_lost_its_record_says_how_to_go_on_instead_of_sending_the_u
     err = capsys.readouterr().err
     assert f"holds no study to continue (no study.json); its trained runs in {out / 'runs'} cannot be resumed" in err
     assert "run the study again without --resume" in err
+
+
+def test_a_second_study_in_a_folder_another_study_holds_is_refused_at_once(tmp_path, capsys):
+    """It was refused only when it reached the arm whose run folder the first study held, with advice
+    for `train` ("train under another name"), after spending its time on the arms before."""
+    from train.study import STUDY_LOCK
+    from train.trainer import lock_folder
+
+    out_dir = tmp_path / "study"
+    held = lock_folder(out_dir, STUDY_LOCK, "study folder", "study", "give another --out")  # as a running study holds it
+    try:
+        for resume in ([], ["--resume"]):
+            assert main(["study", "--budget-minutes", "5", "--out", str(out_dir), *resume]) == 2
+            err = capsys.readouterr().err
+            assert f"study folder {out_dir} is in use by another study (pid {os.getpid()})" in err, err
+            assert "give another --out" in err and "Traceback" not in err
+        assert sorted(p.name for p in out_dir.iterdir()) == [STUDY_LOCK]  # nothing written beside the lock
+    finally:
+        held.close()
+

@@ -34,6 +34,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import shutil
 import time
 from pathlib import Path
 from typing import Callable, Sequence
@@ -42,7 +43,7 @@ from pursuit_mj.config import TaskConfig
 from pursuit_mj.configio import parse_override
 from pursuit_mj.comparison import paired_report, pairs_to_dicts
 from pursuit_mj.evaluation import evaluate, format_table, plot_rows, write_csv, write_json
-from pursuit_mj.io_utils import atomic_write_text
+from pursuit_mj.io_utils import atomic_write_text, check_writable_folder
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import make_policy
 
@@ -50,7 +51,7 @@ from .checkpoint import is_training_checkpoint, load_checkpoint
 from .config import load_train_config, train_config_from_dict
 from .policy import load_policy
 from .study_evaluation import HEURISTIC, KeptEvaluation
-from .trainer import Trainer
+from .trainer import Trainer, lock_folder
 
 @dataclasses.dataclass(frozen=True)
 class Arm:
@@ -119,11 +120,14 @@ def _load_state(plan: StudyPlan) -> dict:
     try:
         state = json.loads(path.read_text())
         arms, stored = dict(state["arms"]), list(state["train_overrides"])
+        if not all(isinstance(text, str) for text in stored):
+            raise TypeError("its train_overrides are not all KEY=VALUE strings")
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"--resume: {path} is not a study record ({exc}){lost}") from None
-    if _what_is_trained(stored) != _what_is_trained(plan.train_overrides):
-        raise ValueError(f"--resume: the study in {plan.out} was trained with {stored or 'no train overrides'}, not "
-                         f"{list(plan.train_overrides)}; give the same --train-fidelity and --train-set")
+    changed = _changed_settings(stored, plan.train_overrides, f"{path}, \"train_overrides\" {{text!r}}")
+    if changed:
+        raise ValueError(f"--resume: the study in {plan.out} was trained with other settings: {'; '.join(changed)}. "
+                         f"Give the same --train-fidelity and --train-set values as its first session (in any order)")
     for arm in ARMS:  # checked now, not at the evaluation after every other arm has trained
         if arm.name in arms:
             try:
@@ -132,8 +136,8 @@ def _load_state(plan: StudyPlan) -> dict:
                 raise ValueError(f"--resume: the {arm.name} arm is kept as finished in {path}, but {exc}; delete its "
                                  f"entry under \"arms\" there and its run folder {plan.out / 'runs' / arm.name} to train "
                                  f"it again") from None
-    kept = {"evaluation": state["evaluation"]} if isinstance(state, dict) and "evaluation" in state else {}
-    return {"train_overrides": stored, "arms": arms, **kept}  # the evaluation is checked by KeptEvaluation
+    kept = {key: state[key] for key in ("evaluation", "seconds") if key in state}
+    return {"train_overrides": stored, "arms": arms, **kept}  # the evaluation is checked by KeptEvaluation, the seconds by _run_study
 
 
 def kept_cells(out: Path) -> int:
@@ -305,17 +309,83 @@ def check_train_overrides(plan: StudyPlan) -> None:
 
 
 def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requested: Callable[[], bool] | None = None) -> dict:
-    """Train, evaluate, write the table and charts; returns {'rows', 'timings', 'episodes'}."""
+    """Train, evaluate, write the table and charts; returns {'rows', 'timings', 'episodes'}.
+
+    The study holds a lock on plan.out while it runs: a second study there is refused at once
+    (FolderInUse), not when it reaches the arm whose run folder the first one holds."""
     check_train_overrides(plan)
-    plan.out.mkdir(parents=True, exist_ok=True)
+    if plan.resume and not plan.out.is_dir():
+        raise ValueError(f"--resume: --out {plan.out} is not a folder with a study to continue")
+    check_writable_folder(plan.out, f"--out {plan.out}")
+    made_folder = not plan.out.exists()
+    lock = lock_folder(plan.out, STUDY_LOCK, "study folder", "study", "give another --out")
+    try:
+        _refuse_an_earlier_study(plan)
+        return _run_study(plan, log, stop_requested)
+    except BaseException:
+        if made_folder and not any(p.name != STUDY_LOCK for p in plan.out.iterdir()):
+            shutil.rmtree(plan.out, ignore_errors=True)  # refused before it wrote anything: no folder left
+        raise
+    finally:
+        lock.close()
+
+
+STUDY_LOCK = ".study.lock"  # in <out>/: held by the study running there
+
+
+def _refuse_an_earlier_study(plan: StudyPlan) -> None:
+    """ValueError when a fresh study would train or evaluate over what an earlier one in plan.out made."""
+    if plan.resume:
+        return
+    if any((plan.out / "runs").glob("*/last.pt")):
+        raise ValueError(f"--out {plan.out}: already holds study runs; continue them with --resume, or choose another folder")
+    cells = kept_cells(plan.out)
+    if cells:  # a study stopped during its evaluation before any run: starting afresh would drop what it played
+        raise ValueError(f"--out {plan.out}: its {STATE_FILE} keeps {cells} evaluated policy-layout cell{'s' if cells > 1 else ''} "
+                         f"of an interrupted study; continue it with --resume, or choose another folder")
+
+
+def _run_study(plan: StudyPlan, log: Callable[[str], None], stop_requested: Callable[[], bool] | None) -> dict:
+    """run_study in a folder it holds. study.json's "seconds" counts the wall time of every session so
+    far (to its last record, written as each arm or evaluated cell ends and when the session stops)."""
     state = _load_state(plan)
+    t_start = time.perf_counter()
+    earlier_s = _earlier_sessions_seconds(state)
+
+    def save() -> None:
+        state["seconds"] = round(earlier_s + time.perf_counter() - t_start, 1)
+        _save_state(plan, state)
+
+    try:
+        result = _run_study_sessions(plan, state, save, t_start, log, stop_requested)
+    except BaseException:
+        try:
+            save()  # so that a resumed study's total counts this session too
+        except (OSError, ValueError):
+            pass
+        raise
+    if earlier_s > 0:
+        result["timings"]["total, all sessions"] = earlier_s + result["timings"]["total"]
+        atomic_write_text(plan.out / "timings.json", _timings_json(result["timings"]))
+    return result
+
+
+def _earlier_sessions_seconds(state: dict) -> float:
+    """Wall seconds of the study's earlier sessions by its record (0 if none or unreadable)."""
+    seconds = state.get("seconds", 0.0)
+    ok = isinstance(seconds, (int, float)) and not isinstance(seconds, bool) and math.isfinite(seconds) and seconds >= 0
+    return float(seconds) if ok else 0.0
+
+
+def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], t_start: float,
+                        log: Callable[[str], None], stop_requested: Callable[[], bool] | None) -> dict:
+    """Plan, train and evaluate what `state` does not hold yet; `save` writes study.json."""
     todo = [arm for arm in ARMS if arm.name not in state["arms"]]
     timings: dict[str, float] = {}
-    t_start = time.perf_counter()
 
     heuristic = make_policy("heuristic", plan.eval_task)
     validations = {arm.name: ArmValidation.of(load_train_config([arm.config], _arm_overrides(plan, arm))) for arm in todo}
-    kept = KeptEvaluation(plan, state, lambda: _save_state(plan, state), log)
+    kept = KeptEvaluation(plan, state, save, log)
     planned = None  # (seconds planned for the team's evaluation, for training) by a fresh plan
     if kept.episodes is None:
         t0 = time.perf_counter()
@@ -377,7 +447,7 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
         run_dir = plan.out / "runs" / regime
         if regime in state["arms"]:
             checkpoints[regime] = run_dir / "best.pt"
-            timings[f"{regime} (train, earlier session)"] = float(state["arms"][regime]["train_seconds"])
+            timings[f"{regime} (train, earlier session)"] = float(state["arms"][regime]["train_seconds"])  # the run's clock
             log(f"[study] {regime}: trained in an earlier session, kept")
             continue
         overrides = _arm_overrides(plan, arm)
@@ -397,7 +467,7 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
             checkpoints[regime] = run_dir / "best.pt"
             timings[f"{regime} (train, earlier session)"] = finished_s
             state["arms"][regime] = {"train_seconds": round(finished_s, 1)}
-            _save_state(plan, state)
+            save()
             log(f"[study] {regime}: finished in an earlier session (stopped before the study recorded it), kept")
             continue
         i = todo.index(arm)
@@ -406,7 +476,6 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
                                                              seconds_per_episode, team_steps)
         if minutes * 60.0 < MIN_ARM_TRAIN_S:
             log(short_arm_warning(regime, minutes * 60.0))
-        t0 = time.perf_counter()
         if interrupted:  # its own config, with the time it had plus its share of this session's
             trainer = Trainer.resume(cfg.run_dir, log=log, max_minutes=_spent_minutes(cfg.run_dir) + max(minutes, 0.01),
                                      progress=cfg.run.progress, rerun=cfg.run.rerun)
@@ -419,12 +488,14 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
             trainer = Trainer(cfg, log=log)
         trainer.resume_command = "pursuit-mj study --resume (the whole study; see below)"
         result = trainer.train(stop_requested)  # see Trainer.train: a stop signal reported as another error
-        timings[f"{regime} (train)"] = time.perf_counter() - t0
         if result["status"] != "done":
             raise KeyboardInterrupt
+        # the run's own clock (collection, updates, validations), as for arms kept from an earlier session
+        train_s = float(result["counters"]["seconds"])
+        timings[f"{regime} (train{', all sessions' if interrupted else ''})"] = train_s
         checkpoints[regime] = run_dir / "best.pt"
-        state["arms"][regime] = {"train_seconds": round(float(result["counters"]["seconds"]), 1)}
-        _save_state(plan, state)
+        state["arms"][regime] = {"train_seconds": round(train_s, 1)}
+        save()
 
     t = plan.eval_task
     spec = ObsSpec.make(t.n_pursuers, t.n_evaders, t.n_rays)
@@ -512,9 +583,42 @@ def _time_cells(timings: dict[str, float], name: str, played_s: float, kept_s: f
 SHOWING_KEYS = ("run.progress", "run.rerun")  # how training is shown: may change on --resume, as with train --resume
 
 
-def _what_is_trained(overrides) -> list[str]:
-    """The train overrides that change what is trained (all but SHOWING_KEYS), in order."""
-    return [text for text in overrides if text.split("=", 1)[0].strip() not in SHOWING_KEYS]
+def _what_is_trained(overrides, source: str) -> dict[str, tuple[object, str]]:
+    """{key: (value, the override's text)} that the train overrides set, the later of two for one key
+    winning as in the config; SHOWING_KEYS left out (they do not change what is trained)."""
+    settings = {}
+    for text in overrides:
+        path, value = parse_override(text, source.format(text=text))
+        key = ".".join(part.strip() for part in path)
+        if key not in SHOWING_KEYS:
+            settings[key] = (value, text.strip())
+    return settings
+
+
+def _changed_settings(then, now, then_source: str) -> list[str]:
+    """What the train overrides `now` set otherwise than `then` (read from `then_source`), one phrase
+    per key ([] if nothing), each as the user typed it: '--train-set n_envs=3 (was n_envs=16)'."""
+    before, after = _what_is_trained(then, then_source), _what_is_trained(now, "--train-set {text}")
+
+    def same(a, b) -> bool:  # 16 and 16.0 alike, true and 1 not
+        return a == b and isinstance(a, bool) == isinstance(b, bool)
+
+    def flag(text: str) -> str:
+        key, value = text.split("=", 1)
+        return f"--train-fidelity {value}" if key.strip() == "task.fidelity" else f"--train-set {text}"
+
+    changed = []
+    for key in sorted(set(before) | set(after), key=lambda k: (k != "task.fidelity", k)):
+        was, asked = before.get(key), after.get(key)
+        if was is not None and asked is not None and same(was[0], asked[0]):
+            continue
+        if asked is None:
+            changed.append(f"{flag(was[1])} is missing")
+        elif was is None:
+            changed.append(f"{flag(asked[1])} is new")
+        else:
+            changed.append(f"{flag(asked[1])} (was {flag(was[1]).split(' ', 1)[1]})")
+    return changed
 
 
 def _save_state(plan: StudyPlan, state: dict) -> None:
@@ -546,14 +650,21 @@ def _write(plan: StudyPlan, rows: Sequence, timings: dict[str, float], episodes:
             "layouts": [str(l) for l in plan.layouts], "seed": plan.seed, "paired": pairs_to_dicts(pairs)}
     write_json(rows, plan.out / "table.json", plan.eval_task, meta)
     plot_rows(rows, plan.out / "plots")
-    atomic_write_text(plan.out / "timings.json", json.dumps({k: round(v, 1) for k, v in timings.items()}, indent=2) + "\n")
+    atomic_write_text(plan.out / "timings.json", _timings_json(timings))
+
+
+def _timings_json(timings: dict[str, float]) -> str:
+    return json.dumps({k: round(v, 1) for k, v in timings.items()}, indent=2) + "\n"
 
 
 def format_timings(timings: dict[str, float], budget_minutes: float) -> str:
-    """One line per part; the total says how it compares with the budget (a busy machine, or arms
-    that each need at least one update and a validation, can take the study over it)."""
+    """One line per part; the total (this session's) says how it compares with the budget (a busy
+    machine, or arms that each need at least one update and a validation, can take the study over it).
+
+    An arm's training time is its run's own clock (collection, updates, validations: the `seconds`
+    of its metrics log), over every session that trained it; evaluations and totals are wall time."""
     width = max(len(k) for k in timings)
     lines = [f"  {k.ljust(width)}  {_duration(v):>8}" for k, v in timings.items()]
     over = timings["total"] / 60.0 - budget_minutes
-    lines[-1] += f" (budget {budget_minutes:g} min" + (f", {over:.1f} min over)" if over >= 0.05 else ")")
+    lines[list(timings).index("total")] += f" (budget {budget_minutes:g} min" + (f", {over:.1f} min over)" if over >= 0.05 else ")")
     return "\n".join(lines)

@@ -737,27 +737,35 @@ def lock_run_folder(run_dir: Path):
     """An open file holding an exclusive lock on `run_dir` (released when closed, or when the
     process dies); ValueError if another trainer holds it: two runs in one folder would
     interleave their metrics rows and overwrite each other's checkpoints."""
+    return lock_folder(run_dir, ".lock", "run folder", "trainer", "train under another name")
+
+
+def lock_folder(folder: Path, lock_name: str, what: str, holder_kind: str, advice: str):
+    """An open file `folder`/`lock_name` holding an exclusive lock (made with the folder if need be;
+    released when closed, or when the process dies). FolderInUse if another process holds it:
+    '<what> <folder> is in use by another <holder_kind> (pid N): wait for it to end or stop it, or
+    <advice>'; ValueError if the lock file cannot be written."""
     import fcntl
 
     try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        handle = open(run_dir / ".lock", "a+")
+        folder.mkdir(parents=True, exist_ok=True)
+        handle = open(folder / lock_name, "a+")
     except OSError as exc:
-        raise ValueError(f"run folder {run_dir}: cannot write its lock file ({exc.strerror or exc})") from None
+        raise ValueError(f"{what} {folder}: cannot write its lock file ({exc.strerror or exc})") from None
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         handle.seek(0)
         holder = handle.read().strip() or "another process"
         handle.close()
-        raise FolderInUse(f"run folder {run_dir} is in use by another trainer ({holder}): wait for it to end or stop "
-                          f"it, or train under another name") from None
+        raise FolderInUse(f"{what} {folder} is in use by another {holder_kind} ({holder}): wait for it to end or stop "
+                          f"it, or {advice}") from None
     try:  # unbuffered: nothing is left to flush (and fail) when the handle closes
         os.ftruncate(handle.fileno(), 0)
         os.pwrite(handle.fileno(), f"pid {os.getpid()}".encode(), 0)
     except OSError as exc:  # a full disk: the lock is held, but the holder's pid could not be written
         handle.close()
-        raise ValueError(f"run folder {run_dir}: cannot write its lock file ({exc.strerror or exc})") from None
+        raise ValueError(f"{what} {folder}: cannot write its lock file ({exc.strerror or exc})") from None
     return handle
 
 
