@@ -267,3 +267,15 @@ def load_model(path, spec, task: TaskConfig, flag: str = "--model"):
 def counted(n: int, noun: str, plural: str | None = None) -> str:
     """'1 update', '2 updates' (`plural` for nouns that do not take an s: policy, policies)."""
     return f"{n} {noun if n == 1 else plural or noun + 's'}"
+
+
+def sweep_dead_parts(folder, flag: str) -> None:
+    """Remove, and say so, the temporary files that writes killed mid-file left in the output folder
+    `folder` of `flag` (io_utils.remove_dead_parts_in: each as large as the file it was to become)."""
+    from pursuit_mj.io_utils import DEAD_PART_AGE, remove_dead_parts_in
+
+    removed = remove_dead_parts_in(folder)
+    if removed:
+        print(f"note: {flag}: removed {counted(len(removed), 'temporary file')} of writes cut short (their process is gone, "
+              f"untouched for {DEAD_PART_AGE / 60:.0f} min or more) in {folder}: {', '.join(p.name for p in removed)}",
+              file=sys.stderr)

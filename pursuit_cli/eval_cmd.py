@@ -17,7 +17,7 @@ from pathlib import Path
 from pursuit_mj.io_utils import check_writable, check_writable_folder, file_sha256
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
-from .common import (SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, check_out_prefix, load_model, pick_versus,
+from .common import (SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, check_out_prefix, load_model, pick_versus, sweep_dead_parts,
                      seed_arg, shield_if_asked, table_layouts, task_config_from_args)
 from .eval_resume import check_nothing_kept, drop_finished, finished_rows, interrupted_path, keep_finished, write_finished
 
@@ -175,6 +175,10 @@ def run(args) -> int:
     if args.resume and args.rerun:
         raise ValueError("--resume with --rerun: the recording would hold only the rows run now; record in an eval of its own")
     csv_path, json_path = _outputs(args)  # makes folders: after every other check, so that bad input leaves none
+    for folder, flag in {p.parent.resolve(): flag for p, flag in ((csv_path, "--csv"), (json_path, "--json")) if p}.items():
+        sweep_dead_parts(folder, "--out" if args.out else flag)
+    if args.plots:
+        sweep_dead_parts(Path(args.plots), "--plots")
     if not args.resume:
         check_nothing_kept(csv_path, json_path)
     done = finished_rows(json_path, config, _meta(args, policies, layouts, provenance())) if args.resume else None

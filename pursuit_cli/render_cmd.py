@@ -25,7 +25,7 @@ from pursuit_mj.configio import build, dump_yaml, load, to_dict
 from pursuit_mj.layout import load_layout
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
-from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, flags_typed, load_model, path_arg, seed_arg,
+from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, flags_typed, load_model, path_arg, seed_arg, sweep_dead_parts,
                      finite_float, shield_if_asked, task_config_from_args)
 
 DEFAULT_SAVE = "renders"
@@ -278,6 +278,7 @@ def run(args) -> int:
         check_rrd_path(args.rerun, "--rerun")
     if target is not None:
         _writable_folder(target.folder, "-s")
+        sweep_dead_parts(target.folder, "-s")
     videos = finals = None
     if target is not None:
         task_tag = "".join(f"_{Path(f).stem}" for f in args.task_files or [])  # --task hard: not the default task's files

@@ -9,6 +9,7 @@ import os
 import re
 import secrets
 import tempfile
+import time
 from pathlib import Path
 from typing import Iterator
 
@@ -59,12 +60,46 @@ def _remove_dead_parts(path: Path) -> None:
         return
     for part in siblings:
         match = _PART.fullmatch(part.name)
-        if match is None or match["name"] != path.name or match["pid"] is None or _alive(int(match["pid"])):
-            continue
+        if match is not None and match["name"] == path.name and _writer_died(match):
+            _unlink_quietly(part)
+
+
+def _writer_died(match: re.Match) -> bool:
+    return match["pid"] is not None and not _alive(int(match["pid"]))
+
+
+def _unlink_quietly(path: Path) -> bool:
+    try:
+        path.unlink()
+    except OSError:
+        return False
+    return True
+
+
+DEAD_PART_AGE = 600.0  # s: remove_dead_parts_in leaves younger ones (a writer on another machine sharing the folder)
+
+
+def remove_dead_parts_in(folder: str | Path, min_age: float = DEAD_PART_AGE) -> list[Path]:
+    """Remove the temporary files of atomic writes of any name in `folder` whose writer died (a render
+    or an eval killed mid-file leaves one as large as the file it was to become, and the file's
+    name, which holds a seed or digest, may never be written again to sweep it). Only those of
+    a pid that no longer runs here and untouched for `min_age` s: a writer on another machine that
+    shares the folder has a pid unknown here. Returns those removed."""
+    removed = []
+    now = time.time()
+    try:
+        candidates = list(Path(folder).glob(".*.part*"))
+    except OSError:
+        return removed
+    for part in candidates:
+        match = _PART.fullmatch(part.name)
         try:
-            part.unlink()
+            old = part.is_file() and now - part.stat().st_mtime >= min_age
         except OSError:
-            pass
+            continue
+        if match is not None and old and _writer_died(match) and _unlink_quietly(part):
+            removed.append(part)
+    return sorted(removed)
 
 
 #: the unfinished recordings this process streams to (a file of its pid that is not among them was left

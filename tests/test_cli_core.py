@@ -376,6 +376,42 @@ def test_a_file_written_again_removes_what_a_killed_write_of_it_left_and_nothing
     assert not left.exists() and other.exists() and in_progress.exists()
 
 
+@pytest.mark.parametrize("command", ["render", "eval"])
+def test_a_render_or_eval_sweeps_its_folder_of_what_killed_writes_of_other_names_left(tmp_path, capsys, command):
+    """A killed render's `.NAME.PID-*.part.mp4` stayed until that very file was written again, and a
+    render's file name holds its seed and a digest of its settings, so that was mostly never."""
+    import os
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    dead_pid = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+    out = tmp_path / "out"
+    out.mkdir()
+    old_dead = out / f".x_seed3_ab12.mp4.{dead_pid}-abcd1234.part.mp4"
+    young_dead = out / f".y.mp4.{dead_pid}-abcd1234.part.mp4"  # perhaps a writer on another machine: too young
+    old_alive = out / f".z.mp4.{os.getppid()}-abcd1234.part.mp4"  # a live process's write
+    not_ours = out / ".notes.txt"
+    for path in (old_dead, young_dead, old_alive, not_ours):
+        path.write_bytes(b"half a file")
+    an_hour_ago = time.time() - 3600
+    for path in (old_dead, old_alive, not_ours):
+        os.utime(path, (an_hour_ago, an_hour_ago))
+    if command == "render":
+        argv = ["render", "--fidelity", "point", "--set", "max_steps=5", "--width", "64", "--height", "48", "--no-video",
+                "--final-frame", "-s", f"{out}/"]
+    else:
+        argv = ["eval", "--fidelity", "point", "--episodes", "1", "--set", "max_steps=5", "--layouts", "0", "-q",
+                "--out", str(out / "t")]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    flag = "-s" if command == "render" else "--out"
+    assert f"note: {flag}: removed 1 temporary file of writes cut short" in err and old_dead.name in err, err
+    assert not old_dead.exists() and young_dead.exists() and old_alive.exists() and not_ours.exists()
+
+
 def test_a_ctrl_c_while_the_command_line_process_exits_prints_no_traceback():
     """Ctrl-C pressed again while Python ran its exit handlers (torch's, after a run had been
     stopped and saved) printed 'Exception ignored in atexit callback ... KeyboardInterrupt'."""

@@ -306,6 +306,18 @@ def test_a_resume_with_the_run_length_given_by_set_trains_to_it(tmp_path, capsys
     assert torch.load(tmp_path / "s" / "last.pt", weights_only=True)["train_config"]["max_minutes"] == 5.0
 
 
+def test_a_resume_with_nothing_to_train_leaves_config_yaml_as_last_pt_has_it(tmp_path, capsys):
+    """config.yaml took the --total-steps of a resume that trained nothing, so it no longer told the
+    run's own length (last.pt, untouched, still held it)."""
+    base = ["train", "--no-progress", "--name", "s"] + sets(TINY + [f"run.runs_dir={tmp_path}", "total_steps=64"])
+    assert main(base) == 0
+    config_yaml = (tmp_path / "s" / "config.yaml").read_text()
+    assert main(["train", "--no-progress", "--resume", str(tmp_path / "s"), "--total-steps", "32"]) == 0
+    assert "nothing to train: the run has reached total_steps 32" in capsys.readouterr().out
+    assert (tmp_path / "s" / "config.yaml").read_text() == config_yaml
+    assert torch.load(tmp_path / "s" / "last.pt", weights_only=True)["train_config"]["total_steps"] == 64
+
+
 def test_the_command_that_started_a_run_on_a_relative_layout_file_resumes_it(tmp_path, capsys, monkeypatch):
     """The stored config holds the file's absolute path; the same command gives it relative."""
     from pursuit_mj.layout import builtin_layout_path

@@ -666,10 +666,12 @@ class Trainer:
         to resume."""
         cfg, c = self.cfg, self.counters
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        try:
-            atomic_write_text(self.run_dir / "config.yaml", dump_yaml(cfg))
-        except ValueError as exc:
-            raise self._cannot_write(exc) from None
+        nothing_left = self.progress() >= 1.0 and not self._pending_row
+        if not (nothing_left and self._saved_update >= 0):  # a resume that trains nothing leaves it as last.pt has it
+            try:
+                atomic_write_text(self.run_dir / "config.yaml", dump_yaml(cfg))
+            except ValueError as exc:
+                raise self._cannot_write(exc) from None
         if self._saved_update < 0 and self.metrics.path.is_file() and self.metrics.path.stat().st_size:
             # rows (or a cut-off line) of a run killed before its first checkpoint: it starts afresh, and so does its log
             self.log(f"{self.metrics.path}: dropping {len(self.metrics.rows())} rows of a run stopped before its first checkpoint")
@@ -677,7 +679,7 @@ class Trainer:
         bar = _progress(cfg, self.progress())
         last_val = self._logged_validation()  # a resumed run's last one, until this session validates
         status = "done"
-        if self.progress() >= 1.0 and not self._pending_row:
+        if nothing_left:
             self.log(self._why_done())
         try:
             if self._pending_row:  # the last update's row never reached the log (interrupted): log it now
