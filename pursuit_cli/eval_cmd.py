@@ -141,12 +141,14 @@ def _run_table(args, config, layouts, policies, recording, rows: list, done: dic
 
 
 def _meta(args, policies, layouts, code: dict) -> dict:
-    from pursuit_mj.evaluation import layout_label
+    from pursuit_mj.evaluation import layout_identity, layout_label
     from pursuit_mj.layout import resolve_layout_ref
 
     return {"episodes": args.episodes, "worlds": args.worlds, "seed": args.seed, "policies": [label for label, _ in policies],
             "models": list(args.model), "model_sha256": [file_sha256(m) for m in args.model], "shield": bool(args.shield),
-            "layout_sha256": {layout_label(ref): file_sha256(resolve_layout_ref(ref)) for ref in layouts}, "code": code}
+            "layout_sha256": {layout_label(ref): file_sha256(resolve_layout_ref(ref)) for ref in layouts},
+            # what seeded each layout's episodes here (a relative path is a built-in or not by where eval ran): for pool
+            "layout_identity": {layout_label(ref): layout_identity(ref) for ref in layouts}, "code": code}
 
 
 def _versus(args, policies) -> str | None:

@@ -10,6 +10,8 @@ episodes both played (pursuit_mj/pooling.py).
 
 from __future__ import annotations
 
+import dataclasses
+
 from pathlib import Path
 
 from pursuit_mj.io_utils import check_writable, check_writable_folder
@@ -51,9 +53,9 @@ def run(args) -> int:
         print(note)
     print(f"pooled {len(args.files)} tables")
     print(format_table(pooled.rows))
-    meta: dict = {"pooled_from": list(args.files)}
+    meta: dict = {"pooled_from": list(args.files), **pooled.meta}
     if versus is not None:
-        pairs = pooled_pairs(pooled.rows, versus, pooled.max_steps)
+        pairs = pooled_pairs(pooled.rows, versus, pooled.max_steps, pooled.meta["layout_identity"])
         print(f"\npaired with {versus} on the episodes both played (capture steps: steps of a success, "
               f"{pooled.max_steps} for a failure; negative = sooner):")
         print(format_pairs(pairs))
@@ -62,6 +64,9 @@ def run(args) -> int:
         print(f"wrote {write_csv(pooled.rows, args.out + '.csv')}")
         print(f"wrote {write_json(pooled.rows, args.out + '.json', meta=meta | {'config': pooled.config})}")
     if args.plots:
-        for path in plot_rows(pooled.rows, args.plots):
+        shown = pooled.rows
+        if len({r.fidelity for r in shown}) > 1:  # a bar per policy and fidelity: "heuristic (point)"
+            shown = [dataclasses.replace(r, policy=f"{r.policy} ({r.fidelity})") for r in shown]
+        for path in plot_rows(shown, args.plots):
             print(f"wrote {path}")
     return 0

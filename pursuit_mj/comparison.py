@@ -50,6 +50,7 @@ class Paired:
     only_reference: int
     p_value: float | None = None
     success_p: float = 1.0
+    fidelity: str = ""  # of both rows (a pooled table may hold several)
 
     @property
     def success_verdict(self) -> str:
@@ -91,11 +92,11 @@ def pair(row: Row, reference: Row, max_steps: float) -> Paired:
         raise ValueError(f"paired comparison on layout {row.layout}: {row.policy} has {len(a)} episode times and "
                          f"{reference.policy} {len(b)}; both need one per episode of the same table")
     return _compare(row.policy, reference.policy, row.layout, a, b, _successes(row, max_steps),
-                    _successes(reference, max_steps), max_steps)
+                    _successes(reference, max_steps), max_steps, row.fidelity)
 
 
 def _compare(policy: str, reference: str, layout: str, a: Sequence[float], b: Sequence[float],
-             won_a: Sequence[bool], won_b: Sequence[bool], max_steps: float) -> Paired:
+             won_a: Sequence[bool], won_b: Sequence[bool], max_steps: float, fidelity: str) -> Paired:
     """The Paired of capture times a, b and outcomes won_a, won_b (one per episode, same order)."""
     diffs = [x - y for x, y in zip(a, b)]
     # a success beats a failure; two failures (both at max_steps) tie. From the outcomes where
@@ -105,7 +106,7 @@ def _compare(policy: str, reference: str, layout: str, a: Sequence[float], b: Se
     return Paired(policy, reference, layout, len(diffs),
                   mean_interval(diffs, (-float(max_steps), float(max_steps))),
                   sum(d < 0 for d in diffs), sum(d > 0 for d in diffs), only_row, only_ref, sign_flip_p(diffs),
-                  mcnemar_p(only_row, only_ref))
+                  mcnemar_p(only_row, only_ref), fidelity)
 
 
 def pair_matches(matches: Sequence[tuple[Row, Row]], max_steps: float) -> list[Paired]:
@@ -116,14 +117,14 @@ def pair_matches(matches: Sequence[tuple[Row, Row]], max_steps: float) -> list[P
     by_policy: dict[tuple[str, str, str], list[tuple[Row, Row]]] = {}
     for r, ref in matches:
         by_policy.setdefault((r.policy, ref.policy, r.fidelity), []).append((r, ref))
-    for (policy, reference, _), group in by_policy.items():
+    for (policy, reference, fidelity), group in by_policy.items():
         if len(group) < 2:
             continue
         a = [x for r, _ in group for x in r.capture_steps]
         b = [x for _, ref in group for x in ref.capture_steps]
         won_a = [w for r, _ in group for w in _successes(r, max_steps)]
         won_b = [w for _, ref in group for w in _successes(ref, max_steps)]
-        out.append(_compare(policy, reference, ALL_LAYOUTS, a, b, won_a, won_b, max_steps))
+        out.append(_compare(policy, reference, ALL_LAYOUTS, a, b, won_a, won_b, max_steps, fidelity))
     return out
 
 
@@ -147,10 +148,13 @@ def pair_table(rows: Sequence[Row], reference: str, max_steps: float) -> list[Pa
 
 
 def format_pairs(pairs: Sequence[Paired]) -> str:
-    """A plain-text table of paired comparisons, one line each."""
-    head = ["policy", "versus", "layout", "episodes", "capture steps, policy - versus [95% CI]", "faster / slower",
+    """A plain-text table of paired comparisons, one line each (a fidelity column when they are
+    of several fidelities, as a pooled table's may be)."""
+    several = len({p.fidelity for p in pairs}) > 1
+    head = ["policy", "versus", "layout", *(["fidelity"] if several else []), "episodes",
+            "capture steps, policy - versus [95% CI]", "faster / slower",
             "p (sign-flip)", "steps verdict", "caught only by policy / versus", "p (McNemar)", "success verdict"]
-    body = [[p.policy, p.reference, p.layout, str(p.episodes),
+    body = [[p.policy, p.reference, p.layout, *([p.fidelity] if several else []), str(p.episodes),
              f"{p.steps.mean:+7.1f} " + ("[no interval]" if p.steps.lo is None else f"[{p.steps.lo:+7.1f}, {p.steps.hi:+7.1f}]"),
              f"{p.faster} / {p.slower}", _p_text(p.p_value), p.verdict,
              f"{p.only_policy} / {p.only_reference}", _p_text(p.success_p), p.success_verdict] for p in pairs]
@@ -166,7 +170,7 @@ def _p_text(p: float | None) -> str:
 
 def pairs_to_dicts(pairs: Sequence[Paired]) -> list[dict]:
     """JSON-ready records of paired comparisons (steps in decision steps)."""
-    return [{"policy": p.policy, "versus": p.reference, "layout": p.layout, "episodes": p.episodes,
+    return [{"policy": p.policy, "versus": p.reference, "layout": p.layout, "fidelity": p.fidelity, "episodes": p.episodes,
              "capture_steps_diff": p.steps.mean, "capture_steps_diff_ci_lo": p.steps.lo,
              "capture_steps_diff_ci_hi": p.steps.hi, "faster": p.faster, "slower": p.slower,
              "caught_only_by_policy": p.only_policy, "caught_only_by_versus": p.only_reference,

@@ -273,11 +273,13 @@ def _steps(m: Mean) -> str:
 
 
 def format_table(rows: Sequence[Row]) -> str:
-    """A plain-text table, one line per row; brackets hold 95 % confidence intervals."""
-    head = ["policy", "layout", "episodes", "success % [95% CI]", "collision % [95% CI]", "timeout % [95% CI]",
-            "mean steps [95% CI]", "steps if success [95% CI]"]
-    body = [[r.policy, r.layout, str(r.episodes), _pct(r.success), _pct(r.collision), _pct(r.timeout),
-             _steps(r.steps), _steps(r.steps_success)] for r in rows]
+    """A plain-text table, one line per row; brackets hold 95 % confidence intervals. A fidelity
+    column when the rows are of several fidelities (a pooled table's may be)."""
+    several = len({r.fidelity for r in rows}) > 1
+    head = ["policy", "layout", *(["fidelity"] if several else []), "episodes", "success % [95% CI]",
+            "collision % [95% CI]", "timeout % [95% CI]", "mean steps [95% CI]", "steps if success [95% CI]"]
+    body = [[r.policy, r.layout, *([r.fidelity] if several else []), str(r.episodes), _pct(r.success), _pct(r.collision),
+             _pct(r.timeout), _steps(r.steps), _steps(r.steps_success)] for r in rows]
     widths = [max(len(x) for x in col) for col in zip(head, *body)]
     lines = ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in [head] + body]
     return "\n".join(lines)

@@ -4,8 +4,10 @@ An episode is known by its seed (evaluation.episode_seeds: the table seed and th
 it). So a row can gather the episodes of tables run with different `--seed`s, an episode met
 twice (the heuristic team in every table of one seed) counts once, and two policies from
 different files are paired on the episodes both played. The files must hold one task (their
-configs equal but for the layout and fidelity, which each row names), and a policy label must
-name one model throughout.
+configs equal but for the layout and fidelity, which each row names), a policy label must
+name one model throughout, and a layout one arena (its file's sha256, where the tables record it).
+A layout is known as the eval that played it knew it (its "layout_identity", which seeded its
+episodes), so the folder `pool` runs from does not matter.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ class Pooled:
     max_steps: int
     config: dict
     notes: list[str]
+    meta: dict = dataclasses.field(default_factory=dict)  # what a pooled JSON records, so that it can be pooled again
 
 
 def _read(path: Path) -> dict:
@@ -54,9 +57,18 @@ def table_task(config: dict) -> dict:
 
 
 def _models(data: dict) -> dict[str, str]:
-    """label -> sha256 of the checkpoint behind it; eval lists the models last, in order."""
+    """label -> sha256 of the checkpoint behind it: a pooled table's "model_sha256_of"; eval lists
+    the models last among its policies, in order."""
+    if isinstance(data.get("model_sha256_of"), dict):
+        return {str(k): str(v) for k, v in data["model_sha256_of"].items()}
     labels, shas = data.get("policies") or [], data.get("model_sha256") or []
     return dict(zip(labels[len(labels) - len(shas):], shas)) if shas else {}
+
+
+def _per_layout(data: dict, key: str) -> dict[str, str]:
+    """A {layout label: text} map of a table's meta (empty when it has none, as older tables)."""
+    value = data.get(key)
+    return {str(k): v for k, v in value.items() if isinstance(v, str)} if isinstance(value, dict) else {}
 
 
 def _episodes(path: Path, record: dict) -> tuple[str, str, str, list[tuple[int, str, int, int]]]:
@@ -71,6 +83,8 @@ def _episodes(path: Path, record: dict) -> tuple[str, str, str, list[tuple[int, 
     except (KeyError, TypeError, ValueError):
         raise ValueError(f"{path}: row {policy} on layout {layout}: per_episode needs lists 'seed', 'outcome', "
                          "'steps' and 'captured' of one length") from None
+    if not episodes:
+        raise ValueError(f"{path}: row {policy} on layout {layout} holds no episodes")
     bad = [o for _, o, _, _ in episodes if o not in OUTCOMES]
     if bad:
         raise ValueError(f"{path}: row {policy} on layout {layout}: outcome {bad[0]!r} is not one of {', '.join(OUTCOMES)}")
@@ -93,6 +107,8 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     episodes: dict[tuple[str, str, str], dict[int, tuple[tuple[str, int, int], Path]]] = {}
     labels: dict[tuple[str, str, str], str] = {}
     commits: dict[str, Path] = {}
+    arena_of: dict[str, tuple[str, Path]] = {}  # layout identity -> (its file's sha256, the table that said so)
+    code_of_first: dict | None = None
     for path in map(Path, paths):
         data = _read(path)
         if first is None:
@@ -109,10 +125,19 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
                 raise ValueError(f"policy {label!r} is two different models: checkpoint {seen[0][:12]} in {seen[1]} and "
                                  f"{sha[:12]} in {path}")
         code = data.get("code") if isinstance(data.get("code"), dict) else {}
+        code_of_first = code if code_of_first is None else code_of_first
         commits.setdefault(str(code.get("git_commit", "unknown")), path)
+        identities, arenas = _per_layout(data, "layout_identity"), _per_layout(data, "layout_sha256")
         for record in data["rows"]:
             policy, layout, fidelity, eps = _episodes(path, record if isinstance(record, dict) else {})
-            key = (policy, layout_identity(layout), fidelity)
+            ident = identities.get(layout) or layout_identity(layout)
+            if layout in arenas:
+                sha, where = arena_of.setdefault(ident, (arenas[layout], path))
+                if sha != arenas[layout]:
+                    raise ValueError(f"layout {layout}: {path} played another arena under it than {where} (its file's "
+                                     f"sha256 {arenas[layout][:12]} there, {sha[:12]} in {where}); pool only tables "
+                                     f"of one arena per layout")
+            key = (policy, ident, fidelity)
             labels.setdefault(key, layout)
             known = episodes.setdefault(key, {})
             for seed, outcome, steps, caught in eps:
@@ -134,7 +159,12 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     if len(commits) > 1:
         notes.append("note: the tables come from several code versions (git commits "
                      + ", ".join(f"{c[:10]} in {p}" for c, p in commits.items()) + ")")
-    return Pooled(rows, max_steps, first["config"], notes)
+    layouts = {labels[key]: key[1] for key in episodes}
+    meta = {"model_sha256_of": {label: sha for label, (sha, _) in model_of.items()},
+            "layout_identity": layouts,
+            "layout_sha256": {label: arena_of[ident][0] for label, ident in layouts.items() if ident in arena_of},
+            "code": dict(code_of_first or {}) if len(commits) == 1 else {"git_commit": "several: " + ", ".join(commits)}}
+    return Pooled(rows, max_steps, first["config"], notes, meta)
 
 
 def _restricted(row: Row, seeds: set[int], max_steps: int) -> Row:
@@ -142,20 +172,27 @@ def _restricted(row: Row, seeds: set[int], max_steps: int) -> Row:
     return summarise(row.policy, row.layout, row.fidelity, POOLED_SEED, records, max_steps)
 
 
-def pooled_pairs(rows: Sequence[Row], reference: str, max_steps: int) -> list[Paired]:
+def pooled_pairs(rows: Sequence[Row], reference: str, max_steps: int, identity_of: dict[str, str] | None = None) -> list[Paired]:
     """Every other policy against `reference`, per layout and fidelity, on the episodes both
     played, and over all layouts where there are two or more (comparison.pair_matches on
-    those); ValueError if `reference` is not among the rows."""
-    refs = {(layout_identity(r.layout), r.fidelity): r for r in rows if r.policy == reference}
+    those); ValueError if `reference` is not among the rows. `identity_of` maps a row's layout
+    label to its identity (Pooled.meta["layout_identity"]); a label not in it is looked at here."""
+    identity_of = identity_of or {}
+
+    def ident(row: Row) -> str:
+        return identity_of.get(row.layout) or layout_identity(row.layout)
+
+    refs = {(ident(r), r.fidelity): r for r in rows if r.policy == reference}
     if not refs:
         names = ", ".join(dict.fromkeys(r.policy for r in rows))
         raise ValueError(f"--versus {reference!r}: no such policy in the tables (policies: {names})")
     matches = []
     for row in rows:
-        ref = refs.get((layout_identity(row.layout), row.fidelity))
+        ref = refs.get((ident(row), row.fidelity))
         if row.policy == reference or ref is None:
             continue
         common = {e[0] for e in row.episode_log} & {e[0] for e in ref.episode_log}
-        if common:
-            matches.append((_restricted(row, common, max_steps), _restricted(ref, common, max_steps)))
+        if common:  # the reference under the row's label: one arena, however each table spelled it
+            matches.append((_restricted(row, common, max_steps),
+                            dataclasses.replace(_restricted(ref, common, max_steps), layout=row.layout)))
     return pair_matches(matches, max_steps)

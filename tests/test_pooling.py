@@ -112,3 +112,86 @@ def test_the_command_prints_the_pooled_table_and_writes_it(tables, tmp_path, cap
     assert {r["policy"]: r["episodes"] for r in written["rows"]} == {"heuristic": 6, "random": 3}
     assert written["pooled_from"] == [str(tables[k]) for k in ("h0", "hr0", "h1")]
     assert written["paired"][0]["episodes"] == 3
+
+
+def test_tables_of_two_arenas_under_one_layout_name_are_refused(tmp_path, monkeypatch, capsys):
+    """Rows were keyed by the layout's name alone: two evals of arena.yaml, edited in between, were
+    merged into one row, and two policies on different arenas were paired as if on the same episodes."""
+    from pursuit_cli import main
+    from pursuit_mj.layout import builtin_layout_path
+
+    monkeypatch.chdir(tmp_path)
+    arena = tmp_path / "arena.yaml"
+    for name, builtin, seed in (("open", 0, "0"), ("walls", 1, "1")):
+        arena.write_text(builtin_layout_path(builtin).read_text())
+        assert main(["eval", "--fidelity", "point", "--episodes", "2", "--set", "max_steps=40", "--layouts", "arena.yaml",
+                     "--seed", seed, "-q", "--out", name]) == 0
+    capsys.readouterr()
+    with pytest.raises(ValueError, match=r"layout arena.yaml: walls.json played another arena under it than open.json"):
+        pool_tables(["open.json", "walls.json"])
+    assert main(["pool", "open.json", "open.json"]) == 0  # one arena: pooled
+
+
+def test_a_pooled_table_pools_again_with_its_models_and_arenas_known(tables, tmp_path):
+    """The pooled JSON dropped the models' hashes, so pooling it again with a table of another model
+    under the same label was taken."""
+    from pursuit_cli import main
+
+    a = _table(tables["tmp"], "pa", 0, meta={"policies": ["heuristic"], "models": ["a.pt"], "model_sha256": ["aaaa"],
+                                                "layout_sha256": {"0": "1111"}})
+    b = _table(tables["tmp"], "pb", 1, meta={"policies": ["heuristic"], "models": ["b.pt"], "model_sha256": ["bbbb"]})
+    c = _table(tables["tmp"], "pc", 1, meta={"policies": ["heuristic"], "models": ["a.pt"], "model_sha256": ["aaaa"],
+                                                "layout_sha256": {"0": "2222"}})
+    assert main(["pool", str(a), "--out", str(tmp_path / "pooled")]) == 0
+    written = json.loads((tmp_path / "pooled.json").read_text())
+    assert written["model_sha256_of"] == {"heuristic": "aaaa"} and written["layout_sha256"] == {"0": "1111"}
+    with pytest.raises(ValueError, match="'heuristic' is two different models"):
+        pool_tables([tmp_path / "pooled.json", b])
+    with pytest.raises(ValueError, match="layout 0: .*pc.json played another arena"):
+        pool_tables([tmp_path / "pooled.json", c])
+
+
+def test_a_layout_is_known_as_the_eval_that_played_it_knew_it_from_any_folder(tmp_path, monkeypatch, capsys):
+    """`0` and the built-in's file path play the same episodes; pooled from another folder, the path's
+    row stood apart from the `0` row and was not paired."""
+    from pursuit_cli import main
+
+    repo = __import__("pathlib").Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(repo)
+    common = ["eval", "--fidelity", "point", "--episodes", "3", "--set", "max_steps=40", "-q"]
+    assert main([*common, "--policy", "heuristic", "--layouts", "0", "--out", str(tmp_path / "team")]) == 0
+    assert main([*common, "--policy", "random", "--layouts", "configs/layouts/0_open.yaml", "--out", str(tmp_path / "rand")]) == 0
+    monkeypatch.chdir(tmp_path)
+    capsys.readouterr()
+    pooled = pool_tables(["team.json", "rand.json"])
+    assert sorted((r.policy, r.layout) for r in pooled.rows) == [("heuristic", "0"), ("random", "configs/layouts/0_open.yaml")]
+    pairs = pooled_pairs(pooled.rows, "heuristic", pooled.max_steps, pooled.meta["layout_identity"])
+    assert [(p.policy, p.layout, p.episodes) for p in pairs] == [("random", "configs/layouts/0_open.yaml", 3)]
+    assert main(["pool", "team.json", "rand.json"]) == 0
+    paired = capsys.readouterr().out.split("paired with")[1].splitlines()
+    assert any(line.split()[:3] == ["random", "heuristic", "configs/layouts/0_open.yaml"] for line in paired), paired
+
+
+def test_a_pooled_table_of_two_fidelities_shows_them_and_plots_them_apart(tables, tmp_path, capsys):
+    """Its rows of one policy and layout printed alike but for their counts, and --plots failed
+    ('policy heuristic on layout 0 is given twice') after writing the CSV and JSON."""
+    from pursuit_cli import main
+
+    quad = dataclasses.replace(TASK, fidelity="quadrotor", max_steps=120)
+    q = _table(tables["tmp"], "quad", 0, ("heuristic", "random"), task=quad)
+    assert main(["pool", str(tables["hr0"]), str(q), "--out", str(tmp_path / "both"), "--plots", str(tmp_path / "plots")]) == 0
+    out = capsys.readouterr().out
+    table, paired = out.split("paired with")
+    assert "fidelity" in table.splitlines()[1] and any("point" in x for x in table.splitlines()) and "quadrotor" in table
+    assert "fidelity" in paired.splitlines()[1] and "quadrotor" in paired
+    assert {p["fidelity"] for p in json.loads((tmp_path / "both.json").read_text())["paired"]} == {"point", "quadrotor"}
+    assert (tmp_path / "plots" / "success.png").is_file()
+
+
+def test_a_row_of_no_episodes_is_refused(tmp_path):
+    """It printed a success rate of 0.0 % for no episodes at all."""
+    bad = tmp_path / "empty.json"
+    bad.write_text('{"rows": [{"policy": "heuristic", "layout": "0", "fidelity": "point", "per_episode": {"seed": [], '
+                   '"outcome": [], "steps": [], "captured": []}}], "config": {"max_steps": 100}}')
+    with pytest.raises(ValueError, match="empty.json: row heuristic on layout 0 holds no episodes"):
+        pool_tables([bad])
