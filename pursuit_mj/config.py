@@ -107,7 +107,7 @@ class TaskConfig:
     fidelity: str = spec("quadrotor", choices=("point", "quadrotor"), help="physics fidelity")
     physics_dt: float = spec(0.002, lo=0.0002, hi=0.01, help="MuJoCo timestep (s)")
     controller_hz: float = spec(100.0, lo=100.0, hi=1000.0, help="quadrotor controller rate (Hz); at 50 Hz a full-speed reversal tilted to 22 deg, past the 15 deg limit")
-    drone_mass: float = spec(DRONE_FILE_MASS, lo=DRONE_MIN_MASS, help=f"every drone's take-off mass (kg): the quadrotor's body (inertia scaled with it) and its controller's weight feed-forward; default the bare Crazyflie 2.1 of models/crazyflie.xml; set it to your drones' weighed mass (with decks, markers, battery); at least {DRONE_MIN_MASS:g} kg (lighter is no Crazyflie-scale airframe: below about 5e-5 kg the simulation diverges); at most {DRONE_MAX_MASS_TEXT} kg, where the rotors lift {MIN_THRUST_TO_WEIGHT:g} times the weight")
+    drone_mass: float = spec(DRONE_FILE_MASS, lo=DRONE_MIN_MASS, help=f"every drone's take-off mass (kg): the quadrotor's body (inertia scaled with it) and its controller's weight feed-forward; default the bare Crazyflie 2.1 of models/crazyflie.xml; set it to your drones' weighed mass (with decks, markers, battery); at least {DRONE_MIN_MASS:g} kg (lighter is no Crazyflie-scale airframe, and far lighter ones make the quadrotor simulation diverge: docs/DESIGN.md); at most {DRONE_MAX_MASS_TEXT} kg, where the rotors lift {MIN_THRUST_TO_WEIGHT:g} times the weight")
     evader: EvaderConfig = spec(default_factory=EvaderConfig, help="escape model settings")
 
     def validate(self, source: str = "config") -> None:
