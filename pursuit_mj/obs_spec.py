@@ -20,6 +20,8 @@ policy from the pursuer's own observation history, two groups follow:
 | `goal`      | 1      | 3     | dx, dy (m, relative): the next waypoint of the coverage search,     |
 |             |        |       | planned (1 when it lies on a path found around known walls)         |
 
+Teammates come in ascending pursuer index, the observer left out (pursuer 1 of 4 sees 0, 2, 3);
+evaders in their index order.
 `visible` is 1 when the entity is known this step (seen directly, or for evaders relayed by
 a teammate when share_detections is on); when 0 the entity's other values are zero.
 `relayed` is 1 when an evader is known only through a teammate. `captured` is 1 for an

@@ -51,7 +51,6 @@ class PursuitParallelEnv(ParallelEnv):
         self._render_settings = render_settings
         self._frames = None  # the FrameMaker of rgb_array mode, made at the first reset
         self._closed = False  # close() freed the renderer; a reset makes a new one
-        self._episode = -1
         self._started = False
         self._obs_space = spaces.Box(-np.inf, np.inf, (self._env.obs_dim,), np.float32)
         self._act_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
@@ -82,7 +81,7 @@ class PursuitParallelEnv(ParallelEnv):
             if self._closed:
                 raise RuntimeError("render() called after close(): call reset() to draw again")
             raise RuntimeError("render() called before reset(): call reset() first")
-        return self._frames.draw(self._env.snapshot(0), self._episode)
+        return self._frames.draw(self._env.snapshot(0), int(self._env.episode[0]))  # its index in the seed's sequence
 
     @property
     def obs_spec(self):
@@ -100,7 +99,6 @@ class PursuitParallelEnv(ParallelEnv):
         obs = self._env.reset(seed=seed)
         self._started = True
         self._closed = False
-        self._episode += 1
         self.agents = list(self.possible_agents)
         if self.render_mode == "rgb_array":
             self._start_frames()
