@@ -241,8 +241,8 @@ def build_new_layout(args) -> Layout:
     data["obstacles"][n_given:] = [_round_floats(o) for o in data["obstacles"][n_given:]]
     data["random_obstacles"]["count"] = args.episode_obstacles
     layout = layout_from_dict(data, source)
+    _check_team_fits(layout, args.pursuers, args.evaders)  # first: spawn regions that overlap leave no room either
     _check_random_fits(layout, "--episode-obstacles or --obstacle-size, or make room")
-    _check_team_fits(layout, args.pursuers, args.evaders)
     return layout
 
 
@@ -406,8 +406,8 @@ def run_check(args) -> int:
 
     _check_team_size(args.pursuers, args.evaders)
     layout = load_layout(args.layout)
+    _check_team_fits(layout, args.pursuers, args.evaders)  # first: spawn regions that overlap leave no room either
     tried = _check_random_fits(layout, "random_obstacles.count or size in the file, or make room")
-    _check_team_fits(layout, args.pursuers, args.evaders)
     placed = layout.with_random_obstacles(np.random.default_rng(0))
     models = {f: build_model(SceneSpec(placed, args.pursuers, args.evaders, f)) for f in ("point", "quadrotor")}
     print(f"layout {layout.source}: valid")

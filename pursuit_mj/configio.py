@@ -92,6 +92,13 @@ def _suggest(name: str, valid: Sequence[str], cls: type | None = None, prefix: s
     return f" (did you mean '{prefix}{close[0]}'?)" if close else f" (valid keys: {', '.join(sorted(valid))})"
 
 
+def key_hint(name: Any, valid: Sequence[str]) -> str:
+    """' (did you mean 'x'?)' for an unknown name among `valid` spelled close to one of them,
+    else ' (valid: a, b, c)'."""
+    close = difflib.get_close_matches(str(name), list(valid), n=1, cutoff=0.5)
+    return f" (did you mean '{close[0]}'?)" if close else f" (valid: {', '.join(valid)})"
+
+
 def _split_where(source: str) -> tuple[str, str]:
     """(where the values came from, the dotted section they belong to + '.') of an error's `source`:
     a nested section's values arrive with the source "f.yaml: key 'evader'", and their errors
@@ -266,7 +273,9 @@ def merge(base: Mapping[str, Any], path: list[str], value: Any) -> dict[str, Any
 
 def yaml_error_text(exc: yaml.YAMLError) -> str:
     """A YAML parse error in one line: 'line L, column C: what is wrong' (1-based, as editors count)."""
-    mark = getattr(exc, "problem_mark", None)
+    mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+    if mark is None and getattr(exc, "position", None) is not None:  # a character YAML does not allow (the reader's error)
+        return f"character {exc.position + 1}: {exc}".split("\n")[0]
     problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
     context = getattr(exc, "context", None)
     what = f"{problem} ({context})" if context else problem
@@ -341,8 +350,10 @@ def read_text(path: Path, source: str) -> str:
     """A file's text; ConfigError naming `source` when it is not UTF-8 text (an image, say)."""
     try:
         return path.read_text(encoding="utf-8")
-    except UnicodeDecodeError:
-        raise ConfigError(f"{source}: not a text (YAML) file") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{source}: not a text (YAML) file (byte {exc.start} is not UTF-8)") from None
+    except OSError as exc:  # no permission, a device that cannot be read, a name too long
+        raise ConfigError(f"{source}: cannot read it ({exc.strerror or exc})") from None
 
 
 def found_beside(ref: Any, file: str | Path) -> Any:

@@ -208,7 +208,11 @@ def check_writable_folder(folder: str | Path, what: str) -> Path:
     """Create `folder` if needed, or ValueError starting with `what` (e.g. the flag and its
     value) if it is a file, cannot be created or cannot be written."""
     folder = Path(folder)
-    if folder.exists() and not folder.is_dir():
+    try:
+        is_file = folder.exists() and not folder.is_dir()
+    except OSError as exc:  # a name too long for the file system, say
+        raise ValueError(f"{what}: cannot use the folder {folder} ({exc.strerror or exc})") from None
+    if is_file:
         raise ValueError(f"{what}: {folder} exists and is not a folder")
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -223,7 +227,11 @@ def check_writable(path: str | Path, what: str = "output") -> Path:
     """Fail early with a clear message if `path` cannot be written (before any work is done)."""
     path = Path(path)
     check_writable_folder(path.parent if str(path.parent) else Path("."), f"{what} path {path}")
-    if path.is_dir():
+    try:
+        is_dir = path.is_dir()
+    except OSError as exc:  # a name too long for the file system, say
+        raise ValueError(f"{what} path {path}: cannot use it ({exc.strerror or exc})") from None
+    if is_dir:
         raise ValueError(f"{what} path {path}: is a folder, expected a file name")
     return path
 

@@ -15,7 +15,7 @@ from typing import Any, Mapping, Sequence, Union
 import numpy as np
 import yaml
 
-from .configio import ConfigError, found_beside, read_text, safe_dump, safe_load, shown, yaml_error_text
+from .configio import ConfigError, found_beside, key_hint, read_text, safe_dump, safe_load, shown, yaml_error_text
 from .geometry import ObstacleSet, boundary_segments
 from .shipped import shipped_dir
 
@@ -174,7 +174,7 @@ def _mapping(value: Any, where: str, keys: Sequence[str], required: Sequence[str
         raise LayoutError(f"{where}: expected a mapping, got {shown(value)}")
     for k in value:
         if k not in keys:
-            raise LayoutError(f"{where}: unknown key '{k}' (valid: {', '.join(keys)})")
+            raise LayoutError(f"{where}: unknown key {shown(k)}{key_hint(k, keys)}")
     for k in required:
         if k not in value:
             raise LayoutError(f"{where}: missing key '{k}'")
@@ -183,7 +183,7 @@ def _mapping(value: Any, where: str, keys: Sequence[str], required: Sequence[str
 
 def _parse_obstacle(entry: Any, where: str) -> Obstacle:
     if not isinstance(entry, Mapping) or len(entry) != 1:
-        raise LayoutError(f"{where}: expected one of {{box: ...}}, {{cylinder: ...}}, {{wall: ...}}, got {entry!r}")
+        raise LayoutError(f"{where}: expected one of {{box: ...}}, {{cylinder: ...}}, {{wall: ...}}, got {shown(entry)}")
     kind, body = next(iter(entry.items()))
     w = f"{where} ({kind})"
     if kind == "box":
@@ -204,7 +204,7 @@ def _parse_obstacle(entry: Any, where: str) -> Obstacle:
         if start == end:
             raise LayoutError(f"{w}: 'from' and 'to' are the same point {list(start)}")
         return Wall(start, end, _number(m.get("thickness", 0.05), f"{w}.thickness", positive=True))
-    raise LayoutError(f"{where}: unknown obstacle kind '{kind}' (valid: box, cylinder, wall)")
+    raise LayoutError(f"{where}: unknown obstacle kind {shown(kind)}{key_hint(kind, ('box', 'cylinder', 'wall'))}")
 
 
 def _parse_boundary(value: Any, where: str) -> Boundary:
@@ -214,7 +214,7 @@ def _parse_boundary(value: Any, where: str) -> Boundary:
         kind, body = next(iter(value.items()))
         if kind == "polygon":
             if not isinstance(body, (list, tuple)) or len(body) < 3:
-                raise LayoutError(f"{where}.polygon: expected at least 3 [x, y] points, got {body!r}")
+                raise LayoutError(f"{where}.polygon: expected at least 3 [x, y] points, got {shown(body)}")
             pts = tuple(_pair(p, f"{where}.polygon[{i}]") for i, p in enumerate(body))
             from .layout_check import polygon_crossing, polygon_touch
 
@@ -329,17 +329,17 @@ def _parse_random(value: Any, where: str) -> RandomObstacles:
     m = _mapping(value, where, ("count", "kinds", "size"), ())
     count = m.get("count", 5)
     if isinstance(count, bool) or not isinstance(count, int) or count < 0:
-        raise LayoutError(f"{where}.count: expected an integer >= 0, got {count!r}")
+        raise LayoutError(f"{where}.count: expected an integer >= 0, got {shown(count)}")
     if count > MAX_RANDOM_OBSTACLES:
         raise LayoutError(f"{where}.count: {count} is more than {MAX_RANDOM_OBSTACLES}, the most random obstacles per "
                           f"episode (as for task.random_obstacles)")
     raw_kinds = m.get("kinds", ("box", "cylinder"))
     if not isinstance(raw_kinds, (list, tuple)):
-        raise LayoutError(f"{where}.kinds: expected a list such as [box, cylinder], got {raw_kinds!r}")
+        raise LayoutError(f"{where}.kinds: expected a list such as [box, cylinder], got {shown(raw_kinds)}")
     kinds = tuple(raw_kinds)
     for k in kinds:
         if k not in ("box", "cylinder"):
-            raise LayoutError(f"{where}.kinds: unknown kind '{k}' (valid: box, cylinder)")
+            raise LayoutError(f"{where}.kinds: unknown kind {shown(k)}{key_hint(k, ('box', 'cylinder'))}")
     if not kinds:
         raise LayoutError(f"{where}.kinds: must name at least one kind")
     size = _pair(m.get("size", (0.15, 0.4)), f"{where}.size")
@@ -349,6 +349,7 @@ def _parse_random(value: Any, where: str) -> RandomObstacles:
 
 
 MAX_ARENA_SIDE = 50.0  # m: the checks grid the arena, and Crazyflie arenas are far smaller
+MAX_NAME_BYTES = 100  # a layout name: output files are named after it (with room for what `layout show` adds)
 
 
 def layout_from_dict(data: Mapping[str, Any], source: str = "<layout>") -> Layout:
@@ -368,14 +369,17 @@ def layout_from_dict(data: Mapping[str, Any], source: str = "<layout>") -> Layou
     if obstacles_raw is None:  # `obstacles:` with nothing after it
         obstacles_raw = []
     if not isinstance(obstacles_raw, list):
-        raise LayoutError(f"{source}: obstacles: expected a list, got {obstacles_raw!r}")
+        raise LayoutError(f"{source}: obstacles: expected a list, got {shown(obstacles_raw)}")
     obstacles = tuple(_parse_obstacle(o, f"{source}: obstacles[{i}]") for i, o in enumerate(obstacles_raw))
     spawn = _mapping(m["spawn"], f"{source}: spawn", ("pursuers", "evaders"), ("pursuers", "evaders"))
     name = m.get("name", Path(source).stem)
     if not isinstance(name, str):
-        raise LayoutError(f"{source}: name {name!r}: expected text (quote it in YAML)")
+        raise LayoutError(f"{source}: name {shown(name)}: expected text (quote it in YAML)")
     if not name.strip(" .") or any(c in name for c in "/\\") or not name.isprintable():  # '..': no file name
-        raise LayoutError(f"{source}: name {name!r}: must be a plain label (no slashes; output files are named after it)")
+        raise LayoutError(f"{source}: name {shown(name)}: must be a plain label (no slashes; output files are named after it)")
+    if len(name.encode()) > MAX_NAME_BYTES:  # a file name holds at most 255 bytes, and `layout show` adds to it
+        raise LayoutError(f"{source}: name {shown(name)}: {len(name.encode())} bytes long; at most {MAX_NAME_BYTES} "
+                          f"(output files are named after it)")
     layout = Layout(
         name=name,
         width=width,
@@ -442,11 +446,15 @@ def resolve_layout_ref(ref: int | str | Path) -> Path:
     if isinstance(ref, str) and not ref.strip():
         raise LayoutError(f"layout '{ref}': empty; expected a built-in index 0-{N_BUILTIN - 1} or a file path")
     if not isinstance(ref, (str, Path)):
-        raise LayoutError(f"layout {ref!r}: expected a built-in index 0-{N_BUILTIN - 1} or a file path")
+        raise LayoutError(f"layout {shown(ref)}: expected a built-in index 0-{N_BUILTIN - 1} or a file path")
     path = Path(ref)
-    if path.is_dir():
+    try:
+        is_dir, is_file = path.is_dir(), path.is_file()
+    except OSError as exc:  # a name too long for the file system, say
+        raise LayoutError(f"layout {shown(str(ref))}: cannot use this path ({exc.strerror or exc})") from None
+    if is_dir:
         raise LayoutError(f"layout '{ref}': a folder, not a layout file (or a built-in index 0-{N_BUILTIN - 1})")
-    if not path.is_file():
+    if not is_file:
         where = f" in the current folder ({Path.cwd()})" if not path.is_absolute() else ""
         raise LayoutError(f"layout '{ref}': no such file{where}, and not a built-in index 0-{N_BUILTIN - 1}")
     return path

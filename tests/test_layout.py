@@ -507,7 +507,7 @@ def test_a_passage_too_narrow_for_the_tasks_obstacle_clearance_is_refused_naming
     path = tmp_path / "gap.yaml"
     path.write_text(yaml.safe_dump(base_dict(obstacles=[{"wall": {"from": [0.0, 2.5], "to": [3.35, 2.5]}}])))  # a 0.25 m gap
     PursuitEnv(default_config(layout=str(path), fidelity="point"))  # passable keeping the default 0.1 m
-    with pytest.raises(LayoutError, match=r"gap.yaml: the evaders' spawn region cannot be reached .* \(a passage needs 0.3 m at task.obstacle_clearance 0.15 m\)"):
+    with pytest.raises(LayoutError, match=r"gap.yaml: the evaders' spawn region cannot be reached .* \(a passage needs 0.3 m at task.obstacle_clearance 0.15 m, found on a grid of 5 cm\)"):
         PursuitEnv(default_config(layout=str(path), fidelity="point", obstacle_clearance=0.15))
 
 
@@ -835,3 +835,65 @@ def test_an_episode_tries_many_placements_before_a_crowded_setting_stops_the_run
     env.reset()
     for _ in range(16):  # 8 episodes in each world, as in the run that stopped
         env.step(np.zeros((4, 3, 2)))
+
+
+def test_a_door_the_coarse_grid_of_a_big_arena_misses_is_found_on_the_fine_grid():
+    """A 0.3 m door (0.1 m of free band for a drone centre keeping 0.1 m) was refused in a 35 m arena,
+    whose grid of 11.7 cm held no cell in the band, and accepted in a 20 m one."""
+    from pursuit_mj.layout_check import passage_fault
+
+    side, half = 35.0, 17.5
+    data = base_dict(arena={"width": side, "height": side}, random_obstacles={"count": 0},
+                     obstacles=[{"wall": {"from": [0.0, half], "to": [half - 0.15, half]}},
+                                {"wall": {"from": [half + 0.15, half], "to": [side, half]}}],
+                     spawn={"pursuers": {"x": [0.2, 3.4], "y": [0.2, 0.8]}, "evaders": {"x": [0.2, 3.4], "y": [side - 0.8, side - 0.2]}})
+    layout = layout_from_dict(data, "door.yaml")  # checked: passable
+    assert "found on a grid of 11.7 cm" in passage_fault(layout, fine=False)  # what the coarse grid alone said
+    closed = dict(data, obstacles=[{"wall": {"from": [0.0, half], "to": [half - 0.05, half]}},
+                                   {"wall": {"from": [half + 0.05, half], "to": [side, half]}}])
+    with pytest.raises(LayoutError, match=r"cut the arena in two \(a passage needs 0.2 m, found on a grid of 5 cm\)"):
+        layout_from_dict(closed, "closed.yaml")  # a 0.1 m door: closed on the fine grid too
+
+
+def test_a_layout_file_that_cannot_be_read_or_named_is_refused_in_one_line(tmp_path, capsys):
+    """An unreadable file, a path too long for the file system and a name too long to name files
+    after gave OSError tracebacks (from read_text, is_dir, and `layout show` writing its picture)."""
+    assert main(["layout", "check", "/proc/self/mem"]) == 2
+    assert "/proc/self/mem: cannot read it (Input/output error)" in capsys.readouterr().err
+    long_path = str(tmp_path / ("b" * 300 + ".yaml"))
+    assert main(["layout", "check", long_path]) == 2
+    assert "cannot use this path (File name too long)" in capsys.readouterr().err
+    assert main(["eval", "--layouts", long_path, "--episodes", "1"]) == 2
+    assert "cannot use this path (File name too long)" in capsys.readouterr().err
+    named = tmp_path / "named.yaml"
+    named.write_text(yaml.safe_dump(base_dict(name="a" * 300)))
+    assert main(["layout", "show", str(named), "--out", str(tmp_path / "x.png")]) == 2
+    assert "name 'aaaa" in (err := capsys.readouterr().err) and "300 bytes long; at most 100" in err and "Traceback" not in err
+
+
+def test_layout_keys_misspelled_get_a_did_you_mean(tmp_path):
+    for data, message in ((base_dict(arena={"width": 3.6, "heigth": 5.0}), r"arena: unknown key 'heigth' \(did you mean 'height'\?\)"),
+                          (base_dict(obstacles=[{"cylindre": {"center": [1, 1], "radius": 0.2}}]), r"unknown obstacle kind 'cylindre' \(did you mean 'cylinder'\?\)"),
+                          (base_dict(color="red"), r"unknown key 'color' \(valid: ")):
+        with pytest.raises(LayoutError, match=message):
+            layout_from_dict(data, "typo.yaml")
+
+
+def test_a_yaml_error_without_a_line_says_where_and_a_non_utf8_byte_is_named(tmp_path):
+    ctrl, latin = tmp_path / "ctrl.yaml", tmp_path / "latin.yaml"
+    ctrl.write_text("name: a\x07b\n")
+    latin.write_bytes(b"name: caf\xe9\n")
+    with pytest.raises(LayoutError, match=r"ctrl.yaml: not valid YAML, character 8: unacceptable character #x0007"):
+        load_layout(ctrl)
+    with pytest.raises(ValueError, match=r"latin.yaml: not a text \(YAML\) file \(byte 9 is not UTF-8\)"):
+        load_layout(latin)
+
+
+def test_layout_check_names_overlapping_spawn_regions_before_the_random_obstacles_room(tmp_path, capsys):
+    """It said "no room for random obstacle 1 of 5" where the spawn regions overlapped, which eval named."""
+    path = tmp_path / "overlap.yaml"
+    path.write_text("arena: {width: 3.6, height: 5.0}\nrandom_obstacles: {count: 5}\nspawn:\n"
+                    "  pursuers: {x: [0.2, 3.4], y: [0.2, 2.8]}\n  evaders: {x: [0.2, 3.4], y: [2.5, 4.8]}\n")
+    assert main(["layout", "check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "spawn regions overlap" in err and "no room for random obstacle" not in err, err
