@@ -553,3 +553,23 @@ def test_a_second_study_in_a_folder_another_study_holds_is_refused_at_once(tmp_p
     finally:
         held.close()
 
+
+
+def test_a_study_stopped_before_it_wrote_anything_leaves_no_folder(tmp_path, monkeypatch):
+    """Ctrl-C between taking the folder's lock and writing study.json left an empty folder behind."""
+    from train import study
+    from pursuit_mj.config import default_config
+
+    def stopped(plan):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(study, "_load_state", stopped)
+    out_dir = tmp_path / "new" / "study"
+    with pytest.raises(KeyboardInterrupt):
+        study.run_study(study.StudyPlan(5.0, out_dir, default_config()))
+    assert not out_dir.exists()
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    with pytest.raises(KeyboardInterrupt):
+        study.run_study(study.StudyPlan(5.0, kept, default_config()))
+    assert kept.is_dir()  # a folder the user made stays

@@ -316,8 +316,8 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
     check_train_overrides(plan)
     if plan.resume and not plan.out.is_dir():
         raise ValueError(f"--resume: --out {plan.out} is not a folder with a study to continue")
-    check_writable_folder(plan.out, f"--out {plan.out}")
     made_folder = not plan.out.exists()
+    check_writable_folder(plan.out, f"--out {plan.out}")
     lock = lock_folder(plan.out, STUDY_LOCK, "study folder", "study", "give another --out")
     try:
         _refuse_an_earlier_study(plan)
