@@ -356,12 +356,16 @@ def run_show(args) -> int:
     from pursuit_mj.layout_preview import save_layout_png
 
     layout = load_layout(args.layout)
-    if args.count is not None and args.count < 0:
-        raise ValueError(f"--count: must be >= 0, got {args.count}")
+    if args.count is not None and not 0 <= args.count <= MAX_RANDOM_OBSTACLES:
+        raise ValueError(f"--count: {args.count} is out of range (0 to {MAX_RANDOM_OBSTACLES}, the task's random_obstacles)")
     if args.count is not None and args.no_random:
         raise ValueError(f"--count {args.count}: draws random obstacles, which --no-random leaves out; give one of them")
     if args.obstacle_clearance < 0:
         raise ValueError(f"--obstacle-clearance: must be >= 0, got {args.obstacle_clearance:g}")
+    try:  # a clearance no task takes (the task's own checks: spawned drones would collide at once)
+        default_config(obstacle_clearance=args.obstacle_clearance)
+    except ValueError as exc:
+        raise ValueError(f"--obstacle-clearance {args.obstacle_clearance:g}: {str(exc).split(': ', 2)[-1]}") from None
     out = Path(args.out or f"layout_{layout.name}.png")
     if out.suffix.lower() != ".png":
         raise ValueError(f"--out {out}: expected a .png file name")

@@ -337,8 +337,10 @@ def check_layout(layout) -> None:
     for i, pts in enumerate(_obstacle_points(layout, layout.obstacles)):
         in_arena = (pts[:, 0] >= -1e-9) & (pts[:, 0] <= layout.width + 1e-9) & (pts[:, 1] >= -1e-9) & (pts[:, 1] <= layout.height + 1e-9)
         if not in_arena.all():
+            out = pts[np.flatnonzero(~in_arena)[0]]  # a corner or rim point (thickness counts), not only the centre line
             raise LayoutError(f"{src}: obstacles[{i}] ({_describe(layout.obstacles[i])}) lies (partly) outside "
-                              f"the {layout.width} x {layout.height} m arena")
+                              f"the {layout.width} x {layout.height} m arena: its edge reaches "
+                              f"({out[0]:.3f}, {out[1]:.3f}) m, its thickness or size included")
         if layout.boundary.kind != "rectangle" and not inside_boundary(layout, pts[-1:]).all():
             raise LayoutError(f"{src}: obstacles[{i}] ({_describe(layout.obstacles[i])}) has its centre outside the {layout.boundary.kind} boundary")
     b = layout.boundary

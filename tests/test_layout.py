@@ -605,10 +605,11 @@ def test_layout_new_default_polygon_and_seeded_random_obstacles_are_reproducible
         (["layout", "check", ""], "layout '': empty; expected a built-in index 0-3 or a file path"),
         (["layout", "new", "{out}.png"], ".png: expected a .yaml file name"),
         (["layout", "show", "0", "-o", "{out}"], "expected a .png file name"),
-        (["layout", "show", "0", "--count", "500", "-o", "{out}.png"], "layout show: error: --count 500: "),
-        # the fixed walls close the passage at that clearance: --count has no part in it
+        (["layout", "show", "0", "--count", "65", "-o", "{out}.png"], "layout show: error: --count: 65 is out of range (0 to 64"),
+        # no task takes it (it was drawn): spawned drones would collide at once
         (["layout", "show", "3", "--count", "0", "--obstacle-clearance", "0.29", "-o", "{out}.png"],
-         "layout show: error: /"),
+         "layout show: error: --obstacle-clearance 0.29: 0.29 m is not below the 0.2 m that drones spawn from walls"),
+        (["layout", "show", "0", "--count", "64", "-o", "{out}.png"], "layout show: error: --count 64: "),  # no room
         (["layout", "show", "0", "--count", "2", "--no-random", "-o", "{out}.png"], "--count 2: draws random obstacles, which --no-random leaves out"),
         (["layout", "check", "missing.yaml"], "layout 'missing.yaml': no such file"),
         (["layout", "new", "{out}", "--width", "0.7", "--height", "3", "--episode-obstacles", "0"],
@@ -869,6 +870,13 @@ def test_a_layout_file_that_cannot_be_read_or_named_is_refused_in_one_line(tmp_p
     named.write_text(yaml.safe_dump(base_dict(name="a" * 300)))
     assert main(["layout", "show", str(named), "--out", str(tmp_path / "x.png")]) == 2
     assert "name 'aaaa" in (err := capsys.readouterr().err) and "300 bytes long; at most 100" in err and "Traceback" not in err
+
+
+def test_a_slanted_wall_whose_corner_pokes_out_says_where():
+    """Both its ends lie inside: "lies (partly) outside" left the user looking for what did not."""
+    data = base_dict(obstacles=[{"wall": {"from": [0.0, 2.0], "to": [2.0, 3.0]}}])
+    with pytest.raises(LayoutError, match=r"outside the 3.6 x 5.0 m arena: its edge reaches \(-0.011, 2.022\) m, its thickness"):
+        layout_from_dict(data, "slant.yaml")
 
 
 def test_layout_keys_misspelled_get_a_did_you_mean(tmp_path):
