@@ -241,7 +241,8 @@ def build_new_layout(args) -> Layout:
     data["obstacles"][n_given:] = [_round_floats(o) for o in data["obstacles"][n_given:]]
     data["random_obstacles"]["count"] = args.episode_obstacles
     layout = layout_from_dict(data, source)
-    _check_team_fits(layout, args.pursuers, args.evaders)  # first: spawn regions that overlap leave no room either
+    _check_team_fits(layout, args.pursuers, args.evaders,  # first: spawn regions that overlap leave no room either
+                     " (with --spawn-pursuers and --spawn-evaders, or a longer arena)")
     _check_random_fits(layout, "--episode-obstacles or --obstacle-size, or make room")
     return layout
 
@@ -256,9 +257,10 @@ def _default_arena(args) -> None:
     args.height = max(ys) if args.height is None else args.height
 
 
-def _check_team_fits(layout: Layout, n_pursuers: int, n_evaders: int) -> None:
+def _check_team_fits(layout: Layout, n_pursuers: int, n_evaders: int, how_to_move: str = "") -> None:
     """What every task on `layout` needs: room to spawn the team, and the two teams' regions
-    farther apart than the default capture_radius. LayoutError naming the flags otherwise."""
+    farther apart than the default capture_radius. LayoutError naming the flags otherwise
+    (`how_to_move` added to the advice to move the regions apart: the flags that do it)."""
     from pursuit_mj.config import default_config
     from pursuit_mj.layout_check import SPAWN_SEPARATION, check_spawn_gap
 
@@ -266,7 +268,10 @@ def _check_team_fits(layout: Layout, n_pursuers: int, n_evaders: int) -> None:
         check_spawn_capacity(layout, n_pursuers, n_evaders, SPAWN_SEPARATION)
     except LayoutError as exc:
         raise LayoutError(f"{exc} (checked for --pursuers {n_pursuers} --evaders {n_evaders})") from None
-    check_spawn_gap(layout, default_config().capture_radius, "default capture_radius")
+    try:
+        check_spawn_gap(layout, default_config().capture_radius, "default capture_radius")
+    except LayoutError as exc:
+        raise LayoutError(f"{exc}{how_to_move}") from None
 
 
 def _check_team_size(n_pursuers: int, n_evaders: int) -> None:

@@ -612,6 +612,8 @@ def test_layout_new_default_polygon_and_seeded_random_obstacles_are_reproducible
         (["layout", "show", "0", "--count", "64", "-o", "{out}.png"], "layout show: error: --count 64: "),  # no room
         (["layout", "show", "0", "--count", "2", "--no-random", "-o", "{out}.png"], "--count 2: draws random obstacles, which --no-random leaves out"),
         (["layout", "check", "missing.yaml"], "layout 'missing.yaml': no such file"),
+        (["layout", "new", "{out}", "--width", "10", "--height", "1.2"],  # the default spawn bands, which it had not said how to move
+         "move the regions apart (with --spawn-pursuers and --spawn-evaders, or a longer arena)"),
         (["layout", "new", "{out}", "--width", "0.7", "--height", "3", "--episode-obstacles", "0"],
          "cannot reliably hold 3 pursuers 0.4 m apart"),  # the file would be refused by every command
         (["layout", "new", "{out}", "--spawn-pursuers", "1", "2.6", "2", "3", "--spawn-evaders", "1", "2.6", "2", "3"],
