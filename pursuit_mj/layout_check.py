@@ -141,14 +141,14 @@ def thinnest_obstacle(layout) -> float:
     return min(sizes, default=np.inf)
 
 
-def grid_step(layout, clearance: float, cells: int = GRID_CELLS) -> float:
-    """Pitch (m) of the reachability grid: GRID_STEP, coarser in big arenas (`cells` a side),
+def grid_step(layout, clearance: float) -> float:
+    """Pitch (m) of the reachability grid: GRID_STEP, coarser in big arenas (GRID_CELLS a side),
     but never so coarse that a diagonal move between two free cells hops over an obstacle. The
     cells a wall of thickness t blocks form a band t + 2 x clearance wide; a diagonal step spans
     sqrt(2) x pitch of it, so the pitch stays under (t + 2 x clearance) / sqrt(2)."""
     from .layout import LayoutError
 
-    coarse = max(GRID_STEP, max(layout.width, layout.height) / cells)
+    coarse = max(GRID_STEP, max(layout.width, layout.height) / GRID_CELLS)
     thinnest = thinnest_obstacle(layout)
     step = min(coarse, 0.99 * (thinnest + 2 * clearance) / np.sqrt(2))
     if max(layout.width, layout.height) / step > MAX_GRID_CELLS:
@@ -204,16 +204,14 @@ def free_cells(layout, xs: np.ndarray, ys: np.ndarray, clearance: float) -> np.n
 CHUNK_POINTS = 1 << 16  # grid points measured against the obstacles at once
 
 
-def spawn_components(layout, clearance: float = PASSAGE_CLEARANCE,
-                     cells: int = GRID_CELLS) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def spawn_components(layout, clearance: float = PASSAGE_CLEARANCE) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Which connected free space each free spawn point lies in, for a drone centre keeping
-    `clearance` (m) from the border and the layout's obstacles (8-connected grid of `grid_step`
-    with `cells`).
+    `clearance` (m) from the border and the layout's obstacles (8-connected grid).
 
     Returns {"pursuers": (points (K, 2), labels (K,)), "evaders": ...}: points with the same
     label can fly to each other; -1 for a point whose grid cell is not free (coarse grids only).
     """
-    step = grid_step(layout, clearance, cells)
+    step = grid_step(layout, clearance)
     xs = np.arange(step / 2, layout.width, step)
     ys = np.arange(step / 2, layout.height, step)
     free = free_cells(layout, xs, ys, clearance)
@@ -239,27 +237,21 @@ def check_passages(layout, clearance: float = PASSAGE_CLEARANCE, source: str | N
         raise LayoutError(fault)
 
 
-def passage_fault(layout, clearance: float = PASSAGE_CLEARANCE, source: str | None = None, fine: bool = True) -> str | None:
+def passage_fault(layout, clearance: float = PASSAGE_CLEARANCE, source: str | None = None) -> str | None:
     """What `check_passages` would refuse (its message), or None when every free spawn point can
     reach the other team keeping `clearance` (m) from walls and obstacles.
 
-    A grid misses a gap whose free band (its width less 2 x clearance) holds no cell centre, and
-    big arenas are gridded coarser (GRID_CELLS a side): a fault found there is looked for again on
-    the fine grid (GRID_STEP, up to MAX_GRID_CELLS a side) before it is reported (unless not
-    `fine`: a placement of random obstacles refused for a gap the coarse grid missed is only
-    drawn again, where the fine grid's seconds would add up over many draws)."""
-    fault = _passage_fault(layout, clearance, source, GRID_CELLS)
-    fine_cells = min(MAX_GRID_CELLS, int(np.ceil(max(layout.width, layout.height) / GRID_STEP)))
-    if fault is not None and fine and fine_cells > GRID_CELLS:
-        fault = _passage_fault(layout, clearance, source, fine_cells)
-    return fault
-
-
-def _passage_fault(layout, clearance: float, source: str | None, cells: int) -> str | None:
+    A grid misses a gap whose free band (its width less 2 x clearance) holds no cell centre; big
+    arenas are gridded coarser (GRID_CELLS a side), and the message then says how wide a gap the
+    grid surely sees."""
     src = layout.source
+    step = grid_step(layout, clearance)
     needs = (f"a passage needs {2 * clearance:g} m" + (f" at {source} {clearance:g} m" if source else "")
-             + f", found on a grid of {grid_step(layout, clearance, cells) * 100:.3g} cm")
-    comp = spawn_components(layout, clearance, cells)
+             + f", found on a grid of {step * 100:.3g} cm")
+    if step > GRID_STEP * 1.001:
+        needs += (f"; in an arena this big the grid surely sees a gap of {2 * clearance + np.sqrt(2) * step:.2f} m "
+                  f"or wider, so widen a narrower one")
+    comp = spawn_components(layout, clearance)
     shared = set(comp["pursuers"][1].tolist()) & set(comp["evaders"][1].tolist()) - {-1}
     if not shared:
         return (f"{src}: the evaders' spawn region cannot be reached from the pursuers': walls or obstacles "

@@ -39,7 +39,7 @@ def place_random_obstacles(layout, rng: np.random.Generator, count: int, clearan
     """
     for _ in range(PASSAGE_DRAWS):
         placed = _place(layout, rng, count, clearance, count_source, restarts)
-        if 2 * passage_clearance <= clearance or passage_fault(_with(layout, placed), passage_clearance, fine=False) is None:
+        if 2 * passage_clearance <= clearance or passage_fault(_with(layout, placed), passage_clearance) is None:
             return placed
     check_passages(layout, passage_clearance, passage_source)  # the fixed obstacles alone close a passage
     from .layout import LayoutError

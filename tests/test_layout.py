@@ -840,22 +840,22 @@ def test_an_episode_tries_many_placements_before_a_crowded_setting_stops_the_run
         env.step(np.zeros((4, 3, 2)))
 
 
-def test_a_door_the_coarse_grid_of_a_big_arena_misses_is_found_on_the_fine_grid():
-    """A 0.3 m door (0.1 m of free band for a drone centre keeping 0.1 m) was refused in a 35 m arena,
-    whose grid of 11.7 cm held no cell in the band, and accepted in a 20 m one."""
-    from pursuit_mj.layout_check import passage_fault
-
+def test_a_door_the_coarse_grid_of_a_big_arena_misses_is_refused_saying_how_wide_a_gap_it_sees():
+    """A 0.3 m door was refused in a 35 m arena, whose grid of 11.7 cm held no cell in its 0.1 m free
+    band, as if walls cut the arena in two; the message now says what the grid can see."""
     side, half = 35.0, 17.5
-    data = base_dict(arena={"width": side, "height": side}, random_obstacles={"count": 0},
-                     obstacles=[{"wall": {"from": [0.0, half], "to": [half - 0.15, half]}},
-                                {"wall": {"from": [half + 0.15, half], "to": [side, half]}}],
-                     spawn={"pursuers": {"x": [0.2, 3.4], "y": [0.2, 0.8]}, "evaders": {"x": [0.2, 3.4], "y": [side - 0.8, side - 0.2]}})
-    layout = layout_from_dict(data, "door.yaml")  # checked: passable
-    assert "found on a grid of 11.7 cm" in passage_fault(layout, fine=False)  # what the coarse grid alone said
-    closed = dict(data, obstacles=[{"wall": {"from": [0.0, half], "to": [half - 0.05, half]}},
-                                   {"wall": {"from": [half + 0.05, half], "to": [side, half]}}])
-    with pytest.raises(LayoutError, match=r"cut the arena in two \(a passage needs 0.2 m, found on a grid of 5 cm\)"):
-        layout_from_dict(closed, "closed.yaml")  # a 0.1 m door: closed on the fine grid too
+
+    def doored(gap):
+        return base_dict(arena={"width": side, "height": side}, random_obstacles={"count": 0},
+                         obstacles=[{"wall": {"from": [0.0, half], "to": [half - gap / 2, half]}},
+                                    {"wall": {"from": [half + gap / 2, half], "to": [side, half]}}],
+                         spawn={"pursuers": {"x": [0.2, 3.4], "y": [0.2, 0.8]},
+                                "evaders": {"x": [0.2, 3.4], "y": [side - 0.8, side - 0.2]}})
+
+    with pytest.raises(LayoutError, match=r"cut the arena in two \(a passage needs 0.2 m, found on a grid of 11.7 cm; in an "
+                                          r"arena this big the grid surely sees a gap of 0.36 m or wider, so widen a narrower one\)"):
+        layout_from_dict(doored(0.3), "door.yaml")
+    layout_from_dict(doored(0.36 + 0.05), "door.yaml")  # as wide as it says (plus the walls' thickness): passable
 
 
 def test_a_layout_file_that_cannot_be_read_or_named_is_refused_in_one_line(tmp_path, capsys):

@@ -555,21 +555,26 @@ def test_a_second_study_in_a_folder_another_study_holds_is_refused_at_once(tmp_p
 
 
 
-def test_a_study_stopped_before_it_wrote_anything_leaves_no_folder(tmp_path, monkeypatch):
-    """Ctrl-C between taking the folder's lock and writing study.json left an empty folder behind."""
-    from train import study
-    from pursuit_mj.config import default_config
 
-    def stopped(plan):
+
+def test_a_resume_refused_after_it_dropped_the_kept_evaluation_in_memory_keeps_it_on_disk(tmp_path, capsys, monkeypatch):
+    """A resume with another --seed drops the kept cells (they are not what it would play) and was
+    then refused for its budget; on the way out it wrote the emptied record over the kept cells."""
+    from train.trainer import Trainer
+
+    out_dir = tmp_path / "study"
+    args = ["--episodes", "2", "--worlds", "2", "--layouts", "0", "--out", str(out_dir), "--fidelity", "point",
+            "--set", "max_steps=20", "--train-set", "n_envs=2"]
+
+    def ctrl_c(self):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(study, "_load_state", stopped)
-    out_dir = tmp_path / "new" / "study"
-    with pytest.raises(KeyboardInterrupt):
-        study.run_study(study.StudyPlan(5.0, out_dir, default_config()))
-    assert not out_dir.exists()
-    kept = tmp_path / "kept"
-    kept.mkdir()
-    with pytest.raises(KeyboardInterrupt):
-        study.run_study(study.StudyPlan(5.0, kept, default_config()))
-    assert kept.is_dir()  # a folder the user made stays
+    monkeypatch.setattr(Trainer, "train_one_update", ctrl_c)  # in the first arm, after the team's evaluation
+    assert main(["study", "--budget-minutes", "30", *args]) == 130
+    kept = json.loads((out_dir / "study.json").read_text())["evaluation"]["cells"]
+    assert kept["heuristic"]
+    capsys.readouterr()
+    assert main(["study", "--budget-minutes", "0.02", "--resume", *args, "--seed", "5"]) == 2
+    assert "every policy is evaluated again" in capsys.readouterr().out
+    record = json.loads((out_dir / "study.json").read_text())
+    assert record["evaluation"]["cells"] == kept and record["seconds"] > 0

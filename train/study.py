@@ -34,7 +34,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import shutil
 import time
 from pathlib import Path
 from typing import Callable, Sequence
@@ -316,16 +315,11 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
     check_train_overrides(plan)
     if plan.resume and not plan.out.is_dir():
         raise ValueError(f"--resume: --out {plan.out} is not a folder with a study to continue")
-    made_folder = not plan.out.exists()
     check_writable_folder(plan.out, f"--out {plan.out}")
     lock = lock_folder(plan.out, STUDY_LOCK, "study folder", "study", "give another --out")
     try:
         _refuse_an_earlier_study(plan)
         return _run_study(plan, log, stop_requested)
-    except BaseException:
-        if made_folder and not any(p.name != STUDY_LOCK for p in plan.out.iterdir()):
-            shutil.rmtree(plan.out, ignore_errors=True)  # refused before it wrote anything: no folder left
-        raise
     finally:
         lock.close()
 
@@ -359,15 +353,24 @@ def _run_study(plan: StudyPlan, log: Callable[[str], None], stop_requested: Call
     try:
         result = _run_study_sessions(plan, state, save, t_start, log, stop_requested)
     except BaseException:
-        try:
-            save()  # so that a resumed study's total counts this session too
-        except (OSError, ValueError):
-            pass
+        # only the time goes to the record on disk: the state in memory may hold an evaluation
+        # emptied for a resume that was then refused (another --seed, say), which must not replace the kept one
+        _save_seconds(plan, round(earlier_s + time.perf_counter() - t_start, 1))
         raise
     if earlier_s > 0:
         result["timings"]["total, all sessions"] = earlier_s + result["timings"]["total"]
         atomic_write_text(plan.out / "timings.json", _timings_json(result["timings"]))
     return result
+
+
+def _save_seconds(plan: StudyPlan, seconds: float) -> None:
+    """Set "seconds" in the study.json on disk, leaving the rest as it is (nothing if it cannot)."""
+    try:
+        state = json.loads((plan.out / STATE_FILE).read_text())
+        if isinstance(state, dict):
+            _save_state(plan, {**state, "seconds": seconds})
+    except (OSError, ValueError):
+        pass
 
 
 def _earlier_sessions_seconds(state: dict) -> float:
