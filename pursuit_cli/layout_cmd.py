@@ -12,7 +12,7 @@ import numpy as np
 
 from pursuit_mj.config import default_config
 from pursuit_mj.io_utils import check_writable
-from pursuit_mj.layout import MAX_RANDOM_OBSTACLES, Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout, save_layout
+from pursuit_mj.layout import MAX_NAME_BYTES, MAX_RANDOM_OBSTACLES, Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout, save_layout
 from pursuit_mj.geometry import inside_polygon
 from pursuit_mj.layout_check import check_spawn_capacity, free_spawn_points
 from .common import finite_float, path_arg, seed_arg
@@ -371,7 +371,8 @@ def run_show(args) -> int:
         default_config(obstacle_clearance=args.obstacle_clearance)
     except ValueError as exc:
         raise ValueError(f"--obstacle-clearance {args.obstacle_clearance:g}: {str(exc).split(': ', 2)[-1]}") from None
-    out = Path(args.out or f"layout_{layout.name}.png")
+    # a name taken from a long file name (a name of its own is at most MAX_NAME_BYTES) is cut to fit a file name
+    out = Path(args.out or f"layout_{layout.name.encode()[:MAX_NAME_BYTES].decode(errors='ignore')}.png")
     if out.suffix.lower() != ".png":
         raise ValueError(f"--out {out}: expected a .png file name")
     check_writable(out, "--out")

@@ -351,7 +351,7 @@ def read_text(path: Path, source: str) -> str:
     try:
         return path.read_text(encoding="utf-8")
     except UnicodeDecodeError as exc:
-        raise ConfigError(f"{source}: not a text (YAML) file (byte {exc.start} is not UTF-8)") from None
+        raise ConfigError(f"{source}: not a text (YAML) file (byte {exc.start + 1} is not UTF-8)") from None
     except OSError as exc:  # no permission, a device that cannot be read, a name too long
         raise ConfigError(f"{source}: cannot read it ({exc.strerror or exc})") from None
 

@@ -8,6 +8,7 @@ import hashlib
 import os
 import re
 import secrets
+import stat
 import tempfile
 import time
 from pathlib import Path
@@ -93,10 +94,11 @@ def remove_dead_parts_in(folder: str | Path, min_age: float = DEAD_PART_AGE) -> 
         return removed
     for part in candidates:
         match = _PART.fullmatch(part.name)
-        try:
-            old = part.is_file() and now - part.stat().st_mtime >= min_age
+        try:  # the entry itself (a link is not ours: atomic_path makes plain files)
+            info = part.lstat()
         except OSError:
             continue
+        old = stat.S_ISREG(info.st_mode) and now - info.st_mtime >= min_age
         if match is not None and old and _writer_died(match) and _unlink_quietly(part):
             removed.append(part)
     return sorted(removed)

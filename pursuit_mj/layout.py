@@ -377,8 +377,8 @@ def layout_from_dict(data: Mapping[str, Any], source: str = "<layout>") -> Layou
         raise LayoutError(f"{source}: name {shown(name)}: expected text (quote it in YAML)")
     if not name.strip(" .") or any(c in name for c in "/\\") or not name.isprintable():  # '..': no file name
         raise LayoutError(f"{source}: name {shown(name)}: must be a plain label (no slashes; output files are named after it)")
-    if len(name.encode()) > MAX_NAME_BYTES:  # a file name holds at most 255 bytes, and `layout show` adds to it
-        raise LayoutError(f"{source}: name {shown(name)}: {len(name.encode())} bytes long; at most {MAX_NAME_BYTES} "
+    if "name" in m and len(name.encode()) > MAX_NAME_BYTES:  # a file name holds at most 255 bytes, and `layout show` adds to it
+        raise LayoutError(f"{source}: name '{name[:40]}...': {len(name.encode())} bytes long; at most {MAX_NAME_BYTES} "
                           f"(output files are named after it)")
     layout = Layout(
         name=name,

@@ -108,6 +108,7 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     labels: dict[tuple[str, str, str], str] = {}
     commits: dict[str, Path] = {}
     arena_of: dict[str, tuple[str, Path]] = {}  # layout identity -> (its file's sha256, the table that said so)
+    identity_of: dict[str, tuple[str, Path]] = {}  # layout label -> (its identity, the table that said so)
     code_of_first: dict | None = None
     for path in map(Path, paths):
         data = _read(path)
@@ -126,11 +127,16 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
                                  f"{sha[:12]} in {path}")
         code = data.get("code") if isinstance(data.get("code"), dict) else {}
         code_of_first = code if code_of_first is None else code_of_first
-        commits.setdefault(str(code.get("git_commit", "unknown")), path)
+        for commit in code.get("git_commits") or [code.get("git_commit", "unknown")]:  # a pooled table's: all of them
+            commits.setdefault(str(commit), path)
         identities, arenas = _per_layout(data, "layout_identity"), _per_layout(data, "layout_sha256")
         for record in data["rows"]:
             policy, layout, fidelity, eps = _episodes(path, record if isinstance(record, dict) else {})
             ident = identities.get(layout) or layout_identity(layout)
+            named, where = identity_of.setdefault(layout, (ident, path))
+            if named != ident:  # one relative path, two files: a built-in from one folder, another file from another
+                raise ValueError(f"layout {layout}: names another layout in {path} than in {where} ({ident!r} there, "
+                                 f"{named!r} in {where}); pool only tables of one arena per layout")
             if layout in arenas:
                 sha, where = arena_of.setdefault(ident, (arenas[layout], path))
                 if sha != arenas[layout]:
@@ -163,7 +169,7 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     meta = {"model_sha256_of": {label: sha for label, (sha, _) in model_of.items()},
             "layout_identity": layouts,
             "layout_sha256": {label: arena_of[ident][0] for label, ident in layouts.items() if ident in arena_of},
-            "code": dict(code_of_first or {}) if len(commits) == 1 else {"git_commit": "several: " + ", ".join(commits)}}
+            "code": dict(code_of_first or {}) if len(commits) == 1 else {"git_commits": list(commits)}}
     return Pooled(rows, max_steps, first["config"], notes, meta)
 
 

@@ -396,9 +396,12 @@ def test_a_render_or_eval_sweeps_its_folder_of_what_killed_writes_of_other_names
     not_ours = out / ".notes.txt"
     for path in (old_dead, young_dead, old_alive, not_ours):
         path.write_bytes(b"half a file")
+    linked = out / f".w.mp4.{dead_pid}-abcd1234.part.mp4"  # a link of that shape is no file atomic_path made
+    linked.symlink_to(not_ours)
     an_hour_ago = time.time() - 3600
     for path in (old_dead, old_alive, not_ours):
         os.utime(path, (an_hour_ago, an_hour_ago))
+    os.utime(linked, (an_hour_ago, an_hour_ago), follow_symlinks=False)
     if command == "render":
         argv = ["render", "--fidelity", "point", "--set", "max_steps=5", "--width", "64", "--height", "48", "--no-video",
                 "--final-frame", "-s", f"{out}/"]
@@ -409,7 +412,7 @@ def test_a_render_or_eval_sweeps_its_folder_of_what_killed_writes_of_other_names
     err = capsys.readouterr().err
     flag = "-s" if command == "render" else "--out"
     assert f"note: {flag}: removed 1 temporary file of writes cut short" in err and old_dead.name in err, err
-    assert not old_dead.exists() and young_dead.exists() and old_alive.exists() and not_ours.exists()
+    assert not old_dead.exists() and young_dead.exists() and old_alive.exists() and not_ours.exists() and linked.is_symlink()
 
 
 def test_a_ctrl_c_while_the_command_line_process_exits_prints_no_traceback():

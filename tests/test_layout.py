@@ -858,7 +858,7 @@ def test_a_door_the_coarse_grid_of_a_big_arena_misses_is_refused_saying_how_wide
     layout_from_dict(doored(0.36 + 0.05), "door.yaml")  # as wide as it says (plus the walls' thickness): passable
 
 
-def test_a_layout_file_that_cannot_be_read_or_named_is_refused_in_one_line(tmp_path, capsys):
+def test_a_layout_file_that_cannot_be_read_or_named_is_refused_in_one_line(tmp_path, capsys, monkeypatch):
     """An unreadable file, a path too long for the file system and a name too long to name files
     after gave OSError tracebacks (from read_text, is_dir, and `layout show` writing its picture)."""
     assert main(["layout", "check", "/proc/self/mem"]) == 2
@@ -872,6 +872,11 @@ def test_a_layout_file_that_cannot_be_read_or_named_is_refused_in_one_line(tmp_p
     named.write_text(yaml.safe_dump(base_dict(name="a" * 300)))
     assert main(["layout", "show", str(named), "--out", str(tmp_path / "x.png")]) == 2
     assert "name 'aaaa" in (err := capsys.readouterr().err) and "300 bytes long; at most 100" in err and "Traceback" not in err
+    stem = tmp_path / ("s" * 200 + ".yaml")  # no name of its own: named after the file, as long as the file system allows
+    stem.write_text(yaml.safe_dump({k: v for k, v in base_dict().items() if k != "name"}))
+    monkeypatch.chdir(tmp_path)
+    assert main(["layout", "show", str(stem)]) == 0
+    assert (tmp_path / f"layout_{'s' * 100}.png").is_file()
 
 
 def test_a_slanted_wall_whose_corner_pokes_out_says_where():
@@ -895,7 +900,7 @@ def test_a_yaml_error_without_a_line_says_where_and_a_non_utf8_byte_is_named(tmp
     latin.write_bytes(b"name: caf\xe9\n")
     with pytest.raises(LayoutError, match=r"ctrl.yaml: not valid YAML, character 8: unacceptable character #x0007"):
         load_layout(ctrl)
-    with pytest.raises(ValueError, match=r"latin.yaml: not a text \(YAML\) file \(byte 9 is not UTF-8\)"):
+    with pytest.raises(ValueError, match=r"latin.yaml: not a text \(YAML\) file \(byte 10 is not UTF-8\)"):
         load_layout(latin)
 
 

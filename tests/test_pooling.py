@@ -195,3 +195,26 @@ def test_a_row_of_no_episodes_is_refused(tmp_path):
                    '"outcome": [], "steps": [], "captured": []}}], "config": {"max_steps": 100}}')
     with pytest.raises(ValueError, match="empty.json: row heuristic on layout 0 holds no episodes"):
         pool_tables([bad])
+
+
+def test_one_layout_label_that_named_two_layouts_is_refused(tables):
+    """x.yaml was the built-in layout 0 (a link to it) in one eval's folder and another file in the
+    other's: the two rows printed alike, and a pool of the pool merged them into one."""
+    base = {"policies": ["heuristic"], "models": [], "model_sha256": []}
+    a = _table(tables["tmp"], "ia", 0, meta={**base, "layout_identity": {"0": "0"}})
+    b = _table(tables["tmp"], "ib", 1, meta={**base, "layout_identity": {"0": "elsewhere/0"}})
+    with pytest.raises(ValueError, match=r"layout 0: names another layout in .*ib.json than in .*ia.json"):
+        pool_tables([a, b])
+
+
+def test_a_pool_of_several_code_versions_keeps_them_all_when_pooled_again(tables, tmp_path, capsys):
+    from pursuit_cli import main
+
+    base = {"policies": ["heuristic"], "models": [], "model_sha256": []}
+    a = _table(tables["tmp"], "ca", 0, meta={**base, "code": {"git_commit": "aaaaaaaaaaaa"}})
+    b = _table(tables["tmp"], "cb", 1, meta={**base, "code": {"git_commit": "bbbbbbbbbbbb"}})
+    assert main(["pool", str(a), str(b), "--out", str(tmp_path / "ab")]) == 0
+    capsys.readouterr()
+    assert main(["pool", str(tmp_path / "ab.json")]) == 0
+    out = capsys.readouterr().out
+    assert "several code versions" in out and "aaaaaaaaaa in" in out and "bbbbbbbbbb in" in out, out
