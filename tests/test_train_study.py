@@ -493,6 +493,16 @@ def test_a_resume_compares_the_settings_not_the_order_or_spelling_of_the_train_o
     assert ("other settings: --train-fidelity quadrotor (was point); --train-set batch=2 is new; --train-set n_envs=3 "
             "(was n_envs=16); --train-set shield=true is missing. Give the same") in said, said
     assert "ppo.lr" not in said  # what is the same is not listed
+    # decided by the configs they give the arms: a section and its key in another order are a change,
+    # a key given twice that ends at the same value, or a default given explicitly, is none
+    (out_dir / "study.json").write_text(json.dumps({"train_overrides": ["task.fidelity=point", "ppo={lr: 0.001}",
+                                                                        "ppo.lr=0.0005"], "arms": {}}))
+    assert _load_state(dataclasses.replace(plan, train_overrides=("task.fidelity=point", "ppo.lr=0.0005")))  # the same lr
+    swapped = dataclasses.replace(plan, train_overrides=("task.fidelity=point", "ppo.lr=0.0005", "ppo={lr: 0.001}"))
+    with pytest.raises(ValueError, match=r"other settings: ppo.lr is 0.001 now, 0.0005 then \(the full_obs arm's config\)"):
+        _load_state(swapped)
+    (out_dir / "study.json").write_text(json.dumps({"train_overrides": ["task.fidelity=point"], "arms": {}}))
+    assert _load_state(dataclasses.replace(plan, train_overrides=("task.fidelity=point", "seed=0", "ppo.max_grad_norm=0.5")))
     (out_dir / "study.json").write_text(json.dumps({"train_overrides": ["n_envs"], "arms": {}}))
     with pytest.raises(ValueError, match=r"study.json, \"train_overrides\" 'n_envs': 'n_envs' is not of the form key=value"):
         _load_state(plan)

@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from pursuit_mj.config import TaskConfig
-from pursuit_mj.configio import parse_override
+from pursuit_mj.configio import first_difference, parse_override, to_dict
 from pursuit_mj.comparison import paired_report, pairs_to_dicts
 from pursuit_mj.evaluation import evaluate, format_table, plot_rows, write_csv, write_json
 from pursuit_mj.io_utils import atomic_write_text, check_writable_folder
@@ -124,6 +124,12 @@ def _load_state(plan: StudyPlan) -> dict:
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"--resume: {path} is not a study record ({exc}){lost}") from None
     changed = _changed_settings(stored, plan.train_overrides, f"{path}, \"train_overrides\" {{text!r}}")
+    then, now = _arm_configs(stored), _arm_configs(plan.train_overrides)
+    if then is not None and now is not None:  # the configs decide where both load
+        if then == now:
+            changed = []  # spelled otherwise (a default given, a key given twice), trained alike
+        elif not changed:
+            changed = [_config_difference(then, now)]  # the same keys, which in another order set otherwise
     if changed:
         raise ValueError(f"--resume: the study in {plan.out} was trained with other settings: {'; '.join(changed)}. "
                          f"Give the same --train-fidelity and --train-set values as its first session (in any order)")
@@ -596,6 +602,26 @@ def _what_is_trained(overrides, source: str) -> dict[str, tuple[object, str]]:
         if key not in SHOWING_KEYS:
             settings[key] = (value, text.strip())
     return settings
+
+
+def _arm_configs(overrides) -> dict[str, dict] | None:
+    """{arm: its resolved train config as a dict} under the train overrides (SHOWING_KEYS left out), or
+    None when one does not load (a layout file gone since, say): then only the overrides compare."""
+    trained = [text for text in overrides if text.split("=", 1)[0].strip() not in SHOWING_KEYS]
+    try:
+        return {arm.name: to_dict(load_train_config([arm.config], ["name=check", "total_steps=1", "task.layout=0", *trained]))
+                for arm in ARMS}
+    except ValueError:
+        return None
+
+
+def _config_difference(then: dict[str, dict], now: dict[str, dict]) -> str:
+    """The first setting in which two {arm: config} differ, as a phrase."""
+    for name in then:
+        diff = first_difference(then[name], now[name])
+        if diff:
+            return f"{diff[0]} is {diff[2]!r} now, {diff[1]!r} then (the {name} arm's config)"
+    return "the arms' configs differ"
 
 
 def _changed_settings(then, now, then_source: str) -> list[str]:
