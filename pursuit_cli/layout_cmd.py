@@ -242,7 +242,8 @@ def build_new_layout(args) -> Layout:
     data["random_obstacles"]["count"] = args.episode_obstacles
     layout = layout_from_dict(data, source)
     _check_team_fits(layout, args.pursuers, args.evaders,  # first: spawn regions that overlap leave no room either
-                     " (with --spawn-pursuers and --spawn-evaders, or a longer arena)")
+                     " (with --spawn-pursuers and --spawn-evaders" + ("" if args.spawn_pursuers or args.spawn_evaders
+                                                                        else ", or a longer arena") + ")")
     _check_random_fits(layout, "--episode-obstacles or --obstacle-size, or make room")
     return layout
 

@@ -614,6 +614,8 @@ def test_layout_new_default_polygon_and_seeded_random_obstacles_are_reproducible
         (["layout", "check", "missing.yaml"], "layout 'missing.yaml': no such file"),
         (["layout", "new", "{out}", "--width", "10", "--height", "1.2"],  # the default spawn bands, which it had not said how to move
          "move the regions apart (with --spawn-pursuers and --spawn-evaders, or a longer arena)"),
+        (["layout", "new", "{out}", "--spawn-pursuers", "0.2", "3.4", "0.2", "2.5", "--spawn-evaders", "0.2", "3.4", "2.6", "4.8"],
+         "move the regions apart (with --spawn-pursuers and --spawn-evaders)"),  # a longer arena would not move them
         (["layout", "new", "{out}", "--width", "0.7", "--height", "3", "--episode-obstacles", "0"],
          "cannot reliably hold 3 pursuers 0.4 m apart"),  # the file would be refused by every command
         (["layout", "new", "{out}", "--spawn-pursuers", "1", "2.6", "2", "3", "--spawn-evaders", "1", "2.6", "2", "3"],
