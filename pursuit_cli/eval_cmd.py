@@ -177,8 +177,12 @@ def run(args) -> int:
     if args.resume and args.rerun:
         raise ValueError("--resume with --rerun: the recording would hold only the rows run now; record in an eval of its own")
     csv_path, json_path = _outputs(args)  # makes folders: after every other check, so that bad input leaves none
-    for folder, flag in {p.parent.resolve(): flag for p, flag in ((csv_path, "--csv"), (json_path, "--json")) if p}.items():
-        sweep_dead_parts(folder, "--out" if args.out else flag)
+    folders: dict[Path, tuple[Path, str]] = {}  # each folder once, named as the user gave it
+    for path, flag in ((csv_path, "--csv"), (json_path, "--json")):
+        if path:
+            folders.setdefault(path.parent.resolve(), (path.parent, "--out" if args.out else flag))
+    for folder, flag in folders.values():
+        sweep_dead_parts(folder, flag)
     if args.plots:
         sweep_dead_parts(Path(args.plots), "--plots")
     if not args.resume:

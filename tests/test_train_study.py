@@ -58,28 +58,48 @@ def test_an_arm_gets_its_share_of_the_time_left_less_its_closing_validation():
 def test_a_closing_validation_is_priced_at_the_time_limit_not_at_the_teams_episode_length():
     """A barely trained policy plays its validation to the time limit: 4 episodes of 959 mean steps took
     16 s where the team's length had priced them at 3.5 s, and the arms after it got no training."""
-    from train.study import ArmValidation, team_mean_steps, timeout_episode_seconds
+    from train.study import ArmValidation, ValidationSpeed, timeout_episode_seconds
 
-    from types import SimpleNamespace as Row
-
-    assert team_mean_steps([Row(episodes=2, steps=Row(mean=100.0)), Row(episodes=6, steps=Row(mean=300.0))]) == 250.0
     assert timeout_episode_seconds(0.5, 250.0, 1000) == pytest.approx(2.0)
     assert timeout_episode_seconds(0.5, 250.0, 100) == 0.5  # never below the team's own episode
     # 150 s for the arm; an episode at the limit costs 2 s, and the team plays it too at 0.5 s
-    minutes, episodes = ArmValidation(1000, 24, True).budget(600.0, 0.1, 0.4, 0.5, 250.0)
+    speed = ValidationSpeed(0.5, 250.0)
+    minutes, episodes = ArmValidation(1000, 24, True, speed).budget(600.0, 0.1, 0.4)
     assert episodes == int(0.3 * 150 / 2.5) == 18 and minutes * 60 == pytest.approx(150 - 18 * 2.5)
-    minutes, episodes = ArmValidation(1000, 24, False).budget(600.0, 0.1, 0.4, 0.5, 250.0)
+    minutes, episodes = ArmValidation(1000, 24, False, speed).budget(600.0, 0.1, 0.4)
     assert episodes == 22 and minutes * 60 == pytest.approx(150 - 22 * 2.0)
+    # a policy that acts at twice the team's cost (the belief arms build the team's memory every step)
+    minutes, episodes = ArmValidation(1000, 24, False, speed, policy_cost=2.0).budget(600.0, 0.1, 0.4)
+    assert episodes == int(0.3 * 150 / 4.0) == 11 and minutes * 60 == pytest.approx(150 - 11 * 4.0)
+
+
+def test_validation_speed_is_probed_in_each_arms_own_training_task(tmp_path):
+    """The closing validation plays the arm's training task (point fidelity by default) on its training
+    layouts; it was priced from the team's evaluation (quadrotor fidelity, all four layouts), 3-7x too high."""
+    from pursuit_mj.config import default_config
+    from train.study import ARMS, StudyPlan, arm_validations
+
+    plan = StudyPlan(budget_minutes=10.0, out=tmp_path, eval_task=default_config(),
+                     train_overrides=("task.fidelity=point", "task.max_steps=40", "task.random_obstacles=0"))
+    arms = [a for a in ARMS if a.name in ("full_obs", "classic", "belief")]
+    validations = arm_validations(plan, arms)
+    full, classic, belief = (validations[a.name] for a in arms)
+    assert classic.speed is belief.speed  # one probe for arms that validate alike
+    assert full.speed is not classic.speed  # full observability is another probe
+    for v in validations.values():
+        assert v.max_steps == 40 and 0 < v.speed.team_steps <= 40 and v.speed.team_episode_s > 0
+    assert belief.policy_cost == 2.1 and classic.policy_cost == 1.1
+    assert belief.budget(600.0, 0.1, 0.4)[0] < classic.budget(600.0, 0.1, 0.4)[0]
 
 
 def test_the_training_a_budget_needs_leaves_every_arm_the_floor_and_a_little_less_does_not():
-    from train.study import ARMS, MIN_ARM_TRAIN_S, ArmValidation, planned_training_seconds, training_seconds_needed
+    from train.study import ARMS, MIN_ARM_TRAIN_S, ArmValidation, ValidationSpeed, planned_training_seconds, training_seconds_needed
 
-    validations = {a.name: ArmValidation(1000, 24, a.name in ("belief", "belief_ppo")) for a in ARMS}
-    need = training_seconds_needed(ARMS, validations, 0.5, 250.0)
-    planned = planned_training_seconds(need, ARMS, validations, 0.5, 250.0)
+    validations = {a.name: ArmValidation(1000, 24, a.name in ("belief", "belief_ppo"), ValidationSpeed(0.5, 250.0)) for a in ARMS}
+    need = training_seconds_needed(ARMS, validations)
+    planned = planned_training_seconds(need, ARMS, validations)
     assert min(planned.values()) >= MIN_ARM_TRAIN_S
-    assert min(planned_training_seconds(need / 1.02, ARMS, validations, 0.5, 250.0).values()) < MIN_ARM_TRAIN_S
+    assert min(planned_training_seconds(need / 1.02, ARMS, validations).values()) < MIN_ARM_TRAIN_S
     # the arm of the smallest share is the one short: residual (0.08), with 4 validation episodes of 2 s
     assert min(planned, key=planned.get) in ("imitate", "residual")
     assert need > (MIN_ARM_TRAIN_S + 4 * 2.0) / 0.08 * 0.99
@@ -412,18 +432,22 @@ def test_a_resumed_study_too_short_to_train_says_how_much_budget_would_do(tmp_pa
     from train import study
 
     monkeypatch.setattr(study, "MIN_ARM_TRAIN_S", 0.0)  # the budget that gives training any time at all
-    # 3 s of budget less 1 s for the team's evaluation and 1 s for the arm's, less 3 s to start
+    # 3 s of budget less 1 s for the team's evaluation and 1 s for the arm's, 3 s to start, and the
+    # probe of the arm's validation speed (1-2 s)
     said = _resumed_classic_study_refusal(tmp_path, monkeypatch, 0.05)
-    assert "starting 1 run leave 0 s for training (raise the budget to about 0.1 min)" in said
+    assert "starting 1 run leave 0 s for training (raise the budget to about 0." in said, said
+    needed = said.split("raise the budget to about ")[1].split(" min")[0]
+    assert len(needed) == 3 and 0.05 < float(needed) < 0.5  # tenths of a minute, not "about 0 min"
 
 
 def test_a_resumed_study_that_would_leave_an_arm_under_the_floor_says_how_much_budget_would_do(tmp_path, monkeypatch):
-    # 12 s of budget, 1 s for the team and 1 s for the arm's evaluation, 3 s to start
+    # 12 s of budget, 1 s for the team and 1 s for the arm's evaluation, 3 s to start, 1-2 s to probe the
+    # validation's speed; its episodes of up to 1000 steps (classic's own task) are priced at that limit
     said = _resumed_classic_study_refusal(tmp_path, monkeypatch, 0.2)
-    # its episodes of up to 1000 steps (classic's own task) cost 1000 / (the team's <= 20 steps) as much as the team's
-    assert "the classic arm would be left 0 s of training" in said and "time limit of 1000 steps" in said
+    left = float(said.split("the classic arm would be left ")[1].split(" s of training")[0])
+    assert left < 10 and "time limit of 1000 steps" in said
     needed = float(said.split("raise the budget to about ")[1].split(" min")[0])
-    assert 0.2 + (10 + 4 * 25 - 12) / 60 < needed < 10  # at least 10 s and 4 validation episodes, less the 7 s it had
+    assert 0.2 + (10 - left) / 60 < needed < 10
 
 
 def test_kept_cells_of_a_layout_file_edited_since_are_played_again(tmp_path):

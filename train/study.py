@@ -13,7 +13,9 @@ their shares in ARMS of what is left (so an arm that ran over takes from the lat
 from the budget). Each run stops at its max_minutes, its learning rate decaying over it, and
 that time is its share less its closing validation (fewer validation episodes when they
 would take more than VALIDATION_SHARE of it), priced at the time limit, where a barely
-trained policy's episodes end. A budget whose plan leaves any arm under MIN_ARM_TRAIN_S is
+trained policy's episodes end, from a probe of the heuristic team on a few of the arm's own
+validation episodes (its training fidelity and layouts, which the evaluation's may not be) and
+the arm's cost of acting (Arm.eval_cost). A budget whose plan leaves any arm under MIN_ARM_TRAIN_S is
 refused with one that would do. All
 policies are evaluated on the same task (the reference preset unless told otherwise) with
 partial observability: full_obs is trained with full observability but judged like the rest.
@@ -51,6 +53,7 @@ from .config import load_train_config, train_config_from_dict
 from .policy import load_policy
 from .study_evaluation import HEURISTIC, KeptEvaluation
 from .trainer import Trainer, lock_folder
+from .validation import FixedSeedValidator
 
 @dataclasses.dataclass(frozen=True)
 class Arm:
@@ -217,12 +220,6 @@ def timeout_episode_seconds(seconds_per_episode: float, team_steps: float, max_s
     return seconds_per_episode * max(max_steps / max(team_steps, 1.0), 1.0)
 
 
-def team_mean_steps(rows: Sequence) -> float:
-    """Mean decision steps per episode over evaluation `Row`s (the heuristic team's), weighted by episodes."""
-    episodes = sum(r.episodes for r in rows)
-    return sum(r.steps.mean * r.episodes for r in rows if r.steps.mean is not None) / max(episodes, 1)
-
-
 def arm_budget(left_s: float, share: float, shares_left: float, validation_episodes: int,
                policy_episode_s: float, team_episode_s: float) -> tuple[float, int]:
     """(max_minutes, validation episodes) of the next arm.
@@ -241,41 +238,89 @@ def arm_budget(left_s: float, share: float, shares_left: float, validation_episo
 
 
 @dataclasses.dataclass(frozen=True)
+class ValidationSpeed:
+    """How fast the heuristic team plays an arm's validation episodes (in its training task, on its
+    validation layouts), by a probe: seconds per episode and mean decision steps per episode."""
+
+    team_episode_s: float
+    team_steps: float
+
+
+VALIDATION_PROBE_EPISODES = 8  # a validation plays all its episodes at once; a probe of fewer worlds costs
+#                                more per episode, so this prices a validation of up to 24 episodes from above
+
+
+def _validation_probe_setup(cfg) -> tuple[TaskConfig, tuple, int, int]:
+    """(task, layouts, episodes, seed) of a probe of `cfg`'s validation, as the trainer builds it."""
+    r = cfg.run
+    layouts = tuple(r.validation_layouts or cfg.layouts)
+    return cfg.task, layouts, min(r.validation_episodes, VALIDATION_PROBE_EPISODES), r.validation_seed
+
+
+def probe_validation_speed(cfg) -> ValidationSpeed:
+    """Time the heuristic team on a few of `cfg`'s validation episodes (the trainer's FixedSeedValidator,
+    its worlds built outside the timing)."""
+    task, layouts, episodes, seed = _validation_probe_setup(cfg)
+    validator = FixedSeedValidator(task, list(layouts) or None, episodes, seed, cfg.run.sim_threads)
+    team = make_policy("heuristic", task)
+    t0 = time.perf_counter()
+    _, records = validator.run(team)
+    seconds = time.perf_counter() - t0
+    return ValidationSpeed(seconds / episodes, sum(r.steps for r in records) / len(records))
+
+
+@dataclasses.dataclass(frozen=True)
 class ArmValidation:
     """What an arm's closing validation costs: its time limit (decision steps), its episode count,
-    and whether the heuristic team plays the same episodes."""
+    whether the heuristic team plays the same episodes, the arm's acting time over the team's
+    (Arm.eval_cost) and how fast the team plays them (probed in the arm's own training task)."""
 
     max_steps: int
     episodes: int
     vs_heuristic: bool
+    speed: ValidationSpeed
+    policy_cost: float = 1.0
 
     @classmethod
-    def of(cls, cfg) -> "ArmValidation":
-        return cls(cfg.task.max_steps, cfg.run.validation_episodes, cfg.run.validation_vs_heuristic)
+    def of(cls, cfg, speed: ValidationSpeed, policy_cost: float = 1.0) -> "ArmValidation":
+        return cls(cfg.task.max_steps, cfg.run.validation_episodes, cfg.run.validation_vs_heuristic, speed, policy_cost)
 
-    def budget(self, left_s: float, share: float, shares_left: float, seconds_per_episode: float,
-               team_steps: float) -> tuple[float, int]:
-        """arm_budget for this arm, its episodes priced at its time limit."""
+    def budget(self, left_s: float, share: float, shares_left: float) -> tuple[float, int]:
+        """arm_budget for this arm, its policy's episodes priced at its time limit."""
+        team_s = self.speed.team_episode_s
         return arm_budget(left_s, share, shares_left, self.episodes,
-                          timeout_episode_seconds(seconds_per_episode, team_steps, self.max_steps),
-                          seconds_per_episode if self.vs_heuristic else 0.0)
+                          self.policy_cost * timeout_episode_seconds(team_s, self.speed.team_steps, self.max_steps),
+                          team_s if self.vs_heuristic else 0.0)
 
 
-def planned_training_seconds(train_s: float, arms: Sequence[Arm], validations: dict[str, ArmValidation],
-                             seconds_per_episode: float, team_steps: float) -> dict[str, float]:
+def arm_validations(plan: "StudyPlan", arms: Sequence[Arm]) -> dict[str, ArmValidation]:
+    """{arm name: ArmValidation} of `arms`, the team probed once per distinct validation setup
+    (fidelity, observability and layouts differ between arms; the reward scales do not matter)."""
+    speeds: dict[tuple, ValidationSpeed] = {}
+    validations = {}
+    for arm in arms:
+        cfg = load_train_config([arm.config], _arm_overrides(plan, arm))
+        task, layouts, episodes, seed = _validation_probe_setup(cfg)
+        key = (task.fidelity, task.observability, layouts, episodes, seed, task.max_steps, task.n_pursuers, task.n_evaders)
+        if key not in speeds:
+            speeds[key] = probe_validation_speed(cfg)
+        validations[arm.name] = ArmValidation.of(cfg, speeds[key], arm.eval_cost)
+    return validations
+
+
+def planned_training_seconds(train_s: float, arms: Sequence[Arm], validations: dict[str, ArmValidation]) -> dict[str, float]:
     """{arm name: seconds of training} when `train_s` seconds are handed to `arms` by their shares
     and every arm takes just its time (each then gets its share of the whole)."""
     shares = sum(a.share for a in arms)
-    return {a.name: 60.0 * validations[a.name].budget(train_s, a.share, shares, seconds_per_episode, team_steps)[0]
+    return {a.name: 60.0 * validations[a.name].budget(train_s, a.share, shares)[0]
             for a in arms}
 
 
-def training_seconds_needed(arms: Sequence[Arm], validations: dict[str, ArmValidation], seconds_per_episode: float,
-                            team_steps: float) -> float:
+def training_seconds_needed(arms: Sequence[Arm], validations: dict[str, ArmValidation]) -> float:
     """The fewest training seconds, all arms together, that leave each of `arms` MIN_ARM_TRAIN_S
     beside its closing validation (to within 1 %)."""
     need = MIN_ARM_TRAIN_S
-    while min(planned_training_seconds(need, arms, validations, seconds_per_episode, team_steps).values()) < MIN_ARM_TRAIN_S:
+    while min(planned_training_seconds(need, arms, validations).values()) < MIN_ARM_TRAIN_S:
         need *= 1.01
     return need
 
@@ -393,20 +438,23 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
     timings: dict[str, float] = {}
 
     heuristic = make_policy("heuristic", plan.eval_task)
-    validations = {arm.name: ArmValidation.of(load_train_config([arm.config], _arm_overrides(plan, arm))) for arm in todo}
+    validations: dict[str, ArmValidation] = {}
+    if todo:  # the arms' closing validations are priced in their own training task
+        t0 = time.perf_counter()
+        validations = arm_validations(plan, todo)
+        timings["validation speed probe"] = time.perf_counter() - t0
     kept = KeptEvaluation(plan, state, save, log)
     planned = None  # (seconds planned for the team's evaluation, for training) by a fresh plan
     if kept.episodes is None:
         t0 = time.perf_counter()
         probe = max(2, min(plan.worlds, plan.episodes) // len(plan.layouts))  # per layout: they differ in length
-        probe_rows = evaluate(heuristic, plan.eval_task, list(plan.layouts), probe, plan.seed + 1, plan.worlds, label="heuristic")
+        evaluate(heuristic, plan.eval_task, list(plan.layouts), probe, plan.seed + 1, plan.worlds, label="heuristic")
         timings["evaluation speed probe"] = time.perf_counter() - t0
         episodes, train_minutes = fit_episodes(plan, timings["evaluation speed probe"], probe, time.perf_counter() - t_start,
                                                len(todo))
-        probe_steps = team_mean_steps(probe_rows)
 
         def fresh_needed() -> float:
-            return _fresh_budget_needed(plan, todo, validations, timings["evaluation speed probe"], probe, probe_steps,
+            return _fresh_budget_needed(plan, todo, validations, timings["evaluation speed probe"], probe,
                                         time.perf_counter() - t_start)
 
         if todo and train_minutes < MIN_TRAIN_MINUTES:
@@ -415,9 +463,7 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
                              f"policies and starting {_runs(len(todo))} leave {max(train_minutes, 0.0) * 60:.0f} s for training "
                              f"(raise the budget to about {_rounded_up(needed)} min)")
         if todo:
-            _refuse_short_arms(plan, todo, validations, train_minutes * 60.0,
-                               _team_episode_seconds(plan, timings["evaluation speed probe"], probe, episodes), probe_steps,
-                               fresh_needed)
+            _refuse_short_arms(plan, todo, validations, train_minutes * 60.0, fresh_needed)
         kept.start(episodes)
         planned = (eval_seconds(timings["evaluation speed probe"], probe, episodes), train_minutes * 60.0)
         log(f"[study] {_count(episodes, 'episode')} per policy and layout" + (f"; {_duration(train_minutes * 60)} left for training" if todo else ""))
@@ -430,21 +476,18 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
     rows, played_s = _evaluate_cells(kept, HEURISTIC, heuristic, "heuristic", plan, episodes, log)
     _time_cells(timings, "heuristic", played_s, kept.seconds(HEURISTIC))
     heuristic_s = kept.seconds(HEURISTIC)  # the whole team's evaluation, in whichever session it was played
-    seconds_per_episode = heuristic_s / (episodes * len(plan.layouts))
-    team_steps = team_mean_steps(rows)
     # arms whose cells are all kept (played from the best.pt they have now) cost no more evaluation
     eval_cost = sum(arm.eval_cost for arm in ARMS
                     if not (arm.name in state["arms"] and kept.covers(arm.name, plan.out / "runs" / arm.name / "best.pt")))
     train_end = t_start + plan.budget_minutes * 60.0 - eval_cost * heuristic_s
     left_s = train_end - time.perf_counter() - ARM_START_S * len(todo)
     if planned is None and todo:  # a fresh plan checked these before any evaluation
-        need_s = max(training_seconds_needed(todo, validations, seconds_per_episode, team_steps), MIN_TRAIN_MINUTES * 60.0)
+        need_s = max(training_seconds_needed(todo, validations), MIN_TRAIN_MINUTES * 60.0)
         if left_s < MIN_TRAIN_MINUTES * 60.0:
             raise ValueError(f"--budget-minutes {plan.budget_minutes}: too small on this machine; evaluating what is left "
                              f"and starting {_runs(len(todo))} leave {max(left_s, 0.0):.0f} s for training (raise the budget "
                              f"to about {_rounded_up(plan.budget_minutes + (need_s - left_s) / 60.0)} min)")
-        _refuse_short_arms(plan, todo, validations, left_s, seconds_per_episode, team_steps,
-                           lambda: plan.budget_minutes + (need_s - left_s) / 60.0)
+        _refuse_short_arms(plan, todo, validations, left_s, lambda: plan.budget_minutes + (need_s - left_s) / 60.0)
     if planned is not None and left_s < 0.5 * planned[1]:
         log(f"[study] warning: the heuristic team's evaluation took {played_s:.0f} s where {planned[0]:.0f} s were "
             f"planned (is the machine busy?); {_duration(max(left_s, 0.0))} are left for training, and the study may "
@@ -481,8 +524,7 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
             continue
         i = todo.index(arm)
         left_s = train_end - time.perf_counter() - ARM_START_S * (len(todo) - i)  # this and every later arm's start
-        minutes, val_episodes = ArmValidation.of(cfg).budget(left_s, arm.share, sum(a.share for a in todo[i:]),
-                                                             seconds_per_episode, team_steps)
+        minutes, val_episodes = validations[regime].budget(left_s, arm.share, sum(a.share for a in todo[i:]))
         if minutes * 60.0 < MIN_ARM_TRAIN_S:
             log(short_arm_warning(regime, minutes * 60.0))
         if interrupted:  # its own config, with the time it had plus its share of this session's
@@ -526,29 +568,23 @@ def _arm_overrides(plan: StudyPlan, arm: Arm) -> list[str]:
             *plan.train_overrides]
 
 
-def _team_episode_seconds(plan: StudyPlan, probe_s: float, probe_episodes: int, episodes: int) -> float:
-    """Seconds per episode of the team's evaluation with `episodes` per layout, as the plan prices it."""
-    return eval_seconds(probe_s, probe_episodes, episodes) / (episodes * len(plan.layouts))
-
-
 def _fresh_budget_needed(plan: StudyPlan, todo: Sequence[Arm], validations: dict[str, ArmValidation], probe_s: float,
-                         probe_episodes: int, team_steps: float, spent_s: float) -> float:
+                         probe_episodes: int, spent_s: float) -> float:
     """The smallest budget (min, to within 2 %) whose fresh plan leaves every arm MIN_ARM_TRAIN_S."""
     budget = plan.budget_minutes
     while True:
         budget = budget * 1.02 + 0.01
         trial = dataclasses.replace(plan, budget_minutes=budget)
         episodes, train_minutes = fit_episodes(trial, probe_s, probe_episodes, spent_s, len(todo))
-        per_episode = _team_episode_seconds(trial, probe_s, probe_episodes, episodes)
-        if min(planned_training_seconds(train_minutes * 60.0, todo, validations, per_episode, team_steps).values()) >= MIN_ARM_TRAIN_S:
+        if min(planned_training_seconds(train_minutes * 60.0, todo, validations).values()) >= MIN_ARM_TRAIN_S:
             return budget
 
 
 def _refuse_short_arms(plan: StudyPlan, todo: Sequence[Arm], validations: dict[str, ArmValidation], train_s: float,
-                       seconds_per_episode: float, team_steps: float, budget_needed: Callable[[], float]) -> None:
+                       budget_needed: Callable[[], float]) -> None:
     """ValueError naming the arm that `train_s` seconds of training, shared out as planned, leave
     under MIN_ARM_TRAIN_S beside its closing validation, and the budget that would do."""
-    planned = planned_training_seconds(train_s, todo, validations, seconds_per_episode, team_steps)
+    planned = planned_training_seconds(train_s, todo, validations)
     name = min(planned, key=planned.get)
     if planned[name] >= MIN_ARM_TRAIN_S:
         return
