@@ -146,9 +146,25 @@ def _meta(args, policies, layouts, code: dict) -> dict:
 
     return {"episodes": args.episodes, "worlds": args.worlds, "seed": args.seed, "policies": [label for label, _ in policies],
             "models": list(args.model), "model_sha256": [file_sha256(m) for m in args.model], "shield": bool(args.shield),
+            "model_of": _model_labels(args, policies),
             "layout_sha256": {layout_label(ref): file_sha256(resolve_layout_ref(ref)) for ref in layouts},
             # what seeded each layout's episodes here (a relative path is a built-in or not by where eval ran): for pool
             "layout_identity": {layout_label(ref): layout_identity(ref) for ref in layouts}, "code": code}
+
+
+def _model_labels(args, policies) -> dict[str, str]:
+    """{label: model file as given} of the --model policies (the last of `policies`, in order)."""
+    labels = [label for label, _ in policies][len(policies) - len(args.model):]
+    return dict(zip(labels, args.model))
+
+
+def _models_legend(args, policies) -> str | None:
+    """Which file each model's label stands for, when two models share a run name (best.pt and
+    last.pt of one run are labelled NAME and NAME#2), else None."""
+    labels = _model_labels(args, policies)
+    if not any("#" in label for label in labels):
+        return None
+    return "models: " + "; ".join(f"{label} = {path}" for label, path in labels.items())
 
 
 def _versus(args, policies) -> str | None:
@@ -187,7 +203,7 @@ def run(args) -> int:
         sweep_dead_parts(Path(args.plots), "--plots")
     if not args.resume:
         check_nothing_kept(csv_path, json_path)
-    done = finished_rows(json_path, config, _meta(args, policies, layouts, provenance())) if args.resume else None
+    done = finished_rows(json_path, config, _meta(args, policies, layouts, provenance()), csv_path) if args.resume else None
     if done is not None and not args.quiet:
         print(f"[eval] resuming: {len(done)} finished rows from {interrupted_path(json_path)}", file=sys.stderr, flush=True)
     with contextlib.ExitStack() as stack:
@@ -209,6 +225,9 @@ def run(args) -> int:
                 keep_finished(rows, csv_path, json_path, config, meta)
             raise
     print(format_table(rows))
+    legend = _models_legend(args, policies)
+    if legend:
+        print(legend)
     if versus is not None:
         text, pairs = paired_report(rows, versus, config.max_steps)
         print(f"\n{text}")

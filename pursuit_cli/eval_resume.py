@@ -71,15 +71,19 @@ def keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, con
 RESUME_KEYS = ("episodes", "seed", "policies", "model_sha256", "shield")
 
 
-def finished_rows(json_path: Path | None, config, meta: dict) -> dict[tuple[str, str], object]:
+def finished_rows(json_path: Path | None, config, meta: dict, csv_path: Path | None = None) -> dict[tuple[str, str], object]:
     """--resume: the rows (as evaluation.Row, by (policy, layout)) of the interrupted eval kept in
-    interrupted_path(json_path); ValueError naming what differs if it is not this eval's."""
+    interrupted_path(json_path); ValueError naming what differs if it is not this eval's, and how
+    to start over (the kept files refuse an eval without --resume there too)."""
     from pursuit_mj.configio import first_difference, to_dict
     from pursuit_mj.evaluation import row_from_record
 
     if json_path is None:
         raise ValueError("--resume: needs --out PREFIX or --json FILE, where the interrupted eval kept its rows")
     kept = interrupted_path(json_path)
+    kept_files = [p for p in (kept, interrupted_path(csv_path) if csv_path else None) if p is not None and p.is_file()]
+    again = (f"run it again without --resume after deleting {' and '.join(str(p) for p in kept_files)}, or with "
+             f"another --out")
     if not kept.is_file():
         raise ValueError(f"--resume: no interrupted eval at {kept} (an eval stopped after its first policy-layout cell leaves one)")
     try:
@@ -91,34 +95,34 @@ def finished_rows(json_path: Path | None, config, meta: dict) -> dict[tuple[str,
     for key in RESUME_KEYS:
         if stored[key] != meta[key]:
             raise ValueError(f"--resume: {key} differs from the interrupted eval's ({stored[key]!r} in {kept}, "
-                             f"{meta[key]!r} now): give the same command, or run it again without --resume")
+                             f"{meta[key]!r} now): give the same command, or {again}")
     diff = first_difference(data.get("config"), json.loads(json.dumps(to_dict(config))))
     if diff:
         key, was, now = diff
         raise ValueError(f"--resume: the task config differs from the interrupted eval's at {key or 'config'} ({was!r} "
-                         f"in {kept}, {now!r} now): give the same task flags, or run it again without --resume")
+                         f"in {kept}, {now!r} now): give the same task flags, or {again}")
     code, was = meta["code"], data.get("code") or {}
     for key in ("source_sha256", "drone_model_sha256"):  # not git_commit: a docs-only commit keeps the rows
         if was.get(key) != code.get(key):
             raise ValueError(f"--resume: the code changed since the interrupted eval ({key} {was.get(key)} there, "
-                             f"{code.get(key)} now), so its rows need not be what this code plays: run it again without --resume")
+                             f"{code.get(key)} now), so its rows need not be what this code plays: {again}")
     out = {}
     for k, r in enumerate(rows):
         row = row_from_record(r, config, meta["seed"], meta["episodes"])
         if row is None:
             raise ValueError(f"--resume: {kept}, row {k + 1}: its episodes (per_episode) are not those this eval "
-                             f"would play (a damaged or edited file): run it again without --resume")
+                             f"would play (a damaged or edited file): {again}")
         out[(row.policy, row.layout)] = row
-    _check_layout_files(out, data.get("layout_sha256"), meta["layout_sha256"])
+    _check_layout_files(out, data.get("layout_sha256"), meta["layout_sha256"], again)
     return out
 
 
-def _check_layout_files(rows: dict, was: object, now: dict[str, str]) -> None:
+def _check_layout_files(rows: dict, was: object, now: dict[str, str], again: str) -> None:
     """ValueError naming a layout file of this eval whose kept rows were played on other contents
     (a file is named by its path alone: edited since, its rows are another arena's)."""
     was = was if isinstance(was, dict) else {}
     for label in dict.fromkeys(layout for _, layout in rows):
         if label in now and was.get(label) != now[label]:
             raise ValueError(f"--resume: the layout file {label} changed since the interrupted eval (sha256 "
-                             f"{was.get(label)} there, {now[label]} now), so its kept rows are another arena's: run "
-                             f"it again without --resume")
+                             f"{was.get(label)} there, {now[label]} now), so its kept rows are another arena's: "
+                             f"{again}")

@@ -346,7 +346,7 @@ def _register_show(lsub) -> None:
     p.add_argument("-o", "--out", type=path_arg, help="PNG to write (default: layout_<name>.png)")
     p.add_argument("--seed", type=seed_arg, default=0,
                    help="seed of the random obstacles drawn (default 0); an episode's own seed, which render reports "
-                        "(e.g. 'episode 0: success after 181 steps (seed 2968811710)'), draws that episode's, unless the task "
+                        "(e.g. 'episode 0: success after 168 steps (seed 3013895268)'), draws that episode's, unless the task "
                         "drew its layout too (random_layout) or set its own random_obstacles count (then give it with --count) "
                         "or an obstacle_clearance over 0.15 m (then give it with --obstacle-clearance)")
     p.add_argument("--count", type=int, help="random obstacles to draw (default: the layout's random_obstacles.count)")

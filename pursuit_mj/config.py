@@ -131,7 +131,8 @@ class TaskConfig:
         if isinstance(self.layout, int) and not 0 <= self.layout < N_BUILTIN:
             raise ConfigError(f"{key_where(source, 'layout')}: {self.layout} is not a built-in layout index "
                               f"(0-{N_BUILTIN - 1}) or a file")
-        if self.random_layout and not isinstance(self.layout, int):
+        # an index other than the default 0 would be ignored too (it only changed a table's episode seeds)
+        if self.random_layout and (not isinstance(self.layout, int) or self.layout != 0):
             raise ConfigError(f"{key_where(source, 'random_layout')} draws each episode's layout from the built-in 0-"
                               f"{N_BUILTIN - 1}, so layout {self.layout} would be ignored: set one or the other")
         if self.drone_mass > DRONE_MAX_MASS:
@@ -209,9 +210,28 @@ def load_task_yaml(path: str | Path, source: str | None = None) -> dict[str, Any
     """A task YAML file's mapping (configio.load_yaml), its `layout` found beside the file when it
     is not found from the current folder (layout.found_layout_ref: ConfigError if found nowhere)."""
     data = load_yaml(path, source)
+    _refuse_other_kinds_of_file(data, source or str(path))
     if "layout" in data:
         data["layout"] = found_layout_ref(data["layout"], path, "layout")
     return data
+
+
+#: keys that mark a layout file or a train config, which a task file has none of
+_LAYOUT_FILE_KEYS = ("arena", "boundary", "spawn")
+_TRAIN_CONFIG_KEYS = ("ppo", "regime", "algo", "n_envs", "total_steps", "task_file")
+
+
+def _refuse_other_kinds_of_file(data: Any, source: str) -> None:
+    """ConfigError saying where a layout file or a train config given as a task file belongs
+    (it was refused as 'unknown key name', which did not say what the file was)."""
+    if not isinstance(data, dict):
+        return
+    for keys, what, where in ((_LAYOUT_FILE_KEYS, "a layout file", "give it with -i/--layout FILE (or as layout: FILE in a "
+                               "task file)"),
+                              (_TRAIN_CONFIG_KEYS, "a train config", "give it to pursuit-mj train --config FILE")):
+        found = [k for k in keys if k in data]
+        if found:
+            raise ConfigError(f"{source}: this is {what} (it has {', '.join(found)}), not a task file: {where}")
 
 
 def load_task_config(

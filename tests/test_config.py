@@ -383,3 +383,18 @@ def test_a_nested_config_object_is_checked_where_it_is_given():
 def test_load_task_config_refuses_arguments_of_the_wrong_kind_in_one_line(args, said):
     with pytest.raises(ValueError, match=said):
         load_task_config(*args)
+
+
+def test_a_layout_file_or_train_config_given_as_a_task_file_is_named_for_what_it_is(tmp_path, capsys):
+    """A layout file as --task was refused as "unknown key 'name'", which did not say where it belongs."""
+    from pursuit_mj.layout import builtin_layout_path
+
+    layout = tmp_path / "my.yaml"
+    layout.write_text(builtin_layout_path(1).read_text())
+    assert main(["config", "--task", str(layout)]) == 2
+    assert (f"{layout}: this is a layout file (it has arena, boundary, spawn), not a task file: give it with "
+            f"-i/--layout FILE") in capsys.readouterr().err
+    assert main(["eval", "--task", "configs/train/classic.yaml"]) == 2
+    assert "this is a train config (it has ppo, regime, algo, n_envs, total_steps), not a task file: give it to " \
+           "pursuit-mj train --config FILE" in capsys.readouterr().err
+    assert main(["config", "--task", "hard"]) == 0  # a task file is read as before

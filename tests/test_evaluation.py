@@ -417,7 +417,11 @@ def test_resume_runs_only_the_rows_an_interrupted_eval_did_not_finish_and_gives_
     assert main(cmd + ["--out", str(tmp_path / "t"), "--resume", "--set", "evader_speed=0.5"]) == 2
     assert "--resume: the task config differs from the interrupted eval's at evader_speed (0.6 in" in capsys.readouterr().err
     assert main(cmd + ["--out", str(tmp_path / "t"), "--resume", "--episodes", "4"]) == 2
-    assert "--resume: episodes differs from the interrupted eval's (3 in" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--resume: episodes differs from the interrupted eval's (3 in" in err
+    # how to start over: without --resume alone the kept rows refuse it too
+    assert (f"run it again without --resume after deleting {tmp_path / 't.interrupted.json'} and "
+            f"{tmp_path / 't.interrupted.csv'}, or with another --out") in err, err
     monkeypatch.setenv("STOP_AT_THIRD", "0")
     cells.clear()
     assert main(cmd + ["--out", str(tmp_path / "t"), "--resume", "--worlds", "3"]) == 0  # worlds do not change a table
@@ -685,3 +689,31 @@ def test_evaluate_asks_for_a_label_up_front_when_the_policy_has_no_name():
         evaluate(Nameless(), default_config(fidelity="point", max_steps=3), layouts=[0], episodes=1)
     (row,) = evaluate(Nameless(), default_config(fidelity="point", max_steps=3), layouts=[0], episodes=1, label="mine")
     assert row.policy == "mine"
+
+
+def test_two_models_of_one_run_name_are_told_apart_by_their_files(tmp_path, capsys):
+    """best.pt and last.pt of one run were labelled NAME and NAME#2, and nothing said which was which."""
+    import torch
+
+    from pursuit_mj.configio import to_dict
+    from pursuit_mj.obs_spec import ObsSpec
+    from train.checkpoint import save_checkpoint
+    from train.config import load_train_config
+    from train.networks import Actor
+
+    torch.manual_seed(0)
+    cfg = load_train_config([], ["name=fo"])
+    spec = ObsSpec.make(3, 1, 16)
+    for name in ("best.pt", "last.pt"):
+        save_checkpoint(tmp_path / name, {"train_config": to_dict(cfg), "obs_spec": spec.to_dict(),
+                                          "actor": Actor(spec, cfg.net).state_dict(), "counters": {"update": 0}})
+    best, last = str(tmp_path / "best.pt"), str(tmp_path / "last.pt")
+    code = main(["eval", "-m", best, "-m", last, "--layouts", "0", "--episodes", "1", "--fidelity", "point",
+                 "--set", "max_steps=5", "-q", "--json", str(tmp_path / "t.json")])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert f"models: fo = {best}; fo#2 = {last}" in out, out
+    assert json.loads((tmp_path / "t.json").read_text())["model_of"] == {"fo": best, "fo#2": last}
+    code = main(["eval", "-m", best, "--policy", "random", "--layouts", "0", "--episodes", "1", "--fidelity", "point",
+                 "--set", "max_steps=5", "-q"])
+    assert code == 0 and "models:" not in capsys.readouterr().out  # a label that names its run alone says enough

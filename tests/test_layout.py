@@ -914,3 +914,14 @@ def test_layout_check_names_overlapping_spawn_regions_before_the_random_obstacle
     assert main(["layout", "check", str(path)]) == 2
     err = capsys.readouterr().err
     assert "spawn regions overlap" in err and "no room for random obstacle" not in err, err
+
+
+def test_the_episode_seed_in_layout_show_help_is_the_one_render_reports(capsys):
+    """The help quoted a seed (2968811710) that render no longer prints for its first episode."""
+    from pursuit_cli.render_cmd import table_episode_seeds
+    from pursuit_mj.config import default_config
+
+    with pytest.raises(SystemExit):
+        main(["layout", "show", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert f"(seed {table_episode_seeds(default_config(), 0, 1)[0]})" in help_text, help_text

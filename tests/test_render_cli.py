@@ -41,12 +41,16 @@ def test_a_save_path_ending_in_a_slash_is_a_folder_even_with_a_dot_in_its_name(t
     assert [p.name[:26] + p.name[33:] for p in out.iterdir()] == ["random_layout0_point_seed0_ep000.gif"]
 
 
-def test_files_of_episodes_on_random_layouts_are_not_named_after_the_layout_flag(tmp_path):
-    """With random_layout each episode draws a built-in layout: `-i 3` names none of them."""
+def test_files_of_episodes_on_random_layouts_are_not_named_after_a_layout(tmp_path, capsys):
+    """With random_layout each episode draws a built-in layout: a layout flag beside it is refused (`-i 3`
+    was accepted, named none of the layouts played and only changed which episodes played)."""
     out = tmp_path / "renders"
-    assert _cli(tmp_path, "-s", str(out), "-i", "3", "--set", "random_layout=true", "--format", "gif") == 0
+    assert _cli(tmp_path, "-s", str(out), "--set", "random_layout=true", "--format", "gif") == 0
     [name] = [p.name for p in out.iterdir()]
     assert name.startswith("random_layoutrandom_point_seed0_"), name
+    assert _cli(tmp_path, "-s", str(out), "-i", "3", "--set", "random_layout=true", "--format", "gif") == 2
+    assert "'random_layout' draws each episode's layout from the built-in 0-3, so layout 3 would be ignored" in \
+        capsys.readouterr().err
 
 
 def test_cli_single_file_and_no_video(tmp_path):

@@ -67,7 +67,7 @@ def add_arguments(p) -> None:
     p.add_argument("--nthread", type=int, default=0, help="MuJoCo batch threads, 0-256 (default 0: all CPUs)")
     p.add_argument("--seed", type=seed_arg, default=0, help="seed of the random obstacles and start positions (default 0)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="change a task setting from its default, e.g. --set controller_hz=100 (repeatable)")
+                   help="change a task setting from its default, e.g. --set controller_hz=250 (repeatable)")
 
 
 def task_config(fidelity: str, overrides: Sequence[str] = ()) -> TaskConfig:
