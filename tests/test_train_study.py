@@ -20,7 +20,23 @@ def no_training_floor(monkeypatch):
     monkeypatch.setattr(study, "MIN_ARM_TRAIN_S", 0.0)
 
 
-def test_study_end_to_end_on_a_tiny_budget(tmp_path, capsys, no_training_floor):
+def test_study_end_to_end_on_a_tiny_budget(tmp_path, capsys, no_training_floor, monkeypatch):
+    from train import study
+    from train.trainer import Trainer
+
+    events = []
+    real_evaluate, real_train = study.evaluate, Trainer.train
+
+    def evaluate_logged(policy, config, layouts, *a, label=None, **k):
+        events.append(f"eval {label}")
+        return real_evaluate(policy, config, layouts, *a, label=label, **k)
+
+    def train_logged(self, *a, **k):
+        events.append(f"train {self.cfg.name}")
+        return real_train(self, *a, **k)
+
+    monkeypatch.setattr(study, "evaluate", evaluate_logged)
+    monkeypatch.setattr(Trainer, "train", train_logged)
     out_dir = tmp_path / "study"
     code = main(["study", "--budget-minutes", "0.8", "--episodes", "2", "--worlds", "2", "--layouts", "0", "1",
                  "--out", str(out_dir), "--fidelity", "point", "--set", "max_steps=20"]
@@ -40,6 +56,11 @@ def test_study_end_to_end_on_a_tiny_budget(tmp_path, capsys, no_training_floor):
     ft = json.loads((out_dir / "runs" / "fine_tune" / "metrics.jsonl").read_text().splitlines()[0])
     assert ft["update"] == 1
     assert f"initialised from {out_dir / 'runs' / 'imitate' / 'best.pt'}" in out  # PPO continues the imitation
+    # each arm is evaluated as soon as it has trained (on both layouts), so that what its evaluation takes
+    # more or less than reserved moves the later arms' training time, not the study's end
+    arms = [a.name for a in study.ARMS]
+    labels = {"residual": "residual@heuristic+shield", "belief": "belief+shield", "belief_ppo": "belief_ppo+shield"}
+    assert events == ["eval heuristic"] * 3 + sum(([f"train {a}"] + [f"eval {labels.get(a, a)}"] * 2 for a in arms), [])
 
 
 def test_an_arm_gets_its_share_of_the_time_left_less_its_closing_validation():
@@ -200,7 +221,10 @@ def test_an_interrupted_study_resumes_keeping_its_finished_arms_and_evaluations(
     assert main(["study", "--budget-minutes", "0.8", *args]) == 130
     err = capsys.readouterr().err
     assert "pursuit-mj study --resume" in err and "pursuit-mj train --resume" not in err
-    assert set(json.loads((out_dir / "study.json").read_text())["arms"]) == {"full_obs", "fine_tune"}
+    first = json.loads((out_dir / "study.json").read_text())
+    assert set(first["arms"]) == {"full_obs", "fine_tune"}
+    # each arm is evaluated as soon as it has trained: the finished arms' cells are kept already
+    assert set(first["evaluation"]["cells"]) == {"heuristic", "full_obs", "fine_tune"}
     assert main(["study", "--budget-minutes", "0.8", *args]) == 2  # not over the runs without --resume
     assert "continue them with --resume" in capsys.readouterr().err
     kept = (out_dir / "runs" / "full_obs" / "metrics.jsonl").read_text()
@@ -219,7 +243,7 @@ def test_an_interrupted_study_resumes_keeping_its_finished_arms_and_evaluations(
     def evaluate_until_mappo(policy, config, layouts, *a, label=None, **k):
         played.append(label)
         if label == "mappo" and stop_at_mappo:
-            raise KeyboardInterrupt  # Ctrl-C during the evaluation, after every arm has trained
+            raise KeyboardInterrupt  # Ctrl-C during mappo's evaluation, right after it trained
         return real_evaluate(policy, config, layouts, *a, label=label, **k)
 
     monkeypatch.setattr(study, "evaluate", evaluate_until_mappo)
@@ -229,7 +253,9 @@ def test_an_interrupted_study_resumes_keeping_its_finished_arms_and_evaluations(
     assert "full_obs: trained in an earlier session, kept" in out and "resuming classic" in out
     assert "fine_tune: finished in an earlier session (stopped before the study recorded it), kept" in out
     assert "heuristic: 1 of 1 layout evaluated in an earlier session, kept" in out  # evaluated before classic stopped
-    assert played == ["full_obs", "fine_tune", "classic", "mappo"]
+    assert "full_obs: 1 of 1 layout evaluated in an earlier session, kept" in out
+    assert "fine_tune: 1 of 1 layout evaluated in an earlier session, kept" in out  # as it ended, before the record
+    assert played == ["classic", "mappo"]
     assert (out_dir / "runs" / "fine_tune" / "metrics.jsonl").read_text() == fine_tune_log
     assert (out_dir / "runs" / "full_obs" / "metrics.jsonl").read_text() == kept
     updates = [json.loads(x)["update"] for x in (out_dir / "runs" / "classic" / "metrics.jsonl").read_text().splitlines()]
@@ -238,10 +264,10 @@ def test_an_interrupted_study_resumes_keeping_its_finished_arms_and_evaluations(
     cells = json.loads((out_dir / "study.json").read_text())["evaluation"]["cells"]
     assert set(cells) == {"heuristic", "full_obs", "fine_tune", "classic"}
 
-    # resumed again: nothing left to train, and only the cells not played yet are played
+    # resumed again: the arms after mappo train, and only the cells not played yet are played
     played.clear()
     stop_at_mappo = False
-    assert main(["study", "--budget-minutes", "0.1", "--resume", *args]) == 0
+    assert main(["study", "--budget-minutes", "0.8", "--resume", *args]) == 0
     out = capsys.readouterr().out
     assert played == ["mappo", "imitate", "imitate_ppo", "residual@heuristic+shield", "belief+shield", "belief_ppo+shield"]
     assert "classic: 1 of 1 layout evaluated in an earlier session, kept" in out

@@ -10,7 +10,8 @@ whole evaluation is reserved out of the budget (with fewer episodes than asked i
 not fit) before any training starts. The heuristic team's full evaluation, timed, then sets
 the reserve for the arms' evaluations; the rest is training time, handed out arm by arm by
 their shares in ARMS of what is left (so an arm that ran over takes from the later ones, not
-from the budget). Each run stops at its max_minutes, its learning rate decaying over it, and
+from the budget). Each arm is evaluated as soon as it has trained, so an evaluation that takes
+more or less than its reserve moves the later arms' training time too. Each run stops at its max_minutes, its learning rate decaying over it, and
 that time is its share less its closing validation (fewer validation episodes when they
 would take more than VALIDATION_SHARE of it), priced at the time limit, where a barely
 trained policy's episodes end, from a probe of the heuristic team on a few of the arm's own
@@ -477,10 +478,15 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
     _time_cells(timings, "heuristic", played_s, kept.seconds(HEURISTIC))
     heuristic_s = kept.seconds(HEURISTIC)  # the whole team's evaluation, in whichever session it was played
     # arms whose cells are all kept (played from the best.pt they have now) cost no more evaluation
-    eval_cost = sum(arm.eval_cost for arm in ARMS
-                    if not (arm.name in state["arms"] and kept.covers(arm.name, plan.out / "runs" / arm.name / "best.pt")))
-    train_end = t_start + plan.budget_minutes * 60.0 - eval_cost * heuristic_s
-    left_s = train_end - time.perf_counter() - ARM_START_S * len(todo)
+    to_evaluate = {arm.name: arm.eval_cost for arm in ARMS
+                   if not (arm.name in state["arms"] and kept.covers(arm.name, plan.out / "runs" / arm.name / "best.pt"))}
+
+    def train_end() -> float:
+        """When training must end for the evaluations still to come to fit the budget (each arm is
+        evaluated as soon as it is trained, so what one takes more or less moves the later arms' time)."""
+        return t_start + plan.budget_minutes * 60.0 - sum(to_evaluate.values()) * heuristic_s
+
+    left_s = train_end() - time.perf_counter() - ARM_START_S * len(todo)
     if planned is None and todo:  # a fresh plan checked these before any evaluation
         need_s = max(training_seconds_needed(todo, validations), MIN_TRAIN_MINUTES * 60.0)
         if left_s < MIN_TRAIN_MINUTES * 60.0:
@@ -493,7 +499,20 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
             f"planned (is the machine busy?); {_duration(max(left_s, 0.0))} are left for training, and the study may "
             f"run over its budget")
 
+    t = plan.eval_task
+    spec = ObsSpec.make(t.n_pursuers, t.n_evaders, t.n_rays)
     checkpoints: dict[str, Path] = {}
+
+    def evaluate_arm(regime: str) -> None:
+        """Play (or take back) the cells of the arm just trained or kept, from its best.pt."""
+        kept.use_checkpoint(regime, checkpoints[regime])  # cells played from another best.pt are dropped
+        policy = load_policy(checkpoints[regime], spec, name=regime, task=plan.eval_task)
+        label = policy.name  # as eval labels it: NAME+shield behind the shield, NAME@BASE for a correction
+        arm_rows, arm_played_s = _evaluate_cells(kept, regime, policy, label, plan, episodes, log)
+        rows.extend(arm_rows)
+        _time_cells(timings, regime, arm_played_s, kept.seconds(regime))
+        to_evaluate.pop(regime, None)
+
     for arm in ARMS:
         regime = arm.name
         run_dir = plan.out / "runs" / regime
@@ -501,6 +520,7 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
             checkpoints[regime] = run_dir / "best.pt"
             timings[f"{regime} (train, earlier session)"] = float(state["arms"][regime]["train_seconds"])  # the run's clock
             log(f"[study] {regime}: trained in an earlier session, kept")
+            evaluate_arm(regime)
             continue
         overrides = _arm_overrides(plan, arm)
         if arm.start_from:
@@ -521,9 +541,10 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
             state["arms"][regime] = {"train_seconds": round(finished_s, 1)}
             save()
             log(f"[study] {regime}: finished in an earlier session (stopped before the study recorded it), kept")
+            evaluate_arm(regime)
             continue
         i = todo.index(arm)
-        left_s = train_end - time.perf_counter() - ARM_START_S * (len(todo) - i)  # this and every later arm's start
+        left_s = train_end() - time.perf_counter() - ARM_START_S * (len(todo) - i)  # this and every later arm's start
         minutes, val_episodes = validations[regime].budget(left_s, arm.share, sum(a.share for a in todo[i:]))
         if minutes * 60.0 < MIN_ARM_TRAIN_S:
             log(short_arm_warning(regime, minutes * 60.0))
@@ -547,16 +568,7 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
         checkpoints[regime] = run_dir / "best.pt"
         state["arms"][regime] = {"train_seconds": round(train_s, 1)}
         save()
-
-    t = plan.eval_task
-    spec = ObsSpec.make(t.n_pursuers, t.n_evaders, t.n_rays)
-    for regime in (arm.name for arm in ARMS):
-        kept.use_checkpoint(regime, checkpoints[regime])  # cells played from another best.pt are dropped
-        policy = load_policy(checkpoints[regime], spec, name=regime, task=plan.eval_task)
-        label = policy.name  # as eval labels it: NAME+shield behind the shield, NAME@BASE for a correction
-        arm_rows, played_s = _evaluate_cells(kept, regime, policy, label, plan, episodes, log)
-        rows += arm_rows
-        _time_cells(timings, regime, played_s, kept.seconds(regime))
+        evaluate_arm(regime)
     timings["total"] = time.perf_counter() - t_start
     _write(plan, rows, timings, episodes)
     return {"rows": rows, "timings": timings, "episodes": episodes}
