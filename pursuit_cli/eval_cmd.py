@@ -239,7 +239,7 @@ def run(args) -> int:
     if args.plots:
         for path in plot_rows(rows, args.plots):
             print(f"wrote {path}")
-    if args.rerun:
-        print(f"wrote {args.rerun} (view with: rerun {args.rerun})")
+    if recording is not None:
+        print(recording.summary())  # also names what a recording killed before it finished left beside it
     drop_finished(csv_path, json_path)  # the whole table holds them now
     return 0

@@ -281,9 +281,23 @@ def read_eval_rows(path: str | Path) -> list[dict[str, Any]]:
             if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
                 raise ValueError(f"evaluation results {path}: row {i} ({r['policy']} on layout {r['layout']}): "
                                  f"{key} is {v!r}, expected a number or null")
+        _check_intervals(r, f"evaluation results {path}: row {i} ({r['policy']} on layout {r['layout']})")
     if not any(r.get(m[2]) is not None for r in rows for m in EVAL_METRICS):
         raise ValueError(f"evaluation results {path}: no row has any of {', '.join(m[2] for m in EVAL_METRICS)}")
     return [dict(r) for r in rows]
+
+
+def _check_intervals(row: Mapping[str, Any], where: str) -> None:
+    """ValueError naming a metric of `row` whose value lies outside its interval, or a rate
+    outside 0-100 % (matplotlib refused them as "'yerr' must not contain negative values")."""
+    for _, _, key, lo_key, hi_key in EVAL_METRICS:
+        value, lo, hi = row.get(key), row.get(lo_key), row.get(hi_key)
+        if value is None:
+            continue
+        if key.endswith("_pct") and not 0.0 <= value <= 100.0:
+            raise ValueError(f"{where}: {key} is {value!r}, expected a percentage in 0-100")
+        if lo is not None and hi is not None and not lo <= value <= hi:
+            raise ValueError(f"{where}: {key} {value!r} is outside its interval [{lo_key} {lo!r}, {hi_key} {hi!r}]")
 
 
 def _layout_names(layouts: Sequence[str]) -> list[str]:

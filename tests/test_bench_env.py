@@ -26,6 +26,18 @@ def test_bench_env_prints_rates_overhead_and_profile(capsys):
     assert len(table) == 1 and table[0].split()[1] == "2"
 
 
+def test_bench_env_times_no_resets_unless_an_episode_must_end_and_then_says_so(capsys):
+    """With --set max_steps=5 blocks of up to 40 steps timed four resets per world as env work
+    (+230 % overhead where the task adds +46 %), without a word."""
+    r = measure("point", 4, 0.3, seed=0, files=[], overrides=["max_steps=5"])
+    assert r.ended_blocks == 0  # blocks kept under the time limit
+    assert main(["bench", "env", "--worlds", "4", "--seconds", "0.2", "--fidelity", "point", "--set", "max_steps=1",
+                 "--set", "random_layout=true"]) == 0
+    out = capsys.readouterr().out
+    assert "note: an episode ended in" in out and "their resets are in its env time" in out
+    assert "a built-in layout drawn per episode (random_layout)" in out and "layout 0 with" not in out
+
+
 @pytest.mark.parametrize(
     "args, message",
     [
@@ -50,6 +62,12 @@ def test_bench_env_prints_rates_overhead_and_profile(capsys):
         (["train", "--fidelity", "point", "--set", "task.fidelity=quadrotor"], "--set task.fidelity=quadrotor: this benchmark sets that key from --fidelity"),
         (["train", "--n-envs", "5000"], "--n-envs 5000: key 'n_envs': 5000 is out of range"),  # it named --set n_envs=5000
         (["train", "--collection", "in-turn", "--set", "run.overlap=true"], "--set run.overlap=true: this benchmark sets that key from --collection"),
+        # the same keys in a section's spelling got past the check: a quadrotor run was labelled point
+        (["train", "--fidelity", "point", "--set", "n_envs=2", "--set", "task={fidelity: quadrotor}"],
+         "--set task={fidelity: quadrotor}: this benchmark sets task.fidelity from --fidelity"),
+        (["train", "--set", "run={overlap: true}"], "--set run={overlap: true}: this benchmark sets run.overlap from --collection"),
+        # DAgger always collects in turn: an overlapped row would be another in-turn one
+        (["train", "--config", "imitate", "--collection", "overlapped"], "--collection overlapped: config imitate trains by DAgger"),
     ],
 )
 def test_bench_env_bad_input_exits_2(args, message, capsys):

@@ -128,6 +128,14 @@ def test_eval_json_errors_are_named(tmp_path):
         p.write_text(json.dumps({"rows": [{"policy": "a", "layout": "0", "success_pct": 50}, {"policy": "b", "layout": "0", "mean_steps": value}]}))
         with pytest.raises(ValueError, match=rf"e.json: row 1 \(b on layout 0\): mean_steps is {shown}, expected a number or null"):
             read_eval_rows(p)
+    # matplotlib's "'yerr' must not contain negative values" named no file, row or key
+    p.write_text(json.dumps([{"policy": "x", "layout": 0, "success_pct": 50, "success_ci_lo": 60, "success_ci_hi": 40}]))
+    with pytest.raises(ValueError, match=r"e.json: row 0 \(x on layout 0\): success_pct 50 is outside its interval "
+                                         r"\[success_ci_lo 60, success_ci_hi 40\]"):
+        read_eval_rows(p)
+    p.write_text(json.dumps([{"policy": "x", "layout": 0, "collision_pct": 130}]))
+    with pytest.raises(ValueError, match=r"row 0 \(x on layout 0\): collision_pct is 130, expected a percentage in 0-100"):
+        read_eval_rows(p)
     p.write_text(json.dumps([{"policy": "a", "layout": "0", "episodes": "many", "success_pct": 50}]))
     with pytest.raises(ValueError, match="row 0 .*episodes is 'many'"):
         read_eval_rows(p)

@@ -137,6 +137,18 @@ def test_an_interrupted_recording_keeps_its_finished_episodes_beside_the_whole_o
     assert "/episode_0/outcome" in ent and "/episode_1/outcome" in ent
     assert ent["/__properties/interrupted"].static["finished_episodes"] == [2]
 
+    partial_bytes = partial.read_bytes()
+    with pytest.raises(KeyboardInterrupt):  # interrupted again: the earlier interrupted episodes were replaced
+        with RerunEpisodeRecording(earlier) as again:
+            buf = EpisodeBuffer()
+            buf.append(env.snapshot(0))
+            again.add_episode(buf)
+            raise KeyboardInterrupt
+    second = tmp_path / "x.interrupted-2.rrd"
+    assert again.kept == second and partial.read_bytes() == partial_bytes
+    assert f"are in {second}" in again.summary() and f"{partial} beside it keeps an earlier interrupted run's" in again.summary()
+    assert read_entities(second)["/__properties/interrupted"].static["finished_episodes"] == [1]
+
     with RerunEpisodeRecording(earlier) as whole:  # a later run that ends: the stale partial one is pointed out, kept
         buf = EpisodeBuffer()
         buf.append(env.snapshot(0))
@@ -151,10 +163,14 @@ def test_a_folder_where_the_interrupted_recording_would_go_is_refused_up_front(t
     captured = capsys.readouterr()
     assert f"--rerun {tmp_path / 'x.rrd'}: {tmp_path / 'x.interrupted.rrd'} is a folder" in captured.err
     assert "episode 0" not in captured.out and sorted(p.name for p in tmp_path.iterdir()) == ["x.interrupted.rrd"]
+    # refused before the videos' folder was made (an empty folder was left behind)
+    assert main(["render", "--policy", "random", "--fidelity", "point", "--set", "max_steps=3", "-s",
+                 f"{tmp_path / 'videos'}/", "--rerun", str(tmp_path / "x.rrd")]) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.interrupted.rrd"]
 
 
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")  # what a killed writer leaves; rerun reads it by a scan
-def test_the_episodes_of_a_recording_killed_with_kill_9_stay_readable_and_the_next_run_names_them(tmp_path):
+def test_the_episodes_of_a_recording_killed_with_kill_9_stay_readable_and_the_next_run_names_them(tmp_path, capsys):
     """kill -9 left the finished episodes only in a hidden temporary file, which the next
     recording of the same name then deleted: they are now written under a visible name,
     flushed as each episode ends, and kept."""
@@ -189,6 +205,12 @@ def test_the_episodes_of_a_recording_killed_with_kill_9_stay_readable_and_the_ne
         again.add_episode(buf)
     assert f"{left} beside it holds what a recording killed before it finished had written" in again.summary()
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([left.name, "x.rrd"])
+    # eval says so too (it printed a "wrote" line of its own, render the recording's summary)
+    capsys.readouterr()
+    assert main(["eval", "--policy", "random", "--fidelity", "point", "--set", "max_steps=3", "--layouts", "0",
+                 "--episodes", "1", "-q", "--rerun", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert f"wrote {path} (1 episode; open with: rerun {path})" in out and f"{left} beside it holds what" in out, out
 
 
 @pytest.mark.parametrize("limit", [0, 20000])

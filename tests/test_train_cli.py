@@ -129,6 +129,16 @@ def test_bench_train_prints_rollout_and_update_rates(capsys):
     assert "aims point, overlapped: update faster than its rollout" in out  # both collection modes by default
 
 
+def test_bench_train_measures_a_dagger_config_in_turn_once(capsys):
+    """DAgger always collects in turn: --collection both printed two 'in turn' rows of one configuration."""
+    code = main(["bench", "train", "--config", "imitate", "--fidelity", "point", "--updates", "1", "--n-envs", "2"]
+                + sets(TINY[1:-2]))
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "note: config imitate trains by DAgger, which always collects in turn: measured in turn only" in out
+    assert out.count("aims point, in turn:") == 1 and "aims point, overlapped" not in out
+
+
 def test_export_writes_a_small_policy_only_checkpoint(tiny_model, tmp_path, capsys):
     from pursuit_mj.obs_spec import ObsSpec
     from train.checkpoint import load_checkpoint
@@ -163,13 +173,13 @@ def test_train_streams_its_scalars_to_rerun(tmp_path, capsys):
     rows = [json.loads(x) for x in (tmp_path / "rr" / "metrics.jsonl").read_text().splitlines()]
     ent = read_entities(tmp_path / "rr" / "metrics.rrd")
     steps = ent["/train/agent_steps"].rows
-    assert steps["env_steps"] == [r["world_steps"] for r in rows]
+    assert steps["world_steps"] == [r["world_steps"] for r in rows]  # the timeline was named env_steps
     assert steps["Scalars:scalars"] == [[float(r["agent_steps"])] for r in rows]
     # a resumed run's file starts afresh and holds the earlier curves too
     assert main(["train", "--no-progress", "--resume", str(tmp_path / "rr"), "--total-steps", "128", "--rerun"]) == 0
     rows = [json.loads(x) for x in (tmp_path / "rr" / "metrics.jsonl").read_text().splitlines()]
     steps = read_entities(tmp_path / "rr" / "metrics.rrd")["/train/agent_steps"].rows
-    assert len(rows) >= 2 and steps["env_steps"] == [r["world_steps"] for r in rows]
+    assert len(rows) >= 2 and steps["world_steps"] == [r["world_steps"] for r in rows]
 
 
 def test_a_model_used_in_another_task_than_it_learned_says_so(tiny_model, capsys):

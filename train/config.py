@@ -153,7 +153,8 @@ class RunConfig:
                                      "(corrected by the decoupled PPO objective); ppo and mappo only (dagger always collects in turn)")
     sim_threads: int = spec(0, lo=0, hi=256, help="mujoco.batch threads (0: its default)")
     progress: bool = spec(True, help="show the tqdm progress bar")
-    rerun: bool = spec(False, help="also stream every logged scalar to <run>/metrics.rrd (open with `rerun`)")
+    rerun: bool = spec(False, help="also stream every logged scalar to <run>/metrics.rrd (open with `rerun`), on a "
+                                   "world_steps timeline (decision steps x worlds, as in metrics.jsonl)")
 
     def validate(self, source: str = "config") -> None:
         check_indices("validation_layouts", self.validation_layouts, source)

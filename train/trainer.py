@@ -154,7 +154,9 @@ class Trainer:
         elif not self.overlap:
             self.collector = make_collector(cfg, self.env, self.model, self.generator)
         self.metrics = MetricsLog(self.run_dir / "metrics.jsonl")
-        self.rerun = RerunScalarLogger(self.run_dir / "metrics.rrd", run_name=cfg.name) if cfg.run.rerun else None
+        # the timeline is named for what it counts (the logger's default, env_steps, said nothing of which steps)
+        self.rerun = (RerunScalarLogger(self.run_dir / "metrics.rrd", run_name=cfg.name, timeline="world_steps")
+                      if cfg.run.rerun else None)
         if self.rerun is not None and checkpoint:  # the file starts afresh: the curves so far come from the log
             for row in self.metrics.rows():
                 self.rerun.log(int(row["world_steps"]), row)

@@ -7,8 +7,9 @@ world) and alternates timed blocks of three kinds on the same worlds:
     step): the ceiling;
   - physics: `BatchedPhysics.step(commands)`: physics + controller (+ contact read-out);
   - env: `PursuitEnv.step(actions)`: physics + controller + evader + sensing +
-    observations + rewards + outcomes. Blocks are too short for an episode to end, so
-    resets are not in it (about 5 ms per episode start at 64 worlds, 2026-12-06).
+    observations + rewards + outcomes. Blocks are kept shorter than max_steps, so that
+    resets are not in it (about 5 ms per episode start at 64 worlds, 2026-12-06); a block
+    in which an episode still ended (a capture or collision) is counted and reported.
 Pursuer commands are zero in all three (they hover; the evader flies in `env` only), so the
 difference between env and physics is the task's own per-step work. Every block starts
 from `env.reset()` with the same seed. Rates are from the fastest block of each kind (the
@@ -49,6 +50,7 @@ class EnvBench:
     blocks: int
     peak_rss_mb: float
     profile: str = ""
+    ended_blocks: int = 0  # env blocks in which an episode ended (its reset is then in the env time)
 
     @property
     def overhead(self) -> float:
@@ -87,21 +89,34 @@ def measure(fidelity: str, n_worlds: int, seconds: float, seed: int, files: Sequ
     physics = env.physics
     commands = np.zeros((n_worlds, physics.n_drones, 2))
     actions = np.zeros((n_worlds, config.n_pursuers, 2))
+    ended = [False]
+
+    def env_step() -> None:
+        _, _, terminated, truncated, _ = env.step(actions)
+        ended[0] |= bool(np.any(terminated) or np.any(truncated))
+
     kinds = {
         "raw": lambda: physics.batch.step(nstep=config.substeps),
         "physics": lambda: physics.step(commands),
-        "env": lambda: env.step(actions),
+        "env": env_step,
     }
+    ended_blocks = 0
 
     def block(fn, n: int) -> float:
+        nonlocal ended_blocks
         env.reset(seed=seed)
+        ended[0] = False
         start = time.perf_counter()
         for _ in range(n):
             fn()
-        return (time.perf_counter() - start) / n
+        seconds = (time.perf_counter() - start) / n
+        ended_blocks += ended[0]
+        return seconds
 
-    first = block(kinds["env"], 2)  # also warms up
-    n = int(np.clip(round(BLOCK_SECONDS / first), 1, MAX_BLOCK_STEPS))
+    first = block(kinds["env"], min(2, config.max_steps))  # also warms up
+    ended_blocks = 0
+    # a block ends before the time limit: its timeouts' resets would be timed as env work
+    n = int(np.clip(round(BLOCK_SECONDS / first), 1, max(1, min(MAX_BLOCK_STEPS, config.max_steps - 1))))
     times: dict[str, list[float]] = {k: [block(fn, n)] for k, fn in kinds.items()}  # a first round sizes the rest
     per_round = n * sum(t[0] for t in times.values())
     rounds = max(2, int(round(seconds / per_round)))
@@ -113,7 +128,7 @@ def measure(fidelity: str, n_worlds: int, seconds: float, seed: int, files: Sequ
         env.reset(seed=seed)
         profile = profile_call(lambda: [env.step(actions) for _ in range(max(n, 10))], profile_top)
     return EnvBench(fidelity, n_worlds, config.n_pursuers, min(times["raw"]), min(times["physics"]), min(times["env"]),
-                    rounds, peak_rss_mb(), profile)
+                    rounds, peak_rss_mb(), profile, ended_blocks)
 
 
 def _row(r: EnvBench) -> list[str]:
@@ -138,9 +153,10 @@ def run(args) -> int:
     if args.profile < 0:
         raise ValueError(f"--profile: must be >= 0, got {args.profile}")
     cfg = [task_config(f, args.task_files, args.overrides) for f in args.fidelity][0]  # refuses bad settings before any work
-    print(f"env benchmark: {cfg.n_pursuers} pursuers + {cfg.n_evaders} evader(s) per world, layout {cfg.layout} with "
-          f"{cfg.random_obstacle_count(load_layout(cfg.layout))} random obstacles, {cfg.observability} observability, {cfg.n_rays} rays; a decision "
-          f"step is {cfg.control_dt:g} s = {cfg.substeps} physics steps")
+    arena = ("a built-in layout drawn per episode (random_layout)" if cfg.random_layout else
+             f"layout {cfg.layout} with {cfg.random_obstacle_count(load_layout(cfg.layout))} random obstacles")
+    print(f"env benchmark: {cfg.n_pursuers} pursuers + {cfg.n_evaders} evader(s) per world, {arena}, {cfg.observability} "
+          f"observability, {cfg.n_rays} rays; a decision step is {cfg.control_dt:g} s = {cfg.substeps} physics steps")
     print("rates in decision steps/s summed over worlds (agent-steps/s = env x pursuers); raw = batch.step(nstep), "
           "physics = BatchedPhysics.step, env = PursuitEnv.step; fastest of alternating blocks; one process per configuration")
     headers = ["fidelity", "worlds", "raw dec/s", "physics dec/s", "env dec/s", "env agent-steps/s", "env ms/step",
@@ -151,7 +167,12 @@ def run(args) -> int:
         for w in args.worlds:
             top = args.profile if (fidelity, w) == last else 0
             results.append(run_isolated(measure, fidelity, w, args.seconds, args.seed, args.task_files, args.overrides, top))
-            print(f"  measured {fidelity} x {w} worlds ({results[-1].blocks} blocks of each kind)", flush=True)
+            r = results[-1]
+            print(f"  measured {fidelity} x {w} worlds ({r.blocks} blocks of each kind)", flush=True)
+            if r.ended_blocks:
+                print(f"  note: an episode ended in {r.ended_blocks} of the {r.blocks} env blocks ({fidelity} x {w} "
+                      f"worlds); their resets are in its env time, so it reads slower than the task's stepping alone",
+                      flush=True)
     print(format_table(headers, [_row(r) for r in results]))
     for fidelity in args.fidelity:
         at64 = [r for r in results if r.fidelity == fidelity and r.n_worlds == 64]

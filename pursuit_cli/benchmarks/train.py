@@ -224,6 +224,35 @@ def aim_line(r: TrainBench) -> str:
             f"{_verdict(r.env_over_training <= AIM_ENV_OVER_TRAINING)}")
 
 
+def _check_resolved(args: argparse.Namespace, modes: list[str]) -> list[str]:
+    """The collection modes to measure, after checking the resolved config: a --set that changes
+    task.fidelity or run.overlap in another spelling (`task={fidelity: quadrotor}`) is refused as
+    the dotted key is, and a DAgger config, which always collects in turn, is measured in turn once
+    (`--collection both` measured it twice, the second row labelled in turn too)."""
+    from train.config import load_train_config
+
+    def changed(f: str, overrides) -> str | None:
+        cfg = load_train_config([args.config], [f"task.fidelity={f}", "run.overlap=false", *overrides])
+        return "task.fidelity" if cfg.task.fidelity != f else "run.overlap" if cfg.run.overlap else None
+
+    for f in args.fidelity:
+        if changed(f, args.overrides):
+            text = next((t for t in args.overrides if changed(f, [t])), " ".join(args.overrides))
+            key = changed(f, [text]) or changed(f, args.overrides)
+            flag = {"task.fidelity": "--fidelity", "run.overlap": "--collection"}[key]
+            raise ValueError(f"--set {text}: this benchmark sets {key} from {flag}; use {flag}")
+    cfg = load_train_config([args.config], list(args.overrides))
+    if cfg.algo != "dagger":
+        return modes
+    if args.collection == "overlapped":
+        raise ValueError(f"--collection overlapped: config {args.config} trains by DAgger, which always collects in turn "
+                         f"(the teacher's labels feed the update); use --collection in-turn")
+    if args.collection == "both":
+        print(f"  note: config {args.config} trains by DAgger, which always collects in turn: measured in turn only",
+              flush=True)
+    return ["false"]
+
+
 def run(args: argparse.Namespace) -> int:
     if args.updates < 1:
         raise ValueError(f"--updates: expected an integer >= 1, got {args.updates}")
@@ -237,6 +266,7 @@ def run(args: argparse.Namespace) -> int:
         if flag:
             raise ValueError(f"--set {text}: this benchmark sets that key from {flag}; use {flag}")
     modes = {"both": ["false", "true"], "in-turn": ["false"], "overlapped": ["true"]}[args.collection]
+    modes = _check_resolved(args, modes)
     results = []
     for f in args.fidelity:
         for overlap in modes:

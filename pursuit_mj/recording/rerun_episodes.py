@@ -57,7 +57,16 @@ def check_rrd_path(path: str | Path, source: str = "--rerun") -> Path:
     path = Path(path)
     if path.suffix != ".rrd":
         raise ValueError(f"{source} {path}: expected a file name ending in .rrd")
+    partial = interrupted_rrd_path(path)
+    if partial.is_dir():  # found now, not by the rename when the run is interrupted
+        raise ValueError(f"{source} {path}: {partial} is a folder; an interrupted run keeps its finished "
+                         f"episodes under that name, so it must be free for a file")
     return check_writable(path, source)
+
+
+def interrupted_rrd_path(path: Path) -> Path:
+    """Where an interrupted recording of `path` keeps its finished episodes: out.rrd -> out.interrupted.rrd."""
+    return path.with_name(f"{path.stem}.interrupted{path.suffix}")
 
 
 def _yaw_quat_xyzw(yaw: np.ndarray) -> np.ndarray:
@@ -102,9 +111,6 @@ class RerunEpisodeRecording:
 
     def __init__(self, path: str | Path, trail_length: int = 30, application_id: str = APPLICATION_ID, source: str = "--rerun"):
         self.path = check_rrd_path(path, source)
-        if self.partial_path.is_dir():  # found now, not by the rename when the run is interrupted
-            raise ValueError(f"{source} {path}: {self.partial_path} is a folder; an interrupted run keeps its finished "
-                             f"episodes under that name, so it must be free for a file")
         if isinstance(trail_length, bool) or not isinstance(trail_length, (int, np.integer)) or trail_length < 1:
             raise ValueError(f"trail length: expected an integer >= 1 step, got {trail_length!r}")
         self.trail_length = int(trail_length)
@@ -291,7 +297,15 @@ class RerunEpisodeRecording:
     @property
     def partial_path(self) -> Path:
         """Where an interrupted recording keeps its finished episodes: out.rrd -> out.interrupted.rrd."""
-        return self.path.with_name(f"{self.path.stem}.interrupted{self.path.suffix}")
+        return interrupted_rrd_path(self.path)
+
+    def _free_partial_path(self) -> Path:
+        """partial_path, or out.interrupted-2.rrd, -3, ... when an earlier interrupted run's
+        episodes are there: they are kept, not replaced."""
+        path, k = self.partial_path, 2
+        while path.exists() or path.is_symlink():
+            path, k = self.path.with_name(f"{self.path.stem}.interrupted-{k}{self.path.suffix}"), k + 1
+        return path
 
     def summary(self) -> str:
         """One line for the user about where the episodes went, once closed."""
@@ -303,8 +317,10 @@ class RerunEpisodeRecording:
                      if self.partial_path.is_file() else "")
             return f"wrote {self.path} ({n}; open with: rerun {self.path}){stale}{killed}"
         if self.kept is not None:
+            earlier = (f"; {self.partial_path} beside it keeps an earlier interrupted run's episodes"
+                       if self.kept != self.partial_path else "")
             return (f"interrupted: the {n} finished before it are in {self.kept} (open with: rerun {self.kept}); "
-                    f"{self.path} was not written{killed}")
+                    f"{self.path} was not written{earlier}{killed}")
         if self.lost is not None and self.n_episodes:
             return f"the {n} recorded could not be written ({self.lost}): neither {self.path} nor {self.partial_path} holds them"
         return f"interrupted before any episode finished: {self.path} was not written"
@@ -316,7 +332,8 @@ class RerunEpisodeRecording:
         written, a full disk: nothing is left then). Not ok (an error, Ctrl-C, SIGTERM): the
         finished episodes are kept under `partial_path` with the recording property
         `interrupted`, so that `path` only ever holds a whole run (and an earlier one there
-        survives); a recording without a finished episode is discarded.
+        survives); when an earlier interrupted run's episodes are there, under the first free
+        out.interrupted-K.rrd instead; a recording without a finished episode is discarded.
         """
         if self._closed:
             return self.kept
@@ -340,7 +357,7 @@ class RerunEpisodeRecording:
             if ok:
                 self.kept = move_into_place(self._tmp, self.path)
             elif keep:
-                self.kept = move_into_place(self._tmp, self.partial_path)
+                self.kept = move_into_place(self._tmp, self._free_partial_path())
         except OSError as exc:  # the data could not be flushed or the file renamed: a full disk, a removed folder
             return self._lost(ok, exc)
         finally:
