@@ -206,12 +206,13 @@ class CoverageMap:
         aim = np.where(planned[..., None], self.centers[ci, cj], goal_xy) - pos
         self.waited = np.where(planned, 0.0, self.waited)
         give_up = self.waited > self.p.patience
-        gw, gn = np.nonzero(give_up)
-        r = 2
-        for di in range(-r, r + 1):  # the goal's neighbourhood, so that the next goal is elsewhere
-            for dj in range(-r, r + 1):
-                gi = np.clip(self.goal[gw, gn, 0] + di, 0, self.GX - 1)
-                gj = np.clip(self.goal[gw, gn, 1] + dj, 0, self.GY - 1)
-                self.seen[gw, gn, gi, gj] = now[gw]
-        self.waited[give_up] = 0.0
+        if give_up.any():  # rarely: the 25 writes cost 0.2-0.4 ms a step when nobody gives up
+            gw, gn = np.nonzero(give_up)
+            r = 2
+            for di in range(-r, r + 1):  # the goal's neighbourhood, so that the next goal is elsewhere
+                for dj in range(-r, r + 1):
+                    gi = np.clip(self.goal[gw, gn, 0] + di, 0, self.GX - 1)
+                    gj = np.clip(self.goal[gw, gn, 1] + dj, 0, self.GY - 1)
+                    self.seen[gw, gn, gi, gj] = now[gw]
+            self.waited[give_up] = 0.0
         return aim, planned
