@@ -80,7 +80,7 @@ def _outputs(args) -> tuple[Path | None, Path | None]:
     if args.rerun:
         from pursuit_mj.recording import check_rrd_path
 
-        check_rrd_path(args.rerun)
+        check_rrd_path(args.rerun, episodes=True)
     files = [(p, flag) for p, flag in ((csv_path, "--csv"), (json_path, "--json"), (args.rerun and Path(args.rerun), "--rerun")) if p]
     for i, (path, flag) in enumerate(files):
         for other, other_flag in files[i + 1:]:

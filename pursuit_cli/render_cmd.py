@@ -275,7 +275,7 @@ def run(args) -> int:
     if args.rerun:
         from pursuit_mj.recording import RerunEpisodeRecording, check_rrd_path
 
-        check_rrd_path(args.rerun, "--rerun")
+        check_rrd_path(args.rerun, "--rerun", episodes=True)
     if target is not None:
         _writable_folder(target.folder, "-s")
         sweep_dead_parts(target.folder, "-s")

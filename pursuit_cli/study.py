@@ -53,6 +53,12 @@ def run(args) -> int:
     if not args.task_files:
         args.task_files = ["reference"]
     task = task_config_from_args(args)
+    named = [f"--set {o.strip()}" for o in args.overrides if o.split("=", 1)[0].strip() == "layout"]
+    named = ([f"--layout {args.layout}"] if args.layout is not None else []) + named
+    if named or task.layout != 0:  # it was accepted and ignored: every arm trains on 0, the table plays --layouts
+        given = named[-1] if named else f"layout {task.layout} (from --task)"
+        raise ValueError(f"{given}: the study trains every arm on layout 0 and evaluates on --layouts; give a layout "
+                         f"to evaluate among --layouts (--layouts 0 1 2 3 FILE)")
     layouts = tuple(checked_layouts(args.layouts))  # refused before any folder is made or any arm trains
     out = Path(args.out)
     plan = StudyPlan(

@@ -226,8 +226,8 @@ def _refuse_other_kinds_of_file(data: Any, source: str) -> None:
     (it was refused as 'unknown key name', which did not say what the file was)."""
     if not isinstance(data, dict):
         return
-    for keys, what, where in ((_LAYOUT_FILE_KEYS, "a layout file", "give it with -i/--layout FILE (or as layout: FILE in a "
-                               "task file)"),
+    for keys, what, where in ((_LAYOUT_FILE_KEYS, "a layout file", "give it with -i/--layout FILE, or among --layouts for a "
+                               "table (eval, demo, study), or as layout: FILE in a task file"),
                               (_TRAIN_CONFIG_KEYS, "a train config", "give it to pursuit-mj train --config FILE")):
         found = [k for k in keys if k in data]
         if found:

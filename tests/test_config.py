@@ -393,7 +393,12 @@ def test_a_layout_file_or_train_config_given_as_a_task_file_is_named_for_what_it
     layout.write_text(builtin_layout_path(1).read_text())
     assert main(["config", "--task", str(layout)]) == 2
     assert (f"{layout}: this is a layout file (it has arena, boundary, spawn), not a task file: give it with "
-            f"-i/--layout FILE") in capsys.readouterr().err
+            f"-i/--layout FILE, or among --layouts for a table (eval, demo, study)") in capsys.readouterr().err
+    # a study trains on layout 0 and plays --layouts: a single layout given to it was accepted and ignored
+    for given in (["-i", str(layout)], ["--set", "layout=2"]):
+        assert main(["study", "--budget-minutes", "1", "--out", str(tmp_path / "s"), *given]) == 2
+        assert "the study trains every arm on layout 0 and evaluates on --layouts" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()
     assert main(["eval", "--task", "configs/train/classic.yaml"]) == 2
     assert "this is a train config (it has ppo, regime, algo, n_envs, total_steps), not a task file: give it to " \
            "pursuit-mj train --config FILE" in capsys.readouterr().err

@@ -149,11 +149,27 @@ def test_an_interrupted_recording_keeps_its_finished_episodes_beside_the_whole_o
     assert f"are in {second}" in again.summary() and f"{partial} beside it keeps an earlier interrupted run's" in again.summary()
     assert read_entities(second)["/__properties/interrupted"].static["finished_episodes"] == [1]
 
-    with RerunEpisodeRecording(earlier) as whole:  # a later run that ends: the stale partial one is pointed out, kept
+    def interrupted_run():
+        with pytest.raises(KeyboardInterrupt):
+            with RerunEpisodeRecording(earlier) as rec:
+                buf = EpisodeBuffer()
+                buf.append(env.snapshot(0))
+                rec.add_episode(buf)
+                raise KeyboardInterrupt
+        return rec
+
+    third = interrupted_run()  # every earlier one is named
+    assert third.kept == tmp_path / "x.interrupted-3.rrd"
+    assert f"; {partial}, {second} beside it keep earlier interrupted runs' episodes" in third.summary()
+    partial.unlink()  # the numbers still follow the runs when the first is deleted
+    assert interrupted_run().kept == tmp_path / "x.interrupted-4.rrd"
+
+    with RerunEpisodeRecording(earlier) as whole:  # a later run that ends: the interrupted ones are pointed out, kept
         buf = EpisodeBuffer()
         buf.append(env.snapshot(0))
         whole.add_episode(buf)
-    assert whole.summary().endswith(f"; {partial} beside it is from an earlier, interrupted run") and partial.is_file()
+    kept = ", ".join(str(tmp_path / f"x.interrupted-{k}.rrd") for k in (2, 3, 4))
+    assert whole.summary().endswith(f"; {kept} beside it keep earlier interrupted runs' episodes"), whole.summary()
 
 
 def test_a_folder_where_the_interrupted_recording_would_go_is_refused_up_front(tmp_path, capsys):
@@ -421,3 +437,12 @@ def test_an_unfinished_recording_left_under_this_processs_pid_is_kept_and_named(
         rec.add_episode(buf)
     assert left.read_bytes() == b"the killed run's episodes"
     assert f"{left} beside it holds what a recording killed before it finished had written" in rec.summary()
+
+
+def test_a_scalar_log_is_not_refused_for_a_folder_where_episode_recordings_keep_interrupted_runs(tmp_path):
+    """The interrupted-name check moved into check_rrd_path refused train --rerun's metrics.rrd too,
+    which never writes an interrupted file."""
+    (tmp_path / "metrics.interrupted.rrd").mkdir()
+    RerunScalarLogger(tmp_path / "metrics.rrd").close()
+    with pytest.raises(ValueError, match="metrics.interrupted.rrd is a folder"):
+        RerunEpisodeRecording(tmp_path / "metrics.rrd")

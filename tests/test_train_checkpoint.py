@@ -869,3 +869,17 @@ def test_cutting_the_metrics_log_keeps_what_its_reader_reads(tmp_path):
     log.path.write_bytes(b'{"update": 1}\n{"update": 7.0}\n')
     log.truncate_after(1)
     assert [r["update"] for r in log.rows()] == [1]
+
+
+def test_a_run_stored_with_an_idle_layout_index_beside_random_layout_resumes():
+    """Versions before 2026-12-06 accepted task.layout=2 with random_layout and stored it; the check
+    that now refuses that as input refused such a run's checkpoint, and nobody can edit one."""
+    from pursuit_mj.configio import to_dict
+    from train.config import train_config_from_dict
+
+    stored = to_dict(load_train_config([], ["task.random_layout=true"]))
+    stored["task"]["layout"] = 2  # as the old code wrote it
+    cfg = train_config_from_dict(json.loads(json.dumps(stored)), "checkpoint x.pt: train_config")
+    assert cfg.task.random_layout and cfg.task.layout == 0
+    with pytest.raises(ValueError, match="layout 2 would be ignored"):  # as input it stays refused
+        load_train_config([], ["task.random_layout=true", "task.layout=2"])

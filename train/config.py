@@ -437,7 +437,20 @@ def load_train_config(
 def train_config_from_dict(data: Mapping[str, Any], source: str) -> TrainConfig:
     """Rebuild a config stored in a checkpoint (a plain dict); keys it lacks take today's defaults
     (`defaults_filled_in` names them)."""
-    return build(TrainConfig, data, source)
+    return build(TrainConfig, _ignored_layout_index_dropped(data), source)
+
+
+def _ignored_layout_index_dropped(data: Mapping[str, Any]) -> Mapping[str, Any]:
+    """`data` with task.layout set to 0 where task.random_layout made it idle: versions before
+    2026-12-06 wrote such configs, which today's check refuses as input, and a user cannot edit
+    a checkpoint to resume it (the run drew its layouts per episode either way)."""
+    task = data.get("task") if isinstance(data, Mapping) else None
+    if not (isinstance(task, Mapping) and task.get("random_layout") is True):
+        return data
+    layout = task.get("layout")
+    if isinstance(layout, bool) or not isinstance(layout, int) or layout == 0:
+        return data
+    return {**data, "task": {**task, "layout": 0}}
 
 
 def defaults_filled_in(data: Mapping[str, Any], cfg: TrainConfig) -> list[str]:

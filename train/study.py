@@ -328,8 +328,8 @@ def training_seconds_needed(arms: Sequence[Arm], validations: dict[str, ArmValid
 
 def short_arm_warning(regime: str, seconds: float) -> str:
     """What the study says of an arm left under MIN_ARM_TRAIN_S of training."""
-    return (f"[study] warning: {regime} is left {seconds:.0f} s of training, too little to learn anything (the runs before "
-            f"took longer than planned: the closing validation of a barely trained policy plays to the time limit); "
+    return (f"[study] warning: {regime} is left {seconds:.0f} s of training, too little to learn anything (the runs and "
+            f"evaluations before took longer than planned, as when a policy plays its episodes to the time limit); "
             f"its row in the table is of a nearly untrained policy, and the study may run over its budget. A larger "
             f"--budget-minutes gives every run time to learn")
 

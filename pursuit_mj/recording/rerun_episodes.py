@@ -28,7 +28,9 @@ ends, and renamed on `close` (a recording killed mid-way, kill -9, leaves that f
 from __future__ import annotations
 
 import contextlib
+import glob
 import math
+import re
 import uuid
 from pathlib import Path
 from typing import Sequence
@@ -52,13 +54,15 @@ RAY_RGBA = (120, 120, 120, 90)
 OUTCOME_LEVEL = {"success": "INFO", "timeout": "WARN", "collision": "ERROR", "": "INFO"}
 
 
-def check_rrd_path(path: str | Path, source: str = "--rerun") -> Path:
-    """Validate an output .rrd path before any work: ValueError naming `source` if it cannot be written."""
+def check_rrd_path(path: str | Path, source: str = "--rerun", episodes: bool = False) -> Path:
+    """Validate an output .rrd path before any work: ValueError naming `source` if it cannot be
+    written; with `episodes` (a RerunEpisodeRecording's), also if a folder holds the name its
+    interrupted episodes would be kept under."""
     path = Path(path)
     if path.suffix != ".rrd":
         raise ValueError(f"{source} {path}: expected a file name ending in .rrd")
     partial = interrupted_rrd_path(path)
-    if partial.is_dir():  # found now, not by the rename when the run is interrupted
+    if episodes and partial.is_dir():  # found now, not by the rename when the run is interrupted
         raise ValueError(f"{source} {path}: {partial} is a folder; an interrupted run keeps its finished "
                          f"episodes under that name, so it must be free for a file")
     return check_writable(path, source)
@@ -110,7 +114,7 @@ class RerunEpisodeRecording:
     """An .rrd file that holds any number of episodes (see the module docstring for its layout)."""
 
     def __init__(self, path: str | Path, trail_length: int = 30, application_id: str = APPLICATION_ID, source: str = "--rerun"):
-        self.path = check_rrd_path(path, source)
+        self.path = check_rrd_path(path, source, episodes=True)
         if isinstance(trail_length, bool) or not isinstance(trail_length, (int, np.integer)) or trail_length < 1:
             raise ValueError(f"trail length: expected an integer >= 1 step, got {trail_length!r}")
         self.trail_length = int(trail_length)
@@ -299,13 +303,33 @@ class RerunEpisodeRecording:
         """Where an interrupted recording keeps its finished episodes: out.rrd -> out.interrupted.rrd."""
         return interrupted_rrd_path(self.path)
 
+    def _interrupted_files(self) -> dict[int, Path]:
+        """{number: file} of the interrupted runs' episodes kept beside `path`: out.interrupted.rrd
+        is 1, out.interrupted-K.rrd is K."""
+        pattern = re.compile(re.escape(f"{self.path.stem}.interrupted") + r"(?:-([2-9]|[1-9]\d+))?" + re.escape(self.path.suffix))
+        found = {}
+        for entry in self.path.parent.glob(f"{glob.escape(self.path.stem)}.interrupted*{self.path.suffix}"):
+            match = pattern.fullmatch(entry.name)
+            if match and not entry.is_dir():
+                found[int(match.group(1) or 1)] = entry
+        return dict(sorted(found.items()))
+
     def _free_partial_path(self) -> Path:
-        """partial_path, or out.interrupted-2.rrd, -3, ... when an earlier interrupted run's
-        episodes are there: they are kept, not replaced."""
-        path, k = self.partial_path, 2
-        while path.exists() or path.is_symlink():
-            path, k = self.path.with_name(f"{self.path.stem}.interrupted-{k}{self.path.suffix}"), k + 1
-        return path
+        """partial_path, or out.interrupted-K.rrd numbered after the last one there when earlier
+        interrupted runs' episodes are kept: they are not replaced, and the numbers follow the runs."""
+        kept = self._interrupted_files()
+        if not kept and not self.partial_path.exists():
+            return self.partial_path
+        k = max(max(kept, default=1), 1) + 1
+        return self.path.with_name(f"{self.path.stem}.interrupted-{k}{self.path.suffix}")
+
+    def _earlier_interrupted(self) -> str:
+        """'; A, B beside it keep earlier interrupted runs' episodes' (or '' when there are none)."""
+        earlier = [str(p) for p in self._interrupted_files().values() if p != self.kept]
+        if not earlier:
+            return ""
+        what = "keeps an earlier interrupted run's" if len(earlier) == 1 else "keep earlier interrupted runs'"
+        return f"; {', '.join(earlier)} beside it {what} episodes"
 
     def summary(self) -> str:
         """One line for the user about where the episodes went, once closed."""
@@ -313,14 +337,10 @@ class RerunEpisodeRecording:
         killed = "".join(f"; {p} beside it holds what a recording killed before it finished had written"
                          for p in self.killed_before if p.is_file())
         if self.kept == self.path:
-            stale = (f"; {self.partial_path} beside it is from an earlier, interrupted run"
-                     if self.partial_path.is_file() else "")
-            return f"wrote {self.path} ({n}; open with: rerun {self.path}){stale}{killed}"
+            return f"wrote {self.path} ({n}; open with: rerun {self.path}){self._earlier_interrupted()}{killed}"
         if self.kept is not None:
-            earlier = (f"; {self.partial_path} beside it keeps an earlier interrupted run's episodes"
-                       if self.kept != self.partial_path else "")
             return (f"interrupted: the {n} finished before it are in {self.kept} (open with: rerun {self.kept}); "
-                    f"{self.path} was not written{earlier}{killed}")
+                    f"{self.path} was not written{self._earlier_interrupted()}{killed}")
         if self.lost is not None and self.n_episodes:
             return f"the {n} recorded could not be written ({self.lost}): neither {self.path} nor {self.partial_path} holds them"
         return f"interrupted before any episode finished: {self.path} was not written"
