@@ -11,13 +11,13 @@ not fit) before any training starts. The heuristic team's full evaluation, timed
 the reserve for the arms' evaluations; the rest is training time, handed out arm by arm by
 their shares in ARMS of what is left (so an arm that ran over takes from the later ones, not
 from the budget). Each arm is evaluated as soon as it has trained, so an evaluation that takes
-more or less than its reserve moves the later arms' training time too. Each run stops at its max_minutes, its learning rate decaying over it, and
-that time is its share less its closing validation (fewer validation episodes when they
-would take more than VALIDATION_SHARE of it), priced at the time limit, where a barely
-trained policy's episodes end, from a probe of the heuristic team on a few of the arm's own
-validation episodes (its training fidelity and layouts, which the evaluation's may not be) and
-the arm's cost of acting (Arm.eval_cost). A budget whose plan leaves any arm under MIN_ARM_TRAIN_S is
-refused with one that would do. All
+more or less than its reserve moves the later arms' training time too. Each run stops at its
+max_minutes, its learning rate decaying over it, and that time is its share less its closing
+validation (fewer validation episodes when they would take more than VALIDATION_SHARE of it),
+priced at the time limit, where a barely trained policy's episodes end, from a probe of the
+heuristic team on a few of the arm's own validation episodes (its training fidelity and
+layouts, which the evaluation's may not be) and the arm's cost of acting (Arm.eval_cost). A
+budget whose plan leaves any arm under MIN_ARM_TRAIN_S is refused with one that would do. All
 policies are evaluated on the same task (the reference preset unless told otherwise) with
 partial observability: full_obs is trained with full observability but judged like the rest.
 
