@@ -320,8 +320,7 @@ class RerunEpisodeRecording:
         kept = self._interrupted_files()
         if not kept and not self.partial_path.exists():
             return self.partial_path
-        k = max(max(kept, default=1), 1) + 1
-        return self.path.with_name(f"{self.path.stem}.interrupted-{k}{self.path.suffix}")
+        return self.path.with_name(f"{self.path.stem}.interrupted-{max(kept, default=1) + 1}{self.path.suffix}")
 
     def _earlier_interrupted(self) -> str:
         """'; A, B beside it keep earlier interrupted runs' episodes' (or '' when there are none)."""
@@ -352,8 +351,8 @@ class RerunEpisodeRecording:
         written, a full disk: nothing is left then). Not ok (an error, Ctrl-C, SIGTERM): the
         finished episodes are kept under `partial_path` with the recording property
         `interrupted`, so that `path` only ever holds a whole run (and an earlier one there
-        survives); when an earlier interrupted run's episodes are there, under the first free
-        out.interrupted-K.rrd instead; a recording without a finished episode is discarded.
+        survives); when earlier interrupted runs' episodes are there, under
+        out.interrupted-K.rrd numbered after the last of them; a recording without a finished episode is discarded.
         """
         if self._closed:
             return self.kept
