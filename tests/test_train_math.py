@@ -564,3 +564,23 @@ def test_every_gradient_step_is_clipped_to_max_grad_norm(monkeypatch):
     model, cfg = _acted(buf, spec, ["ppo.max_grad_norm=0.25"])
     _update_once(model, buf, cfg)
     assert calls == [(len(list(model.parameters())), 0.25)]  # actor and critic, one joint norm
+
+
+def test_every_net_kind_the_config_accepts_builds_its_own_trunk_and_an_unknown_kind_is_refused():
+    """train/networks.py TRUNKS and the choices of net.kind (train/config.py NET_KINDS) are one
+    list: a kind added to the config but not to the networks must not fall back to the flat
+    MLP (until 2026-12 every kind but reference built FlatTrunk without a word)."""
+    import dataclasses
+
+    from train.config import NET_KINDS
+    from train.networks import TRUNKS, FlatTrunk, PooledTrunk, make_trunk
+
+    assert set(TRUNKS) == set(NET_KINDS)
+    spec = ObsSpec.make(3, 1, 4)
+    assert isinstance(make_trunk(spec, NetConfig(kind="reference", encoder_width=8, hidden=(8,))), PooledTrunk)
+    assert isinstance(make_trunk(spec, NetConfig(kind="mlp", hidden=(8,))), FlatTrunk)
+    unknown = dataclasses.replace(NetConfig(hidden=(8,)), kind="attention")
+    with pytest.raises(ValueError, match=r"net.kind 'attention'.*reference, mlp"):
+        make_trunk(spec, unknown)
+    with pytest.raises(ValueError, match=r"net.kind 'attention'"):
+        Actor(spec, unknown)

@@ -97,11 +97,14 @@ class ResidualConfig:
 MAX_WIDTH = 4096  # widest network layer accepted: far beyond any use here, so a slip of a few zeros fails early
 
 
+NET_KINDS = ("reference", "mlp")  # the keys of train/networks.py TRUNKS (a test keeps the two lists one)
+
+
 @dataclasses.dataclass(frozen=True)
 class NetConfig:
     """Network shape. `reference`: per-entity encoders with masked mean pooling (DESIGN.md 6)."""
 
-    kind: str = spec("reference", choices=("reference", "mlp"), help="actor/critic network family")
+    kind: str = spec("reference", choices=NET_KINDS, help="actor/critic network family (train/networks.py TRUNKS)")
     encoder_width: int = spec(128, lo=1, hi=MAX_WIDTH, help="width of each per-entity encoder")
     hidden: tuple[int, ...] = spec((128, 128), help="widths of the fused trunk after the encoders")
     use_rays: bool = spec(True, help="encode the range readings (the reference study had none)")

@@ -198,8 +198,21 @@ class FlatTrunk(nn.Module):
         return self.fuse(obs)
 
 
+#: net.kind -> trunk class; a new network is one class here and its name in train/config.py NET_KINDS.
+#: A trunk is built as cls(spec, cfg: NetConfig), has `out_dim`, and maps obs (..., spec.dim) float32
+#: to features (..., out_dim); Actor and Critic put their heads on it (docs/training.md, "Network").
+TRUNKS: dict[str, type[nn.Module]] = {"reference": PooledTrunk, "mlp": FlatTrunk}
+
+
 def make_trunk(spec: ObsSpec, cfg: NetConfig) -> nn.Module:
-    return PooledTrunk(spec, cfg) if cfg.kind == "reference" else FlatTrunk(spec, cfg)
+    """The trunk net.kind names (a key of TRUNKS), or ValueError naming the kind: a kind without
+    a class here must not train some other network."""
+    try:
+        cls = TRUNKS[cfg.kind]
+    except KeyError:
+        raise ValueError(f"net.kind {cfg.kind!r}: no such network in train/networks.py TRUNKS "
+                         f"(known: {', '.join(TRUNKS)})") from None
+    return cls(spec, cfg)
 
 
 class Actor(nn.Module):
