@@ -883,3 +883,17 @@ def test_a_run_stored_with_an_idle_layout_index_beside_random_layout_resumes():
     assert cfg.task.random_layout and cfg.task.layout == 0
     with pytest.raises(ValueError, match="layout 2 would be ignored"):  # as input it stays refused
         load_train_config([], ["task.random_layout=true", "task.layout=2"])
+
+
+def test_init_from_a_checkpoint_of_another_network_names_both_networks(tmp_path):
+    """A run started from a checkpoint of another net.kind or widths is refused naming the
+    stored network and this run's, and which keys to set, not with torch's list of keys."""
+    src = tiny_config(tmp_path, name="flat", updates=1, extra=["net.kind=mlp", "net.hidden=[16]"])
+    Trainer(src, log=lambda s: None).train()
+    path = src.run_dir / "best.pt"
+    with pytest.raises(ValueError, match=r"init_from .*best.pt: its actor is net.kind mlp, net.hidden \[16\]; "
+                                         r"this run builds net.kind reference, net.hidden \[128, 128\]"):
+        Trainer(tiny_config(tmp_path, name="ft", extra=[f"init_from={path}"]), log=lambda s: None)
+    same = Trainer(tiny_config(tmp_path, name="ft2", extra=[f"init_from={path}", "net.kind=mlp", "net.hidden=[16]"]),
+                   log=lambda s: None)
+    assert torch.equal(same.model.actor.head.weight, load_checkpoint(path)["actor"]["head.weight"])

@@ -28,7 +28,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from pursuit_mj.configio import dump_yaml, to_dict
+from pursuit_mj.configio import build, dump_yaml, to_dict
 from pursuit_mj.evaluation import capture_steps
 from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, file_sha256, remove_leftover_parts
 from pursuit_mj.policies import make_policy
@@ -37,7 +37,7 @@ from pursuit_mj.sensing import privileged_config
 from .agent import ActorCritic
 from .checkpoint import check_obs_spec, is_training_checkpoint, load_checkpoint, load_error, save_checkpoint
 from .child_process import WorkerExited
-from .config import TrainConfig, defaults_filled_in, train_config_from_dict, usable_cores
+from .config import NetConfig, TrainConfig, defaults_filled_in, train_config_from_dict, usable_cores
 from .critic_worker import CriticWorker
 from .discount import Discount
 from .imitation import DaggerCollector, Demonstrations, imitation_update, teacher_share
@@ -319,6 +319,7 @@ class Trainer:
         except ValueError as exc:  # a folder, a damaged file: named with the key it came from
             raise ValueError(f"init_from (--init-from): {exc}") from None
         check_obs_spec(data, self.spec, path)
+        check_same_network(data, self.cfg.net, path)
         try:
             self.model.actor.load_state_dict(data["actor"])
         except RuntimeError as exc:
@@ -714,6 +715,34 @@ class Trainer:
             if bar is not None:
                 bar.close()
         return {"status": status, "counters": dataclasses.asdict(c), "validation": last_val, "run_dir": str(self.run_dir)}
+
+
+ACTOR_SHAPE_KEYS = ("kind", "encoder_width", "hidden", "use_rays")  # the net.* keys that decide the actor's weights
+
+
+def check_same_network(data: dict, net: NetConfig, path: str | Path) -> None:
+    """ValueError naming both networks unless the checkpoint `data`'s actor was built with this
+    run's net.kind, widths and use_rays (ACTOR_SHAPE_KEYS): its weights would not load, or, for two
+    kinds with the same weight names, would load into another network. A kind this code does not
+    know is refused by name (train_config.net: key 'kind')."""
+    stored = build(NetConfig, data["train_config"].get("net", {}), f"init_from {path}: train_config.net")
+    differ = [k for k in ACTOR_SHAPE_KEYS if getattr(stored, k) != getattr(net, k)]
+    if differ:
+        def shown(cfg: NetConfig) -> str:
+            return ", ".join(f"net.{k} {_text(getattr(cfg, k))}" for k in differ)
+
+        sets = " ".join(f"--set net.{k}={_text(getattr(stored, k), yaml=True)}" for k in differ)
+        raise ValueError(f"init_from {path}: its actor is {shown(stored)}; this run builds {shown(net)} "
+                         f"(to start from it, give the run the same network: {sets})")
+
+
+def _text(value, yaml: bool = False) -> str:
+    """A net.* value as the error shows it (tuples as lists; booleans as YAML writes them)."""
+    if isinstance(value, tuple):
+        return f"[{', '.join(map(str, value))}]" if not yaml else f"[{','.join(map(str, value))}]"
+    if isinstance(value, bool):
+        return str(value).lower()
+    return str(value)
 
 
 def _check_layout_files(cfg: TrainConfig, trained: dict, run_dir: str | Path) -> None:
