@@ -570,16 +570,44 @@ def test_a_resume_from_a_last_pt_older_than_best_pt_does_not_replace_it_with_a_w
 
 @pytest.fixture
 def file_size_limit():
-    """file_size_limit(n): no file of this process grows past n bytes until the test ends (a
-    full disk, as a write sees it: the write fails with an OSError; root is bound too)."""
+    """`with file_size_limit(n):` no file of this process grows past n bytes inside the block (a
+    full disk, as a write sees it: the write fails with an OSError; root is bound too). The limit
+    is lifted as the block ends, before pytest reports the test: that report is a write too, and
+    with the output going to a file (pytest ... > log) it failed and ended the whole session."""
+    import contextlib
     import resource
     import signal
 
     soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
     previous = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # else the write kills the process
-    yield lambda n: resource.setrlimit(resource.RLIMIT_FSIZE, (n, hard))
+
+    @contextlib.contextmanager
+    def limited(n: int):
+        resource.setrlimit(resource.RLIMIT_FSIZE, (n, hard))
+        try:
+            yield
+        finally:
+            resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+
+    yield limited
     resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
     signal.signal(signal.SIGXFSZ, previous)
+
+
+def test_the_full_disk_tests_run_with_their_output_going_to_a_file(tmp_path):
+    """Their limit on file sizes held until the test ended, so pytest's own report of the test,
+    written to a file (pytest -q ... > log), hit it: 'OSError: [Errno 27] File too large' and an
+    INTERNALERROR ended the session."""
+    import subprocess
+    import sys
+
+    log = tmp_path / "pytest.log"
+    with open(log, "w") as out:
+        rc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", __file__, "-k",
+                             "cuts_the_metrics_log_in_place or new_run_on_a_full_disk"],
+                            stdout=out, stderr=subprocess.STDOUT, cwd=Path(__file__).parent.parent).returncode
+    said = log.read_text()
+    assert rc == 0 and "File too large" not in said and said.startswith(".."), said[-2000:]
 
 
 def test_a_checkpoint_that_does_not_fit_on_the_disk_stops_the_run_naming_it_and_keeps_the_one_before(tmp_path, file_size_limit):
@@ -588,9 +616,8 @@ def test_a_checkpoint_that_does_not_fit_on_the_disk_stops_the_run_naming_it_and_
     cfg = tiny_config(tmp_path, updates=1)
     Trainer(cfg, log=lambda s: None).train()
     trainer = Trainer.resume(cfg.run_dir, total_steps=32 * 3, log=lambda s: None)
-    file_size_limit((cfg.run_dir / "last.pt").stat().st_size // 2)  # the log and config.yaml still fit
-    with pytest.raises(ValueError) as caught:
-        trainer.train()
+    with file_size_limit((cfg.run_dir / "last.pt").stat().st_size // 2), pytest.raises(ValueError) as caught:
+        trainer.train()  # the log and config.yaml still fit
     said = str(caught.value)
     assert said.startswith(f"checkpoint {cfg.run_dir / 'last.pt'}: cannot write it ("), said
     assert said.endswith(f"; last.pt keeps update 1; once the folder has room and write access, continue with: "
@@ -812,21 +839,20 @@ def test_a_resume_cuts_the_metrics_log_in_place_without_room_for_a_second_copy(t
         log.append({"update": u, "loss": 0.5})
     with open(log.path, "a") as f:
         f.write('{"update": 4, "lo')  # a row cut short by a kill
-    file_size_limit(0)  # no file can grow: a copy of the log cannot be written
-    log.truncate_after(3)
-    assert log.path.read_text().splitlines()[-1] == '{"update": 3, "loss": 0.5}' and log.path.read_text().endswith("\n")
-    log.truncate_after(2)
-    assert [r["update"] for r in log.rows()] == [1, 2]
-    log.truncate_after(5)
-    assert [r["update"] for r in log.rows()] == [1, 2]
+    with file_size_limit(0):  # no file can grow: a copy of the log cannot be written
+        log.truncate_after(3)
+        assert log.path.read_text().splitlines()[-1] == '{"update": 3, "loss": 0.5}' and log.path.read_text().endswith("\n")
+        log.truncate_after(2)
+        assert [r["update"] for r in log.rows()] == [1, 2]
+        log.truncate_after(5)
+        assert [r["update"] for r in log.rows()] == [1, 2]
     assert not [p.name for p in tmp_path.iterdir() if ".part" in p.name]
 
 
 def test_a_new_run_on_a_full_disk_is_refused_in_one_line_and_leaves_no_folder(tmp_path, file_size_limit):
     """The folder's lock file could not be written: an OSError traceback from lock_run_folder."""
     cfg = tiny_config(tmp_path, updates=1)
-    file_size_limit(0)
-    with pytest.raises(ValueError) as caught:
+    with file_size_limit(0), pytest.raises(ValueError) as caught:
         Trainer(cfg, log=lambda s: None)
     said = str(caught.value)
     assert said.startswith(f"run folder {cfg.run_dir}: cannot write its lock file") and "\n" not in said, said
