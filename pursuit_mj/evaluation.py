@@ -28,7 +28,7 @@ from .configio import to_dict
 from .env import EpisodeRecord, PursuitEnv, check_seed
 from .io_utils import atomic_write_text
 from .layout import N_BUILTIN, Layout, builtin_layout_path, is_index_text, load_layout
-from .policy import Policy, check_policy
+from .policy import Policy, check_policy, checked_actions
 from .stats import Mean, Rate, mean_interval, rate
 
 OUTCOMES = ("success", "collision", "timeout")
@@ -187,7 +187,7 @@ def play(env: PursuitEnv, policy: Policy, seeds: np.ndarray, on_episode: Callabl
     started = W
     records: list[tuple[int, EpisodeRecord]] = []
     while len(records) < episodes:
-        actions = policy.act(obs, env.obs_spec)
+        actions = checked_actions(policy.act(obs, env.obs_spec), W, env.n_pursuers, f"policy {getattr(policy, 'name', '?')}")
         obs, _, _, _, info = env.step(actions)
         if watcher is not None:
             watcher.stepped(info)

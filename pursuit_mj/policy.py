@@ -22,7 +22,11 @@ class Policy(Protocol):
         """Forget any memory of the listed worlds (all if None); called at episode starts."""
 
     def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
-        """Actions (W, N, 2) in [-1, 1] (fraction of max speed, world x/y) from obs (W, N, spec.dim)."""
+        """Actions (W, N, 2) in [-1, 1] (fraction of max speed, world x/y) from obs (W, N, spec.dim).
+
+        Real numbers, finite (evaluate and render name the policy otherwise: `checked_actions`);
+        beyond [-1, 1] they are clipped. Called every step for every world of the batch, those
+        frozen at an episode's end included (their actions are ignored)."""
 
 
 def check_policy(policy, where: str) -> None:
@@ -64,6 +68,27 @@ def check_world_count(n_obs: int, n_reset: int | None, who: str) -> None:
     if n_reset is not None and n_obs != n_reset:
         raise ValueError(f"{who}: got observations of {n_obs} world{'' if n_obs == 1 else 's'}, but reset() was "
                          f"called for {n_reset} (call reset({n_obs}) first)")
+
+
+def checked_actions(actions, n_worlds: int, n_pursuers: int, who: str) -> np.ndarray:
+    """What a policy's act() returned, as a float64 array (n_worlds, n_pursuers, 2), or ValueError
+    naming policy `who` and what is wrong: another shape (a transposed (N, W, 2) included), values
+    that are no real numbers, NaN or inf. Values beyond [-1, 1] are kept: the env clips them
+    (docs/env_api.md), as it would a policy called outside this check."""
+    want = (int(n_worlds), int(n_pursuers), 2)
+    try:
+        raw = np.asarray(actions)
+    except ValueError:  # nested lists of unequal lengths
+        raise ValueError(f"{who}: act() gave a ragged list, expected actions of shape {want} (worlds, pursuers, vx vy)") from None
+    if raw.dtype.kind not in "fiu":
+        raise ValueError(f"{who}: act() gave actions of dtype {raw.dtype}, expected real numbers (worlds, pursuers, vx vy)")
+    if raw.shape != want:
+        raise ValueError(f"{who}: act() gave actions of shape {raw.shape}, expected {want} (worlds, pursuers, vx vy)")
+    a = raw.astype(np.float64)
+    if not np.isfinite(a).all():
+        w, i, c = (int(k) for k in np.argwhere(~np.isfinite(a))[0])
+        raise ValueError(f"{who}: act() gave {a[w, i, c]} for world {w}, pursuer {i}, {('vx', 'vy')[c]}")
+    return a
 
 
 class RandomPolicy:

@@ -717,3 +717,39 @@ def test_two_models_of_one_run_name_are_told_apart_by_their_files(tmp_path, caps
     code = main(["eval", "-m", best, "--policy", "random", "--layouts", "0", "--episodes", "1", "--fidelity", "point",
                  "--set", "max_steps=5", "-q"])
     assert code == 0 and "models:" not in capsys.readouterr().out  # a label that names its run alone says enough
+
+
+class _Wrong:
+    """A policy of one's own that acts wrongly in one way (`how`)."""
+
+    name = "mine"
+
+    def __init__(self, how: str):
+        self.how = how
+
+    def reset(self, n_worlds, world_ids=None):
+        pass
+
+    def act(self, obs, spec):
+        a = np.zeros(obs.shape[:-1] + (2,))
+        if self.how == "nan":
+            a[-1, 1, 0] = np.nan
+            return a
+        return {"transposed": a.transpose(1, 0, 2), "text": a.astype(str)}[self.how]
+
+
+@pytest.mark.parametrize("how, said", [
+    ("transposed", r"policy mine: act\(\) gave actions of shape \(3, 2, 2\), expected \(2, 3, 2\) \(worlds, pursuers, vx vy\)"),
+    ("nan", r"policy mine: act\(\) gave nan for world 1, pursuer 1, vx"),
+    ("text", r"policy mine: act\(\) gave actions of dtype <U32, expected real numbers"),
+])
+def test_a_policy_that_acts_wrongly_is_named_in_evaluate_and_render(how, said):
+    """A policy of one's own that returned the wrong shape or a NaN was reported by the env as
+    'actions: expected shape ...', naming neither the policy nor that its act() was at fault."""
+    from pursuit_mj.render.episodes import run_episodes as render_episodes
+
+    config = default_config(fidelity="point", max_steps=3)
+    with pytest.raises(ValueError, match=said):
+        evaluate(_Wrong(how), config, layouts=[0], episodes=2, n_worlds=2)
+    with pytest.raises(ValueError, match=said.replace(r"\(2, 3, 2\)", r"\(1, 3, 2\)").replace(r"\(3, 2, 2\)", r"\(3, 1, 2\)").replace("world 1", "world 0")):
+        render_episodes(config, _Wrong(how), 1)

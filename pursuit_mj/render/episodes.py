@@ -17,7 +17,7 @@ import numpy as np
 from ..config import TaskConfig
 from ..env import EpisodeRecord, PursuitEnv, Snapshot, check_seeds
 from ..layout import Layout
-from ..policy import Policy, check_policy
+from ..policy import Policy, check_policy, checked_actions
 from .caption import Caption, draw_caption, draw_key
 from .overlays import OverlayStyle, TrailBuffer, draw_all, key_entries, overlay_geom_budget
 from .renderer import RenderSettings, SceneRenderer
@@ -173,7 +173,8 @@ def _one_episode(env: PursuitEnv, policy: Policy, obs: np.ndarray, k: int, maker
         snap = observe(video)
         info = None
         while not env.done[0]:
-            obs, _, _, _, info = env.step(policy.act(obs, env.obs_spec))
+            actions = checked_actions(policy.act(obs, env.obs_spec), 1, env.n_pursuers, f"policy {getattr(policy, 'name', label)}")
+            obs, _, _, _, info = env.step(actions)
             snap = observe(video)
         return info["episodes"][0], snap
 
