@@ -168,3 +168,18 @@ def test_docs_training_md_names_every_pursuit_mj_module_that_train_imports():
     intro = (ROOT / "docs/training.md").read_text().split("## Commands", 1)[0]
     named = set(re.findall(r"`(\w+)`", intro))
     assert used <= named, f"docs/training.md does not name {sorted(used - named)} among the modules train/ uses"
+
+
+def test_the_python_example_of_docs_evaluation_md_runs_as_written_with_fewer_episodes(monkeypatch, capsys):
+    """It used a `config` it never made (NameError when pasted); run with one episode on one layout."""
+    text = (ROOT / "docs" / "evaluation.md").read_text()
+    (block,) = [b for b in re.findall(r"```python\n(.*?)```", text, re.S) if "evaluate(" in b]
+    shrunk = block.replace("layouts=[0, 1, 2, 3]", "layouts=[0]").replace("episodes=150", "episodes=1")
+    assert "episodes=150" in block and "episodes=150" not in shrunk
+    exec(compile(shrunk, "docs/evaluation.md", "exec"), {})
+    out = capsys.readouterr().out
+    assert "heuristic" in out and "random" in out and "paired with heuristic" in out
+    from pursuit_mj.config import load_task_config
+
+    monkeypatch.chdir(ROOT)  # the comment's call, from the repository root
+    assert load_task_config(["configs/task/hard.yaml"], ["evader_speed=0.9"]).evader_speed == 0.9
