@@ -17,6 +17,7 @@ from pathlib import Path
 from pursuit_mj.io_utils import check_writable, check_writable_folder, file_sha256
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
+from pursuit_mj.policy_file import is_policy_file, policy_file_sha256
 from .common import (SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, check_out_prefix, load_model, pick_versus, sweep_dead_parts,
                      seed_arg, shield_if_asked, table_layouts, task_config_from_args)
 from .eval_resume import check_nothing_kept, drop_finished, finished_rows, interrupted_path, keep_finished, write_finished
@@ -32,8 +33,9 @@ def register(sub) -> None:
         description="Run episodes in parallel worlds and print, per policy and layout, success / collision / "
                     "timeout rates (95 % Wilson intervals) and mean episode steps (95 % t intervals).",
     )
-    p.add_argument("--policy", action="append", default=[], metavar="NAME",
-                   help=f"a hand-made team: {', '.join(POLICY_NAMES)} (repeatable; default heuristic if no --model)")
+    p.add_argument("--policy", action="append", default=[], metavar="NAME|FILE.py:NAME",
+                   help=f"a hand-made team: {', '.join(POLICY_NAMES)}, or a policy of your own: NAME(config, seed) "
+                        "from a Python file (docs/env_api.md, 'Policies') (repeatable; default heuristic if no --model)")
     p.add_argument("-m", "--model", action="append", default=[], metavar="FILE",
                    help="a trained checkpoint (loaded with train.policy.load_policy; repeatable)")
     add_shield_arg(p, SHIELD_HELP.replace("on the policy", "on every --model and --policy given"))
@@ -94,7 +96,8 @@ def _outputs(args) -> tuple[Path | None, Path | None]:
 def _policies(args, config) -> list[tuple[str, object]]:
     """(label, policy) pairs in command-line order: hand-made teams first, then models (shielded with --shield)."""
     names = args.policy or ([] if args.model else ["heuristic"])
-    out = [(name, make_policy(name, config, args.seed)) for name in names]
+    made = [(name, make_policy(name, config, args.seed)) for name in names]
+    out = [(policy.name if is_policy_file(name) else name, policy) for name, policy in made]
     spec = ObsSpec.make(config.n_pursuers, config.n_evaders, config.n_rays)
     out += [(getattr(pol, "name", Path(m).stem), pol) for m, pol in ((m, load_model(m, spec, config)) for m in args.model)]
     shielded = [shield_if_asked(args, pol, label, config) for label, pol in out]
@@ -146,6 +149,7 @@ def _meta(args, policies, layouts, code: dict) -> dict:
 
     return {"episodes": args.episodes, "worlds": args.worlds, "seed": args.seed, "policies": [label for label, _ in policies],
             "models": list(args.model), "model_sha256": [file_sha256(m) for m in args.model], "shield": bool(args.shield),
+            "policy_file_sha256": [policy_file_sha256(p) for p in args.policy if is_policy_file(p)],
             "model_of": _model_labels(args, policies),
             "layout_sha256": {layout_label(ref): file_sha256(resolve_layout_ref(ref)) for ref in layouts},
             # what seeded each layout's episodes here (a relative path is a built-in or not by where eval ran): for pool

@@ -68,7 +68,8 @@ def keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, con
 
 
 #: what an interrupted eval and its resumption must share, so that the finished rows are what this run would play
-RESUME_KEYS = ("episodes", "seed", "policies", "model_sha256", "shield")
+RESUME_KEYS = ("episodes", "seed", "policies", "model_sha256", "shield", "policy_file_sha256")
+RESUME_DEFAULTS = {"policy_file_sha256": []}  # what an interrupted eval written before the key had
 
 
 def finished_rows(json_path: Path | None, config, meta: dict, csv_path: Path | None = None) -> dict[tuple[str, str], object]:
@@ -88,7 +89,7 @@ def finished_rows(json_path: Path | None, config, meta: dict, csv_path: Path | N
         raise ValueError(f"--resume: no interrupted eval at {kept} (an eval stopped after its first policy-layout cell leaves one)")
     try:
         data = json.loads(kept.read_text())
-        stored = {k: data.get(k) for k in RESUME_KEYS}
+        stored = {k: data.get(k, RESUME_DEFAULTS.get(k)) for k in RESUME_KEYS}
         rows = data["rows"]
     except (ValueError, KeyError, TypeError, AttributeError):
         raise ValueError(f"--resume: {kept} is not an interrupted eval's JSON") from None

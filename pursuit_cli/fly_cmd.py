@@ -27,7 +27,7 @@ def register(sub) -> None:
         "Crazyflies that speak cflib's protocol over udp://. " + KEYS_HELP,
     )
     _flight_args(p)
-    p.add_argument("--policy", help="hand-made team by name (heuristic, random)")
+    p.add_argument("--policy", help="hand-made team by name (heuristic, random), or FILE.py:NAME for a policy of your own (docs/env_api.md); rehearse it with --virtual first")
     p.add_argument("--model", help="trained model file (e.g. runs/full_obs/best.pt)")
     add_shield_arg(p)
     p.add_argument("--virtual", action="store_true", help="fly virtual Crazyflies on udp://127.0.0.1 instead of the radio URIs")

@@ -16,6 +16,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -25,6 +26,7 @@ from pursuit_mj.configio import build, dump_yaml, load, to_dict
 from pursuit_mj.layout import load_layout
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
+from pursuit_mj.policy_file import is_policy_file, policy_file_path
 from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, flags_typed, load_model, path_arg, seed_arg, sweep_dead_parts,
                      finite_float, shield_if_asked, task_config_from_args)
 
@@ -42,7 +44,9 @@ def register(sub) -> None:
     who = p.add_argument_group("policy")
     ex = who.add_mutually_exclusive_group()
     ex.add_argument("-m", "--model", metavar="FILE", help="trained checkpoint (default: best.pt of the -mc run, else --policy)")
-    ex.add_argument("--policy", choices=POLICY_NAMES, help="a hand-made team (default heuristic)")
+    ex.add_argument("--policy", type=policy_arg, metavar="NAME|FILE.py:NAME",
+                    help=f"a hand-made team ({', '.join(POLICY_NAMES)}; default heuristic), or a policy of your own: "
+                         "NAME(config, seed) from a Python file (docs/env_api.md, 'Policies')")
     who.add_argument("-mc", "--model-config", metavar="FILE|PRESET",
                      help="training config (file or preset, e.g. classic): its task is the base task and its run's best.pt the default model")
     add_shield_arg(who)
@@ -127,12 +131,27 @@ def layout_tag(config: TaskConfig) -> str:
     return "random" if config.random_layout else Path(str(config.layout)).stem
 
 
+def policy_arg(text: str) -> str:
+    """--policy: a hand-made team's name or FILE.py:NAME (argparse names the flag on a mistake)."""
+    if text in POLICY_NAMES or is_policy_file(text):
+        return text
+    raise argparse.ArgumentTypeError(f"expected one of {', '.join(POLICY_NAMES)} or FILE.py:NAME, got {text!r}")
+
+
+def file_label(name: str) -> str:
+    """A policy's name as it can stand in a file name: characters other than letters, digits,
+    '.', '_' and '-' become '_'."""
+    return re.sub(r"[^A-Za-z0-9._-]", "_", name.strip())
+
+
 def checkpoint_file(args, train_cfg) -> Path | None:
     """The checkpoint choose_policy loads: -m FILE, else the -mc run's best.pt unless --policy; None for a hand-made team."""
     if args.model:
         return Path(args.model)
     if args.policy is None and train_cfg is not None:
         return train_cfg.run_dir / "best.pt"
+    if args.policy is not None and is_policy_file(args.policy):
+        return policy_file_path(args.policy)  # its code decides the pictures, as a checkpoint's bytes do
     return None
 
 
@@ -158,7 +177,8 @@ def choose_policy(args, config: TaskConfig, train_cfg):
         policy = load_model(args.model, spec, config)
         return policy, getattr(policy, "name", Path(args.model).stem)
     if args.policy:
-        return make_policy(args.policy, config, args.seed), args.policy
+        policy = make_policy(args.policy, config, args.seed)
+        return policy, (file_label(policy.name) if is_policy_file(args.policy) else args.policy)
     if train_cfg is not None:
         best = train_cfg.run_dir / "best.pt"
         if not best.is_file():

@@ -9,14 +9,19 @@ from __future__ import annotations
 from .config import TaskConfig
 from .heuristic import HeuristicTeam
 from .policy import Policy, RandomPolicy
+from .policy_file import is_policy_file, load_policy_file
 
 POLICY_NAMES = ("heuristic", "random")
 
 
 def make_policy(name: str, config: TaskConfig, seed: int = 0, source: str = "--policy") -> Policy:
-    """A hand-made team by name ('heuristic' or 'random') for `config`; ValueError names `source`."""
+    """A hand-made team by name ('heuristic' or 'random') for `config`, or a policy of one's own
+    by FILE.py:NAME (pursuit_mj.policy_file); ValueError names `source`."""
+    if is_policy_file(name):
+        return load_policy_file(name, config, seed, source)
     if name == "heuristic":
         return HeuristicTeam.from_config(config)
     if name == "random":
         return RandomPolicy(seed)
-    raise ValueError(f"{source} {name!r}: unknown policy (valid: {', '.join(POLICY_NAMES)}; trained models go through --model FILE)")
+    raise ValueError(f"{source} {name!r}: unknown policy (valid: {', '.join(POLICY_NAMES)}, or FILE.py:NAME "
+                     f"for one of your own; trained models go through --model FILE)")

@@ -1,0 +1,125 @@
+"""--policy FILE.py:NAME: a policy of one's own on the command line (pursuit_mj.policy_file)."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from pursuit_cli import main
+from pursuit_mj.config import default_config
+from pursuit_mj.policies import make_policy
+
+DOCS = Path(__file__).resolve().parent.parent / "docs"
+
+
+def documented_team() -> str:
+    """The my_team.py example of docs/env_api.md, as written there."""
+    text = (DOCS / "env_api.md").read_text()
+    block = re.search(r"```python\n# my_team.py\n(.*?)```", text, re.S)
+    assert block, "docs/env_api.md lost its my_team.py example"
+    return block.group(1)
+
+
+def test_the_documented_team_sits_in_evals_table_paired_with_the_heuristic_team(tmp_path, capsys):
+    team = tmp_path / "my_team.py"
+    team.write_text(documented_team())
+    out = tmp_path / "t"
+    code = main(["eval", "--policy", f"{team}:Chase", "--policy", "heuristic", "--shield", "--versus", "heuristic", "--layouts", "0",
+                 "--episodes", "4", "--worlds", "4", "--fidelity", "point", "-q", "--out", str(out)])
+    assert code == 0, capsys.readouterr().err
+    data = json.loads(out.with_suffix(".json").read_text())
+    assert [r["policy"] for r in data["rows"]] == ["chase+shield", "heuristic"]
+    assert data["policy_file_sha256"] and len(data["policy_file_sha256"][0]) == 64
+    assert "chase" in json.dumps(data["paired"])
+    assert data["rows"][0]["success_count"] > 0  # it acts: a pursuer flies at what it sees and catches it
+    assert data["rows"][0]["collision_count"] == 0  # the shield keeps it off the walls (without it: 4 of 4)
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "mine.py"
+    path.write_text(text)
+    return path
+
+
+GOOD = """
+import numpy as np
+class Still:
+    name = "still"
+    def __init__(self, config, seed):
+        self.n = config.n_pursuers
+    def reset(self, n_worlds, world_ids=None):
+        pass
+    def act(self, obs, spec):
+        return np.zeros(obs.shape[:2] + (2,))
+def helper():
+    pass
+"""
+
+
+@pytest.mark.parametrize("text, ref_name, said", [
+    ("x = (\n", "Still", r"running {path} raised SyntaxError: .* \(at {path}:1\)"),
+    ("import numpy\nraise RuntimeError('no gpu here')\n", "Still", r"running {path} raised RuntimeError: no gpu here \(at {path}:2\)"),
+    (GOOD, "Missing", r"{path} defines no class or function 'Missing' \(it defines: Still, helper\)"),
+    (GOOD + "\ndef broken(config, seed):\n    return 1 / 0\n", "broken",
+     r"broken\(config, seed\) raised ZeroDivisionError: division by zero \(at {path}:15\)"),
+    (GOOD + "\ndef text(config, seed):\n    return 'heuristic'\n", "text", r"text\(config, seed\) returned: expected a Policy"),
+    (GOOD + "\nclass Nameless(Still):\n    name = ''\n", "Nameless", r"has no `name` text"),
+])
+def test_a_policy_file_that_cannot_give_a_policy_is_refused_naming_the_file_and_line(tmp_path, text, ref_name, said):
+    path = _write(tmp_path, text)
+    ref = f"{path}:{ref_name}"
+    with pytest.raises(ValueError) as caught:
+        make_policy(ref, default_config(), 0)
+    message = str(caught.value)
+    assert message.startswith(f"--policy {ref}: ") and "\n" not in message, message
+    assert re.search(said.format(path=re.escape(str(path))), message), message
+
+
+def test_the_policy_file_cli_errors_are_one_line(tmp_path, capsys):
+    assert main(["eval", "--policy", str(tmp_path / "nowhere.py") + ":Team", "--layouts", "0", "--episodes", "1"]) == 2
+    assert f"--policy {tmp_path / 'nowhere.py'}:Team: no file {tmp_path / 'nowhere.py'}" in capsys.readouterr().err
+    assert main(["eval", "--policy", "mine.py", "--layouts", "0", "--episodes", "1"]) == 2
+    assert "or FILE.py:NAME for one of your own" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["render", "--policy", "mine.py", "--no-video"])
+    assert "argument --policy: expected one of heuristic, random or FILE.py:NAME, got 'mine.py'" in capsys.readouterr().err
+
+
+def test_eval_resume_refuses_rows_of_a_policy_file_edited_since(tmp_path, capsys):
+    path = _write(tmp_path, GOOD)
+    cmd = ["eval", "--policy", f"{path}:Still", "--layouts", "0", "--episodes", "1", "--worlds", "1", "--fidelity", "point",
+           "--set", "max_steps=5", "-q", "--out", str(tmp_path / "t")]
+    assert main(cmd) == 0
+    (tmp_path / "t.interrupted.json").write_text((tmp_path / "t.json").read_text())  # as if stopped at the end
+    assert main(cmd + ["--resume"]) == 0  # unchanged: the kept row is taken
+    (tmp_path / "t.interrupted.json").write_text((tmp_path / "t.json").read_text())
+    path.write_text(GOOD.replace("np.zeros", "0.5 * np.ones"))
+    assert main(cmd + ["--resume"]) == 2
+    assert "--resume: policy_file_sha256 differs from the interrupted eval's" in capsys.readouterr().err
+
+
+def test_an_interrupted_eval_kept_before_policy_files_resumes(tmp_path, capsys):
+    """Rows kept by an eval from before the key existed have no policy_file_sha256: none is []."""
+    cmd = ["eval", "--policy", "heuristic", "--layouts", "0", "--episodes", "1", "--worlds", "1", "--fidelity", "point",
+           "--set", "max_steps=5", "-q", "--out", str(tmp_path / "t")]
+    assert main(cmd) == 0
+    data = json.loads((tmp_path / "t.json").read_text())
+    del data["policy_file_sha256"]
+    (tmp_path / "t.interrupted.json").write_text(json.dumps(data))
+    assert main(cmd + ["--resume"]) == 0, capsys.readouterr().err
+
+
+def test_render_names_its_files_by_the_policys_name_and_the_files_content(tmp_path):
+    path = _write(tmp_path, GOOD.replace('name = "still"', 'name = "my still/team"'))
+    cmd = ["render", "--policy", f"{path}:Still", "--no-video", "--final-frame", "-s", str(tmp_path / "r"), "--fidelity", "point",
+           "--set", "max_steps=3"]
+    assert main(cmd) == 0
+    first = sorted(p.name for p in (tmp_path / "r").iterdir())
+    assert first and all(n.startswith("my_still_team_layout0_point_") for n in first), first
+    path.write_text(path.read_text().replace("np.zeros", "0.5 * np.ones"))
+    assert main(cmd) == 0
+    second = sorted(p.name for p in (tmp_path / "r").iterdir())
+    assert len(second) == 2 * len(first), second  # other code, other pictures: the first render is kept
