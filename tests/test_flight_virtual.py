@@ -300,3 +300,22 @@ def test_the_bridge_sets_the_firmware_tilt_limit_to_the_simulators(tmp_path):
     logged = events.of_kind("tilt_limit")
     assert len(logged) == 1 and logged[0]["degrees"] == pytest.approx(limit)
     assert kinds_in_order(events, "links_up", "tilt_limit", "preflight_ok", "takeoff")
+
+
+def test_fly_virtual_flies_a_policy_of_ones_own_from_a_file(tmp_path, capsys):
+    """--policy FILE.py:NAME reaches the flight as it reaches eval: the drones fly what its act() says."""
+    team = tmp_path / "team.py"
+    team.write_text("import numpy as np\n"
+                    "class East:\n"
+                    "    name = 'east'\n"
+                    "    def __init__(self, config, seed): pass\n"
+                    "    def reset(self, n_worlds, world_ids=None): pass\n"
+                    "    def act(self, obs, spec): return np.tile([1.0, 0.0], obs.shape[:2] + (1,))\n")
+    flight = tmp_path / "quick.yaml"
+    flight.write_text(yaml.safe_dump(quick_spec(task={"evader_speed": 0.3})))
+    rc = main(["fly", "--flight", str(flight), "--policy", f"{team}:East", "--virtual", "--max-time", "1.0",
+               "--events", str(tmp_path / "f.jsonl")])
+    assert rc == 0, capsys.readouterr().err
+    steps = [r for r in read_events(tmp_path / "f.jsonl") if r["kind"] == "step"]
+    wanted = np.array([r["wanted"][:3] for r in steps])  # (steps, pursuers, 2) m/s asked of the pursuers
+    assert len(steps) >= 5 and np.all(wanted[..., 0] > 0.0) and np.allclose(wanted[..., 1], 0.0, atol=1e-6)
