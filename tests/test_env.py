@@ -536,3 +536,35 @@ def test_a_layout_object_with_a_field_of_the_wrong_kind_is_a_layout_error_naming
     broken = dataclasses.replace(load_layout(0), obstacles=({"a": 1},))
     with pytest.raises(LayoutError, match="0_open.yaml: not a well-formed Layout"):
         PursuitEnv(default_config(fidelity="point"), layouts=[broken])
+
+
+class _FleeEast:
+    """An evader model of one's own (docs/env_api.md): every free evader asks for 5 m/s east."""
+
+    def __init__(self):
+        self.resets = []
+
+    def reset(self, world_ids, seeds):
+        self.resets.append((np.asarray(world_ids).tolist(), np.asarray(seeds).tolist()))
+
+    def compute(self, evader_pos, evader_vel, pursuer_pos, pursuer_vel, active, obstacles, dt):
+        assert evader_pos.shape == evader_vel.shape == active.shape + (2,) and pursuer_pos.shape[-1] == 2 and dt > 0
+        return np.tile([5.0, 0.0], active.shape + (1,))
+
+
+def test_an_evader_model_of_ones_own_drives_the_evaders_capped_at_evader_speed():
+    from pursuit_mj.config import default_config
+    from pursuit_mj.env import PursuitEnv
+
+    env = PursuitEnv(default_config(fidelity="point"), n_worlds=2, seed=3)
+    env.evader_model = model = _FleeEast()
+    env.reset(seeds=[11, 12])
+    assert model.resets == [([0, 1], [11, 12])]
+    N, start = env.n_pursuers, env.physics.positions()[:, env.n_pursuers:, :2].copy()
+    speeds = []
+    for _ in range(10):
+        env.step(np.zeros((2, N, 2)))
+        speeds.append(np.linalg.norm(env.physics.velocities()[:, N:, :2], axis=-1))  # (W, M) m/s
+    moved = env.physics.positions()[:, N:, :2] - start  # (W, M, 2) m
+    assert np.all(moved[..., 0] > 0.3) and np.all(np.abs(moved[..., 1]) < 0.05), moved  # east, as the model asked
+    assert max(np.max(s) for s in speeds) <= env.config.evader_speed * 1.01, speeds  # capped, not 5 m/s
