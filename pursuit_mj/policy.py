@@ -75,9 +75,13 @@ def checked_actions(actions, n_worlds: int, n_pursuers: int, who: str) -> np.nda
     naming policy `who` and what is wrong: another shape (a transposed (N, W, 2) included), values
     that are no real numbers, NaN or inf. Values beyond [-1, 1] are kept: the env clips them
     (docs/env_api.md), as it would a policy called outside this check."""
+    from .env import MaskedValues, plain_array  # not at the top: this module stays free of the simulator
+
     want = (int(n_worlds), int(n_pursuers), 2)
-    try:
-        raw = np.asarray(actions)
+    try:  # as the env reads actions: a torch tensor (grad, GPU, bfloat16) by its values, a masked array refused
+        raw = plain_array(actions, f"{who}: act() gave actions")
+    except MaskedValues:
+        raise
     except ValueError:  # nested lists of unequal lengths
         raise ValueError(f"{who}: act() gave a ragged list, expected actions of shape {want} (worlds, pursuers, vx vy)") from None
     if raw.dtype.kind not in "fiu":
