@@ -17,7 +17,7 @@ from pathlib import Path
 from pursuit_mj.io_utils import check_writable, check_writable_folder, file_sha256
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
-from pursuit_mj.policy_file import is_policy_file, policy_file_sha256
+from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_sha256
 from .common import (SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, check_out_prefix, load_model, pick_versus, sweep_dead_parts,
                      seed_arg, shield_if_asked, table_layouts, task_config_from_args)
 from .eval_resume import check_nothing_kept, drop_finished, finished_rows, interrupted_path, keep_finished, write_finished
@@ -150,6 +150,8 @@ def _meta(args, policies, layouts, code: dict) -> dict:
     return {"episodes": args.episodes, "worlds": args.worlds, "seed": args.seed, "policies": [label for label, _ in policies],
             "models": list(args.model), "model_sha256": [file_sha256(m) for m in args.model], "shield": bool(args.shield),
             "policy_file_sha256": [policy_file_sha256(p) for p in args.policy if is_policy_file(p)],
+            # and what in each file made the policy: two factories of one file can give policies of one name
+            "policy_file_names": [policy_file_name(p) for p in args.policy if is_policy_file(p)],
             "model_of": _model_labels(args, policies),
             "layout_sha256": {layout_label(ref): file_sha256(resolve_layout_ref(ref)) for ref in layouts},
             # what seeded each layout's episodes here (a relative path is a built-in or not by where eval ran): for pool

@@ -32,6 +32,11 @@ def policy_file_path(ref: str) -> Path:
     return Path(_split(ref, "policy")[0])
 
 
+def policy_file_name(ref: str) -> str:
+    """The NAME of a FILE.py:NAME reference (two factories of one file may give policies of one `name`)."""
+    return _split(ref, "policy")[1]
+
+
 def policy_file_sha256(ref: str) -> str:
     """sha256 of the file a FILE.py:NAME reference names (eval --resume checks it is unchanged)."""
     return hashlib.sha256(policy_file_path(ref).read_bytes()).hexdigest()

@@ -123,3 +123,37 @@ def test_render_names_its_files_by_the_policys_name_and_the_files_content(tmp_pa
     assert main(cmd) == 0
     second = sorted(p.name for p in (tmp_path / "r").iterdir())
     assert len(second) == 2 * len(first), second  # other code, other pictures: the first render is kept
+
+
+TWO_SPEEDS = """
+import numpy as np
+class Go:
+    name = "go"
+    def __init__(self, speed):
+        self.speed = speed
+    def reset(self, n_worlds, world_ids=None):
+        pass
+    def act(self, obs, spec):
+        a = np.zeros(obs.shape[:2] + (2,))
+        a[..., 0] = self.speed
+        return a
+def fast(config, seed):
+    return Go(1.0)
+def slow(config, seed):
+    return Go(0.1)
+"""
+
+
+def test_eval_resume_refuses_the_rows_of_another_factory_of_the_same_file(tmp_path, capsys):
+    """fast and slow of one file both give a policy named 'go': the label and the file's sha256
+    are the same, so a resume with slow took the rows fast had played."""
+    path = _write(tmp_path, TWO_SPEEDS)
+    cmd = ["eval", "--layouts", "0", "--episodes", "1", "--worlds", "1", "--fidelity", "point",
+           "--set", "max_steps=5", "-q", "--out", str(tmp_path / "t")]
+    assert main(cmd + ["--policy", f"{path}:fast"]) == 0
+    data = json.loads((tmp_path / "t.json").read_text())
+    assert data["policy_file_names"] == ["fast"]
+    (tmp_path / "t.interrupted.json").write_text(json.dumps(data))
+    assert main(cmd + ["--policy", f"{path}:slow", "--resume"]) == 2
+    assert "--resume: policy_file_names differs from the interrupted eval's" in capsys.readouterr().err
+    assert main(cmd + ["--policy", f"{path}:fast", "--resume"]) == 0, capsys.readouterr().err
