@@ -26,7 +26,7 @@ from pursuit_mj.configio import build, dump_yaml, load, to_dict
 from pursuit_mj.layout import load_layout
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
-from pursuit_mj.policy_file import is_policy_file, policy_file_path
+from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_path
 from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, flags_typed, load_model, path_arg, seed_arg, sweep_dead_parts,
                      finite_float, shield_if_asked, task_config_from_args)
 
@@ -155,11 +155,13 @@ def checkpoint_file(args, train_cfg) -> Path | None:
     return None
 
 
-def render_digest(config: TaskConfig, label: str, checkpoint: Path | None, frames: dict) -> str:
+def render_digest(config: TaskConfig, label: str, checkpoint: Path | None, frames: dict, factory: str | None = None) -> str:
     """Six hex digits of everything that decides what a render shows (the seed aside, which the
     name spells out): the task with its layout's content, the policy (a checkpoint by its bytes)
-    and the frame settings. Files named alike hold the same pictures, so a render replaces only
-    its own earlier copy, never a render of another model, task or camera."""
+    and the frame settings; for --policy FILE.py:NAME, the file by its bytes and `factory`, NAME
+    (two factories of one file may give policies of one name). Files named alike hold the same
+    pictures, so a render replaces only its own earlier copy, never a render of another model,
+    task or camera."""
     h = hashlib.sha256()
     h.update(json.dumps(to_dict(config), sort_keys=True, default=str).encode())
     h.update(repr(load_layout(config.layout)).encode())
@@ -167,6 +169,8 @@ def render_digest(config: TaskConfig, label: str, checkpoint: Path | None, frame
     if checkpoint is not None:
         h.update(hashlib.sha256(checkpoint.read_bytes()).digest())
     h.update(json.dumps(frames, sort_keys=True).encode())
+    if factory is not None:  # nothing added otherwise: the names of earlier renders stay as they were
+        h.update(f"factory {factory}".encode())
     return h.hexdigest()[:6]
 
 
@@ -303,7 +307,8 @@ def run(args) -> int:
     if target is not None:
         task_tag = "".join(f"_{Path(f).stem}" for f in args.task_files or [])  # --task hard: not the default task's files
         frames = {**dataclasses.asdict(settings), "fps": fps, "trail": args.trail, "format": target.fmt}
-        digest = render_digest(config, label, checkpoint_file(args, train_cfg), frames)
+        factory = policy_file_name(args.policy) if args.policy is not None and is_policy_file(args.policy) else None
+        digest = render_digest(config, label, checkpoint_file(args, train_cfg), frames, factory)
         if seeds:  # each file is named after its episode's seed, which --seed has no part in
             stem = f"{label}{task_tag}_layout{layout_tag(config)}_{config.fidelity}_{digest}"
             videos, finals = target.paths(episodes, stem, video, final, [f"episode{n}" for n in seeds])

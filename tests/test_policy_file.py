@@ -157,3 +157,14 @@ def test_eval_resume_refuses_the_rows_of_another_factory_of_the_same_file(tmp_pa
     assert main(cmd + ["--policy", f"{path}:slow", "--resume"]) == 2
     assert "--resume: policy_file_names differs from the interrupted eval's" in capsys.readouterr().err
     assert main(cmd + ["--policy", f"{path}:fast", "--resume"]) == 0, capsys.readouterr().err
+
+
+def test_render_keeps_apart_the_files_of_two_factories_of_the_same_file(tmp_path):
+    """fast and slow both give a policy named 'go' from one file: the render of slow wrote over
+    the render of fast (same name, same file bytes, same digest)."""
+    path = _write(tmp_path, TWO_SPEEDS)
+    cmd = ["--no-video", "--final-frame", "-s", str(tmp_path / "r"), "--fidelity", "point", "--set", "max_steps=3"]
+    assert main(["render", "--policy", f"{path}:fast"] + cmd) == 0
+    assert main(["render", "--policy", f"{path}:slow"] + cmd) == 0
+    names = sorted(p.name for p in (tmp_path / "r").iterdir())
+    assert len(names) == 2 and all(n.startswith("go_layout0_point_") for n in names), names
