@@ -138,10 +138,19 @@ def policy_arg(text: str) -> str:
     raise argparse.ArgumentTypeError(f"expected one of {', '.join(POLICY_NAMES)} or FILE.py:NAME, got {text!r}")
 
 
+FILE_LABEL_CHARS = 64  # a policy's part of a file name: with a layout name (at most 100 bytes) and the rest, under 255
+
+
 def file_label(name: str) -> str:
     """A policy's name as it can stand in a file name: characters other than letters, digits,
-    '.', '_' and '-' become '_'."""
-    return re.sub(r"[^A-Za-z0-9._-]", "_", name.strip())
+    '.', '_' and '-' become '_', a leading '.' too (no hidden files); a name longer than
+    FILE_LABEL_CHARS is cut, ending in six hex digits of the whole name to keep two such apart."""
+    text = re.sub(r"[^A-Za-z0-9._-]", "_", name.strip())
+    if text.startswith("."):
+        text = "_" + text[1:]
+    if len(text) > FILE_LABEL_CHARS:
+        text = f"{text[:FILE_LABEL_CHARS - 7]}-{hashlib.sha256(name.encode()).hexdigest()[:6]}"
+    return text
 
 
 def checkpoint_file(args, train_cfg) -> Path | None:

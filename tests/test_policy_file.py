@@ -168,3 +168,15 @@ def test_render_keeps_apart_the_files_of_two_factories_of_the_same_file(tmp_path
     assert main(["render", "--policy", f"{path}:slow"] + cmd) == 0
     names = sorted(p.name for p in (tmp_path / "r").iterdir())
     assert len(names) == 2 and all(n.startswith("go_layout0_point_") for n in names), names
+
+
+@pytest.mark.parametrize("name, start", [("x" * 300, "x" * 57 + "-"), ("..", "_._layout0_point_"), (".hidden", "_hidden_layout0_point_")])
+def test_render_names_its_files_for_a_long_or_dotted_policy_name(tmp_path, name, start):
+    """A 300-character name ended render in OSError 'File name too long'; a name with a leading
+    dot made hidden files."""
+    path = _write(tmp_path, GOOD.replace('name = "still"', f"name = {name!r}"))
+    cmd = ["render", "--policy", f"{path}:Still", "--no-video", "--final-frame", "-s", str(tmp_path / "r"), "--fidelity", "point",
+           "--set", "max_steps=3"]
+    assert main(cmd) == 0
+    (written,) = [p.name for p in (tmp_path / "r").iterdir()]
+    assert written.startswith(start) and len(written.encode()) < 255, written
