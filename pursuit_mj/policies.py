@@ -6,19 +6,28 @@ the command line (`pursuit_cli/common.py: load_model`) does that.
 
 from __future__ import annotations
 
+import re
+
 from .config import TaskConfig
 from .heuristic import HeuristicTeam
 from .policy import Policy, RandomPolicy
 from .policy_file import is_policy_file, load_policy_file
 
 POLICY_NAMES = ("heuristic", "random")
+#: the labels eval gives the built-in teams' rows, which a policy of one's own may not take
+BUILTIN_LABEL = re.compile(rf"({'|'.join(POLICY_NAMES)})(\+shield)?(#\d+)?")
 
 
 def make_policy(name: str, config: TaskConfig, seed: int = 0, source: str = "--policy") -> Policy:
     """A hand-made team by name ('heuristic' or 'random') for `config`, or a policy of one's own
     by FILE.py:NAME (pursuit_mj.policy_file); ValueError names `source`."""
     if is_policy_file(name):
-        return load_policy_file(name, config, seed, source)
+        policy = load_policy_file(name, config, seed, source)
+        if BUILTIN_LABEL.fullmatch(policy.name.strip()):
+            raise ValueError(f"{source} {name}: the policy it gives is named {policy.name!r}, as a built-in team's rows are "
+                             f"labelled ({', '.join(POLICY_NAMES)}, +shield, #2): tables, --versus and the pairing with "
+                             f"heuristic would take it for that team; give it a name of its own")
+        return policy
     if name == "heuristic":
         return HeuristicTeam.from_config(config)
     if name == "random":

@@ -180,3 +180,19 @@ def test_render_names_its_files_for_a_long_or_dotted_policy_name(tmp_path, name,
     assert main(cmd) == 0
     (written,) = [p.name for p in (tmp_path / "r").iterdir()]
     assert written.startswith(start) and len(written.encode()) < 255, written
+
+
+@pytest.mark.parametrize("name", ["heuristic", "random", "heuristic+shield", "random#2"])
+def test_a_policy_named_as_a_built_in_teams_rows_are_is_refused(tmp_path, capsys, name):
+    """--policy mine.py:Still --policy heuristic with Still.name 'heuristic' labelled the file's
+    policy 'heuristic' and the built-in team 'heuristic#2', and eval paired the team against the
+    file's policy under the heading 'paired with heuristic'."""
+    path = _write(tmp_path, GOOD.replace('name = "still"', f"name = {name!r}"))
+    code = main(["eval", "--policy", f"{path}:Still", "--policy", "heuristic", "--layouts", "0", "--episodes", "1",
+                 "--fidelity", "point", "--set", "max_steps=5", "-q", "--json", str(tmp_path / "t.json")])
+    assert code == 2 and not (tmp_path / "t.json").exists()
+    err = capsys.readouterr().err
+    assert f"--policy {path}:Still: the policy it gives is named {name!r}, as a built-in team's rows are labelled" in err, err
+    for ok in ("heuristics", "my heuristic", "random+shields"):
+        path.write_text(GOOD.replace('name = "still"', f"name = {ok!r}"))
+        assert make_policy(f"{path}:Still", default_config(), 0).name == ok
