@@ -923,3 +923,17 @@ def test_init_from_a_checkpoint_of_another_network_names_both_networks(tmp_path)
     same = Trainer(tiny_config(tmp_path, name="ft2", extra=[f"init_from={path}", "net.kind=mlp", "net.hidden=[16]"]),
                    log=lambda s: None)
     assert torch.equal(same.model.actor.head.weight, load_checkpoint(path)["actor"]["head.weight"])
+
+
+def test_init_from_compares_only_the_net_keys_the_networks_weights_depend_on(tmp_path):
+    """net.kind mlp has no entity encoders: a run of another encoder_width or use_rays builds the
+    same weights, and --init-from refused it ('its actor is net.encoder_width 128; this run builds
+    net.encoder_width 64'), though the weights load."""
+    src = tiny_config(tmp_path, name="flat", updates=1, extra=["net.kind=mlp", "net.hidden=[16]"])
+    Trainer(src, log=lambda s: None).train()
+    path = src.run_dir / "best.pt"
+    same = Trainer(tiny_config(tmp_path, name="ft", extra=[f"init_from={path}", "net.kind=mlp", "net.hidden=[16]",
+                                                           "net.encoder_width=64", "net.use_rays=false"]), log=lambda s: None)
+    assert torch.equal(same.model.actor.head.weight, load_checkpoint(path)["actor"]["head.weight"])
+    with pytest.raises(ValueError, match=r"its actor is net.hidden \[16\]; this run builds net.hidden \[8\]"):
+        Trainer(tiny_config(tmp_path, name="ft2", extra=[f"init_from={path}", "net.kind=mlp", "net.hidden=[8]"]), log=lambda s: None)

@@ -154,6 +154,7 @@ class PooledTrunk(nn.Module):
     """Observation -> fused features through per-entity encoders with masked mean pooling."""
 
     GROUPS = ("self", "teammates", "evaders", "rays")
+    SHAPE_KEYS = ("kind", "encoder_width", "hidden", "use_rays")  # the net.* keys its weights depend on
     BELIEF_GROUPS = ("memory", "goal")  # pooled like evaders / encoded like self (pursuit_mj.belief)
 
     def __init__(self, spec: ObsSpec, cfg: NetConfig):
@@ -185,6 +186,8 @@ class PooledTrunk(nn.Module):
 class FlatTrunk(nn.Module):
     """Observation -> features through a plain tanh MLP (team size fixed at construction)."""
 
+    SHAPE_KEYS = ("kind", "hidden")  # the net.* keys its weights depend on (no encoders: encoder_width, use_rays unused)
+
     def __init__(self, spec: ObsSpec, cfg: NetConfig):
         super().__init__()
         self.obs_dim = spec.dim
@@ -201,6 +204,8 @@ class FlatTrunk(nn.Module):
 #: net.kind -> trunk class; a new network is one class here and its name in train/config.py NET_KINDS.
 #: A trunk is built as cls(spec, cfg: NetConfig), has `out_dim`, and maps obs (..., spec.dim) float32
 #: to features (..., out_dim); Actor and Critic put their heads on it (docs/training.md, "Network").
+#: Its SHAPE_KEYS name the net.* keys its weights depend on (--init-from compares those; all of
+#: train/trainer.py ACTOR_SHAPE_KEYS when it has none).
 TRUNKS: dict[str, type[nn.Module]] = {"reference": PooledTrunk, "mlp": FlatTrunk}
 
 

@@ -42,6 +42,7 @@ from .critic_worker import CriticWorker
 from .discount import Discount
 from .imitation import DaggerCollector, Demonstrations, imitation_update, teacher_share
 from .metrics_log import MetricsLog, json_ready, missing_updates
+from .networks import TRUNKS
 from pursuit_mj.recording.rerun_scalars import RerunScalarLogger
 from .policy import ActorPolicy, trained_team
 from .ppo import advantages_and_returns, ppo_update, teacher_labels_needed, teacher_weight
@@ -722,11 +723,13 @@ ACTOR_SHAPE_KEYS = ("kind", "encoder_width", "hidden", "use_rays")  # the net.* 
 
 def check_same_network(data: dict, net: NetConfig, path: str | Path) -> None:
     """ValueError naming both networks unless the checkpoint `data`'s actor was built with this
-    run's net.kind, widths and use_rays (ACTOR_SHAPE_KEYS): its weights would not load, or, for two
+    run's net.kind, widths and use_rays (ACTOR_SHAPE_KEYS, or those of them its kind's trunk uses:
+    its SHAPE_KEYS in train/networks.py): its weights would not load, or, for two
     kinds with the same weight names, would load into another network. A kind this code does not
     know is refused by name (train_config.net: key 'kind')."""
     stored = build(NetConfig, data["train_config"].get("net", {}), f"init_from {path}: train_config.net")
-    differ = [k for k in ACTOR_SHAPE_KEYS if getattr(stored, k) != getattr(net, k)]
+    keys = getattr(TRUNKS.get(stored.kind), "SHAPE_KEYS", ACTOR_SHAPE_KEYS)  # those the stored network's weights depend on
+    differ = [k for k in keys if getattr(stored, k) != getattr(net, k)]
     if differ:
         def shown(cfg: NetConfig) -> str:
             return ", ".join(f"net.{k} {_text(getattr(cfg, k))}" for k in differ)
