@@ -17,7 +17,7 @@ import traceback
 from pathlib import Path
 
 from .config import TaskConfig
-from .policy import Policy, check_policy
+from .policy import Policy
 
 _REFERENCE = re.compile(r"^(?P<path>.+\.py):(?P<name>[A-Za-z_][A-Za-z0-9_]*)$")
 
@@ -59,7 +59,12 @@ def load_policy_file(ref: str, config: TaskConfig, seed: int = 0, source: str = 
         policy = factory(config, seed)
     except Exception as exc:  # the user's own code: say where it failed, in one line
         raise ValueError(f"{where}: {name}(config, seed) raised {_what_and_where(exc, path)}") from exc
-    check_policy(policy, f"{where}: {name}(config, seed) returned")
+    missing = [m for m in ("act", "reset") if not callable(getattr(policy, m, None))]
+    if missing or isinstance(policy, type):
+        what = (f"the class {policy.__name__}, not an instance of it" if isinstance(policy, type)
+                else f"{policy!r}, which has no {' or '.join(missing)} method")
+        raise ValueError(f"{where}: {name}(config, seed) returned {what}; it must return a Policy: an object with "
+                         f"name, reset(n_worlds, world_ids=None) and act(obs, spec) (docs/env_api.md)")
     label = getattr(policy, "name", None)
     if not isinstance(label, str) or not label.strip():
         raise ValueError(f"{where}: the policy {name}(config, seed) returned has no `name` text (tables and captions "

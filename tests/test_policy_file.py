@@ -65,7 +65,10 @@ def helper():
     (GOOD, "Missing", r"{path} defines no class or function 'Missing' \(it defines: Still, helper\)"),
     (GOOD + "\ndef broken(config, seed):\n    return 1 / 0\n", "broken",
      r"broken\(config, seed\) raised ZeroDivisionError: division by zero \(at {path}:15\)"),
-    (GOOD + "\ndef text(config, seed):\n    return 'heuristic'\n", "text", r"text\(config, seed\) returned: expected a Policy"),
+    (GOOD + "\ndef text(config, seed):\n    return 'heuristic'\n", "text",
+     r"text\(config, seed\) returned 'heuristic', which has no act or reset method; it must return a Policy: an object "
+     r"with name, reset\(n_worlds, world_ids=None\) and act\(obs, spec\) \(docs/env_api.md\)"),
+    (GOOD + "\ndef cls(config, seed):\n    return Still\n", "cls", r"cls\(config, seed\) returned the class Still, not an instance of it; it must return a Policy"),
     (GOOD + "\nclass Nameless(Still):\n    name = ''\n", "Nameless", r"has no `name` text"),
 ])
 def test_a_policy_file_that_cannot_give_a_policy_is_refused_naming_the_file_and_line(tmp_path, text, ref_name, said):
