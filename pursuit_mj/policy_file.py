@@ -57,7 +57,7 @@ def load_policy_file(ref: str, config: TaskConfig, seed: int = 0, source: str = 
         raise ValueError(f"{where}: {path} defines no class or function {name!r} (it defines: {', '.join(defined) or 'none'})")
     try:
         policy = factory(config, seed)
-    except Exception as exc:  # the user's own code: say where it failed, in one line
+    except (Exception, SystemExit) as exc:  # the user's own code: say where it failed, in one line
         raise ValueError(f"{where}: {name}(config, seed) raised {_what_and_where(exc, path)}") from exc
     missing = [m for m in ("act", "reset") if not callable(getattr(policy, m, None))]
     if missing or isinstance(policy, type):
@@ -89,7 +89,7 @@ def _run_file(path: Path, where: str):
     sys.modules[module_name] = module  # dataclasses and pickling look their module up by name
     try:
         spec.loader.exec_module(module)
-    except Exception as exc:
+    except (Exception, SystemExit) as exc:  # sys.exit() at a script's top level would end the command silently
         del sys.modules[module_name]
         raise ValueError(f"{where}: running {path} raised {_what_and_where(exc, path)}") from exc
     return module

@@ -62,6 +62,7 @@ def helper():
 @pytest.mark.parametrize("text, ref_name, said", [
     ("x = (\n", "Still", r"running {path} raised SyntaxError: .* \(at {path}:1\)"),
     ("import numpy\nraise RuntimeError('no gpu here')\n", "Still", r"running {path} raised RuntimeError: no gpu here \(at {path}:2\)"),
+    ("import sys\nsys.exit(3)\n", "Still", r"running {path} raised SystemExit: 3 \(at {path}:2\)"),
     (GOOD, "Missing", r"{path} defines no class or function 'Missing' \(it defines: Still, helper\)"),
     (GOOD + "\ndef broken(config, seed):\n    return 1 / 0\n", "broken",
      r"broken\(config, seed\) raised ZeroDivisionError: division by zero \(at {path}:15\)"),
