@@ -719,8 +719,9 @@ def test_two_models_of_one_run_name_are_told_apart_by_their_files(tmp_path, caps
     assert code == 0 and "models:" not in capsys.readouterr().out  # a label that names its run alone says enough
 
 
-class _Wrong:
-    """A policy of one's own that acts wrongly in one way (`how`)."""
+class _ActsAs:
+    """A policy of one's own whose act() answers in one way (`how`): wrongly (transposed, nan,
+    text, masked) or as the env takes it (grad, bfloat16: torch tensors)."""
 
     name = "mine"
 
@@ -731,11 +732,17 @@ class _Wrong:
         pass
 
     def act(self, obs, spec):
-        a = np.zeros(obs.shape[:-1] + (2,))
+        import torch
+
+        a = np.full(obs.shape[:-1] + (2,), 0.5)
         if self.how == "nan":
             a[-1, 1, 0] = np.nan
-            return a
-        return {"transposed": a.transpose(1, 0, 2), "text": a.astype(str)}[self.how]
+        if self.how == "masked":
+            a = np.ma.masked_array(a, mask=np.zeros(a.shape, bool))
+            a[0, 0, 0] = np.ma.masked
+        makers = {"transposed": lambda: a.transpose(1, 0, 2), "text": lambda: a.astype(str),
+                  "grad": lambda: torch.tensor(a, requires_grad=True), "bfloat16": lambda: torch.tensor(a, dtype=torch.bfloat16)}
+        return makers.get(self.how, lambda: a)()
 
 
 @pytest.mark.parametrize("how, said", [
@@ -750,33 +757,9 @@ def test_a_policy_that_acts_wrongly_is_named_in_evaluate_and_render(how, said):
 
     config = default_config(fidelity="point", max_steps=3)
     with pytest.raises(ValueError, match=said):
-        evaluate(_Wrong(how), config, layouts=[0], episodes=2, n_worlds=2)
+        evaluate(_ActsAs(how), config, layouts=[0], episodes=2, n_worlds=2)
     with pytest.raises(ValueError, match=said.replace(r"\(2, 3, 2\)", r"\(1, 3, 2\)").replace(r"\(3, 2, 2\)", r"\(3, 1, 2\)").replace("world 1", "world 0")):
-        render_episodes(config, _Wrong(how), 1)
-
-
-class _Tensor:
-    """A policy of one's own whose act() returns what the env takes (torch tensors, masked arrays)."""
-
-    name = "tensor"
-
-    def __init__(self, how: str):
-        self.how = how
-
-    def reset(self, n_worlds, world_ids=None):
-        pass
-
-    def act(self, obs, spec):
-        import torch
-
-        a = np.full(obs.shape[:-1] + (2,), 0.5)
-        if self.how == "grad":
-            return torch.tensor(a, requires_grad=True)
-        if self.how == "bfloat16":
-            return torch.tensor(a, dtype=torch.bfloat16)
-        masked = np.ma.masked_array(a, mask=np.zeros(a.shape, bool))
-        masked[0, 0, 0] = np.ma.masked
-        return masked
+        render_episodes(config, _ActsAs(how), 1)
 
 
 @pytest.mark.parametrize("how", ["grad", "bfloat16"])
@@ -786,14 +769,14 @@ def test_evaluate_and_render_take_the_torch_tensors_the_env_takes(how):
     from pursuit_mj.render.episodes import run_episodes as render_episodes
 
     config = default_config(fidelity="point", max_steps=3)
-    (row,) = evaluate(_Tensor(how), config, layouts=[0], episodes=2, n_worlds=2)
+    (row,) = evaluate(_ActsAs(how), config, layouts=[0], episodes=2, n_worlds=2)
     assert row.steps.mean == 3
-    render_episodes(config, _Tensor(how), 1)
+    render_episodes(config, _ActsAs(how), 1)
 
 
 def test_a_masked_array_from_act_is_refused_naming_the_policy():
     """np.asarray dropped the mask: the hidden values were flown as if act() had given them (the
     env refuses a masked array, as it did before evaluate checked the actions itself)."""
     config = default_config(fidelity="point", max_steps=3)
-    with pytest.raises(ValueError, match=r"policy tensor: act\(\) gave actions: a masked array with 1 masked entries"):
-        evaluate(_Tensor("masked"), config, layouts=[0], episodes=2, n_worlds=2)
+    with pytest.raises(ValueError, match=r"policy mine: act\(\) gave actions: a masked array with 1 masked entries"):
+        evaluate(_ActsAs("masked"), config, layouts=[0], episodes=2, n_worlds=2)
