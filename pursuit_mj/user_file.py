@@ -1,0 +1,80 @@
+"""Code of one's own from a Python file, for the command line: references of the form FILE.py:NAME.
+
+The file runs as a module of its own, not as part of a package, so it imports what it needs
+itself (numpy, pursuit_mj, torch). Every failure is a ValueError that names where the
+reference came from (a flag, a config key) and, for an error raised in the file, the line.
+`--policy FILE.py:NAME` (pursuit_mj.policy_file) and `--reward FILE.py:NAME`
+(pursuit_mj.custom_rewards) read their files through here.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import re
+import sys
+import traceback
+from pathlib import Path
+from typing import Any
+
+_REFERENCE = re.compile(r"^(?P<path>.+\.py):(?P<name>[A-Za-z_][A-Za-z0-9_]*)$")
+
+
+def is_file_reference(ref: str) -> bool:
+    """Whether `ref` has the form FILE.py:NAME (not whether the file exists)."""
+    return isinstance(ref, str) and _REFERENCE.match(ref) is not None
+
+
+def split_reference(ref: str, source: str, what: str = "the class or function in it") -> tuple[str, str]:
+    """(FILE, NAME) of a FILE.py:NAME reference; ValueError naming `source` for another form."""
+    match = _REFERENCE.match(ref) if isinstance(ref, str) else None
+    if match is None:
+        raise ValueError(f"{source} {ref!r}: expected FILE.py:NAME (a Python file and {what})")
+    return match["path"], match["name"]
+
+
+def file_sha256(ref: str, source: str) -> str:
+    """sha256 of the file a FILE.py:NAME reference names (a resume checks it is unchanged)."""
+    return hashlib.sha256(Path(split_reference(ref, source)[0]).read_bytes()).hexdigest()
+
+
+def load_named(ref: str, source: str, what: str = "class or function") -> tuple[Any, Path, str]:
+    """(the object NAME in FILE, FILE's path, NAME) for a FILE.py:NAME reference, checked to be
+    callable; ValueError naming `source` and `ref` for a missing file, an error raised while the
+    file runs, or a NAME it lacks (the message lists the callables it defines)."""
+    path_text, name = split_reference(ref, source)
+    where = f"{source} {ref}"
+    path = Path(path_text)
+    if not path.is_file():
+        raise ValueError(f"{where}: no file {path} (give FILE.py:NAME, FILE relative to the current folder or absolute)")
+    module = _run_file(path, where)
+    found = getattr(module, name, None)
+    if not callable(found):
+        defined = sorted(k for k, v in vars(module).items() if callable(v) and getattr(v, "__module__", None) == module.__name__)
+        raise ValueError(f"{where}: {path} defines no {what} {name!r} (it defines: {', '.join(defined) or 'none'})")
+    return found, path, name
+
+
+def _run_file(path: Path, where: str):
+    """The module of `path`, run once; ValueError naming the line of an error raised in it."""
+    module_name = "pursuit_user_" + hashlib.sha256(str(path.resolve()).encode()).hexdigest()[:12]
+    spec = importlib.util.spec_from_file_location(module_name, path)
+    if spec is None or spec.loader is None:
+        raise ValueError(f"{where}: {path} cannot be loaded as a Python module")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[module_name] = module  # dataclasses and pickling look their module up by name
+    try:
+        spec.loader.exec_module(module)
+    except (Exception, SystemExit) as exc:  # sys.exit() at a script's top level would end the command silently
+        del sys.modules[module_name]
+        raise ValueError(f"{where}: running {path} raised {what_and_where(exc, path)}") from exc
+    return module
+
+
+def what_and_where(exc: BaseException, path: Path) -> str:
+    """'TypeError: ... (at FILE:LINE)', the deepest line of `path` in the traceback when there is one."""
+    frames = [f for f in traceback.extract_tb(exc.__traceback__) if Path(f.filename).resolve() == path.resolve()]
+    if isinstance(exc, SyntaxError) and exc.lineno is not None:
+        return f"SyntaxError: {exc.msg} (at {path}:{exc.lineno})"
+    at = f" (at {path}:{frames[-1].lineno})" if frames else ""
+    return f"{type(exc).__name__}: {exc}{at}"
