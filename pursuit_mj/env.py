@@ -8,7 +8,7 @@ M evaders; positions and velocities in the layout frame (m, m/s).
 from __future__ import annotations
 
 import dataclasses
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -23,6 +23,7 @@ from .observations import build_global_state, build_observations, global_state_d
 from .obs_spec import ObsSpec
 from .physics import BatchedPhysics
 from .randomness import WorldRandom, world_keys
+from .custom_rewards import RewardTerm, StepView, checked_extra_rewards, term_values
 from .rewards import REWARD_TERMS, detect_events, reward_terms
 from .sensing import CAUGHT_BODY_RADIUS, INITIAL_HEADING, PERCEPTION_KEYS, Perception, WorldView, heading_min_speed, perceive, update_heading
 
@@ -155,6 +156,7 @@ class PursuitEnv:
         auto_reset: bool = True,
         layouts: Sequence[int | str | Layout] | None = None,
         nthread: int = 0,
+        extra_rewards: Mapping[str, RewardTerm] | None = None,
     ):
         config = checked_task_config(config, "PursuitEnv config")
         if isinstance(n_worlds, (bool, np.bool_)) or not isinstance(n_worlds, (int, np.integer)) or n_worlds < 1:
@@ -163,6 +165,8 @@ class PursuitEnv:
             raise ValueError(f"auto_reset: expected True or False, got {auto_reset!r}")
         if isinstance(nthread, (bool, np.bool_)) or not isinstance(nthread, (int, np.integer)) or not 0 <= nthread <= MAX_NTHREAD:
             raise ValueError(f"nthread: expected an integer in 0..{MAX_NTHREAD} (0: MuJoCo's choice), got {nthread!r}")
+        self.extra_rewards = checked_extra_rewards(extra_rewards, "PursuitEnv extra_rewards")
+        self.reward_names = (*REWARD_TERMS, *self.extra_rewards)  # every term paid, the task's first
         self.config = config
         self.n_worlds = int(n_worlds)
         n_worlds = self.n_worlds
@@ -190,8 +194,8 @@ class PursuitEnv:
         self.done = np.zeros(W, bool)
         self.outcome = np.full(W, "", dtype=object)
         self.capture_time = np.full(W, np.nan)
-        self.returns = {k: np.zeros(W) for k in REWARD_TERMS}
-        self.last_terms = {k: np.zeros((W, N), np.float32) for k in REWARD_TERMS}
+        self.returns = {k: np.zeros(W) for k in self.reward_names}
+        self.last_terms = {k: np.zeros((W, N), np.float32) for k in self.reward_names}
         self._episode_seeds = np.zeros(W, np.int64)
         self._sensing_keys = np.zeros(W, np.uint64)  # per-world keys of perception noise (randomness.py)
         self._world_obstacles = [l.obstacle_set() for l in self.world_layouts]  # each world's, kept between its episodes
@@ -254,7 +258,7 @@ class PursuitEnv:
         self.done[ids] = False
         self.outcome[ids] = ""
         self.capture_time[ids] = np.nan
-        for k in REWARD_TERMS:
+        for k in self.reward_names:
             self.returns[k][ids] = 0.0
             self.last_terms[k][ids] = 0.0
         if new_obstacles:
@@ -419,10 +423,6 @@ class PursuitEnv:
         outcome[success] = "success"
         outcome[collision] = "collision"  # a collision in the step of a capture still fails
         outcome[truncated] = "timeout"
-        reward = sum(terms.values()).astype(np.float32)
-        for k in REWARD_TERMS:
-            self.returns[k] += terms[k].mean(-1)
-            self.last_terms[k] = terms[k].copy()
         finished = terminated | truncated
         caught_w, caught_e = np.nonzero(events.new_captures & (active & ~finished)[:, None])
         if len(caught_w):  # caught evaders stop where they are (DESIGN.md section 1), at once
@@ -430,7 +430,21 @@ class PursuitEnv:
         self.outcome = np.where(finished, outcome, self.outcome)
         self.done |= finished
 
+        known_before = self._perception.known
         obs = self._observe()
+        if self.extra_rewards:  # after the observation: a term may pay for what the pursuers now know
+            step = StepView(cfg, a, pos0[:, :N], pos[:, :N], vel[:, :N], pos0[:, N:], pos[:, N:], vel[:, N:], free_before,
+                            events.new_captures & active[:, None], self.captured, events.collided & active[:, None],
+                            events.obstacle_gap, events.nearest_mate, known_before, self._perception.known,
+                            self._perception.seen, self.steps, outcome)
+            kept = (active & ~diverged)[:, None]
+            for k, term in self.extra_rewards.items():
+                values = term_values(k, term, step, (self.n_worlds, N), "PursuitEnv extra_rewards")
+                terms[k] = np.where(kept, values, np.float32(0.0)) + np.float32(0.0)  # + 0: no -0.0
+        reward = sum(terms.values()).astype(np.float32)
+        for k in self.reward_names:
+            self.returns[k] += terms[k].mean(-1)
+            self.last_terms[k] = terms[k].copy()
         info = {"reward_terms": terms, "outcome": outcome, "episodes": [], "final_obs": obs.copy(), "final_state": self.global_state()}
         ids = np.flatnonzero(finished)
         for w in ids:
@@ -451,7 +465,7 @@ class PursuitEnv:
             outcome=outcome,
             steps=int(self.steps[w]),
             time_to_capture=None if np.isnan(t) else float(t),
-            returns={k: float(self.returns[k][w]) for k in REWARD_TERMS},
+            returns={k: float(self.returns[k][w]) for k in self.reward_names},
             captured=int(self.captured[w].sum()),
             layout=self.world_layouts[w].name,
         )

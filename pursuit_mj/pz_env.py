@@ -23,10 +23,11 @@ class PursuitParallelEnv(ParallelEnv):
     metadata = {"name": "pursuit_mj_v0", "render_modes": ["rgb_array"]}
 
     def __init__(self, config: TaskConfig | None = None, seed: int = 0, render_mode: str | None = None,
-                 render_settings=None):
+                 render_settings=None, extra_rewards=None):
         """render_mode None (render() draws nothing) or 'rgb_array' (render() returns the current
         frame (H, W, 3) uint8, top view with trails, caption and colour key); render_settings a
-        pursuit_mj.render.RenderSettings (size, camera, quality; default 640 x 480 top view)."""
+        pursuit_mj.render.RenderSettings (size, camera, quality; default 640 x 480 top view);
+        extra_rewards {name: term} reward terms of one's own (as PursuitEnv's; each term sees one world)."""
         if render_mode not in (None, "rgb_array"):  # pettingzoo's convention: only the modes of metadata
             raise ValueError(f"render_mode: {render_mode!r} is not supported (supported: None, 'rgb_array')")
         if render_settings is not None:
@@ -40,7 +41,8 @@ class PursuitParallelEnv(ParallelEnv):
         # an empty dict is not "no config": it and every other non-TaskConfig are refused by name
         self.config = default_config() if config is None else checked_task_config(config, "PursuitParallelEnv config")
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.config.control_dt}  # one frame per decision step
-        self._env = PursuitEnv(self.config, n_worlds=1, seed=check_seed(seed, "PursuitParallelEnv seed"), auto_reset=False)
+        self._env = PursuitEnv(self.config, n_worlds=1, seed=check_seed(seed, "PursuitParallelEnv seed"), auto_reset=False,
+                               extra_rewards=extra_rewards)
         if render_mode == "rgb_array" and render_settings is not None:  # now, naming its fields, not at the first reset
             from .render.renderer import check_settings
 

@@ -1,0 +1,176 @@
+"""Reward terms of one's own (pursuit_mj.custom_rewards): paid, logged and checked like the task's."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pursuit_mj.config import default_config
+from pursuit_mj.custom_rewards import load_reward_file, load_reward_files
+from pursuit_mj.env import PursuitEnv
+from pursuit_mj.policies import make_policy
+from pursuit_mj.pz_env import PursuitParallelEnv
+from pursuit_mj.rewards import REWARD_TERMS
+
+W, N = 3, 3
+
+
+def point_config(**changes):
+    return dataclasses.replace(default_config(), fidelity="point", **changes)
+
+
+def flee_actions(steps: int, seed: int = 0) -> np.ndarray:
+    """(steps, W, N, 2) fixed random actions: both envs of a comparison fly the same."""
+    return np.random.default_rng(seed).uniform(-1, 1, (steps, W, N, 2))
+
+
+def test_a_term_is_paid_beside_the_tasks_terms_and_changes_nothing_else():
+    plain = PursuitEnv(point_config(), n_worlds=W, seed=3)
+    paid = PursuitEnv(point_config(), n_worlds=W, seed=3, extra_rewards={"bonus": lambda step: np.full((W, N), 0.25)})
+    assert np.array_equal(plain.reset(), paid.reset())
+    episodes = []
+    for a in flee_actions(40):
+        o1, r1, te1, tr1, i1 = plain.step(a)
+        o2, r2, te2, tr2, i2 = paid.step(a)
+        assert np.array_equal(o1, o2) and np.array_equal(te1, te2) and np.array_equal(tr1, tr2)
+        for k in REWARD_TERMS:
+            assert np.array_equal(i1["reward_terms"][k], i2["reward_terms"][k])
+        assert list(i2["reward_terms"]) == [*REWARD_TERMS, "bonus"]
+        assert i2["reward_terms"]["bonus"].dtype == np.float32
+        np.testing.assert_allclose(r2, r1 + 0.25, atol=1e-6)
+        episodes += i2["episodes"]
+    snap = paid.snapshot(0)
+    assert snap.reward_terms["bonus"].tolist() == [0.25] * N
+    assert paid.returns["bonus"][0] == pytest.approx(0.25 * paid.steps[0])
+    assert episodes, "no episode ended in 40 steps of random flight"  # collisions end them
+    assert all(e.returns["bonus"] == pytest.approx(0.25 * e.steps) for e in episodes)
+
+
+def test_ended_worlds_are_paid_nothing_whatever_the_term_returns():
+    env = PursuitEnv(point_config(), n_worlds=W, seed=3, auto_reset=False, extra_rewards={"bonus": lambda step: np.ones((W, N))})
+    env.reset()
+    ended_once = False
+    for a in flee_actions(60, seed=1):
+        was_done = env.done.copy()
+        _, reward, *_, info = env.step(a)
+        assert (info["reward_terms"]["bonus"][was_done] == 0).all()
+        assert (info["reward_terms"]["bonus"][~was_done] == 1).all()
+        ended_once |= was_done.any()
+    assert ended_once
+
+
+def test_the_step_view_holds_what_the_env_knew_before_and_after_the_step():
+    seen = []
+
+    def record(step):
+        seen.append(step)
+        return np.zeros((W, N))
+
+    config = point_config()
+    env = PursuitEnv(config, n_worlds=W, seed=5, auto_reset=False, extra_rewards={"watch": record})
+    team = make_policy("heuristic", config)  # it finds the evader, so `known` changes
+    obs = env.reset()
+    team.reset(W)
+    for _ in range(150):
+        before = [env.snapshot(w) for w in range(W)]
+        a = team.act(obs, env.obs_spec)
+        obs, *_ = env.step(a)
+        after = [env.snapshot(w) for w in range(W)]
+        step = seen[-1]
+        for w in range(W):
+            if before[w].outcome:  # ended before this step: nothing moved
+                continue
+            assert np.array_equal(step.known_before[w], before[w].known)
+            assert np.array_equal(step.known[w], after[w].known) and np.array_equal(step.seen[w], after[w].seen)
+            assert np.array_equal(step.pursuer_pos_before[w], before[w].pursuer_pos[:, :2])
+            assert np.array_equal(step.pursuer_pos[w], after[w].pursuer_pos[:, :2])
+            assert np.array_equal(step.evader_pos[w], after[w].evader_pos[:, :2])
+            assert step.steps[w] == after[w].step
+            assert step.outcome[w] == after[w].outcome
+        np.testing.assert_array_equal(step.actions, np.clip(a, -1, 1))
+    known = [bool(s.known.any()) for s in seen]
+    assert any(known) and not all(known), "`known` never changed: the checks above saw little"
+
+
+def test_a_term_cannot_change_the_step_it_reads():
+    def meddle(step):
+        step.pursuer_pos[:] = 0.0
+        return np.zeros((W, N))
+
+    env = PursuitEnv(point_config(), n_worlds=W, extra_rewards={"meddle": meddle})
+    env.reset()
+    with pytest.raises(ValueError, match=r"reward term 'meddle' raised ValueError: .*read-only"):
+        env.step(np.zeros((W, N, 2)))
+
+
+@pytest.mark.parametrize("term, message", [
+    (lambda step: np.zeros(W), r"reward term 'bad' returned shape \(3,\), expected \(3, 3\) \(worlds, pursuers\)"),
+    (lambda step: np.full((W, N), np.nan), r"reward term 'bad' returned nan at \(world, pursuer\) \(0, 0\)"),
+    (lambda step: np.full((W, N), "x"), r"reward term 'bad' returned an array of dtype <U1, not real numbers"),
+    (lambda step: 1 / 0, r"reward term 'bad' raised ZeroDivisionError: division by zero"),
+])
+def test_what_a_term_returns_is_checked_and_named(term, message):
+    env = PursuitEnv(point_config(), n_worlds=W, extra_rewards={"bad": term})
+    env.reset()
+    with pytest.raises(ValueError, match=r"PursuitEnv extra_rewards: " + message):
+        env.step(np.zeros((W, N, 2)))
+
+
+@pytest.mark.parametrize("extra, message", [
+    ({"capture": lambda s: 0}, r"'capture' is one of the task's own reward terms"),
+    ({"2fast": lambda s: 0}, r"'2fast' is not a usable term name"),
+    ({"bonus": 1.0}, r"the term 'bonus' is 1.0, not a callable taking a StepView"),
+    ([lambda s: 0], r"expected a mapping of term name -> callable\(StepView\), got list"),
+])
+def test_terms_are_checked_when_the_env_is_made(extra, message):
+    with pytest.raises(ValueError, match=r"PursuitEnv extra_rewards: " + message):
+        PursuitEnv(point_config(), n_worlds=1, extra_rewards=extra)
+
+
+def test_the_pettingzoo_env_pays_the_term_to_each_agent():
+    env = PursuitParallelEnv(point_config(), seed=0, extra_rewards={"bonus": lambda step: np.full((1, N), 0.5)})
+    env.reset(seed=0)
+    _, rewards, _, _, infos = env.step({agent: np.zeros(2) for agent in env.agents})
+    assert all(info["reward_terms"]["bonus"] == 0.5 for info in infos.values())
+    plain = PursuitParallelEnv(point_config(), seed=0)
+    plain.reset(seed=0)
+    _, plain_rewards, *_ = plain.step({agent: np.zeros(2) for agent in plain.agents})
+    assert all(rewards[a] == pytest.approx(plain_rewards[a] + 0.5) for a in rewards)
+
+
+def test_a_term_from_a_file_is_named_by_its_reference_in_errors(tmp_path):
+    path = tmp_path / "terms.py"
+    path.write_text("import numpy as np\n\ndef good(step):\n    return np.zeros(step.pursuer_pos.shape[:2])\n\n"
+                    "def broken(step):\n    return step.nothing\n")
+    name, term = load_reward_file(f"{path}:good")
+    assert name == "good"
+    env = PursuitEnv(point_config(), n_worlds=W, extra_rewards=load_reward_files([f"{path}:good", f"{path}:broken"]))
+    env.reset()
+    with pytest.raises(ValueError, match=rf"^--reward {path}:broken: reward term 'broken' raised AttributeError: .*nothing.* "
+                                         rf"\(at {path}:7\)$"):
+        env.step(np.zeros((W, N, 2)))
+
+
+@pytest.mark.parametrize("ref, message", [
+    ("{p}:absent", r"--reward {p}:absent: {p} defines no function 'absent' \(it defines: capture, good\)"),
+    ("{p}:capture", r"--reward {p}:capture: 'capture' is one of the task's own reward terms"),
+    ("{p}", r"--reward '{p}': expected FILE.py:NAME"),
+    ("{d}/none.py:good", r"--reward {d}/none.py:good: no file {d}/none.py"),
+])
+def test_a_reward_file_that_cannot_give_a_term_is_refused_in_one_line(tmp_path, ref, message):
+    path = tmp_path / "terms.py"
+    path.write_text("def good(step):\n    return 0\n\ncapture = good\n")
+    ref, message = ref.format(p=path, d=tmp_path), message.format(p=path, d=tmp_path)
+    with pytest.raises(ValueError, match=message):
+        load_reward_file(ref)
+
+
+def test_two_terms_of_one_name_are_refused(tmp_path):
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "t.py").write_text("def sight(step):\n    return 0\n")
+    refs = [f"{tmp_path}/a/t.py:sight", f"{tmp_path}/b/t.py:sight"]
+    with pytest.raises(ValueError, match=r"a term 'sight' is already given"):
+        load_reward_files(refs)
