@@ -61,6 +61,9 @@ def register(sub) -> None:
                    help="training layout; repeat for a list (one per world in turn)")
     p.add_argument("--random-layout", action="store_true", help="a random built-in layout per episode (with several --layout: one of those)")
     p.add_argument("--init-from", metavar="CHECKPOINT", help="start from these weights (fine_tune)")
+    p.add_argument("--reward", action="append", metavar="FILE.py:NAME",
+                   help="a reward term of your own: the function NAME in FILE, called every step with a StepView, paid "
+                        "beside the task's terms and logged under NAME (docs/training.md); repeat for several (key rewards)")
     p.add_argument("--learnable-gamma", action="store_true", help="learn the discount by meta-gradient")
     p.add_argument("--resume", nargs="?", const=True, metavar="RUN_DIR",
                    help="continue the run in RUN_DIR (default: the configured run) from its last.pt")
@@ -103,6 +106,11 @@ def _flags(args) -> dict:
             flags["layouts"] = refs
     if task:
         flags["task"] = task
+    if args.reward:
+        from pursuit_mj.custom_rewards import load_reward_files
+
+        load_reward_files(args.reward, "--reward")  # a bad file named by the flag, before anything starts
+        flags["rewards"] = list(args.reward)
     if args.learnable_gamma:
         flags["ppo"] = {"learnable_gamma": True}
     if args.no_progress or args.progress:
@@ -148,6 +156,7 @@ def _flags_typed(args) -> str:
 
     pairs = [(flag, getattr(args, key)) for key, flag in FLAG_KEYS.items() if getattr(args, key) is not None]
     pairs += [("--layout", ref) for ref in args.layout or []]
+    pairs += [("--reward", ref) for ref in args.reward or []]
     return flags_typed(pairs) if pairs else "command-line flag"
 
 
@@ -187,7 +196,8 @@ def _refuse_with_export(args) -> None:
                                       ("--total-steps", args.total_steps), ("--max-minutes", args.max_minutes),
                                       ("--n-envs", args.n_envs), ("--seed", args.seed), ("--fidelity", args.fidelity),
                                       ("--layout", args.layout), ("--random-layout", args.random_layout),
-                                      ("--init-from", args.init_from), ("--learnable-gamma", args.learnable_gamma),
+                                      ("--init-from", args.init_from), ("--reward", args.reward),
+                                      ("--learnable-gamma", args.learnable_gamma),
                                       ("--resume", args.resume), ("--rerun", args.rerun), ("-sc", args.show_config))
              if _given(value)]
     if given:
@@ -280,7 +290,7 @@ def run(args) -> int:
             trainer = Trainer.resume(cfg.run_dir, cfg.total_steps if "total_steps" in given else None,
                                      max_minutes=cfg.max_minutes if "max_minutes" in given else None,
                                      progress=cfg.run.progress if "run.progress" in given else None,
-                                     check=lambda stored: _check_same(cfg.with_absolute_layout_files(), stored),
+                                     check=lambda stored: _check_same(cfg.with_absolute_files(), stored),
                                      rerun=cfg.run.rerun if "run.rerun" in given else None)
         else:
             if last.exists():

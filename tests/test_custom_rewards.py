@@ -3,9 +3,15 @@
 from __future__ import annotations
 
 import dataclasses
+import json
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
+
+from pursuit_cli import main
 
 from pursuit_mj.config import default_config
 from pursuit_mj.custom_rewards import load_reward_file, load_reward_files
@@ -174,3 +180,85 @@ def test_two_terms_of_one_name_are_refused(tmp_path):
     refs = [f"{tmp_path}/a/t.py:sight", f"{tmp_path}/b/t.py:sight"]
     with pytest.raises(ValueError, match=r"a term 'sight' is already given"):
         load_reward_files(refs)
+
+
+# ---------------------------------------------------------------- in training: pursuit-mj train --reward
+
+DOCS = Path(__file__).resolve().parent.parent / "docs"
+TINY = ["task.fidelity=point", "task.n_pursuers=2", "task.random_obstacles=0", "task.max_steps=30",
+        "n_envs=2", "ppo.batch_size=64", "ppo.minibatch_size=32", "ppo.epochs=1",
+        "run.validate_every=0", "run.validation_episodes=2"]
+
+
+def documented_sight() -> str:
+    """The sight.py example of docs/training.md, as written there."""
+    block = re.search(r"```python\n# sight.py\n(.*?)```", (DOCS / "training.md").read_text(), re.S)
+    assert block, "docs/training.md lost its sight.py example"
+    return block.group(1)
+
+
+def sets(items):
+    return sum((["--set", s] for s in items), [])
+
+
+def rows_of(run_dir: Path) -> list[dict]:
+    return [json.loads(x) for x in (run_dir / "metrics.jsonl").read_text().splitlines()]
+
+
+def test_the_documented_term_trains_is_logged_and_guards_its_resume(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)  # the docs give the file relative to the current folder
+    Path("sight.py").write_text(documented_sight())
+    args = (["train", "--no-progress", "--name", "sighted", "--total-steps", "64", "--reward", "sight.py:sight"]
+            + sets(TINY + ["task.observability=full"]))  # the evader known from the start: the term pays at once
+    assert main(args) == 0, capsys.readouterr().err
+    run = tmp_path / "runs" / "sighted"
+    rows = rows_of(run)
+    paid = [r["reward_terms_per_step"]["sight"] for r in rows]
+    assert all(v < 0 for v in paid)  # known throughout: 0.99 x 1 - 1 per step, and -1 where an episode ends
+    assert all("sight" in r["reward_terms_per_step"] for r in rows)
+    data = torch.load(run / "last.pt", weights_only=True)
+    assert data["train_config"]["rewards"] == [f"{tmp_path / 'sight.py'}:sight"]  # absolute: resumable from anywhere
+    assert list(data["reward_sha256"]) == [str(tmp_path / "sight.py")]
+
+    monkeypatch.chdir(run.parent.parent.parent)  # a resume from another folder loads the stored path
+    Path(tmp_path / "sight.py").write_text(documented_sight().replace("WEIGHT = 1.0", "WEIGHT = 2.0"))
+    assert main(["train", "--no-progress", "--resume", str(run), "--total-steps", "128"]) == 2
+    err = capsys.readouterr().err
+    assert f"reward file {tmp_path / 'sight.py'} (rewards) has changed since the run started" in err
+    Path(tmp_path / "sight.py").write_text(documented_sight())
+    assert main(["train", "--no-progress", "--resume", str(run), "--total-steps", "128"]) == 0
+    assert [r["update"] for r in rows_of(run)] == [1, 2, 3, 4]
+
+
+def test_a_term_is_paid_in_the_overlapped_rollout_worker_too(tmp_path, capsys):
+    (tmp_path / "bonus.py").write_text("import numpy as np\n\ndef bonus(step):\n    return np.full(step.pursuer_pos.shape[:2], 0.5)\n")
+    args = ["train", "--no-progress", "--name", "o", "--total-steps", "128", "--reward", f"{tmp_path}/bonus.py:bonus"]
+    assert main(args + sets(TINY + [f"run.runs_dir={tmp_path}", "run.overlap=true"])) == 0, capsys.readouterr().err
+    rows = rows_of(tmp_path / "o")
+    assert len(rows) == 4 and all(r["reward_terms_per_step"]["bonus"] == pytest.approx(0.5) for r in rows)
+
+
+def test_a_train_file_names_its_terms_beside_itself(tmp_path, monkeypatch, capsys):
+    folder = tmp_path / "exp"
+    folder.mkdir()
+    (folder / "terms.py").write_text("import numpy as np\n\ndef calm(step):\n    return -0.1 * np.abs(step.actions).sum(-1)\n")
+    (folder / "run.yaml").write_text("name: calm\nrewards: [terms.py:calm]\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "--config", "exp/run.yaml", "--no-progress", "--total-steps", "32"] + sets(TINY)) == 0, capsys.readouterr().err
+    rows = rows_of(tmp_path / "runs" / "calm")
+    assert rows[0]["reward_terms_per_step"]["calm"] < 0
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--reward", "{d}/none.py:sight"], "--reward {d}/none.py:sight: no file {d}/none.py"),
+    (["--reward", "sight"], "--reward 'sight': expected FILE.py:NAME"),
+    (["--reward", "{d}/t.py:nothing"], "--reward {d}/t.py:nothing: {d}/t.py defines no function 'nothing' (it defines: sight)"),
+    (["--set", "rewards=[sight]"], "key 'rewards': 'sight' is not FILE.py:NAME"),
+])
+def test_a_bad_reward_is_refused_in_one_line_before_training(tmp_path, capsys, args, message):
+    (tmp_path / "t.py").write_text("def sight(step):\n    return 0\n")
+    args = [a.format(d=tmp_path) for a in args]
+    code = main(["train", "--no-progress", "--total-steps", "32"] + args + sets(TINY + [f"run.runs_dir={tmp_path}/runs"]))
+    err = capsys.readouterr().err
+    assert code == 2 and message.format(d=tmp_path) in err, err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "runs").exists()

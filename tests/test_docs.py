@@ -27,6 +27,16 @@ DOCS = ["README.md", "pretrained/README.md", *sorted(str(p.relative_to(ROOT)) fo
 TASK_COMMANDS = {"config", "simulate", "eval", "study", "render", "demo"}
 #: written in place of a placeholder word (MODEL, DIR, B ...) so that the flags around it still parse
 PLACEHOLDER = re.compile(r"^[A-Z][A-Z_]*$")
+#: a placeholder FILE.py:NAME reference (--policy, --reward)
+PLACEHOLDER_REF = re.compile(r"^[A-Z][A-Z_]*\.py:[A-Z][A-Z_]*$")
+
+
+def _documented_files() -> dict[str, str]:
+    """The Python files the docs write out (a ```python block whose first line is `# NAME.py`), by name."""
+    files = {}
+    for doc in DOCS:
+        files.update(re.findall(r"```python\n# (\w+\.py)\n(.*?)```", (ROOT / doc).read_text(), re.S))
+    return files
 
 
 def _from_markdown(text: str) -> list[str]:
@@ -103,10 +113,16 @@ def test_the_docs_show_commands_of_every_kind():
 
 
 @pytest.mark.parametrize("where, command", COMMANDS, ids=[f"{w}: {c[:70]}" for w, c in COMMANDS])
-def test_documented_command_parses_and_resolves(where, command, capsys, monkeypatch):
+def test_documented_command_parses_and_resolves(where, command, capsys, monkeypatch, tmp_path):
     monkeypatch.chdir(ROOT)  # the docs' relative paths are from the repository root
     words = [w.strip("[]") for w in shlex.split(command)[1:] if w != "..."]
-    placeholders = any(PLACEHOLDER.match(w) for w in words)
+    placeholders = any(PLACEHOLDER.match(w) or PLACEHOLDER_REF.match(w) for w in words)
+    written = _documented_files()
+    for i, word in enumerate(words):  # a file the docs write out (sight.py:sight): written, then named by its path
+        file, _, name = word.partition(":")
+        if words[i - 1] == "--reward" and file in written:
+            (tmp_path / file).write_text(written[file])
+            words[i] = f"{tmp_path / file}:{name}"
     argv = ["1" if PLACEHOLDER.match(w) else w for w in words]
     if _names_subcommands(argv):
         return  # a mention in prose (`pursuit-mj layout show`)

@@ -19,6 +19,7 @@ from pursuit_mj.config import TaskConfig, load_task_yaml, preset_or_file
 from pursuit_mj.configio import ConfigError, build, check_values, found_beside, key_where, load, load_yaml, parse_override, spec, to_dict
 from pursuit_mj.layout import N_BUILTIN, found_layout_ref
 from pursuit_mj.sensing import PRIVILEGED_VIEWS
+from pursuit_mj.user_file import is_file_reference, split_reference
 
 REGIMES = ("classic", "full_obs", "fine_tune", "mappo", "custom")
 
@@ -195,6 +196,9 @@ class TrainConfig:
                                     "load_policy puts it back on the trained policy")
     belief: bool = spec(False, help="append belief features (pursuit_mj/belief.py: remembered evaders, coverage-search "
                                     "waypoint) to the actor's and critic's observations; load_policy adds them back")
+    rewards: tuple[str, ...] = spec((), help="reward terms of your own, FILE.py:NAME each: the function NAME of FILE, "
+                                             "called every step with a StepView (pursuit_mj/custom_rewards.py), is paid beside "
+                                             "the task's terms in training and logged under NAME (docs/training.md)")
     task_file: str | None = spec(None, help="task YAML file or preset name: its keys apply over the task of the files before, under this "
                                           "file's own task: keys (--set task_file: over every file, under the other --set keys)")
     task: TaskConfig = spec(default_factory=TaskConfig, help="the task trained on")
@@ -209,6 +213,10 @@ class TrainConfig:
         if not self.name or "/" in self.name or self.name in (".", ".."):
             raise ConfigError(f"{key_where(source, 'name')}: {self.name!r} is not a usable run folder name")
         check_indices("layouts", self.layouts, source)
+        for ref in self.rewards:
+            if not is_file_reference(ref):
+                raise ConfigError(f"{key_where(source, 'rewards')}: {ref!r} is not FILE.py:NAME (a Python file and the "
+                                  f"function in it)")
         if self.regime == "fine_tune" and not self.init_from:
             raise ConfigError(f"{source}: regime fine_tune needs init_from (a full_obs checkpoint)")
 
@@ -253,15 +261,27 @@ class TrainConfig:
                                                    ("run.validation_layouts", self.run.validation_layouts))
                 for ref in refs if _is_file_ref(ref)]
 
-    def with_absolute_layout_files(self) -> "TrainConfig":
-        """This config with every layout file path made absolute (from the current folder): the
-        stored config of a run then loads them wherever the run is resumed."""
+    def with_absolute_files(self) -> "TrainConfig":
+        """This config with every layout file and reward file path made absolute (from the current
+        folder): the stored config of a run then loads them wherever the run is resumed."""
         def absolute(ref):
             return os.path.abspath(ref) if _is_file_ref(ref) else ref
 
         task = dataclasses.replace(self.task, layout=absolute(self.task.layout))
         run = dataclasses.replace(self.run, validation_layouts=tuple(absolute(r) for r in self.run.validation_layouts))
-        return dataclasses.replace(self, task=task, run=run, layouts=tuple(absolute(r) for r in self.layouts))
+        rewards = tuple(f"{os.path.abspath(path)}:{name}" for path, name in (split_reference(r, "rewards") for r in self.rewards))
+        return dataclasses.replace(self, task=task, run=run, layouts=tuple(absolute(r) for r in self.layouts), rewards=rewards)
+
+    def reward_files(self) -> list[str]:
+        """The FILE of every FILE.py:NAME in `rewards`, each once, in order."""
+        return list(dict.fromkeys(split_reference(r, "rewards")[0] for r in self.rewards))
+
+    def check_rewards(self, source: str = "train config") -> None:
+        """Load every reward term the run names (`rewards`): ValueError naming the key and the
+        reference of one that cannot be loaded (no such file or function, an error in the file)."""
+        from pursuit_mj.custom_rewards import load_reward_files
+
+        load_reward_files(self.rewards, f"{source}: rewards")
 
     def check_layouts(self, source: str = "train config") -> None:
         """Load every layout the run names (task.layout, layouts, run.validation_layouts): ConfigError
@@ -364,8 +384,18 @@ def _paths_beside(data: dict[str, Any], path: Path) -> None:
         task["layout"] = found_layout_ref(task["layout"], path, "task.layout")
     if isinstance(data.get("layouts"), list):
         data["layouts"] = [found_layout_ref(r, path, "layouts") for r in data["layouts"]]
+    if isinstance(data.get("rewards"), list):
+        data["rewards"] = [_reward_beside(r, path) for r in data["rewards"]]
     if isinstance(run, dict) and isinstance(run.get("validation_layouts"), list):
         run["validation_layouts"] = [found_layout_ref(r, path, "run.validation_layouts") for r in run["validation_layouts"]]
+
+
+def _reward_beside(ref: Any, path: Path) -> Any:
+    """A FILE.py:NAME of a train file, its FILE found beside the train file as `found_beside` does."""
+    if not is_file_reference(ref):
+        return ref  # refused with its key by TrainConfig.validate
+    file, name = split_reference(ref, "rewards")
+    return f"{found_beside(file, path)}:{name}"
 
 
 def _resolve_task_file(ref: str, source: str) -> dict[str, Any]:

@@ -8,6 +8,7 @@ import numpy as np
 import torch
 
 from pursuit_mj.belief import Belief, BeliefEnv, BeliefTeam
+from pursuit_mj.custom_rewards import load_reward_files
 from pursuit_mj.env import PursuitEnv
 from pursuit_mj.policies import make_policy
 from pursuit_mj.policy import Policy
@@ -27,9 +28,10 @@ def env_seed(seed: int, update: int) -> int:
 
 def make_training_env(cfg: TrainConfig, start_update: int):
     """The auto-resetting env a run (re)started at `start_update` trains in (belief features
-    appended when cfg.belief)."""
+    appended when cfg.belief; the reward terms of cfg.rewards paid beside the task's)."""
     env = PursuitEnv(cfg.task, n_worlds=cfg.n_envs, seed=env_seed(cfg.seed, start_update),
-                     layouts=list(cfg.layouts) or None, nthread=cfg.run.sim_threads)
+                     layouts=list(cfg.layouts) or None, nthread=cfg.run.sim_threads,
+                     extra_rewards=load_reward_files(cfg.rewards, "rewards"))
     return BeliefEnv(env, Belief.from_config(cfg.task)) if cfg.belief else env
 
 
