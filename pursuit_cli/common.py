@@ -197,7 +197,18 @@ def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
         raise one_flag_named(exc, typed, {TASK_FLAG_NAMES[k]: v for k, v in flags.items()}, TASK_FLAG_NAMES) from None
     if getattr(args, "show_config", False):
         print(dump_yaml(cfg))
+    check_evader_model(cfg, "evader.model")
     return cfg
+
+
+def check_evader_model(config: TaskConfig, source: str) -> None:
+    """An evader model of one's own (evader.model FILE.py:NAME) made once, now: a missing file or an
+    error in it is one line naming `source`, before any episode or output file."""
+    from pursuit_mj.evader_models import make_evader_model
+    from pursuit_mj.user_file import is_file_reference
+
+    if is_file_reference(config.evader.model):
+        make_evader_model(config, 1, 0, source)
 
 
 def task_key_source(args: argparse.Namespace, key: str) -> str | None:

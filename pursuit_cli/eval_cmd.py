@@ -17,6 +17,7 @@ from pathlib import Path
 from pursuit_mj.io_utils import check_writable, check_writable_folder, file_sha256
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
+from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_sha256
 from .common import (SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, check_out_prefix, load_model, pick_versus, sweep_dead_parts,
                      seed_arg, shield_if_asked, table_layouts, task_config_from_args)
@@ -143,7 +144,7 @@ def _run_table(args, config, layouts, policies, recording, rows: list, done: dic
     return rows
 
 
-def _meta(args, policies, layouts, code: dict) -> dict:
+def _meta(args, policies, layouts, code: dict, config) -> dict:
     from pursuit_mj.evaluation import layout_identity, layout_label
     from pursuit_mj.layout import resolve_layout_ref
 
@@ -155,7 +156,9 @@ def _meta(args, policies, layouts, code: dict) -> dict:
             "model_of": _model_labels(args, policies),
             "layout_sha256": {layout_label(ref): file_sha256(resolve_layout_ref(ref)) for ref in layouts},
             # what seeded each layout's episodes here (a relative path is a built-in or not by where eval ran): for pool
-            "layout_identity": {layout_label(ref): layout_identity(ref) for ref in layouts}, "code": code}
+            "layout_identity": {layout_label(ref): layout_identity(ref) for ref in layouts}, "code": code,
+            # the evaders' model of one's own (evader.model FILE.py:NAME) by its bytes: edited, it flies other evaders
+            "evader_model_sha256": evader_model_sha256(config)}
 
 
 def _model_labels(args, policies) -> dict[str, str]:
@@ -209,7 +212,7 @@ def run(args) -> int:
         sweep_dead_parts(Path(args.plots), "--plots")
     if not args.resume:
         check_nothing_kept(csv_path, json_path)
-    done = finished_rows(json_path, config, _meta(args, policies, layouts, provenance()), csv_path) if args.resume else None
+    done = finished_rows(json_path, config, _meta(args, policies, layouts, provenance(), config), csv_path) if args.resume else None
     if done is not None and not args.quiet:
         print(f"[eval] resuming: {len(done)} finished rows from {interrupted_path(json_path)}", file=sys.stderr, flush=True)
     with contextlib.ExitStack() as stack:
@@ -221,7 +224,7 @@ def run(args) -> int:
             stack.callback(_report_interrupted, recording)  # runs after the recording is closed
             stack.enter_context(recording)
         rows: list = []
-        meta = _meta(args, policies, layouts, provenance())
+        meta = _meta(args, policies, layouts, provenance(), config)
         try:
             _run_table(args, config, layouts, policies, recording, rows, done,
                        finished=lambda rows: write_finished(rows, csv_path, json_path, config, meta))

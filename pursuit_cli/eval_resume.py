@@ -68,8 +68,9 @@ def keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, con
 
 
 #: what an interrupted eval and its resumption must share, so that the finished rows are what this run would play
-RESUME_KEYS = ("episodes", "seed", "policies", "model_sha256", "shield", "policy_file_sha256", "policy_file_names")
-RESUME_DEFAULTS = {"policy_file_sha256": [], "policy_file_names": []}  # what an interrupted eval written before the keys had
+RESUME_KEYS = ("episodes", "seed", "policies", "model_sha256", "shield", "policy_file_sha256", "policy_file_names",
+               "evader_model_sha256")
+RESUME_DEFAULTS = {"policy_file_sha256": [], "policy_file_names": [], "evader_model_sha256": None}  # what an interrupted eval written before the keys had
 
 
 def finished_rows(json_path: Path | None, config, meta: dict, csv_path: Path | None = None) -> dict[tuple[str, str], object]:

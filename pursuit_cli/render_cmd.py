@@ -26,6 +26,7 @@ from pursuit_mj.configio import build, dump_yaml, load, to_dict
 from pursuit_mj.layout import load_layout
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
+from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_path
 from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, flags_typed, load_model, path_arg, seed_arg, sweep_dead_parts,
                      finite_float, shield_if_asked, task_config_from_args)
@@ -168,7 +169,8 @@ def render_digest(config: TaskConfig, label: str, checkpoint: Path | None, frame
     """Six hex digits of everything that decides what a render shows (the seed aside, which the
     name spells out): the task with its layout's content, the policy (a checkpoint by its bytes)
     and the frame settings; for --policy FILE.py:NAME, the file by its bytes and `factory`, NAME
-    (two factories of one file may give policies of one name). Files named alike hold the same
+    (two factories of one file may give policies of one name); an evader.model FILE.py:NAME by
+    its file's bytes. Files named alike hold the same
     pictures, so a render replaces only its own earlier copy, never a render of another model,
     task or camera."""
     h = hashlib.sha256()
@@ -180,6 +182,9 @@ def render_digest(config: TaskConfig, label: str, checkpoint: Path | None, frame
     h.update(json.dumps(frames, sort_keys=True).encode())
     if factory is not None:  # nothing added otherwise: the names of earlier renders stay as they were
         h.update(f"factory {factory}".encode())
+    evader = evader_model_sha256(config)
+    if evader is not None:  # likewise: an evader model of one's own by its bytes
+        h.update(f"evader {evader}".encode())
     return h.hexdigest()[:6]
 
 

@@ -11,10 +11,13 @@ import math
 from pathlib import Path
 from typing import Any, Sequence
 
-from .configio import ConfigError, build, dump_yaml, key_where, load, load_yaml, spec, to_dict
+from .configio import ConfigError, build, dump_yaml, found_beside, key_where, load, load_yaml, spec, to_dict
 from .layout import MAX_RANDOM_OBSTACLES, N_BUILTIN, found_layout_ref
 
 from .shipped import shipped_dir
+from .user_file import is_file_reference, split_reference
+
+BUILTIN_EVADER = "janosov"  # evader.model of the built-in escape model (pursuit_mj/evader.py)
 
 CONFIG_DIR = shipped_dir("configs")
 #: m between two drone centres when their collision cylinders touch (2 x the 0.0685 m radius
@@ -42,8 +45,13 @@ REWARD_SCALE_LIMIT = 1e6
 
 @dataclasses.dataclass(frozen=True)
 class EvaderConfig:
-    """Escape model after Janosov et al. 2017 (pursuit_mj/evader.py); distances in m, times in s."""
+    """Escape model after Janosov et al. 2017 (pursuit_mj/evader.py); distances in m, times in s.
+    `model` may name a model of one's own instead (pursuit_mj/evader_models.py), which the other
+    keys do not tune."""
 
+    model: str = spec("janosov", help="what flies the evaders: janosov (the escape model these keys tune) or FILE.py:NAME, "
+                                      "NAME(config, n_worlds, seed) from FILE giving a model with reset and compute "
+                                      "(docs/env_api.md, \"Evaders of your own\")")
     panic_distance: float = spec(1.5, lo=0.0, lo_open=True, hi=MAX_DISTANCE, help="chaser distance at which panic is full (m)")
     calm_distance: float = spec(3.0, lo=0.0, lo_open=True, hi=MAX_DISTANCE, help="chaser distance beyond which the evader is calm (m)")
     sense_radius: float = spec(4.0, lo=0.0, lo_open=True, hi=MAX_DISTANCE, help="how far the evader senses chasers (m)")
@@ -65,6 +73,9 @@ class EvaderConfig:
 
     def validate(self, source: str = "config") -> None:
         """Cross-field checks; raises ConfigError naming the offending keys."""
+        if self.model != BUILTIN_EVADER and not is_file_reference(self.model):
+            raise ConfigError(f"{key_where(source, 'model')}: {self.model!r} is neither {BUILTIN_EVADER} (the built-in "
+                              f"escape model) nor FILE.py:NAME (a model of your own from a Python file)")
         if self.calm_distance <= self.panic_distance:
             raise ConfigError(
                 f"{source}: evader.calm_distance {self.calm_distance} must exceed evader.panic_distance "
@@ -213,7 +224,19 @@ def load_task_yaml(path: str | Path, source: str | None = None) -> dict[str, Any
     _refuse_other_kinds_of_file(data, source or str(path))
     if "layout" in data:
         data["layout"] = found_layout_ref(data["layout"], path, "layout")
+    evader = data.get("evader")
+    if isinstance(evader, dict) and "model" in evader:
+        evader["model"] = found_code_ref(evader["model"], path)
     return data
+
+
+def found_code_ref(ref: Any, file: str | Path) -> Any:
+    """A FILE.py:NAME read from the config file `file`, its FILE found beside `file` when it is not
+    found from the current folder (configio.found_beside); anything else is returned as it is."""
+    if not is_file_reference(ref):
+        return ref
+    path, name = split_reference(ref, "found_code_ref")
+    return f"{found_beside(path, file)}:{name}"
 
 
 #: keys that mark a layout file or a train config, which a task file has none of

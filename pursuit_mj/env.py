@@ -1,7 +1,7 @@
 """The pursuit task over many worlds at once: arrays in, arrays out, auto-reset.
 
 See docs/env_api.md for the contract. One `PursuitEnv` owns a `BatchedPhysics`, an
-`EscapeModel` for the evaders, perception and rewards. Shapes: W worlds, N pursuers,
+evader model (`evader_models.make_evader_model`), perception and rewards. Shapes: W worlds, N pursuers,
 M evaders; positions and velocities in the layout frame (m, m/s).
 """
 
@@ -13,7 +13,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .config import TaskConfig, checked_task_config
-from .evader import EscapeModel
+from .evader_models import make_evader_model
 from .geometry import ObstacleSet
 from .layout import N_BUILTIN, Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout
 from .layout_random import EPISODE_RESTARTS
@@ -187,7 +187,7 @@ class PursuitEnv:
         self.world_layouts: list[Layout] = [self.pool[w % len(self.pool)] for w in range(W)]
         self._base_index = np.array([w % len(self.pool) for w in range(W)])
         self.physics = BatchedPhysics(config, self.world_layouts, nthread=nthread)
-        self.evader_model = EscapeModel(config, W, self.seed)
+        self.evader_model = make_evader_model(config, W, self.seed)
         self.steps = np.zeros(W, np.int64)
         self.captured = np.zeros((W, M), bool)
         self.heading = np.full((W, N), INITIAL_HEADING)

@@ -218,13 +218,13 @@ def test_the_documented_term_trains_is_logged_and_guards_its_resume(tmp_path, mo
     assert all("sight" in r["reward_terms_per_step"] for r in rows)
     data = torch.load(run / "last.pt", weights_only=True)
     assert data["train_config"]["rewards"] == [f"{tmp_path / 'sight.py'}:sight"]  # absolute: resumable from anywhere
-    assert list(data["reward_sha256"]) == [str(tmp_path / "sight.py")]
+    assert list(data["code_sha256"]) == [str(tmp_path / "sight.py")]
 
     monkeypatch.chdir(run.parent.parent.parent)  # a resume from another folder loads the stored path
     Path(tmp_path / "sight.py").write_text(documented_sight().replace("WEIGHT = 1.0", "WEIGHT = 2.0"))
     assert main(["train", "--no-progress", "--resume", str(run), "--total-steps", "128"]) == 2
     err = capsys.readouterr().err
-    assert f"reward file {tmp_path / 'sight.py'} (rewards) has changed since the run started" in err
+    assert f"{tmp_path / 'sight.py'} (rewards) has changed since the run started" in err
     Path(tmp_path / "sight.py").write_text(documented_sight())
     assert main(["train", "--no-progress", "--resume", str(run), "--total-steps", "128"]) == 0
     assert [r["update"] for r in rows_of(run)] == [1, 2, 3, 4]

@@ -119,10 +119,11 @@ def test_documented_command_parses_and_resolves(where, command, capsys, monkeypa
     placeholders = any(PLACEHOLDER.match(w) or PLACEHOLDER_REF.match(w) for w in words)
     written = _documented_files()
     for i, word in enumerate(words):  # a file the docs write out (sight.py:sight): written, then named by its path
-        file, _, name = word.partition(":")
-        if words[i - 1] == "--reward" and file in written:
+        key, _, value = word.rpartition("=") if words[i - 1] == "--set" else ("", "", word)
+        file, _, name = value.partition(":")
+        if (words[i - 1] == "--reward" or key.endswith("evader.model")) and file in written:
             (tmp_path / file).write_text(written[file])
-            words[i] = f"{tmp_path / file}:{name}"
+            words[i] = f"{key}{'=' if key else ''}{tmp_path / file}:{name}"
     argv = ["1" if PLACEHOLDER.match(w) else w for w in words]
     if _names_subcommands(argv):
         return  # a mention in prose (`pursuit-mj layout show`)

@@ -15,7 +15,7 @@ import os
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from pursuit_mj.config import TaskConfig, load_task_yaml, preset_or_file
+from pursuit_mj.config import TaskConfig, found_code_ref, load_task_yaml, preset_or_file
 from pursuit_mj.configio import ConfigError, build, check_values, found_beside, key_where, load, load_yaml, parse_override, spec, to_dict
 from pursuit_mj.layout import N_BUILTIN, found_layout_ref
 from pursuit_mj.sensing import PRIVILEGED_VIEWS
@@ -262,26 +262,44 @@ class TrainConfig:
                 for ref in refs if _is_file_ref(ref)]
 
     def with_absolute_files(self) -> "TrainConfig":
-        """This config with every layout file and reward file path made absolute (from the current
-        folder): the stored config of a run then loads them wherever the run is resumed."""
+        """This config with every layout file and code file (rewards, task.evader.model) path made
+        absolute (from the current folder): the stored config of a run then loads them wherever
+        the run is resumed."""
         def absolute(ref):
             return os.path.abspath(ref) if _is_file_ref(ref) else ref
 
-        task = dataclasses.replace(self.task, layout=absolute(self.task.layout))
+        def absolute_code(ref):
+            if not is_file_reference(ref):
+                return ref  # janosov
+            path, name = split_reference(ref, "code")
+            return f"{os.path.abspath(path)}:{name}"
+
+        evader = dataclasses.replace(self.task.evader, model=absolute_code(self.task.evader.model))
+        task = dataclasses.replace(self.task, layout=absolute(self.task.layout), evader=evader)
         run = dataclasses.replace(self.run, validation_layouts=tuple(absolute(r) for r in self.run.validation_layouts))
-        rewards = tuple(f"{os.path.abspath(path)}:{name}" for path, name in (split_reference(r, "rewards") for r in self.rewards))
-        return dataclasses.replace(self, task=task, run=run, layouts=tuple(absolute(r) for r in self.layouts), rewards=rewards)
+        return dataclasses.replace(self, task=task, run=run, layouts=tuple(absolute(r) for r in self.layouts),
+                                   rewards=tuple(absolute_code(r) for r in self.rewards))
 
-    def reward_files(self) -> list[str]:
-        """The FILE of every FILE.py:NAME in `rewards`, each once, in order."""
-        return list(dict.fromkeys(split_reference(r, "rewards")[0] for r in self.rewards))
+    def code_files(self) -> list[tuple[str, str]]:
+        """(key, FILE) of every Python file the run's code comes from: each FILE.py:NAME of
+        `rewards`, and of task.evader.model when it names one; a file once, at its first key."""
+        refs = [("rewards", r) for r in self.rewards]
+        if is_file_reference(self.task.evader.model):
+            refs.append(("task.evader.model", self.task.evader.model))
+        found: dict[str, str] = {}
+        for key, ref in refs:
+            found.setdefault(split_reference(ref, key)[0], key)
+        return [(key, path) for path, key in found.items()]
 
-    def check_rewards(self, source: str = "train config") -> None:
-        """Load every reward term the run names (`rewards`): ValueError naming the key and the
-        reference of one that cannot be loaded (no such file or function, an error in the file)."""
+    def check_code(self, source: str = "train config") -> None:
+        """Load every reward term and the evader model the run names: ValueError naming the key and
+        the reference of one that cannot be loaded (no such file or name, an error in the file)."""
         from pursuit_mj.custom_rewards import load_reward_files
+        from pursuit_mj.evader_models import make_evader_model
 
         load_reward_files(self.rewards, f"{source}: rewards")
+        if is_file_reference(self.task.evader.model):
+            make_evader_model(self.task, 1, self.seed, f"{source}: task.evader.model")
 
     def check_layouts(self, source: str = "train config") -> None:
         """Load every layout the run names (task.layout, layouts, run.validation_layouts): ConfigError
@@ -382,20 +400,14 @@ def _paths_beside(data: dict[str, Any], path: Path) -> None:
     task, run = data.get("task"), data.get("run")
     if isinstance(task, dict) and "layout" in task:
         task["layout"] = found_layout_ref(task["layout"], path, "task.layout")
+    if isinstance(task, dict) and isinstance(task.get("evader"), dict) and "model" in task["evader"]:
+        task["evader"]["model"] = found_code_ref(task["evader"]["model"], path)
     if isinstance(data.get("layouts"), list):
         data["layouts"] = [found_layout_ref(r, path, "layouts") for r in data["layouts"]]
     if isinstance(data.get("rewards"), list):
-        data["rewards"] = [_reward_beside(r, path) for r in data["rewards"]]
+        data["rewards"] = [found_code_ref(r, path) for r in data["rewards"]]
     if isinstance(run, dict) and isinstance(run.get("validation_layouts"), list):
         run["validation_layouts"] = [found_layout_ref(r, path, "run.validation_layouts") for r in run["validation_layouts"]]
-
-
-def _reward_beside(ref: Any, path: Path) -> Any:
-    """A FILE.py:NAME of a train file, its FILE found beside the train file as `found_beside` does."""
-    if not is_file_reference(ref):
-        return ref  # refused with its key by TrainConfig.validate
-    file, name = split_reference(ref, "rewards")
-    return f"{found_beside(file, path)}:{name}"
 
 
 def _resolve_task_file(ref: str, source: str) -> dict[str, Any]:

@@ -79,11 +79,11 @@ class Trainer:
     def __init__(self, cfg: TrainConfig, checkpoint: dict | None = None, log: Callable[[str], None] = print):
         cfg.check_complete()
         cfg.check_layouts()  # before the run folder is made: a bad one named with its key, not from deep in the env
-        cfg.check_rewards()
+        cfg.check_code()
         if checkpoint is None:
             cfg = cfg.with_absolute_files()  # so that the stored config loads them from any folder
         self._layout_sha256 = {path: file_sha256(path) for _, path in cfg.layout_files()}  # kept: a resume checks them
-        self._reward_sha256 = {path: file_sha256(path) for path in cfg.reward_files()}
+        self._code_sha256 = {path: file_sha256(path) for _, path in cfg.code_files()}
         self.cfg = cfg
         self.log = log
         for line in cfg.idle_settings():
@@ -195,7 +195,7 @@ class Trainer:
         if check is not None:
             check(cfg)
         _check_layout_files(cfg, data.get("layout_sha256", {}), run_dir)
-        _check_reward_files(cfg, data.get("reward_sha256", {}), run_dir)
+        _check_code_files(cfg, data.get("code_sha256", {}), run_dir)
         filled = defaults_filled_in(data["train_config"], cfg)
         if filled:
             shown = ", ".join(filled[:6]) + (f" and {len(filled) - 6} more" if len(filled) > 6 else "")
@@ -403,7 +403,7 @@ class Trainer:
             # validates it and writes the row, so no update goes unlogged or unvalidated
             "pending_row": json.loads(json.dumps(json_ready(self._pending_row))) if self._pending_row else {},
             "layout_sha256": self._layout_sha256,
-            "reward_sha256": self._reward_sha256,
+            "code_sha256": self._code_sha256,
         }
 
     def save(self, name: str = "last.pt") -> Path:
@@ -769,15 +769,16 @@ def _check_layout_files(cfg: TrainConfig, trained: dict, run_dir: str | Path) ->
                              f"Restore the file, or start a new run from this one with --init-from {Path(run_dir) / 'last.pt'}")
 
 
-def _check_reward_files(cfg: TrainConfig, trained: dict, run_dir: str | Path) -> None:
-    """Refuse to resume a run whose reward files cannot be loaded or differ from the ones it
-    trained with (sha256 in `trained`, by path)."""
-    cfg.check_rewards(f"--resume {run_dir}: the run's stored config")
-    for path in cfg.reward_files():
+def _check_code_files(cfg: TrainConfig, trained: dict, run_dir: str | Path) -> None:
+    """Refuse to resume a run whose code files (reward terms, evader model) cannot be loaded or
+    differ from the ones it trained with (sha256 in `trained`, by path)."""
+    cfg.check_code(f"--resume {run_dir}: the run's stored config")
+    for key, path in cfg.code_files():
         if path in trained and file_sha256(path) != trained[path]:
-            raise ValueError(f"--resume {run_dir}: reward file {path} (rewards) has changed since the run started: the "
-                             f"rest of the run would learn from other rewards than the first part. Restore the file, or "
-                             f"start a new run from this one with --init-from {Path(run_dir) / 'last.pt'}")
+            what = "other rewards" if key == "rewards" else "other evaders"
+            raise ValueError(f"--resume {run_dir}: {path} ({key}) has changed since the run started: the rest of the "
+                             f"run would learn from {what} than the first part. Restore the file, or start a new run "
+                             f"from this one with --init-from {Path(run_dir) / 'last.pt'}")
 
 
 class FolderInUse(ValueError):

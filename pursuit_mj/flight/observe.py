@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..config import TaskConfig
-from ..evader import EscapeModel
+from ..evader_models import make_evader_model
 from ..geometry import ObstacleSet
 from ..layout import Layout
 from ..obs_spec import ObsSpec
@@ -59,10 +59,10 @@ class FlightObserver:
 
 
 class EvaderPilot:
-    """The simulator's escape model flying evader drones: desired velocities (M, 2) m/s, layout frame."""
+    """The task's evader model (evader.model) flying evader drones: desired velocities (M, 2) m/s, layout frame."""
 
     def __init__(self, config: TaskConfig, seed: int = 0):
-        self.model = EscapeModel(config, 1, seed)
+        self.model = make_evader_model(config, 1, seed)
         self.model.reset(np.array([0]), np.array([seed]))
         self.dt = config.control_dt
         self.capture_radius = config.capture_radius

@@ -23,11 +23,13 @@ from typing import Sequence
 
 import numpy as np
 
-from ..config import TaskConfig
+from ..config import TaskConfig, found_code_ref
 from ..configio import ConfigError, build, merge, parse_override, to_dict
+from ..evader_models import make_evader_model
 from ..geometry import border_distance, inside_boundary, obstacle_distance
 from ..layout import Layout, found_layout_ref, load_layout
 from ..obs_spec import ObsSpec
+from ..user_file import is_file_reference
 from .frames import DroneFrames, LabTransform
 from .spec import FlightSpec, LabBounds, check_uri, drone_names
 
@@ -167,7 +169,10 @@ def _task_config(spec: FlightSpec, layout_ref, overrides: Sequence[str]) -> Task
                               "(the policy is trained in either fidelity)")
         if key in FIXED_TASK_KEYS:
             raise ConfigError(f"{src}: key '{key}': {_why_fixed(key)}")
-    base = build(TaskConfig, spec.task, src)
+    task_keys = dict(spec.task)
+    if isinstance(task_keys.get("evader"), dict) and "model" in task_keys["evader"]:  # FILE.py beside the flight file
+        task_keys["evader"] = {**task_keys["evader"], "model": found_code_ref(task_keys["evader"]["model"], spec.source)}
+    base = build(TaskConfig, task_keys, src)
     values = to_dict(base)
     for text in overrides:
         path, value = parse_override(text, f"--set {text}")
@@ -192,7 +197,10 @@ def _task_config(spec: FlightSpec, layout_ref, overrides: Sequence[str]) -> Task
     substeps = max(1, round(values["control_dt"] / 0.002))
     values["physics_dt"] = values["control_dt"] / substeps
     values["controller_hz"] = 1.0 / values["physics_dt"]
-    return build(TaskConfig, values, src)
+    task = build(TaskConfig, values, src)
+    if is_file_reference(task.evader.model):  # made once now: a bad file is refused before any drone connects
+        make_evader_model(task, 1, 0, f"{src}: evader.model")
+    return task
 
 
 def _arena_corners(layout: Layout) -> np.ndarray:

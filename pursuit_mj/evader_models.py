@@ -1,0 +1,91 @@
+"""What flies the evaders: the built-in escape model, or a model of one's own (task key `evader.model`).
+
+`evader.model: janosov` (the default) is pursuit_mj.evader.EscapeModel, tuned by the other
+`evader.*` keys. `evader.model: FILE.py:NAME` calls NAME(config, n_worlds, seed) from FILE,
+which must give an object with
+- `reset(world_ids, seeds)`: new episodes in those worlds (int arrays of one length; the
+  seeds are the episodes' own, for randomness that replays by seed);
+- `compute(evader_pos, evader_vel, pursuer_pos, pursuer_vel, active, obstacles, dt)`:
+  desired velocities (W, M, 2) in m/s, layout frame, from positions and velocities (W, M, 2)
+  and (W, N, 2) in m and m/s, `active` (W, M) bool (the free evaders of running worlds),
+  `obstacles` (pursuit_mj.geometry.ObstacleSet over the worlds: border and caught evaders'
+  capture discs included) and `dt` the decision interval (s). The physics caps the speed at
+  `evader_speed`.
+Every failure of a model of one's own is a ValueError naming the key and the reference.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .config import BUILTIN_EVADER, TaskConfig
+from .evader import EscapeModel
+from .geometry import ObstacleSet
+from .user_file import file_sha256, load_named, what_and_where
+
+
+def evader_model_sha256(config: TaskConfig) -> str | None:
+    """sha256 of the file `config.evader.model` names, None for the built-in model (a resumed eval
+    or a render's file name checks that the evaders are the same)."""
+    ref = config.evader.model
+    return None if ref == BUILTIN_EVADER else file_sha256(ref, "task evader.model")
+
+
+def make_evader_model(config: TaskConfig, n_worlds: int, seed: int, source: str = "task evader.model"):
+    """The model `config.evader.model` names, for `n_worlds` worlds (an EscapeModel, or a
+    FileEvaderModel around one's own)."""
+    ref = config.evader.model
+    if ref == BUILTIN_EVADER:
+        return EscapeModel(config, n_worlds, seed)
+    factory, path, name = load_named(ref, source)
+    where = f"{source} {ref}"
+    try:
+        model = factory(config, n_worlds, seed)
+    except (Exception, SystemExit) as exc:  # the user's own code: say where it failed, in one line
+        raise ValueError(f"{where}: {name}(config, n_worlds, seed) raised {what_and_where(exc, path)}") from exc
+    missing = [m for m in ("reset", "compute") if not callable(getattr(model, m, None))]
+    if missing or isinstance(model, type):
+        what = (f"the class {model.__name__}, not an instance of it" if isinstance(model, type)
+                else f"{model!r}, which has no {' or '.join(missing)} method")
+        raise ValueError(f"{where}: {name}(config, n_worlds, seed) returned {what}; it must return an evader model: "
+                         f"an object with reset(world_ids, seeds) and compute(...) (docs/env_api.md)")
+    return FileEvaderModel(model, where, path, (int(n_worlds), config.n_evaders, 2))
+
+
+class FileEvaderModel:
+    """A model of one's own (`model`), its answers checked: `compute` must return real numbers of
+    shape (W, M, 2), finite for the active evaders; an exception in it is named by `where` and
+    its line in the file."""
+
+    def __init__(self, model, where: str, path, shape: tuple[int, int, int]):
+        self.model = model
+        self.where = where
+        self._path = path
+        self._shape = shape
+
+    def reset(self, world_ids: np.ndarray, seeds: np.ndarray | None = None) -> None:
+        try:
+            self.model.reset(world_ids, seeds)
+        except (Exception, SystemExit) as exc:
+            raise ValueError(f"{self.where}: reset(world_ids, seeds) raised {what_and_where(exc, self._path)}") from exc
+
+    def compute(self, evader_pos: np.ndarray, evader_vel: np.ndarray, pursuer_pos: np.ndarray, pursuer_vel: np.ndarray,
+                active: np.ndarray, obstacles: ObstacleSet, dt: float) -> np.ndarray:
+        try:
+            raw = self.model.compute(evader_pos, evader_vel, pursuer_pos, pursuer_vel, active, obstacles, dt)
+        except (Exception, SystemExit) as exc:
+            raise ValueError(f"{self.where}: compute(...) raised {what_and_where(exc, self._path)}") from exc
+        try:
+            values = np.asarray(raw)
+        except Exception as exc:  # noqa: BLE001 - what it returned is the user's; say what it was
+            raise ValueError(f"{self.where}: compute returned {type(raw).__name__}, not an array ({exc})") from None
+        if values.dtype.kind not in "fiu":
+            raise ValueError(f"{self.where}: compute returned an array of dtype {values.dtype}, not real numbers")
+        if values.shape != self._shape:
+            raise ValueError(f"{self.where}: compute returned shape {values.shape}, expected {self._shape} "
+                             f"(worlds, evaders, vx vy in m/s)")
+        values = values.astype(np.float64)
+        if not np.isfinite(values[active]).all():  # the others' commands are ignored, whatever they are
+            bad = tuple(int(i) for i in np.argwhere(~np.isfinite(values) & active[..., None])[0])
+            raise ValueError(f"{self.where}: compute returned {values[bad]} at (world, evader, axis) {bad}")
+        return values
