@@ -246,7 +246,8 @@ def run(args) -> int:
         changed = [flag for flag, value in (("--config", args.config), ("--set", args.overrides), ("--name", args.name),
                                            ("--n-envs", args.n_envs), ("--seed", args.seed), ("--fidelity", args.fidelity),
                                            ("--layout", args.layout), ("--init-from", args.init_from),
-                                           ("--random-layout", args.random_layout), ("--learnable-gamma", args.learnable_gamma))
+                                           ("--reward", args.reward), ("--random-layout", args.random_layout),
+                                           ("--learnable-gamma", args.learnable_gamma))
                    if _given(value)]
         if changed:
             raise ValueError(f"--resume {args.resume}: a run continues with its stored config; {', '.join(changed)} "

@@ -262,3 +262,17 @@ def test_a_bad_reward_is_refused_in_one_line_before_training(tmp_path, capsys, a
     err = capsys.readouterr().err
     assert code == 2 and message.format(d=tmp_path) in err, err
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "runs").exists()
+
+
+def test_a_reward_flag_beside_resume_run_dir_is_refused_not_ignored(tmp_path, capsys):
+    """--resume RUN_DIR continues with the stored config: a --reward beside it (another term, or
+    one the run never had) was silently dropped, the run going on without it."""
+    (tmp_path / "bonus.py").write_text("import numpy as np\n\ndef bonus(step):\n    return np.full(step.pursuer_pos.shape[:2], 0.5)\n")
+    args = ["train", "--no-progress", "--name", "r", "--total-steps", "32"]
+    assert main(args + sets(TINY + [f"run.runs_dir={tmp_path}"])) == 0, capsys.readouterr().err
+    capsys.readouterr()
+    code = main(["train", "--no-progress", "--resume", str(tmp_path / "r"), "--total-steps", "64",
+                 "--reward", f"{tmp_path}/bonus.py:bonus"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--reward cannot change it" in err, err
+    assert [r["update"] for r in rows_of(tmp_path / "r")] == [1]
