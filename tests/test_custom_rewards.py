@@ -214,7 +214,7 @@ def test_the_documented_term_trains_is_logged_and_guards_its_resume(tmp_path, mo
     run = tmp_path / "runs" / "sighted"
     rows = rows_of(run)
     paid = [r["reward_terms_per_step"]["sight"] for r in rows]
-    assert all(v < 0 for v in paid)  # known throughout: 0.99 x 1 - 1 per step, and -1 where an episode ends
+    assert all(v < 0 for v in paid)  # known throughout: 0.99 x 1 - 1 per step, and -1 where a collision ends one
     assert all("sight" in r["reward_terms_per_step"] for r in rows)
     data = torch.load(run / "last.pt", weights_only=True)
     assert data["train_config"]["rewards"] == [f"{tmp_path / 'sight.py'}:sight"]  # absolute: resumable from anywhere
@@ -276,3 +276,21 @@ def test_a_reward_flag_beside_resume_run_dir_is_refused_not_ignored(tmp_path, ca
     err = capsys.readouterr().err
     assert code == 2 and "--reward cannot change it" in err, err
     assert [r["update"] for r in rows_of(tmp_path / "r")] == [1]
+
+
+def test_the_documented_shaping_keeps_its_potential_at_a_timeout():
+    """A timeout truncates an episode (training bootstraps from the value of info["final_obs"]),
+    so potential-based shaping pays GAMMA x the potential there as at any step; only a
+    termination (success, collision) takes it to 0. The example took it to 0 at a timeout too:
+    -WEIGHT for having the evader in sight when time ran out, the best policy changed."""
+    namespace: dict = {}
+    exec(documented_sight(), namespace)
+    gamma, weight = namespace["GAMMA"], namespace["WEIGHT"]
+    config = point_config(observability="full", random_obstacles=0, max_steps=12)
+    env = PursuitEnv(config, n_worlds=W, seed=0, auto_reset=False, extra_rewards={"sight": namespace["sight"]})
+    env.reset()
+    for _ in range(config.max_steps):
+        *_, info = env.step(np.zeros((W, N, 2)))  # hovering: no capture, no collision, the evader in sight
+    assert info["outcome"].tolist() == ["timeout"] * W
+    np.testing.assert_allclose(info["reward_terms"]["sight"], gamma * weight - weight, atol=1e-6)
+    assert env.returns["sight"] == pytest.approx(np.full(W, config.max_steps * (gamma * weight - weight)), abs=1e-5)
