@@ -78,6 +78,11 @@ class StepView:
 RewardTerm = Callable[[StepView], np.ndarray]
 
 
+class RewardTermError(ValueError):
+    """A term that failed or returned what no reward is (term_values): the user's code, said in
+    one line, wherever the env steps (a rollout worker sends it back to its parent as it is)."""
+
+
 def checked_extra_rewards(extra: Mapping[str, RewardTerm] | None, source: str = "extra_rewards") -> dict[str, RewardTerm]:
     """`extra` as a dict, each name usable and not one of the task's terms, each term callable;
     ValueError naming `source` otherwise."""
@@ -111,7 +116,8 @@ class FileTerm:
 
 def term_values(name: str, term: RewardTerm, step: StepView, shape: tuple[int, int], where: str) -> np.ndarray:
     """What `term` pays for `step`, checked: (W, N) float32, finite; ValueError naming the term
-    and `where` (the argument it came from; a FileTerm's own source instead) for anything else."""
+    and `where` (the argument it came from; a FileTerm's own source instead) for anything else
+    (a RewardTermError)."""
     if isinstance(term, FileTerm):
         where, term = term.source, term.function
     try:
@@ -119,19 +125,19 @@ def term_values(name: str, term: RewardTerm, step: StepView, shape: tuple[int, i
     except (Exception, SystemExit) as exc:  # the user's own code: say which term failed, and where
         path = getattr(getattr(term, "__code__", None), "co_filename", None)
         said = what_and_where(exc, Path(path)) if path else f"{type(exc).__name__}: {exc}"
-        raise ValueError(f"{where}: reward term {name!r} raised {said}") from exc
+        raise RewardTermError(f"{where}: reward term {name!r} raised {said}") from exc
     try:
         values = np.asarray(raw)
     except Exception as exc:  # noqa: BLE001 - what it returned is the user's; say what it was
-        raise ValueError(f"{where}: reward term {name!r} returned {type(raw).__name__}, not an array ({exc})") from None
+        raise RewardTermError(f"{where}: reward term {name!r} returned {type(raw).__name__}, not an array ({exc})") from None
     if values.dtype.kind not in "fiub":
-        raise ValueError(f"{where}: reward term {name!r} returned an array of dtype {values.dtype}, not real numbers")
+        raise RewardTermError(f"{where}: reward term {name!r} returned an array of dtype {values.dtype}, not real numbers")
     if values.shape != shape:
-        raise ValueError(f"{where}: reward term {name!r} returned shape {values.shape}, expected {shape} (worlds, pursuers)")
+        raise RewardTermError(f"{where}: reward term {name!r} returned shape {values.shape}, expected {shape} (worlds, pursuers)")
     values = values.astype(np.float32)
     if not np.isfinite(values).all():
         bad = tuple(int(i) for i in np.argwhere(~np.isfinite(values))[0])
-        raise ValueError(f"{where}: reward term {name!r} returned {values[bad]} at (world, pursuer) {bad}")
+        raise RewardTermError(f"{where}: reward term {name!r} returned {values[bad]} at (world, pursuer) {bad}")
     return values
 
 

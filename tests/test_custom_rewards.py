@@ -294,3 +294,18 @@ def test_the_documented_shaping_keeps_its_potential_at_a_timeout():
     assert info["outcome"].tolist() == ["timeout"] * W
     np.testing.assert_allclose(info["reward_terms"]["sight"], gamma * weight - weight, atol=1e-6)
     assert env.returns["sight"] == pytest.approx(np.full(W, config.max_steps * (gamma * weight - weight)), abs=1e-5)
+
+
+def test_a_term_that_fails_in_the_overlapped_rollout_worker_is_one_line_too(tmp_path, capsys):
+    """run.overlap=true steps the env in a child process: a failing term came back as the child's
+    traceback (exit 1) where the same run without overlap says one line naming the term's line."""
+    (tmp_path / "late.py").write_text("import numpy as np\n\ndef late(step):\n    if (step.steps > 3).any():\n"
+                                      "        return step.nothing\n    return np.zeros(step.pursuer_pos.shape[:2])\n")
+    args = ["train", "--no-progress", "--name", "o", "--total-steps", "64", "--reward", f"{tmp_path}/late.py:late"]
+    for overlap in ("false", "true"):
+        code = main(args + sets(TINY + [f"run.runs_dir={tmp_path}/{overlap}", f"run.overlap={overlap}"]))
+        err = capsys.readouterr().err
+        assert code == 2, err
+        assert err.strip().splitlines() == [f"pursuit-mj train: error: rewards {tmp_path}/late.py:late: reward term 'late' "
+                                            f"raised AttributeError: 'StepView' object has no attribute 'nothing' "
+                                            f"(at {tmp_path}/late.py:5)"], err

@@ -88,6 +88,14 @@ def report_error(conn) -> None:
         pass
 
 
+def report_refusal(conn, message: str) -> None:
+    """In a child: send a one-line error of the user's own making (no traceback) to the parent."""
+    try:
+        conn.send(("refused", message))
+    except (BrokenPipeError, ConnectionResetError):
+        pass
+
+
 def shutdown(process, conn) -> None:
     """Ask the child to stop, wait for it, terminate it if it does not, close the pipe."""
     try:

@@ -28,8 +28,11 @@ import weakref
 import numpy as np
 import torch
 
+from pursuit_mj.custom_rewards import RewardTermError
+
 from .agent import ActorCritic
-from .child_process import POLL_S, STOP_TIMEOUT_S, WorkerExited, how_it_ended, ignore_ctrl_c, report_error, shutdown, spawn
+from .child_process import (POLL_S, STOP_TIMEOUT_S, WorkerExited, how_it_ended, ignore_ctrl_c, report_error, report_refusal,
+                            shutdown, spawn)
 from .config import TrainConfig
 from .ppo import teacher_labels_needed
 from .rollout import RolloutStats, make_collector, make_training_env
@@ -75,6 +78,8 @@ def _serve(conn, cfg: TrainConfig, start_update: int, buffers: list[Rollout]) ->
             conn.send(("done", stats))
     except (EOFError, BrokenPipeError, ConnectionResetError):
         return  # the parent is gone
+    except RewardTermError as exc:  # the user's reward term, not this code: its one line, as without overlap
+        report_refusal(conn, str(exc))
     except BaseException:  # noqa: BLE001 - everything goes back to the parent, which raises it
         report_error(conn)
 
@@ -123,6 +128,8 @@ class RolloutWorker:
             raise WorkerExited(f"rollout worker {self.process.name} {self._ended()} without finishing its rollout") from None
         if kind == "error":
             raise RuntimeError(f"rollout worker {self.process.name} failed:\n{payload}")
+        if kind == "refused":
+            raise RewardTermError(payload)
         index, self._pending = self._pending, None
         self._served += 1
         return self.buffers[index], payload
