@@ -309,3 +309,16 @@ def test_a_term_that_fails_in_the_overlapped_rollout_worker_is_one_line_too(tmp_
         assert err.strip().splitlines() == [f"pursuit-mj train: error: rewards {tmp_path}/late.py:late: reward term 'late' "
                                             f"raised AttributeError: 'StepView' object has no attribute 'nothing' "
                                             f"(at {tmp_path}/late.py:5)"], err
+
+
+@pytest.mark.parametrize("ref", ["{d}/none.py:sight", "{d}/t.py:nothing"])
+def test_a_study_train_set_reward_that_cannot_be_loaded_is_found_before_anything_runs(tmp_path, capsys, ref):
+    """Found at the first arm's start, after the heuristic team's evaluation was kept in study.json
+    (which then refuses a fresh study in that folder), as bad layouts were."""
+    (tmp_path / "t.py").write_text("def sight(step):\n    return 0\n")
+    out = tmp_path / "study"
+    ref = ref.format(d=tmp_path)
+    assert main(["study", "--budget-minutes", "30", "--out", str(out), "--train-set", f"rewards=[{ref}]"]) == 2
+    err = capsys.readouterr().err
+    assert "--train-set: the full_obs arm" in err and f"rewards {ref}: " in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()

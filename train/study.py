@@ -340,7 +340,7 @@ STUDY_SETS = {"name": "its run goes to <out>/runs/<arm>", "run.runs_dir": "its r
 
 
 def check_train_overrides(plan: StudyPlan) -> None:
-    """Every arm's config with plan.train_overrides, its layouts loaded, before anything runs: ValueError
+    """Every arm's config with plan.train_overrides, its layouts and reward terms loaded, before anything runs: ValueError
     naming --train-set and the arm that refuses them (found at that arm's start, it cost the earlier arms' time),
     or a key the study sets for each arm (STUDY_SETS)."""
     for text in plan.train_overrides:
@@ -352,6 +352,7 @@ def check_train_overrides(plan: StudyPlan) -> None:
             cfg = load_train_config([arm.config], ["name=check", "total_steps=1000000000", "task.layout=0", *plan.train_overrides])
             cfg.check_complete()
             cfg.check_layouts()  # found at the arm's start, after the team's evaluation was kept in study.json
+            cfg.check_rewards()  # likewise
         except ValueError as exc:
             said = str(exc)
             for text in plan.train_overrides:  # the config names each as --set; the user typed --train-set
