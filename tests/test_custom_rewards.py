@@ -322,3 +322,13 @@ def test_a_study_train_set_reward_that_cannot_be_loaded_is_found_before_anything
     err = capsys.readouterr().err
     assert "--train-set: the full_obs arm" in err and f"rewards {ref}: " in err and len(err.strip().splitlines()) == 1, err
     assert not out.exists()
+
+
+def test_show_config_refuses_a_reward_that_training_would_refuse(tmp_path, capsys, monkeypatch):
+    """-sc refuses what training would (its contract): a rewards key naming no file was shown as fine."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "run.yaml").write_text("rewards: [none.py:sight]\n")
+    for args in (["--set", "rewards=[none.py:sight]"], ["--config", "run.yaml"]):
+        assert main(["train", "-sc", *args]) == 2
+        err = capsys.readouterr().err
+        assert "rewards" in err and "none.py" in err and len(err.strip().splitlines()) == 1, err
