@@ -226,17 +226,24 @@ def load_task_yaml(path: str | Path, source: str | None = None) -> dict[str, Any
         data["layout"] = found_layout_ref(data["layout"], path, "layout")
     evader = data.get("evader")
     if isinstance(evader, dict) and "model" in evader:
-        evader["model"] = found_code_ref(evader["model"], path)
+        evader["model"] = found_code_ref(evader["model"], path, "evader.model")
     return data
 
 
-def found_code_ref(ref: Any, file: str | Path) -> Any:
-    """A FILE.py:NAME read from the config file `file`, its FILE found beside `file` when it is not
-    found from the current folder (configio.found_beside); anything else is returned as it is."""
+def found_code_ref(ref: Any, file: str | Path, key: str) -> Any:
+    """A FILE.py:NAME read from `key` of the config file `file`, its FILE found beside `file` when it
+    is not found from the current folder (configio.found_beside); ConfigError naming `file` and
+    `key` when it is found in neither place. Anything but FILE.py:NAME is returned as it is."""
     if not is_file_reference(ref):
-        return ref
-    path, name = split_reference(ref, "found_code_ref")
-    return f"{found_beside(path, file)}:{name}"
+        return ref  # refused with its key by the config's own checks
+    path, name = split_reference(ref, key)
+    found = found_beside(path, file)
+    if not Path(found).is_file():
+        folder, here = Path(file).parent, Path.cwd()
+        beside = "" if folder.resolve() == here.resolve() else f" or beside {folder}"
+        where = "" if Path(found).is_absolute() else f" in the current folder ({here}){beside}"
+        raise ConfigError(f"{file}: key '{key}': file '{path}' (of {ref}): no such file{where}")
+    return f"{found}:{name}"
 
 
 #: keys that mark a layout file or a train config, which a task file has none of

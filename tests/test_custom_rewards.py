@@ -332,3 +332,16 @@ def test_show_config_refuses_a_reward_that_training_would_refuse(tmp_path, capsy
         assert main(["train", "-sc", *args]) == 2
         err = capsys.readouterr().err
         assert "rewards" in err and "none.py" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_a_train_file_naming_a_reward_file_found_nowhere_is_named_with_its_key(tmp_path, monkeypatch, capsys):
+    """As a layout file a train file names: the message named neither the YAML file nor that FILE
+    is looked for beside it too ("train config: rewards ...: give FILE relative to the current folder")."""
+    (tmp_path / "exp").mkdir()
+    (tmp_path / "exp" / "run.yaml").write_text("name: calm\nrewards: [terms.py:calm]\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "--config", "exp/run.yaml", "--no-progress", "--total-steps", "32"] + sets(TINY)) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == (f"pursuit-mj train: error: exp/run.yaml: key 'rewards': file 'terms.py' (of terms.py:calm): "
+                           f"no such file in the current folder ({tmp_path}) or beside exp"), err
+    assert not (tmp_path / "runs").exists()

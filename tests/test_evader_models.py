@@ -175,7 +175,7 @@ def test_a_flight_file_names_its_evader_model_and_a_bad_one_is_refused_before_an
     flight.write_text(yaml.safe_dump(quick_spec(task={"evader_speed": 0.3, "evader": {"model": "missing.py:Straight"}})))
     assert main(["fly", "--flight", str(flight), "--policy", "heuristic", "--virtual", "--max-time", "1.0"]) == 2
     err = capsys.readouterr().err
-    assert f"{flight}: task: evader.model missing.py:Straight: no file missing.py" in err
+    assert f"{flight}: key 'task.evader.model': file 'missing.py' (of missing.py:Straight): no such file" in err
     shutil.copy(straight.split(":")[0], tmp_path / "missing.py")  # now beside the flight file
     events = tmp_path / "f.jsonl"
     assert main(["fly", "--flight", str(flight), "--policy", "heuristic", "--virtual", "--max-time", "1.0",

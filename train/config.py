@@ -401,11 +401,11 @@ def _paths_beside(data: dict[str, Any], path: Path) -> None:
     if isinstance(task, dict) and "layout" in task:
         task["layout"] = found_layout_ref(task["layout"], path, "task.layout")
     if isinstance(task, dict) and isinstance(task.get("evader"), dict) and "model" in task["evader"]:
-        task["evader"]["model"] = found_code_ref(task["evader"]["model"], path)
+        task["evader"]["model"] = found_code_ref(task["evader"]["model"], path, "task.evader.model")
     if isinstance(data.get("layouts"), list):
         data["layouts"] = [found_layout_ref(r, path, "layouts") for r in data["layouts"]]
     if isinstance(data.get("rewards"), list):
-        data["rewards"] = [found_code_ref(r, path) for r in data["rewards"]]
+        data["rewards"] = [found_code_ref(r, path, "rewards") for r in data["rewards"]]
     if isinstance(run, dict) and isinstance(run.get("validation_layouts"), list):
         run["validation_layouts"] = [found_layout_ref(r, path, "run.validation_layouts") for r in run["validation_layouts"]]
 

@@ -171,7 +171,7 @@ def _task_config(spec: FlightSpec, layout_ref, overrides: Sequence[str]) -> Task
             raise ConfigError(f"{src}: key '{key}': {_why_fixed(key)}")
     task_keys = dict(spec.task)
     if isinstance(task_keys.get("evader"), dict) and "model" in task_keys["evader"]:  # FILE.py beside the flight file
-        task_keys["evader"] = {**task_keys["evader"], "model": found_code_ref(task_keys["evader"]["model"], spec.source)}
+        task_keys["evader"] = {**task_keys["evader"], "model": found_code_ref(task_keys["evader"]["model"], spec.source, "task.evader.model")}
     base = build(TaskConfig, task_keys, src)
     values = to_dict(base)
     for text in overrides:
