@@ -28,7 +28,8 @@ class StepView:
     Shapes: W worlds, N pursuers, M evaders. Positions (m) and velocities (m/s) in the layout
     frame (origin at the arena's lower-left corner, x right, y up), at the end of the step
     unless named `_before`.
-    - actions (W, N, 2): the actions flown, fractions of pursuer_speed, clipped to [-1, 1];
+    - actions (W, N, 2): the actions given, fractions of pursuer_speed, each component clipped to
+      [-1, 1] (the physics then caps the command's norm at pursuer_speed: (1, 1) flies at 1);
     - pursuer_pos_before, pursuer_pos, pursuer_vel (W, N, 2); evader_pos_before, evader_pos,
       evader_vel (W, M, 2);
     - free_before (W, M) bool: the evader was free when the step began; new_captures (W, M)
@@ -43,7 +44,10 @@ class StepView:
     - outcome (W,) str: "success", "collision" or "timeout" where the step ended the
       episode, "" where it goes on.
     Worlds whose episode had already ended (no auto reset) are in the arrays too; their
-    terms are set to 0 whatever the callable returns, as the task's own terms are.
+    terms are set to 0 whatever the callable returns, as the task's own terms are. So are those
+    of a world whose physics diverged in the step (a violent crash, ended as a "collision"):
+    its positions after the step are MuJoCo's reset, not the drones', so a term is 0 there as
+    the task's measured terms are, while the task's collision penalty is paid.
     """
 
     config: TaskConfig

@@ -345,3 +345,21 @@ def test_a_train_file_naming_a_reward_file_found_nowhere_is_named_with_its_key(t
     assert err.strip() == (f"pursuit-mj train: error: exp/run.yaml: key 'rewards': file 'terms.py' (of terms.py:calm): "
                            f"no such file in the current folder ({tmp_path}) or beside exp"), err
     assert not (tmp_path / "runs").exists()
+
+
+def test_a_diverged_world_pays_no_term_of_ones_own_as_documented():
+    """Its positions are MuJoCo's reset, not the drones': a term is set to 0 there as the task's
+    measured terms are, while the task's collision penalty is paid (the StepView docstring says so)."""
+    import warnings
+
+    from pursuit_mj import custom_rewards
+
+    env = PursuitEnv(point_config(random_obstacles=0), n_worlds=2, seed=0, extra_rewards={"one": lambda s: np.ones((2, N))})
+    env.reset()
+    env.physics.qvel[0, :] = 1e12
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        *_, info = env.step(np.zeros((2, N, 2)))
+    assert info["outcome"].tolist() == ["collision", ""]
+    assert info["reward_terms"]["one"].tolist() == [[0.0] * N, [1.0] * N]
+    assert "diverged" in custom_rewards.StepView.__doc__
