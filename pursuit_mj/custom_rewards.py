@@ -138,11 +138,16 @@ def term_values(name: str, term: RewardTerm, step: StepView, shape: tuple[int, i
         raise RewardTermError(f"{where}: reward term {name!r} returned an array of dtype {values.dtype}, not real numbers")
     if values.shape != shape:
         raise RewardTermError(f"{where}: reward term {name!r} returned shape {values.shape}, expected {shape} (worlds, pursuers)")
-    values = values.astype(np.float32)
+    values = values.astype(np.float64)
     if not np.isfinite(values).all():
         bad = tuple(int(i) for i in np.argwhere(~np.isfinite(values))[0])
         raise RewardTermError(f"{where}: reward term {name!r} returned {values[bad]} at (world, pursuer) {bad}")
-    return values
+    too_large = np.abs(values) > np.finfo(np.float32).max  # inf once cast: say what it returned
+    if too_large.any():
+        bad = tuple(int(i) for i in np.argwhere(too_large)[0])
+        raise RewardTermError(f"{where}: reward term {name!r} returned {values[bad]:g} at (world, pursuer) {bad}, "
+                              f"beyond float32 (the reward's type)")
+    return values.astype(np.float32)
 
 
 def load_reward_file(ref: str, source: str = "--reward") -> tuple[str, RewardTerm]:

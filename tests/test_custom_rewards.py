@@ -115,12 +115,14 @@ def test_a_term_cannot_change_the_step_it_reads():
     (lambda step: np.zeros(W), r"reward term 'bad' returned shape \(3,\), expected \(3, 3\) \(worlds, pursuers\)"),
     (lambda step: np.full((W, N), np.nan), r"reward term 'bad' returned nan at \(world, pursuer\) \(0, 0\)"),
     (lambda step: np.full((W, N), "x"), r"reward term 'bad' returned an array of dtype <U1, not real numbers"),
+    (lambda step: np.full((W, N), 1e39), r"reward term 'bad' returned 1e\+39 at \(world, pursuer\) \(0, 0\), "
+                                         r"beyond float32 \(the reward's type\)$"),
     (lambda step: 1 / 0, r"reward term 'bad' raised ZeroDivisionError: division by zero"),
 ])
 def test_what_a_term_returns_is_checked_and_named(term, message):
     env = PursuitEnv(point_config(), n_worlds=W, extra_rewards={"bad": term})
     env.reset()
-    with pytest.raises(ValueError, match=r"PursuitEnv extra_rewards: " + message):
+    with pytest.raises(ValueError, match=r"PursuitEnv extra_rewards: " + message), np.errstate(over="raise"):
         env.step(np.zeros((W, N, 2)))
 
 
