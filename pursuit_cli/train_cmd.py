@@ -278,7 +278,7 @@ def run(args) -> int:
         if args.show_config:
             cfg.check_complete()  # what training would refuse, -sc refuses too
             cfg.check_layouts()
-            cfg.check_rewards()
+            cfg.check_code()
             print(dump_yaml(cfg), end="")
             return 0
         last = cfg.run_dir / "last.pt"

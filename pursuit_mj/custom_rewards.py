@@ -18,7 +18,7 @@ import numpy as np
 
 from .config import TaskConfig
 from .rewards import REWARD_TERMS
-from .user_file import load_named, what_and_where
+from .user_file import UserCodeError, load_named, what_and_where
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,7 +82,7 @@ class StepView:
 RewardTerm = Callable[[StepView], np.ndarray]
 
 
-class RewardTermError(ValueError):
+class RewardTermError(UserCodeError):
     """A term that failed or returned what no reward is (term_values): the user's code, said in
     one line, wherever the env steps (a rollout worker sends it back to its parent as it is)."""
 

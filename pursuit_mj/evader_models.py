@@ -21,7 +21,7 @@ import numpy as np
 from .config import BUILTIN_EVADER, TaskConfig
 from .evader import EscapeModel
 from .geometry import ObstacleSet
-from .user_file import file_sha256, load_named, what_and_where
+from .user_file import UserCodeError, file_sha256, load_named, what_and_where
 
 
 def evader_model_sha256(config: TaskConfig) -> str | None:
@@ -55,7 +55,7 @@ def make_evader_model(config: TaskConfig, n_worlds: int, seed: int, source: str 
 class FileEvaderModel:
     """A model of one's own (`model`), its answers checked: `compute` must return real numbers of
     shape (W, M, 2), finite for the active evaders; an exception in it is named by `where` and
-    its line in the file."""
+    its line in the file (a UserCodeError)."""
 
     def __init__(self, model, where: str, path, shape: tuple[int, int, int]):
         self.model = model
@@ -67,25 +67,25 @@ class FileEvaderModel:
         try:
             self.model.reset(world_ids, seeds)
         except (Exception, SystemExit) as exc:
-            raise ValueError(f"{self.where}: reset(world_ids, seeds) raised {what_and_where(exc, self._path)}") from exc
+            raise UserCodeError(f"{self.where}: reset(world_ids, seeds) raised {what_and_where(exc, self._path)}") from exc
 
     def compute(self, evader_pos: np.ndarray, evader_vel: np.ndarray, pursuer_pos: np.ndarray, pursuer_vel: np.ndarray,
                 active: np.ndarray, obstacles: ObstacleSet, dt: float) -> np.ndarray:
         try:
             raw = self.model.compute(evader_pos, evader_vel, pursuer_pos, pursuer_vel, active, obstacles, dt)
         except (Exception, SystemExit) as exc:
-            raise ValueError(f"{self.where}: compute(...) raised {what_and_where(exc, self._path)}") from exc
+            raise UserCodeError(f"{self.where}: compute(...) raised {what_and_where(exc, self._path)}") from exc
         try:
             values = np.asarray(raw)
         except Exception as exc:  # noqa: BLE001 - what it returned is the user's; say what it was
-            raise ValueError(f"{self.where}: compute returned {type(raw).__name__}, not an array ({exc})") from None
+            raise UserCodeError(f"{self.where}: compute returned {type(raw).__name__}, not an array ({exc})") from None
         if values.dtype.kind not in "fiu":
-            raise ValueError(f"{self.where}: compute returned an array of dtype {values.dtype}, not real numbers")
+            raise UserCodeError(f"{self.where}: compute returned an array of dtype {values.dtype}, not real numbers")
         if values.shape != self._shape:
-            raise ValueError(f"{self.where}: compute returned shape {values.shape}, expected {self._shape} "
+            raise UserCodeError(f"{self.where}: compute returned shape {values.shape}, expected {self._shape} "
                              f"(worlds, evaders, vx vy in m/s)")
         values = values.astype(np.float64)
         if not np.isfinite(values[active]).all():  # the others' commands are ignored, whatever they are
             bad = tuple(int(i) for i in np.argwhere(~np.isfinite(values) & active[..., None])[0])
-            raise ValueError(f"{self.where}: compute returned {values[bad]} at (world, evader, axis) {bad}")
+            raise UserCodeError(f"{self.where}: compute returned {values[bad]} at (world, evader, axis) {bad}")
         return values

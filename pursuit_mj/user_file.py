@@ -17,6 +17,11 @@ import traceback
 from pathlib import Path
 from typing import Any
 
+class UserCodeError(ValueError):
+    """Code of one's own (a reward term, an evader model) failed or answered what it must not: said in
+    one line naming where it came from, wherever it runs (a rollout worker sends it back as it is)."""
+
+
 _REFERENCE = re.compile(r"^(?P<path>.+\.py):(?P<name>[A-Za-z_][A-Za-z0-9_]*)$")
 
 

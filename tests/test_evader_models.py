@@ -184,3 +184,18 @@ def test_a_flight_file_names_its_evader_model_and_a_bad_one_is_refused_before_an
     pos, wanted = np.array(steps[-1]["pos"]), np.array(steps[-1]["wanted"])
     away = pos[-1][:2] - pos[np.linalg.norm(pos[:-1, :2] - pos[-1, :2], axis=1).argmin()][:2]
     assert np.dot(wanted[-1], away) > 0.99 * np.linalg.norm(wanted[-1]) * np.linalg.norm(away)  # straight away
+
+
+def test_a_model_that_fails_in_the_overlapped_rollout_worker_is_one_line_as_without_it(tmp_path, capsys):
+    """run.overlap=true steps the env in a child process; a model's error comes back as its one line."""
+    path = tmp_path / "m.py"
+    path.write_text(_Models.base + "    def compute(self, *args):\n        return {}[0]\n")
+    tiny = ["task.fidelity=point", "task.n_pursuers=2", "task.random_obstacles=0", "task.max_steps=30", "n_envs=2",
+            "ppo.batch_size=64", "ppo.minibatch_size=32", "ppo.epochs=1", "run.validate_every=0", "run.validation_episodes=2",
+            f"task.evader.model={path}:Model"]
+    for overlap in ("false", "true"):
+        sets = tiny + [f"run.runs_dir={tmp_path}/{overlap}", f"run.overlap={overlap}"]
+        code = main(["train", "--no-progress", "--name", "o", "--total-steps", "64"] + sum((["--set", s] for s in sets), []))
+        err = capsys.readouterr().err
+        assert code == 2 and err.strip().splitlines() == [
+            f"pursuit-mj train: error: task evader.model {path}:Model: compute(...) raised KeyError: 0 (at {path}:6)"], err

@@ -28,7 +28,7 @@ import weakref
 import numpy as np
 import torch
 
-from pursuit_mj.custom_rewards import RewardTermError
+from pursuit_mj.user_file import UserCodeError
 
 from .agent import ActorCritic
 from .child_process import (POLL_S, STOP_TIMEOUT_S, WorkerExited, how_it_ended, ignore_ctrl_c, report_error, report_refusal,
@@ -78,7 +78,7 @@ def _serve(conn, cfg: TrainConfig, start_update: int, buffers: list[Rollout]) ->
             conn.send(("done", stats))
     except (EOFError, BrokenPipeError, ConnectionResetError):
         return  # the parent is gone
-    except RewardTermError as exc:  # the user's reward term, not this code: its one line, as without overlap
+    except UserCodeError as exc:  # the user's reward term or evader model, not this code: its one line, as without overlap
         report_refusal(conn, str(exc))
     except BaseException:  # noqa: BLE001 - everything goes back to the parent, which raises it
         report_error(conn)
@@ -129,7 +129,7 @@ class RolloutWorker:
         if kind == "error":
             raise RuntimeError(f"rollout worker {self.process.name} failed:\n{payload}")
         if kind == "refused":
-            raise RewardTermError(payload)
+            raise UserCodeError(payload)
         index, self._pending = self._pending, None
         self._served += 1
         return self.buffers[index], payload

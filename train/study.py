@@ -352,7 +352,7 @@ def check_train_overrides(plan: StudyPlan) -> None:
             cfg = load_train_config([arm.config], ["name=check", "total_steps=1000000000", "task.layout=0", *plan.train_overrides])
             cfg.check_complete()
             cfg.check_layouts()  # found at the arm's start, after the team's evaluation was kept in study.json
-            cfg.check_rewards()  # likewise
+            cfg.check_code()  # likewise
         except ValueError as exc:
             said = str(exc)
             for text in plan.train_overrides:  # the config names each as --set; the user typed --train-set
