@@ -10,11 +10,14 @@ which must give an object with
   and (W, N, 2) in m and m/s, `active` (W, M) bool (the free evaders of running worlds),
   `obstacles` (pursuit_mj.geometry.ObstacleSet over the worlds: border and caught evaders'
   capture discs included) and `dt` the decision interval (s). The physics caps the speed at
-  `evader_speed`.
+  `evader_speed`. Every array it gets, and the obstacles', is read-only: they are the env's own
+  (the reward terms and captures are measured from them), so writing into one is an error.
 Every failure of a model of one's own is a ValueError naming the key and the reference.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
@@ -52,16 +55,34 @@ def make_evader_model(config: TaskConfig, n_worlds: int, seed: int, source: str 
     return FileEvaderModel(model, where, path, (int(n_worlds), config.n_evaders, 2))
 
 
+def _read_only(array: np.ndarray) -> np.ndarray:
+    """A view of `array` that cannot be written through (no copy)."""
+    view = np.asarray(array).view()
+    view.flags.writeable = False
+    return view
+
+
 class FileEvaderModel:
     """A model of one's own (`model`), its answers checked: `compute` must return real numbers of
     shape (W, M, 2), finite for the active evaders; an exception in it is named by `where` and
-    its line in the file (a UserCodeError)."""
+    its line in the file (a UserCodeError). It gets read-only views of the env's arrays and
+    obstacles: one it writes into is refused, not left to change the rewards and captures."""
 
     def __init__(self, model, where: str, path, shape: tuple[int, int, int]):
         self.model = model
         self.where = where
         self._path = path
         self._shape = shape
+        self._obstacles: tuple[ObstacleSet, ObstacleSet] | None = None  # (the env's set, its read-only twin)
+
+    def _read_only_obstacles(self, obstacles: ObstacleSet) -> ObstacleSet:
+        """`obstacles` with read-only views of its arrays, kept while the env passes the same set
+        (so that what the set caches, its ray and distance targets, is computed once)."""
+        if self._obstacles is None or self._obstacles[0] is not obstacles:
+            frozen = dataclasses.replace(obstacles, **{f.name: _read_only(getattr(obstacles, f.name))
+                                                       for f in dataclasses.fields(obstacles)})
+            self._obstacles = (obstacles, frozen)
+        return self._obstacles[1]
 
     def reset(self, world_ids: np.ndarray, seeds: np.ndarray | None = None) -> None:
         try:
@@ -71,8 +92,10 @@ class FileEvaderModel:
 
     def compute(self, evader_pos: np.ndarray, evader_vel: np.ndarray, pursuer_pos: np.ndarray, pursuer_vel: np.ndarray,
                 active: np.ndarray, obstacles: ObstacleSet, dt: float) -> np.ndarray:
+        arrays = [_read_only(a) for a in (evader_pos, evader_vel, pursuer_pos, pursuer_vel, active)]
+        active = arrays[-1]
         try:
-            raw = self.model.compute(evader_pos, evader_vel, pursuer_pos, pursuer_vel, active, obstacles, dt)
+            raw = self.model.compute(*arrays, self._read_only_obstacles(obstacles), dt)
         except (Exception, SystemExit) as exc:
             raise UserCodeError(f"{self.where}: compute(...) raised {what_and_where(exc, self._path)}") from exc
         try:

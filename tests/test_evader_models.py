@@ -199,3 +199,22 @@ def test_a_model_that_fails_in_the_overlapped_rollout_worker_is_one_line_as_with
         err = capsys.readouterr().err
         assert code == 2 and err.strip().splitlines() == [
             f"pursuit-mj train: error: task evader.model {path}:Model: compute(...) raised KeyError: 0 (at {path}:6)"], err
+
+
+def test_a_model_cannot_change_what_the_env_measures_rewards_and_captures_from(tmp_path):
+    """The arrays compute gets are the env's own (its positions before the step, which the reward
+    terms read, and its obstacles): a model that writes into them is refused naming its line, as a
+    reward term's StepView is read-only, never left to change the rewards silently."""
+    path = tmp_path / "m.py"
+    path.write_text(_Models.base + "    def compute(self, ep, ev, pp, pv, active, obstacles, dt):\n"
+                    "        ep -= pp.mean(axis=1, keepdims=True)\n        return np.zeros(self.shape)\n")
+    env = PursuitEnv(config_with(f"{path}:Model"), n_worlds=2)
+    env.reset()
+    with pytest.raises(ValueError, match=r"compute\(\.\.\.\) raised ValueError: .*read-only.* \(at " + re.escape(f"{path}:6)")):
+        env.step(np.zeros((2, 3, 2)))
+    path.write_text(_Models.base + "    def compute(self, ep, ev, pp, pv, active, obstacles, dt):\n"
+                    "        obstacles.border[...] = 0\n        return np.zeros(self.shape)\n")
+    env = PursuitEnv(config_with(f"{path}:Model"), n_worlds=2)
+    env.reset()
+    with pytest.raises(ValueError, match=r"read-only"):
+        env.step(np.zeros((2, 3, 2)))
