@@ -5,7 +5,8 @@ it). So a row can gather the episodes of tables run with different `--seed`s, an
 twice (the heuristic team in every table of one seed) counts once, and two policies from
 different files are paired on the episodes both played. The files must hold one task (their
 configs equal but for the layout and fidelity, which each row names), a policy label must
-name one model throughout, and a layout one arena (its file's sha256, where the tables record it).
+name one model throughout, a layout one arena (its file's sha256, where the tables record it) and
+an evader model of one's own one file (its sha256, "evader_model_sha256", likewise).
 A layout is known as the eval that played it knew it (its "layout_identity", which seeded its
 episodes), so the folder `pool` runs from does not matter.
 """
@@ -98,8 +99,8 @@ def _episodes(path: Path, record: dict) -> tuple[str, str, str, list[tuple[int, 
 
 def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     """The rows of all `paths` pooled by policy, layout and fidelity; ValueError naming the file
-    for a file that is no table, a task that differs, a label naming two models, or an episode
-    (same seed) that ended differently in two files."""
+    for a file that is no table, a task that differs (an evader model of one's own by its file's
+    sha256 too), a label naming two models, or an episode (same seed) that ended differently in two files."""
     if not paths:
         raise ValueError("pool: name at least one evaluation JSON file")
     first_path, first = None, None
@@ -120,6 +121,7 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
                 key, a, b = diff
                 raise ValueError(f"{path}: its task differs from {first_path}'s at {key} ({b!r} there, {a!r} in "
                                  f"{first_path}); pool only tables of one task")
+            _check_evaders(first_path, first, path, data)
         for label, sha in _models(data).items():
             seen = model_of.setdefault(label, (sha, path))
             if seen[0] != sha:
@@ -170,7 +172,22 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
             "layout_identity": layouts,
             "layout_sha256": {label: arena_of[ident][0] for label, ident in layouts.items() if ident in arena_of},
             "code": dict(code_of_first or {}) if len(commits) == 1 else {"git_commits": list(commits)}}
+    if "evader_model_sha256" in first:  # so that the pooled table is checked alike when pooled again
+        meta["evader_model_sha256"] = first["evader_model_sha256"]
     return Pooled(rows, max_steps, first["config"], notes, meta)
+
+
+def _check_evaders(first_path: Path, first: dict, path: Path, data: dict) -> None:
+    """ValueError unless the tables' evaders (of one evader.model, which the task compares) are one
+    file's: their "evader_model_sha256" equal where both record it (a table written before it has none)."""
+    if "evader_model_sha256" not in first or "evader_model_sha256" not in data:
+        return
+    a, b = first["evader_model_sha256"], data["evader_model_sha256"]
+    if a != b:
+        ref = (first["config"].get("evader") or {}).get("model")
+        raise ValueError(f"{path}: its evaders are another model than {first_path}'s (evader.model {ref}, its file's "
+                         f"sha256 {str(b)[:12]} there, {str(a)[:12]} in {first_path}: edited between the two, or "
+                         f"another folder's file); pool only tables of one task")
 
 
 def _restricted(row: Row, seeds: set[int], max_steps: int) -> Row:

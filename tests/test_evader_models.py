@@ -218,3 +218,24 @@ def test_a_model_cannot_change_what_the_env_measures_rewards_and_captures_from(t
     env.reset()
     with pytest.raises(ValueError, match=r"read-only"):
         env.step(np.zeros((2, 3, 2)))
+
+
+def test_pool_refuses_tables_whose_evaders_were_other_files_of_one_name(tmp_path, monkeypatch, capsys):
+    """An eval names the model by its reference and its file's sha256: tables of one name but other
+    bytes (edited between two seeds, or another folder's file) played other evaders."""
+    monkeypatch.chdir(tmp_path)
+    Path("my_evader.py").write_text(documented_evader())
+    base = ["eval", "--policy", "heuristic", "--set", "evader.model=my_evader.py:Straight", "--layouts", "0",
+            "--episodes", "2", "--worlds", "2", "--fidelity", "point", "-q"]
+    assert main(base + ["--out", "a"]) == 0, capsys.readouterr().err
+    assert main(base + ["--out", "b", "--seed", "1"]) == 0, capsys.readouterr().err
+    assert main(["pool", "a.json", "b.json", "--out", "ab"]) == 0, capsys.readouterr().err
+    sha = json.loads(Path("a.json").read_text())["evader_model_sha256"]
+    assert json.loads(Path("ab.json").read_text())["evader_model_sha256"] == sha  # a pooled table is pooled again alike
+    Path("my_evader.py").write_text(documented_evader().replace("self.speed * flee", "0.5 * self.speed * flee"))
+    assert main(base + ["--out", "c", "--seed", "2"]) == 0, capsys.readouterr().err
+    for first in ("a.json", "ab.json"):
+        assert main(["pool", first, "c.json"]) == 2
+        err = capsys.readouterr().err
+        assert f"c.json: its evaders are another model than {first}'s (evader.model my_evader.py:Straight, its file's " \
+               f"sha256 " in err and "pool only tables of one task" in err, err
