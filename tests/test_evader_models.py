@@ -239,3 +239,26 @@ def test_pool_refuses_tables_whose_evaders_were_other_files_of_one_name(tmp_path
         err = capsys.readouterr().err
         assert f"c.json: its evaders are another model than {first}'s (evader.model my_evader.py:Straight, its file's " \
                f"sha256 " in err and "pool only tables of one task" in err, err
+
+
+def test_a_resumed_study_plays_its_evaluation_again_when_the_evader_file_changed(tmp_path, straight):
+    """study --resume keeps evaluated cells only for the same task: an evader file edited since
+    flies other evaders, though the task names it alike."""
+    from pursuit_mj.evaluation import evaluate
+    from pursuit_mj.policies import make_policy
+    from train.study import StudyPlan
+    from train.study_evaluation import KeptEvaluation
+
+    task = config_with(straight, max_steps=20)
+    plan = StudyPlan(budget_minutes=1.0, out=tmp_path, eval_task=task, layouts=(0,), episodes=2, worlds=2, resume=True)
+    state: dict = {}
+    kept = KeptEvaluation(plan, state, lambda: None)
+    kept.start(2)
+    (row,) = evaluate(make_policy("heuristic", task), task, [0], 2, plan.seed, 2, label="heuristic")
+    kept.keep("heuristic", row, 1.0)
+    written = json.dumps(state)
+    assert KeptEvaluation(plan, json.loads(written), lambda: None).episodes == 2
+    Path(straight.split(":")[0]).write_text(documented_evader() + "\n# edited\n")
+    logs: list[str] = []
+    assert KeptEvaluation(plan, json.loads(written), lambda: None, logs.append).episodes is None
+    assert "every policy is evaluated again" in logs[0]

@@ -2,7 +2,8 @@
 
 A cell is one policy on one layout (one `evaluation.Row` with its episodes). As each ends it
 is written into <out>/study.json under "evaluation", with the seconds it took, beside what
-makes it valid: the evaluation task, seed, layouts (and their files' sha256), the episodes
+makes it valid: the evaluation task (an evader model of one's own with its file's sha256), seed,
+layouts (and their files' sha256), the episodes
 asked for, the code (package version, the hash of its source, drone model; not the git commit,
 so a docs-only commit keeps the cells and an uncommitted edit does not), the episode count the study
 chose, and for each trained arm the sha256 of the best.pt it was played with. A resumed study takes a kept cell back only
@@ -19,6 +20,7 @@ from pathlib import Path
 from typing import Callable
 
 from pursuit_mj.configio import to_dict
+from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.evaluation import Row, layout_label, row_from_record, row_record
 from pursuit_mj.io_utils import file_sha256
 from pursuit_mj.layout import resolve_layout_ref
@@ -32,12 +34,16 @@ HEURISTIC = "heuristic"  # the key of the heuristic team's cells; trained arms a
 def identity(plan) -> dict:
     """What every kept cell of a study depends on besides its policy (a StudyPlan's evaluation)."""
     code = provenance()
+    evader = evader_model_sha256(plan.eval_task)
+    # an evader file named alike but edited since flies other evaders (nothing added for janosov:
+    # the cells kept by earlier studies stay theirs)
+    evaders = {} if evader is None else {"evader_model_sha256": evader}
     return json.loads(json.dumps({
         "task": to_dict(plan.eval_task), "seed": plan.seed, "layouts": [layout_label(l) for l in plan.layouts],
         # a layout file is named by its path: edited since, its kept cells are another arena's
         "layouts_sha256": [file_sha256(resolve_layout_ref(l)) for l in plan.layouts],
         "episodes_asked": plan.episodes,
-        "code": {k: code[k] for k in ("version", "source_sha256", "drone_model_sha256")},
+        "code": {k: code[k] for k in ("version", "source_sha256", "drone_model_sha256")}, **evaders,
     }))
 
 
