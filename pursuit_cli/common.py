@@ -270,9 +270,25 @@ def load_model(path, spec, task: TaskConfig, flag: str = "--model"):
     trained = getattr(policy, "trained_task", {})
     differ = [f"{k} {trained[k]} (this task: {getattr(task, k)})" for k in TRAINED_TASK_KEYS
               if k in trained and trained[k] != getattr(task, k)]
+    evader = trained.get("evader") if isinstance(trained.get("evader"), dict) else {}
+    if "model" in evader and not _same_evader_model(evader["model"], task.evader.model):
+        differ.append(f"evader.model {evader['model']} (this task: {task.evader.model})")
     if differ:  # legitimate (the study judges full_obs under partial observability), but worth knowing
         print(f"note: {flag} {path} was trained with {', '.join(differ)}", file=sys.stderr)
     return policy
+
+
+def _same_evader_model(trained: str, now: str) -> bool:
+    """Whether two evader.model values name one model: janosov, or FILE.py:NAME of one file
+    (the trained one absolute, this task's perhaps relative to the current folder) and NAME."""
+    from pathlib import Path
+
+    from pursuit_mj.user_file import is_file_reference, split_reference
+
+    if not (is_file_reference(trained) and is_file_reference(now)):
+        return trained == now
+    (a, name_a), (b, name_b) = split_reference(trained, "evader.model"), split_reference(now, "evader.model")
+    return name_a == name_b and Path(a).resolve() == Path(b).resolve()
 
 
 def counted(n: int, noun: str, plural: str | None = None) -> str:

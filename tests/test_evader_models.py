@@ -262,3 +262,22 @@ def test_a_resumed_study_plays_its_evaluation_again_when_the_evader_file_changed
     logs: list[str] = []
     assert KeptEvaluation(plan, json.loads(written), lambda: None, logs.append).episodes is None
     assert "every policy is evaluated again" in logs[0]
+
+
+def test_a_model_trained_against_an_evader_of_ones_own_plays_without_its_file_and_says_so(tmp_path, monkeypatch, capsys):
+    """eval --model of a run trained against evader.model FILE.py:NAME needs no FILE (the default
+    evaders fly unless told otherwise), and the note on what the model was trained with names it."""
+    monkeypatch.chdir(tmp_path)
+    Path("my_evader.py").write_text(documented_evader())
+    tiny = ["task.fidelity=point", "task.random_obstacles=0", "task.max_steps=30", "n_envs=2",
+            "ppo.batch_size=64", "ppo.minibatch_size=32", "ppo.epochs=1", "run.validate_every=0", "run.validation_episodes=2",
+            "run.runs_dir=runs", "task.evader.model=my_evader.py:Straight"]
+    assert main(["train", "--no-progress", "--name", "s", "--total-steps", "32"] + sum((["--set", s] for s in tiny), [])) == 0
+    capsys.readouterr()
+    play = ["eval", "--model", "runs/s/last.pt", "--layouts", "0", "--episodes", "2", "--worlds", "2", "--fidelity", "point", "-q"]
+    assert main(play + ["--set", "evader.model=my_evader.py:Straight"]) == 0
+    assert "evader.model" not in capsys.readouterr().err  # the same file, named from here
+    Path("my_evader.py").unlink()
+    assert main(play) == 0
+    err = capsys.readouterr().err
+    assert f"was trained with evader.model {tmp_path / 'my_evader.py'}:Straight (this task: janosov)" in err, err
