@@ -9,11 +9,12 @@ simulated and wall-clock time, the real-time factor, the largest altitude error 
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 
 import numpy as np
 
-from pursuit_mj.config import TaskConfig, default_config, load_task_yaml, preset_or_file
+from pursuit_mj.config import BUILTIN_EVADER, TaskConfig, default_config, load_task_yaml, preset_or_file
 from pursuit_mj.controller import tilt_angle
 from pursuit_mj.layout import N_BUILTIN, Layout, load_layout
 from pursuit_mj.layout_check import check_spawn_capacity, free_spawn_points
@@ -151,6 +152,9 @@ def run(args) -> int:
     if args.seconds < base.control_dt:  # fly() flies whole decision steps: this would be rounded up to one
         raise ValueError(f"--seconds: {args.seconds:g} is shorter than one decision step (control_dt {base.control_dt:g} s)")
     n_steps = int(round(args.seconds / base.control_dt))
+    if base.evader.model != BUILTIN_EVADER:  # accepted (a task file shared with eval may name it), but not flown
+        print(f"note: evader.model {base.evader.model} plays no part in simulate: every drone, the evaders too, flies "
+              f"the scripted pattern (eval, render or fly --virtual fly the evaders by it)", file=sys.stderr)
     layouts = [base.layout] if _chosen(args, base, "layout") else list(range(N_BUILTIN))
     fidelities = [base.fidelity] if _chosen(args, base, "fidelity") else ["quadrotor", "point"]
     team = f"{base.n_pursuers} pursuer{'s' if base.n_pursuers > 1 else ''} + {base.n_evaders} evader{'s' if base.n_evaders > 1 else ''}"

@@ -281,3 +281,16 @@ def test_a_model_trained_against_an_evader_of_ones_own_plays_without_its_file_an
     assert main(play) == 0
     err = capsys.readouterr().err
     assert f"was trained with evader.model {tmp_path / 'my_evader.py'}:Straight (this task: janosov)" in err, err
+
+
+def test_simulate_says_that_an_evader_model_plays_no_part_in_its_scripted_flight(tmp_path, monkeypatch, capsys):
+    """simulate flies every drone, the evaders too, on its scripted pattern: an evader model given
+    there is said to play no part, not silently left unflown."""
+    monkeypatch.chdir(tmp_path)
+    Path("my_evader.py").write_text(documented_evader())
+    assert main(["simulate", "--seconds", "0.1", "--layout", "0", "--fidelity", "point",
+                 "--set", "evader.model=my_evader.py:Straight"]) == 0
+    err = capsys.readouterr().err
+    assert "note: evader.model my_evader.py:Straight plays no part in simulate" in err, err
+    assert main(["simulate", "--seconds", "0.1", "--layout", "0", "--fidelity", "point"]) == 0
+    assert "evader.model" not in capsys.readouterr().err
