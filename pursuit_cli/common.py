@@ -182,7 +182,8 @@ def one_flag_named(exc: ValueError, typed: str, given: dict, flag_of: dict) -> V
 
 
 def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
-    """Resolve defaults <- task files <- flags <- --set, and print it if asked."""
+    """Resolve defaults <- task files <- flags <- --set, its evader model made once (check_evader_model),
+    and print it if asked."""
     flags = {}
     for key in TASK_FLAG_KEYS:
         value = getattr(args, key, None)
@@ -195,9 +196,9 @@ def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
         cfg = load_task_config(args.task_files, args.overrides, flags, typed)
     except ValueError as exc:
         raise one_flag_named(exc, typed, {TASK_FLAG_NAMES[k]: v for k, v in flags.items()}, TASK_FLAG_NAMES) from None
+    check_evader_model(cfg, "evader.model")  # before -sc prints it: a config refused is not shown as the one run
     if getattr(args, "show_config", False):
         print(dump_yaml(cfg))
-    check_evader_model(cfg, "evader.model")
     return cfg
 
 

@@ -28,7 +28,7 @@ from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
 from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_path
-from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, flags_typed, load_model, path_arg, seed_arg, sweep_dead_parts,
+from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, check_evader_model, flags_typed, load_model, path_arg, seed_arg, sweep_dead_parts,
                      finite_float, shield_if_asked, task_config_from_args)
 
 DEFAULT_SAVE = "renders"
@@ -107,7 +107,8 @@ def _merge(base: dict, new: dict) -> dict:
 
 
 def task_config(args, base: TaskConfig | None) -> TaskConfig:
-    """defaults <- base (the -mc run's task) <- -ec files <- task flags <- --set; printed with -sc."""
+    """defaults <- base (the -mc run's task) <- -ec files <- task flags <- --set, its evader model
+    made once (check_evader_model); printed with -sc."""
     if base is None:
         return task_config_from_args(args)
     merged = to_dict(base)
@@ -122,6 +123,7 @@ def task_config(args, base: TaskConfig | None) -> TaskConfig:
             flags[key] = int(value) if key == "layout" and str(value).strip().isdigit() else value
     typed = flags_typed((TASK_FLAG_NAMES[k], v) for k, v in flags.items()) if flags else "-mc and -ec files"
     cfg = load(TaskConfig, (), args.overrides, extra=_merge(merged, flags), extra_source=typed)
+    check_evader_model(cfg, "evader.model")  # as task_config_from_args: one line, before any file or the digest
     if args.show_config:
         print(dump_yaml(cfg))
     return cfg

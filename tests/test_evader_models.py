@@ -294,3 +294,18 @@ def test_simulate_says_that_an_evader_model_plays_no_part_in_its_scripted_flight
     assert "note: evader.model my_evader.py:Straight plays no part in simulate" in err, err
     assert main(["simulate", "--seconds", "0.1", "--layout", "0", "--fidelity", "point"]) == 0
     assert "evader.model" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", [
+    ["render", "-mc", "classic", "--policy", "heuristic", "--no-video", "--final-frame"],  # the -mc run's task as the base
+    ["render", "--policy", "heuristic", "--no-video", "--final-frame", "-sc"],
+    ["eval", "--policy", "heuristic", "-sc"],
+])
+def test_a_missing_evader_file_is_one_line_before_anything_is_printed_or_written(tmp_path, monkeypatch, capsys, command):
+    monkeypatch.chdir(tmp_path)
+    assert main(command + ["--fidelity", "point", "--set", "evader.model=missing.py:Straight", "-s" if command[0] == "render"
+                           else "--out", "out"]) == 2
+    out, err = capsys.readouterr()
+    assert err.strip().splitlines() == [f"pursuit-mj {command[0]}: error: evader.model missing.py:Straight: no file "
+                                        "missing.py (give FILE.py:NAME, FILE relative to the current folder or absolute)"], err
+    assert out == "" and not list(tmp_path.iterdir())  # -sc prints no config that is then refused
