@@ -18,7 +18,7 @@ import numpy as np
 
 from .config import TaskConfig
 from .rewards import REWARD_TERMS
-from .user_file import UserCodeError, load_named, what_and_where
+from .user_file import UserCodeError, checked_real_array, load_named, what_and_where
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,11 +82,6 @@ class StepView:
 RewardTerm = Callable[[StepView], np.ndarray]
 
 
-class RewardTermError(UserCodeError):
-    """A term that failed or returned what no reward is (term_values): the user's code, said in
-    one line, wherever the env steps (a rollout worker sends it back to its parent as it is)."""
-
-
 def checked_extra_rewards(extra: Mapping[str, RewardTerm] | None, source: str = "extra_rewards") -> dict[str, RewardTerm]:
     """`extra` as a dict, each name usable and not one of the task's terms, each term callable;
     ValueError naming `source` otherwise."""
@@ -121,7 +116,7 @@ class FileTerm:
 def term_values(name: str, term: RewardTerm, step: StepView, shape: tuple[int, int], where: str) -> np.ndarray:
     """What `term` pays for `step`, checked: (W, N) float32, finite; ValueError naming the term
     and `where` (the argument it came from; a FileTerm's own source instead) for anything else
-    (a RewardTermError)."""
+    (a UserCodeError, which a rollout worker sends back as it is)."""
     if isinstance(term, FileTerm):
         where, term = term.source, term.function
     try:
@@ -129,23 +124,13 @@ def term_values(name: str, term: RewardTerm, step: StepView, shape: tuple[int, i
     except (Exception, SystemExit) as exc:  # the user's own code: say which term failed, and where
         path = getattr(getattr(term, "__code__", None), "co_filename", None)
         said = what_and_where(exc, Path(path)) if path else f"{type(exc).__name__}: {exc}"
-        raise RewardTermError(f"{where}: reward term {name!r} raised {said}") from exc
-    try:
-        values = np.asarray(raw)
-    except Exception as exc:  # noqa: BLE001 - what it returned is the user's; say what it was
-        raise RewardTermError(f"{where}: reward term {name!r} returned {type(raw).__name__}, not an array ({exc})") from None
-    if values.dtype.kind not in "fiub":
-        raise RewardTermError(f"{where}: reward term {name!r} returned an array of dtype {values.dtype}, not real numbers")
-    if values.shape != shape:
-        raise RewardTermError(f"{where}: reward term {name!r} returned shape {values.shape}, expected {shape} (worlds, pursuers)")
-    values = values.astype(np.float64)
-    if not np.isfinite(values).all():
-        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(values))[0])
-        raise RewardTermError(f"{where}: reward term {name!r} returned {values[bad]} at (world, pursuer) {bad}")
+        raise UserCodeError(f"{where}: reward term {name!r} raised {said}") from exc
+    values = checked_real_array(raw, shape, f"{where}: reward term {name!r}", "(worlds, pursuers)", "(world, pursuer)",
+                                kinds="fiub")
     too_large = np.abs(values) > np.finfo(np.float32).max  # inf once cast: say what it returned
     if too_large.any():
         bad = tuple(int(i) for i in np.argwhere(too_large)[0])
-        raise RewardTermError(f"{where}: reward term {name!r} returned {values[bad]:g} at (world, pursuer) {bad}, "
+        raise UserCodeError(f"{where}: reward term {name!r} returned {values[bad]:g} at (world, pursuer) {bad}, "
                               f"beyond float32 (the reward's type)")
     return values.astype(np.float32)
 

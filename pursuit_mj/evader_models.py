@@ -24,7 +24,7 @@ import numpy as np
 from .config import BUILTIN_EVADER, TaskConfig
 from .evader import EscapeModel
 from .geometry import ObstacleSet
-from .user_file import UserCodeError, file_sha256, load_named, what_and_where
+from .user_file import UserCodeError, checked_real_array, file_sha256, load_named, made_by, what_and_where
 
 
 def evader_model_sha256(config: TaskConfig) -> str | None:
@@ -42,16 +42,8 @@ def make_evader_model(config: TaskConfig, n_worlds: int, seed: int, source: str 
         return EscapeModel(config, n_worlds, seed)
     factory, path, name = load_named(ref, source)
     where = f"{source} {ref}"
-    try:
-        model = factory(config, n_worlds, seed)
-    except (Exception, SystemExit) as exc:  # the user's own code: say where it failed, in one line
-        raise ValueError(f"{where}: {name}(config, n_worlds, seed) raised {what_and_where(exc, path)}") from exc
-    missing = [m for m in ("reset", "compute") if not callable(getattr(model, m, None))]
-    if missing or isinstance(model, type):
-        what = (f"the class {model.__name__}, not an instance of it" if isinstance(model, type)
-                else f"{model!r}, which has no {' or '.join(missing)} method")
-        raise ValueError(f"{where}: {name}(config, n_worlds, seed) returned {what}; it must return an evader model: "
-                         f"an object with reset(world_ids, seeds) and compute(...) (docs/env_api.md)")
+    model = made_by(factory, (config, n_worlds, seed), f"{name}(config, n_worlds, seed)", where, path, ("reset", "compute"),
+                    "an evader model: an object with reset(world_ids, seeds) and compute(...) (docs/env_api.md)")
     return FileEvaderModel(model, where, path, (int(n_worlds), config.n_evaders, 2))
 
 
@@ -98,17 +90,5 @@ class FileEvaderModel:
             raw = self.model.compute(*arrays, self._read_only_obstacles(obstacles), dt)
         except (Exception, SystemExit) as exc:
             raise UserCodeError(f"{self.where}: compute(...) raised {what_and_where(exc, self._path)}") from exc
-        try:
-            values = np.asarray(raw)
-        except Exception as exc:  # noqa: BLE001 - what it returned is the user's; say what it was
-            raise UserCodeError(f"{self.where}: compute returned {type(raw).__name__}, not an array ({exc})") from None
-        if values.dtype.kind not in "fiu":
-            raise UserCodeError(f"{self.where}: compute returned an array of dtype {values.dtype}, not real numbers")
-        if values.shape != self._shape:
-            raise UserCodeError(f"{self.where}: compute returned shape {values.shape}, expected {self._shape} "
-                             f"(worlds, evaders, vx vy in m/s)")
-        values = values.astype(np.float64)
-        if not np.isfinite(values[active]).all():  # the others' commands are ignored, whatever they are
-            bad = tuple(int(i) for i in np.argwhere(~np.isfinite(values) & active[..., None])[0])
-            raise UserCodeError(f"{self.where}: compute returned {values[bad]} at (world, evader, axis) {bad}")
-        return values
+        return checked_real_array(raw, self._shape, f"{self.where}: compute", "(worlds, evaders, vx vy in m/s)",
+                                  "(world, evader, axis)", counted=active)  # the others' commands are ignored, whatever they are

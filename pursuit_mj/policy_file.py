@@ -13,7 +13,7 @@ from pathlib import Path
 
 from .config import TaskConfig
 from .policy import Policy
-from .user_file import file_sha256, is_file_reference, load_named, split_reference, what_and_where
+from .user_file import file_sha256, is_file_reference, load_named, made_by, split_reference
 
 
 def is_policy_file(ref: str) -> bool:
@@ -41,16 +41,8 @@ def load_policy_file(ref: str, config: TaskConfig, seed: int = 0, source: str = 
     `name` (the label tables and captions show)."""
     factory, path, name = load_named(ref, source)
     where = f"{source} {ref}"
-    try:
-        policy = factory(config, seed)
-    except (Exception, SystemExit) as exc:  # the user's own code: say where it failed, in one line
-        raise ValueError(f"{where}: {name}(config, seed) raised {what_and_where(exc, path)}") from exc
-    missing = [m for m in ("act", "reset") if not callable(getattr(policy, m, None))]
-    if missing or isinstance(policy, type):
-        what = (f"the class {policy.__name__}, not an instance of it" if isinstance(policy, type)
-                else f"{policy!r}, which has no {' or '.join(missing)} method")
-        raise ValueError(f"{where}: {name}(config, seed) returned {what}; it must return a Policy: an object with "
-                         f"name, reset(n_worlds, world_ids=None) and act(obs, spec) (docs/env_api.md)")
+    policy = made_by(factory, (config, seed), f"{name}(config, seed)", where, path, ("act", "reset"),
+                     "a Policy: an object with name, reset(n_worlds, world_ids=None) and act(obs, spec) (docs/env_api.md)")
     label = getattr(policy, "name", None)
     if not isinstance(label, str) or not label.strip():
         raise ValueError(f"{where}: the policy {name}(config, seed) returned has no `name` text (tables and captions "

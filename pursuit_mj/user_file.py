@@ -17,6 +17,8 @@ import traceback
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 class UserCodeError(ValueError):
     """Code of one's own (a reward term, an evader model) failed or answered what it must not: said in
     one line naming where it came from, wherever it runs (a rollout worker sends it back as it is)."""
@@ -83,3 +85,44 @@ def what_and_where(exc: BaseException, path: Path) -> str:
         return f"SyntaxError: {exc.msg} (at {path}:{exc.lineno})"
     at = f" (at {path}:{frames[-1].lineno})" if frames else ""
     return f"{type(exc).__name__}: {exc}{at}"
+
+
+def made_by(factory, args: tuple, call: str, where: str, path: Path, methods: tuple[str, ...], must: str) -> Any:
+    """factory(*args), the object user code makes, checked to be an instance with callable
+    `methods`; ValueError naming `where` and `call` ("NAME(config, seed)") for an exception in
+    the factory (with its line in `path`), or a result that is a class or lacks a method (`must`
+    says what it must return instead)."""
+    try:
+        made = factory(*args)
+    except (Exception, SystemExit) as exc:  # the user's own code: say where it failed, in one line
+        raise ValueError(f"{where}: {call} raised {what_and_where(exc, path)}") from exc
+    missing = [m for m in methods if not callable(getattr(made, m, None))]
+    if missing or isinstance(made, type):
+        what = (f"the class {made.__name__}, not an instance of it" if isinstance(made, type)
+                else f"{made!r}, which has no {' or '.join(missing)} method")
+        raise ValueError(f"{where}: {call} returned {what}; it must return {must}")
+    return made
+
+
+def checked_real_array(raw: Any, shape: tuple[int, ...], said: str, axes: str, index: str, kinds: str = "fiu",
+                       counted: np.ndarray | None = None) -> np.ndarray:
+    """What user code returned, as float64 of `shape`; UserCodeError starting with `said` ("F: reward
+    term 'x'") for anything else: no array, no real numbers (dtype kinds `kinds`), another shape
+    (`axes` names the expected one's axes), NaN or inf (at the `index` named axes) where `counted`
+    (bool, the shape's leading axes) is True, everywhere without it."""
+    try:
+        values = np.asarray(raw)
+    except Exception as exc:  # noqa: BLE001 - what it returned is the user's; say what it was
+        raise UserCodeError(f"{said} returned {type(raw).__name__}, not an array ({exc})") from None
+    if values.dtype.kind not in kinds:
+        raise UserCodeError(f"{said} returned an array of dtype {values.dtype}, not real numbers")
+    if values.shape != shape:
+        raise UserCodeError(f"{said} returned shape {values.shape}, expected {shape} {axes}")
+    values = values.astype(np.float64)
+    bad = ~np.isfinite(values)
+    if counted is not None:
+        bad &= counted.reshape(counted.shape + (1,) * (values.ndim - counted.ndim))
+    if bad.any():
+        at = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise UserCodeError(f"{said} returned {values[at]} at {index} {at}")
+    return values
