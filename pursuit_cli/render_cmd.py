@@ -22,7 +22,7 @@ from pathlib import Path
 
 from pursuit_mj.io_utils import check_writable_folder
 from pursuit_mj.config import TaskConfig, load_task_yaml, preset_or_file
-from pursuit_mj.configio import build, dump_yaml, load, to_dict
+from pursuit_mj.configio import ConfigError, build, dump_yaml, load, parse_override, to_dict
 from pursuit_mj.layout import load_layout
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
@@ -90,12 +90,22 @@ def _add_reference_spellings(p: argparse.ArgumentParser) -> None:
 # ---------------------------------------------------------------------- config and policy
 
 
-def _train_config(ref: str):
+def _train_config(ref: str, args):
+    """The -mc run's train config; the task keys that render's own flags and --set replace are not
+    looked up in it (a layout or evader file of the run that is gone is no error when replaced)."""
+    replaced = set()
+    for text in args.overrides:
+        try:
+            replaced.add("task." + ".".join(parse_override(text, f"--set {text}")[0]))
+        except ConfigError:
+            pass  # task_config names it
+    if getattr(args, "layout", None) is not None:
+        replaced.add("task.layout")
     try:
         from train.config import load_train_config
     except ImportError as exc:
         raise ValueError(f"-mc {ref}: cannot read training configs, the train package is not importable ({exc})") from None
-    return load_train_config([ref])
+    return load_train_config([ref], replaced=replaced)
 
 
 def _merge(base: dict, new: dict) -> dict:
@@ -291,7 +301,7 @@ def run(args) -> int:
         raise ValueError(f"--trail: expected an integer >= 0, got {args.trail}")
     if args.fps is not None and not args.fps > 0:
         raise ValueError(f"--fps: expected a positive number, got {args.fps}")
-    train_cfg = _train_config(args.model_config) if args.model_config else None
+    train_cfg = _train_config(args.model_config, args) if args.model_config else None
     config = task_config(args, train_cfg.task if train_cfg is not None else None)
     load_layout(config.layout)
     video, final = not args.no_video, args.final_frame

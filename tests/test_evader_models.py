@@ -309,3 +309,25 @@ def test_a_missing_evader_file_is_one_line_before_anything_is_printed_or_written
     assert err.strip().splitlines() == [f"pursuit-mj {command[0]}: error: evader.model missing.py:Straight: no file "
                                         "missing.py (give FILE.py:NAME, FILE relative to the current folder or absolute)"], err
     assert out == "" and not list(tmp_path.iterdir())  # -sc prints no config that is then refused
+
+
+def test_a_run_whose_evader_file_is_gone_renders_and_trains_with_the_model_replaced(tmp_path, monkeypatch, capsys):
+    """A run config naming an evader file that is no longer there still serves as -mc (render) and
+    --config (train -sc) when --set gives another model: the replaced reference is not looked up.
+    Without the replacement it is refused, naming the file and key, as before."""
+    monkeypatch.chdir(tmp_path)
+    Path("run.yaml").write_text("regime: classic\ntask:\n  evader: {model: gone.py:Straight}\n")
+    render = ["render", "-mc", "run.yaml", "--policy", "heuristic", "--no-video", "--final-frame", "--fidelity", "point",
+              "-s", "out"]
+    assert main(render) == 2
+    assert "run.yaml: key 'task.evader.model': file 'gone.py'" in capsys.readouterr().err
+    assert main(render + ["--set", "evader.model=janosov"]) == 0, capsys.readouterr().err
+    assert list((tmp_path / "out").glob("*.png"))
+    capsys.readouterr()
+    assert main(["train", "--config", "run.yaml", "-sc", "--set", "task.evader.model=janosov"]) == 0, capsys.readouterr().err
+    assert "model: janosov" in capsys.readouterr().out
+    Path("run.yaml").write_text("regime: classic\ntask:\n  layout: gone.yaml\n")  # a layout file gone: -i replaces it
+    assert main(render[:-2] + ["-s", "out2"]) == 2
+    assert "gone.yaml" in capsys.readouterr().err
+    assert main(render[:-2] + ["-s", "out2", "-i", "1"]) == 0, capsys.readouterr().err
+    assert main(["train", "--config", "run.yaml", "-sc", "--set", "task.layout=2"]) == 0, capsys.readouterr().err

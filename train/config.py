@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Collection, Mapping, Sequence
 
 from pursuit_mj.config import TaskConfig, found_code_ref, load_task_yaml, preset_or_file
 from pursuit_mj.configio import ConfigError, build, check_values, found_beside, key_where, load, load_yaml, parse_override, spec, to_dict
@@ -392,21 +392,25 @@ def _is_file_ref(ref: Any) -> bool:
     return isinstance(ref, (str, Path)) and not str(ref).strip().isdigit()
 
 
-def _paths_beside(data: dict[str, Any], path: Path) -> None:
+def _paths_beside(data: dict[str, Any], path: Path, replaced: Collection[str] = ()) -> None:
     """In a train file's (checked) mapping, the task file and layout files named by a path relative
-    to the file's folder and not found from the current folder are found there (configio.found_beside)."""
-    if "task_file" in data:
+    to the file's folder and not found from the current folder are found there (configio.found_beside).
+    A key in `replaced` (dotted, e.g. 'task.evader.model') is left as it is: a later layer gives it
+    another value, so a file it named that is gone is no error."""
+    if "task_file" in data and "task_file" not in replaced:
         data["task_file"] = found_beside(data["task_file"], path)
     task, run = data.get("task"), data.get("run")
-    if isinstance(task, dict) and "layout" in task:
+    if isinstance(task, dict) and "layout" in task and "task.layout" not in replaced:
         task["layout"] = found_layout_ref(task["layout"], path, "task.layout")
-    if isinstance(task, dict) and isinstance(task.get("evader"), dict) and "model" in task["evader"]:
+    if (isinstance(task, dict) and isinstance(task.get("evader"), dict) and "model" in task["evader"]
+            and "task.evader.model" not in replaced):
         task["evader"]["model"] = found_code_ref(task["evader"]["model"], path, "task.evader.model")
-    if isinstance(data.get("layouts"), list):
+    if isinstance(data.get("layouts"), list) and "layouts" not in replaced:
         data["layouts"] = [found_layout_ref(r, path, "layouts") for r in data["layouts"]]
-    if isinstance(data.get("rewards"), list):
+    if isinstance(data.get("rewards"), list) and "rewards" not in replaced:
         data["rewards"] = [found_code_ref(r, path, "rewards") for r in data["rewards"]]
-    if isinstance(run, dict) and isinstance(run.get("validation_layouts"), list):
+    if (isinstance(run, dict) and isinstance(run.get("validation_layouts"), list)
+            and "run.validation_layouts" not in replaced):
         run["validation_layouts"] = [found_layout_ref(r, path, "run.validation_layouts") for r in run["validation_layouts"]]
 
 
@@ -440,12 +444,16 @@ def load_train_config(
     overrides: Sequence[str] = (),
     flags: Mapping[str, Any] | None = None,
     flags_source: str = "command-line flag",
+    replaced: Collection[str] = (),
 ) -> TrainConfig:
     """Defaults <- YAML files (a bare name like 'classic' means configs/train/classic.yaml) <- flags <- --set.
 
     `files` and `overrides` are lists; a single string is taken as a list of one.
     `flags` is a nested mapping (e.g. {"total_steps": 10000, "task": {"fidelity": "point"}});
     `flags_source` names them in errors (a CLI passes what was typed, e.g. '--seed -1').
+    `replaced`: dotted keys a caller sets itself after this (render's --set for the -mc run's task):
+    the files named there by the YAML files are not looked up, as for keys that `overrides` and
+    `flags` set.
     """
     files = [files] if isinstance(files, (str, Path)) else files
     overrides = [overrides] if isinstance(overrides, str) else overrides
@@ -454,6 +462,7 @@ def load_train_config(
             raise ConfigError(f"load_train_config {what}: expected a list, got {given!r}")
     merged: dict[str, Any] = {}
     source = "defaults"
+    replaced = set(replaced) | _dotted_keys(flags or {}) | {".".join(_override_path(t)) for t in overrides}
     for f in files:
         p = preset_or_file(f, "train")
         data = load_yaml(p)
@@ -463,7 +472,7 @@ def load_train_config(
         # each file's keys and values checked as read, so an error names the file that holds the bad one
         # (an empty task: section beside a task_file is left to _with_layer)
         check_values(TrainConfig, {k: v for k, v in data.items() if not (k == "task" and v is None)}, str(p))
-        _paths_beside(data, p)
+        _paths_beside(data, p, replaced)
         merged = _with_layer(merged, data, str(p))
         source = str(p)
     rest = []
@@ -477,6 +486,24 @@ def load_train_config(
     cfg = build(TrainConfig, merged, source)
     extra = _deep_update(to_dict(cfg), dict(flags)) if flags else None
     return load(TrainConfig, (), rest, extra=extra or to_dict(cfg), extra_source=flags_source)
+
+
+def _override_path(text: str) -> list[str]:
+    """The key path of a --set KEY=VALUE, or [] when it does not parse (the loader names it later)."""
+    try:
+        return parse_override(text, f"--set {text}")[0]
+    except ConfigError:
+        return []
+
+
+def _dotted_keys(mapping: Mapping[str, Any], prefix: str = "") -> set[str]:
+    """Every key of a nested mapping as a dotted path, sections included ('task', 'task.layout')."""
+    keys: set[str] = set()
+    for key, value in mapping.items():
+        keys.add(prefix + str(key))
+        if isinstance(value, Mapping):
+            keys |= _dotted_keys(value, f"{prefix}{key}.")
+    return keys
 
 
 def train_config_from_dict(data: Mapping[str, Any], source: str) -> TrainConfig:
