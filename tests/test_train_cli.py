@@ -514,3 +514,18 @@ def test_small_run_folder_refusals_leave_nothing_and_name_their_flag(tmp_path, c
     assert main(["train", "--config", "classic", *sets(TINY), "--set", f"run.runs_dir={tmp_path}", "--name", "i",
                  "--init-from", str(tmp_path / "folder")]) == 2
     assert "init_from (--init-from): checkpoint" in capsys.readouterr().err
+
+
+def test_bench_train_steps_the_bare_env_with_the_runs_reward_terms(tmp_path, monkeypatch):
+    """A reward term of the run is part of the task: the bare env pays it too, so its cost is not
+    counted as training's."""
+    import types
+
+    import pursuit_cli.benchmarks.train as bench
+
+    (tmp_path / "terms.py").write_text("import numpy as np\n\ndef still(step):\n    return np.zeros(step.pursuer_pos.shape[:2])\n")
+    seen = []
+    monkeypatch.setattr(bench, "_bare_env_block", lambda env, steps, rng: (seen.append(tuple(env.reward_names)), (0.01, 1.0))[1])
+    monkeypatch.setattr(bench, "time", types.SimpleNamespace(perf_counter=bench.time.perf_counter, process_time=lambda: 0.0))
+    bench.measure("classic", "point", 2, 1, TINY[1:-2] + ["run.overlap=false", f"rewards=[{tmp_path / 'terms.py'}:still]"])
+    assert seen and all(names[-1] == "still" for names in seen), seen

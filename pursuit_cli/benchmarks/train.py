@@ -2,9 +2,9 @@
 
 For each fidelity, the command builds a `train.trainer.Trainer` from the train config (the
 reference hyperparameters unless --set changes them), runs one warm-up update, then
-`--updates` measured updates. A second env of the same task and worlds (its own seed)
-steps as many decision steps as a rollout with uniform random actions, the bare env rate:
-in turn, one such block after each update, so that both meet the machine in the same state
+`--updates` measured updates. A second env of the same task, reward terms (the run's
+`rewards`, part of the task) and worlds (its own seed) steps as many decision steps as a
+rollout with uniform random actions, the bare env rate: in turn, one such block after each update, so that both meet the machine in the same state
 (on a shared machine wall time swings, and the ratio of paired blocks swings less than
 either rate); with `run.overlap` a rollout worker runs beside the update, so the bare env
 steps after training instead. Rates are agent-steps per second (decision steps x worlds x pursuers)
@@ -139,6 +139,7 @@ def _watch_worker_cpu(worker) -> list[float]:
 def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overrides: list[str], profile_top: int = 0) -> TrainBench:
     import torch
 
+    from pursuit_mj.custom_rewards import load_reward_files
     from pursuit_mj.env import PursuitEnv
     from train.config import load_train_config
     from train.ppo import ppo_update, teacher_weight
@@ -150,9 +151,9 @@ def measure(config: str, fidelity: str, n_envs: int | None, updates: int, overri
         flags = {"n_envs": n_envs} if n_envs is not None else None  # a flag, so that an error names --n-envs
         cfg = load_train_config([config], extra + list(overrides), flags, f"--n-envs {n_envs}")
         trainer = Trainer(cfg, log=lambda s: None)
-        # the bare env: the same task and worlds, its own seed
+        # the bare env: the same task, reward terms and worlds, its own seed
         env = PursuitEnv(cfg.task, n_worlds=cfg.n_envs, seed=cfg.seed + 1, layouts=list(cfg.layouts) or None,
-                         nthread=cfg.run.sim_threads)
+                         nthread=cfg.run.sim_threads, extra_rewards=load_reward_files(cfg.rewards, "rewards"))
         env.reset()
         rng = np.random.default_rng(0)
         _bare_env_block(env, 2, rng)
