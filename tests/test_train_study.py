@@ -632,9 +632,11 @@ def test_a_resume_refused_after_it_dropped_the_kept_evaluation_in_memory_keeps_i
     monkeypatch.setattr(Trainer, "train_one_update", ctrl_c)  # in the first arm, after the team's evaluation
     assert main(["study", "--budget-minutes", "30", *args]) == 130
     kept = json.loads((out_dir / "study.json").read_text())["evaluation"]["cells"]
-    assert kept["heuristic"]
+    seconds = json.loads((out_dir / "study.json").read_text())["seconds"]
+    assert kept["heuristic"] and seconds > 0
     capsys.readouterr()
     assert main(["study", "--budget-minutes", "0.02", "--resume", *args, "--seed", "5"]) == 2
     assert "every policy is evaluated again" in capsys.readouterr().out
     record = json.loads((out_dir / "study.json").read_text())
-    assert record["evaluation"]["cells"] == kept and record["seconds"] > 0
+    # nor does the refused session count in the study's time: it trained and evaluated nothing
+    assert record["evaluation"]["cells"] == kept and record["seconds"] == seconds

@@ -394,21 +394,26 @@ def _refuse_an_earlier_study(plan: StudyPlan) -> None:
 
 def _run_study(plan: StudyPlan, log: Callable[[str], None], stop_requested: Callable[[], bool] | None) -> dict:
     """run_study in a folder it holds. study.json's "seconds" counts the wall time of every session so
-    far (to its last record, written as each arm or evaluated cell ends and when the session stops)."""
+    far (to its last record, written as each arm or evaluated cell ends and when the session stops);
+    a session refused (ValueError) before it recorded any arm or cell adds nothing."""
     state = _load_state(plan)
     t_start = time.perf_counter()
     earlier_s = _earlier_sessions_seconds(state)
+    recorded = False
 
     def save() -> None:
+        nonlocal recorded
+        recorded = True
         state["seconds"] = round(earlier_s + time.perf_counter() - t_start, 1)
         _save_state(plan, state)
 
     try:
         result = _run_study_sessions(plan, state, save, t_start, log, stop_requested)
-    except BaseException:
+    except BaseException as exc:
         # only the time goes to the record on disk: the state in memory may hold an evaluation
         # emptied for a resume that was then refused (another --seed, say), which must not replace the kept one
-        _save_seconds(plan, round(earlier_s + time.perf_counter() - t_start, 1))
+        if recorded or not isinstance(exc, ValueError):
+            _save_seconds(plan, round(earlier_s + time.perf_counter() - t_start, 1))
         raise
     if earlier_s > 0:
         result["timings"]["total, all sessions"] = earlier_s + result["timings"]["total"]
