@@ -1,0 +1,156 @@
+"""The batched pursuit env as a gymnasium `VectorEnv`: one sub-environment per pursuer of each world.
+
+For trainers written against gymnasium's vector API (CleanRL-style PPO loops, gymnasium's
+vector wrappers, libraries that take a `gymnasium.vector.VectorEnv`) that learn one policy
+shared by every pursuer: independent learners with parameter sharing, as `pursuit-mj train`
+trains. Slot i is pursuer i % N of world i // N, so `num_envs` is n_worlds x n_pursuers, and
+every array is PursuitEnv's (W, N, ...) array with its first two axes flattened.
+
+A world's episode ends for all its pursuers at once: their slots terminate (capture or
+collision) or truncate (timeout) together. How they restart is gymnasium's autoreset mode:
+- `AutoresetMode.NEXT_STEP` (the default, gymnasium's own, which its observation wrappers
+  need): the step that ends an episode returns its last observation; the next step starts the
+  new episode in those slots, ignoring their actions, with reward 0 and neither flag set.
+- `AutoresetMode.SAME_STEP` (no idle step, as `pursuit-mj train` collects): the step that ends
+  an episode returns the new episode's first observation, info["final_obs"][i] the ended
+  episode's last observation of slot i (None where slot i did not end; info["_final_obs"]
+  marks the ended slots), and info["final_info"] that step's reward terms and outcome.
+Either way a world runs the same episodes, by its seed sequence (docs/env_api.md). The evaders
+are part of the environment; `batched` is the underlying PursuitEnv (global state, snapshots).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from .config import TaskConfig, checked_task_config, default_config
+from .env import PursuitEnv, check_seed
+
+MODES = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
+
+
+class PursuitVectorEnv(VectorEnv):
+    """n_worlds worlds of the pursuit task as n_worlds x n_pursuers gymnasium sub-environments.
+
+    config, n_worlds, seed, layouts, nthread and extra_rewards are PursuitEnv's (docs/env_api.md);
+    autoreset_mode an AutoresetMode (or its value, "NextStep" / "SameStep"; module docstring).
+    single_observation_space: Box(-inf, inf, (obs_dim,), float32), PursuitEnv's observation of
+    one pursuer (layout in obs_spec.py, `obs_spec`). single_action_space: Box(-1, 1, (2,),
+    float32), the desired world-frame velocity as a fraction of pursuer_speed (clipped to the
+    Box, and its norm to 1, as PursuitEnv clips it).
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
+
+    def __init__(self, config: TaskConfig | None = None, n_worlds: int = 1, seed: int = 0, layouts=None,
+                 nthread: int = 0, extra_rewards=None, autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP):
+        mode = _checked_mode(autoreset_mode)
+        config = default_config() if config is None else checked_task_config(config, "PursuitVectorEnv config")
+        self.batched = PursuitEnv(config, n_worlds=n_worlds, seed=check_seed(seed, "PursuitVectorEnv seed"),
+                                  auto_reset=mode == AutoresetMode.SAME_STEP, layouts=layouts, nthread=nthread,
+                                  extra_rewards=extra_rewards)
+        self.config = config
+        self.autoreset_mode = mode
+        self.n_worlds, self.n_pursuers = self.batched.n_worlds, self.batched.n_pursuers
+        self.num_envs = self.n_worlds * self.n_pursuers
+        self.metadata = {**self.metadata, "autoreset_mode": mode, "render_fps": 1.0 / config.control_dt}
+        self.render_mode = None
+        self.single_observation_space = spaces.Box(-np.inf, np.inf, (self.batched.obs_dim,), np.float32)
+        self.single_action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._started = False
+        self._restart = np.zeros(self.n_worlds, bool)  # NEXT_STEP: worlds whose episode ended in the last step
+
+    @property
+    def obs_spec(self):
+        """The observation index map (pursuit_mj.obs_spec.ObsSpec) of every slot."""
+        return self.batched.obs_spec
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        """New episodes in every world: obs (num_envs, obs_dim) float32 and an empty info.
+
+        With an int `seed`, episode 0 of that seed's sequence in every world (PursuitEnv.reset),
+        else the next episode of each (never a replay). Per-slot seeds are refused: the pursuers of
+        a world share one episode (give per-world episode seeds with `batched.reset(seeds=...)`).
+        """
+        if seed is not None and (isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer))):
+            raise ValueError(f"reset seed: expected an int or None, got {seed!r} (the {self.n_pursuers} pursuers of a "
+                             f"world share one episode: give per-world episode seeds with env.batched.reset(seeds=...))")
+        if options:
+            raise ValueError(f"reset options: PursuitVectorEnv takes none (its config sets the task), got {options!r}")
+        obs = self.batched.reset(seed=seed)
+        if seed is not None:
+            self._np_random, self._np_random_seed = np.random.default_rng(seed), int(seed)
+        self._started = True
+        self._restart[:] = False
+        return self._flat(obs), {}
+
+    def step(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """One decision step of every world. actions (num_envs, 2). Returns obs (num_envs, obs_dim)
+        float32, rewards (num_envs,) float64, terminations and truncations (num_envs,) bool, and infos:
+        "reward_terms" {term: (num_envs,) float32} and "outcome" (num_envs,) str ("" unless the slot's
+        episode ended in this step), each key with its "_key" mask, and in SAME_STEP mode "final_obs"
+        and "final_info" for the slots whose episode ended (module docstring)."""
+        if not self._started:
+            raise RuntimeError("step() called before reset(): call reset() first")
+        a = np.asarray(actions)
+        if a.shape != (self.num_envs, 2):
+            raise ValueError(f"actions: expected shape ({self.num_envs}, 2), one row per slot ({self.n_worlds} worlds x "
+                             f"{self.n_pursuers} pursuers), got {a.shape}")
+        W, N = self.n_worlds, self.n_pursuers
+        # NEXT_STEP: the worlds that ended last step are frozen (no physics, no reward) and restart after it
+        obs, reward, terminated, truncated, info = self.batched.step(a.reshape(W, N, 2))
+        if self._restart.any():
+            obs = self.batched.reset_worlds(np.flatnonzero(self._restart))
+        ended_worlds = terminated | truncated
+        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+            self._restart = ended_worlds
+        every = np.ones(self.num_envs, bool)
+        terms = {k: v.reshape(-1) for k, v in info["reward_terms"].items()}
+        outcome = np.repeat(info["outcome"], N)
+        infos: dict[str, Any] = {"reward_terms": _with_masks(terms, every), "_reward_terms": every,
+                                 "outcome": outcome, "_outcome": every}
+        ended = np.repeat(ended_worlds, N)
+        if self.autoreset_mode == AutoresetMode.SAME_STEP and ended.any():
+            final_obs = np.full(self.num_envs, None, dtype=object)
+            last = info["final_obs"].reshape(self.num_envs, -1)
+            for i in np.flatnonzero(ended):  # at episode ends only
+                final_obs[i] = last[i]
+            final_terms = {k: np.where(ended, v, np.float32(0.0)) for k, v in terms.items()}
+            infos["final_obs"], infos["_final_obs"] = final_obs, ended
+            infos["final_info"] = {"reward_terms": _with_masks(final_terms, ended), "_reward_terms": ended,
+                                   "outcome": outcome, "_outcome": ended}
+            infos["_final_info"] = ended
+        return (self._flat(obs), reward.reshape(-1).astype(np.float64), np.repeat(terminated, N),
+                np.repeat(truncated, N), infos)
+
+    def render(self):
+        raise NotImplementedError("PursuitVectorEnv draws no frames: use `pursuit-mj render`, or "
+                                  "pursuit_mj.pz_env.PursuitParallelEnv(render_mode='rgb_array') for one world")
+
+    def _flat(self, obs: np.ndarray) -> np.ndarray:
+        """(W, N, obs_dim) -> (num_envs, obs_dim), slot w * N + n."""
+        return obs.reshape(self.num_envs, -1)
+
+
+def _with_masks(values: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, np.ndarray]:
+    """gymnasium's vector info layout: each key beside its "_key" mask of the slots that have it."""
+    return {**values, **{f"_{k}": mask for k in values}}
+
+
+def _checked_mode(mode: Any) -> AutoresetMode:
+    """An AutoresetMode this env runs (NEXT_STEP, SAME_STEP), from the member or its value."""
+    try:
+        found = AutoresetMode(mode)
+    except ValueError:
+        found = None
+    if found not in MODES:
+        raise ValueError(f"autoreset_mode: expected one of {', '.join(f'AutoresetMode.{m.name} ({m.value!r})' for m in MODES)}, "
+                         f"got {mode!r}")
+    return found

@@ -1,0 +1,195 @@
+"""The gymnasium VectorEnv (pursuit_mj.vector_env): slots are the batched env's pursuers, both
+autoreset modes, and gymnasium's own vector wrappers on it."""
+
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode
+from gymnasium.wrappers.vector import ClipAction, NormalizeObservation, RecordEpisodeStatistics
+
+from pursuit_mj.config import default_config
+from pursuit_mj.env import PursuitEnv
+from pursuit_mj.heuristic import HeuristicTeam
+from pursuit_mj.vector_env import PursuitVectorEnv
+
+W, N = 3, 3
+
+
+def config(**changes):
+    return default_config(**{"fidelity": "point", "max_steps": 12, **changes})
+
+
+def actions(t: int, scale: float = 0.3) -> np.ndarray:
+    """(W, N, 2) deterministic actions for step t, varied per slot and step (at scale 0.3 no pursuer
+    reaches a wall or teammate within 30 steps of these episodes: every episode is a timeout)."""
+    rng = np.random.default_rng(100 + t)
+    return rng.uniform(-scale, scale, (W, N, 2))
+
+
+def test_spaces_and_slot_count():
+    env = PursuitVectorEnv(config(), n_worlds=W, seed=1)
+    assert env.num_envs == W * N and env.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
+    assert env.single_observation_space.shape == (env.batched.obs_dim,) and env.single_action_space.shape == (2,)
+    assert env.observation_space.shape == (W * N, env.batched.obs_dim) and env.action_space.shape == (W * N, 2)
+    obs, info = env.reset(seed=2)
+    assert obs.dtype == np.float32 and obs in env.observation_space and info == {}
+    obs, rew, term, trunc, info = env.step(env.action_space.sample())
+    assert obs in env.observation_space and rew.dtype == np.float64 and rew.shape == term.shape == trunc.shape == (W * N,)
+    assert set(info["reward_terms"]) >= {"capture", "progress", "_capture", "_progress"}
+
+
+def test_same_step_slots_are_the_batched_envs_pursuers_with_final_observations():
+    vec = PursuitVectorEnv(config(), n_worlds=W, seed=4, autoreset_mode=AutoresetMode.SAME_STEP)
+    ref = PursuitEnv(config(), n_worlds=W, seed=4)
+    obs = vec.reset(seed=7)[0]
+    np.testing.assert_array_equal(obs, ref.reset(seed=7).reshape(W * N, -1))
+    ends = 0
+    for t in range(30):  # two timeouts at max_steps 12 and the start of a third episode
+        obs, rew, term, trunc, info = vec.step(actions(t).reshape(W * N, 2))
+        r_obs, r_rew, r_term, r_trunc, r_info = ref.step(actions(t))
+        np.testing.assert_array_equal(obs, r_obs.reshape(W * N, -1))  # slot w * N + n is pursuer n of world w
+        np.testing.assert_array_equal(rew, r_rew.reshape(-1))
+        np.testing.assert_array_equal(term, np.repeat(r_term, N))
+        np.testing.assert_array_equal(trunc, np.repeat(r_trunc, N))
+        for k, v in r_info["reward_terms"].items():
+            np.testing.assert_array_equal(info["reward_terms"][k], v.reshape(-1))
+        ended = np.repeat(r_term | r_trunc, N)
+        if ended.any():
+            ends += 1
+            np.testing.assert_array_equal(info["_final_obs"], ended)
+            for i in range(W * N):
+                if ended[i]:
+                    np.testing.assert_array_equal(info["final_obs"][i], r_info["final_obs"][i // N, i % N])
+                    assert info["final_info"]["outcome"][i] == "timeout" and info["final_info"]["_outcome"][i]
+                else:
+                    assert info["final_obs"][i] is None
+            assert not np.array_equal(obs[ended], info["final_obs"][ended][0][None])  # the new episode's first
+        else:
+            assert "final_obs" not in info
+    assert ends == 2
+
+
+def test_same_step_collisions_and_out_of_box_actions_match_the_batched_env():
+    vec = PursuitVectorEnv(config(), n_worlds=W, seed=4, autoreset_mode=AutoresetMode.SAME_STEP)
+    ref = PursuitEnv(config(), n_worlds=W, seed=4)
+    vec.reset(seed=3), ref.reset(seed=3)
+    collided = 0
+    for t in range(30):
+        a = actions(t, scale=1.2)  # some outside the Box: clipped as PursuitEnv clips them
+        obs, rew, term, _, info = vec.step(a.reshape(W * N, 2))
+        r_obs, r_rew, r_term, *_ = ref.step(a)
+        np.testing.assert_array_equal(obs, r_obs.reshape(W * N, -1))
+        np.testing.assert_array_equal(rew, r_rew.reshape(-1))
+        np.testing.assert_array_equal(term, np.repeat(r_term, N))
+        assert set(info["outcome"][term]) <= {"collision"}
+        collided += int(term.sum())
+    assert collided >= N  # a world's episode ended in a collision in these 30 steps
+
+
+def test_next_step_mode_restarts_a_step_later_into_the_same_episodes():
+    """NEXT_STEP returns the last observation at the end, then the next step restarts the world
+    (reward 0, no flag, its actions ignored) into the episode SAME_STEP starts at once."""
+    nxt = PursuitVectorEnv(config(), n_worlds=W, seed=4)
+    same = PursuitVectorEnv(config(), n_worlds=W, seed=4, autoreset_mode="SameStep")
+    nxt.reset(seed=7), same.reset(seed=7)
+    for t in range(12):
+        obs, rew, term, trunc, info = nxt.step(actions(t).reshape(W * N, 2))
+        s_obs, s_rew, *_, s_info = same.step(actions(t).reshape(W * N, 2))
+        np.testing.assert_array_equal(rew, s_rew)
+    assert trunc.all() and "final_obs" not in info
+    np.testing.assert_array_equal(obs, np.stack(list(s_info["final_obs"])))  # the ended episode's last
+    assert (info["outcome"] == "timeout").all()
+    obs, rew, term, trunc, info = nxt.step(np.full((W * N, 2), 7.0))  # ignored: the worlds restart
+    np.testing.assert_array_equal(obs, s_obs)  # the new episodes' first observation
+    assert not (rew.any() or term.any() or trunc.any()) and (info["outcome"] == "").all()
+    for t in range(12, 20):  # and both then play the same episodes
+        obs, rew, *_ = nxt.step(actions(t).reshape(W * N, 2))
+        s_obs, s_rew, *_ = same.step(actions(t).reshape(W * N, 2))
+        np.testing.assert_array_equal(obs, s_obs)
+        np.testing.assert_array_equal(rew, s_rew)
+
+
+def test_a_capture_terminates_every_slot_of_its_world_only():
+    cfg = config(evader_speed=0.3, max_steps=400, n_pursuers=N)
+    vec = PursuitVectorEnv(cfg, n_worlds=W, seed=0)
+    team = HeuristicTeam.from_config(cfg)
+    team.reset(W)
+    obs, _ = vec.reset(seed=0)
+    for _ in range(400):
+        act = team.act(obs.reshape(W, N, -1), vec.obs_spec).reshape(W * N, 2)
+        obs, rew, term, trunc, info = vec.step(act)
+        if term.any():
+            break
+    assert term.any(), "the heuristic team caught no evader in 400 steps"
+    worlds = term.reshape(W, N)
+    assert (worlds.all(1) | ~worlds.any(1)).all()  # a world's slots end together
+    assert set(info["outcome"][term]) == {"success"} and not trunc.any()
+    assert (rew[term] >= cfg.capture_reward).all()
+
+
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
+def test_gymnasiums_episode_statistics_wrapper_counts_whole_episodes(mode):
+    env = PursuitVectorEnv(config(), n_worlds=W, seed=4, autoreset_mode=mode)
+    wrapped = RecordEpisodeStatistics(ClipAction(env))
+    wrapped.reset(seed=3)
+    returns, stats = np.zeros(W * N), None
+    for t in range(12):
+        _, rew, _, _, info = wrapped.step(actions(t).reshape(W * N, 2))
+        returns += rew
+        stats = info.get("episode", stats)
+    assert stats is not None and info["_episode"].all()
+    np.testing.assert_array_equal(stats["l"], np.full(W * N, 12))
+    np.testing.assert_allclose(stats["r"], returns)
+
+
+def test_gymnasiums_observation_wrappers_run_on_the_default_mode():
+    env = NormalizeObservation(PursuitVectorEnv(config(), n_worlds=W, seed=4))
+    obs, _ = env.reset(seed=1)
+    for t in range(20):  # across an end and its restart
+        obs, *_ = env.step(actions(t).reshape(W * N, 2))
+    assert obs.shape == (W * N, env.single_observation_space.shape[0]) and np.isfinite(obs).all()
+
+
+def test_reset_with_a_seed_replays_and_without_moves_on():
+    env = PursuitVectorEnv(config(), n_worlds=W, seed=4)
+    first = env.reset(seed=9)[0]
+    np.testing.assert_array_equal(env.reset(seed=9)[0], first)
+    assert not np.array_equal(env.reset()[0], first)
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda e: e.step(np.zeros((W * N, 3))), f"actions: expected shape ({W * N}, 2), one row per slot ({W} worlds x {N} pursuers), got ({W * N}, 3)"),
+    (lambda e: e.step(np.full((W * N, 2), np.nan)), "nan"),
+    (lambda e: e.reset(seed=[1] * (W * N)), "reset seed: expected an int or None"),
+    (lambda e: e.reset(seed=True), "reset seed: expected an int or None"),
+    (lambda e: e.reset(options={"layout": 2}), "reset options: PursuitVectorEnv takes none"),
+])
+def test_bad_input_is_refused_naming_it(call, message):
+    env = PursuitVectorEnv(config(), n_worlds=W, seed=4)
+    env.reset()
+    with pytest.raises(ValueError) as err:
+        call(env)
+    assert message in str(err.value).lower() if message == "nan" else message in str(err.value)
+
+
+def test_bad_construction_and_misuse_are_refused():
+    with pytest.raises(ValueError, match="autoreset_mode: expected one of AutoresetMode.NEXT_STEP"):
+        PursuitVectorEnv(config(), autoreset_mode=AutoresetMode.DISABLED)
+    with pytest.raises(ValueError, match="n_worlds"):
+        PursuitVectorEnv(config(), n_worlds=0)
+    env = PursuitVectorEnv(config())
+    with pytest.raises(RuntimeError, match="before reset"):
+        env.step(np.zeros((N, 2)))
+    with pytest.raises(NotImplementedError, match="pursuit-mj render"):
+        env.render()
+
+
+def test_the_documented_loop_runs_as_written(capsys):
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parent.parent / "docs" / "env_api.md").read_text()
+    block = re.search(r"```python\n# gym_loop.py\n(.*?)```", text, re.S)
+    assert block, "docs/env_api.md lost its gym_loop.py example"
+    exec(compile(block.group(1), "docs/env_api.md: gym_loop.py", "exec"), {})
+    lines = capsys.readouterr().out.splitlines()
+    assert lines and all(re.fullmatch(r"\d+ episodes ended, mean return -?\d+\.\d\d, \d+ steps", line) for line in lines), lines
