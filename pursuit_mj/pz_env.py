@@ -28,30 +28,22 @@ class PursuitParallelEnv(ParallelEnv):
         frame (H, W, 3) uint8, top view with trails, caption and colour key); render_settings a
         pursuit_mj.render.RenderSettings (size, camera, quality; default 640 x 480 top view);
         extra_rewards {name: term} reward terms of one's own (as PursuitEnv's; each term sees one world)."""
-        if render_mode not in (None, "rgb_array"):  # pettingzoo's convention: only the modes of metadata
+        if render_mode not in (None, "rgb_array"):  # before the config: the first mistake a user meets
             raise ValueError(f"render_mode: {render_mode!r} is not supported (supported: None, 'rgb_array')")
-        if render_settings is not None:
-            from .render.renderer import RenderSettings
-
-            if not isinstance(render_settings, RenderSettings):  # else a deep AttributeError at the first reset
-                raise ValueError(f"render_settings: expected a pursuit_mj.render.renderer.RenderSettings (size, camera, "
-                                 f"quality, key), got {type(render_settings).__name__} {render_settings!r}")
-            if render_mode is None:  # it would be ignored: render() draws nothing without a render mode
-                raise ValueError("render_settings: given without render_mode='rgb_array', which it needs to draw anything")
         # an empty dict is not "no config": it and every other non-TaskConfig are refused by name
         self.config = default_config() if config is None else checked_task_config(config, "PursuitParallelEnv config")
         self.metadata = {**self.metadata, "render_fps": 1.0 / self.config.control_dt}  # one frame per decision step
         self._env = PursuitEnv(self.config, n_worlds=1, seed=check_seed(seed, "PursuitParallelEnv seed"), auto_reset=False,
                                extra_rewards=extra_rewards)
-        if render_mode == "rgb_array" and render_settings is not None:  # now, naming its fields, not at the first reset
-            from .render.renderer import check_settings
+        if render_mode is not None or render_settings is not None:  # now, naming its fields, not at the first reset
+            from .render.live import check_render_request
 
-            check_settings(render_settings, self.config, self._env.world_layouts[0], "render_settings.")
+            check_render_request(render_mode, render_settings, self.config, self._env.world_layouts[0])
         self.possible_agents = [f"pursuer_{i}" for i in range(self.config.n_pursuers)]
         self.agents: list[str] = []
         self.render_mode = render_mode
         self._render_settings = render_settings
-        self._frames = None  # the FrameMaker of rgb_array mode, made at the first reset
+        self._frames = None  # the LiveFrames of rgb_array mode, made at the first reset
         self._closed = False  # close() freed the renderer; a reset makes a new one
         self._started = False
         self._obs_space = spaces.Box(-np.inf, np.inf, (self._env.obs_dim,), np.float32)
@@ -83,7 +75,7 @@ class PursuitParallelEnv(ParallelEnv):
             if self._closed:
                 raise RuntimeError("render() called after close(): call reset() to draw again")
             raise RuntimeError("render() called before reset(): call reset() first")
-        return self._frames.draw(self._env.snapshot(0), int(self._env.episode[0]))  # its index in the seed's sequence
+        return self._frames.draw(0)
 
     @property
     def obs_spec(self):
@@ -131,7 +123,7 @@ class PursuitParallelEnv(ParallelEnv):
         if term[0] or trunc[0]:
             self.agents = []
         if self._frames is not None:
-            self._frames.push(self._env.snapshot(0))
+            self._frames.push()
         return observations, rewards, terms, truncs, infos
 
     @staticmethod
@@ -165,13 +157,11 @@ class PursuitParallelEnv(ParallelEnv):
     def _start_frames(self) -> None:
         """Make the renderer (once: an OpenGL context) and start this episode's trails."""
         if self._frames is None:
-            from .render.episodes import FrameMaker
-            from .render.renderer import RenderSettings
+            from .render.live import LiveFrames
 
-            settings = self._render_settings or RenderSettings()
-            self._frames = FrameMaker(self.config, self._env.world_layouts[0], settings, "pursuit_mj_v0", trail_length=30)
-        self._frames.start_episode()
-        self._frames.push(self._env.snapshot(0))
+            self._frames = LiveFrames(self._env, self._render_settings, "pursuit_mj_v0")
+        self._frames.restart([0])
+        self._frames.push()
 
     def close(self) -> None:
         """Free the renderer, if one was made; harmless to call again."""

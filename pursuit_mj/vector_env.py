@@ -17,11 +17,15 @@ collision) or truncate (timeout) together. How they restart is gymnasium's autor
   marks the ended slots), and info["final_info"] that step's reward terms and outcome.
 Either way a world runs the same episodes, by its seed sequence (docs/env_api.md). The evaders
 are part of the environment; `batched` is the underlying PursuitEnv (global state, snapshots).
+With render_mode "rgb_array", `render()` returns one frame per slot, as `pursuit-mj render`
+draws it (the slots of a world share their world's frame).
 """
 
 from __future__ import annotations
 
 from typing import Any
+
+import warnings
 
 import numpy as np
 from gymnasium import spaces
@@ -39,16 +43,19 @@ class PursuitVectorEnv(VectorEnv):
 
     config, n_worlds, seed, layouts, nthread and extra_rewards are PursuitEnv's (docs/env_api.md);
     autoreset_mode an AutoresetMode (or its value, "NextStep" / "SameStep"; module docstring).
+    render_mode None (render() draws nothing) or "rgb_array"; render_settings a
+    pursuit_mj.render.renderer.RenderSettings (default 640 x 480 top view), as PursuitParallelEnv's.
     single_observation_space: Box(-inf, inf, (obs_dim,), float32), PursuitEnv's observation of
     one pursuer (layout in obs_spec.py, `obs_spec`). single_action_space: Box(-1, 1, (2,),
     float32), the desired world-frame velocity as a fraction of pursuer_speed (clipped to the
     Box, and its norm to 1, as PursuitEnv clips it).
     """
 
-    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"]}
 
     def __init__(self, config: TaskConfig | None = None, n_worlds: int = 1, seed: int = 0, layouts=None,
-                 nthread: int = 0, extra_rewards=None, autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP):
+                 nthread: int = 0, extra_rewards=None, autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+                 render_mode: str | None = None, render_settings=None):
         mode = _checked_mode(autoreset_mode)
         config = default_config() if config is None else checked_task_config(config, "PursuitVectorEnv config")
         self.batched = PursuitEnv(config, n_worlds=n_worlds, seed=check_seed(seed, "PursuitVectorEnv seed"),
@@ -59,7 +66,13 @@ class PursuitVectorEnv(VectorEnv):
         self.n_worlds, self.n_pursuers = self.batched.n_worlds, self.batched.n_pursuers
         self.num_envs = self.n_worlds * self.n_pursuers
         self.metadata = {**self.metadata, "autoreset_mode": mode, "render_fps": 1.0 / config.control_dt}
-        self.render_mode = None
+        if render_mode is not None or render_settings is not None:  # now, not at the first frame
+            from .render.live import check_render_request
+
+            check_render_request(render_mode, render_settings, config, self.batched.world_layouts[0])
+        self.render_mode = render_mode
+        self._render_settings = render_settings
+        self._frames = None  # the LiveFrames of rgb_array mode, made at the first reset
         self.single_observation_space = spaces.Box(-np.inf, np.inf, (self.batched.obs_dim,), np.float32)
         self.single_action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -85,6 +98,13 @@ class PursuitVectorEnv(VectorEnv):
         if options:
             raise ValueError(f"reset options: PursuitVectorEnv takes none (its config sets the task), got {options!r}")
         obs = self.batched.reset(seed=seed)
+        if self.render_mode == "rgb_array":
+            if self._frames is None:
+                from .render.live import LiveFrames
+
+                self._frames = LiveFrames(self.batched, self._render_settings, "PursuitVectorEnv")
+            self._frames.restart(range(self.n_worlds))
+            self._frames.push()
         if seed is not None:
             self._np_random, self._np_random_seed = np.random.default_rng(seed), int(seed)
         self._started = True
@@ -106,8 +126,12 @@ class PursuitVectorEnv(VectorEnv):
         W, N = self.n_worlds, self.n_pursuers
         # NEXT_STEP: the worlds that ended last step are frozen (no physics, no reward) and restart after it
         obs, reward, terminated, truncated, info = self.batched.step(a.reshape(W, N, 2))
+        restarted = self._restart if self.autoreset_mode == AutoresetMode.NEXT_STEP else terminated | truncated
         if self._restart.any():
             obs = self.batched.reset_worlds(np.flatnonzero(self._restart))
+        if self._frames is not None:
+            self._frames.restart(np.flatnonzero(restarted))
+            self._frames.push()
         ended_worlds = terminated | truncated
         if self.autoreset_mode == AutoresetMode.NEXT_STEP:
             self._restart = ended_worlds
@@ -130,9 +154,23 @@ class PursuitVectorEnv(VectorEnv):
         return (self._flat(obs), reward.reshape(-1).astype(np.float64), np.repeat(terminated, N),
                 np.repeat(truncated, N), infos)
 
-    def render(self):
-        raise NotImplementedError("PursuitVectorEnv draws no frames: use `pursuit-mj render`, or "
-                                  "pursuit_mj.pz_env.PursuitParallelEnv(render_mode='rgb_array') for one world")
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        """rgb_array mode: a frame (H, W, 3) uint8 per slot, slot i showing world i // N (its slots
+        share the array); without a render mode nothing is drawn (None, with a warning)."""
+        if self.render_mode is None:
+            warnings.warn("PursuitVectorEnv was made without render_mode and draws nothing: pass "
+                          "render_mode='rgb_array', or use `pursuit-mj render`", stacklevel=2)
+            return None
+        if self._frames is None:
+            raise RuntimeError("render() called before reset(): call reset() first")
+        frames = [self._frames.draw(w) for w in range(self.n_worlds)]
+        return tuple(frames[i // self.n_pursuers] for i in range(self.num_envs))
+
+    def close_extras(self, **kwargs) -> None:
+        """Free the renderer, if one was made (VectorEnv.close calls this once)."""
+        if self._frames is not None:
+            self._frames.close()
+            self._frames = None
 
     def _flat(self, obs: np.ndarray) -> np.ndarray:
         """(W, N, obs_dim) -> (num_envs, obs_dim), slot w * N + n."""

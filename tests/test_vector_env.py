@@ -179,8 +179,33 @@ def test_bad_construction_and_misuse_are_refused():
     env = PursuitVectorEnv(config())
     with pytest.raises(RuntimeError, match="before reset"):
         env.step(np.zeros((N, 2)))
-    with pytest.raises(NotImplementedError, match="pursuit-mj render"):
+    env.reset()
+    with pytest.warns(UserWarning, match="render_mode='rgb_array'"):
+        assert env.render() is None
+    with pytest.raises(ValueError, match="render_mode: 'human' is not supported"):
+        PursuitVectorEnv(config(), render_mode="human")
+
+
+def test_rgb_array_mode_draws_each_world_for_its_slots():
+    from pursuit_mj.render.renderer import RenderSettings
+
+    env = PursuitVectorEnv(config(random_obstacles=0), n_worlds=2, seed=4, render_mode="rgb_array",
+                           render_settings=RenderSettings(160, 120))
+    with pytest.raises(RuntimeError, match="before reset"):
         env.render()
+    env.reset(seed=0)
+    first = env.render()
+    assert len(first) == 2 * N and first[0].shape == (120, 160, 3) and first[0].dtype == np.uint8
+    assert all(f is first[0] for f in first[:N]) and all(f is first[N] for f in first[N:])  # a world's slots share it
+    assert not np.array_equal(first[0], first[N])  # two worlds, two episodes
+    for _ in range(5):
+        env.step(np.tile([1.0, 0.0], (2 * N, 1)))
+    moved = env.render()
+    assert np.abs(moved[0].astype(int) - first[0]).sum() > 0  # the drones flew east, trails behind them
+    env.close()
+    env.reset(seed=0)  # a new renderer after close, the same first picture
+    assert np.array_equal(env.render()[0], first[0])
+    env.close()
 
 
 def test_the_documented_loop_runs_as_written(capsys):
@@ -193,3 +218,20 @@ def test_the_documented_loop_runs_as_written(capsys):
     exec(compile(block.group(1), "docs/env_api.md: gym_loop.py", "exec"), {})
     lines = capsys.readouterr().out.splitlines()
     assert lines and all(re.fullmatch(r"\d+ episodes ended, mean return -?\d+\.\d\d, \d+ steps", line) for line in lines), lines
+
+
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
+def test_a_restarted_worlds_trails_start_again(mode):
+    from pursuit_mj.render.renderer import RenderSettings
+
+    env = PursuitVectorEnv(config(max_steps=4), n_worlds=2, seed=4, render_mode="rgb_array",
+                           render_settings=RenderSettings(64, 48), autoreset_mode=mode)
+    env.reset(seed=0)
+    lengths = []
+    for t in range(6):
+        env.step(actions(t)[:2].reshape(2 * N, 2))
+        lengths.append([trail.array().shape[0] for trail in env._frames.trails])
+    # 4 steps, then the restart: at once (SAME_STEP) or one step later (NEXT_STEP), with a fresh trail
+    expected = [2, 3, 4, 1, 2, 3] if mode == "SameStep" else [2, 3, 4, 5, 1, 2]
+    assert lengths == [[n, n] for n in expected]
+    env.close()

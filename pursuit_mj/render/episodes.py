@@ -60,15 +60,17 @@ class FrameMaker:
         """Forget the trails of the previous episode."""
         self.trail.clear()
 
-    def push(self, snap: Snapshot) -> None:
-        """Add this state to the trails (every step, drawn or not)."""
-        self.trail.push(drone_pose(snap)[0])
+    def push(self, snap: Snapshot, trail: TrailBuffer | None = None) -> None:
+        """Add this state to the trails (every step, drawn or not); `trail`: to that buffer instead
+        of the maker's own (one maker drawing several worlds, each with its trails)."""
+        (self.trail if trail is None else trail).push(drone_pose(snap)[0])
 
-    def draw(self, snap: Snapshot, episode: int) -> np.ndarray:
-        """The captioned frame of `snap` with the trails pushed so far (the returned array is new)."""
+    def draw(self, snap: Snapshot, episode: int, trail: TrailBuffer | None = None) -> np.ndarray:
+        """The captioned frame of `snap` with the trails pushed so far (to `trail` when given; the
+        returned array is new)."""
         self.renderer.bind(snap.layout)
         pos, quat = drone_pose(snap)
-        trails = self.trail.array()
+        trails = (self.trail if trail is None else trail).array()
         img = self.renderer.render(pos, quat, lambda scene: draw_all(scene, snap, trails, self.style))
         cap = Caption(f"{self.title} | layout {snap.layout.name} | {snap.config.fidelity} | episode {episode}",
                       snap.step, snap.config.max_steps, snap.time, snap.outcome)

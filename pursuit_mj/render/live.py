@@ -1,0 +1,64 @@
+"""Frames of a running PursuitEnv for the env APIs' `render()` (PettingZoo, gymnasium vector).
+
+One renderer (one OpenGL context) draws every world, each with its own trails, as `pursuit-mj
+render` draws an episode. `check_render_request` refuses a render mode or settings the env
+could not honour, naming the argument, when the env is made rather than at its first frame.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ..config import TaskConfig
+from ..env import PursuitEnv
+from ..layout import Layout
+from .episodes import FrameMaker
+from .overlays import TrailBuffer
+from .renderer import RenderSettings, check_settings
+
+TRAIL_STEPS = 30  # decision steps of trail behind each drone
+
+
+def check_render_request(render_mode, render_settings, config: TaskConfig, layout: Layout) -> None:
+    """ValueError naming `render_mode` (None or 'rgb_array') or a field of `render_settings`
+    (a RenderSettings, given only with 'rgb_array') that the scenes of `config` and `layout` cannot draw."""
+    if render_mode not in (None, "rgb_array"):  # the convention of both APIs: only the modes of metadata
+        raise ValueError(f"render_mode: {render_mode!r} is not supported (supported: None, 'rgb_array')")
+    if render_settings is None:
+        return
+    if not isinstance(render_settings, RenderSettings):  # else a deep AttributeError at the first frame
+        raise ValueError(f"render_settings: expected a pursuit_mj.render.renderer.RenderSettings (size, camera, "
+                         f"quality, key), got {type(render_settings).__name__} {render_settings!r}")
+    if render_mode is None:  # it would be ignored: nothing is drawn without a render mode
+        raise ValueError("render_settings: given without render_mode='rgb_array', which it needs to draw anything")
+    check_settings(render_settings, config, layout, "render_settings.")
+
+
+class LiveFrames:
+    """Captioned frames (H, W, 3) uint8 of the worlds of `env`, trails included.
+
+    Call `restart(worlds)` when episodes start there (their trails are forgotten) and `push()`
+    after every step, so that the trails follow the drones; `draw(w)` renders world w now.
+    """
+
+    def __init__(self, env: PursuitEnv, settings: RenderSettings | None, title: str):
+        self.env = env
+        self.maker = FrameMaker(env.config, env.world_layouts[0], settings or RenderSettings(), title, TRAIL_STEPS)
+        self.trails = [TrailBuffer(TRAIL_STEPS) for _ in range(env.n_worlds)]
+
+    def restart(self, worlds: Sequence[int] | np.ndarray) -> None:
+        for w in worlds:
+            self.trails[int(w)].clear()
+
+    def push(self) -> None:
+        for w, trail in enumerate(self.trails):  # per world, and only when frames are asked for
+            self.maker.push(self.env.snapshot(w), trail)
+
+    def draw(self, w: int) -> np.ndarray:
+        """World w's frame, captioned with its episode's index in the seed's sequence."""
+        return self.maker.draw(self.env.snapshot(w), int(self.env.episode[w]), self.trails[w])
+
+    def close(self) -> None:
+        self.maker.close()
