@@ -23,9 +23,8 @@ draws it (the slots of a world share their world's frame).
 
 from __future__ import annotations
 
-from typing import Any
-
 import warnings
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -33,7 +32,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from .config import TaskConfig, checked_task_config, default_config
-from .env import PursuitEnv, check_seed
+from .env import MaskedValues, PursuitEnv, check_seed, plain_array
 
 MODES = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
 
@@ -108,6 +107,7 @@ class PursuitVectorEnv(VectorEnv):
         if seed is not None:
             self._np_random, self._np_random_seed = np.random.default_rng(seed), int(seed)
         self._started = True
+        self.closed = False  # a reset after close() made a renderer that the next close() frees
         self._restart[:] = False
         return self._flat(obs), {}
 
@@ -119,7 +119,12 @@ class PursuitVectorEnv(VectorEnv):
         and "final_info" for the slots whose episode ended (module docstring)."""
         if not self._started:
             raise RuntimeError("step() called before reset(): call reset() first")
-        a = np.asarray(actions)
+        try:
+            a = plain_array(actions, "actions")
+        except MaskedValues:
+            raise
+        except ValueError:  # nested lists of unequal lengths
+            raise ValueError(f"actions: expected shape ({self.num_envs}, 2), got a ragged list") from None
         if a.shape != (self.num_envs, 2):
             raise ValueError(f"actions: expected shape ({self.num_envs}, 2), one row per slot ({self.n_worlds} worlds x "
                              f"{self.n_pursuers} pursuers), got {a.shape}")

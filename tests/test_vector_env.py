@@ -159,6 +159,8 @@ def test_reset_with_a_seed_replays_and_without_moves_on():
 @pytest.mark.parametrize("call, message", [
     (lambda e: e.step(np.zeros((W * N, 3))), f"actions: expected shape ({W * N}, 2), one row per slot ({W} worlds x {N} pursuers), got ({W * N}, 3)"),
     (lambda e: e.step(np.full((W * N, 2), np.nan)), "nan"),
+    (lambda e: e.step([[0.0, 0.0]] * (W * N - 1) + [[0.0]]), f"actions: expected shape ({W * N}, 2), got a ragged list"),
+    (lambda e: e.step(np.ma.masked_array(np.zeros((W * N, 2)), mask=np.eye(W * N, 2))), "actions: a masked array"),
     (lambda e: e.reset(seed=[1] * (W * N)), "reset seed: expected an int or None"),
     (lambda e: e.reset(seed=True), "reset seed: expected an int or None"),
     (lambda e: e.reset(options={"layout": 2}), "reset options: PursuitVectorEnv takes none"),
@@ -206,6 +208,7 @@ def test_rgb_array_mode_draws_each_world_for_its_slots():
     env.reset(seed=0)  # a new renderer after close, the same first picture
     assert np.array_equal(env.render()[0], first[0])
     env.close()
+    assert env._frames is None  # the second close freed the second renderer too
 
 
 def test_the_documented_loop_runs_as_written(capsys):
