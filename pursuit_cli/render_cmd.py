@@ -22,7 +22,7 @@ from pathlib import Path
 
 from pursuit_mj.io_utils import check_writable_folder
 from pursuit_mj.config import TaskConfig, load_task_yaml, preset_or_file
-from pursuit_mj.configio import ConfigError, build, dump_yaml, load, parse_override, to_dict
+from pursuit_mj.configio import build, dump_yaml, load, to_dict
 from pursuit_mj.layout import load_layout
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
@@ -93,18 +93,15 @@ def _add_reference_spellings(p: argparse.ArgumentParser) -> None:
 def _train_config(ref: str, args):
     """The -mc run's train config; the task keys that render's own flags and --set replace are not
     looked up in it (a layout or evader file of the run that is gone is no error when replaced)."""
-    replaced = set()
-    for text in args.overrides:
-        try:
-            replaced.add("task." + ".".join(parse_override(text, f"--set {text}")[0]))
-        except ConfigError:
-            pass  # task_config names it
-    if getattr(args, "layout", None) is not None:
-        replaced.add("task.layout")
     try:
-        from train.config import load_train_config
+        from train.config import load_train_config, set_keys
     except ImportError as exc:
         raise ValueError(f"-mc {ref}: cannot read training configs, the train package is not importable ({exc})") from None
+    replaced = set()
+    for text in args.overrides:  # one that does not parse: task_config names it
+        replaced |= set_keys(text, "task.")
+    if getattr(args, "layout", None) is not None:
+        replaced.add("task.layout")
     return load_train_config([ref], replaced=replaced)
 
 

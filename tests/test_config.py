@@ -403,3 +403,38 @@ def test_a_layout_file_or_train_config_given_as_a_task_file_is_named_for_what_it
     assert "this is a train config (it has ppo, regime, algo, n_envs, total_steps), not a task file: give it to " \
            "pursuit-mj train --config FILE" in capsys.readouterr().err
     assert main(["config", "--task", "hard"]) == 0  # a task file is read as before
+
+
+def test_a_task_file_beside_the_train_file_is_still_found_when_set_task_file_layers_another_over_it(tmp_path, monkeypatch):
+    """--set task_file=X applies X over the train file's own task_file, which still counts for the
+    keys X leaves: it is read from beside the train file as without the --set (it was looked for
+    in the current folder only, and refused)."""
+    from train.config import load_train_config
+
+    exp = tmp_path / "exp"
+    exp.mkdir()
+    (exp / "mytask.yaml").write_text("evader_speed: 0.5\nperception_radius: 1.8\n")
+    (exp / "train.yaml").write_text("name: exp\ntask_file: mytask.yaml\n")
+    monkeypatch.chdir(tmp_path)
+    cfg = load_train_config([str(exp / "train.yaml")], ["task_file=easy"])
+    assert (cfg.task.evader_speed, cfg.task.perception_radius) == (0.45, 1.8)  # easy's speed over the file's radius
+
+
+@pytest.mark.parametrize("text, replacing, leaving", [
+    ("task:\n  layout: gone.yaml\n", "task={layout: 2}", "task={fidelity: point}"),
+    ("task:\n  evader: {model: gone.py:Straight}\n", "task.evader={model: janosov}", "task.evader={zigzag_rate: 2.0}"),
+    ("task:\n  evader: {model: gone.py:Straight}\n", "task={evader: {model: janosov}}", "task={evader: {zigzag_rate: 2.0}}"),
+    ("run:\n  validation_layouts: [gone.yaml]\n", "run={validation_layouts: [1]}", "run={progress: false}"),
+])
+def test_a_gone_file_replaced_by_a_set_of_its_section_is_not_looked_up(tmp_path, monkeypatch, text, replacing, leaving):
+    """--set SECTION={KEY: VALUE} replaces KEY as --set SECTION.KEY=VALUE does (a mapping updates
+    its section): the file KEY named in the train file is not looked up; a --set of the section
+    that leaves KEY keeps it looked up and refused."""
+    from train.config import load_train_config
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "run.yaml").write_text(f"name: exp\n{text}")
+    cfg = load_train_config(["run.yaml"], [replacing])
+    assert "gone" not in str((cfg.task.layout, cfg.task.evader.model, cfg.run.validation_layouts))
+    with pytest.raises(ConfigError, match="run.yaml: key '.*': .*gone"):
+        load_train_config(["run.yaml"], [leaving])

@@ -323,6 +323,8 @@ def test_a_run_whose_evader_file_is_gone_renders_and_trains_with_the_model_repla
     assert "run.yaml: key 'task.evader.model': file 'gone.py'" in capsys.readouterr().err
     assert main(render + ["--set", "evader.model=janosov"]) == 0, capsys.readouterr().err
     assert list((tmp_path / "out").glob("*.png"))
+    # a --set of the section replaces the key as well (a mapping updates its section)
+    assert main(render[:-2] + ["-s", "out3", "--set", "evader={model: janosov}"]) == 0, capsys.readouterr().err
     capsys.readouterr()
     assert main(["train", "--config", "run.yaml", "-sc", "--set", "task.evader.model=janosov"]) == 0, capsys.readouterr().err
     assert "model: janosov" in capsys.readouterr().out

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, Collection, Mapping, Sequence
 
 from pursuit_mj.config import TaskConfig, found_code_ref, load_task_yaml, preset_or_file
-from pursuit_mj.configio import ConfigError, build, check_values, found_beside, key_where, load, load_yaml, parse_override, spec, to_dict
+from pursuit_mj.configio import ConfigError, build, check_values, found_beside, key_where, load, load_yaml, merge, parse_override, spec, to_dict
 from pursuit_mj.layout import N_BUILTIN, found_layout_ref
 from pursuit_mj.sensing import PRIVILEGED_VIEWS
 from pursuit_mj.user_file import is_file_reference, split_reference
@@ -396,8 +396,9 @@ def _paths_beside(data: dict[str, Any], path: Path, replaced: Collection[str] = 
     """In a train file's (checked) mapping, the task file and layout files named by a path relative
     to the file's folder and not found from the current folder are found there (configio.found_beside).
     A key in `replaced` (dotted, e.g. 'task.evader.model') is left as it is: a later layer gives it
-    another value, so a file it named that is gone is no error."""
-    if "task_file" in data and "task_file" not in replaced:
+    another value, so a file it named that is gone is no error. The task_file is always found: a
+    --set task_file applies its preset over this one's, which still sets the keys it leaves."""
+    if "task_file" in data:
         data["task_file"] = found_beside(data["task_file"], path)
     task, run = data.get("task"), data.get("run")
     if isinstance(task, dict) and "layout" in task and "task.layout" not in replaced:
@@ -462,7 +463,9 @@ def load_train_config(
             raise ConfigError(f"load_train_config {what}: expected a list, got {given!r}")
     merged: dict[str, Any] = {}
     source = "defaults"
-    replaced = set(replaced) | _dotted_keys(flags or {}) | {".".join(_override_path(t)) for t in overrides}
+    replaced = set(replaced) | _dotted_keys(flags or {})
+    for text in overrides:
+        replaced |= set_keys(text)
     for f in files:
         p = preset_or_file(f, "train")
         data = load_yaml(p)
@@ -488,12 +491,15 @@ def load_train_config(
     return load(TrainConfig, (), rest, extra=extra or to_dict(cfg), extra_source=flags_source)
 
 
-def _override_path(text: str) -> list[str]:
-    """The key path of a --set KEY=VALUE, or [] when it does not parse (the loader names it later)."""
+def set_keys(text: str, prefix: str = "") -> set[str]:
+    """The dotted keys a --set KEY=VALUE gives a value, each under `prefix`: KEY and its sections,
+    and with a mapping VALUE (which updates KEY's section) every key in it, so 'task={layout: 2}'
+    sets 'task.layout'; none when it does not parse (the loader names it later)."""
     try:
-        return parse_override(text, f"--set {text}")[0]
+        path, value = parse_override(text, f"--set {text}")
     except ConfigError:
-        return []
+        return set()
+    return _dotted_keys(merge({}, path, value), prefix)
 
 
 def _dotted_keys(mapping: Mapping[str, Any], prefix: str = "") -> set[str]:
