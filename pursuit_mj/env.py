@@ -303,6 +303,11 @@ class PursuitEnv:
         self._obs = self._observe()
         return self._obs.copy()
 
+    @property
+    def started(self) -> bool:
+        """Whether reset() has started episodes (step, reset_worlds and the state views need them)."""
+        return self._obs is not None
+
     # ------------------------------------------------------------------ state views
 
     def _view(self) -> WorldView:

@@ -60,6 +60,10 @@ class PursuitVectorEnv(VectorEnv):
         self.batched = PursuitEnv(config, n_worlds=n_worlds, seed=check_seed(seed, "PursuitVectorEnv seed"),
                                   auto_reset=mode == AutoresetMode.SAME_STEP, layouts=layouts, nthread=nthread,
                                   extra_rewards=extra_rewards)
+        for name in self.batched.extra_rewards:  # gymnasium's infos keep "_KEY" for the mask of KEY
+            if name.startswith("_"):
+                raise ValueError(f"PursuitVectorEnv extra_rewards: {name!r} starts with '_', which gymnasium's vector infos "
+                                 f"keep for masks ('_capture' marks the slots that have 'capture'); give it another name")
         self.config = config
         self.autoreset_mode = mode
         self.n_worlds, self.n_pursuers = self.batched.n_worlds, self.batched.n_pursuers
@@ -76,8 +80,6 @@ class PursuitVectorEnv(VectorEnv):
         self.single_action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self._started = False
-        self._restart = np.zeros(self.n_worlds, bool)  # NEXT_STEP: worlds whose episode ended in the last step
 
     @property
     def obs_spec(self):
@@ -106,9 +108,7 @@ class PursuitVectorEnv(VectorEnv):
             self._frames.push()
         if seed is not None:
             self._np_random, self._np_random_seed = np.random.default_rng(seed), int(seed)
-        self._started = True
         self.closed = False  # a reset after close() made a renderer that the next close() frees
-        self._restart[:] = False
         return self._flat(obs), {}
 
     def step(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
@@ -117,29 +117,21 @@ class PursuitVectorEnv(VectorEnv):
         "reward_terms" {term: (num_envs,) float32} and "outcome" (num_envs,) str ("" unless the slot's
         episode ended in this step), each key with its "_key" mask, and in SAME_STEP mode "final_obs"
         and "final_info" for the slots whose episode ended (module docstring)."""
-        if not self._started:
+        if not self.batched.started:  # neither reset() nor batched.reset() yet
             raise RuntimeError("step() called before reset(): call reset() first")
-        try:
-            a = plain_array(actions, "actions")
-        except MaskedValues:
-            raise
-        except ValueError:  # nested lists of unequal lengths
-            raise ValueError(f"actions: expected shape ({self.num_envs}, 2), got a ragged list") from None
-        if a.shape != (self.num_envs, 2):
-            raise ValueError(f"actions: expected shape ({self.num_envs}, 2), one row per slot ({self.n_worlds} worlds x "
-                             f"{self.n_pursuers} pursuers), got {a.shape}")
+        a = self._checked_actions(actions)
         W, N = self.n_worlds, self.n_pursuers
-        # NEXT_STEP: the worlds that ended last step are frozen (no physics, no reward) and restart after it
+        # NEXT_STEP: the worlds whose episode ended in the last step (the batched env's, whoever stepped
+        # or reset it) are frozen in this one (no physics, no reward) and restart after it
+        waiting = self.batched.done.copy()
         obs, reward, terminated, truncated, info = self.batched.step(a.reshape(W, N, 2))
-        restarted = self._restart if self.autoreset_mode == AutoresetMode.NEXT_STEP else terminated | truncated
-        if self._restart.any():
-            obs = self.batched.reset_worlds(np.flatnonzero(self._restart))
+        ended_worlds = terminated | truncated
+        restarted = waiting if self.autoreset_mode == AutoresetMode.NEXT_STEP else ended_worlds
+        if waiting.any():
+            obs = self.batched.reset_worlds(np.flatnonzero(waiting))
         if self._frames is not None:
             self._frames.restart(np.flatnonzero(restarted))
             self._frames.push()
-        ended_worlds = terminated | truncated
-        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
-            self._restart = ended_worlds
         every = np.ones(self.num_envs, bool)
         terms = {k: v.reshape(-1) for k, v in info["reward_terms"].items()}
         outcome = np.repeat(info["outcome"], N)
@@ -167,6 +159,8 @@ class PursuitVectorEnv(VectorEnv):
                           "render_mode='rgb_array', or use `pursuit-mj render`", stacklevel=2)
             return None
         if self._frames is None:
+            if self.closed:
+                raise RuntimeError("render() called after close(): call reset() to draw again")
             raise RuntimeError("render() called before reset(): call reset() first")
         frames = [self._frames.draw(w) for w in range(self.n_worlds)]
         return tuple(frames[i // self.n_pursuers] for i in range(self.num_envs))
@@ -176,6 +170,28 @@ class PursuitVectorEnv(VectorEnv):
         if self._frames is not None:
             self._frames.close()
             self._frames = None
+
+    def _checked_actions(self, actions) -> np.ndarray:
+        """`actions` as a (num_envs, 2) array of finite real numbers, or ValueError naming the slot
+        (and its world and pursuer) of a bad value; values outside [-1, 1] are PursuitEnv's to clip."""
+        try:
+            a = plain_array(actions, "actions")
+        except MaskedValues:
+            raise
+        except ValueError:  # nested lists of unequal lengths
+            raise ValueError(f"actions: expected shape ({self.num_envs}, 2), got a ragged list") from None
+        if a.dtype.kind not in "fiu":  # bools, text, objects (None) and complex numbers are no velocities
+            raise ValueError(f"actions: expected real numbers, one row (vx, vy) per slot, got an array of dtype {a.dtype} "
+                             f"({type(actions).__name__})")
+        if a.shape != (self.num_envs, 2):
+            raise ValueError(f"actions: expected shape ({self.num_envs}, 2), one row per slot ({self.n_worlds} worlds x "
+                             f"{self.n_pursuers} pursuers), got {a.shape}")
+        bad = np.argwhere(~np.isfinite(a))
+        if len(bad):
+            slot, component = (int(i) for i in bad[0])
+            raise ValueError(f"actions: non-finite value {a[slot, component]} at slot {slot} (world {slot // self.n_pursuers}, "
+                             f"pursuer {slot % self.n_pursuers}), component {component}")
+        return a
 
     def _flat(self, obs: np.ndarray) -> np.ndarray:
         """(W, N, obs_dim) -> (num_envs, obs_dim), slot w * N + n."""

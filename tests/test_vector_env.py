@@ -238,3 +238,55 @@ def test_a_restarted_worlds_trails_start_again(mode):
     expected = [2, 3, 4, 1, 2, 3] if mode == "SameStep" else [2, 3, 4, 5, 1, 2]
     assert lengths == [[n, n] for n in expected]
     env.close()
+
+
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
+def test_per_world_seeds_given_to_the_batched_env_are_the_episodes_played(mode):
+    """The docs send per-world episode seeds to env.batched.reset(seeds=...): the vector env steps
+    those episodes, before its own first reset as after an episode end (NEXT_STEP restarted the
+    worlds that had ended a second time, into their default sequence's next episode, and refused
+    a step before env.reset())."""
+    cfg = config(max_steps=3)
+    vec = PursuitVectorEnv(cfg, n_worlds=2, seed=0, autoreset_mode=mode)
+    ref = PursuitEnv(cfg, n_worlds=2, seed=0)
+    for first in (True, False):
+        if not first:
+            vec.reset(seed=0)
+            for _ in range(3):  # every world's episode ends (a timeout)
+                *_, trunc, _ = vec.step(np.zeros((2 * N, 2)))
+            assert trunc.all()
+        obs = vec.batched.reset(seeds=[11, 12])
+        np.testing.assert_array_equal(obs, ref.reset(seeds=[11, 12]))
+        np.testing.assert_array_equal(vec.step(np.zeros((2 * N, 2)))[0], ref.step(np.zeros((2, N, 2)))[0].reshape(2 * N, -1))
+
+
+def test_a_non_finite_or_non_real_action_is_named_by_its_slot():
+    """The index is the slot's in the (num_envs, 2) array given (it was the batched env's
+    (world, pursuer, component), an index the caller's array does not have)."""
+    env = PursuitVectorEnv(config(), n_worlds=2, seed=4)
+    env.reset()
+    a = np.zeros((2 * N, 2))
+    a[4, 1] = np.nan
+    with pytest.raises(ValueError, match=r"^actions: non-finite value nan at slot 4 \(world 1, pursuer 1\), component 1$"):
+        env.step(a)
+    for bad, kind in ((np.ones((2 * N, 2), bool), "bool"), (None, "object")):
+        with pytest.raises(ValueError, match=rf"^actions: expected real numbers, one row \(vx, vy\) per slot, got an array of dtype {kind}"):
+            env.step(bad)
+
+
+def test_render_after_close_says_so():
+    from pursuit_mj.render.renderer import RenderSettings
+
+    env = PursuitVectorEnv(config(random_obstacles=0), n_worlds=1, seed=4, render_mode="rgb_array",
+                           render_settings=RenderSettings(64, 48))
+    env.reset()
+    env.close()
+    with pytest.raises(RuntimeError, match=r"render\(\) called after close\(\): call reset\(\) to draw again"):
+        env.render()
+
+
+def test_a_reward_term_named_like_an_info_mask_is_refused():
+    """gymnasium's vector infos keep '_KEY' for the mask of KEY: a term '_capture' replaced the mask
+    of 'capture' (or was replaced by it), and DictInfoToList drops every '_' key."""
+    with pytest.raises(ValueError, match="PursuitVectorEnv extra_rewards: '_capture' starts with '_'"):
+        PursuitVectorEnv(config(), extra_rewards={"_capture": lambda step: np.zeros(step.steps.shape + (N,))})
