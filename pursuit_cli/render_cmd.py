@@ -91,13 +91,15 @@ def _add_reference_spellings(p: argparse.ArgumentParser) -> None:
 
 
 def _train_config(ref: str, args):
-    """The -mc run's train config; the task keys that render's own flags and --set replace are not
-    looked up in it (a layout or evader file of the run that is gone is no error when replaced)."""
+    """The -mc run's train config; the task keys that render's -ec files, own flags and --set replace
+    are not looked up in it (a layout or evader file of the run that is gone is no error when replaced)."""
     try:
-        from train.config import load_train_config, set_keys
+        from train.config import dotted_keys, load_train_config, set_keys
     except ImportError as exc:
         raise ValueError(f"-mc {ref}: cannot read training configs, the train package is not importable ({exc})") from None
     replaced = set()
+    for f in args.task_files:  # read again by task_config, which applies them
+        replaced |= dotted_keys(load_task_yaml(preset_or_file(f, "task")), "task.")
     for text in args.overrides:  # one that does not parse: task_config names it
         replaced |= set_keys(text, "task.")
     if getattr(args, "layout", None) is not None:

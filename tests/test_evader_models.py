@@ -332,4 +332,6 @@ def test_a_run_whose_evader_file_is_gone_renders_and_trains_with_the_model_repla
     assert main(render[:-2] + ["-s", "out2"]) == 2
     assert "gone.yaml" in capsys.readouterr().err
     assert main(render[:-2] + ["-s", "out2", "-i", "1"]) == 0, capsys.readouterr().err
+    Path("task.yaml").write_text("layout: 1\n")  # as does a task file that sets the layout
+    assert main(render[:-2] + ["-s", "out4", "-ec", "task.yaml"]) == 0, capsys.readouterr().err
     assert main(["train", "--config", "run.yaml", "-sc", "--set", "task.layout=2"]) == 0, capsys.readouterr().err

@@ -463,7 +463,7 @@ def load_train_config(
             raise ConfigError(f"load_train_config {what}: expected a list, got {given!r}")
     merged: dict[str, Any] = {}
     source = "defaults"
-    replaced = set(replaced) | _dotted_keys(flags or {})
+    replaced = set(replaced) | dotted_keys(flags or {})
     for text in overrides:
         replaced |= set_keys(text)
     for f in files:
@@ -499,16 +499,16 @@ def set_keys(text: str, prefix: str = "") -> set[str]:
         path, value = parse_override(text, f"--set {text}")
     except ConfigError:
         return set()
-    return _dotted_keys(merge({}, path, value), prefix)
+    return dotted_keys(merge({}, path, value), prefix)
 
 
-def _dotted_keys(mapping: Mapping[str, Any], prefix: str = "") -> set[str]:
+def dotted_keys(mapping: Mapping[str, Any], prefix: str = "") -> set[str]:
     """Every key of a nested mapping as a dotted path, sections included ('task', 'task.layout')."""
     keys: set[str] = set()
     for key, value in mapping.items():
         keys.add(prefix + str(key))
         if isinstance(value, Mapping):
-            keys |= _dotted_keys(value, f"{prefix}{key}.")
+            keys |= dotted_keys(value, f"{prefix}{key}.")
     return keys
 
 
