@@ -640,3 +640,33 @@ def test_a_resume_refused_after_it_dropped_the_kept_evaluation_in_memory_keeps_i
     record = json.loads((out_dir / "study.json").read_text())
     # nor does the refused session count in the study's time: it trained and evaluated nothing
     assert record["evaluation"]["cells"] == kept and record["seconds"] == seconds
+
+
+def test_a_resumed_session_that_trained_then_failed_counts_its_time(tmp_path, capsys, monkeypatch):
+    """Only a session refused before it trained or played anything adds no time; one whose arm
+    trained and then stopped on an error (training diverged, say: a ValueError) before any record
+    of this session added nothing either, leaving its training out of the study's time."""
+    import time
+
+    from train.trainer import Trainer
+
+    out_dir = tmp_path / "study"
+    args = ["--episodes", "2", "--worlds", "2", "--layouts", "0", "--out", str(out_dir), "--fidelity", "point",
+            "--set", "max_steps=20", "--train-set", "n_envs=2"]
+
+    def ctrl_c(self):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Trainer, "train_one_update", ctrl_c)  # in the first arm, after the team's evaluation
+    assert main(["study", "--budget-minutes", "30", *args]) == 130
+    seconds = json.loads((out_dir / "study.json").read_text())["seconds"]
+
+    def diverge(self):
+        time.sleep(1.0)  # an update's worth of training
+        raise ValueError("training diverged at update 1")
+
+    monkeypatch.setattr(Trainer, "train_one_update", diverge)
+    capsys.readouterr()
+    assert main(["study", "--budget-minutes", "30", "--resume", *args]) == 2
+    assert "training diverged" in capsys.readouterr().err
+    assert json.loads((out_dir / "study.json").read_text())["seconds"] >= seconds + 1.0

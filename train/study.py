@@ -395,24 +395,28 @@ def _refuse_an_earlier_study(plan: StudyPlan) -> None:
 def _run_study(plan: StudyPlan, log: Callable[[str], None], stop_requested: Callable[[], bool] | None) -> dict:
     """run_study in a folder it holds. study.json's "seconds" counts the wall time of every session so
     far (to its last record, written as each arm or evaluated cell ends and when the session stops);
-    a session refused (ValueError) before it recorded any arm or cell adds nothing."""
+    a session refused (ValueError) before it trained an arm or recorded any arm or cell adds nothing."""
     state = _load_state(plan)
     t_start = time.perf_counter()
     earlier_s = _earlier_sessions_seconds(state)
-    recorded = False
+    worked = False  # the session trained or recorded something: its time counts whatever stops it
 
     def save() -> None:
-        nonlocal recorded
-        recorded = True
+        nonlocal worked
+        worked = True
         state["seconds"] = round(earlier_s + time.perf_counter() - t_start, 1)
         _save_state(plan, state)
 
+    def training() -> None:
+        nonlocal worked
+        worked = True
+
     try:
-        result = _run_study_sessions(plan, state, save, t_start, log, stop_requested)
+        result = _run_study_sessions(plan, state, save, t_start, log, stop_requested, training)
     except BaseException as exc:
         # only the time goes to the record on disk: the state in memory may hold an evaluation
         # emptied for a resume that was then refused (another --seed, say), which must not replace the kept one
-        if recorded or not isinstance(exc, ValueError):
+        if worked or not isinstance(exc, ValueError):
             _save_seconds(plan, round(earlier_s + time.perf_counter() - t_start, 1))
         raise
     if earlier_s > 0:
@@ -439,8 +443,10 @@ def _earlier_sessions_seconds(state: dict) -> float:
 
 
 def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], t_start: float,
-                        log: Callable[[str], None], stop_requested: Callable[[], bool] | None) -> dict:
-    """Plan, train and evaluate what `state` does not hold yet; `save` writes study.json."""
+                        log: Callable[[str], None], stop_requested: Callable[[], bool] | None,
+                        training: Callable[[], None]) -> dict:
+    """Plan, train and evaluate what `state` does not hold yet; `save` writes study.json, `training`
+    is called as an arm's training starts (the session is past its refusals)."""
     todo = [arm for arm in ARMS if arm.name not in state["arms"]]
     timings: dict[str, float] = {}
 
@@ -565,6 +571,7 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
                 f"({cfg.task.fidelity} fidelity)")
             trainer = Trainer(cfg, log=log)
         trainer.resume_command = "pursuit-mj study --resume (the whole study; see below)"
+        training()
         result = trainer.train(stop_requested)  # see Trainer.train: a stop signal reported as another error
         if result["status"] != "done":
             raise KeyboardInterrupt
