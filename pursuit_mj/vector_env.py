@@ -19,6 +19,10 @@ Either way a world runs the same episodes, by its seed sequence (docs/env_api.md
 are part of the environment; `batched` is the underlying PursuitEnv (global state, snapshots).
 With render_mode "rgb_array", `render()` returns one frame per slot, as `pursuit-mj render`
 draws it (the slots of a world share their world's frame).
+
+Importing this module registers ENV_ID with gymnasium, so that
+`gymnasium.make_vec("pursuit_mj.vector_env:pursuit_mj/Pursuit-v0", num_envs=24, config=...)`
+makes the env of num_envs / n_pursuers worlds (`make_vector_env`).
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from __future__ import annotations
 import warnings
 from typing import Any
 
+import gymnasium
 import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -35,6 +40,7 @@ from .config import TaskConfig, checked_task_config, default_config
 from .env import MaskedValues, PursuitEnv, check_seed, plain_array
 
 MODES = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
+ENV_ID = "pursuit_mj/Pursuit-v0"  # gymnasium's id of the vector env (make_vec only: it has no single-env form)
 
 
 class PursuitVectorEnv(VectorEnv):
@@ -213,3 +219,27 @@ def _checked_mode(mode: Any) -> AutoresetMode:
         raise ValueError(f"autoreset_mode: expected one of {', '.join(f'AutoresetMode.{m.name} ({m.value!r})' for m in MODES)}, "
                          f"got {mode!r}")
     return found
+
+
+def make_vector_env(num_envs: int, config: TaskConfig | None = None, **kwargs) -> PursuitVectorEnv:
+    """gymnasium.make_vec's entry point: a PursuitVectorEnv of `num_envs` slots, which must be a
+    whole number of worlds (a multiple of config.n_pursuers); other keywords are PursuitVectorEnv's."""
+    config = default_config() if config is None else checked_task_config(config, f"{ENV_ID} config")
+    n = config.n_pursuers
+    if isinstance(num_envs, (bool, np.bool_)) or not isinstance(num_envs, (int, np.integer)) or num_envs < n or num_envs % n:
+        raise ValueError(f"{ENV_ID} num_envs: expected a positive multiple of n_pursuers ({n}: one slot per pursuer of "
+                         f"each world), got {num_envs!r}")
+    if "n_worlds" in kwargs:
+        raise ValueError(f"{ENV_ID}: give num_envs (n_worlds x n_pursuers), not n_worlds")
+    return PursuitVectorEnv(config, n_worlds=int(num_envs) // n, **kwargs)
+
+
+def _no_single_env(**kwargs):
+    """gymnasium.make's entry point (and make_vec's "sync" / "async" modes): refused, saying what works."""
+    raise ValueError(f"{ENV_ID} is a vector env with a slot per pursuer of each world: make it with "
+                     f"gymnasium.make_vec({ENV_ID!r}, num_envs=...) (its default vector_entry_point mode), or one "
+                     f"world as a PettingZoo env with pursuit_mj.pz_env.PursuitParallelEnv")
+
+
+if ENV_ID not in gymnasium.registry:
+    gymnasium.register(ENV_ID, entry_point=_no_single_env, vector_entry_point=make_vector_env)

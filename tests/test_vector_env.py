@@ -290,3 +290,20 @@ def test_a_reward_term_named_like_an_info_mask_is_refused():
     of 'capture' (or was replaced by it), and DictInfoToList drops every '_' key."""
     with pytest.raises(ValueError, match="PursuitVectorEnv extra_rewards: '_capture' starts with '_'"):
         PursuitVectorEnv(config(), extra_rewards={"_capture": lambda step: np.zeros(step.steps.shape + (N,))})
+
+
+def test_gymnasium_make_vec_makes_it_by_its_id():
+    import gymnasium
+
+    from pursuit_mj.vector_env import ENV_ID
+
+    env = gymnasium.make_vec(f"pursuit_mj.vector_env:{ENV_ID}", num_envs=2 * N, config=config(), seed=4)
+    assert isinstance(env, PursuitVectorEnv) and env.num_envs == 2 * N and env.n_worlds == 2 and env.spec.id == ENV_ID
+    same = PursuitVectorEnv(config(), n_worlds=2, seed=4)
+    np.testing.assert_array_equal(env.reset(seed=1)[0], same.reset(seed=1)[0])
+    with pytest.raises(ValueError, match=rf"num_envs: expected a positive multiple of n_pursuers \({N}: one slot per pursuer"):
+        gymnasium.make_vec(ENV_ID, num_envs=N + 1, config=config())
+    with pytest.raises(ValueError, match="give num_envs"):
+        gymnasium.make_vec(ENV_ID, num_envs=N, n_worlds=1)
+    with pytest.raises(ValueError, match=r"is a vector env .* gymnasium.make_vec"):
+        gymnasium.make(ENV_ID)
