@@ -547,4 +547,4 @@ def defaults_filled_in(data: Mapping[str, Any], cfg: TrainConfig) -> list[str]:
     return missing
 
 
-__all__ = ["PPOConfig", "ImitationConfig", "ResidualConfig", "NetConfig", "RunConfig", "TrainConfig", "load_train_config", "train_config_from_dict", "defaults_filled_in", "REGIMES"]
+__all__ = ["PPOConfig", "ImitationConfig", "ResidualConfig", "NetConfig", "RunConfig", "TrainConfig", "load_train_config", "train_config_from_dict", "defaults_filled_in", "set_keys", "dotted_keys", "REGIMES"]
