@@ -160,7 +160,6 @@ class PursuitParallelEnv(ParallelEnv):
             from .render.live import LiveFrames
 
             self._frames = LiveFrames(self._env, self._render_settings, "pursuit_mj_v0")
-        self._frames.restart([0])
         self._frames.push()
 
     def close(self) -> None:

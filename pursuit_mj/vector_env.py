@@ -10,7 +10,8 @@ A world's episode ends for all its pursuers at once: their slots terminate (capt
 collision) or truncate (timeout) together. How they restart is gymnasium's autoreset mode:
 - `AutoresetMode.NEXT_STEP` (the default, gymnasium's own, which its observation wrappers
   need): the step that ends an episode returns its last observation; the next step starts the
-  new episode in those slots, ignoring their actions, with reward 0 and neither flag set.
+  new episode in those slots, ignoring their actions (still checked: a NaN there is refused as
+  anywhere), with reward 0 and neither flag set.
 - `AutoresetMode.SAME_STEP` (no idle step, as `pursuit-mj train` collects): the step that ends
   an episode returns the new episode's first observation, info["final_obs"][i] the ended
   episode's last observation of slot i (None where slot i did not end; info["_final_obs"]
@@ -105,13 +106,7 @@ class PursuitVectorEnv(VectorEnv):
         if options:
             raise ValueError(f"reset options: PursuitVectorEnv takes none (its config sets the task), got {options!r}")
         obs = self.batched.reset(seed=seed)
-        if self.render_mode == "rgb_array":
-            if self._frames is None:
-                from .render.live import LiveFrames
-
-                self._frames = LiveFrames(self.batched, self._render_settings, "PursuitVectorEnv")
-            self._frames.restart(range(self.n_worlds))
-            self._frames.push()
+        self._push_frames()
         if seed is not None:
             self._np_random, self._np_random_seed = np.random.default_rng(seed), int(seed)
         self.closed = False  # a reset after close() made a renderer that the next close() frees
@@ -132,12 +127,9 @@ class PursuitVectorEnv(VectorEnv):
         waiting = self.batched.done.copy()
         obs, reward, terminated, truncated, info = self.batched.step(a.reshape(W, N, 2))
         ended_worlds = terminated | truncated
-        restarted = waiting if self.autoreset_mode == AutoresetMode.NEXT_STEP else ended_worlds
         if waiting.any():
             obs = self.batched.reset_worlds(np.flatnonzero(waiting))
-        if self._frames is not None:
-            self._frames.restart(np.flatnonzero(restarted))
-            self._frames.push()
+        self._push_frames()
         every = np.ones(self.num_envs, bool)
         terms = {k: v.reshape(-1) for k, v in info["reward_terms"].items()}
         outcome = np.repeat(info["outcome"], N)
@@ -198,6 +190,16 @@ class PursuitVectorEnv(VectorEnv):
             raise ValueError(f"actions: non-finite value {a[slot, component]} at slot {slot} (world {slot // self.n_pursuers}, "
                              f"pursuer {slot % self.n_pursuers}), component {component}")
         return a
+
+    def _push_frames(self) -> None:
+        """rgb_array mode: the drones' positions to their trails (the renderer made the first time)."""
+        if self.render_mode != "rgb_array":
+            return
+        if self._frames is None:
+            from .render.live import LiveFrames
+
+            self._frames = LiveFrames(self.batched, self._render_settings, "PursuitVectorEnv")
+        self._frames.push()
 
     def _flat(self, obs: np.ndarray) -> np.ndarray:
         """(W, N, obs_dim) -> (num_envs, obs_dim), slot w * N + n."""

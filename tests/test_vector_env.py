@@ -307,3 +307,17 @@ def test_gymnasium_make_vec_makes_it_by_its_id():
         gymnasium.make_vec(ENV_ID, num_envs=N, n_worlds=1)
     with pytest.raises(ValueError, match=r"is a vector env .* gymnasium.make_vec"):
         gymnasium.make(ENV_ID)
+
+
+def test_trails_start_again_for_episodes_started_on_the_batched_env():
+    from pursuit_mj.render.renderer import RenderSettings
+
+    env = PursuitVectorEnv(config(), n_worlds=2, seed=4, render_mode="rgb_array", render_settings=RenderSettings(64, 48))
+    env.reset(seed=0)
+    for t in range(3):
+        env.step(actions(t)[:2].reshape(2 * N, 2))
+    assert [trail.array().shape[0] for trail in env._frames.trails] == [4, 4]
+    env.batched.reset(seeds=[11, 12])  # per-world seeds, as the docs say
+    env.step(actions(0)[:2].reshape(2 * N, 2))
+    assert [trail.array().shape[0] for trail in env._frames.trails] == [1, 1]  # the new episodes' first step only
+    env.close()

@@ -7,8 +7,6 @@ could not honour, naming the argument, when the env is made rather than at its f
 
 from __future__ import annotations
 
-from typing import Sequence
-
 import numpy as np
 
 from ..config import TaskConfig
@@ -39,21 +37,25 @@ def check_render_request(render_mode, render_settings, config: TaskConfig, layou
 class LiveFrames:
     """Captioned frames (H, W, 3) uint8 of the worlds of `env`, trails included.
 
-    Call `restart(worlds)` when episodes start there (their trails are forgotten) and `push()`
-    after every step, so that the trails follow the drones; `draw(w)` renders world w now.
+    Call `push()` after every reset and step, so that the trails follow the drones (a world at the
+    first step of an episode starts a new trail, however the episode was started); `draw(w)`
+    renders world w now.
     """
 
     def __init__(self, env: PursuitEnv, settings: RenderSettings | None, title: str):
         self.env = env
         self.maker = FrameMaker(env.config, env.world_layouts[0], settings or RenderSettings(), title, TRAIL_STEPS)
         self.trails = [TrailBuffer(TRAIL_STEPS) for _ in range(env.n_worlds)]
-
-    def restart(self, worlds: Sequence[int] | np.ndarray) -> None:
-        for w in worlds:
-            self.trails[int(w)].clear()
+        self._seen = np.full((2, env.n_worlds), -1)  # (episode index, steps) of each world at the last push
 
     def push(self) -> None:
+        now = np.stack([self.env.episode, self.env.steps])
+        # a new episode, whoever started it: another episode index, or fewer steps than at the last push
+        started = (now[0] != self._seen[0]) | (now[1] < self._seen[1]) | (now[1] == 0)
+        self._seen = now
         for w, trail in enumerate(self.trails):  # per world, and only when frames are asked for
+            if started[w]:
+                trail.clear()
             self.maker.push(self.env.snapshot(w), trail)
 
     def draw(self, w: int) -> np.ndarray:
