@@ -15,7 +15,10 @@ collision) or truncate (timeout) together. How they restart is gymnasium's autor
 - `AutoresetMode.SAME_STEP` (no idle step, as `pursuit-mj train` collects): the step that ends
   an episode returns the new episode's first observation, info["final_obs"][i] the ended
   episode's last observation of slot i (None where slot i did not end; info["_final_obs"]
-  marks the ended slots), and info["final_info"] that step's reward terms and outcome.
+  marks the ended slots), info["final_state"][i] its world's last global state (PursuitEnv.global_state,
+  for a centralised critic's bootstrap), and info["final_info"] that step's reward terms and outcome.
+In both modes the ending step's info["episode_record"][i] is the ended world's EpisodeRecord
+(info["_episode_record"] marks the slots that have one): outcome, steps, time_to_capture, returns.
 Either way a world runs the same episodes, by its seed sequence (docs/env_api.md). The evaders
 are part of the environment; `batched` is the underlying PursuitEnv (global state, snapshots).
 With render_mode "rgb_array", `render()` returns one frame per slot, as `pursuit-mj render`
@@ -116,8 +119,9 @@ class PursuitVectorEnv(VectorEnv):
         """One decision step of every world. actions (num_envs, 2). Returns obs (num_envs, obs_dim)
         float32, rewards (num_envs,) float64, terminations and truncations (num_envs,) bool, and infos:
         "reward_terms" {term: (num_envs,) float32} and "outcome" (num_envs,) str ("" unless the slot's
-        episode ended in this step), each key with its "_key" mask, and in SAME_STEP mode "final_obs"
-        and "final_info" for the slots whose episode ended (module docstring)."""
+        episode ended in this step), each key with its "_key" mask, "episode_record" (the world's
+        EpisodeRecord) for the slots whose episode ended, and in SAME_STEP mode also "final_obs",
+        "final_state" and "final_info" for them (module docstring)."""
         if not self.batched.started:  # neither reset() nor batched.reset() yet
             raise RuntimeError("step() called before reset(): call reset() first")
         a = self._checked_actions(actions)
@@ -136,6 +140,12 @@ class PursuitVectorEnv(VectorEnv):
         infos: dict[str, Any] = {"reward_terms": _with_masks(terms, every), "_reward_terms": every,
                                  "outcome": outcome, "_outcome": every}
         ended = np.repeat(ended_worlds, N)
+        if ended.any():  # the ended worlds' EpisodeRecords, in each of their slots (PursuitEnv keeps none)
+            records = np.full(self.num_envs, None, dtype=object)
+            for record in info["episodes"]:
+                for i in range(record.world * N, (record.world + 1) * N):
+                    records[i] = record
+            infos["episode_record"], infos["_episode_record"] = records, ended
         if self.autoreset_mode == AutoresetMode.SAME_STEP and ended.any():
             final_obs = np.full(self.num_envs, None, dtype=object)
             last = info["final_obs"].reshape(self.num_envs, -1)
@@ -143,6 +153,10 @@ class PursuitVectorEnv(VectorEnv):
                 final_obs[i] = last[i]
             final_terms = {k: np.where(ended, v, np.float32(0.0)) for k, v in terms.items()}
             infos["final_obs"], infos["_final_obs"] = final_obs, ended
+            final_state = np.full(self.num_envs, None, dtype=object)  # the world restarted: global_state() is the new one's
+            for i in np.flatnonzero(ended):
+                final_state[i] = info["final_state"][i // N]
+            infos["final_state"], infos["_final_state"] = final_state, ended
             infos["final_info"] = {"reward_terms": _with_masks(final_terms, ended), "_reward_terms": ended,
                                    "outcome": outcome, "_outcome": ended}
             infos["_final_info"] = ended

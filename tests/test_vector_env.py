@@ -321,3 +321,31 @@ def test_trails_start_again_for_episodes_started_on_the_batched_env():
     env.step(actions(0)[:2].reshape(2 * N, 2))
     assert [trail.array().shape[0] for trail in env._frames.trails] == [1, 1]  # the new episodes' first step only
     env.close()
+
+
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
+def test_an_ending_step_gives_its_episode_records_and_same_step_the_final_state(mode):
+    """The docs sent users to env.batched for episode records, which it keeps nowhere (PursuitEnv
+    gives them only in its step's info, which the vector env dropped), and SAME_STEP dropped the
+    final global state that a centralised critic bootstraps a timeout from (the world has restarted
+    by the time the step returns). Both now come in the ending step's infos, gymnasium-style."""
+    cfg = config(max_steps=3)
+    vec = PursuitVectorEnv(cfg, n_worlds=2, seed=0, autoreset_mode=mode)
+    ref = PursuitEnv(cfg, n_worlds=2, seed=0)
+    vec.reset(seed=5)
+    ref.reset(seed=5)
+    for t in range(3):
+        *_, info = vec.step(np.zeros((2 * N, 2)))
+        r_info = ref.step(np.zeros((2, N, 2)))[-1]
+    assert info["_episode_record"].all() and len(r_info["episodes"]) == 2
+    for i in range(2 * N):
+        assert info["episode_record"][i] == r_info["episodes"][i // N]
+    if mode == "SameStep":
+        assert info["_final_state"].all()
+        for i in range(2 * N):
+            np.testing.assert_array_equal(info["final_state"][i], r_info["final_state"][i // N])
+    else:
+        assert "final_state" not in info  # the frozen world's env.batched.global_state() is it
+        np.testing.assert_array_equal(vec.batched.global_state(), r_info["final_state"])
+    info = vec.step(np.zeros((2 * N, 2)))[-1]
+    assert "episode_record" not in info and "final_state" not in info
