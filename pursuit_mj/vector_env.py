@@ -15,8 +15,9 @@ collision) or truncate (timeout) together. How they restart is gymnasium's autor
 - `AutoresetMode.SAME_STEP` (no idle step, as `pursuit-mj train` collects): the step that ends
   an episode returns the new episode's first observation, info["final_obs"][i] the ended
   episode's last observation of slot i (None where slot i did not end; info["_final_obs"]
-  marks the ended slots), info["final_state"][i] its world's last global state (PursuitEnv.global_state,
-  for a centralised critic's bootstrap), and info["final_info"] that step's reward terms and outcome.
+  marks the ended slots), info["final_state"] (num_envs, state_dim) float32 each slot's world's last
+  global state (PursuitEnv.global_state, for a centralised critic's bootstrap; 0 in slots that did
+  not end, as its mask says), and info["final_info"] that step's reward terms and outcome.
 In both modes the ending step's info["episode_record"][i] is the ended world's EpisodeRecord
 (info["_episode_record"] marks the slots that have one): outcome, steps, time_to_capture, returns.
 Either way a world runs the same episodes, by its seed sequence (docs/env_api.md). The evaders
@@ -153,9 +154,8 @@ class PursuitVectorEnv(VectorEnv):
                 final_obs[i] = last[i]
             final_terms = {k: np.where(ended, v, np.float32(0.0)) for k, v in terms.items()}
             infos["final_obs"], infos["_final_obs"] = final_obs, ended
-            final_state = np.full(self.num_envs, None, dtype=object)  # the world restarted: global_state() is the new one's
-            for i in np.flatnonzero(ended):
-                final_state[i] = info["final_state"][i // N]
+            # the world restarted, so global_state() is the new episode's: the last one, per slot (0 where not ended)
+            final_state = np.where(ended[:, None], np.repeat(info["final_state"], N, axis=0), np.float32(0.0))
             infos["final_state"], infos["_final_state"] = final_state, ended
             infos["final_info"] = {"reward_terms": _with_masks(final_terms, ended), "_reward_terms": ended,
                                    "outcome": outcome, "_outcome": ended}
@@ -197,7 +197,7 @@ class PursuitVectorEnv(VectorEnv):
                              f"({type(actions).__name__})")
         if a.shape != (self.num_envs, 2):
             raise ValueError(f"actions: expected shape ({self.num_envs}, 2), one row per slot ({self.n_worlds} worlds x "
-                             f"{self.n_pursuers} pursuers), got {a.shape}")
+                             f"{self.n_pursuers} pursuer{'s' if self.n_pursuers > 1 else ''}), got {a.shape}")
         bad = np.argwhere(~np.isfinite(a))
         if len(bad):
             slot, component = (int(i) for i in bad[0])
