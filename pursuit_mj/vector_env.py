@@ -138,28 +138,28 @@ class PursuitVectorEnv(VectorEnv):
         every = np.ones(self.num_envs, bool)
         terms = {k: v.reshape(-1) for k, v in info["reward_terms"].items()}
         outcome = np.repeat(info["outcome"], N)
-        infos: dict[str, Any] = {"reward_terms": _with_masks(terms, every), "_reward_terms": every,
-                                 "outcome": outcome, "_outcome": every}
+        infos: dict[str, Any] = {"reward_terms": _with_masks(terms, every), "_reward_terms": every.copy(),
+                                 "outcome": outcome, "_outcome": every.copy()}
         ended = np.repeat(ended_worlds, N)
         if ended.any():  # the ended worlds' EpisodeRecords, in each of their slots (PursuitEnv keeps none)
             records = np.full(self.num_envs, None, dtype=object)
             for record in info["episodes"]:
                 for i in range(record.world * N, (record.world + 1) * N):
                     records[i] = record
-            infos["episode_record"], infos["_episode_record"] = records, ended
+            infos["episode_record"], infos["_episode_record"] = records, ended.copy()
         if self.autoreset_mode == AutoresetMode.SAME_STEP and ended.any():
             final_obs = np.full(self.num_envs, None, dtype=object)
             last = info["final_obs"].reshape(self.num_envs, -1)
             for i in np.flatnonzero(ended):  # at episode ends only
                 final_obs[i] = last[i]
             final_terms = {k: np.where(ended, v, np.float32(0.0)) for k, v in terms.items()}
-            infos["final_obs"], infos["_final_obs"] = final_obs, ended
+            infos["final_obs"], infos["_final_obs"] = final_obs, ended.copy()
             # the world restarted, so global_state() is the new episode's: the last one, per slot (0 where not ended)
             final_state = np.where(ended[:, None], np.repeat(info["final_state"], N, axis=0), np.float32(0.0))
-            infos["final_state"], infos["_final_state"] = final_state, ended
-            infos["final_info"] = {"reward_terms": _with_masks(final_terms, ended), "_reward_terms": ended,
-                                   "outcome": outcome, "_outcome": ended}
-            infos["_final_info"] = ended
+            infos["final_state"], infos["_final_state"] = final_state, ended.copy()
+            infos["final_info"] = {"reward_terms": _with_masks(final_terms, ended), "_reward_terms": ended.copy(),
+                                   "outcome": outcome, "_outcome": ended.copy()}
+            infos["_final_info"] = ended.copy()
         return (self._flat(obs), reward.reshape(-1).astype(np.float64), np.repeat(terminated, N),
                 np.repeat(truncated, N), infos)
 
@@ -221,8 +221,9 @@ class PursuitVectorEnv(VectorEnv):
 
 
 def _with_masks(values: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, np.ndarray]:
-    """gymnasium's vector info layout: each key beside its "_key" mask of the slots that have it."""
-    return {**values, **{f"_{k}": mask for k in values}}
+    """gymnasium's vector info layout: each key beside its "_key" mask of the slots that have it
+    (a copy each, as gymnasium's own infos have: a wrapper that edits one leaves the others)."""
+    return {**values, **{f"_{k}": mask.copy() for k in values}}
 
 
 def _checked_mode(mode: Any) -> AutoresetMode:

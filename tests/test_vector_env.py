@@ -349,3 +349,21 @@ def test_an_ending_step_gives_its_episode_records_and_same_step_the_final_state(
         np.testing.assert_array_equal(vec.batched.global_state(), r_info["final_state"])
     info = vec.step(np.zeros((2 * N, 2)))[-1]
     assert "episode_record" not in info and "final_state" not in info
+
+
+def test_every_info_mask_is_an_array_of_its_own():
+    """gymnasium's wrappers may edit a mask in place (its _add_info does): one must not change another."""
+    env = PursuitVectorEnv(config(max_steps=2), n_worlds=W, seed=4, autoreset_mode="SameStep")
+    env.reset(seed=0)
+    env.step(actions(0).reshape(W * N, 2))
+    *_, info = env.step(actions(1).reshape(W * N, 2))  # every world times out: every key and mask present
+
+    def masks(d):
+        for k, v in d.items():
+            if k.startswith("_"):
+                yield v
+            elif isinstance(v, dict):
+                yield from masks(v)
+
+    found = list(masks(info))
+    assert len(found) > 10 and len({id(m) for m in found}) == len(found)
