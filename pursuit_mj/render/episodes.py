@@ -50,11 +50,12 @@ class FrameMaker:
     """
 
     def __init__(self, config: TaskConfig, layout: Layout, settings: RenderSettings, title: str, trail_length: int,
-                 style: OverlayStyle | None = None):
+                 style: OverlayStyle | None = None, keep_scenes: int = 1):
         self.title = title
         self.style = style or OverlayStyle()
         self.trail = TrailBuffer(trail_length)
-        self.renderer = SceneRenderer(settings, config, layout, lambda lay: overlay_geom_budget(config, lay, self.style))
+        self.renderer = SceneRenderer(settings, config, layout, lambda lay: overlay_geom_budget(config, lay, self.style),
+                                      keep_scenes=keep_scenes)
 
     def start_episode(self) -> None:
         """Forget the trails of the previous episode."""

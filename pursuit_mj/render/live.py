@@ -17,6 +17,7 @@ from .overlays import TrailBuffer
 from .renderer import RenderSettings, check_settings
 
 TRAIL_STEPS = 30  # decision steps of trail behind each drone
+KEPT_SCENES = 8  # worlds whose scene (model and GL context) stays made between frames
 
 
 def check_render_request(render_mode, render_settings, config: TaskConfig, layout: Layout) -> None:
@@ -44,7 +45,9 @@ class LiveFrames:
 
     def __init__(self, env: PursuitEnv, settings: RenderSettings | None, title: str):
         self.env = env
-        self.maker = FrameMaker(env.config, env.world_layouts[0], settings or RenderSettings(), title, TRAIL_STEPS)
+        # each world's random obstacles make a scene of its own: kept, a frame of each costs no new GL context
+        self.maker = FrameMaker(env.config, env.world_layouts[0], settings or RenderSettings(), title, TRAIL_STEPS,
+                                keep_scenes=min(env.n_worlds, KEPT_SCENES))
         self.trails = [TrailBuffer(TRAIL_STEPS) for _ in range(env.n_worlds)]
         self._seen = np.full((2, env.n_worlds), -1)  # (episode index, steps) of each world at the last push
 

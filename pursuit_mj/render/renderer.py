@@ -82,15 +82,35 @@ DrawFn = Callable[[mujoco.MjvScene], None]
 OverlayBudget = Callable[[Layout], int]  # decoration geoms a frame of this layout may add
 
 
+@dataclasses.dataclass
+class _Scene:
+    """What drawing one layout's scene needs: its model, a private MjData for the drones' poses,
+    the GL context made for the model, and the scene the frame is built in."""
+
+    layout: Layout
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    context: mujoco.MjrContext
+    scene: mujoco.MjvScene
+    qpos_idx: np.ndarray  # (D, 2 or 7): each drone's qpos entries
+
+
 class SceneRenderer:
     """Renders the drones of `config` (pursuers then evaders, its fidelity) in scenes of any layout.
 
     overlay_geoms: how many decoration geoms a `draw` callback may add per frame, for each
-    layout bound (default OVERLAY_GEOMS whatever the layout).
+    layout bound (default OVERLAY_GEOMS whatever the layout). keep_scenes: how many scenes (model
+    and GL context) stay made, the most recently bound ones, so that going back to one is free
+    (one drawer of several worlds, each with its random obstacles); 1 frees each when another is bound.
     """
 
-    def __init__(self, settings: RenderSettings, config: TaskConfig, layout: Layout, overlay_geoms: OverlayBudget | None = None):
+    def __init__(self, settings: RenderSettings, config: TaskConfig, layout: Layout, overlay_geoms: OverlayBudget | None = None,
+                 keep_scenes: int = 1):
+        if isinstance(keep_scenes, bool) or not isinstance(keep_scenes, int) or keep_scenes < 1:
+            raise ValueError(f"keep_scenes: expected an integer >= 1, got {keep_scenes!r}")
         self.config = config
+        self._keep = keep_scenes
+        self._kept: dict[int, _Scene] = {}  # id(layout) -> its scene, least recently bound first
         self._overlay_geoms = overlay_geoms or (lambda _layout: OVERLAY_GEOMS)
         self.names = drone_names(config.n_pursuers, config.n_evaders)
         self.fidelity = config.fidelity
@@ -102,10 +122,7 @@ class SceneRenderer:
         self._rect = mujoco.MjrRect(0, 0, settings.width, settings.height)
         self._option = mujoco.MjvOption()
         self._camera = mujoco.MjvCamera()
-        self._layout: Layout | None = None
-        self._model: mujoco.MjModel | None = None
-        self._context: mujoco.MjrContext | None = None
-        self._scene: mujoco.MjvScene | None = None
+        self._bound: _Scene | None = None
         self._pixels = np.empty((settings.height, settings.width, 3), np.uint8)
         self._bind_model(model, layout)
 
@@ -115,9 +132,17 @@ class SceneRenderer:
         return build_model(SceneSpec.for_task(self.config, layout))
 
     def bind(self, layout: Layout) -> None:
-        """Draw the scene of `layout` from now on; free when it is the layout already bound."""
-        if layout is not self._layout:
-            self._bind_model(self._build(layout), layout)
+        """Draw the scene of `layout` from now on; free when it is the layout bound, or a kept one."""
+        if self._bound is not None and layout is self._bound.layout:
+            return
+        kept = self._kept.pop(id(layout), None)
+        if kept is not None and kept.layout is layout:
+            self._kept[id(layout)] = kept  # the most recent now
+            self._gl.make_current()
+            mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, kept.context)
+            self._bound = kept
+            return
+        self._bind_model(self._build(layout), layout)
 
     def _bind_model(self, m: mujoco.MjModel, layout: Layout) -> None:
         high = self.settings.quality == "high"
@@ -138,23 +163,23 @@ class SceneRenderer:
         if "angled" in cameras:
             self._frame_angled(m, layout)
         self._gl.make_current()
-        if self._context is not None:
-            self._context.free()
-        self._context = None
+        while self._kept and len(self._kept) >= self._keep:  # the least recently bound goes
+            self._kept.pop(next(iter(self._kept))).context.free()
+        self._bound = None
         try:
-            self._context = mujoco.MjrContext(m, mujoco.mjtFontScale.mjFONTSCALE_100)
+            context = mujoco.MjrContext(m, mujoco.mjtFontScale.mjFONTSCALE_100)
         except mujoco.FatalError as exc:  # a context that was made but cannot draw (no GL 1.5 / framebuffer)
             raise RenderBackendError(f"the OpenGL context of backend {choose_backend()} cannot render MuJoCo scenes ({exc}); "
                                      f"set MUJOCO_GL to another of egl, osmesa") from None
-        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
-        self._scene = mujoco.MjvScene(m, maxgeom=m.ngeom + self._overlay_geoms(layout))
-        self._scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = high
-        self._scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = high
-        self._data = mujoco.MjData(m)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, context)
+        scene = mujoco.MjvScene(m, maxgeom=m.ngeom + self._overlay_geoms(layout))
+        scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = high
+        scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = high
         ids = DroneIds.lookup(m, self.names, self.fidelity)
         width = 7 if self.fidelity == "quadrotor" else 2
-        self._qpos_idx = ids.qpos_adr[:, None] + np.arange(width)  # (D, width)
-        self._layout, self._model = layout, m
+        qpos_idx = ids.qpos_adr[:, None] + np.arange(width)  # (D, width)
+        self._bound = _Scene(layout, m, mujoco.MjData(m), context, scene, qpos_idx)
+        self._kept[id(layout)] = self._bound
 
     def _frame_top(self, m: mujoco.MjModel, layout: Layout) -> None:
         """Make the 'top' camera an orthographic map of the arena, clear of the caption band."""
@@ -180,17 +205,28 @@ class SceneRenderer:
 
     @property
     def scene(self) -> mujoco.MjvScene:
-        return self._scene
+        return self._bound.scene
+
+    @property
+    def model(self) -> mujoco.MjModel:
+        """The bound layout's model (its cameras framed for these settings)."""
+        return self._bound.model
+
+    @property
+    def data(self) -> mujoco.MjData:
+        """The bound scene's private MjData, as the last pose() left it."""
+        return self._bound.data
 
     # ------------------------------------------------------------------ frames
 
     def pose(self, pos: np.ndarray, quat: np.ndarray) -> None:
         """Place the drones: pos (D, 3) m world, quat (D, 4) w,x,y,z body->world (ignored in point fidelity)."""
+        b = self._bound
         if self.fidelity == "quadrotor":
-            self._data.qpos[self._qpos_idx] = np.concatenate([pos, quat], axis=-1)
+            b.data.qpos[b.qpos_idx] = np.concatenate([pos, quat], axis=-1)
         else:
-            self._data.qpos[self._qpos_idx] = pos[:, :2]
-        m, d = self._model, self._data
+            b.data.qpos[b.qpos_idx] = pos[:, :2]
+        m, d = b.model, b.data
         mujoco.mj_kinematics(m, d)
         mujoco.mj_comPos(m, d)
         mujoco.mj_camlight(m, d)
@@ -201,20 +237,23 @@ class SceneRenderer:
         The returned array is reused by the next call: copy it to keep it.
         """
         self.pose(pos, quat)
-        self.camera_spec.apply(self._camera, self._model, pos)
-        mujoco.mjv_updateScene(self._model, self._data, self._option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene)
+        b = self._bound
+        self.camera_spec.apply(self._camera, b.model, pos)
+        mujoco.mjv_updateScene(b.model, b.data, self._option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, b.scene)
         if draw is not None:
-            draw(self._scene)
+            draw(b.scene)
         self._gl.make_current()
-        mujoco.mjr_render(self._rect, self._scene, self._context)
-        mujoco.mjr_readPixels(self._pixels, None, self._rect, self._context)
+        mujoco.mjr_render(self._rect, b.scene, b.context)
+        mujoco.mjr_readPixels(self._pixels, None, self._rect, b.context)
         return self._pixels[::-1]
 
     def close(self) -> None:
-        if self._context is not None:
+        if self._kept:
             self._gl.make_current()
-            self._context.free()
-            self._context = None
+            for kept in self._kept.values():
+                kept.context.free()
+            self._kept.clear()
+            self._bound = None
         if self._gl is not None:
             self._gl.free()
             self._gl = None
