@@ -17,7 +17,7 @@ from .overlays import TrailBuffer
 from .renderer import RenderSettings, check_settings
 
 TRAIL_STEPS = 30  # decision steps of trail behind each drone
-KEPT_SCENES = 8  # worlds whose scene (model and GL context) stays made between frames
+KEPT_SCENES = 8  # worlds whose scene (model and GL context, ~20 MB at 640 x 480) stays made between frames
 
 
 def check_render_request(render_mode, render_settings, config: TaskConfig, layout: Layout) -> None:
