@@ -189,6 +189,7 @@ class PursuitEnv:
         self.physics = BatchedPhysics(config, self.world_layouts, nthread=nthread)
         self.evader_model = make_evader_model(config, W, self.seed)
         self.steps = np.zeros(W, np.int64)
+        self.starts = np.zeros(W, np.int64)  # episodes begun in each world, however (reset, reset_worlds, auto_reset)
         self.captured = np.zeros((W, M), bool)
         self.heading = np.full((W, N), INITIAL_HEADING)
         self.done = np.zeros(W, bool)
@@ -253,6 +254,7 @@ class PursuitEnv:
         self._sensing_keys[ids] = world_keys(seeds, SENSING_DOMAIN)
         self.evader_model.reset(ids, seeds)
         self.steps[ids] = 0
+        self.starts[ids] += 1
         self.captured[ids] = False
         self.heading[ids] = INITIAL_HEADING
         self.done[ids] = False

@@ -367,3 +367,20 @@ def test_every_info_mask_is_an_array_of_its_own():
 
     found = list(masks(info))
     assert len(found) > 10 and len({id(m) for m in found}) == len(found)
+
+
+@pytest.mark.parametrize("steps_before", [0, 1])
+def test_a_trail_starts_again_when_batched_reset_returns_to_episode_0_early(steps_before):
+    """env.batched.reset(seed=...) puts the episode index back to 0; within episode 0's first step
+    the (episode, steps) seen at the last push came back the same one step later, so the old
+    episode's points stayed at the head of the new trail."""
+    from pursuit_mj.render.renderer import RenderSettings
+
+    env = PursuitVectorEnv(config(), n_worlds=1, seed=4, render_mode="rgb_array", render_settings=RenderSettings(64, 48))
+    env.reset(seed=0)
+    for t in range(steps_before):
+        env.step(actions(t)[:1].reshape(N, 2))
+    env.batched.reset(seed=7)
+    env.step(actions(0)[:1].reshape(N, 2))
+    assert env._frames.trails[0].array().shape[0] == 1  # the new episode's first step only
+    env.close()

@@ -49,13 +49,12 @@ class LiveFrames:
         self.maker = FrameMaker(env.config, env.world_layouts[0], settings or RenderSettings(), title, TRAIL_STEPS,
                                 keep_scenes=min(env.n_worlds, KEPT_SCENES))
         self.trails = [TrailBuffer(TRAIL_STEPS) for _ in range(env.n_worlds)]
-        self._seen = np.full((2, env.n_worlds), -1)  # (episode index, steps) of each world at the last push
+        self._seen = np.full(env.n_worlds, -1)  # env.starts (episodes begun) of each world at the last push
 
     def push(self) -> None:
-        now = np.stack([self.env.episode, self.env.steps])
-        # a new episode, whoever started it: another episode index, or fewer steps than at the last push
-        started = (now[0] != self._seen[0]) | (now[1] < self._seen[1]) | (now[1] == 0)
-        self._seen = now
+        # a new episode, whoever started it (the episode index alone misses reset(seed=...) back to 0)
+        started = self.env.starts != self._seen
+        self._seen = self.env.starts.copy()
         for w, trail in enumerate(self.trails):  # per world, and only when frames are asked for
             if started[w]:
                 trail.clear()
