@@ -258,5 +258,5 @@ def _no_single_env(**kwargs):
                      f"world as a PettingZoo env with pursuit_mj.pz_env.PursuitParallelEnv")
 
 
-if ENV_ID not in gymnasium.registry:
-    gymnasium.register(ENV_ID, entry_point=_no_single_env, vector_entry_point=make_vector_env)
+if ENV_ID not in gymnasium.registry:  # entry points by name: the spec then serialises (to_json, pickle) and outlives a reload
+    gymnasium.register(ENV_ID, entry_point=f"{__name__}:_no_single_env", vector_entry_point=f"{__name__}:make_vector_env")

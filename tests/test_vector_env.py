@@ -384,3 +384,26 @@ def test_a_trail_starts_again_when_batched_reset_returns_to_episode_0_early(step
     env.step(actions(0)[:1].reshape(N, 2))
     assert env._frames.trails[0].array().shape[0] == 1  # the new episode's first step only
     env.close()
+
+
+def test_the_registered_spec_serialises_and_survives_a_reload():
+    """The spec held its entry points as functions: EnvSpec.to_json refused it ("does not support
+    serialising callables"), and after importlib.reload of the module pickling it (or an env's
+    spec) failed, the functions no longer being the module's. Strings, as gymnasium's own envs give."""
+    import subprocess
+    import sys
+
+    import gymnasium
+    from gymnasium.envs.registration import EnvSpec
+
+    from pursuit_mj.vector_env import ENV_ID
+
+    spec = EnvSpec.from_json(gymnasium.spec(ENV_ID).to_json())
+    env = gymnasium.make_vec(spec, num_envs=N, config=config())
+    assert env.num_envs == N and env.spec.id == ENV_ID
+    script = ("import importlib, pickle, gymnasium, pursuit_mj.vector_env as m; importlib.reload(m); "
+              "pickle.loads(pickle.dumps(gymnasium.spec(m.ENV_ID))); "
+              "env = gymnasium.make_vec(m.ENV_ID, num_envs=3); pickle.loads(pickle.dumps(env.spec)); "
+              "assert isinstance(env, m.PursuitVectorEnv)")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
