@@ -158,7 +158,7 @@ class PursuitVectorEnv(VectorEnv):
             final_state = np.where(ended[:, None], np.repeat(info["final_state"], N, axis=0), np.float32(0.0))
             infos["final_state"], infos["_final_state"] = final_state, ended.copy()
             infos["final_info"] = {"reward_terms": _with_masks(final_terms, ended), "_reward_terms": ended.copy(),
-                                   "outcome": outcome, "_outcome": ended.copy()}
+                                   "outcome": outcome.copy(), "_outcome": ended.copy()}
             infos["_final_info"] = ended.copy()
         return (self._flat(obs), reward.reshape(-1).astype(np.float64), np.repeat(terminated, N),
                 np.repeat(truncated, N), infos)
@@ -246,6 +246,9 @@ def make_vector_env(num_envs: int, config: TaskConfig | None = None, **kwargs) -
     if isinstance(num_envs, (bool, np.bool_)) or not isinstance(num_envs, (int, np.integer)) or num_envs < n or num_envs % n:
         raise ValueError(f"{ENV_ID} num_envs: expected a positive multiple of n_pursuers ({n}: one slot per pursuer of "
                          f"each world), got {num_envs!r}")
+    if "max_episode_steps" in kwargs:  # what gymnasium users pass for a time limit
+        raise ValueError(f"{ENV_ID} max_episode_steps: the task's own max_steps is the time limit (truncation): "
+                         f"give config=default_config(max_steps=...)")
     if "n_worlds" in kwargs:
         raise ValueError(f"{ENV_ID}: give num_envs (n_worlds x n_pursuers), not n_worlds")
     return PursuitVectorEnv(config, n_worlds=int(num_envs) // n, **kwargs)

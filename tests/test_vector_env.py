@@ -303,6 +303,8 @@ def test_gymnasium_make_vec_makes_it_by_its_id():
     np.testing.assert_array_equal(env.reset(seed=1)[0], same.reset(seed=1)[0])
     with pytest.raises(ValueError, match=rf"num_envs: expected a positive multiple of n_pursuers \({N}: one slot per pursuer"):
         gymnasium.make_vec(ENV_ID, num_envs=N + 1, config=config())
+    with pytest.raises(ValueError, match=r"max_episode_steps: the task's own max_steps is the time limit"):
+        gymnasium.make_vec(ENV_ID, num_envs=N, max_episode_steps=50)
     with pytest.raises(ValueError, match="give num_envs"):
         gymnasium.make_vec(ENV_ID, num_envs=N, n_worlds=1)
     with pytest.raises(ValueError, match=r"is a vector env .* gymnasium.make_vec"):
@@ -367,6 +369,7 @@ def test_every_info_mask_is_an_array_of_its_own():
 
     found = list(masks(info))
     assert len(found) > 10 and len({id(m) for m in found}) == len(found)
+    assert info["final_info"]["outcome"] is not info["outcome"]
 
 
 @pytest.mark.parametrize("steps_before", [0, 1])
