@@ -410,3 +410,15 @@ def test_the_registered_spec_serialises_and_survives_a_reload():
               "assert isinstance(env, m.PursuitVectorEnv)")
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]
+
+
+@pytest.mark.parametrize("worlds, kept", [(3, 3), (8, 8), (9, 1)])
+def test_the_renderer_keeps_every_worlds_scene_up_to_eight_worlds(worlds, kept):
+    """Drawn in turn, 9 worlds in 8 kept scenes would evict each one just before it is needed:
+    then only the bound one is kept, as before keeping existed."""
+    from pursuit_mj.render.renderer import RenderSettings
+
+    env = PursuitVectorEnv(config(), n_worlds=worlds, seed=4, render_mode="rgb_array", render_settings=RenderSettings(64, 48))
+    env.reset(seed=0)
+    assert env._frames.maker.renderer._keep == kept
+    env.close()

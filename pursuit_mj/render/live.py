@@ -17,7 +17,7 @@ from .overlays import TrailBuffer
 from .renderer import RenderSettings, check_settings
 
 TRAIL_STEPS = 30  # decision steps of trail behind each drone
-KEPT_SCENES = 8  # worlds whose scene (model and GL context, ~20 MB at 640 x 480) stays made between frames
+KEPT_SCENES = 8  # up to this many worlds, each world's scene (model and GL context, ~20 MB at 640 x 480) stays made
 
 
 def check_render_request(render_mode, render_settings, config: TaskConfig, layout: Layout) -> None:
@@ -45,9 +45,12 @@ class LiveFrames:
 
     def __init__(self, env: PursuitEnv, settings: RenderSettings | None, title: str):
         self.env = env
-        # each world's random obstacles make a scene of its own: kept, a frame of each costs no new GL context
+        # each world's random obstacles make a scene of its own: kept, a frame of each costs no new GL context.
+        # Worlds are drawn in turn, so with more worlds than kept scenes the least recently bound one
+        # is always the next needed: then none is kept beyond the bound one
+        keep = env.n_worlds if env.n_worlds <= KEPT_SCENES else 1
         self.maker = FrameMaker(env.config, env.world_layouts[0], settings or RenderSettings(), title, TRAIL_STEPS,
-                                keep_scenes=min(env.n_worlds, KEPT_SCENES))
+                                keep_scenes=keep)
         self.trails = [TrailBuffer(TRAIL_STEPS) for _ in range(env.n_worlds)]
         self._seen = np.full(env.n_worlds, -1)  # env.starts (episodes begun) of each world at the last push
 

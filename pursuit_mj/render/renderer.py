@@ -171,14 +171,19 @@ class SceneRenderer:
         except mujoco.FatalError as exc:  # a context that was made but cannot draw (no GL 1.5 / framebuffer)
             raise RenderBackendError(f"the OpenGL context of backend {choose_backend()} cannot render MuJoCo scenes ({exc}); "
                                      f"set MUJOCO_GL to another of egl, osmesa") from None
-        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, context)
-        scene = mujoco.MjvScene(m, maxgeom=m.ngeom + self._overlay_geoms(layout))
-        scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = high
-        scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = high
-        ids = DroneIds.lookup(m, self.names, self.fidelity)
-        width = 7 if self.fidelity == "quadrotor" else 2
-        qpos_idx = ids.qpos_adr[:, None] + np.arange(width)  # (D, width)
-        self._bound = _Scene(layout, m, mujoco.MjData(m), context, scene, qpos_idx)
+        try:
+            mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, context)
+            scene = mujoco.MjvScene(m, maxgeom=m.ngeom + self._overlay_geoms(layout))
+            scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = high
+            scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = high
+            ids = DroneIds.lookup(m, self.names, self.fidelity)
+            width = 7 if self.fidelity == "quadrotor" else 2
+            qpos_idx = ids.qpos_adr[:, None] + np.arange(width)  # (D, width)
+            data = mujoco.MjData(m)
+        except BaseException:
+            context.free()  # not kept, so close() would not free it
+            raise
+        self._bound = _Scene(layout, m, data, context, scene, qpos_idx)
         self._kept[id(layout)] = self._bound
 
     def _frame_top(self, m: mujoco.MjModel, layout: Layout) -> None:
