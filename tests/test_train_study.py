@@ -617,9 +617,9 @@ def test_a_second_study_in_a_folder_another_study_holds_is_refused_at_once(tmp_p
 
 
 
-def test_a_resume_refused_after_it_dropped_the_kept_evaluation_in_memory_keeps_it_on_disk(tmp_path, capsys, monkeypatch):
-    """A resume with another --seed drops the kept cells (they are not what it would play) and was
-    then refused for its budget; on the way out it wrote the emptied record over the kept cells."""
+def _study_stopped_in_its_first_arm(tmp_path, monkeypatch) -> tuple:
+    """A tiny study stopped by Ctrl-C in its first arm's first update, after the team's evaluation
+    was recorded: (its folder, the arguments that resume it)."""
     from train.trainer import Trainer
 
     out_dir = tmp_path / "study"
@@ -629,8 +629,15 @@ def test_a_resume_refused_after_it_dropped_the_kept_evaluation_in_memory_keeps_i
     def ctrl_c(self):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(Trainer, "train_one_update", ctrl_c)  # in the first arm, after the team's evaluation
+    monkeypatch.setattr(Trainer, "train_one_update", ctrl_c)
     assert main(["study", "--budget-minutes", "30", *args]) == 130
+    return out_dir, args
+
+
+def test_a_resume_refused_after_it_dropped_the_kept_evaluation_in_memory_keeps_it_on_disk(tmp_path, capsys, monkeypatch):
+    """A resume with another --seed drops the kept cells (they are not what it would play) and was
+    then refused for its budget; on the way out it wrote the emptied record over the kept cells."""
+    out_dir, args = _study_stopped_in_its_first_arm(tmp_path, monkeypatch)
     kept = json.loads((out_dir / "study.json").read_text())["evaluation"]["cells"]
     seconds = json.loads((out_dir / "study.json").read_text())["seconds"]
     assert kept["heuristic"] and seconds > 0
@@ -650,15 +657,7 @@ def test_a_resumed_session_that_trained_then_failed_counts_its_time(tmp_path, ca
 
     from train.trainer import Trainer
 
-    out_dir = tmp_path / "study"
-    args = ["--episodes", "2", "--worlds", "2", "--layouts", "0", "--out", str(out_dir), "--fidelity", "point",
-            "--set", "max_steps=20", "--train-set", "n_envs=2"]
-
-    def ctrl_c(self):
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(Trainer, "train_one_update", ctrl_c)  # in the first arm, after the team's evaluation
-    assert main(["study", "--budget-minutes", "30", *args]) == 130
+    out_dir, args = _study_stopped_in_its_first_arm(tmp_path, monkeypatch)
     seconds = json.loads((out_dir / "study.json").read_text())["seconds"]
 
     def diverge(self):
