@@ -117,6 +117,7 @@ class TaskConfig:
     spread_reward: float = spec(0.0, lo=-REWARD_SCALE_LIMIT, hi=REWARD_SCALE_LIMIT, help="reward for spreading out (more_r); 0 = off")
     fidelity: str = spec("quadrotor", choices=("point", "quadrotor"), help="physics fidelity")
     physics_dt: float = spec(0.002, lo=0.0002, hi=0.01, help="MuJoCo timestep (s)")
+    command_latency: float = spec(0.0, lo=0.0, hi=1.0, help="s from a pursuer's velocity command to its taking effect, as in real flights (motion capture, policy, radio; measure your own loop); a whole number of controller ticks (1/controller_hz); the evaders' commands are not delayed; 0: none")
     controller_hz: float = spec(100.0, lo=100.0, hi=1000.0, help="quadrotor controller rate (Hz); at 50 Hz a full-speed reversal tilted to 22 deg, past the 15 deg limit")
     drone_mass: float = spec(DRONE_FILE_MASS, lo=DRONE_MIN_MASS, help=f"every drone's take-off mass (kg): the quadrotor's body (inertia scaled with it) and its controller's weight feed-forward; default the bare Crazyflie 2.1 of models/crazyflie.xml; set it to your drones' weighed mass (with decks, markers, battery); at least {DRONE_MIN_MASS:g} kg (lighter is no Crazyflie-scale airframe, and far lighter ones make the quadrotor simulation diverge: docs/DESIGN.md); at most {DRONE_MAX_MASS_TEXT} kg, where the rotors lift {MIN_THRUST_TO_WEIGHT:g} times the weight")
     evader: EvaderConfig = spec(default_factory=EvaderConfig, help="escape model settings")
@@ -174,6 +175,14 @@ class TaskConfig:
                 f"(controller_hz {self.controller_hz})"
             )
 
+        ticks = self.command_latency * self.controller_hz
+        if abs(ticks - round(ticks)) > 1e-6:
+            tick = 1.0 / self.controller_hz
+            below, above = math.floor(ticks) * tick, math.ceil(ticks) * tick
+            raise ConfigError(
+                f"{key_where(source, 'command_latency')}: {self.command_latency:g} s is not a whole number of controller "
+                f"ticks ({tick:g} s at controller_hz {self.controller_hz:g}); use {below:g} or {above:g}")
+
     def random_obstacle_count(self, layout) -> int:
         """Random obstacles drawn per episode in `layout` (a Layout): this config's count, else the layout's."""
         return layout.random_obstacles.count if self.random_obstacles is None else self.random_obstacles
@@ -186,6 +195,11 @@ class TaskConfig:
     def substeps(self) -> int:
         """Physics steps per decision step."""
         return int(round(self.control_dt / self.physics_dt))
+
+    @property
+    def command_latency_ticks(self) -> int:
+        """Controller ticks from a pursuer's command to its taking effect."""
+        return int(round(self.command_latency * self.controller_hz))
 
     @property
     def substeps_per_control(self) -> int:

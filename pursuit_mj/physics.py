@@ -100,7 +100,11 @@ class BatchedPhysics:
         self.obstacle_slots = max(needed, obstacle_slots or 0)
         self.models = self._build_all(self.layouts)
         self.max_speed = np.array([config.pursuer_speed] * config.n_pursuers + [config.evader_speed] * config.n_evaders)
-        self.commands = np.zeros((self.n_worlds, self.n_drones, 2))  # last applied command, m/s world
+        self.commands = np.zeros((self.n_worlds, self.n_drones, 2))  # last command given, m/s world
+        ticks_per_step = config.substeps // config.substeps_per_control
+        self._latency_ticks = config.command_latency_ticks
+        # the pursuers' commands of the last steps still on their way (steps, W, P, 2) m/s world, oldest first
+        self._pending = np.zeros((-(-self._latency_ticks // ticks_per_step), self.n_worlds, config.n_pursuers, 2))
         self.contacts = np.zeros((self.n_worlds, self.n_drones), bool)  # any contact in the last step
         self.time = np.zeros(self.n_worlds)  # s since each world's reset
         self.observers: list[Callable[["BatchedPhysics"], None]] = []
@@ -262,6 +266,7 @@ class BatchedPhysics:
         self.batch.forward(ids)
         self._warnings[ids] = self.batch.warning[ids, :, 1]
         self.commands[ids] = 0.0
+        self._pending[:, ids] = 0.0
         self.contacts[ids] = False
         self.time[ids] = 0.0
 
@@ -335,7 +340,9 @@ class BatchedPhysics:
     def step(self, commands: np.ndarray, strict: bool = True, worlds: np.ndarray | None = None) -> np.ndarray:
         """Advance every world by control_dt under velocity commands (W, D, 2) m/s world.
 
-        Commands are clipped to each drone's max speed. Returns contacts (W, D) bool: the
+        Commands are clipped to each drone's max speed. The pursuers' commands take effect
+        config.command_latency later (until then the ones given before, zero after a reset).
+        Returns contacts (W, D) bool: the
         drone touched a wall, an obstacle or another drone during the step. A world whose
         physics went bad raises FloatingPointError, or with strict=False is flagged in
         `self.diverged` (W,) bool for the caller to end and reset. With `worlds` (W,) bool
@@ -348,18 +355,39 @@ class BatchedPhysics:
         cmd = clip_norm(cmd, self.max_speed)
         ids = self._stepped_ids(worlds)
         self.commands[:] = cmd
+        tick_cmds = self._tick_commands(cmd)
         if ids is not None and len(ids) == 0:
             self.contacts[:] = False
         elif self.fidelity == "quadrotor":
-            self._step_quadrotor(cmd, ids)
+            self._step_quadrotor(tick_cmds, ids)
         else:
-            self._step_point(cmd, ids)
+            self._step_point(tick_cmds, ids)
         if ids is None:
             self.time += self.config.control_dt
         else:
             self.time[ids] += self.config.control_dt
         self._check_health(strict)
         return self.contacts.copy()
+
+    def _tick_commands(self, cmd: np.ndarray) -> list[np.ndarray]:
+        """The command (W, D, 2) m/s world in force at each controller tick of this step: the
+        evaders' as given, the pursuers' as given command_latency ticks earlier. Then `cmd` joins
+        the pending ones."""
+        T = self.config.substeps // self.config.substeps_per_control
+        L = self._latency_ticks
+        if L == 0:
+            return [cmd] * T
+        P = self.config.n_pursuers
+        by_lag: dict[int, np.ndarray] = {}
+        for i in range(min(L, T)):  # ticks before this step's own command arrives
+            lag = -(-(L - i) // T)  # steps back to the command in force at tick i
+            if lag not in by_lag:
+                by_lag[lag] = cmd.copy()
+                by_lag[lag][:, :P] = self._pending[-lag]
+        ticks = [by_lag[-(-(L - i) // T)] for i in range(min(L, T))] + [cmd] * max(T - L, 0)
+        self._pending[:-1] = self._pending[1:]
+        self._pending[-1] = cmd[:, :P]
+        return ticks
 
     def _stepped_ids(self, worlds: np.ndarray | None) -> np.ndarray | None:
         """The indices of the worlds to simulate, or None for all of them."""
@@ -381,8 +409,9 @@ class BatchedPhysics:
         touched[ids] = (rec[:, :, self.ids.contact_adr] > 0).any(axis=1)
         return touched
 
-    def _step_point(self, cmd: np.ndarray, ids: np.ndarray | None = None) -> None:
-        """Every controller tick: the force that moves each drone's velocity toward cmd as a
+    def _step_point(self, tick_cmds: list[np.ndarray], ids: np.ndarray | None = None) -> None:
+        """Every controller tick: the force that moves each drone's velocity toward its command
+        in force (tick_cmds, see _tick_commands) as a
         first-order lag of point_time_constant would over the tick (exact for an unlimited
         one), its acceleration capped in norm at point_max_accel. Neither follows drone_mass:
         the quadrotor's controller scales its forces with the mass, and its tilt limit, not its
@@ -394,22 +423,25 @@ class BatchedPhysics:
         mass, limit = self.params["mass"], self.params["point_max_accel"]
         contacts = self.contacts
         contacts[:] = False
-        for _ in range(self.config.substeps // k):
+        for cmd in tick_cmds:
             accel = clip_norm(rate * (cmd - self.qvel[:, self._qvel_idx]), limit)  # (W, D, 2) m/s^2
             self._state[:, self._write_cols] = (mass * accel).reshape(self.n_worlds, -1)
             contacts |= self._rollout_contacts(k, ids)
             for observer in self.observers:
                 observer(self)
 
-    def _step_quadrotor(self, cmd: np.ndarray, ids: np.ndarray | None = None) -> None:
+    def _step_quadrotor(self, tick_cmds: list[np.ndarray], ids: np.ndarray | None = None) -> None:
         k = self.config.substeps_per_control
         dt = k * self.config.physics_dt
         state_t, out, W, D = self._state.T, self._out, self.n_worlds, self.n_drones
-        cmd_t = np.ascontiguousarray(cmd.transpose(2, 1, 0)).reshape(2, -1)  # (2, D*W)
         out_t = out.reshape(7, D, W)
         contacts = self.contacts
         contacts[:] = False
-        for _ in range(self.config.substeps // k):
+        cmd = None
+        for tick_cmd in tick_cmds:
+            if tick_cmd is not cmd:
+                cmd = tick_cmd
+                cmd_t = np.ascontiguousarray(cmd.transpose(2, 1, 0)).reshape(2, -1)  # (2, D*W)
             x = state_t[self._read_cols].reshape(13, -1)  # pos 3, quat 4, vel 3, angvel 3 (x D*W)
             rot = quat_to_rotmat(x[3:7])
             out[4:] = linear_drag(rot, x[7:10], self.drag)  # held for the k physics steps
