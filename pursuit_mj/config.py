@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 from .configio import ConfigError, build, dump_yaml, found_beside, key_where, load, load_yaml, spec, to_dict
 from .layout import MAX_RANDOM_OBSTACLES, N_BUILTIN, found_layout_ref
@@ -311,4 +311,21 @@ def checked_task_config(config, source: str) -> TaskConfig:
     return build(TaskConfig, to_dict(config), source)
 
 
-__all__ = ["EvaderConfig", "TaskConfig", "load_task_config", "checked_task_config", "preset_or_file", "default_config", "dump_yaml", "ConfigError"]
+def task_config_from(value, source: str) -> TaskConfig:
+    """A checked TaskConfig from a TaskConfig, a mapping of task keys (as a task YAML file holds
+    them) or a task file path or preset name ('hard'); the last two are plain data, which a
+    gymnasium spec can serialise. ConfigError names `source` and what was wrong."""
+    if isinstance(value, TaskConfig):
+        return checked_task_config(value, source)
+    if isinstance(value, Mapping):
+        return build(TaskConfig, dict(value), source)
+    if isinstance(value, (str, Path)):
+        try:
+            return load_task_config([value])
+        except ConfigError as exc:
+            raise ConfigError(f"{source}: {exc}") from None
+    raise ConfigError(f"{source}: expected a TaskConfig, task keys or a task file (a mapping such as "
+                      f"{{'evader_speed': 0.3}}, or a path or preset name such as 'hard'), got {type(value).__name__}")
+
+
+__all__ = ["EvaderConfig", "TaskConfig", "load_task_config", "checked_task_config", "task_config_from", "preset_or_file", "default_config", "dump_yaml", "ConfigError"]

@@ -33,7 +33,7 @@ makes the env of num_envs / n_pursuers worlds (`make_vector_env`).
 from __future__ import annotations
 
 import warnings
-from typing import Any
+from typing import Any, Mapping
 
 import gymnasium
 import numpy as np
@@ -41,7 +41,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .config import TaskConfig, checked_task_config, default_config
+from .config import TaskConfig, default_config, task_config_from
 from .env import MaskedValues, PursuitEnv, check_seed, plain_array
 
 MODES = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
@@ -51,7 +51,8 @@ ENV_ID = "pursuit_mj/Pursuit-v0"  # gymnasium's id of the vector env (make_vec o
 class PursuitVectorEnv(VectorEnv):
     """n_worlds worlds of the pursuit task as n_worlds x n_pursuers gymnasium sub-environments.
 
-    config, n_worlds, seed, layouts, nthread and extra_rewards are PursuitEnv's (docs/env_api.md);
+    n_worlds, seed, layouts, nthread and extra_rewards are PursuitEnv's (docs/env_api.md); config
+    too, or task keys as a mapping, or a task file or preset name (config.task_config_from).
     autoreset_mode an AutoresetMode (or its value, "NextStep" / "SameStep"; module docstring).
     render_mode None (render() draws nothing) or "rgb_array"; render_settings a
     pursuit_mj.render.renderer.RenderSettings (default 640 x 480 top view), as PursuitParallelEnv's.
@@ -63,11 +64,11 @@ class PursuitVectorEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"]}
 
-    def __init__(self, config: TaskConfig | None = None, n_worlds: int = 1, seed: int = 0, layouts=None,
+    def __init__(self, config: TaskConfig | Mapping | str | None = None, n_worlds: int = 1, seed: int = 0, layouts=None,
                  nthread: int = 0, extra_rewards=None, autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
                  render_mode: str | None = None, render_settings=None):
         mode = _checked_mode(autoreset_mode)
-        config = default_config() if config is None else checked_task_config(config, "PursuitVectorEnv config")
+        config = default_config() if config is None else task_config_from(config, "PursuitVectorEnv config")
         self.batched = PursuitEnv(config, n_worlds=n_worlds, seed=check_seed(seed, "PursuitVectorEnv seed"),
                                   auto_reset=mode == AutoresetMode.SAME_STEP, layouts=layouts, nthread=nthread,
                                   extra_rewards=extra_rewards)
@@ -238,10 +239,10 @@ def _checked_mode(mode: Any) -> AutoresetMode:
     return found
 
 
-def make_vector_env(num_envs: int, config: TaskConfig | None = None, **kwargs) -> PursuitVectorEnv:
+def make_vector_env(num_envs: int, config: TaskConfig | Mapping | str | None = None, **kwargs) -> PursuitVectorEnv:
     """gymnasium.make_vec's entry point: a PursuitVectorEnv of `num_envs` slots, which must be a
     whole number of worlds (a multiple of config.n_pursuers); other keywords are PursuitVectorEnv's."""
-    config = default_config() if config is None else checked_task_config(config, f"{ENV_ID} config")
+    config = default_config() if config is None else task_config_from(config, f"{ENV_ID} config")
     n = config.n_pursuers
     if isinstance(num_envs, (bool, np.bool_)) or not isinstance(num_envs, (int, np.integer)) or num_envs < n or num_envs % n:
         raise ValueError(f"{ENV_ID} num_envs: expected a positive multiple of n_pursuers ({n}: one slot per pursuer of "

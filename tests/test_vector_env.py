@@ -422,3 +422,31 @@ def test_the_renderer_keeps_every_worlds_scene_up_to_eight_worlds(worlds, kept):
     env.reset(seed=0)
     assert env._frames.maker.renderer._keep == kept
     env.close()
+
+
+def test_make_vec_takes_the_task_as_keys_or_a_preset_so_its_spec_is_json():
+    """A TaskConfig in make_vec's kwargs made env.spec.to_json() fail (not JSON); task keys as a
+    mapping, or a task file or preset name, serialise and make the same env again."""
+    import dataclasses
+
+    import gymnasium
+    from gymnasium.envs.registration import EnvSpec
+
+    from pursuit_mj.config import ConfigError, load_task_config
+    from pursuit_mj.vector_env import ENV_ID
+
+    keys = {"n_pursuers": 2, "evader_speed": 0.3, "evader": {"panic_distance": 1.0}}
+    env = gymnasium.make_vec(ENV_ID, num_envs=4, config=keys)
+    expected = default_config(n_pursuers=2, evader_speed=0.3)
+    assert env.config == dataclasses.replace(expected, evader=dataclasses.replace(expected.evader, panic_distance=1.0))
+    again = gymnasium.make_vec(EnvSpec.from_json(env.spec.to_json()), num_envs=4)
+    assert again.config == env.config and again.n_worlds == 2
+    hard = gymnasium.make_vec(ENV_ID, num_envs=3, config="hard")
+    assert hard.config == load_task_config(["hard"])
+    assert EnvSpec.from_json(hard.spec.to_json()).kwargs["config"] == "hard"
+    with pytest.raises(ConfigError, match=r"pursuit_mj/Pursuit-v0 config.*evader_sped"):
+        gymnasium.make_vec(ENV_ID, num_envs=3, config={"evader_sped": 0.3})
+    with pytest.raises(ConfigError, match=r"pursuit_mj/Pursuit-v0 config: nope: no such file.*reference"):
+        gymnasium.make_vec(ENV_ID, num_envs=3, config="nope")
+    with pytest.raises(ConfigError, match=r"PursuitVectorEnv config: expected a TaskConfig, task keys or a task file"):
+        PursuitVectorEnv(config=3)
