@@ -136,6 +136,9 @@ def test_a_bad_flight_file_is_refused_naming_file_and_key(edit, words):
         ({"task": {"n_pursuers": 5}}, ["task", "n_pursuers", "set by the flight"]),
         ({"task": {"random_obstacles": 3}}, ["task", "random_obstacles", "none drawn at random"]),
         ({"task": {"fidelity": "point"}}, ["task", "'fidelity' means nothing in a flight"]),
+        # the real loop's delay is the real one; at 7 Hz it was refused naming a controller_hz the flight set itself
+        ({"task": {"command_latency": 0.05}}, ["task", "'command_latency' means nothing in a flight", "real"]),
+        ({"task": {"command_latency": 0.05}, "decision_rate": 7}, ["task", "'command_latency' means nothing in a flight"]),
         ({"decision_rate": 0.5}, ["decision_rate", "out of range"]),
         # a geofence margin of zero or inside the task's collision clearance
         ({"safety": {"geofence_margin": 0.0}}, ["lab.yaml: safety: key 'geofence_margin'", "0 m leaves the fence no room", "any depth lands everyone"]),
@@ -762,6 +765,8 @@ def test_an_event_log_that_cannot_be_opened_is_refused_in_one_line_naming_it(tmp
 
 @pytest.mark.parametrize("argv, words", [
     (["fly", "check", "--flight", "example", "--set", "fidelity=point"], ["--set fidelity=point", "means nothing in a flight"]),
+    (["fly", "check", "--flight", "example", "--set", "command_latency=0.05"],
+     ["--set command_latency=0.05", "means nothing in a flight"]),
     (["fly", "--flight", "example", "--policy", "heuristic", "--virtual", "--max-time", "0.5"],
      ["--max-time 0.5", "[1, 3600]"]),  # what the flight file's max_time takes
     (["fly", "align", "--flight", "lighthouse", "--virtual", "--window", "-1", "--spots", "0.5,0.6 1.7,0.6 1.8,4.0"],

@@ -38,6 +38,14 @@ FIXED_TASK_KEYS = ("n_pursuers", "n_evaders", "layout", "flight_height", "contro
                    "physics_dt", "controller_hz")
 
 
+#: task keys that mean nothing in a flight, and why: the simulator's stand-ins for what the real world has
+SIMULATION_ONLY_KEYS = {
+    "fidelity": "the physics is the real world's (the policy is trained in either fidelity)",
+    "command_latency": "the delay from decision to motion is the real loop's own (motion capture, policy, radio); "
+                       "the key stands in for it in simulation",
+}
+
+
 def _why_fixed(key: str) -> str:
     """Why a flight does not take task key `key` (one of FIXED_TASK_KEYS)."""
     if key in ("random_obstacles", "random_layout"):
@@ -164,9 +172,8 @@ def _task_config(spec: FlightSpec, layout_ref, overrides: Sequence[str]) -> Task
     """Task keys of the flight file <- overrides <- the keys the flight fixes."""
     src = f"{spec.source}: task"
     for key in spec.task:
-        if key == "fidelity":
-            raise ConfigError(f"{src}: key 'fidelity' means nothing in a flight: the physics is the real world's "
-                              "(the policy is trained in either fidelity)")
+        if key in SIMULATION_ONLY_KEYS:
+            raise ConfigError(f"{src}: key '{key}' means nothing in a flight: {SIMULATION_ONLY_KEYS[key]}")
         if key in FIXED_TASK_KEYS:
             raise ConfigError(f"{src}: key '{key}': {_why_fixed(key)}")
     task_keys = dict(spec.task)
@@ -176,9 +183,8 @@ def _task_config(spec: FlightSpec, layout_ref, overrides: Sequence[str]) -> Task
     values = to_dict(base)
     for text in overrides:
         path, value = parse_override(text, f"--set {text}")
-        if path[0] == "fidelity":
-            raise ConfigError(f"--set {text}: 'fidelity' means nothing in a flight: the physics is the real world's "
-                              "(the policy is trained in either fidelity)")
+        if path[0] in SIMULATION_ONLY_KEYS:
+            raise ConfigError(f"--set {text}: '{path[0]}' means nothing in a flight: {SIMULATION_ONLY_KEYS[path[0]]}")
         if path[0] in FIXED_TASK_KEYS:
             raise ConfigError(f"--set {text}: '{path[0]}': {_why_fixed(path[0])}")
         values = to_dict(build(TaskConfig, merge(values, path, value), f"--set {text}"))
