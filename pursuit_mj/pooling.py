@@ -4,7 +4,8 @@ An episode is known by its seed (evaluation.episode_seeds: the table seed and th
 it). So a row can gather the episodes of tables run with different `--seed`s, an episode met
 twice (the heuristic team in every table of one seed) counts once, and two policies from
 different files are paired on the episodes both played. The files must hold one task (their
-configs equal but for the layout and fidelity, which each row names), a policy label must
+configs equal but for the layout and fidelity, which each row names; a key that a table from
+before it existed lacks is at its default), a policy label must
 name one model throughout, a layout one arena (its file's sha256, where the tables record it) and
 an evader model of one's own one file (its sha256, "evader_model_sha256", likewise).
 A layout is known as the eval that played it knew it (its "layout_identity", which seeded its
@@ -20,7 +21,8 @@ from types import SimpleNamespace
 from typing import Sequence
 
 from .comparison import Paired, pair_matches
-from .configio import first_difference
+from .config import default_config
+from .configio import first_difference, to_dict
 from .evaluation import OUTCOMES, Row, layout_identity, summarise
 
 POOLED_SEED = -1  # Row.seed of a pooled row: its episodes come from tables of several seeds
@@ -53,8 +55,20 @@ def _read(path: Path) -> dict:
 
 
 def table_task(config: dict) -> dict:
-    """The task of an evaluation table's config: all but the keys its rows may set apart."""
-    return {k: v for k, v in config.items() if k not in PER_ROW_KEYS}
+    """The task of an evaluation table's config: all but the keys its rows may set apart; a task
+    key the table lacks (written before the key existed) at today's default, which plays as before."""
+    return {k: v for k, v in _with_defaults(config, to_dict(default_config())).items() if k not in PER_ROW_KEYS}
+
+
+def _with_defaults(config: dict, defaults: dict) -> dict:
+    """`config` with the keys of `defaults` it lacks, nested sections (evader) key by key."""
+    out = dict(config)
+    for key, value in defaults.items():
+        if key not in out:
+            out[key] = value
+        elif isinstance(value, dict) and isinstance(out[key], dict):
+            out[key] = _with_defaults(out[key], value)
+    return out
 
 
 def _models(data: dict) -> dict[str, str]:

@@ -218,3 +218,23 @@ def test_a_pool_of_several_code_versions_keeps_them_all_when_pooled_again(tables
     assert main(["pool", str(tmp_path / "ab.json")]) == 0
     out = capsys.readouterr().out
     assert "several code versions" in out and "aaaaaaaaaa in" in out and "bbbbbbbbbb in" in out, out
+
+
+def test_a_table_written_before_a_task_key_existed_pools_with_one_at_its_default(tables, tmp_path):
+    """A table from before command_latency (or drone_mass) was played at today's default, which
+    steps as before: it was refused as another task ('command_latency (0.0 there, None in ...)')."""
+    from pursuit_cli.plot_cmd import _check_one_task
+
+    data = json.loads(tables["h0"].read_text())
+    del data["config"]["command_latency"], data["config"]["drone_mass"], data["config"]["evader"]["smoothing"]
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(data))
+    pooled = pool_tables([old, tables["h1"]])
+    assert [r.episodes for r in pooled.rows] == [6]
+    pool_tables([tables["h1"], old])
+    _check_one_task([str(old), str(tables["h1"])])
+    delayed = tmp_path / "delayed.json"
+    data["config"]["command_latency"] = 0.05
+    delayed.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match=r"delayed\.json.*command_latency \(0\.05 there, 0\.0 in"):
+        pool_tables([tables["h1"], delayed])
