@@ -103,3 +103,25 @@ def test_the_tick_follows_controller_hz():
     assert default_config(controller_hz=250, command_latency=0.012).command_latency_ticks == 3
     with pytest.raises(ConfigError, match=r"controller_hz 250"):
         default_config(controller_hz=250, command_latency=0.01)
+
+
+@pytest.mark.parametrize("controller_hz,control_dt,ticks", [
+    (250, 0.2, 7), (250, 0.2, 50), (250, 0.2, 53), (500, 0.05, 24), (500, 0.05, 25), (500, 0.05, 61), (100, 0.05, 12),
+])
+def test_the_delay_is_whole_ticks_at_any_controller_rate_and_decision_interval(controller_hz, control_dt, ticks):
+    """Point fidelity, stepped a decision at a time, flies exactly as a twin stepped a controller
+    tick at a time under the pursuers' commands moved `ticks` ticks later (fewer than, a whole
+    number of, and more than the ticks of a decision)."""
+    rates = {"controller_hz": controller_hz}
+    delayed = make_physics("point", control_dt=control_dt, command_latency=ticks / controller_hz, **rates)
+    twin = make_physics("point", control_dt=1.0 / controller_hz, **rates)
+    P, T = delayed.config.n_pursuers, round(control_dt * controller_hz)
+    commands = np.random.default_rng(ticks).uniform(-0.3, 0.3, (4, delayed.n_drones, 2))
+    per_tick = np.repeat(commands, T, axis=0)
+    late = per_tick.copy()
+    late[:, :P] = np.concatenate([np.zeros((ticks, P, 2)), per_tick[:, :P]])[:len(per_tick)]
+    expected = []
+    for c in late:
+        twin.step(c[None])
+        expected.append(twin.velocities()[0, :, :2])
+    assert np.array_equal(tick_velocities(delayed, commands), np.array(expected))
