@@ -313,8 +313,8 @@ def checked_task_config(config, source: str) -> TaskConfig:
 
 def task_config_from(value, source: str) -> TaskConfig:
     """A checked TaskConfig from a TaskConfig, a mapping of task keys (as a task YAML file holds
-    them) or a task file path or preset name ('hard'); the last two are plain data, which a
-    gymnasium spec can serialise. ConfigError names `source` and what was wrong."""
+    them) or a task file path or preset name ('hard'); a mapping and a path as text are plain
+    data, which a gymnasium spec can serialise (a pathlib.Path is not JSON). ConfigError names `source` and what was wrong."""
     if isinstance(value, TaskConfig):
         return checked_task_config(value, source)
     if isinstance(value, Mapping):
