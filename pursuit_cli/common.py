@@ -250,12 +250,15 @@ def shield_if_asked(args: argparse.Namespace, policy, label: str, config: TaskCo
 
 #: task keys whose change between training and use a loaded model's user is told of
 TRAINED_TASK_KEYS = ("observability", "pursuer_speed", "evader_speed", "perception_radius", "field_of_view", "fidelity",
-                     "n_pursuers", "n_evaders", "drone_mass")
+                     "n_pursuers", "n_evaders", "drone_mass", "command_latency")
+#: of those, the keys a real flight has no value of (its latency is the real loop's)
+SIMULATION_ONLY_TRAINED_KEYS = ("command_latency",)
 
 
-def load_model(path, spec, task: TaskConfig, flag: str = "--model"):
+def load_model(path, spec, task: TaskConfig, flag: str = "--model", flight: bool = False):
     """A trained policy for `task` via train.policy.load_policy (imported lazily: the library never
-    needs torch); a model trained behind the safety shield comes back behind it."""
+    needs torch); a model trained behind the safety shield comes back behind it. A note on stderr
+    names the TRAINED_TASK_KEYS it learned with other values (for a `flight`, not the simulation-only ones)."""
     from pathlib import Path
 
     if Path(path).is_dir():
@@ -269,8 +272,8 @@ def load_model(path, spec, task: TaskConfig, flag: str = "--model"):
         raise ValueError(f"{flag} {path}: cannot load trained models, the train package is not importable ({exc})") from None
     policy = load_policy(path, spec, task=task)
     trained = getattr(policy, "trained_task", {})
-    differ = [f"{k} {trained[k]} (this task: {getattr(task, k)})" for k in TRAINED_TASK_KEYS
-              if k in trained and trained[k] != getattr(task, k)]
+    keys = [k for k in TRAINED_TASK_KEYS if not (flight and k in SIMULATION_ONLY_TRAINED_KEYS)]
+    differ = [f"{k} {trained[k]} (this task: {getattr(task, k)})" for k in keys if k in trained and trained[k] != getattr(task, k)]
     evader = trained.get("evader") if isinstance(trained.get("evader"), dict) else {}
     if "model" in evader and not _same_evader_model(evader["model"], task.evader.model):
         differ.append(f"evader.model {evader['model']} (this task: {task.evader.model})")

@@ -136,7 +136,7 @@ def run(args) -> int:
     events_path = args.events or default_events_path(plan)
     if (args.policy is None) == (args.model is None):
         raise ValueError("give exactly one of --policy NAME (e.g. heuristic) or --model FILE")
-    chosen = load_model(args.model, plan.obs_spec, plan.task) if args.model else choose_policy(plan, args.policy, args.seed)
+    chosen = load_model(args.model, plan.obs_spec, plan.task, flight=True) if args.model else choose_policy(plan, args.policy, args.seed)
     policy, _ = shield_if_asked(args, chosen, "", plan.task)
     if args.fault and not args.virtual:
         raise ValueError("--fault rehearses failures on virtual drones only; add --virtual")

@@ -185,10 +185,25 @@ def test_train_streams_its_scalars_to_rerun(tmp_path, capsys):
 def test_a_model_used_in_another_task_than_it_learned_says_so(tiny_model, capsys):
     assert main(["eval", "--model", str(tiny_model), "--layouts", "0", "--episodes", "1", "--fidelity", "point",
                  "--pursuers", "2", "--set", "max_steps=10", "-q", "--observability", "full", "-ev", "0.5",
-                 "--set", "drone_mass=0.033"]) == 0
+                 "--set", "drone_mass=0.033", "--set", "command_latency=0.1"]) == 0
     err = capsys.readouterr().err
     assert ("was trained with observability partial (this task: full), evader_speed 0.6 (this task: 0.5), "
-            "drone_mass 0.027 (this task: 0.033)") in err
+            "drone_mass 0.027 (this task: 0.033), command_latency 0.0 (this task: 0.1)") in err
+
+
+def test_a_flight_is_not_told_of_the_latency_a_model_learned_with(tiny_model, capsys):
+    """A flight has no command_latency (its delay is the real loop's), so the note would compare
+    the model's with a 0 that means nothing there; in simulation it is told."""
+    from pursuit_cli.common import load_model
+    from pursuit_mj.config import default_config
+    from pursuit_mj.obs_spec import ObsSpec
+
+    task = default_config(n_pursuers=2, fidelity="point", command_latency=0.1)
+    spec = ObsSpec.make(task.n_pursuers, task.n_evaders, task.n_rays)
+    load_model(tiny_model, spec, task)
+    assert "command_latency 0.0 (this task: 0.1)" in capsys.readouterr().err
+    load_model(tiny_model, spec, task, flight=True)
+    assert "command_latency" not in capsys.readouterr().err
 
 
 def test_an_empty_train_config_file_is_refused(tmp_path, capsys):
