@@ -149,9 +149,13 @@ class SafetyShield:
     @classmethod
     def from_config(cls, config, params: ShieldParams | None = None) -> "SafetyShield":
         """A shield for a TaskConfig's speed, clearances, ray range and teammates' sight
-        (in full observability every teammate knows every other: none is taken as blind)."""
+        (in full observability every teammate knows every other: none is taken as blind); its
+        response_time grows by the task's command_latency, during which a drone flies on."""
         check_rays(config.n_rays, "the safety shield")
         full = config.observability == "full"
+        params = params or ShieldParams()
+        if config.command_latency:  # a command acts that much later: the drone flies on meanwhile
+            params = dataclasses.replace(params, response_time=params.response_time + config.command_latency)
         return cls(config.pursuer_speed, config.capture_radius, config.obstacle_clearance,
                    config.teammate_clearance, config.ray_range, params, config.control_dt,
                    2 * math.pi if full else config.field_of_view, math.inf if full else config.perception_radius,

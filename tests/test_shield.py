@@ -421,3 +421,35 @@ def test_the_team_and_the_shield_refuse_a_task_without_enough_range_readings():
     with pytest.raises(ConfigError, match="task.n_rays 0: .* shield, residual.base, run.validation_vs_heuristic"):
         load_train_config(["residual"], ["task.n_rays=0"]).check_complete()
     load_train_config(["classic"], ["task.n_rays=0", "run.validation_vs_heuristic=false"]).check_complete()  # a network alone may
+
+
+@pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
+def test_under_command_latency_the_shield_still_stops_short_of_a_wall(fidelity):
+    """A command acts task.command_latency later, so the drone flies on meanwhile: the shield
+    judges each gap that much further ahead (its response_time grows by the latency)."""
+    cfg = dataclasses.replace(default_config(), fidelity=fidelity, layout=0, max_steps=100, command_latency=0.3)
+    obs = blank_obs()
+    wall_east(obs, 0.35)
+    obs[0, 0, SPEC.index("self", 0, "vx")] = SPEED  # already flying at the wall
+    toward = np.zeros((1, 3, 2))
+    toward[0, 0] = [SPEED, 0.0]
+    caps = []
+    for latency in (0.0, 0.3):
+        shield = SafetyShield.from_config(dataclasses.replace(cfg, command_latency=latency))
+        shield.reset(1)
+        caps.append(shield.apply(toward, obs, SPEC)[0, 0, 0])
+    assert caps[1] < caps[0] < SPEED  # the gap is judged 0.3 s further ahead: it brakes sooner
+    env = PursuitEnv(cfg, n_worlds=3, seed=0, auto_reset=False)
+    obs = env.reset(seeds=[11, 12, 13])
+    policy = shield_policy(Straight((1.0, 0.0)), cfg)
+    policy.reset(3)
+    obstacles = ObstacleSet.stack([layout.obstacle_set() for layout in env.world_layouts])
+    closest = np.inf
+    for _ in range(100):
+        obs, _, _, _, info = env.step(policy.act(obs, env.obs_spec))
+        assert all(r.outcome != "collision" for r in info["episodes"])
+        gaps = obstacle_distance(env.physics.positions()[:, : cfg.n_pursuers, :2], obstacles)  # (W, N) m
+        closest = min(closest, float(gaps.min()))
+        if env.done.all():
+            break
+    assert cfg.obstacle_clearance < closest < cfg.obstacle_clearance + 0.2
