@@ -69,9 +69,9 @@ def test_random_team_collides_far_less_with_the_shield():
 
 
 @pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
-@pytest.mark.parametrize("direction", [(0.0, -1.0), (1.0, 0.0), (1.0, 1.0)])
-def test_flying_straight_at_a_wall_stops_short_of_it(fidelity, direction):
-    cfg = dataclasses.replace(default_config(), fidelity=fidelity, layout=0, max_steps=100)
+@pytest.mark.parametrize("direction, latency", [((0.0, -1.0), 0.0), ((1.0, 0.0), 0.0), ((1.0, 1.0), 0.0), ((1.0, 0.0), 0.3)])
+def test_flying_straight_at_a_wall_stops_short_of_it(fidelity, direction, latency):
+    cfg = dataclasses.replace(default_config(), fidelity=fidelity, layout=0, max_steps=100, command_latency=latency)
     env = PursuitEnv(cfg, n_worlds=3, seed=0, auto_reset=False)
     obs = env.reset(seeds=[11, 12, 13])
     policy = shield_policy(Straight(direction), cfg)
@@ -86,7 +86,7 @@ def test_flying_straight_at_a_wall_stops_short_of_it(fidelity, direction):
         if env.done.all():
             break
     assert closest > cfg.obstacle_clearance
-    assert closest < cfg.obstacle_clearance + 0.15  # it went up to the wall, not stopped far away
+    assert closest < cfg.obstacle_clearance + 0.15 + latency / 6  # it went up to the wall, not stopped far away
 
 
 def test_an_action_away_from_every_hazard_is_unchanged():
@@ -423,11 +423,10 @@ def test_the_team_and_the_shield_refuse_a_task_without_enough_range_readings():
     load_train_config(["classic"], ["task.n_rays=0", "run.validation_vs_heuristic=false"]).check_complete()  # a network alone may
 
 
-@pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
-def test_under_command_latency_the_shield_still_stops_short_of_a_wall(fidelity):
+def test_under_command_latency_the_shield_brakes_sooner():
     """A command acts task.command_latency later, so the drone flies on meanwhile: the shield
     judges each gap that much further ahead (its response_time grows by the latency)."""
-    cfg = dataclasses.replace(default_config(), fidelity=fidelity, layout=0, max_steps=100, command_latency=0.3)
+    cfg = default_config()
     obs = blank_obs()
     wall_east(obs, 0.35)
     obs[0, 0, SPEC.index("self", 0, "vx")] = SPEED  # already flying at the wall
@@ -439,17 +438,3 @@ def test_under_command_latency_the_shield_still_stops_short_of_a_wall(fidelity):
         shield.reset(1)
         caps.append(shield.apply(toward, obs, SPEC)[0, 0, 0])
     assert caps[1] < caps[0] < SPEED  # the gap is judged 0.3 s further ahead: it brakes sooner
-    env = PursuitEnv(cfg, n_worlds=3, seed=0, auto_reset=False)
-    obs = env.reset(seeds=[11, 12, 13])
-    policy = shield_policy(Straight((1.0, 0.0)), cfg)
-    policy.reset(3)
-    obstacles = ObstacleSet.stack([layout.obstacle_set() for layout in env.world_layouts])
-    closest = np.inf
-    for _ in range(100):
-        obs, _, _, _, info = env.step(policy.act(obs, env.obs_spec))
-        assert all(r.outcome != "collision" for r in info["episodes"])
-        gaps = obstacle_distance(env.physics.positions()[:, : cfg.n_pursuers, :2], obstacles)  # (W, N) m
-        closest = min(closest, float(gaps.min()))
-        if env.done.all():
-            break
-    assert cfg.obstacle_clearance < closest < cfg.obstacle_clearance + 0.2
