@@ -170,13 +170,16 @@ class VelocityController:
         dt: float,
         rot: np.ndarray | None = None,
         drag: np.ndarray | None = None,
+        keep: np.ndarray | None = None,
     ) -> np.ndarray:
         """Rotor thrusts (4, N) in N, within [0, max_thrust] (cap_thrusts).
 
         pos (3, N) m world, vel (3, N) m/s world, quat (4, N) body->world, angvel (3, N)
         rad/s body, v_cmd (2, N) m/s world; dt (s) is the time since the last call;
         rot (9, N) the rotation matrices of quat (see quat_to_rotmat) and drag (3, N) N the
-        drag force on each drone now (see linear_drag), if the caller already has them.
+        drag force on each drone now (see linear_drag), if the caller already has them;
+        keep (N,) bool: drones whose memory (the altitude integrator) this call leaves as it is
+        (drones not being simulated; their thrusts are computed all the same).
         """
         n = pos.shape[1]
         if self._z_integral.shape[0] != n:
@@ -200,6 +203,8 @@ class VelocityController:
         asked = fz + ki * zi + weight + force[2]
         held = ((asked > self._max_fz) & (zi > self._z_integral)) | ((asked < self._min_fz) & (zi < self._z_integral))
         zi[held] = self._z_integral[held]
+        if keep is not None:
+            zi[keep] = self._z_integral[keep]
         self._z_integral = zi
         fz += ki * zi
         fz += weight

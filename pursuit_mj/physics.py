@@ -347,15 +347,19 @@ class BatchedPhysics:
         physics went bad raises FloatingPointError, or with strict=False is flagged in
         `self.diverged` (W,) bool for the caller to end and reset. With `worlds` (W,) bool
         only those worlds are simulated; the others keep their drones' state and their clock
-        (no contacts), and the stepped ones move exactly as in a step of all. A paused world is
-        meant to be reset before it is stepped again: the quadrotor controller's memory (its
-        integrators) still runs for it.
+        (no contacts), and the stepped ones move exactly as in a step of all. A paused world
+        keeps its memory too: its last commands (`self.commands`), the pursuers' commands still
+        on their way and its quadrotor controller's integrator, so that stepped again (without a
+        reset) it flies on as if it had never been paused; its commands in this call are unused.
         """
         cmd = check_commands(commands, (self.n_worlds, self.n_drones, 2))
         cmd = clip_norm(cmd, self.max_speed)
         ids = self._stepped_ids(worlds)
-        self.commands[:] = cmd
-        tick_cmds = self._tick_commands(cmd)
+        if ids is None:
+            self.commands[:] = cmd
+        else:
+            self.commands[ids] = cmd[ids]
+        tick_cmds = self._tick_commands(cmd, ids)
         if ids is not None and len(ids) == 0:
             self.contacts[:] = False
         elif self.fidelity == "quadrotor":
@@ -369,10 +373,10 @@ class BatchedPhysics:
         self._check_health(strict)
         return self.contacts.copy()
 
-    def _tick_commands(self, cmd: np.ndarray) -> list[np.ndarray]:
+    def _tick_commands(self, cmd: np.ndarray, ids: np.ndarray | None = None) -> list[np.ndarray]:
         """The command (W, D, 2) m/s world in force at each controller tick of this step: the
         evaders' as given, the pursuers' as given command_latency ticks earlier. Then `cmd` joins
-        the pending ones."""
+        the pending ones of the worlds stepped, ids (None: all); a paused world's wait."""
         T = self.config.substeps // self.config.substeps_per_control
         L = self._latency_ticks
         if L == 0:
@@ -385,8 +389,12 @@ class BatchedPhysics:
                 by_lag[lag] = cmd.copy()
                 by_lag[lag][:, :P] = self._pending[-lag]
         ticks = [by_lag[-(-(L - i) // T)] for i in range(min(L, T))] + [cmd] * max(T - L, 0)
-        self._pending[:-1] = self._pending[1:]
-        self._pending[-1] = cmd[:, :P]
+        if ids is None:
+            self._pending[:-1] = self._pending[1:]
+            self._pending[-1] = cmd[:, :P]
+        else:
+            self._pending[:-1, ids] = self._pending[1:, ids]
+            self._pending[-1, ids] = cmd[ids, :P]
         return ticks
 
     def _stepped_ids(self, worlds: np.ndarray | None) -> np.ndarray | None:
@@ -438,6 +446,11 @@ class BatchedPhysics:
         contacts = self.contacts
         contacts[:] = False
         cmd = None
+        keep = None  # (D*W,) drone-major: the drones of the paused worlds, whose controller memory stays
+        if ids is not None:
+            keep = np.ones((D, W), bool)
+            keep[:, ids] = False
+            keep = keep.ravel()
         for tick_cmd in tick_cmds:
             if tick_cmd is not cmd:
                 cmd = tick_cmd
@@ -445,7 +458,7 @@ class BatchedPhysics:
             x = state_t[self._read_cols].reshape(13, -1)  # pos 3, quat 4, vel 3, angvel 3 (x D*W)
             rot = quat_to_rotmat(x[3:7])
             out[4:] = linear_drag(rot, x[7:10], self.drag)  # held for the k physics steps
-            out[:4] = self.controller.compute(x[:3], x[7:10], x[3:7], x[10:13], cmd_t, dt, rot, out[4:])
+            out[:4] = self.controller.compute(x[:3], x[7:10], x[3:7], x[10:13], cmd_t, dt, rot, out[4:], keep)
             state_t[self._write_cols] = out_t
             contacts |= self._rollout_contacts(k, ids)
             for observer in self.observers:

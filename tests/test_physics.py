@@ -80,6 +80,33 @@ def test_stepping_some_worlds_leaves_the_others_as_they_were_and_the_stepped_as_
         physics.step(cmds[0], worlds=np.array([True, False]))
 
 
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+@pytest.mark.parametrize("latency", [0.0, 0.15], ids=["no-latency", "latency-0.15s"])
+def test_a_paused_world_keeps_its_commands_and_controller_memory_and_resumes_as_never_paused(fidelity, latency):
+    """A world left out of `worlds` keeps everything, not only its drones: its last commands
+    (which snapshots show), the pursuers' commands still on their way (command_latency) and
+    its quadrotor controller's altitude integrator; stepped again without a reset it flies on
+    exactly as a world that was never paused, whatever the others did meanwhile."""
+    def drones(p):
+        return np.concatenate([p.positions()[1], p.velocities()[1], p.quaternions()[1]], -1)
+
+    reference = make_physics(fidelity, n_worlds=2, command_latency=latency)
+    physics = make_physics(fidelity, n_worlds=2, command_latency=latency)
+    cmds = random_commands(physics, 12, seed=8)
+    for c in cmds[:5]:
+        reference.step(c)
+        physics.step(c)
+    last = physics.commands[1].copy()
+    for c in cmds[5:8]:  # world 1 waits while world 0 runs on other commands
+        physics.step(-c, worlds=np.array([True, False]))
+    assert np.array_equal(physics.commands[1], last), "a paused world's last commands were overwritten"
+    for c in cmds[5:]:
+        reference.step(c)
+        physics.step(c)
+    assert np.array_equal(drones(physics), drones(reference))
+    assert physics.time[1] == reference.time[1]
+
+
 @pytest.mark.parametrize("fidelity,flight_height", [("point", 0.5), ("quadrotor", 0.5), ("point", 2.0), ("quadrotor", 1.0)])
 def test_contact_with_a_wall_is_reported_for_that_drone_only(fidelity, flight_height):
     xy = SPREAD_XY.copy()
