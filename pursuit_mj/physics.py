@@ -21,7 +21,7 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from .config import TaskConfig
+from .config import TaskConfig, checked_task_config
 from .controller import VelocityController, check_symmetric_drag, linear_drag, quat_to_rotmat
 from .layout import Layout
 from .planar import clip_norm
@@ -84,6 +84,10 @@ class BatchedPhysics:
     """
 
     def __init__(self, config: TaskConfig, layouts: Sequence[Layout], nthread: int = 0, obstacle_slots: int | None = None):
+        # a TaskConfig made directly or changed with dataclasses.replace skips the loader's
+        # checks; unchecked, a latency between ticks, a controller rate that does not divide the
+        # physics rate or a negative speed would be rounded or obeyed silently (ConfigError naming the key)
+        checked_task_config(config, "BatchedPhysics config")
         self.config = config
         self.n_worlds = len(layouts)
         if self.n_worlds < 1:

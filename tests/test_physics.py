@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from conftest import SPREAD_XY, make_physics, open_layout
 
-from pursuit_mj.config import default_config
+from pursuit_mj.config import ConfigError, default_config
 from pursuit_mj.physics import BatchedPhysics
 
 FIDELITIES = ("point", "quadrotor")
@@ -246,6 +248,23 @@ def test_bad_reset_and_layout_arguments_raise_value_error():
         physics.set_layouts([0, 1], [open_layout()])
     with pytest.raises(ValueError, match=r"layouts is empty"):
         BatchedPhysics(default_config(), [])
+
+
+@pytest.mark.parametrize("change,message", [
+    ({"command_latency": 0.004}, r"key 'command_latency': 0.004 s is not a whole number of controller ticks"),
+    ({"controller_hz": 150.0}, r"controller_hz 150.0 does not divide the physics rate"),
+    ({"physics_dt": 0.003}, r"control_dt 0.1 is not a whole number of physics_dt 0.003"),
+    ({"pursuer_speed": -0.3}, r"key 'pursuer_speed': -0.3 is out of range"),
+    ({"drone_mass": 0.1}, r"key 'drone_mass': 0.1 kg is more than the rotors can fly"),
+], ids=["latency-between-ticks", "controller-rate", "physics-dt", "negative-speed", "too-heavy"])
+def test_a_config_that_skipped_the_loaders_checks_is_refused_naming_the_key(change, message):
+    """A TaskConfig changed with dataclasses.replace skips the loader's checks; BatchedPhysics
+    checks it as PursuitEnv does, instead of rounding a latency of 0.4 ticks to none, running
+    the controller at 167 Hz for 150, reversing every command of a negative speed or flying a
+    drone its rotors cannot lift."""
+    config = dataclasses.replace(default_config(), **change)
+    with pytest.raises(ConfigError, match=r"BatchedPhysics config: " + message):
+        BatchedPhysics(config, [open_layout()], nthread=1)
 
 
 def test_a_diverged_world_is_reported_by_index():
