@@ -29,7 +29,7 @@ from .env import EpisodeRecord, PursuitEnv, check_seed
 from .io_utils import atomic_write_text
 from .layout import N_BUILTIN, Layout, builtin_layout_path, is_index_text, load_layout
 from .policy import Policy, check_policy, checked_actions
-from .stats import Mean, Rate, mean_interval, rate
+from .stats import Mean, Rate, mean_interval, percent_text, rate  # percent_text: the table's rates, and the charts'
 
 OUTCOMES = ("success", "collision", "timeout")
 
@@ -248,16 +248,6 @@ def evaluate(
 
 
 # ---------------------------------------------------------------------- output
-
-
-def percent_text(fraction: float) -> str:
-    """A fraction as percent with one decimal, or as many more as keep a value that is neither
-    0 nor 1 from printing as 0.0 or 100.0 (one collision in 2500 episodes is 0.04, not 0.0)."""
-    value = 100.0 * fraction
-    decimals = 1
-    while 0.0 < fraction < 1.0 and round(value, decimals) in (0.0, 100.0) and decimals < 12:
-        decimals += 1
-    return f"{value:.{decimals}f}"
 
 
 def _pct(r: Rate) -> str:

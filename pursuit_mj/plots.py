@@ -18,6 +18,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from .io_utils import CannotWrite, atomic_path
+from .stats import percent_text
 
 X_KEYS = ("env_steps", "world_steps", "agent_steps", "update")
 #: default curves: (file stem, y label, accepted final key components)
@@ -229,11 +230,12 @@ def plot_training(runs: Mapping[str, Sequence[Mapping[str, float]]], folder: str
 
 
 def bar_label(value: float, percent: bool) -> str:
-    """A bar's value as its table shows it: a rate (%) to one decimal where it has one (62.5),
-    a mean step count whole; halves rounded up, not to even."""
+    """A bar's value as its table shows it: a rate (`value` in %) as the table's text
+    (stats.percent_text: 6.25 as 6.2, 0.04 as 0.04 and 99.96 as 99.96, not 0 and 100), without
+    a trailing '.0' (62.5, 100); a mean step count whole, halves rounded up, not to even."""
     if percent:
-        tenths = math.floor(value * 10 + 0.5)
-        return str(tenths // 10) if tenths % 10 == 0 else f"{tenths / 10:.1f}"
+        text = percent_text(value / 100.0)
+        return text.removesuffix(".0")
     return str(math.floor(value + 0.5))
 
 

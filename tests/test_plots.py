@@ -9,6 +9,7 @@ import pytest
 from PIL import Image
 
 from pursuit_cli import main
+from pursuit_mj.env import EpisodeRecord
 from pursuit_mj.plots import curve_keys, plot_eval, plot_training, read_eval_rows, read_training_log, x_key
 
 
@@ -401,3 +402,19 @@ def test_bar_labels_say_what_the_table_says():
 
     assert [bar_label(v, percent=True) for v in (62.5, 87.5, 100.0, 0.0, 97.44)] == ["62.5", "87.5", "100", "0", "97.4"]
     assert [bar_label(v, percent=False) for v in (180.5, 181.5, 42.0)] == ["181", "182", "42"]
+
+
+@pytest.mark.parametrize("count, n", [(1, 16), (5, 16), (3, 48), (9, 16), (1, 2500), (2499, 2500), (0, 7), (7, 7), (1, 3)])
+def test_a_rate_s_bar_label_is_the_table_s_text(count, n):
+    """The label read '6.3' for one success in 16 episodes (6.25 %) where the table printed 6.2, '0' for
+    one collision in 2500 episodes where it printed 0.04, and '100' for 2499 successes in 2500 where it
+    printed 99.96. The chart reads the rounded value of the CSV/JSON row (Row.flat), as `plot --eval` does."""
+    from pursuit_mj.evaluation import format_table, summarise
+    from pursuit_mj.plots import bar_label
+
+    records = [EpisodeRecord(0, k, 0, "success" if k < count else "timeout", 100, None, {}, 0, "0") for k in range(n)]
+    row = summarise("p", "0", "point", 0, records, 100)
+    table = format_table([row]).splitlines()[1].split()[3]  # the success % column
+    label = bar_label(row.flat()["success_pct"], percent=True)
+    assert float(label) == float(table), (label, table)
+    assert label == table.removesuffix(".0")
