@@ -21,10 +21,12 @@ from types import SimpleNamespace
 from typing import Sequence
 
 from .comparison import Paired, pair_matches
-from .config import default_config
+from .config import TaskConfig, default_config
 from .configio import first_difference, to_dict
 from .evaluation import OUTCOMES, Row, layout_identity, summarise
 
+#: the fidelities a row can name (TaskConfig.fidelity's choices)
+FIDELITIES = tuple(next(f for f in dataclasses.fields(TaskConfig) if f.name == "fidelity").metadata["choices"])
 POOLED_SEED = -1  # Row.seed of a pooled row: its episodes come from tables of several seeds
 PER_ROW_KEYS = ("layout", "fidelity")  # config keys a table's rows may set apart from the task
 
@@ -100,6 +102,8 @@ def _episodes(path: Path, record: dict) -> tuple[str, str, str, list[tuple[int, 
                          "'steps' and 'captured' of one length") from None
     if not episodes:
         raise ValueError(f"{path}: row {policy} on layout {layout} holds no episodes")
+    if fidelity not in FIDELITIES:
+        raise ValueError(f"{path}: row {policy} on layout {layout}: fidelity {fidelity!r}, not one of {', '.join(FIDELITIES)}")
     bad = [o for _, o, _, _ in episodes if o not in OUTCOMES]
     if bad:
         raise ValueError(f"{path}: row {policy} on layout {layout}: outcome {bad[0]!r} is not one of {', '.join(OUTCOMES)}")
@@ -114,7 +118,9 @@ def _episodes(path: Path, record: dict) -> tuple[str, str, str, list[tuple[int, 
 def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     """The rows of all `paths` pooled by policy, layout and fidelity; ValueError naming the file
     for a file that is no table, a task that differs (an evader model of one's own by its file's
-    sha256 too), a label naming two models, or an episode (same seed) that ended differently in two files."""
+    sha256 too), a label naming two models, an episode (same seed) that ended differently in two files,
+    or one that no eval of the task plays (steps outside 1..max_steps, more evaders caught than
+    n_evaders, a fidelity that is none of FIDELITIES)."""
     if not paths:
         raise ValueError("pool: name at least one evaluation JSON file")
     first_path, first = None, None
@@ -173,6 +179,11 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     max_steps = first["config"].get("max_steps")
     if not isinstance(max_steps, int) or isinstance(max_steps, bool) or max_steps < 1:
         raise ValueError(f"{first_path}: its config's max_steps is {max_steps!r}, not a whole number >= 1")
+    n_evaders = table_task(first["config"]).get("n_evaders")
+    if not isinstance(n_evaders, int) or isinstance(n_evaders, bool) or n_evaders < 1:
+        raise ValueError(f"{first_path}: its config's n_evaders is {n_evaders!r}, not a whole number >= 1")
+    for key, known in episodes.items():
+        _check_played(key[0], labels[key], known, max_steps, n_evaders)
     rows = []
     for key, known in episodes.items():
         records = [SimpleNamespace(seed=s, outcome=end[0], steps=end[1], captured=end[2]) for s, (end, _) in sorted(known.items())]
@@ -189,6 +200,19 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     if "evader_model_sha256" in first:  # so that the pooled table is checked alike when pooled again
         meta["evader_model_sha256"] = first["evader_model_sha256"]
     return Pooled(rows, max_steps, first["config"], notes, meta)
+
+
+def _check_played(policy: str, layout: str, known: dict[int, tuple[tuple[str, int, int], Path]], max_steps: int,
+                  n_evaders: int) -> None:
+    """ValueError naming the file of an episode that no eval of the task plays: steps outside
+    1..max_steps, or more evaders caught than the task has (an edited or damaged table)."""
+    for seed, ((_, steps, caught), path) in known.items():
+        if not 1 <= steps <= max_steps:
+            raise ValueError(f"{path}: row {policy} on layout {layout}: episode seed {seed} took steps {steps}, outside "
+                             f"1..{max_steps} (the task's max_steps); no eval of this task plays it")
+        if caught > n_evaders:
+            raise ValueError(f"{path}: row {policy} on layout {layout}: episode seed {seed} has captured {caught}, outside "
+                             f"0..{n_evaders} (the task's n_evaders); no eval of this task plays it")
 
 
 def _check_evaders(first_path: Path, first: dict, path: Path, data: dict) -> None:

@@ -238,3 +238,24 @@ def test_a_table_written_before_a_task_key_existed_pools_with_one_at_its_default
     delayed.write_text(json.dumps(data))
     with pytest.raises(ValueError, match=r"delayed\.json.*command_latency \(0\.05 there, 0\.0 in"):
         pool_tables([tables["h1"], delayed])
+
+
+@pytest.mark.parametrize("field, value, said", [
+    ("steps", TASK.max_steps + 880, f"steps {TASK.max_steps + 880}, outside 1..{TASK.max_steps}"),
+    ("steps", 0, f"steps 0, outside 1..{TASK.max_steps}"),
+    ("captured", 5, f"captured 5, outside 0..{TASK.n_evaders}"),
+    ("fidelity", None, "fidelity None, not one of point, quadrotor"),
+])
+def test_an_episode_no_eval_of_the_task_can_play_is_refused(tables, field, value, said):
+    """A success after 1000 steps under max_steps 120 was pooled (a capture time past the limit, and
+    paired as such), and a row of fidelity null made a row of fidelity 'None' beside the point one."""
+    data = json.loads(tables["hr0"].read_text())
+    row = data["rows"][0]
+    if field == "fidelity":
+        row["fidelity"] = value
+    else:
+        row["per_episode"][field][0] = value
+    edited = tables["tmp"] / f"edited_{field}.json"
+    edited.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match=f"edited_{field}.json: row heuristic on layout 0: .*{said}"):
+        pool_tables([tables["hr0"], edited] if field == "fidelity" else [edited])
