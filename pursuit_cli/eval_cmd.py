@@ -153,12 +153,20 @@ def _meta(args, policies, layouts, code: dict, config) -> dict:
             "policy_file_sha256": [policy_file_sha256(p) for p in args.policy if is_policy_file(p)],
             # and what in each file made the policy: two factories of one file can give policies of one name
             "policy_file_names": [policy_file_name(p) for p in args.policy if is_policy_file(p)],
+            # and under which label: pool refuses a label that names two files (one edited between tables)
+            "policy_file_sha256_of": _policy_file_labels(args, policies),
             "model_of": _model_labels(args, policies),
             "layout_sha256": {layout_label(ref): file_sha256(resolve_layout_ref(ref)) for ref in layouts},
             # what seeded each layout's episodes here (a relative path is a built-in or not by where eval ran): for pool
             "layout_identity": {layout_label(ref): layout_identity(ref) for ref in layouts}, "code": code,
             # the evaders' model of one's own (evader.model FILE.py:NAME) by its bytes: edited, it flies other evaders
             "evader_model_sha256": evader_model_sha256(config)}
+
+
+def _policy_file_labels(args, policies) -> dict[str, str]:
+    """{label: sha256 of its file} of the --policy FILE.py:NAME policies (the first of `policies`,
+    in the order of --policy)."""
+    return {label: policy_file_sha256(name) for name, (label, _) in zip(args.policy, policies) if is_policy_file(name)}
 
 
 def _model_labels(args, policies) -> dict[str, str]:

@@ -6,7 +6,7 @@ twice (the heuristic team in every table of one seed) counts once, and two polic
 different files are paired on the episodes both played. The files must hold one task (their
 configs equal but for the layout and fidelity, which each row names; a key that a table from
 before it existed lacks is at its default), a policy label must
-name one model throughout, a layout one arena (its file's sha256, where the tables record it) and
+name one model (or policy file of one's own) throughout, a layout one arena (its file's sha256, where the tables record it) and
 an evader model of one's own one file (its sha256, "evader_model_sha256", likewise).
 A layout is known as the eval that played it knew it (its "layout_identity", which seeded its
 episodes), so the folder `pool` runs from does not matter.
@@ -82,6 +82,13 @@ def _models(data: dict) -> dict[str, str]:
     return dict(zip(labels[len(labels) - len(shas):], shas)) if shas else {}
 
 
+def _policy_files(data: dict) -> dict[str, str]:
+    """label -> sha256 of the file of a policy of one's own (--policy FILE.py:NAME) behind it: eval's
+    and a pooled table's "policy_file_sha256_of" (empty for tables written before it)."""
+    value = data.get("policy_file_sha256_of")
+    return {str(k): str(v) for k, v in value.items()} if isinstance(value, dict) else {}
+
+
 def _per_layout(data: dict, key: str) -> dict[str, str]:
     """A {layout label: text} map of a table's meta (empty when it has none, as older tables)."""
     value = data.get(key)
@@ -118,13 +125,14 @@ def _episodes(path: Path, record: dict) -> tuple[str, str, str, list[tuple[int, 
 def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     """The rows of all `paths` pooled by policy, layout and fidelity; ValueError naming the file
     for a file that is no table, a task that differs (an evader model of one's own by its file's
-    sha256 too), a label naming two models, an episode (same seed) that ended differently in two files,
+    sha256 too), a label naming two models or two policy files, an episode (same seed) that ended differently in two files,
     or one that no eval of the task plays (steps outside 1..max_steps, more evaders caught than
     n_evaders, a fidelity that is none of FIDELITIES)."""
     if not paths:
         raise ValueError("pool: name at least one evaluation JSON file")
     first_path, first = None, None
     model_of: dict[str, tuple[str, Path]] = {}
+    file_of: dict[str, tuple[str, Path]] = {}  # label -> (its policy file's sha256, the table that said so)
     episodes: dict[tuple[str, str, str], dict[int, tuple[tuple[str, int, int], Path]]] = {}
     labels: dict[tuple[str, str, str], str] = {}
     commits: dict[str, Path] = {}
@@ -147,6 +155,11 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
             if seen[0] != sha:
                 raise ValueError(f"policy {label!r} is two different models: checkpoint {seen[0][:12]} in {seen[1]} and "
                                  f"{sha[:12]} in {path}")
+        for label, sha in _policy_files(data).items():
+            seen = file_of.setdefault(label, (sha, path))
+            if seen[0] != sha:
+                raise ValueError(f"policy {label!r} is two different policy files: sha256 {seen[0][:12]} in {seen[1]} and "
+                                 f"{sha[:12]} in {path} (edited between the tables?); pool only tables of one policy per label")
         code = data.get("code") if isinstance(data.get("code"), dict) else {}
         code_of_first = code if code_of_first is None else code_of_first
         for commit in code.get("git_commits") or [code.get("git_commit", "unknown")]:  # a pooled table's: all of them
@@ -194,6 +207,7 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
                      + ", ".join(f"{c[:10]} in {p}" for c, p in commits.items()) + ")")
     layouts = {labels[key]: key[1] for key in episodes}
     meta = {"model_sha256_of": {label: sha for label, (sha, _) in model_of.items()},
+            "policy_file_sha256_of": {label: sha for label, (sha, _) in file_of.items()},
             "layout_identity": layouts,
             "layout_sha256": {label: arena_of[ident][0] for label, ident in layouts.items() if ident in arena_of},
             "code": dict(code_of_first or {}) if len(commits) == 1 else {"git_commits": list(commits)}}

@@ -259,3 +259,38 @@ def test_an_episode_no_eval_of_the_task_can_play_is_refused(tables, field, value
     edited.write_text(json.dumps(data))
     with pytest.raises(ValueError, match=f"edited_{field}.json: row heuristic on layout 0: .*{said}"):
         pool_tables([tables["hr0"], edited] if field == "fidelity" else [edited])
+
+
+STILL = """
+import numpy as np
+class Still:
+    name = "still"
+    def __init__(self, config, seed):
+        pass
+    def reset(self, n_worlds, world_ids=None):
+        pass
+    def act(self, obs, spec):
+        return {speed} * np.ones(obs.shape[:2] + (2,))
+"""
+
+
+def test_one_label_for_two_policy_files_is_refused_and_a_pool_keeps_the_file_s_hash(tmp_path, capsys):
+    """A policy of one's own edited between the tables of two seeds was pooled into one row, as if one
+    policy had played them all (a label naming two checkpoints was refused, one naming two files not)."""
+    from pursuit_cli import main
+
+    team = tmp_path / "mine.py"
+    cmd = ["eval", "--policy", f"{team}:Still", "--policy", "heuristic", "--layouts", "0", "--episodes", "2", "--worlds", "2",
+           "--fidelity", "point", "--set", "max_steps=5", "-q"]
+    team.write_text(STILL.format(speed=0.0))
+    assert main(cmd + ["--seed", "0", "--out", str(tmp_path / "s0")]) == 0
+    assert main(cmd + ["--seed", "1", "--out", str(tmp_path / "s1")]) == 0
+    team.write_text(STILL.format(speed=0.5))
+    assert main(cmd + ["--seed", "2", "--out", str(tmp_path / "s2")]) == 0
+    capsys.readouterr()
+    assert main(["pool", str(tmp_path / "s0.json"), str(tmp_path / "s1.json"), "--out", str(tmp_path / "p01")]) == 0
+    for files in ([tmp_path / "s0.json", tmp_path / "s2.json"], [tmp_path / "p01.json", tmp_path / "s2.json"]):
+        capsys.readouterr()
+        assert main(["pool", *map(str, files)]) == 2
+        err = capsys.readouterr().err
+        assert f"policy 'still' is two different policy files: sha256 " in err and f"in {files[1]}" in err, err
