@@ -274,9 +274,12 @@ def read_eval_rows(path: str | Path) -> list[dict[str, Any]]:
     for i, r in enumerate(rows):
         if not isinstance(r, Mapping) or "policy" not in r or "layout" not in r:
             raise ValueError(f"evaluation results {path}: row {i} lacks 'policy' or 'layout'")
-        pair = (str(r["policy"]), layout_key(r["layout"]))
+        # one policy and layout in two fidelities (a pooled table's rows) are two bars, not one given twice
+        pair = (str(r["policy"]), layout_key(r["layout"]), str(r.get("fidelity") or ""))
         if pair in seen:
-            raise ValueError(f"evaluation results {path}: rows {seen[pair]} and {i} both hold policy {pair[0]} on layout {pair[1]}")
+            where = f" ({pair[2]})" if pair[2] else ""
+            raise ValueError(f"evaluation results {path}: rows {seen[pair]} and {i} both hold policy {pair[0]} on layout "
+                             f"{pair[1]}{where}")
         seen[pair] = i
         for key in NUMBER_KEYS:
             v = r.get(key)
@@ -340,13 +343,25 @@ def _fit_title(fig, ax) -> None:
         fig.tight_layout()
 
 
+def by_fidelity(rows: list[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+    """`rows`, each policy labelled 'NAME (fidelity)' when two of them hold one policy and layout in
+    different fidelities (a pooled table's, pursuit-mj pool), so that each is a bar of its own, as
+    pool --plots draws them; else as they are."""
+    keys = [(str(r["policy"]), layout_key(r["layout"])) for r in rows]
+    fidelities = {(k, str(r.get("fidelity") or "")) for k, r in zip(keys, rows)}
+    if len(fidelities) == len(set(keys)):
+        return rows
+    return [dict(r, policy=f"{r['policy']} ({r.get('fidelity') or 'fidelity unknown'})") for r in rows]
+
+
 def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str = "eval_") -> list[Path]:
     """Bar charts, one PNG (<prefix><metric>.png) per metric the rows hold: layouts on x, a bar per
     policy with its 95 % CI whiskers ("none" where its value is null), each layout's bars centred
-    on it (a policy without a row there leaves no gap), one colour per policy in every chart. A (policy, layout) pair given
-    twice is a ValueError: which of the two would the bar show?"""
+    on it (a policy without a row there leaves no gap), one colour per policy in every chart; rows of one
+    policy and layout in several fidelities are bars 'NAME (fidelity)' (by_fidelity). A (policy, layout)
+    pair given twice is a ValueError: which of the two would the bar show?"""
     plt = _plt()
-    rows = list(rows)
+    rows = by_fidelity(list(rows))
     folder = Path(folder)
     policies = list(dict.fromkeys(str(r["policy"]) for r in rows))
     layouts = list(dict.fromkeys(layout_key(r["layout"]) for r in rows))

@@ -294,3 +294,35 @@ def test_one_label_for_two_policy_files_is_refused_and_a_pool_keeps_the_file_s_h
         assert main(["pool", *map(str, files)]) == 2
         err = capsys.readouterr().err
         assert f"policy 'still' is two different policy files: sha256 " in err and f"in {files[1]}" in err, err
+
+
+def test_the_files_of_a_pool_of_two_fidelities_plot_as_its_plots_do(tables, tmp_path, capsys):
+    """`pool --plots` drew 'heuristic (point)' beside 'heuristic (quadrotor)', but `plot --eval` refused the
+    JSON and CSV that pool wrote: 'rows 0 and 2 both hold policy heuristic on layout 0'."""
+    from pursuit_cli import main
+    from pursuit_mj.plots import plot_eval, read_eval_rows
+
+    quad = dataclasses.replace(TASK, fidelity="quadrotor", max_steps=120)
+    q = _table(tables["tmp"], "quad2", 0, ("heuristic",), task=quad)
+    assert main(["pool", str(tables["h0"]), str(q), "--out", str(tmp_path / "both")]) == 0
+    for suffix in (".json", ".csv"):
+        capsys.readouterr()
+        assert main(["plot", "--eval", str(tmp_path / f"both{suffix}"), "-o", str(tmp_path / suffix[1:])]) == 0, \
+            capsys.readouterr().err
+        assert (tmp_path / suffix[1:] / "eval_success.png").is_file()
+    drawn = []
+    import matplotlib.axes
+
+    real = matplotlib.axes.Axes.bar
+    def spy(self, x, height, *args, label=None, **kw):
+        drawn.append(label)
+        return real(self, x, height, *args, label=label, **kw)
+    import unittest.mock
+    with unittest.mock.patch.object(matplotlib.axes.Axes, "bar", spy):
+        plot_eval(read_eval_rows(tmp_path / "both.json"), tmp_path / "spy")
+    assert {"heuristic (point)", "heuristic (quadrotor)"} <= set(drawn)
+    with pytest.raises(ValueError, match="rows 0 and 1 both hold policy heuristic on layout 0 .point."):
+        twice = json.loads((tmp_path / "both.json").read_text())
+        twice["rows"][1] = twice["rows"][0]
+        (tmp_path / "twice.json").write_text(json.dumps(twice))
+        read_eval_rows(tmp_path / "twice.json")
