@@ -62,14 +62,25 @@ class Row:
         for name in OUTCOMES:
             r: Rate = getattr(self, name)
             out[f"{name}_count"] = r.count
-            out[f"{name}_pct"] = round(100 * r.p, 3)
-            out[f"{name}_ci_lo"] = round(100 * r.lo, 3)
-            out[f"{name}_ci_hi"] = round(100 * r.hi, 3)
+            out[f"{name}_pct"] = percent_value(r.p)
+            out[f"{name}_ci_lo"] = percent_value(r.lo)
+            out[f"{name}_ci_hi"] = percent_value(r.hi)
         for name, m in (("mean_steps", self.steps), ("mean_steps_success", self.steps_success)):
             out[name] = None if m.mean is None else round(m.mean, 3)
             out[f"{name}_ci_lo"] = None if m.lo is None else round(m.lo, 3)
             out[f"{name}_ci_hi"] = None if m.hi is None else round(m.hi, 3)
         return out
+
+
+def percent_value(fraction: float) -> float:
+    """A fraction as percent rounded to 3 decimals, or to as many more as keep a value that is
+    neither 0 nor 1 from becoming 0.0 or 100.0 (as percent_text prints it: one collision in
+    300,000 episodes is 0.00033, not 0.0; the CSV and JSON rows say what the table says)."""
+    value = 100.0 * fraction
+    decimals = 3
+    while 0.0 < fraction < 1.0 and round(value, decimals) in (0.0, 100.0) and decimals < 15:
+        decimals += 1
+    return round(value, decimals)
 
 
 #: the column order of CSV files (and the keys of `Row.flat`)

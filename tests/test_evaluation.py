@@ -603,6 +603,26 @@ def test_a_rare_outcome_in_a_large_table_does_not_print_as_zero_or_all():
     assert " 99.96 [" in line and " 0.04 [" in line
 
 
+def test_a_rare_outcome_in_a_huge_table_is_not_zero_or_all_in_its_csv_and_json_either():
+    """Row.flat rounded percentages to 3 decimals: one collision in 300,000 episodes was 0.0 % in the CSV
+    and JSON (the table said 0.0003), the successes beside it 100.0, and none in 100,000 had the
+    interval [0.0, 0.0], a certainty the Wilson interval (hi 0.0038 %) does not claim."""
+    from pursuit_mj.evaluation import Row
+    from pursuit_mj.stats import Mean, percent_text, rate
+
+    steps = Mean(2, 1.0, 1.0, 1.0)
+    for count, n in ((1, 300_000), (0, 100_000)):
+        flat = Row("p", "0", "point", n, rate(n - count, n), rate(count, n), rate(0, n), steps, steps, 0).flat()
+        assert 0 < flat["collision_ci_hi"] and flat["success_ci_lo"] < 100
+        if count:
+            assert 0 < flat["collision_pct"] < flat["collision_ci_hi"] and flat["success_pct"] < 100
+            assert 0 < flat["collision_ci_lo"] and flat["success_ci_hi"] < 100
+        assert flat["collision_pct"] == float(percent_text(count / n))  # what the table prints: 0.0003, 0.0
+        assert flat["collision_ci_hi"] == pytest.approx(100 * rate(count, n).hi, rel=0.15)
+    flat = Row("p", "0", "point", 16, rate(1, 16), rate(15, 16), rate(0, 16), steps, steps, 0).flat()
+    assert (flat["success_pct"], flat["success_ci_lo"], flat["collision_ci_hi"]) == (6.25, 1.112, 98.888)  # as before
+
+
 def test_an_eval_killed_with_kill_9_keeps_its_finished_cells_for_resume(tmp_path):
     """kill -9 (or the out-of-memory killer) leaves no moment to write the finished cells: they
     were lost, and only Ctrl-C or SIGTERM kept them. Each finished cell is now kept as it ends."""
