@@ -163,9 +163,16 @@ def format_pairs(pairs: Sequence[Paired]) -> str:
 
 
 def _p_text(p: float | None) -> str:
+    """A p-value to 3 significant digits ('-' for none, '<0.001' below it), or to as many more as
+    keep one below VERDICT_LEVEL from printing as it (0.049983 as 0.04998, not 0.05 beside a verdict)."""
     if p is None:
         return "-"
-    return "<0.001" if p < 0.001 else f"{p:.3g}"
+    if p < 0.001:
+        return "<0.001"
+    digits = 3
+    while p < VERDICT_LEVEL <= float(f"{p:.{digits}g}") and digits < 12:
+        digits += 1
+    return f"{p:.{digits}g}"
 
 
 def pairs_to_dicts(pairs: Sequence[Paired]) -> list[dict]:

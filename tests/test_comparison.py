@@ -173,3 +173,16 @@ def test_two_layouts_or_more_get_one_more_line_over_all_their_episodes():
     assert (total.only_policy, total.only_reference) == (2, 1)
     assert (total.faster, total.slower) == (3, 2)
     assert [p.layout for p in pair_table([ref0, pol0], "heuristic", MAX)] == ["0"]  # one layout: nothing to pool
+
+
+def test_a_p_value_just_below_the_verdict_level_does_not_print_as_it():
+    """150 episodes won by the policy alone to 117 by the team give p = 0.049983: printed '0.05' beside the
+    verdict 'surer', which needs p below 0.05."""
+    from pursuit_mj.comparison import VERDICT_LEVEL, _p_text
+    from pursuit_mj.stats import mcnemar_p
+
+    p = mcnemar_p(150, 117)
+    assert p < VERDICT_LEVEL
+    assert float(_p_text(p)) < VERDICT_LEVEL and _p_text(p) == "0.04998"
+    assert [_p_text(x) for x in (0.05, 0.125, 0.0625, 0.00781, 0.0005, 1.0, None)] == \
+        ["0.05", "0.125", "0.0625", "0.00781", "<0.001", "1", "-"]
