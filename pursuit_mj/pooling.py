@@ -89,6 +89,36 @@ def _policy_files(data: dict) -> dict[str, str]:
     return {str(k): str(v) for k, v in value.items()} if isinstance(value, dict) else {}
 
 
+def _kinds(data: dict) -> dict[str, tuple[str, str]]:
+    """label -> (kind, how to say it) of each policy of a table's rows: 'checkpoint' or 'policy file'
+    (with its sha256), 'hand-made' where the table records policy files (policy_file_sha256_of),
+    else 'not a checkpoint' (a table from before that key: a team or a policy file). A table that
+    records no models either (written by a script) says nothing: its labels are left out."""
+    if "model_sha256" not in data and "model_sha256_of" not in data:
+        return {}
+    models, files = _models(data), _policy_files(data)
+    out = {}
+    for record in data["rows"]:
+        label = str(record.get("policy")) if isinstance(record, dict) else None
+        if label is None or label in out:
+            continue
+        if label in models:
+            out[label] = ("checkpoint", f"a checkpoint (sha256 {models[label][:12]})")
+        elif label in files:
+            out[label] = ("policy file", f"a policy file (sha256 {files[label][:12]})")
+        elif "policy_file_sha256_of" in data:
+            out[label] = ("hand-made", "a hand-made team")
+        else:
+            out[label] = ("not a checkpoint", "not a checkpoint")
+    return out
+
+
+def _one_kind(a: str, b: str) -> bool:
+    """Whether two tables' kinds of one label (_kinds) can be one policy: the same kind, or 'not a
+    checkpoint' (an older table's) beside a policy file or a hand-made team."""
+    return a == b or "checkpoint" not in (a, b) and "not a checkpoint" in (a, b)
+
+
 def _per_layout(data: dict, key: str) -> dict[str, str]:
     """A {layout label: text} map of a table's meta (empty when it has none, as older tables)."""
     value = data.get(key)
@@ -125,7 +155,8 @@ def _episodes(path: Path, record: dict) -> tuple[str, str, str, list[tuple[int, 
 def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     """The rows of all `paths` pooled by policy, layout and fidelity; ValueError naming the file
     for a file that is no table, a task that differs (an evader model of one's own by its file's
-    sha256 too), a label naming two models or two policy files, an episode (same seed) that ended differently in two files,
+    sha256 too), a label naming two models or two policy files (or a checkpoint in one table and a
+    team in another, _kinds), an episode (same seed) that ended differently in two files,
     or one that no eval of the task plays (steps outside 1..max_steps, more evaders caught than
     n_evaders, a fidelity that is none of FIDELITIES)."""
     if not paths:
@@ -133,6 +164,8 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     first_path, first = None, None
     model_of: dict[str, tuple[str, Path]] = {}
     file_of: dict[str, tuple[str, Path]] = {}  # label -> (its policy file's sha256, the table that said so)
+    kind_of: dict[str, tuple[str, str, Path]] = {}  # label -> (_kinds' kind, how to say it, the table that said so)
+    knows_files = True  # every table records its policy files (policy_file_sha256_of)
     episodes: dict[tuple[str, str, str], dict[int, tuple[tuple[str, int, int], Path]]] = {}
     labels: dict[tuple[str, str, str], str] = {}
     commits: dict[str, Path] = {}
@@ -160,6 +193,12 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
             if seen[0] != sha:
                 raise ValueError(f"policy {label!r} is two different policy files: sha256 {seen[0][:12]} in {seen[1]} and "
                                  f"{sha[:12]} in {path} (edited between the tables?); pool only tables of one policy per label")
+        for label, (kind, said) in _kinds(data).items():
+            was, was_said, where = kind_of.setdefault(label, (kind, said, path))
+            if not _one_kind(was, kind):
+                raise ValueError(f"policy {label!r} is {said} in {path} but {was_said} in {where}; pool only tables "
+                                 "where a label names one policy")
+        knows_files = knows_files and "policy_file_sha256_of" in data
         code = data.get("code") if isinstance(data.get("code"), dict) else {}
         code_of_first = code if code_of_first is None else code_of_first
         for commit in code.get("git_commits") or [code.get("git_commit", "unknown")]:  # a pooled table's: all of them
@@ -207,10 +246,11 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
                      + ", ".join(f"{c[:10]} in {p}" for c, p in commits.items()) + ")")
     layouts = {labels[key]: key[1] for key in episodes}
     meta = {"model_sha256_of": {label: sha for label, (sha, _) in model_of.items()},
-            "policy_file_sha256_of": {label: sha for label, (sha, _) in file_of.items()},
             "layout_identity": layouts,
             "layout_sha256": {label: arena_of[ident][0] for label, ident in layouts.items() if ident in arena_of},
             "code": dict(code_of_first or {}) if len(commits) == 1 else {"git_commits": list(commits)}}
+    if knows_files:  # else a label of an older table, a policy file perhaps, would read as a hand-made team
+        meta["policy_file_sha256_of"] = {label: sha for label, (sha, _) in file_of.items()}
     if "evader_model_sha256" in first:  # so that the pooled table is checked alike when pooled again
         meta["evader_model_sha256"] = first["evader_model_sha256"]
     return Pooled(rows, max_steps, first["config"], notes, meta)

@@ -326,3 +326,24 @@ def test_the_files_of_a_pool_of_two_fidelities_plot_as_its_plots_do(tables, tmp_
         twice["rows"][1] = twice["rows"][0]
         (tmp_path / "twice.json").write_text(json.dumps(twice))
         read_eval_rows(tmp_path / "twice.json")
+
+
+def test_one_label_for_a_checkpoint_in_one_table_and_a_hand_made_team_in_another_is_refused(tables, tmp_path):
+    """A model whose run was named 'heuristic', evaluated alone at seed 1, was pooled into the heuristic
+    team's row of a seed-0 table (its episodes were other seeds, so none ended differently)."""
+    net = _table(tables["tmp"], "net1", 1, meta={"policies": ["heuristic"], "models": ["runs/heuristic/best.pt"],
+                                                 "model_sha256": ["cd" * 32]})
+    with pytest.raises(ValueError, match=r"policy 'heuristic' is a checkpoint \(sha256 cdcdcdcdcdcd\) in .*net1.json but "
+                                          r"not a checkpoint in .*hr0.json"):
+        pool_tables([tables["hr0"], net])
+    with pytest.raises(ValueError, match=r"policy 'heuristic' is not a checkpoint in .*hr0.json but a checkpoint"):
+        pool_tables([net, tables["hr0"]])
+    team = dict(json.loads(tables["h1"].read_text()), policy_file_sha256_of={"heuristic": "ef" * 32})
+    (tmp_path / "file1.json").write_text(json.dumps(team))
+    hand = dict(json.loads(tables["hr0"].read_text()), policy_file_sha256_of={})
+    (tmp_path / "hand0.json").write_text(json.dumps(hand))
+    with pytest.raises(ValueError, match=r"policy 'heuristic' is a policy file \(sha256 efefefefefef\) in .*file1.json but "
+                                          r"a hand-made team in .*hand0.json"):
+        pool_tables([tmp_path / "hand0.json", tmp_path / "file1.json"])
+    assert pool_tables([tables["hr0"], tmp_path / "file1.json"]).rows  # hr0 predates the key: it may have been that file
+    assert pool_tables([tables["hr0"], tables["h1"]]).rows
