@@ -417,8 +417,8 @@ class PursuitEnv:
         terms = reward_terms(cfg, events, pos0[:, :N], pos[:, :N], pos[:, N:], pos0[:, N:], free_before)
         for k in ("progress", "proximity", "spread"):
             terms[k] = np.where(diverged[:, None], np.float32(0.0), terms[k])
-        for k in terms:
-            terms[k] = terms[k] * active[:, None]
+        for k in terms:  # ended worlds get 0.0 (multiplying a negative term by False would give -0.0)
+            terms[k] = np.where(active[:, None], terms[k], np.float32(0.0))
         self.captured |= events.new_captures & active[:, None]
         self.steps += active
         success = self.captured.all(-1) & active

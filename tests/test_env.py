@@ -97,6 +97,21 @@ def test_frozen_worlds_without_auto_reset():
     assert env.done.tolist() == [True, False]
 
 
+def test_an_ended_world_is_paid_plain_zeros_not_negative_zeros():
+    """A frozen world's terms are 0.0 in every step after its end: masking a negative term (the
+    collision penalty, the proximity penalty it ended with) by multiplying gave -0.0, printed as
+    '-0.0' in per-term logs and recordings, where the task's terms are never -0.0 otherwise."""
+    env = PursuitEnv(default_config(max_steps=50, **FAST), n_worlds=1, seed=0, auto_reset=False)
+    env.reset()
+    _place(env, 0, [[0.05, 1.0], [1.0, 1.0], [2.0, 1.0], [1.8, 4.5]])  # pursuer 0 inside the clearance of the wall x = 0
+    _, _, term, _, info = env.step(np.zeros((1, 3, 2)))
+    assert term[0] and info["outcome"][0] == "collision" and (info["reward_terms"]["collision"] < 0).all()
+    _, reward, _, _, info = env.step(np.zeros((1, 3, 2)))
+    for name, values in {**info["reward_terms"], "reward": reward}.items():
+        assert (values == 0).all() and not np.signbit(values).any(), f"{name}: {values}"
+    assert not any(np.signbit(v).any() for v in env.snapshot(0).reward_terms.values())
+
+
 def test_an_ended_world_stands_still_until_its_reset():
     """Without auto_reset an ended episode's world is not simulated (eval and validation wait in
     them for the last episode): its drones stay where the episode ended, its clock stops."""
