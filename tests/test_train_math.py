@@ -584,3 +584,77 @@ def test_every_net_kind_the_config_accepts_builds_its_own_trunk_and_an_unknown_k
         make_trunk(spec, unknown)
     with pytest.raises(ValueError, match=r"net.kind 'attention'"):
         Actor(spec, unknown)
+
+
+# ----------------------------------------------------------------------------- the learnable discount
+
+
+def _meta_problem(dtype=torch.float32):
+    """(actor, spec, obs, actions, rewards, values, next_values, terminated, done) of a small seeded
+    rollout (T 12, B 4) with one termination, for Discount.meta_step."""
+    spec = ObsSpec.make(2, 1, 4)
+    torch.manual_seed(0)
+    actor = Actor(spec, NetConfig(encoder_width=8, hidden=(8,))).to(dtype)
+    g = torch.Generator().manual_seed(0)
+    T, B = 12, 4
+    obs = (torch.rand(T, B, spec.dim, generator=g) * 2 - 1).to(dtype)
+    with torch.no_grad():
+        mean, _ = actor(obs, spec)
+    actions = mean + 0.5 * torch.randn(mean.shape, generator=g, dtype=dtype)
+    rewards, values, next_values = (torch.randn(T, B, generator=g, dtype=dtype) for _ in range(3))
+    terminated = torch.zeros(T, B, dtype=torch.bool)
+    terminated[5, 1] = True
+    return actor, spec, obs, actions, rewards, values, next_values, terminated, terminated.clone()
+
+
+@pytest.mark.parametrize("outer", [0.9999, 0.0])
+def test_a_learned_discount_stays_inside_the_range_it_may_start_in(outer):
+    """gamma = sigmoid(logit) in float32 reaches 1.0 exactly once the logit passes about 17:
+    a meta-gradient pushing it up for long enough left gamma at 1 (the sigmoid's gradient 0 there,
+    so it never came back) and the logged meta-gradient NaN (0 / 0); pushed down, it went on
+    toward 0, where one Adam step hardly moves it. It stays within discount.LEARNABLE_START."""
+    from train.discount import LEARNABLE_START, Discount
+
+    actor, spec, *rollout = _meta_problem()
+    d = Discount(0.5, True, 3.0, outer)  # a large meta step: the bound is met within a few updates
+    lo, hi = LEARNABLE_START
+    seen = []
+    for _ in range(30):
+        meta_grad = d.meta_step(actor, spec, *rollout, 0.95, 1e-3, torch.arange(48))
+        seen.append((d.value, meta_grad))
+    assert all(0.0 < gamma < 1.0 and math.isfinite(meta_grad) for gamma, meta_grad in seen), seen[-3:]
+    assert all(lo - 1e-7 <= gamma <= hi + 1e-7 for gamma, _ in seen), seen[-3:]
+    assert d.value == pytest.approx(hi if outer > 0.5 else lo, abs=1e-6)  # pushed to the bound, not past it
+
+
+def test_the_meta_gradient_is_the_derivative_in_gamma_of_the_outer_loss_after_one_inner_step():
+    """Written out: theta' = theta - lr grad L_in(theta, gamma), L_out(theta') with advantages of
+    gamma_outer; its central difference in gamma against meta_step's d L_out / d gamma (first
+    order in lr, so within a few per cent at lr 1e-3), in float64."""
+    import copy
+
+    from train.discount import Discount
+
+    actor, spec, obs, actions, rewards, values, next_values, terminated, done = _meta_problem(torch.float64)
+    lam, lr, outer, flat_obs, flat_act = 0.9, 1e-3, 0.995, obs.reshape(-1, spec.dim), actions.reshape(-1, 2)
+
+    def outer_loss_after_inner_step(gamma: float) -> float:
+        moved = copy.deepcopy(actor)
+        params = list(moved.parameters())
+        adv_in = normalise(compute_gae(rewards, values, next_values, terminated, done, gamma, lam)[0].reshape(-1))
+        logp = moved.distribution(flat_obs, spec).log_prob(flat_act).sum(-1)
+        grads = torch.autograd.grad(-(logp * adv_in).mean(), params)
+        with torch.no_grad():
+            for p, g in zip(params, grads):
+                p -= lr * g
+            adv_out = normalise(compute_gae(rewards, values, next_values, terminated, done, outer, lam)[0].reshape(-1))
+            logp = moved.distribution(flat_obs, spec).log_prob(flat_act).sum(-1)
+            return float(-(logp * adv_out).mean())
+
+    gamma, eps = 0.9, 1e-3
+    want = (outer_loss_after_inner_step(gamma + eps) - outer_loss_after_inner_step(gamma - eps)) / (2 * eps)
+    d = Discount(gamma, True, 1e-3, outer)
+    got = d.meta_step(actor, spec, obs, actions, rewards, values, next_values, terminated, done, lam, lr,
+                      torch.arange(obs.shape[0] * obs.shape[1]))
+    assert got == pytest.approx(want, rel=0.03)
+    assert (d.value > gamma) == (want < 0)  # the step goes down the outer loss

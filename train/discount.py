@@ -10,7 +10,10 @@ and gamma is judged by how much one such step would improve a fixed outer object
 To first order, theta' = theta - lr * grad_theta L_in, so
     L_out(theta') ~ L_out(theta) - lr * <grad_theta L_out, grad_theta L_in(gamma)>,
 and its derivative in gamma needs one second-order backward pass through grad_theta L_in.
-The logit takes one Adam step (gamma_meta_lr) per update down that derivative. The current
+The logit takes one Adam step (gamma_meta_lr) per update down that derivative, and is then
+held within the logits of LEARNABLE_START: gamma stays in [1e-4, 1 - 1e-4], where the float32
+sigmoid neither rounds to 1 (it does past a logit of about 16.6, where its gradient is 0 and
+gamma would stay at 1 for good) nor creeps toward 0 where a step hardly moves it. The current
 gamma is logged every update (metrics.jsonl key `gamma`) so one can watch it move.
 """
 
@@ -29,6 +32,15 @@ from .losses import normalise
 LEARNABLE_START = (1e-4, 1.0 - 1e-4)
 
 
+def logit(p: float) -> float:
+    """log(p / (1 - p)) for p in (0, 1): the logit whose sigmoid is p."""
+    return math.log(p / (1.0 - p))
+
+
+#: the logit is held within these after every meta step, so a learned gamma stays in LEARNABLE_START
+LOGIT_BOUNDS = (logit(LEARNABLE_START[0]), logit(LEARNABLE_START[1]))
+
+
 class Discount:
     """gamma as a float (fixed) or sigmoid(logit) with an Adam optimiser (learned)."""
 
@@ -39,7 +51,7 @@ class Discount:
         self.learnable = learnable
         self.outer_gamma = outer_gamma
         g = min(max(gamma, 1e-4), 1.0 - 1e-4)
-        self.logit = torch.nn.Parameter(torch.tensor(math.log(g / (1.0 - g)), dtype=torch.float32))
+        self.logit = torch.nn.Parameter(torch.tensor(logit(g), dtype=torch.float32))
         self._fixed = gamma
         self.optimizer = torch.optim.Adam([self.logit], lr=meta_lr) if learnable else None
 
@@ -49,7 +61,8 @@ class Discount:
 
     def meta_step(self, actor, spec, obs, actions, rewards, values, next_values, terminated, done,
                   lam: float, inner_lr: float, sample: torch.Tensor) -> float:
-        """One meta-gradient step on the logit; returns the meta-gradient d L_out / d gamma.
+        """One meta-gradient step on the logit, then the logit held within LOGIT_BOUNDS; returns
+        the meta-gradient d L_out / d gamma at the gamma the step started from.
 
         obs (T, B, D), actions (T, B, 2), rewards/values/next_values (T, B), terminated/done (T, B)
         bool; `sample` indexes the flattened T*B transitions used for the policy terms.
@@ -68,12 +81,13 @@ class Discount:
         g_out = torch.autograd.grad(-(logp * adv_out.detach()).mean(), params, retain_graph=True)
         inner_product = sum((a * b.detach()).sum() for a, b in zip(g_in, g_out))
         meta_loss = -inner_lr * inner_product
-        (d_logit,) = torch.autograd.grad(meta_loss, [self.logit])
+        d_logit, d_gamma = torch.autograd.grad(meta_loss, [self.logit, gamma])
         self.optimizer.zero_grad()
         self.logit.grad = d_logit
         self.optimizer.step()
-        sig = gamma.detach()
-        return float(d_logit / (sig * (1.0 - sig)))
+        with torch.no_grad():
+            self.logit.clamp_(*LOGIT_BOUNDS)
+        return float(d_gamma)
 
     def state_dict(self) -> dict:
         out = {"logit": self.logit.detach().clone(), "fixed": self._fixed}
