@@ -937,3 +937,23 @@ def test_init_from_compares_only_the_net_keys_the_networks_weights_depend_on(tmp
     assert torch.equal(same.model.actor.head.weight, load_checkpoint(path)["actor"]["head.weight"])
     with pytest.raises(ValueError, match=r"its actor is net.hidden \[16\]; this run builds net.hidden \[8\]"):
         Trainer(tiny_config(tmp_path, name="ft2", extra=[f"init_from={path}", "net.kind=mlp", "net.hidden=[8]"]), log=lambda s: None)
+
+
+def test_the_checkpoint_docstring_names_every_entry_a_training_checkpoint_holds(tmp_path):
+    """train/checkpoint.py's docstring is the file's contract: it named an rng entry of 'numpy
+    state as JSON text' that no checkpoint held, and left out entries every one holds."""
+    import re
+
+    import train.checkpoint as checkpoint_module
+
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    data = load_checkpoint(cfg.run_dir / "last.pt")
+    listed = {}
+    for line in checkpoint_module.__doc__.splitlines():
+        m = re.match(r"    (\w+(?:, \w+)*)\s{2,}(.*)", line)
+        if m:
+            listed.update({key: m.group(2) for key in m.group(1).split(", ")})
+    assert set(data) <= set(listed), sorted(set(data) - set(listed))
+    assert set(data["rng"]) == {"sampler", "torch"}
+    assert all(k in listed["rng"] for k in data["rng"]) and "numpy" not in listed["rng"], listed["rng"]

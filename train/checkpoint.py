@@ -10,7 +10,13 @@ A checkpoint is a dict of plain values and tensors (never pickled objects):
     optimizer              Adam state_dict (absent in weights-only exports)
     value_norm, discount   MAPPO running stats, discount logit + its optimiser
     counters               update, world_steps, agent_steps, episodes, best_success ...
-    rng                    torch CPU generator state (uint8 tensor), numpy state as JSON text
+    rng                    {"sampler": the run's sampling generator, "torch": torch's global RNG}, both
+                           CPU states (uint8 tensors); training draws from no numpy global RNG, and
+                           the envs are seeded afresh from (seed, update) on resume (rollout.env_seed)
+    pending_row            the metrics row of an update not yet in metrics.jsonl ({} when none)
+    layout_sha256          {absolute path: sha256} of the layout files the run names (resume checks them)
+    code_sha256            {absolute path: sha256} of its reward-term and evader-model files
+    exported_from          in a policy-only export (export_actor): the checkpoint it came from
 """
 
 from __future__ import annotations
