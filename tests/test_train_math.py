@@ -658,3 +658,46 @@ def test_the_meta_gradient_is_the_derivative_in_gamma_of_the_outer_loss_after_on
                       torch.arange(obs.shape[0] * obs.shape[1]))
     assert got == pytest.approx(want, rel=0.03)
     assert (d.value > gamma) == (want < 0)  # the step goes down the outer loss
+
+
+def test_mappo_targets_are_normalised_by_statistics_updated_with_this_rollouts_returns_first():
+    """Written out: GAE in reward units (the critic's outputs denormalised by the statistics of the
+    rollout's time), the running statistics merged with the rollout's returns (parallel Welford),
+    then the value loss of the critic's raw outputs against (return - mean') / std'."""
+    from train.agent import ActorCritic
+    from train.config import load_train_config
+    from train.ppo import advantages_and_returns, ppo_update
+    from train.storage import Rollout
+
+    spec, S, T, W, N = ObsSpec.make(2, 1, 4), 6, 8, 2, 2
+    cfg = load_train_config([], ["algo=mappo", "ppo.epochs=1", "ppo.minibatch_size=32", "net.encoder_width=8",
+                                 "net.hidden=[8]", "net.critic_hidden=[8]"])
+    torch.manual_seed(1)
+    model = ActorCritic(spec, S, cfg)
+    model.value_norm.load_state_dict({"mean": 3.0, "var": 4.0, "count": 100.0})
+    buf = Rollout(T, W, N, spec.dim, S)
+    g = torch.Generator().manual_seed(0)
+    buf.obs.uniform_(-1, 1, generator=g)
+    buf.states.uniform_(-1, 1, generator=g)
+    buf.rewards.normal_(generator=g).mul_(5.0)
+    buf.terminated[3, 0] = buf.truncated[5, 1] = True
+    states = buf.states.unsqueeze(2).expand(-1, -1, N, -1)
+    with torch.no_grad():
+        mean, log_std = model.actor(buf.obs, spec)
+        buf.actions.copy_(mean + 0.3 * torch.randn(mean.shape, generator=g))
+        buf.logp.copy_(gaussian_log_prob(mean, log_std.exp(), buf.actions).sum(-1))
+        buf.values.copy_(model.value(buf.obs, states))
+        raw = model.raw_value(buf.obs, states).double().reshape(-1).numpy()
+    np.testing.assert_allclose(buf.values.double().reshape(-1).numpy(), raw * 2.0 + 3.0, rtol=1e-5)  # reward units
+    buf.final_values.normal_(generator=g)
+    buf.last_value.normal_(generator=g)
+    _, ret, _ = advantages_and_returns(buf, cfg.ppo.gamma, cfg.ppo.gae_lambda)
+    x = ret.reshape(-1).double().numpy()
+    n0, m0, v0, n1, m1, v1 = 100.0, 3.0, 4.0, len(x), x.mean(), x.var()
+    mean_after = m0 + (m1 - m0) * n1 / (n0 + n1)
+    var_after = (v0 * n0 + v1 * n1 + (m1 - m0) ** 2 * n0 * n1 / (n0 + n1)) / (n0 + n1)
+    stats = ppo_update(model, torch.optim.Adam(model.parameters(), lr=1e-3), buf,
+                       cfg.ppo, cfg.ppo.gamma, torch.Generator().manual_seed(3))
+    assert model.value_norm.mean == pytest.approx(mean_after) and model.value_norm.var == pytest.approx(var_after)
+    want = float(((raw - (x - mean_after) / math.sqrt(var_after)) ** 2).mean())  # one step over the whole batch
+    assert stats["value_loss"] == pytest.approx(want, rel=1e-5)
