@@ -566,6 +566,64 @@ def test_every_gradient_step_is_clipped_to_max_grad_norm(monkeypatch):
     assert calls == [(len(list(model.parameters())), 0.25)]  # actor and critic, one joint norm
 
 
+def _gradients_of(model, actor_grad: float, critic_grad: float) -> None:
+    """Every actor parameter's gradient set to actor_grad, every critic one's to critic_grad."""
+    for p in model.actor.parameters():
+        p.grad = torch.full_like(p, actor_grad)
+    for p in model.critic.parameters():
+        p.grad = torch.full_like(p, critic_grad)
+
+
+def _norm(parameters) -> float:
+    return float(torch.cat([p.grad.flatten() for p in parameters]).norm())
+
+
+def test_separate_clipping_bounds_each_networks_gradient_by_its_own_norm_where_joint_shrinks_both():
+    from train.ppo import clip_gradients
+
+    spec = ObsSpec.make(2, 1, 4)
+    buf = _random_rollout(spec, T=8)
+    for how in ("joint", "separate"):
+        model, cfg = _acted(buf, spec, ["ppo.max_grad_norm=0.5", f"ppo.grad_clip={how}"])
+        _gradients_of(model, 1e-3, 1.0)  # a small policy gradient beside a large value gradient
+        actor, critic = _norm(model.actor.parameters()), _norm(model.critic.parameters())
+        assert actor < 0.5 < critic
+        norms = clip_gradients(model, cfg.ppo)
+        assert float(norms[0]) == pytest.approx(math.hypot(actor, critic), rel=1e-5)  # the norm of both, before
+        if how == "joint":
+            shrink = 0.5 / math.hypot(actor, critic)
+            assert len(norms) == 1
+            assert _norm(model.actor.parameters()) == pytest.approx(actor * shrink, rel=1e-4)
+            assert _norm(model.parameters()) == pytest.approx(0.5, rel=1e-4)
+        else:
+            assert [float(n) for n in norms[1:]] == pytest.approx([actor, critic], rel=1e-5)
+            assert _norm(model.actor.parameters()) == pytest.approx(actor, rel=1e-6)  # under the bound: untouched
+            assert _norm(model.critic.parameters()) == pytest.approx(0.5, rel=1e-4)
+
+
+def test_a_separately_clipped_update_logs_both_networks_norms_and_a_joint_one_does_not():
+    spec = ObsSpec.make(2, 1, 4)
+    buf = _random_rollout(spec, T=8)
+    buf.rewards *= 50.0
+    stats = {}
+    for how in ("joint", "separate"):
+        model, cfg = _acted(buf, spec, [f"ppo.grad_clip={how}"])
+        stats[how] = _update_once(model, buf, cfg)[1]
+    assert "actor_grad_norm" not in stats["joint"] and "critic_grad_norm" not in stats["joint"]
+    sep = stats["separate"]
+    assert sep["grad_norm"] == pytest.approx(math.hypot(sep["actor_grad_norm"], sep["critic_grad_norm"]), rel=1e-5)
+    assert sep["grad_norm"] == pytest.approx(stats["joint"]["grad_norm"], rel=1e-5)  # one step from one start
+    assert sep["actor_grad_norm"] > 0 and sep["critic_grad_norm"] > 0
+
+
+def test_an_unknown_grad_clip_is_refused_naming_the_key():
+    from pursuit_mj.configio import ConfigError
+    from train.config import load_train_config
+
+    with pytest.raises(ConfigError, match="ppo.grad_clip"):
+        load_train_config([], ["ppo.grad_clip=both"])
+
+
 def test_every_net_kind_the_config_accepts_builds_its_own_trunk_and_an_unknown_kind_is_refused():
     """train/networks.py TRUNKS and the choices of net.kind (train/config.py NET_KINDS) are one
     list: a kind added to the config but not to the networks must not fall back to the flat

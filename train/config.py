@@ -38,7 +38,11 @@ class PPOConfig:
     minibatch_size: int = spec(256, lo=1, help="pursuer transitions per gradient step")
     ent_coef: float = spec(0.0, lo=0.0, help="weight of the entropy bonus")
     vf_coef: float = spec(0.5, lo=0.0, help="weight of the value loss")
-    max_grad_norm: float = spec(0.5, lo=0.0, lo_open=True, help="global gradient-norm clip")
+    max_grad_norm: float = spec(0.5, lo=0.0, lo_open=True, help="gradient-norm clip (of what: grad_clip)")
+    grad_clip: str = spec("joint", choices=("joint", "separate"),
+                          help="joint: max_grad_norm bounds the norm of actor and critic gradients together (the "
+                               "reference study, CleanRL); separate: each network's own (MAPPO's way), so a large "
+                               "value gradient no longer shrinks the policy's step")
     norm_adv: bool = spec(True, help="normalise advantages per minibatch (zero mean, unit std)")
     value_scaling: bool = spec(True, help="PPO: divide the value loss by the std of the value targets (reference study)")
     learnable_gamma: bool = spec(False, help="learn the discount by meta-gradient (see train/discount.py); gamma is its start")
@@ -60,7 +64,7 @@ class PPOConfig:
 
 
 #: PPOConfig keys only PPO's update reads (DAgger reads gamma, gae_lambda, batch_size, vf_coef, value_scaling, lr_decay)
-PPO_UPDATE_ONLY = ("lr", "clip", "epochs", "minibatch_size", "ent_coef", "max_grad_norm", "norm_adv", "anchor_coef",
+PPO_UPDATE_ONLY = ("lr", "clip", "epochs", "minibatch_size", "ent_coef", "max_grad_norm", "grad_clip", "norm_adv", "anchor_coef",
                    "critic_warmup", "teacher_coef", "teacher_updates", "teacher_from_step")
 
 

@@ -26,6 +26,27 @@ def advantages_and_returns(buf: Rollout, gamma: float, lam: float) -> tuple[torc
     return adv, ret, s
 
 
+#: with ppo.grad_clip "separate", the per-step statistics logged beside STAT_NAMES (whose
+#: grad_norm stays the norm of both networks' gradients together, as with "joint")
+SEPARATE_NORM_NAMES = ("actor_grad_norm", "critic_grad_norm")
+
+
+def clip_gradients(model: ActorCritic, cfg: PPOConfig) -> tuple[torch.Tensor, ...]:
+    """Clip the gradients now in `model` by cfg.max_grad_norm and return their norms before it.
+
+    "joint": one norm over every parameter, scaled down together (a large value gradient then
+    shrinks the policy's step too); returns (norm,). "separate": the actor's parameters and the
+    rest (the critic) each by their own norm; returns (norm of both, actor's norm, critic's norm).
+    """
+    if cfg.grad_clip == "joint":
+        return (nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm),)
+    actor_ids = {id(p) for p in model.actor.parameters()}
+    critic = [p for p in model.parameters() if id(p) not in actor_ids]
+    actor_norm = nn.utils.clip_grad_norm_(model.actor.parameters(), cfg.max_grad_norm)
+    critic_norm = nn.utils.clip_grad_norm_(critic, cfg.max_grad_norm)
+    return torch.hypot(actor_norm, critic_norm), actor_norm, critic_norm
+
+
 def explained_variance(pred: torch.Tensor, target: torch.Tensor) -> float:
     var = target.var(unbiased=False)
     return float("nan") if var < 1e-12 else float(1.0 - (target - pred).var(unbiased=False) / var)
@@ -99,7 +120,7 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
     # n // minibatch_size minibatches per epoch; a remainder (1026 = 4 x 256 + 2 in classic) is
     # shared among them (sizes differ by at most one), so every transition is used once per epoch
     n_minibatches = max(n // cfg.minibatch_size, 1)
-    stats: list[torch.Tensor] = []  # per gradient step, the STAT_NAMES values
+    stats: list[torch.Tensor] = []  # per gradient step, the STAT_NAMES values (and SEPARATE_NORM_NAMES)
     for _ in range(cfg.epochs):
         perm = torch.randperm(n, generator=generator)
         for idx in torch.tensor_split(perm, n_minibatches):
@@ -135,14 +156,14 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, buf: Rollou
                 loss.backward()
             if critic_worker is not None:
                 v_loss = critic_worker.collect()  # and the critic's .grad is set
-            grad_norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
+            grad_norms = clip_gradients(model, cfg)
             optimizer.step()
             with torch.no_grad():
                 log_ratio = new_logp - mb_old_logp
                 approx_kl = ((log_ratio.exp() - 1.0) - log_ratio).mean()
-                stats.append(torch.stack([pg_loss, v_loss, entropy, approx_kl, clip_frac, grad_norm]))
+                stats.append(torch.stack([pg_loss, v_loss, entropy, approx_kl, clip_frac, *grad_norms]))
     means = torch.stack(stats).double().mean(0).tolist()  # at least one step per epoch
-    out = dict(zip(STAT_NAMES, means))
+    out = dict(zip(STAT_NAMES + SEPARATE_NORM_NAMES, means))
     with torch.no_grad():
         pred = buf.values.reshape(n)
     out["explained_variance"] = explained_variance(pred, ret)
