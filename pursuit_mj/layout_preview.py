@@ -95,9 +95,14 @@ def preview_layout(layout: Layout, seed: int, count: int | None = None, passage_
     passage_clearance (m): the task's obstacle_clearance; above 0.15 m the env draws placements
     that close a passage again, and so does this. Raises LayoutError if they do not fit, naming
     `count_source` (where `count` came from; default: the file's random_obstacles.count).
+    It tries as many placements as an episode's reset (layout_random.EPISODE_RESTARTS), so a seed
+    whose room an episode finds only after many draws is drawn as that episode has it.
     """
+    from .layout_random import EPISODE_RESTARTS
+
     return layout.with_random_obstacles(np.random.default_rng(seed), count, count_source=count_source,
-                                        passage_clearance=passage_clearance, passage_source=passage_source)
+                                        passage_clearance=passage_clearance, passage_source=passage_source,
+                                        restarts=EPISODE_RESTARTS)
 
 
 def save_layout_png(layout: Layout, path: str | Path, seed: int | None = 0, count: int | None = None, dpi: int = 120,

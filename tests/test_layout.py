@@ -925,3 +925,15 @@ def test_the_episode_seed_in_layout_show_help_is_the_one_render_reports(capsys):
         main(["layout", "show", "--help"])
     help_text = " ".join(capsys.readouterr().out.split())
     assert f"(seed {table_episode_seeds(default_config(), 0, 1)[0]})" in help_text, help_text
+
+
+def test_layout_show_draws_an_episode_whose_placement_needed_more_than_the_checks_restarts(tmp_path, capsys):
+    """An episode tries EPISODE_RESTARTS placements (layout 3 with 13 random obstacles: seed 1
+    finds room only after the 10 the layout check tries); `layout show --seed 1 --count 13`
+    said 'no room' for the episode the env plays with those obstacles."""
+    from pursuit_mj.layout_preview import preview_layout
+
+    env = PursuitEnv(default_config(layout=3, random_obstacles=13, fidelity="point"), n_worlds=1, seed=0)
+    env.reset(seeds=[1])
+    assert preview_layout(load_layout(3), 1, 13) == env.world_layouts[0]
+    assert main(["layout", "show", "3", "--seed", "1", "--count", "13", "-o", str(tmp_path / "crowded.png")]) == 0, capsys.readouterr().err
