@@ -207,7 +207,9 @@ def _parse_obstacle(entry: Any, where: str) -> Obstacle:
     raise LayoutError(f"{where}: unknown obstacle kind {shown(kind)}{key_hint(kind, ('box', 'cylinder', 'wall'))}")
 
 
-def _parse_boundary(value: Any, where: str) -> Boundary:
+def _parse_boundary(value: Any, where: str, arena: tuple[float, float] | None = None) -> Boundary:
+    """The boundary entry `value` read at `where`; `arena` (width, height) m, when given, refuses a
+    polygon point outside it before the shape checks, whose arithmetic overflows far outside."""
     if value is None or value == "rectangle":
         return Boundary()
     if isinstance(value, Mapping) and len(value) == 1:
@@ -216,6 +218,8 @@ def _parse_boundary(value: Any, where: str) -> Boundary:
             if not isinstance(body, (list, tuple)) or len(body) < 3:
                 raise LayoutError(f"{where}.polygon: expected at least 3 [x, y] points, got {shown(body)}")
             pts = tuple(_pair(p, f"{where}.polygon[{i}]") for i, p in enumerate(body))
+            if arena is not None:
+                _refuse_points_outside(pts, arena, where)
             from .layout_check import polygon_crossing, polygon_touch
 
             for i, p in enumerate(pts):
@@ -250,6 +254,15 @@ def _parse_boundary(value: Any, where: str) -> Boundary:
             m = _mapping(body, f"{where}.circle", ("center", "radius"), ("center", "radius"))
             return Boundary("circle", center=_pair(m["center"], f"{where}.circle.center"), radius=_number(m["radius"], f"{where}.circle.radius", positive=True))
     raise LayoutError(f"{where}: expected 'rectangle', {{polygon: [...]}} or {{circle: {{center, radius}}}}, got {shown(value)}")
+
+
+def _refuse_points_outside(pts: Sequence[tuple[float, float]], arena: tuple[float, float], where: str) -> None:
+    """LayoutError at the first polygon point (m) outside the arena of (width, height) m; with
+    `where` "<file>: boundary" the message is the one check_layout gives."""
+    width, height = arena
+    for p in pts:
+        if not (-1e-9 <= p[0] <= width + 1e-9 and -1e-9 <= p[1] <= height + 1e-9):
+            raise LayoutError(f"{where} polygon point {list(p)} lies outside the {width} x {height} m arena")
 
 
 def _refuse_sharp_reflex_corners(pts: Sequence[tuple[float, float]], where: str) -> None:
@@ -384,7 +397,7 @@ def layout_from_dict(data: Mapping[str, Any], source: str = "<layout>") -> Layou
         name=name,
         width=width,
         height=height,
-        boundary=_parse_boundary(m.get("boundary", "rectangle"), f"{source}: boundary"),
+        boundary=_parse_boundary(m.get("boundary", "rectangle"), f"{source}: boundary", (width, height)),
         obstacles=obstacles,
         random_obstacles=_parse_random(m.get("random_obstacles"), f"{source}: random_obstacles"),
         spawn_pursuers=_parse_region(spawn["pursuers"], f"{source}: spawn.pursuers"),

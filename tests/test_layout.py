@@ -937,3 +937,20 @@ def test_layout_show_draws_an_episode_whose_placement_needed_more_than_the_check
     env.reset(seeds=[1])
     assert preview_layout(load_layout(3), 1, 13) == env.world_layouts[0]
     assert main(["layout", "show", "3", "--seed", "1", "--count", "13", "-o", str(tmp_path / "crowded.png")]) == 0, capsys.readouterr().err
+
+
+def test_a_border_polygon_far_outside_the_arena_is_refused_without_numpy_overflow_warnings(tmp_path, capsys):
+    """A point at 1e300 m overflowed the self-crossing checks: a page of numpy RuntimeWarnings
+    came before the one-line error naming the point outside the arena."""
+    import warnings
+
+    data = base_dict(boundary={"polygon": [[0.0, 0.0], [1e300, 0.0], [0.0, 1e300]]})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(LayoutError, match=r"far.yaml: boundary polygon point \[1e\+300, 0.0\] lies outside the 3.6 x 5.0 m arena"):
+            layout_from_dict(data, "far.yaml")
+    path = tmp_path / "far.yaml"
+    path.write_text(yaml.safe_dump(data))
+    assert main(["layout", "check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "lies outside the 3.6 x 5.0 m arena" in err, err
