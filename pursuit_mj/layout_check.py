@@ -18,23 +18,26 @@ GRID_CELLS = 300
 
 
 def _obstacle_points(layout, obstacles) -> list[np.ndarray]:
-    """Outline sample points (K, 2) of each obstacle, its centre last, for inside-the-arena checks."""
-    from .layout import Box, Cylinder, Wall
+    """Outline sample points (K, 2) of each obstacle, its centre last, for inside-the-arena checks.
+    A point beyond the float range (an absurd size in a file) is inf: outside, without a warning."""
+    with np.errstate(over="ignore"):
+        return [_outline(o) for o in obstacles]
 
-    out = []
-    for o in obstacles:
-        if isinstance(o, Wall):
-            o = o.as_box()
-        if isinstance(o, Box):
-            hx, hy = o.size[0] / 2, o.size[1] / 2
-            c, s = np.cos(o.yaw), np.sin(o.yaw)
-            local = np.array([[hx, hy], [-hx, hy], [-hx, -hy], [hx, -hy], [0, 0]])
-            out.append(np.asarray(o.center) + local @ np.array([[c, s], [-s, c]]))
-        else:
-            a = np.linspace(0, 2 * np.pi, 16, endpoint=False)
-            rim = np.asarray(o.center) + o.radius * np.stack([np.cos(a), np.sin(a)], -1)
-            out.append(np.vstack([rim, o.center]))
-    return out
+
+def _outline(o) -> np.ndarray:
+    """Outline sample points (K, 2) m of one obstacle, its centre last."""
+    from .layout import Box, Wall
+
+    if isinstance(o, Wall):
+        o = o.as_box()
+    if isinstance(o, Box):
+        hx, hy = o.size[0] / 2, o.size[1] / 2
+        c, s = np.cos(o.yaw), np.sin(o.yaw)
+        local = np.array([[hx, hy], [-hx, hy], [-hx, -hy], [hx, -hy], [0, 0]])
+        return np.asarray(o.center) + local @ np.array([[c, s], [-s, c]])
+    a = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    rim = np.asarray(o.center) + o.radius * np.stack([np.cos(a), np.sin(a)], -1)
+    return np.vstack([rim, o.center])
 
 
 def free_spawn_points(layout, region, clearance: float = SPAWN_CLEARANCE, step: float = 0.05) -> np.ndarray:
@@ -308,6 +311,12 @@ def polygon_touch(points, tol: float = 1e-9) -> tuple[int, int] | None:
     return None if len(hits) == 0 else (int(hits[0][0]), int(hits[0][1]))
 
 
+def _metres(v: float) -> str:
+    """A coordinate (m) for a message: mm digits, or 4 significant ones beyond a kilometre (an
+    absurd size in a file), where mm digits ran to hundreds of characters."""
+    return f"{v:.3f}" if abs(v) < 1e3 else f"{v:.4g}"
+
+
 def _describe(o) -> str:
     from .layout import Box, Cylinder, Wall
 
@@ -332,7 +341,7 @@ def check_layout(layout) -> None:
             out = pts[np.flatnonzero(~in_arena)[0]]  # a corner or rim point (thickness counts), not only the centre line
             raise LayoutError(f"{src}: obstacles[{i}] ({_describe(layout.obstacles[i])}) lies (partly) outside "
                               f"the {layout.width} x {layout.height} m arena: its edge reaches "
-                              f"({out[0]:.3f}, {out[1]:.3f}) m, its thickness or size included")
+                              f"({_metres(out[0])}, {_metres(out[1])}) m, its thickness or size included")
         if layout.boundary.kind != "rectangle" and not inside_boundary(layout, pts[-1:]).all():
             raise LayoutError(f"{src}: obstacles[{i}] ({_describe(layout.obstacles[i])}) has its centre outside the {layout.boundary.kind} boundary")
     b = layout.boundary

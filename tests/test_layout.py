@@ -954,3 +954,18 @@ def test_a_border_polygon_far_outside_the_arena_is_refused_without_numpy_overflo
     assert main(["layout", "check", str(path)]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "lies outside the 3.6 x 5.0 m arena" in err, err
+
+
+@pytest.mark.parametrize("obstacle", [{"wall": {"from": [1.0, 2.5], "to": [2.0, 2.5], "thickness": 1e300}},
+                                      {"cylinder": {"center": [1.0, 2.5], "radius": 1e300}},
+                                      {"box": {"center": [1e308, 2.5], "size": [1.7e308, 0.2]}}])
+def test_an_obstacle_of_absurd_size_is_refused_in_a_short_line_without_overflow_warnings(obstacle):
+    """Its edge was printed with {:.3f}: 'its edge reaches (2.000, 500000000000000026...' ran to 300 digits."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(LayoutError, match=r"huge.yaml: obstacles\[0\] .* lies \(partly\) outside the 3.6 x 5.0 m arena: "
+                                              r"its edge reaches \(\S+, \S+\) m") as info:
+            layout_from_dict(base_dict(obstacles=[obstacle]), "huge.yaml")
+    assert len(str(info.value)) < 250, str(info.value)
