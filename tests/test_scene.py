@@ -179,3 +179,63 @@ def test_the_default_drone_mass_builds_the_model_files_drone_exactly():
     assert drone_parameters(0.027).keys() == drone_parameters().keys()
     for key, value in drone_parameters(0.027).items():
         assert np.array_equal(value, drone_parameters()[key]), key
+
+
+HAND_LAYOUT = """
+name: by_hand
+arena: {width: 3.0, height: 4.0}
+boundary: rectangle
+obstacles:
+  - box: {center: [1.0, 2.0], size: [0.6, 0.2], yaw: 0.5235987755982988}   # 30 deg counter-clockwise
+  - cylinder: {center: [2.2, 1.5], radius: 0.15}
+  - wall: {from: [0.0, 3.0], to: [1.2, 3.0], thickness: 0.04}
+  - wall: {from: [2.0, 2.6], to: [2.6, 3.2]}                                # default thickness 0.05
+random_obstacles: {count: 0}
+spawn:
+  pursuers: {x: [0.2, 2.8], y: [0.2, 0.8]}
+  evaders: {x: [0.2, 2.8], y: [3.3, 3.8]}
+"""
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_the_compiled_geoms_are_the_yaml_obstacles_and_border_worked_out_by_hand(tmp_path, fidelity):
+    """Names, types, world positions, half sizes, heights and rotation sense of every obstacle
+    and border geom, against numbers worked out from the YAML text above (not from Layout)."""
+    path = tmp_path / "by_hand.yaml"
+    path.write_text(HAND_LAYOUT)
+    model = build_model(SceneSpec(load_layout(path), 3, 1, fidelity))  # flight height 0.5 m: obstacles 1.2 m, border 0.8 m tall
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    c30, s30, r2 = math.cos(math.pi / 6), math.sin(math.pi / 6), math.sqrt(0.5)
+    # name: (type, centre x y z, half sizes, world direction of the geom's local x axis)
+    expected = {
+        "obstacle_0": ("BOX", (1.0, 2.0, 0.6), (0.3, 0.1, 0.6), (c30, s30)),
+        "obstacle_1": ("CYLINDER", (2.2, 1.5, 0.6), (0.15, 0.6), None),
+        "obstacle_2": ("BOX", (0.6, 3.0, 0.6), (0.6, 0.02, 0.6), (1.0, 0.0)),
+        "obstacle_3": ("BOX", (2.3, 2.9, 0.6), (0.6 * math.sqrt(2) / 2, 0.025, 0.6), (r2, r2)),
+        # border walls 5 cm thick just outside each side, counter-clockwise from the bottom,
+        # lengthened 5 cm past each (convex) corner
+        "border_0": ("BOX", (1.5, -0.025, 0.4), (1.55, 0.025, 0.4), (1.0, 0.0)),
+        "border_1": ("BOX", (3.025, 2.0, 0.4), (2.05, 0.025, 0.4), (0.0, 1.0)),
+        "border_2": ("BOX", (1.5, 4.025, 0.4), (1.55, 0.025, 0.4), (-1.0, 0.0)),
+        "border_3": ("BOX", (-0.025, 2.0, 0.4), (2.05, 0.025, 0.4), (0.0, -1.0)),
+    }
+    assert sorted(n for n in names_of(model, "geom", model.ngeom) if n.startswith(("obstacle_", "border_"))) == sorted(expected)
+    for name, (kind, pos, half, x_axis) in expected.items():
+        g = model.geom(name)
+        assert g.type[0] == getattr(mujoco.mjtGeom, f"mjGEOM_{kind}"), name
+        np.testing.assert_allclose(data.geom(name).xpos, pos, atol=1e-9, err_msg=name)
+        np.testing.assert_allclose(g.size[:len(half)], half, atol=1e-9, err_msg=name)
+        if x_axis is not None:
+            xmat = data.geom(name).xmat.reshape(3, 3)
+            np.testing.assert_allclose(xmat[:, 0], (*x_axis, 0.0), atol=1e-9, err_msg=name)
+            np.testing.assert_allclose(xmat[:, 2], (0.0, 0.0, 1.0), atol=1e-9, err_msg=name)
+    # the rotated box's corner at local (+0.3, +0.1), where the YAML's 30 deg turn puts it
+    xmat = data.geom("obstacle_0").xmat.reshape(3, 3)
+    corner = data.geom("obstacle_0").xpos + xmat @ np.array([0.3, 0.1, 0.6])
+    np.testing.assert_allclose(corner, (1.0 + 0.3 * c30 - 0.1 * s30, 2.0 + 0.3 * s30 + 0.1 * c30, 1.2), atol=1e-9)
+    # the walls' ends lie where the YAML puts them
+    for name, (a, b) in (("obstacle_2", ((0.0, 3.0), (1.2, 3.0))), ("obstacle_3", ((2.0, 2.6), (2.6, 3.2)))):
+        x_axis, half = data.geom(name).xmat.reshape(3, 3)[:2, 0], model.geom(name).size[0]
+        np.testing.assert_allclose(sorted([tuple(data.geom(name).xpos[:2] - half * x_axis), tuple(data.geom(name).xpos[:2] + half * x_axis)]),
+                                   sorted([a, b]), atol=1e-9, err_msg=name)
