@@ -204,10 +204,16 @@ def _queries_first(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def boundary_segments(layout: "Layout", circle_segments: int = 48) -> np.ndarray:
-    """The border as segments (S, 4) [x0, y0, x1, y1], counter-clockwise (inside on the left)."""
+    """The border as segments (S, 4) [x0, y0, x1, y1], counter-clockwise (inside on the left).
+
+    A polygon is taken counter-clockwise whichever way its points run: the loader stores it so,
+    but a Layout made directly may hold it clockwise, and the scene builds its walls on the right."""
     b = layout.boundary
     if b.kind == "polygon":
         pts = np.array(b.points, dtype=np.float64)
+        x, y = pts[:, 0], pts[:, 1]
+        if np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) < 0:  # twice the signed area: clockwise
+            pts = pts[::-1]
     elif b.kind == "circle":
         a = np.linspace(0, 2 * math.pi, circle_segments, endpoint=False)
         pts = np.stack([b.center[0] + b.radius * np.cos(a), b.center[1] + b.radius * np.sin(a)], -1)

@@ -239,3 +239,23 @@ def test_the_compiled_geoms_are_the_yaml_obstacles_and_border_worked_out_by_hand
         x_axis, half = data.geom(name).xmat.reshape(3, 3)[:2, 0], model.geom(name).size[0]
         np.testing.assert_allclose(sorted([tuple(data.geom(name).xpos[:2] - half * x_axis), tuple(data.geom(name).xpos[:2] + half * x_axis)]),
                                    sorted([a, b]), atol=1e-9, err_msg=name)
+
+
+def test_a_layout_made_with_a_clockwise_polygon_gets_its_border_walls_outside_the_flyable_region():
+    """The loader stores a polygon counter-clockwise, but a Layout made directly (which PursuitEnv
+    takes, checked as its file would be) kept its clockwise points: the scene built every border
+    wall on the inside of its edge, 5 cm into the flyable region."""
+    import dataclasses
+
+    from pursuit_mj.geometry import inside_boundary
+    from pursuit_mj.layout import Boundary
+
+    ccw = load_layout(2)
+    cw = dataclasses.replace(ccw, boundary=Boundary("polygon", points=ccw.boundary.points[::-1]))
+    model, reference = build_model(SceneSpec(cw, 3, 1, "point")), build_model(SceneSpec(ccw, 3, 1, "point"))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    walls = np.array([data.geom(f"border_{k}").xpos[:2] for k in range(len(cw.border()))])
+    assert not inside_boundary(cw, walls).any()
+    assert sorted(map(tuple, np.round(walls, 9))) == sorted(
+        tuple(np.round(reference.geom(f"border_{k}").pos[:2], 9)) for k in range(len(ccw.border())))
