@@ -222,6 +222,9 @@ def _parse_boundary(value: Any, where: str, arena: tuple[float, float] | None = 
                 _refuse_points_outside(pts, arena, where)
             from .layout_check import polygon_crossing, polygon_touch
 
+            if len(pts) > 3 and pts[-1] == pts[0]:  # a ring closed as GeoJSON closes it
+                raise LayoutError(f"{where}.polygon: the last point {list(pts[-1])} repeats the first: the border "
+                                  f"closes by itself; leave the last point out")
             for i, p in enumerate(pts):
                 if p in pts[:i]:
                     raise LayoutError(f"{where}.polygon: point {i} {list(p)} repeats point {pts.index(p)}: "

@@ -969,3 +969,13 @@ def test_an_obstacle_of_absurd_size_is_refused_in_a_short_line_without_overflow_
                                               r"its edge reaches \(\S+, \S+\) m") as info:
             layout_from_dict(base_dict(obstacles=[obstacle]), "huge.yaml")
     assert len(str(info.value)) < 250, str(info.value)
+
+
+def test_a_border_polygon_closed_by_repeating_its_first_point_is_told_to_leave_it_out():
+    """A ring closed as GeoJSON closes it was refused as 'point 4 repeats point 0: the border must
+    not touch itself', which sent the user looking for a place where the border touches itself."""
+    ring = [[0.0, 0.0], [3.6, 0.0], [3.6, 5.0], [0.0, 5.0], [0.0, 0.0]]
+    with pytest.raises(LayoutError, match=r"ring.yaml: boundary.polygon: the last point \[0.0, 0.0\] repeats the first: "
+                                          r"the border closes by itself; leave the last point out"):
+        layout_from_dict(base_dict(boundary={"polygon": ring}), "ring.yaml")
+    layout_from_dict(base_dict(boundary={"polygon": ring[:-1]}), "ring.yaml")
