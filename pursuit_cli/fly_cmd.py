@@ -32,7 +32,7 @@ def register(sub) -> None:
     add_shield_arg(p)
     p.add_argument("--virtual", action="store_true", help="fly virtual Crazyflies on udp://127.0.0.1 instead of the radio URIs")
     p.add_argument("--fault", action="append", default=[], metavar="KIND:DRONE@S[=V]",
-                   help="virtual only: inject a fault S seconds into the chase: drop_link:p1@3, freeze:p0@2, battery:e0@4=3.1 (repeatable)")
+                   help="virtual only: inject a fault S seconds into the chase: drop_link:p1@3, freeze:p0@2, battery:e0@4=3.1, lose_fix:p0@2 (Lighthouse/Loco) (repeatable)")
     p.add_argument("--rerun", metavar="FILE.rrd", help="record the flight for the rerun viewer")
     p.add_argument("--events", type=path_arg, metavar="FILE.jsonl", help="event log, appended to (default flights/<name>-<time>.events.jsonl)")
     p.add_argument("--max-time", type=finite_float, help="end the chase after this many seconds (overrides the flight file's max_time)")

@@ -567,3 +567,20 @@ def test_no_landing_is_sent_after_an_emergency_stop():
     bridge._airborne, bridge.links = True, []
     bridge._estop.set()
     assert bridge._land_all("error") is False and not bridge.events.of_kind("land")
+
+
+def test_a_lighthouse_drone_that_loses_its_position_fix_in_flight_lands_everyone(tmp_path):
+    # base stations hidden: the drone goes on sending estimates (never stale), but its Kalman
+    # position variance grows; the estimate it flies and the fence judge is a guess
+    def lose_fix(fleet, bridge):
+        time.sleep(0.3)
+        fleet.lose_fix(1)  # its variance grows by 0.1 m^2/s
+
+    plan = quick_plan(positioning="lighthouse", max_time=4.0)
+    result, events, fleet = fly_virtual(plan, HOVER, tmp_path, during=lose_fix)
+    assert result.outcome == "fix_lost" and "p1" in result.reason, (result.outcome, result.reason)
+    lost = events.of_kind("fix_lost")
+    assert [e["drone"] for e in lost] == ["p1"] and lost[0]["variance"] > plan.safety.fix_variance
+    assert kinds_in_order(events, "fix_lost", "land", "landed")
+    assert down(fleet)
+

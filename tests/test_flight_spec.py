@@ -108,6 +108,7 @@ def test_uris_compare_as_cflib_reads_them():
         (lambda d: d.update(transform={"scale": 0.0}), ["transform", "scale"]),
         (lambda d: d.update(transform={"origin": [0, 0], "yaw": "north"}), ["transform", "yaw"]),
         (lambda d: d.update(safety={"stale_hover": 2.0, "stale_land": 1.0}), ["stale_land", "longer than stale_hover"]),
+        (lambda d: d.update(safety={"estimator_variance": 0.02}), ["fix_variance", "0.01 m^2", "above estimator_variance 0.02"]),
         (lambda d: d["drones"].__setitem__(1, dict(d["drones"][1], role="pursuer")), ["no drone has role 'evader' or 'target'"]),
     ],
 )
@@ -403,6 +404,10 @@ def test_faults_parse_with_drone_names_and_values():
     with pytest.raises(ValueError, match=r"--fault 'freeze:p0@90': 90 s into the chase is not before its end \(max time 90 s\); "
                                          r"the fault would never happen"):
         parse_fault("freeze:p0@90", plan)  # the example's max_time is 90 s
+    with pytest.raises(ValueError, match=r"'lose_fix:p0@2': 'lose_fix' rehearses a Lighthouse or Loco drone .* flow decks"):
+        parse_fault("lose_fix:p0@2", plan)  # the example flies flow decks
+    lighthouse = load_plan("configs/flight/lighthouse.yaml")
+    assert parse_fault(f"lose_fix:{lighthouse.names[0]}@2", lighthouse).kind == "lose_fix"
 
 
 def test_keys_cut_the_motors_or_land_and_other_keys_do_nothing():

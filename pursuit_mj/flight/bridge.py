@@ -7,8 +7,9 @@ Every decision step (1 / decision_rate s):
 1. the latest estimates of all drones (StateBoard) -> lab frame -> layout frame;
 2. abort checks, each ending the run with everyone landing: emergency stop (motors cut
    instead), Ctrl-C, a land request, any link lost, a drone without a fresh estimate for
-   `stale_land`, a low battery, a fence breach (also a virtual obstacle entered or crossed
-   between two estimates) or too high, capture of every evader, the time limit;
+   `stale_land`, a lost position fix (Lighthouse/Loco: a Kalman position variance above
+   `fix_variance`), a low battery, a fence breach (also a virtual obstacle entered or
+   crossed between two estimates) or too high, capture of every evader, the time limit;
 3. captures by the simulator's rule; observations by the simulator's code (observe.py);
 4. the policy's actions in [-1, 1]^2 times pursuer_speed, clipped (the simulator's action
    interface), and the escape model for evader drones; targets are only tracked;
@@ -95,7 +96,7 @@ class StepRecord:
 @dataclasses.dataclass
 class FlightResult:
     """How a flight ended. outcome: captured | timeout | interrupted | land_requested |
-    link_lost | stale | low_battery | fence_breach | altitude | takeoff_failed |
+    link_lost | stale | fix_lost | low_battery | fence_breach | altitude | takeoff_failed |
     emergency_stop | error; reason: a sentence; chase_time (s); captures; steps; landed:
     the landing ran for every commanded drone and each one's last height estimate is below
     LANDED_HEIGHT; heights (D,) m: the last height estimates at the end (NaN: none)."""
@@ -489,6 +490,7 @@ class FlightBridge:
             i = int(np.flatnonzero(low)[0])
             self.events.log("low_battery", drone=names[i], vbat=snap.vbat[i, -1], threshold=limits.battery_land, level="error")
             raise _Abort("low_battery", f"battery of {names[i]} at {snap.vbat[i, -1]:.2f} V, below {limits.battery_land:g} V")
+        self._check_fix(snap)
         pos, vel = self._lab_state(snap)
         broken = (snap.state_count > 0) & ~(np.isfinite(pos).all(axis=1) & np.isfinite(vel).all(axis=1))
         if broken.any():  # a NaN passes every comparison below and would reach the commands
@@ -511,6 +513,23 @@ class FlightBridge:
             raise _Abort("altitude", f"{names[i]} at {pos[i, 2]:.2f} m, above {limits.max_altitude:g} m")
         if start is not None and self.clock() - start > plan.spec.max_time:
             raise _Abort("timeout", f"no capture within {plan.spec.max_time:g} s")
+
+    def _check_fix(self, snap: BoardSnapshot) -> None:
+        """Lighthouse/Loco: raise _Abort when a drone's latest Kalman position variance (m^2, any
+        axis) is above safety.fix_variance: its base stations or anchors are out of sight, and
+        the estimate it flies by (and the fence and separation judge) drifts. It goes on
+        arriving, so the stale check never sees it. Flow-deck position variance grows by design."""
+        if self.plan.spec.positioning == "flow":
+            return
+        limit = self.plan.safety.fix_variance
+        worst = np.max(np.where(np.isfinite(snap.var[:, -1, :]), snap.var[:, -1, :], 0.0), axis=-1)  # no sample yet: 0
+        lost = worst > limit
+        if lost.any():
+            i = int(np.flatnonzero(lost)[0])
+            name = self.plan.names[i]
+            self.events.log("fix_lost", drone=name, variance=worst[i], threshold=limit, level="error")
+            raise _Abort("fix_lost", f"{name} lost its position fix: Kalman position variance {worst[i]:.3g} m^2, above "
+                                     f"safety.fix_variance {limit:g} m^2")
 
     def _decide(self, snap: BoardSnapshot, observer: FlightObserver, pilot: EvaderPilot, start: float) -> StepRecord:
         """One decision step: task commands, safety filters, radio (module docstring, steps 3-6)."""

@@ -6,7 +6,8 @@ recording, starts virtual Crazyflies when asked (then the bridge simply flies th
 udp:// links), and runs the bridge. Faults can be injected into virtual flights to
 rehearse the safety behaviours: `drop_link:p1@3` (p1's link goes silent 3 s into the
 chase), `freeze:p0@2` (p0's estimates stop coming), `battery:e0@4=3.1` (e0's battery
-drops to 3.1 V).
+drops to 3.1 V), `lose_fix:p0@2` (Lighthouse/Loco: p0's position variance grows, as with its
+base stations out of sight).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from .links import CrazyflieFactory
 from .plan import FlightPlan, load_plan
 from .spec import NAME
 
-FAULT_KINDS = ("drop_link", "freeze", "battery")
+FAULT_KINDS = ("drop_link", "freeze", "battery", "lose_fix")
 _NUMBER = r"\d+(?:\.\d*)?|\.\d+"  # 3, 3., 3.1, .5: what float() reads, no sign or exponent
 _FAULT = re.compile(rf"^(\w+):({NAME})@({_NUMBER})(?:=({_NUMBER}))?$")
 
@@ -55,6 +56,9 @@ def parse_fault(text: str, plan: FlightPlan, source: str = "--fault") -> Fault:
     if (kind == "battery") != (value is not None):
         raise ValueError(f"{source} {text!r}: " + (f"'battery' needs a voltage (battery:{name}@{at:g}=3.1)" if kind == "battery"
                          else f"'{kind}' takes no value ({kind}:{name}@{at:g})"))
+    if kind == "lose_fix" and plan.spec.positioning == "flow":
+        raise ValueError(f"{source} {text!r}: 'lose_fix' rehearses a Lighthouse or Loco drone losing its position fix; "
+                         f"this flight flies flow decks, whose position variance grows by design")
     if at >= plan.spec.max_time:
         raise ValueError(f"{source} {text!r}: {at:g} s into the chase is not before its end (max time "
                          f"{plan.spec.max_time:g} s); the fault would never happen")
@@ -84,6 +88,8 @@ class FaultInjector:
             self.fleet.drop_link(f.drone)
         elif f.kind == "freeze":
             self.fleet.freeze_estimates(f.drone)
+        elif f.kind == "lose_fix":
+            self.fleet.lose_fix(f.drone)
         else:
             self.fleet.set_battery(f.drone, f.value)
         self.events.log("fault_injected", fault=f.kind, drone=name, value=f.value, level="warn")

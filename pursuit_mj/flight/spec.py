@@ -167,6 +167,7 @@ class SafetyLimits:
     battery_land: float = spec(3.3, lo=2.5, hi=4.4, help="in flight below this voltage the drone lands and the run ends (V)")
     battery_samples: int = spec(3, lo=1, hi=HISTORY, help=f"consecutive low readings before the low-battery landing (the board keeps {HISTORY})")
     estimator_variance: float = spec(1e-3, lo=0.0, lo_open=True, help="kalman.varPX/PY/PZ must be steady within this and, for Lighthouse/Loco, below it (m^2)")
+    fix_variance: float = spec(0.01, lo=0.0, lo_open=True, hi=1.0, help="Lighthouse/Loco: in flight, a kalman.varPX/PY/PZ above this means the drone lost its position fix (base stations or anchors out of sight): everyone lands (m^2; above estimator_variance)")
     estimator_timeout: float = spec(10.0, lo=0.1, help="wait this long for the estimators to converge (s)")
     start_tolerance: float = spec(0.3, lo=0.0, lo_open=True, help="Lighthouse/Loco: a drone's estimate must be this close to its start (m)")
     connect_timeout: float = spec(10.0, lo=0.1, help="open every link within this time (s)")
@@ -183,6 +184,9 @@ class SafetyLimits:
                               f"guard would hold drones in contact")
         if self.stale_land <= self.stale_hover:
             raise ConfigError(f"{key_where(source, 'stale_land')}: {self.stale_land} s must be longer than stale_hover {self.stale_hover} s")
+        if self.fix_variance <= self.estimator_variance:
+            raise ConfigError(f"{key_where(source, 'fix_variance')}: {self.fix_variance:g} m^2 must be above estimator_variance "
+                              f"{self.estimator_variance:g} m^2, which the take-off asks for: every drone would count as having lost its fix")
         if self.battery_land >= self.battery_takeoff:
             raise ConfigError(f"{key_where(source, 'battery_land')}: {self.battery_land} V must be below battery_takeoff {self.battery_takeoff} V")
 

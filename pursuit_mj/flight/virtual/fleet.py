@@ -3,7 +3,7 @@
     with VirtualFleet(plan) as fleet:
         bridge_plan = plan.with_uris(fleet.uris)     # the same flight, virtual links
         ...                                          # cflib connects as to real drones
-        fleet.drop_link(1); fleet.freeze_estimates(0); fleet.set_battery(2, 3.1)
+        fleet.drop_link(1); fleet.freeze_estimates(0); fleet.set_battery(2, 3.1); fleet.lose_fix(0)
 
 Each drone is a `VirtualFirmware` (cflib's protocol) over a shared `Commander` (the
 firmware's setpoint rules) over an `Airframe` (pursuit_mj's quadrotor physics in a MuJoCo
@@ -55,6 +55,7 @@ class VirtualPhysics:
 
     estimator_settle: float = 0.15  # s: time constant of the position variance after a reset
     variance_floor: float = 1e-5  # m^2: settled position variance
+    fix_loss_growth: float = 0.1  # m^2/s: growth of the position variance after the fix is lost (lose_fix)
     drain_flying: float = 1.0e-3  # V/s of resting voltage while the motors run
     drain_idle: float = 1.0e-5  # V/s otherwise
     sag: float = 0.25  # V the loaded voltage drops at full thrust
@@ -84,6 +85,7 @@ class VirtualFleet:
         self.shared_frame = plan.spec.positioning != "flow"
         self.reset_time = np.zeros(n)  # estimators start converging at power-on
         self.converges = np.array([d.converges for d in drones])
+        self.fix_lost_at = np.full(n, np.inf)  # s (fleet time): when each drone lost its position fix (lose_fix)
         self.battery = np.array([d.battery for d in drones], np.float64)
         self.time = 0.0
         self.sensors: dict[str, np.ndarray] = {}
@@ -153,6 +155,12 @@ class VirtualFleet:
     def freeze_estimates(self, i: int, frozen: bool = True) -> None:
         """Drone i stops (or resumes) sending its state-estimate log blocks; the link stays up."""
         self._requests.put(lambda: setattr(self.firmware[i], "state_frozen", frozen))
+
+    def lose_fix(self, i: int) -> None:
+        """Drone i loses its position fix (Lighthouse base stations or Loco anchors out of
+        sight): its Kalman position variance grows by `fix_loss_growth` m^2/s from now; its
+        estimates go on coming (still the true state: the drift is not modelled)."""
+        self._requests.put(lambda: self.fix_lost_at.__setitem__(i, self.time))
 
     def set_battery(self, i: int, volts: float) -> None:
         """Drone i's resting battery voltage becomes `volts` (V)."""
@@ -284,6 +292,7 @@ class VirtualFleet:
         roll, pitch, yaw, tilt = _attitude(a.quat)
         since = self.time - self.reset_time
         var = np.where(self.converges, c.variance_floor + np.exp(-np.maximum(since, 0) / c.estimator_settle), 1.0 + 0.1 * np.sin(7.0 * self.time + np.arange(a.n)))
+        var = var + c.fix_loss_growth * np.maximum(self.time - self.fix_lost_at, 0.0)  # none lost: time - inf, 0
         thrust = a.thrust
         load = thrust.sum(1) / (4 * a.params["max_thrust"])
         vbat = self.battery - c.sag * load
