@@ -584,3 +584,34 @@ def test_a_lighthouse_drone_that_loses_its_position_fix_in_flight_lands_everyone
     assert kinds_in_order(events, "fix_lost", "land", "landed")
     assert down(fleet)
 
+
+
+def test_a_hung_escape_model_does_not_keep_a_stop_request_from_landing_the_drones(tmp_path, monkeypatch):
+    """The escape model (task.evader.model, maybe a FILE.py of one's own) was asked in the flight's
+    own thread: one that hung left Ctrl-C, a lost link or a low battery unanswered until it returned."""
+    from pursuit_mj.flight import bridge as bridge_module
+
+    original = bridge_module.EvaderPilot.command
+    calls = {"n": 0}
+
+    def stalling(self, *args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            time.sleep(6.0)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(bridge_module.EvaderPilot, "command", stalling)
+    asked = {}
+
+    def stop_during_the_hang(fleet, bridge):
+        time.sleep(1.0)  # the 5th decision hangs from about 0.4-0.5 s on
+        asked["t"] = bridge.events.now()
+        bridge.interrupt("Ctrl-C")
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=8.0, safety={"stall_hover": 0.2}), HOVER, tmp_path, during=stop_during_the_hang)
+    assert result.outcome == "interrupted" and result.landed, (result.outcome, result.reason)
+    land = events.of_kind("land")[0]
+    assert land["t"] - asked["t"] < 0.5, land["t"] - asked["t"]
+    assert not [r for r in events.of_kind("step") if r["t"] > asked["t"]]  # the late answer was never used
+    assert down(fleet)
+    assert events.of_kind("policy_still_running")

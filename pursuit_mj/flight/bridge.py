@@ -172,7 +172,7 @@ class FlightBridge:
         self._lost_logged: set[int] = set()  # drones whose link_lost event is in the log
         self._in_flight = False  # past the checks: a stop signal lands instead of aborting
         self._stream: SetpointStream | None = None  # the chase's setpoints (keepalive.py)
-        self._thinking: threading.Thread | None = None  # the policy's latest decision (_policy_actions)
+        self._thinking: threading.Thread | None = None  # the latest decision: policy and escape model (_decision)
         if recorder is not None:
             events.add_sink("rerun", recorder.log_event)
 
@@ -274,8 +274,8 @@ class FlightBridge:
             self.events.log("links_closed")
             if self._thinking is not None and self._thinking.is_alive():  # a hung decision the flight stopped waiting for
                 self.events.log("policy_still_running", level="warn",
-                                why="its last decision never returned; do not fly this policy object again in this process "
-                                    "(a new act or reset would run beside the old one)")
+                                why="its last decision (the policy, then the escape model) never returned; do not fly this "
+                                    "policy object again in this process (a new act or reset would run beside the old one)")
 
     @contextlib.contextmanager
     def _signals(self):
@@ -591,28 +591,36 @@ class FlightBridge:
         actions (N, 2) in [-1, 1], wanted (D, 2) m/s in the lab frame; targets 0)."""
         plan, task, N = self.plan, self.plan.task, self.plan.n_pursuers
         obs = observer.observe(pos[:N], vel[:N], pos[N:], vel[N:])
-        actions = np.asarray(self._policy_actions(obs, observer.spec, start), np.float64)
+        flown = plan.flown_evaders & ~observer.captured[0]
+
+        def decide():
+            """The policy's actions and the escape model's commands (None: no evader to fly);
+            both may be code of one's own (--policy FILE.py:NAME, task.evader.model FILE.py)."""
+            acts = self.policy.act(obs, observer.spec)
+            return acts, (pilot.command(observer, pos[N:], vel[N:], pos[:N], vel[:N]) if flown.any() else None)
+
+        actions, ev = self._decision(decide, start)
+        actions = np.asarray(actions, np.float64)
         if actions.shape != (1, N, 2) or not np.isfinite(actions).all():
             raise ValueError(f"policy {getattr(self.policy, 'name', '?')}: expected finite actions of shape (1, {N}, 2), got {actions.shape}")
         actions = np.clip(actions, -1.0, 1.0)[0]
         wanted = np.zeros((plan.n_drones, 2))
         wanted[:N] = clip_norm(actions * task.pursuer_speed, task.pursuer_speed)
-        flown = plan.flown_evaders & ~observer.captured[0]
-        if flown.any():
-            ev = pilot.command(observer, pos[N:], vel[N:], pos[:N], vel[:N])
+        if ev is not None:
             wanted[N:] = np.where(flown[:, None], clip_norm(ev, task.evader_speed), 0.0)
         return obs, actions, plan.transform.velocity_to_lab(wanted)
 
-    def _policy_actions(self, obs: np.ndarray, spec, start: float) -> np.ndarray:
-        """policy.act(obs, spec), asked in a thread of its own while this one goes on with the abort
-        checks at the decision rate: a policy that hangs (or takes seconds) must not keep Ctrl-C, a
-        land request, a lost link or a low battery from landing the drones (the setpoint stream
-        holds them in a hover meanwhile). A late answer after such a stop is never used."""
+    def _decision(self, decide: Callable[[], tuple], start: float) -> tuple:
+        """decide() (the policy, then the escape model), asked in a thread of its own while this one
+        goes on with the abort checks at the decision rate: a policy or escape model that hangs (or
+        takes seconds) must not keep Ctrl-C, a land request, a lost link or a low battery from
+        landing the drones (the setpoint stream holds them in a hover meanwhile). A late answer
+        after such a stop is never used."""
         answer: dict = {}
 
         def ask() -> None:
             try:
-                answer["actions"] = self.policy.act(obs, spec)
+                answer["actions"] = decide()
             except BaseException as exc:  # noqa: BLE001 - raised again in the flight's thread
                 answer["error"] = exc
 
