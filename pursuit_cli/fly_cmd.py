@@ -226,7 +226,11 @@ def run_align(args) -> int:
     for name, p, q, r in zip(drone_names(spec), lab_pts, spots, fit.residuals):
         print(f"  {name:>10}: lab [{p[0]:.3f}, {p[1]:.3f}] -> spot [{q[0]:.3f}, {q[1]:.3f}], residual {r * 1000:.1f} mm")
     print(f"rms residual {fit.rms * 1000:.1f} mm (layout frame)")
-    if fit.rms > ALIGN_WARN_RMS:
+    if len(spots) == 2:  # four numbers, four unknowns: nothing left over to check the fit with
+        print("warning: two spots fit any placement exactly (the residuals are zero whatever the drones' places): "
+              f"two drones swapped give a transform turned by 180 deg; check that {' and '.join(drone_names(spec))} "
+              "stand on their own spots, or measure with three or more drones")
+    elif fit.rms > ALIGN_WARN_RMS:
         print(f"warning: no rotation, scale and shift brings the drones within {ALIGN_WARN_RMS * 1000:.0f} mm of their "
               f"spots: check that --spots follow the flight file's drone order ({', '.join(drone_names(spec))}) and "
               f"that each drone stands on its spot")

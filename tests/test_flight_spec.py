@@ -447,6 +447,7 @@ def test_fly_align_from_given_lab_points_prints_and_writes_the_transform(tmp_pat
 
 @pytest.mark.parametrize("lab, window, expected", [
     ("1,1 1,1 1,1", "1", "--lab: the lab positions coincide"),
+    ("1,1 1.01,1 3,3", "1", "--lab: drones p0 and p1 stand 0.010 m apart in the lab"),
     ("1,1 2,2 nan,3", "1", "--lab: 'nan,3' is not a point x,y"),
     (None, "0", "--window 0.0: expected seconds in (0, 60]"),
     (None, "-1", "--window -1.0: expected seconds in (0, 60]"),
@@ -831,3 +832,19 @@ def test_fly_align_warns_of_a_fit_no_placement_mistake_would_leave(capsys):
     assert "warning: no rotation, scale and shift brings the drones within 50 mm of their spots" in out
     assert main(["fly", "align", "--flight", "lighthouse", "--spots", spots, "--lab", spots]) == 0
     assert "warning" not in capsys.readouterr().out
+
+
+def test_fly_align_with_two_drones_says_the_fit_cannot_be_checked(tmp_path, capsys):
+    """Two spots fit any placement exactly: swapped drones gave a transform turned by 180 deg and
+    'rms residual 0.0 mm' without a word."""
+    from pursuit_cli import main
+
+    data = yaml.safe_load(open("configs/flight/lighthouse.yaml"))
+    data["drones"] = [data["drones"][0], data["drones"][2]]  # p0 and the target
+    data["layout"] = str(load_flight("lighthouse").layout)
+    path = tmp_path / "pair.yaml"
+    path.write_text(yaml.safe_dump(data))
+    assert main(["fly", "align", "--flight", str(path), "--spots", "0.5,0.625 1.875,4.0", "--lab", "1.0,1.6 3.7,0.5"]) == 0
+    out = capsys.readouterr().out
+    assert "rms residual 0.0 mm" in out
+    assert "warning: two spots fit any placement exactly" in out and "180 deg" in out, out

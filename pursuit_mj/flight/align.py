@@ -19,6 +19,7 @@ from typing import Sequence
 import numpy as np
 import yaml
 
+from ..config import DRONE_CONTACT_DISTANCE
 from ..configio import ConfigError, load_yaml
 from ..io_utils import atomic_write_text
 from ..layout import is_index_text
@@ -85,16 +86,33 @@ def measure_lab_positions(spec: FlightSpec, uris: Sequence[str] | None = None, f
     return sums / counts[:, None]
 
 
-def fit_transform(lab: np.ndarray, spots: np.ndarray, source: str = "--spots", lab_source: str = "the measured lab positions") -> Fit:
+def fit_transform(lab: np.ndarray, spots: np.ndarray, source: str = "--spots", lab_source: str = "the measured lab positions",
+                  names: Sequence[str] | None = None) -> Fit:
     """The similarity transform lab -> layout frame from matched points: lab (D, 2) m, where
     the drones stand in the lab frame (their position estimates), and spots (D, 2) m, where the
     flight file says they stand in the layout frame, in the same (flight-file) order. Errors
-    name `source` (the spots) or `lab_source` (the lab points), whichever is at fault."""
+    name `source` (the spots) or `lab_source` (the lab points), whichever is at fault, and the
+    drones by `names` (flight-file order; default: their index)."""
     if len(lab) != len(spots):
         raise ValueError(f"{source}: {len(spots)} spots for {len(lab)} drones (one spot per drone, flight-file order)")
     if len(lab) >= 2 and float(((lab - lab.mean(0)) ** 2).sum()) < 1e-8:
         raise ValueError(f"{lab_source}: the lab positions coincide; are the drones at their spots, a few centimetres apart at least?")
+    _check_apart(lab, lab_source, names)
     return fit_similarity(lab, spots, source)
+
+
+def _check_apart(lab: np.ndarray, lab_source: str, names: Sequence[str] | None) -> None:
+    """Refuse lab positions (D, 2) m of two drones closer than DRONE_CONTACT_DISTANCE: two
+    Crazyflies cannot stand there (one drone read twice, or one not at its spot), and points
+    that close leave the fitted yaw to the measurement noise."""
+    if len(lab) < 2:
+        return
+    d = np.where(np.eye(len(lab), dtype=bool), np.inf, np.linalg.norm(lab[:, None] - lab[None], axis=-1))
+    i, j = np.unravel_index(np.argmin(d), d.shape)
+    if d[i, j] < DRONE_CONTACT_DISTANCE:
+        label = list(names) if names is not None else [f"#{k}" for k in range(len(lab))]
+        raise ValueError(f"{lab_source}: drones {label[min(i, j)]} and {label[max(i, j)]} stand {d[i, j]:.3f} m apart in the lab, "
+                         f"closer than two Crazyflies can ({DRONE_CONTACT_DISTANCE:g} m): is each drone on its own spot?")
 
 
 def transform_yaml(fit: Fit) -> str:
@@ -137,4 +155,5 @@ def align(spec: FlightSpec, spots: Sequence[Sequence[float]], lab: Sequence[Sequ
     """Fit the transform from spots (K, 2) m layout and lab positions (K, 2) m (measured if not given)."""
     spots = np.asarray(spots, np.float64)
     lab_pts = np.asarray(lab, np.float64) if lab is not None else measure_lab_positions(spec, uris, factory, window)
-    return fit_transform(lab_pts, spots, lab_source="--lab" if lab is not None else "the measured lab positions"), lab_pts
+    return fit_transform(lab_pts, spots, lab_source="--lab" if lab is not None else "the measured lab positions",
+                         names=drone_names(spec)), lab_pts
