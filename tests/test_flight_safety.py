@@ -615,3 +615,40 @@ def test_a_hung_escape_model_does_not_keep_a_stop_request_from_landing_the_drone
     assert not [r for r in events.of_kind("step") if r["t"] > asked["t"]]  # the late answer was never used
     assert down(fleet)
     assert events.of_kind("policy_still_running")
+
+
+
+class _Answers(ScriptedTeam):
+    """Answers `answer` (any array) from the third decision on, zeros before."""
+
+    def __init__(self, answer):
+        super().__init__([[0.0, 0.0]])
+        self.answer = np.asarray(answer, np.float64)
+
+    def act(self, obs, spec):
+        out = super().act(obs, spec)
+        return self.answer if self.calls >= 3 else out
+
+
+@pytest.mark.parametrize("answer, words", [
+    ([[[0.0, 0.0], [np.nan, 0.0], [0.0, 0.0]]], "policy scripted: the answer for pursuer p1 is [nan, 0.0], not a pair of finite numbers"),
+    (np.zeros((1, 3, 3)), "policy scripted: expected an answer of shape (1, 3, 2) (worlds, pursuers, vx and vy), got shape (1, 3, 3)"),
+])
+def test_a_policy_answering_nan_or_a_wrong_shape_lands_everyone_and_says_which_value(tmp_path, answer, words):
+    """A NaN action was reported as 'expected finite actions of shape (1, 3, 2), got (1, 3, 2)'."""
+    result, events, fleet = fly_virtual(quick_plan(max_time=4.0), _Answers(answer), tmp_path)
+    assert isinstance(result, ValueError) and words in str(result), result
+    assert kinds_in_order(events, "chase", "land", "landed", "error") and events.of_kind("landed")[0]["not_down"] == []
+    assert down(fleet)
+
+
+def test_an_escape_model_answering_nan_lands_everyone_and_says_which_evader(tmp_path, monkeypatch):
+    """A NaN command for an evader was made a hover setpoint without a word, every decision."""
+    from pursuit_mj.flight import bridge as bridge_module
+
+    monkeypatch.setattr(bridge_module.EvaderPilot, "command", lambda self, *a, **k: np.array([[np.nan, 0.1]]))
+    result, events, fleet = fly_virtual(quick_plan(max_time=4.0), HOVER, tmp_path)
+    assert isinstance(result, ValueError), result
+    assert "escape model janosov: the answer for evader e0 is [nan, 0.1], not a pair of finite numbers" in str(result)
+    assert kinds_in_order(events, "chase", "land", "landed", "error")
+    assert down(fleet)

@@ -110,6 +110,23 @@ class FlightResult:
     heights: np.ndarray | None = None
 
 
+def _checked_commands(answer, shape: tuple[int, ...], who: str, names: list[str], axes: str) -> np.ndarray:
+    """`answer` of a policy or escape model as a float array of `shape`, whose second-to-last
+    axis runs over the drones `names` ('pursuer p0', ...); ValueError naming `who`, the drone
+    and the value when it is not numbers, not of that shape, or not finite."""
+    try:
+        out = np.asarray(answer, np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{who}: expected numbers of shape {shape} {axes}, got {type(answer).__name__} {answer!r:.80}") from None
+    if out.shape != shape:
+        raise ValueError(f"{who}: expected an answer of shape {shape} {axes}, got shape {out.shape}")
+    bad = ~np.isfinite(out).all(axis=-1)
+    if bad.any():
+        at = tuple(int(k) for k in np.argwhere(bad)[0])
+        raise ValueError(f"{who}: the answer for {names[at[-1]]} is {out[at].tolist()}, not a pair of finite numbers")
+    return out
+
+
 class _Abort(Exception):
     def __init__(self, outcome: str, reason: str):
         super().__init__(reason)
@@ -600,13 +617,13 @@ class FlightBridge:
             return acts, (pilot.command(observer, pos[N:], vel[N:], pos[:N], vel[:N]) if flown.any() else None)
 
         actions, ev = self._decision(decide, start)
-        actions = np.asarray(actions, np.float64)
-        if actions.shape != (1, N, 2) or not np.isfinite(actions).all():
-            raise ValueError(f"policy {getattr(self.policy, 'name', '?')}: expected finite actions of shape (1, {N}, 2), got {actions.shape}")
-        actions = np.clip(actions, -1.0, 1.0)[0]
+        who = f"policy {getattr(self.policy, 'name', type(self.policy).__name__)}"
+        actions = np.clip(_checked_commands(actions, (1, N, 2), who, [f"pursuer {n}" for n in plan.names[:N]], "(worlds, pursuers, vx and vy)")[0], -1.0, 1.0)
         wanted = np.zeros((plan.n_drones, 2))
         wanted[:N] = clip_norm(actions * task.pursuer_speed, task.pursuer_speed)
         if ev is not None:
+            ev = _checked_commands(ev, (plan.n_evaders, 2), f"escape model {task.evader.model}", [f"evader {n}" for n in plan.names[N:]],
+                                   "(evaders, vx and vy in m/s)")
             wanted[N:] = np.where(flown[:, None], clip_norm(ev, task.evader_speed), 0.0)
         return obs, actions, plan.transform.velocity_to_lab(wanted)
 
