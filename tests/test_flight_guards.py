@@ -4,6 +4,7 @@ Ctrl-C (everyone lands) and the emergency stop (every motor cut at once)."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import threading
@@ -384,3 +385,21 @@ def test_a_late_go_is_refused_when_a_drone_sent_no_fresh_estimate_while_the_oper
     assert isinstance(result, Exception) and "drone p2" in str(result) and "no fresh state estimate" in str(result), result
     kinds = [json.loads(line)["kind"] for line in (tmp_path / "events.jsonl").read_text().splitlines()]
     assert "takeoff" not in kinds and "preflight_failed" in kinds
+
+
+def test_ctrl_c_while_the_policy_resets_before_take_off_ends_the_run_at_once(tmp_path):
+    """policy.reset ran after the flight counted as under way: Ctrl-C then only asked for a
+    landing, so a reset that hung (a policy file of one's own) kept the run from ending; one
+    that returned 20 s later led to a take-off check that ended it only then."""
+
+    class SlowReset(ScriptedTeam):
+        def reset(self, n_worlds, world_ids=None):
+            threading.Timer(0.3, os.kill, args=(os.getpid(), signal.SIGINT)).start()
+            time.sleep(20.0)
+
+    began = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        fly_virtual(quick_plan(max_time=8.0), SlowReset([[0.0, 0.0]]), tmp_path, handle_signals=True)
+    assert time.monotonic() - began < 15.0
+    kinds = [json.loads(line)["kind"] for line in (tmp_path / "events.jsonl").read_text().splitlines()]
+    assert "takeoff" not in kinds and kinds.index("interrupt") < kinds.index("links_closed")

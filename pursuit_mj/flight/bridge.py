@@ -269,6 +269,9 @@ class FlightBridge:
                 self.events.log("links_up", uris=plan.uris)
                 for link in links:
                     link.start_logs(STATE_PERIOD, HEALTH_PERIOD)
+                # before the flight is under way: Ctrl-C still ends the run if a reset hangs, and a slow
+                # one delays the checks, not the take-off after them
+                self.policy.reset(1)
                 preflight(links, self.board, plan, self.events, self.clock)
                 if self.confirm is not None:
                     asked = self.clock()
@@ -332,7 +335,6 @@ class FlightBridge:
         steps: list[StepRecord] = []
         observer = FlightObserver(self.plan.task, self.plan.layout, self.seed)
         pilot = EvaderPilot(self.plan.task, self.seed)
-        self.policy.reset(1)
         outcome, reason, chase_start = "", "", None
         try:
             self._takeoff()
