@@ -319,3 +319,23 @@ def test_fly_virtual_flies_a_policy_of_ones_own_from_a_file(tmp_path, capsys):
     steps = [r for r in read_events(tmp_path / "f.jsonl") if r["kind"] == "step"]
     wanted = np.array([r["wanted"][:3] for r in steps])  # (steps, pursuers, 2) m/s asked of the pursuers
     assert len(steps) >= 5 and np.all(wanted[..., 0] > 0.0) and np.allclose(wanted[..., 1], 0.0, atol=1e-6)
+
+
+def test_fly_align_waits_for_the_estimators_and_refuses_a_drone_without_a_position_fix(tmp_path):
+    """align averaged whatever the drones estimated: one that saw no base station (its Kalman
+    variance never settles), or a window begun before the estimates converged, went into the fit."""
+    from pursuit_mj.flight.align import align
+    from pursuit_mj.flight.virtual.fleet import VirtualDrone
+
+    spec = flight_from_dict(quick_spec(positioning="lighthouse", safety={"estimator_timeout": 1.0}), "rehearsal.yaml")
+    plan = resolve_flight(spec)
+    spots = [d.start for d in plan.drones]
+    healthy = [VirtualDrone()] * plan.n_drones
+    with VirtualFleet(plan, healthy, physics=FAST) as fleet:
+        fit, _ = align(spec, spots, uris=fleet.uris, factory=CachedFactory(tmp_path / "toc"), window=0.2)
+    assert fit.rms < 1e-3
+    blind = [VirtualDrone(), VirtualDrone(converges=False)] + [VirtualDrone()] * (plan.n_drones - 2)
+    with VirtualFleet(plan, blind, physics=FAST) as fleet:
+        with pytest.raises(ValueError, match=r"drone p1 \(udp://127.0.0.1:\d+\): its position estimate did not settle within 1 s "
+                                             r"\(Kalman variances \[.*\] m\^2, above safety.estimator_variance 0.001\)"):
+            align(spec, spots, uris=fleet.uris, factory=CachedFactory(tmp_path / "toc"), window=0.2)

@@ -57,8 +57,12 @@ def measure_lab_positions(spec: FlightSpec, uris: Sequence[str] | None = None, f
                           window: float = 1.0) -> np.ndarray:
     """(D, 2) m: each drone's estimated position averaged over `window` s, flight-file order.
 
-    Shared positioning systems estimate in the lab frame itself. uris: other links for the
-    same drones (virtual ones), flight-file order.
+    Shared positioning systems estimate in the lab frame itself. The window begins once every
+    drone's Kalman position variance is below safety.estimator_variance (within
+    safety.estimator_timeout s; else ValueError naming the drone), and a drone whose variance
+    rises above it during the window is refused too: an estimate without a position fix (no
+    base station or anchor in sight, not converged yet) says nothing of where the drone
+    stands. uris: other links for the same drones (virtual ones), flight-file order.
     """
     if spec.positioning == "flow":
         raise ValueError(f"{spec.source}: align needs Lighthouse or Loco positioning; flow-deck estimates "
@@ -71,10 +75,13 @@ def measure_lab_positions(spec: FlightSpec, uris: Sequence[str] | None = None, f
     with LinkSet(names, uris, board, factory, spec.safety.connect_timeout) as links:
         for link in links:
             link.start_logs(0.02, 0.1)
+        limits = spec.safety
+        _wait_fixed(board, names, uris, limits.estimator_variance, time.monotonic() + limits.estimator_timeout, limits.estimator_timeout)
         seen = board.snapshot().state_count.copy()
         end = time.monotonic() + window
         while time.monotonic() < end:
             snap = board.snapshot()
+            _wait_fixed(board, names, uris, limits.estimator_variance, 0.0, window, snap)
             new = snap.state_count > seen
             sums[new] += snap.pos[new, :2]
             counts[new] += 1
@@ -84,6 +91,30 @@ def measure_lab_positions(spec: FlightSpec, uris: Sequence[str] | None = None, f
         bad = int(np.flatnonzero(counts == 0)[0])
         raise ValueError(f"drone {names[bad]} ({uris[bad]}) sent no position within {window:g} s")
     return sums / counts[:, None]
+
+
+def _wait_fixed(board: StateBoard, names: Sequence[str], uris: Sequence[str], limit: float, deadline: float, waited: float,
+                snap=None) -> None:
+    """Wait until monotonic `deadline` s for every drone's latest Kalman position variances
+    (m^2) to be below `limit`; ValueError naming the first drone that is not (`waited` s: how
+    long that was, for the message). With `snap` given, judge that snapshot at once (a drone
+    that lost its fix during the averaging window)."""
+    waiting = snap is None  # before the window, else within it
+    while True:
+        snap = snap if snap is not None else board.snapshot()
+        var = snap.var[:, -1, :]
+        fixed = np.isfinite(var).all(axis=-1) & (var < limit).all(axis=-1)
+        if fixed.all():
+            return
+        if time.monotonic() >= deadline:
+            i = int(np.flatnonzero(~fixed)[0])
+            shown = (f"Kalman variances {np.round(var[i], 5).tolist()} m^2" if np.isfinite(var[i]).all()
+                     else "no Kalman variances received")
+            when = f"did not settle within {waited:g} s" if waiting else f"lost its fix during the {waited:g} s window"
+            raise ValueError(f"drone {names[i]} ({uris[i]}): its position estimate {when} ({shown}, above "
+                             f"safety.estimator_variance {limit:g}): are the base stations or anchors in sight, the drone at rest?")
+        snap = None
+        time.sleep(0.02)
 
 
 def fit_transform(lab: np.ndarray, spots: np.ndarray, source: str = "--spots", lab_source: str = "the measured lab positions",
