@@ -848,3 +848,26 @@ def test_fly_align_with_two_drones_says_the_fit_cannot_be_checked(tmp_path, caps
     out = capsys.readouterr().out
     assert "rms residual 0.0 mm" in out
     assert "warning: two spots fit any placement exactly" in out and "180 deg" in out, out
+
+
+@pytest.mark.parametrize("which", ["rerun", "flight", "layout"])
+def test_an_event_log_named_as_the_recording_or_an_input_file_is_refused_before_any_radio(tmp_path, capsys, which):
+    """--events flight.rrd --rerun flight.rrd flew, then the recording replaced the event log
+    when it was renamed into place; --events naming the flight or layout file appended JSON lines to it."""
+    from pursuit_cli import main
+
+    data = yaml.safe_load(open(EXAMPLE))
+    layout = tmp_path / "arena.yaml"
+    layout.write_text(open(load_plan(EXAMPLE).layout.source).read())
+    data["layout"] = "arena.yaml"
+    flight_file = tmp_path / "lab.yaml"
+    flight_file.write_text(yaml.safe_dump(data))
+    rrd = tmp_path / "flight.rrd"
+    events = {"rerun": rrd, "flight": flight_file, "layout": layout}[which]
+    before = {p: p.read_bytes() for p in (flight_file, layout)}
+    rc = main(["fly", "--flight", str(flight_file), "--policy", "heuristic", "--virtual", "--max-time", "1",
+               "--events", str(events), "--rerun", str(rrd)])
+    err = capsys.readouterr().err
+    what = {"rerun": "the --rerun recording", "flight": "the flight file", "layout": "the flight's layout file"}[which]
+    assert rc == 2 and f"--events {events}: is also {what}" in err, err
+    assert {p: p.read_bytes() for p in (flight_file, layout)} == before and not rrd.exists()

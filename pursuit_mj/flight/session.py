@@ -99,6 +99,25 @@ class FaultInjector:
             t.cancel()
 
 
+def _same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether paths a and b name one file (links and relative spellings resolved)."""
+    try:
+        return Path(a).resolve() == Path(b).resolve()
+    except (OSError, RuntimeError):  # a name too long, a link loop: not resolvable, not compared
+        return False
+
+
+def _check_events_apart(events_path: str | Path, plan: FlightPlan, rerun_path: str | Path | None) -> None:
+    """ValueError naming --events when it names the rerun recording (renamed into place when the
+    flight ends, it would replace the event log) or a file the flight reads (the flight or layout
+    file: the log is appended to it)."""
+    others = [(rerun_path, "the --rerun recording"), (plan.spec.source, "the flight file"), (plan.layout.source, "the flight's layout file")]
+    for other, what in others:
+        if other is not None and _same_file(events_path, other):
+            raise ValueError(f"--events {events_path}: is also {what}; give the event log a name of its own "
+                             f"(default flights/<name>-<time>.events.jsonl)")
+
+
 def choose_policy(plan: FlightPlan, policy: str | None, seed: int = 0) -> Policy:
     """`--policy NAME` (pursuit_mj.policies). A trained model is loaded by the caller
     (`train.load_policy`; the simulator package never imports the learning one) and handed
@@ -148,6 +167,7 @@ def run_flight(
         check_rrd_path(rerun_path)
     if events_path is not None:
         check_writable(events_path, "--events")
+        _check_events_apart(events_path, plan, rerun_path)
     if policy is None:
         policy = choose_policy(plan, policy_name, seed)
     try:
