@@ -7,7 +7,8 @@ a garbage-collection or swap pause of the process), would hand the drones to tha
 in mid-air. `SetpointStream` sends every decision's setpoints and, from a thread of its own,
 sends each commanded drone's last one again whenever nothing went to it for `period` s; once
 no decision came for its interval plus `stall_hover` s it sends hover setpoints at the flight
-height instead (position hold), until the next decision. All sends go through one lock, so a
+height instead (zero velocity at that height: the drone drifts only as its velocity estimate
+does; it is not a position hold), until the next decision. All sends go through one lock, so a
 repeated setpoint never overtakes a newer one, and after `close()` nothing more is sent: the
 landing and an emergency stop are never followed by a stray setpoint (a send that hangs past
 close's wait finishes only its own drone's setpoint; the drones after it get none).

@@ -157,7 +157,8 @@ class DroneLink:
             self.cf.commander.send_velocity_world_setpoint(float(v[0]), float(v[1]), float(v[2]), math.degrees(yaw_rate))
 
     def hover(self, z: float) -> None:
-        """Hold position at height z (m): a hover setpoint with zero velocity."""
+        """Hover at height z (m): a hover setpoint of zero velocity (not a position hold: the drone
+        may drift as its velocity estimate does)."""
         if self.up:
             self.cf.commander.send_hover_setpoint(0.0, 0.0, 0.0, float(z))
 
