@@ -111,10 +111,10 @@ class PursuitVectorEnv(VectorEnv):
         if options:
             raise ValueError(f"reset options: PursuitVectorEnv takes none (its config sets the task), got {options!r}")
         obs = self.batched.reset(seed=seed)
+        self.closed = False  # a reset after close() makes a renderer that the next close() frees
         self._push_frames()
         if seed is not None:
             self._np_random, self._np_random_seed = np.random.default_rng(seed), int(seed)
-        self.closed = False  # a reset after close() made a renderer that the next close() frees
         return self._flat(obs), {}
 
     def step(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
@@ -207,8 +207,9 @@ class PursuitVectorEnv(VectorEnv):
         return a
 
     def _push_frames(self) -> None:
-        """rgb_array mode: the drones' positions to their trails (the renderer made the first time)."""
-        if self.render_mode != "rgb_array":
+        """rgb_array mode: the drones' positions to their trails (the renderer made the first time,
+        but not after close(): a step then makes none, as close() would not free it; reset() does)."""
+        if self.render_mode != "rgb_array" or (self._frames is None and self.closed):
             return
         if self._frames is None:
             from .render.live import LiveFrames

@@ -285,6 +285,26 @@ def test_render_after_close_says_so():
         env.render()
 
 
+def test_a_step_after_close_makes_no_renderer_that_close_cannot_free():
+    """close() marks the env closed and a second close() does nothing (gymnasium's VectorEnv.close):
+    a step after close() made a new OpenGL renderer that no close() freed any more."""
+    from pursuit_mj.render.renderer import RenderSettings
+
+    env = PursuitVectorEnv(config(random_obstacles=0), n_worlds=1, seed=4, render_mode="rgb_array",
+                           render_settings=RenderSettings(64, 48))
+    env.reset()
+    env.close()
+    env.step(np.zeros((N, 2)))  # the physics still steps, as the PettingZoo env's does after close()
+    env.close()
+    assert env._frames is None
+    with pytest.raises(RuntimeError, match=r"render\(\) called after close\(\): call reset\(\) to draw again"):
+        env.render()
+    env.reset()  # a reset draws again, and the next close() frees that renderer
+    assert env.render()[0].shape == (48, 64, 3)
+    env.close()
+    assert env._frames is None
+
+
 def test_a_reward_term_named_like_an_info_mask_is_refused():
     """gymnasium's vector infos keep '_KEY' for the mask of KEY: a term '_capture' replaced the mask
     of 'capture' (or was replaced by it), and DictInfoToList drops every '_' key."""
