@@ -136,8 +136,9 @@ class PursuitParallelEnv(ParallelEnv):
             raise
         except ValueError:  # nested lists of unequal lengths
             raise ValueError(f"actions[{agent!r}]: expected shape (2,), got a ragged list") from None
-        if raw.shape != (2,):
-            raise ValueError(f"actions[{agent!r}]: expected shape (2,), got {raw.shape}")
+        if raw.shape != (2,):  # the value as given: None or 0.5 have numpy's shape (), which says little
+            got = _shown(value) if raw.ndim == 0 else f"shape {raw.shape}: {_shown(value)}"
+            raise ValueError(f"actions[{agent!r}]: expected shape (2,) (vx, vy), got {got}")
         if raw.dtype.kind not in "fiu":  # no silent cast: True would be full speed, 1+2j would lose its 2j
             raise ValueError(f"actions[{agent!r}]: expected real numbers (vx, vy), got an array of dtype {raw.dtype}")
         a = raw.astype(np.float64)
@@ -168,3 +169,9 @@ class PursuitParallelEnv(ParallelEnv):
             self._frames.close()
             self._frames = None
             self._closed = True
+
+
+def _shown(value, limit: int = 80) -> str:
+    """`value`'s repr on one line, cut to `limit` characters (with '...') for an error message."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= limit else text[:limit - 3] + "..."

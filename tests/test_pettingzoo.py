@@ -85,6 +85,21 @@ def test_action_dict_errors_name_the_agent():
 
 
 @pytest.mark.parametrize("bad, message", [
+    (None, "got None$"),  # was "got ()": the shape numpy gives None, which the user never wrote
+    (0.5, "got 0.5$"),  # one number where two belong
+    ("ab", "got 'ab'$"),
+    (np.zeros(3), r"got shape \(3,\): array\(\[0\., 0\., 0\.\]\)$"),
+    (np.zeros(400), r"got shape \(400,\): array\(\[0\., 0\., .*\.\.\.$"),  # one line, cut short
+])
+def test_an_action_of_another_shape_is_shown_as_given(bad, message):
+    env = PursuitParallelEnv(default_config(fidelity="point", random_obstacles=0))
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"^actions\['pursuer_1'\]: expected shape \(2,\) \(vx, vy\), " + message) as caught:
+        env.step({a: (bad if a == "pursuer_1" else np.zeros(2)) for a in env.agents})
+    assert "\n" not in str(caught.value) and len(str(caught.value)) < 200
+
+
+@pytest.mark.parametrize("bad, message", [
     (np.array([True, False]), "expected real numbers \\(vx, vy\\), got an array of dtype bool"),  # was full speed
     (np.array([0.5 + 1j, 0.0]), "got an array of dtype complex128"),  # was 0.5, the 1j dropped
     (["0.5", "0"], "got an array of dtype <U3"),  # was parsed as numbers
