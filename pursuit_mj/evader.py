@@ -61,7 +61,7 @@ import numpy as np
 
 from .config import DRONE_CONTACT_DISTANCE, TaskConfig, checked_task_config
 from .geometry import FAR, ObstacleSet, first_axis_last, last_axis_first, obstacle_distance
-from .planar import EPS, dot, limit_closing, norm, perp, rotate, unit
+from .planar import EPS, clip_norm, dot, limit_closing, norm, perp, rotate, unit
 from .randomness import TICK as _TICK, hash_uniform, splitmix64 as _splitmix64
 
 RING = 16  # survey directions around the wanted direction
@@ -533,8 +533,9 @@ class EscapeModel:
     def _keep_apart(self, e: np.ndarray, ev: np.ndarray, v: np.ndarray, active: np.ndarray, wall_normal: np.ndarray) -> np.ndarray:
         """v (W, M, 2) m/s with every free pair's closing speed capped (module docstring, step 8),
         never turned further toward the nearest obstacle (wall_normal (W, M, 2), pointing away
-        from it) than v already was; where both cannot hold, the obstacle wins and the pair
-        only stops closing in."""
+        from it) than v already was; where both cannot hold within evader_speed (caps whose
+        lines cross almost in parallel meet far out: 110 m/s was returned), the obstacle wins
+        and the pair only stops closing in. The result is at most evader_speed long."""
         if self.n_evaders < 2:
             return v
         rel = e[:, None, :, :] - e[:, :, None, :]  # (W, M, M, 2) m: from evader i to evader j
@@ -546,11 +547,15 @@ class EscapeModel:
         to_wall = -wall_normal[:, :, None, :]
         wall_cap = np.maximum(dot(v, -wall_normal), 0.0)[..., None]
         dirs = np.concatenate([u, to_wall], axis=2)
+        speed = self.config.evader_speed
         capped, met = limit_closing(v, dirs, np.concatenate([pair_cap, wall_cap], axis=2))
-        if not met.all():  # backing off a pressing evader would mean flying into the obstacle
+        met &= norm(capped) <= speed * (1.0 + 1e-9)
+        if not met.all():  # backing off a pressing evader would mean flying into the obstacle, or too fast
             held, _ = limit_closing(v, dirs, np.concatenate([np.maximum(pair_cap, 0.0), wall_cap], axis=2))
             capped = np.where(met[..., None], capped, held)
-        return np.where(active[..., None], capped, 0.0)
+        # caps of 0 or more allow standing still, so the nearest allowed velocity is no longer
+        # than v; limit_closing does not always find the nearest one
+        return np.where(active[..., None], clip_norm(capped, speed), 0.0)
 
     def _evader_room(self, e: np.ndarray, active: np.ndarray, dirs: np.ndarray) -> np.ndarray:
         """Free length (W, M, K) m along unit dirs (W, M, K, 2) from each evader before it comes

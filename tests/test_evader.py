@@ -347,6 +347,21 @@ def test_evaders_never_fly_into_each_other(fidelity):
         assert np.all(gaps + np.eye(3) > DRONE_CONTACT_DISTANCE)
 
 
+def test_keeping_apart_never_commands_more_than_evader_speed():
+    # two evaders 0.25 m apart closing at 1.7 m/s, 1 m below the top wall: the upper one must
+    # back off upward, but must not turn further toward the wall than it flew, and the two caps'
+    # lines cross almost in parallel; the crossing (79 m/s sideways) was returned as the command
+    config = default_config(n_evaders=2)
+    model = EscapeModel(config, 1, seed=499)
+    e = np.array([[[2.185, 3.719], [2.186, 3.971]]])
+    ev = np.array([[[0.378, 0.794], [0.701, -0.912]]])
+    p = np.array([[[1.264, 3.691], [1.083, 2.569], [0.866, 2.69]]])
+    v = model.compute(e, ev, p, np.zeros_like(p), np.ones((1, 2), bool), arena_obstacles(1), DT)
+    assert np.all(np.linalg.norm(v, axis=-1) <= config.evader_speed * (1 + 1e-9)), np.linalg.norm(v, axis=-1)
+    closing = -(v[0, 1] - v[0, 0]) @ (e[0, 1] - e[0, 0]) / np.linalg.norm(e[0, 1] - e[0, 0])
+    assert closing <= 1e-9, f"the pair still closes in at {closing} m/s"
+
+
 def test_evaders_meeting_head_on_turn_aside():
     # two evaders following the top wall toward each other, each pushed on by a chaser: the
     # look-ahead did not see the other evader, so both kept choosing the way into it and step 8
