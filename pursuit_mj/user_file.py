@@ -104,6 +104,14 @@ def made_by(factory, args: tuple, call: str, where: str, path: Path, methods: tu
     return made
 
 
+def _shown(value: Any, limit: int = 60) -> str:
+    """`value` for a one-line error: None as None, anything else as its type and a short repr."""
+    if value is None:
+        return "None"
+    text = repr(value)
+    return f"{type(value).__name__} {text if len(text) <= limit else text[:limit] + '...'}"
+
+
 def checked_real_array(raw: Any, shape: tuple[int, ...], said: str, axes: str, index: str, kinds: str = "fiu",
                        counted: np.ndarray | None = None) -> np.ndarray:
     """What user code returned, as float64 of `shape`; UserCodeError starting with `said` ("F: reward
@@ -114,6 +122,8 @@ def checked_real_array(raw: Any, shape: tuple[int, ...], said: str, axes: str, i
         values = np.asarray(raw)
     except Exception as exc:  # noqa: BLE001 - what it returned is the user's; say what it was
         raise UserCodeError(f"{said} returned {type(raw).__name__}, not an array ({exc})") from None
+    if values.dtype.kind == "O" and values.ndim == 0:  # None, a dict, ...: name what it was
+        raise UserCodeError(f"{said} returned {_shown(raw)}, not an array of real numbers")
     if values.dtype.kind not in kinds:
         raise UserCodeError(f"{said} returned an array of dtype {values.dtype}, not real numbers")
     if values.shape != shape:

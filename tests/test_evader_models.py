@@ -84,6 +84,9 @@ def test_a_model_that_cannot_be_made_is_refused_when_the_env_is(tmp_path, source
     ("        return np.zeros(self.shape[:2])", r"compute returned shape \(2, 1\), expected \(2, 1, 2\)"),
     ("        return np.full(self.shape, np.nan)", r"compute returned nan at \(world, evader, axis\) \(0, 0, 0\)"),
     ("        return {}[0]", r"compute\(\.\.\.\) raised KeyError: 0 \(at {p}:6\)"),
+    # a forgotten return: "an array of dtype object" named no value the model returned
+    ("        np.zeros(self.shape)", r"compute returned None, not an array of real numbers"),
+    ("        return {'vx': 0.0}", r"compute returned dict \{{'vx': 0.0\}}, not an array of real numbers"),
 ])
 def test_what_compute_returns_is_checked_and_named(tmp_path, body, message):
     path = tmp_path / "m.py"
