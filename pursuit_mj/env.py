@@ -13,7 +13,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .config import TaskConfig, checked_task_config
-from .evader_models import make_evader_model
+from .evader_models import checked_evader_model, make_evader_model
 from .geometry import ObstacleSet
 from .layout import N_BUILTIN, Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout
 from .layout_random import EPISODE_RESTARTS
@@ -252,7 +252,7 @@ class PursuitEnv:
         self.physics.reset(ids, np.array(xy))
         self._episode_seeds[ids] = seeds
         self._sensing_keys[ids] = world_keys(seeds, SENSING_DOMAIN)
-        self.evader_model.reset(ids, seeds)
+        self._evader_checked.reset(ids, seeds)
         self.steps[ids] = 0
         self.starts[ids] += 1
         self.captured[ids] = False
@@ -304,6 +304,18 @@ class PursuitEnv:
         self._start_episodes(ids, explicit)
         self._obs = self._observe()
         return self._obs.copy()
+
+    @property
+    def evader_model(self):
+        """What flies the evaders: the task's model (an EscapeModel, or a FileEvaderModel for
+        `evader.model: FILE.py:NAME`), or any object with reset and compute set here before the
+        first reset (docs/env_api.md), whose answers are then checked as a file model's are."""
+        return self._evader_model
+
+    @evader_model.setter
+    def evader_model(self, model) -> None:
+        self._evader_checked = checked_evader_model(model, (self.n_worlds, self.n_evaders, 2))
+        self._evader_model = model
 
     @property
     def started(self) -> bool:
@@ -396,7 +408,7 @@ class PursuitEnv:
         pos0 = self.physics.positions()[..., :2]
         vel0 = self.physics.velocities()[..., :2]
         free_before = ~self.captured
-        evader_cmd = self.evader_model.compute(
+        evader_cmd = self._evader_checked.compute(
             pos0[:, N:], vel0[:, N:], pos0[:, :N], vel0[:, :N], free_before & active[:, None], self._obstacles_with_captured(pos0[:, N:], cfg.capture_radius), cfg.control_dt
         )
         evader_cmd = np.where((free_before & active[:, None])[..., None], evader_cmd, 0.0)

@@ -12,12 +12,14 @@ which must give an object with
   capture discs included) and `dt` the decision interval (s). The physics caps the speed at
   `evader_speed`. Every array it gets, and the obstacles', is read-only: they are the env's own
   (the reward terms and captures are measured from them), so writing into one is an error.
-Every failure of a model of one's own is a ValueError naming the key and the reference.
+Every failure of a model of one's own is a ValueError naming the key and the reference; an
+object set as `env.evader_model` is checked alike (`checked_evader_model`), named by its class.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 
@@ -47,6 +49,21 @@ def make_evader_model(config: TaskConfig, n_worlds: int, seed: int, source: str 
     return FileEvaderModel(model, where, path, (int(n_worlds), config.n_evaders, 2))
 
 
+def checked_evader_model(model, shape: tuple[int, int, int]):
+    """`model` as the env calls it: the built-in model and a file's (already checked) as they are;
+    any other object set as `env.evader_model` behind a file model's checks (FileEvaderModel,
+    named `env.evader_model CLASS`), for `shape` (W, M, 2). ValueError for an object without
+    callable reset and compute."""
+    if isinstance(model, (EscapeModel, FileEvaderModel)):
+        return model
+    missing = [m for m in ("reset", "compute") if not callable(getattr(model, m, None))]
+    if missing or isinstance(model, type):
+        what = f"the class {model.__name__}, not an instance of it" if isinstance(model, type) else f"{model!r} has no {' or '.join(missing)} method"
+        raise ValueError(f"env.evader_model: {what}; it must be an evader model: an object with reset(world_ids, seeds) "
+                         f"and compute(...) (docs/env_api.md)")
+    return FileEvaderModel(model, f"env.evader_model {type(model).__name__}", None, shape)
+
+
 def _read_only(array: np.ndarray) -> np.ndarray:
     """A view of `array` that cannot be written through (no copy)."""
     view = np.asarray(array).view()
@@ -60,7 +77,9 @@ class FileEvaderModel:
     its line in the file (a UserCodeError). It gets read-only views of the env's arrays and
     obstacles: one it writes into is refused, not left to change the rewards and captures."""
 
-    def __init__(self, model, where: str, path, shape: tuple[int, int, int]):
+    def __init__(self, model, where: str, path: Path | None, shape: tuple[int, int, int]):
+        """`path` the model's file (None for an object set on the env: an exception is then placed
+        at its deepest line), `shape` (W, M, 2) of what compute must return."""
         self.model = model
         self.where = where
         self._path = path

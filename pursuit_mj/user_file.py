@@ -78,12 +78,13 @@ def _run_file(path: Path, where: str):
     return module
 
 
-def what_and_where(exc: BaseException, path: Path) -> str:
-    """'TypeError: ... (at FILE:LINE)', the deepest line of `path` in the traceback when there is one."""
-    frames = [f for f in traceback.extract_tb(exc.__traceback__) if Path(f.filename).resolve() == path.resolve()]
-    if isinstance(exc, SyntaxError) and exc.lineno is not None:
+def what_and_where(exc: BaseException, path: Path | None) -> str:
+    """'TypeError: ... (at FILE:LINE)', the deepest line of `path` in the traceback when there is
+    one (of any file for path None: code not loaded from a file of its own)."""
+    frames = [f for f in traceback.extract_tb(exc.__traceback__) if path is None or Path(f.filename).resolve() == path.resolve()]
+    if isinstance(exc, SyntaxError) and exc.lineno is not None and path is not None:
         return f"SyntaxError: {exc.msg} (at {path}:{exc.lineno})"
-    at = f" (at {path}:{frames[-1].lineno})" if frames else ""
+    at = f" (at {path or frames[-1].filename}:{frames[-1].lineno})" if frames else ""
     return f"{type(exc).__name__}: {exc}{at}"
 
 

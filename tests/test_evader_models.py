@@ -109,6 +109,42 @@ def test_nan_for_a_caught_evader_is_ignored_as_its_command_is(tmp_path):
     assert np.isfinite(env.physics.commands).all()
 
 
+class _Set:
+    """A model set as env.evader_model (docs/env_api.md), answering `answer(evader_pos)`."""
+
+    def __init__(self, answer):
+        self.answer = answer
+
+    def reset(self, world_ids, seeds):
+        pass
+
+    def compute(self, evader_pos, evader_vel, pursuer_pos, pursuer_vel, active, obstacles, dt):
+        return self.answer(evader_pos)
+
+
+def _fleeing_up_by_moving_itself(evader_pos):
+    evader_pos[..., 1] += 1.0  # writes into the env's array the rewards are measured from
+    return np.zeros(evader_pos.shape)
+
+
+@pytest.mark.parametrize("answer, message", [
+    # (1, 1, 2) was broadcast to every world, (W, M) and None failed in numpy's concatenate
+    # naming nothing, NaN was "commands: non-finite value nan at index (0, 3, 0)"
+    (lambda e: np.ones((1, 1, 2)), r"^env.evader_model _Set: compute returned shape \(1, 1, 2\), expected \(2, 1, 2\)"),
+    (lambda e: np.zeros(e.shape[:2]), r"^env.evader_model _Set: compute returned shape \(2, 1\), expected \(2, 1, 2\)"),
+    (lambda e: None, r"^env.evader_model _Set: compute returned None"),
+    (lambda e: np.full(e.shape, np.nan), r"^env.evader_model _Set: compute returned nan at \(world, evader, axis\) \(0, 0, 0\)"),
+    (_fleeing_up_by_moving_itself, r"^env.evader_model _Set: compute\(\.\.\.\) raised ValueError: output array is read-only \(at .*test_evader_models.py:\d+\)$"),
+])
+def test_a_model_set_on_the_env_is_checked_as_a_files_is(answer, message):
+    env = PursuitEnv(default_config(fidelity="point"), n_worlds=2)
+    env.evader_model = model = _Set(answer)
+    assert env.evader_model is model
+    env.reset()
+    with pytest.raises(ValueError, match=message):
+        env.step(np.zeros((2, 3, 2)))
+
+
 def test_a_model_that_is_neither_janosov_nor_a_file_reference_is_refused_naming_the_key():
     with pytest.raises(ConfigError, match=r"--set evader.model=straight: key 'evader.model': 'straight' is neither janosov"):
         load_task_config([], ["evader.model=straight"])
