@@ -611,6 +611,6 @@ class EscapeModel:
                 f"EscapeModel.compute obstacles: expected an ObstacleSet stacked over {W} worlds "
                 f"(ObstacleSet.stack: boxes (W, NB, 5), cylinders (W, NC, 3), border (W, NS, 4)), got boxes {got}"
             )
-        if not (isinstance(dt, (int, float, np.floating)) and math.isfinite(dt) and dt > 0):
+        if isinstance(dt, (bool, np.bool_)) or not (isinstance(dt, (int, float, np.integer, np.floating)) and math.isfinite(dt) and dt > 0):
             raise ValueError(f"EscapeModel.compute dt: expected a decision interval > 0 s, got {dt!r}")
         return (*out, act)

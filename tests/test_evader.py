@@ -435,6 +435,7 @@ def test_bad_input_is_refused_by_name():
         ("active", np.ones((2, 1)), "active"),
         ("obstacles", arena_obstacles(3), "obstacles"),
         ("dt", 0.0, "dt"),
+        ("dt", True, "dt"),  # ran as a 1 s decision interval (the seed refuses bools already)
     ]:
         with pytest.raises(ValueError, match=word):
             model.compute(**{**ok, key: value})
