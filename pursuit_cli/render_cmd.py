@@ -59,7 +59,7 @@ def register(sub) -> None:
     out.add_argument("--format", choices=("mp4", "gif"), help="video format when -s is a folder (default mp4)")
     out.add_argument("--final-frame", action="store_true", help="also save the last frame of each episode as PNG")
     out.add_argument("--no-video", action="store_true", help="write no video (with --final-frame and/or --rerun)")
-    out.add_argument("--rerun", metavar="FILE.rrd", help="record all episodes for the rerun viewer (rerun FILE.rrd)")
+    out.add_argument("--rerun", type=path_arg, metavar="FILE.rrd", help="record all episodes for the rerun viewer (rerun FILE.rrd)")
     run_g = p.add_argument_group("episodes and frames")
     run_g.add_argument("--episodes", type=int, help="episodes to play (default 1)")
     run_g.add_argument("--seed", type=seed_arg, default=0, help="table seed: plays the episodes eval --seed plays on the layout (default 0)")

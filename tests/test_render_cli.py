@@ -303,3 +303,13 @@ def test_a_recording_interrupted_by_sigterm_keeps_its_finished_episodes(tmp_path
     ent = read_entities(partial)
     n = ent["/__properties/interrupted"].static["finished_episodes"][0]
     assert n >= 2 and f"/episode_{n - 1}/outcome" in ent
+
+
+@pytest.mark.parametrize("extra", [[], ["--no-video"]])
+def test_an_empty_rerun_path_is_refused_naming_the_flag_not_ignored(tmp_path, capsys, monkeypatch, extra):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exit_:
+        _cli(tmp_path, "-s", "out/", "--rerun", "", *extra)
+    assert exit_.value.code == 2
+    assert "argument --rerun: an empty path ('')" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []  # no video played and written without the recording asked for
