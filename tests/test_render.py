@@ -407,3 +407,20 @@ def test_a_renderer_keeping_scenes_draws_them_as_one_that_rebuilds_them_and_buil
             keeping.bind(layouts[i])
             assert np.array_equal(keeping.render(pos, quat), frame)
     assert len(builds) == 3  # one per layout (the constructor's included), none on a return
+
+
+def test_glfw_without_a_display_is_one_line_naming_the_backend_and_the_missing_display(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "PYOPENGL_PLATFORM")}
+    env["MUJOCO_GL"] = "glfw"
+    out = subprocess.run([sys.executable, "-m", "pursuit_cli", "render", "--fidelity", "point", "--set", "max_steps=2",
+                          "--width", "64", "--height", "64", "-s", str(tmp_path / "out") + "/"],
+                         env=env, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert out.returncode == 2, out.stderr[-2000:]
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1, out.stderr  # no GLFW warnings printed before it
+    assert lines[0].startswith("pursuit-mj render: error: no offscreen OpenGL backend works here (glfw: ")
+    assert "DISPLAY" in lines[0] and "MUJOCO_GL" in lines[0]

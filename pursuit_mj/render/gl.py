@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import importlib
 import os
+import re
 import subprocess
 import sys
+import warnings
 
 CANDIDATES = ("egl", "osmesa")
 SUPPORTED = ("egl", "osmesa", "glfw")
@@ -104,8 +106,28 @@ def create_context(width: int, height: int):
         os.environ.setdefault("PYOPENGL_PLATFORM", backend)
     try:
         module = importlib.import_module(f"mujoco.{backend}")
-        ctx = module.GLContext(width, height)
+        ctx = _glfw_context(module, width, height) if backend == "glfw" else module.GLContext(width, height)
         ctx.make_current()
+    except RenderBackendError:  # _glfw_context's, which already names the backend and the reason
+        raise
     except Exception as exc:  # PyOpenGL and the EGL/OSMesa loaders raise many error types
         raise RenderBackendError(_explain({backend: f"{type(exc).__name__}: {exc}"})) from exc
     return ctx
+
+
+def _glfw_context(module, width: int, height: int):
+    """mujoco.glfw's context of width x height pixels, or RenderBackendError with GLFW's own reason:
+    without a display GLFW only warns (printed on stderr) and makes no window, which MuJoCo then
+    takes for a context that cannot draw."""
+    import glfw
+
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always", glfw.GLFWError)
+        ctx = module.GLContext(width, height)
+        ctx.make_current()
+        made = bool(glfw.get_current_context())
+    if made:
+        return ctx
+    ctx.free()
+    reasons = [re.sub(r"^\(\d+\) b?['\"]?|['\"]$", "", str(w.message)) for w in said if issubclass(w.category, glfw.GLFWError)]
+    raise RenderBackendError(_explain({"glfw": reasons[0] if reasons else "GLFW made no window"}))
