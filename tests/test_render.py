@@ -87,6 +87,28 @@ def test_interrupted_render_leaves_no_file_under_the_final_name(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("fmt", ["mp4", "gif"])
+def test_an_interrupt_while_the_encoder_finishes_the_file_leaves_nothing(tmp_path, fmt):
+    """Ctrl-C or SIGTERM while ffmpeg writes the last frames out (closing a long video takes a
+    while): neither the file nor its temporary part stays, and the encoder is not left running."""
+    from pursuit_mj.render.video import video_file
+
+    target, frame = tmp_path / f"chase.{fmt}", np.zeros((H, W, 3), np.uint8)
+    with pytest.raises(KeyboardInterrupt):
+        with video_file(target, W, H, 10.0) as video:
+            video.add(frame)
+            writer = video._writer
+            finish = writer.close
+
+            def interrupted_close():
+                writer.close = finish  # as a signal arriving during the wait for ffmpeg
+                raise KeyboardInterrupt
+
+            writer.close = interrupted_close
+    assert list(tmp_path.iterdir()) == []
+    assert writer._proc is None or writer._proc.poll() is not None
+
+
 @pytest.mark.parametrize("when", ["mid-stream", "at the end"])
 def test_an_encoder_that_stops_early_is_an_error_naming_the_file_and_leaves_nothing(tmp_path, when):
     """A full disk or a killed ffmpeg: neither a silent exit 0 (a broken pipe) nor a traceback."""

@@ -111,6 +111,9 @@ class VideoFile:
                 self._writer.__exit__(None, None, None)
             except (OSError, RuntimeError) as exc:
                 raise self._encoder_stopped(exc) from None
+            except BaseException:  # Ctrl-C or SIGTERM while ffmpeg writes the last frames out: no part left
+                self._discard()
+                raise
             self._writer = None
             self._atomic.__exit__(None, None, None)
             return self.path
