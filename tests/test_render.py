@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
+
 import mediapy
 import mujoco
 import numpy as np
@@ -107,6 +109,30 @@ def test_an_interrupt_while_the_encoder_finishes_the_file_leaves_nothing(tmp_pat
             writer.close = interrupted_close
     assert list(tmp_path.iterdir()) == []
     assert writer._proc is None or writer._proc.poll() is not None
+
+
+def test_a_video_that_cannot_be_renamed_into_place_is_an_error_naming_it_and_leaves_nothing(tmp_path, monkeypatch):
+    """The finished video cannot replace the file under its name (a file of another user in a
+    sticky-bit folder, an immutable one): CannotWrite naming it, as for a final frame, no traceback."""
+    import os
+
+    from pursuit_mj import io_utils
+    from pursuit_mj.io_utils import CannotWrite
+    from pursuit_mj.render.video import video_file
+
+    target, frame = tmp_path / "chase.gif", np.zeros((H, W, 3), np.uint8)
+    replace = os.replace
+
+    def refused(src, dst):
+        if Path(dst) == target:
+            raise PermissionError(1, "Operation not permitted", str(src), None, str(dst))
+        replace(src, dst)
+
+    monkeypatch.setattr(io_utils.os, "replace", refused)
+    with pytest.raises(CannotWrite, match=f"^{target}: cannot write it \\(Operation not permitted\\)$"):
+        with video_file(target, W, H, 10.0) as video:
+            video.add(frame)
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize("when", ["mid-stream", "at the end"])

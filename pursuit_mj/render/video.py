@@ -115,7 +115,10 @@ class VideoFile:
                 self._discard()
                 raise
             self._writer = None
-            self._atomic.__exit__(None, None, None)
+            try:
+                self._atomic.__exit__(None, None, None)  # the rename onto path; the part is gone if it fails
+            except OSError as exc:  # path cannot be replaced: another user's file in a sticky-bit folder, a full disk
+                raise CannotWrite(f"{self.path}: cannot write it ({exc.strerror or exc})") from None
             return self.path
         self._discard()
         return None
