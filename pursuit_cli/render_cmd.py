@@ -349,7 +349,8 @@ def run(args) -> int:
         where = ", ".join(str(p) for p in written)
         print(f"episode {k}: {record.outcome} after {record.steps} steps (seed {record.seed})" + (f" -> {where}" if where else ""), flush=True)
 
-    recording = RerunEpisodeRecording(args.rerun, trail_length=max(args.trail, 1)) if args.rerun else None
+    # its trail_length counts positions: N decision steps are N + 1 of them, as in the frames
+    recording = RerunEpisodeRecording(args.rerun, trail_length=args.trail + 1) if args.rerun else None
     ok = False
     try:
         run_episodes(config, policy, episodes, args.seed, settings, outputs, recording, label, on_episode=report,

@@ -472,3 +472,25 @@ def test_glfw_without_a_display_is_one_line_naming_the_backend_and_the_missing_d
     assert len(lines) == 1, out.stderr  # no GLFW warnings printed before it
     assert lines[0].startswith("pursuit-mj render: error: no offscreen OpenGL backend works here (glfw: ")
     assert "DISPLAY" in lines[0] and "MUJOCO_GL" in lines[0]
+
+
+@pytest.mark.parametrize("steps", [1, 3])
+def test_a_trail_of_n_decision_steps_spans_n_steps_of_the_path(steps):
+    """--trail N is the last N decision steps (docs/rendering.md): N segments through N + 1
+    states; a trail of 1 step drew nothing, as --trail 0 does."""
+    config = default_config(**CFG)
+    env = PursuitEnv(config, n_worlds=1, seed=2, auto_reset=False)
+    obs = env.reset()
+    policy = RandomPolicy(0)
+    policy.reset(1)
+    with FrameMaker(config, env.world_layouts[0], small(), "t", steps) as maker, \
+            FrameMaker(config, env.world_layouts[0], small(), "t", 0) as bare:
+        states = []
+        for _ in range(steps + 3):
+            snap = env.snapshot(0)
+            states.append(np.concatenate([snap.pursuer_pos, snap.evader_pos]))
+            maker.push(snap)
+            bare.push(snap)
+            obs, *_ = env.step(policy.act(obs, env.obs_spec))
+        np.testing.assert_array_equal(maker.trail.array(), np.stack(states[-(steps + 1):]))
+        assert np.any(maker.draw(snap, 0) != bare.draw(snap, 0))  # the trail is drawn

@@ -446,3 +446,12 @@ def test_a_scalar_log_is_not_refused_for_a_folder_where_episode_recordings_keep_
     RerunScalarLogger(tmp_path / "metrics.rrd").close()
     with pytest.raises(ValueError, match="metrics.interrupted.rrd is a folder"):
         RerunEpisodeRecording(tmp_path / "metrics.rrd")
+
+
+def test_render_trail_of_n_steps_records_trails_of_n_steps(tmp_path):
+    """render --trail N: the recording's trails, like the frames', span the last N decision steps (N + 1 points)."""
+    path = tmp_path / "t.rrd"
+    assert main(["render", "--policy", "random", "--fidelity", "point", "--set", "max_steps=5", "--trail", "2",
+                 "--no-video", "--rerun", str(path)]) == 0
+    rows = read_entities(path)["/episode_0/trails/pursuer_0"].rows
+    assert [len(strips[0]) for strips in rows["LineStrips3D:strips"]] == [1, 2, 3, 3, 3, 3]

@@ -43,7 +43,8 @@ def drone_pose(snap: Snapshot) -> tuple[np.ndarray, np.ndarray]:
 
 
 class FrameMaker:
-    """Snapshot -> captioned frame (H, W, 3) uint8, keeping each drone's trail.
+    """Snapshot -> captioned frame (H, W, 3) uint8, keeping each drone's trail of the last
+    `trail_length` decision steps.
 
     Works from snapshots alone (their layout picks the scene), so it draws live episodes and
     recorded ones the same way.
@@ -53,9 +54,15 @@ class FrameMaker:
                  style: OverlayStyle | None = None, keep_scenes: int = 1):
         self.title = title
         self.style = style or OverlayStyle()
-        self.trail = TrailBuffer(trail_length)
+        self.trail_steps = trail_length
+        self.trail = self.new_trail()
         self.renderer = SceneRenderer(settings, config, layout, lambda lay: overlay_geom_budget(config, lay, self.style),
                                       keep_scenes=keep_scenes)
+
+    def new_trail(self) -> TrailBuffer:
+        """A buffer for a trail of `trail_length` decision steps: that many segments through one
+        state more (a trail of 1 step is a line from the last state to this one)."""
+        return TrailBuffer(self.trail_steps + 1)
 
     def start_episode(self) -> None:
         """Forget the trails of the previous episode."""

@@ -13,7 +13,6 @@ from ..config import TaskConfig
 from ..env import PursuitEnv
 from ..layout import Layout
 from .episodes import FrameMaker
-from .overlays import TrailBuffer
 from .renderer import RenderSettings, check_settings
 
 TRAIL_STEPS = 30  # decision steps of trail behind each drone
@@ -51,7 +50,7 @@ class LiveFrames:
         keep = env.n_worlds if env.n_worlds <= KEPT_SCENES else 1
         self.maker = FrameMaker(env.config, env.world_layouts[0], settings or RenderSettings(), title, TRAIL_STEPS,
                                 keep_scenes=keep)
-        self.trails = [TrailBuffer(TRAIL_STEPS) for _ in range(env.n_worlds)]
+        self.trails = [self.maker.new_trail() for _ in range(env.n_worlds)]
         self._seen = np.full(env.n_worlds, -1)  # env.starts (episodes begun) of each world at the last push
 
     def push(self) -> None:
