@@ -146,7 +146,7 @@ def test_an_interrupted_recording_keeps_its_finished_episodes_beside_the_whole_o
             raise KeyboardInterrupt
     second = tmp_path / "x.interrupted-2.rrd"
     assert again.kept == second and partial.read_bytes() == partial_bytes
-    assert f"are in {second}" in again.summary() and f"{partial} beside it keeps an earlier interrupted run's" in again.summary()
+    assert f"the 1 episode finished before it is in {second}" in again.summary() and f"{partial} beside it keeps an earlier interrupted run's" in again.summary()
     assert read_entities(second)["/__properties/interrupted"].static["finished_episodes"] == [1]
 
     def interrupted_run():
@@ -455,3 +455,16 @@ def test_render_trail_of_n_steps_records_trails_of_n_steps(tmp_path):
                  "--no-video", "--rerun", str(path)]) == 0
     rows = read_entities(path)["/episode_0/trails/pursuer_0"].rows
     assert [len(strips[0]) for strips in rows["LineStrips3D:strips"]] == [1, 2, 3, 3, 3, 3]
+
+
+def test_the_summary_of_an_interrupted_recording_of_one_episode_says_it_in_the_singular(tmp_path):
+    config = default_config(fidelity="point", max_steps=3)
+    env = PursuitEnv(config, seed=0, auto_reset=False)
+    env.reset()
+    with pytest.raises(KeyboardInterrupt):
+        with RerunEpisodeRecording(tmp_path / "x.rrd") as rec:
+            buf = EpisodeBuffer()
+            buf.append(env.snapshot(0))
+            rec.add_episode(buf)
+            raise KeyboardInterrupt
+    assert rec.summary().startswith(f"interrupted: the 1 episode finished before it is in {tmp_path / 'x.interrupted.rrd'} ")

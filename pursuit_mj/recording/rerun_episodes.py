@@ -338,7 +338,7 @@ class RerunEpisodeRecording:
         if self.kept == self.path:
             return f"wrote {self.path} ({n}; open with: rerun {self.path}){self._earlier_interrupted()}{killed}"
         if self.kept is not None:
-            return (f"interrupted: the {n} finished before it are in {self.kept} (open with: rerun {self.kept}); "
+            return (f"interrupted: the {n} finished before it {'is' if self.n_episodes == 1 else 'are'} in {self.kept} (open with: rerun {self.kept}); "
                     f"{self.path} was not written{self._earlier_interrupted()}{killed}")
         if self.lost is not None and self.n_episodes:
             return f"the {n} recorded could not be written ({self.lost}): neither {self.path} nor {self.partial_path} holds them"
