@@ -236,6 +236,12 @@ class SafetyShield:
         self._hits[:, :, sl] = o["pos"][:, :, None] + o["rays"][..., None] * o["ray_dirs"]
         self._hit_ok[:, :, sl] = o["rays"] < self.ray_range - 1e-6
 
+    def _hit_dirs(self, ray_dirs: np.ndarray) -> np.ndarray:
+        """(hit_memory * K, 2) unit vectors: the direction of the ray each stored hit was found
+        along (slot s, ray k is entry s * K + k). The direction of a hit at the pursuer's own
+        position (a ray reading 0 m: it touches the wall) is that ray's."""
+        return np.tile(ray_dirs, (self.p.hit_memory, 1))
+
     def _mate_sees_me(self, u: np.ndarray, d: np.ndarray, mate_vel: np.ndarray) -> np.ndarray:
         """(W, N, N-1) bool: whether each teammate (unit direction u from this pursuer, distance d
         m, velocity mate_vel m/s) has this pursuer in its view: within its perception radius and,
@@ -257,7 +263,7 @@ class SafetyShield:
         if o["rays"].shape[-1]:
             rel = self._hits - o["pos"][:, :, None]
             d = np.sqrt(rel[..., 0] ** 2 + rel[..., 1] ** 2)
-            u = rel / np.maximum(d, EPS)[..., None]
+            u = np.where((d > EPS)[..., None], rel / np.maximum(d, EPS)[..., None], self._hit_dirs(o["ray_dirs"]))
             closing = np.maximum(np.einsum("wnhk,wnk->wnh", u, o["vel"]), 0.0)
             gap = d - self.obstacle_clearance - p.safety_buffer - lag * closing
             dirs.append(u)

@@ -438,3 +438,18 @@ def test_under_command_latency_the_shield_brakes_sooner():
         shield.reset(1)
         caps.append(shield.apply(toward, obs, SPEC)[0, 0, 0])
     assert caps[1] < caps[0] < SPEED  # the gap is judged 0.3 s further ahead: it brakes sooner
+
+
+def test_a_pursuer_touching_a_wall_is_not_let_into_it():
+    """Rays into a wall the pursuer touches read 0 m: their hit points are the pursuer's own
+    position, which gives no direction, so the wall's direction is the ray's (it was dropped)."""
+    obs = blank_obs()
+    wall_east(obs, 0.0)
+    toward = np.zeros((1, 3, 2))
+    toward[0, 0] = [SPEED, 0.0]
+    shield = SafetyShield(SPEED)
+    shield.reset(1)
+    out = shield.apply(toward, obs, SPEC)
+    assert np.isfinite(out).all()
+    assert out[0, 0, 0] < 0.0  # backs off the wall it touches (the cap toward it is negative)
+    np.testing.assert_array_equal(out[0, 1:], toward[0, 1:])  # the others see nothing
