@@ -162,16 +162,17 @@ class SafetyShield:
                    config.position_noise, config.share_teammates)
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
-        """Forget the hits and teammates seen in the listed worlds (all, and resize, when world_ids is None)."""
+        """Forget the hits and teammates seen in the listed worlds (all, and resize, when world_ids is None);
+        ValueError for ids that are not worlds 0..n_worlds-1."""
+        world_ids = check_world_ids(world_ids, n_worlds, "SafetyShield")
         if world_ids is None or self._n_worlds != n_worlds:
             self._n_worlds = int(n_worlds)
             self._hits = self._hit_ok = self._mates = None
             return
-        ids = np.asarray(world_ids, dtype=np.int64)
         if self._hit_ok is not None:
-            self._hit_ok[ids] = False
+            self._hit_ok[world_ids] = False
         if self._mates is not None:
-            self._mates["age"][ids] = np.inf
+            self._mates["age"][world_ids] = np.inf
 
     def apply(self, v: np.ndarray, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
         """Filtered velocities (W, N, 2) m/s from desired ones v (W, N, 2) m/s and observations (W, N, spec.dim)."""

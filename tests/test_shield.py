@@ -453,3 +453,15 @@ def test_a_pursuer_touching_a_wall_is_not_let_into_it():
     assert np.isfinite(out).all()
     assert out[0, 0, 0] < 0.0  # backs off the wall it touches (the cap toward it is negative)
     np.testing.assert_array_equal(out[0, 1:], toward[0, 1:])  # the others see nothing
+
+
+@pytest.mark.parametrize("world_ids", [[5], [-1], [0.5]])
+def test_reset_refuses_world_ids_that_are_not_worlds(world_ids):
+    shield = SafetyShield(SPEED)
+    shield.reset(2)
+    with pytest.raises(ValueError, match="SafetyShield: world ids"):
+        shield.reset(2, world_ids)  # before any step (nothing remembered yet) too
+    shield.apply(np.zeros((2, 3, 2)), blank_obs(2), SPEC)
+    with pytest.raises(ValueError, match="SafetyShield: world ids"):
+        shield.reset(2, world_ids)
+
