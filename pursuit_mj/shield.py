@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 
 import numpy as np
 
@@ -61,6 +62,11 @@ def check_rays(n_rays: int, who: str) -> None:
     if n_rays < MIN_RAYS:
         raise TaskValueError("n_rays", n_rays, f"{who} sees walls only through range readings and needs at least "
                              f"{MIN_RAYS} (set n_rays >= {MIN_RAYS})")
+
+
+def _is_number(value) -> bool:
+    """Whether value is a real number (an int, float or numpy scalar; not a bool, a string or None)."""
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -119,8 +125,12 @@ class SafetyShield:
                                      ("control_dt", control_dt, True),
                                      ("capture_radius", capture_radius, False), ("obstacle_clearance", obstacle_clearance, False),
                                      ("teammate_clearance", teammate_clearance, False)):
-            if not (math.isfinite(value) and (value > 0 if positive else value >= 0)):
+            if not (_is_number(value) and math.isfinite(value) and (value > 0 if positive else value >= 0)):
                 raise ValueError(f"SafetyShield: {key} must be a {'positive' if positive else 'non-negative'} number, got {value!r}")
+        for key, value in (("field_of_view", field_of_view), ("perception_radius", perception_radius),
+                           ("position_noise", position_noise)):
+            if not _is_number(value):
+                raise ValueError(f"SafetyShield: {key} must be a number, got {value!r}")
         if not (0 < field_of_view <= 2 * math.pi and perception_radius > 0):
             raise ValueError(f"SafetyShield: field_of_view must be in (0, 2 pi] rad and perception_radius > 0 m, "
                              f"got {field_of_view!r} and {perception_radius!r}")

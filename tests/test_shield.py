@@ -465,3 +465,10 @@ def test_reset_refuses_world_ids_that_are_not_worlds(world_ids):
     with pytest.raises(ValueError, match="SafetyShield: world ids"):
         shield.reset(2, world_ids)
 
+
+
+@pytest.mark.parametrize("key", ["pursuer_speed", "capture_radius", "control_dt", "field_of_view", "perception_radius", "position_noise"])
+@pytest.mark.parametrize("value", ["0.3", None, True])
+def test_a_setting_that_is_no_number_is_refused_by_name(key, value):
+    with pytest.raises(ValueError, match=f"SafetyShield: {key} must be a .*number.*got {value!r}"):
+        SafetyShield(**{key: value})
