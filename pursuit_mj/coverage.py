@@ -19,6 +19,26 @@ import numpy as np
 _OFFSETS = ((1, 0), (-1, 0), (0, 1), (0, -1))
 
 
+def check_tuning(params, positive: tuple[str, ...] = (), integers: tuple[str, ...] = (), skip: tuple[str, ...] = ()) -> None:
+    """ValueError naming the field of dataclass `params` that is not a finite number >= 0 (> 0
+    for those in `positive`; an integer >= 0 for those in `integers`); fields in `skip` are not checked."""
+    who = type(params).__name__
+    for f in dataclasses.fields(params):
+        if f.name in skip:
+            continue
+        value = getattr(params, f.name)
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+            ok = False
+        elif f.name in integers:
+            ok = isinstance(value, (int, np.integer)) and value >= 0
+        else:
+            ok = np.isfinite(value) and (value > 0 if f.name in positive else value >= 0)
+        if not ok:
+            kind = "an integer >= 0" if f.name in integers else f"a number {'>' if f.name in positive else '>='} 0"
+            unit = " (m)" if f.name == "cell" else ""
+            raise ValueError(f"{who}.{f.name}: expected {kind}{unit}, got {value!r}")
+
+
 @dataclasses.dataclass(frozen=True)
 class CoverageParams:
     """Grid, scoring and planning settings; distances in m, times in s."""
@@ -34,6 +54,9 @@ class CoverageParams:
     wall_cost: float = 4.0  # extra path cost of a cell beside a blocked one (keeps paths off narrow gaps)
     patience: float = 4.0  # a goal whose path has not reached the pursuer by then is dropped (s)
     window: int = 3  # the pursuer aims this many cells down the path
+
+    def __post_init__(self):
+        check_tuning(self, positive=("cell", "stale_time", "distance_scale"), integers=("relax_passes", "window"))
 
 
 class CoverageMap:

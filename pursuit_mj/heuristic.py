@@ -31,7 +31,7 @@ import numbers
 
 import numpy as np
 
-from .coverage import CoverageMap, CoverageParams
+from .coverage import CoverageMap, CoverageParams, check_tuning
 from .obs_spec import ObsSpec, named_views
 from .policy import check_observations, check_world_count, check_world_ids
 from .planar import clip_unit, unit
@@ -70,6 +70,12 @@ class HeuristicParams:
     open_distance: float = 0.6  # a direction is open if its ray reaches this far (or the goal) (m)
     side_timeout: float = 10.0  # follow an obstacle on one side at most this long, then the other (s)
     coverage: CoverageParams = dataclasses.field(default_factory=CoverageParams)
+
+    def __post_init__(self):
+        shield_fields = tuple(f.name for f in dataclasses.fields(ShieldParams))  # checked by ShieldParams
+        check_tuning(self, positive=("encircle_fade",), skip=shield_fields + ("coverage",))
+        if not isinstance(self.coverage, CoverageParams):
+            raise ValueError(f"HeuristicParams.coverage: expected CoverageParams, got {self.coverage!r}")
 
     @property
     def shield(self) -> ShieldParams:

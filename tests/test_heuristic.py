@@ -7,7 +7,8 @@ import pytest
 
 from pursuit_mj.config import default_config
 from pursuit_mj.evaluation import evaluate
-from pursuit_mj.heuristic import HeuristicTeam
+from pursuit_mj.coverage import CoverageParams
+from pursuit_mj.heuristic import HeuristicParams, HeuristicTeam
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policy import RandomPolicy
 
@@ -184,3 +185,18 @@ def test_the_random_policy_refuses_bad_observations_as_the_others_do():
     with pytest.raises(ValueError, match="policy random: observations contain NaN"):
         policy.act(bad, SPEC)
     assert policy.act(blank_obs(2), SPEC).shape == (2, 3, 2)
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: CoverageParams(cell=0.0), r"CoverageParams.cell: expected a number > 0 \(m\), got 0.0"),
+    (lambda: CoverageParams(stale_time=float("nan")), "CoverageParams.stale_time"),
+    (lambda: CoverageParams(relax_passes=1.5), "CoverageParams.relax_passes: expected an integer >= 0"),
+    (lambda: HeuristicParams(lead_gain=float("nan")), "HeuristicParams.lead_gain: expected a number >= 0, got nan"),
+    (lambda: HeuristicParams(memory_time=-1.0), "HeuristicParams.memory_time"),
+    (lambda: HeuristicParams(encircle_fade=0.0), "HeuristicParams.encircle_fade: expected a number > 0"),
+    (lambda: HeuristicParams(coverage={"cell": 0.2}), "HeuristicParams.coverage: expected CoverageParams"),
+])
+def test_bad_tuning_is_refused_by_name(make, message):
+    """A cell of 0 m was a ZeroDivisionError at the first step; a NaN gain went on to act."""
+    with pytest.raises(ValueError, match=message):
+        make()
