@@ -35,7 +35,7 @@ from .coverage import CoverageMap, CoverageParams, check_tuning
 from .obs_spec import ObsSpec, named_views
 from .policy import check_observations, check_world_count, check_world_ids
 from .planar import clip_unit, unit
-from .shield import SafetyShield, ShieldParams, check_rays
+from .shield import MIN_RAYS, SafetyShield, ShieldParams, check_rays
 
 _TINY = 1e-9
 
@@ -212,6 +212,7 @@ class HeuristicTeam:
         the memory (see _memory), sweep aim (W, N, 2) m relative, planned (W, N) bool).
         Call `tick` once the step is decided (act does both)."""
         obs = check_observations(obs, spec, "HeuristicTeam")
+        _check_spec(spec)
         W, N = obs.shape[:2]
         if self._n_worlds is None:
             self._n_worlds = W
@@ -373,6 +374,15 @@ class HeuristicTeam:
 
 
 # ---------------------------------------------------------------------- helpers
+
+
+def _check_spec(spec: ObsSpec) -> None:
+    """ValueError unless observations of `spec` hold an evader to chase and MIN_RAYS range readings."""
+    if spec.n_evaders < 1:
+        raise ValueError(f"HeuristicTeam: the observations hold no evaders (spec n_evaders {spec.n_evaders}): nothing to chase")
+    if spec.n_rays < MIN_RAYS:
+        raise ValueError(f"HeuristicTeam: the observations hold {spec.n_rays} range readings (spec n_rays); the team sees "
+                         f"walls only through them and needs at least {MIN_RAYS}")
 
 
 def _parse(obs: np.ndarray, spec: ObsSpec) -> dict[str, np.ndarray]:

@@ -200,3 +200,17 @@ def test_bad_tuning_is_refused_by_name(make, message):
     """A cell of 0 m was a ZeroDivisionError at the first step; a NaN gain went on to act."""
     with pytest.raises(ValueError, match=message):
         make()
+
+
+@pytest.mark.parametrize("spec, message", [
+    (ObsSpec.make(3, 0, 16), r"HeuristicTeam: the observations hold no evaders \(spec n_evaders 0\)"),
+    (ObsSpec.make(3, 1, 4), r"HeuristicTeam: the observations hold 4 range readings \(spec n_rays\); .* at least 8"),
+])
+def test_refuses_a_spec_it_cannot_act_on(spec, message):
+    """No evaders was 'attempt to get argmin of an empty sequence'; too few rays went on
+    flying blind to walls (from_config refuses such a task, a spec handed to act() was taken)."""
+    t = team()
+    t.reset(1)
+    obs = np.zeros((1, 3, spec.dim))
+    with pytest.raises(ValueError, match=message):
+        t.act(obs, spec)
