@@ -347,7 +347,12 @@ class Shielded:
         """Actions (W, N, 2) within the unit disc: desired world-frame velocity / pursuer_speed."""
         check_observations(obs, spec, f"policy {self.name}")
         check_world_count(np.shape(obs)[0], self._n_worlds, f"policy {self.name}")
-        a = np.asarray(self.policy.act(obs, spec), dtype=np.float64)
+        raw = self.policy.act(obs, spec)
+        try:
+            a = np.asarray(raw, dtype=np.float64)
+        except (TypeError, ValueError):  # strings, None, ragged lists
+            raise ValueError(f"Shielded: policy {self._inner} gave actions that are no array of numbers: "
+                             f"{str(raw)[:80]!r}") from None
         want = tuple(np.shape(obs)[:2]) + (2,)
         if a.shape != want:
             raise ValueError(f"Shielded: policy {self._inner} gave actions of shape {a.shape}, expected {want}")

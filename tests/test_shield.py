@@ -472,3 +472,17 @@ def test_reset_refuses_world_ids_that_are_not_worlds(world_ids):
 def test_a_setting_that_is_no_number_is_refused_by_name(key, value):
     with pytest.raises(ValueError, match=f"SafetyShield: {key} must be a .*number.*got {value!r}"):
         SafetyShield(**{key: value})
+
+
+@pytest.mark.parametrize("actions", [[["a", "b"]] * 3, [[[0.0, 0.0], [0.0]]]])
+def test_shielded_names_the_policy_whose_actions_are_no_numbers(actions):
+    class Odd(Straight):
+        name = "odd"
+
+        def act(self, obs, spec):
+            return actions
+
+    policy = Shielded(Odd((1.0, 0.0)), SafetyShield(SPEED))
+    policy.reset(1)
+    with pytest.raises(ValueError, match="Shielded: policy odd gave actions that are no array of numbers"):
+        policy.act(blank_obs(), SPEC)
