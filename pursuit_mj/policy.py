@@ -49,7 +49,10 @@ def check_observations(obs, spec: ObsSpec, who: str) -> np.ndarray:
 
 def check_world_ids(world_ids, n_worlds: int, who: str) -> np.ndarray | None:
     """world_ids as an int64 array (None stays None), or ValueError naming `who` for ids that are
-    not worlds 0..n_worlds-1 (a world whose memory a wrong id leaves would go on remembering)."""
+    not worlds 0..n_worlds-1 (a world whose memory a wrong id leaves would go on remembering), or
+    for an n_worlds that is no integer >= 1 (2.5 went on as 2 worlds, 0 until the first act())."""
+    if isinstance(n_worlds, (bool, np.bool_)) or not isinstance(n_worlds, (int, np.integer)) or n_worlds < 1:
+        raise ValueError(f"{who}: reset n_worlds: expected an integer >= 1, got {n_worlds!r}")
     if world_ids is None:
         return None
     ids = np.asarray(world_ids)

@@ -214,3 +214,11 @@ def test_refuses_a_spec_it_cannot_act_on(spec, message):
     obs = np.zeros((1, 3, spec.dim))
     with pytest.raises(ValueError, match=message):
         t.act(obs, spec)
+
+
+@pytest.mark.parametrize("n_worlds", [0, -1, 2.5, "2", True])
+@pytest.mark.parametrize("make", [team, lambda: RandomPolicy(0)])
+def test_reset_refuses_a_world_count_that_is_no_positive_integer(make, n_worlds):
+    """reset(2.5) went on as 2 worlds, reset(0) was taken until the first act()."""
+    with pytest.raises(ValueError, match=rf"reset n_worlds: expected an integer >= 1, got {n_worlds!r}"):
+        make().reset(n_worlds)
