@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
+
 from .config import TaskConfig
 from .heuristic import HeuristicTeam
 from .policy import Policy, RandomPolicy
@@ -20,7 +22,12 @@ BUILTIN_LABEL = re.compile(rf"({'|'.join(POLICY_NAMES)})(\+shield)?(#\d+)?")
 
 def make_policy(name: str, config: TaskConfig, seed: int = 0, source: str = "--policy") -> Policy:
     """A hand-made team by name ('heuristic' or 'random') for `config`, or a policy of one's own
-    by FILE.py:NAME (pursuit_mj.policy_file); ValueError names `source`."""
+    by FILE.py:NAME (pursuit_mj.policy_file); ValueError names `source`, or make_policy for a
+    config that is no TaskConfig or a seed that is no integer."""
+    if not isinstance(config, TaskConfig):
+        raise ValueError(f"make_policy: config: expected a TaskConfig, got {type(config).__name__}")
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
+        raise ValueError(f"make_policy: seed: expected an integer, got {seed!r}")
     if is_policy_file(name):
         policy = load_policy_file(name, config, seed, source)
         if BUILTIN_LABEL.fullmatch(policy.name.strip()):

@@ -222,3 +222,18 @@ def test_reset_refuses_a_world_count_that_is_no_positive_integer(make, n_worlds)
     """reset(2.5) went on as 2 worlds, reset(0) was taken until the first act()."""
     with pytest.raises(ValueError, match=rf"reset n_worlds: expected an integer >= 1, got {n_worlds!r}"):
         make().reset(n_worlds)
+
+
+@pytest.mark.parametrize("name", ["heuristic", "random"])
+@pytest.mark.parametrize("config, seed, message", [
+    (None, 0, "make_policy: config: expected a TaskConfig, got NoneType"),
+    ({"n_rays": 16}, 0, "make_policy: config: expected a TaskConfig, got dict"),
+    (default_config(), "a", "make_policy: seed: expected an integer, got 'a'"),
+    (default_config(), 1.5, "make_policy: seed: expected an integer, got 1.5"),
+])
+def test_make_policy_refuses_a_config_or_seed_of_the_wrong_kind(name, config, seed, message):
+    """None was "'NoneType' object has no attribute 'n_rays'"; seed 'a' numpy's "invalid literal for int()"."""
+    from pursuit_mj.policies import make_policy
+
+    with pytest.raises(ValueError, match=message):
+        make_policy(name, config, seed)
