@@ -254,7 +254,7 @@ def parse_override(text: str, source: str) -> tuple[list[str], Any]:
     try:
         value = safe_load(raw) if raw.strip() else ""
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{source}: value of '{key}' is not valid YAML: {raw!r}") from exc
+        raise ConfigError(f"{source}: value of '{key}' is not valid YAML: {raw!r} ({yaml_error_text(exc)})") from exc
     return key.split("."), value
 
 

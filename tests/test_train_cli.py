@@ -544,3 +544,12 @@ def test_bench_train_steps_the_bare_env_with_the_runs_reward_terms(tmp_path, mon
     monkeypatch.setattr(bench, "time", types.SimpleNamespace(perf_counter=bench.time.perf_counter, process_time=lambda: 0.0))
     bench.measure("classic", "point", 2, 1, TINY[1:-2] + ["run.overlap=false", f"rewards=[{tmp_path / 'terms.py'}:still]"])
     assert seen and all(names[-1] == "still" for names in seen), seen
+
+
+def test_a_set_value_that_is_not_yaml_says_why(capsys):
+    """'value of 'task' is not valid YAML' hid the reason (a key given twice, an unclosed list)."""
+    assert main(["train", "--set", "task={fidelity: point, fidelity: quadrotor}", "-sc"]) == 2
+    err = capsys.readouterr().err
+    assert "--set task={fidelity: point, fidelity: quadrotor}: value of 'task' is not valid YAML" in err, err
+    assert "key 'fidelity' given twice" in err and len(err.strip().splitlines()) == 1, err
+
