@@ -212,6 +212,8 @@ def preset_or_file(ref: str | Path, kind: str) -> Path:
 
     A reference that is neither is a ConfigError listing the presets there.
     """
+    if not str(ref).strip():  # Path('') is the current folder: 'a folder, not a file' would puzzle
+        raise ConfigError(f"{str(ref)!r}: empty; give a {kind} file or preset (presets: {', '.join(preset_names(kind))})")
     path = Path(ref)
     if path.is_file():
         return path

@@ -553,3 +553,11 @@ def test_a_set_value_that_is_not_yaml_says_why(capsys):
     assert "--set task={fidelity: point, fidelity: quadrotor}: value of 'task' is not valid YAML" in err, err
     assert "key 'fidelity' given twice" in err and len(err.strip().splitlines()) == 1, err
 
+
+
+def test_an_empty_config_name_is_refused_as_empty(capsys):
+    """--config '' said ': a folder, not a train file' (the empty path is the current folder)."""
+    assert main(["train", "--config", "", "-sc"]) == 2
+    err = capsys.readouterr().err
+    assert "error: '': empty; give a train file or preset (presets: belief, " in err, err
+
