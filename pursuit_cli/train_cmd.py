@@ -253,8 +253,9 @@ def run(args) -> int:
             raise ValueError(f"--resume {args.resume}: a run continues with its stored config; {', '.join(changed)} "
                              f"cannot change it (only {RESUMABLE_FLAGS} can)")
         if args.show_config:
+            stored = Path(args.resume) / "config.yaml"
             raise ValueError(f"--resume {args.resume}: -sc/--show-config does not resume; the run's config is in "
-                             f"{Path(args.resume) / 'config.yaml'} (or: pursuit-mj config ...)")
+                             f"{stored} (shown resolved by: pursuit-mj train --config {stored} -sc)")
         run_dir = Path(args.resume)
         if run_dir.suffix == ".pt":
             if run_dir.name != "last.pt":

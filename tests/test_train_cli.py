@@ -561,3 +561,11 @@ def test_an_empty_config_name_is_refused_as_empty(capsys):
     err = capsys.readouterr().err
     assert "error: '': empty; give a train file or preset (presets: belief, " in err, err
 
+
+def test_resume_with_show_config_points_to_a_command_that_shows_it(tmp_path, capsys):
+    """It said '(or: pursuit-mj config ...)', which refuses a train config."""
+    assert main(["train", "--resume", str(tmp_path), "-sc"]) == 2
+    err = capsys.readouterr().err
+    assert "pursuit-mj config" not in err, err
+    assert f"pursuit-mj train --config {tmp_path / 'config.yaml'} -sc" in err, err
+
