@@ -218,6 +218,20 @@ def _resumable_given(args) -> set[str]:
     return given & {"total_steps", "max_minutes", "run.progress", "run.rerun"}
 
 
+def _runs_inside(folder: Path, shown: int = 8) -> str:
+    """'; it holds the runs a, b: give one, e.g. --resume folder/a' for a folder of run folders
+    (runs/, which --resume was given instead of runs/NAME); '' when none in it has a last.pt."""
+    try:
+        names = sorted(p.name for p in folder.iterdir() if (p / "last.pt").is_file())
+    except OSError:
+        return ""
+    if not names:
+        return ""
+    more = f" and {len(names) - shown} more" if len(names) > shown else ""
+    return (f"; it holds the run{'s' if len(names) > 1 else ''} {', '.join(names[:shown])}{more}: give one, "
+            f"e.g. --resume {folder / names[0]}")
+
+
 def _progress(args) -> bool | None:
     """The progress bar a resume asks for: off, on, or as the run had it (None)."""
     return False if args.no_progress else (True if args.progress else None)
@@ -268,7 +282,7 @@ def run(args) -> int:
         if not run_dir.is_dir():
             raise ValueError(f"--resume {args.resume}: no such run folder")
         if not (run_dir / "last.pt").is_file():
-            raise ValueError(f"--resume {args.resume}: no last.pt in {run_dir}{best_instead(run_dir)}")
+            raise ValueError(f"--resume {args.resume}: no last.pt in {run_dir}{best_instead(run_dir) or _runs_inside(run_dir)}")
         trainer = Trainer.resume(run_dir, args.total_steps, max_minutes=args.max_minutes, progress=_progress(args),
                                  rerun=True if args.rerun else None)
     else:

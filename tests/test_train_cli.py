@@ -569,3 +569,13 @@ def test_resume_with_show_config_points_to_a_command_that_shows_it(tmp_path, cap
     assert "pursuit-mj config" not in err, err
     assert f"pursuit-mj train --config {tmp_path / 'config.yaml'} -sc" in err, err
 
+
+def test_resume_of_the_runs_folder_names_the_runs_in_it(tmp_path, capsys):
+    """--resume runs said 'no last.pt in runs' of the folder holding the runs."""
+    for name in ("b", "a"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "last.pt").write_bytes(b"")
+    (tmp_path / "other").mkdir()
+    assert main(["train", "--resume", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert f"--resume {tmp_path}: no last.pt in {tmp_path}; it holds the runs a, b: give one, e.g. --resume {tmp_path / 'a'}" in err, err
