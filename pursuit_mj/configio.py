@@ -141,7 +141,7 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
         raise ConfigError(f"{where}: {value!r} is not one of {list(args)}")
     if origin in (tuple, Sequence, list) or hint in (tuple, list):
         if not isinstance(value, (list, tuple)):
-            how = f" (write it as [{value}])" if isinstance(value, str) and "," in value else ""
+            how = f" (write it as {_as_list(value)})" if isinstance(value, str) and "," in value else ""
             raise ConfigError(f"{where}: expected a list, got {shown(value)}{how}")
         if origin is tuple and args and args[-1] is not Ellipsis:
             if len(args) != len(value):
@@ -180,6 +180,14 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
     if isinstance(hint, type) and isinstance(value, hint):
         return value
     raise ConfigError(f"{where}: {value!r} does not fit type {hint}")
+
+
+def _as_list(text: str) -> str:
+    """A comma-separated value as the YAML list it was meant to be: '64,64' and '(64,64)' -> '[64,64]'."""
+    inner = text.strip()
+    if inner.startswith("(") and inner.endswith(")"):
+        inner = inner[1:-1]
+    return f"[{inner}]"
 
 
 def _check_range(value: Any, meta: Mapping[str, Any], where: str) -> None:

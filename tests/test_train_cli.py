@@ -579,3 +579,12 @@ def test_resume_of_the_runs_folder_names_the_runs_in_it(tmp_path, capsys):
     assert main(["train", "--resume", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert f"--resume {tmp_path}: no last.pt in {tmp_path}; it holds the runs a, b: give one, e.g. --resume {tmp_path / 'a'}" in err, err
+
+
+@pytest.mark.parametrize("given, hint", [("net.hidden=(64,64)", "[64,64]"), ("net.hidden=(64, 64)", "[64, 64]"),
+                                         ("net.hidden=64,64", "[64,64]")])
+def test_a_list_written_in_parentheses_is_shown_how_to_write_it(given, hint, capsys):
+    """'(64,64)' was answered '(write it as [(64,64)])', which is refused too."""
+    assert main(["train", "--set", given, "-sc"]) == 2
+    err = capsys.readouterr().err
+    assert f"key 'net.hidden': expected a list, got '{given.split('=')[1]}' (write it as {hint})\n" in err, err
