@@ -259,6 +259,8 @@ def parse_override(text: str, source: str) -> tuple[list[str], Any]:
     key = key.strip()
     if not key:
         raise ConfigError(f"{source}: '{text}' has an empty key")
+    if "" in key.split("."):
+        raise ConfigError(f"{source}: '{key}' has an empty part (the keys of nested sections are joined by single dots)")
     try:
         value = safe_load(raw) if raw.strip() else ""
     except yaml.YAMLError as exc:

@@ -588,3 +588,12 @@ def test_a_list_written_in_parentheses_is_shown_how_to_write_it(given, hint, cap
     assert main(["train", "--set", given, "-sc"]) == 2
     err = capsys.readouterr().err
     assert f"key 'net.hidden': expected a list, got '{given.split('=')[1]}' (write it as {hint})\n" in err, err
+
+
+@pytest.mark.parametrize("given", ["ppo..lr=1", ".ppo=1", "ppo.=1"])
+def test_a_key_with_an_empty_part_is_refused_as_such(given, capsys):
+    """'ppo..lr' was answered "unknown key 'ppo.'", '.ppo' "unknown key ''" and a list of every key."""
+    assert main(["train", "--set", given, "-sc"]) == 2
+    err = capsys.readouterr().err
+    key = given.split("=")[0]
+    assert f"--set {given}: '{key}' has an empty part (the keys of nested sections are joined by single dots)\n" in err, err
