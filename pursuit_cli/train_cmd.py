@@ -51,7 +51,7 @@ def register(sub) -> None:
                    help=f"train YAML file or preset name ({presets}); repeatable, later wins")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override any train key, e.g. ppo.lr=1e-4, task.fidelity=point, run.validate_every=5")
-    p.add_argument("--name", help="run name (folder under runs/)")
+    p.add_argument("--name", help="run name: its folder is <run.runs_dir>/<name> (runs/<name> by default)")
     p.add_argument("--total-steps", type=steps_arg, help="world decision steps to train for (e.g. 2e6)")
     p.add_argument("--max-minutes", type=minutes_arg, help="stop after this much training time (LR decays over it)")
     p.add_argument("--n-envs", type=int, help="worlds stepped together")
@@ -69,7 +69,7 @@ def register(sub) -> None:
                    help="continue the run in RUN_DIR (default: the configured run) from its last.pt")
     p.add_argument("--export", nargs=2, metavar=("CHECKPOINT", "OUT"),
                    help="write a small policy-only copy of CHECKPOINT (actor, config, spec) to OUT and exit")
-    p.add_argument("--rerun", action="store_true", help="also stream the logged scalars to runs/<name>/metrics.rrd (run.rerun); a resumed run rewrites it "
+    p.add_argument("--rerun", action="store_true", help="also stream the logged scalars to <run.runs_dir>/<name>/metrics.rrd (run.rerun); a resumed run rewrites it "
                         "from the whole metrics log first")
     bar = p.add_mutually_exclusive_group()
     bar.add_argument("--no-progress", action="store_true", help="no progress bar (logs still go to metrics.jsonl)")

@@ -597,3 +597,12 @@ def test_a_key_with_an_empty_part_is_refused_as_such(given, capsys):
     err = capsys.readouterr().err
     key = given.split("=")[0]
     assert f"--set {given}: '{key}' has an empty part (the keys of nested sections are joined by single dots)\n" in err, err
+
+
+def test_train_help_places_the_run_folder_under_run_runs_dir(capsys):
+    """--name and --rerun said 'runs/', which run.runs_dir changes."""
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "--name NAME run name: its folder is <run.runs_dir>/<name> (runs/<name> by default)" in out, out
+    assert "stream the logged scalars to <run.runs_dir>/<name>/metrics.rrd" in out, out
