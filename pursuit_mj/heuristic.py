@@ -388,8 +388,9 @@ def _check_spec(spec: ObsSpec) -> None:
 def _parse(obs: np.ndarray, spec: ObsSpec) -> dict[str, np.ndarray]:
     """Named views of observations (W, N, dim) (obs_spec.named_views), plus tie_side (N, N-1)."""
     N = obs.shape[1]
-    # teammate j of pursuer i is stored in index order skipping i: the lower index yields
-    tie = np.array([[1.0 if j < i else -1.0 for j in range(N) if j != i] for i in range(N)]).reshape(N, N - 1)
+    # teammate slot k of pursuer i holds pursuer k if k < i, else k + 1 (index order skipping i):
+    # the lower index yields, so +1 exactly where the slot is below i
+    tie = np.where(np.arange(N - 1)[None, :] < np.arange(N)[:, None], 1.0, -1.0)
     return {**named_views(obs, spec), "tie_side": tie}
 
 

@@ -237,3 +237,17 @@ def test_make_policy_refuses_a_config_or_seed_of_the_wrong_kind(name, config, se
 
     with pytest.raises(ValueError, match=message):
         make_policy(name, config, seed)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 6])
+def test_the_tie_breaking_side_lets_the_lower_index_of_each_pair_yield(n):
+    """tie_side[i, k] is +1 where teammate slot k of pursuer i holds a lower-indexed pursuer
+    (slots list the others in index order, skipping i), -1 where it holds a higher one."""
+    from pursuit_mj.heuristic import _parse
+
+    spec = ObsSpec.make(n, 1, 8)
+    tie = _parse(np.zeros((1, n, spec.dim), np.float32), spec)["tie_side"]
+    assert tie.shape == (n, n - 1)
+    for i in range(n):
+        others = [j for j in range(n) if j != i]
+        assert tie[i].tolist() == [1.0 if j < i else -1.0 for j in others]
