@@ -121,9 +121,11 @@ class ObstacleSet:
         """What `cast_fan` needs about this set for fixed ray directions dirs (K, 2) (cached per K).
 
         With segment start a, edge e and d_k x e_s = 1 / inv[s, k], a ray from o along d_k hits
-        segment s at t = (a x e - o x e) inv and u = (a x d_k) inv - (o x d_k) inv along it: the
-        parts without o are fixed for the set. Returns inv and a x d_k * inv (S, K, ...), a x e
-        (S, ...), and c . d_k (C, K, ...) for the cylinders (invalid entries as in ray_targets).
+        segment s at t = ((a - o) x e) inv and u = ((a - o) x d_k) inv along it. Returns inv
+        (S, K, ...) and c . d_k (C, K, ...) for the cylinders (invalid entries as in ray_targets).
+        (Splitting u into a x d_k inv - o x d_k inv, fixed for the set, cancels catastrophically
+        where d_k is all but parallel to e and inv is huge: a ray along +y, whose x is cos(pi/2) =
+        6e-17, from a point level with a wall's end read 0 or missed the wall.)
         """
         dirs = np.asarray(dirs, dtype=np.float64)
         cache = self.__dict__.setdefault("_fan_cache", {})
@@ -134,9 +136,8 @@ class ObstacleSet:
             dx, dy = dirs[:, 0][k], dirs[:, 1][k]
             with np.errstate(divide="ignore", invalid="ignore"):
                 inv = 1.0 / (dx * ey[:, None] - dy * ex[:, None])  # (S, K, *B)
-                a_d = (ax[:, None] * dy - ay[:, None] * dx) * inv
             c_d = cx[:, None] * dx + cy[:, None] * dy  # (C, K, *B)
-            out = (inv, a_d, ax * ey - ay * ex, c_d)
+            out = (inv, c_d)
             for v in out:
                 v.flags.writeable = False
             cache[key] = out
@@ -371,17 +372,17 @@ def cast_fan(origins: np.ndarray, dirs: np.ndarray, obstacles: ObstacleSet) -> n
     distances (..., N, K) m, equal to cast_rays' up to float rounding, about twice as fast
     (what does not depend on the origins is computed once per obstacle set and kept)."""
     q = origins.ndim  # queries (K, N, ...)
-    inv, a_d, a_e, c_d = obstacles.fan_targets(dirs)
-    inv, a_d, c_d, a_e = _align_fan(inv, q), _align_fan(a_d, q), _align_fan(c_d, q), _align(a_e, q)
+    inv, c_d = obstacles.fan_targets(dirs)
+    inv, c_d = _align_fan(inv, q), _align_fan(c_d, q)
     ax, ay, ex, ey, cx, cy, r2 = (_align(v, q) for v in obstacles.ray_targets)  # (T, 1, 1.., *B)
     ox, oy = (v[None] for v in _queries_first(origins))  # (1, N, ...)
     d = np.asarray(dirs, dtype=np.float64)
     k = (slice(None),) + (None,) * (q - 1)
     dx, dy = d[:, 0][k], d[:, 1][k]  # (K, 1, ...)
-    o_d = ox * dy - oy * dx  # (K, N, ...)
+    aox, aoy = ax - ox, ay - oy  # (S, 1, N, ...): a - o first, as cast_rays (see fan_targets)
     with np.errstate(invalid="ignore"):
-        t = (a_e - (ox * ey - oy * ex)) * inv  # (S, K, N, ...)
-        u = a_d - o_d * inv
+        t = (aox * ey - aoy * ex) * inv  # (S, K, N, ...)
+        u = (aox * dy - aoy * dx) * inv
     hit = np.fmax(t, ~((t >= 0) & (u >= -U_SLACK) & (u <= 1 + U_SLACK)) * FAR).min(0, initial=FAR)  # (K, N, ...)
     ocx, ocy = ox - cx, oy - cy  # (C, 1, N, ...)
     b = (ox * dx + oy * dy) - c_d  # (o - c) . d: (C, K, N, ...)

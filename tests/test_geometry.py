@@ -241,3 +241,18 @@ def test_rays_through_a_box_corner_hit_the_corner():
         np.testing.assert_allclose(cast_rays(origins, dirs, obst)[enters], dist[enters], atol=1e-9, err_msg=f"box {k}")
         fan = np.array([cast_fan(o[None], d[None], obst)[0, 0] for o, d in zip(origins[enters], dirs[enters])])
         np.testing.assert_allclose(fan, dist[enters], atol=1e-9, err_msg=f"box {k}")
+
+
+def test_a_fan_ray_along_the_line_of_a_box_edge_reads_what_a_single_ray_reads():
+    """The range readings' fan (16 rays, ray 4 along +y with cos(pi/2) = 6e-17, not 0) from a
+    point level with a box's edge: it read 0 (a wall touching the pursuer) or missed the box, which
+    pursuers spawned on a 0.05 m grid met on layout 2 in the first observation of an episode."""
+    layout = layout_with([{"wall": {"from": [1.0, 2.0], "to": [3.0, 2.0], "thickness": 0.05}}])
+    obst = ObstacleSet.stack([layout.obstacle_set()])
+    angles = 2 * np.pi * np.arange(16) / 16
+    dirs = np.stack([np.cos(angles), np.sin(angles)], -1)
+    origins = np.array([[[3.0, 0.5], [1.0, 3.5], [3.5, 2.025], [0.5, 1.975], [3.0 - 4e-16, 0.65], [1.0 + 4e-16, 3.2]]])
+    fan = cast_fan(origins, dirs, obst)  # (1, 6, 16)
+    single = cast_rays(np.repeat(origins, 16, axis=1), np.broadcast_to(dirs, (1, 6, 16, 2)).reshape(1, 96, 2), obst)
+    np.testing.assert_allclose(fan, single.reshape(1, 6, 16), atol=1e-9)
+    assert fan[0, 0, 4] == pytest.approx(1.475) and fan[0, 2, 8] == pytest.approx(0.5)  # up to the wall's end; along its top face to it
