@@ -107,10 +107,13 @@ class ObsSpec:
         raise KeyError(f"observation has no group '{name}' (groups: {[g.name for g in self.groups]})")
 
     def index(self, group: str, entity: int, feature: str) -> int:
-        """Flat index of one feature, e.g. spec.index('evaders', 0, 'visible')."""
+        """Flat index of one feature, e.g. spec.index('evaders', 0, 'visible'); KeyError for an
+        unknown group, IndexError for an entity it lacks, ValueError for a feature it lacks."""
         g = self.group(group)
         if not 0 <= entity < g.count:
             raise IndexError(f"group '{group}' has {g.count} entities, asked for {entity}")
+        if feature not in g.features:
+            raise ValueError(f"group '{group}' has no feature {feature!r} (features: {_feature_list(g.features)})")
         return g.start + entity * g.width + g.features.index(feature)
 
     def to_dict(self) -> dict:
@@ -138,6 +141,13 @@ class ObsSpec:
            [(g[0], g[2]) for g in other.get("groups", [])] != [(g[0], g[2]) for g in mine["groups"]]:
             return f"observation features differ: model {other.get('groups')} vs environment {mine['groups']}"
         return None
+
+
+def _feature_list(features: tuple[str, ...]) -> str:
+    """A group's feature names for a message: all of them, or the first and last range readings."""
+    if len(features) > 3 and all(f.startswith("range_") for f in features):
+        return f"{features[0]} .. {features[-1]}"
+    return ", ".join(features) or "none"
 
 
 def named_views(obs: np.ndarray, spec: ObsSpec) -> dict[str, np.ndarray]:

@@ -207,3 +207,12 @@ def test_a_stored_spec_whose_features_are_renamed_or_reordered_is_not_compatible
         group = next(g for g in stored["groups"] if g[0] == "evaders")
         group[2] = change(list(group[2]))
         assert "observation features differ" in spec.compatible(stored)
+
+
+def test_an_unknown_feature_name_is_refused_naming_it_and_the_group_s_features():
+    """spec.index('evaders', 0, 'visble') said only 'tuple.index(x): x not in tuple'."""
+    spec = ObsSpec.make(3, 1, 8)
+    with pytest.raises(ValueError, match=r"'evaders'.*'visble'.*dx, dy, vx, vy, visible, relayed, captured"):
+        spec.index("evaders", 0, "visble")
+    with pytest.raises(ValueError, match=r"'rays'.*'range_8'.*range_0 .. range_7"):
+        spec.index("rays", 0, "range_8")
