@@ -11,7 +11,7 @@ import functools
 
 import numpy as np
 
-from .config import TaskConfig
+from .config import DRONE_CONTACT_DISTANCE, TaskConfig
 from .geometry import ObstacleSet, cast_fan, pairwise_line_of_sight
 from .randomness import WorldRandom
 
@@ -81,10 +81,11 @@ def privileged_config(config: TaskConfig, view: str) -> TaskConfig:
 #: a pursuer faces +y (into the arena) at the start of an episode
 INITIAL_HEADING = np.pi / 2
 HEADING_MIN_SPEED = 0.05  # m/s: below this a pursuer keeps its previous heading (see heading_min_speed)
-# m: a caught evader blocks sight and range readings as the drone it is (a Crazyflie's rotors
-# reach about 0.05 m from its centre), not as its capture disc, which holds the pursuer that
-# caught it: from inside, every ray and line of sight would be blocked at once
-CAUGHT_BODY_RADIUS = 0.05
+# m: a caught evader blocks sight and range readings as the drone it is: its collision volume,
+# arms and propellers, half of DRONE_CONTACT_DISTANCE (0.0685 m; a pursuer that comes closer
+# touches it and collides), not its capture disc, which holds the pursuer that caught it:
+# from inside, every ray and line of sight would be blocked at once
+CAUGHT_BODY_RADIUS = DRONE_CONTACT_DISTANCE / 2
 
 
 def heading_min_speed(pursuer_speed: float) -> float:

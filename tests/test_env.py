@@ -445,9 +445,25 @@ def test_the_pursuer_that_catches_one_evader_still_sees_its_teammates_and_the_ot
     assert env.captured[0].tolist() == [True, False] and not terminated[0]
     spec = env.obs_spec
     rays = spec.group("rays").view(obs)[0, 0, 0]
-    assert rays.min() > 0.1  # the caught drone is a body of 0.05 m, not a 0.3 m disc around its catcher
+    assert rays.min() > 0.1  # the caught drone is a body of 0.0685 m, not a 0.3 m disc around its catcher
     assert spec.group("teammates").view(obs)[0, 0, :, spec.group("teammates").mask_feature].tolist() == [1.0, 1.0]
     assert env._perception.seen[0, 0, 1]  # the free evader, 1 m away in the open
+
+
+def test_a_caught_evader_reads_in_the_range_readings_as_the_drone_body_a_pursuer_would_hit():
+    """A caught evader is an obstacle of the drone's own collision radius (models/crazyflie.xml,
+    0.0685 m: arms and propellers), where a pursuer touching it collides; it read as a 0.05 m body,
+    1.85 cm more free room than there is."""
+    from pursuit_mj.config import DRONE_CONTACT_DISTANCE
+
+    cfg = default_config(fidelity="point", random_obstacles=0, n_evaders=2)
+    env = PursuitEnv(cfg, n_worlds=1, seed=0)
+    env.reset()
+    _place(env, 0, [[1.0, 2.0], [2.5, 1.0], [3.0, 1.0], [1.0, 2.5], [3.0, 4.0]])  # evader 0 0.5 m above pursuer 0
+    env.captured[0, 0] = True
+    env._obs = env._observe()
+    up = cfg.n_rays // 4  # ray i points at 2 pi i / K from +x
+    assert env.snapshot(0).rays[0, up] == pytest.approx(0.5 - DRONE_CONTACT_DISTANCE / 2, abs=1e-9)
 
 
 def test_a_capture_in_the_step_of_a_collision_fails_without_a_capture_time():
