@@ -79,8 +79,8 @@ class WorldRandom:
         self._calls = 0
 
     def _next_keys(self, size) -> tuple[np.ndarray, tuple[int, ...]]:
-        size = (size,) if isinstance(size, (int, np.integer)) else tuple(size)
-        if not size or size[0] != len(self.keys):
+        size = _checked_size(size, len(self.keys))
+        if size[0] != len(self.keys):
             raise ValueError(f"WorldRandom: size {size} must start with the number of worlds {len(self.keys)}")
         self._calls += 1
         with np.errstate(over="ignore"):
@@ -96,3 +96,15 @@ class WorldRandom:
         """Normal numbers (mean loc, std scale) of shape `size` (W, ...)."""
         keys, rest = self._next_keys(size)
         return loc + scale * hash_normal(keys, self.ticks, rest, 0)
+
+
+def _checked_size(size, n_worlds: int) -> tuple[int, ...]:
+    """`size` (an int or a sequence of ints) as a tuple of non-negative ints, at least one; ValueError
+    naming it otherwise (numpy's size=None, one number, has no row per world)."""
+    shape = (size,) if isinstance(size, (int, np.integer)) else size
+    ok = isinstance(shape, (tuple, list)) and len(shape) > 0 and all(
+        isinstance(n, (int, np.integer)) and not isinstance(n, (bool, np.bool_)) and n >= 0 for n in shape)
+    if not ok:
+        raise ValueError(f"WorldRandom: size {size!r}: expected a shape ({n_worlds}, ...) of non-negative integers, "
+                         f"one row per world")
+    return tuple(int(n) for n in shape)

@@ -197,6 +197,16 @@ def test_world_random_draws_depend_on_their_own_world_only():
         three.random((2, 4))
 
 
+@pytest.mark.parametrize("draw", [lambda r: r.normal(0.0, 1.0), lambda r: r.random(None), lambda r: r.random(3.0),
+                                  lambda r: r.random((3, -2)), lambda r: r.normal(0.0, 1.0, (3, 2.5))])
+def test_world_random_refuses_a_size_that_is_no_shape_naming_it(draw):
+    """A size left out (numpy's one number), a float or a negative extent failed inside with
+    "'NoneType' object is not iterable" or gave an empty array as if asked for none."""
+    three = WorldRandom(world_keys(np.array([5, 6, 7])), np.array([0, 3, 9]))
+    with pytest.raises(ValueError, match=r"WorldRandom: size .* expected a shape \(3, ...\) of non-negative integers"):
+        draw(three)
+
+
 def test_a_stored_spec_whose_features_are_renamed_or_reordered_is_not_compatible():
     """Checkpoints store their spec: the same groups and widths with other features must be refused."""
     spec = ObsSpec.make(3, 1, 16)
