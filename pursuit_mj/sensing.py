@@ -43,7 +43,8 @@ class Perception:
     or relayed by a teammate (share_detections) or captured; teammate_visible (W, N, N) bool
     (diagonal False; every teammate with share_teammates); evader_pos_est (W, N, M, 2) m and
     teammate_pos_est (W, N, N, 2) m: the positions as perceived (with noise when
-    position_noise > 0, except teammates' own broadcast positions); rays (W, N, K) m.
+    position_noise > 0, except teammates' own broadcast positions and caught evaders, known
+    where they stopped); rays (W, N, K) m.
     """
 
     seen: np.ndarray
@@ -168,6 +169,8 @@ def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator | Wor
         # one independent draw per (observer, target), relayed detections included (not the
         # noise of the teammate that saw it): simple, and identical in both fidelities
         evader_est += rng.normal(0.0, config.position_noise, evader_est.shape)
+        # a caught evader stands where its capture was reported: known exactly, no fresh jitter
+        evader_est = np.where(view.captured[:, None, :, None], view.evader_pos[:, None], evader_est)
         mate_noise = rng.normal(0.0, config.position_noise, mate_est.shape)  # drawn either way: the same evader noise
         if not config.share_teammates:
             mate_est += mate_noise

@@ -226,3 +226,17 @@ def test_an_unknown_feature_name_is_refused_naming_it_and_the_group_s_features()
         spec.index("evaders", 0, "visble")
     with pytest.raises(ValueError, match=r"'rays'.*'range_8'.*range_0 .. range_7"):
         spec.index("rays", 0, "range_8")
+
+
+def test_a_caught_evader_is_known_where_it_stopped_without_fresh_noise():
+    """A caught evader stands still and its capture was reported, so every pursuer knows its true
+    position. Fresh position noise each step made a standing drone jitter by position_noise (and
+    the shield's cap toward it had no margin for that); a free evader keeps its noise."""
+    view = _view([[1.0, 1.0], [3.0, 1.0]], [[1.5, 2.0], [2.5, 2.0]], _layout().obstacle_set(), captured=[True, False])
+    config = default_config(random_obstacles=0, position_noise=0.1, n_evaders=2)
+    a = perceive(view, config, np.random.default_rng(0))
+    b = perceive(view, config, np.random.default_rng(1))
+    for per in (a, b):
+        np.testing.assert_array_equal(per.evader_pos_est[0, :, 0], [[1.5, 2.0], [1.5, 2.0]])
+        assert per.known[0, :, 0].all()
+    assert not np.allclose(a.evader_pos_est[0, :, 1], b.evader_pos_est[0, :, 1])  # the free one: noisy
