@@ -147,6 +147,37 @@ def move_into_place(tmp: str | Path, path: str | Path) -> Path:
     return Path(path)
 
 
+def keep_beside(tmp: str | Path, path: str | Path) -> Path | None:
+    """Keep the finished file `tmp` that could not be renamed onto `path` under a visible sibling,
+    `NAME.new.SUFFIX` (`NAME.new-K.SUFFIX` when that is taken: nothing there is replaced), so
+    that what the user made survives; returns it, `tmp` itself if it cannot be renamed, or None
+    if `tmp` is gone (its folder removed)."""
+    tmp, path = Path(tmp), Path(path)
+    for k in range(1, 1000):
+        kept = path.with_name(f"{path.stem}.new{'' if k == 1 else f'-{k}'}{path.suffix}")
+        try:
+            os.link(tmp, kept)  # never replaces a file already there (os.rename would)
+        except FileExistsError:
+            continue
+        except OSError:  # no hard links here (some file systems), or the folder is gone
+            if os.path.lexists(kept):
+                continue
+            try:
+                os.rename(tmp, kept)
+            except OSError:
+                break
+            return kept
+        _unlink_quietly(tmp)
+        return kept
+    return tmp if tmp.exists() else None
+
+
+def not_replaced_message(path: Path, exc: OSError, kept: Path | None) -> str:
+    """'PATH: cannot replace it (REASON); what was written is kept in KEPT' (or '...: it is lost')."""
+    where = f"what was written is kept in {kept}" if kept is not None else "what was written is lost (its folder is gone)"
+    return f"{path}: cannot replace it ({exc.strerror or exc}); {where}"
+
+
 def _alive(pid: int) -> bool:
     """Whether a process with this pid exists (one of another user's counts as alive)."""
     if os.name == "nt":  # os.kill would end the process there, not probe it

@@ -245,7 +245,7 @@ def test_a_recording_that_does_not_fit_on_the_disk_is_an_error_naming_it(tmp_pat
             " '--no-video', '--rerun', sys.argv[1]]))\n")
     proc = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=120)
     assert "Traceback" not in proc.stderr, proc.stderr[-2000:]
-    assert proc.returncode == 2 and f"pursuit-mj render: error: {path}: cannot write it (rerun:" in proc.stderr
+    assert proc.returncode == 2 and f"pursuit-mj render: error: --rerun {path}: cannot write it (rerun:" in proc.stderr
     assert list(tmp_path.iterdir()) == []
 
 
@@ -269,6 +269,53 @@ def test_an_interrupted_recording_whose_closing_write_fails_says_its_episodes_ar
     assert rec.kept is None and list(tmp_path.iterdir()) == []
     assert rec.summary().startswith("the 1 episode recorded could not be written (Failed to write: No space left")
     assert f"neither {tmp_path / 'r.rrd'} nor {tmp_path / 'r.interrupted.rrd'} holds them" in rec.summary()
+
+
+def test_a_recording_that_cannot_replace_the_file_under_its_name_keeps_its_episodes_beside_it(tmp_path):
+    """A folder made under the name during the run: the finished file was deleted with every
+    episode, and the error did not name --rerun; now the episodes stay, readable, in x.new.rrd,
+    and the error and the summary say so."""
+    config = default_config(fidelity="point", max_steps=3)
+    env = PursuitEnv(config, seed=0, auto_reset=False)
+    env.reset()
+    path, kept = tmp_path / "x.rrd", tmp_path / "x.new.rrd"
+    with pytest.raises(ValueError) as raised:
+        with RerunEpisodeRecording(path) as rec:
+            for _ in range(2):
+                buf = EpisodeBuffer()
+                buf.append(env.snapshot(0))
+                rec.add_episode(buf)
+            path.mkdir()
+    assert str(raised.value) == f"--rerun {path}: cannot replace it (Is a directory); what was written is kept in {kept}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.new.rrd", "x.rrd"] and rec.kept == kept
+    ent = read_entities(kept)
+    assert "/episode_0/outcome" in ent and "/episode_1/outcome" in ent
+    assert rec.summary().startswith(f"--rerun {path}: cannot replace it") and f"(2 episodes; open with: rerun {kept})" in rec.summary()
+
+
+def test_render_names_the_rerun_flag_and_where_the_episodes_are_when_the_recording_cannot_replace_its_file(tmp_path, capsys, monkeypatch):
+    """An immutable file under the name (played by a refused rename): exit 2, one line naming
+    --rerun and the kept file, which holds the episodes."""
+    import os
+
+    from pursuit_mj import io_utils
+
+    path, kept = tmp_path / "x.rrd", tmp_path / "x.new.rrd"
+    replace = os.replace
+
+    def refused(src, dst):
+        if str(dst) == str(path):
+            raise PermissionError(1, "Operation not permitted", str(src), None, str(dst))
+        replace(src, dst)
+
+    monkeypatch.setattr(io_utils.os, "replace", refused)
+    assert main(["render", "--policy", "random", "--fidelity", "point", "--set", "max_steps=3", "--episodes", "2",
+                 "--no-video", "--rerun", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert f"error: --rerun {path}: cannot replace it (Operation not permitted); what was written is kept in {kept}" in err, err
+    assert "Traceback" not in err and sorted(p.name for p in tmp_path.iterdir()) == ["x.new.rrd"]
+    ent = read_entities(kept)
+    assert "/episode_0/outcome" in ent and "/episode_1/outcome" in ent
 
 
 def test_rrd_path_is_checked(tmp_path):

@@ -39,7 +39,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from ..io_utils import CannotWrite, check_writable, killed_unfinished, move_into_place
+from ..io_utils import CannotWrite, check_writable, keep_beside, killed_unfinished, move_into_place, not_replaced_message
 from .unfinished import stream_to_unfinished
 from ..layout import Box, Cylinder, Layout, Wall
 from ..palette import BORDER_RGBA, OBSTACLE_RGBA, ROLE_RGBA, rgb255
@@ -115,16 +115,18 @@ class RerunEpisodeRecording:
 
     def __init__(self, path: str | Path, trail_length: int = 30, application_id: str = APPLICATION_ID, source: str = "--rerun"):
         self.path = check_rrd_path(path, source, episodes=True)
+        self.source = source  # what the user gave the path with (a flag), named in errors
         if isinstance(trail_length, bool) or not isinstance(trail_length, (int, np.integer)) or trail_length < 1:
             raise ValueError(f"trail length: expected an integer >= 1 step, got {trail_length!r}")
         self.trail_length = int(trail_length)
         self.n_episodes = 0
         self.kept: Path | None = None  # where close() left the episodes: path, partial_path or nowhere
         self.lost: str | None = None  # why close() could not write the file (a full disk), if it could not
+        self.not_replaced: str | None = None  # why close() kept the file beside its name, if it did
         self.killed_before = killed_unfinished(self.path)  # what earlier recordings killed mid-way left: kept
         self.stream = rr.RecordingStream(application_id, recording_id=uuid.uuid4())
         self._tmp = stream_to_unfinished(self.stream, self.path, lambda: self.stream.log(
-            "/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True), str(self.path))
+            "/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True), f"{source} {self.path}")
         self._closed = False
         self._thrust = False
 
@@ -170,7 +172,7 @@ class RerunEpisodeRecording:
             self.stream.flush()  # on disk as each episode ends: a recording killed later (kill -9) keeps it
         except RuntimeError as exc:  # rerun's file writer stopped: a full disk
             self.lost = str(exc)
-            raise CannotWrite(f"{self.path}: cannot write it (rerun: {exc})") from None
+            raise CannotWrite(f"{self.source} {self.path}: cannot write it (rerun: {exc})") from None
         self.n_episodes += 1
         return prefix
 
@@ -335,6 +337,8 @@ class RerunEpisodeRecording:
         n = f"{self.n_episodes} episode{'' if self.n_episodes == 1 else 's'}"
         killed = "".join(f"; {p} beside it holds what a recording killed before it finished had written"
                          for p in self.killed_before if p.is_file())
+        if self.not_replaced is not None and self.kept is not None:
+            return f"{self.source} {self.not_replaced} ({n}; open with: rerun {self.kept}){self._earlier_interrupted()}{killed}"
         if self.kept == self.path:
             return f"wrote {self.path} ({n}; open with: rerun {self.path}){self._earlier_interrupted()}{killed}"
         if self.kept is not None:
@@ -347,12 +351,15 @@ class RerunEpisodeRecording:
     def close(self, ok: bool = True) -> Path | None:
         """Finish the file; returns where its episodes are (also `kept`), None if nowhere.
 
-        ok: flush and rename it onto `path` (CannotWrite naming it if the file could not be
-        written, a full disk: nothing is left then). Not ok (an error, Ctrl-C, SIGTERM): the
-        finished episodes are kept under `partial_path` with the recording property
+        ok: flush and rename it onto `path` (CannotWrite naming the flag, `source`, and the file
+        if it could not be written, a full disk: nothing is left then). Not ok (an error, Ctrl-C,
+        SIGTERM): the finished episodes are kept under `partial_path` with the recording property
         `interrupted`, so that `path` only ever holds a whole run (and an earlier one there
-        survives); when earlier interrupted runs' episodes are there, under
-        out.interrupted-K.rrd numbered after the last of them; a recording without a finished episode is discarded.
+        survives); when earlier interrupted runs' episodes are there, under out.interrupted-K.rrd
+        numbered after the last of them; a recording without a finished episode is discarded.
+        Either way, a finished file that cannot replace the file under its name (a folder or an
+        immutable file there) is kept beside it as out.new.rrd (io_utils.keep_beside) and
+        `summary` says where; with ok, CannotWrite naming the flag and that file as well.
         """
         if self._closed:
             return self.kept
@@ -372,15 +379,26 @@ class RerunEpisodeRecording:
             self.stream.disconnect()
         except RuntimeError as exc:  # rerun's file writer stopped: a full disk
             return self._lost(ok, exc)
+        if not keep:  # interrupted before any episode finished
+            self._tmp.unlink(missing_ok=True)
+            return None
+        target = self.path if ok else self._free_partial_path()
         try:
-            if ok:
-                self.kept = move_into_place(self._tmp, self.path)
-            elif keep:
-                self.kept = move_into_place(self._tmp, self._free_partial_path())
-        except OSError as exc:  # the data could not be flushed or the file renamed: a full disk, a removed folder
-            return self._lost(ok, exc)
-        finally:
-            self._tmp.unlink(missing_ok=True)  # a recording without a finished episode, or one that failed
+            self.kept = move_into_place(self._tmp, target)
+        except OSError as exc:  # a folder or an immutable file under the name, a removed folder
+            return self._not_replaced(ok, target, exc)
+        return self.kept
+
+    def _not_replaced(self, ok: bool, target: Path, exc: OSError) -> Path | None:
+        """The finished file could not be renamed onto `target`: keep it beside it (out.new.rrd)
+        rather than delete the episodes; CannotWrite naming the flag and where they are if the run
+        had ended well (an interrupted one stays interrupted; `summary` says where they are)."""
+        self.kept = keep_beside(self._tmp, target)
+        self.not_replaced = not_replaced_message(target, exc, self.kept)
+        if self.kept is None:
+            self.lost = str(exc)
+        if ok:
+            raise CannotWrite(f"{self.source} {self.not_replaced}")
         return self.kept
 
     def _lost(self, ok: bool, exc: Exception) -> None:
@@ -389,7 +407,7 @@ class RerunEpisodeRecording:
         self.lost = str(exc)
         self._tmp.unlink(missing_ok=True)
         if ok:
-            raise CannotWrite(f"{self.path}: cannot write it (rerun: {exc})") from None
+            raise CannotWrite(f"{self.source} {self.path}: cannot write it (rerun: {exc})") from None
         return None
 
     def __enter__(self) -> "RerunEpisodeRecording":
