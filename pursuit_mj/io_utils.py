@@ -22,7 +22,9 @@ class CannotWrite(ValueError):
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside `path`; on success it is renamed onto `path`, else removed.
-    CannotWrite (a ValueError) naming `path` if the temporary file cannot be made."""
+    CannotWrite (a ValueError) naming `path` if the temporary file cannot be made, or if the
+    finished file cannot replace `path` (then it is kept as NAME.new.SUFFIX, see keep_beside,
+    and the message says where)."""
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -39,7 +41,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         yield tmp_path
         with open(tmp_path, "rb") as f:
             os.fsync(f.fileno())
-        os.replace(tmp_path, path)
+        try:
+            os.replace(tmp_path, path)
+        except OSError as exc:  # a folder or an immutable file under the name: the finished file is kept
+            raise CannotWrite(not_replaced_message(path, exc, keep_beside(tmp_path, path))) from None
         _fsync_folder(path.parent)  # the rename itself survives a power cut only once its folder is on disk
         _remove_dead_parts(path)
     finally:

@@ -111,9 +111,11 @@ def test_an_interrupt_while_the_encoder_finishes_the_file_leaves_nothing(tmp_pat
     assert writer._proc is None or writer._proc.poll() is not None
 
 
-def test_a_video_that_cannot_be_renamed_into_place_is_an_error_naming_it_and_leaves_nothing(tmp_path, monkeypatch):
+def test_a_video_that_cannot_replace_the_file_under_its_name_is_kept_beside_it_and_the_error_says_where(tmp_path, monkeypatch):
     """The finished video cannot replace the file under its name (a file of another user in a
-    sticky-bit folder, an immutable one): CannotWrite naming it, as for a final frame, no traceback."""
+    sticky-bit folder, an immutable one, a folder made there meanwhile): it was deleted with the
+    error; now it is kept, whole, as NAME.new.SUFFIX (numbered when that is taken) and the
+    one-line error says where."""
     import os
 
     from pursuit_mj import io_utils
@@ -129,10 +131,31 @@ def test_a_video_that_cannot_be_renamed_into_place_is_an_error_naming_it_and_lea
         replace(src, dst)
 
     monkeypatch.setattr(io_utils.os, "replace", refused)
-    with pytest.raises(CannotWrite, match=f"^{target}: cannot write it \\(Operation not permitted\\)$"):
+    kept = tmp_path / "chase.new.gif"
+    with pytest.raises(CannotWrite, match=f"^{target}: cannot replace it \\(Operation not permitted\\); "
+                                          f"what was written is kept in {kept}$"):
         with video_file(target, W, H, 10.0) as video:
             video.add(frame)
-    assert list(tmp_path.iterdir()) == []
+            video.add(frame)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["chase.new.gif"]
+    assert mediapy.read_video(kept).shape[0] == 2
+    with pytest.raises(CannotWrite, match=f"kept in {tmp_path / 'chase.new-2.gif'}$"):  # the first one is not replaced
+        with video_file(target, W, H, 10.0) as video:
+            video.add(frame)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["chase.new-2.gif", "chase.new.gif"]
+    assert mediapy.read_video(kept).shape[0] == 2
+
+
+def test_a_folder_made_under_an_eval_tables_name_keeps_the_table_beside_it(tmp_path):
+    """atomic_write_text (eval's CSV/JSON tables, metrics logs): the written text survives a
+    final rename that fails because a folder took the name meanwhile."""
+    from pursuit_mj.io_utils import atomic_write_text
+
+    (tmp_path / "results.csv").mkdir()
+    with pytest.raises(ValueError, match=f"results.csv: cannot replace it .*; what was written is kept in {tmp_path / 'results.new.csv'}$"):
+        atomic_write_text(tmp_path / "results.csv", "a,b\n1,2\n")
+    assert (tmp_path / "results.new.csv").read_text() == "a,b\n1,2\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["results.csv", "results.new.csv"]
 
 
 @pytest.mark.parametrize("when", ["mid-stream", "at the end"])
