@@ -426,7 +426,10 @@ def run_check(args) -> int:
     print(f"  random obstacles: {r.count} of {', '.join(r.kinds)}, size {r.size[0]:g}-{r.size[1]:g} m")
     for name, region in (("pursuers", layout.spawn_pursuers), ("evaders", layout.spawn_evaders)):
         free = free_spawn_points(layout, region)
-        print(f"  spawn {name}: x {region.x[0]:g}-{region.x[1]:g}, y {region.y[0]:g}-{region.y[1]:g} m, {len(free)} free points on a 5 cm grid")
+        if region.is_point:  # a fixed start (the checks above refused one that is not free)
+            print(f"  spawn {name}: the point ({region.x[0]:g}, {region.y[0]:g}) m, a fixed start for one drone")
+        else:
+            print(f"  spawn {name}: x {region.x[0]:g}-{region.x[1]:g}, y {region.y[0]:g}-{region.y[1]:g} m, {len(free)} free points on a 5 cm grid")
     print(f"  room for {args.pursuers} pursuers and {args.evaders} evader(s) {SPAWN_SEPARATION} m apart; "
           f"the evaders' spawn region is reachable from the pursuers'")
     if tried:

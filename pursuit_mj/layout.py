@@ -87,10 +87,16 @@ class RandomObstacles:
 
 @dataclasses.dataclass(frozen=True)
 class Region:
-    """An axis-aligned spawn region: x range and y range (m)."""
+    """An axis-aligned spawn region: x range and y range (m), low <= high. Equal ends make it a
+    line or, in both, a point: a fixed start that holds one drone."""
 
     x: tuple[float, float]
     y: tuple[float, float]
+
+    @property
+    def is_point(self) -> bool:
+        """Whether the region is a single point (a fixed start position)."""
+        return self.x[0] == self.x[1] and self.y[0] == self.y[1]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -334,8 +340,9 @@ def _signed_area(pts: Sequence[tuple[float, float]]) -> float:
 def _parse_region(value: Any, where: str) -> Region:
     m = _mapping(value, where, ("x", "y"), ("x", "y"))
     x, y = _pair(m["x"], f"{where}.x"), _pair(m["y"], f"{where}.y")
-    if x[0] >= x[1] or y[0] >= y[1]:
-        raise LayoutError(f"{where}: ranges must be [low, high] with low < high, got x={list(x)} y={list(y)}")
+    if x[0] > x[1] or y[0] > y[1]:
+        raise LayoutError(f"{where}: ranges must be [low, high] with low <= high (low == high in both for a fixed "
+                          f"start point), got x={list(x)} y={list(y)}")
     return Region(x, y)
 
 

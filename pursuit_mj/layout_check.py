@@ -72,6 +72,10 @@ def check_spawn_capacity(layout, n_pursuers: int, n_evaders: int, separation: fl
 
     rng = np.random.default_rng(0)
     for name, region, n in (("pursuers", layout.spawn_pursuers, n_pursuers), ("evaders", layout.spawn_evaders, n_evaders)):
+        if region.is_point and n > 1:
+            raise LayoutError(f"n_{name}={n}: spawn.{name} of {layout.source} is a single point (x={region.x[0]:g}, "
+                              f"y={region.y[0]:g}), which holds one drone; {n} {name} need room {separation} m apart: "
+                              f"give spawn.{name} ranges with low < high, or use n_{name}=1")
         points = free_spawn_points(layout, region)
         # every episode draws its own spawn: a team that fits only some draws would stop a
         # run partway, so CAPACITY_DRAWS draws must all fit

@@ -59,6 +59,8 @@ def draw_layout(ax, layout: Layout, random_obstacles: tuple = (), random_label: 
         color = SPAWN_COLORS[name]
         ax.add_patch(mpatches.Rectangle((region.x[0], region.y[0]), region.x[1] - region.x[0], region.y[1] - region.y[0],
                                         facecolor=color, alpha=0.18, edgecolor=color, linewidth=1.2, zorder=2))
+        if region.is_point:  # a fixed start: a rectangle of no size would not show
+            ax.plot([region.x[0]], [region.y[0]], marker="o", markersize=7, color=color, zorder=4)
     for o in fixed:
         patch = _obstacle_patch(o, FIXED_COLOR)
         patch.set_zorder(3)

@@ -521,6 +521,52 @@ def test_a_spawn_strip_thinner_than_the_reachability_grid_is_accepted_and_spawns
     assert ((x >= 1.81 - 1e-6) & (x <= 1.82 + 1e-6)).all()
 
 
+def test_a_spawn_point_fixes_the_start_of_a_drone_in_every_episode(tmp_path):
+    """A spawn region with low == high in x and y is a point: a user fixes a start position. It
+    was refused ('ranges must be [low, high] with low < high'); now the evader starts there in
+    every episode of a real compiled scene, random obstacles and all, and the episode runs."""
+    point = {"pursuers": SPAWN["pursuers"], "evaders": {"x": [1.8, 1.8], "y": [4.5, 4.5]}}
+    path = tmp_path / "fixed.yaml"
+    path.write_text(yaml.safe_dump(base_dict(spawn=point)))
+    layout = load_layout(path)
+    assert layout.spawn_evaders.x == (1.8, 1.8) and round_trip(layout, tmp_path / "again.yaml").spawn_evaders.y == (4.5, 4.5)
+    config = default_config(layout=str(path), fidelity="point", max_steps=20)
+    env = PursuitEnv(config, n_worlds=3, seed=4, auto_reset=False)
+    starts = []
+    for episode in range(3):
+        env.reset() if episode == 0 else env.reset_worlds([0, 1, 2])
+        starts.append(np.stack([env.snapshot(w).evader_pos[0, :2] for w in range(3)]))
+        pursuers = np.stack([env.snapshot(w).pursuer_pos[:, :2] for w in range(3)])
+        assert len({tuple(p.round(6)) for p in pursuers.reshape(-1, 2)}) > 3  # the pursuers' region still draws
+        while not env.done.all():
+            env.step(np.zeros((3, config.n_pursuers, 2)))
+    np.testing.assert_allclose(np.stack(starts), np.broadcast_to([1.8, 4.5], (3, 3, 2)), atol=2e-3)
+    assert env.episode.tolist() == [2, 2, 2]
+
+
+def test_a_spawn_point_holds_one_drone_and_keeps_the_layout_checks(tmp_path):
+    """A point holds one drone: a team of several is refused saying they need room 0.4 m apart;
+    one drone there is accepted; a point inside an obstacle or in a closed pocket is refused as
+    a region there is."""
+    point = {"x": [0.6, 0.6], "y": [0.5, 0.5]}
+    path = tmp_path / "point.yaml"
+    path.write_text(yaml.safe_dump(base_dict(spawn={"pursuers": point, "evaders": SPAWN["evaders"]})))
+    with pytest.raises(LayoutError, match=r"n_pursuers=3: spawn.pursuers of .*point.yaml is a single point \(x=0.6, y=0.5\), "
+                                          r"which holds one drone; 3 pursuers need room 0.4 m apart"):
+        PursuitEnv(default_config(layout=str(path), fidelity="point"))
+    env = PursuitEnv(default_config(layout=str(path), fidelity="point", n_pursuers=1), seed=1)
+    env.reset()
+    np.testing.assert_allclose(env.snapshot(0).pursuer_pos[0, :2], [0.6, 0.5], atol=2e-3)
+    inside = base_dict(spawn={"pursuers": point, "evaders": SPAWN["evaders"]},
+                       obstacles=[{"cylinder": {"center": [0.6, 0.5], "radius": 0.2}}])
+    with pytest.raises(LayoutError, match=r"spawn.pursuers x=\[0.6, 0.6\] y=\[0.5, 0.5\] has no free point"):
+        layout_from_dict(inside, "inside.yaml")
+    pocket = base_dict(spawn={"pursuers": point, "evaders": SPAWN["evaders"]},
+                       obstacles=[{"wall": {"from": [0.0, 1.2], "to": [1.2, 1.2]}}, {"wall": {"from": [1.2, 0.0], "to": [1.2, 1.2]}}])
+    with pytest.raises(LayoutError, match=r"pocket.yaml: the evaders' spawn region cannot be reached from the pursuers'"):
+        layout_from_dict(pocket, "pocket.yaml")
+
+
 def test_duplicate_keys_and_non_text_files_are_refused(tmp_path):
     path = tmp_path / "twice.yaml"
     path.write_text(yaml.safe_dump(base_dict()) + "name: again\n")
