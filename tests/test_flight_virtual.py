@@ -339,3 +339,20 @@ def test_fly_align_waits_for_the_estimators_and_refuses_a_drone_without_a_positi
         with pytest.raises(ValueError, match=r"drone p1 \(udp://127.0.0.1:\d+\): its position estimate did not settle within 1 s "
                                              r"\(Kalman variances \[.*\] m\^2, above safety.estimator_variance 0.001\)"):
             align(spec, spots, uris=fleet.uris, factory=CachedFactory(tmp_path / "toc"), window=0.2)
+
+
+def test_a_flight_recording_that_cannot_replace_its_file_is_kept_beside_it_under_a_name_saying_so(tmp_path):
+    """A folder made under the name during the flight: the recording was left under its
+    unfinished name, which the next recording then reported as one killed before it finished;
+    now it is kept as f.new.rrd and the error, naming --rerun, says so."""
+    from pursuit_mj.flight.rerun_log import FlightRecorder
+    from pursuit_mj.io_utils import CannotWrite
+
+    path = tmp_path / "f.rrd"
+    recorder = FlightRecorder(path, quick_plan())
+    recorder.log_event({"t": 0.5, "kind": "takeoff"})
+    path.mkdir()
+    with pytest.raises(CannotWrite, match=f"^--rerun {path}: cannot replace it \\(Is a directory\\); what was written is kept in {tmp_path / 'f.new.rrd'}$"):
+        recorder.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.new.rrd", "f.rrd"]
+    assert "/events" in read_entities(tmp_path / "f.new.rrd")

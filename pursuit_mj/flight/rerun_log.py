@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from ..io_utils import CannotWrite, killed_unfinished, move_into_place
+from ..io_utils import CannotWrite, keep_beside, killed_unfinished, move_into_place, not_replaced_message
 from ..recording.unfinished import stream_to_unfinished
 from ..layout import Box, Wall
 from ..palette import ROLE_RGBA, rgb255
@@ -92,7 +92,8 @@ class FlightRecorder:
 
     def close(self) -> None:
         """Finish the file and rename it into place, however the flight ended; CannotWrite if the
-        disk took only part of it (what it took is still renamed into place)."""
+        disk took only part of it (what it took is still renamed into place), or if it cannot
+        replace the file under its name (it is kept as NAME.new.rrd, io_utils.keep_beside)."""
         if self._closed:
             return
         self._closed = True
@@ -104,8 +105,7 @@ class FlightRecorder:
             failed = exc
         try:
             move_into_place(self._tmp, self.path)
-        except OSError as exc:
-            raise CannotWrite(f"--rerun {self.path}: cannot write it ({exc.strerror or exc}); what was recorded is in "
-                              f"{self._tmp}") from None
+        except OSError as exc:  # a folder or an immutable file under the name: kept as NAME.new.rrd
+            raise CannotWrite(f"--rerun {not_replaced_message(self.path, exc, keep_beside(self._tmp, self.path))}") from None
         if failed is not None:
             raise CannotWrite(f"--rerun {self.path}: the disk took only part of the flight (rerun: {failed})")
