@@ -28,10 +28,19 @@ constant `evader_speed`, through the same velocity interface as the pursuers:
    whose corridor is not free for `clearance + evader_speed * lookahead_time` is flown only
    if all are blocked. A gap escape skips 4 to 6 (its path is already checked);
 7. braking (only when `evader_speed` exceeds WALL_SPEED): the fixed margins above keep an
-   evader off walls up to WALL_SPEED (measured: >= 0.11 m at 0.9 m/s in point fidelity; in
-   quadrotor fidelity chased evaders at 0.9 m/s brushed cylinders on layouts 2 and 3, their
-   centres 0.07 m from the surface, 2026-12-06; an evader's contacts end nothing), but a
-   faster one cannot shed its speed within them (a Crazyflie tilted 15 deg stops from v in
+   evader off walls up to WALL_SPEED, though not by a fixed distance. Measured 2026-12-07 in
+   point fidelity at 0.9 m/s, chased by the heuristic team: 512 whole episodes (PursuitEnv
+   with 32 worlds, auto_reset off, seeds 0-3 on each of layouts 0-3, each with its 5 random
+   obstacles), the evader's centre to the nearest obstacle surface or border
+   (geometry.obstacle_distance, from a physics observer) at every controller tick until
+   capture or timeout, the closest per episode: lowest 0.070 m (layout 0; 0.086,
+   0.084, 0.104 m on layouts 1-3), 1 % of episodes below 0.091 m, 5 % below 0.119 m, median
+   0.216 m. The body's radius is 0.0685 m (DRONE_CONTACT_DISTANCE / 2): the closest passed
+   about 1 mm from touching, and no evader contact was reported in that run (an earlier note
+   said ">= 0.11 m", from fewer episodes). In quadrotor fidelity chased evaders at 0.9 m/s
+   brushed cylinders on layouts 2 and 3, their centres 0.07 m from the surface, 2026-12-06;
+   an evader's contacts end nothing. A faster evader cannot shed its speed within the
+   margins (a Crazyflie tilted 15 deg stops from v in
    v**2 / (2 * 2.6 m/s**2): 0.43 m from 1.5 m/s, 1.7 m from 3) and touched walls from 1.5 m/s
    on, its momentum carrying it on while it turned. So its speed along the chosen
    direction is lowered until, along every RING direction, the velocity component is at most
@@ -84,7 +93,7 @@ APART_RATE = 1.5  # 1/s
 APART_BUFFER = 0.1  # m
 APART_RESPONSE = 0.35  # s
 # step 7: braking near obstacles, for evaders faster than WALL_SPEED only (slower ones are unchanged)
-WALL_SPEED = 0.9  # m/s, the fastest evader the fixed margins keep off walls
+WALL_SPEED = 0.9  # m/s, the fastest evader the fixed margins keep off walls (closest measured: 0.070 m, step 7)
 BRAKE_ACCEL = 1.3  # m/s^2, about half a Crazyflie's 15 deg tilt limit (2.6): the rest is left for turning
 BRAKE_MARGIN = 0.1  # m beyond the look-ahead corridor's edge where braking ends
 BRAKE_RESPONSE = 0.3  # s, a decision interval plus the drone's lag: closing speed covers this before braking acts

@@ -129,9 +129,10 @@ def test_it_never_flies_into_walls_or_obstacles(layout_index, speed):
 @pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
 @pytest.mark.parametrize("speed", [2.0, 3.0])
 def test_a_fast_evader_chased_by_the_heuristic_team_keeps_off_walls(fidelity, speed):
-    # the fixed margins kept evaders up to 0.9 m/s >= 0.11 m off walls, but a faster one could
-    # not shed its speed within them: here every run of both speeds touched a wall within 60
-    # steps (0.01-0.065 m centre to wall: its collision volume pressed in); step 7 brakes it
+    # the fixed margins kept evaders up to 0.9 m/s off walls (closest 0.070 m centre to wall,
+    # evader.py step 7), but a faster one could not shed its speed within them: here every
+    # run of both speeds touched a wall within 60 steps (0.01-0.065 m centre to wall: its
+    # collision volume pressed in); step 7 brakes it
     config = default_config(fidelity=fidelity, evader_speed=speed, layout=0)
     W, N = 4, config.n_pursuers
     env = PursuitEnv(config, n_worlds=W, seed=0, auto_reset=False, nthread=1)
