@@ -129,6 +129,8 @@ class CoverageMap:
         self._grow(np.concatenate([pos.reshape(-1, 2), ends.reshape(-1, 2)]))
         pts = pos[:, :, None, None] + s[:, None] * ray_dirs[:, None]  # (W, N, K, S, 2)
         free = s < rays[..., None] - 0.5 * self.p.cell
+        # all round even under a narrower field of view: marking only the cells inside the view
+        # was level with this on the hard preset (docs/experiments.md section 6, 2026-12-07)
         seen = free & (s < see_radius)
         w = np.broadcast_to(np.arange(W)[:, None, None, None], free.shape)
         n = np.broadcast_to(np.arange(N)[None, :, None, None], free.shape)
