@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from pursuit_mj.io_utils import check_writable, check_writable_folder, file_sha256
+from pursuit_mj.io_utils import CannotWrite, check_writable, check_writable_folder, file_sha256
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
 from pursuit_mj.evader_models import evader_model_sha256
@@ -241,6 +241,11 @@ def run(args) -> int:
             if isinstance(exc, KeyboardInterrupt) or getattr(args, "stop_signals", None):
                 keep_finished(rows, csv_path, json_path, config, meta)
             raise
+        recording_error = None
+        try:
+            stack.close()  # the recording is finished: its failure to save must not cost the table
+        except CannotWrite as exc:  # it says where its episodes are kept
+            recording_error = exc
     print(format_table(rows))
     legend = _models_legend(args, policies)
     if legend:
@@ -256,7 +261,9 @@ def run(args) -> int:
     if args.plots:
         for path in plot_rows(rows, args.plots):
             print(f"wrote {path}")
-    if recording is not None:
+    if recording is not None and recording_error is None:
         print(recording.summary())  # also names what a recording killed before it finished left beside it
     drop_finished(csv_path, json_path)  # the whole table holds them now
+    if recording_error is not None:
+        raise recording_error
     return 0

@@ -515,3 +515,28 @@ def test_the_summary_of_an_interrupted_recording_of_one_episode_says_it_in_the_s
             rec.add_episode(buf)
             raise KeyboardInterrupt
     assert rec.summary().startswith(f"interrupted: the 1 episode finished before it is in {tmp_path / 'x.interrupted.rrd'} ")
+
+
+def test_eval_prints_and_writes_its_table_when_its_recording_cannot_replace_its_file(tmp_path, capsys, monkeypatch):
+    """The table was lost (neither printed nor written) when only the recording failed at the end;
+    now the table comes first, then the one-line error naming --rerun (exit 2)."""
+    import os
+
+    from pursuit_mj import io_utils
+
+    path, table = tmp_path / "x.rrd", tmp_path / "t.csv"
+    replace = os.replace
+
+    def refused(src, dst):
+        if str(dst) == str(path):
+            raise PermissionError(1, "Operation not permitted", str(src), None, str(dst))
+        replace(src, dst)
+
+    monkeypatch.setattr(io_utils.os, "replace", refused)
+    assert main(["eval", "--policy", "random", "--fidelity", "point", "--set", "max_steps=3", "--episodes", "2",
+                 "--layouts", "0", "--worlds", "2", "--csv", str(table), "--rerun", str(path)]) == 2
+    out, err = capsys.readouterr()
+    assert "random" in out and f"wrote {table}" in out, out
+    assert table.read_text().count("\n") == 2  # the header and the one row
+    assert f"error: --rerun {path}: cannot replace it (Operation not permitted)" in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.csv", "x.new.rrd"]
