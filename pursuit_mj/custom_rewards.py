@@ -113,10 +113,13 @@ class FileTerm:
         return self.function(step)
 
 
-def term_values(name: str, term: RewardTerm, step: StepView, shape: tuple[int, int], where: str) -> np.ndarray:
+def term_values(name: str, term: RewardTerm, step: StepView, shape: tuple[int, int], where: str,
+                paid: np.ndarray | None = None) -> np.ndarray:
     """What `term` pays for `step`, checked: (W, N) float32, finite; ValueError naming the term
     and `where` (the argument it came from; a FileTerm's own source instead) for anything else
-    (a UserCodeError, which a rollout worker sends back as it is)."""
+    (a UserCodeError, which a rollout worker sends back as it is). `paid` (W,) bool: the worlds
+    whose terms count (None: all); elsewhere what the term returned is not checked beyond its
+    shape and comes back as 0, as the env pays nothing there (a NaN in a frozen world is no error)."""
     if isinstance(term, FileTerm):
         where, term = term.source, term.function
     try:
@@ -126,7 +129,9 @@ def term_values(name: str, term: RewardTerm, step: StepView, shape: tuple[int, i
         said = what_and_where(exc, Path(path)) if path else f"{type(exc).__name__}: {exc}"
         raise UserCodeError(f"{where}: reward term {name!r} raised {said}") from exc
     values = checked_real_array(raw, shape, f"{where}: reward term {name!r}", "(worlds, pursuers)", "(world, pursuer)",
-                                kinds="fiub")
+                                kinds="fiub", counted=paid)
+    if paid is not None:
+        values = np.where(paid[:, None], values, 0.0)
     too_large = np.abs(values) > np.finfo(np.float32).max  # inf once cast: say what it returned
     if too_large.any():
         bad = tuple(int(i) for i in np.argwhere(too_large)[0])

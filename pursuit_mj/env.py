@@ -456,10 +456,10 @@ class PursuitEnv:
                             events.new_captures & active[:, None], self.captured, events.collided & active[:, None],
                             events.obstacle_gap, events.nearest_mate, known_before, self._perception.known,
                             self._perception.seen, self.steps, outcome)
-            kept = (active & ~diverged)[:, None]
+            kept = active & ~diverged
             for k, term in self.extra_rewards.items():
-                values = term_values(k, term, step, (self.n_worlds, N), "PursuitEnv extra_rewards")
-                terms[k] = np.where(kept, values, np.float32(0.0)) + np.float32(0.0)  # + 0: no -0.0
+                values = term_values(k, term, step, (self.n_worlds, N), "PursuitEnv extra_rewards", paid=kept)
+                terms[k] = values + np.float32(0.0)  # + 0: no -0.0 (term_values gives 0 where not kept)
         reward = sum(terms.values()).astype(np.float32)
         for k in self.reward_names:
             self.returns[k] += terms[k].mean(-1)

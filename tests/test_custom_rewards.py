@@ -67,6 +67,24 @@ def test_ended_worlds_are_paid_nothing_whatever_the_term_returns():
     assert ended_once
 
 
+@pytest.mark.parametrize("unpaid", [np.nan, np.inf, 1e39])
+def test_what_a_term_returns_for_an_ended_world_is_not_checked_as_it_is_not_paid(unpaid):
+    """A frozen world's values are replaced by 0 (docs/env_api.md: "whatever the callable
+    returns"), so a term's NaN there (a heading of a drone at rest, a distance to the nearest
+    free evader once none is free) must not stop the run."""
+    ended = np.zeros(W, bool)  # the worlds whose episode ended before the step the term pays for
+    term = lambda step: np.where(ended[:, None], unpaid, 1.0) * np.ones((W, N))  # noqa: E731
+    env = PursuitEnv(point_config(), n_worlds=W, seed=3, auto_reset=False, extra_rewards={"heading": term})
+    env.reset()
+    for a in flee_actions(60, seed=1):
+        ended[:] = env.done
+        with np.errstate(all="raise"):  # no warning of a cast overflow either: the value is not used
+            *_, info = env.step(a)
+        assert (info["reward_terms"]["heading"][ended] == 0).all()
+        assert (info["reward_terms"]["heading"][~ended] == 1).all()
+    assert ended.any()
+
+
 def test_the_step_view_holds_what_the_env_knew_before_and_after_the_step():
     seen = []
 
