@@ -92,6 +92,44 @@ def test_the_policy_file_cli_errors_are_one_line(tmp_path, capsys):
     assert "argument --policy: expected one of heuristic, random or FILE.py:NAME, got 'mine.py'" in capsys.readouterr().err
 
 
+FAILING = GOOD + """
+class Failing(Still):
+    name = "failing"
+    def __init__(self, config, seed, when="act"):
+        super().__init__(config, seed)
+        self.when = when
+    def reset(self, n_worlds, world_ids=None):
+        if self.when == "reset" and world_ids is not None:
+            raise KeyError("no such world")
+    def act(self, obs, spec):
+        if self.when == "act":
+            return [][0]  # a slip in the user's code
+        return np.zeros(obs.shape[:2] + (2,))
+def on_reset(config, seed):
+    return Failing(config, seed, "reset")
+"""
+
+
+@pytest.mark.parametrize("ref_name, said", [
+    ("Failing", r"act\(obs, spec\) raised IndexError: list index out of range \(at {path}:24\)"),
+    ("on_reset", r"reset\(n_worlds, world_ids\) raised KeyError: 'no such world' \(at {path}:21\)"),
+])
+def test_an_error_raised_in_a_policy_files_act_or_reset_is_one_line_naming_the_file_and_line(tmp_path, capsys, ref_name, said):
+    path = _write(tmp_path, FAILING)
+    ref = f"{path}:{ref_name}"
+    assert main(["eval", "--policy", ref, "--layouts", "0", "--episodes", "2", "--worlds", "1", "--fidelity", "point",
+                 "--set", "max_steps=3"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"pursuit-mj eval: error: --policy {ref}: ") and "\n" not in err, err
+    assert re.search(said.format(path=re.escape(str(path))), err), err
+
+
+def test_a_policy_from_a_file_keeps_its_own_attributes(tmp_path):
+    path = _write(tmp_path, GOOD + "Still.has_shield = True\nStill.speed = 0.25\n")
+    policy = make_policy(f"{path}:Still", default_config(), 0)
+    assert policy.name == "still" and policy.has_shield is True and policy.speed == 0.25 and policy.n == 3
+
+
 def test_eval_resume_refuses_rows_of_a_policy_file_edited_since(tmp_path, capsys):
     path = _write(tmp_path, GOOD)
     cmd = ["eval", "--policy", f"{path}:Still", "--layouts", "0", "--episodes", "1", "--worlds", "1", "--fidelity", "point",
