@@ -202,6 +202,27 @@ def test_export_never_replaces_a_training_checkpoint_and_an_export_does_not_resu
         Trainer.resume(cfg.run_dir, log=lambda s: None)
 
 
+def test_a_checkpoint_names_the_code_that_trained_it_and_an_export_keeps_that(tmp_path):
+    """Eval tables said which code made them; a model did not, so a file in pretrained/ could not be
+    traced to the commit or sources that trained it. A resume by other code adds its own entry."""
+    from pursuit_mj.provenance import provenance
+    from train.checkpoint import export_actor, save_checkpoint
+
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    now = provenance()
+    data = load_checkpoint(cfg.run_dir / "last.pt")
+    assert data["trained_by"] == [{"from_update": 0, **now}]
+    assert load_checkpoint(export_actor(cfg.run_dir / "last.pt", tmp_path / "small.pt"))["trained_by"] == data["trained_by"]
+    Trainer.resume(cfg.run_dir, total_steps=32 * 2, log=lambda s: None).train()  # the same code: no second entry
+    data = load_checkpoint(cfg.run_dir / "last.pt")
+    assert data["trained_by"] == [{"from_update": 0, **now}]
+    older = {**now, "git_commit": "0" * 40, "source_sha256": "ab" * 32}
+    save_checkpoint(cfg.run_dir / "last.pt", {**data, "trained_by": [{"from_update": 0, **older}]})
+    Trainer.resume(cfg.run_dir, total_steps=32 * 3, log=lambda s: None).train()
+    assert load_checkpoint(cfg.run_dir / "last.pt")["trained_by"] == [{"from_update": 0, **older}, {"from_update": 2, **now}]
+
+
 def test_non_finite_weights_and_damaged_bytes_are_refused(tmp_path):
     cfg = tiny_config(tmp_path, updates=1)
     Trainer(cfg, log=lambda s: None).train()

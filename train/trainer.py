@@ -31,6 +31,7 @@ import torch
 from pursuit_mj.configio import build, dump_yaml, to_dict
 from pursuit_mj.evaluation import capture_steps
 from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, file_sha256, remove_leftover_parts
+from pursuit_mj.provenance import provenance
 from pursuit_mj.policies import make_policy
 from pursuit_mj.sensing import privileged_config
 
@@ -122,6 +123,7 @@ class Trainer:
         self.generator = torch.Generator().manual_seed(cfg.seed)
         restored = read_counters(checkpoint, self.run_dir / "last.pt") if checkpoint else None
         start_update = restored.update if restored else 0
+        self._trained_by = trained_by(checkpoint, start_update)
         self.env = make_training_env(cfg, start_update)
         self.spec = self.env.obs_spec
         self.model = ActorCritic(self.spec, self.env.state_dim, cfg)
@@ -404,6 +406,7 @@ class Trainer:
             "pending_row": json.loads(json.dumps(json_ready(self._pending_row))) if self._pending_row else {},
             "layout_sha256": self._layout_sha256,
             "code_sha256": self._code_sha256,
+            "trained_by": self._trained_by,
         }
 
     def save(self, name: str = "last.pt") -> Path:
@@ -720,6 +723,17 @@ class Trainer:
             if bar is not None:
                 bar.close()
         return {"status": status, "counters": dataclasses.asdict(c), "validation": last_val, "run_dir": str(self.run_dir)}
+
+
+def trained_by(checkpoint: dict | None, start_update: int) -> list[dict]:
+    """The checkpoint entry trained_by (train/checkpoint.py) for a session starting at
+    `start_update`: a resumed run's list (`checkpoint`, None for a new run), with this code's
+    provenance appended when it differs from the last entry's (a run resumed by other code)."""
+    entries = [dict(e) for e in (checkpoint or {}).get("trained_by", [])]
+    now = provenance()
+    if not entries or {k: v for k, v in entries[-1].items() if k != "from_update"} != now:
+        entries.append({"from_update": int(start_update), **now})
+    return entries
 
 
 ACTOR_SHAPE_KEYS = ("kind", "encoder_width", "hidden", "use_rays")  # the net.* keys that decide the actor's weights
