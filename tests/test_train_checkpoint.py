@@ -136,6 +136,28 @@ def test_mismatched_observation_spec_is_refused_other_team_sizes_accepted(tmp_pa
         Trainer(tiny_config(tmp_path, name="ft", extra=[f"init_from={path}", "task.n_rays=8"]), log=lambda s: None)
 
 
+@pytest.mark.parametrize("team", [(3, 1), (1, 6)])  # 1 pursuer and 6 evaders fill as many slots as 8 and 1
+def test_a_flat_network_is_refused_for_another_team_naming_both_teams(tmp_path, team):
+    """net.kind mlp reads each teammate and evader slot by its place: for another team its weights
+    did not fit (a torch size mismatch to decode) or, where the vector is as long, loaded and read
+    evaders as teammates without a word."""
+    from pursuit_mj.configio import to_dict
+    from train.checkpoint import save_checkpoint
+    from train.networks import Actor
+
+    trained = ObsSpec.make(8, 1, 16)
+    cfg = load_train_config([], ["net.kind=mlp", "net.hidden=[16]", "task.n_pursuers=8"])
+    path = save_checkpoint(tmp_path / "flat.pt", {"train_config": to_dict(cfg), "obs_spec": trained.to_dict(),
+                                                  "actor": Actor(trained, cfg.net).state_dict(), "counters": {}})
+    said = (rf"net.kind mlp reads the team it was trained with, 8 pursuers and 1 evader, and this environment has "
+            rf"{team[0]} pursuers? and {team[1]} evaders?: .*net.kind reference")
+    with pytest.raises(ValueError, match=rf"checkpoint {path}: {said}"):
+        load_policy(path, ObsSpec.make(*team, 16))
+    assert load_policy(path, trained).act(torch.zeros(2, 8, trained.dim).numpy(), trained).shape == (2, 8, 2)
+    with pytest.raises(ValueError, match=rf"init_from {path}: net.kind mlp reads the team it was trained with, 8 pursuers"):
+        Trainer(tiny_config(tmp_path, name="ft", extra=[f"init_from={path}", "net.kind=mlp", "net.hidden=[16]"]), log=lambda s: None)
+
+
 def test_existing_run_is_not_overwritten_without_resume(tmp_path):
     from pursuit_cli import main
 

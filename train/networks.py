@@ -153,6 +153,7 @@ class EntityEncoder(nn.Module):
 class PooledTrunk(nn.Module):
     """Observation -> fused features through per-entity encoders with masked mean pooling."""
 
+    ANY_TEAM = True  # pooled encoders: weights that fit one team size fit every other
     GROUPS = ("self", "teammates", "evaders", "rays")
     SHAPE_KEYS = ("kind", "encoder_width", "hidden", "use_rays")  # the net.* keys its weights depend on
     BELIEF_GROUPS = ("memory", "goal")  # pooled like evaders / encoded like self (pursuit_mj.belief)
@@ -186,6 +187,7 @@ class PooledTrunk(nn.Module):
 class FlatTrunk(nn.Module):
     """Observation -> features through a plain tanh MLP (team size fixed at construction)."""
 
+    ANY_TEAM = False  # every teammate and evader slot has weights of its own, by its place in the vector
     SHAPE_KEYS = ("kind", "hidden")  # the net.* keys its weights depend on (no encoders: encoder_width, use_rays unused)
 
     def __init__(self, spec: ObsSpec, cfg: NetConfig):
@@ -207,6 +209,25 @@ class FlatTrunk(nn.Module):
 #: Its SHAPE_KEYS name the net.* keys its weights depend on (--init-from compares those; all of
 #: train/trainer.py ACTOR_SHAPE_KEYS when it has none).
 TRUNKS: dict[str, type[nn.Module]] = {"reference": PooledTrunk, "mlp": FlatTrunk}
+
+
+def team_mismatch(kind: str, trained: dict, spec: ObsSpec) -> str | None:
+    """Why a network of net.kind `kind` trained on observations `trained` (ObsSpec.to_dict) cannot
+    read those of `spec`, or None. A trunk without ANY_TEAM reads each slot by its place, so it
+    takes only the team it was trained with: for another one its weights do not fit, or (8
+    pursuers and 1 evader fill as many slots as 1 and 6) fit and read evaders as teammates."""
+    if getattr(TRUNKS.get(kind), "ANY_TEAM", True):
+        return None
+    was, now = (trained["n_pursuers"], trained["n_evaders"]), (spec.n_pursuers, spec.n_evaders)
+    if was == now:
+        return None
+
+    def team(n: int, m: int) -> str:
+        return f"{n} pursuer{'s' if n != 1 else ''} and {m} evader{'s' if m != 1 else ''}"
+
+    return (f"net.kind {kind} reads the team it was trained with, {team(*was)}, and this environment has "
+            f"{team(*now)}: run it with that team, or train a network for any team size (net.kind reference, "
+            f"whose pooled encoders take any number of teammates and evaders)")
 
 
 def make_trunk(spec: ObsSpec, cfg: NetConfig) -> nn.Module:

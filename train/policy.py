@@ -25,7 +25,7 @@ from pursuit_mj.shield import SafetyShield
 
 from .checkpoint import check_obs_spec, load_checkpoint, load_error
 from .config import NetConfig, ResidualConfig
-from .networks import Actor, flush_tiny
+from .networks import Actor, flush_tiny, team_mismatch
 
 
 def spec_from_dict(data: dict) -> ObsSpec:
@@ -97,11 +97,15 @@ class ActorPolicy:
 
 
 def actor_from_checkpoint(data: dict, spec: ObsSpec, source: str) -> Actor:
-    """Build the stored network for `spec` and load its weights (ValueError if they do not fit).
+    """Build the stored network for `spec` and load its weights (ValueError if they do not fit,
+    or if the network reads slots by place and `spec` is of another team: networks.team_mismatch).
 
     Only the stored `net` settings are read, so a model outlives changes to the task config's keys.
     """
     net = build(NetConfig, data["train_config"].get("net", {}), f"checkpoint {source}: train_config.net")
+    why = team_mismatch(net.kind, data["obs_spec"], spec)
+    if why is not None:
+        raise ValueError(f"checkpoint {source}: {why}")
     actor = Actor(spec, net)
     try:
         actor.load_state_dict(data["actor"])

@@ -43,7 +43,7 @@ from .critic_worker import CriticWorker
 from .discount import Discount
 from .imitation import DaggerCollector, Demonstrations, imitation_update, teacher_share
 from .metrics_log import MetricsLog, json_ready, missing_updates
-from .networks import TRUNKS
+from .networks import TRUNKS, team_mismatch
 from pursuit_mj.recording.rerun_scalars import RerunScalarLogger
 from .policy import ActorPolicy, trained_team
 from .ppo import advantages_and_returns, ppo_update, teacher_labels_needed, teacher_weight
@@ -326,6 +326,9 @@ class Trainer:
             raise ValueError(f"init_from (--init-from): {exc}") from None
         check_obs_spec(data, self.spec, path)
         check_same_network(data, self.cfg.net, path)
+        why = team_mismatch(self.cfg.net.kind, data["obs_spec"], self.spec)
+        if why is not None:
+            raise ValueError(f"init_from {path}: {why}")
         try:
             self.model.actor.load_state_dict(data["actor"])
         except RuntimeError as exc:
