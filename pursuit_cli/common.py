@@ -248,9 +248,11 @@ def shield_if_asked(args: argparse.Namespace, policy, label: str, config: TaskCo
     return (policy, label) if wrapped is policy else (wrapped, f"{label}+shield")
 
 
-#: task keys whose change between training and use a loaded model's user is told of
+#: task keys whose change between training and use a loaded model's user is told of: what the
+#: pursuers see (and what their observations mean), how fast everyone flies, how long an action lasts
 TRAINED_TASK_KEYS = ("observability", "pursuer_speed", "evader_speed", "perception_radius", "field_of_view", "fidelity",
-                     "n_pursuers", "n_evaders", "drone_mass", "command_latency")
+                     "n_pursuers", "n_evaders", "drone_mass", "command_latency", "control_dt", "ray_range",
+                     "share_detections", "position_noise")
 #: of those, the keys a real flight has no value of (its latency is the real loop's)
 SIMULATION_ONLY_TRAINED_KEYS = ("command_latency",)
 

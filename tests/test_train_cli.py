@@ -206,6 +206,21 @@ def test_a_flight_is_not_told_of_the_latency_a_model_learned_with(tiny_model, ca
     assert "command_latency" not in capsys.readouterr().err
 
 
+def test_a_model_used_at_another_decision_interval_or_sight_than_it_learned_says_so(tiny_model, capsys):
+    """The decision interval, the rays' reach, detection sharing and position noise change what a
+    pursuer's observation means and how long an action lasts: a model used at other values (render's
+    --delta-t, say) was told nothing, as it is of other speeds."""
+    from pursuit_cli.common import load_model
+    from pursuit_mj.config import default_config
+    from pursuit_mj.obs_spec import ObsSpec
+
+    task = default_config(n_pursuers=2, fidelity="point", control_dt=0.2, ray_range=1.5, share_detections=False,
+                          position_noise=0.05)
+    load_model(tiny_model, ObsSpec.make(task.n_pursuers, task.n_evaders, task.n_rays), task)
+    assert ("control_dt 0.1 (this task: 0.2), ray_range 2.0 (this task: 1.5), share_detections True (this task: False), "
+            "position_noise 0.0 (this task: 0.05)") in capsys.readouterr().err
+
+
 def test_an_empty_train_config_file_is_refused(tmp_path, capsys):
     empty = tmp_path / "empty.yaml"
     empty.write_text("# nothing yet\n")
