@@ -118,9 +118,15 @@ def checked_real_array(raw: Any, shape: tuple[int, ...], said: str, axes: str, i
     """What user code returned, as float64 of `shape`; UserCodeError starting with `said` ("F: reward
     term 'x'") for anything else: no array, no real numbers (dtype kinds `kinds`), another shape
     (`axes` names the expected one's axes), NaN or inf (at the `index` named axes) where `counted`
-    (bool, the shape's leading axes) is True, everywhere without it."""
+    (bool, the shape's leading axes) is True, everywhere without it. Read as the env reads actions
+    (env.plain_array): a torch tensor by its values (grad, half precision), a masked array with
+    masked entries refused (its hidden values would be used as if given)."""
+    from .env import MaskedValues, plain_array  # not at the top: the env imports this module
+
     try:
-        values = np.asarray(raw)
+        values = plain_array(raw, f"{said} returned")
+    except MaskedValues as exc:
+        raise UserCodeError(str(exc)) from None
     except Exception as exc:  # noqa: BLE001 - what it returned is the user's; say what it was
         raise UserCodeError(f"{said} returned {type(raw).__name__}, not an array ({exc})") from None
     if values.dtype.kind == "O" and values.ndim == 0:  # None, a dict, ...: name what it was

@@ -136,12 +136,25 @@ def test_a_term_cannot_change_the_step_it_reads():
     (lambda step: np.full((W, N), 1e39), r"reward term 'bad' returned 1e\+39 at \(world, pursuer\) \(0, 0\), "
                                          r"beyond float32 \(the reward's type\)$"),
     (lambda step: 1 / 0, r"reward term 'bad' raised ZeroDivisionError: division by zero"),
+    (lambda step: np.ma.masked_array(np.ones((W, N)), mask=np.eye(W, N, dtype=bool)),
+     r"reward term 'bad' returned: a masked array with 3 masked entries; give every value"),
 ])
 def test_what_a_term_returns_is_checked_and_named(term, message):
     env = PursuitEnv(point_config(), n_worlds=W, extra_rewards={"bad": term})
     env.reset()
     with pytest.raises(ValueError, match=r"PursuitEnv extra_rewards: " + message), np.errstate(over="raise"):
         env.step(np.zeros((W, N, 2)))
+
+
+def test_a_term_computed_in_torch_is_paid_its_values():
+    """A term may compute with torch, as a policy may act with it: a tensor that carries a gradient or
+    is of half precision was refused as 'not an array', though the env takes such actions."""
+    terms = {"grad": lambda step: torch.full((W, N), 0.5, requires_grad=True) * 1.0,
+             "half": lambda step: torch.full((W, N), 0.25, dtype=torch.bfloat16)}
+    env = PursuitEnv(point_config(), n_worlds=W, extra_rewards=terms)
+    env.reset()
+    *_, info = env.step(np.zeros((W, N, 2)))
+    assert (info["reward_terms"]["grad"] == 0.5).all() and (info["reward_terms"]["half"] == 0.25).all()
 
 
 @pytest.mark.parametrize("extra, message", [
