@@ -245,6 +245,28 @@ def test_a_checkpoint_names_the_code_that_trained_it_and_an_export_keeps_that(tm
     assert load_checkpoint(cfg.run_dir / "last.pt")["trained_by"] == [{"from_update": 0, **older}, {"from_update": 2, **now}]
 
 
+def test_a_run_started_from_a_checkpoint_keeps_that_files_sha256(tmp_path):
+    """init_from names a path only, and the file there moves on (best.pt of a run still training)
+    or goes (/tmp): the weights a run started from could not be told. Its sha256 as the run began
+    stays in every checkpoint of the run, across a resume, and in an export."""
+    import hashlib
+
+    from train.checkpoint import export_actor
+
+    src = tiny_config(tmp_path, name="src", updates=1)
+    Trainer(src, log=lambda s: None).train()
+    start = src.run_dir / "best.pt"
+    sha = hashlib.sha256(start.read_bytes()).hexdigest()
+    ft = tiny_config(tmp_path, name="ft", updates=1, extra=[f"init_from={start}"])
+    Trainer(ft, log=lambda s: None).train()
+    assert load_checkpoint(ft.run_dir / "last.pt")["init_from_sha256"] == sha
+    start.write_bytes(b"another run's best.pt now")
+    Trainer.resume(ft.run_dir, total_steps=32 * 2, log=lambda s: None).train()
+    assert load_checkpoint(ft.run_dir / "last.pt")["init_from_sha256"] == sha
+    assert load_checkpoint(export_actor(ft.run_dir / "last.pt", tmp_path / "small.pt"))["init_from_sha256"] == sha
+    assert "init_from_sha256" not in load_checkpoint(src.run_dir / "last.pt")
+
+
 def test_non_finite_weights_and_damaged_bytes_are_refused(tmp_path):
     cfg = tiny_config(tmp_path, updates=1)
     Trainer(cfg, log=lambda s: None).train()

@@ -19,6 +19,7 @@ A checkpoint is a dict of plain values and tensors (never pickled objects):
     trained_by             which code trained the run: a list of {"from_update", and pursuit_mj.provenance's
                            "version", "git_commit", "git_dirty", "source_sha256", "drone_model_sha256"},
                            one entry per session whose code differed from the entry before (kept by exports)
+    init_from_sha256       sha256 of the init_from file as the run began (absent without init_from; kept by exports)
     exported_from          in a policy-only export (export_actor): the checkpoint it came from
 """
 
@@ -106,6 +107,8 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     trained_by = data.get("trained_by", [])
     if not isinstance(trained_by, list) or not all(isinstance(e, dict) for e in trained_by):
         raise ValueError(f"checkpoint {path}: entry trained_by is not a list of dicts (damaged, or not written by pursuit-mj)")
+    if not isinstance(data.get("init_from_sha256", ""), str):
+        raise ValueError(f"checkpoint {path}: entry init_from_sha256 is not text (damaged, or not written by pursuit-mj)")
     damage = _spec_damage(data["obs_spec"]) or next(
         (f"train_config entry {k} is a {type(v).__name__}, not a dict" for k, v in data["train_config"].items()
          if k in CONFIG_SECTIONS and not isinstance(v, dict)), None)
@@ -166,7 +169,8 @@ def export_actor(src: str | Path, dst: str | Path) -> Path:
         if is_training_checkpoint(replaced):
             raise ValueError(f"--export {src} {dst}: OUT is a training checkpoint, which the export would replace "
                              f"(losing its critic and optimiser state); choose another file")
-    keep = {k: data[k] for k in ("train_config", "obs_spec", "state_dim", "actor", "counters", "trained_by") if k in data}
+    keep = {k: data[k] for k in ("train_config", "obs_spec", "state_dim", "actor", "counters", "trained_by", "init_from_sha256")
+            if k in data}
     keep["exported_from"] = str(data.get("exported_from", src))
     return save_checkpoint(dst, keep)
 

@@ -85,6 +85,7 @@ class Trainer:
             cfg = cfg.with_absolute_files()  # so that the stored config loads them from any folder
         self._layout_sha256 = {path: file_sha256(path) for _, path in cfg.layout_files()}  # kept: a resume checks them
         self._code_sha256 = {path: file_sha256(path) for _, path in cfg.code_files()}
+        self._init_from_sha256 = init_from_sha256(cfg, checkpoint)
         self.cfg = cfg
         self.log = log
         for line in cfg.idle_settings():
@@ -410,6 +411,7 @@ class Trainer:
             "layout_sha256": self._layout_sha256,
             "code_sha256": self._code_sha256,
             "trained_by": self._trained_by,
+            **({"init_from_sha256": self._init_from_sha256} if self._init_from_sha256 else {}),
         }
 
     def save(self, name: str = "last.pt") -> Path:
@@ -726,6 +728,15 @@ class Trainer:
             if bar is not None:
                 bar.close()
         return {"status": status, "counters": dataclasses.asdict(c), "validation": last_val, "run_dir": str(self.run_dir)}
+
+
+def init_from_sha256(cfg: TrainConfig, checkpoint: dict | None) -> str | None:
+    """sha256 of the init_from file as the run began (the checkpoint entry init_from_sha256): a
+    resumed run's stored one (the file may have changed or gone since), else the file's now;
+    None without init_from, or for a run resumed from a checkpoint written before it was kept."""
+    if checkpoint is not None:
+        return checkpoint.get("init_from_sha256")
+    return file_sha256(cfg.init_from) if cfg.init_from and Path(cfg.init_from).is_file() else None
 
 
 def trained_by(checkpoint: dict | None, start_update: int) -> list[dict]:
