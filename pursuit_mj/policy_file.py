@@ -66,9 +66,11 @@ class FilePolicy:
             raise UserCodeError(f"{self.where}: reset(n_worlds, world_ids) raised {what_and_where(exc, self.path)}") from exc
 
     def act(self, obs: np.ndarray, spec: ObsSpec) -> Any:
-        """What the policy's act returned, unchecked (the caller checks actions: policy.checked_actions)."""
+        """What the policy's act returned, unchecked (the caller checks actions: policy.checked_actions).
+        It acts on a copy of obs: what it writes into its observations (an in-place normalisation)
+        changes nothing that its caller reads after it (a shield judges walls and teammates from obs)."""
         try:
-            return self.policy.act(obs, spec)
+            return self.policy.act(np.array(obs), spec)
         except (Exception, SystemExit) as exc:
             raise UserCodeError(f"{self.where}: act(obs, spec) raised {what_and_where(exc, self.path)}") from exc
 

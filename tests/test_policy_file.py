@@ -6,6 +6,7 @@ import json
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from pursuit_cli import main
@@ -128,6 +129,40 @@ def test_a_policy_from_a_file_keeps_its_own_attributes(tmp_path):
     path = _write(tmp_path, GOOD + "Still.has_shield = True\nStill.speed = 0.25\n")
     policy = make_policy(f"{path}:Still", default_config(), 0)
     assert policy.name == "still" and policy.has_shield is True and policy.speed == 0.25 and policy.n == 3
+
+
+SCRIBBLER = GOOD + """
+class East(Still):
+    name = "east"
+    def act(self, obs, spec):
+        return np.tile([1.0, 0.0], obs.shape[:2] + (1,))
+class Scribbler(East):
+    name = "scribbler"
+    def act(self, obs, spec):
+        obs[...] = 0.0  # normalised in place, say: the caller's array
+        return super().act(obs, spec)
+"""
+
+
+def test_a_policy_that_writes_into_its_observations_changes_nothing_its_shield_reads(tmp_path):
+    """The shield (eval/render/fly --shield) reads the observations after the policy acted on
+    them: a policy that wrote into them (an in-place normalisation) had its shield judge walls and
+    teammates from what it wrote, not from what the pursuers saw."""
+    from pursuit_mj.env import PursuitEnv
+    from pursuit_mj.shield import shield_policy
+
+    path = _write(tmp_path, SCRIBBLER)
+    config = default_config(fidelity="point")
+    env = PursuitEnv(config, n_worlds=2, seed=1)
+    obs = env.reset()
+    seen = obs.copy()
+    acted = []
+    for name in ("East", "Scribbler"):
+        team = shield_policy(make_policy(f"{path}:{name}", config), config)
+        team.reset(2)
+        acted.append(team.act(obs, env.obs_spec))
+    assert np.array_equal(obs, seen)
+    np.testing.assert_array_equal(acted[1], acted[0])
 
 
 def test_eval_resume_refuses_rows_of_a_policy_file_edited_since(tmp_path, capsys):
