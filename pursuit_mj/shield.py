@@ -347,7 +347,7 @@ class Shielded:
         """Actions (W, N, 2) within the unit disc: desired world-frame velocity / pursuer_speed."""
         check_observations(obs, spec, f"policy {self.name}")
         check_world_count(np.shape(obs)[0], self._n_worlds, f"policy {self.name}")
-        raw = self.policy.act(obs, spec)
+        raw = self.policy.act(np.array(obs), spec)  # a copy: what it writes into it must not move the walls below
         try:
             a = np.asarray(raw, dtype=np.float64)
         except (TypeError, ValueError):  # strings, None, ragged lists

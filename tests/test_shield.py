@@ -116,6 +116,30 @@ def test_shielded_policy_keeps_safe_actions_and_labels_itself():
     assert np.all(np.linalg.norm(out, axis=-1) <= 1.0 + 1e-12)
 
 
+class Normalising(Straight):
+    """Straight, after scaling its observations in place (the caller's array)."""
+
+    name = "normalising"
+
+    def act(self, obs, spec):
+        obs *= 0.5
+        return super().act(obs, spec)
+
+
+def test_a_policy_that_writes_into_its_observations_does_not_change_what_its_shield_reads():
+    """Shielded handed its policy the very array the shield then read: a policy normalising in
+    place moved the walls the shield kept it from (here, from 0.2 m to 0.1 m away)."""
+    obs = blank_obs()
+    wall_east(obs, 0.2)
+    seen = obs.copy()
+    clean = Shielded(Straight((1.0, 0.0)), SafetyShield(SPEED))
+    scaling = Shielded(Normalising((1.0, 0.0)), SafetyShield(SPEED))
+    for policy in (clean, scaling):
+        policy.reset(1)
+    np.testing.assert_array_equal(scaling.act(obs, SPEC), clean.act(seen.copy(), SPEC))
+    np.testing.assert_array_equal(obs, seen)
+
+
 def test_reset_forgets_the_hits_of_the_listed_worlds_only():
     shield = SafetyShield(SPEED)
     shield.reset(2)
