@@ -266,6 +266,10 @@ def load_model(path, spec, task: TaskConfig, flag: str = "--model", flight: bool
     if Path(path).is_dir():
         hint = next((f"; did you mean {Path(path) / n}?" for n in ("best.pt", "last.pt") if (Path(path) / n).is_file()), "")
         raise ValueError(f"{flag} {path}: a folder, not a checkpoint file{hint}")
+    python_file = _python_file_of(str(path))
+    if python_file is not None:
+        raise ValueError(f"{flag} {path}: a Python file, not a checkpoint; a policy of your own goes through "
+                         f"--policy {python_file}:NAME (docs/env_api.md)")
     if not Path(path).is_file():
         raise ValueError(f"{flag} {path}: no such checkpoint file")
     try:
@@ -282,6 +286,17 @@ def load_model(path, spec, task: TaskConfig, flag: str = "--model", flight: bool
     if differ:  # legitimate (the study judges full_obs under partial observability), but worth knowing
         print(f"note: {flag} {path} was trained with {', '.join(differ)}", file=sys.stderr)
     return policy
+
+
+def _python_file_of(given: str) -> str | None:
+    """The Python file a --model value names, FILE.py or FILE.py:NAME of an existing file (a policy
+    file given where a checkpoint goes), else None."""
+    from pathlib import Path
+
+    from pursuit_mj.user_file import is_file_reference, split_reference
+
+    file = split_reference(given, "--model")[0] if is_file_reference(given) else given
+    return file if file.endswith(".py") and Path(file).is_file() else None
 
 
 def _same_evader_model(trained: str, now: str) -> bool:

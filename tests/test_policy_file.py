@@ -165,6 +165,16 @@ def test_a_policy_that_writes_into_its_observations_changes_nothing_its_shield_r
     np.testing.assert_array_equal(acted[1], acted[0])
 
 
+def test_a_policy_file_given_as_a_model_is_pointed_to_policy(tmp_path, capsys):
+    """--model takes checkpoints: a policy file given there was refused as 'no such checkpoint file'
+    or 'not a torch zip archive', without a word of --policy."""
+    path = _write(tmp_path, GOOD)
+    for model in (f"{path}:Still", str(path)):
+        assert main(["eval", "--model", model, "--layouts", "0", "--episodes", "1"]) == 2
+        err = capsys.readouterr().err
+        assert f"--model {model}: " in err and f"a policy of your own goes through --policy {path}:NAME" in err, err
+
+
 def test_eval_resume_refuses_rows_of_a_policy_file_edited_since(tmp_path, capsys):
     path = _write(tmp_path, GOOD)
     cmd = ["eval", "--policy", f"{path}:Still", "--layouts", "0", "--episodes", "1", "--worlds", "1", "--fidelity", "point",
