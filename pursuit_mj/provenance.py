@@ -11,6 +11,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import importlib.util
+import os
 import subprocess
 from importlib import metadata
 from pathlib import Path
@@ -30,14 +31,29 @@ def _git(*args: str) -> str | None:
 SOURCE_PACKAGES = ("pursuit_mj", "train", "pursuit_cli")  # every package a command runs code from
 
 
+#: folders under a package left out of its hash: the shipped policies (each model file is hashed
+#: where it is used: model_sha256)
+UNHASHED_FOLDERS = ("assets/pretrained",)
+
+
+def _source_files(root: Path) -> list[Path]:
+    """Every file under root, linked folders followed (pursuit_mj/assets/* are links in a git
+    checkout and copies in a wheel: both must hash alike), less compiled caches and UNHASHED_FOLDERS."""
+    files = []
+    for folder, subfolders, names in os.walk(root, followlinks=True):
+        subfolders[:] = [d for d in subfolders if d != "__pycache__"
+                         and (Path(folder) / d).relative_to(root).as_posix() not in UNHASHED_FOLDERS]
+        files += [Path(folder) / n for n in names if not n.endswith(".pyc")]
+    return sorted(f for f in files if f.is_file())
+
+
 def source_digest(folders: dict[str, Path]) -> str:
     """sha256 over every file under the named folders (path relative to its folder, then bytes),
-    in sorted order; compiled caches (__pycache__, *.pyc) are left out."""
+    in sorted order (see _source_files for what is left out)."""
     h = hashlib.sha256()
     for name in sorted(folders):
         root = folders[name]
-        files = sorted(f for f in root.rglob("*") if f.is_file() and "__pycache__" not in f.parts and f.suffix != ".pyc")
-        for f in files:
+        for f in _source_files(root):
             rel = f"{name}/{f.relative_to(root).as_posix()}".encode()
             data = f.read_bytes()
             h.update(len(rel).to_bytes(8, "little") + rel + len(data).to_bytes(8, "little") + data)
@@ -56,8 +72,9 @@ def _package_folder(name: str) -> Path | None:
 
 @functools.lru_cache(maxsize=1)
 def source_sha256() -> str:
-    """The hash of this installation's pursuit_mj, train and pursuit_cli sources (assets and the
-    drone model included); computed once per process."""
+    """The hash of this installation's pursuit_mj, train and pursuit_cli sources (the assets:
+    built-in layouts, task and train configs and the drone model included, the shipped policies
+    not); computed once per process."""
     folders = {name: folder for name in SOURCE_PACKAGES if (folder := _package_folder(name)) is not None}
     return source_digest(folders)
 

@@ -800,3 +800,33 @@ def test_a_masked_array_from_act_is_refused_naming_the_policy():
     config = default_config(fidelity="point", max_steps=3)
     with pytest.raises(ValueError, match=r"policy mine: act\(\) gave actions: a masked array with 1 masked entries"):
         evaluate(_ActsAs("masked"), config, layouts=[0], episodes=2, n_worlds=2)
+
+
+def test_the_source_hash_reads_linked_asset_folders_as_an_installed_wheel_does(tmp_path):
+    """In a git checkout pursuit_mj/assets/configs is a link to configs/ (a wheel holds a copy):
+    the hash skipped linked folders, so an edited built-in layout kept the hash, and a kept eval
+    row of the old layout was taken by --resume. Linked and copied folders now hash alike; the
+    shipped policies are left out (each model file is hashed where it is used)."""
+    import shutil
+
+    from pursuit_mj.provenance import source_digest
+
+    top = tmp_path / "repo"
+    (top / "configs" / "layouts").mkdir(parents=True)
+    (top / "configs" / "layouts" / "0.yaml").write_text("arena: {width: 4}\n")
+    (top / "pretrained").mkdir()
+    (top / "pretrained" / "p.pt").write_bytes(b"weights")
+    linked = top / "linked"
+    (linked / "assets").mkdir(parents=True)
+    (linked / "a.py").write_text("x = 1\n")
+    for name in ("configs", "pretrained"):
+        (linked / "assets" / name).symlink_to(top / name, target_is_directory=True)
+    copied = top / "copied"
+    shutil.copytree(linked, copied, symlinks=False)
+    first = source_digest({"pkg": linked})
+    assert source_digest({"pkg": copied}) == first
+    (top / "configs" / "layouts" / "0.yaml").write_text("arena: {width: 5}\n")
+    assert source_digest({"pkg": linked}) != first
+    (top / "configs" / "layouts" / "0.yaml").write_text("arena: {width: 4}\n")
+    (top / "pretrained" / "p.pt").write_bytes(b"other weights")
+    assert source_digest({"pkg": linked}) == first
