@@ -4,8 +4,31 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3.11}
-command -v "$PY" >/dev/null 2>&1 || PY=python3
-if [ ! -x .venv/bin/python ]; then
+if ! command -v "$PY" >/dev/null 2>&1; then
+  if [ -n "${PYTHON:-}" ]; then
+    echo "setup.sh: PYTHON=$PYTHON: no such command" >&2
+    exit 2
+  fi
+  PY=python3  # python3.11 not on PATH: python3, if it is 3.11 (checked below)
+fi
+NEEDED=3.11  # pyproject.toml's requires-python
+version_of() {  # "3.11" for a Python executable, "" when it does not run
+  "$1" -c 'import sys; print("%d.%d" % sys.version_info[:2])' 2>/dev/null || true
+}
+if [ -x .venv/bin/python ]; then
+  found=$(version_of .venv/bin/python)
+  if [ "$found" != "$NEEDED" ]; then
+    echo "setup.sh: .venv was made with Python ${found:-that does not run}; pursuit-mj needs Python $NEEDED:" \
+      "delete .venv and run again (with python$NEEDED on PATH, or PYTHON=/path/to/python$NEEDED)" >&2
+    exit 2
+  fi
+else
+  found=$(version_of "$PY")
+  if [ "$found" != "$NEEDED" ]; then
+    echo "setup.sh: $PY is Python ${found:-that does not run}; pursuit-mj needs Python $NEEDED" \
+      "(install python$NEEDED, or run with PYTHON=/path/to/python$NEEDED)" >&2
+    exit 2
+  fi
   "$PY" -m venv .venv
 fi
 stamp=.venv/.pursuit-mj-installed

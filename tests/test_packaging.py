@@ -68,3 +68,51 @@ def test_the_package_says_its_version_as_the_project_file_gives_it():
 
     project = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())["project"]
     assert pursuit_mj.__version__ == project["version"]
+
+
+def _setup_copy(tmp: Path) -> Path:
+    """scripts/setup.sh and pyproject.toml in a folder of their own, as a fresh checkout has them."""
+    (tmp / "scripts").mkdir(parents=True)
+    shutil.copy(REPO / "scripts" / "setup.sh", tmp / "scripts" / "setup.sh")
+    shutil.copy(REPO / "pyproject.toml", tmp / "pyproject.toml")
+    return tmp
+
+
+def _fake_python(path: Path, version: str) -> Path:
+    """An executable that answers every call as a Python of `version` would answer a version query, and
+    records that it was asked anything else (creating a venv, installing)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(f'#!/bin/sh\ncase "$*" in *version_info*) echo {version} ;; *) echo "$*" >> "{path}.calls" ;; esac\n')
+    path.chmod(0o755)
+    return path
+
+
+def test_setup_refuses_a_python_other_than_3_11_before_making_or_installing_anything(tmp_path):
+    """On a machine whose python3 is 3.12 (Ubuntu 24.04) setup.sh made .venv with it, downloaded torch into it,
+    then failed in pip ('requires a different Python'); installing 3.11 afterwards did not help, since the
+    3.12 .venv stayed. It now says at once which Python it found and what to do, and touches nothing."""
+    repo = _setup_copy(tmp_path / "repo")
+    fake = _fake_python(tmp_path / "bin" / "python3.12", "3.12")
+    out = subprocess.run(["bash", "scripts/setup.sh"], cwd=repo, env={**os.environ, "PYTHON": str(fake)},
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2, out.stdout + out.stderr
+    assert f"setup.sh: {fake} is Python 3.12; pursuit-mj needs Python 3.11" in out.stderr
+    assert not (repo / ".venv").exists() and not Path(f"{fake}.calls").exists()
+
+
+def test_setup_refuses_a_venv_made_by_another_python_naming_it_and_the_way_out(tmp_path):
+    repo = _setup_copy(tmp_path / "repo")
+    _fake_python(repo / ".venv" / "bin" / "python", "3.12")
+    out = subprocess.run(["bash", "scripts/setup.sh"], cwd=repo, env={**os.environ, "PYTHON": sys.executable},
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2, out.stdout + out.stderr
+    assert ".venv was made with Python 3.12; pursuit-mj needs Python 3.11: delete .venv" in out.stderr
+    assert not (repo / ".venv" / "bin" / "python.calls").exists()  # nothing installed into it
+
+
+def test_setup_refuses_a_PYTHON_that_is_not_there_instead_of_taking_python3(tmp_path):
+    repo = _setup_copy(tmp_path / "repo")
+    out = subprocess.run(["bash", "scripts/setup.sh"], cwd=repo, env={**os.environ, "PYTHON": str(tmp_path / "python3.11")},
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2, out.stdout + out.stderr
+    assert f"PYTHON={tmp_path / 'python3.11'}: no such command" in out.stderr and not (repo / ".venv").exists()
