@@ -200,3 +200,24 @@ def test_the_python_example_of_docs_evaluation_md_runs_as_written_with_fewer_epi
 
     monkeypatch.chdir(ROOT)  # the comment's call, from the repository root
     assert load_task_config(["configs/task/hard.yaml"], ["evader_speed=0.9"]).evader_speed == 0.9
+
+
+def _flag_actions(parser: argparse.ArgumentParser, path: str = "pursuit-mj"):
+    """(command, action) for every flag of the parser and its subcommands, --help and --version aside."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _flag_actions(sub, f"{path} {name}")
+        elif action.option_strings and not isinstance(action, (argparse._HelpAction, argparse._VersionAction)):
+            yield path, action
+
+
+def test_every_flag_of_every_subcommand_is_named_in_the_docs():
+    """A flag shown by --help alone (fly --max-time, train --random-layout, eval -q, the layout new shapes
+    were) is one a reader of the guides never meets; any one of its spellings counts. experiments.md, the
+    lab notebook, does not count: it says what was run, not what a flag does."""
+    guides = [doc for doc in DOCS if doc != "docs/experiments.md"]
+    text = "\n".join((ROOT / doc).read_text() for doc in guides)
+    missing = [f"{path} {action.option_strings[-1]}" for path, action in _flag_actions(PARSER)
+               if not any(re.search(re.escape(flag) + r"(?![\w-])", text) for flag in action.option_strings)]
+    assert not missing, f"flags named by no guide ({', '.join(guides)}): {missing}"
