@@ -16,6 +16,7 @@
 # the weights in their last bits) go to every stage's `pursuit-mj train`. PURSUIT_MJ names
 # the command to run instead of the one scripts/setup.sh installs into .venv.
 # Usage: bash scripts/train_recipe.sh [--seed S] [--name NAME] [--runs-dir DIR] [train flags...]
+# (the three options first: a seed or --runs-dir among the train flags is refused)
 set -euo pipefail
 seed=1
 name=recipe
@@ -45,6 +46,14 @@ for arg in "$@"; do
   case "$arg" in
     run.runs_dir=*|--name|--name=*|--resume|--resume=*|--init-from|--init-from=*)
       echo "train_recipe.sh: $arg is set by the recipe itself (use --runs-dir DIR, --name NAME)" >&2; exit 2 ;;
+    # each stage sets its own seed (--set seed=, which wins over a flag), so a seed among the train flags
+    # would reach only the stage that sets none, silently giving a chain of mixed seeds
+    --seed|--seed=*|seed=*)
+      echo "train_recipe.sh: $arg among the train flags would reach only some stages (the recipe sets each" \
+        "stage's seed); give --seed S first, before any train flag" >&2; exit 2 ;;
+    --runs-dir|--runs-dir=*)
+      echo "train_recipe.sh: $arg comes before the train flags (the options are read up to the first" \
+        "train flag): --seed S --name NAME --runs-dir DIR [train flags]" >&2; exit 2 ;;
   esac
 done
 if [ -z "${PURSUIT_MJ:-}" ]; then

@@ -73,3 +73,25 @@ def test_recipe_refuses_bad_flags_before_training(tmp_path, args, message):
     assert out.returncode == 2
     assert message in out.stderr
     assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--set", "run.progress=false", "--seed", "4"], "--seed among the train flags would reach only some stages"),
+    (["--seed=4"], "--seed=4 among the train flags would reach only some stages"),
+    (["--set", "seed=4"], "seed=4 among the train flags would reach only some stages"),
+    (["--set", "run.progress=false", "--runs-dir", "x"], "--runs-dir comes before the train flags"),
+])
+def test_recipe_refuses_a_seed_or_runs_dir_among_the_train_flags(tmp_path, args, message):
+    """The options are read up to the first train flag. A --seed after one went to every stage's `pursuit-mj
+    train` as a flag, which the first two stages' own --set seed overrides and the third takes: asked for seed
+    4, the script trained stages 1-2 at the default seed 1 and stage 3 at 4, a chain nobody documented, and said
+    nothing. A stand-in for pursuit-mj records whether any stage was started."""
+    calls = tmp_path / "calls"
+    stand_in = tmp_path / "pursuit-mj"
+    stand_in.write_text(f'#!/bin/sh\necho "$*" >> "{calls}"\n')
+    stand_in.chmod(0o755)
+    out = subprocess.run(["bash", str(SCRIPT), "--runs-dir", str(tmp_path / "runs"), *args], capture_output=True, text=True,
+                         env=dict(os.environ, PURSUIT_MJ=str(stand_in)), timeout=60)
+    assert out.returncode == 2, out.stderr
+    assert message in out.stderr
+    assert not calls.exists()  # no stage started
