@@ -53,14 +53,14 @@ def register(sub) -> None:
                    help="override any train key, e.g. ppo.lr=1e-4, task.fidelity=point, run.validate_every=5")
     p.add_argument("--name", help="run name: its folder is <run.runs_dir>/<name> (runs/<name> by default)")
     p.add_argument("--total-steps", type=steps_arg, help="world decision steps to train for (e.g. 2e6)")
-    p.add_argument("--max-minutes", type=minutes_arg, help="stop after this much training time (LR decays over it)")
+    p.add_argument("--max-minutes", type=minutes_arg, help="stop after this much training time (0 = no limit; the LR decays over whichever of it and --total-steps ends first)")
     p.add_argument("--n-envs", type=int, help="worlds stepped together")
     p.add_argument("--seed", type=int, help="seed of networks, sampling and episodes")
     p.add_argument("--fidelity", choices=("point", "quadrotor"), help="physics fidelity (task.fidelity)")
     p.add_argument("--layout", action="append", metavar="INDEX|FILE",
                    help="training layout; repeat for a list (one per world in turn)")
     p.add_argument("--random-layout", action="store_true", help="a random built-in layout per episode (with several --layout: one of those)")
-    p.add_argument("--init-from", metavar="CHECKPOINT", help="start from these weights (fine_tune)")
+    p.add_argument("--init-from", metavar="CHECKPOINT", help="start from this checkpoint's weights (key init_from; used by fine_tune, belief_ppo, finetune_ppo)")
     p.add_argument("--reward", action="append", metavar="FILE.py:NAME",
                    help="a reward term of your own: the function NAME in FILE, called every step with a StepView, paid "
                         "beside the task's terms and logged under NAME (docs/training.md); repeat for several (key rewards)")
