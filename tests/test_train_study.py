@@ -192,6 +192,19 @@ def test_a_train_override_naming_a_layout_that_cannot_be_loaded_is_found_before_
     assert not out.exists()
 
 
+@pytest.mark.parametrize("flags, said", [(["--set", "n_rays=8"], "the evaluation task gives 8 range readings (n_rays)"),
+                                          (["--train-set", "task.n_rays=8"], "the evaluation task gives 16 range readings (n_rays)")])
+def test_an_evaluation_task_with_other_rays_than_the_arms_train_with_is_refused_before_anything_runs(tmp_path, capsys, flags, said):
+    """A trained policy reads the range readings it learned with: the study evaluated the team, trained
+    the full_obs arm, then stopped at its evaluation ('observation spec does not match ... (n_rays)')."""
+    out = tmp_path / "study"
+    assert main(["study", "--budget-minutes", "30", "--out", str(out), *flags]) == 2
+    err = capsys.readouterr().err
+    assert said in err and "the full_obs arm trains with" in err, err
+    assert "--set n_rays=N and --train-set task.n_rays=N" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("override", ["name=mine", "run.runs_dir=elsewhere", "max_minutes=1", "init_from=x.pt"])
 def test_a_train_override_of_a_key_the_study_sets_per_arm_is_refused_before_anything_runs(tmp_path, capsys, override):
     """--train-set name=x put every arm in runs/x: the second arm stopped the study after the first had

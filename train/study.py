@@ -342,7 +342,8 @@ STUDY_SETS = {"name": "its run goes to <out>/runs/<arm>", "run.runs_dir": "its r
 def check_train_overrides(plan: StudyPlan) -> None:
     """Every arm's config with plan.train_overrides, its layouts and reward terms loaded, before anything runs: ValueError
     naming --train-set and the arm that refuses them (found at that arm's start, it cost the earlier arms' time),
-    or a key the study sets for each arm (STUDY_SETS)."""
+    a key the study sets for each arm (STUDY_SETS), or an arm that trains with other range readings than the
+    evaluation task gives (`_check_rays`)."""
     for text in plan.train_overrides:
         key = ".".join(parse_override(text, f"--train-set {text}")[0])
         if key in STUDY_SETS:
@@ -358,6 +359,19 @@ def check_train_overrides(plan: StudyPlan) -> None:
             for text in plan.train_overrides:  # the config names each as --set; the user typed --train-set
                 said = said.replace(f"--set {text}", f"--train-set {text}")
             raise ValueError(f"--train-set: the {arm.name} arm ({arm.config} config) refuses it: {said}") from None
+        _check_rays(plan, arm, cfg)
+
+
+def _check_rays(plan: StudyPlan, arm: Arm, cfg) -> None:
+    """ValueError unless `arm` (its train config `cfg`) trains with as many range readings as the
+    evaluation task gives: its policy reads the rays it learned with, and the evaluation after its
+    training refused it ('observation spec does not match'), the team's evaluation and the arm's
+    training time spent."""
+    trained, judged = cfg.task.n_rays, plan.eval_task.n_rays
+    if trained != judged:
+        raise ValueError(f"the evaluation task gives {judged} range readings (n_rays) and the {arm.name} arm trains with "
+                         f"{trained} ({arm.config} config with the --train-set values); a trained policy reads the rays it "
+                         f"learned with: give both the same count (--set n_rays=N and --train-set task.n_rays=N)")
 
 
 def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requested: Callable[[], bool] | None = None) -> dict:
