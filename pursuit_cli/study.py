@@ -6,7 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from .common import add_task_args, check_episodes, counted, checked_layouts, finite_float, seed_arg, task_config_from_args
+from .common import (add_task_args, check_episodes, counted, checked_layouts, finite_float, seed_arg, task_config_from_args,
+                     task_key_source)
 
 
 def register(sub) -> None:
@@ -59,6 +60,10 @@ def run(args) -> int:
         given = named[-1] if named else f"layout {task.layout} (from --task)"
         raise ValueError(f"{given}: the study trains every arm on layout 0 and evaluates on --layouts; give a layout "
                          f"to evaluate among --layouts (--layouts 0 1 2 3 FILE)")
+    if task.random_layout:  # it was accepted and ignored: evaluation plays each of --layouts as a column of its own
+        given = task_key_source(args, "random_layout") or "random_layout"
+        raise ValueError(f"{given}: the task draws a layout per episode, and the study's table plays each layout as a "
+                         f"column of its own; give them with --layouts 0 1 2 3 and leave random_layout out")
     layouts = tuple(checked_layouts(args.layouts))  # refused before any folder is made or any arm trains
     out = Path(args.out)
     plan = StudyPlan(

@@ -192,6 +192,16 @@ def test_a_train_override_naming_a_layout_that_cannot_be_loaded_is_found_before_
     assert not out.exists()
 
 
+def test_an_evaluation_task_that_draws_its_layout_per_episode_is_refused_before_anything_runs(tmp_path, capsys):
+    """--set random_layout=true was taken and ignored: every column of the table was its one layout, as
+    eval and demo, which refuse it, would not have played it either."""
+    out = tmp_path / "study"
+    assert main(["study", "--budget-minutes", "30", "--out", str(out), "--set", "random_layout=true"]) == 2
+    err = capsys.readouterr().err
+    assert "error: --set random_layout=true: the task draws a layout per episode" in err, err
+    assert "--layouts 0 1 2 3" in err and not out.exists()
+
+
 @pytest.mark.parametrize("flags, said", [(["--set", "n_rays=8"], "the evaluation task gives 8 range readings (n_rays)"),
                                           (["--train-set", "task.n_rays=8"], "the evaluation task gives 16 range readings (n_rays)")])
 def test_an_evaluation_task_with_other_rays_than_the_arms_train_with_is_refused_before_anything_runs(tmp_path, capsys, flags, said):
