@@ -10,6 +10,9 @@ from .common import (add_task_args, check_episodes, counted, checked_layouts, fi
                      task_key_source)
 
 
+MAX_BUDGET_MINUTES = 525600.0  # a year; far larger budgets overflowed the plan's seconds (1e308 min: an OverflowError)
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "study",
@@ -26,7 +29,7 @@ def register(sub) -> None:
                "  pursuit-mj study --budget-minutes 120 --train-set shield=true",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--budget-minutes", type=finite_float, required=True, help="wall-clock budget for everything")
+    p.add_argument("--budget-minutes", type=finite_float, required=True, help="wall-clock budget for everything (at most 525600, a year)")
     p.add_argument("--episodes", type=int, default=150, help="episodes per policy and layout (fewer if the budget is short)")
     p.add_argument("--layouts", nargs="+", default=["0", "1", "2", "3"], metavar="LAYOUT", help="evaluation layouts (default 0 1 2 3)")
     p.add_argument("--worlds", type=int, default=32, help="parallel worlds in evaluation")
@@ -48,6 +51,8 @@ def run(args) -> int:
 
     if args.budget_minutes <= 0:
         raise ValueError(f"--budget-minutes: expected a positive number, got {args.budget_minutes}")
+    if args.budget_minutes > MAX_BUDGET_MINUTES:
+        raise ValueError(f"--budget-minutes: must be at most {MAX_BUDGET_MINUTES:g} (a year), got {args.budget_minutes:g}")
     check_episodes(args.episodes)
     if args.worlds < 1:
         raise ValueError(f"--worlds: expected an integer >= 1, got {args.worlds}")

@@ -114,6 +114,8 @@ def test_bench_physics_prints_the_table(capsys):
         (["eval", "--episodes", "100000000000"], "--episodes: expected an integer in 1..1,000,000, got 100000000000"),
         (["demo", "--episodes", "2000000"], "--episodes: expected an integer in 1..1,000,000, got 2000000"),
         (["study", "--budget-minutes", "1", "--episodes", "2000000", "--out", "{tmp}/s"], "--episodes: expected an integer in 1..1,000,000"),
+        # a budget whose seconds overflow: the study probed, then ended in an OverflowError traceback
+        (["study", "--budget-minutes", "1e308", "--out", "{tmp}/s"], "--budget-minutes: must be at most 525600 (a year), got 1e+308"),
         # a folder where a file is meant: it said 'no such file'
         (["config", "-i", "{tmp}"], "layout '{tmp}': a folder, not a layout file"),
         (["config", "-ec", "{tmp}"], "{tmp}: a folder, not a task file"),
