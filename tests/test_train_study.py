@@ -192,6 +192,17 @@ def test_a_train_override_naming_a_layout_that_cannot_be_loaded_is_found_before_
     assert not out.exists()
 
 
+def test_the_largest_seed_is_a_study_seed_like_any_other(tmp_path, capsys):
+    """--seed 2**63 - 1 passed the flag's check, then the team's speed probe, played with the next seed,
+    stopped the study with 'evaluate seed: ... got 9223372036854775808', a number the user never gave."""
+    out_dir = tmp_path / "study"
+    assert main(["study", "--budget-minutes", "0.02", "--seed", str(2**63 - 1), "--episodes", "2", "--worlds", "2",
+                 "--layouts", "0", "--out", str(out_dir), "--fidelity", "point", "--set", "max_steps=20"]
+                + sum((["--train-set", s] for s in TRAIN), [])) == 2
+    err = capsys.readouterr().err
+    assert "--budget-minutes 0.02: too small on this machine" in err and "seed" not in err, err  # refused as any seed is
+
+
 def test_an_evaluation_task_that_draws_its_layout_per_episode_is_refused_before_anything_runs(tmp_path, capsys):
     """--set random_layout=true was taken and ignored: every column of the table was its one layout, as
     eval and demo, which refuse it, would not have played it either."""

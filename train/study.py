@@ -195,6 +195,12 @@ def eval_seconds(probe_s: float, probe_episodes: int, episodes: int) -> float:
     return probe_s * (fraction if fraction >= 1.0 else BATCH_FLOOR + (1.0 - BATCH_FLOOR) * fraction)
 
 
+def probe_seed(seed: int) -> int:
+    """The table seed of the evaluation speed probe: the next after the study's `seed` (so that it
+    plays other episodes than the table), 0 after the largest seed, 2**63 - 1."""
+    return (seed + 1) % 2**63
+
+
 def fit_episodes(plan: StudyPlan, probe_s: float, probe_episodes: int, spent_s: float,
                  arms_to_train: int = len(ARMS)) -> tuple[int, float]:
     """(episodes per policy and layout, minutes left for training) within the budget.
@@ -475,7 +481,7 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
     if kept.episodes is None:
         t0 = time.perf_counter()
         probe = max(2, min(plan.worlds, plan.episodes) // len(plan.layouts))  # per layout: they differ in length
-        evaluate(heuristic, plan.eval_task, list(plan.layouts), probe, plan.seed + 1, plan.worlds, label="heuristic")
+        evaluate(heuristic, plan.eval_task, list(plan.layouts), probe, probe_seed(plan.seed), plan.worlds, label="heuristic")
         timings["evaluation speed probe"] = time.perf_counter() - t0
         episodes, train_minutes = fit_episodes(plan, timings["evaluation speed probe"], probe, time.perf_counter() - t_start,
                                                len(todo))
