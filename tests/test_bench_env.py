@@ -61,6 +61,10 @@ def test_bench_env_times_no_resets_unless_an_episode_must_end_and_then_says_so(c
         # bench train measured the --set value under the --fidelity / --collection label
         (["train", "--fidelity", "point", "--set", "task.fidelity=quadrotor"], "--set task.fidelity=quadrotor: this benchmark sets that key from --fidelity"),
         (["train", "--n-envs", "5000"], "--n-envs 5000: key 'n_envs': 5000 is out of range"),  # it named --set n_envs=5000
+        # the --set value was measured, the flag dropped without a word
+        (["train", "--fidelity", "point", "--collection", "in-turn", "--updates", "1", "--n-envs", "2", "--set", "n_envs=3",
+          "--set", "ppo.batch_size=64", "--set", "ppo.minibatch_size=32", "--set", "ppo.epochs=1"],
+         "--set n_envs=3: beside --n-envs 2, which it would override"),
         (["train", "--collection", "in-turn", "--set", "run.overlap=true"], "--set run.overlap=true: this benchmark sets that key from --collection"),
         # the same keys in a section's spelling got past the check: a quadrotor run was labelled point
         (["train", "--fidelity", "point", "--set", "n_envs=2", "--set", "task={fidelity: quadrotor}"],

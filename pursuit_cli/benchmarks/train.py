@@ -261,6 +261,14 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--profile: must be >= 0, got {args.profile}")
     if args.n_envs is not None and args.n_envs < 1:
         raise ValueError(f"--n-envs: expected an integer >= 1, got {args.n_envs}")
+    if args.n_envs is not None:  # a --set of another count would win over the flag, dropping it without a word
+        from pursuit_mj.configio import parse_override
+
+        for text in args.overrides:
+            path, value = parse_override(text, f"--set {text}")
+            if [part.strip() for part in path] == ["n_envs"] and value != args.n_envs:
+                raise ValueError(f"--set {text}: beside --n-envs {args.n_envs}, which it would override; give the world "
+                                 f"count once")
     own = {"task.fidelity": "--fidelity", "run.overlap": "--collection"}  # measure() sets these; a --set would win and mislabel the row
     for text in args.overrides:
         flag = own.get(text.split("=", 1)[0].strip())
