@@ -61,6 +61,9 @@ def test_bench_env_times_no_resets_unless_an_episode_must_end_and_then_says_so(c
         # bench train measured the --set value under the --fidelity / --collection label
         (["train", "--fidelity", "point", "--set", "task.fidelity=quadrotor"], "--set task.fidelity=quadrotor: this benchmark sets that key from --fidelity"),
         (["train", "--n-envs", "5000"], "--n-envs 5000: key 'n_envs': 5000 is out of range"),  # it named --set n_envs=5000
+        # it measured point twice and printed two rows and two verdicts of it
+        (["train", "--fidelity", "point", "point", "--collection", "in-turn", "--updates", "1", "--n-envs", "2",
+          "--set", "ppo.batch_size=64", "--set", "ppo.minibatch_size=32", "--set", "ppo.epochs=1"], "--fidelity: point given twice"),
         # the --set value was measured, the flag dropped without a word
         (["train", "--fidelity", "point", "--collection", "in-turn", "--updates", "1", "--n-envs", "2", "--set", "n_envs=3",
           "--set", "ppo.batch_size=64", "--set", "ppo.minibatch_size=32", "--set", "ppo.epochs=1"],

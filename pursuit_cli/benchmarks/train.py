@@ -261,6 +261,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--profile: must be >= 0, got {args.profile}")
     if args.n_envs is not None and args.n_envs < 1:
         raise ValueError(f"--n-envs: expected an integer >= 1, got {args.n_envs}")
+    again = next((f for f in args.fidelity if args.fidelity.count(f) > 1), None)
+    if again is not None:  # it was measured twice, two rows and two verdicts of one configuration
+        raise ValueError(f"--fidelity: {again} given twice; give each fidelity once")
     if args.n_envs is not None:  # a --set of another count would win over the flag, dropping it without a word
         from pursuit_mj.configio import parse_override
 
