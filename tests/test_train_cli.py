@@ -127,6 +127,7 @@ def test_bench_train_prints_rollout_and_update_rates(capsys):
     assert "rollout ag-steps/s" in out and "s per update" in out and "bare env ag-steps/s" in out
     assert "aims point, in turn: update faster than its rollout" in out
     assert "aims point, overlapped: update faster than its rollout" in out  # both collection modes by default
+    assert "measured point, in turn: 1 update after one warm-up" in out  # it said '1 updates'
 
 
 def test_bench_train_measures_a_dagger_config_in_turn_once(capsys):

@@ -28,6 +28,7 @@ import time
 
 import numpy as np
 
+from ..common import counted
 from . import against_aim, format_table, profile_call
 
 HELP = "training throughput: agent-steps/s of rollout and of update, time per update, vs the bare env"
@@ -285,7 +286,7 @@ def run(args: argparse.Namespace) -> int:
             results.append(measure(args.config, f, args.n_envs, args.updates, args.overrides + [f"run.overlap={overlap}"],
                                    args.profile))
             when = "between them" if results[-1].collection == "in turn" else "after them"
-            print(f"  measured {f}, {results[-1].collection}: {args.updates} updates after one warm-up, bare env stepped "
+            print(f"  measured {f}, {results[-1].collection}: {counted(args.updates, 'update')} after one warm-up, bare env stepped "
                   f"{when}", flush=True)
     print(f"train benchmark, config {args.config}: {results[0].settings}")
     print("rates in agent-steps/s (decision steps x worlds x pursuers) from median wall times; bare env = the same task "
