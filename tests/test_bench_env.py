@@ -111,6 +111,31 @@ def test_isolated_benchmarks_return_results_and_raise_errors_from_their_own_proc
         run_isolated(_die_of_sigkill)
 
 
+def test_a_benchmark_interrupted_while_it_waits_stops_its_measuring_process_at_once():
+    """SIGTERM (or SIGHUP) to `pursuit-mj bench` reaches the parent only: it waited 10 s for the
+    measuring process, which went on measuring, before killing it (a stopped bench took 10.5 s to end)."""
+    import multiprocessing
+    import signal
+    import time
+
+    from pursuit_cli.benchmarks import run_isolated
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    before = signal.signal(signal.SIGALRM, interrupt)
+    signal.setitimer(signal.ITIMER_REAL, 0.5)  # the stop arrives while the parent waits for the result
+    t0 = time.perf_counter()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_isolated(time.sleep, 30.0)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, before)
+    assert time.perf_counter() - t0 < 5.0
+    assert multiprocessing.active_children() == []
+
+
 def test_a_forked_worker_dies_of_sigterm_while_its_parent_turns_it_into_an_interrupt():
     """The CLI makes SIGTERM a KeyboardInterrupt; a worker forked under it (a benchmark's,
     a pool's) must still die when told, or whoever stops it waits for ever."""

@@ -60,6 +60,7 @@ def _run_and_send(send, fn: Callable[..., Any], args: tuple) -> None:
 
 def run_isolated(fn: Callable[..., Any], *args: Any) -> Any:
     """fn(*args) in a fresh forked process that exits after it; its result, or its exception raised here.
+    An interrupt that reaches this process while it waits kills that one at once and is raised here.
 
     One plain process and a pipe: a Pool starts a replacement worker after the task and
     then has to stop it, which could hang its exit."""
@@ -77,6 +78,10 @@ def run_isolated(fn: Callable[..., Any], *args: Any) -> Any:
         # a ValueError, so the command ends in one line (pursuit_cli.main) rather than a traceback
         raise ValueError(f"the benchmark process died ({how}); if the machine ran out of memory, measure fewer worlds "
                          f"or a shorter run") from None
+    except BaseException:  # stopped while waiting (Ctrl-C, or SIGTERM and SIGHUP, which reach this process only)
+        proc.kill()  # its measurement is not wanted any more: waiting for it kept the command alive for 10 s
+        proc.join()
+        raise
     finally:
         recv.close()
         if proc.is_alive() and proc.exitcode is None:
