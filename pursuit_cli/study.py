@@ -47,7 +47,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from train.study import StudyPlan, format_timings, run_study
+    from train.study import STATE_FILE, StudyPlan, format_timings, run_study
 
     if args.budget_minutes <= 0:
         raise ValueError(f"--budget-minutes: expected a positive number, got {args.budget_minutes}")
@@ -82,9 +82,12 @@ def run(args) -> int:
     except (KeyboardInterrupt, Exception) as exc:
         if not (isinstance(exc, KeyboardInterrupt) or stops):
             raise
-        print(f"[study] interrupted; the finished arms and evaluations are kept: continue with pursuit-mj study --resume --out {out} "
-              f"--budget-minutes M (the time for what is left) and the same task, --train-fidelity and --train-set flags",
-              file=sys.stderr)
+        if (out / STATE_FILE).is_file():
+            print(f"[study] interrupted; the finished arms and evaluations are kept: continue with pursuit-mj study --resume "
+                  f"--out {out} --budget-minutes M (the time for what is left) and the same task, --train-fidelity and "
+                  f"--train-set flags", file=sys.stderr)
+        else:  # stopped while it checked its arms' configs: a --resume would find no study to continue
+            print(f"[study] interrupted before it kept anything in {out}: run the same command again to start", file=sys.stderr)
         if stops and not (isinstance(exc, KeyboardInterrupt) and exc.args):  # the run stopped itself on the signal
             raise KeyboardInterrupt(*([] if stops[-1] == "SIGINT" else [stops[-1]])) from None
         raise

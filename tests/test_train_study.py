@@ -616,6 +616,22 @@ def test_a_study_stopped_by_sigterm_while_an_arm_trains_exits_143_saying_so(tmp_
     assert "pursuit-mj study: interrupted by SIGTERM" in capsys.readouterr().err
 
 
+def test_a_study_stopped_before_it_kept_anything_says_to_start_again_not_to_resume(tmp_path, capsys, monkeypatch):
+    """Ctrl-C while the study checked its arms' configs said 'continue with pursuit-mj study --resume',
+    which was then refused: 'holds no study to continue (no study.json)'."""
+    from train import study
+
+    def ctrl_c(plan):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(study, "check_train_overrides", ctrl_c)
+    out = tmp_path / "study"
+    assert main(["study", "--budget-minutes", "30", "--out", str(out)]) == 130
+    err = capsys.readouterr().err
+    assert "--resume" not in err and f"[study] interrupted before it kept anything in {out}: run the same command" in err, err
+    assert not (out / "study.json").exists()
+
+
 def test_a_study_that_lost_its_record_says_how_to_go_on_instead_of_sending_the_user_round(tmp_path, capsys):
     """Without study.json, --resume said 'no study to continue' and a fresh start said 'continue
     them with --resume': each message sent the user to the other."""
