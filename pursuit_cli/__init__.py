@@ -278,7 +278,7 @@ def _interrupted(args: argparse.Namespace, signal_name: str) -> int:
     """Say that the command was stopped (by SIGTERM/SIGHUP when one of them did it); returns its
     exit code (stop_exit_code)."""
     by = f" by {signal_name}" if signal_name.startswith("SIG") and signal_name != "SIGINT" else ""
-    print(f"pursuit-mj {args.command}: interrupted{by}", file=sys.stderr)
+    print(f"pursuit-mj {_command_name(args)}: interrupted{by}", file=sys.stderr)  # named as its errors name it
     return stop_exit_code(signal_name)
 
 

@@ -136,6 +136,18 @@ def test_a_benchmark_interrupted_while_it_waits_stops_its_measuring_process_at_o
     assert multiprocessing.active_children() == []
 
 
+def test_an_interrupted_benchmark_names_its_target_as_its_errors_do(capsys, monkeypatch):
+    """It said 'pursuit-mj bench: interrupted' where an error says 'pursuit-mj bench physics: error: ...'."""
+    import pursuit_cli.benchmarks.physics as physics
+
+    def ctrl_c(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(physics, "run_isolated", ctrl_c)
+    assert main(["bench", "physics", "--worlds", "1", "--seconds", "0.1", "--fidelity", "point"]) == 130
+    assert capsys.readouterr().err == "pursuit-mj bench physics: interrupted\n"
+
+
 def test_a_forked_worker_dies_of_sigterm_while_its_parent_turns_it_into_an_interrupt():
     """The CLI makes SIGTERM a KeyboardInterrupt; a worker forked under it (a benchmark's,
     a pool's) must still die when told, or whoever stops it waits for ever."""
