@@ -26,6 +26,20 @@ def test_bench_env_prints_rates_overhead_and_profile(capsys):
     assert len(table) == 1 and table[0].split()[1] == "2"
 
 
+def test_bench_env_measures_the_fidelity_a_task_file_names_unless_fidelity_says_otherwise(tmp_path, capsys):
+    """--fidelity's default (both) beat the task file's fidelity: point, which was dropped without a word
+    (a default outranked a file, where everywhere else files are overridden by flags only)."""
+    task = tmp_path / "t.yaml"
+    task.write_text("fidelity: point\n")
+
+    def measured(argv) -> list[str]:
+        assert main(["bench", "env", "--worlds", "1", "--seconds", "0.1", "--task", str(task), *argv]) == 0
+        return [line.split()[0] for line in capsys.readouterr().out.splitlines() if line.split()[:1] in (["point"], ["quadrotor"])]
+
+    assert measured([]) == ["point"]
+    assert measured(["--fidelity", "quadrotor"]) == ["quadrotor"]  # the flag still wins over the file
+
+
 def test_bench_env_times_no_resets_unless_an_episode_must_end_and_then_says_so(capsys):
     """With --set max_steps=5 blocks of up to 40 steps timed four resets per world as env work
     (+230 % overhead where the task adds +46 %), without a word."""

@@ -61,7 +61,8 @@ class EnvBench:
 def add_arguments(p) -> None:
     p.add_argument("--worlds", nargs="+", type=int, default=[1, 16, 64], metavar="W", help="world counts, 1-4096 (default 1 16 64)")
     p.add_argument("--seconds", type=finite_float, default=4.0, help="measuring time per configuration, all kinds together (default 4, at most 3600)")
-    p.add_argument("--fidelity", nargs="+", choices=("quadrotor", "point"), default=["quadrotor", "point"], help="fidelities (default both)")
+    p.add_argument("--fidelity", nargs="+", choices=("quadrotor", "point"), default=None,
+                   help="fidelities (default: the one a --task file names, else both)")
     p.add_argument("--seed", type=seed_arg, default=0, help="environment seed (default 0)")
     p.add_argument("--task", dest="task_files", action="append", default=[], metavar="FILE|PRESET",
                    help="task YAML file or preset name (reference, easy, hard); repeatable")
@@ -148,7 +149,24 @@ def aim_line(r: EnvBench) -> str:
             f"{against_aim(100 * r.overhead, 100 * AIM_OVERHEAD, 0, '+')} %, {verdict}")
 
 
+def task_files_fidelity(files: Sequence[str]) -> str | None:
+    """The fidelity the last of the task `files` (paths or preset names) that names one gives, else None."""
+    from pursuit_mj.config import load_task_yaml, preset_or_file
+
+    named = None
+    for ref in files:
+        data = load_task_yaml(preset_or_file(ref, "task"))
+        if isinstance(data, dict) and "fidelity" in data:
+            named = data["fidelity"]
+    return named
+
+
 def run(args) -> int:
+    if args.fidelity is None:  # a default must not outrank a task file: files <- flags, as everywhere
+        named = task_files_fidelity(args.task_files)
+        if named is not None and named not in ("quadrotor", "point"):
+            load_task_config(args.task_files)  # refuses it, naming the file
+        args.fidelity = [named] if named is not None else ["quadrotor", "point"]
     check_common_args(args)
     if args.profile < 0:
         raise ValueError(f"--profile: must be >= 0, got {args.profile}")
