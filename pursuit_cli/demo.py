@@ -1,5 +1,6 @@
-"""`pursuit-mj demo`: evaluate the shipped pretrained policy (bare and behind the safety shield)
-and the heuristic team on the four layouts.
+"""`pursuit-mj demo`: evaluate a trained policy (the shipped pretrained one by default; a model
+trained without the safety shield is shown bare and behind it, one trained behind it, like the
+shipped one, with it only) and the heuristic team on the four layouts.
 
 Needs nothing trained: the model is pretrained/pursuers.pt (made by this project's training
 pipeline, see pretrained/README.md). A few minutes on two cores with the default settings.
@@ -15,6 +16,7 @@ from pursuit_mj.shipped import shipped_dir
 from .common import add_task_args, check_episodes, counted, load_model, seed_arg, table_layouts, task_config_from_args
 
 PRETRAINED = shipped_dir("pretrained") / "pursuers.pt"
+REFERENCE_EPISODES = 150  # episodes per layout in the reference study's table
 
 HOW_TO_TRAIN = """\
 Next steps:
@@ -109,8 +111,8 @@ def run(args) -> int:
     paired, _ = paired_report(rows, "heuristic", config.max_steps)
     if paired:
         print(f"\n{paired}")
-    print(f"\n({time.perf_counter() - t_all:.0f} s; brackets are 95 % confidence intervals; "
-          f"use --episodes 150 for the reference study's sample size)\n")
+    more = "" if args.episodes >= REFERENCE_EPISODES else f"; use --episodes {REFERENCE_EPISODES} for the reference study's sample size"
+    print(f"\n({time.perf_counter() - t_all:.0f} s; brackets are 95 % confidence intervals{more})\n")
     print(HOW_TO_TRAIN, end="")
     return 0
 

@@ -82,7 +82,9 @@ def tiny_model(tmp_path_factory):
     return root / "m" / "best.pt"
 
 
-def test_demo_prints_the_table_and_how_to_train(tiny_model, capsys):
+def test_demo_prints_the_table_and_how_to_train(tiny_model, capsys, monkeypatch):
+    from pursuit_cli import demo
+
     code = main(["demo", "--model", str(tiny_model), "--episodes", "2", "--worlds", "2", "--layouts", "0", "1",
                  "--fidelity", "point", "--set", "max_steps=20"])
     assert code == 0
@@ -91,10 +93,17 @@ def test_demo_prints_the_table_and_how_to_train(tiny_model, capsys):
     assert f"model: m = {tiny_model}\n" in captured.err  # which file the table's rows are
     assert "heuristic" in out and "m " in out and "m+shield " in out and "pursuit-mj train" in out
     assert "paired with heuristic on the same episodes" in out
+    assert "use --episodes 150 for the reference study's sample size" in out
     assert main(["demo", "--model", str(tiny_model.parent / "missing.pt")]) == 2
     code = main(["demo", "--model", str(tiny_model), "--episodes", "1", "--worlds", "1", "--layouts", "0", "--no-shield",
                  "--no-heuristic", "--fidelity", "point", "--set", "max_steps=5"])
-    assert code == 0 and "+shield" not in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert code == 0 and "+shield" not in out
+    assert "use --episodes" in out  # 1 of the reference study's 150
+    monkeypatch.setattr(demo, "REFERENCE_EPISODES", 1)  # played at the reference size: no such advice
+    assert main(["demo", "--model", str(tiny_model), "--episodes", "1", "--worlds", "1", "--layouts", "0", "--no-heuristic",
+                 "--fidelity", "point", "--set", "max_steps=5"]) == 0
+    assert "use --episodes" not in capsys.readouterr().out
     # with no --model it shows the shipped policy and says so
     code = main(["demo", "--episodes", "1", "--worlds", "1", "--layouts", "0", "--no-heuristic", "--fidelity", "point",
                  "--set", "max_steps=5"])

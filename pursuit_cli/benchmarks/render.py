@@ -24,7 +24,7 @@ from pursuit_mj.policies import make_policy
 from ..common import seed_arg
 from . import against_aim
 
-HELP = "video frames per second of a 1000-step render at 640x480, and the cost of a rerun recording"
+HELP = "video frames per second of a render (default 1000 steps at 640x480: --steps, --width, --height), and the cost of a rerun recording"
 TARGET_FPS = 20.0
 TARGET_RERUN_FRACTION = 0.20
 
