@@ -19,10 +19,13 @@ from pursuit_mj.controller import tilt_angle
 from pursuit_mj.layout import N_BUILTIN, Layout, load_layout
 from pursuit_mj.layout_check import check_spawn_capacity, free_spawn_points
 from pursuit_mj.physics import BatchedPhysics
+from pursuit_mj.sensing import PERCEPTION_KEYS
 from .common import add_task_args, finite_float, seed_arg, task_config_from_args
 
 SPAWN_SEPARATION = 0.35  # m between spawned drones
 SEPARATION = 0.25  # m: drones closer than this steer apart
+#: task keys a scripted flight does not use: what a pursuer perceives, and a layout drawn per episode
+UNUSED_KEYS = PERCEPTION_KEYS + ("random_layout",)
 MAX_SECONDS = 86400.0  # --seconds at most (a simulated day per run): far larger values overflowed the step count
 
 
@@ -140,7 +143,7 @@ def _chosen(args, config: TaskConfig, key: str) -> bool:
     for ref in args.task_files or []:
         data = load_task_yaml(preset_or_file(ref, "task"))
         named |= set(data) if isinstance(data, dict) else set()
-    return getattr(args, key) is not None or key in named or getattr(config, key) != getattr(default_config(), key)
+    return getattr(args, key, None) is not None or key in named or getattr(config, key) != getattr(default_config(), key)
 
 
 def run(args) -> int:
@@ -155,6 +158,10 @@ def run(args) -> int:
     if base.evader.model != BUILTIN_EVADER:  # accepted (a task file shared with eval may name it), but not flown
         print(f"note: evader.model {base.evader.model} plays no part in simulate: every drone, the evaders too, flies "
               f"the scripted pattern (eval, render or fly --virtual fly the evaders by it)", file=sys.stderr)
+    unused = [key for key in UNUSED_KEYS if _chosen(args, base, key)]
+    if unused:
+        print(f"note: {', '.join(unused)} play{'s' if len(unused) == 1 else ''} no part in simulate: the scripted pattern "
+              f"perceives nothing and flies each layout it names (eval or render play the task with them)", file=sys.stderr)
     layouts = [base.layout] if _chosen(args, base, "layout") else list(range(N_BUILTIN))
     fidelities = [base.fidelity] if _chosen(args, base, "fidelity") else ["quadrotor", "point"]
     team = f"{base.n_pursuers} pursuer{'s' if base.n_pursuers > 1 else ''} + {base.n_evaders} evader{'s' if base.n_evaders > 1 else ''}"

@@ -436,3 +436,14 @@ def test_a_ctrl_c_while_the_command_line_process_exits_prints_no_traceback():
                           cwd=Path(__file__).resolve().parents[1])
     assert proc.returncode == 0 and "max_steps: 5" in proc.stdout
     assert "KeyboardInterrupt" not in proc.stderr and "Exception ignored" not in proc.stderr, proc.stderr
+
+
+def test_simulate_notes_the_task_keys_a_scripted_flight_does_not_use(capsys):
+    """--perception-radius, --observability or --set random_layout=true were taken without a word,
+    though nothing in a scripted flight perceives or draws a layout."""
+    assert main(["simulate", "--seconds", "0.1", "--layout", "0", "--fidelity", "point", "--perception-radius", "1.0",
+                 "--set", "random_layout=true"]) == 0
+    err = capsys.readouterr().err
+    assert "note: perception_radius, random_layout play no part in simulate" in err, err
+    assert main(["simulate", "--seconds", "0.1", "--layout", "0", "--fidelity", "point"]) == 0
+    assert "play no part" not in capsys.readouterr().err
