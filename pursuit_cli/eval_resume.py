@@ -70,6 +70,8 @@ def keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, con
 #: what an interrupted eval and its resumption must share, so that the finished rows are what this run would play
 RESUME_KEYS = ("episodes", "seed", "policies", "model_sha256", "shield", "policy_file_sha256", "policy_file_names",
                "evader_model_sha256")
+#: compared per policy (_edited_policies) where the kept file names whose file each hash is
+PER_POLICY_KEYS = ("model_sha256", "policy_file_sha256")
 RESUME_DEFAULTS = {"policy_file_sha256": [], "policy_file_names": [], "evader_model_sha256": None}  # what an interrupted eval written before the keys had
 
 
@@ -94,7 +96,10 @@ def finished_rows(json_path: Path | None, config, meta: dict, csv_path: Path | N
         rows = data["rows"]
     except (ValueError, KeyError, TypeError, AttributeError):
         raise ValueError(f"--resume: {kept} is not an interrupted eval's JSON") from None
+    changed = _edited_policies(data, meta)  # None: the kept file cannot say whose file changed
     for key in RESUME_KEYS:
+        if key in PER_POLICY_KEYS and changed is not None:
+            continue
         if stored[key] != meta[key]:
             raise ValueError(f"--resume: {key} differs from the interrupted eval's ({stored[key]!r} in {kept}, "
                              f"{meta[key]!r} now): give the same command, or {again}")
@@ -116,7 +121,24 @@ def finished_rows(json_path: Path | None, config, meta: dict, csv_path: Path | N
                              f"would play (a damaged or edited file): {again}")
         out[(row.policy, row.layout)] = row
     _check_layout_files(out, data.get("layout_sha256"), meta["layout_sha256"], again)
-    return out
+    for label in changed or ():
+        print(f"--resume: the {'checkpoint' if label in meta['model_of'] else 'policy file'} of {label} changed since "
+              f"the interrupted eval: its rows are played again", file=sys.stderr, flush=True)
+    return {key: row for key, row in out.items() if key[0] not in (changed or ())}
+
+
+def _edited_policies(data: dict, meta: dict) -> list[str] | None:
+    """Labels of the --model checkpoints and --policy files whose bytes changed since the kept rows
+    (a policy file fixed after it failed mid-table: the other policies' rows stay good); None
+    where the kept file does not say which file was whose (kept before the labels were)."""
+    was_files, now_files = data.get("policy_file_sha256_of"), meta["policy_file_sha256_of"]
+    was_models, was_sha = data.get("model_of"), data.get("model_sha256")
+    now_models, now_sha = meta["model_of"], meta["model_sha256"]
+    if not (isinstance(was_files, dict) and list(was_files) == list(now_files)
+            and was_models == now_models and isinstance(was_sha, list) and len(was_sha) == len(now_sha)):
+        return None
+    return ([label for label in now_files if was_files[label] != now_files[label]]
+            + [label for label, was, now in zip(now_models, was_sha, now_sha) if was != now])
 
 
 def _check_layout_files(rows: dict, was: object, now: dict[str, str], again: str) -> None:

@@ -175,17 +175,28 @@ def test_a_policy_file_given_as_a_model_is_pointed_to_policy(tmp_path, capsys):
         assert f"--model {model}: " in err and f"a policy of your own goes through --policy {path}:NAME" in err, err
 
 
-def test_eval_resume_refuses_rows_of_a_policy_file_edited_since(tmp_path, capsys):
+def test_eval_resume_plays_again_only_the_rows_of_a_policy_file_edited_since(tmp_path, capsys, monkeypatch):
+    """A policy file fixed after it failed mid-table: --resume refused the whole table, so the rows of
+    every other policy had to be played again too. Now only the edited file's rows are, and it says so."""
+    import pursuit_mj.evaluation as evaluation
+
     path = _write(tmp_path, GOOD)
-    cmd = ["eval", "--policy", f"{path}:Still", "--layouts", "0", "--episodes", "1", "--worlds", "1", "--fidelity", "point",
-           "--set", "max_steps=5", "-q", "--out", str(tmp_path / "t")]
+    cmd = ["eval", "--policy", "heuristic", "--policy", f"{path}:Still", "--layouts", "0", "--episodes", "1", "--worlds",
+           "1", "--fidelity", "point", "--set", "max_steps=5", "-q", "--out", str(tmp_path / "t")]
     assert main(cmd) == 0
-    (tmp_path / "t.interrupted.json").write_text((tmp_path / "t.json").read_text())  # as if stopped at the end
-    assert main(cmd + ["--resume"]) == 0  # unchanged: the kept row is taken
-    (tmp_path / "t.interrupted.json").write_text((tmp_path / "t.json").read_text())
+    first = json.loads((tmp_path / "t.json").read_text())
+    (tmp_path / "t.interrupted.json").write_text(json.dumps(first))  # as if stopped at the end
+    assert main(cmd + ["--resume"]) == 0  # unchanged: the kept rows are taken
+    assert "played again" not in capsys.readouterr().err
+    (tmp_path / "t.interrupted.json").write_text(json.dumps(first))
     path.write_text(GOOD.replace("np.zeros", "0.5 * np.ones"))
-    assert main(cmd + ["--resume"]) == 2
-    assert "--resume: policy_file_sha256 differs from the interrupted eval's" in capsys.readouterr().err
+    real, cells = evaluation.evaluate, []
+    monkeypatch.setattr(evaluation, "evaluate", lambda *a, **k: cells.append(k["label"]) or real(*a, **k))
+    assert main(cmd + ["--resume"]) == 0
+    err = capsys.readouterr().err
+    assert "--resume: the policy file of still changed since the interrupted eval: its rows are played again" in err, err
+    assert cells == ["still"]  # the heuristic team's row was taken from the kept file
+    assert json.loads((tmp_path / "t.json").read_text())["policy_file_sha256"] != first["policy_file_sha256"]
 
 
 def test_an_interrupted_eval_kept_before_policy_files_resumes(tmp_path, capsys):
