@@ -121,6 +121,26 @@ def wait_for(condition: Callable[[], bool], timeout: float) -> bool:
     return False
 
 
+class RacingClock:
+    """time.monotonic until `race(rate)`, then `rate` times as fast: a flight whose clock runs ahead
+    of its drones' own, as a loaded computer's virtual drones (or a late radio) fall behind it.
+    Pass it as the bridge's `clock`; race() from an event sink starts it at that event."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._t0 = self._base = time.monotonic()
+        self._rate = 1.0
+
+    def race(self, rate: float) -> None:
+        with self._lock:
+            now = time.monotonic()
+            self._base, self._t0, self._rate = self._base + (now - self._t0) * self._rate, now, float(rate)
+
+    def __call__(self) -> float:
+        with self._lock:
+            return self._base + (time.monotonic() - self._t0) * self._rate
+
+
 def kinds_in_order(events: EventLog | list[str], *kinds: str) -> bool:
     """Whether the listed event kinds all occur (first occurrences), in this order."""
     seen = [k for k in (events.kinds() if isinstance(events, EventLog) else events) if k in kinds]

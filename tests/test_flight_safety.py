@@ -14,7 +14,7 @@ import time
 import numpy as np
 import pytest
 
-from flight_rehearsal import QUICK, ScriptedTeam, fly_virtual, kinds_in_order, quick_plan, wait_for
+from flight_rehearsal import QUICK, RacingClock, ScriptedTeam, fly_virtual, kinds_in_order, quick_plan, wait_for
 from pursuit_mj.flight.links import LinkError
 from pursuit_mj.flight.preflight import PreflightError
 from pursuit_mj.flight.virtual.fleet import VirtualDrone
@@ -108,6 +108,29 @@ def test_frozen_estimates_make_the_drone_hover_then_everyone_land(tmp_path):
     # its last estimate still says 0.3 m up: the flight cannot say it landed
     assert not result.landed and result.heights[0] == pytest.approx(0.3, abs=0.05) and (result.heights[1:] < 0.1).all()
     assert events.of_kind("landed")[0]["not_down"] == ["p0"]
+
+
+def test_a_landing_that_runs_late_is_waited_for_before_the_motors_stop(tmp_path):
+    """The landing was timed on the computer's clock alone: where the drones ran behind it (a
+    loaded computer's virtual drones, a late radio) their motors were stopped 0.1-0.3 m up and
+    the flight said 'landed: no' (the Ctrl-C test failed so under load). Here the flight's clock
+    runs 3 times as fast as the drones' from the landing on."""
+    clock = RacingClock()
+
+    def land_late(fleet, bridge):
+        bridge.events.add_sink("race", lambda record: clock.race(3.0) if record["kind"] == "land" else None)
+        time.sleep(0.3)
+        bridge.request_land("test")
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=8.0), HOVER, tmp_path, during=land_late, clock=clock)
+    assert result.outcome == "land_requested" and result.landed, (result.outcome, result.heights)
+    assert events.of_kind("landed")[0]["not_down"] == [] and (result.heights < 0.1).all()
+    for i in range(fleet.plan.n_drones):  # motors stopped once the drone's own landing was over, not in the air
+        received = fleet.received(i)
+        land = next(r for r in received if r.kind == "land")  # values: height, duration, ...
+        stop = next(r for r in received if r.kind == "hl_stop")
+        assert stop.t - land.t >= land.values[1], (fleet.plan.names[i], stop.t - land.t, land.values[1])
+    assert down(fleet)
 
 
 def test_a_link_that_drops_as_the_landing_is_sent_neither_hangs_the_flight_nor_goes_unreported(tmp_path):

@@ -52,6 +52,10 @@ from .spec import LANDED_HEIGHT  # m: a drone whose last height estimate is belo
 STATE_PERIOD = 0.02  # s between state-estimate log packets (50 Hz)
 HEALTH_PERIOD = 0.05  # s between health log packets
 LANDING_CEILING_MARGIN = 0.5  # m above safety.max_altitude: the highest height a landing is timed for
+# s: the most a take-off or landing waits past its own time (duration + settle) for drones that are
+# late (a drone's clock or radio behind the computer's: a loaded computer's virtual drones) but still
+# reporting: the take-off for them to reach the flight height, the landing for them to be down
+LATE_GRACE = 1.0
 
 
 def landing_duration(heights: np.ndarray, commanded: np.ndarray, flight_height: float, landing_speed: float,
@@ -391,7 +395,9 @@ class FlightBridge:
             self._stop.wait(min(self.plan.dt, max(0.0, end - self.clock())))
 
     def _land_all(self, why: str) -> bool:
-        """Everyone with a link lands through the high-level commander; returns whether every
+        """Everyone with a link lands through the high-level commander: for the landing's
+        duration plus settle, and up to LATE_GRACE s more while a drone whose estimates go on
+        coming is not yet down (its motors are stopped after that); returns whether every
         commanded drone was landed and its last height estimate is below LANDED_HEIGHT."""
         if not self._airborne or self.links is None or self._estop.is_set():  # after an emergency stop: no landing
             return False
@@ -407,14 +413,20 @@ class FlightBridge:
         began = self.clock()
         end = began + duration + limits.settle
         signalled = self._interrupt.is_set()  # a stop signal that began this landing is logged already
+        ours = np.zeros(plan.n_drones, bool)
+        ours[[link.index for link in up]] = True
         try:
-            while self.clock() < end and not self._estop.is_set():
+            while not self._estop.is_set():
+                now, snap = self.clock(), self.board.snapshot()
+                last = end if now < end else end + LATE_GRACE
+                if now >= last or (now >= end and not self._still_landing(snap, ours, began).any()):
+                    break
                 self._stop.clear()  # earlier requests are served by this landing; an emergency stop sets it again
                 if self._interrupt.is_set() and not signalled:
                     signalled = True
                     self.events.log("interrupt", reason=self._interrupt_reason, during="landing", level="warn")
-                self._record_only(self.board.snapshot())
-                self._stop.wait(min(self.plan.dt, max(0.0, end - self.clock())))
+                self._record_only(snap)
+                self._stop.wait(min(self.plan.dt, max(0.0, last - self.clock())))
         except BaseException:
             # the landing is under way in the drones' own commanders: let it finish before anything
             # closes the links (closing one sends zero thrust), unless the motors are cut meanwhile
@@ -436,6 +448,15 @@ class FlightBridge:
         self.events.log("landed", heights=z, drones=[l.name for l in up], not_down=not_down, level="warn" if not_down else "info")
         self._airborne = False
         return len(up) == int(plan.commanded.sum()) and bool(down[plan.commanded].all())
+
+    def _still_landing(self, snap: BoardSnapshot, ours: np.ndarray, began: float) -> np.ndarray:
+        """(D,) bool: drones in `ours` (landing on a live link) whose estimates go on coming since
+        the landing `began` (clock s) and still say they are above LANDED_HEIGHT: late, not yet
+        down, worth waiting for before their motors are stopped. A drone whose estimates stopped
+        before the landing, or whose link went silent, cannot show it came down: not waited for."""
+        silent = snap.lost | (snap.silence > self.plan.safety.link_timeout)
+        z = self._lab_state(snap)[0][:, 2]
+        return ours & ~silent & (snap.state_time >= began) & ~(z < LANDED_HEIGHT)
 
     def _log_link_lost(self, i: int, why: str, **extra) -> None:
         """One `link_lost` event per drone and flight."""
