@@ -77,13 +77,16 @@ class ScriptedTeam:
 
 def fly_virtual(plan: FlightPlan, policy, tmp_path, drones=None, during: Callable[[VirtualFleet, FlightBridge], None] | None = None,
                 aftermath: Callable[[VirtualFleet], None] | None = None, uris: Callable[[list[str]], list[str]] | None = None,
-                **bridge_kwargs):
+                sink: Callable[[dict], None] | None = None, **bridge_kwargs):
     """Fly `plan` on virtual drones. `during(fleet, bridge)` runs in a thread once the chase starts;
-    `aftermath(fleet)` runs after the flight while the drones still live; `uris` may change the links flown.
+    `aftermath(fleet)` runs after the flight while the drones still live; `uris` may change the links flown;
+    `sink(record)` sees every event as it is logged (in the logging thread).
 
     Returns (result or the exception raised by run(), events, fleet); the fleet is stopped.
     """
     events = EventLog(tmp_path / "events.jsonl")
+    if sink is not None:
+        events.add_sink("test", sink)
     fleet = VirtualFleet(plan, drones, physics=FAST)
     bridge_kwargs.setdefault("handle_signals", False)
     links = uris(list(fleet.uris)) if uris is not None else fleet.uris

@@ -133,6 +133,25 @@ def test_a_landing_that_runs_late_is_waited_for_before_the_motors_stop(tmp_path)
     assert down(fleet)
 
 
+def test_a_take_off_that_runs_late_is_waited_for_before_it_is_judged(tmp_path):
+    """The take-off was judged on the computer's clock alone: drones running behind it (virtual
+    drones on a loaded computer) were still rising at its end, and a sound flight ended in
+    takeoff_failed. Here the flight's clock runs 3 times as fast as the drones' from the
+    take-off on; a drone still short of the height after that wait is refused as before."""
+    clock = RacingClock()
+
+    def land_soon(fleet, bridge):
+        time.sleep(0.2)
+        bridge.request_land("test")
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=8.0), HOVER, tmp_path, during=land_soon, clock=clock,
+                                        sink=lambda record: clock.race(3.0) if record["kind"] == "takeoff" else None)
+    assert result.outcome == "land_requested" and result.landed, (result.outcome, result.reason)
+    airborne = np.array(events.of_kind("airborne")[0]["heights"])
+    assert np.abs(airborne - 0.3).max() <= 0.15  # judged once it got there
+    assert down(fleet)
+
+
 def test_a_link_that_drops_as_the_landing_is_sent_neither_hangs_the_flight_nor_goes_unreported(tmp_path):
     # a CLI rehearsal (freeze p0, drop p1 as the landing went out) once hung here: cflib's
     # latency pings deadlocked the landing's failing send (links.py, DroneLink.open); the
