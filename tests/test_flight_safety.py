@@ -133,6 +133,27 @@ def test_a_landing_that_runs_late_is_waited_for_before_the_motors_stop(tmp_path)
     assert down(fleet)
 
 
+def test_a_landing_whose_estimates_pause_as_it_begins_is_waited_for(tmp_path):
+    """A drone's estimates that paused as the landing began (a radio hiccup; virtual drones on
+    a loaded computer) left only estimates from before it: 'landed: no', motors stopped
+    whatever the height. Here they pause 0.6 s from the landing on, past its 0.49 s."""
+    def pause_estimates(fleet):
+        for i in range(fleet.plan.n_drones):
+            fleet.freeze_estimates(i)
+        resume = threading.Timer(0.6, lambda: [fleet.freeze_estimates(i, False) for i in range(fleet.plan.n_drones)])
+        resume.daemon = True
+        resume.start()
+
+    def land_soon(fleet, bridge):
+        bridge.events.add_sink("pause", lambda record: pause_estimates(fleet) if record["kind"] == "land" else None)
+        time.sleep(0.3)
+        bridge.request_land("test")
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=8.0), HOVER, tmp_path, during=land_soon)
+    assert result.outcome == "land_requested" and result.landed, (result.outcome, result.heights)
+    assert events.of_kind("landed")[0]["not_down"] == [] and down(fleet)
+
+
 def test_a_take_off_that_runs_late_is_waited_for_before_it_is_judged(tmp_path):
     """The take-off was judged on the computer's clock alone: drones running behind it (virtual
     drones on a loaded computer) were still rising at its end, and a sound flight ended in

@@ -463,13 +463,15 @@ class FlightBridge:
         return len(up) == int(plan.commanded.sum()) and bool(down[plan.commanded].all())
 
     def _still_landing(self, snap: BoardSnapshot, ours: np.ndarray, began: float) -> np.ndarray:
-        """(D,) bool: drones in `ours` (landing on a live link) whose estimates go on coming since
-        the landing `began` (clock s) and still say they are above LANDED_HEIGHT: late, not yet
-        down, worth waiting for before their motors are stopped. A drone whose estimates stopped
-        before the landing, or whose link went silent, cannot show it came down: not waited for."""
-        silent = snap.lost | (snap.silence > self.plan.safety.link_timeout)
+        """(D,) bool: drones in `ours` (landing on a live link) not yet shown down (no estimate
+        since the landing `began` (clock s) below LANDED_HEIGHT) whose estimates have not stopped
+        (none for safety.stale_land s) and whose link is not silent: late, worth waiting for before
+        their motors are stopped. One whose estimates or link stopped cannot show it came down."""
+        limits = self.plan.safety
+        silent = snap.lost | (snap.silence > limits.link_timeout)
         z = self._lab_state(snap)[0][:, 2]
-        return ours & ~silent & (snap.state_time >= began) & ~(z < LANDED_HEIGHT)
+        shown_down = (snap.state_time >= began) & (z < LANDED_HEIGHT)
+        return ours & ~silent & (snap.state_age <= limits.stale_land) & ~shown_down
 
     def _log_link_lost(self, i: int, why: str, **extra) -> None:
         """One `link_lost` event per drone and flight."""
