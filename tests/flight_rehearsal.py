@@ -77,10 +77,12 @@ class ScriptedTeam:
 
 def fly_virtual(plan: FlightPlan, policy, tmp_path, drones=None, during: Callable[[VirtualFleet, FlightBridge], None] | None = None,
                 aftermath: Callable[[VirtualFleet], None] | None = None, uris: Callable[[list[str]], list[str]] | None = None,
-                sink: Callable[[dict], None] | None = None, **bridge_kwargs):
+                sink: Callable[[dict], None] | None = None, on_bridge: Callable[[FlightBridge], None] | None = None,
+                **bridge_kwargs):
     """Fly `plan` on virtual drones. `during(fleet, bridge)` runs in a thread once the chase starts;
     `aftermath(fleet)` runs after the flight while the drones still live; `uris` may change the links flown;
-    `sink(record)` sees every event as it is logged (in the logging thread).
+    `sink(record)` sees every event but the routine ones (steps) as it is logged (in the logging thread);
+    `on_bridge(bridge)` is called once the bridge exists, before it flies.
 
     Returns (result or the exception raised by run(), events, fleet); the fleet is stopped.
     """
@@ -91,6 +93,8 @@ def fly_virtual(plan: FlightPlan, policy, tmp_path, drones=None, during: Callabl
     bridge_kwargs.setdefault("handle_signals", False)
     links = uris(list(fleet.uris)) if uris is not None else fleet.uris
     bridge = FlightBridge(plan.with_uris(links), policy, events, factory=CachedFactory(tmp_path / "toc"), **bridge_kwargs)
+    if on_bridge is not None:
+        on_bridge(bridge)
     worker: list[threading.Thread] = []
     if during is not None:
         def echo(record: dict) -> None:

@@ -66,6 +66,35 @@ def test_ctrl_c_or_sigterm_lands_everyone_and_restores_the_signal_handler(tmp_pa
     assert down(fleet)
 
 
+def test_ctrl_c_that_comes_while_the_flight_loop_holds_a_lock_still_lands_everyone(tmp_path):
+    """The handler set the flight's threading.Events itself, on the main thread, which a signal
+    interrupts anywhere: inside Event.wait (the flight loop sleeps in it between decisions)
+    that thread holds the Event's lock for a moment, the handler waited for that lock forever
+    and the run hung with every drone hovering (the Ctrl-C test under load). Here the main
+    thread holds it, as Event.wait does, when Ctrl-C comes; a timer frees it after 3 s."""
+    box, seen = {}, {}
+
+    def ctrl_c_holding_the_lock(record):  # on the main thread, which logs the chase's start
+        if record["kind"] != "chase":
+            return
+        lock = box["bridge"]._stop._cond  # what Event.wait and Event.set take
+        lock.acquire()
+        rescue = threading.Timer(3.0, lambda: (seen.setdefault("rescued", True), lock.release()))
+        rescue.start()
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)  # the handler runs here, on this thread, with the lock held
+        rescue.cancel()
+        if not seen.setdefault("rescued", False):
+            lock.release()
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=8.0), ScriptedTeam([[0.0, 0.0]]), tmp_path, handle_signals=True,
+                                        on_bridge=lambda bridge: box.setdefault("bridge", bridge), sink=ctrl_c_holding_the_lock)
+    assert seen == {"rescued": False}, "the Ctrl-C handler waited for a lock the interrupted thread held"
+    assert result.outcome == "interrupted" and result.reason == "Ctrl-C" and result.landed
+    assert kinds_in_order(events, "chase", "interrupt", "land", "landed")
+    assert down(fleet)
+
+
 def test_ctrl_z_lands_everyone_instead_of_suspending_the_flight(tmp_path):
     """Ctrl-Z (SIGTSTP) by default suspends the process: no setpoint leaves it, and the
     firmware's watchdog stops every motor 2 s later, in the air. During a flight it lands

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
 import signal
 import threading
 import time
@@ -149,6 +150,41 @@ class _Edges:
         for i in np.flatnonzero(flags & ~before):
             self.events.log(kind, drone=self.names[i], level="warn", **{k: v[i] for k, v in details.items()})
         self.state[kind] = flags.copy()
+
+
+class _SignalRelay:
+    """Runs what a signal asks for in a thread of its own: `post(signum)` from a signal handler,
+    `act(signum)` on the relay's thread. A Python signal handler runs on the main thread between
+    any two of its steps, also while that thread holds a lock: inside Event.wait (where the
+    flight loop sleeps between decisions) it holds the Event's. A handler that set that Event
+    itself waited for the lock forever, and the run hung with every drone hovering. `post`
+    writes one byte to a pipe and takes no lock."""
+
+    def __init__(self, act: Callable[[int], None]):
+        self._act = act
+        self._read, self._write = os.pipe()
+        os.set_blocking(self._write, False)
+        self._thread = threading.Thread(target=self._run, name="signal-relay", daemon=True)
+        self._thread.start()
+
+    def post(self, signum: int) -> None:
+        try:
+            os.write(self._write, bytes([signum]))
+        except OSError:  # a full pipe: thousands of signals not yet acted on, one more changes nothing
+            pass
+
+    def close(self) -> None:
+        """After the handlers are given back: the thread acts on what came, then ends."""
+        os.close(self._write)
+        self._thread.join(1.0)
+
+    def _run(self) -> None:
+        try:
+            while data := os.read(self._read, 64):  # b"": the write end closed
+                for signum in data:
+                    self._act(signum)
+        finally:
+            os.close(self._read)
 
 
 class FlightBridge:
@@ -313,27 +349,36 @@ class FlightBridge:
             return
         names = {signal.SIGINT: "Ctrl-C", signal.SIGTERM: "SIGTERM", signal.SIGHUP: "SIGHUP", signal.SIGTSTP: "Ctrl-Z"}
 
-        def on_stop(signum, frame):
+        def act(signum: int) -> None:  # on the relay's thread: it may wait for any lock
+            if signum == signal.SIGQUIT:
+                self._emergency_stop_soon("Ctrl-\\ pressed")
+                return
             reason = names.get(signum, f"signal {signum}")
-            if not self._in_flight:
-                self._interrupt_reason = reason
-                raise KeyboardInterrupt(reason)
             if self._second_during_landing():
                 self._emergency_stop_soon(f"second {reason} during the landing")
             else:
                 self.interrupt(reason)
 
+        relay = _SignalRelay(act)
+
+        def on_stop(signum, frame):  # on the main thread, wherever it is: no lock taken here
+            if not self._in_flight:
+                self._interrupt_reason = names.get(signum, f"signal {signum}")
+                raise KeyboardInterrupt(self._interrupt_reason)
+            relay.post(signum)
+
         previous = {sig: signal.getsignal(sig) for sig in (*names, signal.SIGQUIT)}
-        for sig in names:
-            if sig == signal.SIGHUP and previous[sig] == signal.SIG_IGN:
-                continue  # nohup: the operator asked to outlive the terminal
-            signal.signal(sig, on_stop)
-        signal.signal(signal.SIGQUIT, lambda *a: self._emergency_stop_soon("Ctrl-\\ pressed"))
         try:
+            for sig in names:
+                if sig == signal.SIGHUP and previous[sig] == signal.SIG_IGN:
+                    continue  # nohup: the operator asked to outlive the terminal
+                signal.signal(sig, on_stop)
+            signal.signal(signal.SIGQUIT, lambda signum, frame: relay.post(signum))
             yield
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
+            relay.close()
 
     def _fly(self) -> FlightResult:
         steps: list[StepRecord] = []
