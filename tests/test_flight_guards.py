@@ -432,3 +432,25 @@ def test_ctrl_c_while_the_policy_resets_before_take_off_ends_the_run_at_once(tmp
     assert time.monotonic() - began < 15.0
     kinds = [json.loads(line)["kind"] for line in (tmp_path / "events.jsonl").read_text().splitlines()]
     assert "takeoff" not in kinds and kinds.index("interrupt") < kinds.index("links_closed")
+
+
+def test_the_signal_relay_still_acts_on_later_signals_after_acting_on_one_failed(capfd):
+    """Acting on a signal runs on the relay's thread; an exception there ended the thread, and
+    every later Ctrl-C (the second one that cuts the motors included) went unheard."""
+    from pursuit_mj.flight.bridge import _SignalRelay
+
+    acted = []
+
+    def act(signum):
+        acted.append(signum)
+        if len(acted) == 1:
+            raise RuntimeError("the landing request failed")
+
+    relay = _SignalRelay(act)
+    relay.post(signal.SIGINT)
+    assert wait_for(lambda: len(acted) == 1, 5.0)
+    relay.post(signal.SIGQUIT)
+    wait_for(lambda: len(acted) == 2, 5.0)
+    relay.close()
+    assert acted == [signal.SIGINT, signal.SIGQUIT]
+    assert "acting on signal 2 failed: RuntimeError: the landing request failed" in capfd.readouterr().err

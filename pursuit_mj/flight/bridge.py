@@ -32,6 +32,7 @@ import contextlib
 import dataclasses
 import os
 import signal
+import sys
 import threading
 import time
 from typing import Callable
@@ -182,7 +183,10 @@ class _SignalRelay:
         try:
             while data := os.read(self._read, 64):  # b"": the write end closed
                 for signum in data:
-                    self._act(signum)
+                    try:
+                        self._act(signum)
+                    except Exception as exc:  # the thread must live on: a later signal may be the one that cuts the motors
+                        print(f"flight: acting on signal {signum} failed: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
         finally:
             os.close(self._read)
 
