@@ -122,6 +122,36 @@ def test_corrupted_and_foreign_checkpoints_are_refused(tmp_path):
         load_checkpoint(tmp_path / "missing.pt")
 
 
+def test_a_checkpoint_whose_zip_headers_are_damaged_is_refused_in_one_line_naming_it(tmp_path):
+    """One damaged byte in the archive's directory (the version it needs, its encryption flag, its
+    compression method, its disk count) made zipfile raise NotImplementedError, RuntimeError, a
+    zlib error or BadZipFile out of is_zipfile, none of which load_checkpoint caught: --resume, and
+    a resume whose best.pt alone was damaged, ended in a traceback."""
+    import io
+    import struct
+    import zipfile
+
+    from train.checkpoint import save_checkpoint
+
+    good = save_checkpoint(tmp_path / "good.pt", {"x": torch.zeros(3)}).read_bytes()
+    directory = zipfile.ZipFile(io.BytesIO(good)).start_dir  # the first entry's central directory record
+    locator = good.rfind(b"PK\x06\x07")  # torch writes zip64: its end locator holds the disk count
+
+    def damaged(offset: int, fmt: str, value: int) -> bytes:
+        raw = bytearray(good)
+        raw[offset:offset + struct.calcsize(fmt)] = struct.pack(fmt, value)
+        return bytes(raw)
+
+    for name, raw in (("version", damaged(directory + 6, "<H", 0x3F0)), ("encrypted", damaged(directory + 8, "<H", 1)),
+                      ("method", damaged(directory + 10, "<H", 99)), ("deflated", damaged(directory + 10, "<H", 8)),
+                      ("disks", damaged(locator + 16, "<I", 2))):
+        path = tmp_path / f"{name}.pt"
+        path.write_bytes(raw)
+        with pytest.raises(ValueError, match="corrupted") as err:
+            load_checkpoint(path)
+        assert str(err.value).startswith(f"checkpoint {path}: ") and "\n" not in str(err.value)
+
+
 def test_mismatched_observation_spec_is_refused_other_team_sizes_accepted(tmp_path):
     cfg = tiny_config(tmp_path, updates=1)
     Trainer(cfg, log=lambda s: None).train()

@@ -28,6 +28,7 @@ from __future__ import annotations
 import io
 import pickle
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +42,10 @@ VERSION = 1
 REQUIRED = ("format", "version", "train_config", "obs_spec", "actor", "counters")
 DICTS = ("train_config", "obs_spec", "actor", "counters", "critic", "optimizer", "rng", "value_norm", "discount",
          "pending_row", "anchor_actor")
+#: what zipfile raises for an archive whose directory or headers are damaged: besides BadZipFile, a damaged
+#: byte can ask for a zip version, compression method or encryption it lacks (NotImplementedError,
+#: RuntimeError) or make a stored entry read as deflated (zlib.error)
+ZIP_DAMAGE = (zipfile.BadZipFile, OSError, EOFError, ValueError, RuntimeError, zlib.error)
 CONFIG_SECTIONS = ("task", "ppo", "imitation", "residual", "net", "run")  # dicts inside train_config
 
 
@@ -71,14 +76,16 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
         raise ValueError(f"checkpoint {path}: a folder, not a checkpoint file{hint}")
     if not path.is_file():
         raise ValueError(f"checkpoint {path}: file not found")
-    if not zipfile.is_zipfile(path):
+    try:
+        is_zip = zipfile.is_zipfile(path)
+        if is_zip:
+            with zipfile.ZipFile(path) as archive:
+                damaged = archive.testzip()  # torch.load does not check the archive's CRC-32 sums
+    except ZIP_DAMAGE as exc:  # a damaged directory reads as a zip feature zipfile lacks (encryption ...)
+        raise ValueError(f"checkpoint {path}: corrupted (its zip archive cannot be read: {type(exc).__name__})") from None
+    if not is_zip:
         raise ValueError(f"checkpoint {path}: not a pursuit-mj checkpoint (not a torch zip archive: "
                          f"another kind of file, or one cut short)")
-    try:
-        with zipfile.ZipFile(path) as archive:
-            damaged = archive.testzip()  # torch.load does not check the archive's CRC-32 sums
-    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
-        raise ValueError(f"checkpoint {path}: corrupted (its zip archive cannot be read: {type(exc).__name__})") from None
     if damaged is not None:
         raise ValueError(f"checkpoint {path}: corrupted (entry {damaged} fails its checksum)")
     try:
