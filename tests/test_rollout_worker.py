@@ -138,3 +138,27 @@ def test_a_training_script_without_a_main_guard_trains_once(tmp_path):
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ["training", "done"]
     assert len((tmp_path / "script" / "metrics.jsonl").read_text().splitlines()) == 2
+
+
+def test_a_worker_that_cannot_start_stops_the_run_in_one_line_naming_run_overlap(tmp_path):
+    """Its rollout buffers go into shared memory, which a full /dev/shm (a container's 64 MB
+    default) or the open-file limit refuses: torch's RuntimeError ended the run in a traceback
+    naming neither run.overlap nor what the run folder keeps."""
+    import os
+    import resource
+
+    cfg = tiny(tmp_path, "total_steps=96")
+    trainer = Trainer(cfg, log=lambda s: None)
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    # room for config.yaml's write, not for the worker's buffers (one shared-memory file per tensor)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (len(os.listdir("/proc/self/fd")) + 6, hard))
+    try:
+        with pytest.raises(ValueError) as caught:
+            trainer.train()
+    finally:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+    said = str(caught.value)
+    assert said.startswith(f"run.overlap: the rollout worker rollout-{cfg.name} could not start ("), said
+    assert "Too many open files" in said and "--set run.overlap=false" in said and "\n" not in said, said
+    assert said.endswith("no checkpoint was written yet: start the run again once the worker can start"), said
+    assert trainer.worker is None and not (cfg.run_dir / "last.pt").exists()

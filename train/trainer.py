@@ -486,10 +486,7 @@ class Trainer:
         """The rollout the next update learns from, with what it saw (stats.seconds: collection time)."""
         if self.overlap:
             if self.worker is None:
-                buf = self.buffer
-                # its env and noise are seeded from the update it starts at, like a resumed run's
-                self.worker = RolloutWorker(self.cfg, self.counters.update, buf.T, buf.W, buf.N, self.env.obs_dim,
-                                            buf.states.shape[-1])
+                self.worker = self._start_rollout_worker()
             try:
                 buf, stats = self.worker.result(self.model)
                 self.worker.start(self.model)  # the next rollout, collected while this one is learned from
@@ -507,6 +504,20 @@ class Trainer:
         stats = self.collector.collect(self.buffer)
         stats.seconds = time.perf_counter() - t0
         return self.buffer, stats
+
+    def _start_rollout_worker(self) -> RolloutWorker:
+        """The rollout worker (run.overlap), its env and noise seeded from the update it starts at, like a
+        resumed run's. ValueError naming run.overlap where it cannot start: its buffers live in shared
+        memory, which a full /dev/shm or the open-file limit refuses (torch's RuntimeError), or no
+        process can be made (OSError)."""
+        buf = self.buffer
+        try:
+            return RolloutWorker(self.cfg, self.counters.update, buf.T, buf.W, buf.N, self.env.obs_dim,
+                                 buf.states.shape[-1])
+        except (OSError, RuntimeError) as exc:
+            raise ValueError(f"run.overlap: the rollout worker rollout-{self.cfg.name} could not start ({exc}); a run "
+                             f"started with --set run.overlap=false collects in this process instead; "
+                             f"{self._kept('once the worker can start')}") from None
 
     def _start_critic_worker(self) -> None:
         """Start the critic's process (run.split_update); where it cannot start (no shared memory,
