@@ -389,6 +389,32 @@ def test_a_ctrl_c_at_any_point_of_an_update_neither_loses_nor_repeats_a_metrics_
     assert all("validation" in r for r in logged)  # validate_every 1: the re-logged rows were validated too
 
 
+def test_a_ctrl_c_as_a_resumed_run_starts_reading_its_log_is_an_interrupt_that_frees_the_folder(tmp_path, monkeypatch):
+    """train() wrote config.yaml, cut the log of a run stopped before its first checkpoint and read
+    the log's last validation (the whole file: seconds for a long run) before its try: a Ctrl-C
+    there left train() as a bare KeyboardInterrupt, with no word of how to resume, and left the run
+    folder locked and the rerun stream open for the rest of the process."""
+    cfg = tiny_config(tmp_path, updates=3)
+    assert Trainer(tiny_config(tmp_path, updates=1), log=lambda s: None).train()["status"] == "done"
+
+    def ctrl_c(self):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Trainer, "_logged_validation", ctrl_c)
+    said: list[str] = []
+    trainer = Trainer.resume(cfg.run_dir, total_steps=cfg.total_steps, log=said.append)
+    try:
+        status = trainer.train()["status"]
+    except KeyboardInterrupt:  # (caught here: pytest itself stops on one)
+        status = "a KeyboardInterrupt out of train()"
+    assert status == "interrupted"
+    assert f"continue with: pursuit-mj train --resume {cfg.run_dir}" in "\n".join(said), said
+    monkeypatch.undo()
+    resumed = Trainer.resume(cfg.run_dir, total_steps=cfg.total_steps, log=lambda s: None)  # the folder is free
+    assert resumed.train()["counters"]["update"] == 3
+    assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2, 3]
+
+
 def test_a_ctrl_c_while_best_pt_is_written_leaves_the_counters_naming_the_best_pt_on_disk(tmp_path, monkeypatch):
     cfg = tiny_config(tmp_path, updates=3, extra=["run.validate_every=1"])
     real_validate = Trainer.validate

@@ -684,14 +684,10 @@ class Trainer:
             self.cfg.ppo.gae_lambda, max(self.learning_rate(), 1e-8), sample,
         )
 
-    def train(self, stop_requested: Callable[[], bool] | None = None) -> dict:
-        """Train until total_steps; returns {'status': 'done'|'interrupted', counters, last validation}.
-
-        Ctrl-C (KeyboardInterrupt) interrupts. So does any error raised once stop_requested()
-        is true: a stop signal that lands inside a library call can come out as that call's own
-        error (mujoco's bindings turn it into a TypeError), and it must still save and say how
-        to resume."""
-        cfg, c = self.cfg, self.counters
+    def _start_session(self) -> tuple:
+        """What train() does before its first update: config.yaml, the log of a run stopped before its
+        first checkpoint cut, the progress bar; returns (bar, the log's last validation)."""
+        cfg = self.cfg
         self.run_dir.mkdir(parents=True, exist_ok=True)
         nothing_left = self.progress() >= 1.0 and not self._pending_row
         if not (nothing_left and self._saved_update >= 0):  # a resume that trains nothing leaves it as last.pt has it
@@ -705,10 +701,21 @@ class Trainer:
             self.metrics.truncate_after(0)
         bar = _progress(cfg, self.progress())
         last_val = self._logged_validation()  # a resumed run's last one, until this session validates
-        status = "done"
         if nothing_left:
             self.log(self._why_done())
-        try:
+        return bar, last_val
+
+    def train(self, stop_requested: Callable[[], bool] | None = None) -> dict:
+        """Train until total_steps; returns {'status': 'done'|'interrupted', counters, last validation}.
+
+        Ctrl-C (KeyboardInterrupt) interrupts. So does any error raised once stop_requested()
+        is true: a stop signal that lands inside a library call can come out as that call's own
+        error (mujoco's bindings turn it into a TypeError), and it must still save and say how
+        to resume."""
+        c = self.counters
+        bar, last_val, status = None, {}, "done"
+        try:  # from the first line: a Ctrl-C while the session starts (reading a long log) is an interrupt too
+            bar, last_val = self._start_session()
             if self._pending_row:  # the last update's row never reached the log (interrupted): log it now
                 row = self._pending_row
                 if "validation" not in row and self._validation_due():
