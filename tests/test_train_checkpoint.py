@@ -1078,3 +1078,23 @@ def test_the_checkpoint_docstring_names_every_entry_a_training_checkpoint_holds(
     assert set(data) <= set(listed), sorted(set(data) - set(listed))
     assert set(data["rng"]) == {"sampler", "torch"}
     assert all(k in listed["rng"] for k in data["rng"]) and "numpy" not in listed["rng"], listed["rng"]
+
+
+def test_a_log_line_that_is_json_but_not_a_row_is_skipped_like_a_line_cut_short(tmp_path):
+    """A line of metrics.jsonl that parses as JSON but is no object ([1], 7, null: garbled or
+    hand-edited) was returned by MetricsLog.rows(), and every reader calls row.get: --resume
+    ended in "AttributeError: 'list' object has no attribute 'get'", and so did cutting a log
+    whose later row sat inside the file."""
+    from train.metrics_log import MetricsLog
+
+    log = MetricsLog(tmp_path / "m.jsonl")
+    log.path.write_bytes(b'{"update": 1}\n[1]\n7\nnull\n{"update": 5}\n{"update": 2}\n')
+    assert [r["update"] for r in log.rows()] == [1, 5, 2]
+    log.truncate_after(2)  # row 5 inside the file: the log is rewritten from its rows
+    assert [r["update"] for r in log.rows()] == [1, 2]
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    with open(cfg.run_dir / "metrics.jsonl", "a") as f:
+        f.write("[1]\n")
+    assert Trainer.resume(cfg.run_dir, total_steps=64, log=lambda s: None).train()["counters"]["update"] == 2
+    assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2]

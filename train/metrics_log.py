@@ -37,15 +37,18 @@ class MetricsLog:
             raise ValueError(f"metrics log {self.path}: cannot append to it ({exc.strerror or exc})") from None
 
     def rows(self) -> list[dict[str, Any]]:
-        """Every complete row (a line cut short by a crash is skipped)."""
+        """Every complete row, a JSON object (a line cut short by a crash is skipped, and so is a
+        line of other JSON, [1] or 7, garbled or hand-edited: readers take each row as a dict)."""
         if not self.path.exists():
             return []
         out = []
         for line in self.path.read_text().splitlines():
             try:
-                out.append(json.loads(line))
+                row = json.loads(line)
             except json.JSONDecodeError:
                 continue
+            if isinstance(row, dict):
+                out.append(row)
         return out
 
     def truncate_after(self, update: int) -> None:
