@@ -195,3 +195,61 @@ def test_ppo_started_from_a_dagger_student_names_the_noise_it_keeps_over_net_ini
     lines.clear()
     Trainer(load_train_config([], small + ["name=same", "net.init_log_std=-1.6"] + start), log=lines.append).close()
     assert "log std" not in next(line for line in lines if line.startswith("initialised from"))
+
+
+def _held(demos):
+    """The pairs a dataset holds, oldest first: obs (n, D), actions (n, 2)."""
+    return demos.newest(demos.size)
+
+
+def test_demonstration_files_give_back_the_newest_pairs_and_keep_about_one_dataset(tmp_path):
+    """Saved before each checkpoint, the files refill a dataset as the checkpoint had it (also after
+    the ring wrapped); files of a later update (a crash cut its checkpoint) are not taken, and files
+    holding only dropped pairs are removed."""
+    from train.demonstration_files import DemonstrationFiles
+
+    files = DemonstrationFiles(tmp_path)
+    demos = Demonstrations(capacity=7, obs_dim=1)
+    for update in range(1, 5):  # 3 pairs per update: 12 in all, the ring wraps
+        first = 3 * (update - 1)
+        demos.add(torch.arange(first, first + 3.0)[:, None], torch.full((3, 2), float(update)))
+        files.save(demos, update)
+        files.prune(demos)  # after the checkpoint
+    assert len(list(files.folder.iterdir())) == 3  # the file of update 1 held only dropped pairs
+    at_4 = _held(demos)
+    demos.add(torch.arange(100.0, 103.0)[:, None], torch.zeros(3, 2))
+    files.save(demos, 5)  # its checkpoint never written: a resume from update 4 must not take it
+    again = Demonstrations(capacity=7, obs_dim=1)
+    assert files.restore(again, 4, total=12) == 7
+    assert again.size == 7 and again.total == 12
+    for a, b in zip(_held(again), at_4):
+        assert torch.equal(a, b)
+    assert [float(x) for x in _held(again)[0][:, 0]] == [5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0]
+    assert not any(p.name.startswith("u0000005") for p in files.folder.iterdir())
+    again.add(torch.tensor([[12.0]]), torch.zeros(1, 2))  # goes on dropping the oldest first
+    assert [float(x) for x in _held(again)[0][:, 0]] == [6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0]
+    # a damaged file costs its pairs and the older ones, not the resume
+    newest = max(files.folder.iterdir())
+    newest.write_bytes(b"not a tensor file")
+    assert files.restore(Demonstrations(capacity=7, obs_dim=1), 4, total=12) == 0
+
+
+def test_a_resumed_dagger_run_keeps_the_demonstrations_its_last_checkpoint_had(tmp_path):
+    """The dataset was not kept: a resumed DAgger run started it empty and learned from the few
+    pairs of its next rollouts alone, losing far more than one update."""
+    sets = ["name=keep", "algo=dagger", "task.fidelity=point", "task.n_pursuers=2", "n_envs=2", "ppo.batch_size=64",
+            "task.max_steps=20", "run.validation_episodes=1",
+            "total_steps=96", "imitation.grad_steps=2", "imitation.minibatch_size=16", "net.encoder_width=8",
+            "net.hidden=[8]", "run.progress=false", "run.validate_every=0", "run.split_update=false",
+            f"run.runs_dir={tmp_path}"]
+    first = Trainer(load_train_config([], sets), log=lambda s: None)
+    first.train()
+    assert first.counters.update == 3 and first.demos.total == 3 * 64
+    expected = _held(first.demos)
+    resumed = Trainer.resume(tmp_path / "keep", total_steps=160, log=lambda s: None)
+    try:
+        assert resumed.demos.total == first.demos.total
+        for a, b in zip(_held(resumed.demos), expected):
+            assert torch.equal(a, b)
+    finally:
+        resumed.close()

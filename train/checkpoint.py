@@ -41,7 +41,7 @@ FORMAT = "pursuit-mj-checkpoint"
 VERSION = 1
 REQUIRED = ("format", "version", "train_config", "obs_spec", "actor", "counters")
 DICTS = ("train_config", "obs_spec", "actor", "counters", "critic", "optimizer", "rng", "value_norm", "discount",
-         "pending_row", "anchor_actor")
+         "pending_row", "anchor_actor", "demonstrations")
 #: what zipfile raises for an archive whose directory or headers are damaged: besides BadZipFile, a damaged
 #: byte can ask for a zip version, compression method or encryption it lacks (NotImplementedError,
 #: RuntimeError) or make a stored entry read as deflated (zlib.error)

@@ -20,8 +20,9 @@ teacher is privileged (learning by cheating, Chen et al. 2019): it acts on the s
 perceived with an all-round, exact view (or fully observed), and the student learns to do
 from its own, poorer observations what the teacher does knowing more.
 
-The dataset is not stored in checkpoints (it is rebuilt from new rollouts after a resume);
-weights, optimiser, counters and random streams are.
+The dataset is kept beside the checkpoints (train/demonstration_files.py): a resumed run
+goes on with the pairs its last checkpoint had, as it goes on with its weights, optimiser,
+counters and random streams.
 """
 
 from __future__ import annotations
@@ -41,18 +42,44 @@ from .storage import Rollout
 
 
 class Demonstrations:
-    """A ring buffer of (observation (D,) float32, teacher action (2,) in [-1, 1]) pairs."""
+    """A ring buffer of (observation (D,) float32, teacher action (2,) in [-1, 1]) pairs.
+
+    total counts the pairs ever added (also those dropped since); the pairs added since
+    `mark_saved` are what `unsaved` gives to be kept on disk (demonstration_files.py)."""
 
     def __init__(self, capacity: int, obs_dim: int):
         self.obs = torch.zeros(capacity, obs_dim)
         self.actions = torch.zeros(capacity, 2)
         self.capacity = capacity
         self.size = 0
+        self.total = 0
+        self._saved = 0
         self._next = 0
+
+    def newest(self, count: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """The newest min(count, size) pairs, oldest first: obs (n, D) and actions (n, 2) (copies)."""
+        count = min(count, self.size)
+        idx = (self._next - count + torch.arange(count)) % self.capacity
+        return self.obs[idx], self.actions[idx]
+
+    def unsaved(self) -> tuple[int, torch.Tensor, torch.Tensor]:
+        """(index in total of the first, obs, actions) of the pairs added since mark_saved and still held."""
+        obs, actions = self.newest(self.total - self._saved)
+        return self.total - obs.shape[0], obs, actions
+
+    def mark_saved(self) -> None:
+        self._saved = self.total
+
+    def refill(self, obs: torch.Tensor, actions: torch.Tensor, total: int) -> None:
+        """Hold exactly these pairs (oldest first, at most capacity), the newest of `total` ever added."""
+        n = obs.shape[0]
+        self.obs[:n], self.actions[:n] = obs, actions
+        self.size, self._next, self.total, self._saved = n, n % self.capacity, int(total), int(total)
 
     def add(self, obs: torch.Tensor, actions: torch.Tensor) -> None:
         """obs (B, D), actions (B, 2); the oldest pairs make room when full."""
         n = obs.shape[0]
+        self.total += n
         if n >= self.capacity:
             obs, actions, n = obs[-self.capacity :], actions[-self.capacity :], self.capacity
         idx = (self._next + torch.arange(n)) % self.capacity

@@ -5,6 +5,7 @@ Run folder (<runs_dir>/<name>/):
     best.pt        the checkpoint with the best validation success so far
     metrics.jsonl  one row per update: counters, throughput, reward terms, losses, validation
     config.yaml    the resolved TrainConfig
+    demonstrations/  DAgger only: the dataset's pairs, written before each last.pt (demonstration_files.py)
 A kill -9 at any moment therefore loses at most the update in flight. Ctrl-C stops at once
 and keeps the last consistent state: `Trainer.resume(run_dir)` continues with the same
 counters, optimiser state and sampling streams (torch's); the environments start afresh,
@@ -40,6 +41,7 @@ from .checkpoint import check_obs_spec, is_training_checkpoint, load_checkpoint,
 from .child_process import WorkerExited
 from .config import NetConfig, TrainConfig, defaults_filled_in, train_config_from_dict, usable_cores
 from .critic_worker import CriticWorker
+from .demonstration_files import FOLDER as DEMONSTRATIONS, DemonstrationFiles
 from .discount import Discount
 from .imitation import DaggerCollector, Demonstrations, imitation_update, teacher_share
 from .metrics_log import MetricsLog, json_ready, missing_updates
@@ -155,6 +157,8 @@ class Trainer:
             else:
                 teacher = make_policy(cfg.imitation.teacher, teacher_task, seed=cfg.seed, source="imitation.teacher")
             self.demos = Demonstrations(cfg.imitation.dataset_size, self.env.obs_dim)
+            if checkpoint is not None:
+                self._restore_demonstrations(checkpoint)
             self.collector = DaggerCollector(self.env, self.model, teacher, self.demos, self.generator, make_action_path(cfg, self.env),
                                              teacher_task=None if teacher_task is cfg.task else teacher_task)
         elif not self.overlap:
@@ -268,6 +272,19 @@ class Trainer:
             self.log(f"note: {metrics.path} lacks the rows of updates {span} (deleted or cut since they were "
                      f"logged); the log goes on from update {logged + 1}")
         self.log(f"resumed {self.run_dir} at update {self.counters.update} ({self.counters.world_steps} world steps)")
+
+    def _restore_demonstrations(self, data: dict) -> None:
+        """DAgger: refill the dataset with the pairs last.pt's update had (demonstration_files.py)."""
+        total = (data.get("demonstrations") or {}).get("total")
+        if not isinstance(total, int) or isinstance(total, bool) or total < 0:
+            self.log("note: last.pt keeps no count of demonstrations (written before they were kept): the dataset "
+                     "refills from new rollouts")
+            return
+        kept = DemonstrationFiles(self.run_dir).restore(self.demos, self.counters.update, total)
+        held = min(total, self.demos.capacity)
+        if kept < held:
+            self.log(f"note: {self.run_dir / DEMONSTRATIONS}: {kept} of the {held} demonstration pairs last.pt had were "
+                     f"found (files missing or damaged); the dataset refills from new rollouts")
 
     def _refuse_an_earlier_run(self) -> None:
         """A new run in a folder whose last.pt is gone but whose log or best.pt reach past the first
@@ -403,6 +420,8 @@ class Trainer:
             "value_norm": self.model.value_norm.state_dict() if self.model.value_norm else {},
             "discount": self.discount.state_dict(),
             **({"anchor_actor": self.anchor.state_dict()} if self.anchor is not None else {}),
+            # DAgger: how many pairs were ever added; the pairs are in RUN/demonstrations (demonstration_files.py)
+            **({"demonstrations": {"total": self.demos.total}} if self.demos is not None else {}),
             "counters": dataclasses.asdict(self.counters),
             "rng": {"sampler": self.generator.get_state(), "torch": torch.get_rng_state()},
             # the log row of an update whose validation Ctrl-C cut short (plain JSON values): a resume
@@ -416,7 +435,12 @@ class Trainer:
 
     def save(self, name: str = "last.pt") -> Path:
         try:
+            demo_files = DemonstrationFiles(self.run_dir) if name == "last.pt" and self.demos is not None else None
+            if demo_files is not None:  # first: last.pt counts the pairs on disk
+                demo_files.save(self.demos, self.counters.update)
             path = save_checkpoint(self.run_dir / name, self.checkpoint_payload())
+            if demo_files is not None:
+                demo_files.prune(self.demos)
         except ValueError as exc:  # a full disk, a folder made read-only: say what is kept and how to go on
             raise self._cannot_write(exc) from None
         if name == "last.pt":
