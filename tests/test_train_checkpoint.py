@@ -1098,3 +1098,19 @@ def test_a_log_line_that_is_json_but_not_a_row_is_skipped_like_a_line_cut_short(
         f.write("[1]\n")
     assert Trainer.resume(cfg.run_dir, total_steps=64, log=lambda s: None).train()["counters"]["update"] == 2
     assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2]
+
+
+def test_a_log_row_whose_update_is_no_number_is_skipped_like_a_garbled_line(tmp_path):
+    """{"update": null} (a hand edit) was returned as a row, and --resume compared None with a number:
+    a TypeError from deep in Trainer._restore."""
+    from train.metrics_log import MetricsLog
+
+    log = MetricsLog(tmp_path / "m.jsonl")
+    log.path.write_bytes(b'{"update": 1}\n{"update": null}\n{"update": "2"}\n{"update": true}\n{"update": 3}\n')
+    assert [r["update"] for r in log.rows()] == [1, 3]
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    with open(cfg.run_dir / "metrics.jsonl", "a") as f:
+        f.write('{"update": null}\n')
+    assert Trainer.resume(cfg.run_dir, total_steps=64, log=lambda s: None).train()["counters"]["update"] == 2
+    assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2]

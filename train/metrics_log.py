@@ -37,8 +37,9 @@ class MetricsLog:
             raise ValueError(f"metrics log {self.path}: cannot append to it ({exc.strerror or exc})") from None
 
     def rows(self) -> list[dict[str, Any]]:
-        """Every complete row, a JSON object (a line cut short by a crash is skipped, and so is a
-        line of other JSON, [1] or 7, garbled or hand-edited: readers take each row as a dict)."""
+        """Every complete row, a JSON object whose update (if any) is an integer (a line cut short by
+        a crash is skipped, and so is a line of other JSON, [1], 7 or {"update": null}, garbled or
+        hand-edited: readers take each row as a dict and compare its update)."""
         if not self.path.exists():
             return []
         out = []
@@ -47,7 +48,7 @@ class MetricsLog:
                 row = json.loads(line)
             except json.JSONDecodeError:
                 continue
-            if isinstance(row, dict):
+            if isinstance(row, dict) and _is_count(row.get("update", 0)):
                 out.append(row)
         return out
 
@@ -80,9 +81,13 @@ class MetricsLog:
                              f"({exc.strerror or exc})") from None
 
 
+def _is_count(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
 def _row_update(line: bytes) -> int | None:
     """The update number of a whole row line (0 if it names none, as `rows` readers take it); None
-    for a line that is not a JSON object (cut short by a crash, garbled)."""
+    for a line that is no row of `rows` (cut short by a crash, garbled)."""
     try:
         row = json.loads(line)
     except (json.JSONDecodeError, UnicodeDecodeError):
@@ -90,9 +95,7 @@ def _row_update(line: bytes) -> int | None:
     if not isinstance(row, dict):
         return None
     number = row.get("update", 0)
-    if isinstance(number, bool) or not isinstance(number, (int, float)) or not math.isfinite(number):
-        return 0
-    return int(number) if float(number).is_integer() else math.ceil(number)
+    return number if _is_count(number) else None  # {"update": null}: garbled, as `rows` takes it
 
 
 def missing_updates(present: set[int], logged: int) -> tuple[int, int, int] | None:
