@@ -36,6 +36,7 @@ def register(sub) -> None:
     presets = ", ".join(preset_names("train"))
     p = sub.add_parser(
         "train",
+        allow_abbrev=False,  # scripts pass train flags on: --see 4 must not quietly be --seed 4
         help="train pursuers: PPO / MAPPO in the regimes classic, full_obs, fine_tune; imitation; residual",
         description="Train a shared pursuer policy. Settings: defaults <- --config files <- flags <- --set. "
         "Outputs go to <run.runs_dir>/<name>/: last.pt (every update), best.pt (best validation success), "

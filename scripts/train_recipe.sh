@@ -48,7 +48,7 @@ for arg in "$@"; do
       echo "train_recipe.sh: $arg is set by the recipe itself (use --runs-dir DIR, --name NAME)" >&2; exit 2 ;;
     # each stage sets its own seed (--set seed=, which wins over a flag), so a seed among the train flags
     # would reach only the stage that sets none, silently giving a chain of mixed seeds
-    --seed|--seed=*|seed=*)
+    --seed|--seed=*|seed=*|--set=seed=*)
       echo "train_recipe.sh: $arg among the train flags would reach only some stages (the recipe sets each" \
         "stage's seed); give --seed S first, before any train flag" >&2; exit 2 ;;
     --runs-dir|--runs-dir=*)

@@ -79,6 +79,7 @@ def test_recipe_refuses_bad_flags_before_training(tmp_path, args, message):
     (["--set", "run.progress=false", "--seed", "4"], "--seed among the train flags would reach only some stages"),
     (["--seed=4"], "--seed=4 among the train flags would reach only some stages"),
     (["--set", "seed=4"], "seed=4 among the train flags would reach only some stages"),
+    (["--set=seed=4"], "--set=seed=4 among the train flags would reach only some stages"),
     (["--set", "run.progress=false", "--runs-dir", "x"], "--runs-dir comes before the train flags"),
 ])
 def test_recipe_refuses_a_seed_or_runs_dir_among_the_train_flags(tmp_path, args, message):

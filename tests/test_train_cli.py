@@ -631,3 +631,11 @@ def test_train_help_places_the_run_folder_under_run_runs_dir(capsys):
     out = " ".join(capsys.readouterr().out.split())
     assert "--name NAME run name: its folder is <run.runs_dir>/<name> (runs/<name> by default)" in out, out
     assert "stream the logged scalars to <run.runs_dir>/<name>/metrics.rrd" in out, out
+
+
+def test_train_refuses_an_abbreviated_flag_instead_of_guessing_it(capsys):
+    """argparse took --see 4 for --seed 4 (and --tot for --total-steps): scripts that pass train flags
+    on, as scripts/train_recipe.sh does, could not tell a seed among them; flags are now given whole."""
+    with pytest.raises(SystemExit) as stopped:
+        main(["train", "--config", "classic", "--see", "4"])
+    assert stopped.value.code == 2 and "unrecognized arguments: --see 4" in capsys.readouterr().err
