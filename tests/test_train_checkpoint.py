@@ -1114,3 +1114,32 @@ def test_a_log_row_whose_update_is_no_number_is_skipped_like_a_garbled_line(tmp_
         f.write('{"update": null}\n')
     assert Trainer.resume(cfg.run_dir, total_steps=64, log=lambda s: None).train()["counters"]["update"] == 2
     assert [r["update"] for r in rows(cfg.run_dir)] == [1, 2]
+
+
+def test_a_second_ctrl_c_during_the_interrupts_save_still_says_how_to_go_on(tmp_path, monkeypatch):
+    """Ctrl-C, then Ctrl-C again while the interrupted run saved its last update: the second one
+    escaped train() and nothing said what last.pt kept or how to resume. Now it cuts the save
+    (last.pt stays the one before, whole) and the run says so."""
+    cfg = tiny_config(tmp_path, updates=10, extra=["run.checkpoint_every=2"])
+    lines = []
+    trainer = Trainer(cfg, log=lines.append)
+    calls = {"collect": 0}
+    real_collect, real_save = trainer.collector.collect, trainer.save
+
+    def collect(*args, **kwargs):
+        calls["collect"] += 1
+        if calls["collect"] == 4:  # update 3 is done, last.pt holds update 2
+            monkeypatch.setattr(trainer, "save", second_ctrl_c)
+            raise KeyboardInterrupt
+        return real_collect(*args, **kwargs)
+
+    def second_ctrl_c(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(trainer.collector, "collect", collect)
+    assert trainer.train()["status"] == "interrupted"
+    said = "\n".join(lines)
+    assert f"interrupted: state of update 2 is in {cfg.run_dir / 'last.pt'}; continue with: pursuit-mj train --resume" in said, said
+    assert load_checkpoint(cfg.run_dir / "last.pt")["counters"]["update"] == 2
+    monkeypatch.undo()
+    assert Trainer.resume(cfg.run_dir, total_steps=32 * 4, log=lambda s: None).train()["counters"]["update"] == 4

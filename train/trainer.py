@@ -758,7 +758,10 @@ class Trainer:
                 raise
             status = "interrupted"
             if self._consistent and (self._saved_update != c.update or self._pending_row):
-                self.save()
+                try:
+                    self.save()
+                except KeyboardInterrupt:  # a second Ctrl-C: the save is atomic, so last.pt is the one before, whole
+                    self.log(f"\nsecond interrupt: the save of update {c.update} was cut short")
             if (self.run_dir / "last.pt").is_file():
                 self.log(f"\ninterrupted: state of update {self._saved_update} is in {self.run_dir / 'last.pt'}; "
                          f"continue with: {self.resume_command}")
