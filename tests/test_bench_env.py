@@ -219,3 +219,13 @@ def test_a_figure_no_machine_gives_is_called_unreliable_not_met():
     negative = env.EnvBench("point", 64, 3, raw_s=0.01, physics_s=0.01, env_s=0.0097, blocks=2, peak_rss_mb=1.0)
     assert env.aim_line(negative).endswith("-3 %, unreliable (below 0: the env does more work than physics; the "
                                            "machine's speed changed between blocks; run it again on an idle machine)")
+
+
+def test_bench_physics_sizes_its_rounds_to_fill_the_seconds_asked():
+    """A round times a block of ours and one of raw: sized by ours alone (2 x ours), a run whose raw
+    steps take half as long measured for 3/4 of --seconds."""
+    from pursuit_cli.benchmarks.physics import measuring_rounds
+
+    assert measuring_rounds(3.0, 10, 0.01, 0.005) == 20  # 20 rounds x 10 steps x 15 ms = 3 s
+    assert measuring_rounds(3.0, 10, 0.01, 0.01) == 15
+    assert measuring_rounds(0.01, 10, 0.01, 0.005) == 2  # at least two

@@ -82,6 +82,12 @@ def task_config(fidelity: str, overrides: Sequence[str] = ()) -> TaskConfig:
     return config
 
 
+def measuring_rounds(seconds: float, n: int, ours_s: float, raw_s: float) -> int:
+    """Rounds of one block of n steps each way (ours_s and raw_s s per step) that fill `seconds`
+    (at least 2). Sizing them by ours alone, twice, measured for less than asked: raw is faster."""
+    return max(2, int(round(seconds / (n * (ours_s + raw_s)))))
+
+
 def measure(fidelity: str, n_worlds: int, seconds: float, nthread: int = 0, seed: int = 0, overrides: Sequence[str] = ()) -> PhysicsBench:
     """Time raw and controlled stepping of one configuration in alternating blocks."""
     from ..simulate import spawn_positions
@@ -110,9 +116,10 @@ def measure(fidelity: str, n_worlds: int, seconds: float, nthread: int = 0, seed
             fn()
         return (time.perf_counter() - start) / n
 
-    first = block(ours, 2)  # also warms up
-    n = int(np.clip(round(BLOCK_SECONDS / first), 1, MAX_BLOCK_STEPS))
-    rounds = max(2, int(round(seconds / (2 * n * first))))
+    block(ours, 2), block(raw, 2)  # warm-up
+    first_ours, first_raw = block(ours, 2), block(raw, 2)
+    n = int(np.clip(round(BLOCK_SECONDS / first_ours), 1, MAX_BLOCK_STEPS))
+    rounds = measuring_rounds(seconds, n, first_ours, first_raw)
     t_ours, t_raw = [], []
     for _ in range(rounds):
         t_ours.append(block(ours, n))
