@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 import torch
 
@@ -639,3 +640,19 @@ def test_train_refuses_an_abbreviated_flag_instead_of_guessing_it(capsys):
     with pytest.raises(SystemExit) as stopped:
         main(["train", "--config", "classic", "--see", "4"])
     assert stopped.value.code == 2 and "unrecognized arguments: --see 4" in capsys.readouterr().err
+
+
+def test_a_trained_policy_given_nan_observations_names_them_not_its_actions(tiny_model):
+    """ActorPolicy.act checked only the observations' width: NaN in them came back as NaN actions,
+    which the caller then blamed on the policy ('act() gave nan')."""
+    from train.checkpoint import load_checkpoint
+    from train.policy import ActorPolicy, load_policy, spec_from_dict
+
+    policy = load_policy(tiny_model)
+    spec = spec_from_dict(load_checkpoint(tiny_model)["obs_spec"])
+    assert isinstance(policy, ActorPolicy)
+    obs = np.zeros((1, spec.n_pursuers, spec.dim), np.float32)
+    assert np.isfinite(policy.act(obs, spec)).all()
+    obs[0, 1, 3] = np.nan
+    with pytest.raises(ValueError, match=f"policy {policy.name}: observations contain NaN or inf"):
+        policy.act(obs, spec)

@@ -88,6 +88,8 @@ class ActorPolicy:
         x = flush_tiny(torch.as_tensor(np.asarray(obs, dtype=np.float32)))
         if x.shape[-1] != spec.dim:
             raise ValueError(f"policy {self.name}: observation width {x.shape[-1]} does not match its spec ({spec.dim})")
+        if not torch.isfinite(x).all():  # NaN actions would be blamed on the policy
+            raise ValueError(f"policy {self.name}: observations contain NaN or inf")
         with one_torch_thread():
             mean, log_std = self._forward(x.reshape(-1, spec.dim), spec)
             mean, log_std = mean.reshape(x.shape[:-1] + (2,)), log_std.reshape(x.shape[:-1] + (2,))
