@@ -15,6 +15,7 @@ is trained by PPO with the base inside the environment, so it starts where the b
 from __future__ import annotations
 
 import math
+import numbers
 
 import numpy as np
 
@@ -39,7 +40,7 @@ class ResidualTeam:
     has_shield = False
 
     def __init__(self, base: Policy, correction: Policy, scale: float):
-        if not (math.isfinite(scale) and scale > 0):
+        if isinstance(scale, bool) or not isinstance(scale, numbers.Real) or not (math.isfinite(scale) and scale > 0):
             raise ValueError(f"ResidualTeam: scale must be a positive number, got {scale!r}")
         self.base = base
         self.correction = correction

@@ -141,3 +141,11 @@ def test_a_residual_run_trains_validates_and_loads_as_its_team(tmp_path):
     assert policy.name == "res@heuristic+shield" and policy.has_shield
     assert isinstance(policy.policy, ResidualTeam) and policy.policy.scale == 0.5
     assert policy.policy.base.speed == 0.4  # the base team is sized for the task it runs in
+
+
+@pytest.mark.parametrize("scale", ["x", None, True, float("nan"), 0.0, -1.0])
+def test_a_residual_team_refuses_a_scale_that_is_no_positive_number_by_name(scale):
+    """scale='x' or None failed inside math.isfinite with a bare TypeError; True passed as 1.0."""
+    task = TaskConfig(fidelity="point")
+    with pytest.raises(ValueError, match="ResidualTeam: scale must be a positive number, got"):
+        ResidualTeam(HeuristicTeam.from_config(task), ConstantPolicy([0.0, 0.0]), scale=scale)
