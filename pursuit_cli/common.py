@@ -174,7 +174,8 @@ def one_flag_named(exc: ValueError, typed: str, given: dict, flag_of: dict) -> V
     import re
 
     text = str(exc)
-    found = re.match(re.escape(typed) + r": key '(?:task\.)?(\w+)'", text)
+    # "key 'n_pursuers': ..." of one key, or a check across keys that starts with the one it is about
+    found = re.match(re.escape(typed) + r": (?:key ')?(?:task\.)?(\w+)", text)
     flag = flag_of.get(found.group(1)) if found else None
     if flag is None or flag not in given or not typed.startswith("flags "):
         return exc

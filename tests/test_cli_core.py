@@ -95,6 +95,9 @@ def test_bench_physics_prints_the_table(capsys):
     [
         (["simulate", "--seconds", "0"], "--seconds: must be > 0"),
         (["simulate", "--layout", "8"], "flag --layout 8: key 'layout': 8 is not a built-in layout index (0-3)"),
+        # named all three flags typed, though only --delta-t is wrong
+        (["simulate", "-i", "0", "--fidelity", "point", "--delta-t", "0.002"],
+         "error: flag --delta-t 0.002: control_dt 0.002 is not a whole number of controller periods"),
         (["simulate", "--set", "n_pursuers=40"], "key 'n_pursuers': 40 is out of range"),
         (["simulate", "--layout", "3", "--set", "random_obstacles=40", "--seconds", "0.3"], "lower the task's random_obstacles (now 40)"),
         (["bench", "physics", "--worlds", "0"], "--worlds: world counts must be >= 1, got 0"),
