@@ -293,14 +293,12 @@ def test_a_recording_that_cannot_replace_the_file_under_its_name_keeps_its_episo
     assert rec.summary().startswith(f"--rerun {path}: cannot replace it") and f"(2 episodes; open with: rerun {kept})" in rec.summary()
 
 
-def test_render_names_the_rerun_flag_and_where_the_episodes_are_when_the_recording_cannot_replace_its_file(tmp_path, capsys, monkeypatch):
-    """An immutable file under the name (played by a refused rename): exit 2, one line naming
-    --rerun and the kept file, which holds the episodes."""
+def refuse_renames_onto(path, monkeypatch) -> None:
+    """Plays an immutable file at `path`: every rename of a finished file onto it is refused."""
     import os
 
     from pursuit_mj import io_utils
 
-    path, kept = tmp_path / "x.rrd", tmp_path / "x.new.rrd"
     replace = os.replace
 
     def refused(src, dst):
@@ -309,6 +307,13 @@ def test_render_names_the_rerun_flag_and_where_the_episodes_are_when_the_recordi
         replace(src, dst)
 
     monkeypatch.setattr(io_utils.os, "replace", refused)
+
+
+def test_render_names_the_rerun_flag_and_where_the_episodes_are_when_the_recording_cannot_replace_its_file(tmp_path, capsys, monkeypatch):
+    """An immutable file under the name (played by a refused rename): exit 2, one line naming
+    --rerun and the kept file, which holds the episodes."""
+    path, kept = tmp_path / "x.rrd", tmp_path / "x.new.rrd"
+    refuse_renames_onto(path, monkeypatch)
     assert main(["render", "--policy", "random", "--fidelity", "point", "--set", "max_steps=3", "--episodes", "2",
                  "--no-video", "--rerun", str(path)]) == 2
     err = capsys.readouterr().err
@@ -520,19 +525,8 @@ def test_the_summary_of_an_interrupted_recording_of_one_episode_says_it_in_the_s
 def test_eval_prints_and_writes_its_table_when_its_recording_cannot_replace_its_file(tmp_path, capsys, monkeypatch):
     """The table was lost (neither printed nor written) when only the recording failed at the end;
     now the table comes first, then the one-line error naming --rerun (exit 2)."""
-    import os
-
-    from pursuit_mj import io_utils
-
     path, table = tmp_path / "x.rrd", tmp_path / "t.csv"
-    replace = os.replace
-
-    def refused(src, dst):
-        if str(dst) == str(path):
-            raise PermissionError(1, "Operation not permitted", str(src), None, str(dst))
-        replace(src, dst)
-
-    monkeypatch.setattr(io_utils.os, "replace", refused)
+    refuse_renames_onto(path, monkeypatch)
     assert main(["eval", "--policy", "random", "--fidelity", "point", "--set", "max_steps=3", "--episodes", "2",
                  "--layouts", "0", "--worlds", "2", "--csv", str(table), "--rerun", str(path)]) == 2
     out, err = capsys.readouterr()
