@@ -240,6 +240,12 @@ def run(args) -> int:
             # Ctrl-C, SIGTERM, or a stop signal a library call reported as its own error (pursuit_cli.main)
             if isinstance(exc, KeyboardInterrupt) or getattr(args, "stop_signals", None):
                 keep_finished(rows, csv_path, json_path, config, meta)
+                raise
+            # a policy of one's own failed mid-table: say that the finished rows wait for --resume
+            if isinstance(exc, ValueError) and rows and json_path and interrupted_path(json_path).is_file():
+                kept = f"{len(rows)} finished row{' is' if len(rows) == 1 else 's are'} kept in {interrupted_path(json_path)}"
+                raise ValueError(f"{exc}; {kept}: run the same command with --resume once the cause is mended, "
+                                 f"to play only the rest") from None
             raise
         recording_error = None
         try:

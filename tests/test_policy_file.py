@@ -294,3 +294,18 @@ def test_a_policy_named_as_a_built_in_teams_rows_are_is_refused(tmp_path, capsys
     for ok in ("heuristics", "my heuristic", "random+shields"):
         path.write_text(GOOD.replace('name = "still"', f"name = {ok!r}"))
         assert make_policy(f"{path}:Still", default_config(), 0).name == ok
+
+
+def test_an_eval_whose_policy_file_fails_mid_table_says_where_the_finished_rows_are(tmp_path, capsys):
+    """The heuristic team's row was kept in t.interrupted.json, but the one-line error said nothing of
+    it: the user could not know that --resume, once the file is fixed, plays only the rest."""
+    path = _write(tmp_path, FAILING)
+    cmd = ["eval", "--policy", "heuristic", "--policy", f"{path}:Failing", "--layouts", "0", "--episodes", "1", "--worlds",
+           "1", "--fidelity", "point", "--set", "max_steps=3", "-q", "--out", str(tmp_path / "t")]
+    assert main(cmd) == 2
+    err = capsys.readouterr().err.strip()
+    kept = tmp_path / "t.interrupted.json"
+    assert "\n" not in err and err.endswith(f"; 1 finished row is kept in {kept}: run the same command with --resume "
+                                            f"once the cause is mended, to play only the rest"), err
+    path.write_text(FAILING.replace("return [][0]", "return np.zeros(obs.shape[:2] + (2,))"))
+    assert main(cmd + ["--resume"]) == 0
