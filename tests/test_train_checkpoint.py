@@ -1,6 +1,7 @@
 """Checkpoints: resume keeps counters, interrupts and kill -9 lose at most one update, bad files are refused."""
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -1142,3 +1143,20 @@ def test_a_second_ctrl_c_during_the_interrupts_save_still_says_how_to_go_on(tmp_
     assert load_checkpoint(cfg.run_dir / "last.pt")["counters"]["update"] == 2
     monkeypatch.undo()
     assert Trainer.resume(cfg.run_dir, total_steps=32 * 4, log=lambda s: None).train()["counters"]["update"] == 4
+
+
+def test_best_pt_holds_its_updates_validation_so_a_copy_over_last_pt_resumes_without_validating_again(tmp_path):
+    """best.pt was written before its update's row held the validation that made it best, so a resume
+    from it (best_instead advises copying it over a damaged last.pt) validated that update again and
+    logged it with best false."""
+    cfg = tiny_config(tmp_path, updates=1)  # validate_every 0: the closing validation of update 1 makes it best
+    Trainer(cfg, log=lambda s: None).train()
+    best = load_checkpoint(cfg.run_dir / "best.pt")
+    assert best["pending_row"]["validation"]["best"] is True
+    shutil.copyfile(cfg.run_dir / "best.pt", cfg.run_dir / "last.pt")
+    (cfg.run_dir / "metrics.jsonl").write_text("")  # as if the row never reached the log
+    resumed = Trainer.resume(cfg.run_dir, log=lambda s: None)
+    validated = []
+    resumed.validate = lambda: validated.append(1) or {}
+    resumed.train()
+    assert validated == [] and [r["validation"]["best"] for r in rows(cfg.run_dir)] == [True]

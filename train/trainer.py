@@ -476,10 +476,14 @@ class Trainer:
             summary.update(versus(records, self._heuristic_records, self.cfg.task.max_steps))
         return summary
 
-    def _maybe_best(self, val: dict[str, float]) -> bool:
+    def _maybe_best(self, val: dict[str, float], logged: dict | None = None) -> bool:
+        """Save best.pt if `val` beats the best so far; `logged` (the row's validation entry, if
+        given) says best in the copy best.pt keeps of the pending row."""
         c = self.counters
         better = val["success"] > c.best_success or (val["success"] == c.best_success and val["capture_steps"] < c.best_steps)
         if better:
+            if logged is not None:
+                logged["best"] = True
             before = c.best_success, c.best_steps, c.best_update
             c.best_success, c.best_steps, c.best_update = val["success"], val["capture_steps"], c.update
             try:
@@ -670,7 +674,12 @@ class Trainer:
         spent = time.perf_counter() - t0
         c.seconds += spent
         c.validation_seconds += spent
-        row["validation"] = dict(val, best=self._maybe_best(val), seconds=spent)
+        row["validation"] = dict(val, best=False, seconds=spent)  # in the row first: best.pt holds it
+        try:
+            row["validation"]["best"] = self._maybe_best(val, row["validation"])
+        except BaseException:  # best.pt not replaced: a resume validates this update again
+            del row["validation"]
+            raise
         return val
 
     def _log_row(self, row: dict, bar, last_val: dict) -> None:
