@@ -42,6 +42,13 @@ def down(fleet, which=slice(None)) -> bool:
     return bool((state["pos"][which, 2] < 0.03).all() and not state["motors"][which].any())
 
 
+def settle(fleet) -> None:
+    """Wait (up to 3 s) for the drones to be down. With a RacingClock the motors stop once a drone
+    reports under 0.1 m, and the last few cm it drops on the drones' own clock, which a loaded
+    computer runs late: read the fleet only then."""
+    wait_for(lambda: down(fleet), 3.0)
+
+
 def never_took_off(fleet) -> bool:
     return not any(r.kind == "takeoff" for i in range(fleet.plan.n_drones) for r in fleet.received(i))
 
@@ -122,10 +129,8 @@ def test_a_landing_that_runs_late_is_waited_for_before_the_motors_stop(tmp_path)
         time.sleep(0.3)
         bridge.request_land("test")
 
-    # motors stop once a drone reports under 0.1 m; the last few cm it drops on the drones' own
-    # clock, which a loaded computer runs late: the fleet is read once they are down or 3 s on
     result, events, fleet = fly_virtual(quick_plan(max_time=8.0), HOVER, tmp_path, during=land_late, clock=clock,
-                                        aftermath=lambda fleet: wait_for(lambda: down(fleet), 3.0))
+                                        aftermath=settle)
     assert result.outcome == "land_requested" and result.landed, (result.outcome, result.heights)
     assert events.of_kind("landed")[0]["not_down"] == [] and (result.heights < 0.1).all()
     for i in range(fleet.plan.n_drones):  # motors stopped once the drone's own landing was over, not in the air
@@ -169,7 +174,8 @@ def test_a_take_off_that_runs_late_is_waited_for_before_it_is_judged(tmp_path):
         bridge.request_land("test")
 
     result, events, fleet = fly_virtual(quick_plan(max_time=8.0), HOVER, tmp_path, during=land_soon, clock=clock,
-                                        sink=lambda record: clock.race(3.0) if record["kind"] == "takeoff" else None)
+                                        sink=lambda record: clock.race(3.0) if record["kind"] == "takeoff" else None,
+                                        aftermath=settle)
     assert result.outcome == "land_requested" and result.landed, (result.outcome, result.reason)
     airborne = np.array(events.of_kind("airborne")[0]["heights"])
     assert np.abs(airborne - 0.3).max() <= 0.15  # judged once it got there
