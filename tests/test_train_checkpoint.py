@@ -1160,3 +1160,37 @@ def test_best_pt_holds_its_updates_validation_so_a_copy_over_last_pt_resumes_wit
     resumed.validate = lambda: validated.append(1) or {}
     resumed.train()
     assert validated == [] and [r["validation"]["best"] for r in rows(cfg.run_dir)] == [True]
+
+
+def test_a_resume_reads_last_pt_only_once_it_holds_the_folder(tmp_path, monkeypatch):
+    """Trainer.resume read last.pt before it took the folder's lock: a trainer of the same folder
+    that saved and ended in between left the resume one checkpoint behind (and it then
+    overwrote the newer last.pt)."""
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    real_load = trainer_module.load_checkpoint
+    seen = {}
+
+    def load_and_try_the_lock(path):
+        try:
+            trainer_module.lock_run_folder(cfg.run_dir).close()
+            seen[Path(path).name] = "free"  # another trainer could still write last.pt after this read
+        except ValueError:
+            seen[Path(path).name] = "held"
+        return real_load(path)
+
+    monkeypatch.setattr(trainer_module, "load_checkpoint", load_and_try_the_lock)
+    resumed = Trainer.resume(cfg.run_dir, total_steps=64, log=lambda s: None)
+    assert seen["last.pt"] == "held"
+    with pytest.raises(ValueError, match="is in use by another trainer"):
+        Trainer.resume(cfg.run_dir, total_steps=64, log=lambda s: None)  # refused, the folder left to the first
+    assert resumed.train()["counters"]["update"] == 2
+    monkeypatch.setattr(trainer_module, "load_checkpoint", real_load)
+    (cfg.run_dir / "last.pt").write_bytes(b"damaged")
+    with pytest.raises(ValueError):
+        Trainer.resume(cfg.run_dir, log=lambda s: None)
+    # a refused resume frees the folder:
+    trainer_module.lock_run_folder(cfg.run_dir).close()
+    with pytest.raises(ValueError):
+        Trainer.resume(tmp_path / "no_such_run", log=lambda s: None)
+    assert not (tmp_path / "no_such_run").exists()  # and makes no folder of a mistyped name

@@ -24,7 +24,7 @@ import os
 import shutil
 import time
 from pathlib import Path
-from typing import Callable
+from typing import IO, Callable
 
 import numpy as np
 import torch
@@ -79,7 +79,18 @@ class Trainer:
     weights. `log` receives one-line messages (resume, init, interrupt).
     """
 
-    def __init__(self, cfg: TrainConfig, checkpoint: dict | None = None, log: Callable[[str], None] = print):
+    def __init__(self, cfg: TrainConfig, checkpoint: dict | None = None, log: Callable[[str], None] = print,
+                 held_lock: IO | None = None):
+        """`held_lock`: the run folder's lock, already taken by the caller (`resume` takes it before it
+        reads last.pt); the trainer owns it from here on and releases it when it ends or cannot start."""
+        try:
+            self._start(cfg, checkpoint, log, held_lock)
+        except BaseException:
+            if held_lock is not None and getattr(self, "_lock", None) is None:
+                held_lock.close()  # refused before the trainer took it over
+            raise
+
+    def _start(self, cfg: TrainConfig, checkpoint: dict | None, log: Callable[[str], None], held_lock: IO | None) -> None:
         cfg.check_complete()
         cfg.check_layouts()  # before the run folder is made: a bad one named with its key, not from deep in the env
         cfg.check_code()
@@ -97,7 +108,8 @@ class Trainer:
         made_folder = not self.run_dir.exists()
         check_writable_folder(self.run_dir, f"run folder (run.runs_dir {cfg.run.runs_dir}, name {cfg.name})")
         try:
-            self._lock = lock_run_folder(self.run_dir)  # before anything in the folder is read or written
+            # before anything in the folder is read or written
+            self._lock = held_lock if held_lock is not None else lock_run_folder(self.run_dir)
         except FolderInUse:  # another trainer made it meanwhile, perhaps: it is that one's
             raise
         except ValueError:  # it could not be written: remove what this run made
@@ -186,6 +198,20 @@ class Trainer:
         run (total_steps, max_minutes), the progress bar and rerun streaming may change. `check(stored config)`
         runs before anything is restored (to refuse a resume asked with other settings)."""
         run_dir = Path(run_dir).resolve()  # `--resume .` from inside the folder: its name, not ''
+        # held before last.pt is read: a trainer of this folder ending meanwhile cannot leave it one save behind
+        lock = lock_run_folder(run_dir) if run_dir.is_dir() else None
+        try:
+            return cls._resume_holding(run_dir, lock, total_steps, log, max_minutes, progress, check, rerun)
+        except BaseException:
+            if lock is not None and not lock.closed:
+                lock.close()
+            raise
+
+    @classmethod
+    def _resume_holding(cls, run_dir: Path, lock: IO | None, total_steps: int | None, log: Callable[[str], None],
+                        max_minutes: float | None, progress: bool | None,
+                        check: Callable[[TrainConfig], None] | None, rerun: bool | None) -> "Trainer":
+        """resume's work once it holds the run folder's lock (None where the folder does not exist)."""
         path = run_dir / "last.pt"
         try:
             data = load_checkpoint(path)
@@ -217,7 +243,7 @@ class Trainer:
             cfg = dataclasses.replace(cfg, total_steps=total_steps)
         if max_minutes is not None:
             cfg = dataclasses.replace(cfg, max_minutes=max_minutes)
-        return cls(cfg, checkpoint=data, log=log)
+        return cls(cfg, checkpoint=data, log=log, held_lock=lock)
 
     def _restore(self, data: dict, counters: Counters) -> None:
         path = self.run_dir / "last.pt"
