@@ -316,6 +316,9 @@ def test_an_interrupted_study_resumes_keeping_its_finished_arms_and_evaluations(
     assert timings["classic (train, earlier session)"] == json.loads((out_dir / "study.json").read_text())["arms"]["classic"]["train_seconds"]
     assert timings["total, all sessions"] > timings["total"] + timings["classic (train, earlier session)"]
     assert json.loads((out_dir / "study.json").read_text())["seconds"] == pytest.approx(timings["total, all sessions"], abs=0.2)
+    # the table says what it took: every session's budget (not the refused one's), and the time of all of them
+    assert table["budget_minutes"] == 0.8 and table["session_budgets_minutes"] == [0.8, 0.6, 0.8]
+    assert table["seconds_all_sessions"] == pytest.approx(timings["total, all sessions"], abs=0.2)
 
     # another episode count asked for: nothing kept counts
     played.clear()

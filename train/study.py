@@ -145,8 +145,9 @@ def _load_state(plan: StudyPlan) -> dict:
                 raise ValueError(f"--resume: the {arm.name} arm is kept as finished in {path}, but {exc}; delete its "
                                  f"entry under \"arms\" there and its run folder {plan.out / 'runs' / arm.name} to train "
                                  f"it again") from None
-    kept = {key: state[key] for key in ("evaluation", "seconds") if key in state}
-    return {"train_overrides": stored, "arms": arms, **kept}  # the evaluation is checked by KeptEvaluation, the seconds by _run_study
+    kept = {key: state[key] for key in ("evaluation", "seconds", "budgets") if key in state}
+    # the evaluation is checked by KeptEvaluation, the seconds and budgets by _run_study
+    return {"train_overrides": stored, "arms": arms, **kept}
 
 
 def kept_cells(out: Path) -> int:
@@ -414,17 +415,21 @@ def _refuse_an_earlier_study(plan: StudyPlan) -> None:
 
 def _run_study(plan: StudyPlan, log: Callable[[str], None], stop_requested: Callable[[], bool] | None) -> dict:
     """run_study in a folder it holds. study.json's "seconds" counts the wall time of every session so
-    far (to its last record, written as each arm or evaluated cell ends and when the session stops);
-    a session refused (ValueError) before it trained an arm or recorded any arm or cell adds nothing."""
+    far (to its last record, written as each arm or evaluated cell ends and when the session stops),
+    and its "budgets" the --budget-minutes of each of those sessions; a session refused (ValueError)
+    before it trained an arm or recorded any arm or cell adds nothing to either."""
     state = _load_state(plan)
     t_start = time.perf_counter()
     earlier_s = _earlier_sessions_seconds(state)
+    budgets = [*_earlier_sessions_budgets(state), plan.budget_minutes]  # this session's last
+    state.pop("budgets", None)  # recorded with this session's once it has worked
     worked = False  # the session trained or recorded something: its time counts whatever stops it
 
     def save() -> None:
         nonlocal worked
         worked = True
         state["seconds"] = round(earlier_s + time.perf_counter() - t_start, 1)
+        state["budgets"] = budgets
         _save_state(plan, state)
 
     def training() -> None:
@@ -437,7 +442,7 @@ def _run_study(plan: StudyPlan, log: Callable[[str], None], stop_requested: Call
         # only the time goes to the record on disk: the state in memory may hold an evaluation
         # emptied for a resume that was then refused (another --seed, say), which must not replace the kept one
         if worked or not isinstance(exc, ValueError):
-            _save_seconds(plan, round(earlier_s + time.perf_counter() - t_start, 1))
+            _save_seconds(plan, round(earlier_s + time.perf_counter() - t_start, 1), budgets)
         raise
     if earlier_s > 0:
         result["timings"]["total, all sessions"] = earlier_s + result["timings"]["total"]
@@ -445,14 +450,22 @@ def _run_study(plan: StudyPlan, log: Callable[[str], None], stop_requested: Call
     return result
 
 
-def _save_seconds(plan: StudyPlan, seconds: float) -> None:
-    """Set "seconds" in the study.json on disk, leaving the rest as it is (nothing if it cannot)."""
+def _save_seconds(plan: StudyPlan, seconds: float, budgets: list[float]) -> None:
+    """Set "seconds" and "budgets" in the study.json on disk, leaving the rest as it is (nothing if it cannot)."""
     try:
         state = json.loads((plan.out / STATE_FILE).read_text())
         if isinstance(state, dict):
-            _save_state(plan, {**state, "seconds": seconds})
+            _save_state(plan, {**state, "seconds": seconds, "budgets": budgets})
     except (OSError, ValueError):
         pass
+
+
+def _earlier_sessions_budgets(state: dict) -> list[float]:
+    """The --budget-minutes of the study's earlier sessions by its record ([] if none or unreadable)."""
+    budgets = state.get("budgets", [])
+    ok = isinstance(budgets, list) and all(
+        isinstance(b, (int, float)) and not isinstance(b, bool) and math.isfinite(b) and b > 0 for b in budgets)
+    return [float(b) for b in budgets] if ok else []
 
 
 def _earlier_sessions_seconds(state: dict) -> float:
@@ -603,7 +616,8 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
         save()
         evaluate_arm(regime)
     timings["total"] = time.perf_counter() - t_start
-    _write(plan, rows, timings, episodes)
+    save()  # the record's seconds and budgets, this session's included, for the table's meta
+    _write(plan, rows, timings, episodes, state)
     return {"rows": rows, "timings": timings, "episodes": episodes}
 
 
@@ -752,11 +766,15 @@ def _spent_minutes(run_dir: Path) -> float:
     return float(load_checkpoint(run_dir / "last.pt")["counters"]["seconds"]) / 60.0
 
 
-def _write(plan: StudyPlan, rows: Sequence, timings: dict[str, float], episodes: int) -> None:
+def _write(plan: StudyPlan, rows: Sequence, timings: dict[str, float], episodes: int, state: dict) -> None:
+    """The table, its charts and timings.json; table.json's meta holds this session's budget and
+    every session's (`state`'s record, this session's included) with their wall time."""
     paired, pairs = paired_report(rows, "heuristic", plan.eval_task.max_steps)
     atomic_write_text(plan.out / "table.txt", format_table(rows) + "\n" + (f"\n{paired}\n" if paired else ""))
     write_csv(rows, plan.out / "table.csv")
-    meta = {"budget_minutes": plan.budget_minutes, "episodes": episodes,
+    sessions = {"session_budgets_minutes": state.get("budgets", [plan.budget_minutes]),
+                "seconds_all_sessions": _earlier_sessions_seconds(state)}
+    meta = {"budget_minutes": plan.budget_minutes, **sessions, "episodes": episodes,
             "layouts": [str(l) for l in plan.layouts], "seed": plan.seed, "paired": pairs_to_dicts(pairs)}
     write_json(rows, plan.out / "table.json", plan.eval_task, meta)
     plot_rows(rows, plan.out / "plots")
