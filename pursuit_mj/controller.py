@@ -113,6 +113,28 @@ def cap_thrusts(thrusts: np.ndarray, max_thrust: float) -> np.ndarray:
     return np.minimum(thrusts, max_thrust, out=thrusts)  # a - (a - max) may round one ulp above max
 
 
+def _checked_angles(value: float | np.ndarray, method: str, what: str) -> np.ndarray:
+    """value as a float64 array, or ValueError naming method and what unless every angle is in (0, pi/2) rad."""
+    angles = np.asarray(value, dtype=np.float64)
+    if not (np.isfinite(angles).all() and (angles > 0).all() and (angles < np.pi / 2).all()):
+        raise ValueError(f"VelocityController.{method}: {what} limits must be in (0, pi/2) rad, got {angles}")
+    return angles
+
+
+def _limit_roll_pitch(force: np.ndarray, max_roll: float | np.ndarray, max_pitch: float | np.ndarray) -> None:
+    """Bring the desired force (3, N) N, world frame, fz > 0, within roll and pitch limits (rad)
+    each, keeping its vertical part, in place. A thrust direction of roll r and pitch p (ZYX
+    Euler angles, yaw 0) is (cos r sin p, -sin r, cos r cos p); so p = atan2(fx, fz) and
+    r = atan2(-fy, hypot(fx, fz)), and the limited force is (fz tan p, -fz tan r / cos p, fz)."""
+    fx, fy, fz = force
+    pitch = np.arctan2(fx, fz)
+    roll = np.arctan2(-fy, np.hypot(fx, fz))
+    np.clip(pitch, -max_pitch, max_pitch, out=pitch)
+    np.clip(roll, -max_roll, max_roll, out=roll)
+    force[0] = fz * np.tan(pitch)
+    force[1] = -fz * np.tan(roll) / np.cos(pitch)
+
+
 class VelocityController:
     """Tracks a world-frame planar velocity at a constant altitude with yaw held at zero.
 
@@ -139,6 +161,8 @@ class VelocityController:
         self._min_fz = 0.2 * m * GRAVITY
         self._max_fz = 4.0 * self.max_thrust  # N: the most vertical force all four rotors give, level
         self._tan_tilt: float | np.ndarray = float(np.tan(g.max_tilt))
+        # (roll, pitch) limits rad as the firmware's velocity loop has them, instead of the tilt limit; see set_roll_pitch_limits
+        self._roll_pitch: tuple[float | np.ndarray, float | np.ndarray] | None = None
         self._att = -0.5 * np.asarray(g.att, dtype=np.float64)[:, None]  # the 1/2 of vee(P - P^T) / 2
         self._rate_inertia = (self.inertia * np.asarray(g.rate, dtype=np.float64))[:, None]
         # omega x (I omega) = omega[_NEXT1] * omega[_NEXT2] * (I[_NEXT2] - I[_NEXT1])
@@ -147,11 +171,20 @@ class VelocityController:
 
     def set_max_tilt(self, max_tilt: float | np.ndarray) -> None:
         """Limit the commanded tilt to max_tilt rad: one value, or (n,) one per drone (as a
-        firmware parameter may differ between drones); 0 < max_tilt < pi/2."""
-        tilt = np.asarray(max_tilt, dtype=np.float64)
-        if not (np.isfinite(tilt).all() and (tilt > 0).all() and (tilt < np.pi / 2).all()):
-            raise ValueError(f"VelocityController.set_max_tilt: tilt limits must be in (0, pi/2) rad, got {tilt}")
+        firmware parameter may differ between drones); 0 < max_tilt < pi/2. Replaces any
+        roll and pitch limits (set_roll_pitch_limits)."""
+        tilt = _checked_angles(max_tilt, "set_max_tilt", "tilt")
         self._tan_tilt = float(np.tan(tilt)) if tilt.ndim == 0 else np.tan(tilt)
+        self._roll_pitch = None
+
+    def set_roll_pitch_limits(self, roll: float | np.ndarray, pitch: float | np.ndarray) -> None:
+        """Limit the commanded roll and pitch (rad, ZYX Euler angles) each, as the Crazyflie
+        firmware's velocity loop does (posCtlPid.rLimit and pLimit, position_controller_pid.c),
+        instead of the tilt: one value each, or (n,) one per drone; each in (0, pi/2). With
+        yaw held at 0, pitch tilts the thrust toward world x and roll toward world y, so on a
+        diagonal the thrust tilts further than either limit (up to 21.1 deg at 15 deg each).
+        set_max_tilt returns to a limit on the tilt."""
+        self._roll_pitch = (_checked_angles(roll, "set_roll_pitch_limits", "roll"), _checked_angles(pitch, "set_roll_pitch_limits", "pitch"))
 
     def reset(self, n: int, mask: np.ndarray | None = None) -> None:
         """Clear the altitude integrator of all N drones, or of those where mask (N,) is True."""
@@ -213,11 +246,15 @@ class VelocityController:
         # 2. limit the tilt of the desired thrust direction (and keep some thrust upward)
         np.maximum(fz, self._min_fz, out=fz)
         force[2] = fz
-        fxy = np.hypot(force[0], force[1])
-        scale = np.minimum(1.0, fz * self._tan_tilt / np.maximum(fxy, 1e-12))
-        force[:2] *= scale
+        if self._roll_pitch is None:
+            fxy = np.hypot(force[0], force[1])
+            scale = np.minimum(1.0, fz * self._tan_tilt / np.maximum(fxy, 1e-12))
+            force[:2] *= scale
+            z_des = force / np.hypot(fxy * scale, fz)
+        else:
+            _limit_roll_pitch(force, *self._roll_pitch)
+            z_des = force / np.sqrt((force * force).sum(0))
         thrust = (force * b3).sum(0)  # collective thrust along the current body z
-        z_des = force / np.hypot(fxy * scale, fz)
 
         # 3. attitude error e_R = vee(Rd^T R - R^T Rd) / 2 for the desired frame of yaw 0:
         # x_des = (s, -a b / s, -a c / s), y_des = (0, c / s, -b / s), z_des = (a, b, c)

@@ -368,3 +368,54 @@ def test_a_drone_facing_away_from_yaw_zero_turns_back_and_follows_the_command(ya
     assert abs(math.degrees(math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))) < 5.0
     assert state.vel[0, 0, 0] > 0.25 and abs(state.vel[0, 0, 1]) < 0.05
     assert abs(state.pos[0, 0, 2] - physics.config.flight_height) < 0.05
+
+
+def _roll_pitch(quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Roll and pitch (rad, ZYX Euler angles as the Crazyflie firmware has them) of quaternions (..., 4)."""
+    w, x, y, z = np.moveaxis(quat, -1, 0)
+    return np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)), np.arcsin(np.clip(2 * (w * y - x * z), -1.0, 1.0))
+
+
+def _reversals(physics) -> dict[str, tuple[float, float, float]]:
+    """Pursuer_0 reversed from 0.6 m/s along the diagonal (1, 1), pursuer_1 along x: for each,
+    its time to 90 % of the change (s), its largest tilt and its largest roll or pitch (rad)."""
+    directions = {"diagonal": np.array([1.0, 1.0]) / math.sqrt(2), "x": np.array([1.0, 0.0])}
+    cmd = np.zeros((1, 4, 2))
+    cmd[0, :2] = 0.6 * np.array(list(directions.values()))
+    for _ in range(20):
+        physics.step(cmd)
+    log, quats = FlightLog(physics), []
+    physics.observers.append(lambda p: quats.append(p.quaternions()[0, :2]))
+    for _ in range(15):
+        physics.step(-cmd)
+    t, vel, _, tilt = log.arrays()
+    roll, pitch = _roll_pitch(np.array(quats))
+    out = {}
+    for d, (name, direction) in enumerate(directions.items()):
+        progress = (0.6 - vel[:, d, :2] @ direction) / 1.2
+        out[name] = (float(t[np.argmax(progress >= 0.9)]), float(tilt[:, d].max()), float(max(np.abs(roll[:, d]).max(), np.abs(pitch[:, d]).max())))
+    return out
+
+
+def test_roll_and_pitch_limits_hold_each_axis_as_the_firmware_velocity_loop_does():
+    """The Crazyflie firmware's velocity loop (position_controller_pid.c) limits roll and pitch each
+    (posCtlPid.rLimit, pLimit), not the tilt: at 15 deg each a drone tilts up to 20-21 deg on a
+    diagonal and reverses there sooner than under the simulator's 15 deg tilt limit (0.49 s
+    against 0.58 to 90 % of a reversal from 0.6 m/s); along an axis the two limits are the same.
+    The virtual Crazyflies fly their firmware's limits so."""
+    cone = _reversals(make_physics(pursuer_speed=0.6))
+    box_physics = make_physics(pursuer_speed=0.6)
+    box_physics.controller.set_roll_pitch_limits(math.radians(15.0), math.radians(15.0))
+    box = _reversals(box_physics)
+    assert box["x"][0] == cone["x"][0] and math.degrees(box["x"][1]) < 15.5
+    assert math.degrees(cone["diagonal"][1]) < 15.5 and math.degrees(box["diagonal"][1]) > 19.5
+    assert math.degrees(box["diagonal"][2]) < 15.5  # neither roll nor pitch past its limit
+    assert box["diagonal"][0] <= cone["diagonal"][0] - 0.07, (box, cone)
+
+
+def test_roll_and_pitch_limits_are_checked_like_the_tilt_limit(params):
+    ctrl = VelocityController(params, 0.5)
+    with pytest.raises(ValueError, match=r"set_roll_pitch_limits: roll limits must be in \(0, pi/2\) rad, got \[0.2 2. \]"):
+        ctrl.set_roll_pitch_limits(np.array([0.2, 2.0]), 0.2)
+    with pytest.raises(ValueError, match=r"set_roll_pitch_limits: pitch limits must be in \(0, pi/2\) rad, got nan"):
+        ctrl.set_roll_pitch_limits(0.2, float("nan"))

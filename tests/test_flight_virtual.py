@@ -307,6 +307,36 @@ def test_virtual_crazyflies_tilt_as_far_as_their_firmware_velocity_loop_allows()
         fleet.stop()
 
 
+def test_virtual_crazyflies_limit_roll_and_pitch_each_as_their_firmware_does():
+    """The firmware limits roll (posCtlPid.rLimit) and pitch (pLimit) each, not the tilt: pushed
+    along a diagonal at 10 deg each, a virtual drone tilts its thrust up to 14 deg (a real one
+    would), with neither roll nor pitch past 10. They flew a 10 deg tilt limit instead, so a
+    rehearsal turned slower on a diagonal than the real drones would."""
+    plan = quick_plan()
+    fleet = VirtualFleet(plan, physics=FAST)
+    try:
+        n = plan.n_drones
+        for fw in fleet.firmware:
+            fw.params["posCtlPid.rLimit"] = fw.params["posCtlPid.pLimit"] = 10.0
+        fleet.apply_firmware_limits()
+        on, airframe = np.ones(n, bool), fleet.airframe
+        for _ in range(200):  # up to 0.5 m first
+            airframe.step(0.01, np.zeros((n, 2)), np.full(n, 0.5), np.zeros(n), on)
+        push = np.tile([1.0, 1.0], (n, 1)) / math.sqrt(2)
+        worst_tilt, worst_axis = np.zeros(n), np.zeros(n)
+        for _ in range(50):  # 0.5 s at a 1 m/s command
+            airframe.step(0.01, push, np.full(n, 0.5), np.zeros(n), on)
+            w, x, y, z = airframe.quat.T
+            tilt = np.arccos(np.clip(1 - 2 * (x**2 + y**2), -1, 1))
+            roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x**2 + y**2))
+            pitch = np.arcsin(np.clip(2 * (w * y - x * z), -1, 1))
+            worst_tilt = np.maximum(worst_tilt, np.degrees(tilt))
+            worst_axis = np.maximum(worst_axis, np.degrees(np.maximum(np.abs(roll), np.abs(pitch))))
+        assert (worst_tilt > 13.0).all() and (worst_axis < 10.5).all(), (worst_tilt, worst_axis)
+    finally:
+        fleet.stop()
+
+
 def test_the_bridge_sets_the_firmware_tilt_limit_to_the_simulators(tmp_path):
     """A policy learned with the simulator's 15 deg tilt limit flies real drones whose firmware
     allows 20 deg: the bridge sets posCtlPid.rLimit and pLimit of every commanded drone to the

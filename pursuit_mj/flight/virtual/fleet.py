@@ -262,11 +262,13 @@ class VirtualFleet:
             self._send(i, packets)
 
     def apply_firmware_limits(self) -> None:
-        """Fly each airframe with the tilt limit its firmware's velocity loop has now: the
-        smaller of posCtlPid.rLimit and pLimit (deg; the firmware limits roll and pitch
-        each, the controller the tilt of the thrust)."""
-        deg = [min(fw.params["posCtlPid.rLimit"], fw.params["posCtlPid.pLimit"]) for fw in self.firmware]
-        self.airframe.controller.set_max_tilt(np.radians(np.clip(deg, 1.0, 60.0)))  # the firmware takes any value
+        """Fly each airframe with the roll and pitch limits its firmware's velocity loop has
+        now (posCtlPid.rLimit and pLimit, deg), each on its own axis as the firmware limits
+        them: on a diagonal the thrust tilts further than either."""
+        roll = [fw.params["posCtlPid.rLimit"] for fw in self.firmware]
+        pitch = [fw.params["posCtlPid.pLimit"] for fw in self.firmware]
+        # the firmware takes any value; the controller, angles in (0, 90) deg
+        self.airframe.controller.set_roll_pitch_limits(np.radians(np.clip(roll, 1.0, 60.0)), np.radians(np.clip(pitch, 1.0, 60.0)))
 
     # ------------------------------------------------------------------ estimates and sensors
 
