@@ -135,6 +135,28 @@ def _limit_roll_pitch(force: np.ndarray, max_roll: float | np.ndarray, max_pitch
     force[1] = -fz * np.tan(roll) / np.cos(pitch)
 
 
+def _right_tipped_drones(rate_des: np.ndarray, cols: np.ndarray, z_des: np.ndarray, max_rate: float) -> None:
+    """Body rates (3, N) rad/s asked of drones whose body z is more than 90 deg from the thrust
+    direction asked, z_des (3, N) world (a drone a collision tipped over), set in place to turn
+    it back up at max_rate, about the horizontal body axis e3 x (R^T z_des) that does so the
+    shorter way, yaw left for later; cols (3, 3, N): body axes x, y, z in the world.
+
+    The attitude error on SO(3) fades as the rotation from the desired frame nears 180 deg:
+    tipped 100 deg and turned 90 or 180 deg in yaw, a drone fell upside down to the floor.
+    Drones within 90 deg of z_des (every drone in normal flight) are left as they are."""
+    tipped = (cols[2] * z_des).sum(0) < 0.0
+    if not tipped.any():
+        return
+    z_body = (cols[:, :, tipped] * z_des[:, tipped]).sum(1)  # z_des in the body frame (3, K)
+    axis = np.stack([-z_body[1], z_body[0]])  # e3 x z_body, horizontal in the body frame
+    norm = np.hypot(axis[0], axis[1])
+    level = norm < 1e-9  # exactly upside down: any horizontal axis will do; roll
+    axis[:, level] = [[1.0], [0.0]]
+    norm[level] = 1.0
+    rate_des[:2, tipped] = max_rate * axis / norm
+    rate_des[2, tipped] = 0.0
+
+
 class VelocityController:
     """Tracks a world-frame planar velocity at a constant altitude with yaw held at zero.
 
@@ -280,6 +302,7 @@ class VelocityController:
         rate_des = self._att * e2
         max_rate = self.gains.max_rate
         np.minimum(np.maximum(rate_des, -max_rate, out=rate_des), max_rate, out=rate_des)
+        _right_tipped_drones(rate_des, cols, z_des, max_rate)
 
         # 4. rates -> torques (with the gyroscopic term), then the mixer
         wrench = np.empty((4, n))

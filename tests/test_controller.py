@@ -419,3 +419,24 @@ def test_roll_and_pitch_limits_are_checked_like_the_tilt_limit(params):
         ctrl.set_roll_pitch_limits(np.array([0.2, 2.0]), 0.2)
     with pytest.raises(ValueError, match=r"set_roll_pitch_limits: pitch limits must be in \(0, pi/2\) rad, got nan"):
         ctrl.set_roll_pitch_limits(0.2, float("nan"))
+
+
+def test_a_drone_tipped_past_90_deg_rights_itself_whatever_its_yaw():
+    """The attitude error on SO(3) fades as the rotation from the desired frame nears 180 deg:
+    tipped 100 deg about its pitch axis while turned 90 or 180 deg from yaw 0 (as a collision
+    may leave it), a drone fell upside down to the floor, where at yaw 0 it rights itself in
+    0.3 s. Tipped past 90 deg, it now turns its thrust back up first, the shorter way."""
+    yaws = [0.0, 90.0, 180.0, -90.0, 135.0]
+    physics = make_physics(n_worlds=len(yaws), flight_height=1.5)
+    pitch = math.radians(100.0)
+    for w, yaw in enumerate(np.radians(yaws)):
+        qw, qz, pw, py = math.cos(yaw / 2), math.sin(yaw / 2), math.cos(pitch / 2), math.sin(pitch / 2)
+        qpos = physics.qpos[[w]]
+        qpos[0, physics._qpos_idx[0, 3:7]] = [qw * pw, -qz * py, qw * py, qz * pw]  # yaw, then pitch about the body's y
+        physics.qpos[[w]] = qpos
+    physics.batch.forward(np.arange(len(yaws)))
+    assert np.degrees(tilt_angle(physics.quaternions()[:, 0])) == pytest.approx([100.0] * len(yaws))
+    for _ in range(25):  # 2.5 s
+        physics.step(np.zeros((len(yaws), physics.n_drones, 2)))
+    assert (np.degrees(tilt_angle(physics.quaternions()[:, 0])) < 2.0).all()
+    assert (physics.positions()[:, 0, 2] > 1.0).all(), physics.positions()[:, 0, 2]
