@@ -139,3 +139,40 @@ def test_a_truncated_episode_bootstraps_from_its_own_last_observation_not_the_ne
         idx = np.flatnonzero(truncated)
         torch.testing.assert_close(buf.final_values[t, idx], model.world_value(torch.as_tensor(last_obs[idx]), None))
         assert not torch.allclose(buf.final_values[t, idx], model.world_value(buf.obs[t + 1, idx], None))  # the reset's
+
+
+def test_a_mappo_truncation_bootstraps_from_the_ended_worlds_own_last_state_in_reward_units():
+    """MAPPO's critic reads the global state beside each pursuer's observation: at a timeout both
+    must be the ended episode's last ones (info["final_state"], info["final_obs"]), not those of
+    the episode the auto-reset began, and the stored value is in reward units (the critic's
+    output denormalised by the running statistics of the rollout's time). Two evaders, so the
+    state carries a captured flag per evader."""
+    from train.config import load_train_config
+
+    torch.manual_seed(0)
+    env = PursuitEnv(default_config(fidelity="point", random_obstacles=0, max_steps=6, n_evaders=2), n_worlds=2, seed=3,
+                     nthread=1)
+    model = ActorCritic(env.obs_spec, env.state_dim, load_train_config([], ["algo=mappo"]))
+    model.value_norm.load_state_dict({"mean": 3.0, "var": 4.0, "count": 10.0})
+    ends, before = [], []
+    real_step = env.step
+
+    def recording_step(actions):
+        before.append(env.global_state())
+        out = real_step(actions)
+        ends.append((out[3].copy(), out[4]["final_obs"].copy(), out[4]["final_state"].copy()))
+        return out
+
+    env.step = recording_step
+    buf = Rollout(8, 2, env.n_pursuers, env.obs_dim, env.state_dim)
+    Collector(env, model, torch.Generator().manual_seed(1)).collect(buf)
+    np.testing.assert_array_equal(buf.states.numpy(), np.stack(before))  # each observation's own state
+    t = int(torch.nonzero(buf.truncated.any(1))[0])
+    truncated, last_obs, last_state = ends[t]
+    idx = np.flatnonzero(truncated)
+    with torch.no_grad():
+        state = torch.as_tensor(last_state[idx])
+        raw = model.raw_value(torch.as_tensor(last_obs[idx]), state.unsqueeze(1).expand(-1, env.n_pursuers, -1))
+        torch.testing.assert_close(buf.final_values[t, idx], raw * 2.0 + 3.0)
+        reset = model.world_value(torch.as_tensor(last_obs[idx]), buf.states[t + 1, idx])
+        assert not torch.allclose(buf.final_values[t, idx], reset)  # the new episode's state would give another value
