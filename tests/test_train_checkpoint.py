@@ -47,6 +47,39 @@ def test_resume_continues_counters_weights_and_optimiser(tmp_path):
     assert (cfg.run_dir / "best.pt").is_file()
 
 
+@pytest.mark.parametrize("algo", ["ppo", "mappo"])
+def test_a_resumed_run_learns_from_its_next_rollout_exactly_as_the_run_going_on_would(tmp_path, algo):
+    """Everything an update reads besides its rollout comes back from last.pt: the weights, Adam's
+    moments and step counts, the learning rate's place in its decay, the minibatch draws, MAPPO's
+    value statistics, a learned discount and its optimiser. Given the same next rollout (the env
+    restarts on resume, so it is handed to both), the run that goes on in its process and the one
+    resumed from its folder end that update with the same weights, bit for bit."""
+    import copy
+
+    cfg = tiny_config(tmp_path, updates=4, extra=[f"algo={algo}", "ppo.learnable_gamma=true", "run.split_update=false",
+                                                 "net.encoder_width=16", "net.hidden=[16]", "net.critic_hidden=[16]"])
+    going_on = Trainer(cfg, log=lambda s: None)
+    for _ in range(2):
+        going_on._log_row(going_on.train_one_update(), None, {})  # logged, then last.pt
+    going_on.close()  # frees the folder; its model, optimiser and collector stay usable
+    resumed = Trainer.resume(cfg.run_dir, log=lambda s: None)
+    sampler = going_on.generator.get_state()
+    rollout = going_on._next_rollout()
+    going_on.generator.set_state(sampler)  # as last.pt has it: the rollout's noise is not the update's
+    rows = []
+    for trainer in (going_on, resumed):
+        trainer._next_rollout = lambda: copy.deepcopy(rollout)
+        rows.append(trainer.train_one_update())
+    resumed.close()
+    assert rows[0]["lr"] == rows[1]["lr"] < cfg.ppo.lr and rows[0]["gamma"] == rows[1]["gamma"] != cfg.ppo.gamma
+    for (key, a), b in zip(going_on.model.state_dict().items(), resumed.model.state_dict().values()):
+        assert torch.equal(a, b), key
+    if algo == "mappo":
+        assert going_on.model.value_norm.state_dict() == resumed.model.value_norm.state_dict()
+    moments = [[v for s in t.optimizer.state_dict()["state"].values() for v in s.values()] for t in (going_on, resumed)]
+    assert all(torch.equal(a, b) for a, b in zip(*moments))
+
+
 @pytest.mark.parametrize("overlap", [False, True])
 def test_ctrl_c_saves_the_last_consistent_update(tmp_path, monkeypatch, overlap):
     """Ctrl-C in the 4th rollout (collected in turn) or the 4th update (a rollout worker
