@@ -1227,3 +1227,21 @@ def test_a_resume_reads_last_pt_only_once_it_holds_the_folder(tmp_path, monkeypa
     with pytest.raises(ValueError):
         Trainer.resume(tmp_path / "no_such_run", log=lambda s: None)
     assert not (tmp_path / "no_such_run").exists()  # and makes no folder of a mistyped name
+
+
+def test_a_mappo_resume_from_a_checkpoint_without_value_statistics_says_they_start_afresh(tmp_path):
+    """A MAPPO last.pt with no value statistics (an older or hand-edited file) resumed silently
+    with fresh ones: its critic's outputs then meant other returns than it learned."""
+    from train.checkpoint import save_checkpoint
+
+    cfg = tiny_config(tmp_path, updates=1, extra=["algo=mappo"])
+    Trainer(cfg, log=lambda s: None).train()
+    data = load_checkpoint(cfg.run_dir / "last.pt")
+    assert data["value_norm"]
+    said = []
+    Trainer.resume(cfg.run_dir, log=said.append).close()
+    assert not [line for line in said if "value statistics" in line]
+    data.pop("value_norm")
+    save_checkpoint(cfg.run_dir / "last.pt", {k: v for k, v in data.items() if k not in ("format", "version")})
+    Trainer.resume(cfg.run_dir, log=said.append).close()
+    assert [line for line in said if "holds no value statistics" in line and "starts afresh" in line], said

@@ -258,8 +258,11 @@ class Trainer:
             if any(torch.is_tensor(v) and k != "step" and v.shape != p.shape for p, s in self.optimizer.state.items() for k, v in s.items()):
                 raise ValueError("its moments do not match the parameters' shapes")
             part = "value normalisation"
-            if self.model.value_norm is not None and "value_norm" in data:
+            if self.model.value_norm is not None and data.get("value_norm"):
                 self.model.value_norm.load_state_dict(data["value_norm"])
+            elif self.model.value_norm is not None:
+                self.log(f"note: {path} holds no value statistics (an older or edited file): MAPPO's value normalisation "
+                         f"starts afresh, so its critic's first values are off until they settle")
             part = "discount state"
             if "discount" in data:
                 self.discount.load_state_dict(data["discount"])
