@@ -325,6 +325,19 @@ def test_learnable_discount_moves_and_is_logged(tmp_path):
     assert {json.loads(x)["gamma"] for x in (fixed.run_dir / "metrics.jsonl").read_text().splitlines()} == {0.99}
 
 
+def test_the_learned_discount_is_held_while_the_critic_warms_up(tmp_path):
+    """With ppo.critic_warmup the discount took its meta-step while the actor was held: it was
+    judged by a policy step never taken, on the advantages of a critic still learning."""
+    cfg = load_train_config(["classic"], TINY + [f"run.runs_dir={tmp_path}", "total_steps=160", "ppo.critic_warmup=3",
+                                                 "ppo.learnable_gamma=true", "ppo.gamma_meta_lr=0.05"])
+    Trainer(cfg, **QUIET).train()
+    rows = [json.loads(x) for x in (cfg.run_dir / "metrics.jsonl").read_text().splitlines()]
+    held = [r for r in rows if r["loss"]["critic_only"]]
+    assert len(held) == 3 and len({r["gamma"] for r in held}) == 1 and held[0]["gamma"] == pytest.approx(0.99, abs=1e-6)
+    assert {r["gamma_meta_grad"] for r in held} == {0.0}
+    assert rows[-1]["gamma"] != held[0]["gamma"] and rows[-1]["gamma_meta_grad"] != 0.0
+
+
 def test_a_run_started_from_a_learned_discount_says_it_starts_its_own(tmp_path):
     """init_from takes weights, not the discount the source learned: that went without a word."""
     learned = load_train_config(["classic"], TINY + [f"run.runs_dir={tmp_path}", "name=src", "ppo.learnable_gamma=true"])

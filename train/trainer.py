@@ -614,7 +614,10 @@ class Trainer:
         for group in self.optimizer.param_groups:
             group["lr"] = lr
         self._consistent = False
-        meta_grad = self._learn_discount() if cfg.ppo.learnable_gamma else None
+        warming_up = c.update < cfg.ppo.critic_warmup  # the critic learns alone: the actor is held
+        meta_grad = None
+        if cfg.ppo.learnable_gamma:  # held with the actor: its meta-gradient assumes the actor's step
+            meta_grad = 0.0 if warming_up else self._learn_discount()
         try:
             if self.demos is not None:
                 losses = imitation_update(self.model, self.optimizer, self.demos, buf, cfg.imitation, cfg.ppo,
@@ -624,7 +627,7 @@ class Trainer:
                 weight = teacher_weight(cfg.ppo, c.update)
                 losses = ppo_update(self.model, self.optimizer, buf, cfg.ppo, self.discount.value, self.generator,
                                     lagged=self.overlap, anchor=self.anchor, critic_worker=self.critic_worker,
-                                    critic_only=c.update < cfg.ppo.critic_warmup, teacher_weight=weight)
+                                    critic_only=warming_up, teacher_weight=weight)
                 if cfg.ppo.teacher_coef > 0:
                     losses["teacher_weight"] = weight
         except WorkerExited as exc:  # the critic's process was killed (the out-of-memory killer): the run folder is as last saved
