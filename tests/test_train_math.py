@@ -836,3 +836,79 @@ def test_mappo_targets_are_normalised_by_statistics_updated_with_this_rollouts_r
     assert model.value_norm.mean == pytest.approx(mean_after) and model.value_norm.var == pytest.approx(var_after)
     want = float(((raw - (x - mean_after) / math.sqrt(var_after)) ** 2).mean())  # one step over the whole batch
     assert stats["value_loss"] == pytest.approx(want, rel=1e-5)
+
+
+def _plain_ppo_update(model, optimizer, buf, cfg, generator):
+    """PPO's minibatch loop written the plain way (torch's own clip and step on model.parameters()
+    at every step): the arithmetic ppo_update must keep, whatever it does to run faster."""
+    from torch import nn
+
+    from train.ppo import advantages_and_returns
+
+    adv, ret, _ = advantages_and_returns(buf, cfg.gamma, cfg.gae_lambda)
+    n = buf.n_transitions
+    obs, actions, old_logp = buf.obs.reshape(n, -1), buf.actions.reshape(n, 2), buf.logp.reshape(n)
+    adv, ret = adv.reshape(n), ret.reshape(n)
+    target_std = float(ret.std(unbiased=False))
+    for _ in range(cfg.epochs):
+        for idx in torch.tensor_split(torch.randperm(n, generator=generator), max(n // cfg.minibatch_size, 1)):
+            mean, log_std = model.actor(obs[idx], model.spec)
+            std = log_std.exp()
+            new_logp = gaussian_log_prob(mean, std, actions[idx]).sum(-1)
+            entropy = gaussian_entropy(std).sum(-1).mean()
+            pg_loss, _ = clipped_policy_loss(new_logp, old_logp[idx], normalise(adv[idx]), cfg.clip)
+            v_loss = scaled_value_loss(model.raw_value(obs[idx], None), ret[idx], target_std)
+            loss = pg_loss - cfg.ent_coef * entropy + cfg.vf_coef * v_loss
+            optimizer.zero_grad()
+            loss.backward()
+            nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
+            optimizer.step()
+
+
+@pytest.mark.parametrize("how", ["joint", "separate"])
+def test_kept_parameter_lists_clip_exactly_as_lists_made_at_every_step(how):
+    """ppo_update lists the model's parameters once per update (train/ppo.py: ParameterLists)
+    instead of walking the module tree at each of its minibatch steps: the norms and the clipped
+    gradients are the same to the bit, and the lists follow the weights as the optimiser moves them."""
+    import copy
+
+    from train.ppo import ParameterLists, clip_gradients
+
+    spec = ObsSpec.make(2, 1, 4)
+    model, cfg = _acted(_random_rollout(spec, T=8), spec, ["ppo.max_grad_norm=0.5", f"ppo.grad_clip={how}"])
+    kept = ParameterLists(model)
+    _gradients_of(model, 1e-3, 1.0)
+    torch.optim.SGD(model.parameters(), lr=0.1).step()  # the weights move in place after the lists were made
+    other = copy.deepcopy(model)
+    for m in (model, other):
+        _gradients_of(m, 1e-3, 1.0)  # a small policy gradient beside a large value gradient: both ways clip
+    for a, b in zip(clip_gradients(model, cfg.ppo, kept), clip_gradients(other, cfg.ppo)):
+        assert torch.equal(a, b)
+    for p, q in zip(model.parameters(), other.parameters()):
+        assert torch.equal(p, q) and torch.equal(p.grad, q.grad)
+    assert _norm(model.critic.parameters()) == pytest.approx(0.5, rel=1e-3)  # it did clip
+
+
+def test_an_update_is_the_plain_ppo_loop_to_the_bit():
+    """Whatever ppo_update does to run faster changes no number: two epochs of minibatch steps,
+    clipped (max_grad_norm small enough to clip), end in the weights and Adam state of the plain
+    loop, bit for bit."""
+    import copy
+
+    from train.ppo import ppo_update
+
+    spec = ObsSpec.make(3, 1, 4)
+    buf = _random_rollout(spec, T=12, W=2, N=3)
+    model, cfg = _acted(buf, spec, ["ppo.epochs=2", "ppo.minibatch_size=24", "ppo.max_grad_norm=0.2"])
+    plain, start = copy.deepcopy(model), copy.deepcopy(model)
+    optimisers = [torch.optim.Adam(m.parameters(), lr=1e-3, eps=1e-5, fused=True) for m in (model, plain)]
+    for _ in range(2):  # the second update starts from Adam moments the first left
+        ppo_update(model, optimisers[0], buf, cfg.ppo, cfg.ppo.gamma, torch.Generator().manual_seed(3))
+        _plain_ppo_update(plain, optimisers[1], buf, cfg.ppo, torch.Generator().manual_seed(3))
+    for (key, a), b in zip(model.state_dict().items(), plain.state_dict().values()):
+        assert torch.equal(a, b), key
+    assert not torch.equal(model.actor.head.weight, start.actor.head.weight)  # it did learn
+    moments = [optimisers[i].state_dict()["state"] for i in (0, 1)]
+    for k in moments[0]:
+        for name in ("exp_avg", "exp_avg_sq", "step"):
+            assert torch.equal(moments[0][k][name], moments[1][k][name]), (k, name)

@@ -219,6 +219,7 @@ def imitation_update(model: ActorCritic, optimizer: torch.optim.Optimizer, demos
     if critic_worker is not None:
         critic_worker.load(obs, None, ret, target_std, ppo.vf_coef)
     sums = {"bc_loss": 0.0, "value_loss": 0.0, "grad_norm": 0.0}
+    params = list(model.parameters())  # once, not at every step (ppo.ParameterLists)
     for _ in range(cfg.grad_steps):
         d_obs, d_act = demos.sample(cfg.minibatch_size, generator)
         idx = torch.randint(0, n, (mb,), generator=generator)
@@ -235,7 +236,7 @@ def imitation_update(model: ActorCritic, optimizer: torch.optim.Optimizer, demos
         loss.backward()
         if critic_worker is not None:
             v_loss = critic_worker.collect()
-        grad_norm = nn.utils.clip_grad_norm_(model.parameters(), cfg.max_grad_norm)
+        grad_norm = nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
         optimizer.step()
         for k, x in (("bc_loss", bc), ("value_loss", v_loss), ("grad_norm", grad_norm)):
             sums[k] += float(x.detach())
