@@ -176,3 +176,37 @@ def test_a_mappo_truncation_bootstraps_from_the_ended_worlds_own_last_state_in_r
         torch.testing.assert_close(buf.final_values[t, idx], raw * 2.0 + 3.0)
         reset = model.world_value(torch.as_tensor(last_obs[idx]), buf.states[t + 1, idx])
         assert not torch.allclose(buf.final_values[t, idx], reset)  # the new episode's state would give another value
+
+
+def test_a_rollout_stores_to_the_bit_what_a_plain_loop_of_actor_and_env_gives():
+    """The collector's arithmetic, pinned for work on its speed: a plain loop (the actor's sample
+    per step, the env stepped with it clipped, the critic once over the stored observations) on
+    a second env of the same seed gives every tensor of the rollout bit for bit."""
+    task = default_config(fidelity="point", random_obstacles=0, max_steps=6)
+    envs = [PursuitEnv(task, n_worlds=2, seed=3, nthread=1) for _ in range(2)]
+    spec = envs[0].obs_spec
+    torch.manual_seed(0)
+    model = ActorCritic(spec, envs[0].state_dim, TrainConfig())
+    buf = Rollout(8, 2, envs[0].n_pursuers, envs[0].obs_dim)
+    Collector(envs[0], model, torch.Generator().manual_seed(1)).collect(buf)
+    assert bool(buf.truncated.any())  # episodes of 6 steps end inside 8: final values are met
+    noise = torch.Generator().manual_seed(1)
+    obs = torch.as_tensor(envs[1].reset())
+    with torch.inference_mode():
+        for t in range(buf.T):
+            mean, log_std = model.actor(obs, spec)
+            std = log_std.exp()
+            action = mean + std * torch.randn(mean.shape, generator=noise)
+            assert torch.equal(buf.obs[t], obs) and torch.equal(buf.actions[t], action)
+            assert torch.equal(buf.logp[t], gaussian_log_prob(mean, std, action).sum(-1))
+            next_obs, reward, terminated, truncated, info = envs[1].step(action.clamp(-1.0, 1.0).numpy())
+            assert torch.equal(buf.rewards[t], torch.as_tensor(reward))
+            assert np.array_equal(buf.terminated[t].numpy(), terminated) and np.array_equal(buf.truncated[t].numpy(), truncated)
+            final = torch.zeros(buf.W, buf.N)
+            if truncated.any():
+                idx = np.flatnonzero(truncated)
+                final[torch.as_tensor(idx)] = model.world_value(torch.as_tensor(info["final_obs"][idx]), None)
+            assert torch.equal(buf.final_values[t], final)
+            obs = torch.as_tensor(next_obs)
+        assert torch.equal(buf.last_value, model.world_value(obs, None))
+        assert torch.equal(buf.values, model.world_value(buf.obs.flatten(0, 1), None).view(buf.T, buf.W, -1))
