@@ -45,15 +45,37 @@ class Pooled:
 
 
 def _read(path: Path) -> dict:
+    """The JSON of one `pursuit-mj eval --out/--json` table; ValueError naming the file, and for the
+    files met beside such tables (its CSV, a run folder, a training log) what pool reads instead."""
+    if path.is_dir():
+        raise ValueError(f"{path}: a folder, not an evaluation table (pool reads the PREFIX.json files that "
+                         f"`pursuit-mj eval --out PREFIX` writes)")
+    if path.suffix.lower() == ".csv":
+        raise ValueError(f"{path}: an evaluation CSV, which lacks the per-episode seeds that pooling needs; "
+                         f"pool the JSON written beside it ({path.with_suffix('.json')})")
     try:
         data = json.loads(path.read_text())
     except OSError as exc:
         raise ValueError(f"{path}: cannot read it ({exc.strerror or exc})") from None
-    except ValueError as exc:
+    except json.JSONDecodeError as exc:
+        if exc.msg == "Extra data" and _first_line_is_an_object(path):
+            raise ValueError(f"{path}: a training log (one JSON object a line), not an evaluation table; "
+                             f"plot it with `pursuit-mj plot --log {path}`") from None
+        raise ValueError(f"{path}: not a JSON file ({exc})") from None
+    except ValueError as exc:  # text that is not UTF-8
         raise ValueError(f"{path}: not a JSON file ({exc})") from None
     if not (isinstance(data, dict) and isinstance(data.get("rows"), list) and isinstance(data.get("config"), dict)):
         raise ValueError(f"{path}: not an evaluation table written by `pursuit-mj eval --out/--json` (no 'rows' and 'config')")
     return data
+
+
+def _first_line_is_an_object(path: Path) -> bool:
+    """Whether the file's first line alone is a JSON object, as in a JSON-lines training log."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return isinstance(json.loads(f.readline()), dict)
+    except (OSError, ValueError):
+        return False
 
 
 def table_task(config: dict) -> dict:

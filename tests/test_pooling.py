@@ -102,6 +102,23 @@ def test_files_that_are_not_tables_are_refused_by_name(tmp_path, content, match)
         pool_tables([bad])
 
 
+def test_an_eval_csv_a_training_log_and_a_folder_are_refused_saying_what_to_pool_instead(tables, tmp_path):
+    """eval --out writes PREFIX.csv beside PREFIX.json, and a run folder holds metrics.jsonl: a user
+    who hands pool one of those is told what it is and which file pool reads, not a JSON parse error."""
+    from pursuit_mj.evaluation import write_csv
+
+    rows = evaluate(make_policy("heuristic", TASK, 0), TASK, [0], 1, 0, 1)
+    csv = write_csv(rows, tmp_path / "t.csv")
+    with pytest.raises(ValueError, match=r"t\.csv: an evaluation CSV.*per-episode.*t\.json"):
+        pool_tables([csv])
+    log = tmp_path / "metrics.jsonl"
+    log.write_text('{"update": 1, "world_steps": 342}\n{"update": 2, "world_steps": 684}\n')
+    with pytest.raises(ValueError, match=r"metrics\.jsonl: a training log .*not an evaluation table.*plot --log"):
+        pool_tables([log])
+    with pytest.raises(ValueError, match=r"a folder, not an evaluation table"):
+        pool_tables([tmp_path])
+
+
 def test_the_command_prints_the_pooled_table_and_writes_it(tables, tmp_path, capsys):
     from pursuit_cli import main
 
