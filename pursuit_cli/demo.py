@@ -20,7 +20,7 @@ REFERENCE_EPISODES = 150  # episodes per layout in the reference study's table
 
 HOW_TO_TRAIN = """\
 Next steps:
-  pursuit-mj train --config belief --set task.n_evaders=2        # DAgger with belief features (how the demo's model was made)
+  pursuit-mj train --config belief --set task.n_evaders=2        # DAgger with belief features (how the shipped pretrained/pursuers.pt was made)
   pursuit-mj train --config belief_ppo --set init_from=runs/belief/best.pt   # ... then PPO from it
   pursuit-mj demo --model pretrained/belppo_kick.pt              # PPO at issue 4's reference numbers (pretrained/README.md)
   pursuit-mj train --config imitate                              # DAgger from the heuristic team (a warm start)

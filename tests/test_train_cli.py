@@ -83,6 +83,17 @@ def tiny_model(tmp_path_factory):
     return root / "m" / "best.pt"
 
 
+def test_demo_of_a_model_of_one_s_own_does_not_call_the_shipped_recipe_its_model_s(tiny_model, capsys):
+    """The closing next steps said 'train --config belief ... (how the demo's model was made)' under a
+    table of a model the user had just trained with another config."""
+    assert main(["demo", "--model", str(tiny_model), "--episodes", "1", "--worlds", "1", "--layouts", "0", "--no-shield",
+                 "--no-heuristic", "--fidelity", "point", "--set", "max_steps=5"]) == 0
+    steps = capsys.readouterr().out.split("Next steps:", 1)[1]
+    assert "demo's model" not in steps
+    made = [line for line in steps.splitlines() if "was made" in line]
+    assert made and all("pretrained/pursuers.pt" in line for line in made), made
+
+
 def test_demo_prints_the_table_and_how_to_train(tiny_model, capsys, monkeypatch):
     from pursuit_cli import demo
 
