@@ -253,7 +253,7 @@ def shield_if_asked(args: argparse.Namespace, policy, label: str, config: TaskCo
 #: pursuers see (and what their observations mean), how fast everyone flies, how long an action lasts
 TRAINED_TASK_KEYS = ("observability", "pursuer_speed", "evader_speed", "perception_radius", "field_of_view", "fidelity",
                      "n_pursuers", "n_evaders", "drone_mass", "command_latency", "control_dt", "ray_range",
-                     "share_detections", "position_noise")
+                     "share_detections", "share_teammates", "position_noise", "miss_probability")
 #: of those, the keys a real flight has no value of (its latency is the real loop's)
 SIMULATION_ONLY_TRAINED_KEYS = ("command_latency",)
 

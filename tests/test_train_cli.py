@@ -243,6 +243,22 @@ def test_a_model_used_at_another_decision_interval_or_sight_than_it_learned_says
             "position_noise 0.0 (this task: 0.05)") in capsys.readouterr().err
 
 
+def test_a_model_used_with_other_missed_detections_or_shared_teammates_says_so(tiny_model, capsys):
+    """miss_probability (the hard preset's 20 % missed detections) and share_teammates (every teammate
+    known exactly) change what a pursuer's observation holds, as the other perception keys do, but a
+    model trained without them was evaluated under the hard preset with a note that left them out."""
+    from pursuit_cli.common import TRAINED_TASK_KEYS, load_model
+    from pursuit_mj.config import default_config
+    from pursuit_mj.obs_spec import ObsSpec
+    from pursuit_mj.sensing import PERCEPTION_KEYS
+
+    task = default_config(n_pursuers=2, fidelity="point", miss_probability=0.2, share_teammates=True)
+    load_model(tiny_model, ObsSpec.make(task.n_pursuers, task.n_evaders, task.n_rays), task)
+    err = capsys.readouterr().err
+    assert "share_teammates False (this task: True)" in err and "miss_probability 0.0 (this task: 0.2)" in err, err
+    assert set(PERCEPTION_KEYS) <= set(TRAINED_TASK_KEYS)  # what the pursuers perceive, every key of it
+
+
 def test_an_empty_train_config_file_is_refused(tmp_path, capsys):
     empty = tmp_path / "empty.yaml"
     empty.write_text("# nothing yet\n")
