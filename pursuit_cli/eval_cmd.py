@@ -77,9 +77,10 @@ def _outputs(args) -> tuple[Path | None, Path | None]:
     _check_output_flags(args)
     csv_path = Path(args.csv) if args.csv else (Path(f"{args.out}.csv") if args.out else None)
     json_path = Path(args.json) if args.json else (Path(f"{args.out}.json") if args.out else None)
-    for path, what in ((csv_path, "--csv" if args.csv else f"--out {args.out}"), (json_path, "--json" if args.json else f"--out {args.out}")):
+    for path, given, what in ((csv_path, args.csv, "--csv" if args.csv else f"--out {args.out}"),
+                              (json_path, args.json, "--json" if args.json else f"--out {args.out}")):
         if path is not None:
-            check_writable(path, what)
+            check_writable(given or path, what)  # as typed: 'tables/' names a folder, Path('tables/') a file
     if args.rerun:
         from pursuit_mj.recording import check_rrd_path
 

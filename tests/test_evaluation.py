@@ -336,6 +336,16 @@ def test_eval_out_naming_a_folder_is_refused_not_written_as_hidden_files(prefix,
     assert not (tmp_path / "tables").exists()
 
 
+@pytest.mark.parametrize("flag", ["--json", "--csv"])
+def test_eval_json_or_csv_naming_a_folder_is_refused_not_written_as_a_file_of_that_name(flag, tmp_path, capsys):
+    """--json tables/ (a folder that does not exist yet) wrote the table to a file called 'tables'."""
+    out = f"{tmp_path}/tables/"
+    assert main(["eval", "--fidelity", "point", "--episodes", "1", "--set", "max_steps=5", "-q", flag, out]) == 2
+    err = capsys.readouterr().err
+    assert f"{flag} path {out}: ends in '/', which names a folder" in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "tables").exists()
+
+
 @pytest.mark.parametrize("command", ["eval", "pool"])
 def test_an_out_prefix_ending_in_a_table_extension_is_refused(command, tmp_path, capsys):
     """--out o.json wrote o.json.csv and o.json.json."""

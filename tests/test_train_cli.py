@@ -177,6 +177,14 @@ def test_export_writes_a_small_policy_only_checkpoint(tiny_model, tmp_path, caps
     assert (full.act(obs, spec) == small.act(obs, spec)).all()
 
 
+def test_export_to_a_name_ending_in_a_slash_is_refused_not_written_as_a_file_of_that_name(tiny_model, tmp_path, capsys):
+    """--export best.pt exports/ (a folder not made yet) wrote the policy to a file called 'exports'."""
+    out = f"{tmp_path}/exports/"
+    assert main(["train", "--export", str(tiny_model), out]) == 2
+    assert f"--export OUT path {out}: ends in '/', which names a folder" in capsys.readouterr().err
+    assert not (tmp_path / "exports").exists()
+
+
 @pytest.mark.parametrize("extra", [["--resume", "runs/classic"], ["--config", "classic"], ["--total-steps", "2e6"],
                                    ["--set", "ppo.lr=1e-4"], ["-sc"], ["--name", "x"], ["--random-layout"]])
 def test_export_with_training_flags_is_refused_naming_them(tiny_model, tmp_path, capsys, extra):
