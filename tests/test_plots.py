@@ -306,7 +306,7 @@ def test_a_refused_plot_command_writes_no_chart(tmp_path, capsys):
     (tmp_path / "dup.json").write_text(json.dumps(dict(data, rows=data["rows"] + data["rows"][:1])))
     out = tmp_path / "out"
     for extra, message in ((["--eval", str(tmp_path / "dup.json")], "dup.json: rows 0 and 8 both hold policy heuristic on layout 0"),
-                           (["--eval", str(ev), "--eval", str(ev)], "policy heuristic on layout 0 is given twice"),
+                           (["--eval", str(ev), "--eval", str(ev)], "the same file as --eval"),
                            (["--eval", str(ev), "--metric", "nope"], "--metric 'nope': no such key")):
         assert main(["plot", "--log", str(log)] + extra + ["-o", str(out)]) == 2
         assert message in capsys.readouterr().err
@@ -335,7 +335,19 @@ def test_plot_command_tells_apart_a_policy_that_two_files_of_one_name_hold(tmp_p
     assert names == {f"heuristic ({one})", f"heuristic ({two})", "classic", "mappo"}
     again = tmp_path / "a" / ".." / "a" / "eval.json"  # one file twice, by two names
     assert main(["plot", "--eval", str(one), "--eval", str(again), "-o", str(tmp_path / "out")]) == 2
-    assert "policy heuristic on layout 0 is given twice" in capsys.readouterr().err
+    # named as the one file it is, not as a policy to rename (the message said 'rename one (e.g. eval --model ...)')
+    assert f"--eval {again}: the same file as --eval {one}, given twice" in capsys.readouterr().err
+
+
+def test_plot_command_refuses_one_training_log_given_twice(tmp_path, capsys):
+    """--log runs/c1 --log runs/c1/metrics.jsonl drew the run twice, as 'c1' and 'c1 (runs/c1/metrics.jsonl)'."""
+    run = tmp_path / "c1"
+    run.mkdir()
+    _log(run / "metrics.jsonl")
+    out = tmp_path / "out"
+    assert main(["plot", "--log", str(run), "--log", f"again={run / 'metrics.jsonl'}", "-o", str(out)]) == 2
+    assert f"--log again={run / 'metrics.jsonl'}: the same file as --log {run}, given twice" in capsys.readouterr().err
+    assert not out.exists()
 
 
 def test_a_reward_term_named_like_an_outcome_is_not_drawn_as_a_rate():
