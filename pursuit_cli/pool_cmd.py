@@ -15,7 +15,7 @@ import dataclasses
 from pathlib import Path
 
 from pursuit_mj.io_utils import check_writable, check_writable_folder
-from .common import check_out_prefix, path_arg, pick_versus
+from .common import check_out_prefix, counted, path_arg, pick_versus
 
 
 def register(sub) -> None:
@@ -51,7 +51,7 @@ def run(args) -> int:
         check_writable_folder(args.plots, "--plots")
     for note in pooled.notes:
         print(note)
-    print(f"pooled {len(args.files)} tables")
+    print(f"pooled {counted(len(args.files), 'table')}")
     print(format_table(pooled.rows))
     meta: dict = {"pooled_from": list(args.files), **pooled.meta}
     if versus is not None:

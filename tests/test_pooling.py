@@ -149,7 +149,7 @@ def test_tables_of_two_arenas_under_one_layout_name_are_refused(tmp_path, monkey
     assert main(["pool", "open.json", "open.json"]) == 0  # one arena: pooled
 
 
-def test_a_pooled_table_pools_again_with_its_models_and_arenas_known(tables, tmp_path):
+def test_a_pooled_table_pools_again_with_its_models_and_arenas_known(tables, tmp_path, capsys):
     """The pooled JSON dropped the models' hashes, so pooling it again with a table of another model
     under the same label was taken."""
     from pursuit_cli import main
@@ -160,6 +160,7 @@ def test_a_pooled_table_pools_again_with_its_models_and_arenas_known(tables, tmp
     c = _table(tables["tmp"], "pc", 1, meta={"policies": ["heuristic"], "models": ["a.pt"], "model_sha256": ["aaaa"],
                                                 "layout_sha256": {"0": "2222"}})
     assert main(["pool", str(a), "--out", str(tmp_path / "pooled")]) == 0
+    assert "pooled 1 table\n" in capsys.readouterr().out  # not '1 tables'
     written = json.loads((tmp_path / "pooled.json").read_text())
     assert written["model_sha256_of"] == {"heuristic": "aaaa"} and written["layout_sha256"] == {"0": "1111"}
     with pytest.raises(ValueError, match="'heuristic' is two different models"):
