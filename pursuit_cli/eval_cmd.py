@@ -19,8 +19,8 @@ from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
 from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_sha256
-from .common import (SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, check_out_prefix, load_model, pick_versus, sweep_dead_parts,
-                     seed_arg, shield_if_asked, table_layouts, task_config_from_args)
+from .common import (SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, check_out_prefix, counted, load_model,
+                     pick_versus, sweep_dead_parts, seed_arg, shield_if_asked, table_layouts, task_config_from_args)
 from .eval_resume import check_nothing_kept, drop_finished, finished_rows, interrupted_path, keep_finished, write_finished
 
 
@@ -140,7 +140,7 @@ def _run_table(args, config, layouts, policies, recording, rows: list, done: dic
             finished(rows)
             if not args.quiet:
                 r = rows[-1]
-                print(f"[eval] {label} layout {r.layout}: {r.episodes} episodes in {time.perf_counter() - t0:.1f} s, "
+                print(f"[eval] {label} layout {r.layout}: {counted(r.episodes, 'episode')} in {time.perf_counter() - t0:.1f} s, "
                       f"success {100 * r.success.p:.1f} %", file=sys.stderr, flush=True)
     return rows
 
@@ -223,7 +223,8 @@ def run(args) -> int:
         check_nothing_kept(csv_path, json_path)
     done = finished_rows(json_path, config, _meta(args, policies, layouts, provenance(), config), csv_path) if args.resume else None
     if done is not None and not args.quiet:
-        print(f"[eval] resuming: {len(done)} finished rows from {interrupted_path(json_path)}", file=sys.stderr, flush=True)
+        print(f"[eval] resuming: {counted(len(done), 'finished row')} from {interrupted_path(json_path)}",
+              file=sys.stderr, flush=True)
     with contextlib.ExitStack() as stack:
         recording = None
         if args.rerun:

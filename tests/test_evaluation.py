@@ -402,6 +402,33 @@ def test_an_interrupted_eval_keeps_its_finished_cells_beside_the_table_it_was_as
     assert whole.read_text() == '{"rows": "an earlier, whole table"}\n' and not (tmp_path / "t.csv").exists()
 
 
+def test_resume_counts_the_rows_it_takes_back_in_words_that_fit_one(tmp_path, monkeypatch, capsys):
+    """A resume of an eval stopped after its first row said '[eval] resuming: 1 finished rows from ...'."""
+    import os
+    import signal
+
+    import pursuit_mj.evaluation as evaluation
+
+    cmd = ["eval", "--policy", "heuristic", "--policy", "random", "--layouts", "0", "--episodes", "1", "--worlds", "1",
+           "--fidelity", "point", "--set", "max_steps=5", "--out", str(tmp_path / "t")]
+    real, cells = evaluation.evaluate, []
+
+    def stop_at_second(*a, **k):
+        cells.append(k["label"])
+        if len(cells) == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return real(*a, **k)
+
+    monkeypatch.setattr(evaluation, "evaluate", stop_at_second)
+    assert main(cmd) == 143
+    monkeypatch.setattr(evaluation, "evaluate", real)
+    capsys.readouterr()
+    assert main(cmd + ["--resume"]) == 0
+    err = capsys.readouterr().err
+    assert f"[eval] resuming: 1 finished row from {tmp_path / 't.interrupted.json'}" in err
+    assert "[eval] random layout 0: 1 episode in " in err  # the row's progress line likewise
+
+
 def test_resume_runs_only_the_rows_an_interrupted_eval_did_not_finish_and_gives_the_whole_table(tmp_path, monkeypatch, capsys):
     import os
     import signal
