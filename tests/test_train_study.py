@@ -138,6 +138,11 @@ def test_a_study_budget_that_leaves_an_arm_under_the_floor_is_refused_with_one_t
     assert "its time limit of 30 steps" in err and "raise the budget to about " in err
     needed = float(err.split("raise the budget to about ")[1].split(" min")[0])
     assert 0.8 < needed < 10
+    # the refused study left no record: a --resume of it is told there is none, not that it "was trained
+    # with other settings" (nothing was trained), and a fresh study there starts as in an empty folder
+    assert not (out_dir / "study.json").exists()
+    assert main(["study", "--budget-minutes", "0.8", "--resume", "--out", str(out_dir)]) == 2
+    assert "holds no study to continue" in capsys.readouterr().err
     assert not (out_dir / "runs").exists()  # nothing trained
 
 

@@ -443,6 +443,8 @@ def _run_study(plan: StudyPlan, log: Callable[[str], None], stop_requested: Call
         # emptied for a resume that was then refused (another --seed, say), which must not replace the kept one
         if worked or not isinstance(exc, ValueError):
             _save_seconds(plan, round(earlier_s + time.perf_counter() - t_start, 1), budgets)
+        elif not plan.resume:  # a fresh study refused before it did anything leaves no record to --resume
+            (plan.out / STATE_FILE).unlink(missing_ok=True)
         raise
     if earlier_s > 0:
         result["timings"]["total, all sessions"] = earlier_s + result["timings"]["total"]
