@@ -871,3 +871,20 @@ def test_an_event_log_named_as_the_recording_or_an_input_file_is_refused_before_
     what = {"rerun": "the --rerun recording", "flight": "the flight file", "layout": "the flight's layout file"}[which]
     assert rc == 2 and f"--events {events}: is also {what}" in err, err
     assert {p: p.read_bytes() for p in (flight_file, layout)} == before and not rrd.exists()
+
+
+@pytest.mark.parametrize("spots, lab, scale", [
+    ("0.5,0.625 1.75,0.625 1.875,4.0", "370,50 370,150 100,160", "0.0125"),  # the lab positions in cm
+    ("50,62.5 175,62.5 187.5,400", "3.7,0.5 3.7,1.5 1.0,1.6", "125"),  # the spots in cm
+])
+def test_fly_align_refuses_a_fit_whose_scale_no_flight_file_takes_points_in_cm(capsys, spots, lab, scale):
+    """Lab positions in cm printed 'scale: 0.0125' with exit 0: a transform that every flight file
+    refuses (transform.scale is 0.05 to 20), and nothing said that the units were mixed up."""
+    from pursuit_cli import main
+
+    assert main(["fly", "align", "--flight", "lighthouse", "--spots", spots, "--lab", lab]) == 2
+    captured = capsys.readouterr()
+    assert "transform:" not in captured.out
+    err = captured.err
+    assert f"a scale of {scale} layout m per lab m" in err and "0.05 to 20" in err and "--spots" in err and "--lab" in err, err
+    assert "metres" in err and "cm" in err and "mm" in err, err

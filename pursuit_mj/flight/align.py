@@ -26,7 +26,7 @@ from ..layout import is_index_text
 from .board import StateBoard
 from .frames import Fit, fit_similarity
 from .links import CrazyflieFactory, LinkSet
-from .spec import LAB_EXTENT, FlightSpec, drone_names
+from .spec import LAB_EXTENT, SCALE_RANGE, FlightSpec, drone_names
 
 
 def parse_points(text: str, source: str) -> np.ndarray:
@@ -123,13 +123,26 @@ def fit_transform(lab: np.ndarray, spots: np.ndarray, source: str = "--spots", l
     the drones stand in the lab frame (their position estimates), and spots (D, 2) m, where the
     flight file says they stand in the layout frame, in the same (flight-file) order. Errors
     name `source` (the spots) or `lab_source` (the lab points), whichever is at fault, and the
-    drones by `names` (flight-file order; default: their index)."""
+    drones by `names` (flight-file order; default: their index). A fit whose scale is outside
+    spec.SCALE_RANGE, which no flight file takes, is refused: one side is not in metres."""
     if len(lab) != len(spots):
         raise ValueError(f"{source}: {len(spots)} spots for {len(lab)} drones (one spot per drone, flight-file order)")
     if len(lab) >= 2 and float(((lab - lab.mean(0)) ** 2).sum()) < 1e-8:
         raise ValueError(f"{lab_source}: the lab positions coincide; are the drones at their spots, a few centimetres apart at least?")
     _check_apart(lab, lab_source, names)
-    return fit_similarity(lab, spots, source)
+    fit = fit_similarity(lab, spots, source)
+    _check_scale(fit.transform.scale, source, lab_source)
+    return fit
+
+
+def _check_scale(scale: float, source: str, lab_source: str) -> None:
+    """Refuse a fitted scale (layout m per lab m) that no flight file takes (spec.SCALE_RANGE):
+    the spots and the lab positions are not both in metres."""
+    lo, hi = SCALE_RANGE
+    if not lo <= scale <= hi:
+        raise ValueError(f"{source} and {lab_source}: they fit with a scale of {scale:.4g} layout m per lab m, outside the "
+                         f"{lo:g} to {hi:g} a flight file takes (transform.scale): are both in metres? (a scale near 100 or "
+                         f"0.01 is one side in cm, near 1000 or 0.001 one side in mm)")
 
 
 def _check_apart(lab: np.ndarray, lab_source: str, names: Sequence[str] | None) -> None:

@@ -41,6 +41,9 @@ LANDED_HEIGHT = 0.1  # m: a drone whose height estimate is below this is on the 
 #: m: the farthest a lab bound may lie from the lab's origin. No flight space is this big, and the
 #: starts, checked to lie inside the lab before anything is computed from them, stay far from float overflow
 LAB_EXTENT = 1000.0
+#: layout metres per lab metre a transform may have: a lab 20 times smaller or larger than the
+#: arena is no flight anyone plans; a scale near 100 or 1000 (or 0.01, 0.001) is cm or mm read as m
+SCALE_RANGE = (0.05, 20.0)
 
 DATA_RATES = ("250K", "1M", "2M")  # spelled as cflib's radio driver compares them
 DEFAULT_RADIO_ADDRESS = 0xE7E7E7E7E7  # what cflib uses for a radio URI without an address
@@ -126,8 +129,9 @@ class TransformSpec:
     scale: float = spec(1.0, lo=0.0, lo_open=True, help="layout metres per lab metre")
 
     def validate(self, source: str) -> None:
-        if not 0.05 <= self.scale <= 20.0:
-            raise ConfigError(f"{key_where(source, 'scale')}: {self.scale} is not a plausible scale (0.05 to 20 layout m per lab m)")
+        lo, hi = SCALE_RANGE
+        if not lo <= self.scale <= hi:
+            raise ConfigError(f"{key_where(source, 'scale')}: {self.scale} is not a plausible scale ({lo:g} to {hi:g} layout m per lab m)")
 
 
 @dataclasses.dataclass(frozen=True)
