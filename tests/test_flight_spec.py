@@ -873,18 +873,46 @@ def test_an_event_log_named_as_the_recording_or_an_input_file_is_refused_before_
     assert {p: p.read_bytes() for p in (flight_file, layout)} == before and not rrd.exists()
 
 
-@pytest.mark.parametrize("spots, lab, scale", [
-    ("0.5,0.625 1.75,0.625 1.875,4.0", "370,50 370,150 100,160", "0.0125"),  # the lab positions in cm
-    ("50,62.5 175,62.5 187.5,400", "3.7,0.5 3.7,1.5 1.0,1.6", "125"),  # the spots in cm
-])
-def test_fly_align_refuses_a_fit_whose_scale_no_flight_file_takes_points_in_cm(capsys, spots, lab, scale):
+def test_fly_align_refuses_a_fit_whose_scale_no_flight_file_takes_points_in_cm(capsys):
     """Lab positions in cm printed 'scale: 0.0125' with exit 0: a transform that every flight file
     refuses (transform.scale is 0.05 to 20), and nothing said that the units were mixed up."""
     from pursuit_cli import main
+    from pursuit_mj.flight.align import fit_transform
 
-    assert main(["fly", "align", "--flight", "lighthouse", "--spots", spots, "--lab", lab]) == 2
+    spots = "0.5,0.625 1.75,0.625 1.875,4.0"
+    assert main(["fly", "align", "--flight", "lighthouse", "--spots", spots, "--lab", "370,50 370,150 100,160"]) == 2
     captured = capsys.readouterr()
     assert "transform:" not in captured.out
     err = captured.err
-    assert f"a scale of {scale} layout m per lab m" in err and "0.05 to 20" in err and "--spots" in err and "--lab" in err, err
+    assert "a scale of 0.0125 layout m per lab m" in err and "0.05 to 20" in err and "--spots" in err and "--lab" in err, err
     assert "metres" in err and "cm" in err and "mm" in err, err
+    # spots in cm (fly align refuses them first, as outside the arena), lab positions in m
+    lab = np.array([[3.7, 0.5], [3.7, 1.5], [1.0, 1.6]])
+    with pytest.raises(ValueError, match="a scale of 125 layout m per lab m"):
+        fit_transform(lab, np.array([[50.0, 62.5], [175.0, 62.5], [187.5, 400.0]]), lab_source="--lab")
+
+
+def test_fly_align_refuses_spots_outside_the_arena_before_any_radio(capsys):
+    """Spots and lab positions both in cm fit with a plausible scale (1.25) and zero residuals:
+    fly align printed 'origin: [420.0, 10.0]' with exit status 0, an arena 420 m away."""
+    from pursuit_cli import main
+
+    rc = main(["fly", "align", "--flight", "lighthouse", "--spots", "50,62.5 175,62.5 187.5,400", "--lab", "370,50 370,150 100,160"])
+    captured = capsys.readouterr()
+    assert rc == 2 and "transform:" not in captured.out
+    err = captured.err
+    assert "--spots: drone p0's spot [50, 62.5] is outside the 3.6 x 5 m arena" in err and "metres" in err, err
+    # the measuring waits for no drone: the spots are refused before any link opens
+    rc = main(["fly", "align", "--flight", "lighthouse", "--spots", "0.5,0.625 1.75,0.625 1.875,-0.2", "--window", "0.1"])
+    assert rc == 2 and "--spots: drone t0's spot [1.875, -0.2] is outside" in capsys.readouterr().err
+
+
+def test_fly_align_refuses_two_spots_where_no_two_crazyflies_stand(capsys):
+    """Two drones given one spot (a typo) fitted a transform between the other points with a
+    warning about the residuals only; the spots themselves were never looked at."""
+    from pursuit_cli import main
+
+    rc = main(["fly", "align", "--flight", "lighthouse", "--spots", "0.5,0.625 0.5,0.625 1.875,4.0", "--lab", "3.7,0.5 3.7,1.5 1.0,1.6"])
+    captured = capsys.readouterr()
+    assert rc == 2 and "transform:" not in captured.out
+    assert "--spots: drones p0 and p1 have spots 0.000 m apart" in captured.err, captured.err

@@ -21,8 +21,9 @@ import yaml
 
 from ..config import DRONE_CONTACT_DISTANCE
 from ..configio import ConfigError, load_yaml
+from ..geometry import inside_boundary
 from ..io_utils import atomic_write_text
-from ..layout import is_index_text
+from ..layout import Layout, is_index_text
 from .board import StateBoard
 from .frames import Fit, fit_similarity
 from .links import CrazyflieFactory, LinkSet
@@ -132,7 +133,37 @@ def fit_transform(lab: np.ndarray, spots: np.ndarray, source: str = "--spots", l
     _check_apart(lab, lab_source, names)
     fit = fit_similarity(lab, spots, source)
     _check_scale(fit.transform.scale, source, lab_source)
+    _check_spots_apart(spots, fit.transform.scale, source, names)
     return fit
+
+
+def _label(names: Sequence[str] | None, k: int) -> str:
+    return names[k] if names is not None else f"#{k}"
+
+
+def _check_spots_apart(spots: np.ndarray, scale: float, source: str, names: Sequence[str] | None) -> None:
+    """Refuse spots (K, 2) layout m of two drones that lie closer than DRONE_CONTACT_DISTANCE in the
+    lab under the fitted `scale` (layout m per lab m): no two Crazyflies stand there (a spot typed twice)."""
+    if len(spots) < 2:
+        return
+    d = np.where(np.eye(len(spots), dtype=bool), np.inf, np.linalg.norm(spots[:, None] - spots[None], axis=-1))
+    i, j = sorted(np.unravel_index(np.argmin(d), d.shape))
+    if d[i, j] / scale < DRONE_CONTACT_DISTANCE:
+        raise ValueError(f"{source}: drones {_label(names, i)} and {_label(names, j)} have spots {d[i, j]:.3f} m apart "
+                         f"({d[i, j] / scale:.3f} m in the lab), closer than two Crazyflies can stand ({DRONE_CONTACT_DISTANCE:g} m): "
+                         f"one spot per drone, flight-file order")
+
+
+def check_spots_in_arena(spots: np.ndarray, layout: Layout, source: str = "--spots", names: Sequence[str] | None = None) -> None:
+    """Refuse spots (K, 2) m outside the arena of `layout`: the drones stand inside it, and spots
+    are layout metres from the arena's lower-left corner (spots in cm lie far outside). Errors
+    name `source` and the drone by `names` (flight-file order)."""
+    outside = ~inside_boundary(layout, np.asarray(spots, np.float64))
+    if outside.any():
+        k = int(np.flatnonzero(outside)[0])
+        raise ValueError(f"{source}: drone {_label(names, k)}'s spot [{spots[k][0]:g}, {spots[k][1]:g}] is outside the "
+                         f"{layout.width:g} x {layout.height:g} m arena of {layout.source}: spots are where the drones stand, in "
+                         f"layout metres from the arena's lower-left corner")
 
 
 def _check_scale(scale: float, source: str, lab_source: str) -> None:
@@ -196,8 +227,12 @@ def _layout_beside(spec: FlightSpec) -> Path | None:
 
 def align(spec: FlightSpec, spots: Sequence[Sequence[float]], lab: Sequence[Sequence[float]] | None = None,
           uris: Sequence[str] | None = None, factory: CrazyflieFactory | None = None, window: float = 1.0) -> tuple[Fit, np.ndarray]:
-    """Fit the transform from spots (K, 2) m layout and lab positions (K, 2) m (measured if not given)."""
+    """Fit the transform from spots (K, 2) m layout and lab positions (K, 2) m (measured if not given).
+    Spots outside the flight's arena are refused before any drone is measured."""
+    from .plan import resolve_layout
+
     spots = np.asarray(spots, np.float64)
+    check_spots_in_arena(spots, resolve_layout(spec), names=drone_names(spec))  # before any radio: a typo costs no measuring
     lab_pts = np.asarray(lab, np.float64) if lab is not None else measure_lab_positions(spec, uris, factory, window)
     return fit_transform(lab_pts, spots, lab_source="--lab" if lab is not None else "the measured lab positions",
                          names=drone_names(spec)), lab_pts

@@ -160,7 +160,8 @@ class FlightPlan:
         return dataclasses.replace(self, drones=drones)
 
 
-def _resolve_layout(spec: FlightSpec) -> Layout:
+def resolve_layout(spec: FlightSpec) -> Layout:
+    """The flight's layout (a built-in index, a file beside the flight file or as given); ConfigError naming the key."""
     ref = found_layout_ref(spec.layout, spec.source, "layout")
     try:
         return load_layout(ref)
@@ -330,7 +331,7 @@ def _check_starts(spec: FlightSpec, plan_drones: Sequence[FlightDrone], plan: Fl
 
 def resolve_flight(spec: FlightSpec, overrides: Sequence[str] = ()) -> FlightPlan:
     """Check a flight against its layout and task; raises ConfigError naming the file and key."""
-    layout = _resolve_layout(spec)
+    layout = resolve_layout(spec)
     layout_ref = spec.layout if isinstance(spec.layout, int) else layout.source
     task = _task_config(spec, layout_ref, overrides)
     t = spec.transform
