@@ -916,3 +916,30 @@ def test_fly_align_refuses_two_spots_where_no_two_crazyflies_stand(capsys):
     captured = capsys.readouterr()
     assert rc == 2 and "transform:" not in captured.out
     assert "--spots: drones p0 and p1 have spots 0.000 m apart" in captured.err, captured.err
+
+
+BARS_STARTS = [[1.2, 0.6], [1.8, 4.4], [2.4, 0.6]]  # layout 2 (bars): pursuers below the bars, the evader above
+
+
+@pytest.mark.parametrize("scale, margin, refused", [(1.0, 0.3, False), (1.0, 0.45, True), (1.5, 0.3, True)])
+def test_a_geofence_margin_that_closes_every_passage_between_the_teams_is_refused(scale, margin, refused):
+    """On layout 2 the fence's margin (lab m; scale times that in the layout) keeps drones that far
+    from the bars, the pillars and the border. At 0.45 layout m no gap is wide enough: a flight
+    resolved without a word, and pursuers driven from below at the evader stopped at y 1.5 for good
+    (measured with Fence.filter); 0.3 m at scale 1.5 is the same 0.45 layout m."""
+    data = flight(layout=2, transform={"origin": [0.0, 0.0], "yaw": 0.0, "scale": scale},
+                  safety={"geofence_margin": margin, "min_separation": 0.15, "max_speed": 0.7})
+    for drone, xy in zip(data["drones"], BARS_STARTS):
+        drone["start"] = [v / scale for v in xy]
+    spec = flight_from_dict(data, "bars.yaml")
+    if not refused:
+        resolve_flight(spec)
+        return
+    with pytest.raises(ConfigError) as caught:
+        resolve_flight(spec)
+    msg = str(caught.value)
+    assert "bars.yaml: safety: key 'geofence_margin'" in msg and f"geofence_margin {margin:g} m" in msg, msg
+    assert "evader e0" in msg and "pursuer" in msg and "2_bars.yaml" in msg, msg
+    data["drones"][1]["role"] = "target"  # flown by someone else, who may fly it out: a warning
+    plan = resolve_flight(flight_from_dict(data, "bars.yaml"))
+    assert any("closes every passage between target e0 and the pursuers" in w for w in plan.warnings), plan.warnings

@@ -5,7 +5,8 @@
 and refuses flights that cannot work: an arena that does not fit the lab, a drone that
 starts outside the arena or inside a virtual obstacle, drones that start too close, a
 separation guard that would forbid every capture, a geofence margin below the task's
-obstacle clearance (zero included). Flights that can work but are risky resolve with
+obstacle clearance (zero included) or one that closes every passage between an evader
+and the pursuers (for a target, flown by someone else, a warning). Flights that can work but are risky resolve with
 `FlightPlan.warnings`: a geofence margin shorter than the braking distance at the fastest
 command, a drone that starts inside the geofence margin, a task speed above the safety
 limit. `fly` and `fly check` print them with the plan, the bridge logs each as a
@@ -28,6 +29,7 @@ from ..configio import ConfigError, build, merge, parse_override, to_dict
 from ..evader_models import make_evader_model
 from ..geometry import border_distance, inside_boundary, obstacle_distance
 from ..layout import Layout, found_layout_ref, load_layout
+from ..layout_check import free_cells, grid_components, grid_step
 from ..obs_spec import ObsSpec
 from ..user_file import is_file_reference
 from .frames import DroneFrames, LabTransform
@@ -248,6 +250,44 @@ def _check_margin(spec: FlightSpec, task: TaskConfig, transform: LabTransform) -
                           f"the simulator counts a collision with a wall or obstacle")
 
 
+def _check_passages(spec: FlightSpec, plan: FlightPlan) -> list[str]:
+    """Refuse a geofence margin that leaves an evader no way to any pursuer: the fence keeps
+    every commanded drone `geofence_margin` (lab m; times the scale in the layout) from the
+    border and every virtual obstacle, so a passage narrower than twice that is closed to them,
+    and an evader beyond closed passages can never be caught. A target so placed is a warning
+    (returned): someone else flies it, and may fly it out. The free space is the layout's
+    reachability grid (layout_check) at that clearance; a drone starting inside the margin
+    counts in the free space nearest it, where the fence pushes it."""
+    layout, keep = plan.layout, spec.safety.geofence_margin * plan.transform.scale
+    margin = f"safety.geofence_margin {spec.safety.geofence_margin:g} m ({keep:g} layout m at scale {plan.transform.scale:g})"
+    step = grid_step(layout, keep)
+    xs, ys = np.arange(step / 2, layout.width, step), np.arange(step / 2, layout.height, step)
+    free = free_cells(layout, xs, ys, keep)
+    where = f"{spec.source}: safety: key 'geofence_margin'"
+    if not free.any():
+        raise ConfigError(f"{where}: {margin} from every wall, obstacle and the border leaves no room at all in the arena of {layout.source}")
+    label = grid_components(free)
+    cells = np.argwhere(free)  # (F, 2) grid indices
+    centres = np.column_stack([xs[cells[:, 0]], ys[cells[:, 1]]])
+    starts = plan.transform.to_layout(np.array([d.start for d in plan.drones], np.float64))
+    nearest = np.argmin(np.linalg.norm(starts[:, None] - centres[None], axis=-1), axis=1)
+    region = label[cells[nearest, 0], cells[nearest, 1]]  # (D,) the free space each drone starts in
+    N = plan.n_pursuers
+    warnings = []
+    for k in range(N, plan.n_drones):
+        if region[k] in region[:N]:
+            continue
+        d = plan.drones[k]
+        why = (f"{margin} closes every passage between {d.role} {d.name} and the pursuers ({', '.join(plan.names[:N])}) in "
+               f"{layout.source}: the fence keeps them that far from walls, obstacles and the border, so a passage needs "
+               f"{2 * keep:g} layout m")
+        if d.role == "target":
+            warnings.append(f"{why}; the pursuers reach target {d.name} only if it is flown out to them")
+            continue
+        raise ConfigError(f"{where}: {why}, and {d.name} could never be caught (lower the margin, or start the drones on one side)")
+    return warnings
+
+
 def _margin_warnings(plan: FlightPlan) -> list[str]:
     """A margin shorter than the braking distance at the fastest command; task speeds above the safety limit."""
     s, t = plan.safety, plan.transform
@@ -357,6 +397,7 @@ def resolve_flight(spec: FlightSpec, overrides: Sequence[str] = ()) -> FlightPla
     lab = _lab_bounds(spec, transform, layout)
     plan = FlightPlan(spec, task, layout, transform, lab, drones)
     warnings = _margin_warnings(plan) + _check_starts(spec, drones, plan)
+    warnings += _check_passages(spec, plan)  # after the starts: each lies in the arena, clear of the obstacles
     return dataclasses.replace(plan, warnings=tuple(warnings))
 
 
