@@ -198,7 +198,7 @@ STOP_SIGNALS = {"Ctrl-C": "SIGINT", "SIGTERM": "SIGTERM", "SIGHUP": "SIGHUP", "C
 
 
 def run_align(args) -> int:
-    from pursuit_mj.flight.align import align, parse_points, transform_yaml, write_with_transform
+    from pursuit_mj.flight.align import align, parse_points, spot_turns, transform_yaml, write_with_transform
     from pursuit_mj.flight.spec import drone_names, load_flight
 
     _quiet_cflib(False)
@@ -234,6 +234,11 @@ def run_align(args) -> int:
         print(f"warning: no rotation, scale and shift brings the drones within {ALIGN_WARN_RMS * 1000:.0f} mm of their "
               f"spots: check that --spots follow the flight file's drone order ({', '.join(drone_names(spec))}) and "
               f"that each drone stands on its spot")
+    turns = spot_turns(spots, ALIGN_WARN_RMS)
+    if turns:  # the residuals cannot tell: a placement turned so fits as well as the right one
+        print(f"warning: the spots look the same turned by {' or '.join(str(a) for a in turns)} deg about their centre: "
+              f"drones each standing on another's spot so turned fit as well as on their own, and turn the transform by as "
+              f"much; check that {', '.join(drone_names(spec))} stand on their own spots, or place them less evenly")
     print(transform_yaml(fit), end="")
     if args.write:
         out = write_with_transform(spec, fit, args.write, args.overrides)

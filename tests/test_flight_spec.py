@@ -943,3 +943,31 @@ def test_a_geofence_margin_that_closes_every_passage_between_the_teams_is_refuse
     data["drones"][1]["role"] = "target"  # flown by someone else, who may fly it out: a warning
     plan = resolve_flight(flight_from_dict(data, "bars.yaml"))
     assert any("closes every passage between target e0 and the pursuers" in w for w in plan.warnings), plan.warnings
+
+
+def test_fly_align_warns_that_spots_turned_about_their_centre_fit_as_well():
+    """Drones at the corners of a rectangle (or a regular triangle, a square) fit exactly when each
+    stands on another's spot, turned about the centre: 'rms residual 0.0 mm' and a transform turned
+    by 180 deg (120, 90 ...) without a word, as with two drones, which were warned about."""
+    from pursuit_mj.flight.align import spot_turns
+
+    rectangle = np.array([[0.6, 0.6], [3.0, 0.6], [3.0, 4.4], [0.6, 4.4]])
+    assert spot_turns(rectangle, 0.05) == [180]
+    assert spot_turns(np.array([[1.0, 1.0], [2.0, 1.0], [2.0, 2.0], [1.0, 2.0]]), 0.05) == [90, 180, 270]
+    triangle = 1.8 + 1j * 2.5 + np.exp(1j * np.radians([90, 210, 330]))
+    assert spot_turns(np.column_stack([triangle.real, triangle.imag]), 0.05) == [120, 240]
+    assert spot_turns(np.array([[0.5, 0.625], [1.75, 0.625], [1.875, 4.0]]), 0.05) == []  # lighthouse.yaml's
+    assert spot_turns(rectangle + [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.3, 0.0]], 0.05) == []  # one corner moved
+
+
+def test_fly_align_prints_the_turn_of_symmetric_spots_as_a_warning(capsys):
+    from pursuit_cli import main
+
+    truth = LabTransform((4.2, 0.1), math.pi / 2, 1.25)  # configs/flight/lighthouse.yaml's
+    triangle = 1.8 + 1j * 2.5 + np.exp(1j * np.radians([90, 210, 330]))
+    spots = np.column_stack([triangle.real, triangle.imag])
+    fmt = lambda pts: " ".join(f"{x:.4f},{y:.4f}" for x, y in pts)  # noqa: E731
+    assert main(["fly", "align", "--flight", "lighthouse", "--spots", fmt(spots), "--lab", fmt(truth.to_lab(spots))]) == 0
+    out = capsys.readouterr().out
+    assert "warning: the spots look the same turned by 120 or 240 deg about their centre" in out, out
+    assert "p0, p1, t0" in out and "transform:" in out

@@ -190,6 +190,28 @@ def _check_apart(lab: np.ndarray, lab_source: str, names: Sequence[str] | None) 
                          f"closer than two Crazyflies can ({DRONE_CONTACT_DISTANCE:g} m): is each drone on its own spot?")
 
 
+def spot_turns(spots: np.ndarray, tol: float) -> list[int]:
+    """Turns about their centre (whole degrees in (0, 360), ascending) that carry the spots
+    (K, 2) m onto themselves, each spot within `tol` m of another's: drones standing each on
+    another's spot so turned fit exactly as well as on their own, with the fitted transform
+    turned by as much (corners of a rectangle: [180]; a square: [90, 180, 270]). Empty for
+    fewer than three spots (two always fit: warned about on their own) or a lopsided placement."""
+    z = np.asarray(spots, np.float64) @ np.array([1.0, 1j])  # as complex numbers
+    if len(z) < 3:
+        return []
+    z = z - z.mean()
+    ref = int(np.argmax(np.abs(z)))  # a spot off the centre: its image fixes the turn
+    turns = set()
+    for j in np.flatnonzero(np.abs(np.abs(z) - np.abs(z[ref])) <= tol):
+        if j == ref:
+            continue
+        turned = z * (z[j] / z[ref]) / abs(z[j] / z[ref])
+        near = np.abs(turned[:, None] - z[None]) <= tol
+        if near.any(axis=1).all() and near.any(axis=0).all():
+            turns.add(round(math.degrees(np.angle(z[j] / z[ref]))) % 360)
+    return sorted(turns - {0})
+
+
 def transform_yaml(fit: Fit) -> str:
     t = fit.transform
     return yaml.safe_dump({"transform": {"origin": [round(t.origin[0], 5), round(t.origin[1], 5)], "yaw": round(t.yaw, 6), "scale": round(t.scale, 6)}}, sort_keys=False, default_flow_style=None)
