@@ -971,3 +971,23 @@ def test_fly_align_prints_the_turn_of_symmetric_spots_as_a_warning(capsys):
     out = capsys.readouterr().out
     assert "warning: the spots look the same turned by 120 or 240 deg about their centre" in out, out
     assert "p0, p1, t0" in out and "transform:" in out
+
+
+@pytest.mark.parametrize("scale, separation, warned", [(1.0, 0.25, False), (1.0, 0.15, True), (0.8, 0.2, True), (1.25, 0.2, False)])
+def test_a_separation_guard_that_lets_pursuers_closer_than_the_simulators_teammate_clearance_is_warned_about(scale, separation, warned):
+    """The simulator counts two pursuers closer than teammate_clearance (0.2 layout m) as a collision;
+    a separation guard below that in the lab (0.2 / scale m) let them come closer without a word
+    (the fence's margin is held to obstacle_clearance the same way)."""
+    data = flight(transform={"origin": [0.0, 0.0], "yaw": 0.0, "scale": scale}, safety={"min_separation": separation},
+                  task={"capture_radius": 0.3, "evader_speed": 0.4})
+    for drone in data["drones"]:
+        drone["start"] = [v / scale for v in drone["start"]]
+    plan = resolve_flight(flight_from_dict(data, "lab.yaml"))
+    found = [w for w in plan.warnings if "teammate_clearance" in w]
+    if not warned:
+        assert found == [], found
+        return
+    [warning] = found
+    lab = 0.2 / scale
+    for w in [f"safety.min_separation {separation:g} m", "teammate_clearance 0.2 m", f"{lab:.3f} m in the lab", "collision"]:
+        assert w in warning, (w, warning)

@@ -6,10 +6,11 @@ and refuses flights that cannot work: an arena that does not fit the lab, a dron
 starts outside the arena or inside a virtual obstacle, drones that start too close, a
 separation guard that would forbid every capture, a geofence margin below the task's
 obstacle clearance (zero included) or one that closes every passage between an evader
-and the pursuers (for a target, flown by someone else, a warning). Flights that can work but are risky resolve with
-`FlightPlan.warnings`: a geofence margin shorter than the braking distance at the fastest
-command, a drone that starts inside the geofence margin, a task speed above the safety
-limit. `fly` and `fly check` print them with the plan, the bridge logs each as a
+and the pursuers (for a target, flown by someone else, a warning). Flights that can work
+but are risky resolve with `FlightPlan.warnings`: a geofence margin shorter than the
+braking distance at the fastest command, a separation guard below the task's teammate
+clearance (in the lab), a drone that starts inside the geofence margin, a task speed above
+the safety limit. `fly` and `fly check` print them with the plan, the bridge logs each as a
 `plan_warning` event. Nothing here touches a radio.
 
 Drone order in a plan (and in every array of the bridge): pursuers first, then evaders
@@ -289,7 +290,8 @@ def _check_passages(spec: FlightSpec, plan: FlightPlan) -> list[str]:
 
 
 def _margin_warnings(plan: FlightPlan) -> list[str]:
-    """A margin shorter than the braking distance at the fastest command; task speeds above the safety limit."""
+    """A margin shorter than the braking distance at the fastest command; task speeds above the safety
+    limit; a separation guard that lets pursuers closer than the simulator's teammate_clearance."""
     s, t = plan.safety, plan.transform
     out = []
     if s.geofence_margin < plan.braking_distance - 1e-9:
@@ -313,6 +315,12 @@ def _margin_warnings(plan: FlightPlan) -> list[str]:
             out.append(f"the {who}' task speed {speed:g} m/s is {lab_speed:g} m/s in the lab, above the safety "
                        f"limit {s.max_speed:g} m/s: they will fly slower than the policy expects (raise safety.max_speed "
                        f"or lower task.{key}_speed)")
+    mates = plan.task.teammate_clearance / t.scale  # lab m: where the simulator counts two pursuers as collided
+    if plan.n_pursuers > 1 and s.min_separation < mates - 1e-9:
+        out.append(f"safety.min_separation {s.min_separation:g} m is below the task's teammate_clearance "
+                   f"{plan.task.teammate_clearance:g} m ({mates:.3f} m in the lab, scale {t.scale:g}): the separation guard "
+                   f"lets two pursuers come closer than the simulator lets them, where it counts a collision (raise "
+                   f"min_separation to {mates:.3f} m, below the capture distance {plan.task.capture_radius / t.scale:.3f} m)")
     return out
 
 
