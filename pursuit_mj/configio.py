@@ -401,16 +401,20 @@ def load(
     extra: Mapping[str, Any] | None = None,
     extra_source: str = "command line",
     read: Callable[[Path], dict[str, Any]] | None = None,
+    base: Mapping[str, Any] | None = None,
+    base_source: str = "defaults",
 ) -> T:
-    """Defaults <- each YAML file in order <- `extra` (flags) <- `--set` overrides.
+    """Defaults <- `base` <- each YAML file in order <- `extra` (flags) <- `--set` overrides.
 
     Each source's keys and values are checked as it is read, so an error names the source
     that holds the bad value; the checks across keys (validate) judge the whole, so a later
     source may repair what an earlier one left inconsistent (--set evader.panic_distance=3.5
     --set evader.calm_distance=5), and their error names the source after which the config
-    stayed inconsistent. `read` reads a file (default load_yaml)."""
-    merged: dict[str, Any] = {}
-    stages: list[tuple[str, dict[str, Any]]] = []  # (source, merged after it)
+    stayed inconsistent. `read` reads a file (default load_yaml). `base`: values the caller
+    has read and checked key by key already (a train config's files, with their task files),
+    named `base_source` when the config stays inconsistent from them on."""
+    merged: dict[str, Any] = dict(base or {})
+    stages: list[tuple[str, dict[str, Any]]] = [(base_source, merged)] if merged else []  # (source, merged after it)
     for f in files:
         data = (read or load_yaml)(f)
         check_values(cls, data, str(f))

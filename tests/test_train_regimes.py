@@ -94,6 +94,24 @@ def test_overrides_flags_and_task_file():
         load_train_config([], ["ppo.batch_size=256", "ppo.minibatch_size=512"]).check_complete()
 
 
+def test_a_train_file_that_a_later_flag_or_set_completes_is_accepted(tmp_path):
+    """The train files' checks across keys were judged before the flags and --set applied: a file of
+    one's own with regime fine_tune and no init_from was refused beside --init-from CKPT ('needs
+    init_from'), and an evader.panic_distance that a --set calm_distance made consistent was refused."""
+    own = tmp_path / "ft.yaml"
+    own.write_text("name: ft\nregime: fine_tune\n")
+    assert load_train_config([own], [], {"init_from": "ckpt.pt"}).init_from == "ckpt.pt"
+    assert load_train_config([own], ["init_from=ckpt.pt"]).init_from == "ckpt.pt"
+    panic = tmp_path / "panic.yaml"
+    panic.write_text("name: p\ntask:\n  evader:\n    panic_distance: 3.5\n")
+    assert load_train_config([panic], ["task.evader.calm_distance=5"]).task.evader.calm_distance == 5.0
+    # nothing later repairs it: still refused, naming the file that left it so
+    with pytest.raises(ConfigError, match=f"^{own}: regime fine_tune needs init_from"):
+        load_train_config([own], ["ppo.lr=1e-4"], {"total_steps": 1000})
+    with pytest.raises(ConfigError, match=r"^--set init_from=null: regime fine_tune needs init_from"):
+        load_train_config(["fine_tune"], ["init_from=null"])
+
+
 def test_a_task_file_applies_where_its_train_file_stands_in_the_order(tmp_path):
     """Files apply in order, each with its task_file under its own task: keys: a later file's
     task_file used to lose to an earlier file's task: keys."""

@@ -490,9 +490,9 @@ def load_train_config(
             merged = _with_layer(merged, {"task_file": value}, source)
         else:
             rest.append(text)
-    cfg = build(TrainConfig, merged, source)
-    extra = _deep_update(to_dict(cfg), dict(flags)) if flags else None
-    return load(TrainConfig, (), rest, extra=extra or to_dict(cfg), extra_source=flags_source)
+    # the checks across keys judge the files, flags and --set together: a later one may complete an
+    # earlier one (a file's regime fine_tune, --init-from CKPT)
+    return load(TrainConfig, (), rest, extra=flags, extra_source=flags_source, base=merged, base_source=source)
 
 
 def set_keys(text: str, prefix: str = "") -> set[str]:
