@@ -175,7 +175,8 @@ def _check_same(asked, stored) -> None:
         return out
 
     a, b = flat(to_dict(asked)), flat(to_dict(stored))
-    for key in ("total_steps", "max_minutes", "run.progress", "run.rerun", "name", "run.runs_dir"):
+    # task_file: its keys are compared one by one as task.*; runs before 2026-12-07 stored its path relative
+    for key in ("total_steps", "max_minutes", "run.progress", "run.rerun", "name", "run.runs_dir", "task_file"):
         a.pop(key, None), b.pop(key, None)
     diff = [f"{k} {a.get(k)!r} (asked) vs {b.get(k)!r} (stored)" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
     if diff:

@@ -416,6 +416,43 @@ def test_the_command_that_started_a_run_on_a_relative_layout_file_resumes_it(tmp
     assert "done: 2 updates" in capsys.readouterr().out
 
 
+def test_the_stored_config_of_a_run_on_a_relative_task_file_loads_from_any_folder(tmp_path, capsys, monkeypatch):
+    """config.yaml kept task_file as typed, relative to the folder the run started in (its layout and
+    code files are stored absolute): 'train --config RUN/config.yaml -sc', which a refused --resume -sc
+    advises, failed from any other folder with 'task_file slow.yaml: no such file'."""
+    start, other = tmp_path / "start", tmp_path / "other"
+    start.mkdir(), other.mkdir()
+    (start / "slow.yaml").write_text("evader_speed: 0.4\n")
+    (start / "mine.yaml").write_text("name: rel\ntask_file: slow.yaml\n")
+    monkeypatch.chdir(start)
+    base = ["train", "--no-progress", "--config", "mine.yaml"] + sets(TINY + [f"run.runs_dir={tmp_path}"])
+    assert main(base + ["--total-steps", "32"]) == 0
+    stored = tmp_path / "rel" / "config.yaml"
+    monkeypatch.chdir(other)
+    capsys.readouterr()
+    assert main(["train", "--config", str(stored), "-sc"]) == 0, capsys.readouterr().err
+    out = capsys.readouterr().out
+    assert f"task_file: {start / 'slow.yaml'}" in out and "evader_speed: 0.4" in out
+    monkeypatch.chdir(start)  # the command that started it still resumes it
+    assert main(base + ["--resume", "--total-steps", "64"]) == 0, capsys.readouterr().err
+    assert "done: 2 updates" in capsys.readouterr().out
+
+
+def test_a_resume_of_a_run_that_stored_its_task_file_relative_is_not_refused(tmp_path, monkeypatch):
+    """Runs made before config.yaml held task_file absolute keep it relative; the command that started
+    one, whose config now holds it absolute, must still resume it (its keys are compared as task.*)."""
+    from pursuit_cli.train_cmd import _check_same
+    from train.config import load_train_config
+
+    (tmp_path / "slow.yaml").write_text("evader_speed: 0.4\n")
+    monkeypatch.chdir(tmp_path)
+    asked = load_train_config(["classic"], ["task_file=slow.yaml"])
+    assert asked.with_absolute_files().task_file == str(tmp_path / "slow.yaml")
+    _check_same(asked.with_absolute_files(), asked)
+    with pytest.raises(ValueError, match="task.evader_speed"):
+        _check_same(asked.with_absolute_files(), load_train_config(["classic"], ["task_file=easy"]))
+
+
 @pytest.mark.parametrize("given, message", [
     ("layouts=[0,7]", "--set layouts=[0,7]: key 'layouts': 7 is not a built-in layout index (0-3)"),
     ("run.validation_layouts=[9]",
