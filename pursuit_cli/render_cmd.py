@@ -22,13 +22,13 @@ from pathlib import Path
 
 from pursuit_mj.io_utils import check_writable_folder
 from pursuit_mj.config import TaskConfig, load_task_yaml, preset_or_file
-from pursuit_mj.configio import build, dump_yaml, load, to_dict
-from pursuit_mj.layout import load_layout
+from pursuit_mj.configio import dump_yaml, load, to_dict
+from pursuit_mj.layout import is_index_text, load_layout
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
 from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_path
-from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, check_evader_model, flags_typed, load_model, path_arg, seed_arg, sweep_dead_parts,
+from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, check_evader_model, flags_typed, load_model, one_flag_named, path_arg, seed_arg, sweep_dead_parts,
                      finite_float, shield_if_asked, task_config_from_args)
 
 DEFAULT_SAVE = "renders"
@@ -107,31 +107,24 @@ def _train_config(ref: str, args):
     return load_train_config([ref], replaced=replaced)
 
 
-def _merge(base: dict, new: dict) -> dict:
-    """Nested dict update: mappings merge key by key, anything else replaces."""
-    out = dict(base)
-    for k, v in new.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
-
-
 def task_config(args, base: TaskConfig | None) -> TaskConfig:
     """defaults <- base (the -mc run's task) <- -ec files <- task flags <- --set, its evader model
-    made once (check_evader_model); printed with -sc."""
+    made once (check_evader_model); printed with -sc. As for task_config_from_args, each source's
+    values are checked as it is read and the checks across keys judge the whole."""
     if base is None:
         return task_config_from_args(args)
-    merged = to_dict(base)
-    for f in args.task_files:
-        p = preset_or_file(f, "task")
-        merged = _merge(merged, load_task_yaml(p))
-        build(TaskConfig, merged, str(p))  # errors name the file that caused them
     flags = {}
     for key in TASK_FLAG_KEYS:
         value = getattr(args, key, None)
         if value is not None:
-            flags[key] = int(value) if key == "layout" and str(value).strip().isdigit() else value
-    typed = flags_typed((TASK_FLAG_NAMES[k], v) for k, v in flags.items()) if flags else "-mc and -ec files"
-    cfg = load(TaskConfig, (), args.overrides, extra=_merge(merged, flags), extra_source=typed)
+            flags[key] = int(value) if key == "layout" and is_index_text(value) else value
+    typed = flags_typed((TASK_FLAG_NAMES[k], v) for k, v in flags.items()) if flags else "command-line flag"
+    files = [preset_or_file(f, "task") for f in args.task_files]
+    try:
+        cfg = load(TaskConfig, files, args.overrides, extra=flags, extra_source=typed, read=load_task_yaml,
+                   base=to_dict(base), base_source=f"-mc {args.model_config}: task")
+    except ValueError as exc:
+        raise one_flag_named(exc, typed, {TASK_FLAG_NAMES[k]: v for k, v in flags.items()}, TASK_FLAG_NAMES) from None
     check_evader_model(cfg, "evader.model")  # as task_config_from_args: one line, before any file or the digest
     if args.show_config:
         print(dump_yaml(cfg))

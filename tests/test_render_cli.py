@@ -218,6 +218,25 @@ def test_cli_checkpoints_another_observation_spec_refused_matching_one_used(tmp_
     assert "layout: 3" in out and "max_steps: 3" in out and (tmp_path / "m.mp4").is_file()
 
 
+def test_a_model_configs_task_takes_task_files_and_flags_as_the_other_commands_do(tmp_path, capsys):
+    """With -mc, each --task file's checks across keys were judged before the --set after it (a file that
+    a later --set completes, as every other command takes it, was refused), and -i with a digit that is
+    not ASCII ('²') ended in Python's "invalid literal for int() with base 10"."""
+    mc = tmp_path / "model.yaml"
+    mc.write_text(f"name: none_here\nrun: {{runs_dir: {tmp_path}}}\ntask: {{fidelity: point, max_steps: 3}}\n")
+    panic = tmp_path / "panic.yaml"
+    panic.write_text("evader:\n  panic_distance: 3.5\n")
+    args = ["render", "-mc", str(mc), "-s", str(tmp_path / "m.mp4"), "--task", str(panic)]
+    assert main(args + ["--set", "evader.calm_distance=5", "-sc"]) == 2
+    captured = capsys.readouterr()  # the config is taken and shown; the model is what is missing
+    assert "calm_distance: 5.0" in captured.out and "no checkpoint at" in captured.err, captured.err
+    assert main(args) == 2  # nothing repairs it: the file is named
+    assert f"{panic}: key 'evader': evader.calm_distance 3.0 must exceed" in capsys.readouterr().err
+    assert main(["render", "-mc", str(mc), "-i", "\u00b2"]) == 2
+    err = capsys.readouterr().err
+    assert "layout '\u00b2'" in err and "invalid literal" not in err, err
+
+
 def test_a_missing_model_leaves_no_output_folder_behind(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(["render", "-mc", "classic", "-s", "finals/", "--fidelity", "point"]) == 2
