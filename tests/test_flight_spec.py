@@ -479,6 +479,24 @@ def test_fly_align_does_not_write_a_transform_the_flight_cannot_resolve_with(tmp
     assert "the measured transform does not make a valid flight" in err and "which leaves the lab" in err, err
 
 
+def test_flight_set_overrides_take_a_section_and_a_repair_as_the_task_commands_do():
+    """fly's --set built the task after each one and put a mapping in place of its section:
+    --set evader={panic_distance: 2} reset the flight file's other evader keys to their defaults, and
+    --set evader.panic_distance=4.5 --set evader.calm_distance=5 was refused at the first one."""
+    spec = flight_from_dict(flight(task={"evader": {"calm_distance": 4.0}}), "lab.yaml")
+    evader = resolve_flight(spec, ["evader={panic_distance: 2}"]).task.evader
+    assert (evader.panic_distance, evader.calm_distance) == (2.0, 4.0)
+    evader = resolve_flight(spec, ["evader.panic_distance=4.5", "evader.calm_distance=5"]).task.evader
+    assert (evader.panic_distance, evader.calm_distance) == (4.5, 5.0)
+    with pytest.raises(ConfigError, match=r"^--set evader.panic_distance=4.5: key 'evader': evader.calm_distance 4.0 must exceed"):
+        resolve_flight(spec, ["evader.panic_distance=4.5"])
+    # the flight file's own task keys, completed by a --set
+    spec = flight_from_dict(flight(task={"evader": {"panic_distance": 3.5}}), "lab.yaml")
+    assert resolve_flight(spec, ["evader.calm_distance=5"]).task.evader.calm_distance == 5.0
+    with pytest.raises(ConfigError, match=r"^lab.yaml: task: key 'evader': evader.calm_distance 3.0 must exceed"):
+        resolve_flight(spec, ["evader_speed=0.5"])
+
+
 def test_fly_check_and_bad_command_lines_fail_with_one_clear_line(capsys):
     from pursuit_cli import main
 

@@ -26,7 +26,7 @@ from typing import Sequence
 import numpy as np
 
 from ..config import TaskConfig, found_code_ref
-from ..configio import ConfigError, build, merge, parse_override, to_dict
+from ..configio import ConfigError, build, check_values, load, parse_override, to_dict
 from ..evader_models import make_evader_model
 from ..geometry import border_distance, inside_boundary, obstacle_distance
 from ..layout import Layout, found_layout_ref, load_layout
@@ -183,15 +183,15 @@ def _task_config(spec: FlightSpec, layout_ref, overrides: Sequence[str]) -> Task
     task_keys = dict(spec.task)
     if isinstance(task_keys.get("evader"), dict) and "model" in task_keys["evader"]:  # FILE.py beside the flight file
         task_keys["evader"] = {**task_keys["evader"], "model": found_code_ref(task_keys["evader"]["model"], spec.source, "task.evader.model")}
-    base = build(TaskConfig, task_keys, src)
-    values = to_dict(base)
     for text in overrides:
         path, value = parse_override(text, f"--set {text}")
         if path[0] in SIMULATION_ONLY_KEYS:
             raise ConfigError(f"--set {text}: '{path[0]}' means nothing in a flight: {SIMULATION_ONLY_KEYS[path[0]]}")
         if path[0] in FIXED_TASK_KEYS:
             raise ConfigError(f"--set {text}: '{path[0]}': {_why_fixed(path[0])}")
-        values = to_dict(build(TaskConfig, merge(values, path, value), f"--set {text}"))
+    # as every task command: a --set mapping updates its section, and a later --set may complete an earlier one
+    check_values(TaskConfig, task_keys, src)
+    values = to_dict(load(TaskConfig, (), overrides, base=task_keys, base_source=src))
     roles = [d.role for d in spec.drones]
     values.update(
         n_pursuers=roles.count("pursuer"),
