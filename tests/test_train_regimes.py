@@ -146,6 +146,16 @@ def test_settings_this_combination_never_reads_are_named_when_the_run_starts(tmp
     assert "[train] note: residual.scale 0.5 does nothing without residual.base" in lines
 
 
+def test_a_drone_mass_under_point_fidelity_is_named_as_idle():
+    """The point model's lag and acceleration limit do not follow drone_mass (docs/DESIGN.md): a run
+    with --set task.drone_mass=0.033 --fidelity point trained exactly as at 0.027 g, without a word."""
+    assert load_train_config(["classic"], ["task.drone_mass=0.033"]).idle_settings() == []  # quadrotor flies it
+    assert load_train_config(["classic"], ["task.fidelity=point"]).idle_settings() == []
+    assert load_train_config(["classic"], ["task.fidelity=point", "task.drone_mass=0.033"]).idle_settings() == [
+        "task.drone_mass 0.033 does nothing under task.fidelity point (the point model's response does not follow "
+        "the mass; quadrotor fidelity flies it)"]
+
+
 def test_ppo_update_settings_under_dagger_are_named_as_idle_and_refuse_nothing():
     """DAgger's update reads imitation.lr, minibatch_size, max_grad_norm: --config imitate --set
     ppo.lr=1e-5 changed nothing without a word (imitation.lr under PPO was named), and
