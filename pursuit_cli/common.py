@@ -198,9 +198,26 @@ def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
     except ValueError as exc:
         raise one_flag_named(exc, typed, {TASK_FLAG_NAMES[k]: v for k, v in flags.items()}, TASK_FLAG_NAMES) from None
     check_evader_model(cfg, "evader.model")  # before -sc prints it: a config refused is not shown as the one run
+    check_layout_given(args, cfg)
     if getattr(args, "show_config", False):
         print(dump_yaml(cfg))
     return cfg
+
+
+def check_layout_given(args: argparse.Namespace, config: TaskConfig) -> None:
+    """The task's layout reference, when a flag or --set gave it, resolved now: ValueError naming
+    that flag or --set for one that names no file or built-in layout (it was 'layout 'x.yaml': no
+    such file ...', naming neither). A file that is there but malformed is named by its path where
+    it loads; a task file's layout is found, or refused naming its file and key, as the file is read."""
+    from pursuit_mj.layout import resolve_layout_ref
+
+    source = task_key_source(args, "layout")
+    if source is None or source.startswith("task file"):
+        return
+    try:
+        resolve_layout_ref(config.layout)
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
 
 
 def check_evader_model(config: TaskConfig, source: str) -> None:

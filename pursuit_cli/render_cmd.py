@@ -28,7 +28,7 @@ from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
 from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_path
-from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, check_evader_model, flags_typed, load_model, one_flag_named, path_arg, seed_arg, sweep_dead_parts,
+from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, check_evader_model, check_layout_given, flags_typed, load_model, one_flag_named, path_arg, seed_arg, sweep_dead_parts,
                      finite_float, shield_if_asked, task_config_from_args)
 
 DEFAULT_SAVE = "renders"
@@ -126,6 +126,7 @@ def task_config(args, base: TaskConfig | None) -> TaskConfig:
     except ValueError as exc:
         raise one_flag_named(exc, typed, {TASK_FLAG_NAMES[k]: v for k, v in flags.items()}, TASK_FLAG_NAMES) from None
     check_evader_model(cfg, "evader.model")  # as task_config_from_args: one line, before any file or the digest
+    check_layout_given(args, cfg)
     if args.show_config:
         print(dump_yaml(cfg))
     return cfg

@@ -326,6 +326,21 @@ def test_a_layout_file_found_nowhere_is_refused_naming_the_file_and_key_that_nam
     assert f"layout 'arena.yaml': no such file in the current folder ({tmp_path})," in err and "beside" not in err
 
 
+@pytest.mark.parametrize("command", [["config"], ["eval", "--policy", "heuristic"], ["simulate"], ["render", "--policy", "random"]])
+@pytest.mark.parametrize("given, named", [(["-i", "none.yaml"], "--layout none.yaml"),
+                                          (["--set", "layout=none.yaml"], "--set layout=none.yaml"),
+                                          (["--set", "layout='7'"], "--set layout='7'")])
+def test_a_layout_given_on_the_command_line_that_cannot_be_loaded_names_its_flag(tmp_path, capsys, monkeypatch,
+                                                                                   command, given, named):
+    """-i none.yaml or --set layout=none.yaml was refused as "layout 'none.yaml': no such file ...",
+    naming neither the flag nor the --set that gave it, as errors of other task values do."""
+    monkeypatch.chdir(tmp_path)
+    assert main(command + given) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"pursuit-mj {command[0]}: error: {named}: layout ") and len(err.splitlines()) == 1, err
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("argv, key", [(["--r_perception", "2000"], "perception_radius"),  # the reference study's mm
                                        (["--set", "ray_range=1500"], "ray_range"),
                                        (["--set", "evader.sense_radius=4000"], "evader.sense_radius")])
