@@ -351,6 +351,8 @@ def _parse_random(value: Any, where: str) -> RandomObstacles:
         return RandomObstacles(count=0)
     m = _mapping(value, where, ("count", "kinds", "size"), ())
     count = m.get("count", 5)
+    if isinstance(count, float) and count.is_integer():  # 3.0 or 3e0: a count, as the task's counts take it
+        count = int(count)
     if isinstance(count, bool) or not isinstance(count, int) or count < 0:
         raise LayoutError(f"{where}.count: expected an integer >= 0, got {shown(count)}")
     if count > MAX_RANDOM_OBSTACLES:

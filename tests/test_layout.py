@@ -444,6 +444,19 @@ def test_malformed_layouts_are_refused_naming_the_entry(data, message, tmp_path)
         load_layout(path)
 
 
+def test_a_random_obstacle_count_written_as_a_whole_float_is_a_count(tmp_path):
+    """random_obstacles.count 3.0 (or 3e0) was refused 'expected an integer >= 0, got 3.0', where the
+    task's counts (random_obstacles, n_pursuers, max_steps) take a whole number written so."""
+    path = tmp_path / "floats.yaml"
+    for written in ("3.0", "3e0"):
+        path.write_text(yaml.safe_dump(base_dict(random_obstacles={"count": 0})).replace("count: 0", f"count: {written}"))
+        count = load_layout(path).random_obstacles.count
+        assert count == 3 and type(count) is int
+    path.write_text(yaml.safe_dump(base_dict(random_obstacles={"count": 2.5})))
+    with pytest.raises(LayoutError, match=r"random_obstacles.count: expected an integer >= 0, got 2.5"):
+        load_layout(path)
+
+
 @pytest.mark.parametrize(
     "data, message",
     [
