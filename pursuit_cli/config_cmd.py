@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pursuit_mj.config import dump_yaml
-from pursuit_mj.layout import load_layout
+from pursuit_mj.env import check_task_layouts
 from .common import add_task_args, task_config_from_args
 
 
@@ -16,6 +16,7 @@ def register(sub) -> None:
 def run(args) -> int:
     args.show_config = False
     config = task_config_from_args(args)
-    load_layout(config.layout)  # a missing or broken layout file is an error here too, not only when used
+    # a missing or broken layout file, or one that cannot hold the task, is an error here too, as in every run
+    check_task_layouts(config)
     print(dump_yaml(config), end="")
     return 0

@@ -133,6 +133,23 @@ def _layout_pool(config: TaskConfig, layouts: Sequence[int | str | Layout] | Non
     return [_checked_layout(r) if isinstance(r, Layout) else load_layout(r) for r in refs]
 
 
+def check_task_fits_layout(config: TaskConfig, layout: Layout) -> None:
+    """LayoutError (naming the layout's file) unless `layout` can hold the task `config`: its spawn
+    regions the teams, far enough apart for the capture radius, its passages wide enough for the
+    task's obstacle_clearance. What every PursuitEnv checks of each of its layouts as it is made."""
+    check_spawn_capacity(layout, config.n_pursuers, config.n_evaders, SPAWN_SEPARATION)
+    check_spawn_gap(layout, config.capture_radius)
+    if config.obstacle_clearance > PASSAGE_CLEARANCE:  # the layout's own check allowed narrower passages
+        check_passages(layout, config.obstacle_clearance, "task.obstacle_clearance")
+
+
+def check_task_layouts(config: TaskConfig) -> None:
+    """check_task_fits_layout for every layout the task plays (its layout, or every built-in one
+    with random_layout), each loaded once: a task a PursuitEnv of it would refuse is refused now."""
+    for layout in _layout_pool(config, None):
+        check_task_fits_layout(config, layout)
+
+
 def _checked_layout(layout: Layout) -> Layout:
     """`layout` itself, once it passes every check its file would (a Layout made directly or
     with dataclasses.replace skips the loader's); LayoutError naming its source otherwise."""
@@ -208,10 +225,7 @@ class PursuitEnv:
 
     def _check_capacity(self, layout: Layout) -> None:
         """Refuse a task whose spawn regions cannot hold its drones (clear error, early)."""
-        check_spawn_capacity(layout, self.n_pursuers, self.n_evaders, SPAWN_SEPARATION)
-        check_spawn_gap(layout, self.config.capture_radius)
-        if self.config.obstacle_clearance > PASSAGE_CLEARANCE:  # the layout's own check allowed narrower passages
-            check_passages(layout, self.config.obstacle_clearance, "task.obstacle_clearance")
+        check_task_fits_layout(self.config, layout)
 
     def _start_episodes(self, ids: np.ndarray, seeds: np.ndarray | None = None) -> None:
         """Begin a new episode in each listed world: new random obstacles, spawn, counters.

@@ -341,6 +341,19 @@ def test_a_layout_given_on_the_command_line_that_cannot_be_loaded_names_its_flag
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("given, message", [
+    (["--set", "n_pursuers=16"], "cannot reliably hold 16 pursuers"),
+    (["--set", "random_layout=true", "--set", "n_pursuers=16"], "cannot reliably hold 16 pursuers"),
+    (["--set", "capture_radius=3.5", "--set", "perception_radius=4"], "within the capture_radius of 3.5 m"),
+])
+def test_config_refuses_a_task_its_layout_cannot_hold_as_every_run_does(capsys, given, message):
+    """`pursuit-mj config --set n_pursuers=16` printed the config, which every run (eval, render,
+    train, simulate) then refused: the layout's spawn region cannot hold that team."""
+    assert main(["config", *given]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and message in err and len(err.splitlines()) == 1, err
+
+
 @pytest.mark.parametrize("argv, key", [(["--r_perception", "2000"], "perception_radius"),  # the reference study's mm
                                        (["--set", "ray_range=1500"], "ray_range"),
                                        (["--set", "evader.sense_radius=4000"], "evader.sense_radius")])
