@@ -242,6 +242,18 @@ def test_a_train_override_of_a_key_the_study_sets_per_arm_is_refused_before_anyt
     assert not out.exists()
 
 
+def test_a_key_the_study_sets_per_arm_is_refused_inside_a_section_given_as_a_mapping_too(tmp_path, capsys, monkeypatch):
+    """--train-set run.runs_dir=x was refused, but --train-set "run={runs_dir: x}" slipped past the check
+    and put every arm's run folder in x, outside --out (and the study failed after its first arm,
+    finding no best.pt under --out)."""
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "study"
+    assert main(["study", "--budget-minutes", "30", "--out", str(out), "--train-set", "run={runs_dir: elsewhere}"]) == 2
+    err = capsys.readouterr().err
+    assert "--train-set run={runs_dir: elsewhere}: the study sets run.runs_dir for each arm" in err, err
+    assert not out.exists() and not (tmp_path / "elsewhere").exists()
+
+
 def test_an_interrupted_study_resumes_keeping_its_finished_arms_and_evaluations(tmp_path, capsys, monkeypatch, no_training_floor):
     from train import study
     from train.trainer import Trainer

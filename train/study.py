@@ -50,7 +50,7 @@ from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import make_policy
 
 from .checkpoint import is_training_checkpoint, load_checkpoint
-from .config import load_train_config, train_config_from_dict
+from .config import load_train_config, set_keys, train_config_from_dict
 from .policy import load_policy
 from .study_evaluation import HEURISTIC, KeptEvaluation
 from .trainer import Trainer, lock_folder
@@ -352,9 +352,10 @@ def check_train_overrides(plan: StudyPlan) -> None:
     a key the study sets for each arm (STUDY_SETS), or an arm that trains with other range readings than the
     evaluation task gives (`_check_rays`)."""
     for text in plan.train_overrides:
-        key = ".".join(parse_override(text, f"--train-set {text}")[0])
-        if key in STUDY_SETS:
-            raise ValueError(f"--train-set {text}: the study sets {key} for each arm ({STUDY_SETS[key]}); leave it out")
+        parse_override(text, f"--train-set {text}")  # one that does not parse is named as --train-set
+        for key in STUDY_SETS:  # set_keys: 'run={runs_dir: x}' sets run.runs_dir as 'run.runs_dir=x' does
+            if key in set_keys(text):
+                raise ValueError(f"--train-set {text}: the study sets {key} for each arm ({STUDY_SETS[key]}); leave it out")
     for arm in ARMS:
         try:
             cfg = load_train_config([arm.config], ["name=check", "total_steps=1000000000", "task.layout=0", *plan.train_overrides])
