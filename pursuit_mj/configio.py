@@ -265,7 +265,20 @@ def parse_override(text: str, source: str) -> tuple[list[str], Any]:
         value = safe_load(raw) if raw.strip() else ""
     except yaml.YAMLError as exc:
         raise ConfigError(f"{source}: value of '{key}' is not valid YAML: {raw!r} ({yaml_error_text(exc)})") from exc
+    comment = _comment_start(raw)
+    if comment is not None:  # YAML drops it: --set random_obstacles=#3 was null, 'name=run #2' was 'run'
+        raise ConfigError(f"{source}: the value of '{key}' holds a YAML comment ({raw[comment:].strip()!r} is dropped); "
+                          f"quote the value to keep the '#': {key}=\"{raw.strip()}\"")
     return key.split("."), value
+
+
+def _comment_start(raw: str) -> int | None:
+    """Where a comment starts in the YAML text `raw` (valid YAML): a '#' after its last token, else None."""
+    tokens = [t for t in yaml.scan(raw, Loader=_UniqueKeyLoader)
+              if not isinstance(t, (yaml.StreamStartToken, yaml.StreamEndToken))]
+    end = tokens[-1].end_mark.index if tokens else 0
+    found = raw.find("#", end)
+    return None if found < 0 else found
 
 
 def merge(base: Mapping[str, Any], path: list[str], value: Any) -> dict[str, Any]:

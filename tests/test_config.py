@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 
 import pytest
 import yaml
@@ -124,6 +125,22 @@ def test_dumped_config_loads_back_identical(tmp_path):
 def test_bad_overrides_raise_naming_key_value_and_source(overrides, message):
     with pytest.raises(ConfigError, match=message):
         load_task_config([], overrides)
+
+
+@pytest.mark.parametrize("text, dropped", [("random_obstacles=#3", "#3"), ("layout=my arena #2.yaml", "#2.yaml"),
+                                           ("n_pursuers=2 # two", "# two")])
+def test_an_override_whose_value_yaml_reads_as_a_comment_is_refused_not_cut(text, dropped):
+    """YAML reads ' #' (or a leading '#') as the start of a comment: --set random_obstacles=#3 was taken
+    as null (each layout's own count) and --set 'layout=my arena #2.yaml' looked for 'my arena',
+    without a word that the rest was dropped."""
+    from pursuit_mj.configio import parse_override
+
+    with pytest.raises(ConfigError, match=rf"^--set {re.escape(text)}: the value of '\w+' holds a YAML comment "
+                                          rf"\({re.escape(repr(dropped))} is dropped\); quote the value"):
+        load_task_config([], [text])
+    value = text.split("=", 1)[1]
+    assert parse_override(f'name="{value}"', "x") == (["name"], value)  # quoted, the '#' is kept
+    assert parse_override("name=a#2", "x") == (["name"], "a#2")  # no space before it: no comment
 
 
 def test_the_heaviest_drone_mass_the_refusal_names_is_accepted():
