@@ -23,7 +23,12 @@ BUILTIN_LABEL = re.compile(rf"({'|'.join(POLICY_NAMES)})(\+shield)?(#\d+)?")
 def make_policy(name: str, config: TaskConfig, seed: int = 0, source: str = "--policy") -> Policy:
     """A hand-made team by name ('heuristic' or 'random') for `config`, or a policy of one's own
     by FILE.py:NAME (pursuit_mj.policy_file); ValueError names `source`, or make_policy for a
-    config that is no TaskConfig or a seed that is no integer."""
+    config that is no TaskConfig or a seed that is no integer.
+
+    `seed` (a command's --seed) goes to a policy file's NAME(config, seed). The built-in teams
+    draw nothing from it: the random team's draws follow from each episode's own observations
+    and steps (RandomPolicy with its stream 0), so an episode of any eval table replays by its
+    episode seed alone (render --episode-seed), whatever --seed the replay is given."""
     if not isinstance(config, TaskConfig):
         raise ValueError(f"make_policy: config: expected a TaskConfig, got {type(config).__name__}")
     if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
@@ -38,6 +43,6 @@ def make_policy(name: str, config: TaskConfig, seed: int = 0, source: str = "--p
     if name == "heuristic":
         return HeuristicTeam.from_config(config)
     if name == "random":
-        return RandomPolicy(seed)
+        return RandomPolicy(0)  # not `seed`: the table seed already chose the episodes
     raise ValueError(f"{source} {name!r}: unknown policy (valid: {', '.join(POLICY_NAMES)}, or FILE.py:NAME "
                      f"for one of your own; trained models go through --model FILE)")

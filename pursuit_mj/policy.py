@@ -104,7 +104,8 @@ class RandomPolicy:
     Each world's actions are drawn from a generator keyed by the policy's seed, the step of
     the world's episode and that world's observation, never from one stream shared by the
     batch: so an episode is the same whichever world of however many plays it (eval's
-    --worlds), as it is for every other policy.
+    --worlds), as it is for every other policy. `make_policy("random", ...)` gives seed 0
+    whatever its seed, so that an episode replays by its episode seed alone.
     """
 
     name = "random"

@@ -149,6 +149,28 @@ def test_cli_refuses_an_unwritable_save_path(tmp_path, capsys):
     assert f"-s {blocker / 'sub'}: cannot create the folder" in capsys.readouterr().err
 
 
+def test_an_episode_of_the_random_teams_table_replays_by_its_episode_seed_alone(tmp_path, capsys):
+    """eval --seed 5 made the random team with seed 5 and render --episode-seed with --seed's
+    default 0: the team drew other actions, so the table's episode did not replay (a collision
+    after 24 steps in eval was one after 181 in render) and files named alike held other episodes."""
+    import json
+
+    table = tmp_path / "t.json"
+    assert main(["eval", "--policy", "random", "--fidelity", "point", "--set", "max_steps=80", "--layouts", "0",
+                 "--episodes", "2", "--worlds", "2", "--seed", "5", "-q", "--json", str(table)]) == 0
+    log = json.loads(table.read_text())["rows"][0]["per_episode"]
+    episodes = list(zip(log["seed"], log["outcome"], log["steps"]))
+    for extra in ([], ["--seed", "9"]):
+        code = main(["render", "--policy", "random", "--fidelity", "point", "--set", "max_steps=80", "-i", "0", *extra,
+                     "--no-video", "--final-frame", "--width", str(W), "--height", str(H), "-s", str(tmp_path / "r"),
+                     *(a for seed, *_ in episodes for a in ("--episode-seed", str(seed)))])
+        assert code == 0
+        lines = [l for l in capsys.readouterr().out.splitlines() if l.startswith("episode ")]
+        assert len(lines) == 2
+        for k, (line, (seed, outcome, steps)) in enumerate(zip(lines, episodes)):
+            assert line.startswith(f"episode {k}: {outcome} after {steps} steps (seed {seed})"), (extra, line, episodes)
+
+
 def test_renders_that_differ_in_anything_they_show_get_names_of_their_own(tmp_path, capsys):
     out = tmp_path / "renders"
     assert _cli(tmp_path, "-s", str(out), "--format", "gif") == 0
