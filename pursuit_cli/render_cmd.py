@@ -174,7 +174,8 @@ def render_digest(config: TaskConfig, label: str, checkpoint: Path | None, frame
     """Six hex digits of everything that decides what a render shows (the seed aside, which the
     name spells out): the task with its layout's content, the policy (a checkpoint by its bytes)
     and the frame settings; for --policy FILE.py:NAME, the file by its bytes and `factory`, NAME
-    (two factories of one file may give policies of one name); an evader.model FILE.py:NAME by
+    (two factories of one file may give policies of one name), with --episode-seed followed by
+    the --seed that NAME(config, seed) was given; an evader.model FILE.py:NAME by
     its file's bytes. Files named alike hold the same
     pictures, so a render replaces only its own earlier copy, never a render of another model,
     task or camera."""
@@ -327,8 +328,10 @@ def run(args) -> int:
         task_tag = "".join(f"_{Path(f).stem}" for f in args.task_files or [])  # --task hard: not the default task's files
         frames = {**dataclasses.asdict(settings), "fps": fps, "trail": args.trail, "format": target.fmt}
         factory = policy_file_name(args.policy) if args.policy is not None and is_policy_file(args.policy) else None
+        if factory is not None and seeds:  # NAME(config, seed) was given --seed, which these names leave out
+            factory = f"{factory} seed {args.seed}"
         digest = render_digest(config, label, checkpoint_file(args, train_cfg), frames, factory)
-        if seeds:  # each file is named after its episode's seed, which --seed has no part in
+        if seeds:  # each file is named after its episode's seed; --seed plays no part but in a policy file's
             stem = f"{label}{task_tag}_layout{layout_tag(config)}_{config.fidelity}_{digest}"
             videos, finals = target.paths(episodes, stem, video, final, [f"episode{n}" for n in seeds])
         else:

@@ -184,6 +184,25 @@ def test_renders_that_differ_in_anything_they_show_get_names_of_their_own(tmp_pa
     assert all(n.startswith("random_layout0_point_seed0_") and n.endswith("_ep000.gif") for n in names)
 
 
+def test_a_policy_file_that_draws_from_its_seed_renders_an_episode_seed_under_names_of_each_seed(tmp_path, capsys):
+    """With --episode-seed the file names leave --seed out, but a policy of one's own is made as
+    NAME(config, seed) with it: one that draws from it played another episode under --seed 1 than
+    under --seed 0 and wrote it over the first, under the very same name."""
+    team = tmp_path / "noisy.py"
+    team.write_text("import numpy as np\n\n\nclass Noisy:\n    name = 'noisy'\n\n"  # seed 0: into the wall below; 1: hover
+                    "    def __init__(self, config, seed):\n        self.down = -1.0 if seed % 2 == 0 else 0.0\n\n"
+                    "    def reset(self, n_worlds, world_ids=None):\n        pass\n\n"
+                    "    def act(self, obs, spec):\n        return np.stack(np.broadcast_arrays(0.0 * obs[..., 0], self.down + 0.0 * obs[..., 0]), -1)\n")
+    out = tmp_path / "renders"
+    played = {}
+    for seed in ("0", "1"):
+        assert _cli(tmp_path, "-s", str(out), "--no-video", "--final-frame", "--set", "max_steps=60", "--seed", seed,
+                    "--episode-seed", "123", policy=f"{team}:Noisy") == 0
+        played[seed] = [l.split(" ->")[0] for l in capsys.readouterr().out.splitlines() if l.startswith("episode ")]
+    assert played["0"] != played["1"]  # two episodes: each keeps a file of its own
+    assert len(list(out.glob("noisy_layout0_point_*_episode123_final.png"))) == 2
+
+
 def test_the_render_digest_follows_the_checkpoint_bytes_and_the_layout_file_content(tmp_path):
     from pursuit_cli.render_cmd import render_digest
     from pursuit_mj.config import TaskConfig
