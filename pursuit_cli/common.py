@@ -275,6 +275,13 @@ TRAINED_TASK_KEYS = ("observability", "pursuer_speed", "evader_speed", "percepti
 SIMULATION_ONLY_TRAINED_KEYS = ("command_latency",)
 
 
+def _shown(key: str, value):
+    """A trained task value as the note shows it: the field of view in degrees (stored in rad)."""
+    if key == "field_of_view" and isinstance(value, (int, float)):
+        return f"{math.degrees(value):.4g} deg"
+    return value
+
+
 def load_model(path, spec, task: TaskConfig, flag: str = "--model", flight: bool = False):
     """A trained policy for `task` via train.policy.load_policy (imported lazily: the library never
     needs torch); a model trained behind the safety shield comes back behind it. A note on stderr
@@ -297,7 +304,8 @@ def load_model(path, spec, task: TaskConfig, flag: str = "--model", flight: bool
     policy = load_policy(path, spec, task=task)
     trained = getattr(policy, "trained_task", {})
     keys = [k for k in TRAINED_TASK_KEYS if not (flight and k in SIMULATION_ONLY_TRAINED_KEYS)]
-    differ = [f"{k} {trained[k]} (this task: {getattr(task, k)})" for k in keys if k in trained and trained[k] != getattr(task, k)]
+    differ = [f"{k} {_shown(k, trained[k])} (this task: {_shown(k, getattr(task, k))})"
+              for k in keys if k in trained and trained[k] != getattr(task, k)]
     evader = trained.get("evader") if isinstance(trained.get("evader"), dict) else {}
     if "model" in evader and not _same_evader_model(evader["model"], task.evader.model):
         differ.append(f"evader.model {evader['model']} (this task: {task.evader.model})")

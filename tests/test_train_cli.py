@@ -251,6 +251,19 @@ def test_a_model_used_at_another_decision_interval_or_sight_than_it_learned_says
             "position_noise 0.0 (this task: 0.05)") in capsys.readouterr().err
 
 
+def test_a_model_used_with_another_field_of_view_says_it_in_degrees(tiny_model, capsys):
+    """The note printed the angles as stored: 'field_of_view 6.283185307179586 (this task: 2.0943951)'."""
+    import math
+
+    from pursuit_cli.common import load_model
+    from pursuit_mj.config import default_config
+    from pursuit_mj.obs_spec import ObsSpec
+
+    task = default_config(n_pursuers=2, fidelity="point", field_of_view=math.radians(120))
+    load_model(tiny_model, ObsSpec.make(task.n_pursuers, task.n_evaders, task.n_rays), task)
+    assert "field_of_view 360 deg (this task: 120 deg)" in capsys.readouterr().err
+
+
 def test_a_model_used_with_other_missed_detections_or_shared_teammates_says_so(tiny_model, capsys):
     """miss_probability (the hard preset's 20 % missed detections) and share_teammates (every teammate
     known exactly) change what a pursuer's observation holds, as the other perception keys do, but a
