@@ -176,6 +176,9 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
             return value
         if isinstance(value, Path):  # a layout file given as a Path in Python
             return str(value)
+        if isinstance(value, bool):  # name=no: the word typed is not the value shown
+            raise ConfigError(f"{where}: expected a string, got {shown(value)} (YAML reads yes/no/on/off/true/false "
+                              f"as booleans; quote the word to keep it as text)")
         raise ConfigError(f"{where}: expected a string, got {shown(value)}")
     if isinstance(hint, type) and isinstance(value, hint):
         return value

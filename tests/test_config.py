@@ -483,3 +483,17 @@ def test_a_gone_file_replaced_by_a_set_of_its_section_is_not_looked_up(tmp_path,
     assert "gone" not in str((cfg.task.layout, cfg.task.evader.model, cfg.run.validation_layouts))
     with pytest.raises(ConfigError, match="run.yaml: key '.*': .*gone"):
         load_train_config(["run.yaml"], [leaving])
+
+
+def test_a_text_key_given_a_word_yaml_reads_as_a_boolean_says_how_to_keep_the_word(tmp_path):
+    """`train --set name=no` said 'expected a string, got False', naming a value the user never typed."""
+    from train.config import load_train_config
+
+    with pytest.raises(ConfigError) as caught:
+        load_train_config([], ["name=no"])
+    said = str(caught.value)
+    assert "expected a string, got False" in said and "YAML reads" in said and "quote" in said, said
+    with pytest.raises(ConfigError) as caught:
+        load_train_config([], ["name=3"])
+    assert "YAML reads" not in str(caught.value)  # a number is what was typed
+    assert load_train_config([], ['name="no"']).name == "no"
