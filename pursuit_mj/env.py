@@ -150,6 +150,14 @@ def check_task_layouts(config: TaskConfig) -> None:
         check_task_fits_layout(config, layout)
 
 
+def _with_caught(obstacles: ObstacleSet, captured: np.ndarray, evader_xy: np.ndarray, radius: float) -> ObstacleSet:
+    """`obstacles` (W, ...) plus a cylinder of `radius` (m) at each caught evader (captured (W, M),
+    evader_xy (W, M, 2) m); the set itself while none is caught."""
+    if not captured.any():
+        return obstacles
+    return obstacles.with_extra_cylinders(evader_xy, radius, captured)
+
+
 def _checked_layout(layout: Layout) -> Layout:
     """`layout` itself, once it passes every check its file would (a Layout made directly or
     with dataclasses.replace skips the loader's); LayoutError naming its source otherwise."""
@@ -316,7 +324,7 @@ class PursuitEnv:
         explicit = None if seeds is None else check_seeds(seeds, len(ids), "reset_worlds seeds")
         self.episode[ids] += 1
         self._start_episodes(ids, explicit)
-        self._obs = self._observe()
+        self._obs = self._reobserve(ids, self._obs)
         return self._obs.copy()
 
     @property
@@ -338,25 +346,45 @@ class PursuitEnv:
 
     # ------------------------------------------------------------------ state views
 
-    def _view(self) -> WorldView:
+    def _view(self, ids: np.ndarray | None = None) -> WorldView:
+        """The true state of every world, or of the listed worlds ids (k,) only (rows in that order)."""
         N = self.n_pursuers
         pos = self.physics.positions()
         vel = self.physics.velocities()
-        obstacles = self._obstacles_with_captured(pos[:, N:, :2], CAUGHT_BODY_RADIUS)
-        return WorldView(pos[:, :N, :2], vel[:, :N, :2], self.heading, pos[:, N:, :2], vel[:, N:, :2], self.captured, obstacles)
+        heading, captured, obstacles = self.heading, self.captured, self._obstacles
+        if ids is not None:
+            pos, vel, heading, captured, obstacles = pos[ids], vel[ids], heading[ids], captured[ids], obstacles.take(ids)
+        obstacles = _with_caught(obstacles, captured, pos[:, N:, :2], CAUGHT_BODY_RADIUS)
+        return WorldView(pos[:, :N, :2], vel[:, :N, :2], heading, pos[:, N:, :2], vel[:, N:, :2], captured, obstacles)
 
     def _obstacles_with_captured(self, evader_xy: np.ndarray, radius: float) -> ObstacleSet:
         """The layout's obstacles plus a cylinder of `radius` (m) at each caught evader: the
         drone's body for perception, its capture disc for the free evaders' escape."""
-        if not self.captured.any():
-            return self._obstacles
-        return self._obstacles.with_extra_cylinders(evader_xy, radius, self.captured)
+        return _with_caught(self._obstacles, self.captured, evader_xy, radius)
 
     def _observe(self) -> np.ndarray:
         view = self._view()
         # draws keyed by (episode, step): the same whether or not other worlds restart now
         self._perception = perceive(view, self.config, WorldRandom(self._sensing_keys, self.steps))
         return build_observations(view, self._perception, self.obs_spec)
+
+    def _reobserve(self, ids: np.ndarray, obs: np.ndarray) -> np.ndarray:
+        """`obs` (W, N, obs_dim), the observation of the current state of every world but the
+        listed ones ids (k,), with those worlds perceived anew (say, as their episodes restart);
+        self._perception gets their rows too. The same numbers `_observe` gives (perception is
+        per world, its draws keyed by each world's episode and step), at the cost of k worlds
+        instead of W: with many worlds some episode ends in nearly every step."""
+        view = self._view(ids)
+        part = perceive(view, self.config, WorldRandom(self._sensing_keys[ids], self.steps[ids]))
+        rows = {}
+        for f in dataclasses.fields(Perception):
+            whole = getattr(self._perception, f.name).copy()  # new arrays: views taken before keep their values
+            whole[ids] = getattr(part, f.name)
+            rows[f.name] = whole
+        self._perception = Perception(**rows)
+        obs = obs.copy()
+        obs[ids] = build_observations(view, part, self.obs_spec)
+        return obs
 
     def observe_as(self, config: TaskConfig) -> np.ndarray:
         """Observations (W, N, obs_dim) float32 of the current state as perceived under `config`,
@@ -485,7 +513,7 @@ class PursuitEnv:
         if self.auto_reset and len(ids):
             self.episode[ids] += 1
             self._start_episodes(ids)
-            obs = self._observe()
+            obs = self._reobserve(ids, obs)
         self._obs = obs
         return obs.copy(), reward, terminated, truncated, info
 

@@ -75,6 +75,11 @@ class ObstacleSet:
             sv[i, : len(s.border)] = s.border_valid
         return ObstacleSet(boxes, bv, cyl, cv, seg, sv)
 
+    def take(self, worlds: np.ndarray) -> "ObstacleSet":
+        """The set of the listed worlds (k,) only, as (k, ...) arrays padded as this (W, ...) set is."""
+        return ObstacleSet(self.boxes[worlds], self.box_valid[worlds], self.cylinders[worlds],
+                           self.cylinder_valid[worlds], self.border[worlds], self.border_valid[worlds])
+
     def with_extra_cylinders(self, centers: np.ndarray, radius: float, valid: np.ndarray) -> "ObstacleSet":
         """Append cylinders (..., K, 2) of one radius (captured evaders), valid (..., K)."""
         r = np.full(centers.shape[:-1] + (1,), radius)

@@ -599,3 +599,38 @@ def test_an_evader_model_of_ones_own_drives_the_evaders_capped_at_evader_speed()
     moved = env.physics.positions()[:, N:, :2] - start  # (W, M, 2) m
     assert np.all(moved[..., 0] > 0.3) and np.all(np.abs(moved[..., 1]) < 0.05), moved  # east, as the model asked
     assert max(np.max(s) for s in speeds) <= env.config.evader_speed * 1.01, speeds  # capped, not 5 m/s
+
+
+def _perceived_worlds(monkeypatch):
+    """Record how many worlds each call of perception covers (the real perceive runs)."""
+    import pursuit_mj.env as env_module
+
+    calls = []
+
+    def counting(view, config, rng):
+        calls.append(view.pursuer_pos.shape[0])
+        return env_module.perceive.__wrapped__(view, config, rng)
+
+    counting.__wrapped__ = env_module.perceive
+    monkeypatch.setattr(env_module, "perceive", counting)
+    return calls
+
+
+def test_restarting_some_worlds_perceives_only_those_again(monkeypatch):
+    # with many worlds some episode ends in nearly every step: perceiving every world twice then
+    # (once at the end of the step, once after the restart) doubled perception's cost
+    env = PursuitEnv(default_config(max_steps=3, n_evaders=2, **FAST), n_worlds=16, seed=2)
+    env.reset()
+    env.steps[:] = [2] + [0] * 15  # only world 0 reaches max_steps in the next step
+    env.captured[3, 0] = True  # a caught evader elsewhere: its body is an obstacle in every world's set
+    calls = _perceived_worlds(monkeypatch)
+    obs, *_, info = env.step(np.zeros((16, 3, 2)))
+    assert [e.world for e in info["episodes"]] == [0]
+    assert calls == [16, 1]
+    calls.clear()
+    obs = env.reset_worlds([2, 5])
+    assert calls == [2]
+    monkeypatch.undo()
+    fresh = env._observe()  # every world perceived anew: the same numbers, bit for bit
+    np.testing.assert_array_equal(obs, fresh)
+    np.testing.assert_array_equal(env._obs, fresh)
