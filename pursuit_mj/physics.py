@@ -248,6 +248,8 @@ class BatchedPhysics:
             raise ValueError(f"reset positions: non-finite value in {xy.tolist()}")
         if len(ids) == 0:
             return
+        order = np.argsort(ids)  # MuJoCo's batch takes its worlds in increasing order only
+        ids, xy = ids[order], xy[order]
         self.batch.reset(ids, stage=mujoco.mjtStage.mjSTAGE_NONE)
         qpos = self.qpos[ids]
         if self.fidelity == "quadrotor":

@@ -276,6 +276,17 @@ def test_reset_worlds_with_a_seed_replays_an_episode_exactly(fidelity):
     assert not np.array_equal(obs_a[1:, :, :2], obs_a[:-1, :, :2])  # it moved
 
 
+def test_reset_worlds_takes_its_worlds_in_any_order():
+    # [3, 1] was refused deep inside MuJoCo ('ids must be sorted and unique, got 3 before 1')
+    config = default_config(**FAST)
+    a, b = PursuitEnv(config, n_worlds=4, seed=0), PursuitEnv(config, n_worlds=4, seed=0)
+    a.reset(), b.reset()
+    obs_a = a.reset_worlds([3, 1], [11, 22])
+    obs_b = b.reset_worlds([1, 3], [22, 11])
+    np.testing.assert_array_equal(obs_a, obs_b)
+    assert a._episode_seeds.tolist() == b._episode_seeds.tolist() == [a._episode_seeds[0], 22, a._episode_seeds[2], 11]
+
+
 def test_bad_episode_seeds_are_refused():
     env = PursuitEnv(default_config(**FAST), n_worlds=2)
     env.reset()
