@@ -247,7 +247,7 @@ class PursuitEnv:
         if seeds is None:
             seeds = np.array([episode_seed(self.seed, int(w), int(self.episode[w])) for w in ids], np.int64)
         layouts, xy = [], []
-        new_obstacles = False
+        changed = []  # worlds whose obstacles are new
         for w, s in zip(ids, seeds):
             rng = np.random.default_rng(int(s))
             base_i = int(rng.integers(len(self.pool))) if self.config.random_layout else int(self._base_index[w])
@@ -267,7 +267,7 @@ class PursuitEnv:
             xy.append(np.concatenate([pur, eva]))
             if inst is not self.world_layouts[w]:  # new random obstacles or another layout: its arrays anew
                 self._world_obstacles[w] = inst.obstacle_set()
-                new_obstacles = True
+                changed.append(int(w))
             self.world_layouts[w] = inst
         if self._random_obstacles or self.config.random_layout:
             self.physics.set_layouts(ids, layouts)
@@ -285,8 +285,8 @@ class PursuitEnv:
         for k in self.reward_names:
             self.returns[k][ids] = 0.0
             self.last_terms[k][ids] = 0.0
-        if new_obstacles:
-            self._obstacles = ObstacleSet.stack(self._world_obstacles)
+        if changed:  # only their rows anew: restacking every world was a loop over all W in most steps
+            self._obstacles = self._obstacles.with_rows(np.array(changed), [self._world_obstacles[w] for w in changed])
 
     def reset(self, seed: int | None = None, seeds: Sequence[int] | None = None) -> np.ndarray:
         """Start new episodes in every world. Obs (W, N, dim).

@@ -75,6 +75,27 @@ class ObstacleSet:
             sv[i, : len(s.border)] = s.border_valid
         return ObstacleSet(boxes, bv, cyl, cv, seg, sv)
 
+    def with_rows(self, worlds: np.ndarray, sets: Sequence["ObstacleSet"]) -> "ObstacleSet":
+        """This (W, ...) set with world worlds[i]'s obstacles replaced by the unbatched sets[i]
+        (k,): the arrays `stack` of every world's set gives, at the cost of k worlds instead of a
+        Python loop over all W (for sets whose entries are all valid, as `from_layout`'s are)."""
+        pairs = (("boxes", "box_valid"), ("cylinders", "cylinder_valid"), ("border", "border_valid"))
+        rows = ObstacleSet.stack(sets)
+        fields = {}
+        for name, valid_name in pairs:
+            mine, mine_valid = getattr(self, name), getattr(self, valid_name)
+            theirs, theirs_valid = getattr(rows, name), getattr(rows, valid_name)
+            width = max(mine.shape[1], theirs.shape[1])
+            values = np.zeros((mine.shape[0], width) + mine.shape[2:])
+            valid = np.zeros((mine.shape[0], width), bool)
+            values[:, : mine.shape[1]], valid[:, : mine.shape[1]] = mine, mine_valid
+            values[worlds], valid[worlds] = 0.0, False
+            values[worlds, : theirs.shape[1]], valid[worlds, : theirs.shape[1]] = theirs, theirs_valid
+            cols = np.flatnonzero(valid.any(axis=0))
+            used = int(cols[-1]) + 1 if len(cols) else 1  # stack's width: the widest world's, at least 1
+            fields[name], fields[valid_name] = np.ascontiguousarray(values[:, :used]), np.ascontiguousarray(valid[:, :used])
+        return ObstacleSet(**fields)
+
     def take(self, worlds: np.ndarray) -> "ObstacleSet":
         """The set of the listed worlds (k,) only, as (k, ...) arrays padded as this (W, ...) set is."""
         return ObstacleSet(self.boxes[worlds], self.box_valid[worlds], self.cylinders[worlds],

@@ -645,3 +645,22 @@ def test_restarting_some_worlds_perceives_only_those_again(monkeypatch):
     fresh = env._observe()  # every world perceived anew: the same numbers, bit for bit
     np.testing.assert_array_equal(obs, fresh)
     np.testing.assert_array_equal(env._obs, fresh)
+
+
+def test_new_random_obstacles_restack_only_the_restarted_worlds(monkeypatch):
+    # each restart with new random obstacles stacked every world's obstacles anew, a Python loop
+    # over all W worlds in nearly every step of a many-world run
+    from pursuit_mj.geometry import ObstacleSet, obstacle_distance
+
+    env = PursuitEnv(default_config(fidelity="point", random_obstacles=4, max_steps=3), n_worlds=12, seed=4)
+    env.reset()
+    stacked = []
+    real_stack = ObstacleSet.stack
+    monkeypatch.setattr(ObstacleSet, "stack", staticmethod(lambda sets, *a, **k: stacked.append(len(sets)) or real_stack(sets, *a, **k)))
+    env.steps[:] = [2, 0, 0, 2] + [0] * 8  # worlds 0 and 3 reach max_steps in the next step
+    env.step(np.zeros((12, 3, 2)))
+    assert stacked and max(stacked) == 2
+    monkeypatch.undo()
+    fresh = ObstacleSet.stack(env._world_obstacles)
+    pts = env.physics.positions()[:, :, :2]
+    np.testing.assert_array_equal(obstacle_distance(pts, env._obstacles), obstacle_distance(pts, fresh))

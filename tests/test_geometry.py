@@ -86,6 +86,29 @@ def test_stacked_sets_with_padding_give_the_same_distances_and_rays():
         np.testing.assert_allclose(batched_r[w], cast_rays(pts[w], dirs[w], layout.obstacle_set()))
 
 
+def test_replacing_some_worlds_rows_matches_a_fresh_stack():
+    a = layout_with([{"cylinder": {"center": [1.0, 2.5], "radius": 0.3}}])
+    b = layout_with([{"box": {"center": [2.0, 2.0], "size": [0.4, 0.4]}}, {"wall": {"from": [0.5, 4.0], "to": [3.0, 4.0]}}],
+                    boundary={"circle": {"center": [1.8, 2.5], "radius": 1.8}}, spawn=central_spawn(1.0, 3.6))
+    c = layout_with([{"cylinder": {"center": [1.0, 2.5], "radius": 0.3}}, {"cylinder": {"center": [2.5, 3.5], "radius": 0.2}}])
+    sets = {k: l.obstacle_set() for k, l in zip("abc", (a, b, c))}
+    rng = np.random.default_rng(3)
+    pts = rng.uniform([0.5, 1.0], [3.0, 4.0], (3, 20, 2))
+    dirs = rng.normal(size=(3, 20, 2))
+    dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+    fan_dirs = dirs[0, :8]
+    for before, rows, after in (("aab", {1: "b"}, "abb"), ("bab", {0: "a", 2: "a"}, "aaa"), ("aaa", {2: "c", 0: "b"}, "bac")):
+        old = ObstacleSet.stack([sets[k] for k in before])
+        ids = np.array(list(rows))
+        replaced = old.with_rows(ids, [sets[rows[w]] for w in ids])
+        fresh = ObstacleSet.stack([sets[k] for k in after])
+        assert old.boxes[0].tolist() == ObstacleSet.stack([sets[k] for k in before]).boxes[0].tolist()  # old untouched
+        for field in ("boxes", "box_valid", "cylinders", "cylinder_valid", "border", "border_valid"):
+            np.testing.assert_array_equal(getattr(replaced, field), getattr(fresh, field), err_msg=field)
+        for query in (lambda o: obstacle_distance(pts, o), lambda o: cast_rays(pts, dirs, o), lambda o: cast_fan(pts, fan_dirs, o)):
+            np.testing.assert_array_equal(query(replaced), query(fresh))
+
+
 def test_fan_of_rays_matches_single_rays_and_distances_match_per_kind():
     a = layout_with([{"cylinder": {"center": [1.0, 2.5], "radius": 0.3}}, {"box": {"center": [2.5, 1.5], "size": [0.6, 0.2], "yaw": 0.7}}])
     b = layout_with([{"box": {"center": [2.0, 2.0], "size": [0.4, 0.4]}}, {"wall": {"from": [0.5, 4.0], "to": [3.0, 4.0]}}],
