@@ -12,7 +12,7 @@ import functools
 import numpy as np
 
 from .config import DRONE_CONTACT_DISTANCE, TaskConfig
-from .geometry import ObstacleSet, cast_fan, pairwise_line_of_sight
+from .geometry import ObstacleSet, cast_fan, line_of_sight
 from .randomness import WorldRandom
 
 
@@ -115,16 +115,27 @@ def ray_directions(n_rays: int) -> np.ndarray:
 
 
 def _visible(observer: np.ndarray, heading: np.ndarray, target: np.ndarray, config: TaskConfig, obstacles: ObstacleSet) -> np.ndarray:
-    """(W, N, T) bool: target (W, T, 2) within perception_radius of observer (W, N, 2), inside
-    its field of view (heading (W, N) rad) and in its line of sight (one ray cast for all)."""
-    delta = target[:, None, :, :] - observer[:, :, None, :]  # (W, N, T, 2)
+    """(W, N, T) bool: each observer's own targets (W, N, T, 2) within perception_radius of the
+    observer (W, N, 2), inside its field of view (heading (W, N) rad) and in its line of sight
+    (one ray cast for all)."""
+    delta = target - observer[:, :, None, :]  # (W, N, T, 2)
     dist = np.hypot(delta[..., 0], delta[..., 1])
     ok = dist <= config.perception_radius
     if config.field_of_view < 2 * np.pi - 1e-9:
         ang = np.arctan2(delta[..., 1], delta[..., 0]) - heading[:, :, None]
         ang = (ang + np.pi) % (2 * np.pi) - np.pi
         ok &= np.abs(ang) <= config.field_of_view / 2
-    return ok & pairwise_line_of_sight(observer, target, obstacles)
+    W, N, T = ok.shape
+    a = np.broadcast_to(observer[:, :, None, :], target.shape).reshape(W, N * T, 2)
+    return ok & line_of_sight(a, target.reshape(W, N * T, 2), obstacles).reshape(W, N, T)
+
+
+@functools.lru_cache(maxsize=None)
+def _others(N: int) -> np.ndarray:
+    """(N, N-1) indices: pursuer i's teammates, in order of index skipping i (shared, read only)."""
+    out = np.array([[j for j in range(N) if j != i] for i in range(N)], dtype=np.int64).reshape(N, max(N - 1, 0))
+    out.flags.writeable = False
+    return out
 
 
 def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator | WorldRandom) -> Perception:
@@ -147,8 +158,15 @@ def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator | Wor
     # each pursuer sees of every evader and every teammate
     rays = np.minimum(cast_fan(p, ray_directions(K), view.obstacles), config.ray_range)
     if partial:
-        visible = _visible(p, view.pursuer_heading, np.concatenate([view.evader_pos, p], axis=1), config, view.obstacles)
-        seen, mates = visible[..., :M], visible[..., M:]
+        # each pursuer's lines of sight to every evader and (unless they broadcast, which makes
+        # them known anyway) to every teammate but itself: N (M + N - 1) rays, or N M
+        evaders = np.broadcast_to(view.evader_pos[:, None], (W, N, M, 2))
+        others = _others(N) if not config.share_teammates else np.zeros((N, 0), np.int64)
+        targets = np.concatenate([evaders, p[:, others]], axis=2)  # (W, N, M + T, 2)
+        visible = _visible(p, view.pursuer_heading, targets, config, view.obstacles)
+        seen = visible[..., :M]
+        mates = np.zeros((W, N, N), bool)
+        mates[:, np.arange(N)[:, None], others] = visible[..., M:]
         # drawn at any miss_probability, so that the noise below keeps its numbers (observe_as)
         seen &= rng.random((W, N, M)) >= config.miss_probability
     else:

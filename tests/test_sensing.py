@@ -240,3 +240,24 @@ def test_a_caught_evader_is_known_where_it_stopped_without_fresh_noise():
         np.testing.assert_array_equal(per.evader_pos_est[0, :, 0], [[1.5, 2.0], [1.5, 2.0]])
         assert per.known[0, :, 0].all()
     assert not np.allclose(a.evader_pos_est[0, :, 1], b.evader_pos_est[0, :, 1])  # the free one: noisy
+
+
+@pytest.mark.parametrize("share_teammates, rays", [(False, 3 * (1 + 2)), (True, 3 * 1)])
+def test_lines_of_sight_are_cast_only_for_the_pairs_that_need_one(monkeypatch, share_teammates, rays):
+    # a ray from every pursuer to itself (N of them), and with share_teammates to every teammate,
+    # whose broadcast makes it known anyway, was cast too: N (M + N) rays where N (M + N - 1) or N M do
+    import pursuit_mj.geometry as geometry
+
+    obstacles = _layout([WALL]).obstacle_set()
+    view = _view([[2.0, 1.5], [0.3, 2.4], [3.5, 1.0]], [[2.0, 2.6]], obstacles)
+    want = _perceive(view, share_teammates=share_teammates)
+    cast = []
+    real_cast = geometry.cast_rays
+    monkeypatch.setattr(geometry, "cast_rays", lambda origins, dirs, obs: cast.append(origins.shape[1]) or real_cast(origins, dirs, obs))
+    got = _perceive(view, share_teammates=share_teammates)
+    assert cast == [rays]
+    for field in ("seen", "known", "teammate_visible", "evader_pos_est", "teammate_pos_est", "rays"):
+        np.testing.assert_array_equal(getattr(got, field), getattr(want, field), err_msg=field)
+    assert not got.teammate_visible[0].diagonal().any()
+    # without sharing only pursuers 0 and 2 see each other: the wall hides 1 from 0, and 1 and 2 are 3.4 m apart
+    assert got.teammate_visible[0].sum() == (6 if share_teammates else 2)
