@@ -1,8 +1,9 @@
 """`pursuit-mj simulate`: fly a scripted pattern in each built-in layout, in both fidelities, and report.
 
 Every drone flies toward the middle of the border, then circles it on a radius of its own
-(0.5 m + 0.3 m per drone), at its max speed, steering away from drones closer than 0.25 m. For each layout and fidelity it prints the
-simulated and wall-clock time, the real-time factor, the largest altitude error and tilt
+(0.5 m + 0.3 m per drone, or spread evenly inside the border where it leaves less room), at
+its max speed, steering away from drones closer than 0.25 m. For each layout and fidelity it
+prints the simulated and wall-clock time, the real-time factor, the largest altitude error and tilt
 (sampled at every controller tick), the contacts and where the drones ended up.
 """
 
@@ -16,6 +17,7 @@ import numpy as np
 
 from pursuit_mj.config import BUILTIN_EVADER, TaskConfig, default_config, load_task_yaml, preset_or_file
 from pursuit_mj.controller import tilt_angle
+from pursuit_mj.geometry import border_distance
 from pursuit_mj.layout import N_BUILTIN, Layout, load_layout
 from pursuit_mj.layout_check import check_spawn_capacity, free_spawn_points
 from pursuit_mj.physics import BatchedPhysics
@@ -24,6 +26,7 @@ from .common import add_task_args, finite_float, seed_arg, task_config_from_args
 
 SPAWN_SEPARATION = 0.35  # m between spawned drones
 SEPARATION = 0.25  # m: drones closer than this steer apart
+BORDER_MARGIN = 0.25  # m kept between the outermost circle and the border
 #: task keys a scripted flight does not use: what a pursuer perceives, and a layout drawn per episode
 UNUSED_KEYS = PERCEPTION_KEYS + ("random_layout",)
 MAX_SECONDS = 86400.0  # --seconds at most (a simulated day per run): far larger values overflowed the step count
@@ -85,6 +88,16 @@ def circle_commands(xy: np.ndarray, center: np.ndarray, radii: np.ndarray, speed
     return direction * speed[:, None]
 
 
+def circle_radii(n_drones: int, room: float) -> np.ndarray:
+    """Radii (n_drones,) m of the drones' circles: 0.5 m + 0.3 m per drone while the outermost
+    fits within `room` (m, from the middle to the border less a margin), else `room` shared
+    evenly (room / n, 2 room / n, ..., room), so that no drone circles beyond the border."""
+    radii = 0.5 + 0.3 * np.arange(n_drones)
+    if radii[-1] <= room:
+        return radii
+    return room * np.arange(1, n_drones + 1) / n_drones
+
+
 def fly(config: TaskConfig, layout: Layout, seconds: float, seed: int = 0) -> FlightReport:
     """Fly the scripted pattern for `seconds` in one world of `layout` (random obstacles of `seed`)."""
     rng = np.random.default_rng(seed)
@@ -94,7 +107,10 @@ def fly(config: TaskConfig, layout: Layout, seconds: float, seed: int = 0) -> Fl
     physics.reset([0], spawn_positions(world, config.n_pursuers, config.n_evaders, rng)[None])
     seg = world.border()
     center = 0.5 * (seg[:, :2].min(0) + seg[:, :2].max(0))
-    radii = 0.5 + 0.3 * np.arange(physics.n_drones)
+    # the outermost circle keeps BORDER_MARGIN from the border (at least 5 cm of radius where
+    # the middle lies closer to it, as in a polygon that bends around it)
+    room = max(float(border_distance(center[None], seg)[0]) - BORDER_MARGIN, 0.05)
+    radii = circle_radii(physics.n_drones, room)
     h = config.flight_height
     worst = {"dz": 0.0, "tilt": 0.0}
 

@@ -62,6 +62,24 @@ def test_scripted_flight_in_an_open_arena_is_clean_and_ends_circling_the_middle(
     assert report.real_time_factor > 1.0
 
 
+@pytest.mark.parametrize("team, arena", [((6, 3), (3.6, 5.0)), ((1, 1), (1.2, 1.6))])
+def test_scripted_circles_fit_inside_the_border_for_any_team_and_arena(tmp_path, team, arena):
+    """The radii were 0.5 m + 0.3 m per drone whatever the arena: a 6 + 3 team in the 3.6 m wide
+    open arena, or 1 + 1 in a 1.2 x 1.6 m one, flew circles beyond the border and pressed against
+    it, reported as hundreds of contact steps of a flight that should touch nothing."""
+    width, height = arena
+    path = tmp_path / "arena.yaml"
+    path.write_text(f"name: a\narena: {{width: {width}, height: {height}}}\n"
+                    f"spawn:\n  pursuers: {{x: [0.2, {width - 0.2}], y: [0.2, 0.4]}}\n"
+                    f"  evaders: {{x: [0.2, {width - 0.2}], y: [{height - 0.4}, {height - 0.2}]}}\n")
+    config = default_config(random_obstacles=0, fidelity="point", n_pursuers=team[0], n_evaders=team[1])
+    report = fly(config, load_layout(str(path)), seconds=20.0)
+    assert report.contact_steps.sum() == 0, dict(zip(report.names, report.contact_steps))
+    gap = np.minimum(np.minimum(report.final_xy[:, 0], width - report.final_xy[:, 0]),
+                     np.minimum(report.final_xy[:, 1], height - report.final_xy[:, 1]))
+    assert (gap > 0.1).all(), report.final_xy
+
+
 def test_circle_commands_point_inward_far_away_and_along_the_circle_on_it():
     center = np.array([0.0, 0.0])
     xy = np.array([[[10.0, 0.0], [1.0, 0.0]]])
