@@ -101,6 +101,19 @@ def test_bench_env_bad_input_exits_2(args, message, capsys):
     assert message in err and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.parametrize("kind", ["env", "physics"])
+def test_bench_refuses_a_team_its_layout_cannot_hold_before_printing_anything(kind, tmp_path, capsys):
+    """It printed its two header lines, then started the measuring process, which refused the task."""
+    small = tmp_path / "small.yaml"
+    small.write_text("name: small\narena: {width: 3.6, height: 5.0}\n"
+                     "spawn:\n  pursuers: {x: [0.2, 0.3], y: [0.2, 0.3]}\n  evaders: {x: [0.2, 3.4], y: [4.2, 4.8]}\n")
+    args = ["--worlds", "1", "--seconds", "0.1", "--fidelity", "point", "--set", f"layout={small}"]
+    assert main(["bench", kind] + args) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert "cannot reliably hold 3 pursuers" in err and len(err.strip().splitlines()) == 1
+
+
 def _fail(message):
     raise ValueError(message)
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from ..common import finite_float, seed_arg
 from pursuit_mj.config import TaskConfig, load_task_config
+from pursuit_mj.env import check_task_layouts
 from pursuit_mj.layout import load_layout
 from . import UNRELIABLE, against_aim, check_common_args, format_table, peak_rss_mb, profile_call, run_isolated
 
@@ -171,6 +172,7 @@ def run(args) -> int:
     if args.profile < 0:
         raise ValueError(f"--profile: must be >= 0, got {args.profile}")
     cfg = [task_config(f, args.task_files, args.overrides) for f in args.fidelity][0]  # refuses bad settings before any work
+    check_task_layouts(cfg)  # and a team its layouts cannot hold, before the header (the env it measures would)
     arena = ("a built-in layout drawn per episode (random_layout)" if cfg.random_layout else
              f"layout {cfg.layout} with {cfg.random_obstacle_count(load_layout(cfg.layout))} random obstacles")
     print(f"env benchmark: {cfg.n_pursuers} pursuers + {cfg.n_evaders} evader(s) per world, {arena}, {cfg.observability} "

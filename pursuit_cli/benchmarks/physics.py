@@ -26,6 +26,8 @@ import numpy as np
 from ..common import finite_float, seed_arg
 from pursuit_mj.config import TaskConfig, load_task_config
 from pursuit_mj.layout import load_layout
+from pursuit_mj.layout_check import check_spawn_capacity
+from ..simulate import SPAWN_SEPARATION
 from . import UNRELIABLE, against_aim, check_common_args, format_table, peak_rss_mb, run_isolated
 
 HELP = "raw MuJoCo step rate (the ceiling) vs BatchedPhysics with the controller in the loop"
@@ -149,6 +151,8 @@ def run(args) -> int:
     if not 0 <= args.nthread <= MAX_NTHREAD:
         raise ValueError(f"--nthread: must be in 0..{MAX_NTHREAD}, got {args.nthread}")
     cfg = [task_config(f, args.overrides) for f in args.fidelity][0]  # refuses bad --set values before any work
+    # and a team the layout's spawn regions cannot hold (as spawn_positions would), before the header
+    check_spawn_capacity(load_layout(cfg.layout), cfg.n_pursuers, cfg.n_evaders, SPAWN_SEPARATION)
     print(f"physics benchmark: {cfg.n_pursuers} pursuers + {cfg.n_evaders} evader(s) per world, layout {cfg.layout} with "
           f"{cfg.random_obstacle_count(load_layout(cfg.layout))} random obstacles per world; a decision step is control_dt {cfg.control_dt:g} s = "
           f"{cfg.substeps} physics steps of {cfg.physics_dt:g} s; controller {cfg.controller_hz:g} Hz")
