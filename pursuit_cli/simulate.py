@@ -19,7 +19,7 @@ from pursuit_mj.config import BUILTIN_EVADER, TaskConfig, default_config, load_t
 from pursuit_mj.controller import tilt_angle
 from pursuit_mj.geometry import border_distance
 from pursuit_mj.layout import N_BUILTIN, Layout, load_layout
-from pursuit_mj.layout_check import check_spawn_capacity, free_spawn_points
+from pursuit_mj.layout_check import check_spawn_capacity, free_spawn_points, sample_separated
 from pursuit_mj.physics import BatchedPhysics
 from pursuit_mj.sensing import PERCEPTION_KEYS
 from .common import add_task_args, finite_float, seed_arg, task_config_from_args
@@ -52,17 +52,13 @@ class FlightReport:
 
 
 def spawn_positions(layout: Layout, n_pursuers: int, n_evaders: int, rng: np.random.Generator) -> np.ndarray:
-    """Start positions (n_pursuers + n_evaders, 2) m in the spawn regions, SPAWN_SEPARATION apart."""
+    """Start positions (n_pursuers + n_evaders, 2) m in the spawn regions, SPAWN_SEPARATION apart,
+    drawn as the env draws them (layout_check.sample_separated: the draw that
+    check_spawn_capacity makes sure of)."""
     out = []
     for region, n, role in ((layout.spawn_pursuers, n_pursuers, "pursuers"), (layout.spawn_evaders, n_evaders, "evaders")):
-        points = free_spawn_points(layout, region)
-        chosen: list[np.ndarray] = []
-        for idx in rng.permutation(len(points)):
-            if all(np.hypot(*(points[idx] - c)) >= SPAWN_SEPARATION for c in chosen):
-                chosen.append(points[idx])
-                if len(chosen) == n:
-                    break
-        if len(chosen) < n:
+        chosen = sample_separated(free_spawn_points(layout, region), n, rng, SPAWN_SEPARATION)
+        if chosen is None:
             raise ValueError(f"layout {layout.source}: the {role} spawn region has no room for {n} drones {SPAWN_SEPARATION} m apart")
         out.extend(chosen)
     return np.array(out)

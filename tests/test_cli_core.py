@@ -38,6 +38,15 @@ def test_simulate_refuses_a_spawn_region_too_small_for_the_team_before_printing_
     assert f"the spawn region of {small} (x=[0.2, 0.3], y=[0.2, 0.3]) cannot reliably hold 3 pursuers 0.35 m apart" in captured.err
 
 
+def test_simulate_flies_every_team_its_spawn_check_accepts(capsys):
+    """The check before the table drew spawns as the env does (200 tries a draw), the flight
+    with one greedy try: 16 pursuers passed the check, printed the header, then were refused
+    ('the pursuers spawn region has no room for 16 drones 0.35 m apart')."""
+    assert main(["simulate", "--seconds", "0.2", "--layout", "0", "--fidelity", "point", "--pursuers", "16"]) == 0
+    out = capsys.readouterr().out
+    assert "16 pursuers + 1 evader fly" in out and "pursuer_15 (" in out
+
+
 def test_simulate_flies_only_the_layout_and_fidelity_chosen_through_set(capsys):
     assert main(["simulate", "--seconds", "0.2", "--set", "fidelity=point", "--set", "layout=1"]) == 0
     rows = [line.split()[:2] for line in capsys.readouterr().out.splitlines() if line.split()[:1] in (["open"], ["walls"], ["bars"], ["cluttered"])]
