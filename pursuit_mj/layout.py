@@ -167,6 +167,17 @@ def _pair(value: Any, where: str) -> tuple[float, float]:
     return out[0], out[1]
 
 
+def _range(value: Any, where: str, one: str, ends: str = "low, high") -> tuple[float, float]:
+    """A range [`ends`] in m (ordered by the caller's check), or LayoutError naming `where`; a
+    single number is told how to write it as a range whose ends meet, `one` saying what that
+    range means (e.g. 'a fixed start')."""
+    if _finite_number(value):
+        raise LayoutError(f"{where}: expected a range [{ends}] (m; [{shown(value)}, {shown(value)}] for {one}), got {shown(value)}")
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise LayoutError(f"{where}: expected a range [{ends}] (m), got {shown(value)}")
+    return _pair(value, where)
+
+
 def _number(value: Any, where: str, positive: bool = False) -> float:
     if not _finite_number(value):
         raise LayoutError(f"{where}: expected a number, got {shown(value)}")
@@ -339,7 +350,7 @@ def _signed_area(pts: Sequence[tuple[float, float]]) -> float:
 
 def _parse_region(value: Any, where: str) -> Region:
     m = _mapping(value, where, ("x", "y"), ("x", "y"))
-    x, y = _pair(m["x"], f"{where}.x"), _pair(m["y"], f"{where}.y")
+    x, y = _range(m["x"], f"{where}.x", "a fixed start"), _range(m["y"], f"{where}.y", "a fixed start")
     if x[0] > x[1] or y[0] > y[1]:
         raise LayoutError(f"{where}: ranges must be [low, high] with low <= high (low == high in both for a fixed "
                           f"start point), got x={list(x)} y={list(y)}")
@@ -367,7 +378,7 @@ def _parse_random(value: Any, where: str) -> RandomObstacles:
             raise LayoutError(f"{where}.kinds: unknown kind {shown(k)}{key_hint(k, ('box', 'cylinder'))}")
     if not kinds:
         raise LayoutError(f"{where}.kinds: must name at least one kind")
-    size = _pair(m.get("size", (0.15, 0.4)), f"{where}.size")
+    size = _range(m.get("size", (0.15, 0.4)), f"{where}.size", "one size", "min, max")
     if not 0 < size[0] <= size[1]:
         raise LayoutError(f"{where}.size: expected [min, max] with 0 < min <= max, got {list(size)}")
     return RandomObstacles(count, kinds, size)

@@ -444,6 +444,27 @@ def test_malformed_layouts_are_refused_naming_the_entry(data, message, tmp_path)
         load_layout(path)
 
 
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        # a fixed start point written as one number was told 'expected [x, y], got 1.8': the shape of a
+        # point, where a spawn range is [low, high]
+        (base_dict(spawn={"pursuers": SPAWN["pursuers"], "evaders": {"x": 1.8, "y": [4.5, 4.5]}}),
+         r"bad.yaml: spawn.evaders.x: expected a range \[low, high\] \(m; \[1.8, 1.8\] for a fixed start\), got 1.8$"),
+        (base_dict(spawn={"pursuers": {"x": [0.2, 3.4], "y": [0.2, 0.5, 0.8]}, "evaders": SPAWN["evaders"]}),
+         r"bad.yaml: spawn.pursuers.y: expected a range \[low, high\] \(m\), got \[0.2, 0.5, 0.8\]$"),
+        (base_dict(random_obstacles={"count": 2, "size": 0.3}),
+         r"bad.yaml: random_obstacles.size: expected a range \[min, max\] \(m; \[0.3, 0.3\] for one size\), got 0.3$"),
+        (base_dict(obstacles=[{"cylinder": {"center": 1.0, "radius": 0.2}}]), r"center: expected \[x, y\], got 1.0$"),
+    ],
+)
+def test_a_range_written_as_another_shape_is_refused_as_a_range(data, message, tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(LayoutError, match=message):
+        load_layout(path)
+
+
 def test_a_random_obstacle_count_written_as_a_whole_float_is_a_count(tmp_path):
     """random_obstacles.count 3.0 (or 3e0) was refused 'expected an integer >= 0, got 3.0', where the
     task's counts (random_obstacles, n_pursuers, max_steps) take a whole number written so."""
