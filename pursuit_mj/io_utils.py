@@ -282,3 +282,15 @@ def check_writable(path: str | Path, what: str = "output") -> Path:
 def file_sha256(path: str | Path) -> str:
     """The hex sha256 of a file's bytes (to tell whether a file changed since it was used)."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def first_line_is_json_object(path: str | Path) -> bool:
+    """Whether the file's first line alone is a JSON object, as in a JSON-lines log (False when
+    it cannot be read or parsed): tells a training log from a JSON table that fails to parse."""
+    import json
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            return isinstance(json.loads(f.readline()), dict)
+    except (OSError, ValueError):
+        return False

@@ -17,7 +17,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .io_utils import CannotWrite, atomic_path
+from .io_utils import CannotWrite, atomic_path, first_line_is_json_object
 from .stats import percent_text
 
 X_KEYS = ("env_steps", "world_steps", "agent_steps", "update")
@@ -239,13 +239,6 @@ def bar_label(value: float, percent: bool) -> str:
     return str(math.floor(value + 0.5))
 
 
-def _first_line_is_an_object(path: Path) -> bool:
-    try:
-        with open(path, encoding="utf-8") as f:
-            return isinstance(json.loads(f.readline()), Mapping)
-    except (OSError, ValueError):
-        return False
-
 
 def read_eval_rows(path: str | Path) -> list[dict[str, Any]]:
     """Rows of an evaluation JSON ({"rows": [...]} or a list) or CSV (*.csv, of `pursuit-mj eval
@@ -263,7 +256,7 @@ def read_eval_rows(path: str | Path) -> list[dict[str, Any]]:
         try:
             data = json.loads(_text(path, "evaluation results"))
         except json.JSONDecodeError as exc:
-            if exc.msg == "Extra data" and _first_line_is_an_object(path):
+            if exc.msg == "Extra data" and first_line_is_json_object(path):
                 raise ValueError(f"evaluation results {path}: a training log (one JSON object a line), not an evaluation "
                                  f"table: plot it with --log {path}") from None
             raise ValueError(f"evaluation results {path}: not JSON ({exc.msg}, line {exc.lineno})") from None

@@ -24,6 +24,7 @@ from .comparison import Paired, pair_matches
 from .config import TaskConfig, default_config
 from .configio import first_difference, to_dict
 from .evaluation import OUTCOMES, Row, layout_identity, summarise
+from .io_utils import first_line_is_json_object
 
 #: the fidelities a row can name (TaskConfig.fidelity's choices)
 FIDELITIES = tuple(next(f for f in dataclasses.fields(TaskConfig) if f.name == "fidelity").metadata["choices"])
@@ -58,7 +59,7 @@ def _read(path: Path) -> dict:
     except OSError as exc:
         raise ValueError(f"{path}: cannot read it ({exc.strerror or exc})") from None
     except json.JSONDecodeError as exc:
-        if exc.msg == "Extra data" and _first_line_is_an_object(path):
+        if exc.msg == "Extra data" and first_line_is_json_object(path):
             raise ValueError(f"{path}: a training log (one JSON object a line), not an evaluation table; "
                              f"plot it with `pursuit-mj plot --log {path}`") from None
         raise ValueError(f"{path}: not a JSON file ({exc})") from None
@@ -68,14 +69,6 @@ def _read(path: Path) -> dict:
         raise ValueError(f"{path}: not an evaluation table written by `pursuit-mj eval --out/--json` (no 'rows' and 'config')")
     return data
 
-
-def _first_line_is_an_object(path: Path) -> bool:
-    """Whether the file's first line alone is a JSON object, as in a JSON-lines training log."""
-    try:
-        with open(path, encoding="utf-8") as f:
-            return isinstance(json.loads(f.readline()), dict)
-    except (OSError, ValueError):
-        return False
 
 
 def table_task(config: dict) -> dict:
