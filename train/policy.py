@@ -55,7 +55,11 @@ ROWS_PER_FORWARD = 64  # pursuers (rows) per forward pass of a loaded actor, see
 
 
 class ActorPolicy:
-    """A trained actor driving every pursuer (shared parameters); mean action unless stochastic."""
+    """A trained actor driving every pursuer (shared parameters); mean action unless stochastic.
+
+    A stochastic one adds Gaussian noise drawn from one generator (`seed`) across the batch, so
+    its episodes depend on the number of worlds and on what it played before (the commands act
+    on the mean, and their tables do not)."""
 
     def __init__(self, actor: Actor, name: str, stochastic: bool = False, seed: int = 0):
         self.actor = actor.eval()
