@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 from pathlib import Path
 
 from pursuit_mj.layout import is_index_text
@@ -175,6 +176,10 @@ def _check_same(asked, stored) -> None:
         return out
 
     a, b = flat(to_dict(asked)), flat(to_dict(stored))
+    # runs before 2026-12-07 stored init_from as typed: read from here, as the command that started them did
+    for d in (a, b):
+        if d.get("init_from"):
+            d["init_from"] = os.path.abspath(d["init_from"])
     # task_file: its keys are compared one by one as task.*; runs before 2026-12-07 stored its path relative
     for key in ("total_steps", "max_minutes", "run.progress", "run.rerun", "name", "run.runs_dir", "task_file"):
         a.pop(key, None), b.pop(key, None)

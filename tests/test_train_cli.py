@@ -741,3 +741,28 @@ def test_a_trained_policy_given_nan_observations_names_them_not_its_actions(tiny
     obs[0, 1, 3] = np.nan
     with pytest.raises(ValueError, match=f"policy {policy.name}: observations contain NaN or inf"):
         policy.act(obs, spec)
+
+
+def test_the_stored_config_of_a_run_from_a_relative_init_from_loads_from_any_folder(tmp_path, capsys, monkeypatch):
+    """config.yaml kept init_from as typed, relative to the folder the run started in: 'train
+    --config RUN/config.yaml' from another folder failed with 'init_from ...: no such checkpoint'.
+    The command that started the run, and that of a run stored before the change, still resume it."""
+    start, other = tmp_path / "start", tmp_path / "other"
+    start.mkdir(), other.mkdir()
+    monkeypatch.chdir(start)
+    first = ["train", "--no-progress", "--name", "a"] + sets(TINY + [f"run.runs_dir={tmp_path}"])
+    assert main(first + ["--total-steps", "32"]) == 0
+    (start / "a.pt").write_bytes((tmp_path / "a" / "last.pt").read_bytes())
+    base = ["train", "--no-progress", "--name", "b", "--init-from", "a.pt"] + sets(TINY + [f"run.runs_dir={tmp_path}"])
+    assert main(base + ["--total-steps", "32"]) == 0
+    stored = tmp_path / "b" / "config.yaml"
+    assert f"init_from: {start / 'a.pt'}" in stored.read_text()
+    monkeypatch.chdir(other)
+    capsys.readouterr()
+    assert main(["train", "--no-progress", "--config", str(stored), "--name", "c", "--total-steps", "32"]) == 0, \
+        capsys.readouterr().err
+    monkeypatch.chdir(start)  # the command that started it resumes it, also where config.yaml holds it relative
+    assert main(base + ["--resume", "--total-steps", "64"]) == 0, capsys.readouterr().err
+    stored.write_text(stored.read_text().replace(str(start / "a.pt"), "a.pt"))
+    assert main(base + ["--resume", "--total-steps", "96"]) == 0, capsys.readouterr().err
+    assert "done: 3 updates" in capsys.readouterr().out

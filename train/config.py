@@ -266,9 +266,10 @@ class TrainConfig:
                 for ref in refs if _is_file_ref(ref)]
 
     def with_absolute_files(self) -> "TrainConfig":
-        """This config with every layout file, code file (rewards, task.evader.model) and the task
-        file (task_file, unless a preset's name) path made absolute (from the current folder): the
-        stored config of a run then loads them wherever the run is resumed or loaded again."""
+        """This config with every layout file, code file (rewards, task.evader.model), the task
+        file (task_file, unless a preset's name) and the init_from checkpoint path made absolute
+        (from the current folder): the stored config of a run then loads them wherever the run is
+        resumed or loaded again."""
         def absolute(ref):
             return os.path.abspath(ref) if _is_file_ref(ref) else ref
 
@@ -283,8 +284,10 @@ class TrainConfig:
         run = dataclasses.replace(self.run, validation_layouts=tuple(absolute(r) for r in self.run.validation_layouts))
         # a task_file is read as preset_or_file reads it: a file from the current folder first, else a preset
         task_file = os.path.abspath(self.task_file) if self.task_file and Path(self.task_file).is_file() else self.task_file
+        init_from = os.path.abspath(self.init_from) if self.init_from and Path(self.init_from).is_file() else self.init_from
         return dataclasses.replace(self, task=task, run=run, layouts=tuple(absolute(r) for r in self.layouts),
-                                   rewards=tuple(absolute_code(r) for r in self.rewards), task_file=task_file)
+                                   rewards=tuple(absolute_code(r) for r in self.rewards), task_file=task_file,
+                                   init_from=init_from)
 
     def code_files(self) -> list[tuple[str, str]]:
         """(key, FILE) of every Python file the run's code comes from: each FILE.py:NAME of
