@@ -246,7 +246,7 @@ def _progress(args) -> bool | None:
 
 def run(args) -> int:
     from pursuit_mj.configio import dump_yaml
-    from train.config import load_train_config
+    from train.config import layout_key_sources, load_train_config
     from train.trainer import Trainer, best_instead
 
     if args.export:
@@ -299,7 +299,7 @@ def run(args) -> int:
                              f"{cfg.run_dir / 'config.yaml'}")
         if args.show_config:
             cfg.check_complete()  # what training would refuse, -sc refuses too
-            cfg.check_layouts()
+            cfg.check_layouts(key_sources=layout_key_sources(args.overrides))
             cfg.check_code()
             print(dump_yaml(cfg), end="")
             return 0
@@ -320,6 +320,7 @@ def run(args) -> int:
             if last.exists():
                 raise ValueError(f"run folder {cfg.run_dir} already has a checkpoint: continue it with --resume, "
                                  f"or start another run with --name")
+            cfg.check_layouts(key_sources=layout_key_sources(args.overrides))  # Trainer would name no flag
             trainer = Trainer(cfg)
     # SIGTERM stops it like Ctrl-C (pursuit_cli.termination_as_interrupt): the last finished update is kept
     seconds_before = trainer.counters.seconds  # a resumed run's counters hold its earlier sessions too

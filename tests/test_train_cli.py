@@ -766,3 +766,18 @@ def test_the_stored_config_of_a_run_from_a_relative_init_from_loads_from_any_fol
     stored.write_text(stored.read_text().replace(str(start / "a.pt"), "a.pt"))
     assert main(base + ["--resume", "--total-steps", "96"]) == 0, capsys.readouterr().err
     assert "done: 3 updates" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("given, named", [
+    (["--set", "task.layout=nope.yaml"], "--set task.layout=nope.yaml: task.layout nope.yaml: layout 'nope.yaml'"),
+    (["--set", "task={layout: nope.yaml}"], "--set task={layout: nope.yaml}: task.layout nope.yaml"),
+    (["--set", "layouts=[0, nope.yaml]"], "--set layouts=[0, nope.yaml]: layouts [0, 'nope.yaml']"),
+    (["--set", "run.validation_layouts=[nope.yaml]", "-sc"], "--set run.validation_layouts=[nope.yaml]: run.validation_layouts"),
+])
+def test_a_missing_layout_file_given_by_set_names_the_flag(tmp_path, capsys, monkeypatch, given, named):
+    """A layout file --set names that does not exist was blamed on the 'train config', not the flag."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "--no-progress", *sets(TINY), *given]) == 2
+    assert f"pursuit-mj train: error: {named}" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists()
+

@@ -261,9 +261,7 @@ class TrainConfig:
     def layout_files(self) -> list[tuple[str, str]]:
         """(key, path) of every layout file the run names (task.layout, layouts,
         run.validation_layouts), in that order; built-in indices are left out."""
-        return [(key, str(ref)) for key, refs in (("task.layout", (self.task.layout,)), ("layouts", self.layouts),
-                                                   ("run.validation_layouts", self.run.validation_layouts))
-                for ref in refs if _is_file_ref(ref)]
+        return [(key, str(ref)) for key, refs in layout_refs(self) for ref in refs if _is_file_ref(ref)]
 
     def with_absolute_files(self) -> "TrainConfig":
         """This config with every layout file, code file (rewards, task.evader.model), the task
@@ -310,19 +308,19 @@ class TrainConfig:
         if is_file_reference(self.task.evader.model):
             make_evader_model(self.task, 1, self.seed, f"{source}: task.evader.model")
 
-    def check_layouts(self, source: str = "train config") -> None:
+    def check_layouts(self, source: str = "train config", key_sources: Mapping[str, str] | None = None) -> None:
         """Load every layout the run names (task.layout, layouts, run.validation_layouts): ConfigError
-        naming the key of one that cannot be (no such index or file, a malformed file)."""
+        naming the key of one that cannot be (no such index or file, a malformed file), after
+        `key_sources[key]` where given (e.g. '--set task.layout=x.yaml'), else after `source`."""
         from pursuit_mj.layout import load_layout
 
-        for key, refs in (("task.layout", (self.task.layout,)), ("layouts", self.layouts),
-                          ("run.validation_layouts", self.run.validation_layouts)):
+        for key, refs in layout_refs(self):
             for ref in refs:
                 try:
                     load_layout(ref)
                 except ValueError as exc:
                     shown = ref if key == "task.layout" else list(refs)
-                    raise ConfigError(f"{source}: {key} {shown}: {exc}") from None
+                    raise ConfigError(f"{(key_sources or {}).get(key, source)}: {key} {shown}: {exc}") from None
 
     def idle_settings(self) -> list[str]:
         """Settings changed from their defaults that this combination never reads, one line each
@@ -397,6 +395,24 @@ def _deep_update(base: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, A
 def _do(names: Sequence[str]) -> str:
     """The verb for a list of settings: 'ppo.lr does', 'ppo.lr, ppo.clip do'."""
     return "does" if len(names) == 1 else "do"
+
+
+LAYOUT_KEYS = ("task.layout", "layouts", "run.validation_layouts")
+
+
+def layout_refs(cfg: TrainConfig) -> list[tuple[str, tuple]]:
+    """(key, layout references) of each key of LAYOUT_KEYS in `cfg`, in that order."""
+    return [("task.layout", (cfg.task.layout,)), ("layouts", tuple(cfg.layouts)),
+            ("run.validation_layouts", tuple(cfg.run.validation_layouts))]
+
+
+def layout_key_sources(overrides: Sequence[str]) -> dict[str, str]:
+    """Which '--set KEY=VALUE' gave each layout key (LAYOUT_KEYS) its value: the last that set it."""
+    sources: dict[str, str] = {}
+    for text in overrides:
+        for key in set_keys(text) & set(LAYOUT_KEYS):
+            sources[key] = f"--set {text}"
+    return sources
 
 
 def _is_file_ref(ref: Any) -> bool:
