@@ -373,7 +373,10 @@ class PursuitEnv:
         listed ones ids (k,), with those worlds perceived anew (say, as their episodes restart);
         self._perception gets their rows too. The same numbers `_observe` gives (perception is
         per world, its draws keyed by each world's episode and step), at the cost of k worlds
-        instead of W: with many worlds some episode ends in nearly every step."""
+        instead of W: with many worlds some episode ends in nearly every step. No ids: `obs`
+        as it is (reset_worlds([]) restarts nothing)."""
+        if len(ids) == 0:  # an empty obstacle batch has no shape to perceive with
+            return obs
         view = self._view(ids)
         part = perceive(view, self.config, WorldRandom(self._sensing_keys[ids], self.steps[ids]))
         rows = {}

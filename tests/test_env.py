@@ -664,3 +664,17 @@ def test_new_random_obstacles_restack_only_the_restarted_worlds(monkeypatch):
     fresh = ObstacleSet.stack(env._world_obstacles)
     pts = env.physics.positions()[:, :, :2]
     np.testing.assert_array_equal(obstacle_distance(pts, env._obstacles), obstacle_distance(pts, fresh))
+
+
+def test_reset_worlds_of_no_world_restarts_nothing():
+    # reset_worlds([]) (a loop's np.flatnonzero(done) when nothing ended) stopped with numpy's
+    # 'cannot reshape array of size 0' once a restart perceived only the restarted worlds
+    env = PursuitEnv(default_config(fidelity="point", random_obstacles=2, n_evaders=2), n_worlds=3, seed=2)
+    obs = env.reset()
+    episodes, steps = env.episode.copy(), env.steps.copy()
+    again = env.reset_worlds(np.array([], dtype=np.int64), [])
+    np.testing.assert_array_equal(again, obs)
+    np.testing.assert_array_equal(env.reset_worlds([]), obs)
+    assert env.episode.tolist() == episodes.tolist() and env.steps.tolist() == steps.tolist()
+    with pytest.raises(ValueError, match="reset_worlds seeds"):
+        env.reset_worlds([], [5])
