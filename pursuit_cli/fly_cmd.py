@@ -204,6 +204,10 @@ def run_align(args) -> int:
     _quiet_cflib(False)
     if not 0 < args.window <= 60:
         raise ValueError(f"--window {args.window}: expected seconds in (0, 60]")
+    if args.write:  # before any drone is measured; 'aligned/' names a folder, not the file to write
+        from pursuit_mj.io_utils import check_writable
+
+        check_writable(args.write, "--write")
     spec = load_flight(_need_flight(args))
     spots = parse_points(args.spots, "--spots")
     lab = parse_points(args.lab, "--lab") if args.lab else None

@@ -1009,3 +1009,19 @@ def test_a_separation_guard_that_lets_pursuers_closer_than_the_simulators_teamma
     lab = 0.2 / scale
     for w in [f"safety.min_separation {separation:g} m", "teammate_clearance 0.2 m", f"{lab:.3f} m in the lab", "collision"]:
         assert w in warning, (w, warning)
+
+
+def test_fly_align_refuses_a_write_path_that_names_a_folder_before_it_measures(tmp_path, capsys):
+    # 'fly align --write aligned/' wrote the flight file to a plain file called 'aligned' (Path
+    # drops the slash), as eval --json and train --export did before they were mended
+    from pursuit_cli import main
+
+    truth = LabTransform((4.2, 0.1), math.pi / 2, 1.25)
+    spots = np.array([[0.5, 0.625], [1.75, 0.625], [1.875, 4.0]])
+    fmt = lambda pts: " ".join(f"{x:.4f},{y:.4f}" for x, y in pts)  # noqa: E731
+    for out in (f"{tmp_path / 'aligned'}/", str(tmp_path)):
+        rc = main(["fly", "align", "--flight", "lighthouse", "--lab", fmt(truth.to_lab(spots)), "--spots", fmt(spots), "--write", out])
+        captured = capsys.readouterr()
+        assert rc == 2 and captured.out == "", captured.out  # refused before the fit is printed (or any drone measured)
+        assert f"--write path {out}" in captured.err and "folder" in captured.err, captured.err
+    assert not (tmp_path / "aligned").exists()
