@@ -1245,3 +1245,14 @@ def test_a_mappo_resume_from_a_checkpoint_without_value_statistics_says_they_sta
     save_checkpoint(cfg.run_dir / "last.pt", {k: v for k, v in data.items() if k not in ("format", "version")})
     Trainer.resume(cfg.run_dir, log=said.append).close()
     assert [line for line in said if "holds no value statistics" in line and "starts afresh" in line], said
+
+
+def test_a_resume_of_a_folder_without_last_pt_leaves_no_lock_file_in_it(tmp_path):
+    # since resume took the folder's lock before reading last.pt, Trainer.resume of a folder that
+    # holds no run (a wrong folder given from Python) left a '.lock' file of its own in it
+    folder = tmp_path / "notes"
+    folder.mkdir()
+    (folder / "a.txt").write_text("mine")
+    with pytest.raises(ValueError, match="last.pt"):
+        Trainer.resume(folder, log=lambda s: None)
+    assert sorted(p.name for p in folder.iterdir()) == ["a.txt"]

@@ -198,8 +198,10 @@ class Trainer:
         run (total_steps, max_minutes), the progress bar and rerun streaming may change. `check(stored config)`
         runs before anything is restored (to refuse a resume asked with other settings)."""
         run_dir = Path(run_dir).resolve()  # `--resume .` from inside the folder: its name, not ''
-        # held before last.pt is read: a trainer of this folder ending meanwhile cannot leave it one save behind
-        lock = lock_run_folder(run_dir) if run_dir.is_dir() else None
+        # held before last.pt is read: a trainer of this folder ending meanwhile cannot leave it one save behind.
+        # Only a folder with a last.pt: one without has nothing to resume and gets no lock file of ours
+        # (a mistyped name makes no folder, a folder that holds no run no '.lock')
+        lock = lock_run_folder(run_dir) if (run_dir / "last.pt").is_file() else None
         try:
             return cls._resume_holding(run_dir, lock, total_steps, log, max_minutes, progress, check, rerun)
         except BaseException:
