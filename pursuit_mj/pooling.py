@@ -51,9 +51,9 @@ def _read(path: Path) -> dict:
     if path.is_dir():
         raise ValueError(f"{path}: a folder, not an evaluation table (pool reads the PREFIX.json files that "
                          f"`pursuit-mj eval --out PREFIX` writes)")
-    if path.suffix.lower() == ".csv":
+    if path.suffix.lower() == ".csv" and path.is_file():
         raise ValueError(f"{path}: an evaluation CSV, which lacks the per-episode seeds that pooling needs; "
-                         f"pool the JSON written beside it ({path.with_suffix('.json')})")
+                         f"{_json_instead(path)}")
     try:
         data = json.loads(path.read_text())
     except OSError as exc:
@@ -69,6 +69,15 @@ def _read(path: Path) -> dict:
         raise ValueError(f"{path}: not an evaluation table written by `pursuit-mj eval --out/--json` (no 'rows' and 'config')")
     return data
 
+
+
+def _json_instead(csv: Path) -> str:
+    """What to pool instead of an eval CSV: the JSON beside it where there is one."""
+    beside = csv.with_suffix(".json")
+    if beside.is_file():
+        return f"pool the JSON written beside it ({beside})"
+    return (f"pool the JSON table of that eval (eval --out PREFIX writes PREFIX.json beside PREFIX.csv, --json FILE "
+            f"one alone; there is no {beside.name} beside this CSV)")
 
 
 def table_task(config: dict) -> dict:

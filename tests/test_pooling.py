@@ -365,3 +365,20 @@ def test_one_label_for_a_checkpoint_in_one_table_and_a_hand_made_team_in_another
         pool_tables([tmp_path / "hand0.json", tmp_path / "file1.json"])
     assert pool_tables([tables["hr0"], tmp_path / "file1.json"]).rows  # hr0 predates the key: it may have been that file
     assert pool_tables([tables["hr0"], tables["h1"]]).rows
+
+
+def test_a_csv_is_sent_to_the_json_beside_it_only_where_there_is_one(tmp_path):
+    # the refusal of a CSV named 't.json, written beside it' whether or not there was one (eval
+    # --csv writes a CSV alone), and called a CSV that does not exist at all 'an evaluation CSV'
+    from pursuit_mj.evaluation import write_csv, write_json
+
+    rows = evaluate(make_policy("heuristic", TASK, 0), TASK, [0], 1, 0, 1)
+    alone = write_csv(rows, tmp_path / "alone.csv")
+    with pytest.raises(ValueError, match=r"alone\.csv: an evaluation CSV.*per-episode") as refused:
+        pool_tables([alone])
+    assert "written beside it" not in str(refused.value) and "no alone.json beside" in str(refused.value)
+    write_csv(rows, tmp_path / "pair.csv"), write_json(rows, tmp_path / "pair.json", TASK)
+    with pytest.raises(ValueError, match=r"pair\.csv: an evaluation CSV.*pool the JSON written beside it \(.*pair\.json\)"):
+        pool_tables([tmp_path / "pair.csv"])
+    with pytest.raises(ValueError, match=r"missing\.csv: cannot read it \(No such file"):
+        pool_tables([tmp_path / "missing.csv"])
