@@ -170,13 +170,15 @@ def checkpoint_file(args, train_cfg) -> Path | None:
     return None
 
 
-def render_digest(config: TaskConfig, label: str, checkpoint: Path | None, frames: dict, factory: str | None = None) -> str:
+def render_digest(config: TaskConfig, label: str, checkpoint: Path | None, frames: dict, factory: str | None = None,
+                  evader_seed: int | None = None) -> str:
     """Six hex digits of everything that decides what a render shows (the seed aside, which the
     name spells out): the task with its layout's content, the policy (a checkpoint by its bytes)
     and the frame settings; for --policy FILE.py:NAME, the file by its bytes and `factory`, NAME
     (two factories of one file may give policies of one name), with --episode-seed followed by
     the --seed that NAME(config, seed) was given; an evader.model FILE.py:NAME by
-    its file's bytes. Files named alike hold the same
+    its file's bytes, and by `evader_seed` where given (with --episode-seed, the --seed that
+    NAME(config, n_worlds, seed) was given). Files named alike hold the same
     pictures, so a render replaces only its own earlier copy, never a render of another model,
     task or camera."""
     h = hashlib.sha256()
@@ -191,6 +193,8 @@ def render_digest(config: TaskConfig, label: str, checkpoint: Path | None, frame
     evader = evader_model_sha256(config)
     if evader is not None:  # likewise: an evader model of one's own by its bytes
         h.update(f"evader {evader}".encode())
+        if evader_seed is not None:
+            h.update(f"evader seed {evader_seed}".encode())
     return h.hexdigest()[:6]
 
 
@@ -330,8 +334,10 @@ def run(args) -> int:
         factory = policy_file_name(args.policy) if args.policy is not None and is_policy_file(args.policy) else None
         if factory is not None and seeds:  # NAME(config, seed) was given --seed, which these names leave out
             factory = f"{factory} seed {args.seed}"
-        digest = render_digest(config, label, checkpoint_file(args, train_cfg), frames, factory)
-        if seeds:  # each file is named after its episode's seed; --seed plays no part but in a policy file's
+        # an evader model of one's own is made as NAME(config, n_worlds, seed) with --seed, which these names leave out
+        evader_seed = args.seed if seeds else None
+        digest = render_digest(config, label, checkpoint_file(args, train_cfg), frames, factory, evader_seed)
+        if seeds:  # each file is named after its episode's seed; --seed plays no part but in a file of one's own
             stem = f"{label}{task_tag}_layout{layout_tag(config)}_{config.fidelity}_{digest}"
             videos, finals = target.paths(episodes, stem, video, final, [f"episode{n}" for n in seeds])
         else:

@@ -373,3 +373,26 @@ def test_an_empty_rerun_path_is_refused_naming_the_flag_not_ignored(tmp_path, ca
     assert exit_.value.code == 2
     assert "argument --rerun: an empty path ('')" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []  # no video played and written without the recording asked for
+
+
+def test_an_evader_model_file_that_draws_from_its_seed_renders_an_episode_seed_under_names_of_each_seed(tmp_path, capsys):
+    """An evader model of one's own is made as NAME(config, n_worlds, seed) with the env's seed,
+    render's --seed: one that draws from it plays another episode under another --seed, and with
+    --episode-seed (names without --seed) the second render replaced the first under one name,
+    as a policy file's did until its digest took --seed in."""
+    model = tmp_path / "parity.py"  # seed 0: the evader flies left; 1: right
+    model.write_text("import numpy as np\n\n\nclass Parity:\n"
+                     "    def __init__(self, config, n_worlds, seed):\n        self.v = config.evader_speed * (1.0 if seed % 2 else -1.0)\n\n"
+                     "    def reset(self, world_ids, seeds):\n        pass\n\n"
+                     "    def compute(self, ep, ev, pp, pv, active, obstacles, dt):\n"
+                     "        out = np.zeros_like(ep)\n        out[..., 0] = self.v\n        return out\n")
+    out = tmp_path / "renders"
+    for seed in ("0", "1"):
+        assert _cli(tmp_path, "-s", str(out), "--no-video", "--final-frame", "--set", "max_steps=20", "--seed", seed,
+                    "--set", f"evader.model={model}:Parity", "--episode-seed", "5", policy="heuristic") == 0
+    capsys.readouterr()
+    assert len(list(out.glob("heuristic_layout0_point_*_episode5_final.png"))) == 2
+    for seed in ("0", "1"):  # without an evader model of one's own --seed decides nothing there: one name
+        assert _cli(tmp_path, "-s", str(out / "plain"), "--no-video", "--final-frame", "--seed", seed, "--episode-seed", "5",
+                    policy="heuristic") == 0
+    assert len(list((out / "plain").glob("*_episode5_final.png"))) == 1
