@@ -109,6 +109,16 @@ def _split_where(source: str) -> tuple[str, str]:
     return source, ""
 
 
+def _quoted_word(where: str) -> str:
+    """For `where` of an override of one word ("--set name=no: key 'name'"): ", inside the shell's
+    own quotes: --set 'name="no"'"; '' for a file or a value of more than a word."""
+    found = re.match(r"^(--[\w-]+) ([\w.]+)=([A-Za-z]+): key '", where)
+    if found is None:
+        return ""
+    flag, key, word = found.groups()
+    return f", inside the shell's own quotes: {quoted_override(flag, key, word)}"
+
+
 def key_where(source: str, name: str) -> str:
     """"source: key 'name'", with `name` joined to the section `source` names (_split_where)."""
     head, section = _split_where(source)
@@ -178,7 +188,7 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
             return str(value)
         if isinstance(value, bool):  # name=no: the word typed is not the value shown
             raise ConfigError(f"{where}: expected a string, got {shown(value)} (YAML reads yes/no/on/off/true/false "
-                              f"as booleans; quote the word to keep it as text)")
+                              f"as booleans; quote the word to keep it as text{_quoted_word(where)})")
         raise ConfigError(f"{where}: expected a string, got {shown(value)}")
     if isinstance(hint, type) and isinstance(value, hint):
         return value
@@ -271,8 +281,19 @@ def parse_override(text: str, source: str) -> tuple[list[str], Any]:
     comment = _comment_start(raw)
     if comment is not None:  # YAML drops it: --set random_obstacles=#3 was null, 'name=run #2' was 'run'
         raise ConfigError(f"{source}: the value of '{key}' holds a YAML comment ({raw[comment:].strip()!r} is dropped); "
-                          f"quote the value to keep the '#': {key}=\"{raw.strip()}\"")
+                          f"quote the value to keep the '#', inside the shell's own quotes: "
+                          f"{quoted_override(source, key, raw.strip())}")
     return key.split("."), value
+
+
+def quoted_override(source: str, key: str, text: str) -> str:
+    """The override KEY=TEXT with TEXT as a YAML string, as typed in a shell: --set 'KEY="TEXT"'
+    (the shell takes away one pair of quotes, YAML the other); the flag is the first word of
+    `source` where that is a flag ('--set name=run #2'), else --set."""
+    flag = source.split(" ", 1)[0] if source.startswith("--") else "--set"
+    if "'" in text or '"' in text or "\\" in text:  # no one form fits every shell and YAML: say it in words
+        return f"{flag} '{key}=\"...\"' (the value as a double-quoted YAML string)"
+    return f"{flag} '{key}=\"{text}\"'"
 
 
 def _comment_start(raw: str) -> int | None:

@@ -497,3 +497,24 @@ def test_a_text_key_given_a_word_yaml_reads_as_a_boolean_says_how_to_keep_the_wo
         load_train_config([], ["name=3"])
     assert "YAML reads" not in str(caught.value)  # a number is what was typed
     assert load_train_config([], ['name="no"']).name == "no"
+
+
+@pytest.mark.parametrize("text", ["name=run #2", "name=#3", "name=no", "run.runs_dir=off"])
+def test_the_quoting_an_override_refusal_advises_works_when_typed_in_a_shell(text):
+    """The refusals of a value YAML cuts at a '#' or reads as a boolean advised name="run #2" and
+    'quote the word': typed so after --set, the shell takes the quotes away and the same value
+    is refused again. The advice is now a whole --set argument in the shell's quotes."""
+    import shlex
+
+    from train.config import load_train_config
+
+    with pytest.raises(ConfigError) as caught:
+        load_train_config([], [text])
+    said = str(caught.value)
+    advised = said.rsplit(": ", 1)[-1].rstrip(")")
+    words = shlex.split(advised)  # what a POSIX shell hands the command
+    assert words[0] == "--set" and len(words) == 2, said
+    key, value = text.split("=", 1)
+    cfg = load_train_config([], [words[1]])
+    got = cfg.name if key == "name" else cfg.run.runs_dir
+    assert got == value, said
