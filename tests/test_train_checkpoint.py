@@ -1256,3 +1256,22 @@ def test_a_resume_of_a_folder_without_last_pt_leaves_no_lock_file_in_it(tmp_path
     with pytest.raises(ValueError, match="last.pt"):
         Trainer.resume(folder, log=lambda s: None)
     assert sorted(p.name for p in folder.iterdir()) == ["a.txt"]
+
+
+def test_a_mappo_run_started_from_a_mappo_checkpoint_without_value_statistics_says_they_start_afresh(tmp_path):
+    """The resume of such a file says so (03a13e9); init_from loaded its critic and went on with
+    fresh statistics without a word, so the critic's outputs meant other returns than it learned."""
+    from train.checkpoint import save_checkpoint
+
+    src = tiny_config(tmp_path, name="src", updates=1, extra=["algo=mappo"])
+    Trainer(src, log=lambda s: None).train()
+    data = load_checkpoint(src.run_dir / "last.pt")
+    said = []
+    Trainer(tiny_config(tmp_path, name="a", updates=1, extra=["algo=mappo", f"init_from={src.run_dir / 'last.pt'}"]),
+            log=said.append).close()
+    assert not [line for line in said if "value statistics" in line], said
+    data.pop("value_norm")
+    bare = tmp_path / "bare.pt"
+    save_checkpoint(bare, {k: v for k, v in data.items() if k not in ("format", "version")})
+    Trainer(tiny_config(tmp_path, name="b", updates=1, extra=["algo=mappo", f"init_from={bare}"]), log=said.append).close()
+    assert [line for line in said if "holds no value statistics" in line and "starts afresh" in line], said

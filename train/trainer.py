@@ -414,6 +414,9 @@ class Trainer:
             else:  # a normalised critic's outputs mean nothing without the statistics they were scaled by
                 if self.model.value_norm is not None and data.get("value_norm"):
                     self.model.value_norm.load_state_dict(data["value_norm"])
+                elif self.model.value_norm is not None:
+                    notes.append("it holds no value statistics (an older or edited file): MAPPO's value normalisation "
+                                 "starts afresh, so its critic's first values are off until they settle")
         logit = (data.get("discount") or {}).get("logit")
         if (src.get("ppo") or {}).get("learnable_gamma") and torch.is_tensor(logit) and logit.numel() == 1:
             learned = float(torch.sigmoid(logit.float()))
