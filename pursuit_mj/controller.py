@@ -121,18 +121,30 @@ def _checked_angles(value: float | np.ndarray, method: str, what: str) -> np.nda
     return angles
 
 
-def _limit_roll_pitch(force: np.ndarray, max_roll: float | np.ndarray, max_pitch: float | np.ndarray) -> None:
+def _limit_roll_pitch(force: np.ndarray, max_roll: float | np.ndarray, max_pitch: float | np.ndarray,
+                      heading: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """Bring the desired force (3, N) N, world frame, fz > 0, within roll and pitch limits (rad)
     each, keeping its vertical part, in place. A thrust direction of roll r and pitch p (ZYX
     Euler angles, yaw 0) is (cos r sin p, -sin r, cos r cos p); so p = atan2(fx, fz) and
-    r = atan2(-fy, hypot(fx, fz)), and the limited force is (fz tan p, -fz tan r / cos p, fz)."""
-    fx, fy, fz = force
+    r = atan2(-fy, hypot(fx, fz)), and the limited force is (fz tan p, -fz tan r / cos p, fz).
+    heading: (cos, sin) of the yaw whose axes the limits hold along (the firmware turns its
+    velocity loop's output into the drone's own frame first); None: the world's axes."""
+    fz = force[2]
+    if heading is None:
+        fx, fy = force[0], force[1]
+    else:  # into the frame of the drone's heading
+        c, s = heading
+        fx, fy = c * force[0] + s * force[1], c * force[1] - s * force[0]
     pitch = np.arctan2(fx, fz)
     roll = np.arctan2(-fy, np.hypot(fx, fz))
     np.clip(pitch, -max_pitch, max_pitch, out=pitch)
     np.clip(roll, -max_roll, max_roll, out=roll)
-    force[0] = fz * np.tan(pitch)
-    force[1] = -fz * np.tan(roll) / np.cos(pitch)
+    fx = fz * np.tan(pitch)
+    fy = -fz * np.tan(roll) / np.cos(pitch)
+    if heading is None:
+        force[0], force[1] = fx, fy
+    else:  # back to the world frame
+        force[0], force[1] = c * fx - s * fy, s * fx + c * fy
 
 
 def _right_tipped_drones(rate_des: np.ndarray, cols: np.ndarray, z_des: np.ndarray, max_rate: float) -> None:
@@ -183,8 +195,9 @@ class VelocityController:
         self._min_fz = 0.2 * m * GRAVITY
         self._max_fz = 4.0 * self.max_thrust  # N: the most vertical force all four rotors give, level
         self._tan_tilt: float | np.ndarray = float(np.tan(g.max_tilt))
-        # (roll, pitch) limits rad as the firmware's velocity loop has them, instead of the tilt limit; see set_roll_pitch_limits
-        self._roll_pitch: tuple[float | np.ndarray, float | np.ndarray] | None = None
+        # (roll, pitch) limits rad as the firmware's velocity loop has them, instead of the tilt limit, and the
+        # (cos, sin) of the heading they hold along (None: the world's axes); see set_roll_pitch_limits
+        self._roll_pitch: tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None] | None = None
         self._att = -0.5 * np.asarray(g.att, dtype=np.float64)[:, None]  # the 1/2 of vee(P - P^T) / 2
         self._rate_inertia = (self.inertia * np.asarray(g.rate, dtype=np.float64))[:, None]
         # omega x (I omega) = omega[_NEXT1] * omega[_NEXT2] * (I[_NEXT2] - I[_NEXT1])
@@ -199,14 +212,25 @@ class VelocityController:
         self._tan_tilt = float(np.tan(tilt)) if tilt.ndim == 0 else np.tan(tilt)
         self._roll_pitch = None
 
-    def set_roll_pitch_limits(self, roll: float | np.ndarray, pitch: float | np.ndarray) -> None:
+    def set_roll_pitch_limits(self, roll: float | np.ndarray, pitch: float | np.ndarray,
+                              heading: float | np.ndarray | None = None) -> None:
         """Limit the commanded roll and pitch (rad, ZYX Euler angles) each, as the Crazyflie
         firmware's velocity loop does (posCtlPid.rLimit and pLimit, position_controller_pid.c),
         instead of the tilt: one value each, or (n,) one per drone; each in (0, pi/2). With
         yaw held at 0, pitch tilts the thrust toward world x and roll toward world y, so on a
         diagonal the thrust tilts further than either limit (up to 21.1 deg at 15 deg each).
+        heading (rad, one or (n,); default 0): the yaw of the drone the limits stand for, whose
+        own axes they hold along (the firmware turns its loop's output by the drone's yaw
+        before it limits), while this controller holds yaw 0 (a virtual Crazyflie's airframe).
         set_max_tilt returns to a limit on the tilt."""
-        self._roll_pitch = (_checked_angles(roll, "set_roll_pitch_limits", "roll"), _checked_angles(pitch, "set_roll_pitch_limits", "pitch"))
+        limits = (_checked_angles(roll, "set_roll_pitch_limits", "roll"), _checked_angles(pitch, "set_roll_pitch_limits", "pitch"))
+        turn = None
+        if heading is not None:
+            yaw = np.asarray(heading, dtype=np.float64)
+            if not np.isfinite(yaw).all():
+                raise ValueError(f"VelocityController.set_roll_pitch_limits: heading must be finite (rad), got {yaw}")
+            turn = None if not yaw.any() else (np.cos(yaw), np.sin(yaw))  # yaw 0: the world's axes, as without
+        self._roll_pitch = (*limits, turn)
 
     def reset(self, n: int, mask: np.ndarray | None = None) -> None:
         """Clear the altitude integrator of all N drones, or of those where mask (N,) is True."""

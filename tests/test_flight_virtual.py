@@ -410,3 +410,34 @@ def test_a_flight_recording_that_cannot_replace_its_file_is_kept_beside_it_under
         recorder.close()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f.new.rrd", "f.rrd"]
     assert "/events" in read_entities(tmp_path / "f.new.rrd")
+
+
+def test_virtual_crazyflies_limit_roll_and_pitch_along_the_axes_of_the_drone_they_stand_for():
+    """The firmware turns the velocity loop's output into the drone's own frame by its yaw before
+    it limits roll and pitch (position_controller_pid.c), but the airframe holds yaw 0 in the lab
+    while the drone it stands for faces its start heading: a flow-deck drone set out at 45 deg
+    was limited along the lab's axes, so pushed along the lab's x (its own diagonal) it tilted
+    10 deg where the real one tilts 14, and along its own axis (the lab's diagonal) 14 where
+    the real one tilts 10."""
+    drones = [dict(d, start_yaw=math.pi / 4) for d in quick_spec()["drones"]]
+    plan = quick_plan(drones=drones)
+    fleet = VirtualFleet(plan, physics=FAST)
+    try:
+        n = plan.n_drones
+        for fw in fleet.firmware:
+            fw.params["posCtlPid.rLimit"] = fw.params["posCtlPid.pLimit"] = 10.0
+        fleet.apply_firmware_limits()
+        on, airframe = np.ones(n, bool), fleet.airframe
+        worst = {}
+        for name, push in (("lab x", [1.0, 0.0]), ("own x", [1.0, 1.0])):
+            for _ in range(200):  # still, at 0.5 m, first
+                airframe.step(0.01, np.zeros((n, 2)), np.full(n, 0.5), np.zeros(n), on)
+            command = np.tile(push, (n, 1)) / np.linalg.norm(push)
+            worst[name] = np.zeros(n)
+            for _ in range(50):  # 0.5 s at a 1 m/s command
+                airframe.step(0.01, command, np.full(n, 0.5), np.zeros(n), on)
+                x, y = airframe.quat[:, 1], airframe.quat[:, 2]
+                worst[name] = np.maximum(worst[name], np.degrees(np.arccos(np.clip(1 - 2 * (x**2 + y**2), -1, 1))))
+        assert (worst["lab x"] > 13.0).all() and (worst["own x"] < 10.5).all(), worst
+    finally:
+        fleet.stop()

@@ -264,11 +264,13 @@ class VirtualFleet:
     def apply_firmware_limits(self) -> None:
         """Fly each airframe with the roll and pitch limits its firmware's velocity loop has
         now (posCtlPid.rLimit and pLimit, deg), each on its own axis as the firmware limits
-        them: on a diagonal the thrust tilts further than either."""
+        them: on a diagonal the thrust tilts further than either. The axes are those of the
+        drone the airframe stands for, which faces est_yaw in the lab (the airframe holds yaw 0)."""
         roll = [fw.params["posCtlPid.rLimit"] for fw in self.firmware]
         pitch = [fw.params["posCtlPid.pLimit"] for fw in self.firmware]
         # the firmware takes any value; the controller, angles in (0, 90) deg
-        self.airframe.controller.set_roll_pitch_limits(np.radians(np.clip(roll, 1.0, 60.0)), np.radians(np.clip(pitch, 1.0, 60.0)))
+        self.airframe.controller.set_roll_pitch_limits(np.radians(np.clip(roll, 1.0, 60.0)), np.radians(np.clip(pitch, 1.0, 60.0)),
+                                                       heading=self.est_yaw)
 
     # ------------------------------------------------------------------ estimates and sensors
 
