@@ -1025,3 +1025,24 @@ def test_fly_align_refuses_a_write_path_that_names_a_folder_before_it_measures(t
         assert rc == 2 and captured.out == "", captured.out  # refused before the fit is printed (or any drone measured)
         assert f"--write path {out}" in captured.err and "folder" in captured.err, captured.err
     assert not (tmp_path / "aligned").exists()
+
+
+@pytest.mark.parametrize("clearance, scale", [(0.25, 1.0), (0.35, 1.0), (0.2, 0.9)])
+def test_the_separation_warning_advises_only_a_min_separation_the_flight_takes(clearance, scale):
+    """With a teammate_clearance at or above the capture distance the warning advised 'raise
+    min_separation to 0.350 m, below the capture distance 0.300 m', a value the flight then
+    refuses ('not below the capture distance: no capture could happen')."""
+    import re
+
+    data = flight(transform={"origin": [0.0, 0.0], "yaw": 0.0, "scale": scale}, safety={"min_separation": 0.2},
+                  task={"capture_radius": 0.3, "evader_speed": 0.4, "teammate_clearance": clearance})
+    for drone in data["drones"]:
+        drone["start"] = [v / scale for v in drone["start"]]
+    [warning] = [w for w in resolve_flight(flight_from_dict(data, "lab.yaml")).warnings if "teammate_clearance" in w]
+    advised = re.search(r"raise min_separation to ([0-9.]+) m", warning)
+    if clearance < 0.3:  # at scale 0.9 the clearance is 0.2222 m in the lab: 0.222 left the warning standing
+        data["safety"]["min_separation"] = float(advised.group(1))
+        assert not [w for w in resolve_flight(flight_from_dict(data, "lab.yaml")).warnings if "teammate_clearance" in w]
+    else:
+        assert advised is None, warning
+        assert "no min_separation" in warning and "capture_radius" in warning, warning

@@ -20,6 +20,7 @@ and targets, each group in file order; this is the simulator's state order.
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from typing import Sequence
 
@@ -316,11 +317,17 @@ def _margin_warnings(plan: FlightPlan) -> list[str]:
                        f"limit {s.max_speed:g} m/s: they will fly slower than the policy expects (raise safety.max_speed "
                        f"or lower task.{key}_speed)")
     mates = plan.task.teammate_clearance / t.scale  # lab m: where the simulator counts two pursuers as collided
+    capture = plan.task.capture_radius / t.scale  # lab m: min_separation must stay below it (_check_separation)
     if plan.n_pursuers > 1 and s.min_separation < mates - 1e-9:
+        enough = math.ceil(mates * 1000 - 1e-6) / 1000  # mm, rounded up: the value advised clears the warning
+        if enough < capture:
+            fix = f"raise min_separation to {enough:.3f} m, below the capture distance {capture:.3f} m"
+        else:  # no guard both keeps them that far apart and lets a capture happen
+            fix = (f"no min_separation does, below the capture distance {capture:.3f} m: lower the task's "
+                   f"teammate_clearance below its capture_radius {plan.task.capture_radius:g} m")
         out.append(f"safety.min_separation {s.min_separation:g} m is below the task's teammate_clearance "
                    f"{plan.task.teammate_clearance:g} m ({mates:.3f} m in the lab, scale {t.scale:g}): the separation guard "
-                   f"lets two pursuers come closer than the simulator lets them, where it counts a collision (raise "
-                   f"min_separation to {mates:.3f} m, below the capture distance {plan.task.capture_radius / t.scale:.3f} m)")
+                   f"lets two pursuers come closer than the simulator lets them, where it counts a collision ({fix})")
     return out
 
 
