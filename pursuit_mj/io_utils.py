@@ -264,10 +264,14 @@ def check_writable_folder(folder: str | Path, what: str) -> Path:
 def check_writable(path: str | Path, what: str = "output") -> Path:
     """Fail early with a clear message if `path` cannot be written (before any work is done). A
     path given as text that ends in a separator ('tables/') names a folder, which Path would
-    quietly turn into a file of that name, so it is refused too."""
+    quietly turn into a file of that name, so it is refused too, as is one that ends in '/.' or
+    '/..' (Path('tables/.') is 'tables')."""
     if isinstance(path, str) and path.endswith(("/", os.sep)):
         raise ValueError(f"{what} path {path}: ends in '{path[-1]}', which names a folder; give the name of the "
                          f"file to write in it")
+    if isinstance(path, str) and os.path.basename(path) in (".", ".."):
+        raise ValueError(f"{what} path {path}: ends in '{os.path.basename(path)}', which names a folder; give the name "
+                         f"of the file to write in it")
     path = Path(path)
     check_writable_folder(path.parent if str(path.parent) else Path("."), f"{what} path {path}")
     try:

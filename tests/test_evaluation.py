@@ -867,3 +867,14 @@ def test_the_source_hash_reads_linked_asset_folders_as_an_installed_wheel_does(t
     (top / "configs" / "layouts" / "0.yaml").write_text("arena: {width: 4}\n")
     (top / "pretrained" / "p.pt").write_bytes(b"other weights")
     assert source_digest({"pkg": linked}) == first
+
+
+@pytest.mark.parametrize("ending", ["/.", "/..", "/./"])
+def test_eval_json_ending_in_a_dot_folder_is_refused_not_written_as_a_file_of_the_folders_name(ending, tmp_path, capsys):
+    """--json tables/. names the folder as much as tables/ does, but Path('tables/.') is 'tables':
+    the table went to a file called 'tables' after the trailing slash was refused."""
+    out = f"{tmp_path}/new/tables{ending}"
+    assert main(["eval", "--fidelity", "point", "--episodes", "1", "--set", "max_steps=5", "-q", "--json", out]) == 2
+    err = capsys.readouterr().err
+    assert f"--json path {out}: " in err and "names a folder" in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "new").exists()
