@@ -142,8 +142,9 @@ def test_a_study_budget_that_leaves_an_arm_under_the_floor_is_refused_with_one_t
     # with other settings" (nothing was trained), and a fresh study there starts as in an empty folder
     assert not (out_dir / "study.json").exists()
     assert main(["study", "--budget-minutes", "0.8", "--resume", "--out", str(out_dir)]) == 2
-    assert "holds no study to continue" in capsys.readouterr().err
-    assert not (out_dir / "runs").exists()  # nothing trained
+    err = capsys.readouterr().err
+    assert "study to continue" in err and "other settings" not in err, err  # nor even a folder: it made none
+    assert not out_dir.exists()  # nothing trained
 
 
 def test_the_evaluation_is_reserved_by_each_arms_cost_and_short_ones_keep_a_floor():
@@ -742,3 +743,35 @@ def test_a_resumed_session_that_trained_then_failed_counts_its_time(tmp_path, ca
     assert main(["study", "--budget-minutes", "30", "--resume", *args]) == 2
     assert "training diverged" in capsys.readouterr().err
     assert json.loads((out_dir / "study.json").read_text())["seconds"] >= seconds + 1.0
+
+
+def test_a_fresh_study_refused_before_it_did_anything_leaves_no_folder_it_made(tmp_path, monkeypatch):
+    """A study refused before it trained or recorded anything (a budget too small: 'study
+    --budget-minutes 0.01 --out new') removed its study.json but left the folder it had made,
+    holding only its lock file. A folder that was there already, or that holds anything else, stays."""
+    import train.study as study
+    from pursuit_mj.config import default_config
+
+    def refuse(plan, log, stop_requested):
+        raise ValueError("--budget-minutes 0.01: too small on this machine")
+
+    monkeypatch.setattr(study, "_run_study", refuse)
+    for out in (tmp_path / "new", tmp_path / "deeper" / "new"):
+        with pytest.raises(ValueError, match="too small"):
+            study.run_study(study.StudyPlan(0.01, out, default_config(fidelity="point")), log=lambda s: None)
+        assert not out.exists(), list(out.iterdir())
+    assert (tmp_path / "deeper").is_dir()  # a parent made on the way is left: only the --out folder is the study's
+    kept = tmp_path / "mine"
+    kept.mkdir()
+    with pytest.raises(ValueError, match="too small"):
+        study.run_study(study.StudyPlan(0.01, kept, default_config(fidelity="point")), log=lambda s: None)
+    assert kept.is_dir()
+
+    def refuse_after_making_runs(plan, log, stop_requested):
+        (plan.out / "runs").mkdir()
+        raise ValueError("refused later")
+
+    monkeypatch.setattr(study, "_run_study", refuse_after_making_runs)
+    with pytest.raises(ValueError, match="refused later"):
+        study.run_study(study.StudyPlan(0.01, tmp_path / "other", default_config(fidelity="point")), log=lambda s: None)
+    assert (tmp_path / "other" / "runs").is_dir()

@@ -390,13 +390,28 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
     check_train_overrides(plan)
     if plan.resume and not plan.out.is_dir():
         raise ValueError(f"--resume: --out {plan.out} is not a folder with a study to continue")
+    made = not plan.out.exists()
     check_writable_folder(plan.out, f"--out {plan.out}")
     lock = lock_folder(plan.out, STUDY_LOCK, "study folder", "study", "give another --out")
     try:
         _refuse_an_earlier_study(plan)
         return _run_study(plan, log, stop_requested)
+    except ValueError:
+        if made:  # refused before it made anything but its lock: no empty folder left behind
+            _remove_if_only_the_lock(plan.out)
+        raise
     finally:
         lock.close()
+
+
+def _remove_if_only_the_lock(out: Path) -> None:
+    """Remove the folder `out` if it holds nothing but the study's lock file (nothing if it cannot)."""
+    try:
+        if [p.name for p in out.iterdir()] == [STUDY_LOCK]:
+            (out / STUDY_LOCK).unlink()
+            out.rmdir()
+    except OSError:
+        pass
 
 
 STUDY_LOCK = ".study.lock"  # in <out>/: held by the study running there
