@@ -209,6 +209,10 @@ def run_align(args) -> int:
 
         check_writable(args.write, "--write")
     spec = load_flight(_need_flight(args))
+    if args.overrides:  # judged now, not only with --virtual or --write after the drones are measured
+        from pursuit_mj.flight.plan import check_task_overrides
+
+        check_task_overrides(spec, args.overrides)
     spots = parse_points(args.spots, "--spots")
     lab = parse_points(args.lab, "--lab") if args.lab else None
     if lab is not None and args.virtual:

@@ -1046,3 +1046,16 @@ def test_the_separation_warning_advises_only_a_min_separation_the_flight_takes(c
     else:
         assert advised is None, warning
         assert "no min_separation" in warning and "capture_radius" in warning, warning
+
+
+def test_fly_align_refuses_a_bad_set_before_it_measures(capsys):
+    # fly align took --set and judged it only with --virtual or --write, after the fit: without them
+    # 'fly align ... --set bogus=1' printed the transform and exited 0, the --set never read
+    from pursuit_cli import main
+
+    spots = "0.5,0.625 1.75,0.625 1.875,4.0"
+    for bad, said in (("bogus=1", "--set bogus=1: unknown key 'bogus'"), ("layout=1", "--set layout=1: 'layout'")):
+        assert main(["fly", "align", "--flight", "lighthouse", "--spots", spots, "--lab", spots, "--set", bad]) == 2
+        captured = capsys.readouterr()
+        assert captured.out == "" and said in captured.err, captured
+    assert main(["fly", "align", "--flight", "lighthouse", "--spots", spots, "--lab", spots, "--set", "pursuer_speed=0.3"]) == 0

@@ -173,6 +173,14 @@ def resolve_layout(spec: FlightSpec) -> Layout:
         raise ConfigError(f"{spec.source}: key 'layout': {exc}") from None
 
 
+def check_task_overrides(spec: FlightSpec, overrides: Sequence[str]) -> None:
+    """The flight's task with `overrides` (--set), checked as resolve_flight checks it, without
+    the transform or the drones' starts (fly align, which measures the transform): ConfigError
+    naming the --set (or the file) of a bad one."""
+    layout = resolve_layout(spec)
+    _task_config(spec, spec.layout if isinstance(spec.layout, int) else layout.source, overrides)
+
+
 def _task_config(spec: FlightSpec, layout_ref, overrides: Sequence[str]) -> TaskConfig:
     """Task keys of the flight file <- overrides <- the keys the flight fixes."""
     src = f"{spec.source}: task"
