@@ -6,6 +6,7 @@ import argparse
 import math
 import os
 import sys
+from pathlib import Path
 
 from pursuit_mj.config import TaskConfig, dump_yaml, load_task_config, preset_or_file
 from pursuit_mj.configio import load_yaml
@@ -353,3 +354,23 @@ def sweep_dead_parts(folder, flag: str) -> None:
         print(f"note: {flag}: removed {counted(len(removed), 'temporary file')} of writes cut short (their process is gone, "
               f"untouched for {DEAD_PART_AGE / 60:.0f} min or more) in {folder}: {', '.join(p.name for p in removed)}",
               file=sys.stderr)
+
+
+def refuse_a_file_given_twice(flag: str, given: list[tuple[str, Path]]) -> None:
+    """ValueError naming the second of two `flag` values (text as typed, path it reads; flag "" for
+    a positional argument) that read one file: a run folder is its metrics.jsonl, and other names
+    of a file (./x, a/../a/x) are that file. The same log twice would be drawn as two runs, the
+    same table twice as bars given twice, or pooled as two tables."""
+    def named(typed: str) -> str:
+        return f"{flag} {typed}" if flag else typed
+
+    seen: dict[Path, str] = {}
+    for text, path in given:
+        target = path / "metrics.jsonl" if path.is_dir() else path
+        try:
+            key = target.resolve()
+        except OSError:  # unreadable: the reader names it
+            continue
+        if key in seen:
+            raise ValueError(f"{named(text)}: the same file as {named(seen[key])}, given twice")
+        seen[key] = text

@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from pursuit_mj.io_utils import check_writable_folder
-from .common import path_arg
+from .common import path_arg, refuse_a_file_given_twice
 
 
 def register(sub) -> None:
@@ -56,8 +56,8 @@ def run(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: exists and is not a folder")
-    _refuse_a_file_given_twice("--log", [(text, _label_and_path(text)[1]) for text in args.log])
-    _refuse_a_file_given_twice("--eval", [(text, Path(text)) for text in args.eval])
+    refuse_a_file_given_twice("--log", [(text, _label_and_path(text)[1]) for text in args.log])
+    refuse_a_file_given_twice("--eval", [(text, Path(text)) for text in args.eval])
     runs = {}
     for text in args.log:
         label, path = _label_and_path(text)
@@ -78,22 +78,6 @@ def run(args) -> int:
     for p in paths:
         print(f"wrote {p}")
     return 0
-
-
-def _refuse_a_file_given_twice(flag: str, given: list[tuple[str, Path]]) -> None:
-    """ValueError naming the second of two `flag` values (text as typed, path it reads) that read one
-    file: a run folder is its metrics.jsonl, and other names of a file (./x, a/../a/x) are that file.
-    The same log twice would be drawn as two runs, the same table twice as bars given twice."""
-    seen: dict[Path, str] = {}
-    for text, path in given:
-        target = path / "metrics.jsonl" if path.is_dir() else path
-        try:
-            key = target.resolve()
-        except OSError:  # unreadable: the reader names it
-            continue
-        if key in seen:
-            raise ValueError(f"{flag} {text}: the same file as {flag} {seen[key]}, given twice")
-        seen[key] = text
 
 
 def _check_one_task(paths: list[str]) -> None:

@@ -15,7 +15,7 @@ import dataclasses
 from pathlib import Path
 
 from pursuit_mj.io_utils import check_writable, check_writable_folder
-from .common import check_out_prefix, counted, path_arg, pick_versus
+from .common import check_out_prefix, counted, path_arg, pick_versus, refuse_a_file_given_twice
 
 
 def register(sub) -> None:
@@ -41,6 +41,7 @@ def run(args) -> int:
 
     if args.out:
         check_out_prefix(args.out)  # a usage error, before the tables are read
+    refuse_a_file_given_twice("", [(text, Path(text)) for text in args.files])
     pooled = pool_tables(args.files)
     labels = list(dict.fromkeys(r.policy for r in pooled.rows))
     versus = pick_versus(args.versus, labels, "these tables", "(a table that holds another)")

@@ -146,7 +146,8 @@ def test_tables_of_two_arenas_under_one_layout_name_are_refused(tmp_path, monkey
     capsys.readouterr()
     with pytest.raises(ValueError, match=r"layout arena.yaml: walls.json played another arena under it than open.json"):
         pool_tables(["open.json", "walls.json"])
-    assert main(["pool", "open.json", "open.json"]) == 0  # one arena: pooled
+    (tmp_path / "open2.json").write_text((tmp_path / "open.json").read_text())
+    assert main(["pool", "open.json", "open2.json"]) == 0  # one arena: pooled
 
 
 def test_a_pooled_table_pools_again_with_its_models_and_arenas_known(tables, tmp_path, capsys):
@@ -382,3 +383,14 @@ def test_a_csv_is_sent_to_the_json_beside_it_only_where_there_is_one(tmp_path):
         pool_tables([tmp_path / "pair.csv"])
     with pytest.raises(ValueError, match=r"missing\.csv: cannot read it \(No such file"):
         pool_tables([tmp_path / "missing.csv"])
+
+
+def test_pool_refuses_one_table_given_twice_as_plot_does(tables, tmp_path, capsys, monkeypatch):
+    """'pool t.json t.json' said 'pooled 2 tables' of one table (its episodes, the same seeds, were
+    counted once), where plot refuses the same file given twice."""
+    from pursuit_cli import main
+
+    monkeypatch.chdir(tables["h0"].parent)
+    name = tables["h0"].name
+    assert main(["pool", name, f"./{name}"]) == 2
+    assert f"pool: error: ./{name}: the same file as {name}, given twice" in capsys.readouterr().err
