@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .configio import TaskValueError
 from .geometry import ObstacleSet, boundary_segments, inside_boundary, obstacle_distance
+from .layout import LayoutError
 
 #: a spawn point needs this much room to the nearest obstacle or border (m)
 SPAWN_CLEARANCE = 0.2
@@ -63,26 +65,35 @@ def sample_separated(points: np.ndarray, n: int, rng: np.random.Generator, separ
     return None
 
 
+class SpawnCapacityError(LayoutError, TaskValueError):
+    """A team size (task key n_pursuers or n_evaders) that a layout's spawn region cannot hold.
+    The message is 'KEY=N: REASON'; a CLI names the flag that gave the size instead."""
+
+    def __init__(self, key: str, value: int, reason: str):
+        ValueError.__init__(self, f"{key}={value}: {reason}")
+        self.key, self.value, self.reason = key, value, reason
+
+
 CAPACITY_DRAWS = 50  # spawn draws that must all fit for a team size to be accepted
 
 
 def check_spawn_capacity(layout, n_pursuers: int, n_evaders: int, separation: float) -> None:
     """LayoutError unless each spawn region holds its team `separation` (m) apart."""
-    from .layout import LayoutError
-
     rng = np.random.default_rng(0)
     for name, region, n in (("pursuers", layout.spawn_pursuers, n_pursuers), ("evaders", layout.spawn_evaders, n_evaders)):
         if region.is_point and n > 1:
-            raise LayoutError(f"n_{name}={n}: spawn.{name} of {layout.source} is a single point (x={region.x[0]:g}, "
-                              f"y={region.y[0]:g}), which holds one drone; {n} {name} need room {separation} m apart: "
-                              f"give spawn.{name} ranges with low < high, or use n_{name}=1")
+            raise SpawnCapacityError(
+                f"n_{name}", n, f"spawn.{name} of {layout.source} is a single point (x={region.x[0]:g}, y={region.y[0]:g}), "
+                f"which holds one drone; {n} {name} need room {separation} m apart: give spawn.{name} ranges with "
+                f"low < high, or use n_{name}=1")
         points = free_spawn_points(layout, region)
         # every episode draws its own spawn: a team that fits only some draws would stop a
         # run partway, so CAPACITY_DRAWS draws must all fit
         if any(sample_separated(points, n, rng, separation) is None for _ in range(CAPACITY_DRAWS)):
-            raise LayoutError(f"n_{name}={n}: the spawn region of {layout.source} (x={list(region.x)}, y={list(region.y)}) "
-                              f"cannot reliably hold {n} {name} {separation} m apart (some random spawns find no "
-                              f"room); make the layout's spawn region larger or use fewer {name}")
+            raise SpawnCapacityError(
+                f"n_{name}", n, f"the spawn region of {layout.source} (x={list(region.x)}, y={list(region.y)}) cannot "
+                f"reliably hold {n} {name} {separation} m apart (some random spawns find no room); make the layout's "
+                f"spawn region larger or use fewer {name}")
 
 
 def spawn_gap(layout) -> float:

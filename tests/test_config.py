@@ -518,3 +518,20 @@ def test_the_quoting_an_override_refusal_advises_works_when_typed_in_a_shell(tex
     cfg = load_train_config([], [words[1]])
     got = cfg.name if key == "name" else cfg.run.runs_dir
     assert got == value, said
+
+
+
+EVAL_ONE = ["eval", "--policy", "heuristic", "--episodes", "1"]
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["config", "--set", "n_pursuers=16"], "--set n_pursuers=16: the spawn region of "),
+    ([*EVAL_ONE, "--set", "n_pursuers=16"], "--set n_pursuers=16: the spawn region of "),
+    ([*EVAL_ONE, "--pursuers", "16"], "--pursuers 16: the spawn region of "),
+    (["config", "--set", "n_pursuers=2", "--set", "n_pursuers=16"], "--set n_pursuers=16: the spawn region of "),
+])
+def test_a_team_the_layout_cannot_hold_names_the_flag_that_gave_it(capsys, argv, named):
+    """The refusal read 'n_pursuers=16: the spawn region ...' whichever flag had set the team size."""
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"pursuit-mj {argv[0]}: error: {named}") and len(err.splitlines()) == 1, err
