@@ -214,9 +214,15 @@ def _check_range(value: Any, meta: Mapping[str, Any], where: str) -> None:
         bad = value <= lo if meta.get("lo_open") else value < lo
         if bad:
             op = ">" if meta.get("lo_open") else ">="
-            raise ConfigError(f"{where}: {value!r} is out of range (must be {op} {lo})")
+            raise ConfigError(f"{where}: {number_text(value)} is out of range (must be {op} {lo})")
     if hi is not None and value > hi:
-        raise ConfigError(f"{where}: {value!r} is out of range (must be <= {hi})")
+        raise ConfigError(f"{where}: {number_text(value)} is out of range (must be <= {hi})")
+
+
+def number_text(value: int | float) -> str:
+    """A number for an error message: a whole number of more than 15 digits (1e300 typed for a
+    count) in float notation, anything else as repr gives it."""
+    return f"{float(value):g}" if isinstance(value, int) and abs(value) >= 10 ** 15 else repr(value)
 
 
 def _known_fields(cls: type, values: Mapping[str, Any], source: str) -> dict[str, dataclasses.Field]:

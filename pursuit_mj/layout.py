@@ -15,7 +15,7 @@ from typing import Any, Mapping, Sequence, Union
 import numpy as np
 import yaml
 
-from .configio import ConfigError, found_beside, key_hint, read_text, safe_dump, safe_load, shown, yaml_error_text
+from .configio import ConfigError, found_beside, key_hint, number_text, read_text, safe_dump, safe_load, shown, yaml_error_text
 from .geometry import ObstacleSet, boundary_segments
 from .shipped import shipped_dir
 
@@ -367,7 +367,7 @@ def _parse_random(value: Any, where: str) -> RandomObstacles:
     if isinstance(count, bool) or not isinstance(count, int) or count < 0:
         raise LayoutError(f"{where}.count: expected an integer >= 0, got {shown(count)}")
     if count > MAX_RANDOM_OBSTACLES:
-        raise LayoutError(f"{where}.count: {count} is more than {MAX_RANDOM_OBSTACLES}, the most random obstacles per "
+        raise LayoutError(f"{where}.count: {number_text(count)} is more than {MAX_RANDOM_OBSTACLES}, the most random obstacles per "
                           f"episode (as for task.random_obstacles)")
     raw_kinds = m.get("kinds", ("box", "cylinder"))
     if not isinstance(raw_kinds, (list, tuple)):

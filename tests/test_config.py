@@ -535,3 +535,11 @@ def test_a_team_the_layout_cannot_hold_names_the_flag_that_gave_it(capsys, argv,
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"pursuit-mj {argv[0]}: error: {named}") and len(err.splitlines()) == 1, err
+
+
+@pytest.mark.parametrize("given, shown_as", [("max_steps=1e30", "1e+30"), ("random_obstacles=1e300", "1e+300")])
+def test_a_huge_whole_number_out_of_range_is_shown_short(capsys, given, shown_as):
+    """A count typed as 1e300 is read as a whole number; the refusal printed all its 301 digits."""
+    assert main(["config", "--set", given]) == 2
+    err = capsys.readouterr().err
+    assert f"{shown_as} is out of range (must be <= " in err and len(err) < 200, err

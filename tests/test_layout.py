@@ -1059,3 +1059,15 @@ def test_a_border_polygon_closed_by_repeating_its_first_point_is_told_to_leave_i
                                           r"the border closes by itself; leave the last point out"):
         layout_from_dict(base_dict(boundary={"polygon": ring}), "ring.yaml")
     layout_from_dict(base_dict(boundary={"polygon": ring[:-1]}), "ring.yaml")
+
+
+def test_a_huge_random_obstacle_count_is_shown_short(tmp_path, capsys):
+    """random_obstacles.count: 1e300 is a whole number; the refusal printed all its 301 digits."""
+    from pursuit_cli import main
+    from pursuit_mj.layout import builtin_layout_path
+
+    path = tmp_path / "a.yaml"
+    path.write_text(builtin_layout_path(0).read_text().replace("count: 5,", "count: 1e300,"))
+    assert main(["layout", "check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "random_obstacles.count: 1e+300 is more than" in err and len(err) < 300, err
