@@ -220,7 +220,7 @@ def test_the_documented_loop_runs_as_written(capsys):
     assert block, "docs/env_api.md lost its gym_loop.py example"
     exec(compile(block.group(1), "docs/env_api.md: gym_loop.py", "exec"), {})
     lines = capsys.readouterr().out.splitlines()
-    assert lines and all(re.fullmatch(r"\d+ episodes ended, mean return -?\d+\.\d\d, \d+ steps", line) for line in lines), lines
+    assert lines and all(re.fullmatch(r"episodes ended: \d+, mean return -?\d+\.\d\d, \d+ steps", line) for line in lines), lines
 
 
 @pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
