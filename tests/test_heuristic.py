@@ -251,3 +251,72 @@ def test_the_tie_breaking_side_lets_the_lower_index_of_each_pair_yield(n):
     for i in range(n):
         others = [j for j in range(n) if j != i]
         assert tie[i].tolist() == [1.0 if j < i else -1.0 for j in others]
+
+
+# A 50 x 50 m arena (the largest a layout may have): the coverage map grows over many cells.
+BIG_ARENA = """name: big
+arena: {width: 50.0, height: 50.0}
+boundary: rectangle
+obstacles:
+  - wall: {from: [0.0, 4.0], to: [6.0, 4.0], thickness: 0.1}
+random_obstacles: {count: 12, kinds: [box, cylinder], size: [0.2, 1.0]}
+spawn:
+  pursuers: {x: [1.0, 6.0], y: [1.0, 3.0]}
+  evaders: {x: [30.0, 48.0], y: [30.0, 48.0]}
+"""
+
+
+def _play_and_hash(config, n_worlds: int, steps: int, reset_at: int, params: HeuristicParams | None = None) -> str:
+    """sha256 of the team's actions every step and of its coverage map (free, blocked, seen, dist,
+    goal, waited) every 5th step, over `steps` steps of `n_worlds` worlds; world 1 is reset at
+    step `reset_at` (its episode restarts, the team forgets it); ended episodes restart."""
+    import hashlib
+
+    from pursuit_mj.env import PursuitEnv
+
+    env = PursuitEnv(config, n_worlds=n_worlds, seed=3)
+    t = HeuristicTeam.from_config(config, params)
+    t.reset(n_worlds)
+    obs = env.reset()
+    h = hashlib.sha256()
+    for k in range(steps):
+        a = t.act(obs, env.obs_spec)
+        h.update(np.ascontiguousarray(a).tobytes())
+        if k % 5 == 0:
+            m = t._mem["map"]
+            for arr in (m.free, m.blocked, m.seen, m.dist, m.goal, m.waited):
+                h.update(repr(arr.shape).encode() + np.ascontiguousarray(arr).tobytes())
+        obs, _, term, trunc, _ = env.step(a)
+        ids = np.flatnonzero(term | trunc)
+        if k == reset_at:
+            ids = np.union1d(ids, [1])
+        if ids.size:
+            obs = env.reset_worlds(ids)
+            t.reset(n_worlds, ids)
+    return h.hexdigest()
+
+
+@pytest.mark.parametrize("case, expected", [
+    ("layout0-3p", "466fdb4034eecb9aed9f9d595a7a8da79becb41b6e7e62e13b262ed5b76c1ab8"),
+    ("hard-layout3-2p", "cbb43396df4a2a65c12c9262891dba2ecaa6448008179d5d230fb1f440633458"),
+    ("big-3p", "f61ecaa8926666ed616ec676073d48bc4ad0caa3d3f63fcf54fbc9f7217425ac"),
+    ("big-1p", "d00a3e4836988ea6ddef04b6c6dbcbc377d51e9ea33c414ed133ee4b93709f4e"),
+    ("big-2p-impatient", "8f484d130f73a5ab9630a23ab56ff665f1bff774bd7482c72e46110a5e41e7d2"),
+])
+def test_the_coverage_map_and_the_actions_stay_the_same_to_the_bit(case, expected, tmp_path):
+    """Pins the team's play (actions and coverage map, hashed) on small and large arenas, one to
+    three pursuers, several worlds: a faster coverage map must give the same bits."""
+    if case == "layout0-3p":
+        config, worlds, steps = default_config(fidelity="point", layout=0), 4, 160
+    elif case == "hard-layout3-2p":
+        from pursuit_mj.config import load_task_config
+
+        config, worlds, steps = load_task_config(["hard"], ["fidelity=point", "layout=3", "n_pursuers=2"]), 3, 160
+    else:
+        path = tmp_path / "big.yaml"
+        path.write_text(BIG_ARENA)
+        n = {"big-3p": 3, "big-1p": 1, "big-2p-impatient": 2}[case]
+        config, worlds, steps = default_config(fidelity="point", layout=str(path), n_pursuers=n), 3, 250
+    # one pass a step and little patience: goals are given up (their surroundings marked seen)
+    params = HeuristicParams(coverage=CoverageParams(relax_passes=1, patience=0.5)) if "impatient" in case else None
+    assert _play_and_hash(config, worlds, steps, reset_at=steps // 2, params=params) == expected
