@@ -8,6 +8,12 @@ teammate count as seen too (the teammate looks there). The sweep goal is the fre
 unseen for longest, traded against distance; a wavefront (4-connected, a few relaxation
 passes per step) spreads the path length to the goal over passable cells (cells beside
 obstacles cost more, so paths keep to wide passages), and the pursuer follows it down. Arrays are (W, N, GX, GY).
+
+Cost: per step the map touches the cells along the rays, around visible teammates, inside the
+box around what the pursuers have found free (scoring the goal), and the cells whose path
+length can change (the wavefront's front, the cells whose passability or wall cost changed,
+and the neighbours of a new goal), not the whole grid, which keeps what earlier episodes
+found. The results are those of relaxing every cell of the grid, to the bit (tests/test_heuristic.py).
 """
 
 from __future__ import annotations
@@ -66,43 +72,97 @@ class CoverageMap:
         self.p = params or CoverageParams()
         self.W, self.N = n_worlds, n_pursuers
         self.GX = self.GY = 0
+        self._front = np.zeros(0, np.int64)  # flat cells whose path length may change in the next pass
         self._alloc(8, 8)
+        # per world, the lowest and highest cell indices (i, j) its free cells may have (see _box)
+        self._box_lo = np.full((n_worlds, 2), np.iinfo(np.int64).max)
+        self._box_hi = np.full((n_worlds, 2), -1, np.int64)
         self.goal = np.full((n_worlds, n_pursuers, 2), -1, np.int64)  # goal cell (i, j), -1 none
         self.waited = np.zeros((n_worlds, n_pursuers))  # s the current goal's path has not reached us
 
     def _alloc(self, gx: int, gy: int) -> None:
-        """(Re)allocate to gx x gy cells, keeping what is known."""
-        old = {k: getattr(self, k) for k in ("free", "blocked", "seen", "dist")} if self.GX else None
-        shape = (self.W, self.N, gx, gy)
-        self.free = np.zeros(shape, bool)
-        self.blocked = np.zeros(shape, bool)
-        self.seen = np.full(shape, -np.inf, np.float32)  # s (episode time) a cell was last seen
-        self.dist = np.full(shape, np.inf, np.float32)  # path length to the goal, in cells
+        """(Re)allocate to gx x gy cells, keeping what is known.
+
+        free, blocked, seen and dist are views into arrays with a border of one cell around the
+        grid (never free, never blocked, never seen, infinitely far), so that cells are marked by
+        flat index and the wavefront reads a cell's neighbours without bounds checks; _cost_p
+        holds each cell's step cost in the same layout."""
+        old = {k: getattr(self, k) for k in ("_free_p", "_blocked_p", "_seen_p", "_dist_p", "_cost_p")} if self.GX else None
+        padded = (self.W, self.N, gx + 2, gy + 2)
+        self._free_p = np.zeros(padded, bool)
+        self._blocked_p = np.zeros(padded, bool)
+        self._dist_p = np.full(padded, np.inf, np.float32)  # path length to the goal, in cells
+        self._seen_p = np.full(padded, -np.inf, np.float32)  # s (episode time) a cell was last seen
+        self._cost_p = np.full(padded, 1.0, np.float32)  # step cost: 1, 1 + wall_cost beside a blocked cell
         if old:
             for k, v in old.items():
-                getattr(self, k)[:, :, : self.GX, : self.GY] = v
+                getattr(self, k)[:, :, 1 : self.GX + 1, 1 : self.GY + 1] = v[:, :, 1:-1, 1:-1]
+            where = np.unravel_index(self._front, (self.W, self.N, self.GX + 2, self.GY + 2))
+            self._front = np.ravel_multi_index(where, padded)
+        padded_arrays = (self._free_p, self._blocked_p, self._seen_p, self._dist_p)
+        self.free, self.blocked, self.seen, self.dist = (a[:, :, 1:-1, 1:-1] for a in padded_arrays)
         self.GX, self.GY = gx, gy
+        self._steps = np.array([gy + 2, -(gy + 2), 1, -1])  # flat offsets of _OFFSETS in the padded arrays
         c = self.p.cell
         self.centers = np.stack(np.meshgrid((np.arange(gx) + 0.5) * c, (np.arange(gy) + 0.5) * c, indexing="ij"), -1)
 
-    def _dist2(self, xy: np.ndarray) -> np.ndarray:
-        """Squared distances (..., GX, GY) m^2 from points xy (..., 2) to every cell centre."""
+    def _flat(self, w: np.ndarray, n: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """Flat indices in the padded arrays of grid cells (w, n, i, j)."""
+        return ((w * self.N + n) * (self.GX + 2) + i + 1) * (self.GY + 2) + j + 1
+
+    def _dist2_box(self, xy: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+        """Squared distances (..., I1 - I0, J1 - J0) m^2 from points xy (..., 2) to the cell centres
+        of box (I0, I1, J0, J1) (cell index ranges, ends excluded)."""
         c = self.p.cell
-        dx = (np.arange(self.GX) + 0.5) * c - xy[..., 0, None]
-        dy = (np.arange(self.GY) + 0.5) * c - xy[..., 1, None]
+        dx = (np.arange(box[0], box[1]) + 0.5) * c - xy[..., 0, None]
+        dy = (np.arange(box[2], box[3]) + 0.5) * c - xy[..., 1, None]
         return dx[..., :, None] ** 2 + dy[..., None, :] ** 2
 
     def _near_mates(self, mate_pos: np.ndarray, mate_vis: np.ndarray, radius: float) -> np.ndarray:
-        """(W, N, GX, GY) bool: cells within radius (m) of a visible teammate."""
-        if mate_pos.shape[2] == 0:
-            return np.zeros(self.free.shape, bool)
-        return ((self._dist2(mate_pos) < radius**2) & mate_vis[..., None, None]).any(2)
+        """Flat indices (padded arrays, repeats possible) of the grid cells of pursuer (w, n) whose
+        centre lies within radius (m) of a teammate it sees. Looks at a window of cells around
+        each teammate, not at the grid."""
+        c = self.p.cell
+        W, N = mate_pos.shape[:2]
+        r = int(np.ceil(radius / c)) + 1
+        off = np.arange(-r, r + 1)
+        # far away (or not a number): a window outside the grid, or cells the distance test refuses
+        home = np.clip(np.nan_to_num(np.asarray(mate_pos, np.float64) / c), -r - 1, max(self.GX, self.GY) + r + 1)
+        home = np.floor(home).astype(np.int64)
+        i = home[..., 0, None, None] + off[:, None]  # (W, N, T, 2r+1, 1)
+        j = home[..., 1, None, None] + off[None, :]  # (W, N, T, 1, 2r+1)
+        dx = (i + 0.5) * c - mate_pos[..., 0, None, None]
+        dy = (j + 0.5) * c - mate_pos[..., 1, None, None]
+        near = (dx**2 + dy**2 < radius**2) & mate_vis[..., None, None]
+        near &= (i >= 0) & (i < self.GX) & (j >= 0) & (j < self.GY)
+        w, n = np.arange(W)[:, None, None, None, None], np.arange(N)[None, :, None, None, None]
+        return np.broadcast_to(self._flat(w, n, i, j), near.shape)[near]
+
+    def _near_mates_in(self, box: tuple[int, int, int, int], mate_pos: np.ndarray, mate_vis: np.ndarray,
+                       radius: float) -> np.ndarray:
+        """(W, N, I1 - I0, J1 - J0) bool: the cells of box (I0, I1, J0, J1) whose centre lies within
+        radius (m) of a teammate pursuer (w, n) sees. A box no larger than a few teammates'
+        windows is tested whole (fewer steps), a larger one through the windows (_near_mates)."""
+        i0, i1, j0, j1 = box
+        window = 2 * (int(np.ceil(radius / self.p.cell)) + 1) + 1
+        if (i1 - i0) * (j1 - j0) <= 4 * window**2:
+            return ((self._dist2_box(mate_pos, box) < radius**2) & mate_vis[..., None, None]).any(2)
+        f = self._near_mates(mate_pos, mate_vis, radius)
+        wn, i, j = f // ((self.GX + 2) * (self.GY + 2)), (f // (self.GY + 2)) % (self.GX + 2) - 1, f % (self.GY + 2) - 1
+        inside = (i >= i0) & (i < i1) & (j >= j0) & (j < j1)
+        near = np.zeros((self.W, self.N, i1 - i0, j1 - j0), bool)
+        near.reshape(-1)[((wn * (i1 - i0) + i - i0) * (j1 - j0) + j - j0)[inside]] = True
+        return near
 
     def reset(self, world_ids: np.ndarray) -> None:
+        """Forget what the listed worlds' pursuers found (the grid keeps its size)."""
         for a, v in ((self.free, False), (self.blocked, False), (self.seen, -np.inf), (self.dist, np.inf)):
             a[world_ids] = v
+        self._cost_p[world_ids] = 1.0
         self.goal[world_ids] = -1
         self.waited[world_ids] = 0.0
+        self._box_lo[world_ids] = np.iinfo(np.int64).max
+        self._box_hi[world_ids] = -1
 
     def _cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ij = np.floor(xy / self.p.cell).astype(np.int64)
@@ -132,12 +192,8 @@ class CoverageMap:
         # all round even under a narrower field of view: marking only the cells inside the view
         # was level with this on the hard preset (docs/experiments.md section 6, 2026-12-07)
         seen = free & (s < see_radius)
-        w = np.broadcast_to(np.arange(W)[:, None, None, None], free.shape)
-        n = np.broadcast_to(np.arange(N)[None, :, None, None], free.shape)
-        i, j = self._cells(pts)
-        self.free[w[free], n[free], i[free], j[free]] = True
-        t = np.broadcast_to(now[:, None, None, None], free.shape)
-        self.seen[w[seen], n[seen], i[seen], j[seen]] = t[seen]
+        w, n = np.arange(W)[:, None, None, None], np.arange(N)[None, :, None, None]
+        cells = self._flat(w, n, *self._cells(pts))  # (W, N, K, S) flat, padded arrays
         hit = rays < ray_range - 1e-6  # (W, N, K): the ray ended on something
         # The cell just past the end is blocked. Past the west and south borders that point is
         # outside the grid and clips into the strip of cells along the border, which is then
@@ -147,18 +203,57 @@ class CoverageMap:
         # fidelity, intervals +-23 to +-33): the blocked strip works as a wall margin for the
         # sweep. Changing it changes the baseline every result here is measured against, so it
         # stays until the sweep keeps an explicit margin along every wall.
-        hi, hj = self._cells(ends + 0.02 * ray_dirs)
-        wk = np.broadcast_to(np.arange(W)[:, None, None], hit.shape)
-        nk = np.broadcast_to(np.arange(N)[None, :, None], hit.shape)
-        self.blocked[wk[hit], nk[hit], hi[hit], hj[hit]] = True
+        ends_cells = self._cells(ends + 0.02 * ray_dirs)
+        hits = self._flat(w[..., 0], n[..., 0], *ends_cells)[hit]
         pi, pj = self._cells(pos)
-        wn = np.arange(W)[:, None], np.arange(N)[None, :]
-        self.free[wn[0], wn[1], pi, pj] = True
-        self.blocked[wn[0], wn[1], pi, pj] = False
-        self.seen[wn[0], wn[1], pi, pj] = np.broadcast_to(now[:, None], (W, N))
+        here = self._flat(w[..., 0, 0], n[..., 0, 0], pi, pj).ravel()  # (W * N,) each pursuer's cell
+        now_here = np.broadcast_to(now[:, None], (W, N)).ravel()
+        marked = cells[free]
+        touched = np.concatenate([marked, hits, here])
+        free_p, blocked_p, seen_p = (a.reshape(-1) for a in (self._free_p, self._blocked_p, self._seen_p))
+        was_free, was_blocked = free_p[touched], blocked_p[touched]
+        free_p[marked] = True
+        seen_p[cells[seen]] = np.broadcast_to(now[:, None, None, None], free.shape)[seen]
+        blocked_p[hits] = True
+        free_p[here] = True
+        blocked_p[here] = False
+        seen_p[here] = now_here
+        self._note_changes(touched, was_free, was_blocked)
+        # free cells lie between a pursuer and its rays' ends: the box of those holds them (_box
+        # adds a cell of margin all round: `ends` are rounded otherwise than the points on a ray)
+        ei, ej = self._cells(ends)
+        lo = np.stack([np.minimum(pi, ei.min(-1, initial=pi.max())), np.minimum(pj, ej.min(-1, initial=pj.max()))], -1)
+        hi = np.stack([np.maximum(pi, ei.max(-1, initial=0)), np.maximum(pj, ej.max(-1, initial=0))], -1)
+        self._box_lo = np.minimum(self._box_lo, lo.min(1))
+        self._box_hi = np.maximum(self._box_hi, hi.max(1))
         if mate_pos.shape[2]:
-            near = self._near_mates(mate_pos, mate_vis, self.p.mate_radius) & self.free
-            self.seen = np.where(near, now[:, None, None, None].astype(np.float32), self.seen)
+            near = self._near_mates(mate_pos, mate_vis, self.p.mate_radius)
+            near = near[free_p[near]]
+            seen_p[near] = now[near // (N * (self.GX + 2) * (self.GY + 2))].astype(np.float32)
+
+    def _note_changes(self, touched: np.ndarray, was_free: np.ndarray, was_blocked: np.ndarray) -> None:
+        """After the flat cells `touched` (which were free / blocked as given) were marked: renew the
+        step cost of the 3 x 3 cells around each cell whose blocked flag changed, and put on the
+        wavefront's front the cells whose path length may change now: those that turned free and
+        those whose cost was renewed (among them a cleared cell, which may be reached again; a cell
+        that turned blocked is no longer relaxed)."""
+        new_blocked = self._blocked_p.reshape(-1)[touched] != was_blocked
+        new_free = self._free_p.reshape(-1)[touched] != was_free
+        ring = (np.arange(-1, 2)[:, None] * (self.GY + 2) + np.arange(-1, 2)[None, :]).ravel()  # 3 x 3 flat offsets
+        around = np.unique((touched[new_blocked, None] + ring).ravel())
+        i, j = (around // (self.GY + 2)) % (self.GX + 2), around % (self.GY + 2)
+        around = around[(i >= 1) & (i <= self.GX) & (j >= 1) & (j <= self.GY)]  # grid cells, not the border
+        near = self._blocked_p.reshape(-1)[around[:, None] + ring].any(-1)
+        self._cost_p.reshape(-1)[around] = (1.0 + self.p.wall_cost * near).astype(np.float32)
+        self._front = np.concatenate([self._front, touched[new_free], around])
+
+    def _box(self) -> tuple[int, int, int, int]:
+        """(I0, I1, J0, J1): cell ranges (ends excluded) that hold every free cell of the grid."""
+        lo, hi = self._box_lo.min(0), self._box_hi.max(0)
+        if hi[0] < 0:  # nothing free anywhere yet
+            return 0, 1, 0, 1
+        lo, hi = np.maximum(lo - 1, 0), np.minimum(hi + 1, (self.GX - 1, self.GY - 1))
+        return int(lo[0]), int(hi[0]) + 1, int(lo[1]), int(hi[1]) + 1
 
     # ------------------------------------------------------------------ planning
 
@@ -170,41 +265,58 @@ class CoverageMap:
         in `update`); now (W,) s, each world's episode time; dt (s) the decision step.
         """
         p = self.p
-        stale = np.clip((now[:, None, None, None] - self.seen) / p.stale_time, 0.0, 1.0)
-        score = stale - np.sqrt(self._dist2(pos)) / p.distance_scale
+        i0, i1, j0, j1 = box = self._box()  # every candidate (free, not blocked) lies in it
+        # score = staleness - distance / distance_scale - mate_penalty near teammates, in place
+        score = now[:, None, None, None] - self.seen[:, :, i0:i1, j0:j1]
+        score /= p.stale_time
+        np.clip(score, 0.0, 1.0, out=score)
+        far = self._dist2_box(pos, box)
+        np.sqrt(far, out=far)
+        far /= p.distance_scale
+        score -= far
         if mate_pos.shape[2]:
-            score -= p.mate_penalty * self._near_mates(mate_pos, mate_vis, 2 * p.mate_radius)
+            np.subtract(score, p.mate_penalty, out=score, where=self._near_mates_in(box, mate_pos, mate_vis, 2 * p.mate_radius))
         has = self.goal[..., 0] >= 0
         gi, gj = np.maximum(self.goal[..., 0], 0), np.maximum(self.goal[..., 1], 0)
         wn = np.arange(self.W)[:, None], np.arange(self.N)[None, :]
-        score[wn[0], wn[1], gi, gj] += p.keep_bonus * has
-        score = np.where(self.free & ~self.blocked, score, -np.inf).reshape(self.W, self.N, -1)
+        inside = (gi >= i0) & (gi < i1) & (gj >= j0) & (gj < j1)  # a goal outside is no candidate
+        score[wn[0], wn[1], np.clip(gi - i0, 0, i1 - i0 - 1), np.clip(gj - j0, 0, j1 - j0 - 1)] += p.keep_bonus * (has & inside)
+        np.copyto(score, -np.inf, where=~self.free[:, :, i0:i1, j0:j1] | self.blocked[:, :, i0:i1, j0:j1])  # no candidates
+        score = score.reshape(self.W, self.N, -1)
         best = np.argmax(score, axis=-1)
-        new = np.stack([best // self.GY, best % self.GY], -1)
+        new = np.stack([i0 + best // (j1 - j0), j0 + best % (j1 - j0)], -1)
+        # no candidate at all: the first cell of the grid, as an argmax over it would give
+        none = np.take_along_axis(score, best[..., None], -1)[..., 0] == -np.inf
+        new[none] = 0
         changed = (new != self.goal).any(-1)
         self.goal = new
         self.waited = np.where(changed, 0.0, self.waited + dt)
         w, n = np.nonzero(changed)
         self.dist[w, n] = np.inf
         self.dist[w, n, new[w, n, 0], new[w, n, 1]] = 0.0
+        goals = self._flat(w, n, new[w, n, 0], new[w, n, 1])
+        self._front = np.concatenate([self._front, (goals[:, None] + self._steps).ravel()])
 
     def _relax(self) -> None:
-        """A few passes of the wavefront: path length to the goal, cells beside obstacles costing more."""
-        passable = self.free & ~self.blocked
-        pad = np.pad(self.blocked, ((0, 0), (0, 0), (1, 1), (1, 1)))
-        near = np.zeros_like(self.blocked)
-        for di in (-1, 0, 1):
-            for dj in (-1, 0, 1):
-                near |= pad[:, :, 1 + di : 1 + di + self.GX, 1 + dj : 1 + dj + self.GY]
-        cost = (1.0 + self.p.wall_cost * near).astype(np.float32)
-        d = self.dist
+        """A few passes of the wavefront: path length to the goal, cells beside obstacles costing more.
+
+        Each pass gives every passable cell min(its length, a 4-neighbour's length + its cost),
+        all from the lengths before the pass; it evaluates only the cells on the front (those
+        whose length can change: see `_note_changes` and `choose_goal`), and the cells beside
+        the ones it changed make the next front. The same to the bit as a pass over the grid."""
+        dist, cost = self._dist_p.reshape(-1), self._cost_p.reshape(-1)
+        free, blocked = self._free_p.reshape(-1), self._blocked_p.reshape(-1)
         for _ in range(self.p.relax_passes):
-            pad = np.pad(d, ((0, 0), (0, 0), (1, 1), (1, 1)), constant_values=np.inf)
-            best = d
-            for di, dj in _OFFSETS:
-                best = np.minimum(best, pad[:, :, 1 + di : 1 + di + self.GX, 1 + dj : 1 + dj + self.GY] + cost)
-            d = np.where(passable, best, d)
-        self.dist = d
+            cells = np.unique(self._front)
+            cells = cells[free[cells] & ~blocked[cells]]  # passable (the border is not)
+            old = dist[cells]
+            best, c = old, cost[cells]
+            for step in self._steps:
+                best = np.minimum(best, dist[cells + step] + c)
+            changed = best != old
+            moved = cells[changed]
+            dist[moved] = best[changed]
+            self._front = (moved[:, None] + self._steps).ravel()
 
     def waypoint(self, pos: np.ndarray, now: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(aim (W, N, 2) m relative, planned (W, N) bool): a few cells down the path to the goal.
@@ -220,7 +332,7 @@ class CoverageMap:
         w, n = np.arange(W)[:, None], np.arange(N)[None, :]
         ci, cj = self._cells(pos)
         planned = np.isfinite(self.dist[w, n, ci, cj])
-        pad = np.pad(self.dist, ((0, 0), (0, 0), (1, 1), (1, 1)), constant_values=np.inf)
+        pad = self._dist_p  # infinitely far beyond the grid
         steps = np.array(((0, 0),) + _OFFSETS)  # staying put wins ties
         for _ in range(self.p.window):
             cand = pad[w[..., None], n[..., None], ci[..., None] + 1 + steps[:, 0], cj[..., None] + 1 + steps[:, 1]]

@@ -320,3 +320,80 @@ def test_the_coverage_map_and_the_actions_stay_the_same_to_the_bit(case, expecte
     # one pass a step and little patience: goals are given up (their surroundings marked seen)
     params = HeuristicParams(coverage=CoverageParams(relax_passes=1, patience=0.5)) if "impatient" in case else None
     assert _play_and_hash(config, worlds, steps, reset_at=steps // 2, params=params) == expected
+
+
+def _dense_goal(m, pos, mate_pos, mate_vis, now):
+    """The sweep goal (W, N, 2) as scored over every cell of the grid (the rule of
+    CoverageMap.choose_goal, written densely): the reference for the map's boxed scoring."""
+    p, c = m.p, m.p.cell
+    dx = (np.arange(m.GX) + 0.5) * c
+    dy = (np.arange(m.GY) + 0.5) * c
+
+    def dist2(xy):
+        return (dx - xy[..., 0, None])[..., :, None] ** 2 + (dy - xy[..., 1, None])[..., None, :] ** 2
+
+    stale = np.clip((now[:, None, None, None] - m.seen) / p.stale_time, 0.0, 1.0)
+    score = stale - np.sqrt(dist2(pos)) / p.distance_scale
+    score -= p.mate_penalty * ((dist2(mate_pos) < (2 * p.mate_radius) ** 2) & mate_vis[..., None, None]).any(2)
+    has = m.goal[..., 0] >= 0
+    w, n = np.arange(m.W)[:, None], np.arange(m.N)[None, :]
+    score[w, n, np.maximum(m.goal[..., 0], 0), np.maximum(m.goal[..., 1], 0)] += p.keep_bonus * has
+    best = np.argmax(np.where(m.free & ~m.blocked, score, -np.inf).reshape(m.W, m.N, -1), -1)
+    return np.stack([best // m.GY, best % m.GY], -1)
+
+
+def _dense_relax(m):
+    """The path lengths (W, N, GX, GY) after relaxing every cell of the grid `relax_passes` times
+    (the rule of CoverageMap._relax, written densely): the reference for the map's front."""
+    pad = np.pad(m.blocked, ((0, 0), (0, 0), (1, 1), (1, 1)))
+    near = np.zeros_like(m.blocked)
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            near |= pad[:, :, 1 + di : 1 + di + m.GX, 1 + dj : 1 + dj + m.GY]
+    cost = (1.0 + m.p.wall_cost * near).astype(np.float32)
+    d = m.dist.copy()
+    for _ in range(m.p.relax_passes):
+        pad = np.pad(d, ((0, 0), (0, 0), (1, 1), (1, 1)), constant_values=np.inf)
+        best = d
+        for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            best = np.minimum(best, pad[:, :, 1 + di : 1 + di + m.GX, 1 + dj : 1 + dj + m.GY] + cost)
+        d = np.where(m.free & ~m.blocked, best, d)
+    return d
+
+
+def test_the_coverage_map_scores_and_relaxes_few_cells_yet_as_if_it_did_every_one():
+    """The map scores goals inside the box of free cells, marks teammates' surroundings from a
+    window around them and relaxes only the wavefront's front; under random readings, jumps onto
+    blocked cells (which clears them), goal changes, world resets and growth of the grid, goals
+    and path lengths are those of the whole-grid rules, to the bit."""
+    from pursuit_mj.coverage import CoverageMap
+
+    rng = np.random.default_rng(0)
+    W, N, K = 3, 2, 16
+    m = CoverageMap(W, N, CoverageParams(relax_passes=2, patience=0.3))
+    angles = 2 * np.pi * np.arange(K) / K
+    dirs = np.stack([np.cos(angles), np.sin(angles)], -1)
+    pos = rng.uniform(0.5, 2.0, (W, N, 2))
+    jumps = 0
+    for step in range(120):
+        now = np.full(W, 0.1 * step)
+        free_and_blocked = np.argwhere(m.free & m.blocked)
+        if step % 3 == 2 and len(free_and_blocked):  # onto a cell once found free, later blocked: it is cleared
+            w, n, i, j = free_and_blocked[rng.integers(len(free_and_blocked))]
+            pos[w, n] = (np.array([i, j]) + 0.5) * m.p.cell
+            jumps += 1
+        else:
+            pos = np.clip(pos + rng.normal(0, 0.15 + step / 300, pos.shape), 0.0, 8.0)
+        rays = np.where(rng.random((W, N, K)) < 0.9, RAY_RANGE, rng.uniform(0.05, RAY_RANGE, (W, N, K)))
+        mate_pos = pos[:, ::-1][:, :, None] + rng.normal(0, 0.05, (W, N, 1, 2))
+        mate_vis = rng.random((W, N, 1)) < 0.7
+        m.update(pos, rays, dirs, RAY_RANGE, mate_pos, mate_vis, now, 1.2)
+        expected_goal = _dense_goal(m, pos, mate_pos, mate_vis, now)
+        m.choose_goal(pos, mate_pos, mate_vis, now, 0.1)
+        assert np.array_equal(m.goal, expected_goal), step
+        expected_dist = _dense_relax(m)
+        m.waypoint(pos, now)
+        assert np.array_equal(m.dist, expected_dist), step
+        if step % 50 == 25:
+            m.reset(np.array([1]))
+    assert m.GX > 30 and m.GY > 30 and jumps >= 20
