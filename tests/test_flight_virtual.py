@@ -307,18 +307,24 @@ def test_virtual_crazyflies_tilt_as_far_as_their_firmware_velocity_loop_allows()
         fleet.stop()
 
 
+def fleet_limited_to(plan, degrees: float) -> VirtualFleet:
+    """A virtual fleet of `plan` whose firmware limits roll and pitch to `degrees` each."""
+    fleet = VirtualFleet(plan, physics=FAST)
+    for fw in fleet.firmware:
+        fw.params["posCtlPid.rLimit"] = fw.params["posCtlPid.pLimit"] = degrees
+    fleet.apply_firmware_limits()
+    return fleet
+
+
 def test_virtual_crazyflies_limit_roll_and_pitch_each_as_their_firmware_does():
     """The firmware limits roll (posCtlPid.rLimit) and pitch (pLimit) each, not the tilt: pushed
     along a diagonal at 10 deg each, a virtual drone tilts its thrust up to 14 deg (a real one
     would), with neither roll nor pitch past 10. They flew a 10 deg tilt limit instead, so a
     rehearsal turned slower on a diagonal than the real drones would."""
     plan = quick_plan()
-    fleet = VirtualFleet(plan, physics=FAST)
+    fleet = fleet_limited_to(plan, 10.0)
     try:
         n = plan.n_drones
-        for fw in fleet.firmware:
-            fw.params["posCtlPid.rLimit"] = fw.params["posCtlPid.pLimit"] = 10.0
-        fleet.apply_firmware_limits()
         on, airframe = np.ones(n, bool), fleet.airframe
         for _ in range(200):  # up to 0.5 m first
             airframe.step(0.01, np.zeros((n, 2)), np.full(n, 0.5), np.zeros(n), on)
@@ -421,12 +427,9 @@ def test_virtual_crazyflies_limit_roll_and_pitch_along_the_axes_of_the_drone_the
     the real one tilts 10."""
     drones = [dict(d, start_yaw=math.pi / 4) for d in quick_spec()["drones"]]
     plan = quick_plan(drones=drones)
-    fleet = VirtualFleet(plan, physics=FAST)
+    fleet = fleet_limited_to(plan, 10.0)
     try:
         n = plan.n_drones
-        for fw in fleet.firmware:
-            fw.params["posCtlPid.rLimit"] = fw.params["posCtlPid.pLimit"] = 10.0
-        fleet.apply_firmware_limits()
         on, airframe = np.ones(n, bool), fleet.airframe
         worst = {}
         for name, push in (("lab x", [1.0, 0.0]), ("own x", [1.0, 1.0])):
