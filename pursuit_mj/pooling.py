@@ -60,15 +60,21 @@ def _read(path: Path) -> dict:
         raise ValueError(f"{path}: cannot read it ({exc.strerror or exc})") from None
     except json.JSONDecodeError as exc:
         if exc.msg == "Extra data" and first_line_is_json_object(path):
-            raise ValueError(f"{path}: a training log (one JSON object a line), not an evaluation table; "
-                             f"plot it with `pursuit-mj plot --log {path}`") from None
+            raise _training_log(path) from None
         raise ValueError(f"{path}: not a JSON file ({exc})") from None
     except ValueError as exc:  # text that is not UTF-8
         raise ValueError(f"{path}: not a JSON file ({exc})") from None
+    if isinstance(data, dict) and "update" in data and "rows" not in data:  # a log of one update
+        raise _training_log(path)
     if not (isinstance(data, dict) and isinstance(data.get("rows"), list) and isinstance(data.get("config"), dict)):
         raise ValueError(f"{path}: not an evaluation table written by `pursuit-mj eval --out/--json` (no 'rows' and 'config')")
     return data
 
+
+def _training_log(path: Path) -> ValueError:
+    """The refusal of a training run's metrics.jsonl, saying what reads it."""
+    return ValueError(f"{path}: a training log (one JSON object a line), not an evaluation table; "
+                      f"plot it with `pursuit-mj plot --log {path}`")
 
 
 def _json_instead(csv: Path) -> str:
