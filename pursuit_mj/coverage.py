@@ -102,9 +102,22 @@ class CoverageMap:
         padded_arrays = (self._free_p, self._blocked_p, self._seen_p, self._dist_p)
         self.free, self.blocked, self.seen, self.dist = (a[:, :, 1:-1, 1:-1] for a in padded_arrays)
         self.GX, self.GY = gx, gy
+        if old:
+            self._renew_costs()
         self._steps = np.array([gy + 2, -(gy + 2), 1, -1])  # flat offsets of _OFFSETS in the padded arrays
         c = self.p.cell
         self.centers = np.stack(np.meshgrid((np.arange(gx) + 0.5) * c, (np.arange(gy) + 0.5) * c, indexing="ij"), -1)
+
+    def _renew_costs(self) -> None:
+        """Step cost of every grid cell from the blocked cells around it (1, or 1 + wall_cost
+        beside one). After growth: a cell that was beyond the old grid may lie beside a blocked
+        cell on its last row or column (a hit clipped there in a step whose readings were not
+        all numbers, so that the grid did not grow), which _note_changes could not reach."""
+        near = np.zeros(self.blocked.shape, bool)
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                near |= self._blocked_p[:, :, 1 + di : 1 + di + self.GX, 1 + dj : 1 + dj + self.GY]
+        self._cost_p[:, :, 1:-1, 1:-1] = (1.0 + self.p.wall_cost * near).astype(np.float32)
 
     def _flat(self, w: np.ndarray, n: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         """Flat indices in the padded arrays of grid cells (w, n, i, j)."""

@@ -397,3 +397,31 @@ def test_the_coverage_map_scores_and_relaxes_few_cells_yet_as_if_it_did_every_on
         if step % 50 == 25:
             m.reset(np.array([1]))
     assert m.GX > 30 and m.GY > 30 and jumps >= 20
+
+
+def test_the_coverage_map_keeps_the_wall_cost_of_cells_it_grows_beside_a_blocked_edge_cell():
+    """A reading that is not a number keeps the grid from growing that step, so hits beyond the
+    grid are clipped onto its last row and column; when the grid grows later, the cells beyond
+    them lie beside blocked cells and cost as much to cross as the whole-grid rule says."""
+    from pursuit_mj.coverage import CoverageMap
+
+    rng = np.random.default_rng(1)
+    K = 16
+    m = CoverageMap(1, 1, CoverageParams(relax_passes=2))
+    angles = 2 * np.pi * np.arange(K) / K
+    dirs = np.stack([np.cos(angles), np.sin(angles)], -1)
+    none = np.zeros((1, 1, 0, 2)), np.zeros((1, 1, 0), bool)
+    pos = np.array([[[1.3, 1.3]]])
+    rays = np.full((1, 1, K), 1.0)  # walls all round at 1 m: beyond the 1.6 m grid to the east and north
+    rays[0, 0, 5] = np.nan
+    m.update(pos, rays, dirs, 3.0, *none, np.zeros(1), 1.2)
+    assert m.GX == 8 and m.blocked[0, 0, 7].any() and m.blocked[0, 0, :, 7].any()  # clipped onto the edges
+    for step in range(1, 40):
+        pos = np.clip(pos + rng.normal(0, 0.2, pos.shape), 0.0, 3.0)
+        now = np.full(1, 0.1 * step)
+        rays = np.where(rng.random((1, 1, K)) < 0.5, 3.0, rng.uniform(0.3, 3.0, (1, 1, K)))
+        m.update(pos, rays, dirs, 3.0, *none, now, 1.2)
+        m.choose_goal(pos, *none, now, 0.1)
+        expected_dist = _dense_relax(m)
+        m.waypoint(pos, now)
+        assert np.array_equal(m.dist, expected_dist), step
