@@ -319,6 +319,8 @@ class CoverageMap:
         the ones it changed make the next front. The same to the bit as a pass over the grid."""
         dist, cost = self._dist_p.reshape(-1), self._cost_p.reshape(-1)
         free, blocked = self._free_p.reshape(-1), self._blocked_p.reshape(-1)
+        if not self.p.relax_passes:  # nothing reads the front: keep none (it would grow every step)
+            self._front = self._front[:0]
         for _ in range(self.p.relax_passes):
             cells = np.unique(self._front)
             cells = cells[free[cells] & ~blocked[cells]]  # passable (the border is not)

@@ -425,3 +425,26 @@ def test_the_coverage_map_keeps_the_wall_cost_of_cells_it_grows_beside_a_blocked
         expected_dist = _dense_relax(m)
         m.waypoint(pos, now)
         assert np.array_equal(m.dist, expected_dist), step
+
+
+def test_a_coverage_map_that_never_relaxes_keeps_no_growing_wavefront():
+    """relax_passes=0 (valid: path lengths never spread from the goal) reads no front, so none is kept: the
+    cells each step puts on it do not pile up step after step (memory and time would grow
+    with the episode's length)."""
+    from pursuit_mj.coverage import CoverageMap
+
+    rng = np.random.default_rng(0)
+    W, N, K = 2, 2, 16
+    m = CoverageMap(W, N, CoverageParams(relax_passes=0))
+    angles = 2 * np.pi * np.arange(K) / K
+    dirs = np.stack([np.cos(angles), np.sin(angles)], -1)
+    none = np.zeros((W, N, 0, 2)), np.zeros((W, N, 0), bool)
+    pos = rng.uniform(1.0, 3.0, (W, N, 2))
+    for step in range(60):
+        now = np.full(W, 0.1 * step)
+        pos = np.clip(pos + rng.normal(0, 0.2, pos.shape), 0.0, 8.0)
+        rays = np.where(rng.random((W, N, K)) < 0.7, RAY_RANGE, rng.uniform(0.2, RAY_RANGE, (W, N, K)))
+        m.update(pos, rays, dirs, RAY_RANGE, *none, now, 1.2)
+        m.choose_goal(pos, *none, now, 0.1)
+        m.waypoint(pos, now)
+    assert m._front.size == 0
