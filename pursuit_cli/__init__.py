@@ -215,7 +215,7 @@ def _with_source(exc: ValueError, args: argparse.Namespace) -> str:
     from .common import task_key_source
 
     try:
-        source = task_key_source(args, exc.key)
+        source = task_key_source(args, exc.key, exc.value)  # the source of that value, not of another
     except (OSError, ValueError):  # a task file changed since it was read: the message as it is
         source = None
     if source is None:

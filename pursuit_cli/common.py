@@ -7,9 +7,10 @@ import math
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
 from pursuit_mj.config import TaskConfig, dump_yaml, load_task_config, preset_or_file
-from pursuit_mj.configio import load_yaml
+from pursuit_mj.configio import ConfigError, load_yaml, parse_override
 from pursuit_mj.layout import is_index_text
 
 
@@ -231,20 +232,33 @@ def check_evader_model(config: TaskConfig, source: str) -> None:
         make_evader_model(config, 1, 0, source)
 
 
-def task_key_source(args: argparse.Namespace, key: str) -> str | None:
+_ANY = object()
+
+
+def task_key_source(args: argparse.Namespace, key: str, value: Any = _ANY) -> str | None:
     """Where the task value of top-level `key` came from, as the user gave it: '--set KEY=V',
     the flag, or 'task file F' (the last that names it wins, as in task_config_from_args);
-    None when it is the default or the command takes no task flags."""
+    None when it is the default or the command takes no task flags. Given `value`, None also
+    where the source that wins gives another value (the value came from elsewhere: a study's
+    --train-set, a model's own config)."""
+    def gives(given: Any) -> bool:
+        return value is _ANY or given == value
+
     for override in reversed(getattr(args, "overrides", None) or []):
         if override.split("=", 1)[0].strip() == key:
-            return f"--set {override.strip()}"
+            try:
+                given = parse_override(override, f"--set {override}")[1]
+            except ConfigError:
+                return None
+            return f"--set {override.strip()}" if gives(given) else None
     flag = TASK_FLAG_NAMES.get(key)
     if flag is not None and getattr(args, key, None) is not None:
-        return f"{flag} {getattr(args, key)}"
+        return f"{flag} {getattr(args, key)}" if gives(getattr(args, key)) else None
     for file in reversed(getattr(args, "task_files", None) or []):
         path = preset_or_file(file, "task")
-        if key in load_yaml(path):
-            return f"task file {file}"
+        data = load_yaml(path)
+        if key in data:
+            return f"task file {file}" if gives(data[key]) else None
     return None
 
 

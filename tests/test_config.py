@@ -543,3 +543,28 @@ def test_a_huge_whole_number_out_of_range_is_shown_short(capsys, given, shown_as
     assert main(["config", "--set", given]) == 2
     err = capsys.readouterr().err
     assert f"{shown_as} is out of range (must be <= " in err and len(err) < 200, err
+
+
+def test_a_refused_task_value_is_not_blamed_on_a_source_that_gave_another_value():
+    """The CLI names the flag or task file that gave a refused task value (TaskValueError): it
+    blamed whichever of them named the key, whatever value it gave. A study whose arms train
+    with --train-set task.n_pursuers=16 was refused with 'task file reference: n_pursuers 16:
+    ...', though that preset holds n_pursuers 3; with no source of that value the message is
+    the refusal's own."""
+    import argparse
+
+    from pursuit_cli import _with_source
+    from pursuit_mj.layout_check import SpawnCapacityError
+
+    exc = SpawnCapacityError("n_pursuers", 16, "the spawn region cannot hold them")
+    study_args = argparse.Namespace(command="study", overrides=[], n_pursuers=None, task_files=["reference"],
+                                    train_overrides=["task.n_pursuers=16"])
+    assert _with_source(exc, study_args) == "n_pursuers=16: the spawn region cannot hold them"
+    for overrides, n_pursuers, task_files in ((["n_pursuers=4"], None, []), ([], 4, []), (["n_pursuers=16", "n_pursuers=4"], None, [])):
+        args = argparse.Namespace(command="eval", overrides=overrides, n_pursuers=n_pursuers, task_files=task_files)
+        assert _with_source(exc, args) == "n_pursuers=16: the spawn region cannot hold them", (overrides, n_pursuers)
+    # the source of that very value is still named
+    args = argparse.Namespace(command="eval", overrides=["n_pursuers=16"], n_pursuers=None, task_files=["reference"])
+    assert _with_source(exc, args) == "--set n_pursuers=16: the spawn region cannot hold them"
+    args = argparse.Namespace(command="eval", overrides=[], n_pursuers=16, task_files=["reference"])
+    assert _with_source(exc, args) == "--pursuers 16: the spawn region cannot hold them"
