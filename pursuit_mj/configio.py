@@ -221,8 +221,23 @@ def _check_range(value: Any, meta: Mapping[str, Any], where: str) -> None:
 
 def number_text(value: int | float) -> str:
     """A number for an error message: a whole number of more than 15 digits (1e300 typed for a
-    count) in float notation, anything else as repr gives it."""
-    return f"{float(value):g}" if isinstance(value, int) and abs(value) >= 10 ** 15 else repr(value)
+    count) in float notation (6 significant digits, as %g: 1e+30; also past a float's range,
+    1e+400), anything else as repr gives it."""
+    if not (isinstance(value, int) and abs(value) >= 10**15):
+        return repr(value)
+    if abs(value) < 10**300:
+        return f"{float(value):g}"
+    exponent = int(math.log10(abs(value)))  # may be one off near a power of ten: set right below
+    lead = abs(value) // 10 ** (exponent - 5)
+    while lead >= 10**6:
+        exponent, lead = exponent + 1, abs(value) // 10 ** (exponent - 4)
+    while lead < 10**5:
+        exponent, lead = exponent - 1, abs(value) // 10 ** (exponent - 6)
+    rest = abs(value) - lead * 10 ** (exponent - 5)
+    lead += 2 * rest >= 10 ** (exponent - 5)  # rounded half up
+    if lead == 10**6:
+        exponent, lead = exponent + 1, 10**5
+    return f"{'-' if value < 0 else ''}{lead / 10**5:g}e+{exponent}"
 
 
 def _known_fields(cls: type, values: Mapping[str, Any], source: str) -> dict[str, dataclasses.Field]:

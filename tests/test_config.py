@@ -568,3 +568,17 @@ def test_a_refused_task_value_is_not_blamed_on_a_source_that_gave_another_value(
     assert _with_source(exc, args) == "--set n_pursuers=16: the spawn region cannot hold them"
     args = argparse.Namespace(command="eval", overrides=[], n_pursuers=16, task_files=["reference"])
     assert _with_source(exc, args) == "--pursuers 16: the spawn region cannot hold them"
+
+
+@pytest.mark.parametrize("digits, shown", [("1" + "0" * 400, "1e+400"), ("-" + "12345678" * 50, "-1.23457e+399")])
+def test_a_whole_number_too_large_for_a_float_is_refused_in_one_line(capsys, digits, shown):
+    """number_text showed an out-of-range whole number of more than 15 digits through float(),
+    which fails past 1.8e308: '--set max_steps=1000...0' (401 digits) ended in an OverflowError
+    traceback instead of the refusal."""
+    from pursuit_mj.configio import number_text
+
+    assert number_text(int(digits)) == shown
+    assert number_text(10**30) == "1e+30" and number_text(123) == "123"
+    assert main(["config", "--set", f"max_steps={digits}"]) == 2
+    err = capsys.readouterr().err
+    assert f"key 'max_steps': {shown} is out of range" in err and len(err.splitlines()) == 1, err
