@@ -101,23 +101,28 @@ class CoverageMap:
             self._front = np.ravel_multi_index(where, padded)
         padded_arrays = (self._free_p, self._blocked_p, self._seen_p, self._dist_p)
         self.free, self.blocked, self.seen, self.dist = (a[:, :, 1:-1, 1:-1] for a in padded_arrays)
+        old_gx, old_gy = self.GX, self.GY
         self.GX, self.GY = gx, gy
-        if old:
-            self._renew_costs()
+        # The cells just beyond the old grid were its border, which _note_changes leaves out: one
+        # may lie beside a blocked cell of the old last row or column (a hit clipped there in a
+        # step whose readings were not all numbers, so that the grid did not grow). The cells
+        # further out lie beside new cells only, never blocked.
+        if old and gx > old_gx:
+            self._renew_costs(old_gx, old_gx + 1, 0, gy)
+        if old and gy > old_gy:
+            self._renew_costs(0, gx, old_gy, old_gy + 1)
         self._steps = np.array([gy + 2, -(gy + 2), 1, -1])  # flat offsets of _OFFSETS in the padded arrays
         c = self.p.cell
         self.centers = np.stack(np.meshgrid((np.arange(gx) + 0.5) * c, (np.arange(gy) + 0.5) * c, indexing="ij"), -1)
 
-    def _renew_costs(self) -> None:
-        """Step cost of every grid cell from the blocked cells around it (1, or 1 + wall_cost
-        beside one). After growth: a cell that was beyond the old grid may lie beside a blocked
-        cell on its last row or column (a hit clipped there in a step whose readings were not
-        all numbers, so that the grid did not grow), which _note_changes could not reach."""
-        near = np.zeros(self.blocked.shape, bool)
+    def _renew_costs(self, i0: int, i1: int, j0: int, j1: int) -> None:
+        """Step cost of the grid cells i0 <= i < i1, j0 <= j < j1 from the blocked cells around
+        each (1, or 1 + wall_cost beside one)."""
+        near = np.zeros((self.W, self.N, i1 - i0, j1 - j0), bool)
         for di in (-1, 0, 1):
             for dj in (-1, 0, 1):
-                near |= self._blocked_p[:, :, 1 + di : 1 + di + self.GX, 1 + dj : 1 + dj + self.GY]
-        self._cost_p[:, :, 1:-1, 1:-1] = (1.0 + self.p.wall_cost * near).astype(np.float32)
+                near |= self._blocked_p[:, :, 1 + i0 + di : 1 + i1 + di, 1 + j0 + dj : 1 + j1 + dj]
+        self._cost_p[:, :, 1 + i0 : 1 + i1, 1 + j0 : 1 + j1] = (1.0 + self.p.wall_cost * near).astype(np.float32)
 
     def _flat(self, w: np.ndarray, n: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         """Flat indices in the padded arrays of grid cells (w, n, i, j)."""
