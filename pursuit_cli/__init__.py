@@ -212,10 +212,11 @@ def _with_source(exc: ValueError, args: argparse.Namespace) -> str:
 
     if not isinstance(exc, TaskValueError):
         return str(exc)
-    from .common import task_key_source
+    from .common import task_key_source, train_task_key_source
 
     try:
-        source = task_key_source(args, exc.key, exc.value)  # the source of that value, not of another
+        # the source of that value, not of another: a task flag or file, else a train key (task.KEY)
+        source = task_key_source(args, exc.key, exc.value) or train_task_key_source(args, exc.key, exc.value)
     except (OSError, ValueError):  # a task file changed since it was read: the message as it is
         source = None
     if source is None:

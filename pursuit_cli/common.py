@@ -262,6 +262,23 @@ def task_key_source(args: argparse.Namespace, key: str, value: Any = _ANY) -> st
     return None
 
 
+def train_task_key_source(args: argparse.Namespace, key: str, value: Any) -> str | None:
+    """Where a train override gave the task value of top-level `key` the value `value`: '--set
+    task.KEY=V' of train, '--train-set task.KEY=V' of a study (the last that names it wins);
+    None where none names it or the last gives another value."""
+    flag, attribute = {"train": ("--set", "overrides"), "study": ("--train-set", "train_overrides")}.get(
+        getattr(args, "command", None), (None, None))
+    overrides = (getattr(args, attribute, None) or []) if attribute else []
+    for override in reversed(overrides):
+        if override.split("=", 1)[0].strip() == f"task.{key}":
+            try:
+                given = parse_override(override, f"{flag} {override}")[1]
+            except ConfigError:
+                return None
+            return f"{flag} {override.strip()}" if given == value else None
+    return None
+
+
 SHIELD_HELP = ("put the safety shield on the policy (pursuit_mj/shield.py): from the pursuer's own observation it caps "
                "the speed toward walls, teammates and captured evaders; results are labelled NAME+shield. The heuristic "
                "team has the same shield built in and is left as is")

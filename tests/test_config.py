@@ -558,7 +558,7 @@ def test_a_refused_task_value_is_not_blamed_on_a_source_that_gave_another_value(
 
     exc = SpawnCapacityError("n_pursuers", 16, "the spawn region cannot hold them")
     study_args = argparse.Namespace(command="study", overrides=[], n_pursuers=None, task_files=["reference"],
-                                    train_overrides=["task.n_pursuers=16"])
+                                    train_overrides=[])  # 16 came from elsewhere (the arms' own configs, say)
     assert _with_source(exc, study_args) == "n_pursuers=16: the spawn region cannot hold them"
     for overrides, n_pursuers, task_files in ((["n_pursuers=4"], None, []), ([], 4, []), (["n_pursuers=16", "n_pursuers=4"], None, [])):
         args = argparse.Namespace(command="eval", overrides=overrides, n_pursuers=n_pursuers, task_files=task_files)
@@ -582,3 +582,24 @@ def test_a_whole_number_too_large_for_a_float_is_refused_in_one_line(capsys, dig
     assert main(["config", "--set", f"max_steps={digits}"]) == 2
     err = capsys.readouterr().err
     assert f"key 'max_steps': {shown} is out of range" in err and len(err.splitlines()) == 1, err
+
+
+def test_a_team_the_layout_cannot_hold_names_the_train_flag_that_gave_it(capsys, tmp_path):
+    """b6bf1f9 named the flag of a team size too large for the layout for the task's flags (--set
+    n_pursuers=16, --pursuers 16) but not for a train key: 'train --set task.n_pursuers=16' read
+    'n_pursuers=16: the spawn region ...', and a study's --train-set likewise."""
+    import argparse
+
+    from pursuit_cli import _with_source
+    from pursuit_mj.layout_check import SpawnCapacityError
+
+    argv = ["train", "--set", "task.n_pursuers=16", "--set", f"run.runs_dir={tmp_path}", "--total-steps", "10"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pursuit-mj train: error: --set task.n_pursuers=16: the spawn region of "), err
+    exc = SpawnCapacityError("n_pursuers", 16, "the spawn region cannot hold them")
+    study = argparse.Namespace(command="study", overrides=[], n_pursuers=None, task_files=["reference"],
+                               train_overrides=["task.n_pursuers=16"])
+    assert _with_source(exc, study) == "--train-set task.n_pursuers=16: the spawn region cannot hold them"
+    study.train_overrides = ["task.n_pursuers=16", "task.n_pursuers=4"]  # the last one wins: 16 came from elsewhere
+    assert _with_source(exc, study) == "n_pursuers=16: the spawn region cannot hold them"
