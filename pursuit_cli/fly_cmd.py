@@ -204,10 +204,6 @@ def run_align(args) -> int:
     _quiet_cflib(False)
     if not 0 < args.window <= 60:
         raise ValueError(f"--window {args.window}: expected seconds in (0, 60]")
-    if args.write:  # before any drone is measured; 'aligned/' names a folder, not the file to write
-        from pursuit_mj.io_utils import check_writable
-
-        check_writable(args.write, "--write")
     spec = load_flight(_need_flight(args))
     if args.overrides:  # judged now, not only with --virtual or --write after the drones are measured
         from pursuit_mj.flight.plan import check_task_overrides
@@ -221,6 +217,13 @@ def run_align(args) -> int:
     for flag, points, what in (("--spots", spots, "spots"), ("--lab", lab, "points")):
         if points is not None and len(points) != n_drones:
             raise ValueError(f"{flag}: {len(points)} {what} for the flight's {n_drones} drones (one per drone, flight-file order)")
+    if args.write:  # before any drone is measured, after the input is judged (it makes the folder); 'aligned/' names a folder
+        from pursuit_mj.flight.align import check_spots_in_arena
+        from pursuit_mj.flight.plan import resolve_layout
+        from pursuit_mj.io_utils import check_writable
+
+        check_spots_in_arena(spots, resolve_layout(spec), names=drone_names(spec))  # align's first check, before the folder
+        check_writable(args.write, "--write")
     if args.virtual:
         from pursuit_mj.flight.plan import resolve_flight
         from pursuit_mj.flight.virtual.fleet import VirtualFleet

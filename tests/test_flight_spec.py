@@ -1059,3 +1059,20 @@ def test_fly_align_refuses_a_bad_set_before_it_measures(capsys):
         captured = capsys.readouterr()
         assert captured.out == "" and said in captured.err, captured
     assert main(["fly", "align", "--flight", "lighthouse", "--spots", spots, "--lab", spots, "--set", "pursuer_speed=0.3"]) == 0
+
+
+def test_fly_align_refused_for_its_input_makes_no_write_folder(tmp_path, capsys):
+    # since --write was checked first (6aa70ee), its folder was made before the flight file,
+    # --set, --spots and --lab were read: 'fly align --flight nope.yaml ... --write new/out.yaml'
+    # was refused but left 'new/' behind, where eval refuses bad input before making any folder
+    from pursuit_cli import main
+
+    spots = "0.5,0.625 1.75,0.625 1.875,4.0"
+    for bad in (["--flight", str(tmp_path / "nope.yaml"), "--spots", spots],
+                ["--flight", "lighthouse", "--spots", spots, "--lab", "0.5,0.625 1.75,0.625"],
+                ["--flight", "lighthouse", "--spots", spots, "--lab", spots, "--set", "bogus=1"],
+                ["--flight", "lighthouse", "--spots", "50,62.5 175,62.5 187.5,400", "--lab", spots]):  # spots in cm
+        out = tmp_path / "new" / "out.yaml"
+        assert main(["fly", "align", *bad, "--write", str(out)]) == 2
+        assert capsys.readouterr().out == ""
+        assert not (tmp_path / "new").exists(), bad
