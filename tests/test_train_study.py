@@ -775,3 +775,16 @@ def test_a_fresh_study_refused_before_it_did_anything_leaves_no_folder_it_made(t
     with pytest.raises(ValueError, match="refused later"):
         study.run_study(study.StudyPlan(0.01, tmp_path / "other", default_config(fidelity="point")), log=lambda s: None)
     assert (tmp_path / "other" / "runs").is_dir()
+
+
+def test_a_train_set_word_read_as_a_boolean_is_advised_with_train_set(tmp_path, capsys):
+    """8e0fdf8 advises a word YAML reads as a boolean in the shell's quotes with the flag that gave
+    it, --train-set for a study's; but the study renames only '--set TEXT' to '--train-set TEXT' in
+    an arm's refusal, so the advice read --set 'task.evader.model="no"', a flag whose keys are the
+    evaluation task's (where task.evader.model is unknown)."""
+    import shlex
+
+    assert main(["study", "--budget-minutes", "30", "--out", str(tmp_path / "s"), "--train-set", "task.evader.model=no", "-sc"]) == 2
+    err = capsys.readouterr().err
+    advice = err.rsplit("inside the shell's own quotes: ", 1)[1].rstrip(")\n")
+    assert shlex.split(advice) == ["--train-set", 'task.evader.model="no"'], err

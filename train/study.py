@@ -365,7 +365,9 @@ def check_train_overrides(plan: StudyPlan) -> None:
         except ValueError as exc:
             said = str(exc)
             for text in plan.train_overrides:  # the config names each as --set; the user typed --train-set
+                key = text.split("=", 1)[0].strip()
                 said = said.replace(f"--set {text}", f"--train-set {text}")
+                said = said.replace(f"--set '{key}=", f"--train-set '{key}=")  # the quoting advised (configio.quoted_override)
             raise ValueError(f"--train-set: the {arm.name} arm ({arm.config} config) refuses it: {said}") from None
         _check_rays(plan, arm, cfg)
 
