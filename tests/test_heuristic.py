@@ -399,6 +399,7 @@ def test_the_coverage_map_scores_and_relaxes_few_cells_yet_as_if_it_did_every_on
     assert m.GX > 30 and m.GY > 30 and jumps >= 20
 
 
+@pytest.mark.filterwarnings("ignore:invalid value encountered in cast:RuntimeWarning")  # NaN readings, on purpose
 def test_the_coverage_map_keeps_the_wall_cost_of_cells_it_grows_beside_a_blocked_edge_cell():
     """A reading that is not a number keeps the grid from growing that step, so hits beyond the
     grid are clipped onto its last row and column; when the grid grows later, the cells beyond
