@@ -112,12 +112,11 @@ def test_an_eval_csv_a_training_log_and_a_folder_are_refused_saying_what_to_pool
     with pytest.raises(ValueError, match=r"t\.csv: an evaluation CSV.*per-episode.*t\.json"):
         pool_tables([csv])
     log = tmp_path / "metrics.jsonl"
-    log.write_text('{"update": 1, "world_steps": 342}\n{"update": 2, "world_steps": 684}\n')
-    with pytest.raises(ValueError, match=r"metrics\.jsonl: a training log .*not an evaluation table.*plot --log"):
-        pool_tables([log])
-    log.write_text('{"update": 1, "world_steps": 342}\n')  # a run's first update: one line, one JSON object
-    with pytest.raises(ValueError, match=r"metrics\.jsonl: a training log .*not an evaluation table.*plot --log"):
-        pool_tables([log])
+    two_updates = '{"update": 1, "world_steps": 342}\n{"update": 2, "world_steps": 684}\n'
+    for text in (two_updates, two_updates.splitlines()[0] + "\n"):  # a run's first update is one JSON object
+        log.write_text(text)
+        with pytest.raises(ValueError, match=r"metrics\.jsonl: a training log .*not an evaluation table.*plot --log"):
+            pool_tables([log])
     with pytest.raises(ValueError, match=r"a folder, not an evaluation table"):
         pool_tables([tmp_path])
 
