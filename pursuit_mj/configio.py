@@ -8,6 +8,7 @@ metadata entry (allowed range, choices, help). One function, `build`, turns a pl
 from __future__ import annotations
 
 import dataclasses
+import decimal
 import difflib
 import math
 import re
@@ -221,23 +222,11 @@ def _check_range(value: Any, meta: Mapping[str, Any], where: str) -> None:
 
 def number_text(value: int | float) -> str:
     """A number for an error message: a whole number of more than 15 digits (1e300 typed for a
-    count) in float notation (6 significant digits, as %g: 1e+30; also past a float's range,
-    1e+400), anything else as repr gives it."""
+    count) in %g notation, 6 significant digits (1e+30; also past a float's range, 1e+400),
+    anything else as repr gives it."""
     if not (isinstance(value, int) and abs(value) >= 10**15):
         return repr(value)
-    if abs(value) < 10**300:
-        return f"{float(value):g}"
-    exponent = int(math.log10(abs(value)))  # may be one off near a power of ten: set right below
-    lead = abs(value) // 10 ** (exponent - 5)
-    while lead >= 10**6:
-        exponent, lead = exponent + 1, abs(value) // 10 ** (exponent - 4)
-    while lead < 10**5:
-        exponent, lead = exponent - 1, abs(value) // 10 ** (exponent - 6)
-    rest = abs(value) - lead * 10 ** (exponent - 5)
-    lead += 2 * rest >= 10 ** (exponent - 5)  # rounded half up
-    if lead == 10**6:
-        exponent, lead = exponent + 1, 10**5
-    return f"{'-' if value < 0 else ''}{lead / 10**5:g}e+{exponent}"
+    return format(decimal.Context(prec=6).create_decimal(value).normalize(), "g")  # exact: no float overflow
 
 
 def _known_fields(cls: type, values: Mapping[str, Any], source: str) -> dict[str, dataclasses.Field]:
