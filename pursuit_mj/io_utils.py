@@ -242,6 +242,38 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     return Path(path)
 
 
+def _missing_on_the_way(path: Path) -> list[Path]:
+    """`path` and those of its parents that do not exist (yet), innermost first."""
+    missing = []
+    for p in (path, *path.parents):
+        try:
+            if os.path.lexists(p):
+                break
+        except (OSError, ValueError):  # a name too long, a NUL: nothing can be made there either
+            break
+        missing.append(p)
+    return missing
+
+
+@contextlib.contextmanager
+def no_new_empty_folders(*paths: str | Path | None) -> Iterator[None]:
+    """Within: if the body raises (a refusal, a failure mid-run, Ctrl-C), every folder on the way
+    to any of `paths` (output files or folders, None skipped) that did not exist on entry and is
+    empty then is removed, innermost first. One that holds anything (a partial table, a log, a
+    recording) stays, and with it the folders above it: what a command made and left empty goes,
+    what it wrote is never lost. Nothing is removed when the body succeeds."""
+    missing = {p for path in paths if path is not None and str(path) for p in _missing_on_the_way(Path(path))}
+    try:
+        yield
+    except BaseException:
+        for folder in sorted(missing, key=lambda p: len(p.parts), reverse=True):
+            try:
+                folder.rmdir()  # only an empty folder (a file of that name, or a non-empty folder, stays)
+            except OSError:
+                pass
+        raise
+
+
 def check_writable_folder(folder: str | Path, what: str) -> Path:
     """Create `folder` if needed, or ValueError starting with `what` (e.g. the flag and its
     value) if it is a file, cannot be created or cannot be written."""

@@ -477,3 +477,25 @@ def test_simulate_notes_the_task_keys_a_scripted_flight_does_not_use(capsys):
     assert "note: perception_radius, random_layout play no part in simulate" in err, err
     assert main(["simulate", "--seconds", "0.1", "--layout", "0", "--fidelity", "point"]) == 0
     assert "play no part" not in capsys.readouterr().err
+
+
+def test_no_new_empty_folders_removes_only_the_empty_folders_a_failure_made(tmp_path):
+    """The shared rule of a command refused or failed after it made its output folders: a folder
+    on the way to an output that was not there before and is empty goes, innermost first (a/b/new
+    takes a/b and a with it); one that holds anything stays, with the folders above it; a folder
+    that was there stays even when empty; nothing is removed when the body succeeds."""
+    from pursuit_mj.io_utils import no_new_empty_folders
+
+    (tmp_path / "there").mkdir()
+    deep, kept_file, there = tmp_path / "a" / "b" / "new", tmp_path / "k" / "log" / "x.jsonl", tmp_path / "there" / "n"
+    with pytest.raises(KeyboardInterrupt):
+        with no_new_empty_folders(deep, kept_file, there / "t.csv", None):
+            for folder in (deep, kept_file.parent, there):
+                folder.mkdir(parents=True)
+            kept_file.write_text("{}\n")  # what the command wrote before it failed
+            raise KeyboardInterrupt
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")) == [
+        "k", "k/log", "k/log/x.jsonl", "there"]
+    with no_new_empty_folders(deep):
+        deep.mkdir(parents=True)
+    assert deep.is_dir()

@@ -760,12 +760,15 @@ def test_a_fresh_study_refused_before_it_did_anything_leaves_no_folder_it_made(t
         with pytest.raises(ValueError, match="too small"):
             study.run_study(study.StudyPlan(0.01, out, default_config(fidelity="point")), log=lambda s: None)
         assert not out.exists(), list(out.iterdir())
-    assert (tmp_path / "deeper").is_dir()  # a parent made on the way is left: only the --out folder is the study's
+    assert not (tmp_path / "deeper").exists()  # 'a/b' of '--out a/b/new' was left: made for the study, and empty
     kept = tmp_path / "mine"
     kept.mkdir()
-    with pytest.raises(ValueError, match="too small"):
-        study.run_study(study.StudyPlan(0.01, kept, default_config(fidelity="point")), log=lambda s: None)
-    assert kept.is_dir()
+    for resume, held in ((False, []), (True, []), (True, ["notes.txt"])):  # nor a lock file left in a folder that
+        for name in held:                                                   # was there ('--resume --out mine')
+            (kept / name).write_text("mine")
+        with pytest.raises(ValueError):
+            study.run_study(study.StudyPlan(0.01, kept, default_config(fidelity="point"), resume=resume), log=lambda s: None)
+        assert kept.is_dir() and sorted(p.name for p in kept.iterdir()) == held
 
     def refuse_after_making_runs(plan, log, stop_requested):
         (plan.out / "runs").mkdir()

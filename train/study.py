@@ -34,6 +34,7 @@ table.json (rows, and the pairs under "paired"), plots/*.png, timings.json.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -45,7 +46,7 @@ from pursuit_mj.config import TaskConfig
 from pursuit_mj.configio import first_difference, parse_override, to_dict
 from pursuit_mj.comparison import paired_report, pairs_to_dicts
 from pursuit_mj.evaluation import evaluate, format_table, plot_rows, write_csv, write_json
-from pursuit_mj.io_utils import atomic_write_text, check_writable_folder
+from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, no_new_empty_folders
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import make_policy
 
@@ -392,28 +393,20 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
     check_train_overrides(plan)
     if plan.resume and not plan.out.is_dir():
         raise ValueError(f"--resume: --out {plan.out} is not a folder with a study to continue")
-    made = not plan.out.exists()
-    check_writable_folder(plan.out, f"--out {plan.out}")
-    lock = lock_folder(plan.out, STUDY_LOCK, "study folder", "study", "give another --out")
-    try:
-        _refuse_an_earlier_study(plan)
-        return _run_study(plan, log, stop_requested)
-    except ValueError:
-        if made:  # refused before it made anything but its lock: no empty folder left behind
-            _remove_if_only_the_lock(plan.out)
-        raise
-    finally:
-        lock.close()
-
-
-def _remove_if_only_the_lock(out: Path) -> None:
-    """Remove the folder `out` if it holds nothing but the study's lock file (nothing if it cannot)."""
-    try:
-        if [p.name for p in out.iterdir()] == [STUDY_LOCK]:
-            (out / STUDY_LOCK).unlink()
-            out.rmdir()
-    except OSError:
-        pass
+    with no_new_empty_folders(plan.out):  # refused before it kept anything: no folder of '--out a/b/new' is left
+        new_lock = not (plan.out / STUDY_LOCK).exists()
+        check_writable_folder(plan.out, f"--out {plan.out}")
+        lock = lock_folder(plan.out, STUDY_LOCK, "study folder", "study", "give another --out")
+        try:
+            _refuse_an_earlier_study(plan)
+            return _run_study(plan, log, stop_requested)
+        except BaseException:
+            if new_lock:  # nor a lock file in a folder that was there ('--resume --out mine' refused)
+                with contextlib.suppress(OSError):  # still held: no other study took it meanwhile
+                    (plan.out / STUDY_LOCK).unlink(missing_ok=True)
+            raise
+        finally:
+            lock.close()
 
 
 STUDY_LOCK = ".study.lock"  # in <out>/: held by the study running there
