@@ -250,7 +250,7 @@ def run(args) -> int:
     from train.trainer import Trainer, best_instead
 
     if args.export:
-        from pursuit_mj.io_utils import check_writable
+        from pursuit_mj.io_utils import check_writable, no_new_empty_folders
 
         _refuse_with_export(args)
         from train.checkpoint import export_actor, load_checkpoint
@@ -259,8 +259,9 @@ def run(args) -> int:
             load_checkpoint(args.export[0])  # names what is wrong with it (missing, a folder)
         if Path(args.export[1]).is_dir():
             raise ValueError(f"--export OUT {args.export[1]}: is a folder; give the file to write (e.g. {Path(args.export[1]) / 'policy.pt'})")
-        check_writable(args.export[1], "--export OUT")
-        path = export_actor(*args.export)
+        with no_new_empty_folders(args.export[1]):  # a checkpoint found unusable now leaves no folder made for OUT
+            check_writable(args.export[1], "--export OUT")
+            path = export_actor(*args.export)
         print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB, policy only)")
         return 0
     if args.resume not in (None, True):

@@ -844,7 +844,12 @@ def test_a_run_refused_at_the_start_leaves_no_folder_it_made(tmp_path):
     (cfg.run_dir / "notes.txt").write_text("mine")
     with pytest.raises(ValueError, match="no such checkpoint"):
         Trainer(cfg, log=lambda s: None)
-    assert sorted(p.name for p in cfg.run_dir.iterdir()) == [".lock", "notes.txt"]
+    assert sorted(p.name for p in cfg.run_dir.iterdir()) == ["notes.txt"]  # and no .lock of the refused run in it
+    # nor the folders made on the way to it: run.runs_dir=a/b of a run refused left a/b
+    deep = load_train_config([], TINY + [f"run.runs_dir={tmp_path / 'a' / 'b'}", "name=x", f"init_from={missing}"])
+    with pytest.raises(ValueError, match="no such checkpoint"):
+        Trainer(deep, log=lambda s: None)
+    assert not (tmp_path / "a").exists()
 
 
 def test_a_run_on_a_layout_file_resumes_from_any_folder_and_not_on_a_changed_file(tmp_path, monkeypatch):

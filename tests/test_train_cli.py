@@ -781,3 +781,13 @@ def test_a_missing_layout_file_given_by_set_names_the_flag(tmp_path, capsys, mon
     assert f"pursuit-mj train: error: {named}" in capsys.readouterr().err
     assert not (tmp_path / "runs").exists()
 
+
+
+def test_an_export_of_a_file_that_is_no_checkpoint_leaves_no_folder_it_made(tmp_path, capsys):
+    """--export notes.txt new/x/p.pt made new/x/ (the check that OUT can be written) and then found
+    notes.txt to be no checkpoint, leaving the empty new/x/ behind."""
+    notes = tmp_path / "notes.txt"
+    notes.write_text("not a checkpoint")
+    assert main(["train", "--export", str(notes), str(tmp_path / "new" / "x" / "p.pt")]) == 2
+    assert "not a pursuit-mj checkpoint" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]

@@ -17,6 +17,7 @@ metrics.jsonl, so an interrupted run neither loses nor repeats a row.
 from __future__ import annotations
 
 import collections
+import contextlib
 import copy
 import dataclasses
 import json
@@ -31,7 +32,7 @@ import torch
 
 from pursuit_mj.configio import build, dump_yaml, to_dict
 from pursuit_mj.evaluation import capture_steps
-from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, file_sha256, remove_leftover_parts
+from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, file_sha256, no_new_empty_folders, remove_leftover_parts
 from pursuit_mj.provenance import provenance
 from pursuit_mj.policies import make_policy
 from pursuit_mj.sensing import privileged_config
@@ -105,7 +106,16 @@ class Trainer:
             log(f"[train] note: {line}")
         self.run_dir = cfg.run_dir
         self.resume_command = f"pursuit-mj train --resume {self.run_dir}"  # what an interrupted run tells the user
+        with no_new_empty_folders(self.run_dir):  # a run refused here leaves no folder of run.runs_dir=a/b made for it
+            self._take_run_folder(checkpoint, log, held_lock)
+
+    def _take_run_folder(self, checkpoint: dict | None, log: Callable[[str], None], held_lock: IO | None) -> None:
+        """Make and lock the run folder, then build the run (_build). A run that cannot start
+        leaves the folder free, removes it if it made it (a later --resume would take it for a
+        run), and in a folder that was there removes the lock file it made."""
+        cfg = self.cfg
         made_folder = not self.run_dir.exists()
+        new_lock = held_lock is None and not (self.run_dir / ".lock").exists()
         check_writable_folder(self.run_dir, f"run folder (run.runs_dir {cfg.run.runs_dir}, name {cfg.name})")
         try:
             # before anything in the folder is read or written
@@ -125,8 +135,11 @@ class Trainer:
                 self._refuse_an_earlier_run()
             self._build(checkpoint)
         except BaseException:
+            if new_lock:  # still held: no other trainer took it meanwhile
+                with contextlib.suppress(OSError):
+                    (self.run_dir / ".lock").unlink()
             self._lock.close()  # a run that cannot start leaves the folder free
-            if made_folder:  # and leaves no folder a later --resume would take for a run
+            if made_folder:
                 shutil.rmtree(self.run_dir, ignore_errors=True)
             raise
 
