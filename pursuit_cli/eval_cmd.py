@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from pursuit_mj.io_utils import CannotWrite, check_writable, check_writable_folder, file_sha256
+from pursuit_mj.io_utils import CannotWrite, check_writable, check_writable_folder, file_sha256, no_new_empty_folders
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
 from pursuit_mj.evader_models import evader_model_sha256
@@ -191,6 +191,13 @@ def _versus(args, policies) -> str | None:
 
 
 def run(args) -> int:
+    """The eval command. Refused or failed before it kept anything, it leaves none of the folders it
+    made for --out, --csv, --json, --plots or --rerun (what it wrote stays: io_utils.no_new_empty_folders)."""
+    with no_new_empty_folders(args.csv, args.json, args.out and f"{args.out}.csv", args.plots, args.rerun):
+        return _run(args)
+
+
+def _run(args) -> int:
     from pursuit_mj.comparison import paired_report, pairs_to_dicts
     from pursuit_mj.evaluation import format_table, plot_rows, write_csv, write_json
     from pursuit_mj.provenance import provenance

@@ -878,3 +878,29 @@ def test_eval_json_ending_in_a_dot_folder_is_refused_not_written_as_a_file_of_th
     err = capsys.readouterr().err
     assert f"--json path {out}: " in err and "names a folder" in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("flags, said", [
+    (["--csv", "n1/a.csv", "--json", "n2/"], "names a folder"),
+    (["--csv", "n1/a.csv", "--json", "n1/a.csv"], "both name n1/a.csv"),
+    (["--out", "n1/x/t", "--plots", "mine.txt"], "exists and is not a folder"),
+    (["--out", "n1/x/t", "--resume"], "no interrupted eval"),
+    (["--out", "n1/x/t", "--rerun", "mine.txt/r.rrd"], "exists and is not a folder"),
+    (["--out", "n1/x/t", "--plots", "n1/plots", "--rerun", "n1/r/e.rrd", "--policy", "{failing}"], "raised IndexError"),
+])
+def test_an_eval_refused_or_failed_before_it_kept_anything_leaves_no_folder_it_made(tmp_path, capsys, monkeypatch, flags, said):
+    """One output's folder was made (check_writable of --csv, of --out's PREFIX.csv) before another
+    output or --resume was refused, and a table whose first cell failed left the folders of --out,
+    --plots and --rerun: empty folders the user never had (n1/, n1/x/)."""
+    from pathlib import Path
+
+    from test_policy_file import FAILING
+
+    monkeypatch.chdir(tmp_path)
+    Path("mine.txt").write_text("mine")
+    Path("pol.py").write_text(FAILING)
+    flags = [f.format(failing="pol.py:Failing") for f in flags]
+    assert main(["eval", "--fidelity", "point", "--layouts", "0", "--episodes", "1", "--worlds", "1", "--set", "max_steps=3",
+                 "-q", *flags]) == 2
+    assert said in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name != "__pycache__") == ["mine.txt", "pol.py"]
