@@ -14,7 +14,7 @@ import dataclasses
 
 from pathlib import Path
 
-from pursuit_mj.io_utils import check_writable, check_writable_folder
+from pursuit_mj.io_utils import check_writable, check_writable_folder, no_new_empty_folders
 from .common import check_out_prefix, counted, path_arg, pick_versus, refuse_a_file_given_twice
 
 
@@ -35,6 +35,13 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    """The pool command. Refused or stopped before it wrote, it leaves none of the folders it made for
+    --out or --plots (io_utils.no_new_empty_folders)."""
+    with no_new_empty_folders(args.out and f"{args.out}.csv", args.plots):
+        return _run(args)
+
+
+def _run(args) -> int:
     from pursuit_mj.comparison import format_pairs, pairs_to_dicts
     from pursuit_mj.evaluation import format_table, plot_rows, write_csv, write_json
     from pursuit_mj.pooling import pool_tables, pooled_pairs

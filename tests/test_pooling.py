@@ -396,3 +396,22 @@ def test_pool_refuses_one_table_given_twice_as_plot_does(tables, tmp_path, capsy
     name = tables["h0"].name
     assert main(["pool", name, f"./{name}"]) == 2
     assert f"pool: error: ./{name}: the same file as {name}, given twice" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flags", [["--out", "n1/x/p", "--plots", "mine.txt"], ["--out", "n1/x/p", "--plots", "n1/plots"]])
+def test_a_pool_refused_or_stopped_before_it_wrote_leaves_no_folder_it_made(tables, tmp_path, capsys, monkeypatch, flags):
+    """--out's folder was made (its check) before --plots was refused: 'pool t.json --out n1/x/p
+    --plots FILE' left the empty n1/x/; so did a pool stopped (Ctrl-C) before it wrote a file."""
+    from pursuit_cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine.txt").write_text("mine")
+    if "mine.txt" not in flags:  # stopped as it starts writing
+        import pursuit_mj.evaluation
+
+        def stop(*args, **kwargs):
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(pursuit_mj.evaluation, "write_csv", stop)
+    assert main(["pool", str(tables["h0"]), *flags]) in (2, 130)
+    assert [p.name for p in tmp_path.iterdir()] == ["mine.txt"]
