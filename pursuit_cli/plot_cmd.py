@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pursuit_mj.io_utils import check_writable_folder
+from pursuit_mj.io_utils import check_writable_folder, no_new_empty_folders
 from .common import path_arg, refuse_a_file_given_twice
 
 
@@ -69,12 +69,13 @@ def run(args) -> int:
     if runs:  # refused before any chart is written
         x_key(runs, args.x)
         curve_keys(runs, args.metric or None)
-    check_writable_folder(out, f"--out {out}")
     paths = []
-    if rows:  # first: it refuses a bar given twice before drawing
-        paths += plot_eval(rows, out)
-    if runs:
-        paths += plot_training(runs, out, args.metric or None, args.x)
+    with no_new_empty_folders(out):  # stopped or failed before its first chart: no empty --out folder left
+        check_writable_folder(out, f"--out {out}")
+        if rows:  # first: it refuses a bar given twice before drawing
+            paths += plot_eval(rows, out)
+        if runs:
+            paths += plot_training(runs, out, args.metric or None, args.x)
     for p in paths:
         print(f"wrote {p}")
     return 0

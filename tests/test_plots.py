@@ -371,7 +371,7 @@ def test_a_chart_that_does_not_fit_on_the_disk_is_an_error_naming_it(tmp_path, c
     out = tmp_path / "plots"
     assert main(["plot", "--log", str(_log(tmp_path / "m.jsonl")), "-o", str(out)]) == 2
     assert f"{out / 'curve_train_success.png'}: cannot write it (No space left on device)" in capsys.readouterr().err
-    assert list(out.iterdir()) == []
+    assert not out.exists()  # no half-written chart, nor the folder made for them, left empty
 
 
 def test_two_layout_files_of_one_name_are_told_apart_on_the_axis(tmp_path, monkeypatch):
@@ -430,3 +430,18 @@ def test_a_rate_s_bar_label_is_the_table_s_text(count, n):
     label = bar_label(row.flat()["success_pct"], percent=True)
     assert float(label) == float(table), (label, table)
     assert label == table.removesuffix(".0")
+
+
+def test_a_plot_stopped_before_its_first_chart_leaves_no_out_folder_it_made(tmp_path, monkeypatch):
+    """--out is made once the inputs are read; a plot stopped (Ctrl-C) or failed before it wrote a
+    chart left 'new/plots/' behind, empty."""
+    import pursuit_mj.plots
+
+    ev = _eval_json(tmp_path / "t.json")
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pursuit_mj.plots, "plot_eval", stop)
+    assert main(["plot", "--eval", str(ev), "-o", str(tmp_path / "new" / "plots")]) == 130
+    assert not (tmp_path / "new").exists()
