@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from pursuit_mj.config import default_config
-from pursuit_mj.io_utils import check_writable
+from pursuit_mj.io_utils import check_writable, no_new_empty_folders
 from pursuit_mj.layout import MAX_NAME_BYTES, MAX_RANDOM_OBSTACLES, Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout, save_layout
 from pursuit_mj.geometry import inside_polygon
 from pursuit_mj.layout_check import check_spawn_capacity, free_spawn_points
@@ -326,13 +326,14 @@ MAX_FAILED_SEEDS = 5
 
 def run_new(args) -> int:
     out = Path(args.out)
-    check_writable(out, "OUT")  # a folder is named as one, not taken for a file --force would overwrite
-    if out.suffix.lower() not in (".yaml", ".yml"):
-        raise ValueError(f"OUT {out}: expected a .yaml file name (a layout file is YAML)")
-    if out.exists() and not args.force:
-        raise ValueError(f"OUT {out}: exists already (use --force to overwrite)")
-    layout = build_new_layout(args)
-    save_layout(layout, out)
+    with no_new_empty_folders(args.out):  # refused (a bad flag, a layout that cannot work): no folder left for OUT
+        check_writable(out, "OUT")  # a folder is named as one, not taken for a file --force would overwrite
+        if out.suffix.lower() not in (".yaml", ".yml"):
+            raise ValueError(f"OUT {out}: expected a .yaml file name (a layout file is YAML)")
+        if out.exists() and not args.force:
+            raise ValueError(f"OUT {out}: exists already (use --force to overwrite)")
+        layout = build_new_layout(args)
+        save_layout(layout, out)
     print(f"wrote {out}: {_summary_line(layout)}")
     return 0
 
@@ -375,11 +376,12 @@ def run_show(args) -> int:
     out = Path(args.out or f"layout_{layout.name.encode()[:MAX_NAME_BYTES].decode(errors='ignore')}.png")
     if out.suffix.lower() != ".png":
         raise ValueError(f"--out {out}: expected a .png file name")
-    check_writable(out, "--out")
     try:
-        save_layout_png(layout, out, seed=None if args.no_random else args.seed, count=args.count,
-                        passage_clearance=args.obstacle_clearance, passage_source="--obstacle-clearance",
-                        count_source=None if args.count is None else f"--count {args.count}")
+        with no_new_empty_folders(out):  # the drawing refused (no room for --count obstacles): no folder left for --out
+            check_writable(out, "--out")
+            save_layout_png(layout, out, seed=None if args.no_random else args.seed, count=args.count,
+                            passage_clearance=args.obstacle_clearance, passage_source="--obstacle-clearance",
+                            count_source=None if args.count is None else f"--count {args.count}")
     except LayoutError as exc:
         if args.count is None or "no room for random obstacle" not in str(exc):
             raise  # the fixed walls close a passage, or the placements' message names --count already

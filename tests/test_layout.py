@@ -1071,3 +1071,18 @@ def test_a_huge_random_obstacle_count_is_shown_short(tmp_path, capsys):
     assert main(["layout", "check", str(path)]) == 2
     err = capsys.readouterr().err
     assert "random_obstacles.count: 1e+300 is more than" in err and len(err) < 300, err
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["layout", "new", "n1/x/l.yaml", "--width", "-3"], "--width: must be a number > 0"),
+    (["layout", "new", "n1/x/l.txt"], "expected a .yaml file name"),
+    (["layout", "show", "0", "--out", "n1/x/l.png", "--count", "60"], "--count 60: "),
+])
+def test_a_layout_file_refused_leaves_no_folder_it_made(tmp_path, capsys, monkeypatch, argv, said):
+    """layout new and layout show check that the file can be written (which makes its folder) before
+    they build or draw the layout: a bad --width, a name that is not .yaml, a --count with no room
+    left the empty n1/x/ behind."""
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    assert said in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
