@@ -20,7 +20,7 @@ import re
 import sys
 from pathlib import Path
 
-from pursuit_mj.io_utils import check_writable_folder
+from pursuit_mj.io_utils import check_writable_folder, no_new_empty_folders
 from pursuit_mj.config import TaskConfig, load_task_yaml, preset_or_file
 from pursuit_mj.configio import dump_yaml, load, to_dict
 from pursuit_mj.layout import is_index_text, load_layout
@@ -285,6 +285,13 @@ def table_episode_seeds(config, seed: int, episodes: int) -> list[int]:
 
 
 def run(args) -> int:
+    """The render command. Refused or failed before it wrote anything, it leaves none of the folders
+    it made for -s or --rerun (what it wrote stays: io_utils.no_new_empty_folders)."""
+    with no_new_empty_folders(args.save_path, args.rerun):
+        return _run(args)
+
+
+def _run(args) -> int:
     from pursuit_mj.render.episodes import EpisodeOutputs, run_episodes
     from pursuit_mj.render.renderer import RenderSettings
     from pursuit_mj.render.video import check_frame_size, check_video_fps, ensure_ffmpeg

@@ -337,7 +337,7 @@ def test_a_render_killed_by_sigterm_or_sighup_leaves_no_partial_video(tmp_path, 
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 128 + getattr(signal, sig), err[-2000:]
     assert f"interrupted by {sig}" in err
-    assert list(out.iterdir()) == []
+    assert not out.exists()  # nor the folder it made for the video, left empty
 
 
 def test_a_recording_interrupted_by_sigterm_keeps_its_finished_episodes(tmp_path):
@@ -396,3 +396,21 @@ def test_an_evader_model_file_that_draws_from_its_seed_renders_an_episode_seed_u
         assert _cli(tmp_path, "-s", str(out / "plain"), "--no-video", "--final-frame", "--seed", seed, "--episode-seed", "5",
                     policy="heuristic") == 0
     assert len(list((out / "plain").glob("*_episode5_final.png"))) == 1
+
+
+@pytest.mark.parametrize("extra, said", [
+    (["--policy", "heuristic", "--rerun", "n1/x/r.rrd", "-s", "mine.txt/"], "exists and is not a folder"),
+    (["--policy", "pol.py:Failing", "-s", "n1/x/", "--rerun", "n1/r/e.rrd"], "raised IndexError"),
+    (["--policy", "pol.py:Failing", "-s", "n1/x/", "--no-video", "--final-frame"], "raised IndexError"),
+])
+def test_a_render_refused_or_failed_before_it_wrote_leaves_no_folder_it_made(tmp_path, capsys, monkeypatch, extra, said):
+    """--rerun's folder was made (its check) before -s was refused, and a policy that failed in its
+    first episode left the folders of -s and --rerun behind, empty."""
+    from test_policy_file import FAILING
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine.txt").write_text("mine")
+    (tmp_path / "pol.py").write_text(FAILING)
+    assert _cli(tmp_path, *extra, policy=None) == 2
+    assert said in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name != "__pycache__") == ["mine.txt", "pol.py"]
