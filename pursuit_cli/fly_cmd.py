@@ -198,6 +198,15 @@ STOP_SIGNALS = {"Ctrl-C": "SIGINT", "SIGTERM": "SIGTERM", "SIGHUP": "SIGHUP", "C
 
 
 def run_align(args) -> int:
+    """fly align. Refused or stopped after it made --write's folder (a fit refused, a Ctrl-C while it
+    measures), it leaves none of the folders it made for it (io_utils.no_new_empty_folders)."""
+    from pursuit_mj.io_utils import no_new_empty_folders
+
+    with no_new_empty_folders(args.write):
+        return _run_align(args)
+
+
+def _run_align(args) -> int:
     from pursuit_mj.flight.align import align, parse_points, spot_turns, transform_yaml, write_with_transform
     from pursuit_mj.flight.spec import drone_names, load_flight
 

@@ -1076,3 +1076,35 @@ def test_fly_align_refused_for_its_input_makes_no_write_folder(tmp_path, capsys)
         assert main(["fly", "align", *bad, "--write", str(out)]) == 2
         assert capsys.readouterr().out == ""
         assert not (tmp_path / "new").exists(), bad
+
+
+def test_a_flight_or_align_refused_after_its_output_checks_leaves_no_folder_it_made(tmp_path, capsys, monkeypatch):
+    """fly checks --rerun and then --events (each check makes its folder) and only then that they
+    name other files; fly align makes --write's folder before it measures and fits. Each refused
+    after those checks left the empty n1/x/: '--rerun n1/x/r.rrd --events FILE/e.jsonl', '--events
+    n1/x/r.rrd --rerun n1/x/r.rrd', an align whose lab points coincide or whose transform moves the
+    arena out of the lab, and an align stopped (Ctrl-C) while it measured."""
+    import pursuit_mj.flight.align
+    from pursuit_cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine.txt").write_text("mine")
+    spots = np.array([[0.5, 0.625], [1.75, 0.625], [1.875, 4.0]])
+    fmt = lambda pts: " ".join(f"{x:.4f},{y:.4f}" for x, y in pts)  # noqa: E731
+    far = fmt(LabTransform((9.0, 9.0), 0.0, 1.0).to_lab(spots))
+    fly = ["fly", "--flight", "lighthouse", "--policy", "heuristic", "--virtual"]
+    align = ["fly", "align", "--flight", "lighthouse", "--spots", fmt(spots), "--write", "n1/x/out.yaml"]
+    for argv, said in ((fly + ["--rerun", "n1/x/r.rrd", "--events", "mine.txt/e.jsonl"], "exists and is not a folder"),
+                       (fly + ["--events", "n1/x/r.rrd", "--rerun", "n1/x/r.rrd"], "--events n1/x/r.rrd"),
+                       (align + ["--lab", "1,1 1,1 1,1"], "coincide"),
+                       (align + ["--lab", far], "does not make a valid flight")):
+        assert main(argv) == 2
+        assert said in capsys.readouterr().err, argv
+        assert [p.name for p in tmp_path.iterdir()] == ["mine.txt"], argv
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pursuit_mj.flight.align, "measure_lab_positions", stop)
+    assert main(align) == 130
+    assert [p.name for p in tmp_path.iterdir()] == ["mine.txt"]

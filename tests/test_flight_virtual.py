@@ -444,3 +444,24 @@ def test_virtual_crazyflies_limit_roll_and_pitch_along_the_axes_of_the_drone_the
         assert (worst["lab x"] > 13.0).all() and (worst["own x"] < 10.5).all(), worst
     finally:
         fleet.stop()
+
+
+def test_a_virtual_flight_whose_fleet_cannot_start_leaves_no_empty_log_or_folder_it_made(tmp_path, monkeypatch):
+    """The event log is opened (its folder made) before the virtual fleet starts: a fleet that could
+    not start (its ports taken) left new/x/e.jsonl, empty, and the folders made for it. A log
+    that holds events, and one that was there before, stay."""
+    from pursuit_mj.flight.session import run_flight
+
+    def no_ports(self):
+        raise OSError("address already in use")
+
+    monkeypatch.setattr(VirtualFleet, "start", no_ports)
+    log = tmp_path / "new" / "x" / "e.jsonl"
+    with pytest.raises(OSError, match="address already in use"):
+        run_flight(quick_plan(), policy_name="heuristic", virtual=True, events_path=log, handle_signals=False)
+    assert list(tmp_path.iterdir()) == []
+    kept = tmp_path / "kept.jsonl"
+    kept.write_text("")
+    with pytest.raises(OSError, match="address already in use"):
+        run_flight(quick_plan(), policy_name="heuristic", virtual=True, events_path=kept, handle_signals=False)
+    assert kept.is_file()

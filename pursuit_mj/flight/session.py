@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
-from ..io_utils import check_writable
+from ..io_utils import check_writable, no_new_empty_folders
 from ..policies import make_policy
 from ..policy import Policy
 from .bridge import FlightBridge, FlightResult
@@ -132,6 +132,15 @@ def default_events_path(plan: FlightPlan, folder: str | Path = "flights") -> Pat
     return Path(folder) / f"{plan.spec.name}-{stamp}.events.jsonl"
 
 
+def _remove_if_empty(path: Path) -> None:
+    """Remove the file `path` if it is empty (nothing if it is not, or cannot be removed)."""
+    try:
+        if path.is_file() and path.stat().st_size == 0:
+            path.unlink()
+    except OSError:
+        pass
+
+
 def run_flight(
     flight: str | Path | FlightPlan,
     policy: Policy | None = None,
@@ -161,47 +170,55 @@ def run_flight(
     if faults and not virtual:
         raise ValueError("--fault rehearses failures on virtual drones only; add --virtual")
     fault_list = [parse_fault(f, plan) for f in faults]
-    if rerun_path is not None:
-        from ..recording import check_rrd_path
-
-        check_rrd_path(rerun_path)
-    if events_path is not None:
-        check_writable(events_path, "--events")
-        _check_events_apart(events_path, plan, rerun_path)
-    if policy is None:
-        policy = choose_policy(plan, policy_name, seed)
-    try:
-        events = EventLog(events_path, echo=echo)
-    except OSError as exc:  # a writable folder, a file that is not (read-only, a broken link)
-        raise ValueError(f"--events {events_path}: cannot be opened for appending ({exc.strerror or exc})") from None
-    recorder = None
-    fleet = None
-    injector = None
-    try:
+    # refused or failed before it recorded anything: no folder made for --rerun or --events is left
+    with no_new_empty_folders(rerun_path, events_path):
         if rerun_path is not None:
-            from .rerun_log import FlightRecorder
+            from ..recording import check_rrd_path
 
-            recorder = FlightRecorder(rerun_path, plan)
-            for left in recorder.killed_before:
-                events.log("rerun_unfinished_kept", path=str(left), level="warn",
-                           why="a recording of this name killed before it finished (kill -9?) left it: open it with rerun")
-        if virtual:
-            from .virtual.fleet import VirtualFleet
+            check_rrd_path(rerun_path)
+        if events_path is not None:
+            check_writable(events_path, "--events")
+            _check_events_apart(events_path, plan, rerun_path)
+        if policy is None:
+            policy = choose_policy(plan, policy_name, seed)
+        new_log = events_path is not None and not Path(events_path).exists()
+        try:
+            events = EventLog(events_path, echo=echo)
+        except OSError as exc:  # a writable folder, a file that is not (read-only, a broken link)
+            raise ValueError(f"--events {events_path}: cannot be opened for appending ({exc.strerror or exc})") from None
+        recorder = None
+        fleet = None
+        injector = None
+        finished = False
+        try:
+            if rerun_path is not None:
+                from .rerun_log import FlightRecorder
 
-            fleet = VirtualFleet(plan, virtual_drones, physics=virtual_physics)
-            fleet.start()
-            events.log("virtual_fleet", uris=fleet.uris)
-            injector = FaultInjector(fleet, fault_list, events)
-            plan = plan.with_uris(fleet.uris)
-        bridge = FlightBridge(plan, policy, events, factory=factory, recorder=recorder, seed=seed, handle_signals=handle_signals)
-        if on_bridge is not None:
-            on_bridge(bridge)
-        return bridge.run(), events
-    finally:
-        if injector is not None:
-            injector.cancel()
-        if fleet is not None:
-            fleet.stop()
-        if recorder is not None:
-            recorder.close()
-        events.close()
+                recorder = FlightRecorder(rerun_path, plan)
+                for left in recorder.killed_before:
+                    events.log("rerun_unfinished_kept", path=str(left), level="warn",
+                               why="a recording of this name killed before it finished (kill -9?) left it: open it with rerun")
+            if virtual:
+                from .virtual.fleet import VirtualFleet
+
+                fleet = VirtualFleet(plan, virtual_drones, physics=virtual_physics)
+                fleet.start()
+                events.log("virtual_fleet", uris=fleet.uris)
+                injector = FaultInjector(fleet, fault_list, events)
+                plan = plan.with_uris(fleet.uris)
+            bridge = FlightBridge(plan, policy, events, factory=factory, recorder=recorder, seed=seed, handle_signals=handle_signals)
+            if on_bridge is not None:
+                on_bridge(bridge)
+            result = bridge.run()
+            finished = True
+            return result, events
+        finally:
+            if injector is not None:
+                injector.cancel()
+            if fleet is not None:
+                fleet.stop()
+            if recorder is not None:
+                recorder.close()
+            events.close()
+            if new_log and not finished:  # failed before its first event (a fleet that cannot start): no empty log
+                _remove_if_empty(Path(events_path))
