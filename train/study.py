@@ -38,12 +38,13 @@ import contextlib
 import dataclasses
 import json
 import math
+import re
 import time
 from pathlib import Path
 from typing import Callable, Sequence
 
 from pursuit_mj.config import TaskConfig
-from pursuit_mj.configio import first_difference, parse_override, to_dict
+from pursuit_mj.configio import TaskValueError, first_difference, parse_override, to_dict
 from pursuit_mj.comparison import paired_report, pairs_to_dicts
 from pursuit_mj.evaluation import evaluate, format_table, plot_rows, write_csv, write_json
 from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, no_new_empty_folders
@@ -349,14 +350,15 @@ STUDY_SETS = {"name": "its run goes to <out>/runs/<arm>", "run.runs_dir": "its r
 
 def check_train_overrides(plan: StudyPlan) -> None:
     """Every arm's config with plan.train_overrides, its layouts and reward terms loaded, before anything runs: ValueError
-    naming --train-set and the arm that refuses them (found at that arm's start, it cost the earlier arms' time),
-    a key the study sets for each arm (STUDY_SETS), or an arm that trains with other range readings than the
-    evaluation task gives (`_check_rays`)."""
+    naming the --train-set value refused and the arms that refuse it (found at an arm's start, it cost the earlier
+    arms' time; _train_set_refusal), a key the study sets for each arm (STUDY_SETS), or an arm that trains with other
+    range readings than the evaluation task gives (`_check_rays`)."""
     for text in plan.train_overrides:
         parse_override(text, f"--train-set {text}")  # one that does not parse is named as --train-set
         for key in STUDY_SETS:  # set_keys: 'run={runs_dir: x}' sets run.runs_dir as 'run.runs_dir=x' does
             if key in set_keys(text):
                 raise ValueError(f"--train-set {text}: the study sets {key} for each arm ({STUDY_SETS[key]}); leave it out")
+    configs, refused = {}, {}
     for arm in ARMS:
         try:
             cfg = load_train_config([arm.config], ["name=check", "total_steps=1000000000", "task.layout=0", *plan.train_overrides])
@@ -364,25 +366,74 @@ def check_train_overrides(plan: StudyPlan) -> None:
             cfg.check_layouts()  # found at the arm's start, after the team's evaluation was kept in study.json
             cfg.check_code()  # likewise
         except ValueError as exc:
-            said = str(exc)
-            for text in plan.train_overrides:  # the config names each as --set; the user typed --train-set
-                key = text.split("=", 1)[0].strip()
-                said = said.replace(f"--set {text}", f"--train-set {text}")
-                said = said.replace(f"--set '{key}=", f"--train-set '{key}=")  # the quoting advised (configio.quoted_override)
-            raise ValueError(f"--train-set: the {arm.name} arm ({arm.config} config) refuses it: {said}") from None
-        _check_rays(plan, arm, cfg)
+            refused[arm] = _as_train_set(str(exc), plan.train_overrides)
+            continue
+        configs[arm] = cfg
+    if refused:
+        raise ValueError(_train_set_refusal(refused, plan.train_overrides))
+    _check_rays(plan, configs)
 
 
-def _check_rays(plan: StudyPlan, arm: Arm, cfg) -> None:
-    """ValueError unless `arm` (its train config `cfg`) trains with as many range readings as the
-    evaluation task gives: its policy reads the rays it learned with, and the evaluation after its
-    training refused it ('observation spec does not match'), the team's evaluation and the arm's
-    training time spent."""
-    trained, judged = cfg.task.n_rays, plan.eval_task.n_rays
-    if trained != judged:
-        raise ValueError(f"the evaluation task gives {judged} range readings (n_rays) and the {arm.name} arm trains with "
-                         f"{trained} ({arm.config} config with the --train-set values); a trained policy reads the rays it "
-                         f"learned with: give both the same count (--set n_rays=N and --train-set task.n_rays=N)")
+def _as_train_set(said: str, overrides: Sequence[str]) -> str:
+    """An arm's refusal, with the overrides it names as --set (its config's flag) named as the user typed them."""
+    for text in overrides:
+        key = text.split("=", 1)[0].strip()
+        said = said.replace(f"--set {text}", f"--train-set {text}")
+        said = said.replace(f"--set '{key}=", f"--train-set '{key}=")  # the quoting advised (configio.quoted_override)
+    return said
+
+
+def _refused_override(said: str, overrides: Sequence[str]) -> str | None:
+    """The override an arm's refusal `said` is about: the one it names as '--train-set TEXT', else the
+    last whose key it names as a word (a config check names 'task.layout nope.yaml', not the flag);
+    None when it names none."""
+    for text in overrides:
+        if f"--train-set {text}" in said:
+            return text
+    named = [text for text in overrides
+             if re.search(r"(?<![\w.])" + re.escape(text.split("=", 1)[0].strip()) + r"(?![\w])", said)]
+    return named[-1] if named else None
+
+
+def _train_set_refusal(refused: dict[Arm, str], overrides: Sequence[str]) -> str:
+    """One line for the arms that refuse the --train-set values (arm -> its refusal, as --train-set):
+    '--train-set TEXT: the a and b arms refuse it (a config): WHY', or 'every arm refuses it', with
+    the config named where the arms' refusals differ."""
+    arms = list(refused)
+    first = refused[arms[0]]
+    text = _refused_override(first, overrides)
+    flag = f"--train-set {text}" if text is not None else f"--train-set ({', '.join(overrides)})"
+    why = first.removeprefix(f"{flag}: ").removeprefix("train config: ")
+    if len(arms) == len(ARMS):
+        who = "every arm refuses it"
+    else:
+        names = [a.name for a in arms]
+        listed = names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
+        who = f"the {listed} arm{'s refuse' if len(names) > 1 else ' refuses'} it"
+    if len(arms) < len(ARMS) or len(set(refused.values())) > 1:
+        who += f" ({arms[0].config} config)"
+    return f"{flag}: {who}: {why}"
+
+
+def _check_rays(plan: StudyPlan, configs: dict[Arm, object]) -> None:
+    """TaskValueError (key n_rays, so that the CLI names the flag that gave the count) unless every arm
+    (its train config in `configs`) trains with as many range readings as the evaluation task gives: its
+    policy reads the rays it learned with, and the evaluation after its training refused it ('observation
+    spec does not match'), the team's evaluation and the arm's training time spent. The value named is the
+    arms' when a --train-set sets task.n_rays, else the evaluation task's."""
+    judged = plan.eval_task.n_rays
+    differ = [arm for arm, cfg in configs.items() if cfg.task.n_rays != judged]
+    if not differ:
+        return
+    trained = configs[differ[0]].task.n_rays
+    names = [arm.name for arm in differ]
+    who = "every arm trains" if len(differ) == len(ARMS) else (
+        f"the {names[0]} arm trains" if len(names) == 1 else f"the {', '.join(names[:-1])} and {names[-1]} arms train")
+    reason = (f"the evaluation task gives {judged} range readings (n_rays) and {who} with {trained} ({differ[0].config} "
+              f"config with the --train-set values); a trained policy reads the rays it learned with: give both the same "
+              f"count (--set n_rays=N and --train-set task.n_rays=N)")
+    from_train_set = any("task.n_rays" in set_keys(text) for text in plan.train_overrides)
+    raise TaskValueError("n_rays", trained if from_train_set else judged, reason)
 
 
 def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requested: Callable[[], bool] | None = None) -> dict:
