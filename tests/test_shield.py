@@ -510,3 +510,100 @@ def test_shielded_names_the_policy_whose_actions_are_no_numbers(actions):
     policy.reset(1)
     with pytest.raises(ValueError, match="Shielded: policy odd gave actions that are no array of numbers"):
         policy.act(blank_obs(), SPEC)
+
+
+# ----------------------------------------------------------------------------- mutation audit
+
+def _east_of(shield: SafetyShield, obs: np.ndarray, speed: float = SPEED) -> float:
+    """Pursuer 0's shielded x velocity (m/s) when every pursuer wants +x at `speed`."""
+    shield.reset(1)
+    return shield.apply(np.tile([speed, 0.0], (1, 3, 1)), obs, SPEC)[0, 0, 0]
+
+
+def test_a_range_reading_at_the_full_ray_range_is_no_hit():
+    # a reading capped at ray_range saw nothing: taking it for a wall 2 m away capped a fast
+    # pursuer at approach_rate * (2 - clearance - buffer) = 2.78 m/s in open space
+    fast = 3.0
+    assert _east_of(SafetyShield(fast), blank_obs(), fast) == pytest.approx(fast)
+    obs = blank_obs()
+    wall_east(obs, 1.9)  # just inside the range: a wall
+    assert _east_of(SafetyShield(fast), obs, fast) == pytest.approx(ShieldParams.approach_rate * (1.9 - 0.1 - ShieldParams.safety_buffer))
+
+
+def test_a_teammate_beyond_its_perception_radius_or_too_slow_to_have_a_heading_does_not_see_the_pursuer():
+    """Both count as blind (SafetyShield._mate_sees_me): its approach comes off the pursuer's cap."""
+
+    def shared_cap(closing):
+        return 0.5 * ShieldParams.approach_rate * (0.5 - 0.2 - ShieldParams.safety_buffer - ShieldParams.response_time * closing)
+
+    def east(mate_velocity, **view):
+        obs = blank_obs()
+        at = SPEC.index("teammates", 0, "dx")
+        obs[0, 0, at : at + 5] = [0.5, 0.0, *mate_velocity, 1.0]  # 0.5 m east
+        return _east_of(SafetyShield(SPEED, **view), obs)
+
+    head_on = (-0.3, 0.0)
+    assert east(head_on, perception_radius=1.5) == pytest.approx(shared_cap(0.3))  # all-round, near: it sees
+    assert east(head_on, perception_radius=0.45) == pytest.approx(shared_cap(0.3) - 0.3)  # beyond its radius
+    creeping = (-0.02, 0.0)  # straight at the pursuer, but below heading_min_speed (0.05 m/s): no view cone
+    narrow = dict(field_of_view=2 * np.pi / 3, perception_radius=1.5)
+    assert east(creeping, **narrow) == pytest.approx(shared_cap(0.02) - 0.02)
+    assert east(creeping) == pytest.approx(shared_cap(0.02))  # all-round sight needs no heading
+
+
+def _evader_east(obs: np.ndarray, distance: float, captured: bool) -> None:
+    """Pursuer 0 sees evader 0 `distance` m to its +x side, standing, caught or free."""
+    at = SPEC.index("evaders", 0, "dx")
+    obs[0, 0, at : at + 7] = [distance, 0.0, 0.0, 0.0, 1.0, 0.0, float(captured)]
+
+
+def test_a_caught_evader_is_a_hazard_of_capture_radius_and_a_free_one_is_none():
+    obs = blank_obs()
+    _evader_east(obs, 0.6, captured=True)
+    rate, buffer = ShieldParams.approach_rate, ShieldParams.safety_buffer
+    assert _east_of(SafetyShield(SPEED), obs) == pytest.approx(rate * (0.6 - 0.3 - 0.1 - buffer))
+    free = blank_obs()
+    _evader_east(free, 0.35, captured=False)  # the shield must not keep a pursuer from catching it
+    assert _east_of(SafetyShield(SPEED), free) == pytest.approx(SPEED)
+
+
+def test_a_teammate_pressing_a_pursuer_against_the_evader_it_caught_does_not_push_it_into_the_evader():
+    # caught evader 0.4 m east (cap -0.075 m/s: back off), teammate 0.22 m west (also back
+    # off): no velocity keeps both, and the caught evader, which does not move, wins
+    obs = blank_obs()
+    _evader_east(obs, 0.4, captured=True)
+    _mate_east(obs, -0.22)
+    evader_cap = ShieldParams.approach_rate * (0.4 - 0.3 - 0.1 - ShieldParams.safety_buffer)
+    assert _east_of(SafetyShield(SPEED), obs) <= evader_cap + 1e-9
+
+
+class Fixed(Straight):
+    """Every pursuer gives one fixed action, as given (not normalised)."""
+
+    name = "fixed"
+
+    def __init__(self, action):
+        self.direction = np.asarray(action, float)
+
+
+def test_shielded_actions_are_clipped_as_the_environment_clips_them_and_stay_in_the_unit_disc():
+    # the env clips each axis to [-1, 1] and then the norm: (2, 0.5) flies as (1, 0.5) / |(1, 0.5)|
+    policy = Shielded(Fixed((2.0, 0.5)), SafetyShield(SPEED))
+    policy.reset(1)
+    np.testing.assert_allclose(policy.act(blank_obs(), SPEC)[0, 0], np.array([1.0, 0.5]) / np.hypot(1.0, 0.5))
+    # flying north with something 0.1 m due east (one ray's hit): the shield backs it off west
+    # as well, (-0.075, 0.3) m/s, and the action that comes out is cut back to the unit disc
+    obs = blank_obs()
+    obs[0, 0, SPEC.index("rays", 0, "range_0")] = 0.1
+    north = Shielded(Fixed((0.0, 1.0)), SafetyShield(SPEED))
+    north.reset(1)
+    out = north.act(obs, SPEC)[0, 0]
+    assert out[0] < 0 and np.linalg.norm(out) == pytest.approx(1.0)
+
+
+def test_flying_away_from_a_wall_earns_no_extra_allowance_toward_it():
+    # the gap is shortened by the closing speed only: a velocity away from the wall does not lengthen it
+    obs = blank_obs()
+    wall_east(obs, 0.2)
+    obs[0, 0, SPEC.index("self", 0, "vx")] = -SPEED
+    assert _east_of(SafetyShield(SPEED), obs) == pytest.approx(WALL_CAP)
