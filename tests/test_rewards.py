@@ -1,5 +1,7 @@
 """Capture geometry, collision rules and reward terms on hand-made positions."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -106,3 +108,52 @@ def test_proximity_zone_lies_beyond_the_clearance(beyond, share):
     events = detect_events(p, ev_pos, ~free, np.zeros((1, 1), bool), OBST, CFG)
     terms = reward_terms(CFG, events, p, p, ev_pos, ev_pos, free)
     assert terms["proximity"][0, 0] == pytest.approx(share * CFG.proximity_penalty, abs=1e-6)
+
+
+
+# ----------------------------------------------------------------------------- mutation audit
+
+FAR_EVADER = np.array([[[3.5, 3.5]]])  # one free evader in the top right corner, far from everything
+
+
+def _standing_terms(pos, cfg=CFG):
+    """reward_terms of one step in which pursuers (N, 2) stand at pos and FAR_EVADER stands too."""
+    p = np.array(pos, float)[None]
+    free = np.ones((1, 1), bool)
+    events = detect_events(p, FAR_EVADER, ~free, np.zeros((1, len(pos)), bool), OBST, cfg)
+    return reward_terms(cfg, events, p, p, FAR_EVADER, FAR_EVADER, free)
+
+
+def test_two_evaders_caught_in_one_step_pay_the_capture_reward_twice():
+    p = np.array([[[1.0, 1.0], [3.0, 1.0]]])
+    e = np.array([[[1.1, 1.0], [3.1, 1.0]]])
+    free = np.ones((1, 2), bool)
+    events = detect_events(p, e, ~free, np.zeros((1, 2), bool), OBST, CFG)
+    assert events.new_captures.all()
+    terms = reward_terms(CFG, events, p, p, e, e, free)
+    np.testing.assert_allclose(terms["capture"], 2 * CFG.capture_reward)
+
+
+def test_progress_is_measured_to_where_the_evader_was_then_and_is_now():
+    # the pursuer stands still while the evader flees 0.3 m: one unit of progress lost
+    p = np.array([[[1.0, 1.0]]])
+    e_prev, e_now = np.array([[[1.0, 2.0]]]), np.array([[[1.0, 2.3]]])
+    free = np.ones((1, 1), bool)
+    events = detect_events(p, e_now, ~free, np.zeros((1, 1), bool), OBST, CFG)
+    terms = reward_terms(CFG, events, p, p, e_now, e_prev, free)
+    assert terms["progress"][0, 0] == pytest.approx(-CFG.progress_reward)
+
+
+def test_proximity_to_a_teammate_lies_beyond_the_teammate_clearance_and_adds_to_the_wall_s():
+    half = CFG.teammate_clearance + 0.5 * CFG.proximity_distance  # half way into the teammates' soft zone
+    terms = _standing_terms([[1.0, 1.0], [1.0 + half, 1.0]])
+    np.testing.assert_allclose(terms["proximity"], 0.5 * CFG.proximity_penalty, rtol=1e-5)
+    x = 1.8 - CFG.obstacle_clearance  # pursuer 0 also at the box's clearance (its left face is at x = 1.8)
+    terms = _standing_terms([[x, 2.0], [x, 2.0 + half]])
+    assert terms["proximity"][0, 0] == pytest.approx(1.5 * CFG.proximity_penalty, rel=1e-5)  # both shares count
+
+
+@pytest.mark.parametrize("pos,share", [([[1.0, 1.0], [1.5, 1.0]], 0.5), ([[1.0, 1.0], [3.0, 1.0]], 1.0), ([[1.0, 1.0]], 1.0)])
+def test_spread_grows_with_the_nearest_teammate_s_distance_up_to_one_metre(pos, share):
+    terms = _standing_terms(pos, dataclasses.replace(CFG, spread_reward=0.2))
+    np.testing.assert_allclose(terms["spread"], 0.2 * share, rtol=1e-6)  # a lone pursuer: as far apart as counts
