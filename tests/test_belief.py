@@ -233,3 +233,57 @@ def test_a_belief_policy_takes_observations_as_a_list_and_names_itself_for_bad_o
     np.testing.assert_array_equal(policy.act(obs.tolist(), env.obs_spec), twin.act(obs, env.obs_spec))
     with pytest.raises(ValueError, match=re.escape(f"policy {policy.name}: expected observations")):
         policy.act(obs[:, :, :3], env.obs_spec)
+
+
+# ----------------------------------------------------------------------------- mutation audit
+
+
+def test_the_goal_follows_a_team_whose_clock_runs_while_the_pursuers_search():
+    """The belief advances its memory's clock every step: the coverage search ranks cells by how
+    long ago they were seen. A frozen clock (every cell seen 'now' for good) gave a different
+    waypoint once the team had looked round (step 97 here)."""
+    env = PursuitEnv(TASK, n_worlds=2, seed=3, layouts=[1], auto_reset=False)
+    obs = env.reset()
+    belief, team, actor = Belief.from_config(TASK), HeuristicTeam.from_config(TASK), HeuristicTeam.from_config(TASK)
+    for m in (belief, team, actor):
+        m.reset(2)
+    goal = belief_spec(env.obs_spec).group("goal")
+    for _ in range(110):
+        aug = belief.augment(obs, env.obs_spec)
+        _, _, sweep, _ = team.observe(obs, env.obs_spec)
+        team.tick()
+        np.testing.assert_allclose(aug[..., goal.start : goal.start + 2], sweep, atol=1e-5)
+        obs, *_ = env.step(actor.act(obs, env.obs_spec))
+
+
+def test_a_belief_policy_says_whether_the_policy_behind_it_has_a_shield():
+    from pursuit_mj.policy import RandomPolicy
+    from pursuit_mj.shield import shield_policy
+
+    shielded = BeliefPolicy(BeliefTeam(Belief.from_config(TASK)), Belief.from_config(TASK))
+    assert shielded.has_shield and shield_policy(shielded, TASK) is shielded  # not wrapped in a second shield
+    plain = BeliefPolicy(RandomPolicy(0), Belief.from_config(TASK))
+    assert not plain.has_shield and shield_policy(plain, TASK) is not plain
+
+
+def test_the_env_wrapper_s_final_observation_is_the_ended_episode_s_and_reset_forgets():
+    task = TaskConfig(fidelity="point", max_steps=4)
+    env = BeliefEnv(PursuitEnv(task, n_worlds=2, seed=2), Belief.from_config(task))
+    plain = PursuitEnv(task, n_worlds=2, seed=2)
+    raw_dim = env.raw_spec.dim
+    env.reset(), plain.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(4):
+        actions = rng.uniform(-1, 1, (2, task.n_pursuers, 2))
+        obs, _, _, truncated, info = env.step(actions)
+        _, _, _, _, plain_info = plain.step(actions)
+    assert truncated.all()
+    np.testing.assert_array_equal(info["final_obs"][..., :raw_dim], plain_info["final_obs"])  # not the next episode's first
+    assert not np.array_equal(info["final_obs"][..., :raw_dim], obs[..., :raw_dim])
+    # a reset mid-episode starts the belief afresh too
+    for _ in range(2):
+        env.step(rng.uniform(-1, 1, (2, task.n_pursuers, 2)))
+    obs = env.reset()
+    fresh = Belief.from_config(task)
+    fresh.reset(2)
+    np.testing.assert_allclose(obs[..., raw_dim:], fresh.features(obs[..., :raw_dim], env.raw_spec), atol=1e-6)
