@@ -261,3 +261,30 @@ def test_lines_of_sight_are_cast_only_for_the_pairs_that_need_one(monkeypatch, s
     assert not got.teammate_visible[0].diagonal().any()
     # without sharing only pursuers 0 and 2 see each other: the wall hides 1 from 0, and 1 and 2 are 3.4 m apart
     assert got.teammate_visible[0].sum() == (6 if share_teammates else 2)
+
+
+# ----------------------------------------------------------------------------- mutation audit
+
+
+def test_a_teammate_s_view_is_its_own_one_sees_the_back_of_the_other():
+    # pursuers 0 and 1 both face +x, 1 m apart on one line: 0 sees 1 ahead, 1 has 0 behind it
+    view = _view([[1.0, 2.0], [2.0, 2.0], [3.0, 3.5]], [[3.5, 0.5]], _layout().obstacle_set(), heading=[0.0, 0.0, math.pi / 2])
+    per = _perceive(view, field_of_view=math.pi / 2)
+    assert per.teammate_visible[0, 0, 1] and not per.teammate_visible[0, 1, 0]
+    assert not per.teammate_visible[0, 0, 2] and not per.teammate_visible[0, 2, 0]  # 2 faces north: neither sees the other
+
+
+def test_a_caught_evader_in_plain_view_is_known_but_not_a_fresh_sighting():
+    view = _view([[1.0, 1.0]], [[1.0, 1.5], [1.5, 1.0]], _layout().obstacle_set(), captured=[True, False])
+    per = _perceive(view, n_evaders=2)
+    assert per.known[0, 0].tolist() == [True, True]
+    assert per.seen[0, 0].tolist() == [False, True]  # what the render draws as a sighting and custom rewards read
+
+
+def test_a_slow_pursuer_faces_where_it_flies():
+    from pursuit_mj.sensing import heading_min_speed, update_heading
+
+    assert heading_min_speed(0.3) == 0.05
+    slow = 0.04  # m/s, its top speed: flying at it must turn its heading, or it faces its start heading for good
+    turned = update_heading(np.array([0.0]), np.array([[0.0, slow]]), heading_min_speed(slow))
+    assert turned[0] == pytest.approx(math.pi / 2)
