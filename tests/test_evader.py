@@ -468,3 +468,110 @@ def test_a_config_made_without_the_loader_is_checked():
         EscapeModel(inverted, 1, seed=0)
     with pytest.raises(ConfigError, match="EscapeModel config: key 'evader'"):
         EscapeModel(dataclasses.replace(config, evader={"calm_distance": 1.0}), 1, seed=0)
+
+
+# ----------------------------------------------------------------------------- mutation audit
+
+
+@pytest.mark.parametrize("room_at,room,speed", [(0, 1.0, 0.97161), (3, 0.1, 1.05832)])
+def test_a_fast_evader_brakes_to_the_speed_its_room_allows_along_each_direction(room_at, room, speed):
+    """Step 7 written out: flying +x at 2 m/s, the only obstacle `room` m away along RING
+    direction `room_at` (0: straight ahead; 3: 67.5 deg off). Ahead: left = 1 - 0.1 - 0.3 * 2 =
+    0.3 m, cap = sqrt(0.405**2 + 2 * 1.3 * 0.3) = 0.9716 m/s; 67.5 deg off, closing at
+    2 cos(67.5 deg): no room left, so the cap is the floor 0.9**2 / 2 = 0.405 m/s along that
+    direction, 0.405 / cos(67.5 deg) = 1.058 m/s along +x."""
+    from pursuit_mj.evader import RING, RING_ANGLES
+
+    model = EscapeModel(default_config(evader_speed=2.0), 1, seed=0)
+    final = np.array([[[1.0, 0.0]]])
+    survey = np.stack([np.cos(RING_ANGLES), np.sin(RING_ANGLES)], -1)[None, None]  # (1, 1, RING, 2), 0 = +x
+    rooms = np.full((1, 1, RING), 1e6)
+    rooms[0, 0, room_at] = room
+    got = model._braking_speed(final, np.array([[[2.0, 0.0]]]), survey, rooms)
+    assert float(np.squeeze(got)) == pytest.approx(speed, abs=1e-5)
+
+
+@pytest.mark.parametrize("velocity", [(0.0, -0.4), (0.3, 0.3), (-0.5, 0.0)])
+def test_an_evader_new_to_an_episode_flies_on_along_its_velocity(velocity):
+    # calm (chasers far beyond sense_radius), no zigzag, no walls: the first command keeps the
+    # direction the evader was already flying (step 1 of `_start_headings`), not a random one
+    config = default_config(n_pursuers=1, evader={"zigzag_rate": 0.0})
+    model = EscapeModel(config, 1, seed=0)
+    v = model.compute(np.zeros((1, 1, 2)), np.array([[velocity]]), np.array([[[50.0, 50.0]]]), np.zeros((1, 1, 2)),
+                      np.ones((1, 1), bool), arena_obstacles(1, border=False), DT)
+    np.testing.assert_allclose(v[0, 0], config.evader_speed * np.array(velocity) / np.linalg.norm(velocity), atol=1e-9)
+
+
+def test_a_calm_evader_takes_no_gap_however_cornered():
+    # the scene of test_it_slips_through_a_gap_it_can_reach_first, but with the chasers (1.5 m
+    # away) beyond calm_distance: no panic, so no gap escape (step 3), though the flee
+    # direction has no room and the gap would be open
+    chasers = np.array([[[0.6, 1.3], [3.0, 1.3], [1.8, 4.5]]])
+    evader = np.array([[[1.8, 0.45]]])
+    gaps = []
+    for calm in (3.0, 1.0):
+        model = EscapeModel(default_config(evader={"panic_distance": 0.5, "calm_distance": calm}), 1, seed=0)
+        model.compute(evader, np.zeros((1, 1, 2)), chasers, np.zeros((1, 3, 2)), np.ones((1, 1), bool), arena_obstacles(1), DT)
+        gaps.append(bool(model.gap[0, 0]))
+    assert gaps == [True, False]  # panicked (calm_distance 3 m): through the gap; calm: not
+
+
+def test_two_evaders_closing_in_share_the_closing_speed_budget():
+    # step 8: each of two evaders 1 m apart, standing, flying at the other, may close at half
+    # of APART_RATE * (gap - APART_BUFFER), the gap between their collision volumes
+    from pursuit_mj.evader import APART_BUFFER, APART_RATE
+
+    model = EscapeModel(default_config(n_evaders=2), 1, seed=0)
+    e = np.array([[[1.0, 1.0], [2.0, 1.0]]])
+    v = np.array([[[0.6, 0.0], [-0.6, 0.0]]])
+    out = model._keep_apart(e, np.zeros_like(e), v, np.ones((1, 2), bool), np.zeros_like(e))
+    cap = 0.5 * APART_RATE * (1.0 - DRONE_CONTACT_DISTANCE - APART_BUFFER)
+    np.testing.assert_allclose(out[0], [[cap, 0.0], [-cap, 0.0]], atol=1e-9)
+
+
+@pytest.mark.parametrize("push,side", [(0.3, -1.0), (0.98, 1.0)])
+def test_a_wall_follower_keeps_its_side_unless_the_chasers_push_back_hard(push, side):
+    # following the bottom wall with it on the right (side -1: along +x), wanting into it: a
+    # chaser push the other way (toward -x, the tangent (-1, 0) that keeps the wall on the left)
+    # of `push` (panic 1) turns it round only beyond FOLLOW_SWITCH (0.5); a weaker one leaves
+    # the side it chose
+    model = EscapeModel(default_config(n_pursuers=1), 1, seed=0)
+    model.following[:] = True
+    model.follow_side[:] = -1.0
+    model.panic[:] = 1.0
+    model.heading[:] = [1.0, 0.0]
+    flee = np.array([[[-push, -np.sqrt(1 - push**2)]]])  # tangent here is (-1, 0): push along it is `push`
+    model._follow_walls(np.array([[[1.8, 0.4]]]), np.array([[[0.0, -1.0]]]), np.array([[0.35]]), flee,
+                        arena_obstacles(1), np.ones((1, 1), bool))
+    assert model.following[0, 0] and model.follow_side[0, 0] == side
+
+
+@pytest.mark.parametrize("wall,speed", [(True, 0.3), (False, 0.6)])
+def test_an_evader_pressed_by_another_is_not_turned_into_a_wall_nor_made_faster(wall, speed):
+    # A flies +x 0.2 m below B, closer than their buffer: keeping apart alone would back A off
+    # downward (cap -0.028 m/s toward B), toward the bottom wall (at 0.3 m/s), or above
+    # evader_speed (at 0.6 m/s). It may do neither (step 8): A flies on level, and only stops
+    # closing in
+    model = EscapeModel(default_config(n_evaders=2), 1, seed=0)
+    e = np.array([[[1.0, 0.2], [1.0, 0.4]]])
+    v = np.array([[[speed, 0.0], [0.0, 0.0]]])
+    normal = np.array([[[0.0, 1.0], [0.0, 1.0]]]) if wall else np.zeros((1, 2, 2))  # away from the wall
+    out = model._keep_apart(e, np.zeros_like(e), v, np.ones((1, 2), bool), normal)
+    np.testing.assert_allclose(out[0, 0], [speed, 0.0], atol=1e-12)
+    if wall:  # without the wall the same evader backs off
+        free = model._keep_apart(e, np.zeros_like(e), v, np.ones((1, 2), bool), np.zeros((1, 2, 2)))
+        assert free[0, 0, 1] < -0.02
+
+
+def test_another_evader_limits_the_room_toward_it_only():
+    # B 0.5 m east of A: A's room ends DRONE_CONTACT_DISTANCE + APART_BUFFER short of B going
+    # east, and is open going west, away from B
+    from pursuit_mj.evader import APART_BUFFER
+    from pursuit_mj.geometry import FAR
+
+    model = EscapeModel(default_config(n_evaders=2), 1, seed=0)
+    e = np.array([[[1.0, 1.0], [1.5, 1.0]]])
+    dirs = np.array([[[[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0]], [[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0]]]])
+    room = model._evader_room(e, np.ones((1, 2), bool), dirs)
+    np.testing.assert_allclose(room[0, 0], [0.5 - DRONE_CONTACT_DISTANCE - APART_BUFFER, FAR, FAR])
+    np.testing.assert_allclose(room[0, 1], [FAR, 0.5 - DRONE_CONTACT_DISTANCE - APART_BUFFER, FAR])
