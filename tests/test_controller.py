@@ -440,3 +440,136 @@ def test_a_drone_tipped_past_90_deg_rights_itself_whatever_its_yaw():
         physics.step(np.zeros((len(yaws), physics.n_drones, 2)))
     assert (np.degrees(tilt_angle(physics.quaternions()[:, 0])) < 2.0).all()
     assert (physics.positions()[:, 0, 2] > 1.0).all(), physics.positions()[:, 0, 2]
+
+
+# ----------------------------------------------------------------------------- mutation audit
+
+
+def test_linear_drag_is_minus_r_diag_c_r_transpose_v():
+    from pursuit_mj.controller import linear_drag
+
+    rng = np.random.default_rng(0)
+    q = rng.normal(size=(4, 6))
+    q /= np.linalg.norm(q, axis=0)
+    rot = quat_to_rotmat(q)
+    vel = rng.normal(size=(3, 6))
+    coeff = np.array([0.01, 0.01, 0.03])  # z unlike x and y, as it may be
+    got = linear_drag(rot, vel, coeff)
+    for i in range(6):
+        R = rot[:, i].reshape(3, 3)
+        np.testing.assert_allclose(got[:, i], -R @ np.diag(coeff) @ R.T @ vel[:, i], rtol=1e-12, atol=1e-15)
+
+
+def _roll_pitch_of(force: np.ndarray) -> tuple[float, float]:
+    """(roll, pitch) rad of a thrust direction (3,), ZYX Euler angles at yaw 0."""
+    return math.atan2(-force[1], math.hypot(force[0], force[2])), math.atan2(force[0], force[2])
+
+
+def test_roll_and_pitch_limits_bring_a_steep_force_to_both_limits_exactly():
+    from pursuit_mj.controller import _limit_roll_pitch
+
+    force = np.array([[2.0], [-3.0], [1.0]])  # pitch 63 deg, roll 53 deg asked
+    _limit_roll_pitch(force, math.radians(15.0), math.radians(10.0))
+    assert force[2, 0] == 1.0  # the vertical part is kept
+    roll, pitch = _roll_pitch_of(force[:, 0])
+    assert math.degrees(roll) == pytest.approx(15.0) and math.degrees(pitch) == pytest.approx(10.0)
+
+
+@pytest.mark.parametrize("yaw_deg", [30.0, 90.0, -120.0])
+def test_roll_and_pitch_limits_hold_along_the_axes_of_the_drone_s_heading(yaw_deg):
+    # a force limited for a drone facing yaw is the force turned into its frame, limited there
+    # as for yaw 0, and turned back
+    from pursuit_mj.controller import _limit_roll_pitch
+
+    yaw = math.radians(yaw_deg)
+    c, s = math.cos(yaw), math.sin(yaw)
+    force = np.array([[0.5], [1.0], [1.0]])
+    own = np.array([[c * 0.5 + s * 1.0], [c * 1.0 - s * 0.5], [1.0]])  # in the drone's frame
+    _limit_roll_pitch(own, math.radians(40.0), math.radians(5.0))
+    _limit_roll_pitch(force, math.radians(40.0), math.radians(5.0), (np.array([c]), np.array([s])))
+    np.testing.assert_allclose(force[:, 0], [c * own[0, 0] - s * own[1, 0], s * own[0, 0] + c * own[1, 0], 1.0], atol=1e-12)
+
+
+def test_a_tilt_of_90_deg_or_more_is_refused(params):
+    ctrl = VelocityController(params, 0.5)
+    for bad in (math.pi / 2, 2.0, 0.0):
+        with pytest.raises(ValueError, match=r"set_max_tilt: tilt limits must be in \(0, pi/2\) rad"):
+            ctrl.set_max_tilt(bad)
+
+
+LEVEL = np.array([[1.0], [0.0], [0.0], [0.0]])
+
+
+def _still(quat: np.ndarray = LEVEL, angvel: np.ndarray | None = None) -> tuple:
+    """(vel, quat, angvel, v_cmd) of one drone at rest, asked to stay."""
+    return np.zeros((3, 1)), quat, np.zeros((3, 1)) if angvel is None else angvel, np.zeros((2, 1))
+
+
+def test_the_altitude_integral_is_clamped_at_0_2_m_s(params):
+    # 1 cm low for 50 s (unsaturated throughout) would gather 0.5 m s: the clamp holds 0.2
+    ctrl = VelocityController(params, 1.0)
+    low = np.array([[0.0], [0.0], [0.99]])
+    for _ in range(5000):
+        thrust = ctrl.compute(low, *_still(), 0.01).sum()
+    g, m = ControllerGains(), params["mass"]
+    assert thrust == pytest.approx(m * (9.81 + g.pos_z * 0.01 + g.int_z * 0.2), rel=1e-9)
+
+
+def test_drones_kept_out_of_a_call_and_a_plain_reset_leave_no_integral_behind(params):
+    low = np.tile([[0.0], [0.0], [0.99]], (1, 2))
+    still = tuple(np.tile(a, (1, 2)) for a in _still())
+    fresh = VelocityController(params, 1.0).compute(low, *still, 0.01)
+    ctrl = VelocityController(params, 1.0)
+    for _ in range(100):
+        ctrl.compute(low, *still, 0.01, keep=np.array([True, False]))
+    after = ctrl.compute(low, *still, 0.01)
+    np.testing.assert_allclose(after[:, 0], fresh[:, 0], rtol=1e-12)  # drone 0 was kept: nothing gathered
+    assert after[:, 1].sum() > fresh[:, 1].sum() + 1e-4  # drone 1 gathered an integral
+    ctrl.reset(2)  # the same size, no mask: every drone is cleared
+    np.testing.assert_allclose(ctrl.compute(low, *still, 0.01), fresh, rtol=1e-12)
+
+
+def test_a_tilted_drone_asks_for_the_thrust_along_its_own_z_axis(params):
+    # hovering at its height, at rest, rolled 10 deg: the force wanted is its weight, straight
+    # up; the rotors can only push along body z, so the collective thrust is weight * cos(10 deg)
+    ctrl = VelocityController(params, 1.0)
+    angle = math.radians(10.0)
+    rolled = np.array([[math.cos(angle / 2)], [math.sin(angle / 2)], [0.0], [0.0]])
+    thrusts = ctrl.compute(np.array([[0.0], [0.0], [1.0]]), *_still(rolled), 0.01)
+    assert thrusts.sum() == pytest.approx(params["mass"] * 9.81 * math.cos(angle), rel=1e-9)
+
+
+def test_the_rate_loop_feeds_the_gyroscopic_torque_forward(params):
+    # level, at rest in position, spinning at w: the torque asked is I k (0 - w) + w x (I w)
+    ctrl = VelocityController(params, 1.0)
+    w = np.array([0.3, -0.2, 0.5])
+    thrusts = ctrl.compute(np.array([[0.0], [0.0], [1.0]]), *_still(angvel=w[:, None]), 0.01)
+    assert (thrusts > 0).all() and (thrusts < params["max_thrust"]).all()  # no rotor clipped
+    torque = (mixer_matrix(params["motor_xy"], params["yaw_ratio"]) @ thrusts[:, 0])[1:]
+    inertia = np.asarray(params["inertia"])
+    want = inertia * np.asarray(ControllerGains().rate) * -w + np.cross(w, inertia * w)
+    np.testing.assert_allclose(torque, want, rtol=1e-9, atol=1e-14)
+
+
+def test_set_max_tilt_replaces_roll_and_pitch_limits(params):
+    state = (np.array([[0.0], [0.0], [1.0]]), np.zeros((3, 1)), LEVEL, np.zeros((3, 1)), np.array([[0.6], [0.6]]))
+    tilt = VelocityController(params, 1.0)
+    tilt.set_max_tilt(math.radians(15.0))
+    switched = VelocityController(params, 1.0)
+    switched.set_roll_pitch_limits(math.radians(15.0), math.radians(15.0))
+    switched.set_max_tilt(math.radians(15.0))
+    np.testing.assert_array_equal(switched.compute(*state, 0.01), tilt.compute(*state, 0.01))
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 70.0])
+def test_a_tipped_drone_is_turned_back_at_max_rate_about_a_horizontal_body_axis(yaw_deg):
+    from pursuit_mj.controller import _right_tipped_drones
+
+    yaw, pitch = math.radians(yaw_deg), math.radians(120.0)
+    q = np.array([[math.cos(yaw / 2) * math.cos(pitch / 2)], [-math.sin(yaw / 2) * math.sin(pitch / 2)],
+                  [math.cos(yaw / 2) * math.sin(pitch / 2)], [math.sin(yaw / 2) * math.cos(pitch / 2)]])
+    cols = quat_to_rotmat(q).reshape(3, 3, 1).transpose(1, 0, 2)
+    rate = np.array([[0.1], [0.2], [0.3]])  # what the attitude loop asked
+    _right_tipped_drones(rate, cols, np.array([[0.0], [0.0], [1.0]]), 6.0)
+    assert np.hypot(rate[0, 0], rate[1, 0]) == pytest.approx(6.0) and rate[2, 0] == 0.0
+    assert rate[1, 0] < 0  # pitched +120 deg about body y: back the shorter way, negative about y
