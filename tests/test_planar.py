@@ -105,3 +105,23 @@ def test_small_vector_helpers():
     np.testing.assert_allclose(clip_norm(np.array([[0.6, 0.8], [0.3, 0.0]]), 0.5), [[0.3, 0.4], [0.3, 0.0]])
     once = clip_unit(np.array([[3.0, 4.0], [0.2, -0.9]]))
     np.testing.assert_array_equal(clip_unit(once), once)  # clipping twice changes nothing, bit for bit
+
+
+def test_a_vector_without_length_takes_the_fallback_direction_and_perp_turns_left():
+    from pursuit_mj.planar import perp
+
+    fallback = np.array([[0.0, 1.0], [1.0, 0.0]])
+    np.testing.assert_array_equal(unit(np.array([[0.0, 0.0], [3.0, 4.0]]), fallback), [[0.0, 1.0], [0.6, 0.8]])
+    np.testing.assert_array_equal(perp(np.array([[1.0, 0.0], [0.0, 2.0]])), [[0.0, 1.0], [-2.0, 0.0]])  # +90 deg
+
+
+def test_of_several_allowed_candidates_the_nearest_is_taken():
+    # three caps that the four projections leave exceeded: the exact solve finds more than one
+    # allowed candidate; the first of them in its list lay 2.335 m/s from v, the nearest 2.250
+    v = np.array([[2.11, 0.52]])
+    angles = np.radians([-8.17, -160.85, 56.55])
+    dirs = np.stack([np.cos(angles), np.sin(angles)], -1)
+    caps = np.array([0.045, 0.171, -0.228])
+    out, met = limit_closing(v, dirs[None], caps[None])
+    assert met.all() and np.all(dirs @ out[0] <= caps + 1e-9)
+    assert np.linalg.norm(out[0] - v[0]) <= nearest_allowed_on_a_grid(v[0], dirs, caps) + 1e-3
