@@ -1086,3 +1086,48 @@ def test_a_layout_file_refused_leaves_no_folder_it_made(tmp_path, capsys, monkey
     assert main(argv) == 2
     assert said in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- mutation audit
+
+
+@pytest.mark.parametrize(
+    "data, message",
+    [  # each just past its limit (the limits themselves are accepted: see the test below)
+        (base_dict(obstacles=[{"box": {"center": [1.8, 2.5], "size": [0.0, 0.5]}}]), r"obstacles\[0\] \(box\).size: extents must be > 0, got \[0.0, 0.5\]"),
+        (base_dict(obstacles=[{"box": {"center": [1.8, 2.5], "size": [0.6, 0.2], "yaw": 6.3}}]), r"\(box\).yaw: 6.3 is beyond \+-2 pi"),
+        (base_dict(spawn={"pursuers": {"x": [0.2, 3.4], "y": [0.8, 0.2]}, "evaders": SPAWN["evaders"]}), r"spawn.pursuers: ranges must be \[low, high\]"),
+        (base_dict(random_obstacles={"count": 65}), r"random_obstacles.count: 65 is more than 64"),
+        (base_dict(random_obstacles={"count": 2, "size": [0.0, 0.3]}), r"random_obstacles.size: expected \[min, max\] with 0 < min <= max"),
+        (base_dict(arena={"width": 50.01, "height": 5.0}), r"arena.width: 50.01 m is beyond the 50 m"),
+        (base_dict(name="n" * 101), r"name 'n{40}\.\.\.': 101 bytes long; at most 100"),
+    ],
+)
+def test_a_layout_value_just_past_its_limit_is_refused(data, message):
+    with pytest.raises(LayoutError, match=message):
+        layout_from_dict(data, "bad.yaml")
+
+
+def test_layout_values_at_their_limits_are_accepted_and_a_spawn_line_is_no_point():
+    at = base_dict(name="n" * 100, obstacles=[{"box": {"center": [1.8, 2.5], "size": [0.6, 0.2], "yaw": 6.28}}],
+                   spawn={"pursuers": {"x": [0.6, 0.6], "y": [0.2, 1.4]}, "evaders": SPAWN["evaders"]})
+    layout = layout_from_dict(at, "at.yaml")
+    assert not layout.spawn_pursuers.is_point  # a line x = 0.6 holds a team along it
+    from pursuit_mj.layout_check import check_spawn_capacity
+
+    check_spawn_capacity(layout, 3, 1, 0.4)
+
+
+def test_obstacles_placed_at_random_twice_are_all_counted_as_random():
+    rng = np.random.default_rng(0)
+    layout = load_layout(0).with_random_obstacles(rng, 2).with_random_obstacles(rng, 1)
+    assert layout.n_random == 3 and len(layout.obstacles) == 3
+
+
+@pytest.mark.parametrize("ref", [True, np.bool_(False)])
+def test_a_boolean_is_no_built_in_layout_index(ref):
+    from pursuit_mj.layout import resolve_layout_ref
+
+    with pytest.raises(LayoutError, match=r"expected a built-in index 0-3 or a file path"):
+        resolve_layout_ref(ref)
+
