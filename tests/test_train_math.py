@@ -912,3 +912,27 @@ def test_an_update_is_the_plain_ppo_loop_to_the_bit():
     for k in moments[0]:
         for name in ("exp_avg", "exp_avg_sq", "step"):
             assert torch.equal(moments[0][k][name], moments[1][k][name]), (k, name)
+
+
+# ----------------------------------------------------------------------------- mutation audit
+
+
+def test_running_std_of_nearly_constant_returns_is_their_own_and_an_empty_update_changes_nothing():
+    rms = RunningMeanStd(epsilon=0.0)
+    rms.update(torch.tensor([1.0, 1.02, 1.0, 1.02], dtype=torch.float64))  # std 0.01: kept, not floored
+    assert rms.std == pytest.approx(0.01)
+    state = rms.state_dict()
+    rms.update(torch.empty(0))
+    assert rms.state_dict() == state
+    constant = RunningMeanStd(epsilon=0.0)
+    constant.update(torch.full((8,), 2.0))  # no spread at all: the floor, var 1e-8
+    assert constant.std == pytest.approx(1e-4)
+
+
+@pytest.mark.parametrize("gamma", [0.0, 1.0])
+def test_a_fixed_discount_may_be_zero_or_one_and_a_learned_one_may_not_start_there(gamma):
+    from train.discount import Discount
+
+    assert Discount(gamma, False, 1e-3, 0.995).value == gamma  # ppo.gamma lies in [0, 1]
+    with pytest.raises(ValueError, match=f"learnable discount: start gamma {gamma:g} lies outside"):
+        Discount(gamma, True, 1e-3, 0.995)
