@@ -575,3 +575,68 @@ def test_another_evader_limits_the_room_toward_it_only():
     room = model._evader_room(e, np.ones((1, 2), bool), dirs)
     np.testing.assert_allclose(room[0, 0], [0.5 - DRONE_CONTACT_DISTANCE - APART_BUFFER, FAR, FAR])
     np.testing.assert_allclose(room[0, 1], [FAR, 0.5 - DRONE_CONTACT_DISTANCE - APART_BUFFER, FAR])
+
+
+def test_a_panicked_evader_will_not_fly_into_a_chaser_s_reach_for_alignment():
+    # panicked, wanting +x, with a chaser 2 m ahead on +x: along +x it would come within the
+    # chaser's reach (capture radius included) at the end of the horizon; +y keeps clear. The
+    # margin it would lose counts DANGER times (step 6), so +y wins over the better alignment
+    config = default_config(n_pursuers=1)
+    assert config.pursuer_speed / config.evader_speed == 0.5 and config.capture_radius == 0.3  # the numbers below
+    model = EscapeModel(config, 1, seed=0)
+    model.panic[:] = 1.0
+    want = np.array([[[1.0, 0.0]]])
+    model.heading[:] = want
+    candidates = np.array([[[[1.0, 0.0], [0.0, 1.0]]]])
+    # along +x: 2 - 1.5 - 0.5 * 1.5 - 0.3 = -0.55 m, times DANGER; along +y: clear by over 1 m
+    best = model._choose(np.zeros((1, 1, 2)), np.array([[[2.0, 0.0]]]), np.ones((1, 1, 1), bool), want, candidates,
+                         np.full((1, 1, 2), 10.0))
+    assert best[0, 0] == 1
+
+
+def test_a_cornered_evader_keeps_to_the_gap_it_chose_over_one_a_little_safer():
+    # three open gaps; it is committed to the one between chasers 0 and 2 (side +1). The gap
+    # between 0 and 1 keeps about 0.76 m more out of reach, less than the 1 m a chosen gap is
+    # worth (step 3): it stays with its gap rather than switch between steps
+    model = EscapeModel(default_config(), 1, seed=0)
+    e = np.zeros((1, 1, 2))
+    pp = np.array([[[3.0, 0.0], [-3.0, 0.0], [0.0, 3.0]]])
+    toward = pp[:, None] - e[:, :, None]
+    dist = np.linalg.norm(toward, axis=-1)
+    dirs = np.array([[0.0, -1.0], [np.sqrt(0.5), -np.sqrt(0.5)], [-np.sqrt(0.5), -np.sqrt(0.5)]])[None, None]
+    ci, cj = np.array([[[0, 0, 1]]]), np.array([[[1, 2, 2]]])
+    model.panic[:] = 1.0
+    model.gap_pair[:] = [0, 2]
+    model.gap_side[:] = 1.0
+    on, through = model._gap_escape(dist, np.ones((1, 1, 3), bool), dirs, np.ones((1, 1, 3)), np.ones((1, 1, 3)), ci, cj,
+                                    np.full((1, 1, 3), 10.0), np.array([[0.1]]), toward, pp, e, np.ones((1, 1), bool))
+    assert on[0, 0] and model.gap_pair[0, 0].tolist() == [0, 2]
+    np.testing.assert_allclose(through[0, 0], dirs[0, 0, 1])
+
+
+@pytest.mark.parametrize("free,taken", [(0.3, False), (0.5, True)])
+def test_a_short_gap_path_needs_the_look_ahead_s_room_beyond_it(free, taken):
+    # a path of 0.2 m through the gap, free for `free` m: the look-ahead needs clearance +
+    # evader_speed * lookahead_time = 0.45 m free, however short the path (step 3)
+    model = EscapeModel(default_config(), 1, seed=0)
+    assert model._need == pytest.approx(0.45)
+    e = np.zeros((1, 1, 2))
+    pp = np.array([[[3.0, 0.0], [-3.0, 0.0], [0.0, 3.0]]])
+    toward = pp[:, None] - e[:, :, None]
+    dirs = np.tile([0.0, -1.0], (1, 1, 3, 1))
+    model.panic[:] = 1.0
+    on, _ = model._gap_escape(np.linalg.norm(toward, axis=-1), np.ones((1, 1, 3), bool), dirs, np.full((1, 1, 3), 0.2),
+                              np.ones((1, 1, 3)), np.array([[[0, 0, 1]]]), np.array([[[1, 2, 2]]]), np.full((1, 1, 3), free),
+                              np.array([[0.1]]), toward, pp, e, np.ones((1, 1), bool))
+    assert bool(on[0, 0]) is taken
+
+
+def test_a_zigzag_turn_is_between_half_and_all_of_zigzag_angle_either_side():
+    config = default_config()
+    model = EscapeModel(config, 64, seed=3)
+    model.heading[:] = [1.0, 0.0]
+    model._turn_wander(1e3)  # a turn is all but certain within 1000 s
+    turn = np.arctan2(model.wander[..., 1], model.wander[..., 0]).ravel()
+    a = config.evader.zigzag_angle
+    assert np.all((np.abs(turn) >= 0.5 * a - 1e-9) & (np.abs(turn) <= a + 1e-9))
+    assert (turn > 0).any() and (turn < 0).any() and np.ptp(np.abs(turn)) > 0.25 * a  # both sides, amplitudes spread
