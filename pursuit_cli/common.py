@@ -405,3 +405,37 @@ def refuse_a_file_given_twice(flag: str, given: list[tuple[str, Path]]) -> None:
         if key in seen:
             raise ValueError(f"{named(text)}: the same file as {named(seen[key])}, given twice")
         seen[key] = text
+
+
+def refuse_writing_an_input(outputs: list[tuple[str, Path]], inputs: list[tuple[str, str | Path]]) -> None:
+    """ValueError naming the first output (flag as typed, path it writes) that is one of the files
+    the command reads (`inputs`: what names it, e.g. '--model m.pt', and its path): a table
+    written there would replace a checkpoint, a policy or layout file, or a table being pooled.
+    Other names of a file (./x, a/../x, a link) count as that file; an input that does not exist
+    is left to its reader."""
+    read: dict[Path, str] = {}
+    for said, path in inputs:
+        try:
+            if Path(path).is_file():
+                read.setdefault(Path(path).resolve(), said)
+        except OSError:  # unreadable: its reader names it
+            continue
+    for flag, path in outputs:
+        try:
+            key = Path(path).resolve()
+        except OSError:
+            continue
+        if key in read:
+            raise ValueError(f"{flag}: the same file as {read[key]}, which writing there would destroy; "
+                             f"give another output name")
+
+
+def task_input_files(args: argparse.Namespace, config: TaskConfig) -> list[tuple[str, str]]:
+    """The files a command that plays the task reads, as (what names it, path): its --task files
+    and the evaders' model file (presets and the built-in model are no files of the user's)."""
+    from pursuit_mj.user_file import is_file_reference, split_reference
+
+    files = [(f"--task {t}", t) for t in getattr(args, "task_files", [])]
+    if is_file_reference(config.evader.model):
+        files.append((f"evader.model {config.evader.model}", split_reference(config.evader.model, "evader.model")[0]))
+    return files

@@ -20,7 +20,8 @@ from pursuit_mj.policies import POLICY_NAMES, make_policy
 from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_sha256
 from .common import (SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, check_out_prefix, counted, load_model,
-                     pick_versus, sweep_dead_parts, seed_arg, shield_if_asked, table_layouts, task_config_from_args)
+                     pick_versus, refuse_writing_an_input, sweep_dead_parts, seed_arg, shield_if_asked, table_layouts,
+                     task_config_from_args, task_input_files)
 from .eval_resume import check_nothing_kept, drop_finished, finished_rows, interrupted_path, keep_finished, write_finished
 
 
@@ -73,10 +74,11 @@ def _check_output_flags(args) -> None:
         check_out_prefix(args.out)
 
 
-def _outputs(args) -> tuple[Path | None, Path | None]:
+def _outputs(args, config, layouts) -> tuple[Path | None, Path | None]:
     _check_output_flags(args)
     csv_path = Path(args.csv) if args.csv else (Path(f"{args.out}.csv") if args.out else None)
     json_path = Path(args.json) if args.json else (Path(f"{args.out}.json") if args.out else None)
+    _refuse_writing_an_input(args, config, layouts, csv_path, json_path)
     for path, given, what in ((csv_path, args.csv, "--csv" if args.csv else f"--out {args.out}"),
                               (json_path, args.json, "--json" if args.json else f"--out {args.out}")):
         if path is not None:
@@ -93,6 +95,31 @@ def _outputs(args) -> tuple[Path | None, Path | None]:
     if args.plots:
         check_writable_folder(args.plots, f"--plots {args.plots}")
     return csv_path, json_path
+
+
+def _inputs(args, config, layouts) -> list[tuple[str, str]]:
+    """The files this eval reads, as (what names it, path): checkpoints, policy files, layout
+    files, task files and the evaders' model file."""
+    from pursuit_mj.layout import is_index_text
+    from pursuit_mj.policy_file import policy_file_path
+
+    layout_flag = "--layouts" if args.layouts else "layout"
+    return ([(f"--model {m}", m) for m in args.model]
+            + [(f"--policy {p}", str(policy_file_path(p))) for p in args.policy if is_policy_file(p)]
+            + [(f"{layout_flag} {ref}", str(ref)) for ref in layouts if isinstance(ref, str) and not is_index_text(ref)]
+            + task_input_files(args, config))
+
+
+def _refuse_writing_an_input(args, config, layouts, csv_path: Path | None, json_path: Path | None) -> None:
+    """ValueError naming an output of this eval that is one of its input files (common.refuse_writing_an_input)."""
+    def typed(flag: str, path: Path) -> str:
+        given = getattr(args, flag.lstrip("-"))
+        return f"{flag} {given}" if given else f"--out {args.out} (it writes {path})"
+
+    outputs = [(typed(flag, path), path) for flag, path in (("--csv", csv_path), ("--json", json_path)) if path]
+    if args.rerun:
+        outputs.append((f"--rerun {args.rerun}", Path(args.rerun)))
+    refuse_writing_an_input(outputs, _inputs(args, config, layouts))
 
 
 def _policies(args, config) -> list[tuple[str, object]]:
@@ -217,7 +244,7 @@ def _run(args) -> int:
     versus = _versus(args, policies)
     if args.resume and args.rerun:
         raise ValueError("--resume with --rerun: the recording would hold only the rows run now; record in an eval of its own")
-    csv_path, json_path = _outputs(args)  # makes folders: after every other check, so that bad input leaves none
+    csv_path, json_path = _outputs(args, config, layouts)  # makes folders: after every other check, so that bad input leaves none
     folders: dict[Path, tuple[Path, str]] = {}  # each folder once, named as the user gave it
     for path, flag in ((csv_path, "--csv"), (json_path, "--json")):
         if path:

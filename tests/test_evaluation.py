@@ -904,3 +904,54 @@ def test_an_eval_refused_or_failed_before_it_kept_anything_leaves_no_folder_it_m
                  "-q", *flags]) == 2
     assert said in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir() if p.name != "__pycache__") == ["mine.txt", "pol.py"]
+
+
+POLICY_FILE = """from pursuit_mj.heuristic import HeuristicTeam
+class Team:
+    name = "mine"
+    def __init__(self, config, seed):
+        self.team = HeuristicTeam.from_config(config)
+    def reset(self, n_worlds, world_ids=None):
+        self.team.reset(n_worlds, world_ids)
+    def act(self, obs, spec):
+        return self.team.act(obs, spec)
+class Still:
+    def __init__(self, config, n_worlds, seed):
+        self.n = n_worlds
+    def reset(self, world_ids, seeds):
+        pass
+    def compute(self, evader_pos, *rest):
+        return 0 * evader_pos
+"""
+
+
+@pytest.mark.parametrize("inputs, flag, out, said", [
+    (["--model", "m.pt"], "--json", "m.pt", "--model m.pt"),
+    (["--policy", "team.py:Team"], "--csv", "team.py", "--policy team.py:Team"),
+    (["--layouts", "0", "arena.yaml"], "--csv", "./arena.yaml", "--layouts arena.yaml"),
+    (["--task", "task.yaml"], "--json", "task.yaml", "--task task.yaml"),
+    (["--set", "evader.model=team.py:Still"], "--json", "team.py", "evader.model team.py:Still"),
+    (["--model", "m.pt"], "--rerun", "m.pt.rrd", None),  # not an input: no refusal from this check
+])
+def test_eval_refuses_an_output_that_is_one_of_its_input_files(inputs, flag, out, said, tmp_path, monkeypatch, capsys):
+    """`eval --model m.pt --json m.pt` played the table and then wrote it over the checkpoint (and
+    --csv over a policy file, a layout file, a task file): the user's input was gone."""
+    import shutil
+
+    from pursuit_mj.shipped import shipped_dir
+
+    monkeypatch.chdir(tmp_path)
+    shutil.copy(shipped_dir("pretrained") / "belppo_point.pt", "m.pt")
+    (tmp_path / "team.py").write_text(POLICY_FILE)
+    (tmp_path / "arena.yaml").write_text(builtin_layout_path(1).read_text())
+    (tmp_path / "task.yaml").write_text("fidelity: point\n")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    code = main(["eval", "--fidelity", "point", "--episodes", "1", "--worlds", "1", "--set", "max_steps=5", "-q",
+                 *inputs, flag, out])
+    err = capsys.readouterr().err
+    if said is None:
+        assert code == 0, err
+        return
+    assert code == 2, err
+    assert f"{flag} {out}: the same file as {said}" in err and len(err.strip().splitlines()) == 1, err
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before

@@ -415,3 +415,19 @@ def test_a_pool_refused_or_stopped_before_it_wrote_leaves_no_folder_it_made(tabl
         monkeypatch.setattr(pursuit_mj.evaluation, "write_csv", stop)
     assert main(["pool", str(tables["h0"]), *flags]) in (2, 130)
     assert [p.name for p in tmp_path.iterdir()] == ["mine.txt"]
+
+
+def test_pool_refuses_an_out_prefix_that_writes_over_a_table_it_pools(tables, tmp_path, capsys):
+    """`pool s0.json s1.json --out s0` wrote the pooled table over s0.json: the seed-0 table was gone."""
+    import shutil
+
+    from pursuit_cli import main
+
+    s0, s1 = tmp_path / "s0.json", tmp_path / "s1.json"
+    shutil.copy(tables["h0"], s0)
+    shutil.copy(tables["h1"], s1)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    assert main(["pool", str(s0), str(s1), "--out", str(tmp_path / "s0")]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {tmp_path}/s0 (it writes {s0}): the same file as {s0}" in err and len(err.strip().splitlines()) == 1, err
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
