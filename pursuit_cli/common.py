@@ -39,6 +39,17 @@ def finite_float(text: str) -> float:
     return value
 
 
+class ListFlag(argparse.Action):
+    """A flag of several values (nargs="+") whose lists add up when it is given again: argparse kept
+    the last list alone, so `eval --layouts 0 --layouts 1` played layout 1 only, without a word,
+    while --policy given twice counts both. A default list is replaced by the first list given."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        current = getattr(namespace, self.dest, None)
+        fresh = current is None or current is self.default
+        setattr(namespace, self.dest, list(values) if fresh else [*current, *values])
+
+
 def path_arg(text: str) -> str:
     """argparse type of a file or folder flag: not empty (an empty path was taken as the current
     folder, or as no path at all, without a word)."""

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from pursuit_mj.shipped import shipped_dir
-from .common import add_task_args, check_episodes, counted, load_model, seed_arg, table_layouts, task_config_from_args
+from .common import ListFlag, add_task_args, check_episodes, counted, load_model, seed_arg, table_layouts, task_config_from_args
 
 PRETRAINED = shipped_dir("pretrained") / "pursuers.pt"
 REFERENCE_EPISODES = 150  # episodes per layout in the reference study's table
@@ -43,7 +43,7 @@ def register(sub) -> None:
     )
     p.add_argument("-m", "--model", default=str(PRETRAINED), help="checkpoint to show (default: pretrained/pursuers.pt)")
     p.add_argument("--episodes", type=int, default=16, help="episodes per policy and layout (default 16)")
-    p.add_argument("--layouts", nargs="+", metavar="LAYOUT", help="layouts (default 0 1 2 3, or the one named by --layout)")
+    p.add_argument("--layouts", nargs="+", action=ListFlag, metavar="LAYOUT", help="layouts (default 0 1 2 3, or the one named by --layout)")
     p.add_argument("--worlds", type=int, default=16, help="parallel worlds (default 16)")
     p.add_argument("--seed", type=seed_arg, default=0, help="table seed")
     p.add_argument("--no-heuristic", action="store_true", help="evaluate the model only")

@@ -19,7 +19,7 @@ from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
 from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_sha256
-from .common import (SHIELD_HELP, add_shield_arg, add_task_args, check_episodes, check_out_prefix, counted, load_model,
+from .common import (SHIELD_HELP, ListFlag, add_shield_arg, add_task_args, check_episodes, check_out_prefix, counted, load_model,
                      pick_versus, refuse_writing_an_input, sweep_dead_parts, seed_arg, shield_if_asked, table_layouts,
                      task_config_from_args, task_input_files)
 from .eval_resume import check_nothing_kept, drop_finished, finished_rows, interrupted_path, keep_finished, write_finished
@@ -41,8 +41,8 @@ def register(sub) -> None:
     p.add_argument("-m", "--model", action="append", default=[], metavar="FILE",
                    help="a trained checkpoint (loaded with train.policy.load_policy; repeatable)")
     add_shield_arg(p, SHIELD_HELP.replace("on the policy", "on every --model and --policy given"))
-    p.add_argument("--layouts", nargs="+", metavar="LAYOUT",
-                   help="layout indices 0-3 and/or layout files (default: the task's layout)")
+    p.add_argument("--layouts", nargs="+", action=ListFlag, metavar="LAYOUT",
+                   help="layout indices 0-3 and/or layout files (default: the task's layout; given again, the lists add up)")
     p.add_argument("--episodes", type=int, default=150, help="episodes per policy and layout (default 150)")
     p.add_argument("--worlds", type=int, default=32, help="parallel worlds (default 32)")
     p.add_argument("--seed", type=seed_arg, default=0, help="table seed: same seed, same table, whatever --worlds (default 0)")

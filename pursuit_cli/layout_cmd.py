@@ -14,7 +14,7 @@ from pursuit_mj.io_utils import check_writable, no_new_empty_folders
 from pursuit_mj.layout import MAX_NAME_BYTES, MAX_RANDOM_OBSTACLES, Layout, LayoutError, layout_from_dict, layout_to_dict, load_layout, save_layout
 from pursuit_mj.geometry import inside_polygon
 from pursuit_mj.layout_check import check_spawn_capacity, free_spawn_points
-from .common import finite_float, path_arg, seed_arg
+from .common import ListFlag, finite_float, path_arg, seed_arg
 
 #: how many seeds `layout check` and `layout new` try when placing the per-episode random obstacles
 CHECK_SEEDS = 100
@@ -50,7 +50,7 @@ def _register_new(lsub) -> None:
     p.add_argument("--width", type=finite_float, help="arena width along x (m; default 3.6, with --points their largest x)")
     p.add_argument("--height", type=finite_float, help="arena height along y (m; default 5.0, with --points their largest y)")
     p.add_argument("--border", choices=("rectangle", "polygon", "circle"), default="rectangle", help="border shape")
-    p.add_argument("--points", nargs="+", metavar="X,Y", help="polygon corners for --border polygon (default: the arena with its corners cut)")
+    p.add_argument("--points", nargs="+", action=ListFlag, metavar="X,Y", help="polygon corners for --border polygon (default: the arena with its corners cut)")
     p.add_argument("--center", nargs=2, type=finite_float, metavar=("X", "Y"), help="circle centre for --border circle (default: arena centre)")
     p.add_argument("--radius", type=finite_float, help="circle radius for --border circle (default: fits the arena)")
     p.add_argument("--box", nargs="+", type=finite_float, action="append", default=[], metavar="V",
@@ -66,7 +66,7 @@ def _register_new(lsub) -> None:
     p.add_argument("--obstacle-size", nargs=2, type=finite_float, default=(0.15, 0.4), metavar=("MIN", "MAX"),
                    help="size range of random obstacles (m, default 0.15 0.4): a cylinder's diameter, a box's longer side "
                         "(its shorter side 0.5-1 times that)")
-    p.add_argument("--obstacle-kinds", nargs="+", choices=("box", "cylinder"), default=["box", "cylinder"],
+    p.add_argument("--obstacle-kinds", nargs="+", action=ListFlag, choices=("box", "cylinder"), default=["box", "cylinder"],
                    help="kinds of random obstacles (default: box cylinder)")
     p.add_argument("--spawn-pursuers", nargs=4, type=finite_float, metavar=("X0", "X1", "Y0", "Y1"),
                    help="pursuer spawn region (default: a band along the bottom of the border)")

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .common import (add_task_args, check_episodes, counted, checked_layouts, finite_float, seed_arg, task_config_from_args,
+from .common import (ListFlag, add_task_args, check_episodes, counted, checked_layouts, finite_float, seed_arg, task_config_from_args,
                      task_key_source)
 
 
@@ -31,7 +31,7 @@ def register(sub) -> None:
     )
     p.add_argument("--budget-minutes", type=finite_float, required=True, help="wall-clock budget for everything (at most 525600, a year)")
     p.add_argument("--episodes", type=int, default=150, help="episodes per policy and layout (fewer if the budget is short)")
-    p.add_argument("--layouts", nargs="+", default=["0", "1", "2", "3"], metavar="LAYOUT", help="evaluation layouts (default 0 1 2 3)")
+    p.add_argument("--layouts", nargs="+", action=ListFlag, default=["0", "1", "2", "3"], metavar="LAYOUT", help="evaluation layouts (default 0 1 2 3)")
     p.add_argument("--worlds", type=int, default=32, help="parallel worlds in evaluation")
     p.add_argument("--seed", type=seed_arg, default=0, help="evaluation table seed")
     p.add_argument("--out", default="runs/study", help="output folder (default runs/study)")

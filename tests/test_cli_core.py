@@ -499,3 +499,24 @@ def test_no_new_empty_folders_removes_only_the_empty_folders_a_failure_made(tmp_
     with no_new_empty_folders(deep):
         deep.mkdir(parents=True)
     assert deep.is_dir()
+
+
+@pytest.mark.parametrize("command", [["eval", "--episodes", "1"], ["demo", "--episodes", "1"], ["study", "--budget-minutes", "1"],
+                                     ["layout", "new", "x.yaml", "--border", "polygon"]])
+def test_a_list_flag_given_twice_keeps_both_lists_not_only_the_last(command):
+    """`eval --layouts 0 --layouts 1` played layout 1 alone, without a word (argparse keeps the last
+    list), while --policy and --model, given twice, both count; likewise --points of layout new."""
+    parser = build_parser()
+    flag, first, second = ("--points", ["0,0", "4,0"], ["4,4", "0,4"]) if command[0] == "layout" else ("--layouts", ["0"], ["1", "3"])
+    args = parser.parse_args([*command, flag, *first, flag, *second])
+    assert getattr(args, flag.lstrip("-")) == first + second
+    if command[0] == "study":
+        assert parser.parse_args(command).layouts == ["0", "1", "2", "3"]  # the default stays when none is given
+
+
+def test_obstacle_kinds_given_twice_keep_both_and_the_default_is_both_kinds():
+    parser = build_parser()
+    assert parser.parse_args(["layout", "new", "x.yaml"]).obstacle_kinds == ["box", "cylinder"]
+    args = parser.parse_args(["layout", "new", "x.yaml", "--obstacle-kinds", "box", "--obstacle-kinds", "cylinder"])
+    assert args.obstacle_kinds == ["box", "cylinder"]
+
