@@ -36,18 +36,22 @@ SUBCOMMANDS = [
 
 #: negative numbers argparse takes for flags: it knows only -12 and -1.5 as numbers, not -1e5, -inf or nan
 _NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*[eE][-+]?\d+|\.\d+[eE][-+]?\d+|inf|infinity|nan)$", re.IGNORECASE)
+#: a point X,Y whose X is negative (layout new --points -1,0): argparse took it for an unknown flag
+_NEGATIVE_POINT = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?,[^=\s]*$")
 
 
 class OneLineErrorParser(argparse.ArgumentParser):
     """argparse, with a usage error printed as one line (the usage block buried the message), and
     negative numbers like -1e-1 and -inf read as values, also among a flag's several values
-    (`--box 1 2 0.2 0.2 -1e-1`), so the flag's own check reports a bad one."""
+    (`--box 1 2 0.2 0.2 -1e-1`) and as the X of a point (`--points -1,0`), so the flag's own
+    check reports a bad one."""
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
     def _parse_optional(self, arg_string):
-        if _NEGATIVE_NUMBER.match(arg_string) and arg_string not in self._option_string_actions:
+        if ((_NEGATIVE_NUMBER.match(arg_string) or _NEGATIVE_POINT.match(arg_string))
+                and arg_string not in self._option_string_actions):
             return None  # a value, as argparse takes -12 (it would read -1e5 as an unknown flag, -inf as -i nf)
         return super()._parse_optional(arg_string)
 

@@ -253,6 +253,10 @@ def _default_arena(args) -> None:
     if args.border == "polygon" and args.points:
         pts = _parse_points(args.points)
         xs, ys = [p[0] for p in pts], [p[1] for p in pts]
+    for flag, axis, values in (("width", "x", xs), ("height", "y", ys)):
+        if getattr(args, flag) is None and not max(values) > 0:  # no --width or --height to blame: the points
+            raise ValueError(f"--points {' '.join(args.points)}: their largest {axis} is {max(values):g} m, so the arena "
+                             f"they size (--{flag} left out) has no {flag}; give the corners of an area")
     args.width = max(xs) if args.width is None else args.width
     args.height = max(ys) if args.height is None else args.height
 

@@ -520,3 +520,11 @@ def test_obstacle_kinds_given_twice_keep_both_and_the_default_is_both_kinds():
     args = parser.parse_args(["layout", "new", "x.yaml", "--obstacle-kinds", "box", "--obstacle-kinds", "cylinder"])
     assert args.obstacle_kinds == ["box", "cylinder"]
 
+
+
+def test_a_negative_corner_of_points_reaches_the_layout_check_not_argparse(tmp_path, capsys):
+    """--points -1,0 ... was taken for an unknown flag: 'argument --points: expected at least one
+    argument', about a flag that was given three corners."""
+    assert main(["layout", "new", str(tmp_path / "p.yaml"), "--border", "polygon", "--points", "-1,0", "3,0", "3,4"]) == 2
+    err = capsys.readouterr().err
+    assert "expected at least one argument" not in err and "[-1.0, 0.0]" in err and len(err.strip().splitlines()) == 1, err

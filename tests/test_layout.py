@@ -1131,3 +1131,13 @@ def test_a_boolean_is_no_built_in_layout_index(ref):
     with pytest.raises(LayoutError, match=r"expected a built-in index 0-3 or a file path"):
         resolve_layout_ref(ref)
 
+
+@pytest.mark.parametrize("points, said", [(["0,0", "3,0"], "largest y is 0"), (["0,0"], "largest x is 0")])
+def test_layout_new_with_points_that_span_no_area_names_points_not_a_flag_left_out(points, said, tmp_path, capsys):
+    """--points 0,0 3,0 (two corners on a line) was refused as '--height: must be a number > 0, got
+    0.0', about a flag the user never gave (the arena is sized to the points without it)."""
+    assert main(["layout", "new", str(tmp_path / "p.yaml"), "--border", "polygon", "--points", *points]) == 2
+    err = capsys.readouterr().err
+    assert f"--points {' '.join(points)}: " in err and said in err and "--height: must" not in err, err
+    assert "--width: must" not in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "p.yaml").exists()
