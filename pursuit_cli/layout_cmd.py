@@ -60,7 +60,7 @@ def _register_new(lsub) -> None:
     p.add_argument("--wall", nargs="+", type=finite_float, action="append", default=[], metavar="V",
                    help="add a thin wall: X0 Y0 X1 Y1 [THICKNESS] (default thickness 0.05); repeatable")
     p.add_argument("--random", type=int, default=0, metavar="N", help="add N fixed obstacles (0-64) placed at random (with --seed)")
-    p.add_argument("--seed", type=seed_arg, default=0, help="seed for --random (default 0)")
+    p.add_argument("--seed", type=seed_arg, help="seed for --random (default 0)")
     p.add_argument("--episode-obstacles", type=int, default=5, metavar="K",
                    help="random obstacles drawn per episode (the file's random_obstacles.count, default 5)")
     p.add_argument("--obstacle-size", nargs=2, type=finite_float, default=(0.15, 0.4), metavar=("MIN", "MAX"),
@@ -233,7 +233,7 @@ def build_new_layout(args) -> Layout:
         said = re.sub(r"obstacles\[(\d+)\]", lambda m: _obstacle_flag(args, int(m.group(1))), str(exc), count=1)
         raise LayoutError(said) from None
     if args.random:  # place the --random obstacles for good: they become fixed obstacles
-        layout = layout.with_random_obstacles(np.random.default_rng(args.seed), args.random,
+        layout = layout.with_random_obstacles(np.random.default_rng(args.seed or 0), args.random,
                                               count_source="--random or --obstacle-size")
     data = layout_to_dict(layout)
     n_given = len(data["obstacles"]) - args.random
@@ -336,6 +336,9 @@ def run_new(args) -> int:
             raise ValueError(f"OUT {out}: expected a .yaml file name (a layout file is YAML)")
         if out.exists() and not args.force:
             raise ValueError(f"OUT {out}: exists already (use --force to overwrite)")
+        if args.seed is not None and not args.random:  # it would change nothing in the file
+            raise ValueError(f"--seed {args.seed}: seeds the obstacles that --random places, and none is asked for; "
+                             f"give --random N, or leave --seed out")
         layout = build_new_layout(args)
         save_layout(layout, out)
     print(f"wrote {out}: {_summary_line(layout)}")
@@ -349,14 +352,14 @@ def _register_show(lsub) -> None:
     p = lsub.add_parser("show", help="save a top-down PNG of a layout (file or built-in index)")
     p.add_argument("layout", metavar="FILE|INDEX", help="layout file or built-in index 0-3")
     p.add_argument("-o", "--out", type=path_arg, help="PNG to write (default: layout_<name>.png)")
-    p.add_argument("--seed", type=seed_arg, default=0,
+    p.add_argument("--seed", type=seed_arg,
                    help="seed of the random obstacles drawn (default 0); an episode's own seed, which render reports "
                         "(e.g. 'episode 0: success after 168 steps (seed 3013895268)'), draws that episode's, unless the task "
                         "drew its layout too (random_layout) or set its own random_obstacles count (then give it with --count) "
                         "or an obstacle_clearance over 0.15 m (then give it with --obstacle-clearance)")
     p.add_argument("--count", type=int, help="random obstacles to draw (default: the layout's random_obstacles.count)")
-    p.add_argument("--obstacle-clearance", type=finite_float, default=DEFAULT_OBSTACLE_CLEARANCE, metavar="M",
-                   help="the task's obstacle_clearance (m; default %(default)g, the reference task's): above 0.15 m an episode "
+    p.add_argument("--obstacle-clearance", type=finite_float, metavar="M",
+                   help=f"the task's obstacle_clearance (m; default {DEFAULT_OBSTACLE_CLEARANCE:g}, the reference task's): above 0.15 m an episode "
                         "draws random obstacles that close a passage between the spawn regions again, and so does this")
     p.add_argument("--no-random", action="store_true", help="draw no random obstacles")
     p.set_defaults(func=run_show)
@@ -368,8 +371,12 @@ def run_show(args) -> int:
     layout = load_layout(args.layout)
     if args.count is not None and not 0 <= args.count <= MAX_RANDOM_OBSTACLES:
         raise ValueError(f"--count: {args.count} is out of range (0 to {MAX_RANDOM_OBSTACLES}, the task's random_obstacles)")
-    if args.count is not None and args.no_random:
-        raise ValueError(f"--count {args.count}: draws random obstacles, which --no-random leaves out; give one of them")
+    for flag, value in (("--count", args.count), ("--seed", args.seed), ("--obstacle-clearance", args.obstacle_clearance)):
+        if value is not None and args.no_random:  # it would change nothing in the picture
+            raise ValueError(f"{flag} {value:g}: draws random obstacles, which --no-random leaves out; give one of them")
+    args.seed = 0 if args.seed is None else args.seed
+    if args.obstacle_clearance is None:
+        args.obstacle_clearance = DEFAULT_OBSTACLE_CLEARANCE
     if args.obstacle_clearance < 0:
         raise ValueError(f"--obstacle-clearance: must be >= 0, got {args.obstacle_clearance:g}")
     try:  # a clearance no task takes (the task's own checks: spawned drones would collide at once)

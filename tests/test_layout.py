@@ -1141,3 +1141,23 @@ def test_layout_new_with_points_that_span_no_area_names_points_not_a_flag_left_o
     assert f"--points {' '.join(points)}: " in err and said in err and "--height: must" not in err, err
     assert "--width: must" not in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "p.yaml").exists()
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["new", "{tmp}/s.yaml", "--seed", "5"], "--seed 5: seeds the obstacles that --random places, and none is asked for"),
+    (["show", "3", "-o", "{tmp}/s.png", "--no-random", "--seed", "5"], "--seed 5: draws random obstacles, which --no-random leaves out"),
+    (["show", "3", "-o", "{tmp}/s.png", "--no-random", "--obstacle-clearance", "0.12"],
+     "--obstacle-clearance 0.12: draws random obstacles, which --no-random leaves out"),
+])
+def test_a_layout_flag_that_would_do_nothing_is_refused_not_ignored(argv, said, tmp_path, capsys):
+    """layout new --seed 5 without --random, and layout show --no-random --seed 5, wrote the same
+    file as without the flag, without a word (show refused --count with --no-random already)."""
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    assert main(["layout", *argv]) == 2
+    err = capsys.readouterr().err
+    assert said in err and len(err.strip().splitlines()) == 1, err
+    assert list(tmp_path.iterdir()) == []
+    # the seeds the flags default to still give the same files as before
+    assert main(["layout", "new", str(tmp_path / "a.yaml"), "--random", "2"]) == 0
+    assert main(["layout", "new", str(tmp_path / "b.yaml"), "--random", "2", "--seed", "0", "--name", "a"]) == 0
+    assert (tmp_path / "a.yaml").read_text() == (tmp_path / "b.yaml").read_text()
