@@ -13,8 +13,10 @@ import dataclasses
 import logging
 import math
 import sys
+from pathlib import Path
 
-from .common import add_shield_arg, finite_float, load_model, path_arg, seed_arg, shield_if_asked
+from .common import (add_shield_arg, finite_float, load_model, path_arg, refuse_writing_an_input, seed_arg, shield_if_asked,
+                     task_input_files)
 
 KEYS_HELP = "during a flight: e or space = emergency stop (motors off), l = land everyone, Ctrl-C or Ctrl-Z = land everyone (twice: motors off), Ctrl-\\ = motors off"
 
@@ -123,6 +125,19 @@ def run_check(args) -> int:
     return 0
 
 
+def _refuse_events_over_an_input(events_path, args, plan) -> None:
+    """ValueError naming --events when the event log, appended to, would be the --model checkpoint,
+    the --policy file or the evaders' model file (the flight and layout files are refused by
+    run_flight)."""
+    from pursuit_mj.policy_file import is_policy_file, policy_file_path
+
+    inputs = [(f"--model {args.model}", args.model)] if args.model else []
+    if args.policy and is_policy_file(args.policy):
+        inputs.append((f"--policy {args.policy}", str(policy_file_path(args.policy))))
+    inputs += task_input_files(args, plan.task)
+    refuse_writing_an_input([(f"--events {events_path}", Path(events_path))], inputs)
+
+
 def run(args) -> int:
     from pursuit_mj.flight.plan import load_plan
     from pursuit_mj.flight.session import choose_policy, default_events_path, parse_fault, run_flight
@@ -136,6 +151,7 @@ def run(args) -> int:
     events_path = args.events or default_events_path(plan)
     if (args.policy is None) == (args.model is None):
         raise ValueError("give exactly one of --policy NAME (e.g. heuristic) or --model FILE")
+    _refuse_events_over_an_input(events_path, args, plan)
     chosen = load_model(args.model, plan.obs_spec, plan.task, flight=True) if args.model else choose_policy(plan, args.policy, args.seed)
     policy, _ = shield_if_asked(args, chosen, "", plan.task)
     if args.fault and not args.virtual:

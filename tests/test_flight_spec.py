@@ -1108,3 +1108,31 @@ def test_a_flight_or_align_refused_after_its_output_checks_leaves_no_folder_it_m
     monkeypatch.setattr(pursuit_mj.flight.align, "measure_lab_positions", stop)
     assert main(align) == 130
     assert [p.name for p in tmp_path.iterdir()] == ["mine.txt"]
+
+
+@pytest.mark.parametrize("what", ["model", "policy", "evader"])
+def test_an_event_log_naming_the_model_or_a_code_file_of_the_flight_is_refused(what, tmp_path, capsys):
+    """fly --model m.pt --events m.pt appended the flight's event log to the checkpoint (and
+    --events team.py to the policy file): the user's file was damaged for good. The flight and
+    layout files were refused already."""
+    import shutil
+
+    from pursuit_cli import main
+    from pursuit_mj.shipped import shipped_dir
+
+    model = tmp_path / "m.pt"
+    shutil.copy(shipped_dir("pretrained") / "pursuers.pt", model)
+    code = tmp_path / "team.py"
+    code.write_text("from pursuit_mj.heuristic import HeuristicTeam\n"
+                    "def team(config, seed):\n    t = HeuristicTeam.from_config(config)\n    t.name = 'mine'\n    return t\n"
+                    "class Still:\n    def __init__(self, config, n_worlds, seed): pass\n"
+                    "    def reset(self, world_ids, seeds): pass\n"
+                    "    def compute(self, evader_pos, *rest): return 0 * evader_pos\n")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    given, events = {"model": (["--model", str(model)], model),
+                     "policy": (["--policy", f"{code}:team"], code),
+                     "evader": (["--policy", "heuristic", "--set", f"evader.model={code}:Still"], code)}[what]
+    rc = main(["fly", "--flight", EXAMPLE, *given, "--virtual", "--yes", "--max-time", "1", "--events", str(events)])
+    err = capsys.readouterr().err
+    assert rc == 2 and f"--events {events}: the same file as " in err and len(err.strip().splitlines()) == 1, err
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
