@@ -247,7 +247,11 @@ def _run_align(args) -> int:
         from pursuit_mj.flight.plan import resolve_layout
         from pursuit_mj.io_utils import check_writable
 
-        check_spots_in_arena(spots, resolve_layout(spec), names=drone_names(spec))  # align's first check, before the folder
+        layout = resolve_layout(spec)
+        check_spots_in_arena(spots, layout, names=drone_names(spec))  # align's first check, before the folder
+        # a copy without the comments over the flight file (or its layout) would lose them
+        refuse_writing_an_input([(f"--write {args.write}", Path(args.write))],
+                                [(f"--flight {args.flight}", spec.source), ("the flight's layout file", layout.source)])
         check_writable(args.write, "--write")
     if args.virtual:
         from pursuit_mj.flight.plan import resolve_flight

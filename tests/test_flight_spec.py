@@ -1136,3 +1136,22 @@ def test_an_event_log_naming_the_model_or_a_code_file_of_the_flight_is_refused(w
     err = capsys.readouterr().err
     assert rc == 2 and f"--events {events}: the same file as " in err and len(err.strip().splitlines()) == 1, err
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+def test_fly_align_refuses_to_write_its_copy_over_the_flight_file(tmp_path, capsys):
+    """fly align --flight lab.yaml --write lab.yaml replaced the flight file with the 'copy', whose
+    comments are not kept: the user's notes (drone placement, the lab) were gone."""
+    from pursuit_cli import main
+    from pursuit_mj.shipped import shipped_dir
+
+    flight = tmp_path / "lab.yaml"
+    flight.write_text((shipped_dir("configs") / "flight" / "lighthouse.yaml").read_text())
+    before = flight.read_bytes()
+    truth = LabTransform((4.2, 0.1), math.pi / 2, 1.25)
+    spots = np.array([[0.5, 0.625], [1.75, 0.625], [1.875, 4.0]])
+    fmt = lambda pts: " ".join(f"{x:.4f},{y:.4f}" for x, y in pts)  # noqa: E731
+    rc = main(["fly", "align", "--flight", str(flight), "--lab", fmt(truth.to_lab(spots)), "--spots", fmt(spots),
+               "--write", f"{tmp_path}/./lab.yaml"])
+    err = capsys.readouterr().err
+    assert rc == 2 and f"--write {tmp_path}/./lab.yaml: the same file as --flight {flight}" in err, err
+    assert len(err.strip().splitlines()) == 1 and flight.read_bytes() == before
