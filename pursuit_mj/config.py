@@ -235,8 +235,13 @@ def preset_names(kind: str) -> list[str]:
 
 def load_task_yaml(path: str | Path, source: str | None = None) -> dict[str, Any]:
     """A task YAML file's mapping (configio.load_yaml), its `layout` found beside the file when it
-    is not found from the current folder (layout.found_layout_ref: ConfigError if found nowhere)."""
+    is not found from the current folder (layout.found_layout_ref: ConfigError if found nowhere).
+    An empty file (or one of comments only) is a ConfigError."""
     data = load_yaml(path, source)
+    if not data and not isinstance(data, (list, str)):  # a list or text is refused as not a mapping by the loader
+        # an empty train config or layout file is refused too: a file cut to nothing ran the defaults without a word
+        raise ConfigError(f"{source or path}: the file is empty (no task key); a task file sets at least one (see "
+                          f"configs/task/*.yaml), and none at all means the defaults: leave the file out")
     _refuse_other_kinds_of_file(data, source or str(path))
     if "layout" in data:
         data["layout"] = found_layout_ref(data["layout"], path, "layout")

@@ -603,3 +603,18 @@ def test_a_team_the_layout_cannot_hold_names_the_train_flag_that_gave_it(capsys,
     assert _with_source(exc, study) == "--train-set task.n_pursuers=16: the spawn region cannot hold them"
     study.train_overrides = ["task.n_pursuers=16", "task.n_pursuers=4"]  # the last one wins: 16 came from elsewhere
     assert _with_source(exc, study) == "n_pursuers=16: the spawn region cannot hold them"
+
+
+@pytest.mark.parametrize("text", ["", "# evader_speed: 0.45\n", "\n\n"])
+def test_an_empty_task_file_is_refused_as_an_empty_train_config_and_layout_are(text, tmp_path, capsys):
+    """A task file cut to nothing (or with every line commented out) ran the default task without
+    a word, while an empty train config and an empty layout file are refused."""
+    from pursuit_cli import main
+
+    task = tmp_path / "task.yaml"
+    task.write_text(text)
+    with pytest.raises(ConfigError, match=r"task\.yaml: the file is empty .*leave the file out"):
+        load_task_config([task])
+    assert main(["config", "--task", str(task)]) == 2
+    err = capsys.readouterr().err
+    assert f"{task}: the file is empty" in err and len(err.strip().splitlines()) == 1, err
