@@ -52,14 +52,23 @@ def load_named(ref: str, source: str, what: str = "class or function") -> tuple[
     path_text, name = split_reference(ref, source)
     where = f"{source} {ref}"
     path = Path(path_text)
+    if path.is_dir():
+        raise ValueError(f"{where}: {path} is a folder, not a Python file")
     if not path.is_file():
         raise ValueError(f"{where}: no file {path} (give FILE.py:NAME, FILE relative to the current folder or absolute)")
     module = _run_file(path, where)
     found = getattr(module, name, None)
+    if found is not None and not callable(found):  # there, but a number, a text ...: not 'missing'
+        raise ValueError(f"{where}: {path} binds {name} to {_a(type(found).__name__)}, not a {what}")
     if not callable(found):
         defined = sorted(k for k, v in vars(module).items() if callable(v) and getattr(v, "__module__", None) == module.__name__)
         raise ValueError(f"{where}: {path} defines no {what} {name!r} (it defines: {', '.join(defined) or 'none'})")
     return found, path, name
+
+
+def _a(noun: str) -> str:
+    """'an int', 'a str'."""
+    return f"{'an' if noun[:1].lower() in 'aeiou' else 'a'} {noun}"
 
 
 def _run_file(path: Path, where: str):

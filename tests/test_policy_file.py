@@ -309,3 +309,16 @@ def test_an_eval_whose_policy_file_fails_mid_table_says_where_the_finished_rows_
                                             f"once the cause is mended, to play only the rest"), err
     path.write_text(FAILING.replace("return [][0]", "return np.zeros(obs.shape[:2] + (2,))"))
     assert main(cmd + ["--resume"]) == 0
+
+
+def test_a_folder_named_like_the_file_and_a_name_that_is_no_callable_are_told_as_such(tmp_path, monkeypatch):
+    """--policy team.py:T with a folder team.py said 'no file team.py (give FILE.py:NAME, FILE
+    relative to the current folder ...)' about a path that is there; and a NAME bound to a number
+    was 'defines no class or function (it defines: none)', as if the name were missing."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "team.py").mkdir()
+    with pytest.raises(ValueError, match=r"^--policy team\.py:T: team\.py is a folder, not a Python file$"):
+        make_policy("team.py:T", default_config(), 0)
+    (tmp_path / "other.py").write_text("T = 5\n")
+    with pytest.raises(ValueError, match=r"^--policy other\.py:T: other\.py binds T to an int, not a class or function$"):
+        make_policy("other.py:T", default_config(), 0)
