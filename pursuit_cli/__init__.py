@@ -114,8 +114,10 @@ def mujoco_import_error() -> str | None:
     except Exception as exc:  # the GL loaders raise RuntimeError, ImportError, AttributeError ...
         value = os.environ.get("MUJOCO_GL")
         where = f"environment variable MUJOCO_GL={value!r}" if value is not None else "import mujoco"
+        others = [b for b in ("egl", "osmesa") if b != (value or "").strip().lower()]  # not the one that failed
         return (f"{where}: mujoco cannot start with it ({type(exc).__name__}: {exc}); "
-                f"set MUJOCO_GL to egl or osmesa (whichever is installed), or unset it")
+                f"set MUJOCO_GL to {' or '.join(others)}{' (whichever is installed)' if len(others) > 1 else ' if it is installed'}, "
+                f"or unset it")
     return None
 
 

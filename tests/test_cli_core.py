@@ -528,3 +528,19 @@ def test_a_negative_corner_of_points_reaches_the_layout_check_not_argparse(tmp_p
     assert main(["layout", "new", str(tmp_path / "p.yaml"), "--border", "polygon", "--points", "-1,0", "3,0", "3,4"]) == 2
     err = capsys.readouterr().err
     assert "expected at least one argument" not in err and "[-1.0, 0.0]" in err and len(err.strip().splitlines()) == 1, err
+
+
+@pytest.mark.parametrize("value, advice", [("osmesa", "set MUJOCO_GL to egl if it is installed, or unset it"),
+                                           ("egl", "set MUJOCO_GL to osmesa if it is installed, or unset it"),
+                                           ("foo", "set MUJOCO_GL to egl or osmesa (whichever is installed), or unset it")])
+def test_a_mujoco_gl_that_breaks_mujoco_is_not_advised_again(value, advice, monkeypatch):
+    """MUJOCO_GL=osmesa without OSMesa installed: 'set MUJOCO_GL to egl or osmesa (whichever is
+    installed)', the value that had just failed among the advice."""
+    import sys
+
+    from pursuit_cli import mujoco_import_error
+
+    monkeypatch.setenv("MUJOCO_GL", value)
+    monkeypatch.setitem(sys.modules, "mujoco", None)  # `import mujoco` fails, as a missing GL library makes it
+    said = mujoco_import_error()
+    assert said.startswith(f"environment variable MUJOCO_GL='{value}': mujoco cannot start with it") and said.endswith(advice), said

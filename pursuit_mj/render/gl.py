@@ -42,6 +42,10 @@ class RenderBackendError(ValueError):
 
 def _explain(tried: dict[str, str], platform: str = "") -> str:
     lines = [f"{b}: {why}; needs {INSTALL_HINT[b]}" for b, why in tried.items()]
+    requested = os.environ.get("MUJOCO_GL", "").strip().lower()
+    if requested and list(tried) == [requested]:  # the one backend asked for: the others were never tried
+        return (f"environment variable MUJOCO_GL={requested} asks for an OpenGL backend that does not work here ("
+                f"{lines[0]}); unset MUJOCO_GL to let pursuit-mj try {' and '.join(CANDIDATES)}, or set it to another backend")
     only = f" (the only one tried: environment variable PYOPENGL_PLATFORM={platform} asks for it; unset it to try all)" if platform else ""
     return "no offscreen OpenGL backend works here (" + " | ".join(lines) + ")" + only + "; install one, or set MUJOCO_GL"
 
