@@ -309,6 +309,16 @@ def shield_if_asked(args: argparse.Namespace, policy, label: str, config: TaskCo
     return (policy, label) if wrapped is policy else (wrapped, f"{label}+shield")
 
 
+def refuse_a_shield_for_nothing(args: argparse.Namespace, kept: list[str]) -> None:
+    """ValueError naming --shield when it was given and every policy (`kept`: their labels) has
+    the shield built in (the heuristic team, a model trained behind it): the run would be the
+    one without the flag, which a user would take for a shielded one."""
+    if getattr(args, "shield", False) and kept:
+        names = ", ".join(dict.fromkeys(kept))
+        raise ValueError(f"--shield: {names} {'has' if len(kept) == 1 else 'have'} the shield built in, so --shield "
+                         f"changes nothing; leave it out (it shields the other --model and --policy given)")
+
+
 #: task keys whose change between training and use a loaded model's user is told of: what the
 #: pursuers see (and what their observations mean), how fast everyone flies, how long an action lasts
 TRAINED_TASK_KEYS = ("observability", "pursuer_speed", "evader_speed", "perception_radius", "field_of_view", "fidelity",

@@ -544,3 +544,23 @@ def test_a_mujoco_gl_that_breaks_mujoco_is_not_advised_again(value, advice, monk
     monkeypatch.setitem(sys.modules, "mujoco", None)  # `import mujoco` fails, as a missing GL library makes it
     said = mujoco_import_error()
     assert said.startswith(f"environment variable MUJOCO_GL='{value}': mujoco cannot start with it") and said.endswith(advice), said
+
+
+@pytest.mark.parametrize("argv", [
+    ["eval", "--shield", "--episodes", "1", "--fidelity", "point"],
+    ["eval", "--shield", "--policy", "heuristic", "--episodes", "1", "--fidelity", "point"],
+    ["render", "--shield", "--policy", "heuristic", "--fidelity", "point", "-s", "{tmp}/r/"],
+    ["fly", "--flight", "example", "--policy", "heuristic", "--shield", "--virtual", "--events", "{tmp}/e.jsonl"],
+])
+def test_a_shield_that_would_change_nothing_is_refused(argv, tmp_path, capsys):
+    """eval --shield with the heuristic team alone (which has the shield built in) ran the same
+    table as without it, without a word: a user believed a shielded run had been made."""
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--shield: heuristic has the shield built in, so --shield changes nothing" in err, err
+    assert len(err.strip().splitlines()) == 1, err
+    assert list(tmp_path.iterdir()) == []
+    assert main(["eval", "--shield", "--policy", "heuristic", "--policy", "random", "--episodes", "1", "--worlds", "1",
+                 "--fidelity", "point", "--set", "max_steps=2", "-q"]) == 0  # one policy it shields: run
+    assert "random+shield" in capsys.readouterr().out
