@@ -50,6 +50,20 @@ class ListFlag(argparse.Action):
         setattr(namespace, self.dest, list(values) if fresh else [*current, *values])
 
 
+def once_flag(why: str) -> type[argparse.Action]:
+    """An argparse action for a flag the command takes once, where another command takes it
+    several times (render -m a.pt -m b.pt rendered b.pt alone, as argparse keeps the last value):
+    given twice, it is a usage error naming both values and `why` ('render plays one policy')."""
+    class OnceFlag(argparse.Action):
+        def __call__(self, parser, namespace, values, option_string=None):
+            before = getattr(namespace, self.dest, None)
+            if before is not None and before is not self.default:
+                raise argparse.ArgumentError(self, f"given twice ({before}, then {values}); {why}")
+            setattr(namespace, self.dest, values)
+
+    return OnceFlag
+
+
 def path_arg(text: str) -> str:
     """argparse type of a file or folder flag: not empty (an empty path was taken as the current
     folder, or as no path at all, without a word)."""

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from pursuit_mj.shipped import shipped_dir
-from .common import ListFlag, add_task_args, check_episodes, counted, load_model, seed_arg, table_layouts, task_config_from_args
+from .common import ListFlag, add_task_args, check_episodes, counted, load_model, once_flag, seed_arg, table_layouts, task_config_from_args
 
 PRETRAINED = shipped_dir("pretrained") / "pursuers.pt"
 REFERENCE_EPISODES = 150  # episodes per layout in the reference study's table
@@ -41,7 +41,7 @@ def register(sub) -> None:
         description="Runs a modest evaluation of a trained policy (default: the small pretrained one shipped in "
         "pretrained/) beside the hand-made heuristic team on the built-in layouts, prints the table and says how to train.",
     )
-    p.add_argument("-m", "--model", default=str(PRETRAINED), help="checkpoint to show (default: pretrained/pursuers.pt)")
+    p.add_argument("-m", "--model", default=str(PRETRAINED), action=once_flag("demo shows one model (eval takes several)"), help="checkpoint to show (default: pretrained/pursuers.pt)")
     p.add_argument("--episodes", type=int, default=16, help="episodes per policy and layout (default 16)")
     p.add_argument("--layouts", nargs="+", action=ListFlag, metavar="LAYOUT", help="layouts (default 0 1 2 3, or the one named by --layout)")
     p.add_argument("--worlds", type=int, default=16, help="parallel worlds (default 16)")

@@ -15,8 +15,8 @@ import math
 import sys
 from pathlib import Path
 
-from .common import (add_shield_arg, finite_float, load_model, path_arg, refuse_a_shield_for_nothing, refuse_writing_an_input,
-                     seed_arg, shield_if_asked, task_input_files)
+from .common import (add_shield_arg, finite_float, load_model, once_flag, path_arg, refuse_a_shield_for_nothing,
+                     refuse_writing_an_input, seed_arg, shield_if_asked, task_input_files)
 
 KEYS_HELP = "during a flight: e or space = emergency stop (motors off), l = land everyone, Ctrl-C or Ctrl-Z = land everyone (twice: motors off), Ctrl-\\ = motors off"
 
@@ -29,8 +29,9 @@ def register(sub) -> None:
         "Crazyflies that speak cflib's protocol over udp://. " + KEYS_HELP,
     )
     _flight_args(p)
-    p.add_argument("--policy", help="hand-made team by name (heuristic, random), or FILE.py:NAME for a policy of your own (docs/env_api.md); rehearse it with --virtual first")
-    p.add_argument("--model", help="trained model file (e.g. runs/full_obs/best.pt)")
+    once = once_flag("fly flies one policy (eval takes several, a row each)")
+    p.add_argument("--policy", action=once, help="hand-made team by name (heuristic, random), or FILE.py:NAME for a policy of your own (docs/env_api.md); rehearse it with --virtual first")
+    p.add_argument("--model", action=once, help="trained model file (e.g. runs/full_obs/best.pt)")
     add_shield_arg(p)
     p.add_argument("--virtual", action="store_true", help="fly virtual Crazyflies on udp://127.0.0.1 instead of the radio URIs")
     p.add_argument("--fault", action="append", default=[], metavar="KIND:DRONE@S[=V]",

@@ -29,7 +29,7 @@ from pursuit_mj.policies import POLICY_NAMES, make_policy
 from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_path
 from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, check_evader_model, check_layout_given, flags_typed, load_model, one_flag_named, path_arg, seed_arg, sweep_dead_parts,
-                     finite_float, refuse_a_shield_for_nothing, shield_if_asked, task_config_from_args)
+                     finite_float, once_flag, refuse_a_shield_for_nothing, shield_if_asked, task_config_from_args)
 
 DEFAULT_SAVE = "renders"
 
@@ -44,8 +44,9 @@ def register(sub) -> None:
     )
     who = p.add_argument_group("policy")
     ex = who.add_mutually_exclusive_group()
-    ex.add_argument("-m", "--model", metavar="FILE", help="trained checkpoint (default: best.pt of the -mc run, else --policy)")
-    ex.add_argument("--policy", type=policy_arg, metavar="NAME|FILE.py:NAME",
+    once = once_flag("render plays one policy (eval takes several, a row each)")
+    ex.add_argument("-m", "--model", metavar="FILE", action=once, help="trained checkpoint (default: best.pt of the -mc run, else --policy)")
+    ex.add_argument("--policy", type=policy_arg, action=once, metavar="NAME|FILE.py:NAME",
                     help=f"a hand-made team ({', '.join(POLICY_NAMES)}; default heuristic), or a policy of your own: "
                          "NAME(config, seed) from a Python file (docs/env_api.md, 'Policies')")
     who.add_argument("-mc", "--model-config", metavar="FILE|PRESET",

@@ -564,3 +564,23 @@ def test_a_shield_that_would_change_nothing_is_refused(argv, tmp_path, capsys):
     assert main(["eval", "--shield", "--policy", "heuristic", "--policy", "random", "--episodes", "1", "--worlds", "1",
                  "--fidelity", "point", "--set", "max_steps=2", "-q"]) == 0  # one policy it shields: run
     assert "random+shield" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["render", "-m", "a.pt", "-m", "b.pt"], "argument -m/--model: given twice (a.pt, then b.pt); render plays one policy"),
+    (["render", "--policy", "heuristic", "--policy", "random"],
+     "argument --policy: given twice (heuristic, then random); render plays one policy"),
+    (["fly", "--flight", "example", "--model", "a.pt", "--model", "b.pt"],
+     "argument --model: given twice (a.pt, then b.pt); fly flies one policy"),
+    (["fly", "--flight", "example", "--policy", "heuristic", "--policy", "random"],
+     "argument --policy: given twice (heuristic, then random); fly flies one policy"),
+    (["demo", "-m", "a.pt", "--model", "b.pt"], "argument -m/--model: given twice (a.pt, then b.pt); demo shows one model"),
+])
+def test_one_policy_flag_given_twice_is_refused_where_the_command_plays_one(argv, said, capsys):
+    """render -m a.pt -m b.pt (eval takes several --model, each a row) rendered b.pt alone,
+    without a word about a.pt."""
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert said in err and len(err.strip().splitlines()) == 1, err
