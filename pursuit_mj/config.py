@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from .configio import ConfigError, build, dump_yaml, found_beside, key_where, load, load_yaml, spec, to_dict
+from .file_kinds import refuse_another_kind
 from .layout import MAX_RANDOM_OBSTACLES, N_BUILTIN, found_layout_ref
 
 from .shipped import shipped_dir
@@ -242,7 +243,7 @@ def load_task_yaml(path: str | Path, source: str | None = None) -> dict[str, Any
         # an empty train config or layout file is refused too: a file cut to nothing ran the defaults without a word
         raise ConfigError(f"{source or path}: the file is empty (no task key); a task file sets at least one (see "
                           f"configs/task/*.yaml), and none at all means the defaults: leave the file out")
-    _refuse_other_kinds_of_file(data, source or str(path))
+    refuse_another_kind(data, source or str(path), "task")
     if "layout" in data:
         data["layout"] = found_layout_ref(data["layout"], path, "layout")
     evader = data.get("evader")
@@ -265,24 +266,6 @@ def found_code_ref(ref: Any, file: str | Path, key: str) -> Any:
         where = "" if Path(found).is_absolute() else f" in the current folder ({here}){beside}"
         raise ConfigError(f"{file}: key '{key}': file '{path}' (of {ref}): no such file{where}")
     return f"{found}:{name}"
-
-
-#: keys that mark a layout file or a train config, which a task file has none of
-_LAYOUT_FILE_KEYS = ("arena", "boundary", "spawn")
-_TRAIN_CONFIG_KEYS = ("ppo", "regime", "algo", "n_envs", "total_steps", "task_file")
-
-
-def _refuse_other_kinds_of_file(data: Any, source: str) -> None:
-    """ConfigError saying where a layout file or a train config given as a task file belongs
-    (it was refused as 'unknown key name', which did not say what the file was)."""
-    if not isinstance(data, dict):
-        return
-    for keys, what, where in ((_LAYOUT_FILE_KEYS, "a layout file", "give it with -i/--layout FILE, or among --layouts for a "
-                               "table (eval, demo, study), or as layout: FILE in a task file"),
-                              (_TRAIN_CONFIG_KEYS, "a train config", "give it to pursuit-mj train --config FILE")):
-        found = [k for k in keys if k in data]
-        if found:
-            raise ConfigError(f"{source}: this is {what} (it has {', '.join(found)}), not a task file: {where}")
 
 
 def load_task_config(

@@ -16,6 +16,7 @@ import numpy as np
 import yaml
 
 from .configio import ConfigError, found_beside, key_hint, number_text, read_text, safe_dump, safe_load, shown, yaml_error_text
+from .file_kinds import refuse_another_kind
 from .geometry import ObstacleSet, boundary_segments
 from .shipped import shipped_dir
 
@@ -520,6 +521,10 @@ def load_layout(ref: int | str | Path) -> Layout:
         data = safe_load(read_text(path, str(path)))
     except yaml.YAMLError as exc:
         raise LayoutError(f"{path}: not valid YAML, {yaml_error_text(exc)}") from None
+    try:
+        refuse_another_kind(data, str(path), "layout")
+    except ConfigError as exc:
+        raise LayoutError(str(exc)) from None
     return layout_from_dict(data, str(path))
 
 

@@ -618,3 +618,31 @@ def test_an_empty_task_file_is_refused_as_an_empty_train_config_and_layout_are(t
     assert main(["config", "--task", str(task)]) == 2
     err = capsys.readouterr().err
     assert f"{task}: the file is empty" in err and len(err.strip().splitlines()) == 1, err
+
+
+@pytest.mark.parametrize("argv, given, what, not_what", [
+    (["train", "-sc", "--config", "{layout}"], "layout", "a layout file (it has arena, boundary, spawn)", "a train config"),
+    (["train", "-sc", "--config", "{flight}"], "flight", "a flight file (it has drones, positioning", "a train config"),
+    (["train", "-sc", "--config", "{task}"], "task", "a task file (it has evader_speed)", "a train config"),
+    (["config", "--task", "{flight}"], "flight", "a flight file (it has drones, positioning", "a task file"),
+    (["layout", "check", "{flight}"], "flight", "a flight file (it has drones, positioning", "a layout file"),
+    (["layout", "check", "{task}"], "task", "a task file (it has evader_speed)", "a layout file"),
+    (["fly", "check", "--flight", "{layout}"], "layout", "a layout file (it has arena, boundary, spawn)", "a flight file"),
+    (["fly", "check", "--flight", "{task}"], "task", "a task file (it has evader_speed)", "a flight file"),
+])
+def test_a_file_of_another_kind_is_named_for_what_it_is_wherever_it_is_given(argv, given, what, not_what, tmp_path, capsys):
+    """train --config LAYOUT.yaml said "unknown key 'arena' (did you mean 'run'?)", and train
+    --config FLIGHT.yaml "unknown key 'layout' (did you mean 'task.layout'?)": advice that leads
+    nowhere. Only a task file given a layout or train config said what the file was."""
+    from pursuit_mj.layout import builtin_layout_path
+    from pursuit_mj.shipped import shipped_dir
+
+    files = {"layout": tmp_path / "arena.yaml", "flight": tmp_path / "lab.yaml", "task": tmp_path / "fast.yaml"}
+    files["layout"].write_text(builtin_layout_path(1).read_text())
+    files["flight"].write_text((shipped_dir("configs") / "flight" / "example.yaml").read_text())
+    files["task"].write_text("evader_speed: 0.45\n")
+    argv = [a.format(**files) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"{files[given]}: this is {what}" in err and f"not {not_what}: " in err and "did you mean" not in err, err
+    assert len(err.strip().splitlines()) == 1, err

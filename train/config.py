@@ -15,7 +15,7 @@ import os
 from pathlib import Path
 from typing import Any, Collection, Mapping, Sequence
 
-from pursuit_mj.config import TaskConfig, found_code_ref, load_task_yaml, preset_or_file
+from pursuit_mj.config import TaskConfig, found_code_ref, load_task_yaml, preset_or_file, refuse_another_kind
 from pursuit_mj.configio import ConfigError, build, check_values, found_beside, key_where, load, load_yaml, merge, parse_override, spec, to_dict
 from pursuit_mj.layout import N_BUILTIN, found_layout_ref
 from pursuit_mj.sensing import PRIVILEGED_VIEWS
@@ -497,6 +497,7 @@ def load_train_config(
     for f in files:
         p = preset_or_file(f, "train")
         data = load_yaml(p)
+        refuse_another_kind(data, str(p), "train")
         if not data:
             raise ConfigError(f"{p}: the file is empty; a train config sets at least its regime or name "
                               f"(see configs/train/*.yaml), and none at all means the defaults: leave out --config")

@@ -31,6 +31,7 @@ from typing import Any, Mapping
 
 from ..config import DRONE_CONTACT_DISTANCE, preset_or_file
 from ..configio import ConfigError, build, key_where, load_yaml, shown, spec
+from ..file_kinds import refuse_another_kind
 from .board import HISTORY
 
 ROLES = ("pursuer", "evader", "target")
@@ -316,7 +317,9 @@ def load_flight(path: str | Path) -> FlightSpec:
     """Read and validate a flight file, or a preset of configs/flight/ by bare name ('example').
     Raises ConfigError naming the file and the key."""
     found = preset_or_file(path, "flight")
-    return flight_from_dict(load_yaml(found), str(found))
+    data = load_yaml(found)
+    refuse_another_kind(data, str(found), "flight")
+    return flight_from_dict(data, str(found))
 
 
 __all__ = ["DroneSpec", "TransformSpec", "LabBounds", "SafetyLimits", "FlightSpec", "load_flight", "flight_from_dict", "check_uri", "link_key", "drone_names", "ROLES", "POSITIONING"]
