@@ -446,23 +446,24 @@ def refuse_writing_an_input(outputs: list[tuple[str, Path]], inputs: list[tuple[
     """ValueError naming the first output (flag as typed, path it writes) that is one of the files
     the command reads (`inputs`: what names it, e.g. '--model m.pt', and its path): a table
     written there would replace a checkpoint, a policy or layout file, or a table being pooled.
-    Other names of a file (./x, a/../x, a link) count as that file; an input that does not exist
-    is left to its reader."""
-    read: dict[Path, str] = {}
+    Other names of a file (./x, a/../x, a symbolic or hard link) count as that file; an input that
+    does not exist is left to its reader."""
+    read: dict[tuple[int, int], str] = {}
     for said, path in inputs:
         try:
             if Path(path).is_file():
-                read.setdefault(Path(path).resolve(), said)
+                found = os.stat(path)
+                read.setdefault((found.st_dev, found.st_ino), said)
         except OSError:  # unreadable: its reader names it
             continue
     for flag, path in outputs:
         try:
-            key = Path(path).resolve()
+            found = os.stat(path)  # an output not there yet is no input
         except OSError:
             continue
-        if key in read:
-            raise ValueError(f"{flag}: the same file as {read[key]}, which writing there would destroy; "
-                             f"give another output name")
+        if (found.st_dev, found.st_ino) in read:
+            raise ValueError(f"{flag}: the same file as {read[(found.st_dev, found.st_ino)]}, which writing there would "
+                             f"destroy; give another output name")
 
 
 def task_input_files(args: argparse.Namespace, config: TaskConfig) -> list[tuple[str, str]]:

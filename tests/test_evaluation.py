@@ -932,10 +932,12 @@ class Still:
     (["--task", "task.yaml"], "--json", "task.yaml", "--task task.yaml"),
     (["--set", "evader.model=team.py:Still"], "--json", "team.py", "evader.model team.py:Still"),
     (["--model", "m.pt"], "--rerun", "m.pt.rrd", None),  # not an input: no refusal from this check
+    (["--model", "m.pt"], "--json", "hard.pt", "--model m.pt"),  # a hard link to the checkpoint is the checkpoint
 ])
 def test_eval_refuses_an_output_that_is_one_of_its_input_files(inputs, flag, out, said, tmp_path, monkeypatch, capsys):
     """`eval --model m.pt --json m.pt` played the table and then wrote it over the checkpoint (and
     --csv over a policy file, a layout file, a task file): the user's input was gone."""
+    import os
     import shutil
 
     from pursuit_mj.shipped import shipped_dir
@@ -945,6 +947,7 @@ def test_eval_refuses_an_output_that_is_one_of_its_input_files(inputs, flag, out
     (tmp_path / "team.py").write_text(POLICY_FILE)
     (tmp_path / "arena.yaml").write_text(builtin_layout_path(1).read_text())
     (tmp_path / "task.yaml").write_text("fidelity: point\n")
+    os.link(tmp_path / "m.pt", tmp_path / "hard.pt")
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
     code = main(["eval", "--fidelity", "point", "--episodes", "1", "--worlds", "1", "--set", "max_steps=5", "-q",
                  *inputs, flag, out])
