@@ -1155,3 +1155,27 @@ def test_fly_align_refuses_to_write_its_copy_over_the_flight_file(tmp_path, caps
     err = capsys.readouterr().err
     assert rc == 2 and f"--write {tmp_path}/./lab.yaml: the same file as --flight {flight}" in err, err
     assert len(err.strip().splitlines()) == 1 and flight.read_bytes() == before
+
+
+@pytest.mark.parametrize("text, ok", [
+    ("name: notes\narena: {width: 3.6, height: 5.0}\n", False),  # a layout file of another flight, say
+    ("some notes\n", False),
+    ("", True),  # an empty file: nothing to damage
+    ('{"t": 0.0, "time": "2026-12-07T08:00:00+00:00", "kind": "links_up"}\n', True),  # an earlier flight's log
+])
+def test_an_event_log_is_appended_only_to_an_event_log(text, ok, tmp_path, capsys):
+    """fly --events notes.yaml appended the flight's JSON records to a file that was no event log
+    (any YAML or text file not read by the flight), damaging it for good."""
+    from pursuit_cli import main
+
+    log = tmp_path / "notes.yaml"
+    log.write_text(text)
+    rc = main(["fly", "--flight", EXAMPLE, "--policy", "heuristic", "--virtual", "--yes", "--max-time", "1",
+               "--events", str(log)])
+    err = capsys.readouterr().err
+    if ok:
+        assert rc == 0, err
+        assert log.read_text().startswith(text) and "links_closed" in log.read_text()
+        return
+    assert rc == 2 and f"--events {log}: an existing file that is not an event log" in err, err
+    assert len(err.strip().splitlines()) == 1 and log.read_text() == text

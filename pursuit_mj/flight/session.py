@@ -118,6 +118,28 @@ def _check_events_apart(events_path: str | Path, plan: FlightPlan, rerun_path: s
                              f"(default flights/<name>-<time>.events.jsonl)")
 
 
+def _check_events_is_a_log(events_path: str | Path) -> None:
+    """ValueError naming --events when it names an existing file that is not an event log (its
+    first line is not a JSON record with a 'kind'): the flight's records are appended to it, and
+    a layout, notes or any other file would be damaged for good. An empty file is taken."""
+    import json
+
+    try:
+        with open(events_path, "rb") as f:
+            first = f.readline(1 << 16)
+    except OSError:  # not there yet (the log is made), or unreadable: opening it for appending says why
+        return
+    if not first.strip():
+        return
+    try:
+        record = json.loads(first)
+    except ValueError:
+        record = None
+    if not (isinstance(record, dict) and "kind" in record):
+        raise ValueError(f"--events {events_path}: an existing file that is not an event log (its first line is no "
+                         f"flight record); the log is appended to: give a new name, or an earlier flight's .events.jsonl")
+
+
 def choose_policy(plan: FlightPlan, policy: str | None, seed: int = 0) -> Policy:
     """`--policy NAME` (pursuit_mj.policies). A trained model is loaded by the caller
     (`train.load_policy`; the simulator package never imports the learning one) and handed
@@ -179,6 +201,7 @@ def run_flight(
         if events_path is not None:
             check_writable(events_path, "--events")
             _check_events_apart(events_path, plan, rerun_path)
+            _check_events_is_a_log(events_path)
         if policy is None:
             policy = choose_policy(plan, policy_name, seed)
         new_log = events_path is not None and not Path(events_path).exists()
