@@ -466,6 +466,32 @@ def refuse_writing_an_input(outputs: list[tuple[str, Path]], inputs: list[tuple[
                              f"destroy; give another output name")
 
 
+def refuse_replacing_what_is_no_table(outputs: list[tuple[str, Path]]) -> None:
+    """ValueError naming the first output (flag as typed, path) that exists, is not empty and is
+    no evaluation table (the JSON of eval and pool, with its rows, or their CSV, whose header
+    starts policy,layout): the table would replace a file of the user's (eval --json notes.json).
+    An earlier table under the name is replaced, as a run again is meant to."""
+    import json
+
+    for flag, path in outputs:
+        try:
+            if not Path(path).is_file() or Path(path).stat().st_size == 0:
+                continue
+            text = Path(path).read_text(errors="replace")
+        except OSError:  # unreadable: writing it says why
+            continue
+        if text.startswith("policy,layout,"):
+            continue
+        try:
+            data = json.loads(text)
+        except ValueError:
+            data = None
+        if isinstance(data, dict) and "rows" in data:
+            continue
+        raise ValueError(f"{flag} path {path}: exists and is not an evaluation table (the JSON or CSV that eval and pool "
+                         f"write), which the table would replace; choose another file, or delete it first")
+
+
 def task_input_files(args: argparse.Namespace, config: TaskConfig) -> list[tuple[str, str]]:
     """The files a command that plays the task reads, as (what names it, path): its --task files
     and the evaders' model file (presets and the built-in model are no files of the user's)."""

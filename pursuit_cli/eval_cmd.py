@@ -20,8 +20,8 @@ from pursuit_mj.policies import POLICY_NAMES, make_policy
 from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_sha256
 from .common import (SHIELD_HELP, ListFlag, add_shield_arg, add_task_args, check_episodes, check_out_prefix, counted, load_model,
-                     pick_versus, refuse_a_shield_for_nothing, refuse_writing_an_input, sweep_dead_parts, seed_arg, shield_if_asked, table_layouts,
-                     task_config_from_args, task_input_files)
+                     pick_versus, refuse_a_shield_for_nothing, refuse_replacing_what_is_no_table, refuse_writing_an_input,
+                     sweep_dead_parts, seed_arg, shield_if_asked, table_layouts, task_config_from_args, task_input_files)
 from .eval_resume import check_nothing_kept, drop_finished, finished_rows, interrupted_path, keep_finished, write_finished
 
 
@@ -79,6 +79,8 @@ def _outputs(args, config, layouts) -> tuple[Path | None, Path | None]:
     csv_path = Path(args.csv) if args.csv else (Path(f"{args.out}.csv") if args.out else None)
     json_path = Path(args.json) if args.json else (Path(f"{args.out}.json") if args.out else None)
     _refuse_writing_an_input(args, config, layouts, csv_path, json_path)
+    named = (("--csv" if args.csv else f"--out {args.out}", csv_path), ("--json" if args.json else f"--out {args.out}", json_path))
+    refuse_replacing_what_is_no_table([(flag, path) for flag, path in named if path is not None])
     for path, given, what in ((csv_path, args.csv, "--csv" if args.csv else f"--out {args.out}"),
                               (json_path, args.json, "--json" if args.json else f"--out {args.out}")):
         if path is not None:

@@ -15,7 +15,8 @@ import dataclasses
 from pathlib import Path
 
 from pursuit_mj.io_utils import check_writable, check_writable_folder, no_new_empty_folders
-from .common import check_out_prefix, counted, path_arg, pick_versus, refuse_a_file_given_twice, refuse_writing_an_input
+from .common import (check_out_prefix, counted, path_arg, pick_versus, refuse_a_file_given_twice, refuse_replacing_what_is_no_table,
+                     refuse_writing_an_input)
 
 
 def register(sub) -> None:
@@ -52,6 +53,7 @@ def _run(args) -> int:
     if args.out:  # a usage error too: pool s0.json s1.json --out s0 wrote over s0.json
         refuse_writing_an_input([(f"--out {args.out} (it writes {args.out}{suffix})", Path(args.out + suffix))
                                  for suffix in (".csv", ".json")], [(text, text) for text in args.files])
+        refuse_replacing_what_is_no_table([(f"--out {args.out}", Path(args.out + suffix)) for suffix in (".csv", ".json")])
     pooled = pool_tables(args.files)
     labels = list(dict.fromkeys(r.policy for r in pooled.rows))
     versus = pick_versus(args.versus, labels, "these tables", "(a table that holds another)")

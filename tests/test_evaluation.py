@@ -958,3 +958,21 @@ def test_eval_refuses_an_output_that_is_one_of_its_input_files(inputs, flag, out
     assert code == 2, err
     assert f"{flag} {out}: the same file as {said}" in err and len(err.strip().splitlines()) == 1, err
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+@pytest.mark.parametrize("flag, name", [("--json", "notes.json"), ("--csv", "data.csv"), ("--out", "notes")])
+def test_eval_refuses_to_write_its_table_over_a_file_that_is_no_table(flag, name, tmp_path, monkeypatch, capsys):
+    """eval --json notes.json (or --csv data.csv, --out notes) replaced a file of the user's that was
+    no evaluation table, without a word; an earlier table under the name is replaced as before."""
+    monkeypatch.chdir(tmp_path)
+    for file in ("notes.json", "data.csv"):
+        (tmp_path / file).write_text('{"mine": [1, 2, 3]}\n' if file.endswith(".json") else "x,y\n1,2\n")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    args = ["eval", "--fidelity", "point", "--episodes", "1", "--worlds", "1", "--set", "max_steps=3", "-q"]
+    assert main([*args, flag, name]) == 2
+    err = capsys.readouterr().err
+    shown = name if flag != "--out" else "notes.json"
+    assert f"{shown}: exists and is not an evaluation table" in err and len(err.strip().splitlines()) == 1, err
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    assert main([*args, "--out", "table"]) == 0 and main([*args, "--out", "table", "--seed", "1"]) == 0  # a table: replaced
+    assert json.loads((tmp_path / "table.json").read_text())["seed"] == 1

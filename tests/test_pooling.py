@@ -431,3 +431,15 @@ def test_pool_refuses_an_out_prefix_that_writes_over_a_table_it_pools(tables, tm
     err = capsys.readouterr().err
     assert f"--out {tmp_path}/s0 (it writes {s0}): the same file as {s0}" in err and len(err.strip().splitlines()) == 1, err
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+def test_pool_refuses_to_write_its_table_over_a_file_that_is_no_table(tables, tmp_path, capsys):
+    """pool ... --out notes replaced notes.json, a file of the user's that was no table."""
+    from pursuit_cli import main
+
+    notes = tmp_path / "notes.json"
+    notes.write_text('{"mine": 1}\n')
+    assert main(["pool", str(tables["h0"]), str(tables["h1"]), "--out", str(tmp_path / "notes")]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {tmp_path}/notes path {notes}: exists and is not an evaluation table" in err, err
+    assert notes.read_text() == '{"mine": 1}\n' and not (tmp_path / "notes.csv").exists()
