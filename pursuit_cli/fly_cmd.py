@@ -216,6 +216,24 @@ ALIGN_WARN_RMS = 0.05  # m: a fit worse than this is a placement or ordering mis
 STOP_SIGNALS = {"Ctrl-C": "SIGINT", "SIGTERM": "SIGTERM", "SIGHUP": "SIGHUP", "Ctrl-Z": "SIGTSTP"}
 
 
+def _refuse_replacing_what_is_no_flight_file(path: str) -> None:
+    """ValueError naming --write when it names an existing, non-empty file that is no flight file
+    (no drones key): the aligned copy would replace a task file, a layout or notes of the user's.
+    An earlier aligned copy (a flight file) is replaced, as aligning again is meant to."""
+    from pursuit_mj.configio import load_yaml
+
+    target = Path(path)
+    try:
+        if not target.is_file() or target.stat().st_size == 0:
+            return
+        data = load_yaml(target)
+    except (OSError, ValueError):  # not YAML at all: no flight file either
+        data = None
+    if not (isinstance(data, dict) and "drones" in data):
+        raise ValueError(f"--write path {path}: exists and is not a flight file, which the aligned copy would replace; "
+                         f"choose another file, or delete it first")
+
+
 def run_align(args) -> int:
     """fly align. Refused or stopped after it made --write's folder (a fit refused, a Ctrl-C while it
     measures), it leaves none of the folders it made for it (io_utils.no_new_empty_folders)."""
@@ -255,6 +273,7 @@ def _run_align(args) -> int:
         # a copy without the comments over the flight file (or its layout) would lose them
         refuse_writing_an_input([(f"--write {args.write}", Path(args.write))],
                                 [(f"--flight {args.flight}", spec.source), ("the flight's layout file", layout.source)])
+        _refuse_replacing_what_is_no_flight_file(args.write)
         check_writable(args.write, "--write")
     if args.virtual:
         from pursuit_mj.flight.plan import resolve_flight

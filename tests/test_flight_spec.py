@@ -1179,3 +1179,22 @@ def test_an_event_log_is_appended_only_to_an_event_log(text, ok, tmp_path, capsy
         return
     assert rc == 2 and f"--events {log}: an existing file that is not an event log" in err, err
     assert len(err.strip().splitlines()) == 1 and log.read_text() == text
+
+
+def test_fly_align_refuses_to_write_its_copy_over_a_file_that_is_no_flight_file(tmp_path, capsys):
+    """fly align --write task.yaml replaced a task file of the user's with a flight file, without a
+    word; an earlier aligned copy under the name is replaced as before."""
+    from pursuit_cli import main
+
+    truth = LabTransform((4.2, 0.1), math.pi / 2, 1.25)
+    spots = np.array([[0.5, 0.625], [1.75, 0.625], [1.875, 4.0]])
+    fmt = lambda pts: " ".join(f"{x:.4f},{y:.4f}" for x, y in pts)  # noqa: E731
+    argv = ["fly", "align", "--flight", "lighthouse", "--lab", fmt(truth.to_lab(spots)), "--spots", fmt(spots), "--write"]
+    task = tmp_path / "task.yaml"
+    task.write_text("evader_speed: 0.45\n")
+    assert main([*argv, str(task)]) == 2
+    err = capsys.readouterr().err
+    assert f"--write path {task}: exists and is not a flight file" in err and len(err.strip().splitlines()) == 1, err
+    assert task.read_text() == "evader_speed: 0.45\n"
+    aligned = tmp_path / "aligned.yaml"
+    assert main([*argv, str(aligned)]) == 0 and main([*argv, str(aligned)]) == 0  # an earlier copy: replaced
