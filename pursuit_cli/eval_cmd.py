@@ -224,7 +224,7 @@ def _versus(args, policies) -> str | None:
 def run(args) -> int:
     """The eval command. Refused or failed before it kept anything, it leaves none of the folders it
     made for --out, --csv, --json, --plots or --rerun (what it wrote stays: io_utils.no_new_empty_folders)."""
-    with no_new_empty_folders(args.csv, args.json, args.out and f"{args.out}.csv", args.plots, args.rerun):
+    with no_new_empty_folders():
         return _run(args)
 
 

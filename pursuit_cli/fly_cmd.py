@@ -239,7 +239,7 @@ def run_align(args) -> int:
     measures), it leaves none of the folders it made for it (io_utils.no_new_empty_folders)."""
     from pursuit_mj.io_utils import no_new_empty_folders
 
-    with no_new_empty_folders(args.write):
+    with no_new_empty_folders():
         return _run_align(args)
 
 

@@ -330,7 +330,7 @@ MAX_FAILED_SEEDS = 5
 
 def run_new(args) -> int:
     out = Path(args.out)
-    with no_new_empty_folders(args.out):  # refused (a bad flag, a layout that cannot work): no folder left for OUT
+    with no_new_empty_folders():  # refused (a bad flag, a layout that cannot work): no folder left for OUT
         check_writable(out, "OUT")  # a folder is named as one, not taken for a file --force would overwrite
         if out.suffix.lower() not in (".yaml", ".yml"):
             raise ValueError(f"OUT {out}: expected a .yaml file name (a layout file is YAML)")
@@ -388,7 +388,7 @@ def run_show(args) -> int:
     if out.suffix.lower() != ".png":
         raise ValueError(f"--out {out}: expected a .png file name")
     try:
-        with no_new_empty_folders(out):  # the drawing refused (no room for --count obstacles): no folder left for --out
+        with no_new_empty_folders():  # the drawing refused (no room for --count obstacles): no folder left for --out
             check_writable(out, "--out")
             save_layout_png(layout, out, seed=None if args.no_random else args.seed, count=args.count,
                             passage_clearance=args.obstacle_clearance, passage_source="--obstacle-clearance",

@@ -70,7 +70,7 @@ def run(args) -> int:
         x_key(runs, args.x)
         curve_keys(runs, args.metric or None)
     paths = []
-    with no_new_empty_folders(out):  # stopped or failed before its first chart: no empty --out folder left
+    with no_new_empty_folders():  # stopped or failed before its first chart: no empty --out folder left
         check_writable_folder(out, f"--out {out}")
         if rows:  # first: it refuses a bar given twice before drawing
             paths += plot_eval(rows, out)

@@ -38,7 +38,7 @@ def register(sub) -> None:
 def run(args) -> int:
     """The pool command. Refused or stopped before it wrote, it leaves none of the folders it made for
     --out or --plots (io_utils.no_new_empty_folders)."""
-    with no_new_empty_folders(args.out and f"{args.out}.csv", args.plots):
+    with no_new_empty_folders():
         return _run(args)
 
 

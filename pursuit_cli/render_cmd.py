@@ -288,7 +288,7 @@ def table_episode_seeds(config, seed: int, episodes: int) -> list[int]:
 def run(args) -> int:
     """The render command. Refused or failed before it wrote anything, it leaves none of the folders
     it made for -s or --rerun (what it wrote stays: io_utils.no_new_empty_folders)."""
-    with no_new_empty_folders(args.save_path, args.rerun):
+    with no_new_empty_folders():
         return _run(args)
 
 

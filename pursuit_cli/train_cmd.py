@@ -259,7 +259,7 @@ def run(args) -> int:
             load_checkpoint(args.export[0])  # names what is wrong with it (missing, a folder)
         if Path(args.export[1]).is_dir():
             raise ValueError(f"--export OUT {args.export[1]}: is a folder; give the file to write (e.g. {Path(args.export[1]) / 'policy.pt'})")
-        with no_new_empty_folders(args.export[1]):  # a checkpoint found unusable now leaves no folder made for OUT
+        with no_new_empty_folders():  # a checkpoint found unusable now leaves no folder made for OUT
             check_writable(args.export[1], "--export OUT")
             path = export_actor(*args.export)
         print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB, policy only)")

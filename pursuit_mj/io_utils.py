@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import glob
 import hashlib
 import os
@@ -242,36 +243,53 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     return Path(path)
 
 
-def _missing_on_the_way(path: Path) -> list[Path]:
-    """`path` and those of its parents that do not exist (yet), innermost first."""
+_FOLDERS_MADE: contextvars.ContextVar[list[Path] | None] = contextvars.ContextVar("folders_made", default=None)
+
+
+def make_folders(folder: Path) -> None:
+    """`folder` and those of its parents that are missing made, as mkdir -p does (OSError as mkdir raises
+    it), each one this call made itself noted (absolute, as it named it) for the enclosing
+    no_new_empty_folders: one that another process made meanwhile, or that was there, is not noted."""
     missing = []
-    for p in (path, *path.parents):
-        try:
-            if os.path.lexists(p):
-                break
-        except (OSError, ValueError):  # a name too long, a NUL: nothing can be made there either
+    for p in (folder, *folder.parents):
+        if p.is_dir():
             break
         missing.append(p)
-    return missing
+    for p in reversed(missing):  # outermost first
+        try:
+            p.mkdir()
+        except FileExistsError:
+            if not p.is_dir():  # a file, a dangling link
+                raise
+            continue  # there already ('new/..'), or made meanwhile by another process: not this call's
+        made = _FOLDERS_MADE.get()
+        if made is not None:
+            made.append(p.absolute())
 
 
 @contextlib.contextmanager
-def no_new_empty_folders(*paths: str | Path | None) -> Iterator[None]:
-    """Within: if the body raises (a refusal, a failure mid-run, Ctrl-C), every folder on the way
-    to any of `paths` (output files or folders, None skipped) that did not exist on entry and is
-    empty then is removed, innermost first. One that holds anything (a partial table, a log, a
-    recording) stays, and with it the folders above it: what a command made and left empty goes,
-    what it wrote is never lost. Nothing is removed when the body succeeds."""
-    missing = {p for path in paths if path is not None and str(path) for p in _missing_on_the_way(Path(path))}
+def no_new_empty_folders() -> Iterator[None]:
+    """Within: if the body raises (a refusal, a failure mid-run, Ctrl-C), every folder that
+    check_writable_folder (make_folders) made within it, in this thread, and that is empty then is
+    removed, innermost first, where it was made (a chdir meanwhile changes nothing). One that holds
+    anything (a partial table, a log, a recording) stays, and with it the folders above it: what a
+    command made and left empty goes, what it wrote is never lost, and a folder that was there or
+    that another process made is never touched. Nothing is removed when the body succeeds (an
+    enclosing no_new_empty_folders takes over the folders made)."""
+    outer = _FOLDERS_MADE.get()
+    made: list[Path] = []
+    token = _FOLDERS_MADE.set(made)
     try:
         yield
     except BaseException:
-        for folder in sorted(missing, key=lambda p: len(p.parts), reverse=True):
-            try:
-                folder.rmdir()  # only an empty folder (a file of that name, or a non-empty folder, stays)
-            except OSError:
-                pass
+        for folder in reversed(made):  # a folder is made after the one it is in
+            with contextlib.suppress(OSError):
+                folder.rmdir()  # only an empty folder (a non-empty one stays)
         raise
+    finally:
+        _FOLDERS_MADE.reset(token)
+    if outer is not None:
+        outer.extend(made)
 
 
 def check_writable_folder(folder: str | Path, what: str) -> Path:
@@ -285,7 +303,7 @@ def check_writable_folder(folder: str | Path, what: str) -> Path:
     if is_file:
         raise ValueError(f"{what}: {folder} exists and is not a folder")
     try:
-        folder.mkdir(parents=True, exist_ok=True)
+        make_folders(folder)
     except OSError as exc:
         raise ValueError(f"{what}: cannot create the folder {folder} ({exc.strerror})") from None
     if not os.access(folder, os.W_OK | os.X_OK):

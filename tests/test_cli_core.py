@@ -484,20 +484,20 @@ def test_no_new_empty_folders_removes_only_the_empty_folders_a_failure_made(tmp_
     on the way to an output that was not there before and is empty goes, innermost first (a/b/new
     takes a/b and a with it); one that holds anything stays, with the folders above it; a folder
     that was there stays even when empty; nothing is removed when the body succeeds."""
-    from pursuit_mj.io_utils import no_new_empty_folders
+    from pursuit_mj.io_utils import check_writable_folder, no_new_empty_folders
 
     (tmp_path / "there").mkdir()
     deep, kept_file, there = tmp_path / "a" / "b" / "new", tmp_path / "k" / "log" / "x.jsonl", tmp_path / "there" / "n"
     with pytest.raises(KeyboardInterrupt):
-        with no_new_empty_folders(deep, kept_file, there / "t.csv", None):
+        with no_new_empty_folders():
             for folder in (deep, kept_file.parent, there):
-                folder.mkdir(parents=True)
+                check_writable_folder(folder, "--out")
             kept_file.write_text("{}\n")  # what the command wrote before it failed
             raise KeyboardInterrupt
     assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")) == [
         "k", "k/log", "k/log/x.jsonl", "there"]
-    with no_new_empty_folders(deep):
-        deep.mkdir(parents=True)
+    with no_new_empty_folders():
+        check_writable_folder(deep, "--out")
     assert deep.is_dir()
 
 
@@ -584,3 +584,50 @@ def test_one_policy_flag_given_twice_is_refused_where_the_command_plays_one(argv
     assert stop.value.code == 2
     err = capsys.readouterr().err
     assert said in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_no_new_empty_folders_keeps_a_folder_another_process_made_meanwhile(tmp_path):
+    """A folder missing when a command started but made by another process while it ran (two evals
+    started together into a new shared/ folder) is that process's: the command refused afterwards
+    removed it while it was still empty, and the other's output had nowhere to go."""
+    from pursuit_mj.io_utils import check_writable, no_new_empty_folders
+
+    shared = tmp_path / "shared"
+    with pytest.raises(ValueError):
+        with no_new_empty_folders():
+            shared.mkdir()  # the other process, between this one's start and its refusal
+            check_writable(shared / "a.csv", "--csv")
+            raise ValueError("refused")
+    assert shared.is_dir()
+
+
+def test_no_new_empty_folders_removes_what_it_made_where_it_made_it_after_a_chdir(tmp_path, monkeypatch):
+    """The folders a failed command made are removed where they were made, even if the current
+    folder changed meanwhile: the relative name then named another folder, a user's empty one."""
+    from pursuit_mj.io_utils import check_writable_folder, no_new_empty_folders
+
+    start, other = tmp_path / "start", tmp_path / "other"
+    (other / "n1" / "x").mkdir(parents=True)  # the user's, empty
+    start.mkdir()
+    monkeypatch.chdir(start)
+    with pytest.raises(KeyboardInterrupt):
+        with no_new_empty_folders():
+            check_writable_folder("n1/x", "--plots n1/x")
+            monkeypatch.chdir(other)
+            raise KeyboardInterrupt
+    assert list(start.iterdir()) == []
+    assert (other / "n1" / "x").is_dir()
+
+
+def test_no_new_empty_folders_nested_hands_its_folders_to_the_outer_one(tmp_path):
+    """A study makes each arm's run folder within the trainer's no_new_empty_folders, inside its own:
+    a folder the inner one made and kept (it succeeded) is removed by the outer one that fails later."""
+    from pursuit_mj.io_utils import check_writable_folder, no_new_empty_folders
+
+    with pytest.raises(KeyboardInterrupt):
+        with no_new_empty_folders():
+            check_writable_folder(tmp_path / "out", "--out")
+            with no_new_empty_folders():
+                check_writable_folder(tmp_path / "out" / "runs" / "a", "run folder")
+            raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []

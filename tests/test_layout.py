@@ -1161,3 +1161,14 @@ def test_a_layout_flag_that_would_do_nothing_is_refused_not_ignored(argv, said, 
     assert main(["layout", "new", str(tmp_path / "a.yaml"), "--random", "2"]) == 0
     assert main(["layout", "new", str(tmp_path / "b.yaml"), "--random", "2", "--seed", "0", "--name", "a"]) == 0
     assert (tmp_path / "a.yaml").read_text() == (tmp_path / "b.yaml").read_text()
+
+
+
+def test_a_refused_layout_file_named_through_dot_dot_keeps_the_folder_it_names(tmp_path, capsys, monkeypatch):
+    """'layout new new/../keep/l.yaml' makes new/ (to reach keep/, which was there, empty): refused, it
+    removed keep/ as well as new/, since new/../keep could not be found when it started."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "keep").mkdir()
+    assert main(["layout", "new", "new/../keep/l.yaml", "--width", "-3"]) == 2
+    assert "--width: must be a number > 0" in capsys.readouterr().err
+    assert [p.name for p in tmp_path.iterdir()] == ["keep"]

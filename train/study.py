@@ -444,7 +444,7 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
     check_train_overrides(plan)
     if plan.resume and not plan.out.is_dir():
         raise ValueError(f"--resume: --out {plan.out} is not a folder with a study to continue")
-    with no_new_empty_folders(plan.out):  # refused before it kept anything: no folder of '--out a/b/new' is left
+    with no_new_empty_folders():  # refused before it kept anything: no folder of '--out a/b/new' is left
         new_lock = not (plan.out / STUDY_LOCK).exists()
         check_writable_folder(plan.out, f"--out {plan.out}")
         lock = lock_folder(plan.out, STUDY_LOCK, "study folder", "study", "give another --out")

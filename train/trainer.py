@@ -106,7 +106,7 @@ class Trainer:
             log(f"[train] note: {line}")
         self.run_dir = cfg.run_dir
         self.resume_command = f"pursuit-mj train --resume {self.run_dir}"  # what an interrupted run tells the user
-        with no_new_empty_folders(self.run_dir):  # a run refused here leaves no folder of run.runs_dir=a/b made for it
+        with no_new_empty_folders():  # a run refused here leaves no folder of run.runs_dir=a/b made for it
             self._take_run_folder(checkpoint, log, held_lock)
 
     def _take_run_folder(self, checkpoint: dict | None, log: Callable[[str], None], held_lock: IO | None) -> None:

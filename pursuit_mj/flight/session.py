@@ -193,7 +193,7 @@ def run_flight(
         raise ValueError("--fault rehearses failures on virtual drones only; add --virtual")
     fault_list = [parse_fault(f, plan) for f in faults]
     # refused or failed before it recorded anything: no folder made for --rerun or --events is left
-    with no_new_empty_folders(rerun_path, events_path):
+    with no_new_empty_folders():
         if rerun_path is not None:
             from ..recording import check_rrd_path
 
