@@ -814,6 +814,11 @@ def test_a_train_set_word_read_as_a_boolean_is_advised_with_train_set(tmp_path, 
                               "belief_ppo arms refuse it (full_obs config): ppo.anchor_coef 0.5 needs init_from"),
     (["algo=dagger"], "--train-set algo=dagger: the residual arm refuses it (residual config): residual.base 'heuristic' "
                       "works with algo ppo or mappo, not dagger"),
+    # arms that refuse different values: each value with its own arms (residual was named as refusing the first)
+    (["ppo.minibatch_size=2048", "ppo.teacher_coef=0.5"],
+     "--train-set ppo.minibatch_size=2048: the full_obs, fine_tune, classic and mappo arms refuse it (full_obs config): "
+     "ppo.minibatch_size 2048 exceeds ppo.batch_size 1024; --train-set ppo.teacher_coef=0.5: the residual arm refuses it "
+     "(residual config): ppo.teacher_coef 0.5 cannot work with residual.base"),
 ])
 def test_a_train_set_value_an_arm_refuses_is_named_with_the_arms_that_refuse_it(tmp_path, capsys, train_set, said):
     """'--train-set n_envs=4 --train-set task.layout=nope.yaml' was refused as '--train-set: the

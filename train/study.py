@@ -396,12 +396,20 @@ def _refused_override(said: str, overrides: Sequence[str]) -> str | None:
 
 
 def _train_set_refusal(refused: dict[Arm, str], overrides: Sequence[str]) -> str:
-    """One line for the arms that refuse the --train-set values (arm -> its refusal, as --train-set):
-    '--train-set TEXT: the a and b arms refuse it (a config): WHY', or 'every arm refuses it', with
-    the config named where the arms' refusals differ."""
+    """One line for the arms that refuse the --train-set values (arm -> its refusal, as --train-set): for
+    each value refused (in arm order), '--train-set TEXT: the a and b arms refuse it (a config): WHY', or
+    'every arm refuses it', with the config named where the arms' refusals differ; joined by '; '."""
+    by_value: dict[str | None, dict[Arm, str]] = {}
+    for arm, said in refused.items():
+        by_value.setdefault(_refused_override(said, overrides), {})[arm] = said
+    return "; ".join(_value_refusal(text, arms_said, overrides) for text, arms_said in by_value.items())
+
+
+def _value_refusal(text: str | None, refused: dict[Arm, str], overrides: Sequence[str]) -> str:
+    """'--train-set TEXT: the a and b arms refuse it (a config): WHY' for the arms that refuse the
+    override `text` (None: one their refusals do not name), see _train_set_refusal."""
     arms = list(refused)
     first = refused[arms[0]]
-    text = _refused_override(first, overrides)
     flag = f"--train-set {text}" if text is not None else f"--train-set ({', '.join(overrides)})"
     why = first.removeprefix(f"{flag}: ").removeprefix("train config: ")
     if len(arms) == len(ARMS):
