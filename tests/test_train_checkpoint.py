@@ -1280,3 +1280,31 @@ def test_a_mappo_run_started_from_a_mappo_checkpoint_without_value_statistics_sa
     save_checkpoint(bare, {k: v for k, v in data.items() if k not in ("format", "version")})
     Trainer(tiny_config(tmp_path, name="b", updates=1, extra=["algo=mappo", f"init_from={bare}"]), log=said.append).close()
     assert [line for line in said if "holds no value statistics" in line and "starts afresh" in line], said
+
+
+def test_a_lock_taken_on_a_lock_file_removed_meanwhile_is_taken_again_on_the_file_there(tmp_path, monkeypatch):
+    """A run or study that cannot start removes the lock file it made, then lets the lock go. Another
+    one that had opened that file just before, and locked it just after, held a lock on a file no
+    longer there: a third then made a new lock file, locked it too, and both ran in one folder. The
+    lock must be held on the file the folder names."""
+    import fcntl
+    import os
+    from train.trainer import lock_folder
+
+    lock_file = tmp_path / ".lock"
+    real_flock = fcntl.flock
+    calls = []
+
+    def flock_after_removal(handle, op):  # the first holder removed the file between our open and our lock
+        if not calls:
+            lock_file.unlink()
+        calls.append(op)
+        return real_flock(handle, op)
+
+    monkeypatch.setattr(fcntl, "flock", flock_after_removal)
+    handle = lock_folder(tmp_path, ".lock", "run folder", "trainer", "train under another name")
+    try:
+        assert lock_file.is_file()
+        assert os.fstat(handle.fileno()).st_ino == os.stat(lock_file).st_ino
+    finally:
+        handle.close()

@@ -931,19 +931,23 @@ def lock_folder(folder: Path, lock_name: str, what: str, holder_kind: str, advic
     <advice>'; ValueError if the lock file cannot be written."""
     import fcntl
 
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        handle = open(folder / lock_name, "a+")
-    except OSError as exc:
-        raise ValueError(f"{what} {folder}: cannot write its lock file ({exc.strerror or exc})") from None
-    try:
-        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        handle.seek(0)
-        holder = handle.read().strip() or "another process"
+    while True:  # again if the file locked was removed meanwhile (by a holder that could not start): lock the one there
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            handle = open(folder / lock_name, "a+")
+        except OSError as exc:
+            raise ValueError(f"{what} {folder}: cannot write its lock file ({exc.strerror or exc})") from None
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.seek(0)
+            holder = handle.read().strip() or "another process"
+            handle.close()
+            raise FolderInUse(f"{what} {folder} is in use by another {holder_kind} ({holder}): wait for it to end or stop "
+                              f"it, or {advice}") from None
+        if _names_file(folder / lock_name, handle):
+            break
         handle.close()
-        raise FolderInUse(f"{what} {folder} is in use by another {holder_kind} ({holder}): wait for it to end or stop "
-                          f"it, or {advice}") from None
     try:  # unbuffered: nothing is left to flush (and fail) when the handle closes
         os.ftruncate(handle.fileno(), 0)
         os.pwrite(handle.fileno(), f"pid {os.getpid()}".encode(), 0)
@@ -951,6 +955,14 @@ def lock_folder(folder: Path, lock_name: str, what: str, holder_kind: str, advic
         handle.close()
         raise ValueError(f"{what} {folder}: cannot write its lock file ({exc.strerror or exc})") from None
     return handle
+
+
+def _names_file(path: Path, handle) -> bool:
+    """Whether `path` is (still) the file open as `handle`."""
+    try:
+        return os.path.samestat(os.stat(path), os.fstat(handle.fileno()))
+    except OSError:  # removed
+        return False
 
 
 def _checkpoint_every_of(config_yaml: Path) -> int:
