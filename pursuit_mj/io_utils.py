@@ -267,6 +267,14 @@ def make_folders(folder: Path) -> None:
             made.append(p.absolute())
 
 
+def made_here(folder: str | Path) -> bool:
+    """Whether make_folders (check_writable_folder) made `folder` itself within the enclosing
+    no_new_empty_folders (False outside one): a folder that was there, or that another process
+    made meanwhile, was not (a name such as 'new/../keep' cannot tell: it is missing until new/ is)."""
+    made = _FOLDERS_MADE.get()
+    return made is not None and Path(folder).absolute() in made
+
+
 @contextlib.contextmanager
 def no_new_empty_folders() -> Iterator[None]:
     """Within: if the body raises (a refusal, a failure mid-run, Ctrl-C), every folder that

@@ -1308,3 +1308,16 @@ def test_a_lock_taken_on_a_lock_file_removed_meanwhile_is_taken_again_on_the_fil
         assert os.fstat(handle.fileno()).st_ino == os.stat(lock_file).st_ino
     finally:
         handle.close()
+
+
+def test_a_run_refused_in_a_folder_named_through_dot_dot_keeps_the_folder_it_names(tmp_path):
+    """run.runs_dir=new/../keep names keep/, there with an earlier run in keep/x: the run could not
+    find new/../keep/x before it made new/, took the run folder for one it made, and removed it,
+    with the earlier run, when it refused to start there."""
+    (tmp_path / "keep" / "x").mkdir(parents=True)
+    (tmp_path / "keep" / "x" / "notes.txt").write_text("mine")
+    missing = tmp_path / "nope" / "best.pt"
+    cfg = load_train_config([], TINY + [f"run.runs_dir={tmp_path / 'new' / '..' / 'keep'}", "name=x", f"init_from={missing}"])
+    with pytest.raises(ValueError, match="no such checkpoint"):
+        Trainer(cfg, log=lambda s: None)
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")) == ["keep", "keep/x", "keep/x/notes.txt"]

@@ -453,8 +453,8 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
     if plan.resume and not plan.out.is_dir():
         raise ValueError(f"--resume: --out {plan.out} is not a folder with a study to continue")
     with no_new_empty_folders():  # refused before it kept anything: no folder of '--out a/b/new' is left
-        new_lock = not (plan.out / STUDY_LOCK).exists()
         check_writable_folder(plan.out, f"--out {plan.out}")
+        new_lock = not (plan.out / STUDY_LOCK).exists()  # after the folder is made: '--out new/../mine' finds mine/.study.lock
         lock = lock_folder(plan.out, STUDY_LOCK, "study folder", "study", "give another --out")
         try:
             _refuse_an_earlier_study(plan)

@@ -32,7 +32,7 @@ import torch
 
 from pursuit_mj.configio import build, dump_yaml, to_dict
 from pursuit_mj.evaluation import capture_steps
-from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, file_sha256, no_new_empty_folders, remove_leftover_parts
+from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, file_sha256, made_here, no_new_empty_folders, remove_leftover_parts
 from pursuit_mj.provenance import provenance
 from pursuit_mj.policies import make_policy
 from pursuit_mj.sensing import privileged_config
@@ -114,9 +114,9 @@ class Trainer:
         leaves the folder free, removes it if it made it (a later --resume would take it for a
         run), and in a folder that was there removes the lock file it made."""
         cfg = self.cfg
-        made_folder = not self.run_dir.exists()
-        new_lock = held_lock is None and not (self.run_dir / ".lock").exists()
         check_writable_folder(self.run_dir, f"run folder (run.runs_dir {cfg.run.runs_dir}, name {cfg.name})")
+        made_folder = made_here(self.run_dir)  # not one that was there (run.runs_dir=new/../keep), nor another's
+        new_lock = held_lock is None and not (self.run_dir / ".lock").exists()  # the folder there: new/../keep/.lock found
         try:
             # before anything in the folder is read or written
             self._lock = held_lock if held_lock is not None else lock_run_folder(self.run_dir)
