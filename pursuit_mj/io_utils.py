@@ -250,21 +250,21 @@ def make_folders(folder: Path) -> None:
     """`folder` and those of its parents that are missing made, as mkdir -p does (OSError as mkdir raises
     it), each one this call made itself noted (absolute, as it named it) for the enclosing
     no_new_empty_folders: one that another process made meanwhile, or that was there, is not noted."""
-    missing = []
-    for p in (folder, *folder.parents):
-        if p.is_dir():
-            break
-        missing.append(p)
-    for p in reversed(missing):  # outermost first
+    try:
         try:
-            p.mkdir()
-        except FileExistsError:
-            if not p.is_dir():  # a file, a dangling link
+            folder.mkdir()
+        except FileNotFoundError:  # a folder above it is missing: that one first
+            if folder.parent == folder:
                 raise
-            continue  # there already ('new/..'), or made meanwhile by another process: not this call's
-        made = _FOLDERS_MADE.get()
-        if made is not None:
-            made.append(p.absolute())
+            make_folders(folder.parent)
+            folder.mkdir()
+    except OSError:
+        if not folder.is_dir():  # a file, a dangling link, a folder above that is a file
+            raise
+        return  # there already ('new/..'), or made meanwhile by another process: not this call's
+    made = _FOLDERS_MADE.get()
+    if made is not None:
+        made.append(folder.absolute())
 
 
 def made_here(folder: str | Path) -> bool:

@@ -631,3 +631,13 @@ def test_no_new_empty_folders_nested_hands_its_folders_to_the_outer_one(tmp_path
                 check_writable_folder(tmp_path / "out" / "runs" / "a", "run folder")
             raise KeyboardInterrupt
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_folder_under_a_file_is_refused_as_not_a_directory(tmp_path):
+    """mkdir -p's own reason: a folder asked under a file is 'Not a directory' (make_folders said
+    'File exists', of the file above it)."""
+    from pursuit_mj.io_utils import check_writable_folder
+
+    (tmp_path / "mine.txt").write_text("mine")
+    with pytest.raises(ValueError, match=r"cannot create the folder .*mine.txt/sub/x \(Not a directory\)"):
+        check_writable_folder(tmp_path / "mine.txt" / "sub" / "x", "--plots")
