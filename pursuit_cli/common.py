@@ -466,30 +466,35 @@ def refuse_writing_an_input(outputs: list[tuple[str, Path]], inputs: list[tuple[
                              f"destroy; give another output name")
 
 
-def refuse_replacing_what_is_no_table(outputs: list[tuple[str, Path]]) -> None:
-    """ValueError naming the first output (flag as typed, path) that exists, is not empty and is
-    no evaluation table (the JSON of eval and pool, with its rows, or their CSV, whose header
-    starts policy,layout): the table would replace a file of the user's (eval --json notes.json).
-    An earlier table under the name is replaced, as a run again is meant to."""
+def is_table(head: bytes, whole: bool) -> bool:
+    """Whether a file whose first bytes are `head` (all of it when `whole`) is an evaluation
+    table: the CSV of eval, pool or study (its header starts policy,layout), or their JSON, an
+    object with rows. A JSON too large to read here is told by its head, where the writers put
+    the task config ahead of the rows (evaluation.write_json, indented by 2)."""
     import json
 
+    if head.startswith(b"policy,layout,"):
+        return True
+    if not whole:
+        return head.lstrip().startswith(b"{") and b'\n  "config": {' in head
+    try:
+        data = json.loads(head)
+    except ValueError:  # UnicodeDecodeError too
+        return False
+    return isinstance(data, dict) and "rows" in data
+
+
+def refuse_replacing_what_is_no_table(outputs: list[tuple[str, Path]]) -> None:
+    """ValueError naming the first output (flag as typed, path) that exists, is not empty and is
+    no evaluation table (is_table): the table would replace a file of the user's (eval --json
+    notes.json). An earlier table under the name is replaced, as a run again is meant to. A
+    multi-GB file is not read whole (io_utils.holds_another_kind)."""
+    from pursuit_mj.io_utils import holds_another_kind
+
     for flag, path in outputs:
-        try:
-            if not Path(path).is_file() or Path(path).stat().st_size == 0:
-                continue
-            text = Path(path).read_text(errors="replace")
-        except OSError:  # unreadable: writing it says why
-            continue
-        if text.startswith("policy,layout,"):
-            continue
-        try:
-            data = json.loads(text)
-        except ValueError:
-            data = None
-        if isinstance(data, dict) and "rows" in data:
-            continue
-        raise ValueError(f"{flag} path {path}: exists and is not an evaluation table (the JSON or CSV that eval and pool "
-                         f"write), which the table would replace; choose another file, or delete it first")
+        if holds_another_kind(path, is_table, limit=1 << 20):
+            raise ValueError(f"{flag} path {path}: exists and is not an evaluation table (the JSON or CSV that eval and pool "
+                             f"write), which the table would replace; choose another file, or delete it first")
 
 
 def task_input_files(args: argparse.Namespace, config: TaskConfig) -> list[tuple[str, str]]:

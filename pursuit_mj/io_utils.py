@@ -13,7 +13,7 @@ import stat
 import tempfile
 import time
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 
 class CannotWrite(ValueError):
@@ -356,3 +356,24 @@ def first_line_is_json_object(path: str | Path) -> bool:
             return isinstance(json.loads(f.readline()), dict)
     except (OSError, ValueError):
         return False
+
+
+#: how much of an existing output file is read to tell whether the command may replace or append
+#: to it (a multi-GB file given as an output by mistake is not read whole)
+PEEK_BYTES = 1 << 16
+
+
+def holds_another_kind(path: str | Path, is_kind: Callable[[bytes, bool], bool], limit: int = PEEK_BYTES) -> bool:
+    """Whether writing to `path` would replace or extend a file of the user's that is not of the
+    kind the command writes there: `path` is an existing, non-empty regular file (symbolic links
+    followed) and `is_kind(head, whole)` is false, where head is its first `limit` bytes and whole
+    says whether that is all of it. False where nothing is there to lose (no file yet, an empty
+    one, a folder, a device such as /dev/null) or it cannot be read (writing it says why)."""
+    try:
+        if not os.path.isfile(path) or os.stat(path).st_size == 0:
+            return False
+        with open(path, "rb") as f:
+            head = f.read(limit + 1)
+    except OSError:
+        return False
+    return not is_kind(head[:limit], len(head) <= limit)

@@ -976,3 +976,39 @@ def test_eval_refuses_to_write_its_table_over_a_file_that_is_no_table(flag, name
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
     assert main([*args, "--out", "table"]) == 0 and main([*args, "--out", "table", "--seed", "1"]) == 0  # a table: replaced
     assert json.loads((tmp_path / "table.json").read_text())["seed"] == 1
+
+
+def _cli_with_little_memory(args: list[str], cwd, memory_bytes: int = 2 << 30):
+    """`python -m pursuit_cli ARGS` run in `cwd` with its address space capped (RLIMIT_AS), so
+    that reading a multi-GB file whole fails (MemoryError) instead of filling the machine."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = str(Path(__file__).resolve().parents[1])
+    cap = f"import resource, runpy, sys; resource.setrlimit(resource.RLIMIT_AS, ({memory_bytes}, {memory_bytes})); " \
+          f"sys.argv = ['pursuit-mj', *sys.argv[1:]]; runpy.run_module('pursuit_cli', run_name='__main__')"
+    env = {**os.environ, "PYTHONPATH": root, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    return subprocess.run([sys.executable, "-c", cap, *args], cwd=cwd, capture_output=True, text=True, timeout=120, env=env)
+
+
+@pytest.mark.parametrize("kind", ["no table", "table"])
+def test_eval_tells_a_multi_gb_output_file_without_reading_it_whole(kind, tmp_path):
+    """eval --json big.json read the whole of an existing big.json to tell whether it was a table:
+    a 6 GB file given by mistake was loaded into memory (MemoryError under a memory cap). Now
+    its head says what it is: refused as no table, or replaced as an earlier (huge) table."""
+    args = ["eval", "--fidelity", "point", "--episodes", "1", "--worlds", "1", "--set", "max_steps=3", "-q"]
+    assert main([*args, "--json", str(tmp_path / "small.json")]) == 0
+    big = tmp_path / "big.json"
+    big.write_bytes(b"x" if kind == "no table" else (tmp_path / "small.json").read_bytes()[:-12])  # a table cut in its rows
+    with open(big, "r+b") as f:
+        f.truncate(6 << 30)  # sparse: no disk used
+    proc = _cli_with_little_memory([*args, "--json", "big.json"], tmp_path)
+    if kind == "no table":
+        assert proc.returncode == 2, proc.stderr
+        assert "--json path big.json: exists and is not an evaluation table" in proc.stderr, proc.stderr
+        assert len(proc.stderr.strip().splitlines()) == 1 and big.stat().st_size == 6 << 30, proc.stderr
+    else:
+        assert proc.returncode == 0, proc.stderr
+        assert json.loads(big.read_text())["rows"]
