@@ -216,20 +216,34 @@ ALIGN_WARN_RMS = 0.05  # m: a fit worse than this is a placement or ordering mis
 STOP_SIGNALS = {"Ctrl-C": "SIGINT", "SIGTERM": "SIGTERM", "SIGHUP": "SIGHUP", "Ctrl-Z": "SIGTSTP"}
 
 
+#: a flight file is a page of YAML; a larger file given to --write is no flight file, and is not read whole
+MAX_FLIGHT_FILE_BYTES = 1 << 20
+
+
+def _is_flight_file(head: bytes, whole: bool) -> bool:
+    """Whether a file whose first bytes are `head` (all of it when `whole`) is a flight file: a
+    YAML mapping with drones."""
+    import yaml
+
+    from pursuit_mj.configio import safe_load
+
+    if not whole:
+        return False
+    try:
+        data = safe_load(head.decode("utf-8"))
+    except (UnicodeDecodeError, yaml.YAMLError):  # not text, not YAML: no flight file either
+        return False
+    return isinstance(data, dict) and "drones" in data
+
+
 def _refuse_replacing_what_is_no_flight_file(path: str) -> None:
     """ValueError naming --write when it names an existing, non-empty file that is no flight file
-    (no drones key): the aligned copy would replace a task file, a layout or notes of the user's.
-    An earlier aligned copy (a flight file) is replaced, as aligning again is meant to."""
-    from pursuit_mj.configio import load_yaml
+    (no drones key, or over MAX_FLIGHT_FILE_BYTES): the aligned copy would replace a task file, a
+    layout or notes of the user's. An earlier aligned copy (a flight file) is replaced, as
+    aligning again is meant to."""
+    from pursuit_mj.io_utils import holds_another_kind
 
-    target = Path(path)
-    try:
-        if not target.is_file() or target.stat().st_size == 0:
-            return
-        data = load_yaml(target)
-    except (OSError, ValueError):  # not YAML at all: no flight file either
-        data = None
-    if not (isinstance(data, dict) and "drones" in data):
+    if holds_another_kind(path, _is_flight_file, limit=MAX_FLIGHT_FILE_BYTES):
         raise ValueError(f"--write path {path}: exists and is not a flight file, which the aligned copy would replace; "
                          f"choose another file, or delete it first")
 

@@ -1198,3 +1198,30 @@ def test_fly_align_refuses_to_write_its_copy_over_a_file_that_is_no_flight_file(
     assert task.read_text() == "evader_speed: 0.45\n"
     aligned = tmp_path / "aligned.yaml"
     assert main([*argv, str(aligned)]) == 0 and main([*argv, str(aligned)]) == 0  # an earlier copy: replaced
+
+
+def test_fly_align_tells_a_multi_gb_write_target_without_reading_it_whole(tmp_path):
+    """fly align --write big.yaml read the whole of an existing big.yaml (a 6 GB file given by
+    mistake) to tell whether it was a flight file: MemoryError under a memory cap, instead of
+    the one-line refusal. A file that large is no flight file, and only its head is read."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    truth = LabTransform((4.2, 0.1), math.pi / 2, 1.25)
+    spots = np.array([[0.5, 0.625], [1.75, 0.625], [1.875, 4.0]])
+    fmt = lambda pts: " ".join(f"{x:.4f},{y:.4f}" for x, y in pts)  # noqa: E731
+    big = tmp_path / "big.yaml"
+    big.write_text("drones:\n")
+    with open(big, "r+b") as f:
+        f.truncate(6 << 30)  # sparse: no disk used
+    cap = ("import resource, runpy, sys; resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30)); "
+           "sys.argv = ['pursuit-mj', *sys.argv[1:]]; runpy.run_module('pursuit_cli', run_name='__main__')")
+    root = str(Path(__file__).resolve().parents[1])
+    proc = subprocess.run([sys.executable, "-c", cap, "fly", "align", "--flight", "lighthouse", "--lab", fmt(truth.to_lab(spots)),
+                           "--spots", fmt(spots), "--write", str(big)], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": root, "OPENBLAS_NUM_THREADS": "1"})
+    assert proc.returncode == 2, proc.stderr
+    assert f"--write path {big}: exists and is not a flight file" in proc.stderr, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and big.stat().st_size == 6 << 30
