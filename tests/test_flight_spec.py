@@ -1161,6 +1161,7 @@ def test_fly_align_refuses_to_write_its_copy_over_the_flight_file(tmp_path, caps
     ("name: notes\narena: {width: 3.6, height: 5.0}\n", False),  # a layout file of another flight, say
     ("some notes\n", False),
     ("", True),  # an empty file: nothing to damage
+    ("\n", True),  # a blank line only: nothing to damage either
     ('{"t": 0.0, "time": "2026-12-07T08:00:00+00:00", "kind": "links_up"}\n', True),  # an earlier flight's log
 ])
 def test_an_event_log_is_appended_only_to_an_event_log(text, ok, tmp_path, capsys):

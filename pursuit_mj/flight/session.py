@@ -118,24 +118,28 @@ def _check_events_apart(events_path: str | Path, plan: FlightPlan, rerun_path: s
                              f"(default flights/<name>-<time>.events.jsonl)")
 
 
-def _check_events_is_a_log(events_path: str | Path) -> None:
-    """ValueError naming --events when it names an existing file that is not an event log (its
-    first line is not a JSON record with a 'kind'): the flight's records are appended to it, and
-    a layout, notes or any other file would be damaged for good. An empty file is taken."""
+def _is_event_log(head: bytes, whole: bool) -> bool:
+    """Whether a file whose first bytes are `head` is an event log: its first line is a JSON
+    record with a 'kind' (events.EventLog writes every line so)."""
     import json
 
-    try:
-        with open(events_path, "rb") as f:
-            first = f.readline(1 << 16)
-    except OSError:  # not there yet (the log is made), or unreadable: opening it for appending says why
-        return
-    if not first.strip():
-        return
+    first = head.split(b"\n", 1)[0]
+    if not first.strip():  # a blank first line: nothing of the user's there
+        return True
     try:
         record = json.loads(first)
-    except ValueError:
-        record = None
-    if not (isinstance(record, dict) and "kind" in record):
+    except ValueError:  # UnicodeDecodeError too
+        return False
+    return isinstance(record, dict) and "kind" in record
+
+
+def _check_events_is_a_log(events_path: str | Path) -> None:
+    """ValueError naming --events when it names an existing file that is not an event log
+    (_is_event_log, from its first 64 KiB): the flight's records are appended to it, and a
+    layout, notes or any other file would be damaged for good. An empty file is taken."""
+    from ..io_utils import holds_another_kind
+
+    if holds_another_kind(events_path, _is_event_log):
         raise ValueError(f"--events {events_path}: an existing file that is not an event log (its first line is no "
                          f"flight record); the log is appended to: give a new name, or an earlier flight's .events.jsonl")
 
