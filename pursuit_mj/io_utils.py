@@ -25,8 +25,13 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside `path`; on success it is renamed onto `path`, else removed.
     CannotWrite (a ValueError) naming `path` if the temporary file cannot be made, or if the
     finished file cannot replace `path` (then it is kept as NAME.new.SUFFIX, see keep_beside,
-    and the message says where)."""
+    and the message says where). A character device or named pipe (/dev/null, a pipe to a
+    reader) is yielded itself and written in place: a rename would put a file in its stead, for
+    every program that uses it."""
     path = Path(path)
+    if _is_stream(path):
+        yield path
+        return
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         # the extension in lower case: writers that pick or check the format by it (mediapy's gif) take .GIF too
@@ -51,6 +56,15 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def _is_stream(path: Path) -> bool:
+    """Whether `path` (symbolic links followed) is a character device or a named pipe."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:  # not there yet, or not reachable: atomic_path says why when it writes
+        return False
+    return stat.S_ISCHR(mode) or stat.S_ISFIFO(mode)
 
 
 #: the temporary files atomic_path makes: `.NAME.PID-XXXXXXXX.partSUFFIX` (mkstemp's eight random

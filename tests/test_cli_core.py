@@ -641,3 +641,25 @@ def test_a_folder_under_a_file_is_refused_as_not_a_directory(tmp_path):
     (tmp_path / "mine.txt").write_text("mine")
     with pytest.raises(ValueError, match=r"cannot create the folder .*mine.txt/sub/x \(Not a directory\)"):
         check_writable_folder(tmp_path / "mine.txt" / "sub" / "x", "--plots")
+
+
+def test_an_atomic_write_to_a_named_pipe_or_device_writes_into_it_and_leaves_it_in_place(tmp_path):
+    """eval --json /dev/null (or fly align --write /dev/null, any table or copy written atomically)
+    wrote a temporary file beside it and renamed it over the device: run as root, /dev/null became
+    a regular file holding the table, for every program on the machine. A character device or a
+    named pipe is now written in place; here a named pipe stands for /dev/null."""
+    import os
+    import stat
+    import threading
+
+    from pursuit_mj.io_utils import atomic_write_text
+
+    pipe = tmp_path / "pipe"
+    os.mkfifo(pipe)
+    got: list[str] = []
+    reader = threading.Thread(target=lambda: got.append(pipe.read_text()), daemon=True)
+    reader.start()
+    atomic_write_text(pipe, "policy,layout\n")
+    reader.join(5)
+    assert stat.S_ISFIFO(os.stat(pipe).st_mode), "the pipe was replaced by a file"
+    assert got == ["policy,layout\n"] and [p.name for p in tmp_path.iterdir()] == ["pipe"]
