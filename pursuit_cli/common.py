@@ -323,14 +323,17 @@ def shield_if_asked(args: argparse.Namespace, policy, label: str, config: TaskCo
     return (policy, label) if wrapped is policy else (wrapped, f"{label}+shield")
 
 
-def refuse_a_shield_for_nothing(args: argparse.Namespace, kept: list[str]) -> None:
-    """ValueError naming --shield when it was given and every policy (`kept`: their labels) has
-    the shield built in (the heuristic team, a model trained behind it): the run would be the
-    one without the flag, which a user would take for a shielded one."""
-    if getattr(args, "shield", False) and kept:
-        names = ", ".join(dict.fromkeys(kept))
-        raise ValueError(f"--shield: {names} {'has' if len(kept) == 1 else 'have'} the shield built in, so --shield "
+def shield_each_if_asked(args: argparse.Namespace, chosen: list[tuple[object, str]], config: TaskConfig) -> list[tuple[object, str]]:
+    """shield_if_asked on each (policy, label) of `chosen`, in order. ValueError naming --shield
+    when it was given and every policy has the shield built in (the heuristic team, a model trained
+    behind it): the run would be the one without the flag, which a user would take for a shielded
+    one. The policies are named by their name, else their label."""
+    shielded = [shield_if_asked(args, policy, label, config) for policy, label in chosen]
+    if getattr(args, "shield", False) and chosen and all(new is policy for (new, _), (policy, _) in zip(shielded, chosen)):
+        kept = list(dict.fromkeys(getattr(policy, "name", label) for policy, label in chosen))
+        raise ValueError(f"--shield: {', '.join(kept)} {'has' if len(kept) == 1 else 'have'} the shield built in, so --shield "
                          f"changes nothing; leave it out (it shields the other --model and --policy given)")
+    return shielded
 
 
 #: task keys whose change between training and use a loaded model's user is told of: what the

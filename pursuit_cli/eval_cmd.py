@@ -20,8 +20,8 @@ from pursuit_mj.policies import POLICY_NAMES, make_policy
 from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_sha256
 from .common import (SHIELD_HELP, ListFlag, add_shield_arg, add_task_args, check_episodes, check_out_prefix, counted, load_model,
-                     pick_versus, refuse_a_shield_for_nothing, refuse_replacing_what_is_no_table, refuse_writing_an_input,
-                     sweep_dead_parts, seed_arg, shield_if_asked, table_layouts, task_config_from_args, task_input_files)
+                     pick_versus, refuse_replacing_what_is_no_table, refuse_writing_an_input,
+                     sweep_dead_parts, seed_arg, shield_each_if_asked, table_layouts, task_config_from_args, task_input_files)
 from .eval_resume import check_nothing_kept, drop_finished, finished_rows, interrupted_path, keep_finished, write_finished
 
 
@@ -131,10 +131,7 @@ def _policies(args, config) -> list[tuple[str, object]]:
     out = [(policy.name if is_policy_file(name) else name, policy) for name, policy in made]
     spec = ObsSpec.make(config.n_pursuers, config.n_evaders, config.n_rays)
     out += [(getattr(pol, "name", Path(m).stem), pol) for m, pol in ((m, load_model(m, spec, config)) for m in args.model)]
-    shielded = [shield_if_asked(args, pol, label, config) for label, pol in out]
-    if all(pol is before for (pol, _), (_, before) in zip(shielded, out)):
-        refuse_a_shield_for_nothing(args, [label for label, _ in out])
-    out = [(label, pol) for pol, label in shielded]
+    out = [(label, pol) for pol, label in shield_each_if_asked(args, [(pol, label) for label, pol in out], config)]
     seen: dict[str, int] = {}
     labelled = []
     for label, pol in out:

@@ -15,8 +15,8 @@ import math
 import sys
 from pathlib import Path
 
-from .common import (add_shield_arg, finite_float, load_model, once_flag, path_arg, refuse_a_shield_for_nothing,
-                     refuse_writing_an_input, seed_arg, shield_if_asked, task_input_files)
+from .common import (add_shield_arg, finite_float, load_model, once_flag, path_arg, refuse_writing_an_input,
+                     seed_arg, shield_each_if_asked, task_input_files)
 
 KEYS_HELP = "during a flight: e or space = emergency stop (motors off), l = land everyone, Ctrl-C or Ctrl-Z = land everyone (twice: motors off), Ctrl-\\ = motors off"
 
@@ -154,9 +154,7 @@ def run(args) -> int:
         raise ValueError("give exactly one of --policy NAME (e.g. heuristic) or --model FILE")
     _refuse_events_over_an_input(events_path, args, plan)
     chosen = load_model(args.model, plan.obs_spec, plan.task, flight=True) if args.model else choose_policy(plan, args.policy, args.seed)
-    policy, _ = shield_if_asked(args, chosen, "", plan.task)
-    if policy is chosen:
-        refuse_a_shield_for_nothing(args, [getattr(chosen, "name", args.policy or args.model)])
+    [(policy, _)] = shield_each_if_asked(args, [(chosen, args.policy or args.model)], plan.task)
     if args.fault and not args.virtual:
         raise ValueError("--fault rehearses failures on virtual drones only; add --virtual")
     for text in args.fault:

@@ -29,7 +29,7 @@ from pursuit_mj.policies import POLICY_NAMES, make_policy
 from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_path
 from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, check_evader_model, check_layout_given, flags_typed, load_model, one_flag_named, path_arg, seed_arg, sweep_dead_parts,
-                     finite_float, once_flag, refuse_a_shield_for_nothing, shield_if_asked, task_config_from_args)
+                     finite_float, once_flag, shield_each_if_asked, task_config_from_args)
 
 DEFAULT_SAVE = "renders"
 
@@ -315,10 +315,7 @@ def _run(args) -> int:
     if not (video or final or args.rerun):
         raise ValueError("--no-video without --final-frame or --rerun leaves nothing to write")
     settings = RenderSettings(args.width, args.height, args.camera, args.quality, key=not args.no_key)
-    chosen, chosen_label = choose_policy(args, config, train_cfg)
-    policy, label = shield_if_asked(args, chosen, chosen_label, config)  # before any folder is made
-    if policy is chosen:
-        refuse_a_shield_for_nothing(args, [getattr(chosen, "name", chosen_label)])
+    [(policy, label)] = shield_each_if_asked(args, [choose_policy(args, config, train_cfg)], config)  # before any folder is made
     target = save_target(args.save_path, args.format) if video or final else None
     if target is not None:
         check_render_settings(settings, config)  # the size range first: an odd size matters only inside it
