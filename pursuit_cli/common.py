@@ -445,28 +445,42 @@ def refuse_a_file_given_twice(flag: str, given: list[tuple[str, Path]]) -> None:
         seen[key] = text
 
 
-def refuse_writing_an_input(outputs: list[tuple[str, Path]], inputs: list[tuple[str, str | Path]]) -> None:
+def refuse_writing_an_input(outputs: list[tuple[str, Path]], inputs: list[tuple[str, str | Path]], appends: bool = False) -> None:
     """ValueError naming the first output (flag as typed, path it writes) that is one of the files
     the command reads (`inputs`: what names it, e.g. '--model m.pt', and its path): a table
     written there would replace a checkpoint, a policy or layout file, or a table being pooled.
-    Other names of a file (./x, a/../x, a symbolic or hard link) count as that file; an input that
-    does not exist is left to its reader."""
-    read: dict[tuple[int, int], str] = {}
+    An output replaced whole (io_utils.atomic_path: written beside, renamed onto its name) is the
+    input when its name is the input's file (./x, a/../x, or the file an input's link reaches):
+    an output that is itself a link to an input (symbolic or hard) has the link replaced and the
+    input left whole. An output appended to (`appends`: fly --events) writes into whatever file
+    its name reaches, so any name of the input's file counts. An input that does not exist is
+    left to its reader."""
+    read: dict[tuple, str] = {}
     for said, path in inputs:
         try:
-            if Path(path).is_file():
-                found = os.stat(path)
-                read.setdefault((found.st_dev, found.st_ino), said)
-        except OSError:  # unreadable: its reader names it
-            continue
+            key = _file_key(Path(path).resolve(), appends) if Path(path).is_file() else None
+        except OSError:  # a name too long, say: its reader names it
+            key = None
+        if key is not None:
+            read.setdefault(key, said)
     for flag, path in outputs:
-        try:
-            found = os.stat(path)  # an output not there yet is no input
-        except OSError:
-            continue
-        if (found.st_dev, found.st_ino) in read:
-            raise ValueError(f"{flag}: the same file as {read[(found.st_dev, found.st_ino)]}, which writing there would "
-                             f"destroy; give another output name")
+        key = _file_key(Path(path), appends)
+        if key is not None and key in read:
+            raise ValueError(f"{flag}: the same file as {read[key]}, which writing there would destroy; give another output name")
+
+
+def _file_key(path: Path, appends: bool) -> tuple | None:
+    """What a write to `path` changes: the file its name reaches when appended to (device and
+    inode), else the name itself (its folder's device and inode, and the name); None where it
+    cannot be told (not there, unreadable: its reader or writer says why)."""
+    try:
+        if appends:
+            found = os.stat(path)
+            return found.st_dev, found.st_ino
+        folder = os.stat(path.parent)
+        return folder.st_dev, folder.st_ino, path.name
+    except OSError:
+        return None
 
 
 def is_table(head: bytes, whole: bool) -> bool:

@@ -127,7 +127,7 @@ def run_check(args) -> int:
 
 
 def _refuse_events_over_an_input(events_path, args, plan) -> None:
-    """ValueError naming --events when the event log, appended to, would be the --model checkpoint,
+    """ValueError naming --events when the event log, appended to (so through a link too), would be the --model checkpoint,
     the --policy file or the evaders' model file (the flight and layout files are refused by
     run_flight)."""
     from pursuit_mj.policy_file import is_policy_file, policy_file_path
@@ -136,7 +136,7 @@ def _refuse_events_over_an_input(events_path, args, plan) -> None:
     if args.policy and is_policy_file(args.policy):
         inputs.append((f"--policy {args.policy}", str(policy_file_path(args.policy))))
     inputs += task_input_files(args, plan.task)
-    refuse_writing_an_input([(f"--events {events_path}", Path(events_path))], inputs)
+    refuse_writing_an_input([(f"--events {events_path}", Path(events_path))], inputs, appends=True)
 
 
 def run(args) -> int:

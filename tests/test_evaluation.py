@@ -932,7 +932,6 @@ class Still:
     (["--task", "task.yaml"], "--json", "task.yaml", "--task task.yaml"),
     (["--set", "evader.model=team.py:Still"], "--json", "team.py", "evader.model team.py:Still"),
     (["--model", "m.pt"], "--rerun", "m.pt.rrd", None),  # not an input: no refusal from this check
-    (["--model", "m.pt"], "--json", "hard.pt", "--model m.pt"),  # a hard link to the checkpoint is the checkpoint
 ])
 def test_eval_refuses_an_output_that_is_one_of_its_input_files(inputs, flag, out, said, tmp_path, monkeypatch, capsys):
     """`eval --model m.pt --json m.pt` played the table and then wrote it over the checkpoint (and
@@ -1012,3 +1011,27 @@ def test_eval_tells_a_multi_gb_output_file_without_reading_it_whole(kind, tmp_pa
     else:
         assert proc.returncode == 0, proc.stderr
         assert json.loads(big.read_text())["rows"]
+
+
+@pytest.mark.parametrize("model, out", [
+    ("soft.pt", "m.pt"),  # the file the input's link reaches: replacing it loses the checkpoint
+    ("./m.pt", "sub/../m.pt"),  # the same name written two ways
+])
+def test_eval_refuses_an_output_named_as_the_file_an_input_reaches(model, out, tmp_path, monkeypatch, capsys):
+    """The output's own name is what a table replaces (io_utils.atomic_path renames onto it): the
+    checkpoint's file, however the two are spelt, is refused."""
+    import os
+    import shutil
+
+    from pursuit_mj.shipped import shipped_dir
+
+    monkeypatch.chdir(tmp_path)
+    shutil.copy(shipped_dir("pretrained") / "belppo_point.pt", "m.pt")
+    os.symlink("m.pt", "soft.pt")
+    os.mkdir("sub")
+    checkpoint = (tmp_path / "m.pt").read_bytes()
+    code = main(["eval", "--fidelity", "point", "--episodes", "1", "--worlds", "1", "--set", "max_steps=5", "-q",
+                 "--model", model, "--json", out])
+    err = capsys.readouterr().err
+    assert code == 2 and f"--json {out}: the same file as --model {model}" in err, err
+    assert (tmp_path / "m.pt").read_bytes() == checkpoint

@@ -1110,11 +1110,12 @@ def test_a_flight_or_align_refused_after_its_output_checks_leaves_no_folder_it_m
     assert [p.name for p in tmp_path.iterdir()] == ["mine.txt"]
 
 
-@pytest.mark.parametrize("what", ["model", "policy", "evader"])
+@pytest.mark.parametrize("what", ["model", "policy", "evader", "hard link"])
 def test_an_event_log_naming_the_model_or_a_code_file_of_the_flight_is_refused(what, tmp_path, capsys):
     """fly --model m.pt --events m.pt appended the flight's event log to the checkpoint (and
     --events team.py to the policy file): the user's file was damaged for good. The flight and
     layout files were refused already."""
+    import os
     import shutil
 
     from pursuit_cli import main
@@ -1131,7 +1132,12 @@ def test_an_event_log_naming_the_model_or_a_code_file_of_the_flight_is_refused(w
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
     given, events = {"model": (["--model", str(model)], model),
                      "policy": (["--policy", f"{code}:team"], code),
-                     "evader": (["--policy", "heuristic", "--set", f"evader.model={code}:Still"], code)}[what]
+                     "evader": (["--policy", "heuristic", "--set", f"evader.model={code}:Still"], code),
+                     # appended to, a hard link of the checkpoint writes into its bytes
+                     "hard link": (["--model", str(model)], tmp_path / "hard.pt")}[what]
+    if what == "hard link":
+        os.link(model, tmp_path / "hard.pt")
+        before["hard.pt"] = before["m.pt"]
     rc = main(["fly", "--flight", EXAMPLE, *given, "--virtual", "--yes", "--max-time", "1", "--events", str(events)])
     err = capsys.readouterr().err
     assert rc == 2 and f"--events {events}: the same file as " in err and len(err.strip().splitlines()) == 1, err

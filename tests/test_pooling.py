@@ -443,3 +443,24 @@ def test_pool_refuses_to_write_its_table_over_a_file_that_is_no_table(tables, tm
     err = capsys.readouterr().err
     assert f"--out {tmp_path}/notes path {notes}: exists and is not an evaluation table" in err, err
     assert notes.read_text() == '{"mine": 1}\n' and not (tmp_path / "notes.csv").exists()
+
+
+@pytest.mark.parametrize("link", ["symbolic", "hard"])
+def test_pool_out_over_a_link_to_a_table_it_pools_replaces_the_link_and_keeps_the_table(link, tables, tmp_path, capsys):
+    """pool s0.json s1.json --out latest, latest.json a link to s1.json (kept pointing at the newest
+    table), was refused as 'the same file as s1.json, which writing there would destroy': the
+    pooled table is written beside latest.json and renamed onto it, which replaces the link and
+    leaves s1.json whole."""
+    import os
+    import shutil
+
+    from pursuit_cli import main
+
+    s0, s1, latest = tmp_path / "s0.json", tmp_path / "s1.json", tmp_path / "latest.json"
+    shutil.copy(tables["h0"], s0)
+    shutil.copy(tables["h1"], s1)
+    (os.symlink if link == "symbolic" else os.link)(s1, latest)
+    kept = s1.read_bytes()
+    assert main(["pool", str(s0), str(s1), "--out", str(tmp_path / "latest")]) == 0, capsys.readouterr().err
+    assert s1.read_bytes() == kept and not latest.is_symlink()
+    assert json.loads(latest.read_text())["pooled_from"] == [str(s0), str(s1)]
