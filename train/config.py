@@ -15,7 +15,8 @@ import os
 from pathlib import Path
 from typing import Any, Collection, Mapping, Sequence
 
-from pursuit_mj.config import TaskConfig, found_code_ref, load_task_yaml, preset_or_file, refuse_another_kind
+from pursuit_mj.config import TaskConfig, found_code_ref, load_task_yaml, preset_or_file
+from pursuit_mj.file_kinds import refuse_another_kind
 from pursuit_mj.configio import ConfigError, build, check_values, found_beside, key_where, load, load_yaml, merge, parse_override, spec, to_dict
 from pursuit_mj.layout import N_BUILTIN, found_layout_ref
 from pursuit_mj.sensing import PRIVILEGED_VIEWS
