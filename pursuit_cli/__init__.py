@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import importlib
 import os
 import re
@@ -206,6 +207,10 @@ def _run(argv: list[str] | None) -> int:
     except Exception as exc:
         if stops:  # the interrupt raised inside a library call, which reported it as its own error (pybind11: TypeError)
             return _interrupted(args, stops[0])
+        if isinstance(exc, OSError) and exc.errno == errno.ENAMETOOLONG and exc.filename:
+            # a name the user gave (or one made from it) that no file system here can hold: bad input
+            print(f"pursuit-mj {_command_name(args)}: error: {exc.filename}: {exc.strerror}", file=sys.stderr)
+            return 2
         if not isinstance(exc, ValueError):
             raise
         print(f"pursuit-mj {_command_name(args)}: error: {_with_source(exc, args)}", file=sys.stderr)

@@ -663,3 +663,13 @@ def test_an_atomic_write_to_a_named_pipe_or_device_writes_into_it_and_leaves_it_
     reader.join(5)
     assert stat.S_ISFIFO(os.stat(pipe).st_mode), "the pipe was replaced by a file"
     assert got == ["policy,layout\n"] and [p.name for p in tmp_path.iterdir()] == ["pipe"]
+
+
+@pytest.mark.parametrize("argv", [["pool", "{long}.json", "t1.json"], ["eval", "--policy", "{long}.py:Team", "--episodes", "1"]])
+def test_a_file_name_too_long_for_the_file_system_is_one_line_naming_it(argv, capsys):
+    """pool and --policy with a 300-byte file name ended in an OSError traceback from os.stat deep inside
+    (ENAMETOOLONG): a name the user typed, told as one line that shows it."""
+    long = "a" * 300
+    assert main([a.replace("{long}", long) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert "File name too long" in err and long in err and len(err.strip().splitlines()) == 1, err
