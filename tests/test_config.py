@@ -646,3 +646,45 @@ def test_a_file_of_another_kind_is_named_for_what_it_is_wherever_it_is_given(arg
     err = capsys.readouterr().err
     assert f"{files[given]}: this is {what}" in err and f"not {not_what}: " in err and "did you mean" not in err, err
     assert len(err.strip().splitlines()) == 1, err
+
+
+def _design_section(number: int) -> str:
+    """The text of section `number` of docs/DESIGN.md (the design contract the docs quote)."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "DESIGN.md").read_text()
+    return text.split(f"\n## {number}. ", 1)[1].split("\n## ", 1)[0]
+
+
+def _documented_default(text: str):
+    """A default as DESIGN.md's table writes it ('2*pi', 'false', '0 (off)', 'null: ...') as a value."""
+    word = text.split(":")[0].split(" (")[0].strip()
+    if word == "null":
+        return None
+    if word in ("true", "false"):
+        return word == "true"
+    if word == "2*pi":
+        return 2 * math.pi
+    try:
+        return int(word)
+    except ValueError:
+        try:
+            return float(word)
+        except ValueError:
+            return word
+
+
+def test_the_default_table_of_docs_design_md_is_the_configs_defaults_with_their_units():
+    """Pins DESIGN.md section 1 to the code: each row's key, default and unit (m, m/s, s, rad)
+    against TaskConfig's default and the unit its --help gives, rather than a copy of the table."""
+    rows = [[c.strip() for c in line.strip().strip("|").split("|")]
+            for line in _design_section(1).splitlines() if line.startswith("| `")]
+    assert len(rows) == 19
+    fields = {f.name: f for f in dataclasses.fields(TaskConfig)}
+    for name_cell, default_cell, _ in rows:
+        key = re.match(r"`(\w+)`", name_cell).group(1)
+        assert key in fields, f"DESIGN.md section 1 names {key!r}, which TaskConfig lacks"
+        assert getattr(TaskConfig(), key) == _documented_default(default_cell), key
+        unit = re.search(r"\((?:max, )?([a-z/]+)\)", name_cell)
+        if unit:
+            assert f"({unit.group(1)})" in fields[key].metadata["help"], (key, unit.group(1))
