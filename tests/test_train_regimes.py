@@ -491,3 +491,51 @@ def test_a_teacher_is_refused_under_a_residual_and_idle_under_dagger():
     assert load_train_config(["classic"], ["ppo.teacher_coef=1", "ppo.teacher_from_step=1000"]).idle_settings() == [
         "ppo.teacher_coef 1 does nothing with ppo.teacher_from_step 1000 and task.max_steps 1000 (no episode runs "
         "that long, so no label counts)"]
+
+
+def test_the_learning_set_up_of_docs_design_md_section_6_is_the_train_defaults_and_regime_files():
+    """Pins DESIGN.md section 6 to the code: the hyperparameters "for all" are PPOConfig's
+    defaults and every shipped regime file's, the network's widths NetConfig's, and each regime
+    line (gamma, clip, envs, speeds) its file's; the defaults themselves are classic's."""
+    import re
+
+    from train.config import NetConfig, PPOConfig, TrainConfig
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "DESIGN.md").read_text()
+    section = " ".join(text.split("\n## 6. ", 1)[1].split("\n## ", 1)[0].split())
+    common = re.search(r"lr ([\d.e-]+), lambda ([\d.]+), (\d+) epochs, batch (\d+), minibatch (\d+) for all", section)
+    lr, lam, epochs, batch, minibatch = float(common[1]), float(common[2]), int(common[3]), int(common[4]), int(common[5])
+    ppo = PPOConfig()
+    assert (ppo.lr, ppo.gae_lambda, ppo.epochs, ppo.batch_size, ppo.minibatch_size) == (lr, lam, epochs, batch, minibatch)
+    assert ppo.max_grad_norm == float(re.search(r"grad-norm clip ([\d.]+)", section)[1])
+    assert ppo.lr_decay and ppo.value_scaling and ppo.grad_clip == "joint"
+    width = int(re.search(r"self: \d+ -> (\d+)\)", section)[1])
+    fused = [int(w) for w in re.search(r"concatenated \(([\d -> ]+)\)", section)[1].split(" -> ")]
+    net = NetConfig()
+    assert net.kind == "reference" and net.encoder_width == width and fused == [3 * width, *net.hidden]
+    # what ours builds instead, as the "(Ours: ...)" note under the section's hyperparameters says
+    from pursuit_mj.config import default_config
+    from pursuit_mj.env import PursuitEnv
+    from train.networks import Actor
+
+    ours = re.search(r"self (\d+) \(.*?a teammate (\d+) \(.*?an evader (\d+) \(.*?concatenates ([\d -> ]+) \(", section)
+    assert ours, "docs/DESIGN.md section 6 lost its note on the network ours builds"
+    trunk = Actor(PursuitEnv(default_config(fidelity="point")).obs_spec, net).trunk
+    inputs = {name: enc.layer.in_features for name, enc in trunk.encoders.items()}
+    assert [inputs["self"], inputs["teammates"], inputs["evaders"]] == [int(ours[i]) for i in (1, 2, 3)]
+    assert set(inputs) == {"self", "teammates", "evaders", "rays"} and net.use_rays
+    layers = [m for m in trunk.fuse if isinstance(m, torch.nn.Linear)]
+    assert [layers[0].in_features, *(m.out_features for m in layers)] == [int(w) for w in ours[4].split(" -> ")]
+    regimes = re.findall(r"- (\w+)(?: \(from (\w+) weights\))?: gamma ([\d.]+), clip ([\d.]+), (\d+) envs, speeds ([\d.]+)/([\d.]+)",
+                         section)
+    assert [r[0] for r in regimes] == ["classic", "full_obs", "fine_tune"]
+    for name, start, gamma, clip, envs, pursuer, evader in regimes:
+        cfg = load_train_config([f"configs/train/{name}.yaml"])
+        assert cfg.regime == name and (cfg.ppo.lr, cfg.ppo.gae_lambda, cfg.ppo.epochs) == (lr, lam, epochs), name
+        assert (cfg.ppo.batch_size, cfg.ppo.minibatch_size) == (batch, minibatch), name
+        assert (cfg.ppo.gamma, cfg.ppo.clip, cfg.n_envs) == (float(gamma), float(clip), int(envs)), name
+        assert (cfg.task.pursuer_speed, cfg.task.evader_speed) == (float(pursuer), float(evader)), name
+        assert (start and start in (cfg.init_from or "")) or (not start and cfg.init_from is None), name
+    classic = regimes[0]
+    defaults = TrainConfig()
+    assert (defaults.ppo.gamma, defaults.ppo.clip, defaults.n_envs) == (float(classic[2]), float(classic[3]), int(classic[4]))
