@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import numpy as np
@@ -1172,3 +1173,62 @@ def test_a_refused_layout_file_named_through_dot_dot_keeps_the_folder_it_names(t
     assert main(["layout", "new", "new/../keep/l.yaml", "--width", "-3"]) == 2
     assert "--width: must be a number > 0" in capsys.readouterr().err
     assert [p.name for p in tmp_path.iterdir()] == ["keep"]
+
+
+def _design_layout_section() -> str:
+    text = (Path(__file__).resolve().parents[1] / "docs" / "DESIGN.md").read_text()
+    return text.split("\n## 2. ", 1)[1].split("\n## ", 1)[0]
+
+
+def test_the_loader_takes_exactly_the_keys_of_the_documented_layout_format(monkeypatch):
+    """Every key of DESIGN.md section 2's example is accepted and read, and every key the loader
+    accepts (each mapping it reads, the circle border's too) is one the example names."""
+    import pursuit_mj.layout as layout_module
+
+    block = re.search(r"```yaml\n(.*?)```", _design_layout_section(), re.S)[1]
+    documented = set(re.findall(r"(\w+):", block))
+    accepted = set()
+    read = layout_module._mapping
+
+    def recording(value, where, keys, required):
+        accepted.update(keys)
+        return read(value, where, keys, required)
+
+    monkeypatch.setattr(layout_module, "_mapping", recording)
+    data = yaml.safe_load(block)
+    layout = layout_from_dict(data, "corridor.yaml")
+    assert [type(o).__name__ for o in layout.obstacles] == ["Box", "Cylinder", "Wall"]
+    assert (layout.width, layout.height, layout.random_obstacles.count) == (3.6, 5.0, 5)
+    circle = re.search(r"\{circle: \{center: \[x, y\], radius: r\}\}", block)
+    assert circle, "the example's comment lost the circle border's form"
+    with pytest.raises(LayoutError):  # read (its keys recorded), then refused: the example's spawn lies outside it
+        layout_from_dict({**data, "boundary": {"circle": {"center": [1.8, 2.5], "radius": 1.0}}}, "corridor.yaml")
+    assert accepted <= documented, f"the loader accepts {sorted(accepted - documented)}, which DESIGN.md section 2 never names"
+    assert documented - accepted <= {"polygon", "circle", "box", "cylinder", "wall"}  # kinds, not mapping keys
+
+
+def test_the_optional_layout_keys_take_the_defaults_the_docs_give(tmp_path):
+    """The loader fills in name, boundary, obstacles, random_obstacles, a box's yaw and a wall's
+    thickness when a file leaves them out; DESIGN.md section 2 said so for random_obstacles alone
+    (in a comment), so a reader could not tell which keys a file may leave out."""
+    prose = " ".join(_design_layout_section().split())
+    said = re.search(r"Only `arena` and `spawn` are required\. Left out, `name` is the file's name without "
+                     r"`\.yaml`, `boundary` is `rectangle`, `obstacles` and `random_obstacles` are none, a box's `yaw` is "
+                     r"(\S+) and a wall's `thickness` (\S+) m\.", prose)
+    assert said, "DESIGN.md section 2 does not say which layout keys are optional and what they default to"
+    path = tmp_path / "bare.yaml"
+    path.write_text("arena: {width: 3.6, height: 5.0}\n"
+                    "obstacles:\n  - box: {center: [1.2, 2.5], size: [0.2, 1.0]}\n"
+                    "  - wall: {from: [2.0, 2.0], to: [3.0, 2.0]}\n"
+                    "spawn:\n  pursuers: {x: [0.2, 3.4], y: [0.2, 0.8]}\n  evaders: {x: [0.2, 3.4], y: [4.2, 4.8]}\n")
+    layout = load_layout(path)
+    box, wall = layout.obstacles
+    assert (layout.name, layout.boundary.kind, layout.random_obstacles.count) == ("bare", "rectangle", 0)
+    assert (box.yaw, wall.thickness) == (float(said[1]), float(said[2]))
+    for required in ("arena", "spawn"):
+        with pytest.raises(LayoutError, match=f"missing key '{required}'"):
+            layout_from_dict({k: v for k, v in yaml.safe_load(path.read_text()).items() if k != required}, "x.yaml")
+    minimal = tmp_path / "minimal.yaml"
+    minimal.write_text("arena: {width: 3.6, height: 5.0}\n"
+                       "spawn:\n  pursuers: {x: [0.2, 3.4], y: [0.2, 0.8]}\n  evaders: {x: [0.2, 3.4], y: [4.2, 4.8]}\n")
+    assert load_layout(minimal).obstacles == ()
