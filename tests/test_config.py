@@ -688,3 +688,27 @@ def test_the_default_table_of_docs_design_md_is_the_configs_defaults_with_their_
         unit = re.search(r"\((?:max, )?([a-z/]+)\)", name_cell)
         if unit:
             assert f"({unit.group(1)})" in fields[key].metadata["help"], (key, unit.group(1))
+
+
+def test_the_preset_table_of_docs_evaluation_md_is_what_each_preset_file_sets():
+    """Pins the "Difficulty presets" table (evader speed, perception radius, field of view, noise,
+    misses) to the task each configs/task preset resolves to, and lists every preset."""
+    from pathlib import Path
+
+    from pursuit_mj.config import preset_names
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "evaluation.md").read_text()
+    table = text.split("## Difficulty presets", 1)[1].split("\n\n", 1)[0]
+    rows = [[c.strip() for c in line.strip().strip("|").split("|")] for line in table.splitlines() if line.startswith("| `")]
+    assert sorted(r[0].strip("`") for r in rows) == preset_names("task")
+
+    def number(cell: str) -> float:
+        return 0.0 if cell == "0" else float(cell.split()[0])
+
+    for name, speed, radius, view, noise, misses in rows:
+        c = load_task_config([name.strip("`")])
+        assert c.evader_speed == number(speed) and speed.endswith(" m/s"), name
+        assert c.perception_radius == number(radius) and radius.endswith(" m"), name
+        assert math.degrees(c.field_of_view) == pytest.approx(number(view), abs=1e-6) and view.endswith(" deg"), name
+        assert c.position_noise == number(noise), name
+        assert c.miss_probability == number(misses) / 100, name
