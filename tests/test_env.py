@@ -678,3 +678,41 @@ def test_reset_worlds_of_no_world_restarts_nothing():
     assert env.episode.tolist() == episodes.tolist() and env.steps.tolist() == steps.tolist()
     with pytest.raises(ValueError, match="reset_worlds seeds"):
         env.reset_worlds([], [5])
+
+
+def _documented_signature(call: str):
+    """The parameters (name, default or None) of a call that docs/env_api.md writes in signature
+    form, `NAME(a: T, b: T = 1, ...)`, in order."""
+    import ast
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "env_api.md").read_text()
+    found = re.search(re.escape(call) + r"\(((?:[^()]|\([^()]*\))*)\)", text)
+    assert found, f"docs/env_api.md no longer shows {call}(...)"
+    args = ast.parse(f"def f({' '.join(found[1].split())}): pass").body[0].args
+    defaults = [None] * (len(args.args) - len(args.defaults)) + list(args.defaults)
+    return [(a.arg, None if d is None else ast.unparse(d)) for a, d in zip(args.args, defaults)]
+
+
+@pytest.mark.parametrize("call", ["PursuitEnv", "PursuitParallelEnv", "PursuitVectorEnv", "env.reset", "env.reset_worlds"])
+def test_the_signatures_docs_env_api_md_shows_are_the_codes(call):
+    """Parameter names, order and defaults as documented, so that a call written from the docs,
+    by keyword too, works (reset_worlds was documented as taking `ids`; its parameter is world_ids)."""
+    import inspect
+
+    from gymnasium.vector import AutoresetMode
+
+    from pursuit_mj.pz_env import PursuitParallelEnv
+    from pursuit_mj.vector_env import PursuitVectorEnv
+
+    code = {"PursuitEnv": PursuitEnv.__init__, "PursuitParallelEnv": PursuitParallelEnv.__init__,
+            "PursuitVectorEnv": PursuitVectorEnv.__init__, "env.reset": PursuitEnv.reset,
+            "env.reset_worlds": PursuitEnv.reset_worlds}[call]
+    params = [p for p in inspect.signature(code).parameters.values() if p.name != "self"]
+    documented = _documented_signature(call)
+    assert [name for name, _ in documented] == [p.name for p in params], call
+    for (name, default), p in zip(documented, params):
+        expected = None if p.default is inspect.Parameter.empty else p.default
+        shown = None if default is None else eval(default, {"AutoresetMode": AutoresetMode})
+        assert (default is None and p.default is inspect.Parameter.empty) or shown == expected, (call, name)
