@@ -830,3 +830,28 @@ def test_a_train_set_value_an_arm_refuses_is_named_with_the_arms_that_refuse_it(
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and said in err, err
     assert not (tmp_path / "s").exists()
+
+
+def test_docs_training_md_names_the_studys_arms_with_their_configs_and_its_output_files():
+    """The study's table has a row `imitate_ppo`, trained from configs/train/finetune_ppo.yaml, and
+    writes table.txt, table.csv and plots/ beside table.json; the docs named neither the arms nor
+    those files, so a reader of the table could not tell which config a row came from."""
+    import re
+    from pathlib import Path
+
+    from train import study
+
+    root = Path(__file__).resolve().parents[1]
+    prose = " ".join((root / "docs" / "training.md").read_text().split())
+    said = re.search(r"Its arms, in training order: (.*?)\. It writes", prose)
+    assert said, "docs/training.md does not list the study's arms"
+    arms = re.finditer(r"`(\w+)`(?: \((?:`configs/train/(\w+)\.yaml`)?(?:, )?(?:from `(\w+)`)?\))?(?:, |$)", said[1])
+    documented = [(arm[1], arm[2] or arm[1], arm[3]) for arm in arms]
+    assert documented == [(a.name, a.config, a.start_from) for a in study.ARMS]
+    files = re.search(r"It writes into `--out`[^:]*: (.*?)\. `pursuit-mj study --budget-minutes", prose)
+    assert files, "docs/training.md does not list the study's output files"
+    named = [n for n in re.findall(r"`([^`]+)`", files[1]) if "." in n or n.endswith("/")]  # files and folders
+    source = (root / "train" / "study.py").read_text()
+    for name in named:
+        assert f'"{name.split("/")[0]}"' in source, name  # a string the study writes it by
+    assert {"table.txt", "table.csv", "table.json", "plots/", "timings.json", "study.json", "runs/<arm>/"} <= set(named)

@@ -27,7 +27,7 @@ share of the new budget added, and the rest train as before. Evaluated cells (on
 one layout) are kept in study.json as each ends and played again only when they no longer
 match (train/study_evaluation.py).
 
-Outputs in <out>/: runs/<regime>/ (checkpoints, metrics), study.json (the finished arms and evaluated cells), table.txt (the table, then every arm
+Outputs in <out>/: runs/<arm>/ (checkpoints, metrics), study.json (the finished arms and evaluated cells), table.txt (the table, then every arm
 paired with the heuristic team on the same episodes, pursuit_mj.comparison), table.csv,
 table.json (rows, and the pairs under "paired"), plots/*.png, timings.json.
 """
