@@ -288,3 +288,35 @@ def test_a_slow_pursuer_faces_where_it_flies():
     slow = 0.04  # m/s, its top speed: flying at it must turn its heading, or it faces its start heading for good
     turned = update_heading(np.array([0.0]), np.array([[0.0, slow]]), heading_min_speed(slow))
     assert turned[0] == pytest.approx(math.pi / 2)
+
+
+def test_the_group_tables_of_obs_spec_docstring_are_the_specs_groups():
+    """The documented index map (pursuit_mj/obs_spec.py's tables, which docs/env_api.md and the
+    policy contract point to) lists each group's name, count, width and features in order as
+    ObsSpec lays them out, belief groups included: a feature added or moved in the code alone fails."""
+    import re
+
+    import pursuit_mj.obs_spec as obs_spec_module
+
+    rows, current = [], None
+    for line in obs_spec_module.__doc__.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")] if line.startswith("|") else None
+        if not cells or (cells[0] and set(cells[0]) <= {"-"}) or cells[0] == "group":
+            continue
+        if cells[0]:
+            current = [cells[0].strip("`"), cells[1], cells[2], cells[3]]
+            rows.append(current)
+        else:
+            current[3] += " " + cells[3]
+    n, m, k = 4, 2, 16
+    spec = obs_spec_module.ObsSpec.make(n, m, k, belief=True)
+    assert [r[0] for r in rows] == [g.name for g in spec.groups]
+    counts = {"1": 1, "N - 1": n - 1, "M": m}
+    for (name, count, width, features), group in zip(rows, spec.groups):
+        assert counts[count] == group.count, name
+        assert (k if width == "K" else int(width)) == group.width, name
+        if name == "rays":
+            assert group.features == tuple(f"range_{i}" for i in range(k))
+            continue
+        bare = re.sub(r":[^,]*", "", re.sub(r"\([^)]*\)", "", features))  # units (...) and remarks (: ...) left out
+        assert [w.strip() for w in bare.split(",")] == list(group.features), (name, bare)
