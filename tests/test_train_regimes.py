@@ -539,3 +539,22 @@ def test_the_learning_set_up_of_docs_design_md_section_6_is_the_train_defaults_a
     classic = regimes[0]
     defaults = TrainConfig()
     assert (defaults.ppo.gamma, defaults.ppo.clip, defaults.n_envs) == (float(classic[2]), float(classic[3]), int(classic[4]))
+
+
+@pytest.mark.parametrize("path", sorted(str(p) for p in Path("configs/train").glob("*.yaml")))
+def test_the_validation_cadence_a_config_file_states_in_its_comments_is_the_one_it_sets(path):
+    """Each shipped config says in a comment how often it validates ('every 40 updates (2280 steps
+    per world)', 'every 2048 steps per world'); those numbers follow from run.validate_every,
+    ppo.batch_size, n_envs and the team size, and change silently when one of them does."""
+    import re
+
+    text = " ".join(Path(path).read_text().split())
+    cfg = load_train_config([path])
+    per_world = cfg.rollout_steps() * cfg.run.validate_every
+    updates = re.search(r"every (\d+) updates \((\d+) steps per world\)", text)
+    steps = re.search(r"every (\d+) steps per world", text)
+    assert updates or steps, f"{path} does not say how often it validates"
+    if updates:
+        assert (int(updates[1]), int(updates[2])) == (cfg.run.validate_every, per_world), path
+    if steps:
+        assert int(steps[1]) == per_world, path
