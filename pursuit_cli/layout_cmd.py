@@ -181,7 +181,10 @@ def _obstacles(args) -> list[dict]:
         if len(values) not in (4, 5):
             raise ValueError(f"--wall: expected X0 Y0 X1 Y1 [THICKNESS], got {len(values)} numbers {values}")
         v = _finite(values, "--wall")
-        out.append({"wall": {"from": v[:2], "to": v[2:4], "thickness": v[4] if len(v) == 5 else 0.05}})
+        wall = {"from": v[:2], "to": v[2:4]}
+        if len(v) == 5:
+            wall["thickness"] = v[4]  # left out, the layout loader's default (layout.Wall.thickness)
+        out.append({"wall": wall})
     return out
 
 

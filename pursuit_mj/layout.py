@@ -221,7 +221,7 @@ def _parse_obstacle(entry: Any, where: str) -> Obstacle:
         start, end = _pair(m["from"], f"{w}.from"), _pair(m["to"], f"{w}.to")
         if start == end:
             raise LayoutError(f"{w}: 'from' and 'to' are the same point {list(start)}")
-        return Wall(start, end, _number(m.get("thickness", 0.05), f"{w}.thickness", positive=True))
+        return Wall(start, end, _number(m.get("thickness", Wall.thickness), f"{w}.thickness", positive=True))
     raise LayoutError(f"{where}: unknown obstacle kind {shown(kind)}{key_hint(kind, ('box', 'cylinder', 'wall'))}")
 
 
