@@ -34,7 +34,6 @@ table.json (rows, and the pairs under "paired"), plots/*.png, timings.json.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import math
@@ -55,7 +54,7 @@ from .checkpoint import is_training_checkpoint, load_checkpoint
 from .config import load_train_config, set_keys, train_config_from_dict
 from .policy import load_policy
 from .study_evaluation import HEURISTIC, KeptEvaluation
-from .trainer import Trainer, lock_folder
+from .trainer import Trainer, lock_folder, release_lock
 from .validation import FixedSeedValidator
 
 @dataclasses.dataclass(frozen=True)
@@ -458,14 +457,12 @@ def run_study(plan: StudyPlan, log: Callable[[str], None] = print, stop_requeste
         lock = lock_folder(plan.out, STUDY_LOCK, "study folder", "study", "give another --out")
         try:
             _refuse_an_earlier_study(plan)
-            return _run_study(plan, log, stop_requested)
-        except BaseException:
-            if new_lock:  # nor a lock file in a folder that was there ('--resume --out mine' refused)
-                with contextlib.suppress(OSError):  # still held: no other study took it meanwhile
-                    (plan.out / STUDY_LOCK).unlink(missing_ok=True)
+            result = _run_study(plan, log, stop_requested)
+        except BaseException:  # nor a lock file in a folder that was there ('--resume --out mine' refused)
+            release_lock(lock, plan.out / STUDY_LOCK, remove_file=new_lock)
             raise
-        finally:
-            lock.close()
+        lock.close()
+        return result
 
 
 STUDY_LOCK = ".study.lock"  # in <out>/: held by the study running there

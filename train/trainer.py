@@ -134,11 +134,8 @@ class Trainer:
             if checkpoint is None:
                 self._refuse_an_earlier_run()
             self._build(checkpoint)
-        except BaseException:
-            if new_lock:  # still held: no other trainer took it meanwhile
-                with contextlib.suppress(OSError):
-                    (self.run_dir / ".lock").unlink()
-            self._lock.close()  # a run that cannot start leaves the folder free
+        except BaseException:  # a run that cannot start leaves the folder free, and no lock file of its own there
+            release_lock(self._lock, self.run_dir / ".lock", remove_file=new_lock)
             if made_folder:
                 shutil.rmtree(self.run_dir, ignore_errors=True)
             raise
@@ -955,6 +952,16 @@ def lock_folder(folder: Path, lock_name: str, what: str, holder_kind: str, advic
         handle.close()
         raise ValueError(f"{what} {folder}: cannot write its lock file ({exc.strerror or exc})") from None
     return handle
+
+
+def release_lock(handle, lock_file: Path, remove_file: bool) -> None:
+    """Release the lock `handle` (lock_folder) whose file is `lock_file`, removing that file first when
+    `remove_file` (one this process made, for a run or study that could not start): while the lock is
+    still held, so that no other holder's lock file is taken away. A file already gone is no error."""
+    if remove_file:
+        with contextlib.suppress(OSError):
+            lock_file.unlink()
+    handle.close()
 
 
 def _names_file(path: Path, handle) -> bool:
