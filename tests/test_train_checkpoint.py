@@ -1321,3 +1321,34 @@ def test_a_run_refused_in_a_folder_named_through_dot_dot_keeps_the_folder_it_nam
     with pytest.raises(ValueError, match="no such checkpoint"):
         Trainer(cfg, log=lambda s: None)
     assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")) == ["keep", "keep/x", "keep/x/notes.txt"]
+
+
+def test_a_refused_resume_of_a_folder_without_a_lock_file_leaves_none_in_it(tmp_path, monkeypatch):
+    """A run folder copied without its '.lock' (from another machine), whose resume is refused (last.pt
+    damaged, or the run refused as it starts), was left holding a '.lock' the refused resume made."""
+    cfg = tiny_config(tmp_path, updates=1)
+    Trainer(cfg, log=lambda s: None).train()
+    (cfg.run_dir / ".lock").unlink()
+    kept = sorted(p.name for p in cfg.run_dir.iterdir())
+
+    def refuse(self, checkpoint):
+        raise ValueError("refused as it starts")
+
+    with monkeypatch.context() as patched:
+        patched.setattr(Trainer, "_build", refuse)
+        with pytest.raises(ValueError, match="refused as it starts"):
+            Trainer.resume(cfg.run_dir, total_steps=64, log=lambda s: None)
+    assert sorted(p.name for p in cfg.run_dir.iterdir()) == kept
+    last = cfg.run_dir / "last.pt"
+    good = last.read_bytes()
+    last.write_bytes(b"damaged")
+    with pytest.raises(ValueError):
+        Trainer.resume(cfg.run_dir, log=lambda s: None)
+    assert sorted(p.name for p in cfg.run_dir.iterdir()) == kept
+    last.write_bytes(good)
+    (cfg.run_dir / ".lock").write_text("")  # one that was there stays, as a refused resume found it
+    with pytest.raises(ValueError):
+        with monkeypatch.context() as patched:
+            patched.setattr(Trainer, "_build", refuse)
+            Trainer.resume(cfg.run_dir, total_steps=64, log=lambda s: None)
+    assert (cfg.run_dir / ".lock").is_file()

@@ -83,13 +83,9 @@ class Trainer:
     def __init__(self, cfg: TrainConfig, checkpoint: dict | None = None, log: Callable[[str], None] = print,
                  held_lock: IO | None = None):
         """`held_lock`: the run folder's lock, already taken by the caller (`resume` takes it before it
-        reads last.pt); the trainer owns it from here on and releases it when it ends or cannot start."""
-        try:
-            self._start(cfg, checkpoint, log, held_lock)
-        except BaseException:
-            if held_lock is not None and getattr(self, "_lock", None) is None:
-                held_lock.close()  # refused before the trainer took it over
-            raise
+        reads last.pt); the trainer releases it when it ends. One that cannot start leaves it to the
+        caller, who knows whether its lock file was there before (`release_lock`)."""
+        self._start(cfg, checkpoint, log, held_lock)
 
     def _start(self, cfg: TrainConfig, checkpoint: dict | None, log: Callable[[str], None], held_lock: IO | None) -> None:
         cfg.check_complete()
@@ -112,7 +108,8 @@ class Trainer:
     def _take_run_folder(self, checkpoint: dict | None, log: Callable[[str], None], held_lock: IO | None) -> None:
         """Make and lock the run folder, then build the run (_build). A run that cannot start
         leaves the folder free, removes it if it made it (a later --resume would take it for a
-        run), and in a folder that was there removes the lock file it made."""
+        run), and in a folder that was there removes the lock file it made (a `held_lock` it leaves
+        to its caller)."""
         cfg = self.cfg
         check_writable_folder(self.run_dir, f"run folder (run.runs_dir {cfg.run.runs_dir}, name {cfg.name})")
         made_folder = made_here(self.run_dir)  # not one that was there (run.runs_dir=new/../keep), nor another's
@@ -135,7 +132,8 @@ class Trainer:
                 self._refuse_an_earlier_run()
             self._build(checkpoint)
         except BaseException:  # a run that cannot start leaves the folder free, and no lock file of its own there
-            release_lock(self._lock, self.run_dir / ".lock", remove_file=new_lock)
+            if held_lock is None:
+                release_lock(self._lock, self.run_dir / ".lock", remove_file=new_lock)
             if made_folder:
                 shutil.rmtree(self.run_dir, ignore_errors=True)
             raise
@@ -211,12 +209,13 @@ class Trainer:
         # held before last.pt is read: a trainer of this folder ending meanwhile cannot leave it one save behind.
         # Only a folder with a last.pt: one without has nothing to resume and gets no lock file of ours
         # (a mistyped name makes no folder, a folder that holds no run no '.lock')
+        new_lock = not (run_dir / ".lock").exists()  # a folder copied without it: a refused resume leaves none there
         lock = lock_run_folder(run_dir) if (run_dir / "last.pt").is_file() else None
         try:
             return cls._resume_holding(run_dir, lock, total_steps, log, max_minutes, progress, check, rerun)
         except BaseException:
             if lock is not None and not lock.closed:
-                lock.close()
+                release_lock(lock, run_dir / ".lock", remove_file=new_lock)
             raise
 
     @classmethod
