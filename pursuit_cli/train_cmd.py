@@ -245,6 +245,15 @@ def _progress(args) -> bool | None:
 
 
 def run(args) -> int:
+    """The train command. A run refused, or failed in its first update, leaves none of the folders it
+    made (run.runs_dir=a/b: a/ and a/b/ too; io_utils.no_new_empty_folders, Trainer)."""
+    from pursuit_mj.io_utils import no_new_empty_folders
+
+    with no_new_empty_folders():
+        return _run(args)
+
+
+def _run(args) -> int:
     from pursuit_mj.configio import dump_yaml
     from train.config import layout_key_sources, load_train_config
     from train.trainer import Trainer, best_instead

@@ -791,3 +791,25 @@ def test_an_export_of_a_file_that_is_no_checkpoint_leaves_no_folder_it_made(tmp_
     assert main(["train", "--export", str(notes), str(tmp_path / "new" / "x" / "p.pt")]) == 2
     assert "not a pursuit-mj checkpoint" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+def test_a_run_that_fails_in_its_first_update_leaves_no_folder_it_made(tmp_path, monkeypatch, capsys):
+    """A run that failed inside its first update (training diverged at update 1, say) left
+    runs/NAME holding config.yaml and its .lock, and the runs folder it had made: nothing to
+    resume or read. A folder that was there keeps what it held, without the files the run made."""
+    import train.trainer as trainer_module
+
+    def fails(*args, **kwargs):
+        raise ValueError("training diverged at update 1 (as if)")
+
+    monkeypatch.setattr(trainer_module, "ppo_update", fails)
+    runs = tmp_path / "new" / "runs"
+    base = ["train", "--no-progress", "--name", "x", "--total-steps", "32"] + sets(TINY)
+    assert main(base + ["--set", f"run.runs_dir={runs}"]) == 2
+    assert "diverged" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
+    mine = tmp_path / "mine" / "x"
+    mine.mkdir(parents=True)
+    (mine / "notes.txt").write_text("mine")
+    assert main(base + ["--set", f"run.runs_dir={tmp_path / 'mine'}"]) == 2
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]

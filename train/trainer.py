@@ -123,6 +123,9 @@ class Trainer:
             if made_folder:
                 shutil.rmtree(self.run_dir, ignore_errors=True)
             raise
+        # what a run that fails in its first update removes (_remove_a_run_that_holds_nothing): not what was there
+        self._made_folder, self._new_lock = made_folder, new_lock
+        self._found = {name for name in RUN_FILES if (self.run_dir / name).exists()}
         try:
             left = remove_leftover_parts(self.run_dir)  # of saves a kill -9 cut short: no other process writes here
             if left:
@@ -602,7 +605,15 @@ class Trainer:
                      f"(--set run.split_update=false says so from the start)")
 
     def close(self) -> None:
-        """Stop the rollout worker, if one runs, and finish metrics.rrd (train() does this when it returns)."""
+        """Stop the rollout worker, if one runs, finish metrics.rrd and release the run folder (train()
+        does this when it returns)."""
+        self._stop_helpers()
+        if self._lock is not None:
+            self._lock.close()  # releases the run folder
+            self._lock = None
+
+    def _stop_helpers(self) -> None:
+        """Stop the child processes, if any run, and finish metrics.rrd."""
         if self.worker is not None:
             self.worker.close()
             self.worker = None
@@ -611,9 +622,26 @@ class Trainer:
             self.critic_worker = None
         if self.rerun is not None:
             self.rerun.close()
-        if self._lock is not None:
-            self._lock.close()  # releases the run folder
-            self._lock = None
+
+    def _remove_a_run_that_holds_nothing(self) -> None:
+        """After the run failed: when its folder holds no checkpoint and no logged update (it failed in
+        its first update: training diverged, a reward term raised), remove the files this run made
+        there (RUN_FILES, and its lock file while it still holds it) and the folder if this run made it
+        and nothing else is in it: nothing there could be resumed or read. A folder with logged
+        updates keeps them (they show how the run failed); files that were there stay."""
+        log_size = self.metrics.path.stat().st_size if self.metrics.path.is_file() else 0
+        if self._lock is None or log_size or any((self.run_dir / n).exists() for n in ("last.pt", "best.pt")):
+            return
+        self._stop_helpers()  # metrics.rrd finished before it goes
+        for name in set(RUN_FILES) - self._found:
+            with contextlib.suppress(OSError):
+                (self.run_dir / name).unlink(missing_ok=True)
+        release_lock(self._lock, self.run_dir / ".lock", remove_file=self._new_lock)
+        self._lock = None
+        if self._made_folder:
+            with contextlib.suppress(OSError):
+                self.run_dir.rmdir()  # only when empty: a file put there meanwhile keeps it
+                self.log(f"[train] removed the run folder {self.run_dir}: it held no checkpoint and no logged update")
 
     def train_one_update(self) -> dict:
         """Collect one rollout (or take the one collected meanwhile, with overlap), learn from it,
@@ -810,6 +838,7 @@ class Trainer:
                 self.save()
         except (KeyboardInterrupt, Exception) as exc:
             if not isinstance(exc, KeyboardInterrupt) and not (stop_requested is not None and stop_requested()):
+                self._remove_a_run_that_holds_nothing()
                 raise
             status = "interrupted"
             if self._consistent and (self._saved_update != c.update or self._pending_row):
@@ -907,6 +936,10 @@ def _check_code_files(cfg: TrainConfig, trained: dict, run_dir: str | Path) -> N
             raise ValueError(f"--resume {run_dir}: {path} ({key}) has changed since the run started: the rest of the "
                              f"run would learn from {what} than the first part. Restore the file, or start a new run "
                              f"from this one with --init-from {Path(run_dir) / 'last.pt'}")
+
+
+#: the files a run writes in its folder beside its checkpoints and lock (_start_session, _build)
+RUN_FILES = ("config.yaml", "metrics.jsonl", "metrics.rrd")
 
 
 class FolderInUse(ValueError):
