@@ -191,6 +191,14 @@ def _check_same(asked, stored) -> None:
                          f"folder alone (--resume RUN_DIR); only {RESUMABLE_FLAGS} can change")
 
 
+def _flag_key_sources(args) -> dict[str, str]:
+    """The train keys the flags that a config check across keys names gave, as typed ('--init-from a.pt')."""
+    given = {"init_from": f"--init-from {args.init_from}"} if args.init_from is not None else {}
+    if args.learnable_gamma:
+        given["ppo.learnable_gamma"] = "--learnable-gamma"
+    return given
+
+
 def _given(value) -> bool:
     """Whether a flag was given: its default is None, False or an empty list (a value of 0, which
     equals False, is given: --seed 0)."""
@@ -255,7 +263,7 @@ def run(args) -> int:
 
 def _run(args) -> int:
     from pursuit_mj.configio import dump_yaml
-    from train.config import layout_key_sources, load_train_config
+    from train.config import key_sources_of, layout_key_sources, load_train_config
     from train.trainer import Trainer, best_instead
 
     if args.export:
@@ -307,8 +315,9 @@ def _run(args) -> int:
         if args.show_config and args.resume:
             raise ValueError(f"--resume: -sc/--show-config does not resume; the run's config is in "
                              f"{cfg.run_dir / 'config.yaml'}")
+        sources = key_sources_of(args.overrides, _flag_key_sources(args))
         if args.show_config:
-            cfg.check_complete()  # what training would refuse, -sc refuses too
+            cfg.check_complete(key_sources=sources)  # what training would refuse, -sc refuses too
             cfg.check_layouts(key_sources=layout_key_sources(args.overrides))
             cfg.check_code()
             print(dump_yaml(cfg), end="")
@@ -330,7 +339,8 @@ def _run(args) -> int:
             if last.exists():
                 raise ValueError(f"run folder {cfg.run_dir} already has a checkpoint: continue it with --resume, "
                                  f"or start another run with --name")
-            cfg.check_layouts(key_sources=layout_key_sources(args.overrides))  # Trainer would name no flag
+            cfg.check_complete(key_sources=sources)  # Trainer would name no flag
+            cfg.check_layouts(key_sources=layout_key_sources(args.overrides))
             trainer = Trainer(cfg)
     # SIGTERM stops it like Ctrl-C (pursuit_cli.termination_as_interrupt): the last finished update is kept
     seconds_before = trainer.counters.seconds  # a resumed run's counters hold its earlier sessions too

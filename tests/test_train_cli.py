@@ -813,3 +813,25 @@ def test_a_run_that_fails_in_its_first_update_leaves_no_folder_it_made(tmp_path,
     (mine / "notes.txt").write_text("mine")
     assert main(base + ["--set", f"run.runs_dir={tmp_path / 'mine'}"]) == 2
     assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+
+
+def test_a_check_across_two_train_keys_names_the_command_line_values_that_gave_them(tmp_path, capsys):
+    """Errors of one key name the --set that gave it; those of two keys said 'train config: ...'
+    even when a --set (or a flag) gave one of them, training or with -sc alike."""
+    runs = tmp_path / "runs"
+    cases = [
+        (["--set", "ppo.minibatch_size=2000"], "--set ppo.minibatch_size=2000: ppo.minibatch_size 2000 exceeds ppo.batch_size 1024"),
+        (["--set", "ppo.batch_size=8"], "--set ppo.batch_size=8: ppo.minibatch_size 256 exceeds ppo.batch_size 8"),
+        (["--set", "ppo.batch_size=8", "--set", "ppo.minibatch_size=9"],
+         "--set ppo.minibatch_size=9, --set ppo.batch_size=8: ppo.minibatch_size 9 exceeds ppo.batch_size 8"),
+        (["--set", "ppo.anchor_coef=0.5"], "--set ppo.anchor_coef=0.5: ppo.anchor_coef 0.5 needs init_from"),
+        (["--config", "imitate", "--learnable-gamma"], "--learnable-gamma: ppo.learnable_gamma works with algo ppo or mappo"),
+    ]
+    for given, said in cases:
+        for sc in ([], ["-sc"]):
+            assert main(["train", "--no-progress", "--name", "x", "--set", f"run.runs_dir={runs}", *given, *sc]) == 2
+            err = capsys.readouterr().err
+            assert f"error: {said}" in err, (given, sc, err)
+    assert not runs.exists()
+    assert main(["train", "-sc", "--config", "imitate", "--set", "ppo.learnable_gamma=true"]) == 2
+    assert "error: --set ppo.learnable_gamma=true: ppo.learnable_gamma works" in capsys.readouterr().err

@@ -225,36 +225,53 @@ class TrainConfig:
         if self.regime == "fine_tune" and not self.init_from:
             raise ConfigError(f"{source}: regime fine_tune needs init_from (a full_obs checkpoint)")
 
-    def check_complete(self, source: str = "train config") -> None:
-        """Checks that span keys set by separate overrides (run once the config is final)."""
+    def check_complete(self, source: str = "train config", key_sources: Mapping[str, str] | None = None) -> None:
+        """Checks that span keys set by separate overrides (run once the config is final). An error
+        starts with the command-line values that gave the keys it is about, `key_sources[key]` (e.g.
+        '--set ppo.batch_size=8', from `key_sources_of`), else with `source`."""
+        def where(*keys: str) -> str:
+            given = list(dict.fromkeys((key_sources or {})[k] for k in keys if k in (key_sources or {})))
+            return ", ".join(given) if given else source
+
         if self.algo != "dagger" and self.ppo.minibatch_size > self.ppo.batch_size:  # DAgger's is imitation.minibatch_size
+            source = where("ppo.minibatch_size", "ppo.batch_size")
             raise ConfigError(f"{source}: ppo.minibatch_size {self.ppo.minibatch_size} exceeds ppo.batch_size {self.ppo.batch_size}")
         if self.algo != "dagger" and self.ppo.anchor_coef > 0 and not self.init_from:
+            source = where("ppo.anchor_coef", "init_from")
             raise ConfigError(f"{source}: ppo.anchor_coef {self.ppo.anchor_coef:g} needs init_from: the anchor is the actor "
                               f"the run starts from (set --init-from, or ppo.anchor_coef=0)")
         if self.algo == "dagger" and self.ppo.learnable_gamma:
+            source = where("ppo.learnable_gamma", "algo")
             raise ConfigError(f"{source}: ppo.learnable_gamma works with algo ppo or mappo, not dagger (imitation has no policy gradient)")
         if self.ppo.learnable_gamma:
             from .discount import LEARNABLE_START
 
             lo, hi = LEARNABLE_START
             if not lo <= self.ppo.gamma <= hi:
+                source = where("ppo.gamma", "ppo.learnable_gamma")
                 raise ConfigError(f"{source}: ppo.gamma {self.ppo.gamma:g} cannot start ppo.learnable_gamma: the learned "
                                   f"discount is sigmoid(logit) and starts in [{lo:g}, {hi:g}] (e.g. ppo.gamma=0.99)")
         if self.algo != "dagger" and self.ppo.teacher_coef > 0 and self.residual.base != "none":
+            source = where("ppo.teacher_coef", "residual.base")
             raise ConfigError(f"{source}: ppo.teacher_coef {self.ppo.teacher_coef:g} cannot work with residual.base "
                               f"{self.residual.base!r}: the actor's output is then a correction to that team, not an action "
                               "the teacher would take (set ppo.teacher_coef=0, or residual.base=none)")
         if self.algo == "dagger" and self.residual.base != "none":
+            source = where("residual.base", "algo")
             raise ConfigError(f"{source}: residual.base {self.residual.base!r} works with algo ppo or mappo, not dagger "
                               "(a residual starts as its base team; there is nothing to imitate)")
         from pursuit_mj.shield import MIN_RAYS
 
         if self.task.n_rays < MIN_RAYS:
-            users = [k for k, on in (("shield", self.shield), ("residual.base", self.residual.base != "none"),
-                                     ("belief", self.belief), ("algo dagger (its teacher)", self.algo == "dagger"),
-                                     ("run.validation_vs_heuristic", self.run.validation_vs_heuristic)) if on]
+            named = [(k, key) for k, key, on in (("shield", "shield", self.shield),
+                                                 ("residual.base", "residual.base", self.residual.base != "none"),
+                                                 ("belief", "belief", self.belief),
+                                                 ("algo dagger (its teacher)", "algo", self.algo == "dagger"),
+                                                 ("run.validation_vs_heuristic", "run.validation_vs_heuristic",
+                                                  self.run.validation_vs_heuristic)) if on]
+            users = [k for k, _ in named]
             if users:
+                source = where("task.n_rays", *(key for _, key in named))
                 raise ConfigError(f"{source}: task.n_rays {self.task.n_rays}: the heuristic team and the shield see walls "
                                   f"only through range readings and need at least {MIN_RAYS}; {', '.join(users)} "
                                   f"{'uses' if len(users) == 1 else 'use'} them (raise task.n_rays, or turn those off)")
@@ -409,9 +426,16 @@ def layout_refs(cfg: TrainConfig) -> list[tuple[str, tuple]]:
 
 def layout_key_sources(overrides: Sequence[str]) -> dict[str, str]:
     """Which '--set KEY=VALUE' gave each layout key (LAYOUT_KEYS) its value: the last that set it."""
-    sources: dict[str, str] = {}
+    return {key: given for key, given in key_sources_of(overrides).items() if key in LAYOUT_KEYS}
+
+
+def key_sources_of(overrides: Sequence[str], flags: Mapping[str, str] | None = None) -> dict[str, str]:
+    """Which command-line value gave each dotted key (sections too) its value: the last '--set
+    KEY=VALUE' of `overrides` that sets it, else `flags[key]` (e.g. {'init_from': '--init-from
+    a.pt'}), as --set applies over the flags."""
+    sources = dict(flags or {})
     for text in overrides:
-        for key in set_keys(text) & set(LAYOUT_KEYS):
+        for key in set_keys(text):
             sources[key] = f"--set {text}"
     return sources
 
