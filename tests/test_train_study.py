@@ -810,8 +810,8 @@ def test_a_train_set_word_read_as_a_boolean_is_advised_with_train_set(tmp_path, 
                                             "layout 'nope.yaml': no such file"),
     (["n_envs=-1"], "--train-set n_envs=-1: every arm refuses it: key 'n_envs': -1 is out of range"),
     # arms that differ: all of those that refuse are named, not only the first
-    (["ppo.anchor_coef=0.5"], "--train-set ppo.anchor_coef=0.5: the full_obs, classic, mappo, imitate_ppo, residual and "
-                              "belief_ppo arms refuse it (full_obs config): ppo.anchor_coef 0.5 needs init_from"),
+    (["ppo.anchor_coef=0.5"], "--train-set ppo.anchor_coef=0.5: the full_obs, classic, mappo and residual arms refuse it "
+                              "(full_obs config): ppo.anchor_coef 0.5 needs a start to anchor to"),
     (["algo=dagger"], "--train-set algo=dagger: the residual arm refuses it (residual config): residual.base 'heuristic' "
                       "works with algo ppo or mappo, not dagger"),
     # arms that refuse different values: each value with its own arms (residual was named as refusing the first)
@@ -855,3 +855,17 @@ def test_docs_training_md_names_the_studys_arms_with_their_configs_and_its_outpu
     for name in named:
         assert f'"{name.split("/")[0]}"' in source, name  # a string the study writes it by
     assert {"table.txt", "table.csv", "table.json", "plots/", "timings.json", "study.json", "runs/<arm>/"} <= set(named)
+
+
+def test_a_train_set_that_needs_a_start_is_refused_with_advice_a_study_can_follow(tmp_path, capsys):
+    """'study --train-set ppo.anchor_coef=0.5' was refused with 'set --init-from', which a study
+    refuses (it sets init_from for each arm), and named the imitate_ppo and belief_ppo arms, which
+    the study starts from their start arm's best.pt, among those that refuse it."""
+    out = tmp_path / "s"
+    assert main(["study", "--budget-minutes", "30", "--out", str(out), "--train-set", "ppo.anchor_coef=0.5"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert "--train-set ppo.anchor_coef=0.5: the full_obs, classic, mappo and residual arms refuse it" in err, err
+    assert "set --init-from" not in err and "only fine_tune, imitate_ppo and belief_ppo" in err, err
+    assert f"pursuit-mj train --config fine_tune --init-from {out / 'runs' / 'full_obs' / 'best.pt'} --set ppo.anchor_coef=0.5" in err, err
+    assert not out.exists()

@@ -359,8 +359,15 @@ def check_train_overrides(plan: StudyPlan) -> None:
                 raise ValueError(f"--train-set {text}: the study sets {key} for each arm ({STUDY_SETS[key]}); leave it out")
     configs, refused = {}, {}
     for arm in ARMS:
+        # an arm that continues another starts from that one's best.pt, which the study gives it as it starts
+        start = [f"init_from={_start_checkpoint(plan, arm)}"] if arm.start_from else []
         try:
-            cfg = load_train_config([arm.config], ["name=check", "total_steps=1000000000", "task.layout=0", *plan.train_overrides])
+            cfg = load_train_config([arm.config], ["name=check", "total_steps=1000000000", "task.layout=0",
+                                                   *plan.train_overrides, *start])
+            anchorless = _anchor_without_a_start(cfg, plan)
+            if anchorless:  # the config's own advice, 'set --init-from', is the train command's
+                refused[arm] = anchorless
+                continue
             cfg.check_complete()
             cfg.check_layouts()  # found at the arm's start, after the team's evaluation was kept in study.json
             cfg.check_code()  # likewise
@@ -371,6 +378,28 @@ def check_train_overrides(plan: StudyPlan) -> None:
     if refused:
         raise ValueError(_train_set_refusal(refused, plan.train_overrides))
     _check_rays(plan, configs)
+
+
+def _start_checkpoint(plan: StudyPlan, arm: Arm) -> Path:
+    """The checkpoint an arm that continues another starts from: that arm's best.pt."""
+    return plan.out / "runs" / arm.start_from / "best.pt"
+
+
+def _anchor_without_a_start(cfg, plan: StudyPlan) -> str | None:
+    """Why an arm trained from scratch cannot take the ppo.anchor_coef a --train-set gives it (the
+    anchor is the actor a run starts from), with advice a study's user can follow: the train
+    config's, 'set --init-from', is refused in a study. None when the arm takes it."""
+    if cfg.algo == "dagger" or cfg.ppo.anchor_coef <= 0 or cfg.init_from:
+        return None
+    starting = [a for a in ARMS if a.start_from]
+    names = ", ".join(a.name for a in starting[:-1]) + f" and {starting[-1].name}"
+    example = starting[0]
+    coef = f"{cfg.ppo.anchor_coef:g}"
+    return (f"train config: ppo.anchor_coef {coef} needs a start to anchor to (the actor a run starts from), and these arms "
+            f"train from scratch: a study starts only {names} from a checkpoint (the best.pt of the arm each continues), "
+            f"and --train-set gives every arm the value; leave it out, or train one such run with it on its own: "
+            f"pursuit-mj train --config {example.config} --init-from {_start_checkpoint(plan, example)} "
+            f"--set ppo.anchor_coef={coef}")
 
 
 def _as_train_set(said: str, overrides: Sequence[str]) -> str:
