@@ -13,7 +13,7 @@ import stat
 import tempfile
 import time
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import IO, Callable, Iterator
 
 
 class CannotWrite(ValueError):
@@ -244,6 +244,34 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def open_for_appending(path: str | Path) -> IO[str]:
+    """`path` opened to append text to (made if missing), as open(path, "a") does, except that a named
+    pipe no program reads is OSError ENXIO at once (open() would wait for a reader forever; see
+    no_reader): writes to a pipe that has one wait for it as they would have."""
+    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NONBLOCK", 0)
+    fd = os.open(path, flags, 0o666)
+    try:
+        if flags & getattr(os, "O_NONBLOCK", 0):
+            import fcntl
+
+            fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
+        return os.fdopen(fd, "a", encoding="utf-8")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def no_reader(exc: OSError, path: str | Path) -> bool:
+    """Whether `exc`, raised opening `path` to write (open_for_appending), says it is a named pipe
+    that no program reads."""
+    import errno
+
+    try:
+        return exc.errno == errno.ENXIO and stat.S_ISFIFO(os.stat(path).st_mode)
+    except OSError:
+        return False
 
 
 def atomic_write_text(path: str | Path, text: str) -> Path:

@@ -454,3 +454,52 @@ def test_the_signal_relay_still_acts_on_later_signals_after_acting_on_one_failed
     relay.close()
     assert acted == [signal.SIGINT, signal.SIGQUIT]
     assert "acting on signal 2 failed: RuntimeError: the landing request failed" in capfd.readouterr().err
+
+
+def _alarm(seconds: int):
+    """SIGALRM after `seconds`, raising TimeoutError in the main thread (a test that would hang fails)."""
+    def ring(signum, frame):
+        raise TimeoutError(f"still waiting after {seconds} s")
+
+    before = signal.signal(signal.SIGALRM, ring)
+    signal.alarm(seconds)
+    return before
+
+
+def test_an_event_log_on_a_named_pipe_with_no_reader_is_refused_in_one_line_and_one_with_a_reader_is_written(tmp_path, capsys):
+    """`fly --events FIFO` with no program reading the pipe waited for a reader forever, before the
+    flight (open() of a pipe blocks until its other end opens). Refused now, naming the pipe; a
+    pipe with a reader takes the records as before."""
+    from pursuit_cli import main
+    from pursuit_mj.flight.events import EventLog
+
+    fifo = tmp_path / "events.pipe"
+    os.mkfifo(fifo)
+    before = _alarm(20)
+    try:
+        rc = main(["fly", "--flight", "example", "--policy", "heuristic", "--virtual", "--max-time", "1", "--events", str(fifo)])
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, before)
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1, err
+    assert f"--events {fifo}: a named pipe that no program reads" in err, err
+    assert fifo.exists() and not list(tmp_path.glob("*.jsonl"))
+    got: list[bytes] = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()))
+    reader.start()
+    before = _alarm(20)
+    try:
+        for _ in range(200):  # the reader's open() first: a writer finds it there
+            try:
+                log = EventLog(fifo)
+                break
+            except OSError:
+                time.sleep(0.01)
+        log.log("geofence", drone="p0")
+        log.close()
+        reader.join(10)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, before)
+    assert json.loads(got[0])["kind"] == "geofence"

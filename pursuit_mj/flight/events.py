@@ -25,6 +25,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..io_utils import open_for_appending
+
 #: events that are not safety-relevant (no fsync)
 ROUTINE = frozenset({"step"})
 
@@ -66,7 +68,7 @@ class EventLog:
             self.add_sink("echo", echo)
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._file = open(self.path, "a", encoding="utf-8")
+            self._file = open_for_appending(self.path)  # a pipe no program reads: OSError, not a wait forever
         # only a file on disk can be fsync'ed: /dev/null or a pipe refuse it (EINVAL), and are written all the same
         self._syncs = self._file is not None and stat.S_ISREG(os.fstat(self._file.fileno()).st_mode)
 
