@@ -81,10 +81,33 @@ def check_out_prefix(prefix: str) -> None:
     if os.path.basename(prefix) in ("", ".", ".."):
         raise ValueError(f"--out {prefix}: names a folder, not a file name prefix (PREFIX.csv, PREFIX.json are "
                          f"written); give e.g. --out {os.path.normpath(os.path.join(prefix, 'table'))}")
+    _refuse_a_stream_prefix(prefix)
     stem, ext = os.path.splitext(prefix)
     if ext.lower() in (".csv", ".json"):  # PREFIX.json.csv and PREFIX.json.json would be written
         raise ValueError(f"--out {prefix}: a file name prefix, to which .csv and .json are added ({prefix}.csv, "
                          f"{prefix}.json); give --out {stem}")
+
+
+def _refuse_a_stream_prefix(prefix: str) -> None:
+    """ValueError naming --out when the prefix is a device, a named pipe or a socket (links followed:
+    /dev/null, /dev/stdout to a terminal), or lies in /dev itself (/dev/stdout to a file): the user
+    means to write to it, and PREFIX.csv and PREFIX.json would be made beside it, among the devices.
+    A regular file of that name is left as it is (PREFIX.csv is another file)."""
+    import stat
+
+    try:
+        mode = os.stat(prefix).st_mode
+    except OSError:  # not there (or unreadable): a prefix as any
+        mode = 0
+    kind = ("a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a named pipe" if stat.S_ISFIFO(mode)
+            else "a socket" if stat.S_ISSOCK(mode) else None)
+    written = f"--out writes PREFIX.csv and PREFIX.json ({prefix}.csv, {prefix}.json)"
+    if kind is not None:
+        raise ValueError(f"--out {prefix}: {kind}, not a file name prefix; {written}: leave --out out to write no "
+                         f"table, or give a prefix in a folder of yours")
+    if os.path.realpath(os.path.dirname(prefix) or ".") == os.path.realpath("/dev") and os.path.isdir("/dev"):
+        raise ValueError(f"--out {prefix}: a prefix in /dev, the folder of devices; {written}: give a prefix in a "
+                         f"folder of yours")
 
 
 def pick_versus(flag: str | None, labels: list[str], where: str, add: str) -> str | None:

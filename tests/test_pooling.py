@@ -464,3 +464,28 @@ def test_pool_out_over_a_link_to_a_table_it_pools_replaces_the_link_and_keeps_th
     assert main(["pool", str(s0), str(s1), "--out", str(tmp_path / "latest")]) == 0, capsys.readouterr().err
     assert s1.read_bytes() == kept and not latest.is_symlink()
     assert json.loads(latest.read_text())["pooled_from"] == [str(s0), str(s1)]
+
+
+def test_an_out_prefix_that_names_a_pipe_or_device_is_refused_in_one_line(tables, tmp_path, capsys):
+    """`pool A.json B.json --out /dev/null` wrote /dev/null.csv and /dev/null.json: --out is a prefix,
+    and a user who names a device or a pipe means to write to it, not beside it. Refused now, as is a
+    prefix in /dev (where /dev/stdout names a file, say); a regular file of that name takes PREFIX.csv
+    and PREFIX.json beside it, as before."""
+    import os
+
+    from pursuit_cli import main
+    from pursuit_cli.common import check_out_prefix
+
+    pipe = tmp_path / "pipe"
+    os.mkfifo(pipe)
+    assert main(["pool", str(tables["h0"]), str(tables["h1"]), "--out", str(pipe)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"--out {pipe}: a named pipe, not a file name prefix" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe"]
+    for prefix, said in (("/dev/null", "--out /dev/null: a device, not a file name prefix"),
+                         ("/dev/no-such-device", "--out /dev/no-such-device: a prefix in /dev, the folder of devices")):
+        with pytest.raises(ValueError, match=said):  # the check alone: nothing is written in /dev by a test
+            check_out_prefix(prefix)
+    check_out_prefix(str(tmp_path / "notes"))  # no file there: as before
+    (tmp_path / "notes").write_text("mine")
+    check_out_prefix(str(tmp_path / "notes"))  # a file of that name is left as it is, beside notes.csv
