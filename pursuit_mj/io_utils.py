@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import errno
 import glob
 import hashlib
 import os
 import re
 import secrets
+import shlex
 import stat
 import tempfile
 import time
@@ -30,7 +32,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     every program that uses it."""
     path = Path(path)
     if _is_stream(path):
-        yield path
+        with _reader_held(path):
+            yield path
         return
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -65,6 +68,31 @@ def _is_stream(path: Path) -> bool:
     except OSError:  # not there yet, or not reachable: atomic_path says why when it writes
         return False
     return stat.S_ISCHR(mode) or stat.S_ISFIFO(mode)
+
+
+@contextlib.contextmanager
+def _reader_held(path: Path) -> Iterator[None]:
+    """For a named pipe: CannotWrite naming it at once when no program reads it (a writer's open()
+    would wait for a reader forever); else a write end of it held open while the body writes, so that
+    a reader that opened it before does not take the end of this check for the end of the data.
+    Nothing for a device."""
+    try:
+        fifo = stat.S_ISFIFO(os.stat(path).st_mode)
+    except OSError:
+        fifo = False
+    if not fifo or not hasattr(os, "O_NONBLOCK"):
+        yield
+        return
+    try:
+        fd = _open_writing(path, os.O_WRONLY)
+    except OSError as exc:
+        if no_reader(exc, path):
+            raise CannotWrite(no_reader_message(path)) from None
+        raise CannotWrite(f"{path}: cannot write it ({exc.strerror or exc})") from None
+    try:
+        yield
+    finally:
+        os.close(fd)
 
 
 #: the temporary files atomic_path makes: `.NAME.PID-XXXXXXXX.partSUFFIX` (mkstemp's eight random
@@ -246,17 +274,38 @@ def _umask() -> int:
     return mask
 
 
+#: s a write to a named pipe waits for a program to open it for reading before it is refused
+#: (a plain open() would wait forever, with no word)
+PIPE_READER_WAIT_S = 5.0
+
+
+def _open_writing(path: str | Path, flags: int) -> int:
+    """os.open(path, flags) without waiting forever for the reader of a named pipe: tried again for
+    PIPE_READER_WAIT_S while none has it open, then OSError ENXIO (no_reader). The descriptor is
+    blocking, as os.open's, and a file is opened as os.open opens it."""
+    nonblocking = getattr(os, "O_NONBLOCK", 0)
+    deadline = time.monotonic() + PIPE_READER_WAIT_S
+    while True:
+        try:
+            fd = os.open(path, flags | nonblocking, 0o666)
+            break
+        except OSError as exc:
+            if exc.errno != errno.ENXIO or time.monotonic() >= deadline:
+                raise
+        time.sleep(0.05)
+    if nonblocking:
+        import fcntl
+
+        fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~nonblocking)
+    return fd
+
+
 def open_for_appending(path: str | Path) -> IO[str]:
     """`path` opened to append text to (made if missing), as open(path, "a") does, except that a named
-    pipe no program reads is OSError ENXIO at once (open() would wait for a reader forever; see
-    no_reader): writes to a pipe that has one wait for it as they would have."""
-    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NONBLOCK", 0)
-    fd = os.open(path, flags, 0o666)
+    pipe that no program reads is OSError ENXIO after PIPE_READER_WAIT_S (open() would wait for a
+    reader forever; see no_reader): writes to a pipe that has one wait for it as they would have."""
+    fd = _open_writing(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
     try:
-        if flags & getattr(os, "O_NONBLOCK", 0):
-            import fcntl
-
-            fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
         return os.fdopen(fd, "a", encoding="utf-8")
     except BaseException:
         os.close(fd)
@@ -266,12 +315,17 @@ def open_for_appending(path: str | Path) -> IO[str]:
 def no_reader(exc: OSError, path: str | Path) -> bool:
     """Whether `exc`, raised opening `path` to write (open_for_appending), says it is a named pipe
     that no program reads."""
-    import errno
-
     try:
         return exc.errno == errno.ENXIO and stat.S_ISFIFO(os.stat(path).st_mode)
     except OSError:
         return False
+
+
+def no_reader_message(path: str | Path, what: str = "") -> str:
+    """'[WHAT ]PATH: a named pipe that no program opened for reading within N s; ...' (no_reader)."""
+    return (f"{what + ' ' if what else ''}{path}: a named pipe that no program opened for reading within "
+            f"{PIPE_READER_WAIT_S:g} s, so what is written would wait forever; start its reader first "
+            f"(e.g. cat {shlex.quote(str(path))}), or give a file")
 
 
 def atomic_write_text(path: str | Path, text: str) -> Path:

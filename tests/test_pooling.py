@@ -489,3 +489,40 @@ def test_an_out_prefix_that_names_a_pipe_or_device_is_refused_in_one_line(tables
     check_out_prefix(str(tmp_path / "notes"))  # no file there: as before
     (tmp_path / "notes").write_text("mine")
     check_out_prefix(str(tmp_path / "notes"))  # a file of that name is left as it is, beside notes.csv
+
+
+def test_a_table_written_to_a_named_pipe_needs_a_reader_and_is_read_whole_by_one(tables, tmp_path, capsys, monkeypatch):
+    """`pool A.json B.json --out t` where t.csv is a named pipe that no program reads waited forever
+    (open() of a pipe blocks until a reader comes). Refused after io_utils.PIPE_READER_WAIT_S now,
+    naming it; a reader gets the whole file (the check for one must not end its data)."""
+    import os
+    import signal
+    import threading
+
+    from pursuit_cli import main
+    import pursuit_mj.io_utils as io_utils
+    from pursuit_mj.io_utils import atomic_write_text
+
+    monkeypatch.setattr(io_utils, "PIPE_READER_WAIT_S", 0.3)
+
+    def ring(signum, frame):
+        raise TimeoutError("still waiting")
+
+    pipe = tmp_path / "t.csv"
+    os.mkfifo(pipe)
+    before = signal.signal(signal.SIGALRM, ring)
+    signal.alarm(20)
+    try:
+        assert main(["pool", str(tables["h0"]), str(tables["h1"]), "--out", str(tmp_path / "t")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and f"{pipe}: a named pipe that no program opened for reading within 0.3 s" in err, err
+        got: list[str] = []
+        reader = threading.Thread(target=lambda: got.append(pipe.read_text()))
+        reader.start()
+        monkeypatch.setattr(io_utils, "PIPE_READER_WAIT_S", 10.0)  # the reader's open() may come a little later
+        atomic_write_text(pipe, "a,b\n1,2\n")
+        reader.join(10)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, before)
+    assert got == ["a,b\n1,2\n"] and pipe.exists()

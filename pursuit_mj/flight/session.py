@@ -14,13 +14,12 @@ from __future__ import annotations
 
 import dataclasses
 import re
-import shlex
 import threading
 import time
 from pathlib import Path
 from typing import Callable, Sequence
 
-from ..io_utils import check_writable, no_new_empty_folders, no_reader
+from ..io_utils import check_writable, no_new_empty_folders, no_reader, no_reader_message
 from ..policies import make_policy
 from ..policy import Policy
 from .bridge import FlightBridge, FlightResult
@@ -214,8 +213,7 @@ def run_flight(
             events = EventLog(events_path, echo=echo)
         except OSError as exc:  # a writable folder, a file that is not (read-only, a broken link)
             if no_reader(exc, events_path):
-                raise ValueError(f"--events {events_path}: a named pipe that no program reads, so the flight's records "
-                                 f"would go nowhere; start its reader first (e.g. cat {shlex.quote(str(events_path))}), or give a file") from None
+                raise ValueError(no_reader_message(events_path, "--events")) from None
             raise ValueError(f"--events {events_path}: cannot be opened for appending ({exc.strerror or exc})") from None
         recorder = None
         fleet = None
