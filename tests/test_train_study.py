@@ -869,3 +869,63 @@ def test_a_train_set_that_needs_a_start_is_refused_with_advice_a_study_can_follo
     assert "set --init-from" not in err and "only fine_tune, imitate_ppo and belief_ppo" in err, err
     assert f"pursuit-mj train --config fine_tune --init-from {out / 'runs' / 'full_obs' / 'best.pt'} --set ppo.anchor_coef=0.5" in err, err
     assert not out.exists()
+
+
+def test_an_arm_that_diverges_is_told_with_advice_a_study_can_follow(tmp_path, capsys, monkeypatch):
+    """An arm whose training diverged stopped the study saying 'a new run can start (--init-from
+    RUN/last.pt --set ppo.lr=...)': flags of train, which study refuses (--set there is the
+    evaluation task's, init_from is set for each arm)."""
+    import torch
+
+    import train.trainer as trainer_module
+
+    real, calls = trainer_module.ppo_update, []
+
+    def nan_on_the_second(model, *args, **kwargs):
+        losses = real(model, *args, **kwargs)
+        calls.append(1)
+        if len(calls) == 2:
+            with torch.no_grad():
+                model.actor.log_std.fill_(float("nan"))
+        return losses
+
+    monkeypatch.setattr(trainer_module, "ppo_update", nan_on_the_second)
+    out = tmp_path / "study"
+    argv = ["study", "--budget-minutes", "30", "--episodes", "2", "--worlds", "2", "--layouts", "0", "--out", str(out),
+            "--fidelity", "point", "--set", "max_steps=20"] + sum((["--train-set", s] for s in (
+                "n_envs=2", "ppo.batch_size=64", "ppo.minibatch_size=32", "run.validation_episodes=2")), [])
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "training diverged at update 2" in err and "--init-from" not in err and "--set ppo.lr" not in err, err
+    assert f"{out / 'runs' / 'full_obs' / 'last.pt'} keeps update 1" in err, err
+    assert "--train-set ppo.lr=... with another --out" in err, err
+
+
+def test_a_resumed_arm_whose_reward_file_changed_is_told_with_advice_a_study_can_follow(tmp_path, capsys, monkeypatch):
+    """A study resumed after a reward file of its --train-set changed was refused with 'start a new
+    run from this one with --init-from RUN/last.pt', a train flag that a study refuses."""
+    from train.trainer import Trainer
+
+    reward = tmp_path / "bonus.py"
+    reward.write_text("import numpy as np\n\ndef bonus(step):\n    return np.full(step.pursuer_pos.shape[:2], 0.5)\n")
+    out = tmp_path / "study"
+    argv = ["study", "--budget-minutes", "30", "--episodes", "2", "--worlds", "2", "--layouts", "0", "--out", str(out),
+            "--fidelity", "point", "--set", "max_steps=20"] + sum((["--train-set", s] for s in (
+                "n_envs=2", "ppo.batch_size=64", "ppo.minibatch_size=32", "run.validation_episodes=2",
+                f"rewards=[{reward}:bonus]")), [])
+    real = Trainer.train_one_update
+
+    def ctrl_c_in_the_second(self):
+        if self.counters.update >= 1:
+            raise KeyboardInterrupt
+        return real(self)
+
+    monkeypatch.setattr(Trainer, "train_one_update", ctrl_c_in_the_second)
+    assert main(argv) == 130
+    assert (out / "runs" / "full_obs" / "last.pt").is_file()
+    reward.write_text(reward.read_text().replace("0.5", "0.7"))
+    capsys.readouterr()
+    assert main(argv + ["--resume"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "has changed since the run started" in err and "--init-from" not in err, err
+    assert f"delete the arm's run folder {out / 'runs' / 'full_obs'}" in err, err

@@ -693,7 +693,8 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
             log(short_arm_warning(regime, minutes * 60.0))
         if interrupted:  # its own config, with the time it had plus its share of this session's
             trainer = Trainer.resume(cfg.run_dir, log=log, max_minutes=_spent_minutes(cfg.run_dir) + max(minutes, 0.01),
-                                     progress=cfg.run.progress, rerun=cfg.run.rerun)
+                                     progress=cfg.run.progress, rerun=cfg.run.rerun,
+                                     restart=f"delete the arm's run folder {cfg.run_dir} to train the arm afresh in this study")
             log(f"[study] resuming {regime} for {_duration(minutes * 60)} more")
         else:
             cfg = load_train_config([arm.config], overrides + [f"max_minutes={max(minutes, 0.01):.4f}",
@@ -702,6 +703,7 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
                 f"({cfg.task.fidelity} fidelity)")
             trainer = Trainer(cfg, log=log)
         trainer.resume_command = "pursuit-mj study --resume (the whole study; see below)"
+        trainer.diverged_hint = study_diverged_hint
         training()
         result = trainer.train(stop_requested)  # see Trainer.train: a stop signal reported as another error
         if result["status"] != "done":
@@ -717,6 +719,14 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
     save()  # the record's seconds and budgets, this session's included, for the table's meta
     _write(plan, rows, timings, episodes, state)
     return {"rows": rows, "timings": timings, "episodes": episodes}
+
+
+def study_diverged_hint(last: Path | None, update: int, key: str) -> str:
+    """What a diverged arm's run folder keeps and how a study takes other settings (Trainer.diverged_hint):
+    a new study, as a resume goes on with the settings the study started with."""
+    kept = f"{last} keeps update {update}" if last is not None else "no update was saved"
+    return (f"{kept}; a study takes other settings as a new one: --train-set {key}=... with another --out (study "
+            f"--resume goes on with the settings the study started with)")
 
 
 def _arm_overrides(plan: StudyPlan, arm: Arm) -> list[str]:

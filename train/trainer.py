@@ -102,6 +102,8 @@ class Trainer:
             log(f"[train] note: {line}")
         self.run_dir = cfg.run_dir
         self.resume_command = f"pursuit-mj train --resume {self.run_dir}"  # what an interrupted run tells the user
+        # what a diverged run tells the user (a study, whose flags are others, says its own)
+        self.diverged_hint: Callable[[Path | None, int, str], str] = train_diverged_hint
         with no_new_empty_folders():  # a run refused here leaves no folder of run.runs_dir=a/b made for it
             self._take_run_folder(checkpoint, log, held_lock)
 
@@ -204,10 +206,13 @@ class Trainer:
     @classmethod
     def resume(cls, run_dir: str | Path, total_steps: int | None = None, log: Callable[[str], None] = print,
                max_minutes: float | None = None, progress: bool | None = None,
-               check: Callable[[TrainConfig], None] | None = None, rerun: bool | None = None) -> "Trainer":
+               check: Callable[[TrainConfig], None] | None = None, rerun: bool | None = None,
+               restart: str | None = None) -> "Trainer":
         """Continue the run in `run_dir` from last.pt with its own config; only the length of the
         run (total_steps, max_minutes), the progress bar and rerun streaming may change. `check(stored config)`
-        runs before anything is restored (to refuse a resume asked with other settings)."""
+        runs before anything is restored (to refuse a resume asked with other settings). `restart`: how
+        the refusal of a run whose layout or code files changed says to start the run again, where not
+        as `pursuit-mj train` does ('start a new run from this one with --init-from RUN/last.pt')."""
         run_dir = Path(run_dir).resolve()  # `--resume .` from inside the folder: its name, not ''
         # held before last.pt is read: a trainer of this folder ending meanwhile cannot leave it one save behind.
         # Only a folder with a last.pt: one without has nothing to resume and gets no lock file of ours
@@ -215,7 +220,7 @@ class Trainer:
         new_lock = not (run_dir / ".lock").exists()  # a folder copied without it: a refused resume leaves none there
         lock = lock_run_folder(run_dir) if (run_dir / "last.pt").is_file() else None
         try:
-            return cls._resume_holding(run_dir, lock, total_steps, log, max_minutes, progress, check, rerun)
+            return cls._resume_holding(run_dir, lock, total_steps, log, max_minutes, progress, check, rerun, restart)
         except BaseException:
             if lock is not None and not lock.closed:
                 release_lock(lock, run_dir / ".lock", remove_file=new_lock)
@@ -224,7 +229,8 @@ class Trainer:
     @classmethod
     def _resume_holding(cls, run_dir: Path, lock: IO | None, total_steps: int | None, log: Callable[[str], None],
                         max_minutes: float | None, progress: bool | None,
-                        check: Callable[[TrainConfig], None] | None, rerun: bool | None) -> "Trainer":
+                        check: Callable[[TrainConfig], None] | None, rerun: bool | None,
+                        restart: str | None = None) -> "Trainer":
         """resume's work once it holds the run folder's lock (None where the folder does not exist)."""
         path = run_dir / "last.pt"
         try:
@@ -241,8 +247,9 @@ class Trainer:
         cfg = train_config_from_dict(data["train_config"], f"checkpoint {path}: train_config")
         if check is not None:
             check(cfg)
-        _check_layout_files(cfg, data.get("layout_sha256", {}), run_dir)
-        _check_code_files(cfg, data.get("code_sha256", {}), run_dir)
+        restart = restart or f"start a new run from this one with --init-from {Path(run_dir) / 'last.pt'}"
+        _check_layout_files(cfg, data.get("layout_sha256", {}), run_dir, restart)
+        _check_code_files(cfg, data.get("code_sha256", {}), run_dir, restart)
         filled = defaults_filled_in(data["train_config"], cfg)
         if filled:
             shown = ", ".join(filled[:6]) + (f" and {len(filled) - 6} more" if len(filled) > 6 else "")
@@ -712,9 +719,7 @@ class Trainer:
         section = "imitation" if self.demos is not None else "ppo"  # whose lr and max_grad_norm drove the update
         lr_key, lr = f"{section}.lr", getattr(self.cfg, section).lr
         shown = ", ".join(f"{k} {v:.3g}" for k, v in losses.items() if k in ("policy_loss", "bc_loss", "value_loss", "grad_norm"))
-        kept = (f"{self.run_dir / 'last.pt'} keeps update {self._saved_update}, from which a new run can start "
-                f"(--init-from {self.run_dir / 'last.pt'} --set {lr_key}=...)" if self._saved_update > 0
-                else "no update was saved")
+        kept = self.diverged_hint(self.run_dir / "last.pt" if self._saved_update > 0 else None, self._saved_update, lr_key)
         raise ValueError(f"training diverged at update {self.counters.update + 1}: the weights {bad} are no longer finite "
                          f"(losses: {shown or 'none'}); {kept}. Try a lower {lr_key} (now {lr:g}) or {section}.max_grad_norm")
 
@@ -859,6 +864,14 @@ class Trainer:
         return {"status": status, "counters": dataclasses.asdict(c), "validation": last_val, "run_dir": str(self.run_dir)}
 
 
+def train_diverged_hint(last: Path | None, update: int, key: str) -> str:
+    """What a diverged run's folder keeps and how `pursuit-mj train` starts again from it with the
+    setting `key` changed: the checkpoint `last` of update `update`, or None when none was saved."""
+    if last is None:
+        return "no update was saved"
+    return f"{last} keeps update {update}, from which a new run can start (--init-from {last} --set {key}=...)"
+
+
 def init_from_sha256(cfg: TrainConfig, checkpoint: dict | None) -> str | None:
     """sha256 of the init_from file as the run began (the checkpoint entry init_from_sha256): a
     resumed run's stored one (the file may have changed or gone since), else the file's now;
@@ -909,9 +922,10 @@ def _text(value, yaml: bool = False) -> str:
     return str(value)
 
 
-def _check_layout_files(cfg: TrainConfig, trained: dict, run_dir: str | Path) -> None:
+def _check_layout_files(cfg: TrainConfig, trained: dict, run_dir: str | Path, restart: str) -> None:
     """Refuse to resume a run whose layout files cannot be loaded from here or differ from the
-    ones it trained on (sha256 in `trained`, by path; runs saved before it was kept are not checked)."""
+    ones it trained on (sha256 in `trained`, by path; runs saved before it was kept are not checked);
+    `restart` says how to start the run again instead."""
     try:
         cfg.check_layouts(f"--resume {run_dir}: the run's stored config")
     except ValueError as exc:
@@ -923,19 +937,18 @@ def _check_layout_files(cfg: TrainConfig, trained: dict, run_dir: str | Path) ->
         if path in trained and file_sha256(path) != trained[path]:
             raise ValueError(f"--resume {run_dir}: layout file {path} ({key}) has changed since the run started: "
                              f"the rest of the run would train and validate in another arena than the first part. "
-                             f"Restore the file, or start a new run from this one with --init-from {Path(run_dir) / 'last.pt'}")
+                             f"Restore the file, or {restart}")
 
 
-def _check_code_files(cfg: TrainConfig, trained: dict, run_dir: str | Path) -> None:
+def _check_code_files(cfg: TrainConfig, trained: dict, run_dir: str | Path, restart: str) -> None:
     """Refuse to resume a run whose code files (reward terms, evader model) cannot be loaded or
-    differ from the ones it trained with (sha256 in `trained`, by path)."""
+    differ from the ones it trained with (sha256 in `trained`, by path); `restart` as _check_layout_files."""
     cfg.check_code(f"--resume {run_dir}: the run's stored config")
     for key, path in cfg.code_files():
         if path in trained and file_sha256(path) != trained[path]:
             what = "other rewards" if key == "rewards" else "other evaders"
             raise ValueError(f"--resume {run_dir}: {path} ({key}) has changed since the run started: the rest of the "
-                             f"run would learn from {what} than the first part. Restore the file, or start a new run "
-                             f"from this one with --init-from {Path(run_dir) / 'last.pt'}")
+                             f"run would learn from {what} than the first part. Restore the file, or {restart}")
 
 
 #: the files a run writes in its folder beside its checkpoints and lock (_start_session, _build)
