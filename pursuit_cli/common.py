@@ -384,10 +384,7 @@ def load_model(path, spec, task: TaskConfig, flag: str = "--model", flight: bool
     if Path(path).is_dir():
         hint = next((f"; did you mean {Path(path) / n}?" for n in ("best.pt", "last.pt") if (Path(path) / n).is_file()), "")
         raise ValueError(f"{flag} {path}: a folder, not a checkpoint file{hint}")
-    python_file = _python_file_of(str(path))
-    if python_file is not None:
-        raise ValueError(f"{flag} {path}: a Python file, not a checkpoint; a policy of your own goes through "
-                         f"--policy {python_file}:NAME (docs/env_api.md)")
+    refuse_a_python_file(path, flag)
     if not Path(path).is_file():
         raise ValueError(f"{flag} {path}: no such checkpoint file")
     try:
@@ -405,6 +402,18 @@ def load_model(path, spec, task: TaskConfig, flag: str = "--model", flight: bool
     if differ:  # legitimate (the study judges full_obs under partial observability), but worth knowing
         print(f"note: {flag} {path} was trained with {', '.join(differ)}", file=sys.stderr)
     return policy
+
+
+def refuse_a_python_file(given, flag: str = "--model", takes_policy: bool = True) -> None:
+    """ValueError naming `flag` when `given` is a Python file (FILE.py or FILE.py:NAME of an existing
+    file) where a checkpoint goes, saying how a policy of one's own is played: by --policy, or, where
+    the command has none (`takes_policy` False: demo), by eval's."""
+    python_file = _python_file_of(str(given))
+    if python_file is None:
+        return
+    how = (f"goes through --policy {python_file}:NAME" if takes_policy else
+           f"is played beside the heuristic team by eval: pursuit-mj eval --policy {python_file}:NAME --policy heuristic")
+    raise ValueError(f"{flag} {given}: a Python file, not a checkpoint; a policy of your own {how} (docs/env_api.md)")
 
 
 def _python_file_of(given: str) -> str | None:

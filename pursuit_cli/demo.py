@@ -13,7 +13,8 @@ import time
 from pathlib import Path
 
 from pursuit_mj.shipped import shipped_dir
-from .common import ListFlag, add_task_args, check_episodes, counted, load_model, once_flag, seed_arg, table_layouts, task_config_from_args
+from .common import (ListFlag, add_task_args, check_episodes, counted, load_model, once_flag, refuse_a_python_file, seed_arg,
+                     table_layouts, task_config_from_args)
 
 PRETRAINED = shipped_dir("pretrained") / "pursuers.pt"
 REFERENCE_EPISODES = 150  # episodes per layout in the reference study's table
@@ -75,6 +76,7 @@ def run(args) -> int:
     # a typo in the last layout must not cost the earlier ones' minutes
     layouts = table_layouts(args, config, default=["0", "1", "2", "3"])
     model = Path(args.model)
+    refuse_a_python_file(args.model, "--model", takes_policy=False)  # demo has no --policy: eval's is named
     if not model.exists():
         raise ValueError(f"--model {model}: no such file (the pretrained policy ships as {_shown(PRETRAINED)})")
     policy = load_model(model, _spec(config), config)

@@ -1035,3 +1035,15 @@ def test_eval_refuses_an_output_named_as_the_file_an_input_reaches(model, out, t
     err = capsys.readouterr().err
     assert code == 2 and f"--json {out}: the same file as --model {model}" in err, err
     assert (tmp_path / "m.pt").read_bytes() == checkpoint
+
+
+@pytest.mark.parametrize("given", ["mine.py", "mine.py:Team"])
+def test_demo_of_a_python_policy_file_says_how_to_show_it_with_a_command_that_takes_it(given, tmp_path, monkeypatch, capsys):
+    """`demo --model mine.py` advised '--policy mine.py:NAME', a flag demo does not have (and
+    `demo --model mine.py:Team` said 'no such file'): eval shows a policy of one's own."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine.py").write_text("class Team:\n    pass\n")
+    assert main(["demo", "--model", given]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"--model {given}: a Python file, not a checkpoint" in err, err
+    assert "pursuit-mj eval --policy mine.py:" in err and "--policy heuristic" in err, err
