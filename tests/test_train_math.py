@@ -936,3 +936,22 @@ def test_a_fixed_discount_may_be_zero_or_one_and_a_learned_one_may_not_start_the
     assert Discount(gamma, False, 1e-3, 0.995).value == gamma  # ppo.gamma lies in [0, 1]
     with pytest.raises(ValueError, match=f"learnable discount: start gamma {gamma:g} lies outside"):
         Discount(gamma, True, 1e-3, 0.995)
+
+
+def test_net_use_rays_false_leaves_the_range_readings_out_of_the_network():
+    """net.use_rays false (the reference study's network) has no ray encoder: the actor's and
+    critic's outputs do not move when every range reading does, and the fused layer takes one
+    encoder width less than with rays."""
+    spec = ObsSpec.make(3, 1, 8)
+    cfg = NetConfig(encoder_width=8, hidden=(8,), use_rays=False)
+    torch.manual_seed(0)
+    actor, critic = Actor(spec, cfg), Critic(spec, cfg)
+    assert "rays" not in actor.trunk.encoders and actor.trunk.fuse[0].in_features == 3 * 8  # self, teammates, evaders
+    obs = torch.as_tensor(_obs(spec, np.random.default_rng(3), [1, 1], [1]))[None]
+    other = obs.clone()
+    rays = spec.group("rays")
+    other[..., rays.start : rays.stop] = torch.linspace(0.1, 4.0, spec.n_rays)
+    assert torch.equal(actor(obs, spec)[0], actor(other, spec)[0])
+    assert torch.equal(critic(obs, spec), critic(other, spec))
+    with_rays = Actor(spec, NetConfig(encoder_width=8, hidden=(8,)))
+    assert "rays" in with_rays.trunk.encoders and with_rays.trunk.fuse[0].in_features == 4 * 8
