@@ -955,3 +955,36 @@ def test_net_use_rays_false_leaves_the_range_readings_out_of_the_network():
     assert torch.equal(critic(obs, spec), critic(other, spec))
     with_rays = Actor(spec, NetConfig(encoder_width=8, hidden=(8,)))
     assert "rays" in with_rays.trunk.encoders and with_rays.trunk.fuse[0].in_features == 4 * 8
+
+
+def test_heads_start_at_their_orthogonal_gains_and_log_std_at_net_init_log_std():
+    """Orthogonal init with gain g makes a head's rows orthonormal times g: the actor's mean head
+    (gain 0.01: first actions are the exploration noise around 0) has W W^T = 1e-4 I, the value
+    heads (gain 1) unit-length rows; the log std starts at net.init_log_std."""
+    from train.networks import CentralCritic
+
+    spec = ObsSpec.make(3, 1, 8)
+    torch.manual_seed(0)
+    cfg = NetConfig(encoder_width=16, hidden=(32,), critic_hidden=(24,), init_log_std=-1.3)
+    actor = Actor(spec, cfg)
+    w = actor.head.weight.detach().double()  # (2, 32)
+    torch.testing.assert_close(w @ w.T, 1e-4 * torch.eye(2, dtype=torch.float64), atol=1e-9, rtol=0)
+    assert actor.log_std.detach().tolist() == [pytest.approx(-1.3)] * 2
+    for head in (Critic(spec, cfg).head, CentralCritic(spec, 10, cfg).head):
+        assert float(head.weight.detach().double().norm()) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_the_actor_mean_is_the_tanh_of_its_head_and_stays_within_one():
+    """The mean action is tanh(head(trunk)): however large the head's output, within [-1, 1]."""
+    spec = ObsSpec.make(3, 1, 8)
+    torch.manual_seed(0)
+    actor = Actor(spec, NetConfig(encoder_width=8, hidden=(8,)))
+    with torch.no_grad():
+        actor.head.weight.mul_(1e4)  # pre-tanh outputs far beyond 1
+    obs = torch.as_tensor(_obs(spec, np.random.default_rng(4), [1, 1], [1]))[None]
+    with torch.no_grad():
+        raw = actor.head(actor.trunk(obs, spec))
+        mean, _ = actor(obs, spec)
+    assert float(raw.abs().max()) > 2.0
+    torch.testing.assert_close(mean, torch.tanh(raw), atol=3e-7, rtol=0)
+    assert float(mean.abs().max()) <= 1.0
