@@ -1352,3 +1352,26 @@ def test_a_refused_resume_of_a_folder_without_a_lock_file_leaves_none_in_it(tmp_
             patched.setattr(Trainer, "_build", refuse)
             Trainer.resume(cfg.run_dir, total_steps=64, log=lambda s: None)
     assert (cfg.run_dir / ".lock").is_file()
+
+
+def test_a_checkpoint_of_another_format_version_or_lacking_entries_is_refused_in_one_line_naming_it(tmp_path):
+    """A file of another format version, one without the entries every checkpoint holds, or one
+    whose obs_spec lacks the team and ray counts is refused by name: never read as if it were
+    this version, never a KeyError traceback."""
+    spec = ObsSpec.make(2, 1, 4).to_dict()
+    whole = {"format": "pursuit-mj-checkpoint", "version": 1, "train_config": {}, "obs_spec": spec,
+             "actor": {"w": torch.zeros(2)}, "counters": {}}
+    path = tmp_path / "x.pt"
+    torch.save(whole, path)
+    assert load_checkpoint(path)["obs_spec"] == spec
+    for changes, words in (
+        ({"version": 2}, "format version 2, this code reads 1"),
+        ({"version": 0}, "format version 0, this code reads 1"),
+        ({"obs_spec": None, "counters": None}, "missing entries ['obs_spec', 'counters']"),
+        ({"obs_spec": {k: v for k, v in spec.items() if k not in ("n_rays", "groups")}}, "its obs_spec lacks ['n_rays', 'groups']"),
+    ):
+        data = {k: v for k, v in {**whole, **changes}.items() if v is not None}
+        torch.save(data, path)
+        with pytest.raises(ValueError) as err:
+            load_checkpoint(path)
+        assert str(err.value) == f"checkpoint {path}: {words}"
