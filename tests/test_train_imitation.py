@@ -253,3 +253,23 @@ def test_a_resumed_dagger_run_keeps_the_demonstrations_its_last_checkpoint_had(t
             assert torch.equal(a, b)
     finally:
         resumed.close()
+
+
+def test_unsaved_gives_only_the_pairs_added_since_the_last_save_with_their_index():
+    """The demonstration files hold each pair once: after mark_saved, unsaved gives the pairs
+    added since (index in total of the first), not the whole dataset again; pairs added and
+    dropped again before a save are not given."""
+    demos = Demonstrations(capacity=5, obs_dim=1)
+    demos.add(torch.arange(4.0)[:, None], torch.zeros(4, 2))
+    first, obs, _ = demos.unsaved()
+    assert first == 0 and obs[:, 0].tolist() == [0.0, 1.0, 2.0, 3.0]
+    demos.mark_saved()
+    demos.add(torch.arange(4.0, 7.0)[:, None], torch.ones(3, 2))
+    first, obs, actions = demos.unsaved()
+    assert first == 4 and obs[:, 0].tolist() == [4.0, 5.0, 6.0] and actions.tolist() == [[1.0, 1.0]] * 3
+    demos.mark_saved()
+    demos.add(torch.arange(7.0, 15.0)[:, None], torch.ones(8, 2))  # 8 new pairs, 5 held
+    first, obs, _ = demos.unsaved()
+    assert first == 10 and obs[:, 0].tolist() == [10.0, 11.0, 12.0, 13.0, 14.0]
+    demos.mark_saved()
+    assert demos.unsaved()[1].shape == (0, 1)
