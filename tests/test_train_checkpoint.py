@@ -1357,7 +1357,8 @@ def test_a_refused_resume_of_a_folder_without_a_lock_file_leaves_none_in_it(tmp_
 def test_a_checkpoint_of_another_format_version_or_lacking_entries_is_refused_in_one_line_naming_it(tmp_path):
     """A file of another format version, one without the entries every checkpoint holds, one
     whose obs_spec lacks the team and ray counts, or whose provenance entries are of the wrong
-    kind is refused by name: never read as if it were this version, never a traceback."""
+    kind, or whose critic holds non-finite or non-tensor values is refused by name: never read as
+    if it were this version, never a traceback."""
     spec = ObsSpec.make(2, 1, 4).to_dict()
     whole = {"format": "pursuit-mj-checkpoint", "version": 1, "train_config": {}, "obs_spec": spec,
              "actor": {"w": torch.zeros(2)}, "counters": {}}
@@ -1372,6 +1373,8 @@ def test_a_checkpoint_of_another_format_version_or_lacking_entries_is_refused_in
         ({"trained_by": "abc"}, "entry trained_by is not a list of dicts (damaged, or not written by pursuit-mj)"),
         ({"trained_by": [1]}, "entry trained_by is not a list of dicts (damaged, or not written by pursuit-mj)"),
         ({"init_from_sha256": 5}, "entry init_from_sha256 is not text (damaged, or not written by pursuit-mj)"),
+        ({"critic": {"w": torch.tensor([0.0, float("inf")])}}, "non-finite weights (NaN or inf) in critic.w"),
+        ({"critic": {"w": 3}}, "entry critic holds values other than tensors (damaged, or not written by pursuit-mj)"),
     ):
         data = {k: v for k, v in {**whole, **changes}.items() if v is not None}
         torch.save(data, path)
