@@ -273,3 +273,29 @@ def test_unsaved_gives_only_the_pairs_added_since_the_last_save_with_their_index
     assert first == 10 and obs[:, 0].tolist() == [10.0, 11.0, 12.0, 13.0, 14.0]
     demos.mark_saved()
     assert demos.unsaved()[1].shape == (0, 1)
+
+
+def test_sampling_draws_only_pairs_the_dataset_holds_before_it_is_full():
+    """Before the ring is full, minibatches come from the pairs added, never from the empty slots
+    (zero observations labelled with zero actions)."""
+    demos = Demonstrations(capacity=100, obs_dim=1)
+    demos.add(torch.tensor([[1.0], [2.0], [3.0]]), torch.ones(3, 2))
+    obs, actions = demos.sample(300, torch.Generator().manual_seed(0))
+    assert set(obs[:, 0].tolist()) == {1.0, 2.0, 3.0} and bool((actions == 1.0).all())
+
+
+@pytest.mark.parametrize("beta", [0.0, 1.0])
+def test_a_teacher_share_of_one_drives_every_step_and_of_zero_none(tmp_path, beta):
+    """beta is the teacher's chance to drive a world's step: 1 at the start of DAgger (the teacher
+    drives everything), 0 once beta_updates have passed (the student alone)."""
+    cfg = load_train_config([], ["name=beta", "algo=dagger", "task.fidelity=point", "task.n_pursuers=2", "n_envs=2",
+                                 "ppo.batch_size=64", "net.encoder_width=8", "net.hidden=[8]", "run.progress=false",
+                                 "run.validation_episodes=1", f"run.runs_dir={tmp_path}"])
+    trainer = Trainer(cfg, log=lambda s: None)
+    trainer.collector.beta = beta
+    buf = trainer.buffer
+    trainer.collector.collect(buf)
+    trainer.close()
+    labels = trainer.demos.actions[: buf.n_transitions].reshape(buf.T, buf.W, buf.N, 2)
+    by_teacher = (buf.actions == labels).all(-1).all(-1).float()  # (T, W)
+    assert by_teacher.tolist() == [[beta] * buf.W] * buf.T
