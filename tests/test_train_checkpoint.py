@@ -1375,6 +1375,9 @@ def test_a_checkpoint_of_another_format_version_or_lacking_entries_is_refused_in
         ({"init_from_sha256": 5}, "entry init_from_sha256 is not text (damaged, or not written by pursuit-mj)"),
         ({"critic": {"w": torch.tensor([0.0, float("inf")])}}, "non-finite weights (NaN or inf) in critic.w"),
         ({"critic": {"w": 3}}, "entry critic holds values other than tensors (damaged, or not written by pursuit-mj)"),
+        ({"obs_spec": {**spec, "n_pursuers": -1}}, "obs_spec entry n_pursuers is -1, not a whole number (damaged, or not written by pursuit-mj)"),
+        ({"obs_spec": {**spec, "groups": [g[:2] for g in spec["groups"]]}},
+         "obs_spec entry groups is not a list of [name, width, features] (damaged, or not written by pursuit-mj)"),
     ):
         data = {k: v for k, v in {**whole, **changes}.items() if v is not None}
         torch.save(data, path)
