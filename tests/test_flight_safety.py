@@ -724,3 +724,21 @@ def test_an_escape_model_answering_nan_lands_everyone_and_says_which_evader(tmp_
     assert "escape model janosov: the answer for evader e0 is [nan, 0.1], not a pair of finite numbers" in str(result)
     assert kinds_in_order(events, "chase", "land", "landed", "error")
     assert down(fleet)
+
+
+def test_a_velocity_command_reaches_cflib_in_m_s_with_its_yaw_rate_in_deg_s():
+    """The link's edge: velocities go out as given (m/s, the drone's world frame) and a yaw rate
+    in rad/s as the deg/s cflib's send_velocity_world_setpoint takes (pi/2 rad/s = 90 deg/s)."""
+    import math
+    from types import SimpleNamespace
+
+    from pursuit_mj.flight.links import DroneLink
+
+    sent = []
+    hooks = SimpleNamespace(add_callback=lambda cb: None)
+    commander = SimpleNamespace(send_velocity_world_setpoint=lambda *a: sent.append(a))
+    cf = SimpleNamespace(packet_received=hooks, connection_lost=hooks, commander=commander, link=object())
+    link = DroneLink(0, "p0", "udp://x", SimpleNamespace(cf=cf), SimpleNamespace(lost=[False]))
+    link.velocity([0.3, -0.2, 0.05], yaw_rate=math.pi / 2)
+    link.velocity(np.array([0.1, 0.0, 0.0]))
+    assert sent == [(0.3, -0.2, 0.05, pytest.approx(90.0)), (0.1, 0.0, 0.0, 0.0)]
