@@ -1384,3 +1384,17 @@ def test_a_checkpoint_of_another_format_version_or_lacking_entries_is_refused_in
         with pytest.raises(ValueError) as err:
             load_checkpoint(path)
         assert str(err.value) == f"checkpoint {path}: {words}"
+
+
+def test_an_export_of_an_export_names_the_training_checkpoint_it_came_from(tmp_path):
+    """exported_from names the checkpoint that was trained, also after exporting an export."""
+    from train.checkpoint import export_actor, save_checkpoint
+
+    trained = save_checkpoint(tmp_path / "last.pt", {
+        "train_config": {}, "obs_spec": ObsSpec.make(2, 1, 4).to_dict(), "actor": {"w": torch.zeros(2)},
+        "counters": {"update": 3}, "critic": {}, "optimizer": {}, "rng": {}})
+    first = export_actor(trained, tmp_path / "small.pt")
+    second = export_actor(first, tmp_path / "smaller.pt")
+    assert load_checkpoint(first)["exported_from"] == str(trained)
+    assert load_checkpoint(second)["exported_from"] == str(trained)
+    assert load_checkpoint(second)["counters"] == {"update": 3} and "critic" not in load_checkpoint(second)
