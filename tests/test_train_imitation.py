@@ -287,7 +287,8 @@ def test_sampling_draws_only_pairs_the_dataset_holds_before_it_is_full():
 @pytest.mark.parametrize("beta", [0.0, 1.0])
 def test_a_teacher_share_of_one_drives_every_step_and_of_zero_none(tmp_path, beta):
     """beta is the teacher's chance to drive a world's step: 1 at the start of DAgger (the teacher
-    drives everything), 0 once beta_updates have passed (the student alone)."""
+    drives everything), 0 once beta_updates have passed (the student alone, exploring with its
+    Gaussian noise)."""
     cfg = load_train_config([], ["name=beta", "algo=dagger", "task.fidelity=point", "task.n_pursuers=2", "n_envs=2",
                                  "ppo.batch_size=64", "net.encoder_width=8", "net.hidden=[8]", "run.progress=false",
                                  "run.validation_episodes=1", f"run.runs_dir={tmp_path}"])
@@ -299,3 +300,9 @@ def test_a_teacher_share_of_one_drives_every_step_and_of_zero_none(tmp_path, bet
     labels = trainer.demos.actions[: buf.n_transitions].reshape(buf.T, buf.W, buf.N, 2)
     by_teacher = (buf.actions == labels).all(-1).all(-1).float()  # (T, W)
     assert by_teacher.tolist() == [[beta] * buf.W] * buf.T
+    if beta == 0.0:  # the student explores: its actions are samples around its mean, std exp(log_std)
+        with torch.no_grad():
+            mean, log_std = trainer.model.actor(buf.obs, trainer.model.spec)
+        inside = buf.actions.abs() < 1.0  # not clamped
+        spread = float((buf.actions - mean)[inside].std()) / float(log_std.detach().exp().mean())
+        assert int(inside.sum()) > 50 and 0.7 < spread < 1.3, spread
