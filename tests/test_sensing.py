@@ -320,3 +320,14 @@ def test_the_group_tables_of_obs_spec_docstring_are_the_specs_groups():
             continue
         bare = re.sub(r":[^,]*", "", re.sub(r"\([^)]*\)", "", features))  # units (...) and remarks (: ...) left out
         assert [w.strip() for w in bare.split(",")] == list(group.features), (name, bare)
+
+
+def test_an_entity_a_group_lacks_is_an_index_error_not_a_slot_of_the_next_group():
+    """spec.index counts entities from 0 to count - 1: evader 1 of one evader, or teammate -1,
+    would be a slot of another group."""
+    spec = ObsSpec.make(3, 1, 8)
+    assert spec.index("evaders", 0, "dx") == 4 + 2 * 5  # after self (4) and two teammates (5 each)
+    assert spec.index("teammates", 1, "visible") == 4 + 5 + 4
+    for group, entity, count in (("evaders", 1, 1), ("teammates", 2, 2), ("teammates", -1, 2), ("self", 1, 1)):
+        with pytest.raises(IndexError, match=rf"group '{group}' has {count} entities, asked for {entity}"):
+            spec.index(group, entity, "dx" if group != "self" else "x")
