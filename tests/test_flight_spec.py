@@ -1232,3 +1232,38 @@ def test_fly_align_tells_a_multi_gb_write_target_without_reading_it_whole(tmp_pa
     assert proc.returncode == 2, proc.stderr
     assert f"--write path {big}: exists and is not a flight file" in proc.stderr, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and big.stat().st_size == 6 << 30
+
+
+def test_align_refuses_lab_positions_or_spots_closer_than_two_crazyflies_can_stand():
+    """Two Crazyflies touch at 2 x 0.0685 = 0.137 m: lab positions 0.13 m apart are refused, 0.15 m
+    apart taken; spots are judged in lab metres, layout distance / scale (layout m per lab m): at
+    scale 2 two spots 0.2 m apart in the layout stand 0.1 m apart in the lab."""
+    from pursuit_mj.flight.align import fit_transform
+
+    lab = np.array([[1.0, 1.0], [1.13, 1.0], [2.0, 3.0]])
+    with pytest.raises(ValueError, match=r"^--lab: drones #0 and #1 stand 0.130 m apart in the lab, closer than two Crazyflies can"):
+        fit_transform(lab, lab.copy(), lab_source="--lab")
+    lab[1, 0] = 1.15
+    assert fit_transform(lab, lab.copy()).transform.scale == pytest.approx(1.0)
+    lab = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0], [1.0, 1.0]])
+    spots = 2.0 * lab
+    spots[4] = spots[2] + [0.0, -0.2]  # the last spot typed next to the third
+    with pytest.raises(ValueError, match=r"^--spots: drones #2 and #4 have spots 0.200 m apart \(0.100 m in the lab\), closer than two"):
+        fit_transform(lab, spots)
+
+
+def test_align_waits_only_for_drones_whose_every_position_variance_is_below_the_limit():
+    """The Kalman variances of x, y and z must each be below safety.estimator_variance: one axis
+    above it (0.011 against 0.01) is no fix; all three just below it are."""
+    from types import SimpleNamespace
+
+    from pursuit_mj.flight.align import _wait_fixed
+
+    def judge(*variances):
+        snap = SimpleNamespace(var=np.array([[[1.0, 1.0, 1.0], v] for v in variances]))  # (D, history 2, xyz): the latest is last
+        _wait_fixed(None, ["p0", "p1"], ["u0", "u1"], 0.01, 0.0, 1.0, snap)
+
+    judge([0.009, 0.009, 0.009], [0.001, 0.002, 0.003])
+    for bad in ([0.009, 0.011, 0.009], [0.011, 0.011, 0.011], [0.001, float("nan"), 0.001]):
+        with pytest.raises(ValueError, match=r"drone p1 \(u1\): its position estimate lost its fix during the 1 s window"):
+            judge([0.001, 0.001, 0.001], bad)
