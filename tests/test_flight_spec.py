@@ -1267,3 +1267,28 @@ def test_align_waits_only_for_drones_whose_every_position_variance_is_below_the_
     for bad in ([0.009, 0.011, 0.009], [0.011, 0.011, 0.011], [0.001, float("nan"), 0.001]):
         with pytest.raises(ValueError, match=r"drone p1 \(u1\): its position estimate lost its fix during the 1 s window"):
             judge([0.001, 0.001, 0.001], bad)
+
+
+def test_the_fence_measures_in_lab_metres_under_a_scaled_and_turned_transform():
+    """With 2 layout m per lab m and the layout's x axis along lab +y, a drone 0.5 layout m from
+    the right border (x = 3.6) stands 0.25 lab m from it, the way back in is lab -y, and a
+    command of 1 m/s at the border is cut to (0.25 - margin 0.1) / lookahead 0.5 = 0.3 m/s.
+    A breach (0.15 lab m) is 0.3 layout m beyond the border."""
+    t = LabTransform((1.0, 2.0), math.pi / 2, 2.0)
+    fence = Fence(load_layout(0), t, margin=0.1, lookahead=0.5, breach=0.15)  # open arena 3.6 x 5 m
+    p = t.to_lab(np.array([[3.1, 2.5]]))
+    np.testing.assert_allclose(p, [[-0.25, 3.55]], atol=1e-12)  # origin + R(90 deg) q / 2
+    np.testing.assert_allclose(fence.clearance(p), [0.25], atol=1e-9)
+    np.testing.assert_allclose(fence.normal(p), [[0.0, -1.0]], atol=1e-6)
+    v, braking, c = fence.filter(np.array([[0.0, 1.0]]), p)
+    np.testing.assert_allclose(v, [[0.0, 0.3]], atol=1e-6)
+    assert braking.tolist() == [True] and c == pytest.approx([0.25])
+    v, braking, _ = fence.filter(np.array([[0.0, -1.0]]), p)  # back inside: untouched
+    np.testing.assert_allclose(v, [[0.0, -1.0]], atol=1e-12)
+    assert braking.tolist() == [False]
+    assert fence.breached(t.to_lab(np.array([[3.8, 2.5], [4.0, 2.5]]))).tolist() == [False, True]
+    # in the corner 0.3 layout m below the top border (the nearest surface, lab -x of the drone)
+    # the fan's ray along layout +x still finds the right border 0.25 lab m away: 0.3 m/s again
+    corner = t.to_lab(np.array([[3.1, 4.7]]))
+    np.testing.assert_allclose(fence.clearance(corner), [0.15], atol=1e-9)
+    np.testing.assert_allclose(fence.filter(np.array([[0.0, 1.0]]), corner)[0], [[0.0, 0.3]], atol=1e-6)
