@@ -1292,3 +1292,18 @@ def test_the_fence_measures_in_lab_metres_under_a_scaled_and_turned_transform():
     corner = t.to_lab(np.array([[3.1, 4.7]]))
     np.testing.assert_allclose(fence.clearance(corner), [0.15], atol=1e-9)
     np.testing.assert_allclose(fence.filter(np.array([[0.0, 1.0]]), corner)[0], [[0.0, 0.3]], atol=1e-6)
+
+
+def test_a_drone_beyond_the_border_is_sent_back_at_the_speed_its_depth_asks_judged_at_its_worse_point():
+    """0.1 m beyond the right border (clearance -0.1) with margin 0.1 and lookahead 0.5 s, the
+    way back in is at least (0.1 + 0.1) / 0.5 = 0.4 m/s along -x, whatever it was commanded;
+    heading 0.3 m beyond, it is judged there, the deeper point: 0.8 m/s."""
+    fence = Fence(load_layout(0), LabTransform(), margin=0.1, lookahead=0.5, breach=0.15)  # border x 0-3.6
+    p = np.array([[3.7, 2.5]])
+    for command in ([0.0, 0.0], [1.0, 0.0]):
+        v, braking, c = fence.filter(np.array([command]), p)
+        np.testing.assert_allclose(v, [[-0.4, 0.0]], atol=1e-9)
+        assert braking.tolist() == [True] and c == pytest.approx([-0.1])
+    v, _, c = fence.filter(np.zeros((1, 2)), p, np.array([[3.9, 2.5]]))
+    np.testing.assert_allclose(v, [[-0.8, 0.0]], atol=1e-9)
+    assert c == pytest.approx([-0.3])
