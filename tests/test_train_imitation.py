@@ -1,5 +1,7 @@
 """DAgger (train/imitation.py): the dataset, the teacher's share, and a student that really learns."""
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -306,3 +308,24 @@ def test_a_teacher_share_of_one_drives_every_step_and_of_zero_none(tmp_path, bet
         inside = buf.actions.abs() < 1.0  # not clamped
         spread = float((buf.actions - mean)[inside].std()) / float(log_std.detach().exp().mean())
         assert int(inside.sum()) > 50 and 0.7 < spread < 1.3, spread
+
+
+def test_cloning_losses_on_hand_computed_numbers():
+    """mse is the squared distance of the two actions averaged over the batch (not over its
+    coordinates too); heading_speed adds the squared speed error to the squared heading error,
+    heading_median_speed the absolute one."""
+    from train.imitation import cloning_loss
+
+    student = torch.tensor([[0.0, 0.0], [0.3, 0.4]])
+    teacher = torch.tensor([[0.6, 0.8], [0.3, 0.4]])
+    assert float(cloning_loss(student, teacher, "mse")) == pytest.approx((1.0 + 0.0) / 2)
+    # student (0, 0): heading 0, teacher heading (0.6, 0.8): heading error 1; speed error 1
+    # student (0.3, 0.4) = teacher: heading (0.3, 0.4) / sqrt(0.25 + 0.05^2) vs (0.6, 0.8), speed error 0
+    h = (0.5 / math.sqrt(0.25 + 0.0025) - 1.0) ** 2
+    assert float(cloning_loss(student, teacher, "heading_speed")) == pytest.approx((1.0 + h) / 2 + (1.0 + 0.0) / 2)
+    slow = torch.tensor([[0.0, 0.2], [0.3, 0.4]])  # speed error 0.8, heading (0, 0.2) / sqrt(0.04 + 0.0025)
+    hs = (0.6 ** 2 + (0.2 / math.sqrt(0.0425) - 0.8) ** 2)
+    assert float(cloning_loss(slow, teacher, "heading_median_speed")) == pytest.approx((hs + h) / 2 + 0.8 / 2)
+    assert float(cloning_loss(slow, teacher, "heading_speed")) == pytest.approx((hs + h) / 2 + 0.64 / 2)
+    # a still teacher (below 0.05) has no heading to learn: only the speed counts
+    assert float(cloning_loss(torch.tensor([[0.3, 0.4]]), torch.tensor([[0.01, 0.0]]), "heading_speed")) == pytest.approx(0.49 ** 2)
