@@ -1307,3 +1307,18 @@ def test_a_drone_beyond_the_border_is_sent_back_at_the_speed_its_depth_asks_judg
     v, _, c = fence.filter(np.zeros((1, 2)), p, np.array([[3.9, 2.5]]))
     np.testing.assert_allclose(v, [[-0.8, 0.0]], atol=1e-9)
     assert c == pytest.approx([-0.3])
+
+
+def test_a_drone_flown_by_someone_else_keeps_its_command_and_ours_takes_all_the_room():
+    """keep_apart_and_inside: 0.5 m apart, closing at 1 m/s each, separation 0.3 m, lookahead 0.5 s.
+    The target is not ours (movable False): its command stays, and our pursuer alone brakes, to
+    (0.5 - 0.3) / 0.5 = 0.4 m/s (two of ours would each take half: 0.2 m/s)."""
+    fence = Fence(load_layout(0), LabTransform(), margin=0.1, lookahead=0.5, breach=0.15)
+    p = np.array([[1.0, 2.5], [1.5, 2.5]])
+    v = np.array([[1.0, 0.0], [-1.0, 0.0]])
+    out, separating, fencing, _ = keep_apart_and_inside(v, p, fence, 0.3, 0.5, np.array([True, False]))
+    np.testing.assert_allclose(out, [[0.4, 0.0], [-1.0, 0.0]], atol=1e-9)
+    assert separating.tolist() == [True, False] and fencing.tolist() == [False, False]
+    out, separating, _, _ = keep_apart_and_inside(v, p, fence, 0.3, 0.5, np.array([True, True]))
+    np.testing.assert_allclose(out, [[0.2, 0.0], [-0.2, 0.0]], atol=1e-9)
+    assert separating.tolist() == [True, True]
