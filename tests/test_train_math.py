@@ -988,3 +988,19 @@ def test_the_actor_mean_is_the_tanh_of_its_head_and_stays_within_one():
     assert float(raw.abs().max()) > 2.0
     torch.testing.assert_close(mean, torch.tanh(raw), atol=3e-7, rtol=0)
     assert float(mean.abs().max()) <= 1.0
+
+
+def test_the_same_seed_gives_the_same_weights_whatever_the_thread_count():
+    """init_linear runs the orthogonal QR on one thread: a process left at two threads (or any
+    count) builds bit-for-bit the weights of one at one thread; the caller's count is restored."""
+    before = torch.get_num_threads()
+    built = []
+    try:
+        for threads in (2, 1):
+            torch.set_num_threads(threads)
+            torch.manual_seed(0)
+            built.append(Actor(ObsSpec.make(3, 1, 16), NetConfig()).state_dict())
+            assert torch.get_num_threads() == threads
+    finally:
+        torch.set_num_threads(before)
+    assert all(torch.equal(built[0][k], built[1][k]) for k in built[0])
