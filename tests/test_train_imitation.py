@@ -329,3 +329,44 @@ def test_cloning_losses_on_hand_computed_numbers():
     assert float(cloning_loss(slow, teacher, "heading_speed")) == pytest.approx((hs + h) / 2 + 0.64 / 2)
     # a still teacher (below 0.05) has no heading to learn: only the speed counts
     assert float(cloning_loss(torch.tensor([[0.3, 0.4]]), torch.tensor([[0.01, 0.0]]), "heading_speed")) == pytest.approx(0.49 ** 2)
+
+
+def test_a_dagger_rollout_bootstraps_a_timeout_from_the_ended_episodes_last_observation():
+    """At a timeout the critic's target goes on from the value of the ended episode's last
+    observation (info["final_obs"]), as in PPO's collector: not 0 (a timeout is no terminal
+    state), and not the value of the observation the auto-reset began."""
+    from pursuit_mj.config import default_config
+    from pursuit_mj.env import PursuitEnv
+    from pursuit_mj.heuristic import HeuristicTeam
+    from train.agent import ActorCritic
+    from train.config import TrainConfig
+    from train.imitation import DaggerCollector
+    from train.storage import Rollout
+
+    task = default_config(fidelity="point", random_obstacles=0, max_steps=6)
+    env = PursuitEnv(task, n_worlds=2, seed=3, nthread=1)
+    torch.manual_seed(0)
+    model = ActorCritic(env.obs_spec, env.state_dim, TrainConfig())
+    ends = []
+    real_step = env.step
+
+    def recording_step(actions):
+        out = real_step(actions)
+        ends.append((out[3].copy(), out[4]["final_obs"].copy()))
+        return out
+
+    env.step = recording_step
+    buf = Rollout(8, 2, env.n_pursuers, env.obs_dim)
+    collector = DaggerCollector(env, model, HeuristicTeam.from_config(task), Demonstrations(1000, env.obs_dim),
+                                torch.Generator().manual_seed(1))
+    collector.beta = 0.5
+    collector.collect(buf)
+    t = int(torch.nonzero(buf.truncated.any(1))[0])
+    truncated, last_obs = ends[t]
+    idx = np.flatnonzero(truncated)
+    with torch.no_grad():
+        expected = model.value(torch.as_tensor(last_obs[idx]), None)
+        reset = model.value(buf.obs[t + 1, idx], None)
+    torch.testing.assert_close(buf.final_values[t, idx], expected)
+    assert not torch.allclose(buf.final_values[t, idx], reset) and bool((expected != 0).all())
+    assert bool((buf.final_values[~buf.truncated] == 0).all())
