@@ -742,3 +742,65 @@ def test_a_velocity_command_reaches_cflib_in_m_s_with_its_yaw_rate_in_deg_s():
     link.velocity([0.3, -0.2, 0.05], yaw_rate=math.pi / 2)
     link.velocity(np.array([0.1, 0.0, 0.0]))
     assert sent == [(0.3, -0.2, 0.05, pytest.approx(90.0)), (0.1, 0.0, 0.0, 0.0)]
+
+
+def test_each_abort_check_ends_the_run_just_past_its_limit_and_not_before():
+    """The in-flight checks against their limits on a hand-fed board and clock: nothing heard for
+    link_timeout (0.5 s), no estimate for stale_land (1 s), battery_samples (3) readings below
+    battery_land (3.3 V), a height above max_altitude (1.5 m), a Kalman variance above fix_variance
+    (0.01 m^2, Lighthouse), and max_time (3 s) of chase."""
+    from pursuit_mj.flight.board import StateBoard
+    from pursuit_mj.flight.bridge import FlightBridge, _Abort
+    from pursuit_mj.flight.events import EventLog
+
+    def setup(**changes):
+        plan = quick_plan(safety={"link_timeout": 0.5, "stale_land": 1.0}, **changes)
+        now = [100.0]
+        board = StateBoard(plan.n_drones, clock=lambda: now[0])
+        bridge = FlightBridge(plan, HOVER, EventLog(), handle_signals=False, clock=lambda: now[0])
+        bridge.board, bridge._airborne = board, True
+        return plan, now, board, bridge
+
+    def feed(board, z=0.3, vbat=4.0, var=1e-4, only=None, state=True, health=True):
+        for i in range(board.n) if only is None else [only]:
+            if state:
+                board.on_state(i, {"stateEstimate.x": 0.0, "stateEstimate.y": 0.0, "stateEstimate.z": z,
+                                   "stateEstimate.vx": 0.0, "stateEstimate.vy": 0.0, "stateEstimate.vz": 0.0})
+            if health:
+                board.on_health(i, {"pm.vbat": vbat, "kalman.varPX": var, "kalman.varPY": var, "kalman.varPZ": var})
+
+    def outcome(bridge, board, start=None):
+        try:
+            bridge._check_abort(board.snapshot(), start)
+        except _Abort as stop:
+            return stop.outcome
+        return None
+
+    plan, now, board, bridge = setup()
+    for _ in range(3):
+        feed(board)
+    assert outcome(bridge, board, start=100.0) is None
+    now[0] = 100.45
+    assert outcome(bridge, board) is None
+    now[0] = 100.55  # nothing heard for 0.55 s
+    assert outcome(bridge, board) == "link_lost"
+    now[0] = 100.0
+    feed(board)
+    for t, expected in ((100.95, None), (101.05, "stale")):  # packets keep coming, estimates do not
+        now[0] = t
+        feed(board, state=False)
+        assert outcome(bridge, board) == expected
+    now[0] = 200.0
+    for vbat, expected in ((3.25, None), (3.25, None), (3.25, "low_battery")):  # three low readings in a row
+        feed(board, health=False)
+        feed(board, vbat=vbat, only=1, state=False)
+        assert outcome(bridge, board) == expected
+    for z, expected in ((1.49, None), (1.51, "altitude")):
+        feed(board, z=z)
+        assert outcome(bridge, board) == expected
+    feed(board)
+    assert outcome(bridge, board, start=197.05) is None and outcome(bridge, board, start=196.95) == "timeout"
+    plan, now, board, bridge = setup(positioning="lighthouse")
+    for var, expected in ((0.0099, None), (0.0101, "fix_lost")):
+        feed(board, var=var)
+        assert outcome(bridge, board) == expected
