@@ -804,3 +804,32 @@ def test_each_abort_check_ends_the_run_just_past_its_limit_and_not_before():
     for var, expected in ((0.0099, None), (0.0101, "fix_lost")):
         feed(board, var=var)
         assert outcome(bridge, board) == expected
+
+
+def test_an_estimate_that_jumps_across_a_thin_wall_between_two_checks_is_a_breach():
+    """Layout 1's wall (y 1.875-1.925) is thinner than breach_distance: a drone whose estimate
+    goes from 0.375 m below it to 0.175 m above it between two checks was never inside it, and
+    must still end the run as a breach."""
+    from pursuit_mj.flight.board import StateBoard
+    from pursuit_mj.flight.bridge import FlightBridge, _Abort
+    from pursuit_mj.flight.events import EventLog
+
+    p0 = dict(QUICK["drones"][0], start=[0.8, 1.5])
+    e0 = dict(QUICK["drones"][3], start=[3.0, 4.5])
+    plan = quick_plan(layout=1, drones=[p0, e0])
+    board = StateBoard(plan.n_drones)
+    bridge = FlightBridge(plan, HOVER, EventLog(), handle_signals=False)
+    bridge.board, bridge._airborne = board, True
+
+    def at(dy):  # flow deck: the estimate starts at (0, 0) on the drone's start spot
+        for i in range(plan.n_drones):
+            board.on_state(i, {"stateEstimate.x": 0.0, "stateEstimate.y": dy if i == 0 else 0.0, "stateEstimate.z": 0.3,
+                               "stateEstimate.vx": 0.0, "stateEstimate.vy": 0.0, "stateEstimate.vz": 0.0})
+            board.on_health(i, {"pm.vbat": 4.0, "kalman.varPX": 1e-4, "kalman.varPY": 1e-4, "kalman.varPZ": 1e-4})
+        bridge._check_abort(board.snapshot(), None)
+
+    at(0.0)
+    at(0.1)  # still below the wall
+    with pytest.raises(_Abort) as stop:
+        at(0.6)  # lab y 2.1: beyond the wall, clear of it
+    assert stop.value.outcome == "fence_breach" and "virtual obstacle" in stop.value.reason
