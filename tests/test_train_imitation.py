@@ -370,3 +370,36 @@ def test_a_dagger_rollout_bootstraps_a_timeout_from_the_ended_episodes_last_obse
     torch.testing.assert_close(buf.final_values[t, idx], expected)
     assert not torch.allclose(buf.final_values[t, idx], reset) and bool((expected != 0).all())
     assert bool((buf.final_values[~buf.truncated] == 0).all())
+    with torch.no_grad():  # the rollout's last step goes on from the value of the observation it ends at
+        last = model.value(collector.obs, None)
+    assert torch.equal(buf.last_value, last) and bool((last != 0).all())
+
+
+def test_the_dagger_update_clips_its_gradient_at_imitation_max_grad_norm(tmp_path):
+    """DAgger's update clips at imitation.max_grad_norm (here 0.05), not at PPO's ppo.max_grad_norm;
+    the logged grad_norm is the norm before clipping."""
+    from train.imitation import imitation_update
+
+    cfg = load_train_config([], ["name=clip", "algo=dagger", "task.fidelity=point", "task.n_pursuers=2", "n_envs=2",
+                                 "ppo.batch_size=64", "net.encoder_width=8", "net.hidden=[8]", "run.progress=false",
+                                 "run.split_update=false", "imitation.max_grad_norm=0.05", "imitation.grad_steps=3",
+                                 "imitation.minibatch_size=16", "run.validation_episodes=1", f"run.runs_dir={tmp_path}"])
+    trainer = Trainer(cfg, log=lambda s: None)
+    try:
+        buf, _ = trainer._next_rollout()
+        model = trainer.model
+        optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+        norms = []
+        real_step = optimizer.step
+
+        def step(*args, **kwargs):
+            norms.append(float(torch.stack([p.grad.norm() for p in model.parameters() if p.grad is not None]).norm()))
+            return real_step(*args, **kwargs)
+
+        optimizer.step = step
+        stats = imitation_update(model, optimizer, trainer.demos, buf, cfg.imitation, cfg.ppo, 0.99,
+                                 torch.Generator().manual_seed(5))
+    finally:
+        trainer.close()
+    assert cfg.ppo.max_grad_norm > 0.05 and stats["grad_norm"] > 0.05
+    assert len(norms) == 3 and max(norms) <= 0.05 * (1 + 1e-5)
