@@ -86,15 +86,11 @@ def init_linear(layer: nn.Linear, gain: float = math.sqrt(2.0)) -> nn.Linear:
     return layer
 
 
-def tanh_mlp(sizes: list[int], out_gain: float | None = None) -> nn.Sequential:
-    """Linear+tanh per consecutive pair; the last layer has no tanh when out_gain is given."""
+def tanh_mlp(sizes: list[int]) -> nn.Sequential:
+    """Linear+tanh per consecutive pair of `sizes` (orthogonal init, gain sqrt(2))."""
     layers: list[nn.Module] = []
-    for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
-        last = i == len(sizes) - 2
-        if last and out_gain is not None:
-            layers.append(init_linear(nn.Linear(a, b), out_gain))
-        else:
-            layers += [init_linear(nn.Linear(a, b)), Tanh()]
+    for a, b in zip(sizes[:-1], sizes[1:]):
+        layers += [init_linear(nn.Linear(a, b)), Tanh()]
     return nn.Sequential(*layers)
 
 

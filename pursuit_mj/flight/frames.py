@@ -20,12 +20,6 @@ import numpy as np
 from ..planar import rotate
 
 
-def rotation(angle: float | np.ndarray) -> np.ndarray:
-    """2D rotation matrices (..., 2, 2) for angles (...) rad."""
-    c, s = np.cos(angle), np.sin(angle)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
-
-
 @dataclasses.dataclass(frozen=True)
 class LabTransform:
     """lab -> layout similarity: origin (m, lab frame), yaw (rad), scale (layout m per lab m)."""
