@@ -186,3 +186,16 @@ def test_a_p_value_just_below_the_verdict_level_does_not_print_as_it():
     assert float(_p_text(p)) < VERDICT_LEVEL and _p_text(p) == "0.04998"
     assert [_p_text(x) for x in (0.05, 0.125, 0.0625, 0.00781, 0.0005, 1.0, None)] == \
         ["0.05", "0.125", "0.0625", "0.00781", "<0.001", "1", "-"]
+
+
+def test_sign_flip_p_counts_only_nonzero_differences_toward_its_exact_limit():
+    from pursuit_mj.stats import SIGN_FLIP_MAX_TERMS, sign_flip_p
+
+    assert SIGN_FLIP_MAX_TERMS == 100
+    # ties (difference 0) flip to themselves: 150 of them beside six equal gains leave p = 2 / 2^6
+    assert sign_flip_p([0] * 150 + [2] * 6) == pytest.approx(2 / 64, abs=1e-15)
+    # exactly the limit is still computed (only the two all-same-sign patterns reach |sum| = 100) ...
+    assert sign_flip_p([1] * 100) == pytest.approx(2 / 2**100, rel=1e-9)
+    assert sign_flip_p([0] * 50 + [1] * 100) == pytest.approx(2 / 2**100, rel=1e-9)
+    # ... one more nonzero difference is not
+    assert sign_flip_p([1] * 101) is None
