@@ -199,3 +199,83 @@ def test_sign_flip_p_counts_only_nonzero_differences_toward_its_exact_limit():
     assert sign_flip_p([0] * 50 + [1] * 100) == pytest.approx(2 / 2**100, rel=1e-9)
     # ... one more nonzero difference is not
     assert sign_flip_p([1] * 101) is None
+
+
+def test_more_differences_than_the_exact_test_takes_are_judged_by_the_t_interval():
+    """Above SIGN_FLIP_MAX_TERMS nonzero differences p_value is None: the verdict comes from the
+    t interval alone (no TypeError comparing None with the verdict level)."""
+    lengths = [200 + 7 * k for k in range(120)]
+    ref = row("heuristic", [("success", s) for s in lengths])
+    sooner = pair(row("net", [("success", s - 10 + k % 3) for k, s in enumerate(lengths)]), ref, MAX)
+    assert sooner.p_value is None and sooner.verdict == "faster"
+    assert sooner.steps.mean == pytest.approx(-9)  # 40 each of -10, -9, -8
+    mixed = pair(row("net", [("success", s + (5 if k % 2 else -5)) for k, s in enumerate(lengths)]), ref, MAX)
+    assert mixed.p_value is None and mixed.steps.lo < 0 < mixed.steps.hi and mixed.verdict == "level"
+
+
+def test_five_paired_episodes_are_enough_for_a_verdict():
+    """MIN_VERDICT_EPISODES = 5: four pairs say 'too few', five are judged (here level: the
+    sign-flip p of five sooner episodes is 2/32, not below 0.05)."""
+    five = pair(row("net", [("success", 190)] * 5), row("heuristic", [("success", 200)] * 5), MAX)
+    assert five.p_value == pytest.approx(2 / 32) and five.verdict == "level"
+    four = pair(row("net", [("success", 190)] * 4), row("heuristic", [("success", 200)] * 4), MAX)
+    assert four.verdict == "too few"
+
+
+def test_rows_of_another_fidelity_or_with_missing_episode_times_are_refused():
+    import dataclasses
+
+    records = [EpisodeRecord(0, k, 0, "success", 100, None, {}, 0, "0") for k in range(3)]
+    point = summarise("a", "0", "point", 5, records, MAX)
+    quad = summarise("b", "0", "quadrotor", 5, records, MAX)
+    with pytest.raises(ValueError, match="did not play the same episodes"):
+        pair(point, quad, MAX)
+    # one row of 3 episodes against one of 2: not zipped down to 2 pairs
+    with pytest.raises(ValueError, match="a has 3 episode times and b 2"):
+        pair(point, summarise("b", "0", "point", 5, records[:2], MAX), MAX)
+    # a reference row whose times fall short of its own episode count
+    cut = dataclasses.replace(summarise("b", "0", "point", 5, records, MAX), episodes=4)
+    with pytest.raises(ValueError, match="episode times"):
+        pair(point, cut, MAX)
+
+
+def test_the_line_over_all_layouts_counts_each_episode_won_by_one_side_alone():
+    ref0 = row("heuristic", [("success", 300)] * 3 + [("timeout", MAX)], layout="0")
+    pol0 = row("net", [("success", 300), ("timeout", MAX), ("timeout", MAX), ("timeout", MAX)], layout="0")
+    ref1 = row("heuristic", [("timeout", MAX)] * 2, layout="1")
+    pol1 = row("net", [("success", 300)] * 2, layout="1")
+    first, second, total = pair_table([ref0, pol0, ref1, pol1], "heuristic", MAX)
+    assert (first.only_policy, first.only_reference) == (0, 2)
+    assert (second.only_policy, second.only_reference) == (2, 0)
+    assert (total.layout, total.episodes, total.only_policy, total.only_reference) == ("all", 6, 2, 2)
+    assert total.success_p == 1.0  # 2 to 2: 2 * P(X <= 2), X ~ Bin(4, 1/2), = 2 * 11/16, cut to 1
+
+
+def test_rows_without_an_episode_log_count_a_time_of_max_steps_as_a_failure():
+    import dataclasses
+
+    ref = dataclasses.replace(row("heuristic", [("success", 300), ("timeout", MAX)]), episode_log=())
+    pol = dataclasses.replace(row("net", [("timeout", MAX), ("success", 200)]), episode_log=())
+    p = pair(pol, ref, MAX)
+    assert (p.only_policy, p.only_reference) == (1, 1)
+
+
+def test_a_policy_on_a_layout_the_reference_did_not_play_is_left_unpaired():
+    ref0 = row("heuristic", [("success", 200)] * 2, layout="0")
+    pol0 = row("net", [("success", 180)] * 2, layout="0")
+    pol1 = row("net", [("success", 180)] * 2, layout="1")
+    assert [p.layout for p in pair_table([ref0, pol0, pol1], "heuristic", MAX)] == ["0"]
+
+
+def test_the_fidelity_column_appears_only_when_the_pairs_are_of_several_fidelities():
+    p = pair(row("net", [("success", 180)] * 2), row("heuristic", [("success", 200)] * 2), MAX)
+    head = format_pairs([p]).splitlines()[0]
+    assert head.split()[:4] == ["policy", "versus", "layout", "episodes"] and "fidelity" not in head
+
+
+def test_a_reference_alone_in_its_table_gives_no_paired_report():
+    from pursuit_mj.comparison import paired_report
+
+    alone = [row("heuristic", [("success", 200)] * 2, layout=layout) for layout in ("0", "1")]
+    assert paired_report(alone, "heuristic", MAX) == ("", [])
+    assert paired_report(alone, "net", MAX) == ("", [])
