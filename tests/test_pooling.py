@@ -526,3 +526,55 @@ def test_a_table_written_to_a_named_pipe_needs_a_reader_and_is_read_whole_by_one
         signal.alarm(0)
         signal.signal(signal.SIGALRM, before)
     assert got == ["a,b\n1,2\n"] and pipe.exists()
+
+
+def _edited(tables, name, edit, source="hr0"):
+    """A copy of a module table with `edit(data)` applied, written under `name`.json."""
+    data = json.loads(tables[source].read_text())
+    edit(data)
+    path = tables["tmp"] / f"{name}.json"
+    path.write_text(json.dumps(data))
+    return path
+
+
+def test_episodes_at_the_task_s_limits_pool_and_one_step_or_evader_past_them_is_refused(tables):
+    def set_first(field, value):
+        return lambda data: data["rows"][0]["per_episode"][field].__setitem__(0, value)
+
+    at_limit = pool_tables([_edited(tables, "at_steps", set_first("steps", TASK.max_steps))])
+    assert TASK.max_steps in [e[2] for e in at_limit.rows[0].episode_log]
+    caught_all = pool_tables([_edited(tables, "at_caught", set_first("captured", TASK.n_evaders))])
+    assert TASK.n_evaders in [e[3] for e in caught_all.rows[0].episode_log]
+    with pytest.raises(ValueError, match=f"steps {TASK.max_steps + 1}, outside 1..{TASK.max_steps}"):
+        pool_tables([_edited(tables, "past_steps", set_first("steps", TASK.max_steps + 1))])
+    with pytest.raises(ValueError, match=f"captured {TASK.n_evaders + 1}, outside 0..{TASK.n_evaders}"):
+        pool_tables([_edited(tables, "past_caught", set_first("captured", TASK.n_evaders + 1))])
+    with pytest.raises(ValueError, match="its config's max_steps is 0, not a whole number >= 1"):
+        pool_tables([_edited(tables, "no_steps", lambda data: data["config"].__setitem__("max_steps", 0))])
+
+
+def test_tables_whose_evaders_are_two_model_files_are_refused(tables):
+    a = _edited(tables, "evader_a", lambda data: data.__setitem__("evader_model_sha256", "a" * 64), "h0")
+    b = _edited(tables, "evader_b", lambda data: data.__setitem__("evader_model_sha256", "b" * 64), "h1")
+    with pytest.raises(ValueError, match=r"evader_b\.json: its evaders are another model than .*evader_a\.json"):
+        pool_tables([a, b])
+    assert pool_tables([a, tables["h1"]]).rows[0].episodes == 6  # a table from before the key: not compared
+    assert pool_tables([tables["h1"], a]).rows[0].episodes == 6
+    assert pool_tables([a, a]).meta["evader_model_sha256"] == "a" * 64
+
+
+def test_the_models_of_a_table_are_its_last_policies(tables):
+    """eval lists its models last among its policies: with policies [heuristic, random] and one
+    model, the model is 'random' (the checkpoint's label), not 'heuristic'."""
+    def one_model(data):
+        data["policies"], data["models"], data["model_sha256"] = ["heuristic", "random"], ["r.pt"], ["c" * 64]
+
+    pooled = pool_tables([_edited(tables, "one_model", one_model)])
+    assert pooled.meta["model_sha256_of"] == {"random": "c" * 64}
+
+
+def test_a_pool_says_which_policy_files_it_knows_only_when_every_table_recorded_them(tables):
+    knows = _edited(tables, "knows_files", lambda data: data.__setitem__("policy_file_sha256_of", {}), "h0")
+    assert pool_tables([knows, knows]).meta["policy_file_sha256_of"] == {}
+    assert "policy_file_sha256_of" not in pool_tables([knows, tables["h1"]]).meta
+    assert "policy_file_sha256_of" not in pool_tables([tables["h1"], knows]).meta
