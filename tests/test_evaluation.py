@@ -1057,3 +1057,95 @@ def test_t_quantile_matches_the_published_table_to_its_documented_precision():
                  13: 2.160369, 15: 2.131450, 20: 2.085963, 25: 2.059539, 40: 2.021075, 120: 1.979930}
     for dof, q in published.items():
         assert t_quantile_975(dof) == pytest.approx(q, abs=1e-4), dof
+
+
+def test_percent_value_keeps_any_rate_short_of_0_or_100_percent_off_them():
+    from pursuit_mj.evaluation import percent_value
+
+    assert percent_value(1 / 300_000) == 0.0003  # 0.000333... %: 3 decimals would say 0.0
+    assert percent_value(1 / 3_000_000) == 0.00003
+    assert percent_value(1 / 30_000_000) == 0.000003
+    assert percent_value(1 - 1 / 30_000_000) == 99.999997
+    assert (percent_value(0.0), percent_value(1.0), percent_value(0.0625)) == (0.0, 100.0, 6.25)
+
+
+def test_an_index_spelled_with_a_leading_zero_is_that_layout_and_plays_its_episodes():
+    from pursuit_mj.evaluation import layout_identity, layout_seed
+
+    assert layout_identity("01") == layout_identity(" 1 ") == layout_identity(1) == "1"
+    assert layout_seed(7, "01") == layout_seed(7, 1)
+
+
+def test_episode_seeds_are_pinned_so_that_published_tables_replay():
+    """Episode k of a row has seed SeedSequence([row seed, k]); a change (say from k + 1) would
+    change every table ever published, the shipped policies' included."""
+    from pursuit_mj.evaluation import episode_seeds, layout_seed
+
+    assert episode_seeds(0, 3).tolist() == [2968811710, 3964924996, 3141116543]
+    assert layout_seed(0, 0) == layout_seed(0, "0") == 3223363731
+
+
+def test_summarise_cuts_the_steps_intervals_to_0_and_max_steps():
+    records = [EpisodeRecord(0, k, 0, "success", steps, None, {}, 1, "0") for k, steps in enumerate((10, 10, 1000))]
+    row = summarise("p", "0", "point", 0, records, 1000)
+    # mean 340, sd 571.58, t(2) 4.3027: 340 -+ 1419.9 unbounded
+    assert row.steps.mean == pytest.approx(340.0)
+    assert (row.steps.lo, row.steps.hi) == (0.0, 1000.0)
+    assert (row.steps_success.lo, row.steps_success.hi) == (0.0, 1000.0)
+
+
+def test_run_episodes_returns_episode_order_not_the_order_they_finished_in():
+    """Pairing takes episode k of one row against episode k of another: the records must be in
+    episode order whatever order the worlds finished them in."""
+    from pursuit_mj.evaluation import episode_seeds
+    from pursuit_mj.policy import RandomPolicy
+
+    finished = []
+    records = run_episodes(RandomPolicy(0), default_config(fidelity="point", max_steps=60), 6, 1, 3, on_episode=finished.append)
+    assert [r.seed for r in records] == episode_seeds(1, 6).tolist()
+    assert [r.seed for r in finished] != [r.seed for r in records]  # episode 1 ended first: the order was restored
+
+
+def test_evaluate_plays_the_named_layout_even_when_the_task_draws_random_layouts():
+    config = default_config(fidelity="point", max_steps=5, random_layout=True)
+    heard = []
+    rows = evaluate(HeuristicTeam.from_config(config), config, [2], episodes=4, seed=0, n_worlds=2, on_episode=heard.append)
+    assert rows[0].layout == "2" and {r.layout for r in heard} == {load_layout(2).name}
+
+
+def test_the_fidelity_column_appears_only_for_rows_of_several_fidelities():
+    records = [EpisodeRecord(0, 0, 0, "success", 10, None, {}, 1, "0")]
+    point = summarise("p", "0", "point", 0, records, 100)
+    assert "fidelity" not in format_table([point]).splitlines()[0]
+    quad = summarise("p", "0", "quadrotor", 0, records, 100)
+    assert "fidelity" in format_table([point, quad]).splitlines()[0]
+
+
+def test_a_kept_record_is_taken_back_only_as_the_episodes_this_eval_plays():
+    import copy
+
+    from pursuit_mj.evaluation import episode_seeds, layout_seed, row_from_record, row_record
+
+    config = default_config(fidelity="point", max_steps=100)
+    seeds = episode_seeds(layout_seed(4, "0"), 3).tolist()
+    records = [EpisodeRecord(0, k, s, "success", 50, None, {}, 1, "0") for k, s in enumerate(seeds)]
+    good = row_record(summarise("p", "0", "point", 4, records, config.max_steps))
+    assert row_from_record(good, config, 4, 3) == summarise("p", "0", "point", 4, records, config.max_steps)
+
+    def edited(edit):
+        record = copy.deepcopy(good)
+        edit(record)
+        return row_from_record(record, config, 4, 3)
+
+    assert edited(lambda r: r.__setitem__("fidelity", "quadrotor")) is None
+    assert edited(lambda r: r["per_episode"]["steps"].__setitem__(0, config.max_steps)) is not None
+    assert edited(lambda r: r["per_episode"]["steps"].__setitem__(0, config.max_steps + 1)) is None
+    assert edited(lambda r: r["per_episode"]["captured"].__setitem__(0, config.n_evaders + 1)) is None
+    assert edited(lambda r: r["per_episode"]["outcome"].pop()) is None  # not zipped down to 2 episodes
+
+
+def test_csv_counts_read_back_as_integers():
+    from pursuit_mj.evaluation import _cell
+
+    assert type(_cell("episodes", "6", "here")) is int and type(_cell("success_count", "3", "here")) is int
+    assert type(_cell("success_pct", "50", "here")) is float
