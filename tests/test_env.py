@@ -716,3 +716,51 @@ def test_the_signatures_docs_env_api_md_shows_are_the_codes(call):
         expected = None if p.default is inspect.Parameter.empty else p.default
         shown = None if default is None else eval(default, {"AutoresetMode": AutoresetMode})
         assert (default is None and p.default is inspect.Parameter.empty) or shown == expected, (call, name)
+
+
+def test_an_ended_world_keeps_its_step_count_and_the_state_says_the_time_fraction():
+    env = PursuitEnv(default_config(max_steps=3, **FAST), n_worlds=2, seed=0, auto_reset=False)
+    env.reset()
+    env.step(np.zeros((2, 3, 2)))
+    assert env.global_state()[:, -1] == pytest.approx([1 / 3, 1 / 3])  # steps / max_steps
+    for _ in range(4):
+        env.step(np.zeros((2, 3, 2)))
+    assert env.steps.tolist() == [3, 3]  # frozen at the timeout, not counting on
+    assert env.global_state()[:, -1] == pytest.approx([1.0, 1.0])
+
+
+def test_actions_beyond_full_speed_fly_as_full_speed():
+    def flown(scale):
+        env = PursuitEnv(default_config(**FAST), n_worlds=1, seed=3)
+        env.reset()
+        actions = np.zeros((1, 3, 2))
+        actions[0, :, 0] = scale
+        for _ in range(3):
+            env.step(actions)
+        return env.physics.positions()[0, :3, :2]
+
+    np.testing.assert_array_equal(flown(5.0), flown(1.0))
+    np.testing.assert_array_equal(flown(-5.0), flown(-1.0))
+
+
+def test_a_record_counts_every_evader_caught():
+    config = default_config(n_evaders=2, **FAST)
+    env = PursuitEnv(config, n_worlds=1, seed=2)
+    env.reset()
+    _place(env, 0, [[1.0, 3.0], [0.8, 1.0], [2.8, 1.0], [1.0, 3.2], [2.8, 1.2]])
+    *_, info = env.step(np.zeros((1, 3, 2)))
+    assert info["episodes"][0].outcome == "success" and info["episodes"][0].captured == 2
+
+
+def test_restarted_worlds_take_the_next_episode_of_their_default_sequence():
+    from pursuit_mj.env import episode_seed
+
+    env = PursuitEnv(default_config(max_steps=2, **FAST), n_worlds=2, seed=7)
+    env.reset()
+    assert env._episode_seeds.tolist() == [episode_seed(7, 0, 0), episode_seed(7, 1, 0)]
+    env.reset_worlds([1])
+    assert env._episode_seeds.tolist() == [episode_seed(7, 0, 0), episode_seed(7, 1, 1)]
+    env.step(np.zeros((2, 3, 2)))
+    *_, info = env.step(np.zeros((2, 3, 2)))  # world 0 times out and auto-resets
+    assert info["episodes"][0].world == 0 and info["episodes"][0].seed == episode_seed(7, 0, 0)
+    assert env._episode_seeds[0] == episode_seed(7, 0, 1)
