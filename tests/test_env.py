@@ -734,13 +734,15 @@ def test_actions_beyond_full_speed_fly_as_full_speed():
         env = PursuitEnv(default_config(**FAST), n_worlds=1, seed=3)
         env.reset()
         actions = np.zeros((1, 3, 2))
-        actions[0, :, 0] = scale
+        actions[0, :] = scale
         for _ in range(3):
             env.step(actions)
         return env.physics.positions()[0, :3, :2]
 
-    np.testing.assert_array_equal(flown(5.0), flown(1.0))
-    np.testing.assert_array_equal(flown(-5.0), flown(-1.0))
+    # each component is clipped to -1..1 (docs/env_api.md): (5, 1) flies as (1, 1), at 45 degrees,
+    # not as (5, 1) cut to full speed along its own direction
+    np.testing.assert_array_equal(flown([5.0, 1.0]), flown([1.0, 1.0]))
+    np.testing.assert_array_equal(flown([-5.0, 0.0]), flown([-1.0, 0.0]))
 
 
 def test_a_record_counts_every_evader_caught():
