@@ -279,3 +279,25 @@ def test_a_fan_ray_along_the_line_of_a_box_edge_reads_what_a_single_ray_reads():
     single = cast_rays(np.repeat(origins, 16, axis=1), np.broadcast_to(dirs, (1, 6, 16, 2)).reshape(1, 96, 2), obst)
     np.testing.assert_allclose(fan, single.reshape(1, 6, 16), atol=1e-9)
     assert fan[0, 0, 4] == pytest.approx(1.475) and fan[0, 2, 8] == pytest.approx(0.5)  # up to the wall's end; along its top face to it
+
+
+def test_distances_past_a_border_segment_s_end_are_to_its_end_point():
+    """Outside the arena's corner (0, 0) the nearest border point is the corner itself: a segment's
+    foot point is clipped to the segment, not taken on the line beyond its end."""
+    layout = layout_with([])
+    obstacles = ObstacleSet.from_layout(layout)
+    points = np.array([[-1.0, -1.0], [-0.5, 2.5], [4.6, 6.0]])
+    want = [math.sqrt(2.0), 0.5, math.sqrt(2.0)]
+    np.testing.assert_allclose(obstacle_distance(points, obstacles), want, atol=1e-12)
+    np.testing.assert_allclose(border_distance(points, obstacles.border), want, atol=1e-12)
+    # a segment marked invalid (stack's padding) is not there
+    valid = np.zeros(len(obstacles.border), bool)
+    assert (border_distance(points, obstacles.border, valid) == FAR).all()
+
+
+def test_a_target_on_a_surface_is_in_sight():
+    """The ray to a target on the border ends where it hits the border: in sight, not blocked by it."""
+    obstacles = ObstacleSet.from_layout(layout_with([]))
+    a = np.array([[1.0, 2.5], [1.0, 2.5]])
+    b = np.array([[0.0, 2.5], [1.0, 0.0]])  # on the left wall, on the bottom wall
+    assert line_of_sight(a, b, obstacles).tolist() == [True, True]
