@@ -766,3 +766,13 @@ def test_restarted_worlds_take_the_next_episode_of_their_default_sequence():
     *_, info = env.step(np.zeros((2, 3, 2)))  # world 0 times out and auto-resets
     assert info["episodes"][0].world == 0 and info["episodes"][0].seed == episode_seed(7, 0, 0)
     assert env._episode_seeds[0] == episode_seed(7, 0, 1)
+
+
+def test_with_random_layouts_an_episode_s_layout_follows_from_its_seed_not_its_world():
+    env = PursuitEnv(default_config(random_layout=True, **FAST), n_worlds=2, seed=0)
+    names = set()
+    for s in range(6):
+        env.reset(seeds=[s, s])
+        assert env.world_layouts[0].name == env.world_layouts[1].name, s
+        names.add(env.world_layouts[0].name)
+    assert len(names) > 1  # and the seeds draw more than one layout
