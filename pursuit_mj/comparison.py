@@ -98,11 +98,11 @@ def pair(row: Row, reference: Row, max_steps: float) -> Paired:
 def _compare(policy: str, reference: str, layout: str, a: Sequence[float], b: Sequence[float],
              won_a: Sequence[bool], won_b: Sequence[bool], max_steps: float, fidelity: str) -> Paired:
     """The Paired of capture times a, b and outcomes won_a, won_b (one per episode, same order)."""
-    diffs = [x - y for x, y in zip(a, b)]
+    diffs = [x - y for x, y in zip(a, b, strict=True)]
     # a success beats a failure; two failures (both at max_steps) tie. From the outcomes where
     # the rows carry them: a capture on the very last step costs max_steps too
-    only_row = sum(x and not y for x, y in zip(won_a, won_b))
-    only_ref = sum(y and not x for x, y in zip(won_a, won_b))
+    only_row = sum(x and not y for x, y in zip(won_a, won_b, strict=True))
+    only_ref = sum(y and not x for x, y in zip(won_a, won_b, strict=True))
     return Paired(policy, reference, layout, len(diffs),
                   mean_interval(diffs, (-float(max_steps), float(max_steps))),
                   sum(d < 0 for d in diffs), sum(d > 0 for d in diffs), only_row, only_ref, sign_flip_p(diffs),

@@ -75,7 +75,7 @@ class Row:
 def percent_value(fraction: float) -> float:
     """A fraction as percent rounded to 3 decimals, or to as many more as keep a value that is
     neither 0 nor 1 from becoming 0.0 or 100.0 (as percent_text prints it: one collision in
-    300,000 episodes is 0.00033, not 0.0; the CSV and JSON rows say what the table says)."""
+    300,000 episodes is 0.0003, not 0.0; the CSV and JSON rows say what the table says)."""
     value = 100.0 * fraction
     decimals = 3
     while 0.0 < fraction < 1.0 and round(value, decimals) in (0.0, 100.0) and decimals < 15:
