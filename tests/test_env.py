@@ -776,3 +776,20 @@ def test_with_random_layouts_an_episode_s_layout_follows_from_its_seed_not_its_w
         assert env.world_layouts[0].name == env.world_layouts[1].name, s
         names.add(env.world_layouts[0].name)
     assert len(names) > 1  # and the seeds draw more than one layout
+
+
+
+def test_a_diverged_quadrotor_world_ends_as_a_collision_alone():
+    """A quadrotor world whose physics went bad ends as a collision, as a point world does, and
+    only that world: MuJoCo resets it to the model's rest positions, which no drone flew to."""
+    import warnings
+
+    env = PursuitEnv(default_config(fidelity="quadrotor", random_obstacles=0), n_worlds=2, seed=0)
+    env.reset()
+    env.physics.qvel[0, :] = 1e12
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _, reward, term, _, info = env.step(np.zeros((2, 3, 2)))
+    assert env.physics.diverged.tolist() == [True, False]
+    assert info["outcome"].tolist() == ["collision", ""] and term.tolist() == [True, False]
+    np.testing.assert_array_equal(reward[0], env.config.collision_penalty)
