@@ -465,3 +465,31 @@ def test_a_virtual_flight_whose_fleet_cannot_start_leaves_no_empty_log_or_folder
     with pytest.raises(OSError, match="address already in use"):
         run_flight(quick_plan(), policy_name="heuristic", virtual=True, events_path=kept, handle_signals=False)
     assert kept.is_file()
+
+
+@pytest.mark.parametrize("fault, words", [
+    ("freeze_estimates", "its other packets came but its state-estimate log stopped"),
+    ("drop_link", "nothing at all came from it in that time (link down, or the drone off)"),
+])
+def test_fly_align_names_a_drone_that_goes_silent_in_the_window_and_says_what_to_do(tmp_path, monkeypatch, fault, words):
+    """A drone whose estimates stop once the estimators settled (its log stream stalls, or its
+    link drops) sent nothing to average: the error said only 'sent no position within 0.2 s';
+    now it names the drone, its URI, which of the two happened and what to check before aligning again."""
+    import pursuit_mj.flight.align as align_module
+
+    spec = flight_from_dict(quick_spec(positioning="lighthouse", safety={"estimator_timeout": 1.0}), "rehearsal.yaml")
+    plan = resolve_flight(spec)
+    settle = align_module._wait_fixed
+    with VirtualFleet(plan, physics=FAST) as fleet:
+        def settle_then_silence(*args):
+            settle(*args)
+            if len(args) == 6:  # the wait before the window (within it a snapshot comes too): p1 goes silent now
+                getattr(fleet, fault)(1)
+                time.sleep(0.2)  # what was in flight has arrived before the window begins
+
+        monkeypatch.setattr(align_module, "_wait_fixed", settle_then_silence)
+        with pytest.raises(ValueError) as err:
+            align_module.align(spec, [d.start for d in plan.drones], uris=fleet.uris, factory=CachedFactory(tmp_path / "toc"), window=0.2)
+    message = str(err.value)
+    assert message.startswith(f"drone p1 ({fleet.uris[1]}) sent no position during the 0.2 s measuring window (--window): "), message
+    assert words in message and "then run align again" in message and "\n" not in message, message

@@ -88,10 +88,24 @@ def measure_lab_positions(spec: FlightSpec, uris: Sequence[str] | None = None, f
             counts[new] += 1
             seen = snap.state_count
             time.sleep(0.02)
-    if (counts == 0).any():
-        bad = int(np.flatnonzero(counts == 0)[0])
-        raise ValueError(f"drone {names[bad]} ({uris[bad]}) sent no position within {window:g} s")
+        if (counts == 0).any():
+            _refuse_silent(board.snapshot(), int(np.flatnonzero(counts == 0)[0]), names, uris, window)
     return sums / counts[:, None]
+
+
+def _refuse_silent(snap, i: int, names: Sequence[str], uris: Sequence[str], window: float) -> None:
+    """ValueError for drone i, which sent no position during the `window` s measuring window
+    (ended at snap.now) although its estimator had settled: says whether cflib reported its link
+    lost (and why), nothing at all came from it, or only its state-estimate log stopped, and
+    what to check."""
+    if snap.lost[i]:
+        why = f"cflib reported its link lost ({snap.lost_reason[i]})"
+    elif snap.silence[i] >= window:
+        why = "nothing at all came from it in that time (link down, or the drone off)"
+    else:
+        why = "its other packets came but its state-estimate log stopped"
+    raise ValueError(f"drone {names[i]} ({uris[i]}) sent no position during the {window:g} s measuring window (--window): {why}; "
+                     f"check its battery and radio (channel, range, other radios nearby), then run align again")
 
 
 def _wait_fixed(board: StateBoard, names: Sequence[str], uris: Sequence[str], limit: float, deadline: float, waited: float,
