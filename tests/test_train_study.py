@@ -929,3 +929,21 @@ def test_a_resumed_arm_whose_reward_file_changed_is_told_with_advice_a_study_can
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert "has changed since the run started" in err and "--init-from" not in err, err
     assert f"delete the arm's run folder {out / 'runs' / 'full_obs'}" in err, err
+
+
+def test_an_arm_folder_holding_an_earlier_run_without_last_pt_is_told_with_advice_a_study_can_follow(tmp_path, capsys, monkeypatch):
+    """An arm's run folder whose metrics.jsonl reaches past the first checkpoint but whose last.pt
+    is gone was refused with 'train under another --name' and '--resume': a study has no --name
+    (--out chooses the folder) and goes on with 'pursuit-mj study --resume'."""
+    out_dir, args = _study_stopped_in_its_first_arm(tmp_path, monkeypatch)
+    run = out_dir / "runs" / "full_obs"
+    (run / "last.pt").unlink()  # lost
+    with open(run / "metrics.jsonl", "a") as f:
+        f.write(json.dumps({"update": 10 ** 6}) + "\n")
+    capsys.readouterr()
+    assert main(["study", "--budget-minutes", "30", "--resume", *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert f"run folder {run} holds an earlier run (metrics.jsonl rows up to update 1000000" in err, err
+    assert "--name" not in err and "then --resume" not in err, err
+    assert "then pursuit-mj study --resume" in err and f"delete the arm's run folder {run} to train the arm afresh" in err, err

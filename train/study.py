@@ -701,7 +701,9 @@ def _run_study_sessions(plan: StudyPlan, state: dict, save: Callable[[], None], 
                                                               f"run.validation_episodes={val_episodes}"])
             log(f"[study] training {regime} for {_duration(minutes * 60)}, then validating on {val_episodes} episodes "
                 f"({cfg.task.fidelity} fidelity)")
-            trainer = Trainer(cfg, log=log)
+            trainer = Trainer(cfg, log=log, earlier_run_advice=(
+                f"Go on from its best.pt (copy it over last.pt, then pursuit-mj study --resume), or delete the arm's run "
+                f"folder {cfg.run_dir} to train the arm afresh in this study"))
         trainer.resume_command = "pursuit-mj study --resume (the whole study; see below)"
         trainer.diverged_hint = study_diverged_hint
         training()

@@ -73,6 +73,10 @@ class Counters:
     validation_seconds: float = 0.0  # the part of `seconds` spent in validations
 
 
+# what a new run refused in a folder holding an earlier run whose last.pt is gone tells the user (Trainer)
+EARLIER_RUN_ADVICE = "Go on from its best.pt (copy it over last.pt, then --resume), or train under another --name"
+
+
 class Trainer:
     """One training run: env, networks, optimiser, counters; `train()` runs it to the end.
 
@@ -81,10 +85,13 @@ class Trainer:
     """
 
     def __init__(self, cfg: TrainConfig, checkpoint: dict | None = None, log: Callable[[str], None] = print,
-                 held_lock: IO | None = None):
+                 held_lock: IO | None = None, earlier_run_advice: str | None = None):
         """`held_lock`: the run folder's lock, already taken by the caller (`resume` takes it before it
         reads last.pt); the trainer releases it when it ends. One that cannot start leaves it to the
-        caller, who knows whether its lock file was there before (`release_lock`)."""
+        caller, who knows whether its lock file was there before (`release_lock`).
+        `earlier_run_advice`: what a new run refused in a folder holding an earlier run without its
+        last.pt tells the user to do instead (default: train's; a study, whose flags are others, says its own)."""
+        self._earlier_run_advice = earlier_run_advice or EARLIER_RUN_ADVICE
         self._start(cfg, checkpoint, log, held_lock)
 
     def _start(self, cfg: TrainConfig, checkpoint: dict | None, log: Callable[[str], None], held_lock: IO | None) -> None:
@@ -353,8 +360,7 @@ class Trainer:
         if later or best:
             held = [f"metrics.jsonl rows up to update {max(later)}" if later else "", f"best.pt of update {best}" if best else ""]
             raise ValueError(f"run folder {self.run_dir} holds an earlier run ({' and '.join(h for h in held if h)}) whose "
-                             f"last.pt is gone; a new run would cut its log and replace its best.pt. Go on from its "
-                             f"best.pt (copy it over last.pt, then --resume), or train under another --name")
+                             f"last.pt is gone; a new run would cut its log and replace its best.pt. {self._earlier_run_advice}")
 
     def _adopt_newer_best(self) -> None:
         """Take the best-validation record from best.pt when it is newer than last.pt's (a crash
