@@ -502,3 +502,20 @@ def test_an_event_log_on_a_named_pipe_with_no_reader_is_refused_in_one_line_and_
         signal.alarm(0)
         signal.signal(signal.SIGALRM, before)
     assert json.loads(got[0])["kind"] == "geofence"
+
+
+def test_an_emergency_stop_at_the_go_no_go_sends_no_take_off(tmp_path):
+    """The operator hits the emergency stop while asked to confirm, then answers go: the flight
+    ends as an emergency stop and no drone is ever sent a take-off (one sent after the motors
+    were cut would lift the drones the operator just stopped)."""
+    bridges = []
+
+    def stop_then_go():
+        bridges[0].emergency_stop("operator")
+        return True
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=2.0), ScriptedTeam([[0.0, 0.0]]), tmp_path,
+                                        on_bridge=bridges.append, confirm=stop_then_go)
+    assert result.outcome == "emergency_stop", result
+    assert not events.of_kind("takeoff")
+    assert not any(r.kind == "takeoff" for i in range(fleet.plan.n_drones) for r in fleet.received(i))

@@ -833,3 +833,19 @@ def test_an_estimate_that_jumps_across_a_thin_wall_between_two_checks_is_a_breac
     with pytest.raises(_Abort) as stop:
         at(0.6)  # lab y 2.1: beyond the wall, clear of it
     assert stop.value.outcome == "fence_breach" and "virtual obstacle" in stop.value.reason
+
+
+def test_the_take_off_climbs_at_takeoff_speed_and_is_judged_only_once_it_settled(tmp_path):
+    """Height 0.3 m at safety.takeoff_speed 0.3 m/s: each commanded drone is sent a 1 s take-off
+    (not height x speed = 0.09 s, a jump), and the heights are judged (the 'airborne' event)
+    no sooner than that plus safety.settle 0.5 s."""
+    plan = quick_plan(max_time=1.0, safety={"takeoff_speed": 0.3, "settle": 0.5})
+    assert plan.height == pytest.approx(0.3)
+    result, events, fleet = fly_virtual(plan, HOVER, tmp_path)
+    assert result.landed, (result.outcome, result.reason)
+    takeoff, airborne = events.of_kind("takeoff")[0], events.of_kind("airborne")[0]
+    assert takeoff["duration"] == pytest.approx(1.0)
+    for i in np.flatnonzero(plan.commanded):
+        sent = [r.values[:2] for r in fleet.received(int(i)) if r.kind == "takeoff"]
+        assert sent == [pytest.approx((0.3, 1.0))], sent
+    assert airborne["t"] - takeoff["t"] >= 1.0 + 0.5 - 0.02, (takeoff, airborne)
