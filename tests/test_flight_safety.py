@@ -849,3 +849,30 @@ def test_the_take_off_climbs_at_takeoff_speed_and_is_judged_only_once_it_settled
         sent = [r.values[:2] for r in fleet.received(int(i)) if r.kind == "takeoff"]
         assert sent == [pytest.approx((0.3, 1.0))], sent
     assert airborne["t"] - takeoff["t"] >= 1.0 + 0.5 - 0.02, (takeoff, airborne)
+
+
+def test_the_landing_goes_to_the_floor_waits_settle_then_stops_the_motors_of_the_commanded_drones_only(tmp_path):
+    """Each commanded drone is sent a landing to height 0 over the landing's duration, and its
+    planner and motors are stopped (hl_stop, stop) only after that duration plus safety.settle
+    0.5 s; the target, flown by someone else, is sent neither."""
+    from flight_rehearsal import quick_spec
+    from pursuit_mj.flight.plan import resolve_flight
+    from pursuit_mj.flight.spec import flight_from_dict
+
+    data = quick_spec(max_time=1.0, safety={"settle": 0.5})
+    data["drones"][3]["role"] = "target"
+    plan = resolve_flight(flight_from_dict(data, "rehearsal.yaml"))
+    assert plan.commanded.tolist() == [True, True, True, False]
+    result, events, fleet = fly_virtual(plan, HOVER, tmp_path)
+    assert result.landed, (result.outcome, result.reason)
+    land, landed = events.of_kind("land")[0], events.of_kind("landed")[0]
+    assert landed["t"] - land["t"] >= land["duration"] + 0.5 - 0.02, (land, landed)
+    for i in range(plan.n_drones):
+        kinds = [r.kind for r in fleet.received(i)]
+        if not plan.commanded[i]:
+            assert "land" not in kinds and "hl_stop" not in kinds, kinds
+            continue
+        sent = [r.values[:2] for r in fleet.received(i) if r.kind == "land"]
+        assert sent == [pytest.approx((0.0, land["duration"]), abs=1e-6)], sent
+        after = kinds[kinds.index("land"):]
+        assert "hl_stop" in after and "stop" in after, after
