@@ -1322,3 +1322,41 @@ def test_a_drone_flown_by_someone_else_keeps_its_command_and_ours_takes_all_the_
     out, separating, _, _ = keep_apart_and_inside(v, p, fence, 0.3, 0.5, np.array([True, True]))
     np.testing.assert_allclose(out, [[0.2, 0.0], [-0.2, 0.0]], atol=1e-9)
     assert separating.tolist() == [True, True]
+
+
+def test_each_injected_fault_does_its_own_kind_to_its_drone_at_its_time_after_the_chase_starts():
+    """FaultInjector: drop_link, freeze, lose_fix and battery (with its voltage) each reach the
+    fleet as that fault, for the named drone, `at` s after the 'chase' event (not at once, not
+    before it); a negative time is refused as malformed."""
+    import dataclasses
+    import time as clock
+    from types import SimpleNamespace
+
+    from pursuit_mj.flight.events import EventLog
+    from pursuit_mj.flight.session import FaultInjector
+
+    plan = load_plan(EXAMPLE)  # p0 p1 p2 e0
+    calls = []
+
+    def note(name):
+        return lambda *args: calls.append((name, *args, clock.monotonic()))
+
+    fleet = SimpleNamespace(plan=plan, drop_link=note("drop_link"), freeze_estimates=note("freeze"),
+                            lose_fix=note("lose_fix"), set_battery=note("battery"))
+    faults = [parse_fault(text, plan) for text in ("drop_link:p1@0.3", "freeze:p2@0.2", "battery:e0@0.1=3.1")]
+    faults.append(dataclasses.replace(faults[0], kind="lose_fix", drone=0, at=0.25))  # the example flies flow decks
+    events = EventLog(None)
+    injector = FaultInjector(fleet, faults, events)
+    events.log("takeoff")
+    clock.sleep(0.4)
+    assert calls == []  # timed from the chase, not before it
+    began = clock.monotonic()
+    events.log("chase")
+    clock.sleep(0.6)
+    injector.cancel()
+    events.close()
+    assert [c[:-1] for c in calls] == [("battery", 3, 3.1), ("freeze", 2), ("lose_fix", 0), ("drop_link", 1)], calls
+    for (_, *_, t), at in zip(calls, (0.1, 0.2, 0.25, 0.3)):
+        assert at - 0.01 <= t - began <= at + 0.1, (t - began, at)
+    with pytest.raises(ValueError, match="expected KIND"):
+        parse_fault("drop_link:p1@-1", plan)
