@@ -1360,3 +1360,13 @@ def test_each_injected_fault_does_its_own_kind_to_its_drone_at_its_time_after_th
         assert at - 0.01 <= t - began <= at + 0.1, (t - began, at)
     with pytest.raises(ValueError, match="expected KIND"):
         parse_fault("drop_link:p1@-1", plan)
+
+
+def test_a_fault_for_a_real_flight_is_refused_before_any_radio_not_ignored(tmp_path):
+    """Faults are injected into virtual drones only: a real flight given one is refused, naming
+    --fault and --virtual, before any link is built (else it would fly with the fault ignored)."""
+    factory = RecordingFactory(tmp_path / "toc")
+    with pytest.raises(ValueError, match=r"^--fault rehearses failures on virtual drones only; add --virtual$"):
+        run_flight(EXAMPLE, policy_name="heuristic", faults=["drop_link:p0@1"], factory=factory, handle_signals=False,
+                   events_path=tmp_path / "e.jsonl")
+    assert factory.built == [] and not (tmp_path / "e.jsonl").exists()
