@@ -1355,9 +1355,10 @@ def test_each_injected_fault_does_its_own_kind_to_its_drone_at_its_time_after_th
     clock.sleep(0.6)
     injector.cancel()
     events.close()
-    assert [c[:-1] for c in calls] == [("battery", 3, 3.1), ("freeze", 2), ("lose_fix", 0), ("drop_link", 1)], calls
-    for (_, *_, t), at in zip(calls, (0.1, 0.2, 0.25, 0.3)):
-        assert at - 0.01 <= t - began <= at + 0.1, (t - began, at)
+    assert sorted(c[:-1] for c in calls) == [("battery", 3, 3.1), ("drop_link", 1), ("freeze", 2), ("lose_fix", 0)], calls
+    at = {"battery": 0.1, "freeze": 0.2, "lose_fix": 0.25, "drop_link": 0.3}
+    for name, *_, t in calls:  # each at its own time: never early, late by a loaded computer's scheduling at most
+        assert at[name] - 0.01 <= t - began <= at[name] + 0.25, (name, t - began)
     with pytest.raises(ValueError, match="expected KIND"):
         parse_fault("drop_link:p1@-1", plan)
 
