@@ -169,3 +169,23 @@ def train_killing_a_child_after_update_1(trainer, child) -> str:
     with pytest.raises(ValueError) as caught:
         trainer.train()
     return str(caught.value)
+
+
+def weights_go_nan_at_update(monkeypatch, update: int) -> None:
+    """Make the trainer's PPO update leave the actor's log-std NaN at its `update`-th call (1-based):
+    a training run that diverges there, as a too-large learning rate can make it."""
+    import torch
+
+    import train.trainer as trainer_module
+
+    real, calls = trainer_module.ppo_update, []
+
+    def nan_at_the_chosen_one(model, *args, **kwargs):
+        losses = real(model, *args, **kwargs)
+        calls.append(1)
+        if len(calls) == update:
+            with torch.no_grad():
+                model.actor.log_std.fill_(float("nan"))
+        return losses
+
+    monkeypatch.setattr(trainer_module, "ppo_update", nan_at_the_chosen_one)

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from conftest import weights_go_nan_at_update
 from pursuit_mj.obs_spec import ObsSpec
 from train.checkpoint import load_checkpoint
 from train.config import load_train_config
@@ -638,18 +639,7 @@ def test_a_checkpoint_written_before_a_setting_existed_resumes_saying_which_defa
 def test_a_diverged_update_is_refused_before_a_checkpoint_holds_its_nan_weights(tmp_path, monkeypatch):
     """A run whose weights went NaN saved them over a good last.pt (which then could not be loaded)
     and stopped one rollout later on 'actions: non-finite value nan'."""
-    real_update = trainer_module.ppo_update
-    calls = []
-
-    def nan_on_the_second(model, *args, **kwargs):
-        losses = real_update(model, *args, **kwargs)
-        calls.append(1)
-        if len(calls) == 2:
-            with torch.no_grad():
-                model.actor.log_std.fill_(float("nan"))
-        return losses
-
-    monkeypatch.setattr(trainer_module, "ppo_update", nan_on_the_second)
+    weights_go_nan_at_update(monkeypatch, 2)
     cfg = tiny_config(tmp_path, updates=3)
     with pytest.raises(ValueError, match=r"training diverged at update 2: the weights actor.log_std are no longer finite "
                                          r"\(losses: .*\); .*last.pt keeps update 1, from which a new run can start "

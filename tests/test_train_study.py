@@ -6,6 +6,7 @@ import os
 
 import pytest
 
+from conftest import weights_go_nan_at_update
 from pursuit_cli import main
 
 TRAIN = ["task.n_pursuers=2", "task.random_obstacles=0", "task.max_steps=30", "n_envs=2", "ppo.batch_size=64",
@@ -875,21 +876,7 @@ def test_an_arm_that_diverges_is_told_with_advice_a_study_can_follow(tmp_path, c
     """An arm whose training diverged stopped the study saying 'a new run can start (--init-from
     RUN/last.pt --set ppo.lr=...)': flags of train, which study refuses (--set there is the
     evaluation task's, init_from is set for each arm)."""
-    import torch
-
-    import train.trainer as trainer_module
-
-    real, calls = trainer_module.ppo_update, []
-
-    def nan_on_the_second(model, *args, **kwargs):
-        losses = real(model, *args, **kwargs)
-        calls.append(1)
-        if len(calls) == 2:
-            with torch.no_grad():
-                model.actor.log_std.fill_(float("nan"))
-        return losses
-
-    monkeypatch.setattr(trainer_module, "ppo_update", nan_on_the_second)
+    weights_go_nan_at_update(monkeypatch, 2)
     out = tmp_path / "study"
     argv = ["study", "--budget-minutes", "30", "--episodes", "2", "--worlds", "2", "--layouts", "0", "--out", str(out),
             "--fidelity", "point", "--set", "max_steps=20"] + sum((["--train-set", s] for s in (
