@@ -1175,9 +1175,13 @@ def test_an_event_log_is_appended_only_to_an_event_log(text, ok, tmp_path, capsy
     (any YAML or text file not read by the flight), damaging it for good."""
     from pursuit_cli import main
 
+    from flight_rehearsal import quick_spec
+
     log = tmp_path / "notes.yaml"
     log.write_text(text)
-    rc = main(["fly", "--flight", EXAMPLE, "--policy", "heuristic", "--virtual", "--yes", "--max-time", "1",
+    flight = tmp_path / "quick.yaml"  # a low, quick take-off and landing: the log is what is tested
+    flight.write_text(yaml.safe_dump(quick_spec()))
+    rc = main(["fly", "--flight", str(flight), "--policy", "heuristic", "--virtual", "--yes", "--max-time", "1",
                "--events", str(log)])
     err = capsys.readouterr().err
     if ok:
