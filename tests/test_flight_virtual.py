@@ -493,3 +493,25 @@ def test_fly_align_names_a_drone_that_goes_silent_in_the_window_and_says_what_to
     message = str(err.value)
     assert message.startswith(f"drone p1 ({fleet.uris[1]}) sent no position during the 0.2 s measuring window (--window): "), message
     assert words in message and "then run align again" in message and "\n" not in message, message
+
+
+def test_closing_the_links_does_not_wait_out_cflibs_one_second_packet_poll(two_drones, tmp_path):
+    """Every flight ended a second after its drones landed: cflib's close_link waits for its
+    packet thread, which polls the link for a packet once a second and only then sees it was
+    stopped. Woken as the link closes, it ends at once; the links close as before (their packet
+    threads have ended, a second connection works)."""
+    plan = two_drones
+    with VirtualFleet(plan, physics=FAST) as fleet:
+        links = LinkSet(plan.names, fleet.uris, StateBoard(2), CachedFactory(tmp_path / "toc"), timeout=5.0)
+        with links:
+            for link in links:
+                link.start_logs(0.02, 0.05)
+            time.sleep(0.2)
+            handlers = [link.cf.incoming for link in links]
+            start = time.monotonic()
+        took = time.monotonic() - start
+        assert not any(h.is_alive() for h in handlers)
+        assert took < 0.9, f"closing two links took {took:.2f} s: the poll's 1 s timeout, not the wake-up"  # 1.0 s before
+        with LinkSet(plan.names, fleet.uris, StateBoard(2), CachedFactory(tmp_path / "toc"), timeout=5.0) as again:
+            assert again[0].param("deck.bcFlow2") == 1.0
+        assert fleet.error is None
