@@ -11,6 +11,7 @@ import os
 import re
 import secrets
 import shlex
+import shutil
 import stat
 import tempfile
 import time
@@ -187,7 +188,21 @@ def killed_unfinished(path: str | Path) -> list[Path]:
 
 
 def move_into_place(tmp: str | Path, path: str | Path) -> Path:
-    """Rename the finished file `tmp` onto `path` durably: its data, then the folder's entry."""
+    """Rename the finished file `tmp` onto `path` durably: its data, then the folder's entry.
+
+    A character device or named pipe under the name (a pipe to a viewer) gets the file's bytes
+    written into it instead, and `tmp` is removed: a rename would put a file in its stead. A pipe
+    that no program opens for reading within PIPE_READER_WAIT_S is OSError ENXIO (`no_reader`),
+    and `tmp` is left for the caller to keep."""
+    if _is_stream(Path(path)):
+        fd = _open_writing(path, os.O_WRONLY)
+        try:
+            with open(tmp, "rb") as src, os.fdopen(fd, "wb", closefd=False) as dst:
+                shutil.copyfileobj(src, dst)
+        finally:
+            os.close(fd)
+        Path(tmp).unlink()
+        return Path(path)
     with open(tmp, "rb") as f:
         os.fsync(f.fileno())
     os.replace(tmp, path)
@@ -223,6 +238,8 @@ def keep_beside(tmp: str | Path, path: str | Path) -> Path | None:
 def not_replaced_message(path: Path, exc: OSError, kept: Path | None) -> str:
     """'PATH: cannot replace it (REASON); what was written is kept in KEPT' (or '...: it is lost')."""
     where = f"what was written is kept in {kept}" if kept is not None else "what was written is lost (its folder is gone)"
+    if no_reader(exc, path):
+        return f"{no_reader_message(path)}; {where}"
     return f"{path}: cannot replace it ({exc.strerror or exc}); {where}"
 
 

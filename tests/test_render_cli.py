@@ -414,3 +414,36 @@ def test_a_render_refused_or_failed_before_it_wrote_leaves_no_folder_it_made(tmp
     assert _cli(tmp_path, *extra, policy=None) == 2
     assert said in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir() if p.name != "__pycache__") == ["mine.txt", "pol.py"]
+
+
+def test_a_recording_to_a_named_pipe_goes_into_the_pipe_and_leaves_it_a_pipe(tmp_path, capsys, monkeypatch):
+    """render --rerun ep.rrd, with ep.rrd a named pipe (to a viewer reading it, say), renamed the
+    finished recording over the pipe: a regular file took its place, and its reader got nothing.
+    The recording is now written into the pipe, as every other output of the project is; with no
+    reader, one line names the pipe and where the recording is kept instead."""
+    import os
+    import stat
+    import threading
+
+    from pursuit_mj import io_utils
+
+    pipe = tmp_path / "ep.rrd"
+    os.mkfifo(pipe)
+    got: list[bytes] = []
+    reader = threading.Thread(target=lambda: got.append(pipe.read_bytes()), daemon=True)
+    reader.start()
+    argv = ["render", "--policy", "heuristic", "--fidelity", "point", "--set", "max_steps=5", "--no-video",
+            "-s", str(tmp_path / "out"), "--rerun", str(pipe)]
+    assert main(argv) == 0, capsys.readouterr().err
+    reader.join(10)
+    assert stat.S_ISFIFO(os.stat(pipe).st_mode), "the pipe was replaced by a file"
+    assert got and got[0][:4] == b"RRF2" and len(got[0]) > 1000  # a whole recording, rerun's file header first
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ep.rrd"]  # no unfinished file left beside it
+
+    monkeypatch.setattr(io_utils, "PIPE_READER_WAIT_S", 0.2)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    kept = tmp_path / "ep.new.rrd"
+    assert f"--rerun {pipe}: a named pipe that no program opened for reading" in err and f"kept in {kept}" in err, err
+    assert len(err.strip().splitlines()) == 1 and kept.read_bytes()[:4] == b"RRF2"
+    assert stat.S_ISFIFO(os.stat(pipe).st_mode) and sorted(p.name for p in tmp_path.iterdir()) == ["ep.new.rrd", "ep.rrd"]
