@@ -91,17 +91,15 @@ def _place_once(layout, rng: np.random.Generator, count: int, clearance: float, 
         tries, batch = 0, FIRST_BATCH
         while tries < MAX_TRIES:
             k = min(batch, MAX_TRIES - tries)
-            start = rng.bit_generator.state
-            draws = np.array([_draw(layout, region, rng) for _ in range(k)])  # (k, 6)
+            candidates = candidate_batch(layout, region, rng, k)
+            draws = candidates.rows  # (k, 6)
             fits = _fits(layout, border, others, draws[:, 2:4], _reach(draws), clearance)
             if fits.any():
                 j = int(np.argmax(fits))
-                rng.bit_generator.state = start
-                for _ in range(j + 1):
-                    taken = _draw(layout, region, rng)
-                placed.append(_obstacle(layout, taken))
+                placed.append(_obstacle(layout, candidates.take(j)))
                 others = ObstacleSet.from_layout(_with(layout, placed), include_border=False)
                 break
+            candidates.take(k - 1)
             tries += k
             batch = min(2 * batch, MAX_BATCH)
         else:
@@ -140,18 +138,101 @@ def _draw(layout, region: tuple[float, float, float, float], rng: np.random.Gene
     return kind, size, x, y, rng.uniform(0.5, 1.0), rng.uniform(0, np.pi)
 
 
+class _DrawnOneByOne:
+    """k candidates drawn with `_draw` (rows (k, 6)); take(j) winds the generator back to where
+    drawing the first j + 1 left it. For any bit generator."""
+
+    def __init__(self, layout, region: tuple[float, float, float, float], rng: np.random.Generator, k: int):
+        self.rng, self.layout, self.region = rng, layout, region
+        self.start = rng.bit_generator.state
+        self.rows = np.array([_draw(layout, region, rng) for _ in range(k)])
+
+    def take(self, j: int) -> np.ndarray:
+        """Row j, with the generator left as drawing rows 0..j one at a time leaves it."""
+        self.rng.bit_generator.state = self.start
+        for _ in range(j + 1):
+            _draw(self.layout, self.region, self.rng)
+        return self.rows[j]
+
+
+_TO_DOUBLE = 1.0 / 9007199254740992.0  # numpy's next_double: the top 53 bits of a 64-bit output, times 2^-53
+
+
+class _ComputedFromRaw:
+    """The rows `_DrawnOneByOne` draws, computed at once from a PCG64's raw 64-bit outputs (numpy's
+    draws from them cost a microsecond each, and a crowded layout check draws some 10^6). What
+    `_draw` asks numpy for, and how numpy answers (numpy 2's Generator on PCG64):
+    - integers(n) of n <= 2 kinds: none for one kind; else the top bit of a 32-bit draw (Lemire's
+      method, which never rejects for n = 2). A 32-bit draw is the low half of a new 64-bit output,
+      whose high half the bit generator keeps (has_uint32, uinteger) for the next 32-bit draw;
+    - uniform(lo, hi): lo + (hi - lo) * (output >> 11) * 2^-53, one output each.
+    tests/test_layout.py compares them to `_draw`'s to the bit, the generator's state with them."""
+
+    def __init__(self, layout, region: tuple[float, float, float, float], rng: np.random.Generator, k: int):
+        spec = layout.random_obstacles
+        self.bits = rng.bit_generator
+        self.start = self.bits.state
+        has, half = self.start["has_uint32"], self.start["uinteger"]
+        raw = self.bits.random_raw(6 * k + 1)  # enough for k boxes and their kinds
+        uniform = (raw >> np.uint64(11)).astype(np.float64) * _TO_DOUBLE
+        outputs = raw.tolist() if len(spec.kinds) > 1 else []
+        kind, first = np.zeros(k, np.int64), np.empty(k, np.int64)
+        self.after: list[tuple[int, int, int]] = []  # per candidate: (outputs used, has_uint32, uinteger)
+        used = 0
+        for i in range(k):
+            if outputs:
+                if has:
+                    bits32, has = half, 0
+                else:
+                    bits32, half, has = outputs[used] & 0xFFFFFFFF, outputs[used] >> 32, 1
+                    used += 1
+                kind[i] = (bits32 * len(spec.kinds)) >> 32
+            first[i] = used
+            used += 3 if spec.kinds[kind[i]] == "cylinder" else 5
+            self.after.append((used, has, half))
+        box = np.array([spec.kinds[c] != "cylinder" for c in kind])
+        lo, hi = float(spec.size[0]), float(spec.size[1])
+        rows = np.full((k, 6), np.nan)
+        rows[:, 0] = kind
+        rows[:, 1] = lo + (hi - lo) * uniform[first]
+        rows[:, 2] = region[0] + (region[1] - region[0]) * uniform[first + 1]
+        rows[:, 3] = region[2] + (region[3] - region[2]) * uniform[first + 2]
+        rows[box, 4] = 0.5 + (1.0 - 0.5) * uniform[first[box] + 3]
+        rows[box, 5] = 0.0 + (np.pi - 0.0) * uniform[first[box] + 4]
+        self.rows = rows
+
+    def take(self, j: int) -> np.ndarray:
+        """Row j, with the generator left as drawing rows 0..j one at a time leaves it."""
+        used, has, half = self.after[j]
+        self.bits.state = self.start
+        self.bits.advance(used)  # also clears the kept half, set again below
+        state = self.bits.state
+        state["has_uint32"], state["uinteger"] = has, half
+        self.bits.state = state
+        return self.rows[j]
+
+
+def candidate_batch(layout, region: tuple[float, float, float, float], rng: np.random.Generator, k: int):
+    """k candidates (rows (k, 6) of `_draw`'s numbers) as drawing them one at a time from rng gives;
+    take(j) returns row j and leaves rng where drawing rows 0..j would have. Computed from raw
+    outputs for numpy's default bit generator with at most two obstacle kinds, else drawn."""
+    if type(rng.bit_generator) is np.random.PCG64 and len(layout.random_obstacles.kinds) <= 2:
+        return _ComputedFromRaw(layout, region, rng, k)
+    return _DrawnOneByOne(layout, region, rng, k)
+
+
 def _reach(draws: np.ndarray) -> np.ndarray:
     """(K,) m: how far each drawn obstacle (draws (K, 6) of `_draw`) extends from its centre."""
     size, aspect = draws[:, 1], draws[:, 4]
     return np.where(np.isnan(aspect), size / 2, 0.5 * np.hypot(size, size * np.nan_to_num(aspect)))
 
 
-def _obstacle(layout, draw: tuple[float, ...]):
-    """The Cylinder or Box of one `_draw`."""
+def _obstacle(layout, draw) -> object:
+    """The Cylinder or Box of one candidate's numbers (a `_draw`, or a row of them)."""
     from .layout import Box, Cylinder
 
     kind, size, x, y, aspect, yaw = draw
-    if layout.random_obstacles.kinds[kind] == "cylinder":
+    if layout.random_obstacles.kinds[int(kind)] == "cylinder":
         return Cylinder((float(x), float(y)), float(size / 2))
     return Box((float(x), float(y)), (float(size), float(size * aspect)), float(yaw))
 

@@ -1232,3 +1232,34 @@ def test_the_optional_layout_keys_take_the_defaults_the_docs_give(tmp_path):
     minimal.write_text("arena: {width: 3.6, height: 5.0}\n"
                        "spawn:\n  pursuers: {x: [0.2, 3.4], y: [0.2, 0.8]}\n  evaders: {x: [0.2, 3.4], y: [4.2, 4.8]}\n")
     assert load_layout(minimal).obstacles == ()
+
+
+@pytest.mark.parametrize("kinds", [["box", "cylinder"], ["cylinder", "box"], ["box"], ["cylinder"]])
+def test_candidates_computed_from_raw_outputs_are_those_drawn_one_at_a_time(kinds):
+    """Candidates are computed in a batch from the generator's raw 64-bit outputs (a PCG64's; numpy's
+    own draws from them cost microseconds each): each the same to the bit as `_draw` gives, and the
+    generator left where drawing the first j + 1 one at a time leaves it, also with half of a 32-bit
+    draw pending; another bit generator is drawn from one at a time."""
+    from pursuit_mj.layout_random import candidate_batch, draw_region, _draw
+
+    layout = layout_from_dict(base_dict(random_obstacles={"count": 3, "kinds": kinds, "size": [0.15, 0.4]}), "t.yaml")
+    region = draw_region(layout)
+    for seed in range(40):
+        for pending, k in ((False, 1), (False, 64), (True, 7), (True, 64)):
+            def fresh():
+                rng = np.random.default_rng(seed) if seed % 5 else np.random.Generator(np.random.MT19937(seed))
+                if pending:
+                    rng.integers(2)  # takes half of a 64-bit output, keeps the other half for the next 32-bit draw
+                return rng
+
+            one_at_a_time, batched = fresh(), fresh()
+            want = np.array([_draw(layout, region, one_at_a_time) for _ in range(k)])
+            batch = candidate_batch(layout, region, batched, k)
+            assert batch.rows.tobytes() == want.tobytes(), (seed, k)
+            j = seed % k
+            again = fresh()
+            for _ in range(j + 1):
+                _draw(layout, region, again)
+            batch.take(j)
+            assert repr(batched.bit_generator.state) == repr(again.bit_generator.state), (seed, k, j)  # repr: MT19937's key array
+            assert batched.random() == again.random() and batched.integers(2) == again.integers(2)
