@@ -107,7 +107,7 @@ def _place_once(layout, rng: np.random.Generator, count: int, clearance: float, 
     return placed
 
 
-FIRST_BATCH, MAX_BATCH = 8, 64  # draws judged at once: few while most fit, more where room is scarce
+FIRST_BATCH, MAX_BATCH = 32, 256  # draws judged at once: few while most fit, more where room is scarce
 
 
 def draw_region(layout) -> tuple[float, float, float, float]:
