@@ -275,8 +275,8 @@ class LinkSet:
             self._close_one(link)
 
     def close(self) -> None:
-        """Close every open link, in parallel (a link whose packet thread does not wake, DroneLink._wake_packet_thread, takes a second); one
-        failure does not keep the others open."""
+        """Close every open link, in parallel (one whose packet thread cannot be woken,
+        DroneLink._wake_packet_thread, takes a second); one failure does not keep the others open."""
         threads = [threading.Thread(target=self._close_one, args=(link,), name=f"close-{link.name}", daemon=True) for link in self.links]
         for th in threads:
             th.start()
