@@ -793,3 +793,51 @@ def test_a_diverged_quadrotor_world_ends_as_a_collision_alone():
     assert env.physics.diverged.tolist() == [True, False]
     assert info["outcome"].tolist() == ["collision", ""] and term.tolist() == [True, False]
     np.testing.assert_array_equal(reward[0], env.config.collision_penalty)
+
+
+def test_an_ended_world_catches_nothing_and_stops_no_evader_while_the_others_go_on():
+    """Without auto_reset an ended world is frozen: a pursuer found within capture radius of a free
+    evader there (placed by hand; a diverged world's drones all lie on one spot) is no capture,
+    and the evader is not halted. Its captured flags, evader velocities, observation, returns,
+    steps and outcome stay as the episode ended while the other world runs on."""
+    env = PursuitEnv(default_config(max_steps=3, **FAST), n_worlds=2, seed=0, auto_reset=False)
+    env.reset()
+    env.step(np.ones((2, 3, 2)))
+    env.reset_worlds([1])
+    for _ in range(2):
+        obs, *_ = env.step(np.ones((2, 3, 2)))
+    assert env.done.tolist() == [True, False] and env.outcome[0] == "timeout"
+    N = env.n_pursuers
+    evader_xy = env.physics.positions()[0, N, :2]
+    assert np.linalg.norm(env.physics.velocities()[0, N]) > 0.1  # fleeing when its episode ended
+    env.physics.qpos[0, env.physics._qpos_idx[0]] = evader_xy + [0.15, 0.0]  # pursuer 0 within capture radius
+    env._obs = obs = env._observe()
+    ended = dict(vel=env.physics.velocities()[0].copy(), obs=obs[0].copy(), steps=env.steps[0],
+                 returns={k: v[0] for k, v in env.returns.items()}, outcome=env.outcome[0])
+    for _ in range(2):
+        obs, reward, term, trunc, info = env.step(np.zeros((2, 3, 2)))
+        assert not env.captured[0].any() and all(e.world == 1 for e in info["episodes"]) and not term[0] and not trunc[0]
+        np.testing.assert_array_equal(env.physics.velocities()[0], ended["vel"])
+        np.testing.assert_array_equal(obs[0], ended["obs"])
+        assert env.steps[0] == ended["steps"] and env.outcome[0] == ended["outcome"]
+        assert {k: v[0] for k, v in env.returns.items()} == ended["returns"] and (reward[0] == 0).all()
+    assert env.steps[1] == 3 and env.done[1]  # the other world ran on to its own timeout
+    assert not env.snapshot(0).captured.any()
+
+
+def test_a_diverged_world_without_auto_reset_counts_no_capture_in_the_steps_after_its_end():
+    """MuJoCo puts a diverged point world's drones all on one spot, every evader within capture
+    radius of every pursuer; waiting for its reset (no auto_reset), that world must not count them
+    caught in the steps after its end."""
+    import warnings
+
+    env = PursuitEnv(default_config(fidelity="point", random_obstacles=0, n_evaders=2), n_worlds=2, seed=0, auto_reset=False)
+    env.reset()
+    env.physics.qvel[0, :] = 1e12
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        env.step(np.zeros((2, 3, 2)))
+        assert env.outcome.tolist() == ["collision", ""]
+        for _ in range(2):
+            env.step(np.zeros((2, 3, 2)))
+    assert not env.captured[0].any() and not env.snapshot(0).captured.any() and env.steps.tolist() == [1, 3]
