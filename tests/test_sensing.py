@@ -331,3 +331,31 @@ def test_an_entity_a_group_lacks_is_an_index_error_not_a_slot_of_the_next_group(
     for group, entity, count in (("evaders", 1, 1), ("teammates", 2, 2), ("teammates", -1, 2), ("self", 1, 1)):
         with pytest.raises(IndexError, match=rf"group '{group}' has {count} entities, asked for {entity}"):
             spec.index(group, entity, "dx" if group != "self" else "x")
+
+
+def test_a_hidden_moving_teammate_leaves_every_feature_of_its_slot_zero():
+    """Its relative velocity too, not only its position: both drones flying, the teammate behind."""
+    view = _view([[2.0, 2.0], [1.0, 2.0]], [[3.0, 2.0]], _layout().obstacle_set(), heading=[0.0, 0.0])
+    view.pursuer_vel[0] = [[0.3, 0.1], [-0.4, 0.2]]
+    config = default_config(random_obstacles=0, field_of_view=math.pi / 2, share_detections=False, share_teammates=False)
+    per = perceive(view, config, np.random.default_rng(0))
+    assert not per.teammate_visible[0, 0, 1] and per.teammate_visible[0, 1, 0]  # 1 sees 0 ahead of it
+    spec = ObsSpec.make(2, 1, config.n_rays)
+    mates = spec.group("teammates").view(build_observations(view, per, spec))
+    assert (mates[0, 0] == 0).all()
+    np.testing.assert_allclose(mates[0, 1, 0], [1.0, 0.0, 0.7, -0.1, 1.0], atol=1e-6)  # the seen one: every feature
+
+
+def test_a_caught_evader_reads_where_it_stopped_with_no_velocity_and_is_no_relayed_detection():
+    """The evaders group of a caught evader: position (relative), velocity 0 even while its drone
+    still drifts (a quadrotor settling, a real drone after its capture), visible 1, relayed 0,
+    captured 1; a free evader beside it keeps its velocity."""
+    view = _view([[1.0, 1.0], [3.0, 1.0]], [[1.0, 1.5], [3.0, 1.5]], _layout().obstacle_set(), captured=[True, False])
+    view.evader_vel[0] = [[0.05, -0.02], [0.4, 0.1]]
+    per = _perceive(view, n_evaders=2, share_detections=True)
+    assert per.known[0].all() and per.seen[0].tolist() == [[False, False], [False, True]]  # pursuer 0 sees neither afresh
+    spec = ObsSpec.make(2, 2, default_config().n_rays)
+    ev = spec.group("evaders").view(build_observations(view, per, spec))
+    np.testing.assert_allclose(ev[0, 0, 0], [0.0, 0.5, 0.0, 0.0, 1.0, 0.0, 1.0], atol=1e-6)  # caught, its own catcher
+    np.testing.assert_allclose(ev[0, 1, 0], [-2.0, 0.5, 0.0, 0.0, 1.0, 0.0, 1.0], atol=1e-6)  # caught, far off
+    np.testing.assert_allclose(ev[0, 0, 1], [2.0, 0.5, 0.4, 0.1, 1.0, 1.0, 0.0], atol=1e-6)  # free, relayed by pursuer 1
