@@ -1,5 +1,6 @@
 """The batched environment: outcomes, auto-reset, determinism, bad input, both fidelities."""
 
+import dataclasses
 import re
 
 import numpy as np
@@ -841,3 +842,25 @@ def test_a_diverged_world_without_auto_reset_counts_no_capture_in_the_steps_afte
         for _ in range(2):
             env.step(np.zeros((2, 3, 2)))
     assert not env.captured[0].any() and not env.snapshot(0).captured.any() and env.steps.tolist() == [1, 3]
+
+
+def test_worlds_restarted_in_any_order_perceive_their_own_noise_and_misses():
+    """reset_worlds perceives only the restarted worlds again; with position noise and misses each
+    must draw from its own episode's streams, as a fresh env reset to that seed does, while the
+    other worlds' rows stay as they were; so does what a snapshot says each pursuer perceived."""
+    config = default_config(fidelity="point", random_obstacles=2, position_noise=0.1, miss_probability=0.3, n_evaders=2)
+    a = PursuitEnv(config, n_worlds=4, seed=0)
+    a.reset()
+    for _ in range(2):
+        before, *_ = a.step(np.zeros((4, 3, 2)))
+    obs = a.reset_worlds([3, 1], [11, 22])
+    b = PursuitEnv(config, n_worlds=2, seed=5)
+    fresh = b.reset(seeds=[22, 11])
+    np.testing.assert_array_equal(obs[[1, 3]], fresh)
+    np.testing.assert_array_equal(obs[[0, 2]], before[[0, 2]])
+    for w, v in ((1, 0), (3, 1)):
+        ours, theirs = a.snapshot(w), b.snapshot(v)
+        for name in ("rays", "seen", "known"):
+            np.testing.assert_array_equal(getattr(ours, name), getattr(theirs, name), err_msg=f"world {w} {name}")
+    quiet = PursuitEnv(dataclasses.replace(config, position_noise=0.0), n_worlds=2, seed=5).reset(seeds=[22, 11])
+    assert not np.array_equal(fresh, quiet)  # the noise is in the numbers compared
