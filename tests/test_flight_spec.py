@@ -1378,3 +1378,34 @@ def test_a_fault_for_a_real_flight_is_refused_before_any_radio_not_ignored(tmp_p
         run_flight(EXAMPLE, policy_name="heuristic", faults=["drop_link:p0@1"], factory=factory, handle_signals=False,
                    events_path=tmp_path / "e.jsonl")
     assert factory.built == [] and not (tmp_path / "e.jsonl").exists()
+
+
+def test_spot_turns_are_found_with_a_spot_at_the_centre_and_within_tolerance_of_symmetry():
+    """A drone on the centre of a square (listed first) turns onto itself: the corners still make
+    [90, 180, 270]. Spots symmetric within the tolerance (a corner 4 cm further out, a triangle's
+    corner 0.5 deg short of 120) give the whole turns they are nearest; two spots give none (warned
+    about on their own)."""
+    from pursuit_mj.flight.align import spot_turns
+
+    square = np.array([[1.0, 1.0], [3.0, 1.0], [3.0, 3.0], [1.0, 3.0]])
+    assert spot_turns(np.vstack([[2.0, 2.0], square]), 0.05) == [90, 180, 270]
+    pushed = square.copy()
+    pushed[2] += 0.04 / math.sqrt(2)  # 4 cm further from the centre
+    assert spot_turns(pushed, 0.05) == [90, 180, 270]
+    short = 1.8 + 1j * 2.5 + np.exp(1j * np.radians([90, 209.5, 330]))  # 119.5 deg from the first corner
+    assert spot_turns(np.column_stack([short.real, short.imag]), 0.05) == [120, 240]
+    assert spot_turns(square[:2], 0.05) == [] and spot_turns(square[:1], 0.05) == []
+
+
+def test_fly_align_warns_of_spots_symmetric_within_its_tolerance_not_only_exactly(capsys):
+    """Spots 9 mm off a regular triangle fit as well turned by 120 deg as exact ones do, within the
+    5 cm align tolerates: the warning is printed as for the exact triangle."""
+    from pursuit_cli import main
+
+    truth = LabTransform((4.2, 0.1), math.pi / 2, 1.25)  # configs/flight/lighthouse.yaml's
+    near = 1.8 + 1j * 2.5 + np.exp(1j * np.radians([90, 209.5, 330]))
+    spots = np.column_stack([near.real, near.imag])
+    fmt = lambda pts: " ".join(f"{x:.4f},{y:.4f}" for x, y in pts)  # noqa: E731
+    assert main(["fly", "align", "--flight", "lighthouse", "--spots", fmt(spots), "--lab", fmt(truth.to_lab(spots))]) == 0
+    out = capsys.readouterr().out
+    assert "warning: the spots look the same turned by 120 or 240 deg about their centre" in out, out
