@@ -515,3 +515,81 @@ def test_closing_the_links_does_not_wait_out_cflibs_one_second_packet_poll(two_d
         with LinkSet(plan.names, fleet.uris, StateBoard(2), CachedFactory(tmp_path / "toc"), timeout=5.0) as again:
             assert again[0].param("deck.bcFlow2") == 1.0
         assert fleet.error is None
+
+
+def test_each_drone_command_reaches_the_drone_in_si_units_and_in_cflib_s_order(two_drones, tmp_path):
+    """What DroneLink sends, as the drone receives it: a velocity setpoint with its yaw rate in
+    deg/s (given in rad/s), a hover setpoint at the height, a take-off and a landing keeping the
+    yaw (use_current_yaw), the landing after notify_setpoint_stop (which hands control back to the
+    high-level commander: cflib's order), and the planner and the motors stopped after it."""
+    plan = two_drones
+    with VirtualFleet(plan, physics=FAST) as fleet:
+        with LinkSet(plan.names, fleet.uris, StateBoard(2), CachedFactory(tmp_path / "toc"), timeout=5.0) as links:
+            link = links[0]
+            link.velocity((0.1, -0.2, 0.05), yaw_rate=math.pi / 4)
+            link.hover(0.35)
+            link.takeoff(0.4, 0.8)
+            link.land(0.0, 1.5)
+            link.stop_motors()
+            kinds = ("velocity", "hover", "takeoff", "notify_stop", "land", "hl_stop", "stop")
+            sent = lambda: [r.kind for r in fleet.received(0) if r.kind in kinds]  # noqa: E731
+            assert wait_for(lambda: len(sent()) == len(kinds), 3.0), fleet.received(0)
+            assert sent()[:5] == list(kinds[:5]) and set(sent()[5:]) == {"hl_stop", "stop"}, sent()  # the two stops in either order
+    got = {r.kind: r.values for r in fleet.received(0)}
+    np.testing.assert_allclose(got["velocity"], [0.1, -0.2, 0.05, 45.0], rtol=1e-6)
+    np.testing.assert_allclose(got["hover"], [0.0, 0.0, 0.0, 0.35], rtol=1e-6)
+    assert got["takeoff"][:2] == pytest.approx((0.4, 0.8)) and got["takeoff"][3] == 1.0
+    assert got["land"][:2] == pytest.approx((0.0, 1.5)) and got["land"][3] == 1.0
+
+
+def _started_fleets(monkeypatch) -> list:
+    """Record every VirtualFleet that run_flight starts (the real start runs)."""
+    fleets = []
+    real_start = VirtualFleet.start
+
+    def start(self):
+        fleets.append(self)
+        real_start(self)
+
+    monkeypatch.setattr(VirtualFleet, "start", start)
+    return fleets
+
+
+def test_a_virtual_flight_that_ends_early_leaves_no_fault_to_fire_and_no_fleet_running(tmp_path, monkeypatch):
+    """A chase interrupted long before its fault's time: once run_flight returns the virtual drones
+    are stopped (their thread and sockets) and the fault's timer is cancelled, not left to fire
+    into the finished flight (a 'fault_injected' after its 'landed', a drone of a stopped fleet)."""
+    import threading
+
+    from flight_rehearsal import ScriptedTeam
+    from pursuit_mj.flight.session import run_flight
+
+    fleets = _started_fleets(monkeypatch)
+    timers_before = {t for t in threading.enumerate() if isinstance(t, threading.Timer)}
+    result, events = run_flight(quick_plan(max_time=30.0), ScriptedTeam([[0.0, 0.0]], raise_at=2), virtual=True,
+                                virtual_physics=FAST, faults=["drop_link:p1@25"], events_path=tmp_path / "e.jsonl",
+                                handle_signals=False)
+    assert result.outcome == "interrupted", (result.outcome, result.reason)
+    assert len(fleets) == 1 and not fleets[0].running
+    pending = lambda: [t for t in threading.enumerate() if isinstance(t, threading.Timer) and t not in timers_before]  # noqa: E731
+    assert wait_for(lambda: not pending(), 1.0), pending()
+    assert "fault_injected" not in events.kinds() and kinds_in_order(events, "chase", "landed", "links_closed"), events.kinds()
+
+
+def test_a_virtual_flight_that_fails_after_its_fleet_started_stops_it_and_keeps_the_log_it_wrote(tmp_path, monkeypatch):
+    """A failure once the virtual drones are up (here a callback of one's own): the fleet is
+    stopped, and the new event log, which holds the fleet's record, is kept (only an empty new log
+    is removed)."""
+    from pursuit_mj.flight.session import run_flight
+
+    fleets = _started_fleets(monkeypatch)
+
+    def broken(bridge):
+        raise RuntimeError("a callback that fails")
+
+    log = tmp_path / "e.jsonl"
+    with pytest.raises(RuntimeError, match="a callback that fails"):
+        run_flight(quick_plan(), policy_name="heuristic", virtual=True, virtual_physics=FAST, faults=["freeze:p0@0.5"],
+                   events_path=log, handle_signals=False, on_bridge=broken)
+    assert len(fleets) == 1 and not fleets[0].running
+    assert [r["kind"] for r in read_events(log)] == ["virtual_fleet"]
