@@ -876,3 +876,23 @@ def test_the_landing_goes_to_the_floor_waits_settle_then_stops_the_motors_of_the
         assert sent == [pytest.approx((0.0, land["duration"]), abs=1e-6)], sent
         after = kinds[kinds.index("land"):]
         assert "hl_stop" in after and "stop" in after, after
+
+
+def test_a_target_whose_link_drops_leaves_the_commanded_drones_landed(tmp_path):
+    """The target, flown by someone else, is not landed by the flight: its link lost (which ends
+    the chase) neither makes the flight say 'landed: no' nor is it named among the drones not down."""
+    from flight_rehearsal import quick_spec
+    from pursuit_mj.flight.plan import resolve_flight
+    from pursuit_mj.flight.spec import flight_from_dict
+
+    data = quick_spec(max_time=3.0, safety={"link_timeout": 0.5})
+    data["drones"][3]["role"] = "target"
+    plan = resolve_flight(flight_from_dict(data, "rehearsal.yaml"))
+
+    def drop_target(fleet, bridge):
+        time.sleep(0.2)
+        fleet.drop_link(3)
+
+    result, events, fleet = fly_virtual(plan, HOVER, tmp_path, during=drop_target)
+    assert result.outcome == "link_lost" and "e0" in result.reason, (result.outcome, result.reason)
+    assert result.landed and events.of_kind("landed")[0]["not_down"] == []
