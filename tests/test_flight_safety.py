@@ -896,3 +896,15 @@ def test_a_target_whose_link_drops_leaves_the_commanded_drones_landed(tmp_path):
     result, events, fleet = fly_virtual(plan, HOVER, tmp_path, during=drop_target)
     assert result.outcome == "link_lost" and "e0" in result.reason, (result.outcome, result.reason)
     assert result.landed and events.of_kind("landed")[0]["not_down"] == []
+
+
+def test_a_landing_asked_for_before_the_take_off_sends_no_landing_to_drones_on_the_floor(tmp_path):
+    """The run ends before any drone took off: nothing is landed (a landing sent to a drone on the
+    floor runs its motors for the landing's length), and the flight does not say 'landed'."""
+    def land_at_preflight_ok(bridge):
+        bridge.events.add_sink("early", lambda record: bridge.request_land("test") if record["kind"] == "preflight_ok" else None)
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=3.0), HOVER, tmp_path, on_bridge=land_at_preflight_ok)
+    assert result.outcome == "land_requested" and not result.landed, (result.outcome, result.reason)
+    assert never_took_off(fleet) and "land" not in events.kinds() and "landed" not in events.kinds(), events.kinds()
+    assert not any(r.kind == "land" for i in range(fleet.plan.n_drones) for r in fleet.received(i))

@@ -1409,3 +1409,20 @@ def test_fly_align_warns_of_spots_symmetric_within_its_tolerance_not_only_exactl
     assert main(["fly", "align", "--flight", "lighthouse", "--spots", fmt(spots), "--lab", fmt(truth.to_lab(spots))]) == 0
     out = capsys.readouterr().out
     assert "warning: the spots look the same turned by 120 or 240 deg about their centre" in out, out
+
+
+def test_spot_turns_needs_every_spot_reached_not_only_every_turned_spot_near_one():
+    """Eight spots (pairs 8 cm apart) whose turn by 120 deg lands every spot within 5 cm of some
+    spot, but two of them near the same one, leaving a spot no drone would stand on: not a turn
+    that fits as well. Only their point reflection (180) is."""
+    from pursuit_mj.flight.align import spot_turns
+
+    turn = np.exp(2j * np.pi / 3)
+    top, side = 1.5j, 0.04  # a spot 1.5 m above the centre; 4 cm either side of it
+    # a pair about the top; the top turned once; the pair's right spot turned twice, a little further out
+    # (the farthest spot, so the one turns are measured from): turned once more it lands on the right spot
+    half = np.array([turn**2 * (top + side) * 1.005, top - side, top + side, turn * top])
+    z = np.concatenate([half, -half]) + (1.9 + 2.5j)
+    spots = np.column_stack([z.real, z.imag])
+    assert np.min(np.linalg.norm(spots[:, None] - spots[None], axis=-1) + 9 * np.eye(8)) >= 0.08 - 1e-9
+    assert spot_turns(spots, 0.05) == [180]
