@@ -908,3 +908,19 @@ def test_a_landing_asked_for_before_the_take_off_sends_no_landing_to_drones_on_t
     assert result.outcome == "land_requested" and not result.landed, (result.outcome, result.reason)
     assert never_took_off(fleet) and "land" not in events.kinds() and "landed" not in events.kinds(), events.kinds()
     assert not any(r.kind == "land" for i in range(fleet.plan.n_drones) for r in fleet.received(i))
+
+
+def test_a_drone_whose_link_is_silent_at_the_end_of_the_landing_is_not_confirmed_landed(tmp_path):
+    """docs/flight.md: 'landed: yes' is not said for a drone whose link was silent at the end,
+    even one that reported a height below 0.1 m during the landing before its link dropped."""
+    def land_then_drop_p0_on_the_floor(fleet, bridge):
+        bridge.request_land("test")
+        if wait_for(lambda: "land" in bridge.events.kinds() and fleet.true_state()["pos"][0, 2] < 0.03, 6.0):
+            fleet.drop_link(0)
+
+    plan = quick_plan(max_time=3.0, safety={"settle": 0.8, "link_timeout": 0.3})
+    result, events, fleet = fly_virtual(plan, HOVER, tmp_path, during=land_then_drop_p0_on_the_floor)
+    assert result.outcome == "land_requested", (result.outcome, result.reason)
+    assert result.heights[0] < 0.1  # what it reported before its link dropped
+    assert events.of_kind("link_lost") and events.of_kind("link_lost")[0]["drone"] == "p0"
+    assert not result.landed and events.of_kind("landed")[0]["not_down"] == ["p0"]
