@@ -864,3 +864,32 @@ def test_worlds_restarted_in_any_order_perceive_their_own_noise_and_misses():
             np.testing.assert_array_equal(getattr(ours, name), getattr(theirs, name), err_msg=f"world {w} {name}")
     quiet = PursuitEnv(dataclasses.replace(config, position_noise=0.0), n_worlds=2, seed=5).reset(seeds=[22, 11])
     assert not np.array_equal(fresh, quiet)  # the noise is in the numbers compared
+
+
+class _RecordsActive:
+    """An evader model of one's own that flies its active evaders east and leaves the others NaN,
+    which docs/env_api.md allows (their commands are ignored); it keeps every `active` it is given."""
+
+    def __init__(self):
+        self.active = []
+
+    def reset(self, world_ids, seeds):
+        pass
+
+    def compute(self, evader_pos, evader_vel, pursuer_pos, pursuer_vel, active, obstacles, dt):
+        self.active.append(active.copy())
+        return np.where(active[..., None], [0.3, 0.0], np.nan)
+
+
+def test_an_evader_model_is_told_the_evaders_of_an_ended_world_are_not_active():
+    """Without auto_reset, an ended world's evaders are not active (docs/env_api.md: the free
+    evaders of running worlds); the model may leave their commands NaN while the others fly on."""
+    env = PursuitEnv(default_config(max_steps=3, **FAST), n_worlds=2, seed=0, auto_reset=False)
+    env.evader_model = model = _RecordsActive()
+    env.reset()
+    env.step(np.zeros((2, 3, 2)))
+    env.reset_worlds([1])
+    for _ in range(3):  # world 0 times out in the second, world 1 in the third
+        env.step(np.zeros((2, 3, 2)))
+    assert env.steps.tolist() == [3, 3] and env.done.all()
+    assert model.active[-1].tolist() == [[False], [True]]  # the third step: world 0 had ended
