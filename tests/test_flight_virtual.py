@@ -255,7 +255,7 @@ def test_fly_says_landed_only_when_every_drone_reports_a_height_near_the_floor(t
 def test_fly_align_measures_a_rotated_scaled_transform_from_virtual_lighthouse_drones(tmp_path, capsys):
     spots = "0.5,0.625 1.75,0.625 1.875,4.0"  # the layout spots of configs/flight/lighthouse.yaml's starts
     out_file = tmp_path / "aligned.yaml"
-    assert main(["fly", "align", "--flight", "configs/flight/lighthouse.yaml", "--virtual", "--window", "0.2", "--spots", spots, "--write", str(out_file)]) == 0
+    assert main(["fly", "align", "--flight", "configs/flight/lighthouse.yaml", "--virtual", "--window", "1.0", "--spots", spots, "--write", str(out_file)]) == 0
     out = capsys.readouterr().out
     assert "rms residual 0.0 mm" in out
     t = load_plan(out_file).transform
