@@ -227,7 +227,7 @@ def _reach(draws: np.ndarray) -> np.ndarray:
     return np.where(np.isnan(aspect), size / 2, 0.5 * np.hypot(size, size * np.nan_to_num(aspect)))
 
 
-def _obstacle(layout, draw) -> object:
+def _obstacle(layout, draw):
     """The Cylinder or Box of one candidate's numbers (a `_draw`, or a row of them)."""
     from .layout import Box, Cylinder
 
