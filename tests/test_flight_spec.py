@@ -978,11 +978,14 @@ def test_fly_align_warns_that_spots_turned_about_their_centre_fit_as_well():
     assert spot_turns(rectangle + [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.3, 0.0]], 0.05) == []  # one corner moved
 
 
-def test_fly_align_prints_the_turn_of_symmetric_spots_as_a_warning(capsys):
+@pytest.mark.parametrize("second_corner_deg", [210.0, 209.5])
+def test_fly_align_prints_the_turn_of_symmetric_spots_as_a_warning(capsys, second_corner_deg):
+    """A regular triangle of spots fits as well turned by 120 deg; so do spots 9 mm off one (209.5
+    deg), within the 5 cm align tolerates: the warning is printed for both."""
     from pursuit_cli import main
 
     truth = LabTransform((4.2, 0.1), math.pi / 2, 1.25)  # configs/flight/lighthouse.yaml's
-    triangle = 1.8 + 1j * 2.5 + np.exp(1j * np.radians([90, 210, 330]))
+    triangle = 1.8 + 1j * 2.5 + np.exp(1j * np.radians([90, second_corner_deg, 330]))
     spots = np.column_stack([triangle.real, triangle.imag])
     fmt = lambda pts: " ".join(f"{x:.4f},{y:.4f}" for x, y in pts)  # noqa: E731
     assert main(["fly", "align", "--flight", "lighthouse", "--spots", fmt(spots), "--lab", fmt(truth.to_lab(spots))]) == 0
@@ -1395,20 +1398,6 @@ def test_spot_turns_are_found_with_a_spot_at_the_centre_and_within_tolerance_of_
     short = 1.8 + 1j * 2.5 + np.exp(1j * np.radians([90, 209.5, 330]))  # 119.5 deg from the first corner
     assert spot_turns(np.column_stack([short.real, short.imag]), 0.05) == [120, 240]
     assert spot_turns(square[:2], 0.05) == [] and spot_turns(square[:1], 0.05) == []
-
-
-def test_fly_align_warns_of_spots_symmetric_within_its_tolerance_not_only_exactly(capsys):
-    """Spots 9 mm off a regular triangle fit as well turned by 120 deg as exact ones do, within the
-    5 cm align tolerates: the warning is printed as for the exact triangle."""
-    from pursuit_cli import main
-
-    truth = LabTransform((4.2, 0.1), math.pi / 2, 1.25)  # configs/flight/lighthouse.yaml's
-    near = 1.8 + 1j * 2.5 + np.exp(1j * np.radians([90, 209.5, 330]))
-    spots = np.column_stack([near.real, near.imag])
-    fmt = lambda pts: " ".join(f"{x:.4f},{y:.4f}" for x, y in pts)  # noqa: E731
-    assert main(["fly", "align", "--flight", "lighthouse", "--spots", fmt(spots), "--lab", fmt(truth.to_lab(spots))]) == 0
-    out = capsys.readouterr().out
-    assert "warning: the spots look the same turned by 120 or 240 deg about their centre" in out, out
 
 
 def test_spot_turns_needs_every_spot_reached_not_only_every_turned_spot_near_one():
