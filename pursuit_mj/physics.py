@@ -14,8 +14,10 @@ first), positions and linear velocities in the world (= layout) frame, m and m/s
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-from typing import Callable, Sequence
+import warnings
+from typing import Callable, Iterator, Sequence
 
 import mujoco
 import mujoco.batch
@@ -31,6 +33,31 @@ UNIT_QUAT = np.array([1.0, 0.0, 0.0, 0.0])
 WARNING_NAMES = {int(v): k.removeprefix("mjWARN_") for k, v in mujoco.mjtWarning.__members__.items() if k != "mjNWARNING"}
 #: spare static geoms per world beyond the largest layout given, for new random obstacles
 SPARE_SLOTS = 4
+#: MuJoCo warnings kept per step for the report of a diverged world (each bad world sends one or more)
+KEPT_MESSAGES = 4
+
+
+@contextlib.contextmanager
+def mujoco_warnings_into(messages: list[str]) -> Iterator[None]:
+    """While inside, MuJoCo's warnings are appended to `messages` (at most KEPT_MESSAGES of them)
+    instead of being printed and written to MUJOCO_LOG.TXT in the current folder, which MuJoCo's
+    own handler does. A handler the user installed (`mujoco.set_mju_user_warning`) stays in charge.
+
+    The handler must not raise: an exception in it ends the process (MuJoCo calls it from C++,
+    from its worker threads too)."""
+    if mujoco.get_mju_user_warning() is not None:
+        yield
+        return
+
+    def keep(message: str) -> None:
+        if len(messages) < KEPT_MESSAGES:
+            messages.append(message)
+
+    mujoco.set_mju_user_warning(keep)
+    try:
+        yield
+    finally:
+        mujoco.set_mju_user_warning(None)
 
 
 @dataclasses.dataclass
@@ -366,17 +393,20 @@ class BatchedPhysics:
         else:
             self.commands[ids] = cmd[ids]
         tick_cmds = self._tick_commands(cmd, ids)
+        messages: list[str] = []
         if ids is not None and len(ids) == 0:
             self.contacts[:] = False
         elif self.fidelity == "quadrotor":
-            self._step_quadrotor(tick_cmds, ids)
+            with mujoco_warnings_into(messages):
+                self._step_quadrotor(tick_cmds, ids)
         else:
-            self._step_point(tick_cmds, ids)
+            with mujoco_warnings_into(messages):
+                self._step_point(tick_cmds, ids)
         if ids is None:
             self.time += self.config.control_dt
         else:
             self.time[ids] += self.config.control_dt
-        self._check_health(strict)
+        self._check_health(strict, messages)
         return self.contacts.copy()
 
     def _tick_commands(self, cmd: np.ndarray, ids: np.ndarray | None = None) -> list[np.ndarray]:
@@ -470,8 +500,10 @@ class BatchedPhysics:
             for observer in self.observers:
                 observer(self)
 
-    def _check_health(self, strict: bool = True) -> None:
-        """Raise FloatingPointError naming the worlds where MuJoCo raised a warning.
+    def _check_health(self, strict: bool = True, messages: Sequence[str] = ()) -> None:
+        """Raise FloatingPointError naming the worlds where MuJoCo raised a warning, with
+        strict=False warn (a RuntimeWarning, once per step); either way quoting `messages`,
+        MuJoCo's own words.
 
         MuJoCo resets a simulation whose state goes bad (BADQPOS, BADQVEL, BADQACC) and a
         batch rollout stops one whose warnings rise (e.g. CONTACTFULL): either way that
@@ -483,9 +515,12 @@ class BatchedPhysics:
         off = risen.any(axis=1) | (np.abs(self._mj_time - self.time) > 0.5 * self.config.physics_dt)
         self._warnings = counts.copy()
         self.diverged = off
-        if off.any() and strict:
-            kinds = sorted({WARNING_NAMES[k] for k in np.flatnonzero(risen.any(axis=0))})
-            raise FloatingPointError(
-                f"physics diverged in worlds {np.flatnonzero(off).tolist()} (MuJoCo warnings: {', '.join(kinds) or 'none'}; "
-                "MuJoCo reset or stopped them): reset those worlds"
-            )
+        if not off.any():
+            return
+        kinds = "MuJoCo warnings: " + (", ".join(sorted({WARNING_NAMES[k] for k in np.flatnonzero(risen.any(axis=0))})) or "none")
+        said = "".join(f"; MuJoCo: {m.strip()}" for m in dict.fromkeys(messages))
+        worlds = np.flatnonzero(off).tolist()
+        if strict:
+            raise FloatingPointError(f"physics diverged in worlds {worlds} ({kinds}{said}; MuJoCo reset or stopped them): reset those worlds")
+        warnings.warn(f"physics diverged in worlds {worlds} ({kinds}{said}): MuJoCo reset or stopped them; "
+                      "a PursuitEnv ends their episodes as collisions", RuntimeWarning, stacklevel=3)

@@ -222,7 +222,8 @@ def test_a_world_whose_physics_diverges_ends_as_a_collision_without_stopping_the
     env = PursuitEnv(default_config(fidelity="quadrotor", random_obstacles=0), n_worlds=2, seed=0)
     env.reset()
     env.physics.qvel[0, :] = 1e12  # what a violent crash can do: MuJoCo resets such a world
-    obs, reward, term, trunc, info = env.step(np.zeros((2, 3, 2)))
+    with pytest.warns(RuntimeWarning, match=r"physics diverged in worlds \[0\] .*a PursuitEnv ends their episodes as collisions"):
+        obs, reward, term, trunc, info = env.step(np.zeros((2, 3, 2)))
     assert info["outcome"].tolist() == ["collision", ""]
     assert np.isfinite(obs).all() and np.isfinite(reward).all()
     obs, *_ = env.step(np.zeros((2, 3, 2)))

@@ -282,6 +282,20 @@ def test_virtual_crazyflies_weigh_the_flight_tasks_drone_mass():
         fleet.stop()
 
 
+def test_a_virtual_lab_whose_physics_diverges_says_so_in_mujocos_words_and_writes_no_log(tmp_path, monkeypatch):
+    """MuJoCo resets a state gone bad (finite again, drones back at the origin): the step used to
+    fly on from there, and MuJoCo's own handler wrote MUJOCO_LOG.TXT into the current folder."""
+    from pursuit_mj.flight.virtual.airframe import Airframe
+
+    monkeypatch.chdir(tmp_path)
+    airframe = Airframe(1, 1, (0.0, 2.0), (0.0, 2.0), np.array([[0.5, 0.5], [1.5, 1.5]]))
+    airframe.data.qvel[:] = 1e12
+    on = np.ones(2, bool)
+    with pytest.raises(FloatingPointError, match=r"virtual lab physics diverged \(MuJoCo: Nan, Inf or huge value in QVEL"):
+        airframe.step(0.01, np.zeros((2, 2)), np.full(2, 0.5), np.zeros(2), on)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_virtual_crazyflies_tilt_as_far_as_their_firmware_velocity_loop_allows():
     """The firmware's velocity loop tilts up to posCtlPid.rLimit / pLimit (20 deg by default); the
     virtual drones honour those parameters, so a rehearsal without the bridge's setting shows the

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 import pytest
@@ -306,3 +307,52 @@ def test_halt_stops_only_the_named_drones_and_refuses_bad_indices(fidelity):
     assert (v[1, [0, 3]] == 0).all() and (v[1, [1, 2]] != 0).any() and (v[0] != 0).any()
     assert np.array_equal(full_state(physics)[0], before[0])
     np.testing.assert_allclose(physics.quaternions()[1, [0, 3], 1:3], 0.0, atol=1e-12)  # levelled, yaw kept
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_a_diverged_world_is_told_as_a_python_warning_with_mujocos_words_and_no_log_file(fidelity, tmp_path, monkeypatch, capfd):
+    """MuJoCo's own handler printed its warning and appended it to MUJOCO_LOG.TXT in whatever
+    folder the user ran from; the step now says it once, as a RuntimeWarning naming the worlds."""
+    import mujoco
+
+    monkeypatch.chdir(tmp_path)
+    physics = make_physics(fidelity, n_worlds=3)
+    physics.qvel[1, :] = 1e12
+    with pytest.warns(RuntimeWarning, match=r"physics diverged in worlds \[1\] \(MuJoCo warnings: BADQVEL; MuJoCo: Nan, Inf or huge value in QVEL") as caught:
+        physics.step(np.zeros((3, 4, 2)), strict=False)
+    assert len(caught) == 1
+    assert physics.diverged.tolist() == [False, True, False]
+    assert list(tmp_path.iterdir()) == []
+    out, err = capfd.readouterr()
+    assert "Nan" not in out + err  # pytest.warns took the warning; MuJoCo printed nothing
+    assert mujoco.get_mju_user_warning() is None  # MuJoCo's own handling outside the step, as before
+    physics.reset([1], SPREAD_XY[None])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        physics.step(np.zeros((3, 4, 2)), strict=False)  # healed: nothing to tell
+
+
+def test_a_strict_step_names_mujocos_words_in_its_error(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    physics = make_physics("point", n_worlds=2)
+    physics.qvel[0, :] = 1e12
+    with pytest.raises(FloatingPointError, match=r"worlds \[0\] \(MuJoCo warnings: BADQVEL; MuJoCo: Nan, Inf or huge value in QVEL"):
+        physics.step(np.zeros((2, 4, 2)))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_warning_handler_of_ones_own_keeps_getting_mujocos_warnings(tmp_path, monkeypatch):
+    import mujoco
+
+    monkeypatch.chdir(tmp_path)
+    got: list[str] = []
+    mujoco.set_mju_user_warning(got.append)
+    try:
+        physics = make_physics("point", n_worlds=2)
+        physics.qvel[0, :] = 1e12
+        with pytest.warns(RuntimeWarning, match=r"physics diverged in worlds \[0\]"):
+            physics.step(np.zeros((2, 4, 2)), strict=False)
+        assert len(got) == 1 and got[0].startswith("Nan, Inf or huge value in QVEL")
+        assert mujoco.get_mju_user_warning() is not None
+    finally:
+        mujoco.set_mju_user_warning(None)

@@ -18,6 +18,7 @@ import numpy as np
 
 from ...controller import VelocityController, linear_drag, quat_to_rotmat
 from ...layout import Layout, layout_from_dict
+from ...physics import mujoco_warnings_into
 from ...scene import DroneIds, SceneSpec, build_model, drone_names, drone_parameters
 
 REST_HEIGHT = 0.012  # m: centre height of a drone standing on the floor (half its collision cylinder)
@@ -110,6 +111,19 @@ class Airframe:
         k = self.steps_per_control
         n_ctrl = max(1, int(round(tick / (k * self.physics_dt))))
         d = self.data
+        warned = sum(w.number for w in d.warning)
+        messages: list[str] = []
+        with mujoco_warnings_into(messages):
+            self._run(n_ctrl, k, v_xy, z_ref, vz_ff, motors)
+        self.time += n_ctrl * k * self.physics_dt
+        if sum(w.number for w in d.warning) > warned or not np.isfinite(d.qpos).all():
+            # MuJoCo resets a state gone bad: flying on would teleport the drones
+            said = "; ".join(f"MuJoCo: {m.strip()}" for m in dict.fromkeys(messages)) or "non-finite state"
+            raise FloatingPointError(f"virtual lab physics diverged ({said})")
+
+    def _run(self, n_ctrl: int, k: int, v_xy: np.ndarray, z_ref: np.ndarray, vz_ff: np.ndarray, motors: np.ndarray) -> None:
+        """n_ctrl controller periods of k physics steps each."""
+        d = self.data
         for _ in range(n_ctrl):
             q = d.qpos[self._qpos].T  # (7, D)
             v = d.qvel[self._qvel].T  # (6, D)
@@ -122,9 +136,6 @@ class Airframe:
             d.ctrl[self._ctrl] = np.where(motors[:, None], thrust, 0.0)
             d.xfrc_applied[self.ids.body, :3] = linear_drag(rot, v[:3], self.drag).T
             mujoco.mj_step(self.model, d, nstep=k)
-        self.time += n_ctrl * k * self.physics_dt
-        if not np.isfinite(d.qpos).all():
-            raise FloatingPointError("virtual lab physics diverged (non-finite state)")
 
 
 __all__ = ["Airframe", "lab_layout", "REST_HEIGHT"]
