@@ -396,12 +396,9 @@ class BatchedPhysics:
         messages: list[str] = []
         if ids is not None and len(ids) == 0:
             self.contacts[:] = False
-        elif self.fidelity == "quadrotor":
-            with mujoco_warnings_into(messages):
-                self._step_quadrotor(tick_cmds, ids)
         else:
             with mujoco_warnings_into(messages):
-                self._step_point(tick_cmds, ids)
+                (self._step_quadrotor if self.fidelity == "quadrotor" else self._step_point)(tick_cmds, ids)
         if ids is None:
             self.time += self.config.control_dt
         else:
