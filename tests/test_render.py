@@ -522,3 +522,55 @@ def test_a_trail_of_n_decision_steps_spans_n_steps_of_the_path(steps):
             obs, *_ = env.step(policy.act(obs, env.obs_spec))
         np.testing.assert_array_equal(maker.trail.array(), np.stack(states[-(steps + 1):]))
         assert np.any(maker.draw(snap, 0) != bare.draw(snap, 0))  # the trail is drawn
+
+
+def _wall_layout():
+    from pursuit_mj.layout import layout_from_dict
+
+    return layout_from_dict({"name": "walled", "arena": {"width": 4.0, "height": 4.0},
+                             "obstacles": [{"box": {"center": [2.0, 2.6], "size": [2.0, 0.2]}}],
+                             "spawn": {"pursuers": {"x": [0.5, 3.5], "y": [0.5, 1.5]}, "evaders": {"x": [0.5, 3.5], "y": [3.0, 3.5]}}}, "test")
+
+
+@pytest.mark.parametrize("fov_deg", [120.0, 360.0])
+def test_the_sight_outline_stops_at_walls_as_the_pursuers_sight_does(fov_deg):
+    """The drawn wedge (or ring) went through walls and out of the arena, showing a pursuer seeing
+    what its line-of-sight check hides: it now ends where a ray from the pursuer meets a wall."""
+    import math
+
+    from pursuit_mj.geometry import cast_rays
+    from pursuit_mj.render.overlays import sight_outline
+
+    layout = _wall_layout()
+    obstacles = layout.obstacle_set()
+    p, radius, fov = np.array([2.0, 2.0, 0.5]), 1.5, math.radians(fov_deg)  # the box's lower face at y 2.5, 0.5 m ahead
+    pts = sight_outline(p, math.pi / 2, radius, fov, obstacles, 64)
+    if fov_deg < 360:
+        assert np.allclose(pts[0], p) and np.allclose(pts[-1], p)  # a wedge: from the pursuer and back
+        arc = pts[1:-1]
+    else:
+        assert np.allclose(pts[0], pts[-1])  # a closed ring
+        arc = pts[:-1]
+    rel = arc[:, :2] - p[:2]
+    reach = np.linalg.norm(rel, axis=1)
+    assert (reach <= radius + 1e-9).all() and np.allclose(arc[:, 2], p[2])
+    over_box = (arc[:, 0] > 1.01) & (arc[:, 0] < 2.99)  # the box spans x 1-3
+    assert over_box.sum() >= 10 and (arc[over_box, 1] <= 2.5 + 1e-9).all()  # nothing drawn beyond its near face
+    straight_up = np.argmin(np.abs(np.arctan2(rel[:, 1], rel[:, 0]) - math.pi / 2))
+    assert reach[straight_up] == pytest.approx(0.5)
+    # each point lies where the pursuer's own ray in its direction ends (or at the radius)
+    dirs = rel / reach[:, None]
+    hit = cast_rays(np.broadcast_to(p[:2], dirs.shape)[None], dirs[None], obstacles)[0]
+    assert np.allclose(reach, np.minimum(hit, radius))
+    if fov_deg == 360:
+        assert np.isclose(reach, radius).any()  # sideways and behind, nothing in the way
+
+
+def test_the_sight_outline_in_the_open_is_the_whole_wedge():
+    import math
+
+    from pursuit_mj.render.overlays import arc_points, sight_outline
+
+    p = np.array([2.0, 1.0, 0.5])
+    pts = sight_outline(p, 0.0, 0.5, math.radians(120), _wall_layout().obstacle_set(), 21)
+    np.testing.assert_allclose(pts[1:-1], arc_points(p, 0.5, -math.radians(60), math.radians(60), 21), atol=1e-12)

@@ -1,7 +1,8 @@
 """Decorations drawn into the MuJoCo scene to explain a chase: what each pursuer perceives and does.
 
 Per frame, from a `Snapshot` (pursuit_mj.env) and the recent trail of every drone:
-perception circles (or field-of-view wedges), a solid line from a pursuer to each evader it
+perception circles (or field-of-view wedges), cut short where walls and obstacles block the
+pursuer's line of sight, a solid line from a pursuer to each evader it
 sees and a dashed one to each it knows only by relay, short fading trails, the capture
 radius around every evader (filled once captured), and a role-coloured disc under each drone
 that tilts with its body. Lines are MuJoCo line geoms (width in pixels), so they stay crisp at
@@ -16,6 +17,7 @@ import math
 import mujoco
 import numpy as np
 
+from ..geometry import ObstacleSet, cast_rays
 from ..palette import OBSTACLE_RGBA, ROLE_RGBA, over_floor, rgb255
 from .caption import KeyEntry
 
@@ -38,6 +40,7 @@ class OverlayStyle:
     marker_radius: float = 0.1  # m: role disc under each drone, bigger than the 9 cm frame
     marker_alpha: float = 0.6
     circle_segments: int = 64  # a 2 m circle is then within 2.5 mm of round (24 showed facets at 1280 x 720)
+    sight_segments: int = 128  # rays of a full ring of sight cut at walls (64 left 11 cm between rays 2 m out)
     trail_segments: int = 400  # a trail is drawn through at most this many + 1 of its points (every step up to 400)
     dash_length: float = 0.1  # m
 
@@ -101,8 +104,24 @@ def arc_points(center: np.ndarray, radius: float, start: float, stop: float, seg
     return pts
 
 
+def sight_outline(center: np.ndarray, heading: float, radius: float, fov: float, obstacles: ObstacleSet, segments: int) -> np.ndarray:
+    """The outline (P, 3) m world, at center's height, of what a pursuer at center (3,) can see:
+    its wedge of `fov` rad around `heading` (rad), or its ring for a full view, of `radius` m,
+    each of the segments + 1 arc points pulled in to where the ray toward it meets an obstacle
+    or the border (the line of sight the task checks). A wedge starts and ends at center; a
+    ring is closed (its last point is its first)."""
+    full = fov >= 2 * math.pi - 1e-9
+    start, stop = (0.0, 2 * math.pi) if full else (heading - fov / 2, heading + fov / 2)
+    arc = arc_points(center, radius, start, stop, segments)
+    rel = arc[:, :2] - center[:2]
+    dirs = rel / radius
+    reach = np.minimum(cast_rays(np.broadcast_to(center[:2], dirs.shape), dirs, obstacles), radius)
+    arc[:, :2] = center[:2] + dirs * reach[:, None]
+    return arc if full else np.concatenate([center[None], arc, center[None]])
+
+
 def draw_perception(w: GeomWriter, snap, style: OverlayStyle) -> None:
-    """Perception circle (full field of view) or wedge per pursuer; nothing in full observability.
+    """Perception ring (full field of view) or wedge per pursuer, cut at walls; nothing in full observability.
 
     Outlines only: with the default 2 m radius the circles cover most of the arena, and
     filled ones would wash it out."""
@@ -111,14 +130,11 @@ def draw_perception(w: GeomWriter, snap, style: OverlayStyle) -> None:
         return
     r, fov = cfg.perception_radius, cfg.field_of_view
     ring = _rgba(style.perception_rgba)
+    obstacles = snap.layout.obstacle_set()
+    full = fov >= 2 * math.pi - 1e-9
+    segs = style.sight_segments if full else max(4, int(style.sight_segments * fov / (2 * math.pi)))
     for i, p in enumerate(snap.pursuer_pos):
-        if fov >= 2 * math.pi - 1e-9:
-            w.polyline(arc_points(p, r, 0.0, 2 * math.pi, style.circle_segments), ring, style.ring_width)
-            continue
-        h = float(snap.heading[i])
-        segs = max(4, int(style.circle_segments * fov / (2 * math.pi)))
-        arc = arc_points(p, r, h - fov / 2, h + fov / 2, segs)
-        w.polyline(np.concatenate([p[None], arc, p[None]]), ring, style.ring_width)
+        w.polyline(sight_outline(p, float(snap.heading[i]), r, fov, obstacles, segs), ring, style.ring_width)
 
 
 def draw_detections(w: GeomWriter, snap, style: OverlayStyle) -> None:
@@ -180,7 +196,7 @@ def overlay_geom_budget(config, layout, style: OverlayStyle) -> int:
     The dashed relay lines are the only part that grows with distance, so the arena's
     diagonal (plus a metre for a drone that has left it) bounds them."""
     n_p, n_e = config.n_pursuers, config.n_evaders
-    perception = n_p * (max(style.circle_segments, 4) + 2)  # a wedge's arc plus its two sides
+    perception = n_p * (max(style.sight_segments, 4) + 2)  # a wedge's arc plus its two sides
     capture = n_e * (style.circle_segments // 2 + 1)  # the ring plus the captured fill
     trails = (n_p + n_e) * (style.trail_segments + 1)
     longest = math.hypot(layout.width, layout.height) + 1.0
