@@ -104,13 +104,14 @@ def arc_points(center: np.ndarray, radius: float, start: float, stop: float, seg
     return pts
 
 
-def sight_outline(center: np.ndarray, heading: float, radius: float, fov: float, obstacles: ObstacleSet, segments: int) -> np.ndarray:
+def sight_outline(center: np.ndarray, heading: float, radius: float, fov: float, obstacles: ObstacleSet, ring_segments: int) -> np.ndarray:
     """The outline (P, 3) m world, at center's height, of what a pursuer at center (3,) can see:
     its wedge of `fov` rad around `heading` (rad), or its ring for a full view, of `radius` m,
-    each of the segments + 1 arc points pulled in to where the ray toward it meets an obstacle
-    or the border (the line of sight the task checks). A wedge starts and ends at center; a
-    ring is closed (its last point is its first)."""
+    each arc point (ring_segments + 1 round a full ring, the wedge's share of them, at least 5)
+    pulled in to where the ray toward it meets an obstacle or the border (the line of sight the
+    task checks). A wedge starts and ends at center; a ring is closed (its last point is its first)."""
     full = fov >= 2 * math.pi - 1e-9
+    segments = ring_segments if full else max(4, int(ring_segments * fov / (2 * math.pi)))
     start, stop = (0.0, 2 * math.pi) if full else (heading - fov / 2, heading + fov / 2)
     arc = arc_points(center, radius, start, stop, segments)
     rel = arc[:, :2] - center[:2]
@@ -131,10 +132,8 @@ def draw_perception(w: GeomWriter, snap, style: OverlayStyle) -> None:
     r, fov = cfg.perception_radius, cfg.field_of_view
     ring = _rgba(style.perception_rgba)
     obstacles = snap.layout.obstacle_set()
-    full = fov >= 2 * math.pi - 1e-9
-    segs = style.sight_segments if full else max(4, int(style.sight_segments * fov / (2 * math.pi)))
     for i, p in enumerate(snap.pursuer_pos):
-        w.polyline(sight_outline(p, float(snap.heading[i]), r, fov, obstacles, segs), ring, style.ring_width)
+        w.polyline(sight_outline(p, float(snap.heading[i]), r, fov, obstacles, style.sight_segments), ring, style.ring_width)
 
 
 def draw_detections(w: GeomWriter, snap, style: OverlayStyle) -> None:
