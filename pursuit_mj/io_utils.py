@@ -23,6 +23,32 @@ class CannotWrite(ValueError):
     """A file could not be written (its message names the file and the reason)."""
 
 
+#: the folder of devices: a name there that is no device or pipe is never written (see device_folder_fault)
+DEVICES_FOLDER = "/dev"
+
+
+def device_folder_fault(path: str | Path, appended: bool = False) -> str | None:
+    """Why `path` must not be written as a file: 'PATH: a name in /dev ...' when it lies in the folder
+    of devices and is no device or named pipe there (/dev/stdout while the shell sends the output to
+    a file is a link to that file; /dev/new.json is not there). Replacing it would put a regular
+    file among the devices, for every program on the machine (run as root), and the file the link
+    leads to would get nothing. None elsewhere, and for a device or pipe (written in place); with
+    `appended` (the file is opened where the name leads and appended to, never replaced) also for a
+    name that leads to a regular file."""
+    parent = os.path.dirname(os.path.abspath(path))
+    if os.path.realpath(parent) != os.path.realpath(DEVICES_FOLDER) or _is_stream(Path(path)):
+        return None
+    try:
+        regular = stat.S_ISREG(os.stat(path).st_mode)
+        what = "leads to a regular file" if regular else "is no device or named pipe"
+    except OSError:
+        regular, what = False, "is not there"
+    if appended and regular:
+        return None
+    return (f"{path}: a name in {DEVICES_FOLDER}, the folder of devices, that {what}: writing it would put a file "
+            f"among the devices; give a file in a folder of yours (for output redirected to a file, that file's name)")
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside `path`; on success it is renamed onto `path`, else removed.
@@ -36,6 +62,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         with _reader_held(path):
             yield path
         return
+    if (fault := device_folder_fault(path)) is not None:
+        raise CannotWrite(fault)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         # the extension in lower case: writers that pick or check the format by it (mediapy's gif) take .GIF too
@@ -432,17 +460,20 @@ def check_writable_folder(folder: str | Path, what: str) -> Path:
     return folder
 
 
-def check_writable(path: str | Path, what: str = "output") -> Path:
+def check_writable(path: str | Path, what: str = "output", appended: bool = False) -> Path:
     """Fail early with a clear message if `path` cannot be written (before any work is done). A
     path given as text that ends in a separator ('tables/') names a folder, which Path would
     quietly turn into a file of that name, so it is refused too, as is one that ends in '/.' or
-    '/..' (Path('tables/.') is 'tables')."""
+    '/..' (Path('tables/.') is 'tables'), and a name in /dev that no device or pipe holds
+    (device_folder_fault; one that leads to a file is taken where the file is `appended` to)."""
     if isinstance(path, str) and path.endswith(("/", os.sep)):
         raise ValueError(f"{what} path {path}: ends in '{path[-1]}', which names a folder; give the name of the "
                          f"file to write in it")
     if isinstance(path, str) and os.path.basename(path) in (".", ".."):
         raise ValueError(f"{what} path {path}: ends in '{os.path.basename(path)}', which names a folder; give the name "
                          f"of the file to write in it")
+    if (fault := device_folder_fault(path, appended)) is not None:
+        raise ValueError(f"{what} path {fault}")
     path = Path(path)
     check_writable_folder(path.parent if str(path.parent) else Path("."), f"{what} path {path}")
     try:

@@ -673,3 +673,51 @@ def test_a_file_name_too_long_for_the_file_system_is_one_line_naming_it(argv, ca
     assert main([a.replace("{long}", long) for a in argv]) == 2
     err = capsys.readouterr().err
     assert "File name too long" in err and long in err and len(err.strip().splitlines()) == 1, err
+
+
+def _fake_dev_with_stdout_to_a_file(tmp_path, monkeypatch):
+    """A stand-in for /dev whose 'stdout' leads to a regular file, as /dev/stdout does when the
+    shell redirects the output to a file (the real /dev is never touched)."""
+    import os
+
+    from pursuit_mj import io_utils
+
+    dev = tmp_path / "dev"
+    dev.mkdir()
+    out = tmp_path / "out.json"
+    out.write_text("")
+    os.symlink(out, dev / "stdout")
+    monkeypatch.setattr(io_utils, "DEVICES_FOLDER", str(dev))
+    return dev, out
+
+
+def test_an_atomic_write_to_dev_stdout_redirected_to_a_file_is_refused_and_leaves_dev_alone(tmp_path, monkeypatch):
+    """'eval --json /dev/stdout > out.json' run as root wrote a temporary file in /dev and renamed it
+    over /dev/stdout: the link became a regular file among the devices (for every program on the
+    machine) and out.json stayed empty. A name in /dev that is no device or pipe is now refused."""
+    import os
+
+    from pursuit_mj.io_utils import atomic_write_text
+
+    dev, out = _fake_dev_with_stdout_to_a_file(tmp_path, monkeypatch)
+    with pytest.raises(ValueError, match=r"stdout: a name in .*dev, the folder of devices, that leads to a regular file"):
+        atomic_write_text(dev / "stdout", '{"a": 1}')
+    assert os.path.islink(dev / "stdout") and out.read_text() == ""
+    assert sorted(p.name for p in dev.iterdir()) == ["stdout"]  # no temporary file left there either
+    with pytest.raises(ValueError, match=r"new.json: a name in .*dev, the folder of devices, that is not there"):
+        atomic_write_text(dev / "new.json", "{}")
+    assert sorted(p.name for p in dev.iterdir()) == ["stdout"]
+
+
+def test_an_output_path_in_dev_that_is_no_device_is_refused_before_any_work(tmp_path, monkeypatch):
+    from pursuit_mj.io_utils import check_writable
+
+    dev, _ = _fake_dev_with_stdout_to_a_file(tmp_path, monkeypatch)
+    with pytest.raises(ValueError, match=r"^--json path .*stdout: a name in .*dev, the folder of devices, that leads to a regular file"):
+        check_writable(str(dev / "stdout"), "--json")
+    with pytest.raises(ValueError, match=r"^--rerun path .*x.rrd: a name in .*dev, the folder of devices, that is not there"):
+        check_writable(str(dev / "x.rrd"), "--rerun")
+    check_writable(str(dev / "stdout"), "--events", appended=True)  # appended to, the file it leads to takes it
+    with pytest.raises(ValueError, match=r"^--events path .*new.log: a name in .*dev, the folder of devices, that is not there"):
+        check_writable(str(dev / "new.log"), "--events", appended=True)
+    check_writable(str(tmp_path / "out.json"), "--json")  # elsewhere, as before

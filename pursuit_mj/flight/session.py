@@ -203,7 +203,7 @@ def run_flight(
 
             check_rrd_path(rerun_path)
         if events_path is not None:
-            check_writable(events_path, "--events")
+            check_writable(events_path, "--events", appended=True)  # /dev/stdout to a file: appended to
             _check_events_apart(events_path, plan, rerun_path)
             _check_events_is_a_log(events_path)
         if policy is None:
