@@ -576,3 +576,39 @@ def test_the_sight_outline_in_the_open_is_the_whole_wedge():
     pts = sight_outline(p, 0.0, 0.5, math.radians(120), _wall_layout().obstacle_set(), 64)
     assert len(pts) - 3 == 21  # a third of the ring's segments
     np.testing.assert_allclose(pts[1:-1], arc_points(p, 0.5, -math.radians(60), math.radians(60), 21), atol=1e-12)
+
+
+def _drawn_line_ends(scene, start: int) -> np.ndarray:
+    """(G, 2, 3) m: the ends of the line geoms an overlay drew from geom `start` on."""
+    ends = []
+    for g in list(scene.geoms)[start:scene.ngeom]:
+        a = np.array(g.pos)
+        ends.append([a, a + np.array(g.mat).reshape(3, 3)[:, 2] * g.size[2]])
+    return np.array(ends)
+
+
+def test_the_drawn_sight_stops_at_a_caught_evader_as_the_pursuers_sight_does():
+    """A caught evader blocks sight as the drone it is (sensing.CAUGHT_BODY_RADIUS): the drawn ring
+    went through it, showing the pursuer seeing what its line of sight hides."""
+    import math
+    import types
+
+    import mujoco
+
+    from pursuit_mj.config import default_config
+    from pursuit_mj.render.overlays import GeomWriter, OverlayStyle, draw_perception
+    from pursuit_mj.sensing import CAUGHT_BODY_RADIUS
+
+    model = mujoco.MjModel.from_xml_string("<mujoco/>")
+    scene = mujoco.MjvScene(model, maxgeom=1000)
+    p = np.array([1.0, 1.0, 0.5])
+    evader = np.array([[1.5, 1.0, 0.5]])  # 0.5 m ahead along +x, on a ray of the 128
+    config = dataclasses.replace(default_config(), observability="partial", perception_radius=1.5, field_of_view=2 * math.pi)
+    for captured, reach in ((False, 1.5), (True, 0.5 - CAUGHT_BODY_RADIUS)):
+        snap = types.SimpleNamespace(config=config, layout=_wall_layout(), pursuer_pos=p[None], heading=np.zeros(1),
+                                     evader_pos=evader, captured=np.array([captured]))
+        start = scene.ngeom
+        draw_perception(GeomWriter(scene), snap, OverlayStyle())
+        ends = _drawn_line_ends(scene, start)
+        ahead = ends[np.isclose(ends[:, 0, 1], p[1], atol=1e-9) & (ends[:, 0, 0] > p[0])][:, 0]  # the point on the +x ray
+        assert len(ahead) == 1 and np.isclose(ahead[0, 0] - p[0], reach, atol=1e-6), (captured, ahead)

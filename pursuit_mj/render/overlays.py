@@ -19,6 +19,7 @@ import numpy as np
 
 from ..geometry import ObstacleSet, cast_rays
 from ..palette import OBSTACLE_RGBA, ROLE_RGBA, over_floor, rgb255
+from ..sensing import CAUGHT_BODY_RADIUS
 from .caption import KeyEntry
 
 _EYE = np.eye(3).ravel()
@@ -122,7 +123,8 @@ def sight_outline(center: np.ndarray, heading: float, radius: float, fov: float,
 
 
 def draw_perception(w: GeomWriter, snap, style: OverlayStyle) -> None:
-    """Perception ring (full field of view) or wedge per pursuer, cut at walls; nothing in full observability.
+    """Perception ring (full field of view) or wedge per pursuer, cut at walls and caught evaders;
+    nothing in full observability.
 
     Outlines only: with the default 2 m radius the circles cover most of the arena, and
     filled ones would wash it out."""
@@ -132,6 +134,8 @@ def draw_perception(w: GeomWriter, snap, style: OverlayStyle) -> None:
     r, fov = cfg.perception_radius, cfg.field_of_view
     ring = _rgba(style.perception_rgba)
     obstacles = snap.layout.obstacle_set()
+    if snap.captured.any():  # a caught evader blocks sight as the drone it is, as in the task's perception
+        obstacles = obstacles.with_extra_cylinders(np.asarray(snap.evader_pos)[:, :2], CAUGHT_BODY_RADIUS, snap.captured)
     for i, p in enumerate(snap.pursuer_pos):
         w.polyline(sight_outline(p, float(snap.heading[i]), r, fov, obstacles, style.sight_segments), ring, style.ring_width)
 
