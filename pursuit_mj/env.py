@@ -8,6 +8,7 @@ M evaders; positions and velocities in the layout frame (m, m/s).
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -459,7 +460,8 @@ class PursuitEnv:
         evader_cmd = np.where((free_before & active[:, None])[..., None], evader_cmd, 0.0)
         pursuer_cmd = a * cfg.pursuer_speed * active[:, None, None]
         # an ended episode's world (no auto_reset) waits for its reset unsimulated
-        contacts = self.physics.step(np.concatenate([pursuer_cmd, evader_cmd], axis=1), strict=False, worlds=active)
+        # a divergence is warned once this step is whole: a warnings filter of "error" raises it then
+        contacts = self.physics.step(np.concatenate([pursuer_cmd, evader_cmd], axis=1), strict=False, worlds=active, warn=False)
         # a world whose physics went bad (a violent crash) ends as a collision
         diverged = self.physics.diverged & active
         contacts[diverged] = True
@@ -518,6 +520,8 @@ class PursuitEnv:
             self._start_episodes(ids)
             obs = self._reobserve(ids, obs)
         self._obs = obs
+        if self.physics.divergence is not None:
+            warnings.warn(self.physics.divergence, RuntimeWarning, stacklevel=2)
         return obs.copy(), reward, terminated, truncated, info
 
     def _record(self, w: int, outcome: str) -> EpisodeRecord:

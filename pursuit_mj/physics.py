@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import threading
 import warnings
 from typing import Callable, Iterator, Sequence
 
@@ -33,31 +34,45 @@ UNIT_QUAT = np.array([1.0, 0.0, 0.0, 0.0])
 WARNING_NAMES = {int(v): k.removeprefix("mjWARN_") for k, v in mujoco.mjtWarning.__members__.items() if k != "mjNWARNING"}
 #: spare static geoms per world beyond the largest layout given, for new random obstacles
 SPARE_SLOTS = 4
-#: MuJoCo warnings kept per step for the report of a diverged world (each bad world sends one or more)
+#: MuJoCo's own words quoted per report of a diverged world (one per kind of warning and world at most)
 KEPT_MESSAGES = 4
+_quiet_lock = threading.Lock()
+_quiet_depth = 0  # contexts of mujoco_log_quiet open now (steps in several threads)
+_quiet_saved = (True, True)  # MuJoCo's logto_console, logto_file before the first of them
 
 
 @contextlib.contextmanager
-def mujoco_warnings_into(messages: list[str]) -> Iterator[None]:
-    """While inside, MuJoCo's warnings are appended to `messages` (at most KEPT_MESSAGES of them)
-    instead of being printed and written to MUJOCO_LOG.TXT in the current folder, which MuJoCo's
-    own handler does. A handler the user installed (`mujoco.set_mju_user_warning`) stays in charge.
-
-    The handler must not raise: an exception in it ends the process (MuJoCo calls it from C++,
-    from its worker threads too)."""
-    if mujoco.get_mju_user_warning() is not None:
-        yield
-        return
-
-    def keep(message: str) -> None:
-        if len(messages) < KEPT_MESSAGES:
-            messages.append(message)
-
-    mujoco.set_mju_user_warning(keep)
+def mujoco_log_quiet() -> Iterator[None]:
+    """While inside, MuJoCo neither prints its warnings nor appends them to MUJOCO_LOG.TXT in the
+    current folder (its global log settings, as they were, come back after); callers read the
+    warnings from MuJoCo's counters instead (`warning_texts`). Contexts open at once in several
+    threads share it: the first turns the log off, the last turns it back. (Not a warning handler
+    in Python: MuJoCo calls handlers from C++, and an exception there, Ctrl-C's among them, ends
+    the process.) A handler of the user's own (`mujoco.set_mju_user_warning`) still gets them."""
+    global _quiet_depth, _quiet_saved
+    with _quiet_lock:
+        if _quiet_depth == 0:
+            config = mujoco.MjLogConfig.get()
+            _quiet_saved = (config.logto_console, config.logto_file)
+            config.logto_console = config.logto_file = False
+            config.set()
+        _quiet_depth += 1
     try:
         yield
     finally:
-        mujoco.set_mju_user_warning(None)
+        with _quiet_lock:
+            _quiet_depth -= 1
+            if _quiet_depth == 0:
+                config = mujoco.MjLogConfig.get()
+                config.logto_console, config.logto_file = _quiet_saved
+                config.set()
+
+
+def warning_texts(kinds: np.ndarray, infos: np.ndarray) -> list[str]:
+    """MuJoCo's words for warnings of kinds (K,) (mjtWarning) with their last info values (K,)
+    (a DOF index, a count), distinct ones first come, at most KEPT_MESSAGES."""
+    texts = dict.fromkeys(mujoco.mju_warningText(int(k), int(i)) for k, i in zip(kinds, infos))
+    return list(texts)[:KEPT_MESSAGES]
 
 
 @dataclasses.dataclass
@@ -173,6 +188,7 @@ class BatchedPhysics:
         self._mj_time = b.bind("time")
         self._warnings = b.warning[:, :, 1].copy()  # MuJoCo warning counts (W, kinds) at the last check
         self.diverged = np.zeros(self.n_worlds, bool)  # worlds whose last step went bad (strict=False)
+        self.divergence: str | None = None  # what the last step's warning says of them (strict=False), else None
         base, D = self.models[0], self.n_drones
         self._state = b.state
 
@@ -370,7 +386,7 @@ class BatchedPhysics:
 
     # ------------------------------------------------------------------ stepping
 
-    def step(self, commands: np.ndarray, strict: bool = True, worlds: np.ndarray | None = None) -> np.ndarray:
+    def step(self, commands: np.ndarray, strict: bool = True, worlds: np.ndarray | None = None, warn: bool = True) -> np.ndarray:
         """Advance every world by control_dt under velocity commands (W, D, 2) m/s world.
 
         Commands are clipped to each drone's max speed. The pursuers' commands take effect
@@ -378,7 +394,9 @@ class BatchedPhysics:
         Returns contacts (W, D) bool: the
         drone touched a wall, an obstacle or another drone during the step. A world whose
         physics went bad raises FloatingPointError, or with strict=False is flagged in
-        `self.diverged` (W,) bool for the caller to end and reset. With `worlds` (W,) bool
+        `self.diverged` (W,) bool for the caller to end and reset and told in `self.divergence`
+        (the text, else None), and as a RuntimeWarning unless warn=False (a caller that tells it
+        once its own step is whole, as PursuitEnv does). With `worlds` (W,) bool
         only those worlds are simulated; the others keep their drones' state and their clock
         (no contacts), and the stepped ones move exactly as in a step of all. A paused world
         keeps its memory too: its last commands (`self.commands`), the pursuers' commands still
@@ -393,17 +411,16 @@ class BatchedPhysics:
         else:
             self.commands[ids] = cmd[ids]
         tick_cmds = self._tick_commands(cmd, ids)
-        messages: list[str] = []
         if ids is not None and len(ids) == 0:
             self.contacts[:] = False
         else:
-            with mujoco_warnings_into(messages):
+            with mujoco_log_quiet():
                 (self._step_quadrotor if self.fidelity == "quadrotor" else self._step_point)(tick_cmds, ids)
         if ids is None:
             self.time += self.config.control_dt
         else:
             self.time[ids] += self.config.control_dt
-        self._check_health(strict, messages)
+        self._check_health(strict, warn)
         return self.contacts.copy()
 
     def _tick_commands(self, cmd: np.ndarray, ids: np.ndarray | None = None) -> list[np.ndarray]:
@@ -497,27 +514,32 @@ class BatchedPhysics:
             for observer in self.observers:
                 observer(self)
 
-    def _check_health(self, strict: bool = True, messages: Sequence[str] = ()) -> None:
-        """Raise FloatingPointError naming the worlds where MuJoCo raised a warning, with
-        strict=False warn (a RuntimeWarning, once per step); either way quoting `messages`,
-        MuJoCo's own words.
+    def _check_health(self, strict: bool = True, warn: bool = True) -> None:
+        """Raise FloatingPointError naming the worlds where MuJoCo raised a warning, in MuJoCo's
+        words; with strict=False set `self.divergence` to that text instead and, if `warn`, warn
+        it (a RuntimeWarning, once per step).
 
         MuJoCo resets a simulation whose state goes bad (BADQPOS, BADQVEL, BADQACC) and a
         batch rollout stops one whose warnings rise (e.g. CONTACTFULL): either way that
         world's step did not happen as asked. A MuJoCo clock out of step with ours is the
         last line of defence.
         """
-        counts = self.batch.warning[:, :, 1]
+        warning = self.batch.warning  # (W, kinds, 2): last info, count
+        counts = warning[:, :, 1]
         risen = counts > self._warnings
         off = risen.any(axis=1) | (np.abs(self._mj_time - self.time) > 0.5 * self.config.physics_dt)
         self._warnings = counts.copy()
         self.diverged = off
+        self.divergence = None
         if not off.any():
             return
         kinds = "MuJoCo warnings: " + (", ".join(sorted({WARNING_NAMES[k] for k in np.flatnonzero(risen.any(axis=0))})) or "none")
-        said = "".join(f"; MuJoCo: {m.strip()}" for m in dict.fromkeys(messages))
+        w, k = np.nonzero(risen)
+        said = "".join(f"; MuJoCo: {t}" for t in warning_texts(k, warning[w, k, 0]))
         worlds = np.flatnonzero(off).tolist()
         if strict:
             raise FloatingPointError(f"physics diverged in worlds {worlds} ({kinds}{said}; MuJoCo reset or stopped them): reset those worlds")
-        warnings.warn(f"physics diverged in worlds {worlds} ({kinds}{said}): MuJoCo reset or stopped them; "
-                      "a PursuitEnv ends their episodes as collisions", RuntimeWarning, stacklevel=3)
+        self.divergence = (f"physics diverged in worlds {worlds} ({kinds}{said}): MuJoCo reset or stopped them; "
+                           "a PursuitEnv ends their episodes as collisions")
+        if warn:
+            warnings.warn(self.divergence, RuntimeWarning, stacklevel=3)

@@ -894,3 +894,33 @@ def test_an_evader_model_is_told_the_evaders_of_an_ended_world_are_not_active():
         env.step(np.zeros((2, 3, 2)))
     assert env.steps.tolist() == [3, 3] and env.done.all()
     assert model.active[-1].tolist() == [[False], [True]]  # the third step: world 0 had ended
+
+
+def test_a_divergence_warning_turned_into_an_error_comes_after_the_step_is_whole():
+    """With warnings as errors (python -W error, a test suite's filter) the divergence's RuntimeWarning
+    was raised from inside the physics step: the worlds had moved but the env had counted no step,
+    ended no world and paid nothing, and the next step reported the same world again. It is now
+    told once the step is done, so the env is as a step without the filter leaves it."""
+    import warnings
+
+    envs = []
+    for as_error in (True, False):
+        env = PursuitEnv(default_config(fidelity="quadrotor", random_obstacles=0), n_worlds=2, seed=0)
+        env.reset()
+        env.physics.qvel[0, :] = 1e12
+        with warnings.catch_warnings():
+            warnings.simplefilter("error" if as_error else "ignore")
+            if as_error:
+                with pytest.raises(RuntimeWarning, match=r"physics diverged in worlds \[0\]"):
+                    env.step(np.zeros((2, 3, 2)))
+            else:
+                env.step(np.zeros((2, 3, 2)))
+        envs.append(env)
+    raised, plain = envs
+    assert raised.steps.tolist() == plain.steps.tolist() and raised.episode.tolist() == plain.episode.tolist()
+    np.testing.assert_array_equal(raised.physics.positions(), plain.physics.positions())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # told once: the world was ended and reset
+        for env in envs:
+            env.step(np.zeros((2, 3, 2)))
+    np.testing.assert_array_equal(raised.physics.positions(), plain.physics.positions())

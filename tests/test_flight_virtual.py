@@ -291,7 +291,7 @@ def test_a_virtual_lab_whose_physics_diverges_says_so_in_mujocos_words_and_write
     airframe = Airframe(1, 1, (0.0, 2.0), (0.0, 2.0), np.array([[0.5, 0.5], [1.5, 1.5]]))
     airframe.data.qvel[:] = 1e12
     on = np.ones(2, bool)
-    with pytest.raises(FloatingPointError, match=r"virtual lab physics diverged \(MuJoCo: Nan, Inf or huge value in QVEL"):
+    with pytest.raises(FloatingPointError, match=r"virtual lab physics diverged \(MuJoCo warnings: BADQVEL; MuJoCo: Nan, Inf or huge value in QVEL"):
         airframe.step(0.01, np.zeros((2, 2)), np.full(2, 0.5), np.zeros(2), on)
     assert list(tmp_path.iterdir()) == []
 

@@ -356,3 +356,30 @@ def test_a_warning_handler_of_ones_own_keeps_getting_mujocos_warnings(tmp_path, 
         assert mujoco.get_mju_user_warning() is not None
     finally:
         mujoco.set_mju_user_warning(None)
+
+
+def test_no_python_runs_in_mujocos_callbacks_and_the_log_settings_come_back(tmp_path, monkeypatch):
+    """A warning handler in Python ran inside MuJoCo's C++ callback, where an exception (Ctrl-C
+    arriving then) ends the process: the step turns MuJoCo's log off instead, reads the warnings
+    from its counters, and puts the settings back after, also when steps overlap (one inside
+    another's observer, as threads would)."""
+    import mujoco
+
+    monkeypatch.chdir(tmp_path)
+    outer, inner = make_physics("point", n_worlds=2), make_physics("point", n_worlds=2)
+    inside = []
+
+    def step_the_other(_physics):
+        if not inside:
+            inside.append((mujoco.get_mju_user_warning(), mujoco.MjLogConfig.get().logto_file))
+            inner.qvel[1, :] = 1e12
+            with pytest.warns(RuntimeWarning, match=r"worlds \[1\] \(MuJoCo warnings: BADQVEL; MuJoCo: Nan, Inf or huge value in QVEL"):
+                inner.step(np.zeros((2, 4, 2)), strict=False)
+            inside.append(mujoco.MjLogConfig.get().logto_file)  # the outer step is still open
+
+    outer.observers.append(step_the_other)
+    outer.step(np.zeros((2, 4, 2)))
+    assert inside == [(None, False), False]
+    config = mujoco.MjLogConfig.get()
+    assert (config.logto_console, config.logto_file) == (True, True)
+    assert list(tmp_path.iterdir()) == []

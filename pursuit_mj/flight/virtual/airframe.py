@@ -18,7 +18,7 @@ import numpy as np
 
 from ...controller import VelocityController, linear_drag, quat_to_rotmat
 from ...layout import Layout, layout_from_dict
-from ...physics import mujoco_warnings_into
+from ...physics import WARNING_NAMES, mujoco_log_quiet, warning_texts
 from ...scene import DroneIds, SceneSpec, build_model, drone_names, drone_parameters
 
 REST_HEIGHT = 0.012  # m: centre height of a drone standing on the floor (half its collision cylinder)
@@ -111,15 +111,16 @@ class Airframe:
         k = self.steps_per_control
         n_ctrl = max(1, int(round(tick / (k * self.physics_dt))))
         d = self.data
-        warned = sum(w.number for w in d.warning)
-        messages: list[str] = []
-        with mujoco_warnings_into(messages):
+        warned = np.array([w.number for w in d.warning])
+        with mujoco_log_quiet():
             self._run(n_ctrl, k, v_xy, z_ref, vz_ff, motors)
         self.time += n_ctrl * k * self.physics_dt
-        if sum(w.number for w in d.warning) > warned or not np.isfinite(d.qpos).all():
+        risen = np.flatnonzero(np.array([w.number for w in d.warning]) > warned)
+        if len(risen) or not np.isfinite(d.qpos).all():
             # MuJoCo resets a state gone bad: flying on would teleport the drones
-            said = "; ".join(f"MuJoCo: {m.strip()}" for m in dict.fromkeys(messages)) or "non-finite state"
-            raise FloatingPointError(f"virtual lab physics diverged ({said})")
+            kinds = "MuJoCo warnings: " + ", ".join(WARNING_NAMES[int(k)] for k in risen) if len(risen) else "non-finite state"
+            said = "".join(f"; MuJoCo: {t}" for t in warning_texts(risen, [d.warning[k].lastinfo for k in risen]))
+            raise FloatingPointError(f"virtual lab physics diverged ({kinds}{said})")
 
     def _run(self, n_ctrl: int, k: int, v_xy: np.ndarray, z_ref: np.ndarray, vz_ff: np.ndarray, motors: np.ndarray) -> None:
         """n_ctrl controller periods of k physics steps each."""
