@@ -118,7 +118,7 @@ class Airframe:
         risen = np.flatnonzero(np.array([w.number for w in d.warning]) > warned)
         if len(risen) or not np.isfinite(d.qpos).all():
             # MuJoCo resets a state gone bad: flying on would teleport the drones
-            kinds = "MuJoCo warnings: " + ", ".join(WARNING_NAMES[int(k)] for k in risen) if len(risen) else "non-finite state"
+            kinds = ("MuJoCo warnings: " + ", ".join(WARNING_NAMES[int(k)] for k in risen)) if len(risen) else "non-finite state"
             said = "".join(f"; MuJoCo: {t}" for t in warning_texts(risen, [d.warning[k].lastinfo for k in risen]))
             raise FloatingPointError(f"virtual lab physics diverged ({kinds}{said})")
 
