@@ -263,8 +263,9 @@ def run(args) -> int:
 
 def _run(args) -> int:
     from pursuit_mj.configio import dump_yaml
-    from train.config import key_sources_of, layout_key_sources, load_train_config
-    from train.trainer import Trainer, best_instead
+    from train.config import key_sources_of, layout_key_sources
+    from train.run_checks import best_instead
+    from train.trainer import Trainer
 
     if args.export:
         from pursuit_mj.io_utils import check_writable, no_new_empty_folders

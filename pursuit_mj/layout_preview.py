@@ -17,7 +17,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from .io_utils import atomic_path  # noqa: E402
-from .layout import Box, Cylinder, Layout, Wall  # noqa: E402
+from .layout import Cylinder, Layout, Wall  # noqa: E402
 from .palette import BORDER_RGBA, OBSTACLE_RGBA, ROLE_RGBA, hex_colour  # noqa: E402
 
 FIXED_COLOR = hex_colour(OBSTACLE_RGBA["fixed"])

@@ -416,7 +416,6 @@ def test_a_render_or_eval_sweeps_its_folder_of_what_killed_writes_of_other_names
     import subprocess
     import sys
     import time
-    from pathlib import Path
 
     dead_pid = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
                               text=True, check=True).stdout.strip()

@@ -1152,7 +1152,7 @@ def test_a_second_ctrl_c_during_the_interrupts_save_still_says_how_to_go_on(tmp_
     lines = []
     trainer = Trainer(cfg, log=lines.append)
     calls = {"collect": 0}
-    real_collect, real_save = trainer.collector.collect, trainer.save
+    real_collect = trainer.collector.collect
 
     def collect(*args, **kwargs):
         calls["collect"] += 1
@@ -1279,7 +1279,7 @@ def test_a_lock_taken_on_a_lock_file_removed_meanwhile_is_taken_again_on_the_fil
     lock must be held on the file the folder names."""
     import fcntl
     import os
-    from train.trainer import lock_folder
+    from train.folder_lock import lock_folder
 
     lock_file = tmp_path / ".lock"
     real_flock = fcntl.flock

@@ -688,7 +688,7 @@ def test_a_second_study_in_a_folder_another_study_holds_is_refused_at_once(tmp_p
     """It was refused only when it reached the arm whose run folder the first study held, with advice
     for `train` ("train under another name"), after spending its time on the arms before."""
     from train.study import STUDY_LOCK
-    from train.trainer import lock_folder
+    from train.folder_lock import lock_folder
 
     out_dir = tmp_path / "study"
     held = lock_folder(out_dir, STUDY_LOCK, "study folder", "study", "give another --out")  # as a running study holds it

@@ -46,7 +46,7 @@ def test_progress_bar_labels_its_throughput_and_shows_no_rates_before_an_episode
 
     from tqdm import tqdm
 
-    from train.trainer import _advance
+    from train.progress_bar import advance_bar as _advance
 
     row = {"world_steps": 342, "agent_steps_per_s": 900.0}
     out = io.StringIO()

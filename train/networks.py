@@ -203,7 +203,7 @@ class FlatTrunk(nn.Module):
 #: A trunk is built as cls(spec, cfg: NetConfig), has `out_dim`, and maps obs (..., spec.dim) float32
 #: to features (..., out_dim); Actor and Critic put their heads on it (docs/training.md, "Network").
 #: Its SHAPE_KEYS name the net.* keys its weights depend on (--init-from compares those; all of
-#: train/trainer.py ACTOR_SHAPE_KEYS when it has none).
+#: train/run_checks.py ACTOR_SHAPE_KEYS when it has none).
 TRUNKS: dict[str, type[nn.Module]] = {"reference": PooledTrunk, "mlp": FlatTrunk}
 
 

@@ -54,7 +54,8 @@ from .checkpoint import is_training_checkpoint, load_checkpoint
 from .config import load_train_config, set_keys, train_config_from_dict
 from .policy import load_policy
 from .study_evaluation import HEURISTIC, KeptEvaluation
-from .trainer import Trainer, lock_folder, release_lock
+from .folder_lock import lock_folder, release_lock
+from .trainer import Trainer
 from .validation import FixedSeedValidator
 
 @dataclasses.dataclass(frozen=True)

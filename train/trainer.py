@@ -21,7 +21,6 @@ import contextlib
 import copy
 import dataclasses
 import json
-import os
 import shutil
 import time
 from pathlib import Path
@@ -30,28 +29,31 @@ from typing import IO, Callable
 import numpy as np
 import torch
 
-from pursuit_mj.configio import build, dump_yaml, to_dict
+from pursuit_mj.configio import dump_yaml, to_dict
 from pursuit_mj.evaluation import capture_steps
 from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, file_sha256, made_here, no_new_empty_folders, remove_leftover_parts
-from pursuit_mj.provenance import provenance
 from pursuit_mj.policies import make_policy
 from pursuit_mj.sensing import privileged_config
 
 from .agent import ActorCritic
 from .checkpoint import check_obs_spec, is_training_checkpoint, load_checkpoint, load_error, save_checkpoint
 from .child_process import WorkerExited
-from .config import NetConfig, TrainConfig, defaults_filled_in, train_config_from_dict, usable_cores
+from .config import TrainConfig, defaults_filled_in, train_config_from_dict, usable_cores
 from .critic_worker import CriticWorker
 from .demonstration_files import FOLDER as DEMONSTRATIONS, DemonstrationFiles
 from .discount import Discount
+from .folder_lock import FolderInUse, lock_run_folder, release_lock
 from .imitation import DaggerCollector, Demonstrations, imitation_update, teacher_share
 from .metrics_log import MetricsLog, json_ready, missing_updates
-from .networks import TRUNKS, team_mismatch
+from .networks import team_mismatch
 from pursuit_mj.recording.rerun_scalars import RerunScalarLogger
 from .policy import ActorPolicy, trained_team
+from .progress_bar import advance_bar, progress_bar
 from .ppo import advantages_and_returns, ppo_update, teacher_labels_needed, teacher_weight
 from .rollout import Collector, RolloutStats, hand_made_team, make_action_path, make_collector, make_training_env
 from .rollout_worker import RolloutWorker
+from .run_checks import (best_instead, check_code_files, check_layout_files, check_same_network, checkpoint_every_of,
+                         init_from_sha256, train_diverged_hint, trained_by)
 from .storage import Rollout
 from .validation import FixedSeedValidator, summarise, versus
 
@@ -255,8 +257,8 @@ class Trainer:
         if check is not None:
             check(cfg)
         restart = restart or f"start a new run from this one with --init-from {Path(run_dir) / 'last.pt'}"
-        _check_layout_files(cfg, data.get("layout_sha256", {}), run_dir, restart)
-        _check_code_files(cfg, data.get("code_sha256", {}), run_dir, restart)
+        check_layout_files(cfg, data.get("layout_sha256", {}), run_dir, restart)
+        check_code_files(cfg, data.get("code_sha256", {}), run_dir, restart)
         filled = defaults_filled_in(data["train_config"], cfg)
         if filled:
             shown = ", ".join(filled[:6]) + (f" and {len(filled) - 6} more" if len(filled) > 6 else "")
@@ -349,7 +351,7 @@ class Trainer:
         (A run killed before its first checkpoint leaves no more than that: it starts afresh.)"""
         if (self.run_dir / "last.pt").exists():
             return
-        first = max(self.cfg.run.checkpoint_every, _checkpoint_every_of(self.run_dir / "config.yaml"))
+        first = max(self.cfg.run.checkpoint_every, checkpoint_every_of(self.run_dir / "config.yaml"))
         rows = [r.get("update") for r in MetricsLog(self.run_dir / "metrics.jsonl").rows()]
         later = [u for u in rows if isinstance(u, int) and u > first]
         try:
@@ -753,7 +755,7 @@ class Trainer:
     def _validate_into(self, row: dict, bar, last_val: dict) -> dict:
         """Validate the current policy; the result goes into `row` (and best.pt if it is the best)."""
         c = self.counters
-        _advance(bar, row, self.recent, last_val, self.progress(), note="validating")
+        advance_bar(bar, row, self.recent, last_val, self.progress(), note="validating")
         t0 = time.perf_counter()
         val = self.validate()
         spent = time.perf_counter() - t0
@@ -778,7 +780,7 @@ class Trainer:
             self.rerun.log(int(row["world_steps"]), row)
         if self.counters.update % self.cfg.run.checkpoint_every == 0:  # after the log: a resume truncates the log to it
             self.save()
-        _advance(bar, row, self.recent, last_val, self.progress())
+        advance_bar(bar, row, self.recent, last_val, self.progress())
 
     def _cannot_write(self, exc: ValueError) -> ValueError:
         """exc (a file of the run could not be written) with what the run folder still holds."""
@@ -817,7 +819,7 @@ class Trainer:
             # rows (or a cut-off line) of a run killed before its first checkpoint: it starts afresh, and so does its log
             self.log(f"{self.metrics.path}: dropping {len(self.metrics.rows())} rows of a run stopped before its first checkpoint")
             self.metrics.truncate_after(0)
-        bar = _progress(cfg, self.progress())
+        bar = progress_bar(cfg, self.progress())
         last_val = self._logged_validation()  # a resumed run's last one, until this session validates
         if nothing_left:
             self.log(self._why_done())
@@ -870,180 +872,8 @@ class Trainer:
         return {"status": status, "counters": dataclasses.asdict(c), "validation": last_val, "run_dir": str(self.run_dir)}
 
 
-def train_diverged_hint(last: Path | None, update: int, key: str) -> str:
-    """What a diverged run's folder keeps and how `pursuit-mj train` starts again from it with the
-    setting `key` changed: the checkpoint `last` of update `update`, or None when none was saved."""
-    if last is None:
-        return "no update was saved"
-    return f"{last} keeps update {update}, from which a new run can start (--init-from {last} --set {key}=...)"
-
-
-def init_from_sha256(cfg: TrainConfig, checkpoint: dict | None) -> str | None:
-    """sha256 of the init_from file as the run began (the checkpoint entry init_from_sha256): a
-    resumed run's stored one (the file may have changed or gone since), else the file's now;
-    None without init_from, or for a run resumed from a checkpoint written before it was kept."""
-    if checkpoint is not None:
-        return checkpoint.get("init_from_sha256")
-    return file_sha256(cfg.init_from) if cfg.init_from and Path(cfg.init_from).is_file() else None
-
-
-def trained_by(checkpoint: dict | None, start_update: int) -> list[dict]:
-    """The checkpoint entry trained_by (train/checkpoint.py) for a session starting at
-    `start_update`: a resumed run's list (`checkpoint`, None for a new run), with this code's
-    provenance appended when it differs from the last entry's (a run resumed by other code)."""
-    entries = [dict(e) for e in (checkpoint or {}).get("trained_by", [])]
-    now = provenance()
-    if not entries or {k: v for k, v in entries[-1].items() if k != "from_update"} != now:
-        entries.append({"from_update": int(start_update), **now})
-    return entries
-
-
-ACTOR_SHAPE_KEYS = ("kind", "encoder_width", "hidden", "use_rays")  # the net.* keys that decide the actor's weights
-
-
-def check_same_network(data: dict, net: NetConfig, path: str | Path) -> None:
-    """ValueError naming both networks unless the checkpoint `data`'s actor was built with this
-    run's net.kind, widths and use_rays (ACTOR_SHAPE_KEYS, or those of them its kind's trunk uses:
-    its SHAPE_KEYS in train/networks.py): its weights would not load, or, for two
-    kinds with the same weight names, would load into another network. A kind this code does not
-    know is refused by name (train_config.net: key 'kind')."""
-    stored = build(NetConfig, data["train_config"].get("net", {}), f"init_from {path}: train_config.net")
-    keys = getattr(TRUNKS.get(stored.kind), "SHAPE_KEYS", ACTOR_SHAPE_KEYS)  # those the stored network's weights depend on
-    differ = [k for k in keys if getattr(stored, k) != getattr(net, k)]
-    if differ:
-        def shown(cfg: NetConfig) -> str:
-            return ", ".join(f"net.{k} {_text(getattr(cfg, k))}" for k in differ)
-
-        sets = " ".join(f"--set net.{k}={_text(getattr(stored, k), yaml=True)}" for k in differ)
-        raise ValueError(f"init_from {path}: its actor is {shown(stored)}; this run builds {shown(net)} "
-                         f"(to start from it, give the run the same network: {sets})")
-
-
-def _text(value, yaml: bool = False) -> str:
-    """A net.* value as the error shows it (tuples as lists; booleans as YAML writes them)."""
-    if isinstance(value, tuple):
-        return f"[{', '.join(map(str, value))}]" if not yaml else f"[{','.join(map(str, value))}]"
-    if isinstance(value, bool):
-        return str(value).lower()
-    return str(value)
-
-
-def _check_layout_files(cfg: TrainConfig, trained: dict, run_dir: str | Path, restart: str) -> None:
-    """Refuse to resume a run whose layout files cannot be loaded from here or differ from the
-    ones it trained on (sha256 in `trained`, by path; runs saved before it was kept are not checked);
-    `restart` says how to start the run again instead."""
-    try:
-        cfg.check_layouts(f"--resume {run_dir}: the run's stored config")
-    except ValueError as exc:
-        relative = [path for _, path in cfg.layout_files() if not os.path.isabs(path)]
-        hint = (f"; the run stored {relative[0]} relative to the folder it started in: resume from that folder"
-                if relative else "")
-        raise ValueError(f"{exc}{hint}") from None
-    for key, path in cfg.layout_files():
-        if path in trained and file_sha256(path) != trained[path]:
-            raise ValueError(f"--resume {run_dir}: layout file {path} ({key}) has changed since the run started: "
-                             f"the rest of the run would train and validate in another arena than the first part. "
-                             f"Restore the file, or {restart}")
-
-
-def _check_code_files(cfg: TrainConfig, trained: dict, run_dir: str | Path, restart: str) -> None:
-    """Refuse to resume a run whose code files (reward terms, evader model) cannot be loaded or
-    differ from the ones it trained with (sha256 in `trained`, by path); `restart` as _check_layout_files."""
-    cfg.check_code(f"--resume {run_dir}: the run's stored config")
-    for key, path in cfg.code_files():
-        if path in trained and file_sha256(path) != trained[path]:
-            what = "other rewards" if key == "rewards" else "other evaders"
-            raise ValueError(f"--resume {run_dir}: {path} ({key}) has changed since the run started: the rest of the "
-                             f"run would learn from {what} than the first part. Restore the file, or {restart}")
-
-
 #: the files a run writes in its folder beside its checkpoints and lock (_start_session, _build)
 RUN_FILES = ("config.yaml", "metrics.jsonl", "metrics.rrd")
-
-
-class FolderInUse(ValueError):
-    """Another trainer holds the run folder's lock."""
-
-
-def lock_run_folder(run_dir: Path):
-    """An open file holding an exclusive lock on `run_dir` (released when closed, or when the
-    process dies); ValueError if another trainer holds it: two runs in one folder would
-    interleave their metrics rows and overwrite each other's checkpoints."""
-    return lock_folder(run_dir, ".lock", "run folder", "trainer", "train under another name")
-
-
-def lock_folder(folder: Path, lock_name: str, what: str, holder_kind: str, advice: str):
-    """An open file `folder`/`lock_name` holding an exclusive lock (made with the folder if need be;
-    released when closed, or when the process dies). FolderInUse if another process holds it:
-    '<what> <folder> is in use by another <holder_kind> (pid N): wait for it to end or stop it, or
-    <advice>'; ValueError if the lock file cannot be written."""
-    import fcntl
-
-    while True:  # again if the file locked was removed meanwhile (by a holder that could not start): lock the one there
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-            handle = open(folder / lock_name, "a+")
-        except OSError as exc:
-            raise ValueError(f"{what} {folder}: cannot write its lock file ({exc.strerror or exc})") from None
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            handle.seek(0)
-            holder = handle.read().strip() or "another process"
-            handle.close()
-            raise FolderInUse(f"{what} {folder} is in use by another {holder_kind} ({holder}): wait for it to end or stop "
-                              f"it, or {advice}") from None
-        if _names_file(folder / lock_name, handle):
-            break
-        handle.close()
-    try:  # unbuffered: nothing is left to flush (and fail) when the handle closes
-        os.ftruncate(handle.fileno(), 0)
-        os.pwrite(handle.fileno(), f"pid {os.getpid()}".encode(), 0)
-    except OSError as exc:  # a full disk: the lock is held, but the holder's pid could not be written
-        handle.close()
-        raise ValueError(f"{what} {folder}: cannot write its lock file ({exc.strerror or exc})") from None
-    return handle
-
-
-def release_lock(handle, lock_file: Path, remove_file: bool) -> None:
-    """Release the lock `handle` (lock_folder) whose file is `lock_file`, removing that file first when
-    `remove_file` (one this process made, for a run or study that could not start): while the lock is
-    still held, so that no other holder's lock file is taken away. A file already gone is no error."""
-    if remove_file:
-        with contextlib.suppress(OSError):
-            lock_file.unlink()
-    handle.close()
-
-
-def _names_file(path: Path, handle) -> bool:
-    """Whether `path` is (still) the file open as `handle`."""
-    try:
-        return os.path.samestat(os.stat(path), os.fstat(handle.fileno()))
-    except OSError:  # removed
-        return False
-
-
-def _checkpoint_every_of(config_yaml: Path) -> int:
-    """run.checkpoint_every of the run whose config.yaml this is (1 if it cannot be read)."""
-    from pursuit_mj.configio import load_yaml
-
-    try:
-        every = load_yaml(config_yaml)["run"]["checkpoint_every"]
-    except Exception:  # noqa: BLE001 - missing, damaged or hand-edited: the new run's own setting decides
-        return 1
-    return every if isinstance(every, int) and not isinstance(every, bool) and every >= 1 else 1
-
-
-def best_instead(run_dir: Path) -> str:
-    """How to go on from the run's best.pt when its last.pt is unusable ('' if best.pt is unusable too)."""
-    try:
-        best = load_checkpoint(run_dir / "best.pt")
-    except ValueError:
-        return ""
-    if not is_training_checkpoint(best):
-        return ""
-    return (f"; its best.pt (update {best['counters'].get('update')}) is intact: copy it over last.pt to resume from "
-            f"there (the updates after it are trained again)")
 
 
 def read_counters(data: dict, path: Path) -> Counters:
@@ -1071,36 +901,3 @@ def _mean_returns(episodes) -> dict[str, float]:
     return {k: float(np.mean([e.returns[k] for e in episodes])) for k in keys}
 
 
-def _progress(cfg: TrainConfig, done: float):
-    """A tqdm bar in percent of the run (by steps, or by time when max_minutes ends it sooner)."""
-    if not cfg.run.progress:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=100.0, initial=round(100.0 * done, 1), unit="%", desc=cfg.name, dynamic_ncols=True,
-                smoothing=0.1, bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}{postfix}]")
-
-
-def _advance(bar, row: dict, recent, last_val: dict, done: float, note: str = "") -> None:
-    """Move the bar to `done` (fraction of the run) with live training figures; `note` says what runs now."""
-    if bar is None:
-        return
-    s = summarise(list(recent)) if recent else {}
-    post = {
-        "steps": row["world_steps"],  # "-" below: no episode has ended yet
-        "succ": f"{s['success']:.0%}" if s else "-", "coll": f"{s['collision']:.0%}" if s else "-",
-        "ep_len": f"{s['mean_steps']:.0f}" if s else "-",
-        "agent_sps": f"{row['agent_steps_per_s']:.0f}",  # pursuer transitions, not the world steps of `steps`
-    }
-    if "gamma_meta_grad" in row:
-        post["gamma"] = f"{row['gamma']:.4f}"
-    if last_val:
-        post["val"] = f"{last_val['success']:.0%}"
-        if "vs_heuristic_steps" in last_val:
-            post["val_vs_heur"] = f"{last_val['vs_heuristic_steps']:+.0f} steps"
-    if note:
-        post["now"] = note
-    bar.set_postfix(post, refresh=False)
-    bar.update(max(round(100.0 * done, 1) - bar.n, 0.0))
-    if note:
-        bar.refresh()  # the update may not redraw (tqdm's miniters), and what follows can take a while

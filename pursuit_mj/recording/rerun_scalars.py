@@ -8,7 +8,6 @@ curves behind; open it with `rerun FILE` during or after training.
 
 from __future__ import annotations
 
-import math
 import uuid
 from pathlib import Path
 from typing import Any, Mapping

@@ -245,7 +245,7 @@ class VirtualFleet:
 
     def _step(self) -> None:
         with self.lock:
-            a, n = self.airframe, self.airframe.n
+            a = self.airframe
             pos_est, vel_est = self._estimates()
             # the airframe holds yaw 0 in the lab while the drone it stands for faces its start
             # heading, which is its estimate frame's x axis: its yaw in that frame is the airframe's
