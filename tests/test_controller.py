@@ -573,3 +573,30 @@ def test_a_tipped_drone_is_turned_back_at_max_rate_about_a_horizontal_body_axis(
     _right_tipped_drones(rate, cols, np.array([[0.0], [0.0], [1.0]]), 6.0)
     assert np.hypot(rate[0, 0], rate[1, 0]) == pytest.approx(6.0) and rate[2, 0] == 0.0
     assert rate[1, 0] < 0  # pitched +120 deg about body y: back the shorter way, negative about y
+
+
+def test_no_rotor_thrust_outside_0_to_max_reaches_mujoco_even_in_a_head_on_crash(params):
+    """Two drones meet head on at 3 m/s each (the fastest speed accepted) and tumble past 90 deg;
+    at every physics step (the controller ticks at each: 1 kHz on 1 ms steps) every rotor's
+    command (ctrl) and the filtered thrust MuJoCo applies (act) stay within [0, max_thrust]."""
+    xy = SPREAD_XY.copy()
+    xy[0], xy[3] = [9.0, 10.0], [11.0, 10.02]  # a little off centre, so that they tumble
+    physics = make_physics(xy=xy, pursuer_speed=3.0, evader_speed=3.0, physics_dt=0.001, controller_hz=1000.0)
+    seen = {"act": [], "ctrl": [], "tilt": []}
+
+    def record(p):
+        seen["act"].append(p.act[0, p._act_idx])
+        seen["ctrl"].append(p.ctrl[0, p._ctrl_idx])
+        seen["tilt"].append(tilt_angle(p.quaternions()[0]))
+
+    physics.observers.append(record)
+    cmd = np.zeros((1, 4, 2))
+    cmd[0, 0], cmd[0, 3] = [3.0, 0.0], [-3.0, 0.0]
+    touched = np.zeros(4, bool)
+    for _ in range(15):
+        touched |= physics.step(cmd)[0]
+    assert touched[0] and touched[3] and math.degrees(np.max(seen["tilt"])) > 90.0  # a real crash
+    for name in ("act", "ctrl"):
+        values = np.array(seen[name])
+        assert values.min() >= 0.0 and values.max() <= params["max_thrust"], (name, values.min(), values.max())
+    assert np.array(seen["act"]).max() > 0.99 * params["max_thrust"]  # the limit was reached, and held

@@ -383,3 +383,27 @@ def test_no_python_runs_in_mujocos_callbacks_and_the_log_settings_come_back(tmp_
     config = mujoco.MjLogConfig.get()
     assert (config.logto_console, config.logto_file) == (True, True)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("physics_dt", [0.002, 0.01])
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_a_drone_at_the_fastest_accepted_speed_stops_at_a_1_mm_wall_and_never_passes_it(fidelity, physics_dt):
+    """At the highest speed a task accepts (3 m/s) a drone moves at most 3 cm per physics step
+    (physics_dt up to 0.01 s), under half its collision radius (0.0685 m): MuJoCo's contact
+    catches it before its centre nears even a 1 mm wall, and pushes it back to the near side."""
+    thickness, wall_x = 0.001, 10.0
+    layout = open_layout(obstacles=[{"wall": {"from": [wall_x, 8.0], "to": [wall_x, 12.0], "thickness": thickness}}])
+    xy = SPREAD_XY.copy()
+    xy[3] = [8.5, 10.0]  # the evader, 1.5 m before the wall
+    physics = make_physics(fidelity, layout=layout, xy=xy, evader_speed=3.0, physics_dt=physics_dt)
+    face = wall_x - thickness / 2 - 0.0685  # the evader's centre where its cylinder touches the wall
+    xs = []
+    physics.observers.append(lambda p: xs.append(p.positions()[0, 3, 0]))
+    cmd = np.zeros((1, 4, 2))
+    cmd[0, 3] = [3.0, 0.0]
+    touched = np.zeros(4, bool)
+    for _ in range(25):
+        touched |= physics.step(cmd)[0]
+    assert touched.tolist() == [False, False, False, True]
+    assert max(xs) < face + 0.03, f"{max(xs) - face:.4f} m into the wall"
+    assert physics.positions()[0, 3, 0] == pytest.approx(face, abs=0.005)  # pressed against it, on the near side
