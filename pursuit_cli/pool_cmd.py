@@ -45,7 +45,7 @@ def run(args) -> int:
 def _run(args) -> int:
     from pursuit_mj.comparison import format_pairs, pairs_to_dicts
     from pursuit_mj.evaluation import format_table, plot_rows, write_csv, write_json
-    from pursuit_mj.pooling import pool_tables, pooled_pairs
+    from pursuit_mj.pooling import not_paired, not_paired_text, pool_tables, pooled_pairs
 
     if args.out:
         check_out_prefix(args.out)  # a usage error, before the tables are read
@@ -73,6 +73,10 @@ def _run(args) -> int:
               f"{pooled.max_steps} for a failure; negative = sooner):")
         print(format_pairs(pairs))
         meta["paired"] = pairs_to_dicts(pairs)
+        alone = not_paired(pooled.rows, versus, pooled.max_steps, pooled.meta["layout_identity"])
+        if alone:  # else a policy of another seed's tables vanished from the comparison without a word
+            print(not_paired_text(alone, versus, pooled.meta["layout_identity"], pooled.rows))
+            meta["not_paired"] = [{"policy": r.policy, "layout": r.layout, "fidelity": r.fidelity} for r in alone]
     if args.out:
         print(f"wrote {write_csv(pooled.rows, args.out + '.csv')}")
         print(f"wrote {write_json(pooled.rows, args.out + '.json', meta=meta | {'config': pooled.config})}")

@@ -321,7 +321,22 @@ def pooled_pairs(rows: Sequence[Row], reference: str, max_steps: int, identity_o
     """Every other policy against `reference`, per layout and fidelity, on the episodes both
     played, and over all layouts where there are two or more (comparison.pair_matches on
     those); ValueError if `reference` is not among the rows. `identity_of` maps a row's layout
-    label to its identity (Pooled.meta["layout_identity"]); a label not in it is looked at here."""
+    label to its identity (Pooled.meta["layout_identity"]); a label not in it is looked at here.
+    A row that shares no episode with the reference is left out (not_paired names it)."""
+    matches, _ = _matched(rows, reference, max_steps, identity_of)
+    return pair_matches(matches, max_steps)
+
+
+def not_paired(rows: Sequence[Row], reference: str, max_steps: int, identity_of: dict[str, str] | None = None) -> list[Row]:
+    """The rows of other policies than `reference` that pooled_pairs leaves out: the reference
+    played none of their episodes (tables of another --seed, another layout or fidelity)."""
+    return _matched(rows, reference, max_steps, identity_of)[1]
+
+
+def _matched(rows: Sequence[Row], reference: str, max_steps: int,
+             identity_of: dict[str, str] | None) -> tuple[list[tuple[Row, Row]], list[Row]]:
+    """((row, reference row) restricted to the episodes both played, for every other policy's row
+    that shares one; the rows that share none)."""
     identity_of = identity_of or {}
 
     def ident(row: Row) -> str:
@@ -331,13 +346,42 @@ def pooled_pairs(rows: Sequence[Row], reference: str, max_steps: int, identity_o
     if not refs:
         names = ", ".join(dict.fromkeys(r.policy for r in rows))
         raise ValueError(f"--versus {reference!r}: no such policy in the tables (policies: {names})")
-    matches = []
+    matches, alone = [], []
     for row in rows:
-        ref = refs.get((ident(row), row.fidelity))
-        if row.policy == reference or ref is None:
+        if row.policy == reference:
             continue
-        common = {e[0] for e in row.episode_log} & {e[0] for e in ref.episode_log}
+        ref = refs.get((ident(row), row.fidelity))
+        common = set() if ref is None else {e[0] for e in row.episode_log} & {e[0] for e in ref.episode_log}
         if common:  # the reference under the row's label: one arena, however each table spelled it
             matches.append((_restricted(row, common, max_steps),
                             dataclasses.replace(_restricted(ref, common, max_steps), layout=row.layout)))
-    return pair_matches(matches, max_steps)
+        else:
+            alone.append(row)
+    return matches, alone
+
+
+def not_paired_text(rows: Sequence[Row], reference: str, identity_of: dict[str, str] | None = None,
+                    all_rows: Sequence[Row] = ()) -> str:
+    """Lines naming the rows left out of the pairing with `reference` ('' when none is), by why:
+    the reference played that layout (and fidelity) on other episodes (tables of another --seed),
+    or did not play it at all (its rows among `all_rows`)."""
+    identity_of = identity_of or {}
+
+    def where(row: Row) -> tuple[str, str]:
+        return identity_of.get(row.layout) or layout_identity(row.layout), row.fidelity
+
+    played = {where(r) for r in all_rows if r.policy == reference}
+    several = len({r.fidelity for r in rows}) > 1
+
+    def named(group: list[Row]) -> str:
+        return "; ".join(f"{r.policy} on layout {r.layout}" + (f" ({r.fidelity})" if several else "") for r in group)
+
+    other_seeds = [r for r in rows if where(r) in played]
+    unplayed = [r for r in rows if where(r) not in played]
+    lines = []
+    if other_seeds:
+        lines.append(f"not paired with {reference}: {named(other_seeds)} (no episode both played: tables of another "
+                     f"--seed hold other episodes; pool a table of {reference} on the same --seed to pair them)")
+    if unplayed:
+        lines.append(f"not paired with {reference}: {named(unplayed)} ({reference} has no row there)")
+    return "\n".join(lines)

@@ -578,3 +578,27 @@ def test_a_pool_says_which_policy_files_it_knows_only_when_every_table_recorded_
     assert pool_tables([knows, knows]).meta["policy_file_sha256_of"] == {}
     assert "policy_file_sha256_of" not in pool_tables([knows, tables["h1"]]).meta
     assert "policy_file_sha256_of" not in pool_tables([tables["h1"], knows]).meta
+
+
+def test_a_policy_that_shares_no_episode_with_the_reference_is_named_as_not_paired(tables, capsys):
+    """A model evaluated on --seed 1 and the team on --seed 0 hold no episode in common: the paired
+    table was printed as a bare header, with no word that the model was left out or why."""
+    from pursuit_cli import main
+
+    random_seed_0 = _table(tables["tmp"], "r0", 0, ("random",))
+    assert main(["pool", str(tables["h1"]), str(random_seed_0)]) == 0
+    out = capsys.readouterr().out
+    paired = out.split("paired with heuristic", 1)[1]
+    assert "not paired with heuristic: random on layout 0 (no episode both played" in paired, out
+    # one that shares episodes is paired and not named so
+    assert main(["pool", str(tables["h1"]), str(tables["hr0"])]) == 0
+    assert "not paired" not in capsys.readouterr().out
+    # a layout the reference did not play at all is named for that
+    from pursuit_mj.pooling import not_paired, not_paired_text
+
+    pooled = pool_tables([tables["h1"], random_seed_0])
+    rows = pooled.rows + [dataclasses.replace(r, layout="1") for r in pooled.rows if r.policy == "random"]
+    alone = not_paired(rows, "heuristic", pooled.max_steps)
+    assert [(r.policy, r.layout) for r in alone] == [("random", "0"), ("random", "1")]
+    text = not_paired_text(alone, "heuristic", all_rows=rows)
+    assert "random on layout 0 (no episode both played" in text and "random on layout 1 (heuristic has no row there)" in text
