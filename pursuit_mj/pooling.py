@@ -199,6 +199,7 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     episodes: dict[tuple[str, str, str], dict[int, tuple[tuple[str, int, int], Path]]] = {}
     labels: dict[tuple[str, str, str], str] = {}
     commits: dict[str, Path] = {}
+    sources: dict[str, Path] = {}  # the source_sha256 of the code that made each table (where recorded)
     arena_of: dict[str, tuple[str, Path]] = {}  # layout identity -> (its file's sha256, the table that said so)
     identity_of: dict[str, tuple[str, Path]] = {}  # layout label -> (its identity, the table that said so)
     code_of_first: dict | None = None
@@ -233,6 +234,9 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
         code_of_first = code if code_of_first is None else code_of_first
         for commit in code.get("git_commits") or [code.get("git_commit", "unknown")]:  # a pooled table's: all of them
             commits.setdefault(str(commit), path)
+        # one commit can be two codes: a table made from uncommitted edits (git_dirty) has another source hash
+        for source in code.get("source_sha256s") or ([code["source_sha256"]] if code.get("source_sha256") else []):
+            sources.setdefault(str(source), path)
         identities, arenas = _per_layout(data, "layout_identity"), _per_layout(data, "layout_sha256")
         for record in data["rows"]:
             policy, layout, fidelity, eps = _episodes(path, record if isinstance(record, dict) else {})
@@ -274,11 +278,15 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     if len(commits) > 1:
         notes.append("note: the tables come from several code versions (git commits "
                      + ", ".join(f"{c[:10]} in {p}" for c, p in commits.items()) + ")")
+    elif len(sources) > 1:
+        notes.append("note: the tables come from different source code under one git commit (local changes; source "
+                     "sha256 " + ", ".join(f"{c[:10]} in {p}" for c, p in sources.items()) + ")")
     layouts = {labels[key]: key[1] for key in episodes}
     meta = {"model_sha256_of": {label: sha for label, (sha, _) in model_of.items()},
             "layout_identity": layouts,
             "layout_sha256": {label: arena_of[ident][0] for label, ident in layouts.items() if ident in arena_of},
-            "code": dict(code_of_first or {}) if len(commits) == 1 else {"git_commits": list(commits)}}
+            "code": (dict(code_of_first or {}) if len(commits) == 1 and len(sources) <= 1
+                     else {"git_commits": list(commits), **({"source_sha256s": list(sources)} if sources else {})})}
     if knows_files:  # else a label of an older table, a policy file perhaps, would read as a hand-made team
         meta["policy_file_sha256_of"] = {label: sha for label, (sha, _) in file_of.items()}
     if "evader_model_sha256" in first:  # so that the pooled table is checked alike when pooled again

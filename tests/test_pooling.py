@@ -602,3 +602,24 @@ def test_a_policy_that_shares_no_episode_with_the_reference_is_named_as_not_pair
     assert [(r.policy, r.layout) for r in alone] == [("random", "0"), ("random", "1")]
     text = not_paired_text(alone, "heuristic", all_rows=rows)
     assert "random on layout 0 (no episode both played" in text and "random on layout 1 (heuristic has no row there)" in text
+
+
+def test_tables_of_one_commit_but_different_source_are_noted_and_stay_noted_when_pooled_again(tables, tmp_path, capsys):
+    """A table made from uncommitted edits (git_dirty, another source_sha256) at the same commit as
+    another was pooled with it without a note: only git commits were compared, so two versions of
+    the heuristic team became one row unremarked."""
+    from pursuit_cli import main
+
+    base = {"policies": ["heuristic"], "models": [], "model_sha256": []}
+    clean = {"git_commit": "cccccccccccc", "git_dirty": False, "source_sha256": "1111111111aa"}
+    edited = {"git_commit": "cccccccccccc", "git_dirty": True, "source_sha256": "2222222222bb"}
+    a = _table(tables["tmp"], "sa", 0, meta={**base, "code": clean})
+    b = _table(tables["tmp"], "sb", 1, meta={**base, "code": edited})
+    assert any("1111111111" in n and "2222222222" in n for n in pool_tables([a, b]).notes)
+    assert main(["pool", str(a), str(b), "--out", str(tmp_path / "ab")]) == 0
+    out = capsys.readouterr().out
+    assert "different source code" in out and "1111111111 in" in out and "2222222222 in" in out, out
+    assert main(["pool", str(tmp_path / "ab.json")]) == 0  # the pooled table says so too
+    assert "different source code" in capsys.readouterr().out
+    same = _table(tables["tmp"], "sc", 1, meta={**base, "code": clean})
+    assert pool_tables([a, same]).notes == []  # one commit, one source: nothing to note
