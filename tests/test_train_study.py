@@ -937,3 +937,36 @@ def test_an_arm_folder_holding_an_earlier_run_without_last_pt_is_told_with_advic
     assert f"run folder {run} holds an earlier run (metrics.jsonl rows up to update 1000000" in err, err
     assert "--name" not in err and "then --resume" not in err, err
     assert "then pursuit-mj study --resume" in err and f"delete the arm's run folder {run} to train the arm afresh" in err, err
+
+
+def test_the_study_table_names_each_arms_checkpoint_so_that_pool_refuses_two_studies_of_other_arms(tmp_path):
+    """A study's table.json recorded no checkpoint, code or layout file: `pursuit-mj pool` over two
+    studies (two seeds) made one row of two different full_obs networks without a word. It now
+    records them as eval does, and pool refuses a label that names two checkpoints."""
+    from types import SimpleNamespace
+
+    from pursuit_mj.config import default_config
+    from pursuit_mj.evaluation import evaluate
+    from pursuit_mj.policies import make_policy
+    from pursuit_mj.pooling import pool_tables
+    from train import study
+
+    task = dataclasses.replace(default_config(), fidelity="point", max_steps=60)
+    tables = []
+    for seed, sha in ((0, "a" * 64), (1, "b" * 64)):
+        rows = evaluate(make_policy("heuristic", task), task, [0], 2, seed, 2)
+        rows += evaluate(make_policy("heuristic", task), task, [0], 2, seed, 2, label="full_obs")
+        out = tmp_path / f"study{seed}"
+        out.mkdir()
+        state = {"evaluation": {"checkpoints": {"full_obs": sha}, "cells": {
+            "heuristic": {"0": {"row": {"policy": "heuristic"}, "seconds": 1.0}},
+            "full_obs": {"0": {"row": {"policy": "full_obs"}, "seconds": 1.0}}}}}
+        plan = SimpleNamespace(out=out, eval_task=task, layouts=(0,), seed=seed, budget_minutes=1.0)
+        study._write(plan, rows, {"total": 1.0}, 2, state)
+        tables.append(out / "table.json")
+    meta = json.loads(tables[0].read_text())
+    assert meta["model_sha256_of"] == {"full_obs": "a" * 64} and meta["layout_identity"] == {"0": "0"}
+    assert "source_sha256" in meta["code"]
+    with pytest.raises(ValueError, match="policy 'full_obs' is two different models"):
+        pool_tables(tables)
+    assert len(pool_tables([tables[0]]).rows) == 2  # one study's table pools as ever

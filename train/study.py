@@ -45,10 +45,13 @@ from typing import Callable, Sequence
 from pursuit_mj.config import TaskConfig
 from pursuit_mj.configio import TaskValueError, first_difference, parse_override, to_dict
 from pursuit_mj.comparison import paired_report, pairs_to_dicts
-from pursuit_mj.evaluation import evaluate, format_table, plot_rows, write_csv, write_json
-from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, no_new_empty_folders
+from pursuit_mj.evader_models import evader_model_sha256
+from pursuit_mj.evaluation import evaluate, format_table, layout_identity, layout_label, plot_rows, write_csv, write_json
+from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, file_sha256, no_new_empty_folders
+from pursuit_mj.layout import resolve_layout_ref
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import make_policy
+from pursuit_mj.provenance import provenance
 
 from .checkpoint import is_training_checkpoint, load_checkpoint
 from .config import load_train_config, set_keys, train_config_from_dict
@@ -886,10 +889,30 @@ def _write(plan: StudyPlan, rows: Sequence, timings: dict[str, float], episodes:
     sessions = {"session_budgets_minutes": state.get("budgets", [plan.budget_minutes]),
                 "seconds_all_sessions": _earlier_sessions_seconds(state)}
     meta = {"budget_minutes": plan.budget_minutes, **sessions, "episodes": episodes,
-            "layouts": [str(l) for l in plan.layouts], "seed": plan.seed, "paired": pairs_to_dicts(pairs)}
+            "layouts": [str(l) for l in plan.layouts], "seed": plan.seed, "paired": pairs_to_dicts(pairs),
+            **_table_provenance(plan, state)}
     write_json(rows, plan.out / "table.json", plan.eval_task, meta)
     plot_rows(rows, plan.out / "plots")
     atomic_write_text(plan.out / "timings.json", _timings_json(timings))
+
+
+def _table_provenance(plan: StudyPlan, state: dict) -> dict:
+    """What eval's tables record of what played them, for table.json, so that `pursuit-mj pool` checks
+    a study's table as it checks eval's (a label that names two checkpoints, two arenas under one
+    layout, code versions): each arm's label with its best.pt's sha256 (from the kept evaluation:
+    the checkpoint its cells were played with), no policy files, the code, the layouts' files and
+    identities and the evaders' model file."""
+    kept = state.get("evaluation") or {}
+    models = {}
+    for key, sha in (kept.get("checkpoints") or {}).items():
+        for cell in ((kept.get("cells") or {}).get(key) or {}).values():
+            row = cell.get("row") if isinstance(cell, dict) else None
+            if isinstance(row, dict) and isinstance(row.get("policy"), str):
+                models[row["policy"]] = sha
+    return {"model_sha256_of": models, "policy_file_sha256_of": {}, "code": provenance(),
+            "layout_sha256": {layout_label(l): file_sha256(resolve_layout_ref(l)) for l in plan.layouts},
+            "layout_identity": {layout_label(l): layout_identity(l) for l in plan.layouts},
+            "evader_model_sha256": evader_model_sha256(plan.eval_task)}
 
 
 def _timings_json(timings: dict[str, float]) -> str:
