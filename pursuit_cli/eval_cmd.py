@@ -151,6 +151,7 @@ def _run_table(args, config, layouts, policies, recording, rows: list, done: dic
     (which holds the finished ones if this is interrupted) and calling finished(rows); a cell in
     `done` (by (policy, layout label), see finished_rows) is taken from there instead."""
     from pursuit_mj.evaluation import evaluate, layout_label
+    from pursuit_mj.stats import percent_text
 
     for label, policy in policies:
         for ref in layouts:
@@ -169,7 +170,7 @@ def _run_table(args, config, layouts, policies, recording, rows: list, done: dic
             if not args.quiet:
                 r = rows[-1]
                 print(f"[eval] {label} layout {r.layout}: {counted(r.episodes, 'episode')} in {time.perf_counter() - t0:.1f} s, "
-                      f"success {100 * r.success.p:.1f} %", file=sys.stderr, flush=True)
+                      f"success {percent_text(r.success.p)} %", file=sys.stderr, flush=True)  # as the table says it
     return rows
 
 

@@ -347,6 +347,9 @@ def _run(args) -> int:
     seconds_before = trainer.counters.seconds  # a resumed run's counters hold its earlier sessions too
     stops = getattr(args, "stop_signals", [])
     result = trainer.train(stop_requested=lambda: bool(stops))
+    from pursuit_mj.comparison import p_value_text
+    from pursuit_mj.stats import percent_text
+
     c = result["counters"]
     earlier = f"; {c['seconds'] - seconds_before:.0f} s of it in this session" if seconds_before > 0 else ""
     print(f"{result['status']}: {counted(c['update'], 'update')}, {c['world_steps']} world steps, "
@@ -354,17 +357,17 @@ def _run(args) -> int:
           f"({c['seconds'] - c.get('validation_seconds', 0.0):.0f} s training, {c.get('validation_seconds', 0.0):.0f} s validating"
           f"{earlier})")
     if c["best_update"] >= 0:
-        print(f"best validation success {c['best_success']:.1%} (update {c['best_update']}): {Path(result['run_dir']) / 'best.pt'}")
+        print(f"best validation success {percent_text(c['best_success'])} % (update {c['best_update']}): {Path(result['run_dir']) / 'best.pt'}")
     val = result["validation"]
     if "vs_heuristic_steps" in val:
-        print(f"last validation ({val['episodes']} fixed episode{'' if val['episodes'] == 1 else 's'}): success {val['success']:.1%}, {val['mean_steps']:.1f} mean steps; "
-              f"the heuristic team {val['heuristic_success']:.1%}, {val['heuristic_mean_steps']:.1f}; paired, "
+        print(f"last validation ({val['episodes']} fixed episode{'' if val['episodes'] == 1 else 's'}): success {percent_text(val['success'])} %, {val['mean_steps']:.1f} mean steps; "
+              f"the heuristic team {percent_text(val['heuristic_success'])} %, {val['heuristic_mean_steps']:.1f}; paired, "
               f"{val['vs_heuristic_steps']:+.1f} "
               + ("[no interval: 1 episode]" if val["vs_heuristic_lo"] is None else
                  f"[{val['vs_heuristic_lo']:+.1f}, {val['vs_heuristic_hi']:+.1f}]") + " capture steps "
               f"per episode (negative: sooner)"
               + (f"; caught by one side only: policy {val['vs_heuristic_only_policy']}, team {val['vs_heuristic_only_heuristic']} "
-                 f"(McNemar p {val['vs_heuristic_success_p']:.3g})" if "vs_heuristic_success_p" in val else ""))
+                 f"(McNemar p {p_value_text(val['vs_heuristic_success_p'])})" if "vs_heuristic_success_p" in val else ""))
     last = Path(result["run_dir"]) / "last.pt"
     print(f"last checkpoint: {last}; metrics: {Path(result['run_dir']) / 'metrics.jsonl'}" if last.is_file()
           else f"no checkpoint yet in {result['run_dir']}")

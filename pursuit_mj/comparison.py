@@ -156,13 +156,13 @@ def format_pairs(pairs: Sequence[Paired]) -> str:
             "p (sign-flip)", "steps verdict", "caught only by policy / versus", "p (McNemar)", "success verdict"]
     body = [[p.policy, p.reference, p.layout, *([p.fidelity] if several else []), str(p.episodes),
              f"{p.steps.mean:+7.1f} " + ("[no interval]" if p.steps.lo is None else f"[{p.steps.lo:+7.1f}, {p.steps.hi:+7.1f}]"),
-             f"{p.faster} / {p.slower}", _p_text(p.p_value), p.verdict,
-             f"{p.only_policy} / {p.only_reference}", _p_text(p.success_p), p.success_verdict] for p in pairs]
+             f"{p.faster} / {p.slower}", p_value_text(p.p_value), p.verdict,
+             f"{p.only_policy} / {p.only_reference}", p_value_text(p.success_p), p.success_verdict] for p in pairs]
     widths = [max(len(x) for x in col) for col in zip(head, *body)]
     return "\n".join("  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in [head] + body)
 
 
-def _p_text(p: float | None) -> str:
+def p_value_text(p: float | None) -> str:
     """A p-value to 3 significant digits ('-' for none, '<0.001' below it), or to as many more as
     keep one below VERDICT_LEVEL from printing as it (0.049983 as 0.04998, not 0.05 beside a verdict)."""
     if p is None:

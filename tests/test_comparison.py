@@ -178,13 +178,13 @@ def test_two_layouts_or_more_get_one_more_line_over_all_their_episodes():
 def test_a_p_value_just_below_the_verdict_level_does_not_print_as_it():
     """150 episodes won by the policy alone to 117 by the team give p = 0.049983: printed '0.05' beside the
     verdict 'surer', which needs p below 0.05."""
-    from pursuit_mj.comparison import VERDICT_LEVEL, _p_text
+    from pursuit_mj.comparison import VERDICT_LEVEL, p_value_text
     from pursuit_mj.stats import mcnemar_p
 
     p = mcnemar_p(150, 117)
     assert p < VERDICT_LEVEL
-    assert float(_p_text(p)) < VERDICT_LEVEL and _p_text(p) == "0.04998"
-    assert [_p_text(x) for x in (0.05, 0.125, 0.0625, 0.00781, 0.0005, 1.0, None)] == \
+    assert float(p_value_text(p)) < VERDICT_LEVEL and p_value_text(p) == "0.04998"
+    assert [p_value_text(x) for x in (0.05, 0.125, 0.0625, 0.00781, 0.0005, 1.0, None)] == \
         ["0.05", "0.125", "0.0625", "0.00781", "<0.001", "1", "-"]
 
 

@@ -377,6 +377,8 @@ def test_an_interrupted_eval_keeps_its_finished_cells_beside_the_table_it_was_as
     import os
     import signal
 
+    import dataclasses
+
     import pursuit_mj.evaluation as evaluation
 
     whole = tmp_path / "t.json"
@@ -407,6 +409,8 @@ def test_resume_counts_the_rows_it_takes_back_in_words_that_fit_one(tmp_path, mo
     import os
     import signal
 
+    import dataclasses
+
     import pursuit_mj.evaluation as evaluation
 
     cmd = ["eval", "--policy", "heuristic", "--policy", "random", "--layouts", "0", "--episodes", "1", "--worlds", "1",
@@ -432,6 +436,8 @@ def test_resume_counts_the_rows_it_takes_back_in_words_that_fit_one(tmp_path, mo
 def test_resume_runs_only_the_rows_an_interrupted_eval_did_not_finish_and_gives_the_whole_table(tmp_path, monkeypatch, capsys):
     import os
     import signal
+
+    import dataclasses
 
     import pursuit_mj.evaluation as evaluation
 
@@ -543,6 +549,8 @@ def test_the_source_hash_follows_every_source_file_but_not_compiled_caches(tmp_p
 def test_an_eval_stopped_before_any_cell_finished_says_nothing_is_kept(tmp_path, monkeypatch, capsys):
     """It said only 'interrupted'; its --resume then answered 'an eval stopped by Ctrl-C or SIGTERM
     leaves one', as if the eval had not been stopped that way."""
+    import dataclasses
+
     import pursuit_mj.evaluation as evaluation
 
     def stopped(*a, **k):
@@ -1149,3 +1157,33 @@ def test_csv_counts_read_back_as_integers():
 
     assert type(_cell("episodes", "6", "here")) is int and type(_cell("success_count", "3", "here")) is int
     assert type(_cell("success_pct", "50", "here")) is float
+
+
+def _row_of_successes(successes: int, episodes: int, layout: str = "0"):
+    """A Row of `episodes` made-up episodes, the first `successes` of them caught at step 100."""
+    from types import SimpleNamespace
+
+    from pursuit_mj.evaluation import summarise
+
+    records = [SimpleNamespace(seed=k, outcome="success" if k < successes else "timeout", steps=100 if k < successes else 600,
+                               captured=1 if k < successes else 0) for k in range(episodes)]
+    return summarise("heuristic", layout, "point", 0, records, 600)
+
+
+@pytest.mark.parametrize("command, said", [("eval", "success 99.96 %"), ("demo", "success 99.96 %")])
+def test_the_progress_line_of_a_row_says_its_success_as_the_table_does(command, said, capsys, monkeypatch):
+    """eval's progress line printed 2499 of 2500 caught as 'success 100.0 %' (demo's as '100 %'),
+    beside a table that says 99.96: a rate that is not 1 must not print as 100 (nor one that is
+    not 0 as 0)."""
+    import dataclasses
+
+    import pursuit_mj.evaluation as evaluation
+    from pursuit_cli import main
+
+    monkeypatch.setattr(evaluation, "evaluate", lambda policy, config, layouts, *a, label=None, **k:
+                        [dataclasses.replace(_row_of_successes(2499, 2500, str(layouts[0])), policy=label)])
+    flags = ["--policy", "heuristic", "--layouts", "0"] if command == "eval" else ["--no-heuristic", "--layouts", "0"]
+    assert main([command, *flags, "--episodes", "2500", "--fidelity", "point"]) == 0
+    err = capsys.readouterr().err
+    assert said in err, err
+    assert "100.0 %" not in err and "success 100 %" not in err

@@ -835,3 +835,23 @@ def test_a_check_across_two_train_keys_names_the_command_line_values_that_gave_t
     assert not runs.exists()
     assert main(["train", "-sc", "--config", "imitate", "--set", "ppo.learnable_gamma=true"]) == 2
     assert "error: --set ppo.learnable_gamma=true: ppo.learnable_gamma works" in capsys.readouterr().err
+
+
+def test_the_closing_summary_says_validation_rates_as_the_eval_table_does(tmp_path, capsys, monkeypatch):
+    """train's closing lines printed a validation success of 2499 of 2500 as '100.0%' (run.validation_episodes
+    reaches 10000), and a McNemar p of 0.04998 as '0.05' beside the 0.05 a verdict needs."""
+    from train.trainer import Trainer
+
+    def finished(self, *a, **k):
+        c = {"update": 1, "world_steps": 32, "agent_steps": 64, "episodes": 2, "seconds": 1.0, "validation_seconds": 0.5,
+             "best_success": 2499 / 2500, "best_update": 1}
+        val = {"episodes": 2500, "success": 2499 / 2500, "mean_steps": 100.0, "heuristic_success": 1 / 2500,
+               "heuristic_mean_steps": 120.0, "vs_heuristic_steps": -20.0, "vs_heuristic_lo": -25.0, "vs_heuristic_hi": -15.0,
+               "vs_heuristic_only_policy": 9, "vs_heuristic_only_heuristic": 1, "vs_heuristic_success_p": 0.049983}
+        return {"status": "done", "counters": c, "validation": val, "run_dir": str(self.run_dir)}
+
+    monkeypatch.setattr(Trainer, "train", finished)
+    assert main(["train", "--no-progress", "--name", "sum", "--total-steps", "32"] + sets(TINY + [f"run.runs_dir={tmp_path}"])) == 0
+    out = capsys.readouterr().out
+    assert "best validation success 99.96 %" in out and "success 99.96 %, 100.0 mean steps" in out, out
+    assert "the heuristic team 0.04 %" in out and "McNemar p 0.04998" in out, out
