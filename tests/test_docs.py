@@ -221,3 +221,29 @@ def test_every_flag_of_every_subcommand_is_named_in_the_docs():
     missing = [f"{path} {action.option_strings[-1]}" for path, action in _flag_actions(PARSER)
                if not any(re.search(re.escape(flag) + r"(?![\w-])", text) for flag in action.option_strings)]
     assert not missing, f"flags named by no guide ({', '.join(guides)}): {missing}"
+
+
+@pytest.mark.parametrize("said, count, episodes", [
+    # belppo_point, seeds 0-5: 381 and 379 of 384 on layouts 0 and 3
+    ("the 95 % interval of its success over all 384 episodes reaches below 98 % on layouts 0 and 3 (97.7 and 97.0 %)", 381, 384),
+    ("the 95 % interval of its success over all 384 episodes reaches below 98 % on layouts 0 and 3 (97.7 and 97.0 %)", 379, 384),
+    # belppo_quad: seeds 3-5 alone (188 of 192 on layout 3), and seeds 0-5 (378 of 384)
+    ("four timeouts in 192: 97.9 %, its 95 % interval 94.8-99.2 %", 188, 192),
+    ("over all 384 episodes the 95 % interval of its success reaches down to 96.6 % on layout 3", 378, 384),
+    ("98.2 % with a 95 % interval of 97.2-98.8 %", 1131, 1152),
+    # belppo_kick, seeds 0-17: layouts 0 and 3
+    ("the 95 % interval on layout 0 is 98.5-99.6 %", 1143, 1152),
+    ("on layout 3 it is 97.5-99.0 %", 1134, 1152),
+])
+def test_the_success_intervals_pretrained_readme_quotes_are_the_wilson_intervals_of_the_episodes_it_names(said, count, episodes):
+    """pretrained/README.md said that on seeds 3-5 alone belppo_quad's success interval on layout 3
+    reached 96.6 %: that is the interval over all 384 episodes (378 of 384); the 192 of seeds 3-5
+    alone (188 caught) give 94.8 %. Each quoted bound is the 95 % Wilson bound of the episodes named."""
+    from pursuit_mj.stats import wilson_interval
+
+    text = " ".join((ROOT / "pretrained" / "README.md").read_text().split())
+    assert said in text
+    lo, hi = (f"{100 * x:.1f}" for x in wilson_interval(count, episodes))
+    assert lo in said, (said, lo, hi)
+    if f"{lo}-" in said:  # a range: its upper bound too
+        assert f"{lo}-{hi} %" in said, (said, lo, hi)
