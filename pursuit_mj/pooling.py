@@ -200,6 +200,7 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     labels: dict[tuple[str, str, str], str] = {}
     commits: dict[str, Path] = {}
     sources: dict[str, Path] = {}  # the source_sha256 of the code that made each table (where recorded)
+    unchecked: list[Path] = []  # tables that record no checkpoints: their labels cannot be checked
     arena_of: dict[str, tuple[str, Path]] = {}  # layout identity -> (its file's sha256, the table that said so)
     identity_of: dict[str, tuple[str, Path]] = {}  # layout label -> (its identity, the table that said so)
     code_of_first: dict | None = None
@@ -230,6 +231,8 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
                 raise ValueError(f"policy {label!r} is {said} in {path} but {was_said} in {where}; pool only tables "
                                  "where a label names one policy")
         knows_files = knows_files and "policy_file_sha256_of" in data
+        if "model_sha256" not in data and "model_sha256_of" not in data:
+            unchecked.append(path)
         code = data.get("code") if isinstance(data.get("code"), dict) else {}
         code_of_first = code if code_of_first is None else code_of_first
         for commit in code.get("git_commits") or [code.get("git_commit", "unknown")]:  # a pooled table's: all of them
@@ -281,6 +284,10 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     elif len(sources) > 1:
         notes.append("note: the tables come from different source code under one git commit (local changes; source "
                      "sha256 " + ", ".join(f"{c[:10]} in {p}" for c, p in sources.items()) + ")")
+    if unchecked and len(paths) > 1:
+        notes.append(f"note: {', '.join(map(str, unchecked))} record{'s' if len(unchecked) == 1 else ''} no checkpoint "
+                     "hashes (written by a script, or a study's table.json before 2026-12-07): a label there is taken "
+                     "for the same policy as in the other tables, unchecked")
     layouts = {labels[key]: key[1] for key in episodes}
     meta = {"model_sha256_of": {label: sha for label, (sha, _) in model_of.items()},
             "layout_identity": layouts,

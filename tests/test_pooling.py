@@ -623,3 +623,15 @@ def test_tables_of_one_commit_but_different_source_are_noted_and_stay_noted_when
     assert "different source code" in capsys.readouterr().out
     same = _table(tables["tmp"], "sc", 1, meta={**base, "code": clean})
     assert pool_tables([a, same]).notes == []  # one commit, one source: nothing to note
+
+
+def test_a_table_that_records_no_checkpoints_is_noted_when_pooled_with_others(tables, tmp_path):
+    """A table that records no checkpoint hashes (written by a script, or a study's table.json
+    before it recorded its arms) cannot have its labels checked: pooled beside others, a label in
+    it was taken for the same policy without a word."""
+    rows = evaluate(make_policy("heuristic", TASK, 1), TASK, [0], 3, 1, 3)
+    bare = write_json(rows, tmp_path / "bare.json", TASK)  # no meta at all
+    notes = pool_tables([tables["h0"], bare]).notes
+    assert any(str(bare) in n and "no checkpoint" in n for n in notes), notes
+    assert not any(str(tables["h0"]) in n for n in notes), notes
+    assert pool_tables([bare]).notes == []  # alone, it is compared with nothing
