@@ -75,7 +75,7 @@ def _run(args) -> int:
         meta["paired"] = pairs_to_dicts(pairs)
         alone = not_paired(pooled.rows, versus, pooled.max_steps, pooled.meta["layout_identity"])
         if alone:  # else a policy of another seed's tables vanished from the comparison without a word
-            print(not_paired_text(alone, versus, pooled.meta["layout_identity"], pooled.rows))
+            print(not_paired_text(alone, versus, pooled.rows, pooled.meta["layout_identity"]))
             meta["not_paired"] = [{"policy": r.policy, "layout": r.layout, "fidelity": r.fidelity} for r in alone]
     if args.out:
         print(f"wrote {write_csv(pooled.rows, args.out + '.csv')}")

@@ -375,11 +375,11 @@ def _matched(rows: Sequence[Row], reference: str, max_steps: int,
     return matches, alone
 
 
-def not_paired_text(rows: Sequence[Row], reference: str, identity_of: dict[str, str] | None = None,
-                    all_rows: Sequence[Row] = ()) -> str:
-    """Lines naming the rows left out of the pairing with `reference` ('' when none is), by why:
-    the reference played that layout (and fidelity) on other episodes (tables of another --seed),
-    or did not play it at all (its rows among `all_rows`)."""
+def not_paired_text(rows: Sequence[Row], reference: str, all_rows: Sequence[Row],
+                    identity_of: dict[str, str] | None = None) -> str:
+    """Lines naming `rows` (not_paired's) left out of the pairing with `reference` ('' when none is),
+    by why: the reference played that layout (and fidelity) on other episodes (tables of another
+    --seed), or did not play it at all (its rows among `all_rows`, the pooled table's)."""
     identity_of = identity_of or {}
 
     def where(row: Row) -> tuple[str, str]:

@@ -600,7 +600,7 @@ def test_a_policy_that_shares_no_episode_with_the_reference_is_named_as_not_pair
     rows = pooled.rows + [dataclasses.replace(r, layout="1") for r in pooled.rows if r.policy == "random"]
     alone = not_paired(rows, "heuristic", pooled.max_steps)
     assert [(r.policy, r.layout) for r in alone] == [("random", "0"), ("random", "1")]
-    text = not_paired_text(alone, "heuristic", all_rows=rows)
+    text = not_paired_text(alone, "heuristic", rows)
     assert "random on layout 0 (no episode both played" in text and "random on layout 1 (heuristic has no row there)" in text
 
 
