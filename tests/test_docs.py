@@ -247,3 +247,12 @@ def test_the_success_intervals_pretrained_readme_quotes_are_the_wilson_intervals
     assert lo in said, (said, lo, hi)
     if f"{lo}-" in said:  # a range: its upper bound too
         assert f"{lo}-{hi} %" in said, (said, lo, hi)
+
+
+def test_docs_training_md_says_best_pt_ties_go_to_fewer_capture_steps_not_fewer_mean_steps():
+    """training.md said best.pt's ties went 'to fewer steps', read beside the validation's
+    mean_steps (a crash ends an episode early): the trainer breaks them by mean capture steps, a
+    failure counting as max_steps (tests/test_train_checkpoint.py), and a full tie keeps the earlier."""
+    text = " ".join((ROOT / "docs" / "training.md").read_text().split())
+    said = text[text.index("`best.pt` (best validation success"):][:300]
+    assert "ties to fewer capture steps" in said and "max_steps" in said and "earlier" in said, said
