@@ -387,7 +387,7 @@ def test_fly_virtual_flies_a_policy_of_ones_own_from_a_file(tmp_path, capsys):
                     "    def act(self, obs, spec): return np.tile([1.0, 0.0], obs.shape[:2] + (1,))\n")
     flight = tmp_path / "quick.yaml"
     flight.write_text(yaml.safe_dump(quick_spec(task={"evader_speed": 0.3})))
-    rc = main(["fly", "--flight", str(flight), "--policy", f"{team}:East", "--virtual", "--max-time", "1.0",
+    rc = main(["fly", "--flight", str(flight), "--policy", f"{team}:East", "--virtual", "--max-time", "2.0",
                "--events", str(tmp_path / "f.jsonl")])
     assert rc == 0, capsys.readouterr().err
     steps = [r for r in read_events(tmp_path / "f.jsonl") if r["kind"] == "step"]
