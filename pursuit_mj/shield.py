@@ -50,7 +50,7 @@ import numpy as np
 from .configio import TaskValueError
 from .obs_spec import ObsSpec, named_views
 from .planar import EPS, clip_unit, limit_closing, norm, unit
-from .policy import Policy, check_observations, check_world_count, check_world_ids
+from .policy import Policy, check_observations, check_world_count, check_world_ids, checked_actions
 from .sensing import heading_min_speed
 
 MIN_RAYS = 8  # range readings the shield (and the heuristic team) need to keep off walls: they see walls through nothing else
@@ -348,16 +348,10 @@ class Shielded:
         check_observations(obs, spec, f"policy {self.name}")
         check_world_count(np.shape(obs)[0], self._n_worlds, f"policy {self.name}")
         raw = self.policy.act(np.array(obs), spec)  # a copy: what it writes into it must not move the walls below
-        try:
-            a = np.asarray(raw, dtype=np.float64)
-        except (TypeError, ValueError):  # strings, None, ragged lists
-            raise ValueError(f"Shielded: policy {self._inner} gave actions that are no array of numbers: "
-                             f"{str(raw)[:80]!r}") from None
-        want = tuple(np.shape(obs)[:2]) + (2,)
-        if a.shape != want:
-            raise ValueError(f"Shielded: policy {self._inner} gave actions of shape {a.shape}, expected {want}")
-        if not np.isfinite(a).all():
-            raise ValueError(f"Shielded: policy {self._inner} gave NaN or inf actions")
+        # read as the env and evaluate read a policy's actions (a torch tensor by its values; bools,
+        # text, complex numbers, masked entries, another shape, NaN and inf refused naming the policy)
+        W, N = np.shape(obs)[:2]
+        a = checked_actions(raw, W, N, f"policy {self._inner}")
         return self.shield.shield_actions(a, obs, spec)
 
 

@@ -508,7 +508,7 @@ def test_shielded_names_the_policy_whose_actions_are_no_numbers(actions):
 
     policy = Shielded(Odd((1.0, 0.0)), SafetyShield(SPEED))
     policy.reset(1)
-    with pytest.raises(ValueError, match="Shielded: policy odd gave actions that are no array of numbers"):
+    with pytest.raises(ValueError, match=r"policy odd: act\(\) gave (actions of dtype <U1|a ragged list)"):
         policy.act(blank_obs(), SPEC)
 
 
@@ -607,3 +607,44 @@ def test_flying_away_from_a_wall_earns_no_extra_allowance_toward_it():
     wall_east(obs, 0.2)
     obs[0, 0, SPEC.index("self", 0, "vx")] = -SPEED
     assert _east_of(SafetyShield(SPEED), obs) == pytest.approx(WALL_CAP)
+
+
+class _Giving(Straight):
+    """Gives `make(shape)` as its actions, whatever it sees (shape (W, N, 2))."""
+
+    name = "giving"
+
+    def __init__(self, make):
+        self.make = make
+
+    def act(self, obs, spec):
+        return self.make(obs.shape[:2] + (2,))
+
+
+def test_shielded_reads_a_torch_tensor_with_grad_or_in_bfloat16_as_the_env_reads_actions():
+    # a torch policy that acts without torch.no_grad: `eval --policy net.py:Net` ran, and with
+    # --shield it stopped in a traceback (numpy cannot read a tensor that requires grad), while
+    # bfloat16 (no numpy type) was refused as "no array of numbers"
+    torch = pytest.importorskip("torch")
+    want = Shielded(Fixed((0.5, -0.25)), SafetyShield(SPEED))
+    want.reset(1)
+    expected = want.act(blank_obs(), SPEC)
+    for make in (lambda s: torch.full(s, 0.5, requires_grad=True) * torch.tensor([1.0, -0.5]),
+                 lambda s: torch.tensor([0.5, -0.25], dtype=torch.bfloat16).expand(s)):
+        policy = Shielded(_Giving(make), SafetyShield(SPEED))
+        policy.reset(1)
+        np.testing.assert_array_equal(policy.act(blank_obs(), SPEC), expected)
+
+
+@pytest.mark.parametrize("what, make", [
+    ("dtype bool", lambda s: np.ones(s, bool)),  # True would fly at full speed
+    ("dtype <U3", lambda s: np.full(s, "0.5")),  # text read as its number
+    ("dtype complex128", lambda s: np.full(s, 0.5 + 1j)),  # the imaginary part dropped with a warning
+    ("masked entries", lambda s: np.ma.masked_array(np.zeros(s), mask=True)),  # hidden values flown
+])
+def test_shielded_refuses_actions_that_the_env_and_evaluate_refuse_naming_the_policy(what, make):
+    # behind the shield these were flown silently; without it evaluate refuses them (policy.checked_actions)
+    policy = Shielded(_Giving(make), SafetyShield(SPEED))
+    policy.reset(1)
+    with pytest.raises(ValueError, match=f"policy giving: act\\(\\) gave .*{what}"):
+        policy.act(blank_obs(), SPEC)
