@@ -924,3 +924,37 @@ def test_a_drone_whose_link_is_silent_at_the_end_of_the_landing_is_not_confirmed
     assert result.heights[0] < 0.1  # what it reported before its link dropped
     assert events.of_kind("link_lost") and events.of_kind("link_lost")[0]["drone"] == "p0"
     assert not result.landed and events.of_kind("landed")[0]["not_down"] == ["p0"]
+
+
+class _RawAnswers(ScriptedTeam):
+    """Answers `make(obs)` as it is (no conversion) from the third decision on, zeros before."""
+
+    def __init__(self, make):
+        super().__init__([[0.0, 0.0]])
+        self.make = make
+
+    def act(self, obs, spec):
+        out = super().act(obs, spec)
+        return self.make(out) if self.calls >= 3 else out
+
+
+@pytest.mark.parametrize("make, words", [
+    (lambda a: np.ones(a.shape, bool), "policy scripted: expected real numbers (worlds, pursuers, vx and vy), got an array of dtype bool"),
+    (lambda a: np.ma.masked_array(a, mask=True), "policy scripted: a masked array with 6 masked entries"),
+])
+def test_a_policy_answering_no_real_numbers_lands_everyone_as_eval_refuses_them(tmp_path, make, words):
+    """A bool mask given by mistake flew every pursuer at full speed (True read as 1), and a masked
+    array's hidden values were flown, where eval and render refuse both (policy.checked_actions)."""
+    result, events, fleet = fly_virtual(quick_plan(max_time=4.0), _RawAnswers(make), tmp_path)
+    assert isinstance(result, ValueError) and words in str(result), result
+    assert kinds_in_order(events, "chase", "land", "landed", "error")
+    assert down(fleet)
+
+
+def test_a_torch_policy_acting_without_no_grad_flies_as_in_eval(tmp_path):
+    """A tensor that requires grad, which eval reads by its values, ended the flight in a numpy
+    traceback (RuntimeError: Can't call numpy() on Tensor that requires grad)."""
+    torch = pytest.importorskip("torch")
+    result, events, fleet = fly_virtual(quick_plan(max_time=1.0), _RawAnswers(lambda a: torch.zeros(a.shape, requires_grad=True)), tmp_path)
+    assert not isinstance(result, Exception) and result.outcome == "timeout", result
+    assert down(fleet)

@@ -118,12 +118,21 @@ class FlightResult:
 
 def _checked_commands(answer, shape: tuple[int, ...], who: str, names: list[str], axes: str) -> np.ndarray:
     """`answer` of a policy or escape model as a float array of `shape`, whose second-to-last
-    axis runs over the drones `names` ('pursuer p0', ...); ValueError naming `who`, the drone
-    and the value when it is not numbers, not of that shape, or not finite."""
+    axis runs over the drones `names` ('pursuer p0', ...), read as the env and eval read actions
+    (a torch tensor by its values, with or without grad); ValueError naming `who`, the drone and
+    the value when it is not real numbers (bools, text and complex numbers are refused, not cast:
+    True would fly at full speed), a masked array with masked entries, not of that shape, or not finite."""
+    from ..env import MaskedValues, plain_array  # here: the bridge's import stays free of the simulator
+
     try:
-        out = np.asarray(answer, np.float64)
-    except (TypeError, ValueError):
+        raw = plain_array(answer, who)
+    except MaskedValues:
+        raise
+    except (TypeError, ValueError):  # ragged lists
         raise ValueError(f"{who}: expected numbers of shape {shape} {axes}, got {type(answer).__name__} {answer!r:.80}") from None
+    if raw.dtype.kind not in "fiu":
+        raise ValueError(f"{who}: expected real numbers {axes}, got an array of dtype {raw.dtype}: {answer!r:.80}")
+    out = raw.astype(np.float64)
     if out.shape != shape:
         raise ValueError(f"{who}: expected an answer of shape {shape} {axes}, got shape {out.shape}")
     bad = ~np.isfinite(out).all(axis=-1)
