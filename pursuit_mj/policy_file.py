@@ -5,7 +5,8 @@ run's `TaskConfig`, seed the command's --seed) and must give a Policy (pursuit_m
 `name`, `reset`, `act`). The file runs as a module of its own, not as part of a package, so it
 imports what it needs itself (numpy, pursuit_mj, torch). Every failure is a ValueError that
 names the reference and, for an error raised in the file, the line it came from: while the file
-loads and the policy is made, and later in its `reset` and `act` (FilePolicy).
+loads and the policy is made, and later in its `reset` and `act` (FilePolicy), whose answers of
+another shape, no real numbers, NaN or inf are refused naming the reference too.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import numpy as np
 
 from .config import TaskConfig
 from .obs_spec import ObsSpec
-from .policy import Policy
+from .policy import Policy, checked_actions
 from .user_file import UserCodeError, file_sha256, is_file_reference, load_named, made_by, split_reference, what_and_where
 
 
@@ -65,14 +66,18 @@ class FilePolicy:
         except (Exception, SystemExit) as exc:  # the user's own code: say where it failed, in one line
             raise UserCodeError(f"{self.where}: reset(n_worlds, world_ids) raised {what_and_where(exc, self.path)}") from exc
 
-    def act(self, obs: np.ndarray, spec: ObsSpec) -> Any:
-        """What the policy's act returned, unchecked (the caller checks actions: policy.checked_actions).
-        It acts on a copy of obs: what it writes into its observations (an in-place normalisation)
-        changes nothing that its caller reads after it (a shield judges walls and teammates from obs)."""
+    def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
+        """What the policy's act returned, checked as eval checks actions (policy.checked_actions:
+        float64 (W, N, 2), real and finite), naming the reference when it is not: the file a wrong
+        shape or a NaN came from, as for an exception raised in it. It acts on a copy of obs: what
+        it writes into its observations (an in-place normalisation) changes nothing that its caller
+        reads after it (a shield judges walls and teammates from obs)."""
         try:
-            return self.policy.act(np.array(obs), spec)
+            raw = self.policy.act(np.array(obs), spec)
         except (Exception, SystemExit) as exc:
             raise UserCodeError(f"{self.where}: act(obs, spec) raised {what_and_where(exc, self.path)}") from exc
+        W, N = np.shape(obs)[:2]
+        return checked_actions(raw, W, N, self.where)
 
 
 def load_policy_file(ref: str, config: TaskConfig, seed: int = 0, source: str = "--policy") -> Policy:

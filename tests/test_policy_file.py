@@ -322,3 +322,37 @@ def test_a_folder_named_like_the_file_and_a_name_that_is_no_callable_are_told_as
     (tmp_path / "other.py").write_text("T = 5\n")
     with pytest.raises(ValueError, match=r"^--policy other\.py:T: other\.py binds T to an int, not a class or function$"):
         make_policy("other.py:T", default_config(), 0)
+
+
+WRONG_ANSWERS = GOOD + """
+class Flat(Still):
+    name = "flat"
+    def act(self, obs, spec):
+        return np.zeros((obs.shape[0] * obs.shape[1], 2))  # one row per pursuer of the batch, flattened
+class Undefined(Still):
+    name = "undefined"
+    def act(self, obs, spec):
+        return np.full(obs.shape[:2] + (2,), np.nan)  # a value its computation left undefined
+"""
+
+
+@pytest.mark.parametrize("command", ["eval", "render"])
+@pytest.mark.parametrize("shield", [False, True])
+@pytest.mark.parametrize("ref_name, said", [
+    ("Flat", r"act\(\) gave actions of shape \((3|6), 2\), expected \((1|2), 3, 2\)"),
+    ("Undefined", r"act\(\) gave nan for world 0, pursuer 0, vx"),
+])
+def test_a_policy_file_answering_another_shape_or_nan_is_refused_naming_the_file(tmp_path, capsys, command, shield, ref_name, said):
+    # eval said "policy flat: act() gave actions of shape ..." without the file the policy came from
+    # (and behind --shield "Shielded: policy flat gave ..."), where an exception it raises names it
+    path = _write(tmp_path, WRONG_ANSWERS)
+    ref = f"{path}:{ref_name}"
+    args = ["--policy", ref, "--fidelity", "point", "--set", "max_steps=3"] + (["--shield"] if shield else [])
+    if command == "eval":
+        args += ["--layouts", "0", "--episodes", "2", "--worlds", "2"]
+    else:
+        args += ["-i", "0", "--no-video", "--final-frame", "-s", str(tmp_path / "renders")]
+    assert main([command, *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"pursuit-mj {command}: error: --policy {ref}: ") and "\n" not in err, err
+    assert re.search(said, err), err
