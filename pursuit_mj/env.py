@@ -134,6 +134,18 @@ def _layout_pool(config: TaskConfig, layouts: Sequence[int | str | Layout] | Non
     return [_checked_layout(r) if isinstance(r, Layout) else load_layout(r) for r in refs]
 
 
+def _check_pool_fits_worlds(n_layouts: int, n_worlds: int, random_layout: bool) -> None:
+    """ValueError unless every layout of the pool runs: world w plays layouts[w % n_layouts], so with
+    fewer worlds than layouts the last ones would never be played (unless random_layout draws an
+    episode's layout from the whole pool)."""
+    if random_layout or n_layouts <= n_worlds:
+        return
+    idle = ", ".join(f"layouts[{i}]" for i in range(n_worlds, n_layouts))
+    raise ValueError(f"layouts: {n_layouts} layouts for {n_worlds} world{'s' if n_worlds > 1 else ''} (world w plays "
+                     f"layouts[w % {n_layouts}]), so {idle} would never run; give n_worlds >= {n_layouts}, fewer "
+                     f"layouts, or random_layout=True (each episode draws its layout from the pool)")
+
+
 def check_task_fits_layout(config: TaskConfig, layout: Layout) -> None:
     """LayoutError (naming the layout's file) unless `layout` can hold the task `config`: its spawn
     regions the teams, far enough apart for the capture radius, its passages wide enough for the
@@ -201,6 +213,7 @@ class PursuitEnv:
         self.auto_reset = bool(auto_reset)
         self.seed = check_seed(seed, "PursuitEnv seed")
         self.pool = _layout_pool(config, layouts)
+        _check_pool_fits_worlds(len(self.pool), self.n_worlds, config.random_layout)
         self._random_obstacles = any(config.random_obstacle_count(l) for l in self.pool)
         self._spawn_points = {id(l): (free_spawn_points(l, l.spawn_pursuers), free_spawn_points(l, l.spawn_evaders)) for l in self.pool}
         for layout in self.pool:

@@ -924,3 +924,13 @@ def test_a_divergence_warning_turned_into_an_error_comes_after_the_step_is_whole
         for env in envs:
             env.step(np.zeros((2, 3, 2)))
     np.testing.assert_array_equal(raised.physics.positions(), plain.physics.positions())
+
+
+def test_a_pool_of_more_layouts_than_worlds_is_refused_naming_those_that_would_never_run():
+    # world w runs layouts[w % len]: 2 worlds over [0, 1, 2, 3] trained and validated on 0 and 1 alone, silently
+    with pytest.raises(ValueError, match=r"layouts: 4 layouts for 2 worlds .* layouts\[2\], layouts\[3\] would never run"):
+        PursuitEnv(default_config(**FAST), n_worlds=2, layouts=[0, 1, 2, 3])
+    assert [l.name for l in PursuitEnv(default_config(**FAST), n_worlds=4, layouts=[0, 1, 2, 3]).world_layouts] == \
+        ["open", "walls", "bars", "cluttered"]
+    # with random_layout every episode draws from the whole pool, whatever the number of worlds
+    PursuitEnv(default_config(random_layout=True, **FAST), n_worlds=1, layouts=[0, 1, 2, 3])

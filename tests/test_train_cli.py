@@ -855,3 +855,21 @@ def test_the_closing_summary_says_validation_rates_as_the_eval_table_does(tmp_pa
     out = capsys.readouterr().out
     assert "best validation success 99.96 %" in out and "success 99.96 %, 100.0 mean steps" in out, out
     assert "the heuristic team 0.04 %" in out and "McNemar p 0.04998" in out, out
+
+
+@pytest.mark.parametrize("given, message", [
+    (["--set", "layouts=[0,1,2,3]", "--set", "n_envs=2"],
+     "--set layouts=[0,1,2,3], --set n_envs=2: 4 layouts for n_envs 2"),
+    (["--set", "run.validation_layouts=[0,1,2]", "--set", "run.validation_episodes=2"],
+     "--set run.validation_layouts=[0,1,2], --set run.validation_episodes=2: 3 validation layouts for run.validation_episodes 2"),
+    (["--set", "layouts=[0,1,2]", "--set", "run.validation_episodes=2"],
+     "--set layouts=[0,1,2], --set run.validation_episodes=2: 3 validation layouts for run.validation_episodes 2"),
+])
+def test_more_layouts_than_worlds_to_play_them_is_refused_naming_the_keys(capsys, given, message):
+    """World w plays layouts[w % len]: n_envs 2 over four layouts trained on two of them, and two
+    validation episodes over three layouts validated on two, without a word."""
+    assert main(["train", "--config", "classic", *given, "-sc"]) == 2  # refused as the run's config is checked
+    err = capsys.readouterr().err
+    assert message in err and len(err.splitlines()) == 1, err
+    # drawn per episode (task.random_layout), every layout plays in any number of worlds
+    assert main(["train", "--config", "classic", *given, "--set", "task.random_layout=true", "-sc"]) == 0

@@ -233,6 +233,18 @@ class TrainConfig:
             given = list(dict.fromkeys((key_sources or {})[k] for k in keys if k in (key_sources or {})))
             return ", ".join(given) if given else source
 
+        if not self.task.random_layout:  # world w plays layouts[w % len]: the pool must fit the worlds
+            if len(self.layouts) > self.n_envs:
+                raise ConfigError(f"{where('layouts', 'n_envs')}: {len(self.layouts)} layouts for n_envs {self.n_envs}: "
+                                  f"world w trains on layouts[w % {len(self.layouts)}], so {len(self.layouts) - self.n_envs} "
+                                  f"of them would never be trained on (raise n_envs, or set task.random_layout=true)")
+            val_key = "run.validation_layouts" if self.run.validation_layouts else "layouts"
+            val = self.run.validation_layouts or self.layouts
+            if len(val) > self.run.validation_episodes:
+                raise ConfigError(f"{where(val_key, 'run.validation_episodes')}: {len(val)} validation layouts for "
+                                  f"run.validation_episodes {self.run.validation_episodes}: episode k plays layouts[k % "
+                                  f"{len(val)}], so {len(val) - self.run.validation_episodes} of them would never be "
+                                  f"validated on (raise run.validation_episodes, or set task.random_layout=true)")
         if self.algo != "dagger" and self.ppo.minibatch_size > self.ppo.batch_size:  # DAgger's is imitation.minibatch_size
             source = where("ppo.minibatch_size", "ppo.batch_size")
             raise ConfigError(f"{source}: ppo.minibatch_size {self.ppo.minibatch_size} exceeds ppo.batch_size {self.ppo.batch_size}")

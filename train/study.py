@@ -267,7 +267,8 @@ def _validation_probe_setup(cfg) -> tuple[TaskConfig, tuple, int, int]:
     """(task, layouts, episodes, seed) of a probe of `cfg`'s validation, as the trainer builds it."""
     r = cfg.run
     layouts = tuple(r.validation_layouts or cfg.layouts)
-    return cfg.task, layouts, min(r.validation_episodes, VALIDATION_PROBE_EPISODES), r.validation_seed
+    # at least a world per layout (world w plays layouts[w % len]; PursuitEnv refuses a layout no world plays)
+    return cfg.task, layouts, min(r.validation_episodes, max(VALIDATION_PROBE_EPISODES, len(layouts))), r.validation_seed
 
 
 def probe_validation_speed(cfg) -> ValidationSpeed:
