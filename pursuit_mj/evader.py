@@ -99,7 +99,6 @@ BRAKE_MARGIN = 0.1  # m beyond the look-ahead corridor's edge where braking ends
 BRAKE_RESPONSE = 0.3  # s, a decision interval plus the drone's lag: closing speed covers this before braking acts
 _PATH_FRACTIONS = np.linspace(0.0, 1.0, PATH_SAMPLES)  # where along a path its samples lie
 _HORIZON_SAMPLES = np.linspace(0.0, HORIZON, PATH_SAMPLES)  # m flown at the samples of a candidate
-_FAR32 = np.float32(FAR)
 
 _STREAM_TURN, _STREAM_AMPLITUDE, _STREAM_START, _STREAM_SIDE = range(4)
 
@@ -244,13 +243,13 @@ class Corridors:
         with np.errstate(divide="ignore", invalid="ignore"):
             t = self._t_num / denom
             u = (self._ax * dy - self._ay * dx) / denom
-        # fmax(t, FAR where refused) instead of np.where (several times slower); fmax drops NaNs
-        seg_hit = np.fmax(t, ~((np.abs(denom) > EPS) & (t >= 0) & (u >= 0) & (u <= 1)) * _FAR32).min(0, initial=FAR)
+        # minima over the hits only (`where`), FAR if none: no (S, Q, W*M) array of refused ones set to FAR
+        seg_hit = t.min(0, initial=FAR, where=(np.abs(denom) > EPS) & (t >= 0) & (u >= 0) & (u <= 1))
         b = dx * self._cx + dy * self._cy  # (C, Q, W*M) projection of centre
         disc = b * b - self._c2
         with np.errstate(invalid="ignore"):
             t0 = b - np.sqrt(disc)  # origins lie outside every grown circle, so the near root is the hit
-        circle_hit = np.fmax(t0, ~((disc >= 0) & (t0 >= 0)) * _FAR32).min(0, initial=FAR)
+        circle_hit = t0.min(0, initial=FAR, where=(disc >= 0) & (t0 >= 0))
         free = np.minimum(seg_hit, circle_hit).astype(np.float64)  # (Q, W*M)
         return first_axis_last(free.reshape(Q, W, M))
 

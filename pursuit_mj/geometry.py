@@ -379,8 +379,8 @@ def cast_rays(origins: np.ndarray, dirs: np.ndarray, obstacles: ObstacleSet) -> 
         inv = 1.0 / (dx * ey - dy * ex)
         t = (aox * ey - aoy * ex) * inv
         u = (aox * dy - aoy * dx) * inv
-    # fmax(t, FAR where missed) rather than np.where (several times slower); fmax drops NaNs
-    hit = np.fmax(t, ~((t >= 0) & (u >= -U_SLACK) & (u <= 1 + U_SLACK)) * FAR).min(0, initial=FAR)
+    # the nearest hit: a minimum over the hits only (`where`), FAR if none (NaNs never hit)
+    hit = t.min(0, initial=FAR, where=(t >= 0) & (u >= -U_SLACK) & (u <= 1 + U_SLACK))
     # cylinders: |o + t d - c|^2 = r^2
     ocx, ocy = ox - cx, oy - cy  # (C, R, ...)
     b = ocx * dx + ocy * dy
@@ -409,7 +409,7 @@ def cast_fan(origins: np.ndarray, dirs: np.ndarray, obstacles: ObstacleSet) -> n
     with np.errstate(invalid="ignore"):
         t = (aox * ey - aoy * ex) * inv  # (S, K, N, ...)
         u = (aox * dy - aoy * dx) * inv
-    hit = np.fmax(t, ~((t >= 0) & (u >= -U_SLACK) & (u <= 1 + U_SLACK)) * FAR).min(0, initial=FAR)  # (K, N, ...)
+    hit = t.min(0, initial=FAR, where=(t >= 0) & (u >= -U_SLACK) & (u <= 1 + U_SLACK))  # (K, N, ...), as cast_rays
     ocx, ocy = ox - cx, oy - cy  # (C, 1, N, ...)
     b = (ox * dx + oy * dy) - c_d  # (o - c) . d: (C, K, N, ...)
     cterm = ocx * ocx + ocy * ocy - r2
