@@ -64,6 +64,7 @@ world's path depends only on its own seed and inputs, however many worlds run to
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -187,12 +188,57 @@ def distance_and_normal(points: np.ndarray, obstacles: ObstacleSet) -> tuple[np.
     return d[..., 0], unit(grad)
 
 
-def _shift_left(seg: np.ndarray, distance: np.ndarray) -> np.ndarray:
-    """Segments (..., S, 4) moved by distance (broadcastable to (..., S)) m to their left."""
+def _left_normals(seg: np.ndarray) -> np.ndarray:
+    """Unit normals (..., S, 2) to the left of segments (..., S, 4)."""
     d = seg[..., 2:4] - seg[..., 0:2]
-    n = np.stack([-d[..., 1], d[..., 0]], -1) / np.maximum(norm(d)[..., None], EPS)
-    shift = n * distance[..., None]
+    return np.stack([-d[..., 1], d[..., 0]], -1) / np.maximum(norm(d)[..., None], EPS)
+
+
+def _shift_left(seg: np.ndarray, normal: np.ndarray, distance: np.ndarray) -> np.ndarray:
+    """Segments (..., S, 4) moved by distance (broadcastable to (..., S)) m along their left
+    normals (..., S, 2) (`_left_normals`)."""
+    shift = normal * distance[..., None]
     return seg + np.concatenate([shift, shift], -1)
+
+
+@dataclasses.dataclass(frozen=True)
+class _CorridorTargets:
+    """What `Corridors` needs of an obstacle set (W, ...) that no evader changes, targets first:
+    box edges (4 NB, W, 1, 4) (counter-clockwise: outside on the right) and border segments
+    (NS, W, 1, 4) (inside on the left) with their left normals (..., 2), the validity of those
+    segments (S, W, 1), the circle centres (C, W, 1, 2): segment starts (C1 of them, the corners)
+    then cylinders, the cylinders' radii (NC, W, 1) m, and the circles' validity (C, W, 1)."""
+
+    box: np.ndarray
+    box_normal: np.ndarray
+    border: np.ndarray
+    border_normal: np.ndarray
+    seg_valid: np.ndarray
+    centres: np.ndarray
+    n_corners: int
+    cylinder_radius: np.ndarray
+    circle_valid: np.ndarray
+
+
+def _corridor_targets(obstacles: ObstacleSet) -> _CorridorTargets:
+    """`_CorridorTargets` of `obstacles`, computed once per set (an env's set lives from one
+    episode start to the next, or one step where a caught evader joins it) and kept on it."""
+    cached = obstacles.__dict__.get("_corridor_targets")
+    if cached is not None:
+        return cached
+    box, box_valid = obstacles.segments()  # (W, 4 NB, 4)
+    box = box.swapaxes(0, 1)[:, :, None]  # (4 NB, W, 1, 4)
+    border = obstacles.border.swapaxes(0, 1)[:, :, None]  # (NS, W, 1, 4)
+    corners = np.concatenate([box[..., 0:2], border[..., 0:2]], axis=0)  # (C1, W, 1, 2)
+    cyl = obstacles.cylinders.swapaxes(0, 1)[:, :, None]  # (NC, W, 1, 3)
+    out = _CorridorTargets(
+        box, _left_normals(box), border, _left_normals(border),
+        np.concatenate([box_valid, obstacles.border_valid], -1).T[:, :, None],
+        np.concatenate([corners, cyl[..., 0:2]], axis=0), corners.shape[0], cyl[..., 2],
+        np.concatenate([box_valid, obstacles.border_valid, obstacles.cylinder_valid], -1).T[:, :, None],
+    )
+    obstacles.__dict__["_corridor_targets"] = out  # a frozen dataclass: as functools.cached_property stores
+    return out
 
 
 class Corridors:
@@ -211,27 +257,20 @@ class Corridors:
         # directions (Q, W*M): numpy then runs every operation over contiguous rows, and the
         # minimum over targets is an elementwise minimum of rows (many times faster than
         # broadcasting along, or reducing over, a short last axis).
+        g = _corridor_targets(obstacles)  # what does not depend on the evaders, once per obstacle set
         r = radius[None]  # (1, W, M)
-        box, box_valid = obstacles.segments()  # (W, 4 NB, 4), counter-clockwise: outside on the right
-        box = box.swapaxes(0, 1)[:, :, None]  # (4 NB, W, 1, 4)
-        border = obstacles.border.swapaxes(0, 1)[:, :, None]  # (NS, W, 1, 4), inside on the left
-        seg = np.concatenate([_shift_left(box, -r), _shift_left(border, r)], axis=0)  # (S, W, M, 4)
-        seg_valid = np.concatenate([box_valid, obstacles.border_valid], -1).T[:, :, None]  # (S, W, 1)
-        corners = np.concatenate([box[..., 0:2], border[..., 0:2]], axis=0)  # (C1, W, 1, 2)
-        cyl = obstacles.cylinders.swapaxes(0, 1)[:, :, None]  # (NC, W, 1, 3)
-        centres = np.concatenate([corners, cyl[..., 0:2]], axis=0)  # (C, W, 1, 2)
-        radii = np.concatenate([np.broadcast_to(r, (corners.shape[0], W, M)), cyl[..., 2] + r], axis=0)  # (C, W, M)
-        circle_valid = np.concatenate([box_valid, obstacles.border_valid, obstacles.cylinder_valid], -1).T[:, :, None]
+        seg = np.concatenate([_shift_left(g.box, g.box_normal, -r), _shift_left(g.border, g.border_normal, r)], axis=0)  # (S, W, M, 4)
+        radii = np.concatenate([np.broadcast_to(r, (g.n_corners, W, M)), g.cylinder_radius + r], axis=0)  # (C, W, M)
         # everything relative to each evader, once; rays then differ only in direction.
         # float32 (micrometre rounding on metre offsets) halves the memory traffic of the hot loop.
         p = pos[None]  # (1, W, M, 2)
-        a = np.where(seg_valid[..., None], seg[..., 0:2] - p, 0.0)  # (S, W, M, 2) segment start
-        e = np.where(seg_valid[..., None], seg[..., 2:4] - seg[..., 0:2], 0.0)  # segment vector
+        a = np.where(g.seg_valid[..., None], seg[..., 0:2] - p, 0.0)  # (S, W, M, 2) segment start
+        e = np.where(g.seg_valid[..., None], seg[..., 2:4] - seg[..., 0:2], 0.0)  # segment vector
         self._ax, self._ay, self._ex, self._ey = _rows(a[..., 0]), _rows(a[..., 1]), _rows(e[..., 0]), _rows(e[..., 1])
         self._t_num = self._ax * self._ey - self._ay * self._ex  # a x e: the hit distance times (d x e)
-        c = centres - p  # (C, W, M, 2) circle centre
+        c = g.centres - p  # (C, W, M, 2) circle centre
         self._cx, self._cy = _rows(c[..., 0]), _rows(c[..., 1])  # (C, 1, W*M)
-        self._c2 = _rows(np.where(circle_valid, dot(c, c) - radii**2, np.inf))  # |c|^2 - r^2
+        self._c2 = _rows(np.where(g.circle_valid, dot(c, c) - radii**2, np.inf))  # |c|^2 - r^2
 
     def free(self, dirs: np.ndarray) -> np.ndarray:
         """Free length (W, M, Q) m along unit dirs (W, M, Q, 2) from each evader; FAR if open."""
@@ -280,6 +319,9 @@ class EscapeModel:
         self.seed = int(seed)
         self._need = self.cfg.clearance + config.evader_speed * self.cfg.lookahead_time  # m of free corridor ahead
         W, M = self.n_worlds, self.n_evaders
+        # (world, evader) index arrays (W, 1) and (1, M): a[self._wm + (k,)] picks a[w, m, k[w, m]]
+        # (what np.take_along_axis does, without its cost of building these every call)
+        self._wm = (np.arange(W)[:, None], np.arange(M)[None, :])
         self._pair_i, self._pair_j = np.triu_indices(min(GAP_CHASERS, self.n_pursuers), k=1)  # among the nearest
         self.heading = np.zeros((W, M, 2))
         self.wander = np.zeros((W, M, 2))
@@ -380,7 +422,7 @@ class EscapeModel:
         obstacle_room = corridors.free(survey)
         room = np.minimum(obstacle_room, self._evader_room(e, active, survey))
         best = self._choose(e, pp, sensed, want, survey, room)
-        chosen = np.take_along_axis(survey, best[..., None, None], 2)[:, :, 0]
+        chosen = survey[self._wm + (best,)]
         final = np.where(gap_on[..., None], through, chosen)
 
         self.heading = np.where(active[..., None], final, self.heading)
@@ -472,7 +514,8 @@ class EscapeModel:
         s = _PATH_FRACTIONS * gap_length[..., None]  # (W, M, P, S)
         slack = reach_slack(e[:, :, None, :], gap_dir, s, s * (task.pursuer_speed / task.evader_speed), pp, sensed) - reach
         clear = gap_free >= np.maximum(gap_length, self._need)
-        both_sensed = np.take_along_axis(sensed, ci, -1) & np.take_along_axis(sensed, cj, -1)
+        wm = tuple(i[..., None] for i in self._wm)  # against (W, M, P) indices
+        both_sensed = sensed[wm + (ci,)] & sensed[wm + (cj,)]
         feasible = both_sensed & clear & (slack > 0)
 
         close = sensed & (dist < cfg.panic_distance)
@@ -481,12 +524,12 @@ class EscapeModel:
         committed = same_pair & (self.gap_side[..., None] == side)
         candidate = feasible & (cornered[..., None] | committed)
         score = np.where(candidate, slack + committed, -np.inf)  # keep to a chosen gap
-        best = np.argmax(score, axis=-1)[..., None]
+        best = self._wm + (np.argmax(score, axis=-1),)  # the best gap of each (world, evader)
         on = candidate.any(-1) & active
-        pair = np.stack([np.take_along_axis(ci, best, -1)[..., 0], np.take_along_axis(cj, best, -1)[..., 0]], -1)
+        pair = np.stack([ci[best], cj[best]], -1)
         self.gap_pair = np.where(on[..., None], pair, -1)
-        self.gap_side = np.where(on, np.take_along_axis(side, best, -1)[..., 0], 0.0)
-        return on, np.take_along_axis(gap_dir, best[..., None], 2)[:, :, 0]
+        self.gap_side = np.where(on, side[best], 0.0)
+        return on, gap_dir[best]
 
     def _follow_walls(self, e, want, ahead, flee, obstacles, allowed):
         """Turn a wanted direction (W, M, 2) that meets an obstacle within follow_distance
