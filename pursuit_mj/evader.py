@@ -128,14 +128,21 @@ def surrounded(toward: np.ndarray, mask: np.ndarray) -> np.ndarray:
     it holds a chaser (the largest gap between chaser bearings is below pi).
 
     toward (W, M, N, 2) chaser minus evader position; mask (W, M, N) chasers that count.
+    Fewer than 3 chasers never surround: the bearings are sorted only where 3 or more count
+    (most steps none; each evader's answer is its own, so the others need not be looked at).
     """
+    out = mask.sum(-1) >= 3
+    if not out.any():
+        return out
+    toward, mask = toward[out], mask[out]  # (K, N, 2), (K, N): the evaders with 3 or more
     ang = np.where(mask, np.arctan2(toward[..., 1], toward[..., 0]), np.inf)
     ang = np.sort(ang, axis=-1)
     first = ang[..., :1] + 2 * math.pi
     filled = np.where(np.isinf(ang), first, ang)
     with np.errstate(invalid="ignore"):  # no chaser counts: inf - inf, masked below
         gaps = np.diff(np.concatenate([filled, first], axis=-1), axis=-1)
-    return (mask.sum(-1) >= 3) & (np.nan_to_num(gaps, nan=2 * math.pi).max(-1) < math.pi)
+    out[out] = np.nan_to_num(gaps, nan=2 * math.pi).max(-1) < math.pi
+    return out
 
 
 def _last_first(v: np.ndarray) -> np.ndarray:

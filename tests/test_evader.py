@@ -9,7 +9,7 @@ import pytest
 
 from pursuit_mj.config import DRONE_CONTACT_DISTANCE, ConfigError, default_config, load_task_config
 from pursuit_mj.env import PursuitEnv
-from pursuit_mj.evader import EscapeModel, panic_level
+from pursuit_mj.evader import EscapeModel, panic_level, surrounded
 from pursuit_mj.geometry import ObstacleSet, inside_boundary, obstacle_distance
 from pursuit_mj.layout import load_layout
 from pursuit_mj.physics import BatchedPhysics
@@ -640,3 +640,16 @@ def test_a_zigzag_turn_is_between_half_and_all_of_zigzag_angle_either_side():
     a = config.evader.zigzag_angle
     assert np.all((np.abs(turn) >= 0.5 * a - 1e-9) & (np.abs(turn) <= a + 1e-9))
     assert (turn > 0).any() and (turn < 0).any() and np.ptp(np.abs(turn)) > 0.25 * a  # both sides, amplitudes spread
+
+
+def test_surrounded_answers_each_evader_alone():
+    """A batch mixing evaders with 0-4 counted chasers, some surrounded, gives each evader the
+    answer it gets alone (surrounded only sorts bearings where 3 or more count)."""
+    ang = np.radians([[0.0, 120.0, 240.0, 60.0], [0.0, 30.0, 60.0, 90.0], [0.0, 120.0, 240.0, 60.0], [0.0, 170.0, 130.0, 250.0]])
+    toward = np.stack([np.cos(ang), np.sin(ang)], -1)[None]  # (1, 4, 4, 2)
+    mask = np.array([[[True, True, True, False], [True, True, True, True], [True, True, False, False], [True, False, True, True]]])
+    expected = [True, False, False, True]  # 3 around; all on one side; only 2 count; 3 around (4th not counted)
+    assert surrounded(toward, mask).tolist() == [expected]
+    for m in range(4):
+        assert surrounded(toward[:, m : m + 1], mask[:, m : m + 1]).tolist() == [[expected[m]]]
+    assert not surrounded(toward, np.zeros_like(mask)).any()
