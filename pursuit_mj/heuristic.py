@@ -133,11 +133,16 @@ class HeuristicTeam:
 
     @classmethod
     def from_config(cls, config, params: HeuristicParams | None = None) -> "HeuristicTeam":
-        """A team tuned to a TaskConfig's speeds, clearances and timing (not its state)."""
+        """A team tuned to a TaskConfig's speeds, clearances, timing and perception (not its state).
+        Under full observability the perception keys (radius, view, noise) take no part: every
+        entity is known exactly there (sensing.perceive), so the team is the same whatever they say."""
         check_rays(config.n_rays, "the heuristic team")
+        full = config.observability == "full"
         team = cls(config.pursuer_speed, config.capture_radius, config.obstacle_clearance,
-                   config.teammate_clearance, config.control_dt, config.ray_range, config.perception_radius, params,
-                   config.field_of_view, config.position_noise, config.share_teammates)
+                   config.teammate_clearance, config.control_dt, config.ray_range,
+                   math.inf if full else config.perception_radius, params,
+                   2 * math.pi if full else config.field_of_view, 0.0 if full else config.position_noise,
+                   config.share_teammates)
         team.shield = SafetyShield.from_config(config, team.p.shield)  # the task's teammate sight (full observability)
         return team
 

@@ -159,7 +159,8 @@ class SafetyShield:
     @classmethod
     def from_config(cls, config, params: ShieldParams | None = None) -> "SafetyShield":
         """A shield for a TaskConfig's speed, clearances, ray range and teammates' sight
-        (in full observability every teammate knows every other: none is taken as blind); its
+        (in full observability every teammate knows every other, exactly: none is taken as blind,
+        and no gap is shortened for position_noise, which full observability does not apply); its
         response_time grows by the task's command_latency, during which a drone flies on."""
         check_rays(config.n_rays, "the safety shield")
         full = config.observability == "full"
@@ -169,7 +170,7 @@ class SafetyShield:
         return cls(config.pursuer_speed, config.capture_radius, config.obstacle_clearance,
                    config.teammate_clearance, config.ray_range, params, config.control_dt,
                    2 * math.pi if full else config.field_of_view, math.inf if full else config.perception_radius,
-                   config.position_noise, config.share_teammates)
+                   0.0 if full else config.position_noise, config.share_teammates)
 
     def reset(self, n_worlds: int, world_ids: np.ndarray | None = None) -> None:
         """Forget the hits and teammates seen in the listed worlds (all, and resize, when world_ids is None);

@@ -449,3 +449,28 @@ def test_a_coverage_map_that_never_relaxes_keeps_no_growing_wavefront():
         m.choose_goal(pos, *none, now, 0.1)
         m.waypoint(pos, now)
     assert m._front.size == 0
+
+
+def test_under_full_observability_the_team_acts_alike_whatever_the_perception_settings():
+    """With observability full every entity is known exactly, so the perception keys change no
+    observation (sensing.perceive). They must not change the team either: its shield was built with
+    the task's position_noise (shortening teammates' gaps by noise the observations do not have),
+    and its coverage search with perception_radius, so `eval --observability full --task hard`
+    played other episodes than `eval --observability full` on identical observations."""
+    from pursuit_mj.env import PursuitEnv
+
+    plain = default_config(fidelity="point", observability="full", max_steps=300)
+    noisy = default_config(fidelity="point", observability="full", max_steps=300, position_noise=0.3,
+                           field_of_view=1.5, perception_radius=0.8, miss_probability=0.5)
+    envs = [PursuitEnv(c, n_worlds=4, seed=0, auto_reset=False) for c in (plain, noisy)]
+    teams = [HeuristicTeam.from_config(c) for c in (plain, noisy)]
+    obs = [env.reset() for env in envs]
+    np.testing.assert_array_equal(obs[0], obs[1])
+    for t in teams:
+        t.reset(4)
+    spec = envs[0].obs_spec
+    for _ in range(300):
+        actions = [t.act(o, spec) for t, o in zip(teams, obs)]
+        np.testing.assert_array_equal(actions[0], actions[1])
+        obs = [env.step(a)[0] for env, a in zip(envs, actions)]
+        np.testing.assert_array_equal(obs[0], obs[1])

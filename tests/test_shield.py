@@ -648,3 +648,15 @@ def test_shielded_refuses_actions_that_the_env_and_evaluate_refuse_naming_the_po
     policy.reset(1)
     with pytest.raises(ValueError, match=f"policy giving: act\\(\\) gave .*{what}"):
         policy.act(blank_obs(), SPEC)
+
+
+def test_a_shield_for_a_full_observability_task_takes_no_position_noise():
+    """Full observability applies no position_noise (sensing.perceive): the shield put on a model
+    (`--shield`) must not shorten teammates' gaps for noise the observations do not have."""
+    import math
+
+    full = default_config(fidelity="point", observability="full", position_noise=0.3, field_of_view=1.5)
+    shield = SafetyShield.from_config(full)
+    assert (shield.position_noise, shield.field_of_view, shield.perception_radius) == (0.0, 2 * math.pi, math.inf)
+    partial = SafetyShield.from_config(default_config(fidelity="point", position_noise=0.3))
+    assert partial.position_noise == 0.3
