@@ -234,7 +234,8 @@ def one_flag_named(exc: ValueError, typed: str, given: dict, flag_of: dict) -> V
 
 def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
     """Resolve defaults <- task files <- flags <- --set, its evader model made once (check_evader_model),
-    and print it if asked."""
+    and print it if asked; a `note:` line on stderr names each setting the combination never reads
+    (TaskConfig.idle_settings)."""
     flags = {}
     for key in TASK_FLAG_KEYS:
         value = getattr(args, key, None)
@@ -249,6 +250,8 @@ def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
         raise one_flag_named(exc, typed, {TASK_FLAG_NAMES[k]: v for k, v in flags.items()}, TASK_FLAG_NAMES) from None
     check_evader_model(cfg, "evader.model")  # before -sc prints it: a config refused is not shown as the one run
     check_layout_given(args, cfg)
+    for line in cfg.idle_settings():  # accepted (a preset sets them), but the run goes as without them
+        print(f"note: {line}", file=sys.stderr)
     if getattr(args, "show_config", False):
         print(dump_yaml(cfg))
     return cfg

@@ -84,6 +84,18 @@ class EvaderConfig:
             )
 
 
+#: perception keys that full observability never reads (sensing.perceive knows every entity exactly there)
+FULL_OBSERVABILITY_IDLE = ("perception_radius", "field_of_view", "share_detections", "share_teammates",
+                           "position_noise", "miss_probability")
+
+
+def _setting_text(key: str, value) -> str:
+    """A task value as a note shows it: the field of view in degrees (stored in rad), numbers short."""
+    if key == "field_of_view":
+        return f"{math.degrees(value):.4g} deg"
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
 @dataclasses.dataclass(frozen=True)
 class TaskConfig:
     """Everything that defines one pursuit task. Defaults reproduce the reference study."""
@@ -122,6 +134,24 @@ class TaskConfig:
     controller_hz: float = spec(100.0, lo=100.0, hi=1000.0, help="quadrotor controller rate (Hz); at 50 Hz a full-speed reversal tilted to 22 deg, past the 15 deg limit")
     drone_mass: float = spec(DRONE_FILE_MASS, lo=DRONE_MIN_MASS, help=f"every drone's take-off mass (kg): the quadrotor's body (inertia scaled with it) and its controller's weight feed-forward; default the bare Crazyflie 2.1 of models/crazyflie.xml; set it to your drones' weighed mass (with decks, markers, battery); at least {DRONE_MIN_MASS:g} kg (lighter is no Crazyflie-scale airframe, and far lighter ones make the quadrotor simulation diverge: docs/DESIGN.md); at most {DRONE_MAX_MASS_TEXT} kg, where the rotors lift {MIN_THRUST_TO_WEIGHT:g} times the weight")
     evader: EvaderConfig = spec(default_factory=EvaderConfig, help="escape model settings")
+
+    def idle_settings(self, prefix: str = "") -> list[str]:
+        """Settings changed from their defaults that this combination never reads, one line each, keys
+        written with `prefix` (a train config's "task."): the perception keys under full observability,
+        where every entity is known exactly (sensing.perceive), and drone_mass under point fidelity.
+        Not errors: a preset (hard) sets perception keys that a full-observability run keeps."""
+        default, idle = TaskConfig(), []
+        if self.observability == "full":
+            changed = [k for k in FULL_OBSERVABILITY_IDLE if getattr(self, k) != getattr(default, k)]
+            if changed:
+                shown = ", ".join(f"{prefix}{k} {_setting_text(k, getattr(self, k))}" for k in changed)
+                verb = "does" if len(changed) == 1 else "do"
+                idle.append(f"{shown} {verb} nothing under {prefix}observability full (every evader and teammate is "
+                            "known exactly)")
+        if self.fidelity == "point" and self.drone_mass != default.drone_mass:
+            idle.append(f"{prefix}drone_mass {self.drone_mass:g} does nothing under {prefix}fidelity point (the point "
+                        "model's response does not follow the mass; quadrotor fidelity flies it)")
+        return idle
 
     def validate(self, source: str = "config") -> None:
         """Cross-field checks; raises ConfigError naming the offending keys."""

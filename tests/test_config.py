@@ -712,3 +712,32 @@ def test_the_preset_table_of_docs_evaluation_md_is_what_each_preset_file_sets():
         assert math.degrees(c.field_of_view) == pytest.approx(number(view), abs=1e-6) and view.endswith(" deg"), name
         assert c.position_noise == number(noise), name
         assert c.miss_probability == number(misses) / 100, name
+
+
+def test_task_settings_a_combination_never_reads_are_named_one_line_each():
+    """Full observability knows every entity exactly (sensing.perceive), and the point model's response
+    does not follow drone_mass: `eval --observability full --set miss_probability=0.5` and `eval
+    --fidelity point --set drone_mass=0.035` ran as without those keys, without a word."""
+    assert default_config().idle_settings() == []
+    assert default_config(observability="full").idle_settings() == []
+    assert default_config(position_noise=0.1, miss_probability=0.2).idle_settings() == []  # partial reads them
+    full = default_config(observability="full", position_noise=0.1, miss_probability=0.2, field_of_view=2.0)
+    assert full.idle_settings() == [
+        "field_of_view 114.6 deg, position_noise 0.1, miss_probability 0.2 do nothing under observability full (every "
+        "evader and teammate is known exactly)"]
+    assert default_config(fidelity="point", drone_mass=0.033).idle_settings() == [
+        "drone_mass 0.033 does nothing under fidelity point (the point model's response does not follow the mass; "
+        "quadrotor fidelity flies it)"]
+
+
+def test_eval_notes_the_task_settings_its_combination_never_reads(capsys):
+    """The note is one stderr line per idle setting, before the table; a run without one prints none."""
+    args = ["eval", "--policy", "random", "--layouts", "0", "--episodes", "1", "--worlds", "1", "--fidelity", "point",
+            "--set", "max_steps=2", "-q"]
+    assert main(args + ["--observability", "full", "--task", "hard"]) == 0
+    err = capsys.readouterr().err
+    assert err.splitlines() == [
+        "note: perception_radius 1.5, field_of_view 120 deg, position_noise 0.1, miss_probability 0.2 do nothing under "
+        "observability full (every evader and teammate is known exactly)"]
+    assert main(args) == 0
+    assert capsys.readouterr().err == ""

@@ -558,3 +558,12 @@ def test_the_validation_cadence_a_config_file_states_in_its_comments_is_the_one_
         assert (int(updates[1]), int(updates[2])) == (cfg.run.validate_every, per_world), path
     if steps:
         assert int(steps[1]) == per_world, path
+
+
+def test_perception_keys_under_full_observability_are_named_as_idle():
+    """`train --config full_obs --set task_file=hard` trained on exact observations, the preset's noise,
+    misses, radius and view unread, without a word."""
+    assert load_train_config(["full_obs"], []).idle_settings() == []
+    assert load_train_config(["full_obs"], ["task.position_noise=0.1", "task.share_teammates=true"]).idle_settings() == [
+        "task.share_teammates True, task.position_noise 0.1 do nothing under task.observability full (every evader "
+        "and teammate is known exactly)"]

@@ -359,9 +359,7 @@ class TrainConfig:
         idle = []
         if self.residual.base == "none" and self.residual.scale != default.residual.scale:
             idle.append(f"residual.scale {self.residual.scale:g} does nothing without residual.base")
-        if self.task.fidelity == "point" and self.task.drone_mass != default.task.drone_mass:
-            idle.append(f"task.drone_mass {self.task.drone_mass:g} does nothing under task.fidelity point (the point "
-                        "model's response does not follow the mass; quadrotor fidelity flies it)")
+        idle += self.task.idle_settings("task.")  # perception keys under full observability, drone_mass under point
         if self.algo == "mappo" and self.ppo.value_scaling != default.ppo.value_scaling:
             idle.append("ppo.value_scaling does nothing under algo mappo (its centralised critic normalises values)")
         if self.algo != "mappo" and self.net.critic_hidden != default.net.critic_hidden:
