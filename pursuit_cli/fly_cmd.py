@@ -117,10 +117,18 @@ def _landed(result, plan) -> str:
     return "no" + (f" (last height estimates: {', '.join(up)}; landed means below {LANDED_HEIGHT:g} m)" if up else "")
 
 
+def _note_idle_settings(plan) -> None:
+    """One `note:` line on stderr per task setting of the flight that its combination never reads
+    (TaskConfig.idle_settings: the perception keys under full observability), as the task commands print."""
+    for line in plan.task.idle_settings():
+        print(f"note: {line}", file=sys.stderr)
+
+
 def run_check(args) -> int:
     from pursuit_mj.flight.plan import load_plan
 
     plan = load_plan(_need_flight(args), args.overrides)
+    _note_idle_settings(plan)
     print(_describe(plan))
     print("ok: the flight file is valid (no radio was touched)")
     return 0
@@ -145,6 +153,7 @@ def run(args) -> int:
 
     _quiet_cflib(args.verbose)
     plan = load_plan(_need_flight(args), args.overrides)
+    _note_idle_settings(plan)
     if args.max_time is not None:
         if not 1 <= args.max_time <= 3600:  # as the flight file's max_time
             raise ValueError(f"--max-time {args.max_time}: expected seconds in [1, 3600]")

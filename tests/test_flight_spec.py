@@ -1415,3 +1415,15 @@ def test_spot_turns_needs_every_spot_reached_not_only_every_turned_spot_near_one
     spots = np.column_stack([z.real, z.imag])
     assert np.min(np.linalg.norm(spots[:, None] - spots[None], axis=-1) + 9 * np.eye(8)) >= 0.08 - 1e-9
     assert spot_turns(spots, 0.05) == [180]
+
+
+def test_fly_check_notes_the_task_settings_a_flight_never_reads(capsys):
+    """`fly --set observability=full --set miss_probability=0.2` flew on exact observations, the
+    misses unread, without a word (eval, render and the other task commands say so)."""
+    from pursuit_cli import main
+
+    assert main(["fly", "check", "--flight", "example", "--set", "observability=full", "--set", "miss_probability=0.2"]) == 0
+    assert capsys.readouterr().err.splitlines() == [
+        "note: miss_probability 0.2 does nothing under observability full (every evader and teammate is known exactly)"]
+    assert main(["fly", "check", "--flight", "example", "--set", "miss_probability=0.2"]) == 0
+    assert capsys.readouterr().err == ""
