@@ -95,17 +95,41 @@ def _train_config(ref: str, args):
     """The -mc run's train config; the task keys that render's -ec files, own flags and --set replace
     are not looked up in it (a layout or evader file of the run that is gone is no error when replaced)."""
     try:
-        from train.config import dotted_keys, load_train_config, set_keys
+        from train.config import load_train_config
     except ImportError as exc:
         raise ValueError(f"-mc {ref}: cannot read training configs, the train package is not importable ({exc})") from None
-    replaced = set()
+    return load_train_config([ref], replaced=_task_keys_given(args))
+
+
+def _task_keys_given(args) -> set[str]:
+    """The task keys ('task.layout' ...) that render's -ec files, -i and --set give, over the -mc run's."""
+    from train.config import dotted_keys, set_keys
+
+    given = set()
     for f in args.task_files:  # read again by task_config, which applies them
-        replaced |= dotted_keys(load_task_yaml(preset_or_file(f, "task")), "task.")
+        given |= dotted_keys(load_task_yaml(preset_or_file(f, "task")), "task.")
     for text in args.overrides:  # one that does not parse: task_config names it
-        replaced |= set_keys(text, "task.")
+        given |= set_keys(text, "task.")
     if getattr(args, "layout", None) is not None:
-        replaced.add("task.layout")
-    return load_train_config([ref], replaced=replaced)
+        given.add("task.layout")
+    return given
+
+
+def _refuse_a_layout_the_run_never_met(args, train_cfg, config: TaskConfig) -> None:
+    """ValueError when the -mc run trained on several layouts (`layouts`: one per world, or drawn per
+    episode with random_layout) and no layout is given here: its task's own layout (or, drawn, the
+    built-in ones) is not what it trained on, and rendering it would show another arena than the run's."""
+    if not train_cfg.layouts or "task.layout" in _task_keys_given(args):
+        return
+    if not config.random_layout and {str(layout) for layout in train_cfg.layouts} == {str(config.layout)}:
+        return  # it trained on its task's layout alone
+    met = ", ".join(str(layout) for layout in train_cfg.layouts)
+    if config.random_layout:
+        raise ValueError(f"-mc {args.model_config}: the run trained on layouts {met}, each episode drawing one of them, "
+                         f"where a render draws from the built-in layouts 0-3; render one of the run's with -i LAYOUT "
+                         f"--set random_layout=false")
+    raise ValueError(f"-mc {args.model_config}: the run trained on layouts {met} (one per world), not on its task's "
+                     f"layout {config.layout}; render one of them (or any other) with -i LAYOUT")
 
 
 def task_config(args, base: TaskConfig | None) -> TaskConfig:
@@ -309,6 +333,8 @@ def _run(args) -> int:
         raise ValueError(f"--fps: expected a positive number, got {args.fps}")
     train_cfg = _train_config(args.model_config, args) if args.model_config else None
     config = task_config(args, train_cfg.task if train_cfg is not None else None)
+    if train_cfg is not None:
+        _refuse_a_layout_the_run_never_met(args, train_cfg, config)
     load_layout(config.layout)
     video, final = not args.no_video, args.final_frame
     fps = args.fps or 1.0 / config.control_dt

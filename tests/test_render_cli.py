@@ -447,3 +447,24 @@ def test_a_recording_to_a_named_pipe_goes_into_the_pipe_and_leaves_it_a_pipe(tmp
     assert f"--rerun {pipe}: a named pipe that no program opened for reading" in err and f"kept in {kept}" in err, err
     assert len(err.strip().splitlines()) == 1 and kept.read_bytes()[:4] == b"RRF2"
     assert stat.S_ISFIFO(os.stat(pipe).st_mode) and sorted(p.name for p in tmp_path.iterdir()) == ["ep.new.rrd", "ep.rrd"]
+
+
+@pytest.mark.parametrize("drawn", [False, True])
+def test_a_model_config_that_trained_on_several_layouts_is_not_rendered_on_one_it_never_met(tmp_path, capsys, drawn):
+    """`train --layout A --layout B [--random-layout]` stores the layouts under `layouts`, its task's
+    layout staying 0: `render -mc` of that run played layout 0, or with random_layout drew the
+    built-in layouts, never A or B, without a word. It is refused, naming the run's layouts and how to
+    choose one; a layout given on the command line is rendered."""
+    mc = tmp_path / "model.yaml"
+    mc.write_text(f"name: two\nlayouts: [1, 2]\nrun: {{runs_dir: {tmp_path}}}\n"
+                  f"task: {{fidelity: point, max_steps: 3, random_layout: {str(drawn).lower()}}}\n")
+    assert main(["render", "-mc", str(mc), "--policy", "heuristic", "--no-video", "--final-frame",
+                 "-s", str(tmp_path / "f/")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"-mc {mc}: the run trained on layouts 1, 2" in err, err
+    assert ("--set random_layout=false" in err) == drawn and "-i LAYOUT" in err
+    assert not (tmp_path / "f").exists()
+    chosen = ["-i", "2"] + (["--set", "random_layout=false"] if drawn else [])
+    assert main(["render", "-mc", str(mc), "--policy", "heuristic", "--no-video", "--final-frame",
+                 "-s", str(tmp_path / "f/"), "--width", str(W), "--height", str(H)] + chosen) == 0
+    assert "layout2" in capsys.readouterr().out
