@@ -367,8 +367,9 @@ def shield_each_if_asked(args: argparse.Namespace, chosen: list[tuple[object, st
 TRAINED_TASK_KEYS = ("observability", "pursuer_speed", "evader_speed", "perception_radius", "field_of_view", "fidelity",
                      "n_pursuers", "n_evaders", "drone_mass", "command_latency", "control_dt", "ray_range",
                      "share_detections", "share_teammates", "position_noise", "miss_probability")
-#: of those, the keys a real flight has no value of (its latency is the real loop's)
-SIMULATION_ONLY_TRAINED_KEYS = ("command_latency",)
+#: of those, the keys a real flight has no value of (its latency is the real loop's, its physics the
+#: real world's: pursuit_mj.flight.plan.SIMULATION_ONLY_KEYS)
+SIMULATION_ONLY_TRAINED_KEYS = ("command_latency", "fidelity")
 
 
 def _shown(key: str, value):

@@ -873,3 +873,23 @@ def test_more_layouts_than_worlds_to_play_them_is_refused_naming_the_keys(capsys
     assert message in err and len(err.splitlines()) == 1, err
     # drawn per episode (task.random_layout), every layout plays in any number of worlds
     assert main(["train", "--config", "classic", *given, "--set", "task.random_layout=true", "-sc"]) == 0
+
+
+def test_a_flight_is_not_told_of_the_fidelity_a_model_learned_in(tiny_model, capsys):
+    """A flight's physics is the real world's (flight.plan.SIMULATION_ONLY_KEYS: its task takes no
+    fidelity), so `fly --model` of a point-trained model said 'fidelity point (this task: quadrotor)',
+    comparing with a default that means nothing there; in simulation it is told."""
+    from pursuit_cli.common import load_model
+    from pursuit_mj.config import default_config
+    from pursuit_mj.obs_spec import ObsSpec
+
+    task = default_config(n_pursuers=2, fidelity="quadrotor")
+    spec = ObsSpec.make(task.n_pursuers, task.n_evaders, task.n_rays)
+    load_model(tiny_model, spec, task)
+    assert "fidelity point (this task: quadrotor)" in capsys.readouterr().err
+    load_model(tiny_model, spec, task, flight=True)
+    assert "fidelity" not in capsys.readouterr().err
+    from pursuit_cli.common import SIMULATION_ONLY_TRAINED_KEYS, TRAINED_TASK_KEYS
+    from pursuit_mj.flight.plan import SIMULATION_ONLY_KEYS
+
+    assert set(SIMULATION_ONLY_KEYS) & set(TRAINED_TASK_KEYS) == set(SIMULATION_ONLY_TRAINED_KEYS)
