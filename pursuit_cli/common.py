@@ -382,7 +382,8 @@ def _shown(key: str, value):
 def load_model(path, spec, task: TaskConfig, flag: str = "--model", flight: bool = False):
     """A trained policy for `task` via train.policy.load_policy (imported lazily: the library never
     needs torch); a model trained behind the safety shield comes back behind it. A note on stderr
-    names the TRAINED_TASK_KEYS it learned with other values (for a `flight`, not the simulation-only ones)."""
+    names the TRAINED_TASK_KEYS it learned with other values (for a `flight`, not the simulation-only ones;
+    a key the checkpoint predates counts at its default)."""
     from pathlib import Path
 
     if Path(path).is_dir():
@@ -397,6 +398,9 @@ def load_model(path, spec, task: TaskConfig, flag: str = "--model", flight: bool
         raise ValueError(f"{flag} {path}: cannot load trained models, the train package is not importable ({exc})") from None
     policy = load_policy(path, spec, task=task)
     trained = getattr(policy, "trained_task", {})
+    if trained:  # a key the checkpoint lacks did not exist when it trained: the code then did its default
+        default = TaskConfig()
+        trained = {**{k: getattr(default, k) for k in TRAINED_TASK_KEYS}, **trained}
     keys = [k for k in TRAINED_TASK_KEYS if not (flight and k in SIMULATION_ONLY_TRAINED_KEYS)]
     differ = [f"{k} {_shown(k, trained[k])} (this task: {_shown(k, getattr(task, k))})"
               for k in keys if k in trained and trained[k] != getattr(task, k)]

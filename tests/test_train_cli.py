@@ -893,3 +893,23 @@ def test_a_flight_is_not_told_of_the_fidelity_a_model_learned_in(tiny_model, cap
     from pursuit_mj.flight.plan import SIMULATION_ONLY_KEYS
 
     assert set(SIMULATION_ONLY_KEYS) & set(TRAINED_TASK_KEYS) == set(SIMULATION_ONLY_TRAINED_KEYS)
+
+
+def test_a_model_trained_before_a_task_key_existed_is_compared_at_that_keys_default(capsys):
+    """The shipped checkpoints predate command_latency, so their stored task has no such key, and
+    `eval --model pretrained/belppo_kick.pt --set command_latency=0.1` (what docs/flight.md asks for
+    before a flight) said nothing of the latency, where a model trained since says 'command_latency 0.0
+    (this task: 0.1)'. A key the checkpoint lacks is what the code then did: its default (as
+    load_policy rebuilds such a task)."""
+    from pursuit_cli.common import load_model
+    from pursuit_mj.config import default_config
+    from pursuit_mj.obs_spec import ObsSpec
+    from pursuit_mj.shipped import shipped_dir
+
+    task = default_config(command_latency=0.1)
+    spec = ObsSpec.make(task.n_pursuers, task.n_evaders, task.n_rays)
+    policy = load_model(shipped_dir("pretrained") / "belppo_kick.pt", spec, task)
+    assert "command_latency" not in policy.trained_task  # the case: a checkpoint older than the key
+    assert "command_latency 0.0 (this task: 0.1)" in capsys.readouterr().err
+    load_model(shipped_dir("pretrained") / "belppo_kick.pt", spec, default_config())
+    assert capsys.readouterr().err == ""  # its own task: nothing to say
