@@ -53,15 +53,29 @@ def free_spawn_points(layout, region, clearance: float = SPAWN_CLEARANCE, step: 
 
 
 def sample_separated(points: np.ndarray, n: int, rng: np.random.Generator, separation: float, tries: int = 200) -> np.ndarray | None:
-    """n of `points` (K, 2) drawn at random, pairwise at least `separation` (m) apart, as (n, 2); None if no draw fits."""
+    """n of `points` (K, 2) drawn at random, pairwise at least `separation` (m) apart, as (n, 2); None if no draw fits.
+
+    Each try walks a random permutation of the points and takes every point at least
+    `separation` from those taken before, until it has n. A point taken rules out, at once,
+    every point closer to it than that, so the walk jumps from one still-allowed point to the
+    next: a team that does not fit is told in milliseconds, not seconds, with the same draws.
+    """
     for _ in range(tries):
+        order = rng.permutation(len(points))
+        allowed = np.ones(len(points), bool)  # not within `separation` of a point taken in this try
         chosen: list[np.ndarray] = []
-        for idx in rng.permutation(len(points)):
-            q = points[idx]
-            if all(np.hypot(*(q - c)) >= separation for c in chosen):
-                chosen.append(q)
-                if len(chosen) == n:
-                    return np.array(chosen)
+        at = 0
+        while len(chosen) < n:
+            ahead = allowed[order[at:]]
+            if not ahead.any():
+                break
+            at += int(np.argmax(ahead))
+            q = points[order[at]]
+            chosen.append(q)
+            allowed &= np.hypot(points[:, 0] - q[0], points[:, 1] - q[1]) >= separation
+            at += 1
+        if len(chosen) == n:
+            return np.array(chosen)
     return None
 
 

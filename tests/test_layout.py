@@ -1263,3 +1263,35 @@ def test_candidates_computed_from_raw_outputs_are_those_drawn_one_at_a_time(kind
             batch.take(j)
             assert repr(batched.bit_generator.state) == repr(again.bit_generator.state), (seed, k, j)  # repr: MT19937's key array
             assert batched.random() == again.random() and batched.integers(2) == again.integers(2)
+
+
+def _greedy_spawn_reference(points, n, rng, separation, tries):
+    """sample_separated as first written: walk each permutation point by point, taking those far enough from all taken."""
+    for _ in range(tries):
+        chosen = []
+        for idx in rng.permutation(len(points)):
+            q = points[idx]
+            if all(np.hypot(*(q - c)) >= separation for c in chosen):
+                chosen.append(q)
+                if len(chosen) == n:
+                    return np.array(chosen)
+    return None
+
+
+@pytest.mark.parametrize("index", [0, 1, 2, 3])
+def test_spawn_draws_are_the_plain_greedy_walks_draws(index):
+    """sample_separated jumps between still-allowed points instead of testing each point against
+    every one taken (a team that does not fit was refused after 3 s); every episode's spawn must
+    stay the draw the plain walk makes: the same points, the same random numbers used."""
+    from pursuit_mj.layout_check import SPAWN_SEPARATION, check_spawn_capacity, free_spawn_points, sample_separated
+
+    layout = load_layout(index)
+    for region in (layout.spawn_pursuers, layout.spawn_evaders):
+        points = free_spawn_points(layout, region)
+        for n, separation, seed in [(1, 0.4, 0), (3, 0.4, 1), (6, 0.3, 2), (12, 0.4, 3), (40, 0.4, 4), (5, 0.137, 5)]:
+            rng, ref_rng = np.random.default_rng(seed), np.random.default_rng(seed)
+            got, want = sample_separated(points, n, rng, separation, tries=3), _greedy_spawn_reference(points, n, ref_rng, separation, 3)
+            assert (got is None) == (want is None) and (want is None or got.tobytes() == want.tobytes())
+            assert rng.integers(1 << 62) == ref_rng.integers(1 << 62)  # the same random numbers used
+    with pytest.raises(ValueError, match="cannot reliably hold 16 pursuers"):
+        check_spawn_capacity(layout, 16, 1, SPAWN_SEPARATION)
