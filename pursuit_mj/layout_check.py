@@ -19,7 +19,7 @@ GRID_STEP = 0.05
 GRID_CELLS = 300
 
 
-def _obstacle_points(layout, obstacles) -> list[np.ndarray]:
+def _obstacle_points(obstacles) -> list[np.ndarray]:
     """Outline sample points (K, 2) of each obstacle, its centre last, for inside-the-arena checks.
     A point beyond the float range (an absurd size in a file) is inf: outside, without a warning."""
     with np.errstate(over="ignore"):
@@ -364,7 +364,7 @@ def check_layout(layout) -> None:
     from .layout import LayoutError
 
     src = layout.source
-    for i, pts in enumerate(_obstacle_points(layout, layout.obstacles)):
+    for i, pts in enumerate(_obstacle_points(layout.obstacles)):
         in_arena = (pts[:, 0] >= -1e-9) & (pts[:, 0] <= layout.width + 1e-9) & (pts[:, 1] >= -1e-9) & (pts[:, 1] <= layout.height + 1e-9)
         if not in_arena.all():
             out = pts[np.flatnonzero(~in_arena)[0]]  # a corner or rim point (thickness counts), not only the centre line
