@@ -69,7 +69,6 @@ class VirtualFirmware:
         self.group_mask = 0
         self.state_frozen = False  # fault: state-estimate log blocks stop coming
         self.received: list[Received] = []
-        self.unsupported = 0  # packets understood but not modelled (e.g. attitude setpoints)
         self.greeted = False
 
     # ------------------------------------------------------------------ dispatch
@@ -254,8 +253,7 @@ class VirtualFirmware:
             self._note(t, "position", x, y, z, yaw)
         else:
             c.set_low_level(i, t, cmd.ATTITUDE)
-            self.unsupported += 1
-            self._note(t, "unsupported", kind)
+            self._note(t, "unsupported", kind)  # a setpoint type not modelled here (attitude, z-distance, ...)
         return []
 
     def _legacy_commander(self, t, channel, data):
@@ -264,8 +262,6 @@ class VirtualFirmware:
         roll, pitch, yawrate, thrust = struct.unpack("<fffH", data[:14])
         # thrust 0 is what cflib sends on close_link: the firmware stops the motors
         self.commander.set_low_level(self.index, t, cmd.STOP if thrust == 0 else cmd.ATTITUDE)
-        if thrust:
-            self.unsupported += 1
         self._note(t, "rpyt", roll, pitch, yawrate, thrust)
         return []
 
