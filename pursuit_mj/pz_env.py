@@ -26,7 +26,7 @@ class PursuitParallelEnv(ParallelEnv):
                  render_settings=None, extra_rewards=None):
         """render_mode None (render() draws nothing) or 'rgb_array' (render() returns the current
         frame (H, W, 3) uint8, top view with trails, caption and colour key); render_settings a
-        pursuit_mj.render.RenderSettings (size, camera, quality; default 640 x 480 top view);
+        pursuit_mj.render.renderer.RenderSettings (size, camera, quality; default 640 x 480 top view);
         extra_rewards {name: term} reward terms of one's own (as PursuitEnv's; each term sees one world)."""
         if render_mode not in (None, "rgb_array"):  # before the config: the first mistake a user meets
             raise ValueError(f"render_mode: {render_mode!r} is not supported (supported: None, 'rgb_array')")
