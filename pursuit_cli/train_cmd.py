@@ -365,7 +365,7 @@ def _run(args) -> int:
               f"{val['vs_heuristic_steps']:+.1f} "
               + ("[no interval: 1 episode]" if val["vs_heuristic_lo"] is None else
                  f"[{val['vs_heuristic_lo']:+.1f}, {val['vs_heuristic_hi']:+.1f}]") + " capture steps "
-              f"per episode (negative: sooner)"
+              "per episode (negative: sooner)"
               + (f"; caught by one side only: policy {val['vs_heuristic_only_policy']}, team {val['vs_heuristic_only_heuristic']} "
                  f"(McNemar p {p_value_text(val['vs_heuristic_success_p'])})" if "vs_heuristic_success_p" in val else ""))
     last = Path(result["run_dir"]) / "last.pt"
