@@ -377,8 +377,6 @@ def test_an_interrupted_eval_keeps_its_finished_cells_beside_the_table_it_was_as
     import os
     import signal
 
-    import dataclasses
-
     import pursuit_mj.evaluation as evaluation
 
     whole = tmp_path / "t.json"
@@ -409,8 +407,6 @@ def test_resume_counts_the_rows_it_takes_back_in_words_that_fit_one(tmp_path, mo
     import os
     import signal
 
-    import dataclasses
-
     import pursuit_mj.evaluation as evaluation
 
     cmd = ["eval", "--policy", "heuristic", "--policy", "random", "--layouts", "0", "--episodes", "1", "--worlds", "1",
@@ -436,8 +432,6 @@ def test_resume_counts_the_rows_it_takes_back_in_words_that_fit_one(tmp_path, mo
 def test_resume_runs_only_the_rows_an_interrupted_eval_did_not_finish_and_gives_the_whole_table(tmp_path, monkeypatch, capsys):
     import os
     import signal
-
-    import dataclasses
 
     import pursuit_mj.evaluation as evaluation
 
@@ -549,7 +543,6 @@ def test_the_source_hash_follows_every_source_file_but_not_compiled_caches(tmp_p
 def test_an_eval_stopped_before_any_cell_finished_says_nothing_is_kept(tmp_path, monkeypatch, capsys):
     """It said only 'interrupted'; its --resume then answered 'an eval stopped by Ctrl-C or SIGTERM
     leaves one', as if the eval had not been stopped that way."""
-    import dataclasses
 
     import pursuit_mj.evaluation as evaluation
 

@@ -314,7 +314,7 @@ def test_one_label_for_two_policy_files_is_refused_and_a_pool_keeps_the_file_s_h
         capsys.readouterr()
         assert main(["pool", *map(str, files)]) == 2
         err = capsys.readouterr().err
-        assert f"policy 'still' is two different policy files: sha256 " in err and f"in {files[1]}" in err, err
+        assert "policy 'still' is two different policy files: sha256 " in err and f"in {files[1]}" in err, err
 
 
 def test_the_files_of_a_pool_of_two_fidelities_plot_as_its_plots_do(tables, tmp_path, capsys):
