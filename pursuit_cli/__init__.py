@@ -267,7 +267,8 @@ def _stdout_is_broken() -> bool:
 
 def _where(exc: BaseException) -> str:
     """Where an exception was raised: the innermost line of this project's code, and the
-    innermost of all when that is a library's ('in pursuit_mj/render/video.py:98, write_frame')."""
+    innermost of all when that is a library's, e.g. 'in pursuit_mj/render/video.py:N, add
+    (raised in __init__.py:M, add_image)' (a library's file by its name only)."""
     import traceback
 
     frames = traceback.extract_tb(exc.__traceback__)
