@@ -7,6 +7,8 @@ A checkpoint is a dict of plain values and tensors (never pickled objects):
     state_dim              global state length (MAPPO critic input)
     actor, critic          state_dicts
     anchor_actor           the frozen init_from actor of an anchored run (ppo.anchor_coef > 0)
+    demonstrations         DAgger runs: {"total": pairs ever added}; the pairs are files in RUN/demonstrations/
+                           (demonstration_files.py)
     optimizer              Adam state_dict (absent in weights-only exports)
     value_norm, discount   MAPPO running stats, discount logit + its optimiser
     counters               update, world_steps, agent_steps, episodes, best_success ...
