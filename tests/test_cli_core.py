@@ -720,3 +720,30 @@ def test_an_output_path_in_dev_that_is_no_device_is_refused_before_any_work(tmp_
     with pytest.raises(ValueError, match=r"^--events path .*new.log: a name in .*dev, the folder of devices, that is not there"):
         check_writable(str(dev / "new.log"), "--events", appended=True)
     check_writable(str(tmp_path / "out.json"), "--json")  # elsewhere, as before
+
+
+def test_the_package_boundaries_hold_in_the_source_not_only_at_import_time():
+    """DESIGN.md section 4, read in the source, so that a lazy import inside a function (which
+    importing every module does not run) is caught too: pursuit_mj names neither train nor
+    pursuit_cli in any import, and train takes from pursuit_mj only public names of its modules
+    (no leading underscore in the module path or the name imported)."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+
+    def imports(package):
+        for path in sorted((root / package).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(), str(path))):
+                if isinstance(node, ast.Import):
+                    yield path, node.lineno, [a.name for a in node.names], []
+                elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                    yield path, node.lineno, [node.module], [a.name for a in node.names]
+
+    crossing = [f"{p.relative_to(root)}:{line} imports {m}" for p, line, modules, _ in imports("pursuit_mj")
+                for m in modules if m.split(".")[0] in ("train", "pursuit_cli")]
+    assert not crossing, crossing
+    private = [f"{p.relative_to(root)}:{line} takes {'.'.join([modules[0], *names])}" for p, line, modules, names in imports("train")
+               if modules[0].split(".")[0] == "pursuit_mj"
+               and any(part.startswith("_") for part in modules[0].split(".")[1:] + names)]
+    assert not private, private
