@@ -225,7 +225,9 @@ class PursuitEnv:
         self.episode = np.zeros(W, np.int64)
         self.world_layouts: list[Layout] = [self.pool[w % len(self.pool)] for w in range(W)]
         self._base_index = np.array([w % len(self.pool) for w in range(W)])
-        self.physics = BatchedPhysics(config, self.world_layouts, nthread=nthread)
+        self._nthread = int(nthread)
+        self._physics: BatchedPhysics | None = BatchedPhysics(config, self.world_layouts, nthread=nthread)
+        self.closed = False  # close() freed the physics; the next reset() builds it anew
         self.evader_model = make_evader_model(config, W, self.seed)
         self.steps = np.zeros(W, np.int64)
         self.starts = np.zeros(W, np.int64)  # episodes begun in each world, however (reset, reset_worlds, auto_reset)
@@ -313,6 +315,9 @@ class PursuitEnv:
         explicit = None if seeds is None else check_seeds(seeds, self.n_worlds, "reset seeds")
         if seed is not None:
             self.seed = check_seed(seed, "reset seed")
+        if self.closed:
+            self._reopen()
+        if seed is not None:
             self.episode[:] = 0
         elif self._obs is not None:
             self.episode += 1
@@ -327,6 +332,7 @@ class PursuitEnv:
         its seed and the actions taken: the same seed replays it exactly in any world, however
         many worlds run. Without seeds each world takes the next of its default sequence.
         """
+        self._check_open("reset_worlds()")
         if self._obs is None:
             raise RuntimeError("call reset() before reset_worlds(): the other worlds have no episode yet")
         raw = np.asarray(world_ids).reshape(-1)
@@ -352,6 +358,39 @@ class PursuitEnv:
     def evader_model(self, model) -> None:
         self._evader_checked = checked_evader_model(model, (self.n_worlds, self.n_evaders, 2))
         self._evader_model = model
+
+    @property
+    def physics(self) -> BatchedPhysics:
+        """The worlds' MuJoCo simulation (RuntimeError between close() and the next reset())."""
+        self._check_open("physics")
+        return self._physics
+
+    def close(self) -> None:
+        """Free the MuJoCo batch (its worker threads and simulation memory); harmless to call again.
+
+        Until the next reset(), step(), reset_worlds(), the state views and `physics` raise
+        RuntimeError saying close() came first. reset() builds a new batch and plays on as if the
+        env had never been closed: reset() the next episode of each world, reset(seed=s) episode 0
+        of seed s, bit for bit the episodes of an env never closed. Also `with PursuitEnv(...) as env:`.
+        """
+        self._physics = None
+        self.closed = True
+
+    def __enter__(self) -> "PursuitEnv":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _check_open(self, what: str) -> None:
+        if self.closed:
+            raise RuntimeError(f"PursuitEnv {what} called after close(): call reset() to start again")
+
+    def _reopen(self) -> None:
+        """A new batch on the worlds' base layouts, as __init__ made it; the reset that follows
+        places every world (and gives each its episode's layout when they change per episode)."""
+        self._physics = BatchedPhysics(self.config, [self.pool[i] for i in self._base_index], nthread=self._nthread)
+        self.closed = False
 
     @property
     def started(self) -> bool:
@@ -411,6 +450,7 @@ class PursuitEnv:
         all-round view. It changes nothing in the env; noise and misses, if `config` has any,
         are drawn from the same per-world streams as the env's own observations.
         """
+        self._check_open("observe_as()")
         if self._obs is None:
             raise RuntimeError("call reset() before observe_as(): no episode has started")
         config = checked_task_config(config, "observe_as config")
@@ -425,6 +465,7 @@ class PursuitEnv:
 
     def global_state(self) -> np.ndarray:
         """(W, state_dim) float32: the true state for centralised critics."""
+        self._check_open("global_state()")
         if self._obs is None:
             raise RuntimeError("call reset() before global_state(): no episode has started")
         return build_global_state(self._view(), self.steps / self.config.max_steps)
@@ -458,6 +499,7 @@ class PursuitEnv:
         {term: (W, N) float32}, "outcome" (W,) str, "episodes" [EpisodeRecord],
         "final_obs" (W, N, obs_dim), "final_state" (W, state_dim).
         """
+        self._check_open("step()")
         if self._obs is None:
             raise RuntimeError("call reset() before step()")
         a = self._check_actions(actions)
@@ -557,6 +599,7 @@ class PursuitEnv:
         """Everything a recorder needs about one world now (copies; reading never steers)."""
         if isinstance(world, (bool, np.bool_)) or not isinstance(world, (int, np.integer)) or not 0 <= world < self.n_worlds:
             raise ValueError(f"world: {world!r} is not a world index in 0..{self.n_worlds - 1}")
+        self._check_open("snapshot()")
         if self._perception is None:
             raise RuntimeError("call reset() before snapshot(): no episode has started, nothing has been perceived")
         world = int(world)

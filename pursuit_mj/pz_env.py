@@ -99,6 +99,8 @@ class PursuitParallelEnv(ParallelEnv):
         return self._as_dict(obs[0]), {a: {} for a in self.agents}
 
     def step(self, actions: dict):
+        if self._env.closed:  # close() freed the simulation (a reset builds it anew)
+            raise ValueError("step() called after close(): call reset() first")
         if not self.agents:
             if not self._started:
                 raise ValueError("step() called before reset(): call reset() first")
@@ -164,11 +166,13 @@ class PursuitParallelEnv(ParallelEnv):
         self._frames.push()
 
     def close(self) -> None:
-        """Free the renderer, if one was made; harmless to call again."""
+        """Free the renderer, if one was made, and the simulation (PursuitEnv.close); harmless to call
+        again. reset() starts again: a new simulation, as if never closed."""
         if self._frames is not None:
             self._frames.close()
             self._frames = None
             self._closed = True
+        self._env.close()
 
 
 def _shown(value, limit: int = 80) -> str:

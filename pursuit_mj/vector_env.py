@@ -124,6 +124,8 @@ class PursuitVectorEnv(VectorEnv):
         episode ended in this step), each key with its "_key" mask, "episode_record" (the world's
         EpisodeRecord) for the slots whose episode ended, and in SAME_STEP mode also "final_obs",
         "final_state" and "final_info" for them (module docstring)."""
+        if self.batched.closed:  # close() freed the simulation (a reset builds it anew)
+            raise RuntimeError("step() called after close(): call reset() first")
         if not self.batched.started:  # neither reset() nor batched.reset() yet
             raise RuntimeError("step() called before reset(): call reset() first")
         a = self._checked_actions(actions)
@@ -179,10 +181,12 @@ class PursuitVectorEnv(VectorEnv):
         return tuple(frames[i // self.n_pursuers] for i in range(self.num_envs))
 
     def close_extras(self, **kwargs) -> None:
-        """Free the renderer, if one was made (VectorEnv.close calls this once)."""
+        """Free the renderer, if one was made, and the simulation (PursuitEnv.close); VectorEnv.close
+        calls this once. reset() starts again: a new simulation, as if never closed."""
         if self._frames is not None:
             self._frames.close()
             self._frames = None
+        self.batched.close()
 
     def _checked_actions(self, actions) -> np.ndarray:
         """`actions` as a (num_envs, 2) array of finite real numbers, or ValueError naming the slot

@@ -934,3 +934,59 @@ def test_a_pool_of_more_layouts_than_worlds_is_refused_naming_those_that_would_n
         ["open", "walls", "bars", "cluttered"]
     # with random_layout every episode draws from the whole pool, whatever the number of worlds
     PursuitEnv(default_config(random_layout=True, **FAST), n_worlds=1, layouts=[0, 1, 2, 3])
+
+
+def _threads() -> int:
+    """OS threads of this process now (Linux)."""
+    import os
+
+    return len(os.listdir(f"/proc/{os.getpid()}/task"))
+
+
+def test_close_frees_the_mujoco_batch_and_a_step_after_it_says_so():
+    """PursuitEnv had no close(): env.close() (a gymnasium habit, contextlib.closing, a wrapper that
+    forwards close) was an AttributeError, and the batch's worker threads lived until the env was
+    garbage-collected. close() frees them, may be called again, and what needs the simulation
+    until the next reset() says that close() came first."""
+    before = _threads()
+    env = PursuitEnv(default_config(**FAST), n_worlds=4, seed=0, nthread=3)
+    assert _threads() == before + 2  # the batch's workers beside the caller's thread
+    env.reset()
+    env.step(np.zeros((4, 3, 2)))
+    env.close()
+    assert _threads() == before and env.closed
+    env.close()  # harmless twice
+    for call in (lambda: env.step(np.zeros((4, 3, 2))), lambda: env.reset_worlds([0]), env.global_state,
+                 lambda: env.snapshot(0), lambda: env.observe_as(env.config), lambda: env.physics.positions()):
+        with pytest.raises(RuntimeError, match=r"called after close\(\): call reset\(\) to start again"):
+            call()
+    with PursuitEnv(default_config(**FAST), n_worlds=2, seed=0, nthread=2) as other:
+        other.reset()
+    assert other.closed and _threads() == before
+
+
+@pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
+def test_a_reset_after_close_plays_on_as_if_never_closed(fidelity):
+    """reset() after close() makes a new batch: its episodes are those of an env never closed
+    (reset() the next ones, never a replay; reset(seed=s) episode 0 of s), bit for bit."""
+    cfg = default_config(fidelity=fidelity, command_latency=0.1, max_steps=20)
+    actions = np.random.default_rng(0).uniform(-1, 1, (25, 2, 3, 2))
+    runs = []
+    for closed in (False, True):
+        env = PursuitEnv(cfg, n_worlds=2, seed=3)
+        env.reset()
+        env.step(actions[0])
+        if closed:
+            env.close()
+        trace = [env.reset()]
+        for a in actions[1:]:
+            trace.extend(env.step(a)[:2])
+        if closed:
+            env.close()
+        trace.append(env.reset(seed=5))
+        trace.append(env.step(actions[0])[0])
+        runs.append((trace, env.episode.tolist()))
+    (kept, kept_episodes), (reopened, reopened_episodes) = runs
+    assert kept_episodes == reopened_episodes
+    for a, b in zip(kept, reopened):
+        np.testing.assert_array_equal(a, b)

@@ -237,3 +237,22 @@ def test_the_space_dicts_of_the_parallel_api_are_there():
     for agent in env.possible_agents:
         assert env.observation_spaces[agent] == env.observation_space(agent)
         assert env.action_spaces[agent] == env.action_space(agent)
+
+
+def test_close_frees_the_simulation_a_step_after_it_says_so_and_a_reset_plays_on():
+    """close() freed the renderer only, leaving the MuJoCo batch to the garbage collector; it now
+    closes the one-world PursuitEnv too. A step after close() says so (in the words of a step
+    before reset()); reset() plays on as if never closed."""
+    envs = [PursuitParallelEnv(default_config(fidelity="point", random_obstacles=0), seed=2) for _ in range(2)]
+    for env in envs:
+        env.reset(seed=0)
+    envs[1].close()
+    envs[1].close()  # harmless twice
+    assert envs[1].batched.closed
+    with pytest.raises(ValueError, match=r"step\(\) called after close\(\): call reset\(\) first"):
+        envs[1].step({a: np.zeros(2) for a in envs[1].possible_agents})
+    first = [env.reset()[0] for env in envs]
+    for a in envs[0].possible_agents:
+        np.testing.assert_array_equal(first[0][a], first[1][a])
+    stepped = [env.step({a: np.array([0.5, 0.5]) for a in env.agents})[1] for env in envs]
+    assert stepped[0] == stepped[1]

@@ -294,7 +294,8 @@ def test_a_step_after_close_makes_no_renderer_that_close_cannot_free():
                            render_settings=RenderSettings(64, 48))
     env.reset()
     env.close()
-    env.step(np.zeros((N, 2)))  # the physics still steps, as the PettingZoo env's does after close()
+    with pytest.raises(RuntimeError, match=r"step\(\) called after close\(\): call reset\(\) first"):
+        env.step(np.zeros((N, 2)))  # close() freed the simulation too (PursuitEnv.close)
     env.close()
     assert env._frames is None
     with pytest.raises(RuntimeError, match=r"render\(\) called after close\(\): call reset\(\) to draw again"):
@@ -470,3 +471,21 @@ def test_make_vec_takes_the_task_as_keys_or_a_preset_so_its_spec_is_json():
         gymnasium.make_vec(ENV_ID, num_envs=3, config="nope")
     with pytest.raises(ConfigError, match=r"PursuitVectorEnv config: expected a TaskConfig, task keys or a task file"):
         PursuitVectorEnv(config=3)
+
+
+def test_close_frees_the_batched_envs_simulation_and_a_reset_plays_on():
+    """close() freed the renderer only: the MuJoCo batch (its worker threads) lived on until the env
+    was garbage-collected, though gymnasium's close() is where an env lets go of what it holds. It
+    now closes PursuitEnv too; a step after it says so; reset() plays on as if never closed."""
+    envs = [PursuitVectorEnv(config(random_obstacles=0), n_worlds=2, seed=4) for _ in range(2)]
+    for env in envs:
+        env.reset(seed=1)
+    envs[1].close()
+    assert envs[1].batched.closed
+    with pytest.raises(RuntimeError, match=r"step\(\) called after close\(\): call reset\(\) first"):
+        envs[1].step(np.zeros((2 * N, 2)))
+    first = [env.reset()[0] for env in envs]
+    np.testing.assert_array_equal(*first)
+    stepped = [env.step(np.full((2 * N, 2), 0.5))[:2] for env in envs]
+    for a, b in zip(*stepped):
+        np.testing.assert_array_equal(a, b)
