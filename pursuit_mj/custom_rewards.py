@@ -35,7 +35,13 @@ class StepView:
     - free_before (W, M) bool: the evader was free when the step began; new_captures (W, M)
       bool: caught in this step; captured (W, M) bool: caught by its end;
     - collided (W, N) bool: the pursuer broke a clearance or touched something in the step;
-      obstacle_gap (W, N) m: its distance to the nearest obstacle or border surface;
+      obstacle_gap (W, N) m: its centre's distance to the nearest surface of the layout's
+      obstacles (this episode's random ones included) and border: what the task's clearance
+      rule (obstacle_clearance, in `collided`) and proximity term measure. Caught evaders are
+      not in it: one stays where it was caught as a body that a pursuer collides with only by
+      touching it (a contact, in `collided`), with no clearance or proximity zone around it, as
+      its catcher is within capture_radius of it; a pursuer's distance to one is to evader_pos
+      where captured. Teammates are in nearest_mate;
       nearest_mate (W, N) m: to the nearest teammate (inf without teammates);
     - known_before, known (W, N, M) bool: the pursuer knew the evader (saw it, had it relayed
       by a teammate, or it is caught) when the step began / at its end; seen (W, N, M) bool:

@@ -21,8 +21,10 @@ class Events:
     """What happened in one step.
 
     new_captures (W, M) bool; collided (W, N) bool (the pursuer broke a clearance or touched
-    something); obstacle_gap (W, N) m: centre distance to the nearest obstacle/border
-    surface; nearest_mate (W, N) m: centre distance to the nearest teammate (inf if alone).
+    something); obstacle_gap (W, N) m: centre distance to the nearest surface of `obstacles`
+    (the layout's and the border; the env passes no caught evaders: touching one collides by
+    contact, and no clearance is kept from it, its catcher being within capture_radius of it);
+    nearest_mate (W, N) m: centre distance to the nearest teammate (inf if alone).
     """
 
     new_captures: np.ndarray

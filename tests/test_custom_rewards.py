@@ -397,3 +397,31 @@ def test_a_diverged_world_pays_no_term_of_ones_own_as_documented():
     assert info["outcome"].tolist() == ["collision", ""]
     assert info["reward_terms"]["one"].tolist() == [[0.0] * N, [1.0] * N]
     assert "diverged" in custom_rewards.StepView.__doc__
+
+
+def test_obstacle_gap_measures_the_layout_alone_as_the_tasks_clearance_rule_does():
+    """A caught evader stays where it was caught, but StepView.obstacle_gap leaves it out, as the task's
+    clearance rule and proximity term do (its docstring says so): its catcher, within capture_radius
+    of it, creeps up to it with the gap to the walls unchanged and no proximity paid, and collides
+    only when its body touches the caught one."""
+    seen = []
+
+    def spy(step):
+        seen.append((step.obstacle_gap[0, 0], np.linalg.norm(step.pursuer_pos[0, 0] - step.evader_pos[0, 0]),
+                     bool(step.captured[0, 0])))
+        return np.zeros(step.obstacle_gap.shape)
+
+    env = PursuitEnv(point_config(n_evaders=2, layout=0, random_obstacles=0), seed=0, extra_rewards={"spy": spy})
+    env.reset()
+    env.physics.reset([0], np.array([[[1.8, 2.0], [0.6, 0.6], [3.0, 0.6], [1.8, 2.2], [1.8, 4.5]]]))
+    env._obs = env._observe()
+    actions = np.zeros((1, 3, 2))
+    actions[0, 0] = [0.0, 0.25]  # pursuer 0 catches evader 0, then creeps on toward it
+    for _ in range(40):
+        _, _, terminated, _, info = env.step(actions)
+        if terminated[0]:
+            break
+        assert info["reward_terms"]["proximity"][0, 0] == 0.0
+    assert info["outcome"][0] == "collision" and all(caught for _, _, caught in seen)
+    assert [gap for gap, _, _ in seen] == pytest.approx([1.8] * len(seen))  # the left border, 1.8 m away
+    assert seen[-2][1] < 0.2 and 0.13 < seen[-1][1] < 0.14  # inside its capture disc; contact at the bodies' touch
