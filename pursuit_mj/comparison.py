@@ -87,12 +87,50 @@ def pair(row: Row, reference: Row, max_steps: float) -> Paired:
         raise ValueError(f"paired comparison: {row.policy} (layout {row.layout}, seed {row.seed}, {row.fidelity}) and "
                          f"{reference.policy} (layout {reference.layout}, seed {reference.seed}, {reference.fidelity}) "
                          "did not play the same episodes")
-    a, b = row.capture_steps, reference.capture_steps
+    a, b, won_a, won_b = _aligned(row, reference, max_steps)
+    return _compare(row.policy, reference.policy, row.layout, a, b, won_a, won_b, max_steps, row.fidelity)
+
+
+def _aligned(row: Row, reference: Row, max_steps: float) -> tuple[list[float], list[float], list[bool], list[bool]]:
+    """(capture steps of row, of reference, successes of row, of reference), episode by episode:
+    in row's order, the reference's episode of the same seed beside each (the k-th of a seed met
+    several times beside its k-th), from the rows' episode logs; by place where a row has no log
+    (one made by hand from capture times alone). ValueError naming both rows unless they hold
+    the same episodes, one capture time each."""
+    a, b = list(row.capture_steps), list(reference.capture_steps)
     if len(a) != len(b) or len(a) != row.episodes or len(b) != reference.episodes:
         raise ValueError(f"paired comparison on layout {row.layout}: {row.policy} has {len(a)} episode times and "
                          f"{reference.policy} {len(b)}; both need one per episode of the same table")
-    return _compare(row.policy, reference.policy, row.layout, a, b, _successes(row, max_steps),
-                    _successes(reference, max_steps), max_steps, row.fidelity)
+    won_a, won_b = _successes(row, max_steps), _successes(reference, max_steps)
+    if len(row.episode_log) != len(a) or len(reference.episode_log) != len(b):
+        return a, b, won_a, won_b
+    keys_a, keys_b = _episode_keys(row), _episode_keys(reference)
+    if set(keys_a) != set(keys_b):
+        only_a = sorted({s for s, _ in keys_a} - {s for s, _ in keys_b}) or sorted(set(keys_a) - set(keys_b))[:1]
+        only_b = sorted({s for s, _ in keys_b} - {s for s, _ in keys_a}) or sorted(set(keys_b) - set(keys_a))[:1]
+        raise ValueError(f"paired comparison on layout {row.layout}: {row.policy} and {reference.policy} did not play the "
+                         f"same episodes ({_seeds_text(only_a)} of {row.policy} not among {reference.policy}'s; "
+                         f"{_seeds_text(only_b)} of {reference.policy} not among {row.policy}'s)")
+    place = {key: i for i, key in enumerate(keys_b)}
+    order = [place[key] for key in keys_a]
+    return a, [b[i] for i in order], won_a, [won_b[i] for i in order]
+
+
+def _episode_keys(row: Row) -> list[tuple[int, int]]:
+    """Per episode of `row`'s log: (its seed, how many episodes of that seed came before it)."""
+    met: dict[int, int] = {}
+    keys = []
+    for seed, *_ in row.episode_log:
+        keys.append((seed, met.get(seed, 0)))
+        met[seed] = met.get(seed, 0) + 1
+    return keys
+
+
+def _seeds_text(items: list) -> str:
+    """Some episode seeds (or (seed, repeat) keys) for an error line: 'episode seeds 3, 7 (2 more)'."""
+    seeds = [str(x if isinstance(x, int) else f"{x[0]} (its #{x[1] + 1})") for x in items]
+    more = f" ({len(seeds) - 3} more)" if len(seeds) > 3 else ""
+    return f"episode seed{'s' if len(seeds) > 1 else ''} {', '.join(seeds[:3])}{more}"
 
 
 def _compare(policy: str, reference: str, layout: str, a: Sequence[float], b: Sequence[float],
@@ -120,10 +158,10 @@ def pair_matches(matches: Sequence[tuple[Row, Row]], max_steps: float) -> list[P
     for (policy, reference, fidelity), group in by_policy.items():
         if len(group) < 2:
             continue
-        a = [x for r, _ in group for x in r.capture_steps]
-        b = [x for _, ref in group for x in ref.capture_steps]
-        won_a = [w for r, _ in group for w in _successes(r, max_steps)]
-        won_b = [w for _, ref in group for w in _successes(ref, max_steps)]
+        a, b, won_a, won_b = [], [], [], []
+        for r, ref in group:
+            for whole, part in zip((a, b, won_a, won_b), _aligned(r, ref, max_steps)):
+                whole.extend(part)
         out.append(_compare(policy, reference, ALL_LAYOUTS, a, b, won_a, won_b, max_steps, fidelity))
     return out
 

@@ -1,8 +1,10 @@
 """Paired comparison on the same episodes (pursuit_mj.comparison)."""
 
+import dataclasses
+
 import pytest
 
-from pursuit_mj.comparison import format_pairs, pair, pair_table
+from pursuit_mj.comparison import format_pairs, pair, pair_matches, pair_table
 from pursuit_mj.config import default_config
 from pursuit_mj.env import EpisodeRecord
 from pursuit_mj.evaluation import evaluate, summarise
@@ -279,3 +281,35 @@ def test_a_reference_alone_in_its_table_gives_no_paired_report():
     alone = [row("heuristic", [("success", 200)] * 2, layout=layout) for layout in ("0", "1")]
     assert paired_report(alone, "heuristic", MAX) == ("", [])
     assert paired_report(alone, "net", MAX) == ("", [])
+
+
+def seeded_row(policy, episodes, layout="0"):
+    """A row of (episode seed, outcome, steps) records, in the order given."""
+    records = [EpisodeRecord(0, k, s, outcome, steps, None, {}, 0, layout) for k, (s, outcome, steps) in enumerate(episodes)]
+    return summarise(policy, layout, "point", 5, records, MAX)
+
+
+def test_episodes_are_paired_by_their_seeds_not_by_their_places_in_the_rows():
+    """pair() took episode k of one row against episode k of the other: two rows holding the same
+    episodes in another order were paired episode 0 against episode 1 (here: a policy 10 steps
+    sooner in each episode read as 'level', +-290 steps)."""
+    ref = seeded_row("heuristic", [(11, "success", 100), (22, "success", 400), (33, "success", 250),
+                                   (44, "success", 600), (55, "success", 330), (66, "success", 180)])
+    pol = seeded_row("net", [(22, "success", 390), (11, "success", 90), (44, "success", 590),
+                             (33, "success", 240), (66, "success", 170), (55, "success", 320)])
+    p = pair(pol, ref, MAX)
+    assert p.steps.mean == pytest.approx(-10) and (p.faster, p.slower) == (6, 0) and p.verdict == "faster"
+    both = pair_matches([(pol, ref), (dataclasses.replace(pol, layout="1"), dataclasses.replace(ref, layout="1"))], MAX)
+    assert both[-1].layout == "all" and both[-1].steps.mean == pytest.approx(-10) and both[-1].faster == 12
+
+
+def test_rows_of_other_episodes_are_refused_naming_both():
+    """Two rows of one layout, seed, fidelity and count that hold other episodes (a row edited or
+    assembled by hand, records of another seed list) were paired silently, episode by place."""
+    ref = seeded_row("heuristic", [(11, "success", 100), (22, "success", 400), (33, "timeout", MAX)])
+    pol = seeded_row("net", [(11, "success", 90), (23, "success", 390), (34, "success", 500)])
+    with pytest.raises(ValueError) as err:
+        pair(pol, ref, MAX)
+    text = str(err.value)
+    assert "\n" not in text and "net" in text and "heuristic" in text and "same episodes" in text
+    assert "23" in text and "22" in text  # an episode seed each holds that the other does not
