@@ -163,7 +163,7 @@ def test_a_pooled_table_pools_again_with_its_models_and_arenas_known(tables, tmp
     c = _table(tables["tmp"], "pc", 1, meta={"policies": ["heuristic"], "models": ["a.pt"], "model_sha256": ["aaaa"],
                                                 "layout_sha256": {"0": "2222"}})
     assert main(["pool", str(a), "--out", str(tmp_path / "pooled")]) == 0
-    assert "pooled 1 table\n" in capsys.readouterr().out  # not '1 tables'
+    assert "pooled 1 table, " in capsys.readouterr().out  # not '1 tables'
     written = json.loads((tmp_path / "pooled.json").read_text())
     assert written["model_sha256_of"] == {"heuristic": "aaaa"} and written["layout_sha256"] == {"0": "1111"}
     with pytest.raises(ValueError, match="'heuristic' is two different models"):
@@ -635,3 +635,22 @@ def test_a_table_that_records_no_checkpoints_is_noted_when_pooled_with_others(ta
     assert any(str(bare) in n and "no checkpoint" in n for n in notes), notes
     assert not any(str(tables["h0"]) in n for n in notes), notes
     assert pool_tables([bare]).notes == []  # alone, it is compared with nothing
+
+
+def test_tables_of_one_fidelity_say_which_in_their_headings(tables, tmp_path, capsys):
+    """With one fidelity the pooled and paired tables have no fidelity column (as with two they do),
+    and nothing else in pool's output said whether their episodes were flown in point or quadrotor
+    physics: the table alone left the reader guessing. Their headings now name it."""
+    from pursuit_cli import main
+
+    assert main(["pool", str(tables["hr0"]), str(tables["h1"])]) == 0
+    out = capsys.readouterr().out
+    table, paired = out.split("paired with")
+    assert "fidelity" not in table.splitlines()[1]  # no column: the heading says it
+    assert "pooled 2 tables, every row in point fidelity" in table
+    assert paired.splitlines()[0].startswith(" heuristic on the episodes both played, in point fidelity (")
+    quad = dataclasses.replace(TASK, fidelity="quadrotor", max_steps=120)
+    q = _table(tmp_path, "quad", 0, ("heuristic", "random"), task=quad)
+    assert main(["pool", str(tables["hr0"]), str(q)]) == 0
+    out = capsys.readouterr().out  # two fidelities: a column in each table, nothing in the headings
+    assert "pooled 2 tables\n" in out and "paired with heuristic on the episodes both played (" in out
