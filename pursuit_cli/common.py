@@ -9,7 +9,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from pursuit_mj.config import TaskConfig, dump_yaml, load_task_config, preset_or_file
+from pursuit_mj.config import (SIMULATION_ONLY_TRAINED_KEYS, TRAINED_TASK_KEYS, TaskConfig, dump_yaml, load_task_config,
+                               preset_or_file, task_differences)
 from pursuit_mj.configio import ConfigError, load_yaml, parse_override
 from pursuit_mj.layout import is_index_text
 
@@ -362,23 +363,6 @@ def shield_each_if_asked(args: argparse.Namespace, chosen: list[tuple[object, st
     return shielded
 
 
-#: task keys whose change between training and use a loaded model's user is told of: what the
-#: pursuers see (and what their observations mean), how fast everyone flies, how long an action lasts
-TRAINED_TASK_KEYS = ("observability", "pursuer_speed", "evader_speed", "perception_radius", "field_of_view", "fidelity",
-                     "n_pursuers", "n_evaders", "drone_mass", "command_latency", "control_dt", "ray_range",
-                     "share_detections", "share_teammates", "position_noise", "miss_probability")
-#: of those, the keys a real flight has no value of (its latency is the real loop's, its physics the
-#: real world's: pursuit_mj.flight.plan.SIMULATION_ONLY_KEYS)
-SIMULATION_ONLY_TRAINED_KEYS = ("command_latency", "fidelity")
-
-
-def _shown(key: str, value):
-    """A trained task value as the note shows it: the field of view in degrees (stored in rad)."""
-    if key == "field_of_view" and isinstance(value, (int, float)):
-        return f"{math.degrees(value):.4g} deg"
-    return value
-
-
 def load_model(path, spec, task: TaskConfig, flag: str = "--model", flight: bool = False):
     """A trained policy for `task` via train.policy.load_policy (imported lazily: the library never
     needs torch); a model trained behind the safety shield comes back behind it. A note on stderr
@@ -397,16 +381,8 @@ def load_model(path, spec, task: TaskConfig, flag: str = "--model", flight: bool
     except ImportError as exc:
         raise ValueError(f"{flag} {path}: cannot load trained models, the train package is not importable ({exc})") from None
     policy = load_policy(path, spec, task=task)
-    trained = getattr(policy, "trained_task", {})
-    if trained:  # a key the checkpoint lacks did not exist when it trained: the code then did its default
-        default = TaskConfig()
-        trained = {**{k: getattr(default, k) for k in TRAINED_TASK_KEYS}, **trained}
     keys = [k for k in TRAINED_TASK_KEYS if not (flight and k in SIMULATION_ONLY_TRAINED_KEYS)]
-    differ = [f"{k} {_shown(k, trained[k])} (this task: {_shown(k, getattr(task, k))})"
-              for k in keys if k in trained and trained[k] != getattr(task, k)]
-    evader = trained.get("evader") if isinstance(trained.get("evader"), dict) else {}
-    if "model" in evader and not _same_evader_model(evader["model"], task.evader.model):
-        differ.append(f"evader.model {evader['model']} (this task: {task.evader.model})")
+    differ = [f"{k} {then} (this task: {now})" for k, then, now in task_differences(getattr(policy, "trained_task", {}), task, keys)]
     if differ:  # legitimate (the study judges full_obs under partial observability), but worth knowing
         print(f"note: {flag} {path} was trained with {', '.join(differ)}", file=sys.stderr)
     return policy
@@ -433,19 +409,6 @@ def _python_file_of(given: str) -> str | None:
 
     file = split_reference(given, "--model")[0] if is_file_reference(given) else given
     return file if file.endswith(".py") and Path(file).is_file() else None
-
-
-def _same_evader_model(trained: str, now: str) -> bool:
-    """Whether two evader.model values name one model: janosov, or FILE.py:NAME of one file
-    (the trained one absolute, this task's perhaps relative to the current folder) and NAME."""
-    from pathlib import Path
-
-    from pursuit_mj.user_file import is_file_reference, split_reference
-
-    if not (is_file_reference(trained) and is_file_reference(now)):
-        return trained == now
-    (a, name_a), (b, name_b) = split_reference(trained, "evader.model"), split_reference(now, "evader.model")
-    return name_a == name_b and Path(a).resolve() == Path(b).resolve()
 
 
 def counted(n: int, noun: str, plural: str | None = None) -> str:

@@ -349,3 +349,52 @@ def task_config_from(value, source: str) -> TaskConfig:
 
 
 __all__ = ["EvaderConfig", "TaskConfig", "load_task_config", "checked_task_config", "task_config_from", "preset_or_file", "default_config", "dump_yaml", "ConfigError"]
+
+
+#: task keys whose change between training and use a trained model's user is told of: what the
+#: pursuers see (and what their observations mean), how fast everyone flies, how long an action lasts
+TRAINED_TASK_KEYS = ("observability", "pursuer_speed", "evader_speed", "perception_radius", "field_of_view", "fidelity",
+                     "n_pursuers", "n_evaders", "drone_mass", "command_latency", "control_dt", "ray_range",
+                     "share_detections", "share_teammates", "position_noise", "miss_probability")
+#: of those, the keys a real flight has no value of (its latency is the real loop's, its physics the
+#: real world's: pursuit_mj.flight.plan.SIMULATION_ONLY_KEYS)
+SIMULATION_ONLY_TRAINED_KEYS = ("command_latency", "fidelity")
+#: what a run that continues a checkpoint is told of beside those: the episode's rules and its pay,
+#: which the checkpoint's critic learned the values of
+LEARNED_TASK_KEYS = TRAINED_TASK_KEYS + ("capture_radius", "obstacle_clearance", "teammate_clearance", "max_steps",
+                                         "capture_reward", "progress_reward", "collision_penalty", "proximity_penalty",
+                                         "proximity_distance", "spread_reward")
+
+
+def task_differences(trained: Mapping[str, Any], task: TaskConfig, keys: Sequence[str]) -> list[tuple[str, str, str]]:
+    """(key, value as trained, value in `task`) as text for each of `keys` whose value in the task dict
+    `trained` (a checkpoint's, to_dict form) differs from `task`'s, in the order of `keys`, then
+    evader.model if it names another model. A key `trained` lacks counts at its default (the code
+    before the key existed did that); an empty `trained` (a checkpoint that stores no task) differs
+    in nothing. The field of view shows in degrees."""
+    if not trained:
+        return []
+    default = TaskConfig()
+    trained = {**{k: getattr(default, k) for k in keys}, **trained}
+    out = [(k, _trained_text(k, trained[k]), _trained_text(k, getattr(task, k))) for k in keys
+           if trained[k] != getattr(task, k)]
+    evader = trained.get("evader") if isinstance(trained.get("evader"), Mapping) else {}
+    if "model" in evader and not _same_evader_model(evader["model"], task.evader.model):
+        out.append(("evader.model", str(evader["model"]), str(task.evader.model)))
+    return out
+
+
+def _trained_text(key: str, value) -> str:
+    """A task value as a note shows it: the field of view in degrees (stored in rad)."""
+    if key == "field_of_view" and isinstance(value, (int, float)):
+        return f"{math.degrees(value):.4g} deg"
+    return str(value)
+
+
+def _same_evader_model(trained: str, now: str) -> bool:
+    """Whether two evader.model values name one model: janosov, or FILE.py:NAME of one file
+    (the trained one absolute, this task's perhaps relative to the current folder) and NAME."""
+    if not (is_file_reference(trained) and is_file_reference(now)):
+        return trained == now
+    (a, name_a), (b, name_b) = split_reference(trained, "evader.model"), split_reference(now, "evader.model")
+    return name_a == name_b and Path(a).resolve() == Path(b).resolve()

@@ -567,3 +567,24 @@ def test_perception_keys_under_full_observability_are_named_as_idle():
     assert load_train_config(["full_obs"], ["task.position_noise=0.1", "task.share_teammates=true"]).idle_settings() == [
         "task.share_teammates True, task.position_noise 0.1 do nothing under task.observability full (every evader "
         "and teammate is known exactly)"]
+
+
+def test_a_run_started_from_a_checkpoint_of_another_task_names_the_keys_that_differ(tmp_path):
+    """init_from said only how the observability differed ('trained with observability partial, now
+    partial'): a checkpoint trained at another fidelity, evader speed, field of view or reward scale
+    continued without a word of it. One note now lists the task keys that differ, checkpoint ->
+    this run, as eval --model's note compares them (pursuit_cli.common.load_model)."""
+    src = Trainer(load_train_config(["classic"], TINY + [f"run.runs_dir={tmp_path}", "name=src"]), **QUIET)
+    src.save()
+    src.close()
+    start = [f"run.runs_dir={tmp_path}", f"init_from={tmp_path / 'src' / 'last.pt'}"]
+    changed = ["task.fidelity=quadrotor", "task.evader_speed=0.9", "task.field_of_view=2.0943951",
+               "task.capture_reward=5", "task.max_steps=60"]
+    notes = {}
+    for name, extra in (("same", []), ("other", changed)):
+        lines = []
+        Trainer(load_train_config(["classic"], TINY + start + [f"name={name}"] + extra), log=lines.append).close()
+        notes[name] = next(line for line in lines if line.startswith("initialised from"))
+    assert "task" not in notes["same"].split("now partial)")[1]
+    assert ("note: its task differs from this run's (checkpoint -> this run): evader_speed 0.6 -> 0.9, field_of_view "
+            "360 deg -> 120 deg, fidelity point -> quadrotor, max_steps 40 -> 60, capture_reward 10.0 -> 5.0") in notes["other"]

@@ -29,6 +29,7 @@ from typing import IO, Callable
 import numpy as np
 import torch
 
+from pursuit_mj.config import LEARNED_TASK_KEYS, task_differences
 from pursuit_mj.configio import dump_yaml, to_dict
 from pursuit_mj.evaluation import capture_steps
 from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, file_sha256, made_here, no_new_empty_folders, remove_leftover_parts
@@ -457,6 +458,11 @@ class Trainer:
         if bool(src.get("shield", False)) != self.cfg.shield:
             notes.append(f"it was trained {'behind' if src.get('shield') else 'without'} the shield, this run is "
                          f"{'behind' if self.cfg.shield else 'without'} it")
+        keys = [k for k in LEARNED_TASK_KEYS if k != "observability"]  # that one the line says anyway
+        differ = task_differences(src.get("task") or {}, self.cfg.task, keys)
+        if differ:  # legitimate (a point-trained actor continued in quadrotor physics), but worth knowing
+            notes.append("its task differs from this run's (checkpoint -> this run): "
+                         + ", ".join(f"{k} {then} -> {now}" for k, then, now in differ))
         self.log(f"initialised from {path} (trained with observability {src_observability}, "
                  f"now {self.cfg.task.observability})" + "".join(f"; note: {n}" for n in notes))
 
