@@ -369,7 +369,8 @@ LEARNED_TASK_KEYS = TRAINED_TASK_KEYS + ("capture_radius", "obstacle_clearance",
 def task_differences(trained: Mapping[str, Any], task: TaskConfig, keys: Sequence[str]) -> list[tuple[str, str, str]]:
     """(key, value as trained, value in `task`) as text for each of `keys` whose value in the task dict
     `trained` (a checkpoint's, to_dict form) differs from `task`'s, in the order of `keys`, then
-    evader.model if it names another model. A key `trained` lacks counts at its default (the code
+    evader.model if it names another model, else (both the built-in escape model) each evader.KEY
+    tuning it that differs. A key `trained` lacks counts at its default (the code
     before the key existed did that); an empty `trained` (a checkpoint that stores no task) differs
     in nothing. The field of view shows in degrees."""
     if not trained:
@@ -381,6 +382,22 @@ def task_differences(trained: Mapping[str, Any], task: TaskConfig, keys: Sequenc
     evader = trained.get("evader") if isinstance(trained.get("evader"), Mapping) else {}
     if "model" in evader and not _same_evader_model(evader["model"], task.evader.model):
         out.append(("evader.model", str(evader["model"]), str(task.evader.model)))
+    elif task.evader.model == BUILTIN_EVADER and evader.get("model", BUILTIN_EVADER) == BUILTIN_EVADER:
+        out += _escape_model_differences(evader, task.evader)
+    return out
+
+
+def _escape_model_differences(trained: Mapping[str, Any], now: EvaderConfig) -> list[tuple[str, str, str]]:
+    """(evader.KEY, as trained, now) for each key tuning the built-in escape model on which the
+    trained evader dict (to_dict form; a key it lacks at its default) and `now` differ."""
+    default = EvaderConfig()
+    out = []
+    for f in dataclasses.fields(EvaderConfig):
+        if f.name == "model":
+            continue
+        then = trained.get(f.name, getattr(default, f.name))
+        if then != getattr(now, f.name):
+            out.append((f"evader.{f.name}", str(then), str(getattr(now, f.name))))
     return out
 
 

@@ -913,3 +913,25 @@ def test_a_model_trained_before_a_task_key_existed_is_compared_at_that_keys_defa
     assert "command_latency 0.0 (this task: 0.1)" in capsys.readouterr().err
     load_model(shipped_dir("pretrained") / "belppo_kick.pt", spec, default_config())
     assert capsys.readouterr().err == ""  # its own task: nothing to say
+
+
+def test_a_model_used_against_an_otherwise_tuned_escape_model_says_so(tiny_model, capsys):
+    """The escape model's keys (how far the evader senses chasers, when it panics) shape what a
+    policy learned to chase as much as the evader's speed does, but a model evaluated against
+    `--set evader.sense_radius=2` was told nothing; a model of one's own, which those keys do not
+    tune, is compared by its name only."""
+    import dataclasses
+
+    from pursuit_cli.common import load_model
+    from pursuit_mj.config import default_config
+    from pursuit_mj.obs_spec import ObsSpec
+
+    task = default_config(n_pursuers=2, fidelity="point")
+    task = dataclasses.replace(task, evader=dataclasses.replace(task.evader, sense_radius=2.0, gap_escape=False))
+    load_model(tiny_model, ObsSpec.make(task.n_pursuers, task.n_evaders, task.n_rays), task)
+    err = capsys.readouterr().err
+    assert "evader.sense_radius 4.0 (this task: 2.0), evader.gap_escape True (this task: False)" in err, err
+    mine = dataclasses.replace(task, evader=dataclasses.replace(task.evader, model="mine.py:Straight"))
+    load_model(tiny_model, ObsSpec.make(task.n_pursuers, task.n_evaders, task.n_rays), mine)
+    err = capsys.readouterr().err
+    assert "evader.model janosov (this task: mine.py:Straight)" in err and "sense_radius" not in err, err
