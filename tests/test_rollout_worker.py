@@ -162,3 +162,25 @@ def test_a_worker_that_cannot_start_stops_the_run_in_one_line_naming_run_overlap
     assert "Too many open files" in said and "--set run.overlap=false" in said and "\n" not in said, said
     assert said.endswith("no checkpoint was written yet: start the run again once the worker can start"), said
     assert trainer.worker is None and not (cfg.run_dir / "last.pt").exists()
+
+
+def test_a_worker_that_fails_before_reading_its_first_request_raises_its_error_not_a_silent_exit(tmp_path):
+    """A child that fails while it builds its networks sends its traceback and exits with code 0,
+    without reading the request the parent is sending. Weights larger than the pipe holds (the
+    default widths) left the parent's send broken, and the run stopped with 'rollout worker ...
+    exited (code 0) between two rollouts', the child's error lost. Here the child cannot build a
+    net.kind that only the parent knows (one registered in train/networks.py TRUNKS from a script)."""
+    import dataclasses
+
+    cfg = load_train_config([], TINY[:8] + TINY[10:] + [f"run.runs_dir={tmp_path}", "net.hidden=[512, 512]"])
+    trainer = Trainer(cfg, log=lambda s: None)
+    buf = trainer.buffer
+    only_here = dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, kind="only_in_the_parent"))
+    worker = RolloutWorker(only_here, 0, buf.T, buf.W, buf.N, buf.obs.shape[-1], 0)
+    try:
+        with pytest.raises(RuntimeError, match="(?s)rollout worker .* failed:.*net.kind 'only_in_the_parent'"):
+            worker.result(trainer.model)
+    finally:
+        worker.close()
+        trainer.close()
+    assert not worker.process.is_alive()

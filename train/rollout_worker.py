@@ -108,6 +108,7 @@ class RolloutWorker:
             self._conn.send(("collect", self._next, model_weights(model)))
         except (BrokenPipeError, ConnectionResetError):
             self.process.join(STOP_TIMEOUT_S)
+            self._raise_report()  # it failed before reading the request: what it sent says why
             if self._served == 0 and (self.process.exitcode or 0) > 0:  # it failed to start: its traceback is the news
                 raise RuntimeError(f"rollout worker {self.process.name} exited (code {self.process.exitcode}) before "
                                    "its first rollout; its error is printed above (run.overlap=false collects in this "
@@ -126,13 +127,27 @@ class RolloutWorker:
         except (EOFError, ConnectionResetError):
             self.process.join(STOP_TIMEOUT_S)
             raise WorkerExited(f"rollout worker {self.process.name} {self._ended()} without finishing its rollout") from None
+        self._raise_failure(kind, payload)
+        index, self._pending = self._pending, None
+        self._served += 1
+        return self.buffers[index], payload
+
+    def _raise_report(self) -> None:
+        """Raise the error a dead child sent before it went, if it sent one (nothing otherwise)."""
+        try:
+            if not self._conn.poll(0):
+                return
+            kind, payload = self._conn.recv()
+        except (EOFError, OSError):
+            return
+        self._raise_failure(kind, payload)
+
+    def _raise_failure(self, kind: str, payload) -> None:
+        """RuntimeError with the child's traceback ('error'), or UserCodeError with its one line ('refused')."""
         if kind == "error":
             raise RuntimeError(f"rollout worker {self.process.name} failed:\n{payload}")
         if kind == "refused":
             raise UserCodeError(payload)
-        index, self._pending = self._pending, None
-        self._served += 1
-        return self.buffers[index], payload
 
     def _ended(self) -> str:
         return how_it_ended(self.process)
