@@ -184,3 +184,42 @@ def test_a_child_ignores_ctrl_c_from_its_first_instant_while_it_still_imports_to
     process.join(10)
     assert process.exitcode == 0
     assert "KeyboardInterrupt" not in capfd.readouterr().err
+
+
+class _ScriptTrunk(torch.nn.Module):
+    """A trunk a script adds to train/networks.py TRUNKS (not the module's own): obs -> 4 features."""
+
+    def __init__(self, spec, cfg):
+        super().__init__()
+        self.layer = torch.nn.Linear(spec.dim, 4)
+        self.out_dim = 4
+
+    def forward(self, obs, spec):
+        return torch.tanh(self.layer(obs))
+
+
+@pytest.mark.parametrize("child", ["run.split_update=true", "run.overlap=true"])
+def test_a_net_kind_registered_from_a_script_is_refused_before_a_child_process_would_need_it(tmp_path, two_cores,
+                                                                                            monkeypatch, child):
+    """docs/training.md says to register a network in train/networks.py, not from a script, because
+    the critic process and the rollout worker are spawned and build the networks afresh. A script
+    that did so trained its first rollout, then stopped in the child's traceback ('no such network
+    ... known: reference, mlp', the kind the script had just registered), or with run.overlap in
+    'rollout worker ... exited (code 0) between two rollouts'. It is refused at once, in one line
+    naming the kind, the setting that spawns and the way out; in one process the kind trains."""
+    import dataclasses
+
+    import train.networks as networks
+
+    monkeypatch.setitem(networks.TRUNKS, "script_made", _ScriptTrunk)
+    cfg = tiny(tmp_path, child, "total_steps=64")
+    cfg = dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, kind="script_made"))
+    key = child.split("=")[0]
+    with pytest.raises(ValueError) as caught:
+        Trainer(cfg, log=lambda s: None)
+    said = str(caught.value)
+    assert "net.kind 'script_made'" in said and key in said and "train/networks.py" in said and "\n" not in said, said
+    assert "--set run.split_update=false" in said, said
+    assert not cfg.run_dir.exists()
+    alone = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, split_update=False, overlap=False))
+    assert Trainer(alone, log=lambda s: None).train()["status"] == "done"

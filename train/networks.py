@@ -226,6 +226,21 @@ def team_mismatch(kind: str, trained: dict, spec: ObsSpec) -> str | None:
             f"whose pooled encoders take any number of teammates and evaders)")
 
 
+def registered_from_outside(kind: str, spawns: str) -> str | None:
+    """Why a run whose `spawns` (the run.* settings that start a child process, e.g.
+    'run.overlap') builds networks in a spawned process cannot train net.kind `kind`, or None.
+    A kind that some other code (a script) put into TRUNKS after this module was imported, or a
+    class it put in place of the module's own, is unknown to a spawned process, which imports
+    this module afresh and does not run that code."""
+    if kind not in TRUNKS or TRUNKS[kind] is MODULE_TRUNKS.get(kind):
+        return None
+    return (f"net.kind {kind!r} was registered in train/networks.py TRUNKS from outside that module (a script): "
+            f"{spawns} builds the networks again in a spawned process, which imports train/networks.py afresh "
+            f"and does not run the script; add the class to train/networks.py itself and its name to "
+            f"train/config.py NET_KINDS (docs/training.md, 'Adding a network'), or train in this process: "
+            f"--set run.split_update=false with run.overlap false")
+
+
 def make_trunk(spec: ObsSpec, cfg: NetConfig) -> nn.Module:
     """The trunk net.kind names (a key of TRUNKS), or ValueError naming the kind: a kind without
     a class here must not train some other network."""
@@ -286,3 +301,7 @@ class CentralCritic(nn.Module):
 
     def forward(self, state: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
         return self.head(self.body(torch.cat([state, obs], dim=-1))).squeeze(-1)
+
+
+#: TRUNKS as this module defines it: what a spawned process (critic, rollout worker) knows (registered_from_outside)
+MODULE_TRUNKS: dict[str, type[nn.Module]] = dict(TRUNKS)

@@ -46,7 +46,7 @@ from .discount import Discount
 from .folder_lock import FolderInUse, lock_run_folder, release_lock
 from .imitation import DaggerCollector, Demonstrations, imitation_update, teacher_share
 from .metrics_log import MetricsLog, json_ready, missing_updates
-from .networks import team_mismatch
+from .networks import registered_from_outside, team_mismatch
 from pursuit_mj.recording.rerun_scalars import RerunScalarLogger
 from .policy import ActorPolicy, trained_team
 from .progress_bar import advance_bar, progress_bar
@@ -182,6 +182,10 @@ class Trainer:
         # the critic's half of each update in a child process: only where a core would idle otherwise
         self.split_update = cfg.run.split_update and not self.overlap and cores >= 2
         self.update_threads = cfg.run.update_threads(self.overlap, cores, self.split_update)
+        spawns = " and ".join(k for k, on in (("run.split_update", self.split_update), ("run.overlap", self.overlap)) if on)
+        why = registered_from_outside(cfg.net.kind, spawns) if spawns else None
+        if why is not None:
+            raise ValueError(why)
         self.critic_worker: CriticWorker | None = None  # started with the first rollout (split_update)
         self.collector: Collector | DaggerCollector | None = None  # in-process collection (overlap off)
         self.worker: RolloutWorker | None = None  # collection in a child process (overlap on), started on first use
