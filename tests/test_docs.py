@@ -256,3 +256,39 @@ def test_docs_training_md_says_best_pt_ties_go_to_fewer_capture_steps_not_fewer_
     text = " ".join((ROOT / "docs" / "training.md").read_text().split())
     said = text[text.index("`best.pt` (best validation success"):][:300]
     assert "ties to fewer capture steps" in said and "max_steps" in said and "earlier" in said, said
+
+
+def test_adding_a_network_in_docs_training_md_states_how_a_trunk_is_called(monkeypatch):
+    """The paragraph said a trunk 'maps observations (..., spec.dim) to features' but not that
+    Actor and Critic call it as trunk(obs, spec): a trunk written to the words, forward(obs),
+    stopped the first rollout in a TypeError ('takes 2 positional arguments but 3 were given').
+    The call it names is the one the networks make, and the trunks it points to take it."""
+    import dataclasses
+    import inspect
+
+    import torch
+
+    from pursuit_mj.obs_spec import ObsSpec
+    from train.config import NetConfig
+    from train.networks import TRUNKS, Actor, Critic
+
+    text = " ".join((ROOT / "docs" / "training.md").read_text().split("**Adding a network.**")[1].split("\n\n")[0].split())
+    assert "`forward(obs, spec)`" in text, text
+    for name, cls in TRUNKS.items():
+        assert list(inspect.signature(cls.forward).parameters) == ["self", "obs", "spec"], name
+    calls = []
+
+    class Written(torch.nn.Module):  # a trunk written to the paragraph
+        def __init__(self, spec, cfg):
+            super().__init__()
+            self.out_dim = 3
+
+        def forward(self, obs, spec):
+            calls.append(spec)
+            return obs[..., :3]
+
+    monkeypatch.setitem(TRUNKS, "written", Written)
+    spec, cfg = ObsSpec.make(3, 1, 4), dataclasses.replace(NetConfig(), kind="written")
+    obs = torch.zeros(5, 2, spec.dim)
+    assert Actor(spec, cfg)(obs, spec)[0].shape == (5, 2, 2) and Critic(spec, cfg)(obs, spec).shape == (5, 2)
+    assert calls == [spec, spec]

@@ -200,8 +200,9 @@ class FlatTrunk(nn.Module):
 
 
 #: net.kind -> trunk class; a new network is one class here and its name in train/config.py NET_KINDS.
-#: A trunk is built as cls(spec, cfg: NetConfig), has `out_dim`, and maps obs (..., spec.dim) float32
-#: to features (..., out_dim); Actor and Critic put their heads on it (docs/training.md, "Network").
+#: A trunk is built as cls(spec, cfg: NetConfig), has `out_dim`, and its forward(obs, spec) maps obs
+#: (..., spec.dim) float32 to features (..., out_dim); Actor and Critic put their heads on it
+#: (docs/training.md, "Network").
 #: Its SHAPE_KEYS name the net.* keys its weights depend on (--init-from compares those; all of
 #: train/run_checks.py ACTOR_SHAPE_KEYS when it has none).
 TRUNKS: dict[str, type[nn.Module]] = {"reference": PooledTrunk, "mlp": FlatTrunk}
