@@ -588,3 +588,29 @@ def test_a_run_started_from_a_checkpoint_of_another_task_names_the_keys_that_dif
     assert "task" not in notes["same"].split("now partial)")[1]
     assert ("note: its task differs from this run's (checkpoint -> this run): evader_speed 0.6 -> 0.9, field_of_view "
             "360 deg -> 120 deg, fidelity point -> quadrotor, max_steps 40 -> 60, capture_reward 10.0 -> 5.0") in notes["other"]
+
+
+def test_net_settings_idle_under_a_network_of_ones_own_are_named_from_its_shape_keys(monkeypatch):
+    """The note on idle net.* settings knew only net.kind mlp: a network added as docs/training.md
+    says, whose SHAPE_KEYS leave out encoder_width, took --set net.encoder_width=64 without a word.
+    The keys its trunk's weights do not depend on are named for any kind; a trunk without
+    SHAPE_KEYS uses them all."""
+    import dataclasses
+
+    import train.networks as networks
+
+    class NoEncoders(torch.nn.Module):
+        SHAPE_KEYS = ("hidden", "use_rays")  # kind left out: no weight depends on it
+
+    class Unsaid(torch.nn.Module):
+        pass
+
+    monkeypatch.setitem(networks.TRUNKS, "no_encoders", NoEncoders)
+    monkeypatch.setitem(networks.TRUNKS, "unsaid", Unsaid)
+    cfg = load_train_config(["classic"], ["net.encoder_width=64", "net.use_rays=false"])
+    own = dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, kind="no_encoders"))
+    assert own.idle_settings() == ["net.encoder_width does nothing under net.kind no_encoders (its trunk's weights "
+                                   "do not depend on it: SHAPE_KEYS in train/networks.py)"]
+    assert dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, kind="unsaid")).idle_settings() == []
+    assert dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, kind="mlp")).idle_settings() == [
+        "net.encoder_width, net.use_rays do nothing under net.kind mlp (the reference network's entity encoders)"]

@@ -352,6 +352,20 @@ class TrainConfig:
                     shown = ref if key == "task.layout" else list(refs)
                     raise ConfigError(f"{(key_sources or {}).get(key, source)}: {key} {shown}: {exc}") from None
 
+    def _idle_net_settings(self, default: NetConfig) -> list[str]:
+        """The changed net.* shape settings that net.kind's trunk does not use: those its
+        SHAPE_KEYS (train/networks.py) leave out; a trunk without SHAPE_KEYS uses them all."""
+        from .networks import TRUNKS  # here: train.networks imports this module
+        from .run_checks import ACTOR_SHAPE_KEYS
+
+        used = getattr(TRUNKS.get(self.net.kind), "SHAPE_KEYS", ACTOR_SHAPE_KEYS)
+        changed = [k for k in ACTOR_SHAPE_KEYS if k != "kind" and k not in used and getattr(self.net, k) != getattr(default, k)]
+        if not changed:
+            return []
+        why = ("the reference network's entity encoders" if self.net.kind == "mlp" else
+               f"its trunk's weights do not depend on {'it' if len(changed) == 1 else 'them'}: SHAPE_KEYS in train/networks.py")
+        return [f"net.{', net.'.join(changed)} {_do(changed)} nothing under net.kind {self.net.kind} ({why})"]
+
     def idle_settings(self) -> list[str]:
         """Settings changed from their defaults that this combination never reads, one line each
         (not errors: a study's --train-set gives every arm the same values)."""
@@ -364,10 +378,7 @@ class TrainConfig:
             idle.append("ppo.value_scaling does nothing under algo mappo (its centralised critic normalises values)")
         if self.algo != "mappo" and self.net.critic_hidden != default.net.critic_hidden:
             idle.append(f"net.critic_hidden {list(self.net.critic_hidden)} does nothing under algo {self.algo} (it sizes MAPPO's critic)")
-        if self.net.kind == "mlp":
-            changed = [k for k in ("encoder_width", "use_rays") if getattr(self.net, k) != getattr(default.net, k)]
-            if changed:
-                idle.append(f"net.{', net.'.join(changed)} {_do(changed)} nothing under net.kind mlp (the reference network's entity encoders)")
+        idle += self._idle_net_settings(default.net)
         if not self.ppo.learnable_gamma:
             changed = [k for k in ("gamma_meta_lr", "gamma_outer") if getattr(self.ppo, k) != getattr(default.ppo, k)]
             if changed:
