@@ -1388,3 +1388,21 @@ def test_an_export_of_an_export_names_the_training_checkpoint_it_came_from(tmp_p
     assert load_checkpoint(first)["exported_from"] == str(trained)
     assert load_checkpoint(second)["exported_from"] == str(trained)
     assert load_checkpoint(second)["counters"] == {"update": 3} and "critic" not in load_checkpoint(second)
+
+
+def test_init_from_compares_net_kind_even_where_a_trunks_shape_keys_leave_it_out(monkeypatch):
+    """docs/training.md has a trunk's SHAPE_KEYS name 'the net.* keys its weights depend on'; a
+    network added with SHAPE_KEYS = ('encoder_width', 'hidden', 'use_rays') - kind left out, as
+    no weight depends on it - let --init-from from it into a reference run through the
+    comparison, and the run was refused with torch's list of missing keys, not naming both
+    networks (two kinds with the same weight names would have loaded into the other network)."""
+    import train.networks as networks
+    from train.config import NetConfig
+    from train.run_checks import check_same_network
+
+    monkeypatch.setattr(networks.FlatTrunk, "SHAPE_KEYS", ("hidden",))  # as a trunk of one's own might say
+    data = {"train_config": {"net": {"kind": "mlp"}}}
+    with pytest.raises(ValueError, match=r"^init_from x.pt: its actor is net.kind mlp; this run builds net.kind "
+                                         r"reference \(to start from it, give the run the same network: --set net.kind=mlp\)$"):
+        check_same_network(data, NetConfig(), "x.pt")
+    check_same_network(data, NetConfig(kind="mlp", encoder_width=8), "x.pt")  # the keys it leaves out stay free

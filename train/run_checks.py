@@ -54,11 +54,12 @@ ACTOR_SHAPE_KEYS = ("kind", "encoder_width", "hidden", "use_rays")  # the net.* 
 def check_same_network(data: dict, net: NetConfig, path: str | Path) -> None:
     """ValueError naming both networks unless the checkpoint `data`'s actor was built with this
     run's net.kind, widths and use_rays (ACTOR_SHAPE_KEYS, or those of them its kind's trunk uses:
-    its SHAPE_KEYS in train/networks.py): its weights would not load, or, for two
+    its SHAPE_KEYS in train/networks.py, and the kind always): its weights would not load, or, for two
     kinds with the same weight names, would load into another network. A kind this code does not
     know is refused by name (train_config.net: key 'kind')."""
     stored = build(NetConfig, data["train_config"].get("net", {}), f"init_from {path}: train_config.net")
     keys = getattr(TRUNKS.get(stored.kind), "SHAPE_KEYS", ACTOR_SHAPE_KEYS)  # those the stored network's weights depend on
+    keys = ("kind", *(k for k in keys if k != "kind"))  # another kind is another network, whatever its SHAPE_KEYS say
     differ = [k for k in keys if getattr(stored, k) != getattr(net, k)]
     if differ:
         def shown(cfg: NetConfig) -> str:
