@@ -210,7 +210,8 @@ def run(args) -> int:
     print(f"outcome: {result.outcome} ({result.reason}); chase {result.chase_time:.1f} s, {result.captures} capture(s), "
           f"{len(result.steps)} decision steps; landed: {_landed(result, plan)}")
     print(f"events: {events_path}" + (f"; rerun: {args.rerun}" if args.rerun else ""))
-    if result.outcome == "interrupted" and result.reason in STOP_SIGNALS:  # landed after a stop signal
+    if result.outcome in ("interrupted", "emergency_stop") and result.reason in STOP_SIGNALS:
+        # landed after a stop signal, or its motors cut by a second one during that landing
         from . import stop_exit_code
 
         return stop_exit_code(STOP_SIGNALS[result.reason])

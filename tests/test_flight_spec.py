@@ -1427,3 +1427,25 @@ def test_fly_check_notes_the_task_settings_a_flight_never_reads(capsys):
         "note: miss_probability 0.2 does nothing under observability full (every evader and teammate is known exactly)"]
     assert main(["fly", "check", "--flight", "example", "--set", "miss_probability=0.2"]) == 0
     assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("reason, code", [("Ctrl-C", 130), ("SIGTERM", 143), ("SIGHUP", 129)])
+def test_a_flight_stopped_by_a_second_stop_signal_during_its_landing_exits_as_a_stopped_command_does(reason, code, monkeypatch, tmp_path):
+    """A second Ctrl-C or SIGTERM during the landing cuts the motors (docs/flight.md): the flight
+    ends as `emergency_stop` with the signal as its reason, and it exited 1, as after a safety stop,
+    where README.md has a command stopped by Ctrl-C, SIGTERM or SIGHUP exit 128 + the signal's number.
+    An emergency stop for another reason (a key, Ctrl-\\) still exits 1."""
+    from pursuit_cli import main
+    import pursuit_mj.flight.session as session
+    from pursuit_mj.flight.bridge import FlightResult
+
+    why = {"reason": reason}
+
+    def cut_on(plan, policy, **kwargs):
+        return FlightResult("emergency_stop", why["reason"], 3.0, 0, [], False, np.full(4, 0.4)), None
+
+    monkeypatch.setattr(session, "run_flight", cut_on)
+    argv = ["fly", "--flight", EXAMPLE, "--policy", "heuristic", "--virtual", "--events", str(tmp_path / "e.jsonl")]
+    assert main(argv) == code
+    why["reason"] = "emergency stop"
+    assert main(argv) == 1
