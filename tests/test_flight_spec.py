@@ -1449,3 +1449,19 @@ def test_a_flight_stopped_by_a_second_stop_signal_during_its_landing_exits_as_a_
     assert main(argv) == code
     why["reason"] = "emergency stop"
     assert main(argv) == 1
+
+
+@pytest.mark.parametrize("value, shown", [("3100", "3100 V"), ("0", "0 V"), ("12", "12 V"), ("4.5", "4.5 V")])
+def test_a_battery_fault_of_no_single_cell_voltage_is_refused(value, shown):
+    """`--fault battery:e0@2=3100` (millivolts) was taken as 3100 V: the drone flew on, the chase
+    ended by its time limit, and the rehearsal of the low-battery landing passed without one; `=0`
+    flew a battery of -0.11 V under load. The value is a Crazyflie's one-cell battery at rest, in
+    volts, as safety.battery_takeoff and battery_land are (2.5 to 4.4 V)."""
+    plan = load_plan(EXAMPLE)
+    with pytest.raises(ValueError, match=rf"--fault 'battery:e0@2={value}': {shown} is not the resting voltage of a "
+                                         rf"Crazyflie's one-cell battery \(2.5 to 4.4 V\)"):
+        parse_fault(f"battery:e0@2={value}", plan)
+    with pytest.raises(ValueError, match=r"\(2.5 to 4.4 V\); 3100 reads as millivolts: write 3.1$"):
+        parse_fault("battery:e0@2=3100", plan)
+    for ok in ("2.5", "3.1", "4.4"):
+        assert parse_fault(f"battery:e0@2={ok}", plan).value == float(ok)

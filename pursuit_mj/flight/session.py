@@ -26,7 +26,7 @@ from .bridge import FlightBridge, FlightResult
 from .events import EventLog
 from .links import CrazyflieFactory
 from .plan import FlightPlan, load_plan
-from .spec import NAME
+from .spec import BATTERY_VOLTS, NAME
 
 FAULT_KINDS = ("drop_link", "freeze", "battery", "lose_fix")
 _NUMBER = r"\d+(?:\.\d*)?|\.\d+"  # 3, 3., 3.1, .5: what float() reads, no sign or exponent
@@ -56,6 +56,11 @@ def parse_fault(text: str, plan: FlightPlan, source: str = "--fault") -> Fault:
     if (kind == "battery") != (value is not None):
         raise ValueError(f"{source} {text!r}: " + (f"'battery' needs a voltage (battery:{name}@{at:g}=3.1)" if kind == "battery"
                          else f"'{kind}' takes no value ({kind}:{name}@{at:g})"))
+    if kind == "battery" and not BATTERY_VOLTS[0] <= float(value) <= BATTERY_VOLTS[1]:
+        volts = float(value)
+        hint = f"; {value} reads as millivolts: write {volts / 1000:g}" if volts >= 1000 else ""
+        raise ValueError(f"{source} {text!r}: {volts:g} V is not the resting voltage of a Crazyflie's one-cell battery "
+                         f"({BATTERY_VOLTS[0]:g} to {BATTERY_VOLTS[1]:g} V){hint}")
     if kind == "lose_fix" and plan.spec.positioning == "flow":
         raise ValueError(f"{source} {text!r}: 'lose_fix' rehearses a Lighthouse or Loco drone losing its position fix; "
                          f"this flight flies flow decks, whose position variance grows by design")

@@ -46,6 +46,10 @@ LAB_EXTENT = 1000.0
 #: arena is no flight anyone plans; a scale near 100 or 1000 (or 0.01, 0.001) is cm or mm read as m
 SCALE_RANGE = (0.05, 20.0)
 
+#: V: what a Crazyflie's one-cell LiPo reads at rest, empty to overfull: the range of the battery
+#: limits and of a virtual battery fault (3100 there is millivolts)
+BATTERY_VOLTS = (2.5, 4.4)
+
 DATA_RATES = ("250K", "1M", "2M")  # spelled as cflib's radio driver compares them
 DEFAULT_RADIO_ADDRESS = 0xE7E7E7E7E7  # what cflib uses for a radio URI without an address
 
@@ -168,8 +172,8 @@ class SafetyLimits:
     stale_land: float = spec(1.0, lo=0.02, hi=10.0, help="no fresh estimate for this long: everyone lands (s)")
     stall_hover: float = spec(0.2, lo=0.01, hi=1.0, help="no decision for this long past its interval (a stalled policy or process): every commanded drone hovers until the next one (s)")
     link_timeout: float = spec(1.0, lo=0.05, hi=10.0, help="nothing heard from a drone for this long: link lost, everyone lands (s)")
-    battery_takeoff: float = spec(3.8, lo=2.5, hi=4.4, help="refuse to take off below this battery voltage (V)")
-    battery_land: float = spec(3.3, lo=2.5, hi=4.4, help="in flight below this voltage the drone lands and the run ends (V)")
+    battery_takeoff: float = spec(3.8, lo=BATTERY_VOLTS[0], hi=BATTERY_VOLTS[1], help="refuse to take off below this battery voltage (V)")
+    battery_land: float = spec(3.3, lo=BATTERY_VOLTS[0], hi=BATTERY_VOLTS[1], help="in flight below this voltage the drone lands and the run ends (V)")
     battery_samples: int = spec(3, lo=1, hi=HISTORY, help=f"consecutive low readings before the low-battery landing (the board keeps {HISTORY})")
     estimator_variance: float = spec(1e-3, lo=0.0, lo_open=True, help="kalman.varPX/PY/PZ must be steady within this and, for Lighthouse/Loco, below it (m^2)")
     fix_variance: float = spec(0.01, lo=0.0, lo_open=True, hi=1.0, help="Lighthouse/Loco: in flight, a kalman.varPX/PY/PZ above this means the drone lost its position fix (base stations or anchors out of sight): everyone lands (m^2; above estimator_variance)")
