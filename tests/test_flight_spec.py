@@ -1465,3 +1465,27 @@ def test_a_battery_fault_of_no_single_cell_voltage_is_refused(value, shown):
         parse_fault("battery:e0@2=3100", plan)
     for ok in ("2.5", "3.1", "4.4"):
         assert parse_fault(f"battery:e0@2={ok}", plan).value == float(ok)
+
+
+@pytest.mark.parametrize("override, words", [
+    ("safety.max_speed=0.3", r"--set safety.max_speed=0.3: 'safety' is a section of the flight file, not a task key: --set "
+                             r"changes the flight's task keys only; set it in .*mylab.yaml"),
+    ("max_speed=0.3", r"--set max_speed=0.3: 'max_speed' is a safety limit of the flight file \(safety: max_speed\), not a task "
+                      r"key: --set changes the flight's task keys only; set it in .*mylab.yaml"),
+    ("task.pursuer_speed=0.3", r"--set task.pursuer_speed=0.3: fly's --set takes the task's keys themselves: --set pursuer_speed=0.3"),
+    ("max_time=5", r"--set max_time=5: 'max_time' is a key of the flight file, not a task key: .*; --max-time 5 ends the chase after 5 s"),
+    ("transform.yaw=1.0", r"--set transform.yaw=1.0: 'transform' is a section of the flight file"),
+])
+def test_fly_set_of_a_flight_file_key_says_set_takes_task_keys(override, words, tmp_path, capsys):
+    """`fly --set safety.max_speed=0.3` said "unknown key 'safety' (did you mean 'fidelity'?)", and
+    `--set max_speed=0.3` "did you mean 'max_steps'?": hints toward task keys a flight refuses or never
+    reads, for a user tightening a safety limit. --set takes task keys (docs/flight.md); a key of the
+    flight file, its safety limits or a `task.` prefix is named as such."""
+    from pursuit_cli import main
+
+    path = tmp_path / "mylab.yaml"
+    path.write_text(yaml.safe_dump(flight()))
+    assert main(["fly", "check", "--flight", str(path), "--set", override]) == 2
+    err = capsys.readouterr().err
+    assert __import__("re").search(words, err), err
+    assert len(err.strip().splitlines()) == 1, err

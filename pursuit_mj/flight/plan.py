@@ -35,7 +35,7 @@ from ..layout_check import free_cells, grid_components, grid_step
 from ..obs_spec import ObsSpec
 from ..user_file import is_file_reference
 from .frames import DroneFrames, LabTransform
-from .spec import FlightSpec, LabBounds, check_uri, drone_names
+from .spec import FlightSpec, LabBounds, SafetyLimits, check_uri, drone_names
 
 #: task keys a flight fixes itself (from its drones, layout, height and rate; its physics is the real world's)
 FIXED_TASK_KEYS = ("n_pursuers", "n_evaders", "layout", "flight_height", "control_dt", "random_obstacles", "random_layout",
@@ -50,12 +50,39 @@ SIMULATION_ONLY_KEYS = {
 }
 
 
+TASK_FIELDS = frozenset(f.name for f in dataclasses.fields(TaskConfig))
+#: keys of the flight file and of its safety section, which `--set` (task keys) does not take
+FLIGHT_FIELDS = frozenset(f.name for f in dataclasses.fields(FlightSpec) if f.name != "source")
+SAFETY_FIELDS = frozenset(f.name for f in dataclasses.fields(SafetyLimits))
+
+
 def _why_fixed(key: str) -> str:
     """Why a flight does not take task key `key` (one of FIXED_TASK_KEYS)."""
     if key in ("random_obstacles", "random_layout"):
         return ("a flight flies the layout file's own walls and obstacles, none drawn at random (put virtual "
                 "obstacles in the layout file)")
     return "it is set by the flight file itself (drones, layout, flight_height, decision_rate)"
+
+
+def _not_a_task_key(text: str, path: Sequence[str], source: str) -> str | None:
+    """Why `--set text` (key path `path`) is no task key of the flight, when it is a key of the
+    flight file itself (its sections, `max_time` ...), one of its safety limits or a task key
+    written with the `task.` prefix of a train config; else None (the task config judges it)."""
+    key = path[0]
+    if key in TASK_FIELDS:
+        return None
+    if key == "task" and len(path) > 1:
+        return f"fly's --set takes the task's keys themselves: --set {text.split('.', 1)[1]}"
+    where = f"set it in {source}"
+    if key in SAFETY_FIELDS:
+        return f"'{key}' is a safety limit of the flight file (safety: {key}), not a task key: --set changes the flight's task keys only; {where}"
+    if key in FLIGHT_FIELDS:
+        what = "a section" if key in ("safety", "transform", "lab", "drones") else "a key"
+        extra = ""
+        if key == "max_time" and len(path) == 1:
+            extra = f"; --max-time {text.split('=', 1)[1]} ends the chase after {text.split('=', 1)[1]} s"
+        return f"'{key}' is {what} of the flight file, not a task key: --set changes the flight's task keys only; {where}{extra}"
+    return None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -194,6 +221,9 @@ def _task_config(spec: FlightSpec, layout_ref, overrides: Sequence[str]) -> Task
         task_keys["evader"] = {**task_keys["evader"], "model": found_code_ref(task_keys["evader"]["model"], spec.source, "task.evader.model")}
     for text in overrides:
         path, value = parse_override(text, f"--set {text}")
+        not_task = _not_a_task_key(text, path, spec.source)
+        if not_task:
+            raise ConfigError(f"--set {text}: {not_task}")
         if path[0] in SIMULATION_ONLY_KEYS:
             raise ConfigError(f"--set {text}: '{path[0]}' means nothing in a flight: {SIMULATION_ONLY_KEYS[path[0]]}")
         if path[0] in FIXED_TASK_KEYS:
