@@ -6,6 +6,7 @@ drones backed by pursuit_mj's quadrotor physics.
 
 from __future__ import annotations
 
+import copy
 import math
 import subprocess
 import sys
@@ -609,3 +610,35 @@ def test_a_virtual_flight_that_fails_after_its_fleet_started_stops_it_and_keeps_
                    events_path=log, handle_signals=False, on_bridge=broken)
     assert len(fleets) == 1 and not fleets[0].running
     assert [r["kind"] for r in read_events(log)] == ["virtual_fleet"]
+
+
+@pytest.mark.parametrize("border", ["polygon", "circle"])
+def test_a_flight_recording_draws_the_fence_inside_a_polygon_or_circle_border_at_the_margin(border, tmp_path):
+    """The recording's `arena/fence` was the arena's rectangle moved in by the margin whatever the
+    border: in layout 2's octagon its corners (0.25, 0.25) stood outside the border, beyond the cut
+    corner the real fence keeps drones 0.25 m inside, and in a circle arena it was a square. Each
+    fence vertex now lies inside the border, the margin away from it (docs/flight.md "Records":
+    the fence; rerun_log: the border moved in by the margin)."""
+    from pursuit_mj.flight.rerun_log import FlightRecorder
+    from pursuit_mj.geometry import border_distance, inside_boundary
+
+    drones = copy.deepcopy(quick_spec()["drones"])
+    if border == "circle":
+        (tmp_path / "round.yaml").write_text(yaml.safe_dump({
+            "name": "round", "arena": {"width": 3.6, "height": 3.6}, "boundary": {"circle": {"center": [1.8, 1.8], "radius": 1.8}},
+            "obstacles": [], "spawn": {"pursuers": {"x": [1.0, 2.6], "y": [0.4, 0.9]}, "evaders": {"x": [1.0, 2.6], "y": [2.7, 3.2]}}}))
+        layout = str(tmp_path / "round.yaml")
+        for d, start in zip(drones, ([1.2, 0.6], [1.8, 0.6], [2.4, 0.6], [1.8, 3.0])):
+            d["start"] = start
+    else:
+        layout = 2
+        drones[3]["start"] = [1.8, 4.4]
+    plan = resolve_flight(flight_from_dict(quick_spec(layout=layout, drones=drones, safety={"geofence_margin": 0.25}),
+                                           str(tmp_path / "rehearsal.yaml")))
+    path = tmp_path / "f.rrd"
+    recorder = FlightRecorder(path, plan)
+    recorder.close()
+    strips = read_entities(path)["/arena/fence"].static["LineStrips3D:strips"]
+    points = np.array([p[:2] for strip in strips for p in strip])
+    assert inside_boundary(plan.layout, points).all(), points
+    np.testing.assert_allclose(border_distance(points, plan.layout.border()), 0.25, atol=0.01)

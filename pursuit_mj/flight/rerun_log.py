@@ -47,6 +47,23 @@ def _outline(o, z: float) -> list[list[float]]:
     return [[o.center[0] + o.radius * math.cos(t), o.center[1] + o.radius * math.sin(t), z] for t in a]
 
 
+def fence_outline(border: np.ndarray, margin: float) -> np.ndarray | None:
+    """The geofence along the border: the border segments (S, 4) (counter-clockwise, inside on the
+    left, geometry.boundary_segments) each moved `margin` (m) inwards, joined where they meet, as a
+    closed outline (S + 1, 2); None when the margin turns the outline inside out (no room). Exact
+    at convex corners; at a reflex corner the fence is an arc around it, drawn as its mitre."""
+    seg = np.asarray(border, dtype=np.float64)
+    d = seg[:, 2:4] - seg[:, 0:2]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    normal = np.stack([-d[:, 1], d[:, 0]], axis=1)  # inwards: left of each segment
+    before = np.roll(normal, 1, axis=0)  # of the segment that ends at each one's start
+    corners = seg[:, 0:2] + margin * (normal + before) / (1.0 + np.sum(normal * before, axis=1, keepdims=True))
+    moved = corners[(np.arange(len(seg)) + 1) % len(seg)] - corners  # each moved segment, start to end
+    if np.any(np.sum(moved * d, axis=1) <= 0.0):  # a segment shorter than its corners cut off: turned around
+        return None
+    return np.concatenate([corners, corners[:1]])
+
+
 class FlightRecorder:
     """Streams a flight into an .rrd file (module docstring); `close()` finishes the file."""
 
@@ -65,10 +82,9 @@ class FlightRecorder:
         rec.log("arena/border", rr.LineStrips3D([[[x0, y0, 0.0], [x1, y1, 0.0]] for x0, y0, x1, y1 in border], colors=(90, 90, 90)), static=True)
         if plan.layout.obstacles:
             rec.log("arena/obstacles", rr.LineStrips3D([_outline(o, z) for o in plan.layout.obstacles], colors=(140, 120, 100)), static=True)
-        m = plan.safety.geofence_margin * plan.transform.scale
-        w, h = plan.layout.width, plan.layout.height
-        if m < min(w, h) / 2:
-            rec.log("arena/fence", rr.LineStrips3D([[[m, m, z], [w - m, m, z], [w - m, h - m, z], [m, h - m, z], [m, m, z]]], colors=(230, 160, 40)), static=True)
+        fence = fence_outline(border, plan.safety.geofence_margin * plan.transform.scale)
+        if fence is not None:
+            rec.log("arena/fence", rr.LineStrips3D([[[x, y, z] for x, y in fence]], colors=(230, 160, 40)), static=True)
         rec.send_property("flight", rr.AnyValues(name=plan.spec.name, source=plan.spec.source, layout=plan.layout.source, positioning=plan.spec.positioning))
 
     def log_step(self, t: float, pos: np.ndarray, vel: np.ndarray, command: np.ndarray, vbat: np.ndarray) -> None:
