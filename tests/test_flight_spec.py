@@ -1489,3 +1489,17 @@ def test_fly_set_of_a_flight_file_key_says_set_takes_task_keys(override, words, 
     err = capsys.readouterr().err
     assert __import__("re").search(words, err), err
     assert len(err.strip().splitlines()) == 1, err
+
+
+@pytest.mark.parametrize("text", ["", "# a flight file, all commented out\n# layout: 0\n"])
+def test_an_empty_flight_file_is_named_empty(text, tmp_path, capsys):
+    """An empty flight file (or one whose every line is commented out) said "missing key 'layout'",
+    as if one key were left out; a task or layout file that holds nothing says it is empty."""
+    from pursuit_cli import main
+
+    path = tmp_path / "lab.yaml"
+    path.write_text(text)
+    assert main(["fly", "check", "--flight", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"pursuit-mj fly check: error: {path}: the file is empty (no flight key); a flight file sets at least "
+                   f"layout, positioning and drones (see configs/flight/example.yaml)"), err

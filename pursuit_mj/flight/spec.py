@@ -322,6 +322,9 @@ def load_flight(path: str | Path) -> FlightSpec:
     Raises ConfigError naming the file and the key."""
     found = preset_or_file(path, "flight")
     data = load_yaml(found)
+    if not data:  # empty, or every line commented out
+        raise ConfigError(f"{found}: the file is empty (no flight key); a flight file sets at least layout, positioning "
+                          f"and drones (see configs/flight/example.yaml)")
     refuse_another_kind(data, str(found), "flight")
     return flight_from_dict(data, str(found))
 
