@@ -612,3 +612,26 @@ def test_the_drawn_sight_stops_at_a_caught_evader_as_the_pursuers_sight_does():
         ends = _drawn_line_ends(scene, start)
         ahead = ends[np.isclose(ends[:, 0, 1], p[1], atol=1e-9) & (ends[:, 0, 0] > p[0])][:, 0]  # the point on the +x ray
         assert len(ahead) == 1 and np.isclose(ahead[0, 0] - p[0], reach, atol=1e-6), (captured, ahead)
+
+
+def test_an_ffmpeg_named_by_IMAGEIO_FFMPEG_EXE_that_is_not_there_is_one_clear_error(tmp_path, monkeypatch):
+    """imageio-ffmpeg returns IMAGEIO_FFMPEG_EXE untested: a stale one (no ffmpeg on PATH) let the
+    render run on to mediapy's traceback ("RuntimeError: Program ... is not found")."""
+    import shutil
+
+    from pursuit_mj.render import video
+
+    missing = tmp_path / "no" / "ffmpeg"
+    monkeypatch.setattr(shutil, "which", lambda name, *a, **k: None)
+    monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", str(missing))
+    try:
+        with pytest.raises(ValueError, match=f"IMAGEIO_FFMPEG_EXE={missing}: no such program"):
+            video.ensure_ffmpeg()
+        not_a_program = tmp_path / "ffmpeg.txt"
+        not_a_program.write_text("")
+        monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", str(not_a_program))
+        with pytest.raises(ValueError, match=f"IMAGEIO_FFMPEG_EXE={not_a_program}: not an executable program"):
+            video.ensure_ffmpeg()
+    finally:
+        monkeypatch.undo()
+        ensure_ffmpeg()  # the module's other tests go on with the real one

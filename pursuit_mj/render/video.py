@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 
 import contextlib
+import os
 import re
 import shutil
 from pathlib import Path
@@ -35,7 +36,10 @@ def video_format(path: str | Path, source: str = "--save-path") -> str:
 
 
 def ensure_ffmpeg() -> str:
-    """The ffmpeg binary mediapy will use (PATH, else the one bundled with imageio-ffmpeg)."""
+    """The ffmpeg binary mediapy will use (PATH, else the one imageio-ffmpeg names).
+
+    ValueError in one line when there is none, or when the one imageio-ffmpeg names (its
+    IMAGEIO_FFMPEG_EXE, which it returns untested) is not an executable file."""
     exe = shutil.which("ffmpeg")
     if exe is None:
         try:
@@ -44,8 +48,23 @@ def ensure_ffmpeg() -> str:
             exe = imageio_ffmpeg.get_ffmpeg_exe()
         except (ImportError, RuntimeError) as exc:
             raise ValueError(f"video writing needs ffmpeg: install it (apt install ffmpeg) or the imageio-ffmpeg package ({exc})") from None
+        _check_program(exe)
     mediapy.set_ffmpeg(exe)
     return exe
+
+
+def _check_program(exe: str) -> None:
+    """ValueError naming `exe` (and IMAGEIO_FFMPEG_EXE when it came from there) unless it is an executable file."""
+    named = os.environ.get("IMAGEIO_FFMPEG_EXE")
+    where = f"IMAGEIO_FFMPEG_EXE={exe}" if named and named == exe else f"imageio-ffmpeg's ffmpeg {exe}"
+    if not os.path.exists(exe):
+        why = "no such program"
+    elif not (os.path.isfile(exe) and os.access(exe, os.X_OK)):
+        why = "not an executable program"
+    else:
+        return
+    raise ValueError(f"video writing needs ffmpeg: {where}: {why} (install ffmpeg, apt install ffmpeg, or set "
+                     f"IMAGEIO_FFMPEG_EXE to one, or unset it)")
 
 
 def check_frame_size(fmt: str, width: int, height: int) -> None:
