@@ -316,12 +316,23 @@ def run(args) -> int:
         return _run(args)
 
 
+def _refuse_repeated_seeds(seeds: list[int]) -> None:
+    """ValueError naming the first --episode-seed given twice: it would play the episode again
+    and write its files over the first's (one name per seed)."""
+    seen: set[int] = set()
+    for n in seeds:
+        if n in seen:
+            raise ValueError(f"--episode-seed {n}: given twice (each seed plays one episode, named _episode{n})")
+        seen.add(n)
+
+
 def _run(args) -> int:
     from pursuit_mj.render.episodes import EpisodeOutputs, run_episodes
     from pursuit_mj.render.renderer import RenderSettings
     from pursuit_mj.render.video import check_frame_size, check_video_fps, ensure_ffmpeg
 
     seeds = args.episode_seeds
+    _refuse_repeated_seeds(seeds or [])
     if seeds and args.episodes is not None and args.episodes != len(seeds):
         raise ValueError(f"--episodes {args.episodes} and {len(seeds)} --episode-seed: give one or the other "
                          f"(with --episode-seed, one episode per seed)")

@@ -468,3 +468,12 @@ def test_a_model_config_that_trained_on_several_layouts_is_not_rendered_on_one_i
     assert main(["render", "-mc", str(mc), "--policy", "heuristic", "--no-video", "--final-frame",
                  "-s", str(tmp_path / "f/"), "--width", str(W), "--height", str(H)] + chosen) == 0
     assert "layout2" in capsys.readouterr().out
+
+
+def test_an_episode_seed_given_twice_is_refused_before_anything_is_played(tmp_path, capsys):
+    """`--episode-seed 1234 --episode-seed 1234` played the episode twice and wrote its file twice,
+    the second replacing the first under the one name (_episode1234): a slip in a list of seeds."""
+    out = tmp_path / "renders"
+    assert _cli(tmp_path, "-s", str(out), "--episode-seed", "7", "--episode-seed", "9", "--episode-seed", "7") == 2
+    assert "--episode-seed 7: given twice (each seed plays one episode, named _episode7)" in capsys.readouterr().err
+    assert not out.exists()
