@@ -347,6 +347,16 @@ def by_fidelity(rows: list[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
     return [dict(r, policy=f"{r['policy']} ({r.get('fidelity') or 'fidelity unknown'})") for r in rows]
 
 
+def _episodes_per_bar(episodes: list[int]) -> str:
+    """'1 episode per bar', 'N episodes per bar' or 'N-M episodes per bar' for the sorted episode
+    counts of a chart's rows; '' for none."""
+    if not episodes:
+        return ""
+    if len(episodes) > 1:
+        return f"{episodes[0]}-{episodes[-1]} episodes per bar"
+    return "1 episode per bar" if episodes[0] == 1 else f"{episodes[0]} episodes per bar"
+
+
 def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str = "eval_") -> list[Path]:
     """Bar charts, one PNG (<prefix><metric>.png) per metric the rows hold: layouts on x, a bar per
     policy with its 95 % CI whiskers ("none" where its value is null), each layout's bars centred
@@ -370,8 +380,8 @@ def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str
     slots = max(sum((pol, lay) in table for pol in policies) for lay in layouts)
     width = 0.8 / slots
     episodes = sorted({int(r["episodes"]) for r in rows if r.get("episodes") is not None})
-    about = [] if not episodes else [f"{episodes[0]} episodes per bar" if len(episodes) == 1
-                                     else f"{episodes[0]}-{episodes[-1]} episodes per bar"]
+    per_bar = _episodes_per_bar(episodes)
+    about = [per_bar] if per_bar else []
     fidelities = sorted({str(r["fidelity"]) for r in rows if r.get("fidelity")})
     if fidelities:
         about.append(f"{', '.join(fidelities)} fidelity")
@@ -415,8 +425,8 @@ def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str
         ax.set_xticks(np.arange(len(layouts)), _layout_names(layouts))
         ax.set_ylabel(label)
         about_bars = n_text
-        if key == "mean_steps_success" and n_text:
-            about_bars = n_text.replace("episodes per bar", "episodes per bar, the successes among them")
+        if key == "mean_steps_success" and per_bar:
+            about_bars = n_text.replace(per_bar, f"{per_bar}, the successes among them")
         ax.set_title(f"{label.split(' (')[0]} by layout{about_bars}", fontsize="medium")
         if key.endswith("_pct"):
             ax.set_ylim(0, 112)  # room above 100 for the whisker caps and values

@@ -445,3 +445,18 @@ def test_a_plot_stopped_before_its_first_chart_leaves_no_out_folder_it_made(tmp_
     monkeypatch.setattr(pursuit_mj.plots, "plot_eval", stop)
     assert main(["plot", "--eval", str(ev), "-o", str(tmp_path / "new" / "plots")]) == 130
     assert not (tmp_path / "new").exists()
+
+
+def test_a_chart_of_one_episode_per_bar_says_episode(tmp_path, monkeypatch):
+    """`eval --episodes 1 --plots` titled every chart '1 episodes per bar'."""
+    import pursuit_mj.plots as plots
+
+    rows = read_eval_rows(_eval_json(tmp_path / "t.json", layouts=("0",)))
+    titles = []
+    real_save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: titles.append(fig.axes[0].get_title()) or real_save(fig, path))
+    plot_eval([dict(r, episodes=1) for r in rows], tmp_path / "one")
+    assert titles and all("\n1 episode per bar" in t for t in titles), titles
+    titles.clear()
+    plot_eval([dict(r, episodes=n) for r, n in zip(rows, (1, 3))], tmp_path / "mixed")
+    assert titles and all("\n1-3 episodes per bar" in t for t in titles), titles
