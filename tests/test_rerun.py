@@ -534,3 +534,19 @@ def test_eval_prints_and_writes_its_table_when_its_recording_cannot_replace_its_
     assert table.read_text().count("\n") == 2  # the header and the one row
     assert f"error: --rerun {path}: cannot replace it (Operation not permitted)" in err and "Traceback" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.csv", "x.new.rrd"]
+
+
+def test_docs_name_every_key_of_an_episode_s_recording_property(recorded):
+    """docs/rendering.md listed 'outcome, steps, seed, layout, policy, returns': the property also
+    carries world, episode (the world's own episode count, so episode_2 could read episode 1),
+    fidelity, captured and time_to_capture_s, which a reader of the file met unexplained."""
+    from pathlib import Path
+
+    _, _, _, ent, _ = recorded
+    text = (Path(__file__).resolve().parents[1] / "docs" / "rendering.md").read_text()
+    start = text.index("described by the recording property `episode_k`")
+    paragraph = text[start:text.index("\n\n", start)]
+    named = set(re.findall(r"`([a-z_<>]+)`", paragraph))
+    keys = {re.sub(r"^return_.*", "return_<term>", k) for k in ent["/__properties/episode_0"].static}
+    keys |= {"started", "time_to_capture_s"}  # eval's recordings; successes only
+    assert keys - named == set(), f"docs/rendering.md does not name {sorted(keys - named)}"
