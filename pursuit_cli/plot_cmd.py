@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from pursuit_mj.io_utils import check_writable_folder, no_new_empty_folders
@@ -68,7 +69,8 @@ def run(args) -> int:
     _check_one_task(args.eval)
     if runs:  # refused before any chart is written
         x_key(runs, args.x)
-        curve_keys(runs, args.metric or None)
+        _refuse_a_metric_null_everywhere(runs, args.metric or [], args.log)
+        _note_runs_without_a_metric(runs, curve_keys(runs, args.metric or None) if args.metric else [], x_key(runs, args.x))
     paths = []
     with no_new_empty_folders():  # stopped or failed before its first chart: no empty --out folder left
         check_writable_folder(out, f"--out {out}")
@@ -79,6 +81,31 @@ def run(args) -> int:
     for p in paths:
         print(f"wrote {p}")
     return 0
+
+
+def _refuse_a_metric_null_everywhere(runs, metrics: list[str], logs: list[str]) -> None:
+    """ValueError for a --metric that the logs hold only as null (no success yet: train.success_steps),
+    which would otherwise be refused as a key the logs do not have."""
+    from pursuit_mj.plots import null_keys
+
+    numeric = set().union(*(r.keys() for rows in runs.values() for r in rows))
+    nulls = set().union(*(null_keys(_label_and_path(text)[1]) for text in logs)) - numeric
+    for w in metrics:
+        if any(k == w or k.rsplit(".", 1)[-1] == w for k in numeric):
+            continue
+        match = sorted(k for k in nulls if k == w or k.rsplit(".", 1)[-1] == w)
+        if match:
+            raise ValueError(f"--metric {w!r}: null in every row of the logs (nothing to draw): {', '.join(match)}")
+
+
+def _note_runs_without_a_metric(runs, keys: list[str], x: str) -> None:
+    """A note on stderr for each asked-for metric and run that has no numbers of it (no line on its chart)."""
+    from pursuit_mj.plots import curve_file_name, runs_without
+
+    for key in keys:
+        for label in runs_without(runs, key, x):
+            print(f"note: --metric {key}: no numbers under it in run {label}, so {curve_file_name(key)} has no line "
+                  f"for it", file=sys.stderr)
 
 
 def _check_one_task(paths: list[str]) -> None:

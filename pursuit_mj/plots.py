@@ -158,6 +158,37 @@ def x_key(runs: Mapping[str, Sequence[Mapping[str, float]]], requested: str | No
     raise ValueError(f"training logs: none of {', '.join(X_KEYS)} found in every log for the x axis")
 
 
+def null_keys(path: str | Path) -> set[str]:
+    """Flattened keys of a training log (or run folder) that hold null in every row where they
+    appear (e.g. train.success_steps before a first success): `read_training_log` drops them."""
+    path = Path(path)
+    path = path / "metrics.jsonl" if path.is_dir() else path
+    seen: set[str] = set()
+    numbers: set[str] = set()
+    for line in _text(path, "training log").splitlines():
+        try:
+            obj = json.loads(line)
+        except json.JSONDecodeError:
+            continue  # read_training_log has judged the lines already
+        if isinstance(obj, Mapping):
+            seen |= _leaf_keys(obj)
+            numbers |= set(flatten(obj))
+    return seen - numbers
+
+
+def _leaf_keys(row: Mapping[str, Any], prefix: str = "") -> set[str]:
+    """Every leaf key of a nested mapping, flattened as `flatten` does, whatever its value."""
+    out: set[str] = set()
+    for k, v in row.items():
+        out |= _leaf_keys(v, f"{prefix}{k}.") if isinstance(v, Mapping) else {f"{prefix}{k}"}
+    return out
+
+
+def runs_without(runs: Mapping[str, Sequence[Mapping[str, float]]], key: str, x: str) -> list[str]:
+    """Labels of the runs with no row holding both `x` and `key`: they get no line on key's chart."""
+    return [label for label, rows in runs.items() if not any(x in r and key in r for r in rows)]
+
+
 def curve_keys(runs: Mapping[str, Sequence[Mapping[str, float]]], wanted: Sequence[str] | None = None) -> list[str]:
     """Which flattened keys to plot: `wanted` (a key or its last component), else success,
     collision, mean steps and every reward term found."""
@@ -201,6 +232,11 @@ def _curve_label(key: str) -> str:
     return key if label is None else (f"{group}: {label}" if group else label)
 
 
+def curve_file_name(key: str) -> str:
+    """The chart file of a flattened log key: 'train.success' -> 'curve_train_success.png'."""
+    return f"curve_{key.replace('.', '_').replace('/', '_')}.png"
+
+
 def plot_training(runs: Mapping[str, Sequence[Mapping[str, float]]], folder: str | Path,
                   metrics: Sequence[str] | None = None, x: str | None = None) -> list[Path]:
     """One PNG per metric with a line per run (label -> flattened rows) against the x key."""
@@ -222,7 +258,7 @@ def plot_training(runs: Mapping[str, Sequence[Mapping[str, float]]], folder: str
         ax.grid(alpha=0.3)
         ax.legend(fontsize="small")
         fig.tight_layout()
-        paths.append(_save(fig, folder / f"curve_{key.replace('.', '_').replace('/', '_')}.png"))
+        paths.append(_save(fig, folder / curve_file_name(key)))
     return paths
 
 

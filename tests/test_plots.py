@@ -460,3 +460,21 @@ def test_a_chart_of_one_episode_per_bar_says_episode(tmp_path, monkeypatch):
     titles.clear()
     plot_eval([dict(r, episodes=n) for r, n in zip(rows, (1, 3))], tmp_path / "mixed")
     assert titles and all("\n1-3 episodes per bar" in t for t in titles), titles
+
+
+def test_a_metric_that_a_run_has_no_numbers_of_is_named(tmp_path, capsys):
+    """`plot --log a --log b --metric validation.success`, b without validations, drew a's line
+    alone and said nothing of b; and `--metric train.success_steps`, a key of every row but null
+    in each (no success yet), was refused as 'no such key in the logs'."""
+    a = _log(tmp_path / "a.jsonl")
+    rows = [json.loads(line) for line in a.read_text().splitlines()]
+    b = tmp_path / "b.jsonl"
+    b.write_text("".join(json.dumps({**r, "validation": {}, "train": {**r["train"], "success_steps": None}}) + "\n" for r in rows))
+    out = tmp_path / "out"
+    assert main(["plot", "--log", str(a), "--log", str(b), "--metric", "validation.success", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "note: --metric validation.success: no numbers under it in run b, so curve_validation_success.png has no line for it" in err
+    assert "in run a" not in err
+    assert main(["plot", "--log", str(b), "--metric", "train.success_steps", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--metric 'train.success_steps': null in every row of the logs (nothing to draw)" in err
