@@ -65,7 +65,9 @@ def run(args) -> int:
         if label in runs:
             label = f"{label} ({path})"
         runs[label] = read_training_log(path)
-    rows = _combined_rows([(f, read_eval_rows(f)) for f in args.eval])
+    tables = [(f, read_eval_rows(f)) for f in args.eval]
+    _refuse_one_table_as_json_and_csv(tables)
+    rows = _combined_rows(tables)
     _check_one_task(args.eval)
     if runs:  # refused before any chart is written
         x_key(runs, args.x)
@@ -132,6 +134,25 @@ def _check_one_task(paths: list[str]) -> None:
             key, a, b = diff
             raise ValueError(f"--eval {path}: its task differs from {first[0]}'s at {key} ({b!r} there, {a!r} in "
                              f"{first[0]}); one chart compares policies on one task: plot them apart")
+
+
+def _refuse_one_table_as_json_and_csv(tables: list[tuple[str, list[dict]]]) -> None:
+    """ValueError naming a --eval file that is the CSV (or JSON) of a table another --eval gives:
+    the same path but for .csv/.json, with the same rows (the JSON's per-episode lists aside).
+    Both are what one `eval --out PREFIX` writes; drawn together every bar came twice."""
+    def plain(rows: list[dict]) -> list[dict]:
+        return [{k: v for k, v in r.items() if k != "per_episode"} for r in rows]
+
+    seen: dict[Path, tuple[str, list[dict]]] = {}
+    for f, rows in tables:
+        path = Path(f).resolve()
+        if path.suffix.lower() not in (".json", ".csv"):
+            continue
+        prefix = path.with_suffix("")
+        if prefix in seen and plain(seen[prefix][1]) == plain(rows):
+            raise ValueError(f"--eval {f}: the same table as --eval {seen[prefix][0]} (the CSV and JSON of one eval), "
+                             f"given twice")
+        seen.setdefault(prefix, (f, rows))
 
 
 def _combined_rows(files: list[tuple[str, list[dict]]]) -> list[dict]:

@@ -478,3 +478,22 @@ def test_a_metric_that_a_run_has_no_numbers_of_is_named(tmp_path, capsys):
     assert main(["plot", "--log", str(b), "--metric", "train.success_steps", "-o", str(out)]) == 2
     err = capsys.readouterr().err
     assert "--metric 'train.success_steps': null in every row of the logs (nothing to draw)" in err
+
+
+def test_the_json_and_csv_of_one_eval_are_one_table_given_twice(tmp_path, capsys):
+    """`plot --eval results/t.json --eval results/t.csv` (or `--eval results/t.*`, the pair `eval --out
+    results/t` writes) drew every policy twice, bars 'heuristic (t.json)' and 'heuristic (t.csv)'."""
+    from pursuit_mj.env import EpisodeRecord
+    from pursuit_mj.evaluation import summarise, write_csv, write_json
+
+    rows = [summarise("heuristic", "0", "point", 0, [EpisodeRecord(0, 0, 0, "success", 12, None, {}, 0, "0")], 40)]
+    write_csv(rows, tmp_path / "t.csv")
+    write_json(rows, tmp_path / "t.json")
+    out = tmp_path / "out"
+    assert main(["plot", "--eval", str(tmp_path / "t.json"), "--eval", str(tmp_path / "t.csv"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"--eval {tmp_path / 't.csv'}: the same table as --eval {tmp_path / 't.json'} (the CSV and JSON of one eval), given twice" in err
+    assert not out.exists()
+    other = [summarise("heuristic", "0", "point", 0, [EpisodeRecord(0, 0, 0, "timeout", 40, None, {}, 0, "0")], 40)]
+    write_csv(other, tmp_path / "t.csv")  # another eval written to the same prefix since: two tables
+    assert main(["plot", "--eval", str(tmp_path / "t.json"), "--eval", str(tmp_path / "t.csv"), "-o", str(out)]) == 0
