@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import warnings
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -360,6 +361,25 @@ def layout_key(layout: Any) -> str:
     return str(path)
 
 
+def _fit_legend(fig, ax, tries: int = 4) -> None:
+    """Lay `fig` out (tight_layout), first widening it until the legend to the right of `ax` fits
+    inside it beside the axes: labels that are file paths ('heuristic (results/a/eval.json)') ran
+    off the right edge, and tight_layout gave up with a warning."""
+    renderer = fig.canvas.get_renderer()
+    legend = ax.get_legend()
+    for _ in range(tries):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            fig.tight_layout()
+        gave_up = any("Tight layout not applied" in str(w.message) for w in caught)
+        box = legend.get_window_extent(renderer)
+        over = max(0.0, box.x1 - fig.bbox.width) / fig.dpi  # inches past the right edge
+        if not gave_up and over <= 0:
+            return
+        w, h = fig.get_size_inches()
+        fig.set_size_inches(w + max(over, box.width / fig.dpi) + 0.1, h)
+
+
 def _fit_title(fig, ax) -> None:
     """Widen `fig` until the title of `ax` fits in it (a chart of one layout is narrower than its title)."""
     for _ in range(3):
@@ -471,7 +491,7 @@ def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str
             ax.set_ylim(0, max(top, 1.0) * 1.12)
         ax.grid(axis="y", alpha=0.3)
         ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
-        fig.tight_layout()
+        _fit_legend(fig, ax)
         _fit_title(fig, ax)
         paths.append(_save(fig, folder / f"{prefix}{stem}.png"))
     return paths

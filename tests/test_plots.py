@@ -497,3 +497,32 @@ def test_the_json_and_csv_of_one_eval_are_one_table_given_twice(tmp_path, capsys
     other = [summarise("heuristic", "0", "point", 0, [EpisodeRecord(0, 0, 0, "timeout", 40, None, {}, 0, "0")], 40)]
     write_csv(other, tmp_path / "t.csv")  # another eval written to the same prefix since: two tables
     assert main(["plot", "--eval", str(tmp_path / "t.json"), "--eval", str(tmp_path / "t.csv"), "-o", str(out)]) == 0
+
+
+def test_a_legend_of_long_labels_fits_in_the_chart_with_its_axes(tmp_path, monkeypatch, recwarn):
+    """Two tables of one stem are labelled by their paths: with long ones (absolute paths), the
+    legend ran off the right edge (no label readable), the y label off the left, and matplotlib
+    warned 'Tight layout not applied' on stderr."""
+    import pursuit_mj.plots as plots
+
+    long = "some/very/long/folder/name/for/the/results/of/the/first/experiment/eval.json"
+    rows = [dict(r, policy=f"heuristic ({name})") for r, name in
+            zip(read_eval_rows(_eval_json(tmp_path / "t.json", policies=("a", "b"), layouts=("0",))), (long, "b/eval.json"))]
+    boxes = []
+    real_save = plots._save
+
+    def save(fig, path):
+        renderer = fig.canvas.get_renderer()
+        ax = fig.axes[0]
+        boxes.append((path.name, fig.bbox.width, ax.get_legend().get_window_extent(renderer),
+                      ax.yaxis.label.get_window_extent(renderer), ax.get_window_extent(renderer)))
+        return real_save(fig, path)
+
+    monkeypatch.setattr(plots, "_save", save)
+    plot_eval(rows, tmp_path / "plots")
+    assert boxes
+    for name, width, legend, ylabel, axes in boxes:
+        assert 0 <= legend.x0 and legend.x1 <= width, (name, legend, width)
+        assert ylabel.x0 >= 0, (name, ylabel)
+        assert axes.width > 100, (name, axes)  # the bars keep room
+    assert not [w for w in recwarn if "Tight layout not applied" in str(w.message)]
