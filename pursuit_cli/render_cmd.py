@@ -70,7 +70,7 @@ def register(sub) -> None:
                             "here with the same task flags; files are named ..._episode<N>")
     run_g.add_argument("--width", type=int, default=640, help="frame width in pixels (default 640)")
     run_g.add_argument("--height", type=int, default=480, help="frame height in pixels (default 480)")
-    run_g.add_argument("--fps", type=finite_float, help="video frames per second, 0.01 to 1e6 (default: real time, 1/control_dt; a GIF at most 50)")
+    run_g.add_argument("--fps", type=finite_float, help="video frames per second, 0.01 to 1e6 (default: real time, 1/control_dt; a GIF plays at most 50, so with gif a control_dt below 0.02 s needs --fps)")
     run_g.add_argument("--camera", default="top", help="top, angled, or follow:<drone> e.g. follow:pursuer_0 (default top)")
     run_g.add_argument("--quality", choices=("fast", "high"), default="fast",
                        help="fast: no antialiasing or shadows; high: 4x antialiasing, shadows (slower)")

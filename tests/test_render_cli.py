@@ -477,3 +477,12 @@ def test_an_episode_seed_given_twice_is_refused_before_anything_is_played(tmp_pa
     assert _cli(tmp_path, "-s", str(out), "--episode-seed", "7", "--episode-seed", "9", "--episode-seed", "7") == 2
     assert "--episode-seed 7: given twice (each seed plays one episode, named _episode7)" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_the_help_of_fps_says_a_gif_of_a_fine_control_dt_needs_fps(capsys):
+    """'(default: real time, 1/control_dt; a GIF at most 50)' read as a default capped at 50 for a
+    GIF; with --delta-t 0.01 the default 100 is refused (test above), so the help says so."""
+    with pytest.raises(SystemExit):
+        main(["render", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "a GIF plays at most 50, so with gif a control_dt below 0.02 s needs --fps" in text
