@@ -90,6 +90,8 @@ def _refuse_a_metric_null_everywhere(runs, metrics: list[str], logs: list[str]) 
     which would otherwise be refused as a key the logs do not have."""
     from pursuit_mj.plots import null_keys
 
+    if not metrics:  # the default charts: nothing asked for by name
+        return
     numeric = set().union(*(r.keys() for rows in runs.values() for r in rows))
     nulls = set().union(*(null_keys(_label_and_path(text)[1]) for text in logs)) - numeric
     for w in metrics:
