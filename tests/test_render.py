@@ -635,3 +635,26 @@ def test_an_ffmpeg_named_by_IMAGEIO_FFMPEG_EXE_that_is_not_there_is_one_clear_er
     finally:
         monkeypatch.undo()
         ensure_ffmpeg()  # the module's other tests go on with the real one
+
+
+def test_a_replay_by_episode_seed_names_the_seed_in_its_caption(tmp_path, monkeypatch):
+    """A render of `--episode-seed S` is the episode of a table that seed names, but its frames said
+    'episode 0' (its place in this render), which matches nothing in the table; they now say 'seed S'.
+    Episodes the render draws itself keep their number."""
+    import pursuit_mj.render.episodes as episodes
+
+    texts = []
+
+    class Recorded(Caption):
+        def __init__(self, text, *rest):
+            texts.append(text)
+            super().__init__(text, *rest)
+
+    monkeypatch.setattr(episodes, "Caption", Recorded)
+    config = default_config(**CFG)
+    run_episodes(config, RandomPolicy(3), 2, settings=small(), outputs=EpisodeOutputs(None, [tmp_path / "a.png", tmp_path / "b.png"]),
+                 episode_seeds=[1234, 987654321])
+    assert [t.rsplit(" | ", 1)[1] for t in texts] == ["seed 1234", "seed 987654321"], texts
+    texts.clear()
+    run_episodes(config, RandomPolicy(3), 2, seed=5, settings=small(), outputs=EpisodeOutputs(None, [tmp_path / "c.png", tmp_path / "d.png"]))
+    assert [t.rsplit(" | ", 1)[1] for t in texts] == ["episode 0", "episode 1"], texts

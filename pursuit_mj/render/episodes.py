@@ -73,14 +73,16 @@ class FrameMaker:
         of the maker's own (one maker drawing several worlds, each with its trails)."""
         (self.trail if trail is None else trail).push(drone_pose(snap)[0])
 
-    def draw(self, snap: Snapshot, episode: int, trail: TrailBuffer | None = None) -> np.ndarray:
+    def draw(self, snap: Snapshot, episode: int | str, trail: TrailBuffer | None = None) -> np.ndarray:
         """The captioned frame of `snap` with the trails pushed so far (to `trail` when given; the
-        returned array is new)."""
+        returned array is new). `episode`: its number, or a text that names it ('seed 1234'),
+        which the caption shows after 'episode ' or as it is."""
         self.renderer.bind(snap.layout)
         pos, quat = drone_pose(snap)
         trails = (self.trail if trail is None else trail).array()
         img = self.renderer.render(pos, quat, lambda scene: draw_all(scene, snap, trails, self.style))
-        cap = Caption(f"{self.title} | layout {snap.layout.name} | {snap.config.fidelity} | episode {episode}",
+        which = episode if isinstance(episode, str) else f"episode {episode}"
+        cap = Caption(f"{self.title} | layout {snap.layout.name} | {snap.config.fidelity} | {which}",
                       snap.step, snap.config.max_steps, snap.time, snap.outcome)
         img = draw_caption(img, cap)
         return draw_key(img, key_entries(snap, self.style)) if self.renderer.settings.key else img
@@ -147,7 +149,8 @@ def run_episodes(
                 policy.reset(1, np.array([0]))
             if maker is not None:
                 maker.start_episode()
-            record, written = _one_episode(env, policy, obs, k, maker, outputs, recording, label)
+            shown = f"seed {episode_seeds[k]}" if episode_seeds is not None else k  # a replay: what names it in a table
+            record, written = _one_episode(env, policy, obs, k, shown, maker, outputs, recording, label)
             records.append(record)
             if on_episode is not None:
                 on_episode(k, record, written)
@@ -157,7 +160,7 @@ def run_episodes(
     return records
 
 
-def _one_episode(env: PursuitEnv, policy: Policy, obs: np.ndarray, k: int, maker: FrameMaker | None,
+def _one_episode(env: PursuitEnv, policy: Policy, obs: np.ndarray, k: int, shown: int | str, maker: FrameMaker | None,
                  outputs: EpisodeOutputs, recording: RerunEpisodeRecording | None, label: str) -> tuple[EpisodeRecord, list[Path]]:
     video_path = outputs.video_paths[k] if outputs.video_paths is not None else None
     final_path = outputs.final_paths[k] if outputs.final_paths is not None else None
@@ -175,7 +178,7 @@ def _one_episode(env: PursuitEnv, policy: Policy, obs: np.ndarray, k: int, maker
         if maker is not None:
             maker.push(snap)
             if video is not None:
-                video.add(maker.draw(snap, k))
+                video.add(maker.draw(snap, shown))
         return snap
 
     def play(video) -> tuple[EpisodeRecord, Snapshot]:
@@ -196,7 +199,7 @@ def _one_episode(env: PursuitEnv, policy: Policy, obs: np.ndarray, k: int, maker
     else:
         record, last = play(None)
     if final_path is not None:
-        written.append(save_png(final_path, maker.draw(last, k)))
+        written.append(save_png(final_path, maker.draw(last, shown)))
     if recording is not None:
         recording.add_episode(buffer, record)
     return record, written
