@@ -116,6 +116,7 @@ class FileTerm:
     source: str
 
     def __call__(self, step: StepView) -> np.ndarray:
+        """The term's payment (W, N) (unitless reward, unchecked: see `term_values`)."""
         return self.function(step)
 
 

@@ -53,7 +53,15 @@ class EpisodeRecord:
 
 @dataclasses.dataclass
 class Snapshot:
-    """One world now, for recorders (copies). Shapes as in docs/env_api.md."""
+    """One world now, for recorders (copies); N pursuers, M evaders, K rays; world (layout) frame.
+
+    step (decision steps), time (s); pursuer_pos (N, 3) m, pursuer_vel (N, 3) m/s,
+    pursuer_quat (N, 4) w, x, y, z body->world; evader_pos (M, 3) m, evader_vel (M, 3) m/s,
+    evader_quat (M, 4); captured (M,) bool; seen (N, M) bool (direct sighting); known (N, M)
+    bool (direct, relayed or caught); heading (N,) rad from world +x; commands (N + M, 2) m/s
+    (last given, clipped to max speed); thrust (N + M, 4) N per rotor (zeros in point
+    fidelity); rays (N, K) m; reward_terms {term: (N,) float32} of the last step.
+    """
 
     step: int
     time: float
@@ -464,7 +472,8 @@ class PursuitEnv:
         return build_observations(view, perception, self.obs_spec)
 
     def global_state(self) -> np.ndarray:
-        """(W, state_dim) float32: the true state for centralised critics."""
+        """(W, state_dim) float32: the true state for centralised critics (layout of
+        `observations.build_global_state`: positions m, velocities m/s, world frame)."""
         self._check_open("global_state()")
         if self._obs is None:
             raise RuntimeError("call reset() before global_state(): no episode has started")

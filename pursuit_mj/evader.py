@@ -127,7 +127,8 @@ def surrounded(toward: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Whether the evader lies inside the chasers' angular cover: every open half-plane around
     it holds a chaser (the largest gap between chaser bearings is below pi).
 
-    toward (W, M, N, 2) chaser minus evader position; mask (W, M, N) chasers that count.
+    toward (W, M, N, 2) m, chaser minus evader position; mask (W, M, N) bool, chasers that count.
+    Returns (W, M) bool.
     Fewer than 3 chasers never surround: the bearings are sorted only where 3 or more count
     (most steps none; each evader's answer is its own, so the others need not be looked at).
     """

@@ -103,6 +103,8 @@ class FileEvaderModel:
 
     def compute(self, evader_pos: np.ndarray, evader_vel: np.ndarray, pursuer_pos: np.ndarray, pursuer_vel: np.ndarray,
                 active: np.ndarray, obstacles: ObstacleSet, dt: float) -> np.ndarray:
+        """The model's desired velocities (W, M, 2) m/s world, checked, from the arguments of
+        `EscapeModel.compute` (positions m, velocities m/s, world frame; active (W, M) bool; dt s)."""
         arrays = [_read_only(a) for a in (evader_pos, evader_vel, pursuer_pos, pursuer_vel, active)]
         active = arrays[-1]
         try:

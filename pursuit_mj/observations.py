@@ -61,7 +61,8 @@ def global_state_dim(n_pursuers: int, n_evaders: int) -> int:
 def build_global_state(view: WorldView, time_fraction: np.ndarray) -> np.ndarray:
     """The centralised critic's input (W, 4N + 5M + 1) float32.
 
-    Per pursuer x, y, vx, vy; per evader x, y, vx, vy, captured; then steps / max_steps.
+    Per pursuer x, y (m), vx, vy (m/s); per evader x, y, vx, vy, captured (0/1); then steps /
+    max_steps (unitless). World (layout) frame; time_fraction (W,) is steps / max_steps.
     """
     W = view.pursuer_pos.shape[0]
     parts = [

@@ -91,9 +91,10 @@ class DroneState:
 
 
 def check_commands(commands: np.ndarray, shape: tuple[int, ...], source: str = "commands") -> np.ndarray:
-    """Validate a command array: real numbers (ints or floats; not bools, text or complex
-    numbers, which numpy would turn into velocities), exact shape, finite values. Returns it
-    as float64; raises ValueError naming the problem."""
+    """Validate a command array of `shape` (W, D, 2), velocities m/s world frame: real numbers
+    (ints or floats; not bools, text or complex numbers, which numpy would turn into
+    velocities), exact shape, finite values. Returns it as float64; raises ValueError naming
+    the problem."""
     try:
         raw = np.asarray(commands)
     except (TypeError, ValueError):  # ragged nesting

@@ -122,6 +122,7 @@ class RandomPolicy:
             self._steps[np.asarray(world_ids, dtype=np.int64)] = 0
 
     def act(self, obs: np.ndarray, spec: ObsSpec) -> np.ndarray:
+        """Actions (W, N, 2) uniform in [-1, 1] (fraction of max speed, world x/y) for obs (W, N, spec.dim)."""
         a = np.ascontiguousarray(check_observations(obs, spec, f"policy {self.name}"), dtype=np.float32)
         W = a.shape[0]
         if len(self._steps) != W:
