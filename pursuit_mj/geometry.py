@@ -27,7 +27,12 @@ U_SLACK = 1e-9
 
 @dataclasses.dataclass(frozen=True)
 class ObstacleSet:
-    """Obstacles as arrays. boxes (..., NB, 5) [cx, cy, hx, hy, yaw]; cylinders (..., NC, 3) [cx, cy, r]."""
+    """Obstacles as arrays, layout frame (leading dims ... = worlds, or none for one layout).
+
+    boxes (..., NB, 5) [cx, cy, hx, hy, yaw] m, rad (hx, hy half extents); box_valid (..., NB) bool;
+    cylinders (..., NC, 3) [cx, cy, r] m; cylinder_valid (..., NC) bool;
+    border (..., NS, 4) [x0, y0, x1, y1] m (inside on the left); border_valid (..., NS) bool.
+    """
 
     boxes: np.ndarray
     box_valid: np.ndarray

@@ -43,7 +43,8 @@ def _outline(o) -> np.ndarray:
 
 
 def free_spawn_points(layout, region, clearance: float = SPAWN_CLEARANCE, step: float = 0.05) -> np.ndarray:
-    """Grid points (K, 2) of `region` inside the border and `clearance` away from obstacles and border."""
+    """Grid points (K, 2) m, layout frame, of `region` inside the border and `clearance` (m) away
+    from obstacles and border."""
     xs = np.arange(region.x[0], region.x[1] + 1e-9, step)
     ys = np.arange(region.y[0], region.y[1] + 1e-9, step)
     pts = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1).reshape(-1, 2)
@@ -53,7 +54,7 @@ def free_spawn_points(layout, region, clearance: float = SPAWN_CLEARANCE, step: 
 
 
 def sample_separated(points: np.ndarray, n: int, rng: np.random.Generator, separation: float, tries: int = 200) -> np.ndarray | None:
-    """n of `points` (K, 2) drawn at random, pairwise at least `separation` (m) apart, as (n, 2); None if no draw fits.
+    """n of `points` (K, 2) m drawn at random, pairwise at least `separation` (m) apart, as (n, 2); None if no draw fits.
 
     Each try walks a random permutation of the points and takes every point at least
     `separation` from those taken before, until it has n. A point taken rules out, at once,
@@ -240,8 +241,8 @@ def spawn_components(layout, clearance: float = PASSAGE_CLEARANCE) -> dict[str, 
     """Which connected free space each free spawn point lies in, for a drone centre keeping
     `clearance` (m) from the border and the layout's obstacles (8-connected grid).
 
-    Returns {"pursuers": (points (K, 2), labels (K,)), "evaders": ...}: points with the same
-    label can fly to each other; -1 for a point whose grid cell is not free (coarse grids only).
+    Returns {"pursuers": (points (K, 2) m layout frame, labels (K,) int), "evaders": ...}:
+    points with the same label can fly to each other; -1 for a point whose grid cell is not free (coarse grids only).
     """
     step = grid_step(layout, clearance)
     xs = np.arange(step / 2, layout.width, step)
@@ -303,7 +304,8 @@ def passage_fault(layout, clearance: float = PASSAGE_CLEARANCE, source: str | No
 
 
 def polygon_crossing(points) -> tuple[int, int] | None:
-    """The first pair (i, j) of non-adjacent edges that cross (edge i runs from point i to i+1), or None.
+    """The first pair (i, j) of non-adjacent edges that cross (edge i runs from point i to i+1), or None;
+    points (n, 2) m, the polygon's corners in order.
 
     One numpy pass per edge i over all later edges j, so a border of thousands of points is
     checked in well under a second (a pair at a time took 25 s for 2000 points)."""
@@ -325,8 +327,8 @@ def polygon_crossing(points) -> tuple[int, int] | None:
 
 
 def polygon_touch(points, tol: float = 1e-9) -> tuple[int, int] | None:
-    """The first (i, k) where corner k lies on edge i (from point i to i+1) without being one of its
-    ends, within `tol` m: a border that touches or runs along itself without crossing; or None."""
+    """The first (i, k) where corner k of points (n, 2) m lies on edge i (from point i to i+1) without
+    being one of its ends, within `tol` m: a border that touches or runs along itself without crossing; or None."""
     p = np.asarray(points, dtype=float)
     n = len(p)
     a, ab = p[:, None], (np.roll(p, -1, axis=0) - p)[:, None]  # edges (n, 1, 2)
