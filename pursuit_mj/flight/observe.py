@@ -51,7 +51,8 @@ class FlightObserver:
         return new
 
     def observe(self, pursuer_pos: np.ndarray, pursuer_vel: np.ndarray, evader_pos: np.ndarray, evader_vel: np.ndarray) -> np.ndarray:
-        """Observations (1, N, spec.dim) float32 from pursuer_pos/vel (N, 2) and evader_pos/vel (M, 2)."""
+        """Observations (1, N, spec.dim) float32 from pursuer_pos/vel (N, 2) and evader_pos/vel (M, 2),
+        m and m/s in the layout frame."""
         self.heading = update_heading(self.heading, pursuer_vel[None], heading_min_speed(self.config.pursuer_speed))
         self.view = WorldView(pursuer_pos[None], pursuer_vel[None], self.heading, evader_pos[None], evader_vel[None], self.captured.copy(), self.obstacles_now(evader_pos))
         self.perception = perceive(self.view, self.config, self.rng)

@@ -96,7 +96,8 @@ class GeomWriter:
 
 
 def arc_points(center: np.ndarray, radius: float, start: float, stop: float, segments: int) -> np.ndarray:
-    """(segments + 1, 3) points on a horizontal arc from angle start to stop (rad) at center's height."""
+    """(segments + 1, 3) points, m world, on a horizontal arc of `radius` m about center (3,) m
+    from angle start to stop (rad, from world +x) at center's height."""
     a = np.linspace(start, stop, segments + 1)
     pts = np.empty((segments + 1, 3))
     pts[:, 0] = center[0] + radius * np.cos(a)
@@ -173,7 +174,7 @@ def draw_markers(w: GeomWriter, snap, style: OverlayStyle) -> None:
 
 
 def trail_points(trails: np.ndarray, style: OverlayStyle) -> np.ndarray:
-    """The points (P, D, 3) a trail is drawn through: all of trails (T, D, 3) up to
+    """The points (P, D, 3) m world a trail is drawn through: all of trails (T, D, 3) up to
     style.trail_segments segments, evenly thinned beyond (each geom is a draw call), the
     oldest and the newest point always among them."""
     segments = len(trails) - 1
@@ -264,6 +265,7 @@ class TrailBuffer:
             self._pts.pop(0)
 
     def array(self) -> np.ndarray:
+        """The samples (T, D, 3) m world, oldest first ((0, 0, 3) before the first push)."""
         if not self._pts:
             return np.zeros((0, 0, 3))
         return np.stack(self._pts)

@@ -237,7 +237,8 @@ class SceneRenderer:
         mujoco.mj_camlight(m, d)
 
     def render(self, pos: np.ndarray, quat: np.ndarray, draw: DrawFn | None = None) -> np.ndarray:
-        """The frame (H, W, 3) uint8 for drones at pos (D, 3) / quat (D, 4); `draw` adds decorations.
+        """The frame (H, W, 3) uint8 for drones at pos (D, 3) m world / quat (D, 4) w,x,y,z body->world
+        (as `pose`); `draw` adds decorations.
 
         The returned array is reused by the next call: copy it to keep it.
         """
