@@ -42,7 +42,8 @@ from .storage import Rollout
 
 
 class Demonstrations:
-    """A ring buffer of (observation (D,) float32, teacher action (2,) in [-1, 1]) pairs.
+    """A ring buffer of (observation (D,) float32, teacher action (2,) in [-1, 1]: fraction of
+    pursuer_speed, world x/y) pairs.
 
     total counts the pairs ever added (also those dropped since); the pairs added since
     `mark_saved` are what `unsaved` gives to be kept on disk (demonstration_files.py)."""

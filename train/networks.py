@@ -265,7 +265,8 @@ class Actor(nn.Module):
         self.log_std = nn.Parameter(torch.full((self.ACTION_DIM,), float(cfg.init_log_std)))
 
     def forward(self, obs: torch.Tensor, spec: ObsSpec) -> tuple[torch.Tensor, torch.Tensor]:
-        """(mean (..., 2), log_std (..., 2))."""
+        """(mean (..., 2), log_std (..., 2)) for obs (..., spec.dim): the mean action in [-1, 1]
+        (fraction of pursuer_speed, world x/y) and the log of its std (in the same fractions)."""
         mean = tanh(self.head(self.trunk(obs, spec)))
         return mean, self.log_std.expand_as(mean)
 
@@ -275,7 +276,8 @@ class Actor(nn.Module):
 
 
 class Critic(nn.Module):
-    """Per-agent value V(obs) (..., ) with the same trunk family as the actor, separate weights."""
+    """Per-agent value V(obs) (...,) in reward units for obs (..., spec.dim), with the same trunk
+    family as the actor, separate weights."""
 
     def __init__(self, spec: ObsSpec, cfg: NetConfig):
         super().__init__()

@@ -178,6 +178,8 @@ class ActionPath:
         self.team.reset(n_worlds)
 
     def __call__(self, action: torch.Tensor, obs: torch.Tensor, spec) -> np.ndarray:
+        """The env's actions (W, N, 2) (fraction of pursuer_speed, world x/y) for the actor's
+        samples `action` (W, N, 2) and the observations obs (W, N, D) they answer."""
         self._samples.actions = action.clamp(-1.0, 1.0).numpy()
         if self.team is self._samples:
             return self._samples.actions
@@ -201,6 +203,7 @@ class Samples:
         pass
 
     def act(self, obs: np.ndarray, spec) -> np.ndarray:
+        """The samples (W, N, 2) in `actions`, as ActionPath put them (clipped to [-1, 1]); obs is not read."""
         return self.actions
 
 

@@ -34,9 +34,11 @@ class RunningMeanStd:
         return max(self.var, 1e-8) ** 0.5
 
     def normalise(self, x: torch.Tensor) -> torch.Tensor:
+        """(x - mean) / std, elementwise, any shape (values in reward units -> normalised units)."""
         return (x - self.mean) / self.std
 
     def denormalise(self, x: torch.Tensor) -> torch.Tensor:
+        """x * std + mean, elementwise, any shape (the inverse of `normalise`)."""
         return x * self.std + self.mean
 
     def state_dict(self) -> dict[str, float]:

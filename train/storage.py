@@ -9,7 +9,7 @@ class Rollout:
     """Tensors filled step by step by the collector, read whole by the update.
 
     obs (T, W, N, D) float32 observations; actions (T, W, N, 2) sampled (unclipped) Gaussian
-    actions; logp (T, W, N) their log-probabilities; values (T, W, N) value estimates (reward
+    actions (fractions of pursuer_speed, world x/y); logp (T, W, N) their log-probabilities; values (T, W, N) value estimates (reward
     units); rewards (T, W, N); terminated / truncated (T, W) bool episode ends after the step;
     final_values (T, W, N) values of info["final_obs"] where truncated (else 0);
     states (T, W, S) global states (MAPPO only, S = 0 otherwise); last_value (W, N) value of
