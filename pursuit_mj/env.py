@@ -192,7 +192,14 @@ def _checked_layout(layout: Layout) -> Layout:
 
 
 class PursuitEnv:
-    """N pursuers chase M evaders in W independent worlds (see module docstring)."""
+    """N pursuers chase M evaders in W independent worlds (see module docstring).
+
+    Per-world state (read only): episode (W,) int64, each world's episode index in its seed
+    sequence; steps (W,) int64, decision steps of the current episode; starts (W,) int64,
+    episodes begun; captured (W, M) bool; heading (W, N) rad from world +x; done (W,) bool;
+    outcome (W,) str ('' while running); capture_time (W,) s (NaN until a success);
+    returns {term: (W,)} summed over steps, mean over pursuers; last_terms {term: (W, N) float32}.
+    """
 
     def __init__(
         self,
