@@ -88,7 +88,8 @@ class FlightRecorder:
         rec.send_property("flight", rr.AnyValues(name=plan.spec.name, source=plan.spec.source, layout=plan.layout.source, positioning=plan.spec.positioning))
 
     def log_step(self, t: float, pos: np.ndarray, vel: np.ndarray, command: np.ndarray, vbat: np.ndarray) -> None:
-        """One decision step: pos (D, 3) m, vel (D, 3) m/s, command (D, 2) m/s (layout frame), vbat (D,) V."""
+        """One decision step: pos (D, 3) m, vel (D, 3) m/s, command (D, 2) m/s, vbat (D,) V; x, y in the
+        layout frame, z the lab height (as the bridge passes them; the same at scale 1)."""
         rec = self.rec
         rec.set_time("flight_time", duration=float(t))
         for i, d in enumerate(self.plan.drones):
