@@ -72,7 +72,8 @@ class Demonstrations:
         self._saved = self.total
 
     def refill(self, obs: torch.Tensor, actions: torch.Tensor, total: int) -> None:
-        """Hold exactly these pairs (oldest first, at most capacity), the newest of `total` ever added."""
+        """Hold exactly these pairs, obs (n, D) and actions (n, 2) (oldest first, at most capacity), the
+        newest of `total` ever added."""
         n = obs.shape[0]
         self.obs[:n], self.actions[:n] = obs, actions
         self.size, self._next, self.total, self._saved = n, n % self.capacity, int(total), int(total)

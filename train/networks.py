@@ -271,6 +271,7 @@ class Actor(nn.Module):
         return mean, self.log_std.expand_as(mean)
 
     def distribution(self, obs: torch.Tensor, spec: ObsSpec) -> torch.distributions.Normal:
+        """The action distribution (batch shape (..., 2), as `forward`) for obs (..., spec.dim)."""
         mean, log_std = self(obs, spec)
         return torch.distributions.Normal(mean, log_std.exp())
 
@@ -285,6 +286,7 @@ class Critic(nn.Module):
         self.head = init_linear(nn.Linear(self.trunk.out_dim, 1), 1.0)
 
     def forward(self, obs: torch.Tensor, spec: ObsSpec) -> torch.Tensor:
+        """Values (...,) in reward units of obs (..., spec.dim)."""
         return self.head(self.trunk(obs, spec)).squeeze(-1)
 
 
@@ -303,6 +305,7 @@ class CentralCritic(nn.Module):
         self.head = init_linear(nn.Linear(cfg.critic_hidden[-1], 1), 1.0)
 
     def forward(self, state: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
+        """Values (...,) in normalised units of state (..., state_dim) and obs (..., obs_dim)."""
         return self.head(self.body(torch.cat([state, obs], dim=-1))).squeeze(-1)
 
 
