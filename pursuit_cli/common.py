@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import sys
@@ -174,6 +175,15 @@ def table_layouts(args: argparse.Namespace, config: TaskConfig, default: list[st
         return checked_layouts(args.layouts)
     return [config.layout] if named or default is None else checked_layouts(default)
 
+class StoreAsTyped(argparse.Action):
+    """Store the value, and remember the flag as typed in `typed_flags` (dest -> option string), so a
+    refusal names the spelling the user wrote (`--r_velocity`, not its synonym `--pursuer-speed`)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, values)
+        namespace.typed_flags = {**(getattr(namespace, "typed_flags", None) or {}), self.dest: option_string}
+
+
 
 def add_task_args(p: argparse.ArgumentParser) -> None:
     """Task config flags. Speeds and radii in m and m/s (the reference study used mm)."""
@@ -182,27 +192,27 @@ def add_task_args(p: argparse.ArgumentParser) -> None:
                    help="task YAML file or preset name (reference, easy, hard); repeatable, later wins")
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override any task key, e.g. --set evader.panic_distance=1.2 (repeatable)")
-    g.add_argument("-i", "--layout", "--env-idx", dest="layout", help="layout index 0-3 or layout file")
-    g.add_argument("--fidelity", choices=("point", "quadrotor"), help="physics fidelity")
-    g.add_argument("--pursuers", type=int, dest="n_pursuers", help="number of pursuers")
-    g.add_argument("--evaders", type=int, dest="n_evaders", help="number of evaders")
-    g.add_argument("-rv", "--pursuer-speed", "--r-velocity", type=finite_float, dest="pursuer_speed", help="pursuer max speed (m/s)")
-    g.add_argument("-ev", "--evader-speed", "--e-velocity", type=finite_float, dest="evader_speed", help="evader speed (m/s; above 0.9 it brakes near walls and obstacles)")
-    g.add_argument("--perception-radius", "--r-perception", type=finite_float, dest="perception_radius", help="perception radius (m)")
-    g.add_argument("--random-obstacles", "--obstacle-num", type=int, dest="random_obstacles", help="random obstacles per episode (default: the layout file's random_obstacles.count)")
-    g.add_argument("--delta-t", "--control-dt", type=finite_float, dest="control_dt", help="decision interval (s)")
-    g.add_argument("--observability", choices=("partial", "full"), help="observability")
+    g.add_argument("-i", "--layout", "--env-idx", dest="layout", help="layout index 0-3 or layout file", action=StoreAsTyped)
+    g.add_argument("--fidelity", choices=("point", "quadrotor"), help="physics fidelity", action=StoreAsTyped)
+    g.add_argument("--pursuers", type=int, dest="n_pursuers", help="number of pursuers", action=StoreAsTyped)
+    g.add_argument("--evaders", type=int, dest="n_evaders", help="number of evaders", action=StoreAsTyped)
+    g.add_argument("-rv", "--pursuer-speed", "--r-velocity", type=finite_float, dest="pursuer_speed", help="pursuer max speed (m/s)", action=StoreAsTyped)
+    g.add_argument("-ev", "--evader-speed", "--e-velocity", type=finite_float, dest="evader_speed", help="evader speed (m/s; above 0.9 it brakes near walls and obstacles)", action=StoreAsTyped)
+    g.add_argument("--perception-radius", "--r-perception", type=finite_float, dest="perception_radius", help="perception radius (m)", action=StoreAsTyped)
+    g.add_argument("--random-obstacles", "--obstacle-num", type=int, dest="random_obstacles", help="random obstacles per episode (default: the layout file's random_obstacles.count)", action=StoreAsTyped)
+    g.add_argument("--delta-t", "--control-dt", type=finite_float, dest="control_dt", help="decision interval (s)", action=StoreAsTyped)
+    g.add_argument("--observability", choices=("partial", "full"), help="observability", action=StoreAsTyped)
     g.add_argument("-sc", "--show-config", action="store_true", help="print the resolved task config")
     # the reference study's run_sim.py spellings, accepted everywhere but not listed in --help
     hidden = argparse.SUPPRESS
     g.add_argument("--env_config", dest="task_files", action="append", help=hidden)
     g.add_argument("--show_config", dest="show_config", action="store_true", help=hidden)
-    g.add_argument("--env_idx", dest="layout", help=hidden)
-    g.add_argument("--delta_t", dest="control_dt", type=finite_float, help=hidden)
-    g.add_argument("--r_velocity", dest="pursuer_speed", type=finite_float, help=hidden)
-    g.add_argument("--e_velocity", dest="evader_speed", type=finite_float, help=hidden)
-    g.add_argument("--r_perception", dest="perception_radius", type=finite_float, help=hidden)
-    g.add_argument("--obstacle_num", dest="random_obstacles", type=int, help=hidden)
+    g.add_argument("--env_idx", dest="layout", help=hidden, action=StoreAsTyped)
+    g.add_argument("--delta_t", dest="control_dt", type=finite_float, help=hidden, action=StoreAsTyped)
+    g.add_argument("--r_velocity", dest="pursuer_speed", type=finite_float, help=hidden, action=StoreAsTyped)
+    g.add_argument("--e_velocity", dest="evader_speed", type=finite_float, help=hidden, action=StoreAsTyped)
+    g.add_argument("--r_perception", dest="perception_radius", type=finite_float, help=hidden, action=StoreAsTyped)
+    g.add_argument("--obstacle_num", dest="random_obstacles", type=int, help=hidden, action=StoreAsTyped)
 
 
 TASK_FLAG_NAMES = {"layout": "--layout", "fidelity": "--fidelity", "n_pursuers": "--pursuers", "n_evaders": "--evaders",
@@ -216,6 +226,38 @@ def flags_typed(pairs) -> str:
     """How config errors name the flags given, e.g. 'flag --pursuers -2' or 'flags --pursuers -2 --fidelity point'."""
     typed = [f"{flag} {value}" for flag, value in pairs]
     return ("flag " if len(typed) == 1 else "flags ") + " ".join(typed)
+
+
+def task_flags_given(args: argparse.Namespace) -> tuple[dict, dict]:
+    """The task keys the command's flags gave -> their values (a layout index as int), and
+    key -> the flag as the user typed it (its documented name where the spelling is unknown)."""
+    typed = getattr(args, "typed_flags", None) or {}
+    flags, names = {}, {}
+    for key in TASK_FLAG_KEYS:
+        value = getattr(args, key, None)
+        if value is not None:
+            flags[key] = int(value) if key == "layout" and is_index_text(value) else value
+            names[key] = typed.get(key, TASK_FLAG_NAMES[key])
+    return flags, names
+
+
+# keys the reference study's run_sim.py took in millimetres (DESIGN.md section 7): SI unit here, its unit there
+REFERENCE_STUDY_MM = {"pursuer_speed": ("m/s", "mm/s"), "evader_speed": ("m/s", "mm/s"), "perception_radius": ("m", "mm")}
+
+
+def task_flag_error(exc: ValueError, typed: str, flags: dict, names: dict) -> ValueError:
+    """`exc` of a task config loaded with `flags` (key -> value, named together as `typed`), naming
+    the one flag it is about as typed (one_flag_named); a speed or radius out of range says its
+    unit, since the reference study's users give them in millimetres."""
+    error = one_flag_named(exc, typed, {names[k]: v for k, v in flags.items()}, {k: names.get(k, f) for k, f in TASK_FLAG_NAMES.items()})
+    text = str(error)
+    highest = {f.name: f.metadata.get("hi") for f in dataclasses.fields(TaskConfig)}
+    for key, (unit, study_unit) in REFERENCE_STUDY_MM.items():
+        value = flags.get(key)
+        if value is not None and f"key '{key}': " in text and value >= 10 * highest[key] >= value / 1000:  # clearly mm
+            return ValueError(f"{text}; {unit} here, where the reference study's run_sim.py took {study_unit} "
+                              f"({value:g} {study_unit} is {value / 1000:g} {unit})")
+    return error
 
 
 def one_flag_named(exc: ValueError, typed: str, given: dict, flag_of: dict) -> ValueError:
@@ -237,18 +279,12 @@ def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
     """Resolve defaults <- task files <- flags <- --set, its evader model made once (check_evader_model),
     and print it if asked; a `note:` line on stderr names each setting the combination never reads
     (TaskConfig.idle_settings)."""
-    flags = {}
-    for key in TASK_FLAG_KEYS:
-        value = getattr(args, key, None)
-        if value is not None:
-            if key == "layout" and is_index_text(value):
-                value = int(value)
-            flags[key] = value
-    typed = flags_typed((TASK_FLAG_NAMES[k], v) for k, v in flags.items())
+    flags, names = task_flags_given(args)
+    typed = flags_typed((names[k], v) for k, v in flags.items())
     try:
         cfg = load_task_config(args.task_files, args.overrides, flags, typed)
     except ValueError as exc:
-        raise one_flag_named(exc, typed, {TASK_FLAG_NAMES[k]: v for k, v in flags.items()}, TASK_FLAG_NAMES) from None
+        raise task_flag_error(exc, typed, flags, names) from None
     check_evader_model(cfg, "evader.model")  # before -sc prints it: a config refused is not shown as the one run
     check_layout_given(args, cfg)
     for line in cfg.idle_settings():  # accepted (a preset sets them), but the run goes as without them

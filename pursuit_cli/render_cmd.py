@@ -23,13 +23,13 @@ from pathlib import Path
 from pursuit_mj.io_utils import check_writable_folder, no_new_empty_folders
 from pursuit_mj.config import TaskConfig, load_task_yaml, preset_or_file
 from pursuit_mj.configio import dump_yaml, load, to_dict
-from pursuit_mj.layout import is_index_text, load_layout
+from pursuit_mj.layout import load_layout
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
 from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_path
-from .common import (TASK_FLAG_KEYS, TASK_FLAG_NAMES, add_shield_arg, add_task_args, check_episodes, check_evader_model, check_layout_given, flags_typed, load_model, one_flag_named, path_arg, seed_arg, sweep_dead_parts,
-                     finite_float, once_flag, shield_each_if_asked, task_config_from_args)
+from .common import (add_shield_arg, add_task_args, check_episodes, check_evader_model, check_layout_given, flags_typed, load_model, path_arg, seed_arg, sweep_dead_parts,
+                     finite_float, once_flag, shield_each_if_asked, task_config_from_args, task_flag_error, task_flags_given)
 
 DEFAULT_SAVE = "renders"
 
@@ -138,18 +138,14 @@ def task_config(args, base: TaskConfig | None) -> TaskConfig:
     values are checked as it is read and the checks across keys judge the whole."""
     if base is None:
         return task_config_from_args(args)
-    flags = {}
-    for key in TASK_FLAG_KEYS:
-        value = getattr(args, key, None)
-        if value is not None:
-            flags[key] = int(value) if key == "layout" and is_index_text(value) else value
-    typed = flags_typed((TASK_FLAG_NAMES[k], v) for k, v in flags.items()) if flags else "command-line flag"
+    flags, names = task_flags_given(args)
+    typed = flags_typed((names[k], v) for k, v in flags.items()) if flags else "command-line flag"
     files = [preset_or_file(f, "task") for f in args.task_files]
     try:
         cfg = load(TaskConfig, files, args.overrides, extra=flags, extra_source=typed, read=load_task_yaml,
                    base=to_dict(base), base_source=f"-mc {args.model_config}: task")
     except ValueError as exc:
-        raise one_flag_named(exc, typed, {TASK_FLAG_NAMES[k]: v for k, v in flags.items()}, TASK_FLAG_NAMES) from None
+        raise task_flag_error(exc, typed, flags, names) from None
     check_evader_model(cfg, "evader.model")  # as task_config_from_args: one line, before any file or the digest
     check_layout_given(args, cfg)
     if args.show_config:

@@ -486,3 +486,23 @@ def test_the_help_of_fps_says_a_gif_of_a_fine_control_dt_needs_fps(capsys):
         main(["render", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "a GIF plays at most 50, so with gif a control_dt below 0.02 s needs --fps" in text
+
+
+@pytest.mark.parametrize("flag, value, hint", [
+    ("--r_velocity", "300", "--r_velocity 300.0: key 'pursuer_speed': 300.0 is out of range (must be <= 3.0); m/s here, where the reference study's run_sim.py took mm/s (300 mm/s is 0.3 m/s)"),
+    ("-ev", "900", "-ev 900.0: key 'evader_speed': 900.0 is out of range"),
+    ("--r_perception", "1500", "m here, where the reference study's run_sim.py took mm (1500 mm is 1.5 m)"),
+])
+def test_a_speed_or_radius_in_the_reference_studys_millimetres_is_refused_naming_the_flag_typed_and_the_unit(
+        tmp_path, capsys, flag, value, hint):
+    """The reference study's run_sim.py took speeds and radius in mm; `-rv 300` was refused as
+    '--pursuer-speed 300.0 ... must be <= 3.0', naming a flag the user had not typed and no unit."""
+    assert _cli(tmp_path, "-s", str(tmp_path / "x.gif"), flag, value) == 2
+    assert hint in capsys.readouterr().err
+    assert not (tmp_path / "x.gif").exists()
+
+
+def test_a_speed_just_above_its_range_is_refused_without_a_millimetre_hint(tmp_path, capsys):
+    assert _cli(tmp_path, "-s", str(tmp_path / "x.gif"), "--evader-speed", "5") == 2
+    err = capsys.readouterr().err
+    assert "--evader-speed 5.0: key 'evader_speed': 5.0 is out of range (must be <= 3.0)" in err and "mm" not in err
