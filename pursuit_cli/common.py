@@ -339,7 +339,7 @@ def task_key_source(args: argparse.Namespace, key: str, value: Any = _ANY) -> st
             except ConfigError:
                 return None
             return f"--set {override.strip()}" if gives(given) else None
-    flag = TASK_FLAG_NAMES.get(key)
+    flag = (getattr(args, "typed_flags", None) or {}).get(key) or TASK_FLAG_NAMES.get(key)  # as typed
     if flag is not None and getattr(args, key, None) is not None:
         return f"{flag} {getattr(args, key)}" if gives(getattr(args, key)) else None
     for file in reversed(getattr(args, "task_files", None) or []):

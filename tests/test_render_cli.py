@@ -506,3 +506,8 @@ def test_a_speed_just_above_its_range_is_refused_without_a_millimetre_hint(tmp_p
     assert _cli(tmp_path, "-s", str(tmp_path / "x.gif"), "--evader-speed", "5") == 2
     err = capsys.readouterr().err
     assert "--evader-speed 5.0: key 'evader_speed': 5.0 is out of range (must be <= 3.0)" in err and "mm" not in err
+
+
+def test_a_layout_flag_that_names_no_file_is_refused_under_the_spelling_typed(tmp_path, capsys):
+    assert _cli(tmp_path, "-s", str(tmp_path / "x.gif"), "--env_idx", "nothere.yaml") == 2
+    assert "--env_idx nothere.yaml: " in capsys.readouterr().err
