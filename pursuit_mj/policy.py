@@ -73,10 +73,24 @@ def check_world_count(n_obs: int, n_reset: int | None, who: str) -> None:
                          f"called for {n_reset} (call reset({n_obs}) first)")
 
 
+class NonFiniteAction(ValueError):
+    """checked_actions' refusal of an action that is not a finite number, and where it is: the
+    policy `who`, the `value`, its `world`, `pursuer` (index) and `component` ('vx' or 'vy').
+    `naming(label)` is the message with the pursuer called `label` ('pursuer p1 (index 1)': a
+    flight names it by the flight file's drone)."""
+
+    def __init__(self, who: str, value: float, world: int, pursuer: int, component: str):
+        self.who, self.value, self.world, self.pursuer, self.component = who, value, world, pursuer, component
+        super().__init__(self.naming(f"pursuer {pursuer}"))
+
+    def naming(self, pursuer: str) -> str:
+        return f"{self.who}: act() gave {self.value} for world {self.world}, {pursuer}, {self.component}"
+
+
 def checked_actions(actions, n_worlds: int, n_pursuers: int, who: str) -> np.ndarray:
     """What a policy's act() returned, as a float64 array (n_worlds, n_pursuers, 2), or ValueError
     naming policy `who` and what is wrong: another shape (a transposed (N, W, 2) included), values
-    that are no real numbers, NaN or inf. Values beyond [-1, 1] are kept: the env clips them
+    that are no real numbers, NaN or inf (a NonFiniteAction). Values beyond [-1, 1] are kept: the env clips them
     (docs/env_api.md), as it would a policy called outside this check."""
     from .env import MaskedValues, plain_array  # not at the top: this module stays free of the simulator
 
@@ -94,7 +108,7 @@ def checked_actions(actions, n_worlds: int, n_pursuers: int, who: str) -> np.nda
     a = raw.astype(np.float64)
     if not np.isfinite(a).all():
         w, i, c = (int(k) for k in np.argwhere(~np.isfinite(a))[0])
-        raise ValueError(f"{who}: act() gave {a[w, i, c]} for world {w}, pursuer {i}, {('vx', 'vy')[c]}")
+        raise NonFiniteAction(who, float(a[w, i, c]), w, i, ("vx", "vy")[c])
     return a
 
 

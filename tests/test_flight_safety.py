@@ -958,3 +958,27 @@ def test_a_torch_policy_acting_without_no_grad_flies_as_in_eval(tmp_path):
     result, events, fleet = fly_virtual(quick_plan(max_time=1.0), _RawAnswers(lambda a: torch.zeros(a.shape, requires_grad=True)), tmp_path)
     assert not isinstance(result, Exception) and result.outcome == "timeout", result
     assert down(fleet)
+
+
+@pytest.mark.parametrize("shield", [False, True])
+def test_a_policy_file_answering_nan_is_named_by_the_drone_of_the_flight_file(tmp_path, shield):
+    """A policy file's NaN was named by the pursuer's index ('act() gave nan for world 0, pursuer 1, vx'):
+    its own check (policy.checked_actions, also the shield's) runs before the bridge's, which names drones.
+    The flight file names the drone p1; the message names it so, keeping the index."""
+    from pursuit_mj.policy_file import load_policy_file
+    from pursuit_mj.shield import shield_policy
+
+    (tmp_path / "nan_team.py").write_text(
+        "import numpy as np\n\n\nclass NanTeam:\n    name = 'nanteam'\n\n    def __init__(self, config, seed):\n        pass\n\n"
+        "    def reset(self, n_worlds, world_ids=None):\n        pass\n\n    def act(self, obs, spec):\n"
+        "        a = np.zeros(obs.shape[:-1] + (2,))\n        a[:, 1, 0] = np.nan\n        return a\n")
+    plan = quick_plan(max_time=4.0)
+    ref = f"{tmp_path / 'nan_team.py'}:NanTeam"
+    policy = load_policy_file(ref, plan.task)
+    if shield:
+        policy = shield_policy(policy, plan.task)
+    result, events, fleet = fly_virtual(plan, policy, tmp_path)
+    assert isinstance(result, ValueError), result
+    assert f"--policy {ref}: act() gave nan for world 0, pursuer p1 (index 1), vx" in str(result), result
+    assert kinds_in_order(events, "chase", "land", "landed", "error")
+    assert down(fleet)

@@ -40,7 +40,7 @@ from typing import Callable
 import numpy as np
 
 from ..planar import clip_norm
-from ..policy import Policy
+from ..policy import NonFiniteAction, Policy
 from .board import BoardSnapshot, StateBoard
 from .events import EventLog
 from .keepalive import SetpointStream
@@ -712,7 +712,12 @@ class FlightBridge:
             acts = self.policy.act(obs, observer.spec)
             return acts, (pilot.command(observer, pos[N:], vel[N:], pos[:N], vel[:N]) if flown.any() else None)
 
-        actions, ev = self._decision(decide, start)
+        try:
+            actions, ev = self._decision(decide, start)
+        except NonFiniteAction as exc:  # a policy file's or the shield's own check: named by its index there
+            if not 0 <= exc.pursuer < N:
+                raise
+            raise ValueError(exc.naming(f"pursuer {plan.names[exc.pursuer]} (index {exc.pursuer})")) from None
         who = f"policy {getattr(self.policy, 'name', type(self.policy).__name__)}"
         actions = np.clip(_checked_commands(actions, (1, N, 2), who, [f"pursuer {n}" for n in plan.names[:N]], "(worlds, pursuers, vx and vy)")[0], -1.0, 1.0)
         wanted = np.zeros((plan.n_drones, 2))
