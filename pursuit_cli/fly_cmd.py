@@ -207,15 +207,25 @@ def run(args) -> int:
     finally:
         if watcher is not None:
             watcher.stop()
-    print(f"outcome: {result.outcome} ({result.reason}); chase {result.chase_time:.1f} s, {result.captures} capture(s), "
+    stopped_by = _stop_signal(result)
+    late = f"; {stopped_by} during the landing" if stopped_by and stopped_by != result.reason else ""
+    print(f"outcome: {result.outcome} ({result.reason}){late}; chase {result.chase_time:.1f} s, {result.captures} capture(s), "
           f"{len(result.steps)} decision steps; landed: {_landed(result, plan)}")
     print(f"events: {events_path}" + (f"; rerun: {args.rerun}" if args.rerun else ""))
-    if result.outcome in ("interrupted", "emergency_stop") and result.reason in STOP_SIGNALS:
-        # landed after a stop signal, or its motors cut by a second one during that landing
+    if stopped_by:
         from . import stop_exit_code
 
-        return stop_exit_code(STOP_SIGNALS[result.reason])
+        return stop_exit_code(STOP_SIGNALS[stopped_by])
     return 0 if result.outcome in ("captured", "timeout") else 1
+
+
+def _stop_signal(result) -> str | None:
+    """The stop signal (a key of STOP_SIGNALS) that came during the flight, else None: one that
+    landed it (its motors cut by a second one during that landing), or one that came during a
+    landing begun for another reason (a capture, the time limit), which let it land."""
+    if result.outcome in ("interrupted", "emergency_stop") and result.reason in STOP_SIGNALS:
+        return result.reason
+    return result.interrupted_by if result.interrupted_by in STOP_SIGNALS else None
 
 
 ALIGN_WARN_RMS = 0.05  # m: a fit worse than this is a placement or ordering mistake, not measurement noise

@@ -521,3 +521,22 @@ def test_an_emergency_stop_at_the_go_no_go_sends_no_take_off(tmp_path):
     assert result.outcome == "emergency_stop", result
     assert not events.of_kind("takeoff")
     assert not any(r.kind == "takeoff" for i in range(fleet.plan.n_drones) for r in fleet.received(i))
+
+
+def test_a_stop_signal_as_a_time_out_landing_begins_is_logged_and_kept_in_the_result(tmp_path):
+    """A SIGTERM that came between the `land` event and the landing's first look went unlogged (the
+    landing took it for the signal that began it), and a first stop signal during a landing for
+    another reason left no trace in the result, so `fly` exited 0 where README.md has a command
+    stopped by a signal exit 128 + its number. The landing goes on; the result keeps the signal."""
+    held = {}
+
+    def signal_as_landing_begins(record):
+        if record["kind"] == "land":
+            held["bridge"].interrupt("SIGTERM")  # what the signal relay does, at the worst moment
+
+    result, events, fleet = fly_virtual(quick_plan(max_time=1.0), ScriptedTeam([[0.0, 0.0]]), tmp_path,
+                                        sink=signal_as_landing_begins, on_bridge=lambda b: held.setdefault("bridge", b))
+    assert result.outcome == "timeout" and result.landed, (result.outcome, result.reason)
+    assert [r["during"] for r in events.of_kind("interrupt")] == ["landing"]
+    assert result.interrupted_by == "SIGTERM"
+    assert "emergency_stop" not in events.kinds() and down(fleet)

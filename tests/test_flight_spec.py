@@ -1503,3 +1503,21 @@ def test_an_empty_flight_file_is_named_empty(text, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err == (f"pursuit-mj fly check: error: {path}: the file is empty (no flight key); a flight file sets at least "
                    f"layout, positioning and drones (see configs/flight/example.yaml)"), err
+
+
+@pytest.mark.parametrize("outcome, code", [("timeout", 143), ("captured", 143), ("land_requested", 143)])
+def test_a_flight_given_a_stop_signal_during_a_landing_for_another_reason_exits_as_a_stopped_command_does(outcome, code, monkeypatch,
+                                                                                                             tmp_path, capsys):
+    """A first SIGTERM while the drones land on time-out lets them land (docs/flight.md), but `fly` then
+    exited 0 (1 after a land request): nothing said a signal came, where README.md has a command stopped
+    by Ctrl-C, SIGTERM or SIGHUP exit 128 + its number. The summary line names it too."""
+    from pursuit_cli import main
+    import pursuit_mj.flight.session as session
+    from pursuit_mj.flight.bridge import FlightResult
+
+    def landed_on(plan, policy, **kwargs):
+        return FlightResult(outcome, "no capture within 2 s", 2.0, 0, [], True, np.zeros(4), interrupted_by="SIGTERM"), None
+
+    monkeypatch.setattr(session, "run_flight", landed_on)
+    assert main(["fly", "--flight", EXAMPLE, "--policy", "heuristic", "--virtual", "--events", str(tmp_path / "e.jsonl")]) == code
+    assert f"outcome: {outcome} (no capture within 2 s); SIGTERM during the landing; chase 2.0 s" in capsys.readouterr().out

@@ -105,7 +105,10 @@ class FlightResult:
     link_lost | stale | fix_lost | low_battery | fence_breach | altitude | takeoff_failed |
     emergency_stop | error; reason: a sentence; chase_time (s); captures; steps; landed:
     the landing ran for every commanded drone and each one's last height estimate is below
-    LANDED_HEIGHT; heights (D,) m: the last height estimates at the end (NaN: none)."""
+    LANDED_HEIGHT; heights (D,) m: the last height estimates at the end (NaN: none);
+    interrupted_by: the stop signal (`interrupt`'s reason: Ctrl-C, SIGTERM, ...) that came after
+    take-off, whatever ended the run (one during a landing begun for another reason, a capture
+    or the time limit, lets that landing go on and the outcome stays), else None."""
 
     outcome: str
     reason: str
@@ -114,6 +117,7 @@ class FlightResult:
     steps: list[StepRecord]
     landed: bool
     heights: np.ndarray | None = None
+    interrupted_by: str | None = None
 
 
 def _checked_commands(answer, shape: tuple[int, ...], who: str, names: list[str], axes: str) -> np.ndarray:
@@ -236,6 +240,7 @@ class FlightBridge:
         self._estop = threading.Event()
         self._interrupt = threading.Event()
         self._interrupt_reason = "Ctrl-C"
+        self._interrupt_logged = False  # an `interrupt` event for it is in the log
         self._land_request = ""
         self._airborne = False
         self._landing = False
@@ -422,7 +427,8 @@ class FlightBridge:
             outcome = "emergency_stop"
             self._cut_motors()  # once more, in case a packet was lost
         heights = self._lab_state(self.board.snapshot())[0][:, 2]
-        return FlightResult(outcome, reason, chase_time, int(observer.captured.sum()), steps, landed, heights)
+        signal_name = self._interrupt_reason if self._interrupt.is_set() else None
+        return FlightResult(outcome, reason, chase_time, int(observer.captured.sum()), steps, landed, heights, signal_name)
 
     # ------------------------------------------------------------------ take-off and landing
 
@@ -483,7 +489,6 @@ class FlightBridge:
             link.land(0.0, duration)
         began = self.clock()
         end = began + duration + limits.settle
-        signalled = self._interrupt.is_set()  # a stop signal that began this landing is logged already
         ours = np.zeros(plan.n_drones, bool)
         ours[[link.index for link in up]] = True
         try:
@@ -493,9 +498,8 @@ class FlightBridge:
                 if now >= last or (now >= end and not self._still_landing(snap, ours, began).any()):
                     break
                 self._stop.clear()  # earlier requests are served by this landing; an emergency stop sets it again
-                if self._interrupt.is_set() and not signalled:
-                    signalled = True
-                    self.events.log("interrupt", reason=self._interrupt_reason, during="landing", level="warn")
+                if self._interrupt.is_set() and not self._interrupt_logged:  # not the signal that began this landing
+                    self._log_interrupt(during="landing")
                 self._record_only(snap)
                 self._stop.wait(min(self.plan.dt, max(0.0, last - self.clock())))
         except BaseException:
@@ -519,6 +523,11 @@ class FlightBridge:
         self.events.log("landed", heights=z, drones=[l.name for l in up], not_down=not_down, level="warn" if not_down else "info")
         self._airborne = False
         return len(up) == int(plan.commanded.sum()) and bool(down[plan.commanded].all())
+
+    def _log_interrupt(self, **extra) -> None:
+        """The `interrupt` event of the stop signal that came, once."""
+        self._interrupt_logged = True
+        self.events.log("interrupt", reason=self._interrupt_reason, level="warn", **extra)
 
     def _still_landing(self, snap: BoardSnapshot, ours: np.ndarray, began: float) -> np.ndarray:
         """(D,) bool: drones in `ours` (landing on a live link) not yet shown down (no estimate
@@ -581,7 +590,7 @@ class FlightBridge:
         if self._estop.is_set():
             raise _Abort("emergency_stop", "emergency stop")
         if self._interrupt.is_set():
-            self.events.log("interrupt", reason=self._interrupt_reason, level="warn")
+            self._log_interrupt()
             raise _Abort("interrupted", self._interrupt_reason)
         if self._land_request:
             self.events.log("land_requested", reason=self._land_request, level="warn")
