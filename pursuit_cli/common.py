@@ -386,16 +386,21 @@ def shield_if_asked(args: argparse.Namespace, policy, label: str, config: TaskCo
     return (policy, label) if wrapped is policy else (wrapped, f"{label}+shield")
 
 
-def shield_each_if_asked(args: argparse.Namespace, chosen: list[tuple[object, str]], config: TaskConfig) -> list[tuple[object, str]]:
+def shield_each_if_asked(args: argparse.Namespace, chosen: list[tuple[object, str]], config: TaskConfig,
+                         plays_one: str = "") -> list[tuple[object, str]]:
     """shield_if_asked on each (policy, label) of `chosen`, in order. ValueError naming --shield
     when it was given and every policy has the shield built in (the heuristic team, a model trained
     behind it): the run would be the one without the flag, which a user would take for a shielded
-    one. The policies are named by their name, else their label."""
+    one. The policies are named by their name, else their label. `plays_one` ('render plays one
+    policy'), for a command that takes one policy, gives the advice to give another in its place;
+    without it, the advice is eval's: the others given are shielded."""
     shielded = [shield_if_asked(args, policy, label, config) for policy, label in chosen]
     if getattr(args, "shield", False) and chosen and all(new is policy for (new, _), (policy, _) in zip(shielded, chosen)):
         kept = list(dict.fromkeys(getattr(policy, "name", label) for policy, label in chosen))
+        advice = (f"leave it out, or give the policy to shield with --model or --policy ({plays_one})" if plays_one
+                  else "leave it out (it shields the other --model and --policy given)")
         raise ValueError(f"--shield: {', '.join(kept)} {'has' if len(kept) == 1 else 'have'} the shield built in, so --shield "
-                         f"changes nothing; leave it out (it shields the other --model and --policy given)")
+                         f"changes nothing; {advice}")
     return shielded
 
 

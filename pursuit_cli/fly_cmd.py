@@ -163,7 +163,7 @@ def run(args) -> int:
         raise ValueError("give exactly one of --policy NAME (e.g. heuristic) or --model FILE")
     _refuse_events_over_an_input(events_path, args, plan)
     chosen = load_model(args.model, plan.obs_spec, plan.task, flight=True) if args.model else choose_policy(plan, args.policy, args.seed)
-    [(policy, _)] = shield_each_if_asked(args, [(chosen, args.policy or args.model)], plan.task)
+    [(policy, _)] = shield_each_if_asked(args, [(chosen, args.policy or args.model)], plan.task, "fly flies one policy")
     if args.fault and not args.virtual:
         raise ValueError("--fault rehearses failures on virtual drones only; add --virtual")
     for text in args.fault:

@@ -348,7 +348,8 @@ def _run(args) -> int:
     if not (video or final or args.rerun):
         raise ValueError("--no-video without --final-frame or --rerun leaves nothing to write")
     settings = RenderSettings(args.width, args.height, args.camera, args.quality, key=not args.no_key)
-    [(policy, label)] = shield_each_if_asked(args, [choose_policy(args, config, train_cfg)], config)  # before any folder is made
+    [(policy, label)] = shield_each_if_asked(args, [choose_policy(args, config, train_cfg)], config,
+                                             "render plays one policy")  # before any folder is made
     target = save_target(args.save_path, args.format) if video or final else None
     if target is not None:
         check_render_settings(settings, config)  # the size range first: an odd size matters only inside it

@@ -747,3 +747,22 @@ def test_the_package_boundaries_hold_in_the_source_not_only_at_import_time():
                if modules[0].split(".")[0] == "pursuit_mj"
                and any(part.startswith("_") for part in modules[0].split(".")[1:] + names)]
     assert not private, private
+
+
+@pytest.mark.parametrize("argv, advice", [
+    (["render", "--shield", "--fidelity", "point", "-s", "{tmp}/r/"],
+     "leave it out, or give the policy to shield with --model or --policy (render plays one policy)"),
+    (["fly", "--flight", "example", "--policy", "heuristic", "--shield", "--virtual", "--events", "{tmp}/e.jsonl"],
+     "leave it out, or give the policy to shield with --model or --policy (fly flies one policy)"),
+    (["eval", "--shield", "--policy", "heuristic", "--episodes", "1", "--fidelity", "point"],
+     "leave it out (it shields the other --model and --policy given)"),
+])
+def test_a_shield_refused_for_changing_nothing_gives_advice_for_the_command(argv, advice, tmp_path, capsys):
+    """render and fly, which play one policy, said eval's advice: 'leave it out (it shields the other
+    --model and --policy given)', of other policies they do not take; 'render --shield' alone (the
+    heuristic team by default) named a policy the user never gave, with no word of how to shield one."""
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.strip().endswith("--shield: heuristic has the shield built in, so --shield changes nothing; " + advice), err
+    assert len(err.strip().splitlines()) == 1, err
