@@ -342,6 +342,12 @@ def _layout_names(layouts: Sequence[str]) -> list[str]:
     return [f"layout {s}" if s.isdigit() else (stem if stems.count(stem) == 1 else s) for s, stem in zip(layouts, stems)]
 
 
+def layout_order(key: str) -> tuple:
+    """Sort key of a layout_key: built-in layouts by index (0, 1, 2, 3), then layout files by
+    name (then by path, for two files of one name)."""
+    return (0, int(key), "") if key.isdigit() else (1, Path(key).name, key)
+
+
 def layout_key(layout: Any) -> str:
     """One name per layout, however a table named it: a built-in index ('0', '00' or its file
     configs/layouts/0_open.yaml) as the index, another file as its normalised path."""
@@ -414,16 +420,17 @@ def _episodes_per_bar(episodes: list[int]) -> str:
 
 
 def plot_eval(rows: Iterable[Mapping[str, Any]], folder: str | Path, prefix: str = "eval_") -> list[Path]:
-    """Bar charts, one PNG (<prefix><metric>.png) per metric the rows hold: layouts on x, a bar per
-    policy with its 95 % CI whiskers ("none" where its value is null), each layout's bars centred
-    on it (a policy without a row there leaves no gap), one colour per policy in every chart; rows of one
+    """Bar charts, one PNG (<prefix><metric>.png) per metric the rows hold: layouts on x (in
+    layout_order, whatever the order of the rows), a bar per policy with its 95 % CI whiskers
+    ("none" where its value is null), each layout's bars centred on it (a policy without a row
+    there leaves no gap), one colour per policy in every chart; rows of one
     policy and layout in several fidelities are bars 'NAME (fidelity)' (by_fidelity). A (policy, layout)
     pair given twice is a ValueError: which of the two would the bar show?"""
     plt = _plt()
     rows = by_fidelity(list(rows))
     folder = Path(folder)
     policies = list(dict.fromkeys(str(r["policy"]) for r in rows))
-    layouts = list(dict.fromkeys(layout_key(r["layout"]) for r in rows))
+    layouts = sorted({layout_key(r["layout"]) for r in rows}, key=layout_order)
     table: dict[tuple[str, str], Mapping[str, Any]] = {}
     for r in rows:
         pair = (str(r["policy"]), layout_key(r["layout"]))

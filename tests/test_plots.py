@@ -526,3 +526,36 @@ def test_a_legend_of_long_labels_fits_in_the_chart_with_its_axes(tmp_path, monke
         assert ylabel.x0 >= 0, (name, ylabel)
         assert axes.width > 100, (name, axes)  # the bars keep room
     assert not [w for w in recwarn if "Tight layout not applied" in str(w.message)]
+
+
+def test_layouts_on_the_axis_are_in_layout_order_whatever_the_order_of_the_rows(tmp_path, monkeypatch):
+    """'plot --eval late.json --eval early.json' (layouts 2, 3 then 0, 1), or a table of '--layouts 3 0',
+    put the layouts on x in the order the rows first named them: layout 2 left of layout 0. They
+    are in layout order, built-in layouts 0-3 first, then layout files by name; every bar stays
+    over its layout in its policy's legend colour."""
+    import matplotlib.pyplot as plt
+
+    from pursuit_mj import plots
+
+    late = read_eval_rows(_eval_json(tmp_path / "late.json", policies=("p",), layouts=("2", "zz/b_maze.yaml", "0")))
+    early = read_eval_rows(_eval_json(tmp_path / "early.json", policies=("q",), layouts=("yy/a_arena.yaml", "1", "0")))
+    early = [dict(r, **{k: r[k] + 1 for k in ("success_pct", "success_ci_lo", "success_ci_hi")}) for r in early]  # apart from late's
+    order = ["layout 0", "layout 1", "layout 2", "a_arena", "b_maze"]
+    ticks, bars, legends = [], [], []
+    real_ticks, real_bar, real_save = plt.Axes.set_xticks, plt.Axes.bar, plots._save
+    monkeypatch.setattr(plt.Axes, "set_xticks", lambda self, at, labels, **kw: ticks.append(list(labels)) or real_ticks(self, at, labels, **kw))
+    monkeypatch.setattr(plt.Axes, "bar", lambda self, x, h, *a, **kw: bars.append((x, h, kw["color"])) or real_bar(self, x, h, *a, **kw))
+
+    def save(fig, path):
+        legend = fig.axes[0].get_legend()
+        legends.append({t.get_text(): h.get_facecolor() for t, h in zip(legend.get_texts(), legend.legend_handles)})
+        return real_save(fig, path)
+
+    monkeypatch.setattr(plots, "_save", save)
+    plot_eval(late + early, tmp_path / "plots")
+    assert ticks[0] == order
+    drawn = bars[:len(late) + len(early)]  # the success chart's bars
+    for r in late + early:  # success_pct tells each row apart
+        [(x, _, colour)] = [b for b in drawn if b[1] == float(r["success_pct"]) and round(b[0]) == order.index(plots._layout_names(
+            [plots.layout_key(r["layout"])])[0])]
+        assert tuple(colour) == tuple(legends[0][r["policy"]]), r
