@@ -1406,3 +1406,20 @@ def test_init_from_compares_net_kind_even_where_a_trunks_shape_keys_leave_it_out
                                          r"reference \(to start from it, give the run the same network: --set net.kind=mlp\)$"):
         check_same_network(data, NetConfig(), "x.pt")
     check_same_network(data, NetConfig(kind="mlp", encoder_width=8), "x.pt")  # the keys it leaves out stay free
+
+
+def test_an_export_of_a_checkpoint_of_an_unknown_network_kind_is_refused(tmp_path, capsys):
+    """'train --export gru.pt out.pt' of a checkpoint whose net.kind this code does not have wrote
+    out.pt without a word, and 'eval --model out.pt' then refused it; the export is refused as the
+    loader refuses the checkpoint, naming the kind and the known ones, and writes nothing."""
+    from pursuit_cli import main
+    from train.checkpoint import save_checkpoint
+
+    src = save_checkpoint(tmp_path / "gru.pt", {
+        "train_config": {"net": {"kind": "gru"}}, "obs_spec": ObsSpec.make(2, 1, 4).to_dict(), "actor": {"w": torch.zeros(2)},
+        "counters": {"update": 3}, "critic": {}, "optimizer": {}, "rng": {}})
+    assert main(["train", "--export", str(src), str(tmp_path / "out" / "small.pt")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"pursuit-mj train: error: --export {src} {tmp_path / 'out' / 'small.pt'}: net.kind 'gru': no such network "
+                   f"in train/networks.py TRUNKS (known: reference, mlp); no policy could be loaded from the export"), err
+    assert not (tmp_path / "out").exists()

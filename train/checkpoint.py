@@ -160,6 +160,23 @@ def is_training_checkpoint(data: dict[str, Any]) -> bool:
     return all(k in data for k in ("critic", "optimizer", "rng"))
 
 
+def _refuse_a_net_no_load_builds(data: dict[str, Any], where: str) -> None:
+    """ValueError naming `where` when the checkpoint's `net` settings are ones that loading it
+    refuses (train.policy.actor_from_checkpoint reads them so): a net.kind this code has no
+    network for, named with the known ones (networks.trunk_class), or another bad net key."""
+    from pursuit_mj.configio import build
+    from train.config import NetConfig
+    from train.networks import trunk_class
+
+    net = data["train_config"].get("net", {})
+    try:
+        if isinstance(net, dict) and isinstance(net.get("kind"), str):
+            trunk_class(net["kind"])
+        build(NetConfig, net, "its train_config.net")
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}; no policy could be loaded from the export") from None
+
+
 def export_actor(src: str | Path, dst: str | Path) -> Path:
     """A small copy of a checkpoint for running the policy only: actor, config, spec, counters.
 
@@ -167,6 +184,7 @@ def export_actor(src: str | Path, dst: str | Path) -> Path:
     """
     src, dst = Path(src), Path(dst)
     data = load_checkpoint(src)
+    _refuse_a_net_no_load_builds(data, f"--export {src} {dst}")
     if dst.exists() and dst.resolve() == src.resolve():
         raise ValueError(f"--export {src} {dst}: OUT is the checkpoint itself; write the export to another file")
     if dst.is_file():

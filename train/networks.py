@@ -242,15 +242,19 @@ def registered_from_outside(kind: str, spawns: str) -> str | None:
             f"--set run.split_update=false with run.overlap false")
 
 
-def make_trunk(spec: ObsSpec, cfg: NetConfig) -> nn.Module:
-    """The trunk net.kind names (a key of TRUNKS), or ValueError naming the kind: a kind without
-    a class here must not train some other network."""
+def trunk_class(kind: str) -> type[nn.Module]:
+    """The trunk class of net.kind `kind` (a key of TRUNKS), or ValueError naming the kind and the
+    known ones: a kind without a class here must not train, nor be loaded as, some other network."""
     try:
-        cls = TRUNKS[cfg.kind]
+        return TRUNKS[kind]
     except KeyError:
-        raise ValueError(f"net.kind {cfg.kind!r}: no such network in train/networks.py TRUNKS "
+        raise ValueError(f"net.kind {kind!r}: no such network in train/networks.py TRUNKS "
                          f"(known: {', '.join(TRUNKS)})") from None
-    return cls(spec, cfg)
+
+
+def make_trunk(spec: ObsSpec, cfg: NetConfig) -> nn.Module:
+    """The trunk net.kind names (trunk_class)."""
+    return trunk_class(cfg.kind)(spec, cfg)
 
 
 class Actor(nn.Module):
