@@ -43,7 +43,7 @@ def run(args) -> int:
 
 
 def _run(args) -> int:
-    from pursuit_mj.comparison import format_pairs, pairs_to_dicts
+    from pursuit_mj.comparison import format_pairs, one_fidelity, pairs_to_dicts
     from pursuit_mj.evaluation import format_table, plot_rows, write_csv, write_json
     from pursuit_mj.pooling import not_paired, not_paired_text, pool_tables, pooled_pairs
 
@@ -64,12 +64,12 @@ def _run(args) -> int:
         check_writable_folder(args.plots, "--plots")
     for note in pooled.notes:
         print(note)
-    print(f"pooled {counted(len(args.files), 'table')}{_one_fidelity(pooled.rows, ', every row')}")
+    print(f"pooled {counted(len(args.files), 'table')}{one_fidelity(pooled.rows, ', every row')}")
     print(format_table(pooled.rows))
     meta: dict = {"pooled_from": list(args.files), **pooled.meta}
     if versus is not None:
         pairs = pooled_pairs(pooled.rows, versus, pooled.max_steps, pooled.meta["layout_identity"])
-        print(f"\npaired with {versus} on the episodes both played{_one_fidelity(pairs, ',')} (capture steps: steps of a success, "
+        print(f"\npaired with {versus} on the episodes both played{one_fidelity(pairs, ',')} (capture steps: steps of a success, "
               f"{pooled.max_steps} for a failure; negative = sooner):")
         print(format_pairs(pairs))
         meta["paired"] = pairs_to_dicts(pairs)
@@ -87,10 +87,3 @@ def _run(args) -> int:
         for path in plot_rows(shown, args.plots):
             print(f"wrote {path}")
     return 0
-
-
-def _one_fidelity(items, lead: str) -> str:
-    """', every row in point fidelity' (lead, then the fidelity) when every row or pair of `items` is of one
-    fidelity, which the table then shows in no column (format_table, format_pairs); '' otherwise."""
-    fidelities = {item.fidelity for item in items}
-    return f"{lead} in {fidelities.pop()} fidelity" if len(fidelities) == 1 else ""

@@ -223,12 +223,20 @@ def pairs_to_dicts(pairs: Sequence[Paired]) -> list[dict]:
              "mcnemar_p": p.success_p, "success_verdict": p.success_verdict} for p in pairs]
 
 
+def one_fidelity(items, lead: str) -> str:
+    """', every row in point fidelity' (lead, then the fidelity) when every row or pair of `items` is of one
+    fidelity, which the table then shows in no column (format_table, format_pairs); '' otherwise."""
+    fidelities = {item.fidelity for item in items}
+    return f"{lead} in {fidelities.pop()} fidelity" if len(fidelities) == 1 else ""
+
+
 def paired_report(rows: Sequence[Row], reference: str, max_steps: float) -> tuple[str, list[Paired]]:
     """(text, pairs): every other policy of `rows` paired with `reference`, under a heading that
-    says how to read it; ("", []) when `reference` is alone or absent."""
+    says how to read it (and names the fidelity when the pairs are of one: one_fidelity); ("", [])
+    when `reference` is alone or absent."""
     if reference not in {r.policy for r in rows} or len({r.policy for r in rows}) < 2:
         return "", []
     pairs = pair_table(rows, reference, max_steps)
-    head = (f"paired with {reference} on the same episodes (capture steps: steps of a success, {max_steps:g} "
+    head = (f"paired with {reference} on the same episodes{one_fidelity(pairs, ',')} (capture steps: steps of a success, {max_steps:g} "
             "for a failure; negative = sooner; success: judged on the episodes only one of the two won):")
     return head + "\n" + format_pairs(pairs), pairs

@@ -1180,3 +1180,14 @@ def test_the_progress_line_of_a_row_says_its_success_as_the_table_does(command, 
     err = capsys.readouterr().err
     assert said in err, err
     assert "100.0 %" not in err and "success 100 %" not in err
+
+
+@pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
+def test_eval_paired_table_names_the_fidelity_it_compares(fidelity, capsys):
+    """eval's paired table (heuristic and another policy) has no fidelity column, and its heading
+    said nothing of the fidelity either ('paired with heuristic on the same episodes (capture
+    steps: ...'); pool's heading names a single fidelity, and eval's now says it the same way."""
+    assert main(["eval", "--policy", "heuristic", "--policy", "random", "--layouts", "0", "--episodes", "1", "--worlds", "1",
+                 "--fidelity", fidelity, "--set", "max_steps=3", "-q"]) == 0
+    printed = capsys.readouterr().out
+    assert f"\npaired with heuristic on the same episodes, in {fidelity} fidelity (capture steps: " in printed, printed
