@@ -221,7 +221,7 @@ def test_bad_keyword_to_default_config_names_the_nearest_key():
         (["config", "--set", "bogus=1"], "unknown key 'bogus'"),
         (["config", "--pursuers", "0"], "flag --pursuers 0: key 'n_pursuers': 0 is out of range"),
         (["config", "-ev", "0.5", "--pursuers", "0"], "flag --pursuers 0: key 'n_pursuers'"),
-        (["config", "-i", "7"], "flag --layout 7: key 'layout': 7 is not a built-in layout index (0-3)"),
+        (["config", "-i", "7"], "flag -i 7: key 'layout': 7 is not a built-in layout index (0-3)"),
         (["config", "--set", "layout=9"], "--set layout=9: key 'layout': 9 is not a built-in layout index"),
         (["config", "--set", "random_layout=true", "--set", "layout=configs/layouts/1_walls.yaml"],
          "key 'random_layout' draws each episode's layout from the built-in 0-3, so layout configs/layouts/1_walls.yaml would be ignored"),
@@ -344,7 +344,7 @@ def test_a_layout_file_found_nowhere_is_refused_naming_the_file_and_key_that_nam
 
 
 @pytest.mark.parametrize("command", [["config"], ["eval", "--policy", "heuristic"], ["simulate"], ["render", "--policy", "random"]])
-@pytest.mark.parametrize("given, named", [(["-i", "none.yaml"], "--layout none.yaml"),
+@pytest.mark.parametrize("given, named", [(["-i", "none.yaml"], "-i none.yaml"), (["--layout", "none.yaml"], "--layout none.yaml"),
                                           (["--set", "layout=none.yaml"], "--set layout=none.yaml"),
                                           (["--set", "layout='7'"], "--set layout='7'")])
 def test_a_layout_given_on_the_command_line_that_cannot_be_loaded_names_its_flag(tmp_path, capsys, monkeypatch,
