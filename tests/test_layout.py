@@ -1295,3 +1295,16 @@ def test_spawn_draws_are_the_plain_greedy_walks_draws(index):
             assert rng.integers(1 << 62) == ref_rng.integers(1 << 62)  # the same random numbers used
     with pytest.raises(ValueError, match="cannot reliably hold 16 pursuers"):
         check_spawn_capacity(layout, 16, 1, SPAWN_SEPARATION)
+
+
+def test_a_spawn_point_exactly_the_clearance_from_the_border_is_accepted():
+    """A fixed start 0.2 m from the border is 'clear of the border' as docs/DESIGN.md has it; in a
+    1 m arena y = 0.8 lies 0.19999999999999996 m from the top in floats, and was refused as
+    'has no free point 0.2 m away ... (spawn region inside an obstacle?)'."""
+    from pursuit_mj.layout_check import check_layout, free_spawn_points
+
+    layout = layout_from_dict({"arena": {"width": 1.0, "height": 1.0},
+                               "spawn": {"pursuers": {"x": [0.2, 0.2], "y": [0.2, 0.2]},
+                                         "evaders": {"x": [0.8, 0.8], "y": [0.8, 0.8]}}}, source="tiny.yaml")
+    check_layout(layout)
+    assert free_spawn_points(layout, layout.spawn_evaders).tolist() == [[0.8, 0.8]]
