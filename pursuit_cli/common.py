@@ -404,11 +404,12 @@ def shield_each_if_asked(args: argparse.Namespace, chosen: list[tuple[object, st
     return shielded
 
 
-def load_model(path, spec, task: TaskConfig, flag: str = "--model", flight: bool = False):
+def load_model(path, spec, task: TaskConfig, flag: str = "--model", flight: bool = False, layouts=None):
     """A trained policy for `task` via train.policy.load_policy (imported lazily: the library never
     needs torch); a model trained behind the safety shield comes back behind it. A note on stderr
     names the TRAINED_TASK_KEYS it learned with other values (for a `flight`, not the simulation-only ones;
-    a key the checkpoint predates counts at its default)."""
+    a key the checkpoint predates counts at its default), and, given the `layouts` the command plays,
+    the layouts it trained on when it plays none of them."""
     from pathlib import Path
 
     if Path(path).is_dir():
@@ -426,7 +427,32 @@ def load_model(path, spec, task: TaskConfig, flag: str = "--model", flight: bool
     differ = [f"{k} {then} (this task: {now})" for k, then, now in task_differences(getattr(policy, "trained_task", {}), task, keys)]
     if differ:  # legitimate (the study judges full_obs under partial observability), but worth knowing
         print(f"note: {flag} {path} was trained with {', '.join(differ)}", file=sys.stderr)
+    if layouts is not None:
+        note_layouts_not_trained_on(f"{flag} {path}", getattr(policy, "trained_layouts", None), layouts)
     return policy
+
+
+def _layout_key(ref) -> str:
+    """What a layout reference names, for telling whether two name the same layout: a built-in's
+    index, else the file's real path (a relative path from the current folder)."""
+    from pursuit_mj.evaluation import layout_identity
+
+    ident = layout_identity(ref)
+    return ident if is_index_text(ident) else os.path.realpath(ident)
+
+
+def note_layouts_not_trained_on(what: str, trained, played) -> None:
+    """A note on stderr when none of the `played` layouts (indices or files) is one of the layouts
+    `trained` on (None: not known, no note): the model plays arenas it never met, which may be
+    meant (a test of generalisation) or not (a layout left out, so the task's layout 0 is played)."""
+    if not trained:
+        return
+    if {_layout_key(r) for r in trained} & {_layout_key(r) for r in played}:
+        return
+    def listed(refs) -> str:
+        return f"layout{'s' if len(refs) > 1 else ''} {', '.join(str(r) for r in refs)}"
+    print(f"note: {what} was trained on {listed(list(trained))}, which this run does not play ({listed(list(played))})",
+          file=sys.stderr)
 
 
 def refuse_a_python_file(given, flag: str = "--model", takes_policy: bool = True) -> None:

@@ -80,7 +80,7 @@ def run(args) -> int:
     refuse_a_python_file(args.model, "--model", takes_policy=False)  # demo has no --policy: eval's is named
     if not model.exists():
         raise ValueError(f"--model {model}: no such file (the pretrained policy ships as {_shown(PRETRAINED)})")
-    policy = load_model(model, _spec(config), config)
+    policy = load_model(model, _spec(config), config, layouts=layouts)
     # the training run's name, as eval and render call it; the hand-made team keeps its own (the
     # paired table is keyed on it), a model trained as run 'heuristic' gets eval's label for a repeat
     name = f"{policy.name}#2" if policy.name == "heuristic" and not args.no_heuristic else policy.name

@@ -124,13 +124,14 @@ def _refuse_writing_an_input(args, config, layouts, csv_path: Path | None, json_
     refuse_writing_an_input(outputs, _inputs(args, config, layouts))
 
 
-def _policies(args, config) -> list[tuple[str, object]]:
-    """(label, policy) pairs in command-line order: hand-made teams first, then models (shielded with --shield)."""
+def _policies(args, config, layouts) -> list[tuple[str, object]]:
+    """(label, policy) pairs in command-line order: hand-made teams first, then models (shielded with
+    --shield); a model that trained on none of the table's `layouts` says so in a note."""
     names = args.policy or ([] if args.model else ["heuristic"])
     made = [(name, make_policy(name, config, args.seed)) for name in names]
     out = [(policy.name if is_policy_file(name) else name, policy) for name, policy in made]
     spec = ObsSpec.make(config.n_pursuers, config.n_evaders, config.n_rays)
-    out += [(getattr(pol, "name", Path(m).stem), pol) for m, pol in ((m, load_model(m, spec, config)) for m in args.model)]
+    out += [(getattr(pol, "name", Path(m).stem), pol) for m, pol in ((m, load_model(m, spec, config, layouts=layouts)) for m in args.model)]
     out = [(label, pol) for pol, label in shield_each_if_asked(args, [(pol, label) for label, pol in out], config)]
     seen: dict[str, int] = {}
     labelled = []
@@ -242,7 +243,7 @@ def _run(args) -> int:
     config = task_config_from_args(args)
     # a bad, repeated or ignored layout refused before any episode runs
     layouts = table_layouts(args, config)
-    policies = _policies(args, config)
+    policies = _policies(args, config, layouts)
     versus = _versus(args, policies)
     if args.resume and args.rerun:
         raise ValueError("--resume with --rerun: the recording would hold only the rows run now; record in an eval of its own")

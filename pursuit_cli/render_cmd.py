@@ -23,7 +23,7 @@ from pathlib import Path
 from pursuit_mj.io_utils import check_writable_folder, no_new_empty_folders
 from pursuit_mj.config import TaskConfig, load_task_yaml, preset_or_file
 from pursuit_mj.configio import dump_yaml, load, to_dict
-from pursuit_mj.layout import load_layout
+from pursuit_mj.layout import N_BUILTIN, load_layout
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policies import POLICY_NAMES, make_policy
 from pursuit_mj.evader_models import evader_model_sha256
@@ -222,8 +222,9 @@ def render_digest(config: TaskConfig, label: str, checkpoint: Path | None, frame
 def choose_policy(args, config: TaskConfig, train_cfg):
     """(policy, label): -m FILE, else --policy NAME, else the -mc run's best.pt, else heuristic."""
     spec = ObsSpec.make(config.n_pursuers, config.n_evaders, config.n_rays)
+    played = list(range(N_BUILTIN)) if config.random_layout else [config.layout]  # a note if the model never met them
     if args.model:
-        policy = load_model(args.model, spec, config)
+        policy = load_model(args.model, spec, config, layouts=played)
         return policy, getattr(policy, "name", Path(args.model).stem)
     if args.policy:
         policy = make_policy(args.policy, config, args.seed)
@@ -232,7 +233,7 @@ def choose_policy(args, config: TaskConfig, train_cfg):
         best = train_cfg.run_dir / "best.pt"
         if not best.is_file():
             raise ValueError(f"-mc {args.model_config}: no checkpoint at {best}; train it first, or pass -m FILE or --policy")
-        policy = load_model(best, spec, config, flag=f"-mc {args.model_config}:")
+        policy = load_model(best, spec, config, flag=f"-mc {args.model_config}:", layouts=played)
         return policy, getattr(policy, "name", train_cfg.name)
     return make_policy("heuristic", config, args.seed), "heuristic"
 

@@ -1,6 +1,7 @@
 """The train, study, demo and bench-train commands end to end on tiny settings."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -935,3 +936,26 @@ def test_a_model_used_against_an_otherwise_tuned_escape_model_says_so(tiny_model
     load_model(tiny_model, ObsSpec.make(task.n_pursuers, task.n_evaders, task.n_rays), mine)
     err = capsys.readouterr().err
     assert "evader.model janosov (this task: mine.py:Straight)" in err and "sense_radius" not in err, err
+
+
+def test_a_model_played_on_no_layout_it_trained_on_says_which_it_trained_on(tmp_path, monkeypatch, capsys):
+    """A run trained on a layout file of one's own, then `eval --model` (or `render -m`) without a
+    layout, played the task's layout 0 without a word: the checkpoint names the file it trained on,
+    so a note says so; a table that plays that file (by any spelling of its path) says nothing."""
+    monkeypatch.chdir(tmp_path)
+    Path("arena.yaml").write_text("arena: {width: 3.0, height: 4.0}\nspawn:\n  pursuers: {x: [0.3, 2.7], y: [0.3, 0.8]}\n"
+                                  "  evaders: {x: [0.3, 2.7], y: [3.2, 3.7]}\n")
+    assert main(["train", "--no-progress", "--name", "a", "--total-steps", "32", "--layout", "arena.yaml"]
+                + sets(TINY + ["run.runs_dir=runs"])) == 0
+    capsys.readouterr()
+    play = ["eval", "--model", "runs/a/last.pt", "--episodes", "1", "--worlds", "1", "--fidelity", "point", "--pursuers", "2",
+            "--set", "max_steps=5", "-q"]
+    assert main(play) == 0
+    note = f"note: --model runs/a/last.pt was trained on layout {tmp_path / 'arena.yaml'}, which this run does not play (layout 0)"
+    assert note in capsys.readouterr().err
+    for named in (["--layouts", "arena.yaml", "1"], ["--layouts", str(tmp_path / "arena.yaml")], ["-i", "./arena.yaml"]):
+        assert main(play + named) == 0
+        assert "was trained on layout" not in capsys.readouterr().err, named
+    assert main(["render", "-m", "runs/a/last.pt", "--no-video", "--final-frame", "-s", "r/", "--fidelity", "point",
+                 "--pursuers", "2", "--set", "max_steps=5"]) == 0
+    assert note in capsys.readouterr().err  # render -m is --model too

@@ -17,6 +17,7 @@ import torch
 from pursuit_mj.belief import Belief, BeliefPolicy, BeliefTeam, belief_spec
 from pursuit_mj.config import TaskConfig
 from pursuit_mj.configio import build
+from pursuit_mj.layout import N_BUILTIN
 from pursuit_mj.obs_spec import ObsSpec
 from pursuit_mj.policy import Policy, check_world_ids
 from pursuit_mj.policies import make_policy
@@ -152,7 +153,20 @@ def load_policy(path: str | Path, env_spec: ObsSpec | None = None, stochastic: b
         run_task = task if task is not None else build(TaskConfig, stored.get("task", {}), f"{source}.task")
         team = trained_team(policy, run_task, bool(stored.get("shield", False)), residual, belief)
     team.trained_task = dict(stored.get("task", {}))  # the task it learned in, for callers to compare with theirs
+    team.trained_layouts = trained_layouts(stored)
     return team
+
+
+def trained_layouts(train_config: dict) -> list:
+    """The layouts (indices or file paths, as the run's stored config names them) whose episodes a
+    run trained on: its `layouts` (one per world, or drawn from per episode with random_layout),
+    else the built-in ones with task.random_layout, else task.layout (default 0)."""
+    task = train_config.get("task", {}) or {}
+    if train_config.get("layouts"):
+        return list(train_config["layouts"])
+    if task.get("random_layout", False):
+        return list(range(N_BUILTIN))
+    return [task.get("layout", 0)]
 
 
 def _check_spec_and_task(env_spec, task) -> None:
