@@ -658,3 +658,32 @@ def test_a_replay_by_episode_seed_names_the_seed_in_its_caption(tmp_path, monkey
     texts.clear()
     run_episodes(config, RandomPolicy(3), 2, seed=5, settings=small(), outputs=EpisodeOutputs(None, [tmp_path / "c.png", tmp_path / "d.png"]))
     assert [t.rsplit(" | ", 1)[1] for t in texts] == ["episode 0", "episode 1"], texts
+
+
+def _thin_wall_frame(wall_thickness):
+    """A 640 x 480 top view (no key) of a 3.6 x 5 m arena, with a wall at y = 2.52 m of this thickness (None: none)."""
+    from pursuit_mj.layout import layout_from_dict
+
+    walls = [] if wall_thickness is None else [{"wall": {"from": [0.3, 2.52], "to": [3.3, 2.52], "thickness": wall_thickness}}]
+    layout = layout_from_dict({"name": "thin", "arena": {"width": 3.6, "height": 5.0}, "obstacles": walls,
+                               "spawn": {"pursuers": {"x": [0.2, 3.4], "y": [0.2, 0.8]}, "evaders": {"x": [0.2, 3.4], "y": [4.2, 4.8]}}},
+                              "thin.yaml")
+    config = default_config(fidelity="point", random_obstacles=0, observability="full")
+    env = PursuitEnv(config, seed=0, auto_reset=False, layouts=[layout])
+    env.reset()
+    snap = env.snapshot(0)
+    with FrameMaker(config, snap.layout, RenderSettings(640, 480, "top", "fast", key=False), "t", 5) as maker:
+        return maker.draw(snap, 0)
+
+
+def test_a_wall_thinner_than_a_pixel_is_still_drawn():
+    """A 5 mm wall is 0.4 px wide at 640 x 480: it fell between pixel centres and vanished from the
+    frame (at y = 2.52 m; at 2.5 m it showed), while the pursuers turned at it. Walls and boxes
+    narrower than 1/120 of the arena's longer side get a line along them, drawn in pixels."""
+    plain = _thin_wall_frame(None).astype(int)
+    for thickness in (0.005, 0.01):
+        differ = np.abs(_thin_wall_frame(thickness).astype(int) - plain).sum(-1) > 60
+        assert differ.sum() > 200, (thickness, differ.sum())  # the 3 m wall spans about 230 px
+    from pursuit_mj.render.overlays import thin_obstacle_segments
+
+    assert all(thin_obstacle_segments(load_layout(k)) == [] for k in range(4))  # the built-in walls draw as before

@@ -4,8 +4,8 @@ Per frame, from a `Snapshot` (pursuit_mj.env) and the recent trail of every dron
 perception circles (or field-of-view wedges), cut short where walls and obstacles block the
 pursuer's line of sight, a solid line from a pursuer to each evader it
 sees and a dashed one to each it knows only by relay, short fading trails, the capture
-radius around every evader (filled once captured), and a role-coloured disc under each drone
-that tilts with its body. Lines are MuJoCo line geoms (width in pixels), so they stay crisp at
+radius around every evader (filled once captured), a role-coloured disc under each drone
+that tilts with its body, and a line along every wall or box too thin for the frame to show. Lines are MuJoCo line geoms (width in pixels), so they stay crisp at
 any camera distance.
 """
 
@@ -44,6 +44,7 @@ class OverlayStyle:
     sight_segments: int = 128  # rays of a full ring of sight cut at walls (64 left 11 cm between rays 2 m out)
     trail_segments: int = 400  # a trail is drawn through at most this many + 1 of its points (every step up to 400)
     dash_length: float = 0.1  # m
+    thin_obstacle_width: float = 2.0  # px: the line along a wall or box too thin to show by itself
 
 
 def _rgba(c) -> np.ndarray:
@@ -194,6 +195,42 @@ def draw_trails(w: GeomWriter, trails: np.ndarray, n_pursuers: int, style: Overl
         w.polyline(pts[:, d], c, style.trail_width, fade=True)
 
 
+#: walls and boxes narrower than this share of the arena's longer side get a line along them (a
+#: 3.6 x 5 m arena: under 4.2 cm, about 3 px at 640 x 480; the built-in walls, 5-6 cm, do not)
+THIN_OBSTACLE_SHARE = 1 / 120
+
+
+def thin_obstacle_segments(layout) -> list[tuple[np.ndarray, np.ndarray, bool]]:
+    """(start (2,), end (2,) m, random?) of the long axis of each wall or box of `layout` narrower
+    than THIN_OBSTACLE_SHARE of its arena's longer side: drawn by MuJoCo alone, one under a pixel
+    wide falls between pixel centres and vanishes from the frame, depending on where it lies."""
+    from ..layout import Box, Wall
+
+    limit = THIN_OBSTACLE_SHARE * max(layout.width, layout.height)
+    first_random = len(layout.obstacles) - layout.n_random
+    out = []
+    for k, o in enumerate(layout.obstacles):
+        box = o.as_box() if isinstance(o, Wall) else o
+        if not isinstance(box, Box) or min(box.size) >= limit:
+            continue
+        along = 0 if box.size[0] >= box.size[1] else 1  # the long side's axis in the box's frame
+        yaw = box.yaw + along * math.pi / 2
+        half = box.size[along] / 2 * np.array([math.cos(yaw), math.sin(yaw)])
+        out.append((np.asarray(box.center) - half, np.asarray(box.center) + half, k >= first_random))
+    return out
+
+
+def draw_thin_obstacles(w: GeomWriter, snap, style: OverlayStyle) -> None:
+    """A line (style.thin_obstacle_width px) along the top of every thin wall or box
+    (`thin_obstacle_segments`), in its obstacle colour, so that it shows at any scale."""
+    from ..scene import wall_heights
+
+    top = wall_heights(snap.config.flight_height)[0]
+    for a, b, random in thin_obstacle_segments(snap.layout):
+        c = _rgba(OBSTACLE_RGBA["random" if random else "fixed"])
+        w.line(np.array([a[0], a[1], top]), np.array([b[0], b[1], top]), c, style.thin_obstacle_width)
+
+
 def overlay_geom_budget(config, layout, style: OverlayStyle) -> int:
     """An upper bound on the geoms `draw_all` adds for `config`'s team in `layout`'s arena.
 
@@ -206,12 +243,14 @@ def overlay_geom_budget(config, layout, style: OverlayStyle) -> int:
     longest = math.hypot(layout.width, layout.height) + 1.0
     per_pair = int(longest / style.dash_length) // 2 + 1  # a sighting is one line, a relay at most this many dashes
     markers = n_p + n_e
-    return perception + capture + trails + n_p * n_e * per_pair + markers
+    thin = len(layout.obstacles)  # at most a line per obstacle
+    return perception + capture + trails + n_p * n_e * per_pair + markers + thin
 
 
 def draw_all(scene: mujoco.MjvScene, snap, trails: np.ndarray, style: OverlayStyle) -> None:
     """Every decoration of one frame (see module docstring)."""
     w = GeomWriter(scene)
+    draw_thin_obstacles(w, snap, style)
     draw_perception(w, snap, style)
     draw_capture_zones(w, snap, style)
     draw_trails(w, trails, len(snap.pursuer_pos), style)
