@@ -361,6 +361,27 @@ def _describe(o) -> str:
     return repr(o)
 
 
+def _what_covers(layout, region, shown: int = 3) -> str:
+    """What leaves spawn `region` no point SPAWN_CLEARANCE from obstacles and the border, for a
+    refusal: the obstacles within that of some grid point of it inside the border, up to `shown`
+    of them described ('obstacles[1] (box ...) covers it'), else the border alone."""
+    import dataclasses
+
+    pts = free_spawn_points(layout, region, clearance=-np.inf)  # the region's grid points inside the border
+    near = [i for i, o in enumerate(layout.obstacles)
+            if (obstacle_distance(pts, ObstacleSet.from_layout(dataclasses.replace(layout, obstacles=(o,)), include_border=False))
+                < SPAWN_CLEARANCE - 1e-9).any()]
+    if not near:
+        return f"all of it lies within {SPAWN_CLEARANCE} m of the border"
+    named = [f"obstacles[{i}] ({_describe(layout.obstacles[i])})" for i in near[:shown]]
+    more = len(near) - len(named)
+    if more:
+        listed = ", ".join(named) + f" and {more} more"
+    else:
+        listed = named[0] if len(named) == 1 else ", ".join(named[:-1]) + " and " + named[-1]
+    return f"{listed} cover{'s' if len(near) == 1 else ''} it"
+
+
 def check_layout(layout) -> None:
     """Raise LayoutError if an obstacle leaves the arena, a spawn region has no free room, or some
     free spawn point cannot be reached from the other team's spawn region past the fixed obstacles."""
@@ -395,6 +416,6 @@ def check_layout(layout) -> None:
                                   f"{b.kind} boundary")
             raise LayoutError(
                 f"{src}: spawn.{name} x={list(region.x)} y={list(region.y)} has no free point "
-                f"{SPAWN_CLEARANCE} m away from obstacles and the border (spawn region inside an obstacle?)"
+                f"{SPAWN_CLEARANCE} m away from obstacles and the border: {_what_covers(layout, region)}"
             )
     check_passages(layout)

@@ -1308,3 +1308,21 @@ def test_a_spawn_point_exactly_the_clearance_from_the_border_is_accepted():
                                          "evaders": {"x": [0.8, 0.8], "y": [0.8, 0.8]}}}, source="tiny.yaml")
     check_layout(layout)
     assert free_spawn_points(layout, layout.spawn_evaders).tolist() == [[0.8, 0.8]]
+
+
+def test_a_spawn_region_with_no_free_point_names_the_obstacles_that_cover_it():
+    """'spawn.pursuers ... has no free point 0.2 m away from obstacles and the border (spawn region
+    inside an obstacle?)' left the user to find which of the file's obstacles it meant; the refusal
+    names them (or says that the border alone leaves no room), as DESIGN.md promises an error
+    naming the offending entry."""
+    covering = [{"cylinder": {"center": [3.0, 4.0], "radius": 0.2}},
+                {"box": {"center": [1.0, 0.5], "size": [2.0, 1.0]}}, {"box": {"center": [2.8, 0.5], "size": [1.6, 1.0]}}]
+    with pytest.raises(LayoutError, match=r"spawn.pursuers x=\[0.2, 3.4\] y=\[0.2, 0.8\] has no free point 0.2 m away from "
+                                          r"obstacles and the border: obstacles\[1\] \(box centre \[1.0, 0.5\] size \[2.0, 1.0\]\) "
+                                          r"and obstacles\[2\] \(box centre \[2.8, 0.5\] size \[1.6, 1.0\]\) cover it$"):
+        layout_from_dict(base_dict(obstacles=covering), "covered.yaml")
+    edge = base_dict(spawn={"pursuers": {"x": [0.1, 3.5], "y": [0.1, 0.15]}, "evaders": SPAWN["evaders"]})
+    with pytest.raises(LayoutError, match=r"spawn.pursuers x=\[0.1, 3.5\] y=\[0.1, 0.15\] has no free point 0.2 m away from "
+                                          r"obstacles and the border: all of it lies within 0.2 m of the border$"):
+        layout_from_dict(edge, "edge.yaml")
+
