@@ -233,7 +233,7 @@ def build_new_layout(args) -> Layout:
     except LayoutError as exc:
         if args.points and "boundary polygon point" in str(exc):
             raise LayoutError(f"{exc} (--width and --height set the arena; left out, they fit the points)") from None
-        said = re.sub(r"obstacles\[(\d+)\]", lambda m: _obstacle_flag(args, int(m.group(1))), str(exc), count=1)
+        said = re.sub(r"obstacles\[(\d+)\]", lambda m: _obstacle_flag(args, int(m.group(1))), str(exc))
         raise LayoutError(said) from None
     if args.random:  # place the --random obstacles for good: they become fixed obstacles
         layout = layout.with_random_obstacles(np.random.default_rng(args.seed or 0), args.random,

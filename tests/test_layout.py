@@ -1326,3 +1326,13 @@ def test_a_spawn_region_with_no_free_point_names_the_obstacles_that_cover_it():
                                           r"obstacles and the border: all of it lies within 0.2 m of the border$"):
         layout_from_dict(edge, "edge.yaml")
 
+
+def test_layout_new_names_every_covering_obstacle_by_its_flag(tmp_path, capsys):
+    """Two --box flags covering the pursuers' band: the refusal named the first by its flag and the
+    second as obstacles[1], an index the user never wrote."""
+    out = tmp_path / "y.yaml"
+    assert main(["layout", "new", str(out), "--box", "1", "0.5", "2", "1", "--box", "2.8", "0.5", "1.6", "1"]) == 2
+    err = capsys.readouterr().err
+    assert ("the 1st --box 1 0.5 2 1 (box centre [1.0, 0.5] size [2.0, 1.0]) and the 2nd --box 2.8 0.5 1.6 1 "
+            "(box centre [2.8, 0.5] size [1.6, 1.0]) cover it") in err, err
+    assert "obstacles[" not in err and not out.exists()
