@@ -5,8 +5,8 @@ perception circles (or field-of-view wedges), cut short where walls and obstacle
 pursuer's line of sight, a solid line from a pursuer to each evader it
 sees and a dashed one to each it knows only by relay, short fading trails, the capture
 radius around every evader (filled once captured), a role-coloured disc under each drone
-that tilts with its body, and a line along every wall or box too thin for the frame to show. Lines are MuJoCo line geoms (width in pixels), so they stay crisp at
-any camera distance.
+that tilts with its body, and a line along every wall or box too thin for the frame to show.
+Lines are MuJoCo line geoms (width in pixels), so they stay crisp at any camera distance.
 """
 
 from __future__ import annotations
