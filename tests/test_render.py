@@ -687,3 +687,32 @@ def test_a_wall_thinner_than_a_pixel_is_still_drawn():
     from pursuit_mj.render.overlays import thin_obstacle_segments
 
     assert all(thin_obstacle_segments(load_layout(k)) == [] for k in range(4))  # the built-in walls draw as before
+
+
+def _big_arena_frame(style):
+    """A 640 x 480 top view (no key) of a 50 x 50 m arena with its team, drawn with overlay `style`."""
+    from pursuit_mj.layout import layout_from_dict
+    from pursuit_mj.render.overlays import OverlayStyle
+
+    layout = layout_from_dict({"name": "big", "arena": {"width": 50.0, "height": 50.0}, "obstacles": [],
+                               "spawn": {"pursuers": {"x": [5, 20], "y": [5, 20]}, "evaders": {"x": [30, 45], "y": [30, 45]}}},
+                              "big.yaml")
+    config = default_config(fidelity="point", random_obstacles=0, observability="full")
+    env = PursuitEnv(config, seed=0, auto_reset=False, layouts=[layout])
+    env.reset()
+    with FrameMaker(config, layout, RenderSettings(640, 480, "top", "fast", key=False), "t", 5, style=OverlayStyle(**style)) as maker:
+        return maker.draw(env.snapshot(0), 0)
+
+
+def test_drones_in_a_large_arena_are_marked_big_enough_to_see():
+    """In a 50 m arena the 0.1 m role disc is about 1 px across at 640 x 480: the drones showed only
+    through their trails and sight rings. The disc grows to 1/100 of the arena's longer side there
+    (0.5 m), and keeps its 0.1 m in the built-in arenas."""
+    from pursuit_mj.render.overlays import marker_radius
+
+    plain = _big_arena_frame({"marker_alpha": 0.0}).astype(int)
+    marked = np.abs(_big_arena_frame({}).astype(int) - plain).sum(-1) > 30
+    assert marked.sum() >= 4 * 30, marked.sum()  # 3 pursuers and an evader, each a disc of several px
+    from pursuit_mj.render.overlays import OverlayStyle
+
+    assert all(marker_radius(load_layout(k), OverlayStyle()) == 0.1 for k in range(4))

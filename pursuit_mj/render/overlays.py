@@ -163,15 +163,27 @@ def draw_capture_zones(w: GeomWriter, snap, style: OverlayStyle) -> None:
             w.disc(p - [0, 0, 0.01], r, fill)
 
 
+#: a drone's role disc is at least this share of the arena's longer side across (radius), so a
+#: drone stays visible in a large arena: 50 m wide, 0.5 m (about 9 px across at 640 x 480) where the 0.1 m disc
+#: was about 1 px; the built-in arenas (5 m at most) keep style.marker_radius
+MARKER_SHARE = 1 / 100
+
+
+def marker_radius(layout, style: OverlayStyle) -> float:
+    """The role disc's radius (m) in `layout`'s arena: style.marker_radius, or more in a large arena."""
+    return max(style.marker_radius, MARKER_SHARE * max(layout.width, layout.height))
+
+
 def draw_markers(w: GeomWriter, snap, style: OverlayStyle) -> None:
-    """A translucent role-coloured disc under every drone, tilted with its body."""
+    """A translucent role-coloured disc under every drone, tilted with its body (`marker_radius`)."""
+    radius = marker_radius(snap.layout, style)
     for role, pos, quat in (("pursuer", snap.pursuer_pos, snap.pursuer_quat), ("evader", snap.evader_pos, snap.evader_quat)):
         c = _rgba(ROLE_RGBA[role])
         c[3] = style.marker_alpha
         mat = np.empty(9)
         for p, q in zip(pos, quat):
             mujoco.mju_quat2Mat(mat, np.asarray(q, float))
-            w.disc(p, style.marker_radius, c, mat, thickness=0.001)
+            w.disc(p, radius, c, mat, thickness=0.001)
 
 
 def trail_points(trails: np.ndarray, style: OverlayStyle) -> np.ndarray:
