@@ -105,6 +105,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def refuse_unrecognized(parser: argparse.ArgumentParser, args: argparse.Namespace, extras: list[str]) -> None:
+    """Exit 2 naming `extras` (arguments no flag took) by the (sub)command they were given to, with
+    the closest of its listed flags to the first unknown one ('--layouts' -> '--layout')."""
+    import difflib
+
+    target = parser
+    while True:  # down to the innermost command chosen: `layout show`, `bench env`, `fly check`
+        sub = next((a for a in target._actions if isinstance(a, argparse._SubParsersAction)), None)
+        chosen = getattr(args, sub.dest, None) if sub is not None else None
+        if chosen not in (sub.choices if sub is not None else {}):
+            break
+        target = sub.choices[chosen]
+    listed = [s for action in target._actions if action.help != argparse.SUPPRESS for s in action.option_strings]
+    unknown = [e.split("=", 1)[0] for e in extras if e.startswith("-")]
+    close = difflib.get_close_matches(unknown[0], listed, n=1) if unknown else []
+    target.error(f"unrecognized arguments: {' '.join(extras)}" + (f"; did you mean {close[0]}?" if close else ""))
+
+
 def mujoco_import_error() -> str | None:
     """Why `import mujoco` fails here, as one line naming MUJOCO_GL, or None when it imports.
 
@@ -188,7 +206,9 @@ def _run(argv: list[str] | None) -> int:
     if not argv:  # a bare `pursuit-mj`: show what there is
         parser.print_help(sys.stderr)
         return 2
-    args = parser.parse_args(argv)
+    args, extras = parser.parse_known_args(argv)
+    if extras:
+        refuse_unrecognized(parser, args, extras)
     stops: list[str] = []
     args.stop_signals = stops  # read by commands that end gracefully on a stop (train)
     try:

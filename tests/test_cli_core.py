@@ -766,3 +766,26 @@ def test_a_shield_refused_for_changing_nothing_gives_advice_for_the_command(argv
     err = capsys.readouterr().err
     assert err.strip().endswith("--shield: heuristic has the shield built in, so --shield changes nothing; " + advice), err
     assert len(err.strip().splitlines()) == 1, err
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["render", "--policy", "random", "--layouts", "2"],
+     "pursuit-mj render: error: unrecognized arguments: --layouts 2; did you mean --layout? (see pursuit-mj render --help)"),
+    (["eval", "--policy", "heuristic", "--episods", "3"], "pursuit-mj eval: error: unrecognized arguments: --episods 3; did you mean --episodes?"),
+    (["eval", "--policy", "heuristic", "stray"], "pursuit-mj eval: error: unrecognized arguments: stray (see pursuit-mj eval --help)"),
+])
+def test_an_unknown_flag_is_refused_by_its_command_naming_the_closest_flag_it_has(capsys, argv, said):
+    """'render --layouts 2' (eval's spelling; render plays one layout) was refused as 'pursuit-mj:
+    error: unrecognized arguments: --layouts 2 (see pursuit-mj --help)', naming neither the command
+    whose flags to look up nor the flag meant."""
+    with pytest.raises(SystemExit) as stopped:
+        main(argv)
+    err = capsys.readouterr().err
+    assert stopped.value.code == 2 and said in err and len(err.splitlines()) == 1, err
+
+
+def test_an_unknown_flag_of_a_subcommand_action_is_refused_by_that_action(capsys):
+    with pytest.raises(SystemExit) as stopped:
+        main(["layout", "show", "0", "--sed", "3"])
+    err = capsys.readouterr().err
+    assert stopped.value.code == 2 and err.startswith("pursuit-mj layout show: error: unrecognized arguments: --sed 3; did you mean --seed?"), err
