@@ -179,12 +179,28 @@ def termination_as_interrupt(stops: list[str] | None = None):
 
 def main(argv: list[str] | None = None) -> int:
     """The `pursuit-mj` command: `argv` (default sys.argv[1:]) -> exit code."""
+    code = 1
     try:
-        return _run(argv)
+        code = _run(argv)
+        return code
     finally:
         if argv is None and threading.current_thread() is threading.main_thread():
             # the process itself (not a caller in Python) ends now: a Ctrl-C during Python's exit
             signal.signal(signal.SIGINT, signal.SIG_IGN)  # handlers would only print a traceback
+            _exit_past_a_dead_rerun_writer(code)
+
+
+def _exit_past_a_dead_rerun_writer(code: int) -> None:
+    """End the process at once (os._exit) when a rerun recording of it failed to write (a full
+    disk): rerun's shutdown at exit would wait on that recording's dead writer forever, deaf to
+    Ctrl-C (pursuit_mj/recording/unfinished.py). Whatever the command wrote is closed by then."""
+    unfinished = sys.modules.get("pursuit_mj.recording.unfinished")
+    if unfinished is None or not unfinished.any_failed():
+        return
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
 
 
 def _run(argv: list[str] | None) -> int:

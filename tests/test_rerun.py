@@ -550,3 +550,65 @@ def test_docs_name_every_key_of_an_episode_s_recording_property(recorded):
     keys = {re.sub(r"^return_.*", "return_<term>", k) for k in ent["/__properties/episode_0"].static}
     keys |= {"started", "time_to_capture_s"}  # eval's recordings; successes only
     assert keys - named == set(), f"docs/rendering.md does not name {sorted(keys - named)}"
+
+
+@pytest.mark.parametrize("writer", ["scalars", "episodes"])
+def test_a_recording_whose_file_stops_growing_is_an_error_not_a_hang(tmp_path, writer):
+    """A full disk while a recording streams (played by a file size limit on a child process):
+    rerun 0.41's flush without a timeout, and its disconnect, could wait forever once its file
+    writer had died (train --rerun on a full disk hung for good, deaf to Ctrl-C and SIGTERM).
+    Each flush is bounded (lowered here to 2 s), a failed stream is never disconnected, and the
+    failure is the one-line error naming the file (CannotWrite, a ValueError)."""
+    import subprocess
+    import sys
+
+    path = tmp_path / "m.rrd"
+    code = ("import os, resource, signal, sys\n"
+            "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
+            "resource.setrlimit(resource.RLIMIT_FSIZE, (100000, resource.RLIM_INFINITY))\n"
+            "from pursuit_mj.config import default_config\n"
+            "from pursuit_mj.env import PursuitEnv\n"
+            "from pursuit_mj.recording import EpisodeBuffer, RerunEpisodeRecording, RerunScalarLogger, unfinished\n"
+            "unfinished.FLUSH_TIMEOUT_S = 2.0\n"
+            "env = PursuitEnv(default_config(fidelity='point', max_steps=3), seed=0, auto_reset=False)\n"
+            "env.reset()\n"
+            "rec = RerunScalarLogger(sys.argv[1]) if sys.argv[2] == 'scalars' else RerunEpisodeRecording(sys.argv[1])\n"
+            "try:\n"
+            "    for i in range(5000):\n"
+            "        if sys.argv[2] == 'scalars':\n"
+            "            rec.log(i, {f'k{j}': float(i * j) for j in range(60)})\n"
+            "        else:\n"
+            "            buf = EpisodeBuffer()\n"
+            "            buf.append(env.snapshot(0))\n"
+            "            rec.add_episode(buf)\n"
+            "except ValueError as exc:\n"
+            "    print('refused:', exc, flush=True)\n"
+            "    rec.close(ok=False) if sys.argv[2] == 'episodes' else rec.close()\n"
+            "    assert unfinished.any_failed()\n"
+            "    os._exit(3)\n")  # rerun's own shutdown would wait on the dead writer: pursuit_cli.main ends so
+    proc = subprocess.run([sys.executable, "-c", code, str(path), writer], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 3, (proc.returncode, proc.stdout[-1000:], proc.stderr[-2000:])
+    assert f"{path}: cannot write it (rerun:" in proc.stdout, proc.stdout
+
+
+def test_a_command_whose_recording_fails_ends_with_its_error(tmp_path):
+    """`pursuit-mj render --rerun` on a full disk (a file size limit): the process ends, exit status
+    2, with the error naming the file; rerun's shutdown at exit could wait on the dead writer forever."""
+    import os
+    import resource
+    import signal
+    import subprocess
+    import sys
+
+    def limited():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (100000, resource.RLIM_INFINITY))
+
+    path = tmp_path / "r.rrd"
+    env = {k: v for k, v in os.environ.items() if k != "RUST_LOG"}
+    proc = subprocess.run([sys.executable, "-m", "pursuit_cli", "render", "--policy", "random", "--fidelity", "point",
+                           "--set", "max_steps=20", "--episodes", "40", "--no-video", "--rerun", str(path)],
+                          capture_output=True, text=True, timeout=60, preexec_fn=limited, env=env)
+    assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
+    assert f"pursuit-mj render: error: --rerun {path}: cannot write it (rerun:" in proc.stderr
+    assert "Traceback" not in proc.stderr

@@ -646,7 +646,10 @@ class Trainer:
             self.critic_worker.close()
             self.critic_worker = None
         if self.rerun is not None:
-            self.rerun.close()
+            try:
+                self.rerun.close()
+            except ValueError as exc:  # its last rows did not fit on the disk; metrics.jsonl holds them
+                self.log(f"note: {exc}; metrics.jsonl holds every row")
 
     def _remove_a_run_that_holds_nothing(self) -> None:
         """After the run failed: when its folder holds no checkpoint and no logged update (it failed in
@@ -787,7 +790,10 @@ class Trainer:
             raise self._cannot_write(exc) from None
         self._pending_row = {}
         if self.rerun is not None:
-            self.rerun.log(int(row["world_steps"]), row)
+            try:
+                self.rerun.log(int(row["world_steps"]), row)
+            except ValueError as exc:  # metrics.rrd on a full disk; the row is in metrics.jsonl
+                raise self._cannot_write(exc) from None
         if self.counters.update % self.cfg.run.checkpoint_every == 0:  # after the log: a resume truncates the log to it
             self.save()
         advance_bar(bar, row, self.recent, last_val, self.progress())

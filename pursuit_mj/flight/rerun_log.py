@@ -26,7 +26,7 @@ import numpy as np
 import rerun as rr
 
 from ..io_utils import CannotWrite, keep_beside, killed_unfinished, move_into_place, not_replaced_message
-from ..recording.unfinished import stream_to_unfinished
+from ..recording.unfinished import flush, stream_to_unfinished
 from ..layout import Box, Wall
 from ..palette import ROLE_RGBA, rgb255
 from .plan import FlightPlan
@@ -116,7 +116,7 @@ class FlightRecorder:
         self._closed = True
         failed = None
         try:
-            self.rec.flush()
+            flush(self.rec)
             self.rec.disconnect()
         except RuntimeError as exc:  # rerun's file writer stopped: a full disk
             failed = exc

@@ -40,7 +40,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from ..io_utils import CannotWrite, check_writable, keep_beside, killed_unfinished, move_into_place, not_replaced_message
-from .unfinished import stream_to_unfinished
+from .unfinished import flush, stream_to_unfinished
 from ..layout import Box, Cylinder, Layout, Wall
 from ..palette import BORDER_RGBA, OBSTACLE_RGBA, ROLE_RGBA, rgb255
 from ..scene import drone_names, wall_heights
@@ -169,7 +169,7 @@ class RerunEpisodeRecording:
         self._send_rewards(prefix, index, snaps, names[:N])
         self._log_outcome(prefix, buffer.label, last, record)
         try:
-            self.stream.flush()  # on disk as each episode ends: a recording killed later (kill -9) keeps it
+            flush(self.stream)  # on disk as each episode ends: a recording killed later (kill -9) keeps it
         except RuntimeError as exc:  # rerun's file writer stopped: a full disk
             self.lost = str(exc)
             raise CannotWrite(f"{self.source} {self.path}: cannot write it (rerun: {exc})") from None
@@ -365,9 +365,7 @@ class RerunEpisodeRecording:
             return self.kept
         self._closed = True
         if self.lost is not None:  # an episode could not be written (add_episode said so): nothing is kept
-            with contextlib.suppress(RuntimeError):
-                self.stream.disconnect()
-            self._tmp.unlink(missing_ok=True)
+            self._tmp.unlink(missing_ok=True)  # (the stream is not disconnected: unfinished.FLUSH_TIMEOUT_S)
             return None
         keep = ok or self.n_episodes > 0
         if keep:
@@ -375,7 +373,7 @@ class RerunEpisodeRecording:
                 self.stream.send_property("interrupted", rr.AnyValues(finished_episodes=self.n_episodes))
             self.stream.send_blueprint(self.blueprint())
         try:
-            self.stream.flush()
+            flush(self.stream)
             self.stream.disconnect()
         except RuntimeError as exc:  # rerun's file writer stopped: a full disk
             return self._lost(ok, exc)

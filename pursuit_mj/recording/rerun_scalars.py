@@ -15,8 +15,10 @@ from typing import Any, Mapping
 import numpy as np
 import rerun as rr
 
+from ..io_utils import CannotWrite
 from ..plots import flatten
 from .rerun_episodes import APPLICATION_ID, check_rrd_path
+from .unfinished import flush
 
 
 def flatten_numbers(metrics: Mapping[str, Any]) -> dict[str, float]:
@@ -34,10 +36,14 @@ class RerunScalarLogger:
         self.stream.save(self.path)
         if run_name:
             self.stream.send_recording_name(run_name)
+        self.source = source
         self._closed = False
+        self._failed = False
 
     def log(self, step: int, metrics: Mapping[str, Any]) -> None:
-        """Record every numeric entry of `metrics` (nested dicts allowed) at `step` env steps."""
+        """Record every numeric entry of `metrics` (nested dicts allowed) at `step` env steps.
+        CannotWrite (a ValueError) naming the file if it cannot be written (a full disk); the rows
+        logged before stay in it."""
         if self._closed:
             raise RuntimeError(f"rerun log {self.path}: log after close")
         if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or not 0 <= step < 2 ** 63:
@@ -48,12 +54,23 @@ class RerunScalarLogger:
         self.stream.set_time(self.timeline, sequence=step)
         for key, value in flatten_numbers(metrics).items():
             self.stream.log(f"train/{key}", rr.Scalars(value))
-        self.stream.flush()  # on disk before the next row: a run killed (kill -9) keeps every logged row
+        self._flush()  # on disk before the next row: a run killed (kill -9) keeps every logged row
+
+    def _flush(self) -> None:
+        try:
+            flush(self.stream)
+        except RuntimeError as exc:  # rerun's file writer stopped: a full disk
+            self._failed = True
+            raise CannotWrite(f"{self.source} {self.path}: cannot write it (rerun: {exc})") from None
 
     def close(self) -> Path:
+        """Finish the file; CannotWrite if its last rows cannot be written. After a failed `log`
+        it only lets the stream go (the error was given then)."""
         if not self._closed:
             self._closed = True
-            self.stream.flush()
+            if self._failed:  # rerun's disconnect would wait forever on the dead writer: the stream is left
+                return self.path
+            self._flush()
             self.stream.disconnect()
         return self.path
 
