@@ -405,6 +405,6 @@ def _run(args) -> int:
     finally:
         if recording is not None:
             path = recording.close(ok=ok)
-            if path is not None or recording.lost is not None:
+            if path is not None or (recording.lost is not None and recording.n_episodes):  # else the error says it
                 print(recording.summary(), file=sys.stdout if ok else sys.stderr, flush=True)
     return 0

@@ -612,3 +612,26 @@ def test_a_command_whose_recording_fails_ends_with_its_error(tmp_path):
     assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
     assert f"pursuit-mj render: error: --rerun {path}: cannot write it (rerun:" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_a_recording_whose_first_episode_cannot_be_written_is_not_called_interrupted(tmp_path):
+    """A full disk at the first episode's write: render printed 'interrupted before any episode
+    finished: r.rrd was not written' above its error, though nothing was interrupted and the
+    episode had finished (its video was written)."""
+    config = default_config(fidelity="point", max_steps=3)
+    env = PursuitEnv(config, seed=0, auto_reset=False)
+    env.reset()
+    path = tmp_path / "r.rrd"
+
+    def full_disk(**kwargs):
+        raise RuntimeError("Failed to write: No space left on device (os error 28)")
+
+    with pytest.raises(ValueError, match="cannot write it"):
+        with RerunEpisodeRecording(path) as rec:
+            rec.stream.flush = full_disk
+            buf = EpisodeBuffer()
+            buf.append(env.snapshot(0))
+            rec.add_episode(buf)
+    assert "interrupted" not in rec.summary()
+    assert rec.summary() == f"no episode was recorded: {path} could not be written (Failed to write: No space left on device (os error 28))"
+    assert list(tmp_path.iterdir()) == []

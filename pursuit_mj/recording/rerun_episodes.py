@@ -346,6 +346,8 @@ class RerunEpisodeRecording:
                     f"{self.path} was not written{self._earlier_interrupted()}{killed}")
         if self.lost is not None and self.n_episodes:
             return f"the {n} recorded could not be written ({self.lost}): neither {self.path} nor {self.partial_path} holds them"
+        if self.lost is not None:  # the first episode's write failed (a full disk): nothing was interrupted
+            return f"no episode was recorded: {self.path} could not be written ({self.lost})"
         return f"interrupted before any episode finished: {self.path} was not written"
 
     def close(self, ok: bool = True) -> Path | None:
