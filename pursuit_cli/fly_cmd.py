@@ -3,7 +3,7 @@
     pursuit-mj fly --flight configs/flight/example.yaml --policy heuristic --virtual
     pursuit-mj fly --flight configs/flight/example.yaml --model runs/full_obs/best.pt
     pursuit-mj fly check --flight configs/flight/example.yaml
-    pursuit-mj fly align --flight lab.yaml --spots "0.5,0.5 3.1,0.5 1.8,4.5"
+    pursuit-mj fly align --flight configs/flight/lighthouse.yaml --virtual --spots "0.5,0.5 3.1,0.5 1.8,4.5"
 """
 
 from __future__ import annotations
