@@ -120,17 +120,24 @@ def spawn_gap(layout) -> float:
     return float(np.hypot(dx, dy))
 
 
-def check_spawn_gap(layout, capture_radius: float, source: str = "capture_radius") -> None:
-    """LayoutError unless the two spawn regions lie more than `capture_radius` (m) apart: an
-    evader spawned within it of a pursuer would count as caught on the first step."""
-    from .layout import LayoutError
+class SpawnGapError(LayoutError, TaskValueError):
+    """Spawn regions within the task's capture_radius of each other: the layout or the radius is
+    at fault, so a CLI names where the radius was given (TaskValueError), the message the layout."""
 
+    def __init__(self, value: float, reason: str):
+        ValueError.__init__(self, reason)
+        self.key, self.value, self.reason = "capture_radius", value, reason
+
+
+def check_spawn_gap(layout, capture_radius: float, source: str = "capture_radius") -> None:
+    """SpawnGapError (a LayoutError) unless the two spawn regions lie more than `capture_radius`
+    (m) apart: an evader spawned within it of a pursuer would count as caught on the first step."""
     gap = spawn_gap(layout)
     if gap <= capture_radius:
         where = "overlap" if gap == 0 else f"are {gap:g} m apart"
-        raise LayoutError(f"{layout.source}: the pursuers' and the evaders' spawn regions {where}, within the "
-                          f"{source} of {capture_radius:g} m: an episode could start with its evader caught; "
-                          f"move the regions apart")
+        raise SpawnGapError(capture_radius, f"{layout.source}: the pursuers' and the evaders' spawn regions {where}, "
+                            f"within the {source} of {capture_radius:g} m: an episode could start with its evader "
+                            f"caught; move the regions apart")
 
 
 def grid_components(free: np.ndarray) -> np.ndarray:

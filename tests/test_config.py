@@ -741,3 +741,19 @@ def test_eval_notes_the_task_settings_its_combination_never_reads(capsys):
         "observability full (every evader and teammate is known exactly)"]
     assert main(args) == 0
     assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("given, source", [
+    (["--set", "capture_radius=3.5", "--set", "perception_radius=4"], "--set capture_radius=3.5: "),
+    (["--set", "perception_radius=4", "--task", "BIGCATCH"], "task file BIGCATCH: capture_radius 3.5: "),
+])
+def test_spawn_regions_within_a_capture_radius_given_are_refused_naming_where_it_was_given(tmp_path, capsys, given, source):
+    """'--set capture_radius=3.5' was refused as '.../0_open.yaml: the spawn regions are 3.4 m apart,
+    within the capture_radius of 3.5 m ...', naming the layout file and not where the radius came from."""
+    task = tmp_path / "big_catch.yaml"
+    task.write_text("capture_radius: 3.5\n")
+    given = [str(task) if g == "BIGCATCH" else g for g in given]
+    assert main(["eval", "--policy", "heuristic", "--episodes", "1", *given]) == 2
+    err = capsys.readouterr().err
+    source = source.replace("BIGCATCH", str(task))
+    assert err.startswith(f"pursuit-mj eval: error: {source}") and "0_open.yaml" in err and len(err.splitlines()) == 1, err
