@@ -187,6 +187,8 @@ def _meta(args, policies, layouts, code: dict, config) -> dict:
             # and under which label: pool refuses a label that names two files (one edited between tables)
             "policy_file_sha256_of": _policy_file_labels(args, policies),
             "model_of": _model_labels(args, policies),
+            # the layouts each model's checkpoint trained on (the note on stderr names them when the table plays none)
+            "trained_layouts": _trained_layouts(args, policies),
             "layout_sha256": {layout_label(ref): file_sha256(resolve_layout_ref(ref)) for ref in layouts},
             # what seeded each layout's episodes here (a relative path is a built-in or not by where eval ran): for pool
             "layout_identity": {layout_label(ref): layout_identity(ref) for ref in layouts}, "code": code,
@@ -204,6 +206,21 @@ def _model_labels(args, policies) -> dict[str, str]:
     """{label: model file as given} of the --model policies (the last of `policies`, in order)."""
     labels = [label for label, _ in policies][len(policies) - len(args.model):]
     return dict(zip(labels, args.model))
+
+
+def _trained_layouts(args, policies) -> dict[str, list[str]]:
+    """{label: the layouts its checkpoint trained on, as table rows name layouts} of the --model
+    policies (train.policy.trained_layouts, read through a --shield around it); a model whose
+    checkpoint does not say is left out."""
+    from pursuit_mj.evaluation import layout_label
+
+    out = {}
+    for label, policy in policies[len(policies) - len(args.model):]:
+        while policy is not None and not hasattr(policy, "trained_layouts"):
+            policy = getattr(policy, "policy", None)  # a Shielded wraps the loaded model
+        if policy is not None and policy.trained_layouts:
+            out[label] = [layout_label(ref) for ref in policy.trained_layouts]
+    return out
 
 
 def _models_legend(args, policies) -> str | None:

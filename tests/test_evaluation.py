@@ -1191,3 +1191,46 @@ def test_eval_paired_table_names_the_fidelity_it_compares(fidelity, capsys):
                  "--fidelity", fidelity, "--set", "max_steps=3", "-q"]) == 0
     printed = capsys.readouterr().out
     assert f"\npaired with heuristic on the same episodes, in {fidelity} fidelity (capture steps: " in printed, printed
+
+
+def _save_tiny_checkpoint(path, overrides: list[str]) -> None:
+    """An untrained checkpoint of a train config with `overrides` (3 pursuers, 1 evader, 16 rays)."""
+    import torch
+
+    from pursuit_mj.configio import to_dict
+    from pursuit_mj.obs_spec import ObsSpec
+    from train.checkpoint import save_checkpoint
+    from train.config import load_train_config
+    from train.networks import Actor
+
+    torch.manual_seed(0)
+    cfg = load_train_config([], overrides)
+    spec = ObsSpec.make(3, 1, 16)
+    save_checkpoint(path, {"train_config": to_dict(cfg), "obs_spec": spec.to_dict(),
+                           "actor": Actor(spec, cfg.net).state_dict(), "counters": {"update": 0}})
+
+
+def test_eval_json_records_the_layouts_each_model_trained_on(tmp_path, capsys):
+    """The checkpoint names the layouts a model trained on, and eval printed a note when the table
+    played none of them, but its JSON kept nothing of them: a reader of the table could not tell a
+    model judged on its own arena from one judged on arenas it never met. `trained_layouts` holds
+    them per model label (as the rows name layouts); the older keys are as before, and `plot
+    --eval` and `eval --resume` read the file as before."""
+    _save_tiny_checkpoint(tmp_path / "a.pt", ["name=fo", "task.layout=2"])
+    _save_tiny_checkpoint(tmp_path / "b.pt", ["name=rl", "task.random_layout=true"])
+    a, b, out = str(tmp_path / "a.pt"), str(tmp_path / "b.pt"), tmp_path / "t"
+    flags = ["eval", "--policy", "heuristic", "-m", a, "-m", b, "--shield", "--layouts", "0", "1", "--episodes", "1",
+             "--worlds", "1", "--fidelity", "point", "--set", "max_steps=3", "-q", "--out", str(out)]
+    assert main(flags) == 0
+    assert "note: --model " + a + " was trained on layout 2, which this run does not play (layouts 0, 1)" in capsys.readouterr().err
+    data = json.loads((tmp_path / "t.json").read_text())
+    assert data["trained_layouts"] == {"fo+shield": ["2"], "rl+shield": ["0", "1", "2", "3"]}
+    assert data["model_of"] == {"fo+shield": a, "rl+shield": b} and data["policies"] == ["heuristic", "fo+shield", "rl+shield"]
+    assert main(["plot", "--eval", str(tmp_path / "t.json"), "-o", str(tmp_path / "plots")]) == 0
+    assert (tmp_path / "plots" / "eval_success.png").is_file()
+    # an interrupted table's JSON holds the key too, and --resume takes its rows back
+    (tmp_path / "t.json").rename(tmp_path / "t.interrupted.json")
+    (tmp_path / "t.csv").unlink()
+    capsys.readouterr()
+    assert main(flags[:-2] + ["--out", str(out), "--resume"]) == 0
+    assert json.loads((tmp_path / "t.json").read_text())["trained_layouts"] == data["trained_layouts"]
