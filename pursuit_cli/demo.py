@@ -66,7 +66,7 @@ def _shown(path: Path) -> str:
 
 def run(args) -> int:
     from pursuit_mj.comparison import paired_report
-    from pursuit_mj.evaluation import evaluate, format_table
+    from pursuit_mj.evaluation import evaluate, format_table, table_heading
     from pursuit_mj.stats import percent_text
     from pursuit_mj.policies import make_policy
 
@@ -110,6 +110,7 @@ def run(args) -> int:
             rows += evaluate(pol, config, [ref], args.episodes, args.seed, args.worlds, label=label)
             print(f"[demo] {label} layout {ref}: {time.perf_counter() - t0:.1f} s, success "
                   f"{percent_text(rows[-1].success.p)} %", file=sys.stderr, flush=True)  # as the table says it
+    print(table_heading(rows))
     print(format_table(rows))
     paired, _ = paired_report(rows, "heuristic", config.max_steps)
     if paired:

@@ -246,7 +246,7 @@ def run(args) -> int:
 
 def _run(args) -> int:
     from pursuit_mj.comparison import paired_report, pairs_to_dicts
-    from pursuit_mj.evaluation import format_table, plot_rows, write_csv, write_json
+    from pursuit_mj.evaluation import format_table, plot_rows, table_heading, write_csv, write_json
     from pursuit_mj.provenance import provenance
 
     check_episodes(args.episodes)
@@ -308,6 +308,7 @@ def _run(args) -> int:
             stack.close()  # the recording is finished: its failure to save must not cost the table
         except CannotWrite as exc:  # it says where its episodes are kept
             recording_error = exc
+    print(table_heading(rows))
     print(format_table(rows))
     legend = _models_legend(args, policies)
     if legend:

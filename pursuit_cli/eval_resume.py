@@ -56,13 +56,15 @@ def keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, con
     """After an interrupt: show the rows of the finished policy-layout cells and say where they are
     kept (written again: the last cell may have ended as the stop came); with none finished, say
     that nothing is kept."""
-    from pursuit_mj.evaluation import format_table
+    from pursuit_mj.evaluation import format_table, one_fidelity
 
     if not rows:
         print("[eval] interrupted before any policy-layout cell finished: nothing is kept for --resume", file=sys.stderr,
               flush=True)
         return
-    print(f"[eval] interrupted; the {len(rows)} finished policy-layout cells:\n{format_table(rows)}", file=sys.stderr, flush=True)
+    cells = f"{len(rows)} finished policy-layout cell{'' if len(rows) == 1 else 's'}"
+    print(f"[eval] interrupted; the {cells}{one_fidelity(rows, ', every row')}:\n{format_table(rows)}", file=sys.stderr,
+          flush=True)
     for path in write_finished(rows, csv_path, json_path, config, meta):
         print(f"[eval] wrote {path}", file=sys.stderr, flush=True)
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Sequence
 
-from .evaluation import Row, layout_identity
+from .evaluation import Row, layout_identity, one_fidelity  # one_fidelity: the paired heading's, and pool's
 from .stats import Mean, mcnemar_p, mean_interval, sign_flip_p
 
 
@@ -221,13 +221,6 @@ def pairs_to_dicts(pairs: Sequence[Paired]) -> list[dict]:
              "caught_only_by_policy": p.only_policy, "caught_only_by_versus": p.only_reference,
              "sign_flip_p": p.p_value, "verdict": p.verdict,
              "mcnemar_p": p.success_p, "success_verdict": p.success_verdict} for p in pairs]
-
-
-def one_fidelity(items, lead: str) -> str:
-    """', every row in point fidelity' (lead, then the fidelity) when every row or pair of `items` is of one
-    fidelity, which the table then shows in no column (format_table, format_pairs); '' otherwise."""
-    fidelities = {item.fidelity for item in items}
-    return f"{lead} in {fidelities.pop()} fidelity" if len(fidelities) == 1 else ""
 
 
 def paired_report(rows: Sequence[Row], reference: str, max_steps: float) -> tuple[str, list[Paired]]:

@@ -286,6 +286,23 @@ def format_table(rows: Sequence[Row]) -> str:
     return "\n".join(lines)
 
 
+def one_fidelity(items, lead: str) -> str:
+    """', every row in point fidelity' (lead, then the fidelity) when every row or pair of `items` is of one
+    fidelity, which the table then shows in no column (format_table, comparison.format_pairs); '' otherwise."""
+    fidelities = {item.fidelity for item in items}
+    return f"{lead} in {fidelities.pop()} fidelity" if len(fidelities) == 1 else ""
+
+
+def table_heading(rows: Sequence[Row]) -> str:
+    """The line above a table of `rows` (eval's, demo's, a study's): 'evaluated 2 policies on 4
+    layouts, every row in point fidelity', the fidelity named as the paired table's heading names
+    it (one_fidelity; rows of several fidelities have a column of it instead)."""
+    policies = len(dict.fromkeys(r.policy for r in rows))
+    layouts = len(dict.fromkeys(r.layout for r in rows))
+    return (f"evaluated {policies} {'policy' if policies == 1 else 'policies'} on {layouts} "
+            f"layout{'' if layouts == 1 else 's'}{one_fidelity(rows, ', every row')}")
+
+
 def rows_to_csv(rows: Sequence[Row]) -> str:
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=list(FIELDS), lineterminator="\n")

@@ -394,7 +394,7 @@ def test_an_interrupted_eval_keeps_its_finished_cells_beside_the_table_it_was_as
                  "--worlds", "2", "--fidelity", "point", "--set", "max_steps=20", "--out", str(tmp_path / "t"), "-q"])
     assert code == 143  # 128 + SIGTERM
     err = capsys.readouterr().err
-    assert "[eval] interrupted; the 2 finished policy-layout cells:" in err and err.endswith("pursuit-mj eval: interrupted by SIGTERM\n")
+    assert "[eval] interrupted; the 2 finished policy-layout cells, every row in point fidelity:" in err and err.endswith("pursuit-mj eval: interrupted by SIGTERM\n")
     kept = json.loads((tmp_path / "t.interrupted.json").read_text())
     assert kept["interrupted"] is True and [(r["policy"], r["layout"]) for r in kept["rows"]] == [("heuristic", "0"), ("heuristic", "1")]
     assert all(len(r["per_episode"]["seed"]) == 2 for r in kept["rows"])
@@ -589,7 +589,8 @@ def test_demo_plays_the_layout_named_by_layout(capsys):
                  "--fidelity", "point", "--set", "max_steps=5"])
     assert code == 0
     table = capsys.readouterr().out.split("\n\n")[0].splitlines()
-    assert [line.split()[1] for line in table[1:]] == ["2"]
+    assert table[0] == "evaluated 1 policy on 1 layout, every row in point fidelity"  # the heading, then the table
+    assert [line.split()[1] for line in table[2:]] == ["2"]
 
 
 @pytest.mark.parametrize("command", [["eval"], ["demo"]])
@@ -623,7 +624,7 @@ def test_demo_tells_a_model_named_heuristic_from_the_heuristic_team_and_pairs_bo
                  "--fidelity", "point", "--set", "max_steps=10"])
     assert code == 0
     table, paired = capsys.readouterr().out.split("\n\n")[:2]
-    assert [line.split()[0] for line in table.splitlines()[1:]] == ["heuristic#2", "heuristic#2+shield", "heuristic"]
+    assert [line.split()[0] for line in table.splitlines()[2:]] == ["heuristic#2", "heuristic#2+shield", "heuristic"]
     assert [line.split()[:2] for line in paired.splitlines()[2:]] == [["heuristic#2", "heuristic"],
                                                                       ["heuristic#2+shield", "heuristic"]]
 
@@ -1234,3 +1235,30 @@ def test_eval_json_records_the_layouts_each_model_trained_on(tmp_path, capsys):
     capsys.readouterr()
     assert main(flags[:-2] + ["--out", str(out), "--resume"]) == 0
     assert json.loads((tmp_path / "t.json").read_text())["trained_layouts"] == data["trained_layouts"]
+
+
+@pytest.mark.parametrize("fidelity", ["point", "quadrotor"])
+@pytest.mark.parametrize("command", [["eval", "--policy", "heuristic"], ["demo", "--no-heuristic", "--no-shield"]])
+def test_the_main_table_names_the_fidelity_its_rows_were_played_in(command, fidelity, capsys):
+    """eval's (and demo's) main table has no fidelity column when its rows are of one fidelity, as
+    they always are, and nothing above it said which: success %, collision % and mean steps with no
+    word of the physics that made them, while the paired table below names it in its heading
+    (comparison.one_fidelity). The main table now has a heading that says it the same way."""
+    assert main([*command, "--layouts", "0", "1", "--episodes", "1", "--worlds", "1", "--fidelity", fidelity,
+                 "--set", "max_steps=3", *(["-q"] if command[0] == "eval" else [])]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    head = next(k for k, line in enumerate(lines) if line.startswith("policy "))
+    assert lines[head - 1] == f"evaluated 1 policy on 2 layouts, every row in {fidelity} fidelity", lines
+
+
+def test_an_interrupted_eval_names_the_fidelity_of_the_cells_it_shows(tmp_path, capsys):
+    """The finished cells an interrupted eval prints on stderr are the main table's rows: their
+    heading names the fidelity as the whole table's does."""
+    from pursuit_cli.eval_resume import keep_finished
+
+    from pursuit_mj.policies import make_policy
+
+    config = default_config(fidelity="point", max_steps=3)
+    rows = evaluate(make_policy("heuristic", config), config, layouts=[0], episodes=1, n_worlds=1)
+    keep_finished(rows, None, None, config, {})
+    assert "[eval] interrupted; the 1 finished policy-layout cell, every row in point fidelity:\npolicy " in capsys.readouterr().err

@@ -970,3 +970,24 @@ def test_the_study_table_names_each_arms_checkpoint_so_that_pool_refuses_two_stu
     with pytest.raises(ValueError, match="policy 'full_obs' is two different models"):
         pool_tables(tables)
     assert len(pool_tables([tables[0]]).rows) == 2  # one study's table pools as ever
+
+
+def test_the_study_table_names_the_fidelity_its_rows_were_played_in(tmp_path):
+    """table.txt (which `pursuit-mj study` prints at its end) held the main table with no word of
+    the fidelity it was evaluated in, though the arms train in --train-fidelity and are judged in
+    the task's: the paired table below it named it, the main table did not. It has a heading now,
+    as eval's has."""
+    from types import SimpleNamespace
+
+    from pursuit_mj.config import default_config
+    from pursuit_mj.evaluation import evaluate
+    from pursuit_mj.policies import make_policy
+    from train import study
+
+    task = dataclasses.replace(default_config(), fidelity="point", max_steps=5)
+    rows = evaluate(make_policy("heuristic", task), task, [0], 1, 0, 1)
+    rows += evaluate(make_policy("random", task), task, [0], 1, 0, 1, label="full_obs")
+    plan = SimpleNamespace(out=tmp_path, eval_task=task, layouts=(0,), seed=0, budget_minutes=1.0)
+    study._write(plan, rows, {"total": 1.0}, 1, {})
+    text = (tmp_path / "table.txt").read_text()
+    assert text.startswith("evaluated 2 policies on 1 layout, every row in point fidelity\npolicy "), text

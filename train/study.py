@@ -46,7 +46,8 @@ from pursuit_mj.config import TaskConfig
 from pursuit_mj.configio import TaskValueError, first_difference, parse_override, to_dict
 from pursuit_mj.comparison import paired_report, pairs_to_dicts
 from pursuit_mj.evader_models import evader_model_sha256
-from pursuit_mj.evaluation import evaluate, format_table, layout_identity, layout_label, plot_rows, write_csv, write_json
+from pursuit_mj.evaluation import (evaluate, format_table, layout_identity, layout_label, plot_rows, table_heading, write_csv,
+                                   write_json)
 from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, file_sha256, no_new_empty_folders
 from pursuit_mj.layout import resolve_layout_ref
 from pursuit_mj.obs_spec import ObsSpec
@@ -885,7 +886,7 @@ def _write(plan: StudyPlan, rows: Sequence, timings: dict[str, float], episodes:
     """The table, its charts and timings.json; table.json's meta holds this session's budget and
     every session's (`state`'s record, this session's included) with their wall time."""
     paired, pairs = paired_report(rows, "heuristic", plan.eval_task.max_steps)
-    atomic_write_text(plan.out / "table.txt", format_table(rows) + "\n" + (f"\n{paired}\n" if paired else ""))
+    atomic_write_text(plan.out / "table.txt", f"{table_heading(rows)}\n{format_table(rows)}\n" + (f"\n{paired}\n" if paired else ""))
     write_csv(rows, plan.out / "table.csv")
     sessions = {"session_budgets_minutes": state.get("budgets", [plan.budget_minutes]),
                 "seconds_all_sessions": _earlier_sessions_seconds(state)}
