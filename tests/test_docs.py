@@ -292,3 +292,21 @@ def test_adding_a_network_in_docs_training_md_states_how_a_trunk_is_called(monke
     obs = torch.zeros(5, 2, spec.dim)
     assert Actor(spec, cfg)(obs, spec)[0].shape == (5, 2, 2) and Critic(spec, cfg)(obs, spec).shape == (5, 2)
     assert calls == [spec, spec]
+
+
+def test_docs_quote_the_heading_of_the_main_evaluation_table_as_eval_prints_it():
+    """eval, demo and a study's table.txt print a heading above the main table naming the
+    fidelity of its rows (evaluation.table_heading); docs/evaluation.md, which quotes the paired
+    table's heading and pool's, said nothing of it, and docs/training.md called table.txt 'the
+    table and the paired one'. Both now quote or name it, as the code prints it."""
+    from pursuit_mj.env import EpisodeRecord
+    from pursuit_mj.evaluation import summarise, table_heading
+
+    records = [EpisodeRecord(0, 0, 0, "success", 100, None, {}, 1, "0")]
+    rows = [summarise(policy, layout, "point", 0, records, 1000) for policy in ("heuristic", "a") for layout in "0123"]
+    heading = table_heading(rows)
+    assert heading == "evaluated 2 policies on 4 layouts, every row in point fidelity"
+    evaluation = " ".join((ROOT / "docs" / "evaluation.md").read_text().split())
+    assert f"`{heading}`" in evaluation
+    training = " ".join((ROOT / "docs" / "training.md").read_text().split())
+    assert "`table.txt` (the table under a heading naming the fidelity" in training
