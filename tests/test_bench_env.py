@@ -242,3 +242,23 @@ def test_bench_physics_sizes_its_rounds_to_fill_the_seconds_asked():
     assert measuring_rounds(3.0, 10, 0.01, 0.005) == 20  # 20 rounds x 10 steps x 15 ms = 3 s
     assert measuring_rounds(3.0, 10, 0.01, 0.01) == 15
     assert measuring_rounds(0.01, 10, 0.01, 0.005) == 2  # at least two
+
+
+def test_the_benchmarks_name_the_task_and_layout_their_figures_are_of(capsys):
+    """bench env's header listed the team, layout, observability and rays, but not a --task preset or
+    --set values, which change the figures (the hard preset's 120 deg view and noise, a slower
+    evader): 'bench env --task hard' printed the same header as the reference task. bench physics
+    took --set without a word of it, and bench render, which plays layout 0 of the default task,
+    named its fidelity but no layout."""
+    from pursuit_cli.benchmarks.render import RenderBenchResult
+
+    assert main(["bench", "env", "--worlds", "1", "--seconds", "0.1", "--fidelity", "point", "--task", "hard",
+                 "--set", "evader_speed=0.8"]) == 0
+    assert "env benchmark (--task hard --set evader_speed=0.8): 3 pursuers" in capsys.readouterr().out
+    assert main(["bench", "physics", "--worlds", "1", "--seconds", "0.1", "--fidelity", "point", "--set", "random_obstacles=1"]) == 0
+    assert "physics benchmark (--set random_obstacles=1): 3 pursuers" in capsys.readouterr().out
+    assert main(["bench", "physics", "--worlds", "1", "--seconds", "0.1", "--fidelity", "point"]) == 0
+    assert "physics benchmark: 3 pursuers" in capsys.readouterr().out  # nothing given: the header as before
+    lines = RenderBenchResult("point", 98, 99, 1, 640, 480, sim_s=1.0, snapshot_s=0.1, render_s=4.0, encode_s=0.96,
+                              rerun_send_s=0.09996).lines()
+    assert lines[0].startswith("render bench, point fidelity, layout 0 of the default task: 98 decision steps in 1 episode"), lines[0]

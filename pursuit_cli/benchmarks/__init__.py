@@ -38,6 +38,16 @@ def check_common_args(args: Any) -> None:
         raise ValueError(f"--fidelity: {again} given twice; give each fidelity once")
 
 
+def given_task(task_files: Sequence[str], overrides: Sequence[str]) -> str:
+    """' (--task hard --set evader_speed=0.8)': the task flags a benchmark was given, for its header
+    line (a preset or value changes the figures; the header's own list does not name every key);
+    '' when none was given."""
+    import shlex
+
+    flags = [f"--task {shlex.quote(f)}" for f in task_files] + [f"--set {shlex.quote(o)}" for o in overrides]
+    return f" ({' '.join(flags)})" if flags else ""
+
+
 UNRELIABLE = "the machine's speed changed between blocks; run it again on an idle machine"
 
 

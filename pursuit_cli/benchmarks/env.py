@@ -30,7 +30,7 @@ from ..common import finite_float, seed_arg
 from pursuit_mj.config import TaskConfig, load_task_config
 from pursuit_mj.env import check_task_layouts
 from pursuit_mj.layout import load_layout
-from . import UNRELIABLE, against_aim, check_common_args, format_table, peak_rss_mb, profile_call, run_isolated
+from . import UNRELIABLE, against_aim, check_common_args, format_table, given_task, peak_rss_mb, profile_call, run_isolated
 
 HELP = "decision steps/s of the whole environment vs physics+controller and the raw MuJoCo ceiling"
 BLOCK_SECONDS = 0.25  # wall time of one timed block
@@ -175,7 +175,7 @@ def run(args) -> int:
     check_task_layouts(cfg)  # and a team its layouts cannot hold, before the header (the env it measures would)
     arena = ("a built-in layout drawn per episode (random_layout)" if cfg.random_layout else
              f"layout {cfg.layout} with {cfg.random_obstacle_count(load_layout(cfg.layout))} random obstacles")
-    print(f"env benchmark: {cfg.n_pursuers} pursuers + {cfg.n_evaders} evader(s) per world, {arena}, {cfg.observability} "
+    print(f"env benchmark{given_task(args.task_files, args.overrides)}: {cfg.n_pursuers} pursuers + {cfg.n_evaders} evader(s) per world, {arena}, {cfg.observability} "
           f"observability, {cfg.n_rays} rays; a decision step is {cfg.control_dt:g} s = {cfg.substeps} physics steps")
     print("rates in decision steps/s summed over worlds (agent-steps/s = env x pursuers); raw = batch.step(nstep), "
           "physics = BatchedPhysics.step, env = PursuitEnv.step; fastest of alternating blocks; one process per configuration")

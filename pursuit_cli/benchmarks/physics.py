@@ -28,7 +28,7 @@ from pursuit_mj.config import TaskConfig, load_task_config
 from pursuit_mj.layout import load_layout
 from pursuit_mj.layout_check import check_spawn_capacity
 from ..simulate import SPAWN_SEPARATION
-from . import UNRELIABLE, against_aim, check_common_args, format_table, peak_rss_mb, run_isolated
+from . import UNRELIABLE, against_aim, check_common_args, format_table, given_task, peak_rss_mb, run_isolated
 
 HELP = "raw MuJoCo step rate (the ceiling) vs BatchedPhysics with the controller in the loop"
 BLOCK_SECONDS = 0.2  # wall time of one timed block
@@ -153,7 +153,7 @@ def run(args) -> int:
     cfg = [task_config(f, args.overrides) for f in args.fidelity][0]  # refuses bad --set values before any work
     # and a team the layout's spawn regions cannot hold (as spawn_positions would), before the header
     check_spawn_capacity(load_layout(cfg.layout), cfg.n_pursuers, cfg.n_evaders, SPAWN_SEPARATION)
-    print(f"physics benchmark: {cfg.n_pursuers} pursuers + {cfg.n_evaders} evader(s) per world, layout {cfg.layout} with "
+    print(f"physics benchmark{given_task([], args.overrides)}: {cfg.n_pursuers} pursuers + {cfg.n_evaders} evader(s) per world, layout {cfg.layout} with "
           f"{cfg.random_obstacle_count(load_layout(cfg.layout))} random obstacles per world; a decision step is control_dt {cfg.control_dt:g} s = "
           f"{cfg.substeps} physics steps of {cfg.physics_dt:g} s; controller {cfg.controller_hz:g} Hz")
     print("rates summed over worlds; raw = batch.step(nstep) with fixed controls, ours = BatchedPhysics.step; fastest of "

@@ -44,6 +44,7 @@ class RenderBenchResult:
     render_s: float
     encode_s: float
     rerun_send_s: float
+    layout: str = "0"  # of the default task, which the benchmark plays
 
     @property
     def video_fps(self) -> float:
@@ -60,7 +61,7 @@ class RenderBenchResult:
     def lines(self) -> list[str]:
         ok = lambda good: "met" if good else "NOT met"  # noqa: E731
         return [
-            f"render bench, {self.fidelity} fidelity: {self.steps} decision steps in {self.episodes} episode{'' if self.episodes == 1 else 's'} of the heuristic team, "
+            f"render bench, {self.fidelity} fidelity, layout {self.layout} of the default task: {self.steps} decision steps in {self.episodes} episode{'' if self.episodes == 1 else 's'} of the heuristic team, "
             f"{self.frames} frames at {self.width}x{self.height}",
             f"  simulation (env + policy)         {self.sim_s:7.2f} s   {self.steps / self.sim_s:7.1f} steps/s",
             f"  video: draw {self.render_s:6.2f} s + encode {self.encode_s:5.2f} s   {against_aim(self.video_fps, TARGET_FPS, 1):>7} frames/s   target >= {TARGET_FPS:.0f}: {ok(self.video_fps >= TARGET_FPS)}",
@@ -151,7 +152,8 @@ def bench_render(fidelity: str = "quadrotor", steps: int = 1000, width: int = 64
         draw, enc = _render(config, episodes, Path(tmp), width, height)
         send = _record(episodes, Path(tmp))
     frames = sum(len(snaps) for snaps, _ in episodes)
-    return RenderBenchResult(fidelity, steps, frames, len(episodes), width, height, sim, snap_t, draw, enc, send)
+    return RenderBenchResult(fidelity, steps, frames, len(episodes), width, height, sim, snap_t, draw, enc, send,
+                             str(config.layout))
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
