@@ -59,12 +59,13 @@ def run(args) -> int:
         raise ValueError(f"--out {out}: exists and is not a folder")
     refuse_a_file_given_twice("--log", [(text, _label_and_path(text)[1]) for text in args.log])
     refuse_a_file_given_twice("--eval", [(text, Path(text)) for text in args.eval])
-    runs = {}
+    runs, fidelities = {}, {}
     for text in args.log:
         label, path = _label_and_path(text)
         if label in runs:
             label = f"{label} ({path})"
         runs[label] = read_training_log(path)
+        fidelities[label] = run_fidelity(path)
     tables = [(f, read_eval_rows(f)) for f in args.eval]
     _refuse_one_table_as_json_and_csv(tables)
     rows = _combined_rows(tables)
@@ -79,10 +80,27 @@ def run(args) -> int:
         if rows:  # first: it refuses a bar given twice before drawing
             paths += plot_eval(rows, out)
         if runs:
-            paths += plot_training(runs, out, args.metric or None, args.x)
+            paths += plot_training(runs, out, args.metric or None, args.x, fidelities)
     for p in paths:
         print(f"wrote {p}")
     return 0
+
+
+def run_fidelity(log: Path) -> str | None:
+    """The fidelity the training run of `log` (a run folder, or its metrics.jsonl) trained and
+    validated in: task.fidelity of the config.yaml pursuit-mj train writes beside its log; None
+    for a log outside a run folder, or a config.yaml that does not say (the chart then names none)."""
+    import yaml
+
+    if not (log.is_dir() or log.name == "metrics.jsonl"):
+        return None
+    try:
+        data = yaml.safe_load((log if log.is_dir() else log.parent).joinpath("config.yaml").read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return None
+    task = data.get("task") if isinstance(data, dict) else None
+    fidelity = task.get("fidelity") if isinstance(task, dict) else None
+    return fidelity if fidelity in ("point", "quadrotor") else None
 
 
 def _refuse_a_metric_null_everywhere(runs, metrics: list[str], logs: list[str]) -> None:

@@ -239,23 +239,30 @@ def curve_file_name(key: str) -> str:
 
 
 def plot_training(runs: Mapping[str, Sequence[Mapping[str, float]]], folder: str | Path,
-                  metrics: Sequence[str] | None = None, x: str | None = None) -> list[Path]:
-    """One PNG per metric with a line per run (label -> flattened rows) against the x key."""
+                  metrics: Sequence[str] | None = None, x: str | None = None,
+                  fidelities: Mapping[str, str | None] | None = None) -> list[Path]:
+    """One PNG per metric with a line per run (label -> flattened rows) against the x key.
+    `fidelities` (label -> the fidelity the run trained in, None where not known) names it: under
+    the title when every run is known to be of one, else beside each known run's name."""
     plt = _plt()
     folder = Path(folder)
     xk = x_key(runs, x)
+    known = {label: f for label, f in (fidelities or {}).items() if f and label in runs}
+    one = len(known) == len(runs) and len(set(known.values())) == 1
+    about = f"\n{next(iter(known.values()))} fidelity" if one else ""
     paths = []
     for key in curve_keys(runs, metrics):
         fig, ax = plt.subplots(figsize=(6.4, 3.8))
         for label, rows in runs.items():
             pts = np.array([(r[xk], r[key]) for r in rows if xk in r and key in r]).reshape(-1, 2)
+            shown = label if one or label not in known else f"{label} ({known[label]})"
             if len(pts):
-                ax.plot(pts[:, 0], pts[:, 1], marker="." if len(pts) < 30 else None, label=label)
+                ax.plot(pts[:, 0], pts[:, 1], marker="." if len(pts) < 30 else None, label=shown)
         ax.set_xlabel(xk.replace("_", " "))
         ax.set_ylabel(_curve_label(key))
         if is_rate(key):
             ax.set_ylim(-0.03, 1.03)  # markers at 0 and 1 whole
-        ax.set_title(key, fontsize="small")
+        ax.set_title(f"{key}{about}", fontsize="small")
         ax.grid(alpha=0.3)
         ax.legend(fontsize="small")
         fig.tight_layout()

@@ -559,3 +559,32 @@ def test_layouts_on_the_axis_are_in_layout_order_whatever_the_order_of_the_rows(
         [(x, _, colour)] = [b for b in drawn if b[1] == float(r["success_pct"]) and round(b[0]) == order.index(plots._layout_names(
             [plots.layout_key(r["layout"])])[0])]
         assert tuple(colour) == tuple(legends[0][r["policy"]]), r
+
+
+def test_training_curves_name_the_fidelity_their_runs_trained_in(tmp_path, monkeypatch):
+    """`plot --log` titled each curve by its key alone ('validation.success'): a success rate with
+    no word of the physics it was measured in, though every run folder's config.yaml names it (and
+    eval's charts name theirs). Runs of one fidelity now say it under the title, as eval's charts
+    do; runs of several have it beside their names in the legend; a log with no run config beside
+    it is drawn as before."""
+    import pursuit_mj.plots as plots
+
+    charts = []
+    real_save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: charts.append(
+        (fig.axes[0].get_title(), [t.get_text() for t in fig.axes[0].get_legend().get_texts()])) or real_save(fig, path))
+    for name, fidelity in (("a", "point"), ("b", "point"), ("q", "quadrotor")):
+        (tmp_path / name).mkdir()
+        _log(tmp_path / name / "metrics.jsonl")
+        (tmp_path / name / "config.yaml").write_text(f"name: {name}\ntask:\n  fidelity: {fidelity}\n")
+    _log(tmp_path / "loose.jsonl")
+    metric = ["--metric", "validation.success"]
+    assert main(["plot", "--log", str(tmp_path / "a"), "--log", str(tmp_path / "b" / "metrics.jsonl"), *metric,
+                 "-o", str(tmp_path / "p1")]) == 0
+    assert charts == [("validation.success\npoint fidelity", ["a", "b"])], charts
+    charts.clear()
+    assert main(["plot", "--log", str(tmp_path / "a"), "--log", str(tmp_path / "q"), *metric, "-o", str(tmp_path / "p2")]) == 0
+    assert charts == [("validation.success", ["a (point)", "q (quadrotor)"])], charts
+    charts.clear()
+    assert main(["plot", "--log", str(tmp_path / "loose.jsonl"), *metric, "-o", str(tmp_path / "p3")]) == 0
+    assert charts == [("validation.success", ["loose"])], charts
