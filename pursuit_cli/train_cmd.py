@@ -360,7 +360,7 @@ def _run(args) -> int:
         print(f"best validation success {percent_text(c['best_success'])} % (update {c['best_update']}): {Path(result['run_dir']) / 'best.pt'}")
     val = result["validation"]
     if "vs_heuristic_steps" in val:
-        print(f"last validation ({val['episodes']} fixed episode{'' if val['episodes'] == 1 else 's'}): success {percent_text(val['success'])} %, {val['mean_steps']:.1f} mean steps; "
+        print(f"last validation ({counted(val['episodes'], 'fixed episode')}, {_validated_on(trainer.cfg)}): success {percent_text(val['success'])} %, {val['mean_steps']:.1f} mean steps; "
               f"the heuristic team {percent_text(val['heuristic_success'])} %, {val['heuristic_mean_steps']:.1f}; paired, "
               f"{val['vs_heuristic_steps']:+.1f} "
               + ("[no interval: 1 episode]" if val["vs_heuristic_lo"] is None else
@@ -376,3 +376,17 @@ def _run(args) -> int:
     from . import stop_exit_code
 
     return stop_exit_code(stops[0] if stops else "SIGINT")
+
+
+def _validated_on(cfg) -> str:
+    """'point fidelity, layouts 1, 2': where a run's validation episodes are played (its task's
+    fidelity; run.validation_layouts, else its training layouts, else task.layout), for the line
+    that reports the last validation."""
+    layouts = list(cfg.run.validation_layouts or cfg.layouts)
+    if layouts:
+        where = f"layout{'s' if len(layouts) > 1 else ''} {', '.join(str(r) for r in layouts)}"
+    elif cfg.task.random_layout:
+        where = "a built-in layout drawn per episode"
+    else:
+        where = f"layout {cfg.task.layout}"
+    return f"{cfg.task.fidelity} fidelity, {where}"

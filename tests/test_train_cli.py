@@ -959,3 +959,16 @@ def test_a_model_played_on_no_layout_it_trained_on_says_which_it_trained_on(tmp_
     assert main(["render", "-m", "runs/a/last.pt", "--no-video", "--final-frame", "-s", "r/", "--fidelity", "point",
                  "--pursuers", "2", "--set", "max_steps=5"]) == 0
     assert note in capsys.readouterr().err  # render -m is --model too
+
+
+def test_the_last_validation_line_names_the_fidelity_and_layouts_it_was_played_on(tmp_path, capsys):
+    """`pursuit-mj train` ended with 'last validation (2 fixed episodes): success 0.0 %, 30.0 mean
+    steps; the heuristic team ...': rates and steps with no word of the fidelity or layouts that
+    made them (a run validated on run.validation_layouts other than those it trained on said the
+    same). The line names them, as eval's tables now do."""
+    assert main(["train", "--no-progress", "--name", "v", "--total-steps", "64", "--set", "run.validate_every=1",
+                 "--set", "run.validation_layouts=[1, 2]"] + sets(TINY + [f"run.runs_dir={tmp_path}"])) == 0
+    assert "\nlast validation (2 fixed episodes, point fidelity, layouts 1, 2): success " in capsys.readouterr().out
+    assert main(["train", "--no-progress", "--name", "w", "--total-steps", "64", "--set", "run.validate_every=1"]
+                + sets(TINY + [f"run.runs_dir={tmp_path}"])) == 0
+    assert "\nlast validation (2 fixed episodes, point fidelity, layout 0): success " in capsys.readouterr().out
