@@ -972,3 +972,14 @@ def test_the_last_validation_line_names_the_fidelity_and_layouts_it_was_played_o
     assert main(["train", "--no-progress", "--name", "w", "--total-steps", "64", "--set", "run.validate_every=1"]
                 + sets(TINY + [f"run.runs_dir={tmp_path}"])) == 0
     assert "\nlast validation (2 fixed episodes, point fidelity, layout 0): success " in capsys.readouterr().out
+
+
+def test_bench_train_names_the_settings_it_was_given(capsys):
+    """bench train's header named the config but not a --set, which changes the figures (the team,
+    the obstacles, the batch): a run with '--set task.random_obstacles=0' printed the header of the
+    config's own task. It now lists them, as bench env and physics do."""
+    code = main(["bench", "train", "--fidelity", "point", "--updates", "1", "--n-envs", "2", "--collection", "in-turn"]
+                + sets(TINY[1:-2]))
+    assert code == 0
+    given = " ".join(f"--set {s}" for s in TINY[1:-2])
+    assert f"train benchmark, config classic ({given}): PPO" in capsys.readouterr().out

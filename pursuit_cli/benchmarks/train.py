@@ -29,7 +29,7 @@ import time
 import numpy as np
 
 from ..common import counted
-from . import against_aim, format_table, profile_call
+from . import against_aim, format_table, given_task, profile_call
 
 HELP = "training throughput: agent-steps/s of rollout and of update, time per update, vs the bare env"
 AIM_UPDATE_OVER_ROLLOUT = 1.0  # the update must take less time than the rollout
@@ -288,7 +288,7 @@ def run(args: argparse.Namespace) -> int:
             when = "between them" if results[-1].collection == "in turn" else "after them"
             print(f"  measured {f}, {results[-1].collection}: {counted(args.updates, 'update')} after one warm-up, bare env stepped "
                   f"{when}", flush=True)
-    print(f"train benchmark, config {args.config}: {results[0].settings}")
+    print(f"train benchmark, config {args.config}{given_task([], args.overrides)}: {results[0].settings}")
     print("rates in agent-steps/s (decision steps x worlds x pursuers) from median wall times; bare env = the same task "
           "with random actions, stepped between updates (in turn) or after training (overlapped); cpu = process time of training (rollout worker and critic process included) over that of the bare env; "
           "update threads: torch threads of the update, and of the critic's process when the update is split (run.split_update)")
