@@ -397,6 +397,8 @@ def _run(args) -> int:
 
     # its trail_length counts positions: N decision steps are N + 1 of them, as in the frames
     recording = RerunEpisodeRecording(args.rerun, trail_length=args.trail + 1) if args.rerun else None
+    where = "a built-in layout drawn per episode" if config.random_layout else f"layout {config.layout}"
+    print(f"render: {label} on {where}, {config.fidelity} fidelity", flush=True)  # what the episode lines below are of
     ok = False
     try:
         run_episodes(config, policy, episodes, args.seed, settings, outputs, recording, label, on_episode=report,

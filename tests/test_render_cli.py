@@ -511,3 +511,14 @@ def test_a_speed_just_above_its_range_is_refused_without_a_millimetre_hint(tmp_p
 def test_a_layout_flag_that_names_no_file_is_refused_under_the_spelling_typed(tmp_path, capsys):
     assert _cli(tmp_path, "-s", str(tmp_path / "x.gif"), "--env_idx", "nothere.yaml") == 2
     assert "--env_idx nothere.yaml: " in capsys.readouterr().err
+
+
+def test_render_names_the_policy_layout_and_fidelity_of_the_episodes_it_reports(tmp_path, capsys):
+    """'episode 0: timeout after 5 steps (seed ...)' was all render printed with --rerun alone (no
+    video or image whose file name carries them): outcomes and steps of which policy, where, in
+    which physics, it did not say. A line above the episodes names them."""
+    code = main(["render", "--policy", "heuristic", "--fidelity", "point", "--set", "max_steps=5", "-i", "2",
+                 "--no-video", "--rerun", str(tmp_path / "r.rrd")])
+    assert code == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "render: heuristic on layout 2, point fidelity" and lines[1].startswith("episode 0: "), lines
