@@ -12,8 +12,10 @@ import re
 import secrets
 import shlex
 import shutil
+import signal
 import stat
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import IO, Callable, Iterator
@@ -47,6 +49,36 @@ def device_folder_fault(path: str | Path, appended: bool = False) -> str | None:
         return None
     return (f"{path}: a name in {DEVICES_FOLDER}, the folder of devices, that {what}: writing it would put a file "
             f"among the devices; give a file in a folder of yours (for output redirected to a file, that file's name)")
+
+
+#: the stop signals stops_held holds back (SIGHUP where the system has it)
+STOP_SIGNALS = tuple(s for s in (getattr(signal, n, None) for n in ("SIGINT", "SIGTERM", "SIGHUP")) if s is not None)
+
+
+@contextlib.contextmanager
+def stops_held() -> Iterator[None]:
+    """Within: a stop signal (Ctrl-C, SIGTERM, SIGHUP) that has a Python handler is held back and
+    delivered to that handler as the block ends, so that outputs that belong together (an
+    episode's video and its entry in a rerun recording) are put in place together or not at all.
+    The first stop held is delivered (its handler raises KeyboardInterrupt, as it would have at
+    once), also when the block raised. Keep the block short: it is deaf to stops while it runs.
+    Signals ignored or at the system's default, and any block off the main thread, are left alone."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    taken = {}
+    for sig in STOP_SIGNALS:
+        handler = signal.getsignal(sig)
+        if callable(handler):
+            taken[sig] = signal.signal(sig, lambda signum, frame: held.append(signum))
+    try:
+        yield
+    finally:
+        for sig, handler in taken.items():
+            signal.signal(sig, handler)
+        if held:
+            signal.raise_signal(held[0])  # its own handler runs now, as if it had just arrived
 
 
 @contextlib.contextmanager

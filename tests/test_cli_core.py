@@ -789,3 +789,21 @@ def test_an_unknown_flag_of_a_subcommand_action_is_refused_by_that_action(capsys
         main(["layout", "show", "0", "--sed", "3"])
     err = capsys.readouterr().err
     assert stopped.value.code == 2 and err.startswith("pursuit-mj layout show: error: unrecognized arguments: --sed 3; did you mean --seed?"), err
+
+
+@pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
+def test_a_stop_within_stops_held_waits_for_the_block_and_then_interrupts():
+    import signal
+
+    from pursuit_mj.io_utils import stops_held
+
+    done = []
+    with pytest.raises(KeyboardInterrupt):
+        with stops_held():
+            signal.raise_signal(signal.SIGINT)
+            done.append("after the stop")  # the block goes on to its end
+    assert done == ["after the stop"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is back
+    with stops_held():  # nothing held: nothing raised
+        done.append("quiet")
+    assert done[-1] == "quiet"

@@ -522,3 +522,41 @@ def test_render_names_the_policy_layout_and_fidelity_of_the_episodes_it_reports(
     assert code == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0] == "render: heuristic on layout 2, point fidelity" and lines[1].startswith("episode 0: "), lines
+
+
+@pytest.mark.parametrize("final", [False, True])
+def test_a_sigterm_just_after_a_video_is_renamed_into_place_still_records_its_episode(tmp_path, capsys, monkeypatch, final):
+    """The video of an episode and its entry in --rerun are put in place as one step: a stop
+    arriving between the two (here: right after the video's rename) takes effect once the episode
+    is in the recording too, so a complete video is never missing from the recording."""
+    import signal
+
+    from pursuit_mj.recording.rrd_read import read_entities
+    from pursuit_mj.render import video as video_mod
+
+    close = video_mod.VideoFile.close
+
+    def close_then_sigterm(self, ok=True):
+        path = close(self, ok)
+        if ok:
+            assert callable(signal.getsignal(signal.SIGTERM)), "the CLI must handle SIGTERM here"
+            signal.raise_signal(signal.SIGTERM)  # handled at once, between this rename and what follows
+        return path
+
+    monkeypatch.setattr(video_mod.VideoFile, "close", close_then_sigterm)
+    previous = signal.signal(signal.SIGTERM, signal.SIG_DFL)  # as a terminal starts a command: the CLI takes it
+    try:
+        out, rrd = tmp_path / "ep.mp4", tmp_path / "ep.rrd"
+        code = _cli(tmp_path, "-s", str(out), "--rerun", str(rrd), "--episodes", "3", *(["--final-frame"] if final else []))
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    err = capsys.readouterr().err
+    assert code == 143, err
+    assert "interrupted by SIGTERM" in err
+    videos = sorted(p.name for p in tmp_path.glob("ep_*.mp4"))
+    assert videos == ["ep_ep000.mp4"]  # the episode whose video was renamed, and no other
+    if final:
+        assert (tmp_path / "ep_ep000_final.png").is_file()
+    ent = read_entities(tmp_path / "ep.interrupted.rrd")
+    assert ent["/__properties/interrupted"].static["finished_episodes"][0] == 1
+    assert "/episode_0/outcome" in ent and "/episode_1/outcome" not in ent

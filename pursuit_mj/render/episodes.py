@@ -21,7 +21,8 @@ from ..policy import Policy, check_policy, checked_actions
 from .caption import Caption, draw_caption, draw_key
 from .overlays import OverlayStyle, TrailBuffer, draw_all, key_entries, overlay_geom_budget
 from .renderer import RenderSettings, SceneRenderer
-from .video import save_png, video_file
+from ..io_utils import stops_held
+from .video import VideoFile, save_png, video_file
 
 if TYPE_CHECKING:  # rerun is imported only when a recording is made
     from ..recording.rerun_episodes import RerunEpisodeRecording
@@ -195,11 +196,28 @@ def _one_episode(env: PursuitEnv, policy: Policy, obs: np.ndarray, k: int, shown
         settings = maker.renderer.settings
         with video_file(video_path, settings.width, settings.height, outputs.fps) as video:
             record, last = play(video)
-        written.append(video_path)
+            video.finish()  # complete, not yet renamed: Ctrl-C or SIGTERM until here leaves nothing of the episode
+            final = maker.draw(last, shown) if final_path is not None else None
+            with stops_held():  # the episode's outputs go into place together; a stop meanwhile waits for them
+                written += _put_in_place(video, final_path, final, recording, buffer, record)
     else:
         record, last = play(None)
+        final = maker.draw(last, shown) if final_path is not None else None
+        with stops_held():
+            written += _put_in_place(None, final_path, final, recording, buffer, record)
+    return record, written
+
+
+def _put_in_place(video: VideoFile | None, final_path: Path | None, final: np.ndarray | None,
+                  recording: RerunEpisodeRecording | None, buffer, record: EpisodeRecord) -> list[Path]:
+    """Put a played episode's outputs in place: its video renamed onto its name, its final frame
+    written, the episode added to the rerun recording; returns the files written. Called under
+    io_utils.stops_held, so that a stop never leaves a video in place whose episode the recording lacks."""
+    written = []
+    if video is not None:
+        written.append(video.close(ok=True))
     if final_path is not None:
-        written.append(save_png(final_path, maker.draw(last, shown)))
+        written.append(save_png(final_path, final))
     if recording is not None:
         recording.add_episode(buffer, record)
-    return record, written
+    return written

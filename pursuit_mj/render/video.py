@@ -101,6 +101,7 @@ class VideoFile:
         check_video_fps(fmt, fps)
         ensure_ffmpeg()
         self.frames = 0
+        self._finished = False  # the encoder has written the file out (finish)
         self._atomic = atomic_path(self.path)
         tmp = self._atomic.__enter__()
         extra = H264_ARGS if fmt == "mp4" else {}
@@ -121,18 +122,28 @@ class VideoFile:
             raise self._encoder_stopped(exc) from None
         self.frames += 1
 
+    def finish(self) -> None:
+        """Let the encoder write the last frames out: the file is complete under its temporary
+        name, for `close` to rename (CannotWrite if the encoder fails; nothing is left then, nor
+        on Ctrl-C or SIGTERM meanwhile)."""
+        if self._writer is None or self._finished:
+            return
+        try:
+            self._writer.__exit__(None, None, None)
+        except (OSError, RuntimeError) as exc:
+            raise self._encoder_stopped(exc) from None
+        except BaseException:  # Ctrl-C or SIGTERM while ffmpeg writes the last frames out: no part left
+            self._discard()
+            raise
+        self._finished = True
+
     def close(self, ok: bool = True) -> Path | None:
-        """ok: finish the file and rename it onto `path` (CannotWrite if the encoder fails); else discard it."""
+        """ok: finish the file (if `finish` has not) and rename it onto `path` (CannotWrite if the
+        encoder fails or the name cannot be replaced); else discard it."""
         if self._writer is None:
             return None
         if ok:
-            try:
-                self._writer.__exit__(None, None, None)
-            except (OSError, RuntimeError) as exc:
-                raise self._encoder_stopped(exc) from None
-            except BaseException:  # Ctrl-C or SIGTERM while ffmpeg writes the last frames out: no part left
-                self._discard()
-                raise
+            self.finish()
             self._writer = None
             try:
                 self._atomic.__exit__(None, None, None)  # the rename onto path; the part is gone if it fails
@@ -147,7 +158,8 @@ class VideoFile:
         writer, self._writer = self._writer, None
         err, said = RuntimeError("video abandoned"), ""
         try:
-            writer.__exit__(RuntimeError, err, None)
+            if not self._finished:  # a finished encoder has ended already
+                writer.__exit__(RuntimeError, err, None)
         except Exception as exc:
             said = str(exc)
         with contextlib.suppress(RuntimeError):
