@@ -141,12 +141,14 @@ def mujoco_import_error() -> str | None:
 
 
 @contextlib.contextmanager
-def termination_as_interrupt(stops: list[str] | None = None):
+def termination_as_interrupt(stops: list[str] | None = None, then_ignore_ctrl_c: bool = False):
     """Within: SIGTERM and SIGHUP (kill, a closed terminal) stop a command as Ctrl-C does, so
     its half-written outputs are removed and its checkpoints saved the same way. Signals
     already handled or ignored (nohup) are left alone; off the main thread, nothing changes.
     Ctrl-C is taken too, only to append each stop signal's name (SIGINT for it) to `stops`:
-    a library call can report the interrupt as its own error, and `main` then tells it apart."""
+    a library call can report the interrupt as its own error, and `main` then tells it apart.
+    then_ignore_ctrl_c: on the way out, Ctrl-C is ignored rather than given back to Python's
+    handler (the process is ending: a second Ctrl-C while it says so would only be a traceback)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -174,19 +176,24 @@ def termination_as_interrupt(stops: list[str] | None = None):
         yield
     finally:
         for sig, previous in taken.items():
-            signal.signal(sig, previous)
+            signal.signal(sig, signal.SIG_IGN if then_ignore_ctrl_c and sig == signal.SIGINT else previous)
 
 
 def main(argv: list[str] | None = None) -> int:
     """The `pursuit-mj` command: `argv` (default sys.argv[1:]) -> exit code."""
     code = 1
+    # the process itself (not a caller in Python) ends with the command: a Ctrl-C once the command
+    # has ended (while it says so, during Python's exit) is ignored; handlers would only print a traceback
+    whole_process = argv is None and threading.current_thread() is threading.main_thread()
     try:
-        code = _run(argv)
+        code = _run(argv, whole_process)
+        from pursuit_mj.io_utils import interrupt_handled
+
+        interrupt_handled()  # whatever interrupt came, the code says so: the process must not end by SIGINT
         return code
     finally:
-        if argv is None and threading.current_thread() is threading.main_thread():
-            # the process itself (not a caller in Python) ends now: a Ctrl-C during Python's exit
-            signal.signal(signal.SIGINT, signal.SIG_IGN)  # handlers would only print a traceback
+        if whole_process:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
             _exit_past_a_dead_rerun_writer(code)
 
 
@@ -203,36 +210,41 @@ def _exit_past_a_dead_rerun_writer(code: int) -> None:
     os._exit(code)
 
 
-def _run(argv: list[str] | None) -> int:
-    starting: list[str] = []
+def _run(argv: list[str] | None, whole_process: bool = False) -> int:
+    """Start up (imports, arguments) and run the command, stop signals taken throughout
+    (termination_as_interrupt): a Ctrl-C or kill at any moment is one line and 128 + its number."""
+    stops: list[str] = []
+    args = None
     try:  # the imports take a second or more: a Ctrl-C or kill meanwhile is a stop, not a crash
-        with termination_as_interrupt(starting):
+        with termination_as_interrupt(stops, then_ignore_ctrl_c=whole_process):
             broken = mujoco_import_error()
-            if starting:  # mujoco's start-up reports an interrupt as its own ImportError
-                raise KeyboardInterrupt(starting[0])
+            if stops:  # mujoco's start-up reports an interrupt as its own ImportError
+                raise KeyboardInterrupt(stops[0])
             if broken is not None:
                 print(f"pursuit-mj: error: {broken}", file=sys.stderr)
                 return 2
             parser = build_parser()
-    except KeyboardInterrupt:
-        by = f" by {starting[0]}" if starting and starting[0] != "SIGINT" else ""
-        print(f"pursuit-mj: interrupted{by} while starting", file=sys.stderr)
-        return stop_exit_code(starting[0] if starting else "SIGINT")
-    argv = sys.argv[1:] if argv is None else list(argv)
-    if not argv:  # a bare `pursuit-mj`: show what there is
-        parser.print_help(sys.stderr)
-        return 2
-    args, extras = parser.parse_known_args(argv)
-    if extras:
-        refuse_unrecognized(parser, args, extras)
-    stops: list[str] = []
-    args.stop_signals = stops  # read by commands that end gracefully on a stop (train)
-    try:
-        with termination_as_interrupt(stops):
+            argv = sys.argv[1:] if argv is None else list(argv)
+            if not argv:  # a bare `pursuit-mj`: show what there is
+                parser.print_help(sys.stderr)
+                return 2
+            parsed, extras = parser.parse_known_args(argv)
+            if extras:
+                refuse_unrecognized(parser, parsed, extras)
+            if stops:  # an interrupt that an import took for its own error: it still stops the command
+                raise KeyboardInterrupt(stops[0])
+            args = parsed
+            args.stop_signals = stops  # read by commands that end gracefully on a stop (train)
             return int(args.func(args) or 0)
     except KeyboardInterrupt as exc:
+        if args is None:
+            by = f" by {stops[0]}" if stops and stops[0] != "SIGINT" else ""
+            print(f"pursuit-mj: interrupted{by} while starting", file=sys.stderr)
+            return stop_exit_code(stops[0] if stops else "SIGINT")
         return _interrupted(args, str(exc.args[0]) if exc.args else "")
     except BrokenPipeError as exc:
+        if args is None:
+            raise
         if _stdout_is_broken():  # output piped into `head` and the like: the reader has all it wanted
             sys.stderr.close()  # (and no word about the output Python cannot flush at exit)
             return 0
@@ -241,6 +253,8 @@ def _run(argv: list[str] | None) -> int:
               "standard output closed: the process or peer reading it ended)", file=sys.stderr)
         return 1
     except Exception as exc:
+        if args is None:
+            raise
         if stops:  # the interrupt raised inside a library call, which reported it as its own error (pybind11: TypeError)
             return _interrupted(args, stops[0])
         if isinstance(exc, OSError) and exc.errno == errno.ENAMETOOLONG and exc.filename:

@@ -81,6 +81,19 @@ def stops_held() -> Iterator[None]:
             signal.raise_signal(held[0])  # its own handler runs now, as if it had just arrived
 
 
+def interrupt_handled() -> None:
+    """Say that a KeyboardInterrupt caught by the caller was handled, so that the process still
+    ends with its own exit code (130 after Ctrl-C, as the CLI says it stopped).
+
+    CPython (3.11 at least) marks an interrupt unhandled whenever a KeyboardInterrupt leaves code
+    run by exec() or eval() of a string, and keeps that mark even when the exception is caught
+    further up; a process run with `python -m` (or a script that ends without sys.exit) then ends
+    by SIGINT at exit, whatever its exit code. A Ctrl-C lands in such code now and then while
+    modules import (dataclasses and namedtuple generate their methods with exec and eval).
+    Running any string clears the mark: the interpreter resets it before each one."""
+    exec("pass", {})
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside `path`; on success it is renamed onto `path`, else removed.

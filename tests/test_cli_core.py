@@ -807,3 +807,72 @@ def test_a_stop_within_stops_held_waits_for_the_block_and_then_interrupts():
     with stops_held():  # nothing held: nothing raised
         done.append("quiet")
     assert done[-1] == "quiet"
+
+
+
+#: a module run as `python -m` (as `python -m pursuit_cli` is): argv[1] says where a Ctrl-C lands
+_STOPPED_PROCESS = """
+import argparse, signal, sys
+import pursuit_cli, pursuit_cli.config_cmd as config_cmd
+how, run_dir = sys.argv[1], sys.argv[2]
+sys.argv = ["pursuit-mj", "train", "--resume", run_dir] if how == "resume" else ["pursuit-mj", "config"]
+
+def ctrl_c():
+    signal.raise_signal(signal.SIGINT)  # handled at once, as a Ctrl-C arriving here
+
+def run(args):
+    if how == "in_generated_code":  # as in the code dataclasses and namedtuple generate (exec, eval) as modules import
+        exec("ctrl_c()")
+    else:
+        ctrl_c()
+    return 0
+
+config_cmd.run = run
+if how == "resume":  # the trainer's start-up, stopped inside such code
+    from train.trainer import Trainer
+    Trainer.resume = lambda *a, **k: exec("ctrl_c()")
+if how == "between_start_up_and_command":
+    parse = argparse.ArgumentParser.parse_known_args
+    def parse_after_ctrl_c(self, *a, **k):
+        ctrl_c()
+        return parse(self, *a, **k)
+    argparse.ArgumentParser.parse_known_args = parse_after_ctrl_c
+if how == "again_while_saying_so":
+    said = pursuit_cli._interrupted
+    def and_again(*a):
+        code = said(*a)
+        ctrl_c()  # a second Ctrl-C right after the line
+        return code
+    pursuit_cli._interrupted = and_again
+sys.exit(pursuit_cli.main())
+"""
+
+
+@pytest.mark.parametrize("how, said", [
+    ("in_generated_code", "pursuit-mj config: interrupted\n"),
+    ("resume", "pursuit-mj train: interrupted\n"),
+    ("between_start_up_and_command", "pursuit-mj: interrupted while starting\n"),
+    ("again_while_saying_so", "pursuit-mj config: interrupted\n"),
+])
+def test_a_ctrl_c_anywhere_ends_the_process_with_130_and_one_line_never_by_sigint(tmp_path, how, said):
+    """Seen as `python -m pursuit_cli train --resume` stopped while it started: 'interrupted'
+    printed, and yet the process died by SIGINT (-2 to a Python caller). A KeyboardInterrupt that
+    leaves code run by exec() or eval() of a string marks it unhandled for good (CPython 3.11),
+    even once caught, and a process run with -m then ends by SIGINT, whatever its exit code. A
+    Ctrl-C while the arguments were parsed escaped as a traceback; so did a second one while
+    'interrupted' was printed."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from conftest import stop_signals_at_their_defaults
+
+    (tmp_path / "stopped_cli.py").write_text(_STOPPED_PROCESS)
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "last.pt").write_bytes(b"")  # resume is stopped before it reads it
+    repo = Path(__file__).resolve().parent.parent
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(repo)])}
+    out = subprocess.run([sys.executable, "-m", "stopped_cli", how, str(tmp_path / "run")], capture_output=True,
+                         text=True, timeout=120, env=env, cwd=tmp_path, preexec_fn=stop_signals_at_their_defaults)
+    assert (out.returncode, out.stderr) == (130, said)

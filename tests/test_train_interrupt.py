@@ -128,3 +128,25 @@ def test_a_sigterm_that_mujoco_reports_as_a_type_error_still_saves_and_says_how_
     assert f"pursuit-mj train --resume {tmp_path / 'typed'}" in out.out + out.err
     assert load_checkpoint(tmp_path / "typed" / "last.pt")["counters"]["update"] == 1
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers given back
+
+
+_TRAIN_STOPPED_IN_GENERATED_CODE = """
+import sys
+from train.config import load_train_config
+from train.trainer import Trainer
+
+cfg = load_train_config([], overrides=sys.argv[2:] + [f"run.runs_dir={sys.argv[1]}", "name=stopped"])
+trainer = Trainer(cfg)
+trainer.train_one_update = lambda: exec("raise KeyboardInterrupt")  # a Ctrl-C inside code made by exec
+print(trainer.train()["status"])
+"""
+
+
+def test_a_script_whose_training_was_interrupted_ends_normally_not_by_sigint(tmp_path):
+    """Trainer.train handles a Ctrl-C (it returns 'interrupted'); one that left code run by exec()
+    still ended the script by SIGINT once it finished (CPython keeps such an interrupt marked
+    unhandled), so the script's caller saw -2 instead of 0."""
+    out = subprocess.run([sys.executable, "-c", _TRAIN_STOPPED_IN_GENERATED_CODE, str(tmp_path), *TINY], cwd=REPO,
+                         capture_output=True, text=True, timeout=120, env=dict(os.environ, MUJOCO_GL="egl"),
+                         preexec_fn=stop_signals_at_their_defaults)
+    assert (out.returncode, out.stdout.splitlines()[-1:]) == (0, ["interrupted"]), out.stderr[-2000:]

@@ -32,7 +32,8 @@ import torch
 from pursuit_mj.config import LEARNED_TASK_KEYS, task_differences
 from pursuit_mj.configio import dump_yaml, to_dict
 from pursuit_mj.evaluation import capture_steps
-from pursuit_mj.io_utils import atomic_write_text, check_writable_folder, file_sha256, made_here, no_new_empty_folders, remove_leftover_parts
+from pursuit_mj.io_utils import (atomic_write_text, check_writable_folder, file_sha256, interrupt_handled, made_here,
+                                 no_new_empty_folders, remove_leftover_parts)
 from pursuit_mj.policies import make_policy
 from pursuit_mj.sensing import privileged_config
 
@@ -870,6 +871,8 @@ class Trainer:
                 self._remove_a_run_that_holds_nothing()
                 raise
             status = "interrupted"
+            if isinstance(exc, KeyboardInterrupt):
+                interrupt_handled()  # returned as a status: the process must not end by SIGINT for it
             if self._consistent and (self._saved_update != c.update or self._pending_row):
                 try:
                     self.save()
