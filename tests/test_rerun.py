@@ -245,7 +245,8 @@ def test_a_recording_that_does_not_fit_on_the_disk_is_an_error_naming_it(tmp_pat
             " '--no-video', '--rerun', sys.argv[1]]))\n")
     proc = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=120)
     assert "Traceback" not in proc.stderr, proc.stderr[-2000:]
-    assert proc.returncode == 2 and f"pursuit-mj render: error: --rerun {path}: cannot write it (rerun:" in proc.stderr
+    assert proc.returncode == 2 and f"pursuit-mj render: error: --rerun {path}: cannot write it" in proc.stderr
+    assert "(rerun:" in proc.stderr  # its error, or that its flush timed out
     assert list(tmp_path.iterdir()) == []
 
 
@@ -588,7 +589,7 @@ def test_a_recording_whose_file_stops_growing_is_an_error_not_a_hang(tmp_path, w
             "    os._exit(3)\n")  # rerun's own shutdown would wait on the dead writer: pursuit_cli.main ends so
     proc = subprocess.run([sys.executable, "-c", code, str(path), writer], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 3, (proc.returncode, proc.stdout[-1000:], proc.stderr[-2000:])
-    assert f"{path}: cannot write it (rerun:" in proc.stdout, proc.stdout
+    assert f"{path}: cannot write it" in proc.stdout and "(rerun:" in proc.stdout, proc.stdout  # its error, or the flush timed out
 
 
 def test_a_command_whose_recording_fails_ends_with_its_error(tmp_path):
@@ -610,7 +611,7 @@ def test_a_command_whose_recording_fails_ends_with_its_error(tmp_path):
                            "--set", "max_steps=20", "--episodes", "40", "--no-video", "--rerun", str(path)],
                           capture_output=True, text=True, timeout=60, preexec_fn=limited, env=env)
     assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
-    assert f"pursuit-mj render: error: --rerun {path}: cannot write it (rerun:" in proc.stderr
+    assert f"pursuit-mj render: error: --rerun {path}: cannot write it" in proc.stderr and "(rerun:" in proc.stderr
     assert "Traceback" not in proc.stderr
 
 
@@ -634,4 +635,61 @@ def test_a_recording_whose_first_episode_cannot_be_written_is_not_called_interru
             rec.add_episode(buf)
     assert "interrupted" not in rec.summary()
     assert rec.summary() == f"no episode was recorded: {path} could not be written (Failed to write: No space left on device (os error 28))"
+    assert list(tmp_path.iterdir()) == []
+
+
+def _slow_flush(stream, tmp, grows: bool):
+    """rerun's flush of `stream` as a slow disk makes it: each call waits its timeout out and
+    reports it as rerun does ('Flush timed out'), the file under way growing by a byte meanwhile
+    (`grows`) or not, until the fourth call, which flushes for real."""
+    real = stream.flush
+    calls = []
+
+    def flush(timeout_sec):
+        calls.append(timeout_sec)
+        if len(calls) >= 4 and grows:
+            return real(timeout_sec=timeout_sec)
+        import time
+
+        time.sleep(timeout_sec)
+        if grows:
+            with open(tmp, "ab") as f:
+                f.write(b"\0")  # what the writer got out meanwhile
+        raise RuntimeError("Flush timed out - not all log messages were sent")
+
+    stream.flush = flush
+    return calls
+
+
+@pytest.mark.parametrize("grows", [True, False])
+def test_a_slow_flush_that_still_writes_is_waited_for_and_a_stalled_one_is_called_timed_out(tmp_path, monkeypatch, grows):
+    """The bound on a flush (unfinished.FLUSH_TIMEOUT_S, lowered here to 0.3 s) took a slow disk
+    for a failed one: an episode whose flush outlasted it was lost as 'cannot write it'. A flush
+    now fails only once nothing reached its file for that long, and says it stalled."""
+    from pursuit_mj.recording import unfinished
+
+    monkeypatch.setattr(unfinished, "FLUSH_TIMEOUT_S", 0.3)
+    monkeypatch.setattr(unfinished, "FLUSH_POLL_S", 0.15, raising=False)
+    monkeypatch.setattr(unfinished, "FAILED_STREAMS", [])
+    config = default_config(fidelity="point", max_steps=3)
+    env = PursuitEnv(config, seed=0, auto_reset=False)
+    env.reset()
+    path = tmp_path / "r.rrd"
+    rec = RerunEpisodeRecording(path)
+    calls = _slow_flush(rec.stream, rec._tmp, grows)
+    buf = EpisodeBuffer()
+    buf.append(env.snapshot(0))
+    if grows:  # 4 waits of 0.15 s, 0.6 s in all: twice the bound, the file growing all along
+        rec.add_episode(buf)
+        assert len(calls) == 4
+        del rec.stream.flush  # the rest as a quick disk
+        assert rec.close() == path and rec.n_episodes == 1
+        assert not unfinished.any_failed()
+        return
+    with pytest.raises(ValueError) as err:
+        rec.add_episode(buf)
+    assert str(err.value).startswith(f"--rerun {path}: cannot write it: the flush timed out, nothing reached it for 0.3 s "
+                                     f"(rerun: Flush timed out")
+    assert 2 <= len(calls) <= 20 and unfinished.any_failed()  # (rerun's own batcher may still write at first)
+    rec.close(ok=False)
     assert list(tmp_path.iterdir()) == []

@@ -116,7 +116,7 @@ class FlightRecorder:
         self._closed = True
         failed = None
         try:
-            flush(self.rec)
+            flush(self.rec, self._tmp)
             self.rec.disconnect()
         except RuntimeError as exc:  # rerun's file writer stopped: a full disk
             failed = exc

@@ -40,7 +40,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from ..io_utils import CannotWrite, check_writable, keep_beside, killed_unfinished, move_into_place, not_replaced_message
-from .unfinished import flush, stream_to_unfinished
+from .unfinished import cannot_write, flush, stream_to_unfinished
 from ..layout import Box, Cylinder, Layout, Wall
 from ..palette import BORDER_RGBA, OBSTACLE_RGBA, ROLE_RGBA, rgb255
 from ..scene import drone_names, wall_heights
@@ -169,10 +169,10 @@ class RerunEpisodeRecording:
         self._send_rewards(prefix, index, snaps, names[:N])
         self._log_outcome(prefix, buffer.label, last, record)
         try:
-            flush(self.stream)  # on disk as each episode ends: a recording killed later (kill -9) keeps it
-        except RuntimeError as exc:  # rerun's file writer stopped: a full disk
+            flush(self.stream, self._tmp)  # on disk as each episode ends: a recording killed later (kill -9) keeps it
+        except RuntimeError as exc:  # rerun's file writer stopped (a full disk) or stalled
             self.lost = str(exc)
-            raise CannotWrite(f"{self.source} {self.path}: cannot write it (rerun: {exc})") from None
+            raise CannotWrite(cannot_write(f"{self.source} {self.path}", exc)) from None
         self.n_episodes += 1
         return prefix
 
@@ -375,7 +375,7 @@ class RerunEpisodeRecording:
                 self.stream.send_property("interrupted", rr.AnyValues(finished_episodes=self.n_episodes))
             self.stream.send_blueprint(self.blueprint())
         try:
-            flush(self.stream)
+            flush(self.stream, self._tmp)
             self.stream.disconnect()
         except RuntimeError as exc:  # rerun's file writer stopped: a full disk
             return self._lost(ok, exc)
@@ -407,7 +407,7 @@ class RerunEpisodeRecording:
         self.lost = str(exc)
         self._tmp.unlink(missing_ok=True)
         if ok:
-            raise CannotWrite(f"{self.source} {self.path}: cannot write it (rerun: {exc})") from None
+            raise CannotWrite(cannot_write(f"{self.source} {self.path}", exc)) from None
         return None
 
     def __enter__(self) -> "RerunEpisodeRecording":

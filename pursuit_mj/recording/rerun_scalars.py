@@ -18,7 +18,7 @@ import rerun as rr
 from ..io_utils import CannotWrite
 from ..plots import flatten
 from .rerun_episodes import APPLICATION_ID, check_rrd_path
-from .unfinished import flush
+from .unfinished import cannot_write, flush
 
 
 def flatten_numbers(metrics: Mapping[str, Any]) -> dict[str, float]:
@@ -58,10 +58,10 @@ class RerunScalarLogger:
 
     def _flush(self) -> None:
         try:
-            flush(self.stream)
-        except RuntimeError as exc:  # rerun's file writer stopped: a full disk
+            flush(self.stream, self.path)
+        except RuntimeError as exc:  # rerun's file writer stopped (a full disk) or stalled
             self._failed = True
-            raise CannotWrite(f"{self.source} {self.path}: cannot write it (rerun: {exc})") from None
+            raise CannotWrite(cannot_write(f"{self.source} {self.path}", exc)) from None
 
     def close(self) -> Path:
         """Finish the file; CannotWrite if its last rows cannot be written. After a failed `log`
