@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ctypes
 import time
 from pathlib import Path
 from typing import Callable
@@ -22,10 +23,21 @@ FLUSH_TIMEOUT_S = 30.0
 FLUSH_POLL_S = 1.0
 
 
-#: streams whose flush failed, kept alive: dropping one, or rerun's own shutdown at exit, can wait
-#: on its dead writer forever (see FLUSH_TIMEOUT_S); a process that holds one ends by os._exit
-#: (pursuit_cli.main, `any_failed`)
+#: streams whose flush failed, kept alive to the end of the process (`_keep_for_good`): dropping
+#: one, or rerun's own shutdown at exit, can wait on its dead writer forever (see FLUSH_TIMEOUT_S)
 FAILED_STREAMS: list = []
+
+
+def _keep_for_good(stream: rr.RecordingStream) -> None:
+    """Keep `stream`, whose writer failed, from ever being dropped, and take rerun's shutdown off
+    the exit: either would wait on the dead writer forever (rerun 0.41: the stream's __del__ as the
+    interpreter ends, `rerun_shutdown` at exit), and a Python caller's process, having got the
+    error, hung at exit. Its reference in FAILED_STREAMS is cleared as the interpreter ends, so one
+    more is taken that is never given back. Other streams are left to their owners to close (this
+    project's recorders all close theirs); rerun's exit would only have flushed them."""
+    FAILED_STREAMS.append(stream)
+    ctypes.pythonapi.Py_IncRef(ctypes.py_object(stream))
+    rr.unregister_shutdown()
 
 
 class FlushStalled(RuntimeError):
@@ -35,7 +47,7 @@ class FlushStalled(RuntimeError):
 def flush(stream: rr.RecordingStream, path: Path | None = None) -> None:
     """Flush `stream` to its file `path`; RuntimeError if rerun's file writer failed (a full disk),
     FlushStalled if nothing reached `path` for FLUSH_TIMEOUT_S (without `path`: if the flush took
-    that long). The stream is then kept in FAILED_STREAMS."""
+    that long). The stream is then kept for good (FAILED_STREAMS, `_keep_for_good`)."""
     limit, poll = FLUSH_TIMEOUT_S, min(FLUSH_POLL_S, FLUSH_TIMEOUT_S)  # read here: a test may lower them
     size, since = _size(path), time.monotonic()
     while True:
@@ -45,13 +57,13 @@ def flush(stream: rr.RecordingStream, path: Path | None = None) -> None:
         except RuntimeError as exc:
             now = time.monotonic()
             if "timed out" not in str(exc).lower():  # the writer failed
-                FAILED_STREAMS.append(stream)
+                _keep_for_good(stream)
                 raise
             grown = _size(path)
             if grown != size:  # still writing: wait on
                 size, since = grown, now
             elif now - since >= limit:
-                FAILED_STREAMS.append(stream)
+                _keep_for_good(stream)
                 raise FlushStalled(f"nothing reached it for {limit:g} s (rerun: {exc})") from None
 
 
