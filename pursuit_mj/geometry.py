@@ -148,6 +148,17 @@ class ObstacleSet:
         border = (g[..., 0], g[..., 1], g[..., 2] - g[..., 0], g[..., 3] - g[..., 1])
         return tuple(tuple(_targets_first(v) for v in group) for group in (boxes, (c[..., 0], c[..., 1], c[..., 2]), border))
 
+    @functools.cached_property
+    def distance_constants(self) -> tuple[np.ndarray, np.ndarray]:
+        """What `obstacle_distance` derives from `distance_targets` alone, each (T, ...): the boxes'
+        -sin yaw and the border segments' squared lengths, at least 1e-12 m^2 (computed once per set)."""
+        _, _, _, s, _, _ = self.distance_targets[0]
+        _, _, dx, dy = self.distance_targets[2]
+        out = (-s, np.maximum(dx * dx + dy * dy, 1e-12))
+        for v in out:
+            v.flags.writeable = False
+        return out
+
     def fan_targets(self, dirs: np.ndarray) -> tuple[np.ndarray, ...]:
         """What `cast_fan` needs about this set for fixed ray directions dirs (K, 2) (cached per K).
 
@@ -341,12 +352,14 @@ def obstacle_distance(points: np.ndarray, obstacles: ObstacleSet, with_border: b
     """
     # the minimum of box_sdf, cylinder_sdf and segment_distance, with obstacles on the first axis
     boxes, cylinders, border = obstacles.distance_targets
+    neg_s, length2 = obstacles.distance_constants
     q = points.ndim - 1
     px, py = _queries_first(points)  # (P, ...)
     cx, cy, c, s, hx, hy = (_align(v, q) for v in boxes)
+    neg_s = _align(neg_s, q)
     dx, dy = px - cx, py - cy  # (NB, P, ...)
     lx = np.abs(c * dx + s * dy) - hx
-    ly = np.abs(-s * dx + c * dy) - hy
+    ly = np.abs(neg_s * dx + c * dy) - hy
     d = np.hypot(np.maximum(lx, 0), np.maximum(ly, 0)) + np.minimum(np.maximum(lx, ly), 0)
     d = d.min(0, initial=FAR)
     cx, cy, r = (_align(v, q) for v in cylinders)
@@ -354,7 +367,7 @@ def obstacle_distance(points: np.ndarray, obstacles: ObstacleSet, with_border: b
     if with_border:
         ax, ay, abx, aby = (_align(v, q) for v in border)
         apx, apy = px - ax, py - ay  # (NS, P, ...)
-        t = np.clip((apx * abx + apy * aby) / np.maximum(abx * abx + aby * aby, 1e-12), 0.0, 1.0)
+        t = np.clip((apx * abx + apy * aby) / _align(length2, q), 0.0, 1.0)
         d = np.minimum(d, np.hypot(apx - t * abx, apy - t * aby).min(0, initial=FAR))
     return first_axis_last(d)
 

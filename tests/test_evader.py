@@ -653,3 +653,23 @@ def test_surrounded_answers_each_evader_alone():
     for m in range(4):
         assert surrounded(toward[:, m : m + 1], mask[:, m : m + 1]).tolist() == [[expected[m]]]
     assert not surrounded(toward, np.zeros_like(mask)).any()
+
+
+def test_obstacle_normal_is_distance_and_normals_normal_to_the_bit():
+    """The follow-walls probe measures only the four offsets its normal needs: the same numbers
+    as distance_and_normal's normal (boxes at any yaw, cylinders, border, padded worlds)."""
+    from pursuit_mj.evader import distance_and_normal, obstacle_normal
+    from pursuit_mj.geometry import ObstacleSet
+
+    rng = np.random.default_rng(4)
+    sets = []
+    for w in range(5):
+        nb, nc = rng.integers(0, 4), rng.integers(0, 3)
+        boxes = np.column_stack([rng.uniform(1, 9, (nb, 2)), rng.uniform(0.1, 1, (nb, 2)), rng.uniform(-3, 3, nb)])
+        cyl = np.column_stack([rng.uniform(1, 9, (nc, 2)), rng.uniform(0.1, 0.6, nc)])
+        border = np.array([[0, 0, 10, 0], [10, 0, 10, 8], [10, 8, 0, 8], [0, 8, 0, 0]], float)
+        sets.append(ObstacleSet(boxes, np.ones(nb, bool), cyl, np.ones(nc, bool), border, np.ones(4, bool)))
+    obstacles = ObstacleSet.stack(sets)
+    points = rng.uniform(-0.5, 10.5, (5, 40, 2))
+    _, normal = distance_and_normal(points, obstacles)
+    assert obstacle_normal(points, obstacles).tobytes() == normal.tobytes()
