@@ -157,6 +157,20 @@ def _rows(v: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(v, dtype=np.float32).reshape(v.shape[0], 1, -1)
 
 
+def _flat_rows(mask: np.ndarray) -> np.ndarray | None:
+    """The flat indices w * M + m (R,) of the (world, evader) pairs where mask (W, M) holds, or
+    None (every pair, taken without gathering) where more than half of them do."""
+    flat = np.flatnonzero(mask)
+    return None if 2 * len(flat) > mask.size else flat
+
+
+def _take(x: np.ndarray, flat: np.ndarray | None) -> np.ndarray:
+    """The rows (R, ...) of x (W, M, ...) at the flat (world, evader) indices (`_flat_rows`), or
+    all of them (W * M, ...) for None."""
+    x = x.reshape((-1,) + x.shape[2:])
+    return x if flat is None else x[flat]
+
+
 def reach_slack(
     origin: np.ndarray, dirs: np.ndarray, s: np.ndarray, reach: np.ndarray, chasers: np.ndarray, sensed: np.ndarray
 ) -> np.ndarray:
@@ -303,21 +317,35 @@ class Corridors:
         """Free length (W, M, Q) m along unit dirs (W, M, Q, 2) from each evader; FAR if open."""
         W, M = self.shape
         Q = dirs.shape[2]
-        d = dirs.astype(np.float32).transpose(2, 0, 1, 3).reshape(Q, W * M, 2)
-        dx, dy = np.ascontiguousarray(d[..., 0]), np.ascontiguousarray(d[..., 1])  # (Q, W*M)
-        denom = dx * self._ey - dy * self._ex  # (S, Q, W*M)
+        return first_axis_last(self._free(dirs.reshape(W * M, Q, 2), None).reshape(Q, W, M))
+
+    def free_rows(self, dirs: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
+        """`free` for some evaders only: rows their flat indices w * M + m (R,) (None: every
+        evader, in that order), dirs (R, Q, 2) unit; free lengths (R, Q) m, the numbers `free`
+        gives those evaders (each evader's corridor is its own)."""
+        return self._free(dirs, rows).T
+
+    def _free(self, dirs: np.ndarray, cols: np.ndarray | None) -> np.ndarray:
+        """Free lengths (Q, P) m along dirs (P, Q, 2) of the (world, evader) pairs cols (P,) (flat
+        indices w * M + m; None: all of them, in that order)."""
+        Q = dirs.shape[1]
+        d = dirs.astype(np.float32).transpose(1, 0, 2)  # (Q, P, 2)
+        dx, dy = np.ascontiguousarray(d[..., 0]), np.ascontiguousarray(d[..., 1])  # (Q, P)
+        ax, ay, ex, ey, t_num, cx, cy, c2 = (self._ax, self._ay, self._ex, self._ey, self._t_num, self._cx, self._cy, self._c2)
+        if cols is not None:
+            ax, ay, ex, ey, t_num, cx, cy, c2 = (v[..., cols] for v in (ax, ay, ex, ey, t_num, cx, cy, c2))
+        denom = dx * ey - dy * ex  # (S, Q, P)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = self._t_num / denom
-            u = (self._ax * dy - self._ay * dx) / denom
-        # minima over the hits only (`where`), FAR if none: no (S, Q, W*M) array of refused ones set to FAR
+            t = t_num / denom
+            u = (ax * dy - ay * dx) / denom
+        # minima over the hits only (`where`), FAR if none: no (S, Q, P) array of refused ones set to FAR
         seg_hit = t.min(0, initial=FAR, where=(np.abs(denom) > EPS) & (t >= 0) & (u >= 0) & (u <= 1))
-        b = dx * self._cx + dy * self._cy  # (C, Q, W*M) projection of centre
-        disc = b * b - self._c2
+        b = dx * cx + dy * cy  # (C, Q, P) projection of centre
+        disc = b * b - c2
         with np.errstate(invalid="ignore"):
             t0 = b - np.sqrt(disc)  # origins lie outside every grown circle, so the near root is the hit
         circle_hit = t0.min(0, initial=FAR, where=(disc >= 0) & (t0 >= 0))
-        free = np.minimum(seg_hit, circle_hit).astype(np.float64)  # (Q, W*M)
-        return first_axis_last(free.reshape(Q, W, M))
+        return np.minimum(seg_hit, circle_hit).astype(np.float64)  # (Q, P)
 
 
 # ----------------------------------------------------------------------------- the model
@@ -436,10 +464,13 @@ class EscapeModel:
         d0, n0 = distance_and_normal(e, obstacles)
         corridors = Corridors(obstacles, e, np.clip(np.minimum(cfg.clearance, d0 - 0.005), 0.0, None))
         gap_dir, gap_length, side, ci, cj = self._gap_paths(e, pp, dist, flee_dir)
-        free = corridors.free(np.concatenate([flee_dir[:, :, None, :], want[:, :, None, :], gap_dir], axis=2))
-        gap_on, through = self._gap_escape(
-            dist, sensed, gap_dir, gap_length, side, ci, cj, free[..., 2:], free[..., 0], -away, pp, e, active
-        )
+        if _flat_rows(self._may_take_gap()) is None:  # most evaders' gaps are looked at: all in one go
+            free = corridors.free(np.concatenate([flee_dir[:, :, None, :], want[:, :, None, :], gap_dir], axis=2))
+            gap_free = free[..., 2:]
+        else:  # a few evaders' gaps (or none): only theirs
+            free = corridors.free(np.stack([flee_dir, want], axis=2))  # (W, M, 2): room to flee, room ahead
+            gap_free = lambda rows: corridors.free_rows(_take(gap_dir, rows), rows)  # noqa: E731
+        gap_on, through = self._gap_escape(dist, sensed, gap_dir, gap_length, side, ci, cj, gap_free, free[..., 0], -away, pp, e, active)
         want = self._follow_walls(e, want, free[..., 1], flee, obstacles, ~gap_on)
 
         push = cfg.wall_gain * np.clip((cfg.wall_margin - d0) / cfg.wall_margin, 0.0, 1.0)[..., None] * n0
@@ -526,37 +557,73 @@ class EscapeModel:
         """(on (W, M) bool, direction (W, M, 2)): the gap between two chasers it slips through.
 
         A gap is open when both chasers are sensed, its path (see `_gap_paths`) is free of
-        obstacles and long enough for the look-ahead, and along it the evader stays
-        `capture_radius + gap_margin` outside every sensed chaser's reach. It is taken when
-        cornered: the flee direction has less than follow_distance of room (flee_room (W, M)
-        m), or the chasers within panic_distance surround it (toward (W, M, N, 2) chaser
-        minus evader). It is kept while open until the evader is across the chasers' line.
+        obstacles (gap_free: the paths' free lengths (W, M, P) m, or a function giving them
+        (R, P) for the evaders of `_flat_rows`' answer) and long enough for the look-ahead, and
+        along it the evader stays `capture_radius + gap_margin` outside every sensed chaser's
+        reach. It is taken when cornered: the flee direction has less than follow_distance of
+        room (flee_room (W, M) m), or the chasers within panic_distance surround it (toward
+        (W, M, N, 2) chaser minus evader). It is kept while open until the evader is across
+        the chasers' line. Where no gap is taken, direction is the first gap's.
+
+        Only an evader that panics (being cornered needs panic) or keeps to the gap it is
+        committed to can take one: the gaps of the others are not looked at (in most steps
+        most evaders are calm). Each evader's answer depends on its own rows only.
         """
         W, M = self.n_worlds, self.n_evaders
         cfg, task = self.cfg, self.config
         if len(self._pair_i) == 0 or not cfg.gap_escape:
             self.gap_pair[:] = -1
             return np.zeros((W, M), bool), np.zeros((W, M, 2))
+        rows = _flat_rows(self._may_take_gap())
+        if rows is not None and len(rows) == 0:
+            self.gap_pair, self.gap_side = np.full((W, M, 2), -1, np.result_type(ci, cj)), np.zeros((W, M))
+            return np.zeros((W, M), bool), gap_dir[:, :, 0].copy()
+        free = gap_free(rows) if callable(gap_free) else _take(gap_free, rows)
+        chasers = np.broadcast_to(pp[:, None], (W, M) + pp.shape[1:])
+        got = self._gaps_of(*(_take(x, rows) for x in (
+            dist, sensed, gap_dir, gap_length, side, ci, cj)), free, *(_take(x, rows) for x in (
+            flee_room, toward, chasers, e, active, self.panic, self.gap_pair, self.gap_side)))
+        if rows is None:  # every evader's
+            on, through, gap_pair, gap_side = (x.reshape((W, M) + x.shape[1:]) for x in got)
+        else:
+            on, through = np.zeros(W * M, bool), _take(gap_dir[:, :, 0], None).copy()  # flat (W * M, ...)
+            gap_pair, gap_side = np.full((W * M, 2), -1, got[2].dtype), np.zeros(W * M)
+            for whole, part in zip((on, through, gap_pair, gap_side), got):
+                whole[rows] = part
+            on, through, gap_pair, gap_side = (x.reshape((W, M) + x.shape[1:]) for x in (on, through, gap_pair, gap_side))
+        self.gap_pair, self.gap_side = gap_pair, gap_side
+        return on, through
+
+    def _may_take_gap(self) -> np.ndarray:
+        """(W, M) bool: the evaders that can take a gap now (`_gap_escape`): those that panic
+        and those committed to a gap."""
+        return (self.panic > 0) | (self.gap_pair[..., 0] >= 0)
+
+    def _gaps_of(self, dist, sensed, gap_dir, gap_length, side, ci, cj, gap_free, flee_room, toward, pp, e, active,
+                 panic, committed_pair, committed_side):
+        """`_gap_escape` for R evaders, given their rows (R, ...) of its arrays, their chasers pp
+        (R, N, 2), panic (R,) and the gap each is committed to (pair (R, 2), side (R,)): on (R,),
+        direction (R, 2), the chosen pair (R, 2) (-1 where none) and its side (R,) (0 where none)."""
+        cfg, task = self.cfg, self.config
         reach = task.capture_radius + cfg.gap_margin
-        s = _PATH_FRACTIONS * gap_length[..., None]  # (W, M, P, S)
-        slack = reach_slack(e[:, :, None, :], gap_dir, s, s * (task.pursuer_speed / task.evader_speed), pp, sensed) - reach
+        s = _PATH_FRACTIONS * gap_length[..., None]  # (R, P, S)
+        slack = reach_slack(e[:, None, None, :], gap_dir[:, None], s[:, None], (s * (task.pursuer_speed / task.evader_speed))[:, None],
+                            pp, sensed[:, None])[:, 0] - reach
         clear = gap_free >= np.maximum(gap_length, self._need)
-        wm = tuple(i[..., None] for i in self._wm)  # against (W, M, P) indices
-        both_sensed = sensed[wm + (ci,)] & sensed[wm + (cj,)]
+        r = np.arange(len(e))[:, None]  # against (R, P) indices
+        both_sensed = sensed[r, ci] & sensed[r, cj]
         feasible = both_sensed & clear & (slack > 0)
 
         close = sensed & (dist < cfg.panic_distance)
-        cornered = (self.panic > 0) & ((flee_room < cfg.follow_distance) | surrounded(toward, close))
-        same_pair = (ci == self.gap_pair[..., :1]) & (cj == self.gap_pair[..., 1:])
-        committed = same_pair & (self.gap_side[..., None] == side)
-        candidate = feasible & (cornered[..., None] | committed)
+        cornered = (panic > 0) & ((flee_room < cfg.follow_distance) | surrounded(toward, close))
+        same_pair = (ci == committed_pair[:, :1]) & (cj == committed_pair[:, 1:])
+        committed = same_pair & (committed_side[:, None] == side)
+        candidate = feasible & (cornered[:, None] | committed)
         score = np.where(candidate, slack + committed, -np.inf)  # keep to a chosen gap
-        best = self._wm + (np.argmax(score, axis=-1),)  # the best gap of each (world, evader)
+        best = (r[:, 0], np.argmax(score, axis=-1))  # the best gap of each evader
         on = candidate.any(-1) & active
         pair = np.stack([ci[best], cj[best]], -1)
-        self.gap_pair = np.where(on[..., None], pair, -1)
-        self.gap_side = np.where(on, side[best], 0.0)
-        return on, gap_dir[best]
+        return on, gap_dir[best], np.where(on[:, None], pair, -1), np.where(on, side[best], 0.0)
 
     def _follow_walls(self, e, want, ahead, flee, obstacles, allowed):
         """Turn a wanted direction (W, M, 2) that meets an obstacle within follow_distance
@@ -592,21 +659,42 @@ class EscapeModel:
         negative). Candidates the look-ahead refuses score BLOCKED (plus their room), so they
         are flown only when all are.
         """
-        cfg, task = self.cfg, self.config
-        length = np.clip(room - cfg.clearance, 0.0, HORIZON)
-        flown = _HORIZON_SAMPLES  # (S,) m
-        chaser_reach = flown * (task.pursuer_speed / task.evader_speed)
-        slack = reach_slack(e[:, :, None, :], candidates, np.minimum(flown, length[..., None]), chaser_reach, pp, sensed)
-        slack = slack - task.capture_radius
+        cfg = self.cfg
         panic = self.panic[..., None]
         score = (
             dot(candidates, want[:, :, None, :])
             + PERSIST * panic * dot(candidates, self.heading[:, :, None, :])
             + cfg.room_weight * np.minimum(room, ROOM_CAP) / ROOM_CAP
-            + cfg.safety_weight * panic * np.clip(slack / SLACK_SCALE, -1.0, 1.0) * np.where(slack < 0, DANGER, 1.0)
         )
+        # the safety term is times panic: a calm evader's is 0 (or -0.0, which ranks alike), so
+        # it is measured only for the evaders that panic (in most steps a few)
+        rows = _flat_rows(self.panic > 0)
+        if rows is None:
+            score = score + self._safety(*self._safety_rows(rows, e, pp, sensed, candidates, room)).reshape(score.shape)
+        elif len(rows):
+            flat = score.reshape(-1, score.shape[-1])
+            flat[rows] += self._safety(*self._safety_rows(rows, e, pp, sensed, candidates, room))
+            score = flat.reshape(score.shape)
         score = np.where(room >= self._need, score, BLOCKED + 5.0 * np.minimum(room / self._need, 1.0))
         return np.argmax(score, axis=-1)
+
+    def _safety_rows(self, rows, e, pp, sensed, candidates, room):
+        """The rows (`_take`) of `_safety`'s inputs for the evaders rows (`_flat_rows`)."""
+        chasers = np.broadcast_to(pp[:, None], sensed.shape + (2,))
+        return tuple(_take(x, rows) for x in (self.panic, e, chasers, sensed, candidates, room))
+
+    def _safety(self, panic, e, pp, sensed, candidates, room):
+        """`_choose`'s safety term (R, K) of R evaders, given their panic (R,), positions e (R, 2)
+        m, chasers pp (R, N, 2) m, sensed (R, N), candidate directions (R, K, 2) and room (R, K)
+        m along them."""
+        cfg, task = self.cfg, self.config
+        length = np.clip(room - cfg.clearance, 0.0, HORIZON)
+        flown = _HORIZON_SAMPLES  # (S,) m
+        chaser_reach = flown * (task.pursuer_speed / task.evader_speed)
+        slack = reach_slack(e[:, None, None, :], candidates[:, None], np.minimum(flown, length[..., None])[:, None], chaser_reach, pp,
+                            sensed[:, None])[:, 0]
+        slack = slack - task.capture_radius
+        return cfg.safety_weight * panic[:, None] * np.clip(slack / SLACK_SCALE, -1.0, 1.0) * np.where(slack < 0, DANGER, 1.0)
 
     def _keep_apart(self, e: np.ndarray, ev: np.ndarray, v: np.ndarray, active: np.ndarray, wall_normal: np.ndarray) -> np.ndarray:
         """v (W, M, 2) m/s with every free pair's closing speed capped (module docstring, step 8),

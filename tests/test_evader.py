@@ -673,3 +673,64 @@ def test_obstacle_normal_is_distance_and_normals_normal_to_the_bit():
     points = rng.uniform(-0.5, 10.5, (5, 40, 2))
     _, normal = distance_and_normal(points, obstacles)
     assert obstacle_normal(points, obstacles).tobytes() == normal.tobytes()
+
+
+def _random_obstacles(rng, worlds):
+    from pursuit_mj.geometry import ObstacleSet
+
+    sets = []
+    for _ in range(worlds):
+        nb, nc = rng.integers(0, 4), rng.integers(0, 3)
+        boxes = np.column_stack([rng.uniform(1, 9, (nb, 2)), rng.uniform(0.1, 1, (nb, 2)), rng.uniform(-3, 3, nb)])
+        cyl = np.column_stack([rng.uniform(1, 9, (nc, 2)), rng.uniform(0.1, 0.6, nc)])
+        border = np.array([[0, 0, 10, 0], [10, 0, 10, 8], [10, 8, 0, 8], [0, 8, 0, 0]], float)
+        sets.append(ObstacleSet(boxes, np.ones(nb, bool), cyl, np.ones(nc, bool), border, np.ones(4, bool)))
+    return ObstacleSet.stack(sets)
+
+
+def test_corridors_free_rows_are_the_free_lengths_of_those_evaders_to_the_bit():
+    from pursuit_mj.evader import Corridors
+
+    rng = np.random.default_rng(5)
+    W, M, Q = 6, 3, 5
+    obstacles = _random_obstacles(rng, W)
+    corridors = Corridors(obstacles, rng.uniform(0.5, 9.5, (W, M, 2)), rng.uniform(0.0, 0.1, (W, M)))
+    a = rng.uniform(0, 2 * np.pi, (W, M, Q))
+    dirs = np.stack([np.cos(a), np.sin(a)], -1)
+    whole = corridors.free(dirs)
+    rows = np.array([16, 2, 7])  # flat w * M + m, in any order
+    assert corridors.free_rows(dirs.reshape(W * M, Q, 2)[rows], rows).tobytes() == whole.reshape(W * M, Q)[rows].tobytes()
+    assert corridors.free_rows(dirs.reshape(W * M, Q, 2), None).tobytes() == whole.reshape(W * M, Q).tobytes()
+
+
+@pytest.mark.parametrize("n_panicking", [0, 1, 5, 8])
+def test_each_evader_flies_as_it_would_alone_whether_few_or_most_others_panic(n_panicking):
+    # the chaser-safety score and the gap escape are worked out only for the evaders that panic
+    # (or keep to a gap) while few do, for all at once when most do: either way each evader's
+    # command, gap and state are what the same model gives it in a world of its own
+    rng = np.random.default_rng(n_panicking)
+    W, N = 8, 3
+    config = default_config()
+    obstacles = _random_obstacles(rng, W)
+    e = rng.uniform(2, 8, (W, 1, 2))
+    far = rng.uniform(0, 10, (W, N, 2)) * [1, 0.2] + [0, 7.5]  # chasers on the far side, mostly beyond calm_distance
+    near = e + rng.uniform(-1.2, 1.2, (W, N, 2))  # within panic_distance
+    pp = np.where((np.arange(W) < n_panicking)[:, None, None], near, far)
+    pv = rng.uniform(-0.5, 0.5, (W, N, 2))
+    batch = EscapeModel(config, W, seed=1)
+    alone = [EscapeModel(config, 1, seed=1) for _ in range(W)]
+    seeds = np.arange(W) + 10
+    batch.reset(np.arange(W), seeds)
+    for w in range(W):
+        alone[w].reset(np.arange(1), seeds[w : w + 1])
+    active = np.ones((W, 1), bool)
+    for _ in range(4):
+        got = batch.compute(e, np.zeros((W, 1, 2)), pp, pv, active, obstacles, 0.1)
+        for w in range(W):
+            one = alone[w].compute(e[w : w + 1], np.zeros((1, 1, 2)), pp[w : w + 1], pv[w : w + 1], active[w : w + 1],
+                                   obstacles.take(np.array([w])), 0.1)
+            assert one.tobytes() == got[w : w + 1].tobytes()
+            for k in ("panic", "gap", "gap_pair", "gap_side", "heading", "following"):
+                assert getattr(alone[w], k).tobytes() == getattr(batch, k)[w : w + 1].tobytes(), k
+        e = e + got * 0.1
+    assert (batch.panic > 0).sum() >= n_panicking
