@@ -78,11 +78,16 @@ class WorldRandom:
             raise ValueError(f"WorldRandom: expected keys and ticks of one shape (W,), got {self.keys.shape} and {self.ticks.shape}")
         self._calls = 0
 
-    def _next_keys(self, size) -> tuple[np.ndarray, tuple[int, ...]]:
+    def _count(self, size) -> tuple[int, ...]:
+        """`size` checked (W, ...), and one more call counted."""
         size = _checked_size(size, len(self.keys))
         if size[0] != len(self.keys):
             raise ValueError(f"WorldRandom: size {size} must start with the number of worlds {len(self.keys)}")
         self._calls += 1
+        return size
+
+    def _next_keys(self, size) -> tuple[np.ndarray, tuple[int, ...]]:
+        size = self._count(size)
         with np.errstate(over="ignore"):
             keys = splitmix64(self.keys ^ (np.uint64(self._calls) * _GOLDEN))
         return keys, size[1:]
@@ -91,6 +96,12 @@ class WorldRandom:
         """Uniform [0, 1) numbers of shape `size` (W, ...)."""
         keys, rest = self._next_keys(size)
         return hash_uniform(keys, self.ticks, rest, 0)
+
+    def skip(self, size) -> None:
+        """Count a draw of shape `size` (W, ...) without making it: the calls after it draw what
+        they would after `random(size)` or `normal(..., size)` (for a caller that would
+        discard the numbers)."""
+        self._count(size)
 
     def normal(self, loc: float = 0.0, scale: float = 1.0, size=None) -> np.ndarray:
         """Normal numbers (mean loc, std scale) of shape `size` (W, ...)."""

@@ -167,8 +167,12 @@ def perceive(view: WorldView, config: TaskConfig, rng: np.random.Generator | Wor
         seen = visible[..., :M]
         mates = np.zeros((W, N, N), bool)
         mates[:, np.arange(N)[:, None], others] = visible[..., M:]
-        # drawn at any miss_probability, so that the noise below keeps its numbers (observe_as)
-        seen &= rng.random((W, N, M)) >= config.miss_probability
+        # drawn at any miss_probability, so that the noise below keeps its numbers (observe_as);
+        # at 0 every draw is >= 0 and none is missed: a WorldRandom only counts the draw then
+        if config.miss_probability > 0 or not isinstance(rng, WorldRandom):
+            seen &= rng.random((W, N, M)) >= config.miss_probability
+        else:
+            rng.skip((W, N, M))
     else:
         seen = np.ones((W, N, M), bool)
         mates = np.ones((W, N, N), bool)

@@ -359,3 +359,15 @@ def test_a_caught_evader_reads_where_it_stopped_with_no_velocity_and_is_no_relay
     np.testing.assert_allclose(ev[0, 0, 0], [0.0, 0.5, 0.0, 0.0, 1.0, 0.0, 1.0], atol=1e-6)  # caught, its own catcher
     np.testing.assert_allclose(ev[0, 1, 0], [-2.0, 0.5, 0.0, 0.0, 1.0, 0.0, 1.0], atol=1e-6)  # caught, far off
     np.testing.assert_allclose(ev[0, 0, 1], [2.0, 0.5, 0.4, 0.1, 1.0, 1.0, 0.0], atol=1e-6)  # free, relayed by pursuer 1
+
+
+def test_a_skipped_draw_leaves_the_next_draws_as_a_made_one_does():
+    # perception only counts the missed-detection draw at miss_probability 0 (none can be missed):
+    # the position noise drawn after it must be the same numbers
+    keys, ticks = world_keys(np.array([5, 6, 7])), np.array([0, 3, 9])
+    made, skipped = WorldRandom(keys, ticks), WorldRandom(keys, ticks)
+    made.random((3, 2, 1))
+    skipped.skip((3, 2, 1))
+    assert made.normal(0.0, 0.1, (3, 2, 1, 2)).tobytes() == skipped.normal(0.0, 0.1, (3, 2, 1, 2)).tobytes()
+    with pytest.raises(ValueError, match="must start with the number of worlds 3"):
+        skipped.skip((2, 2))
