@@ -430,8 +430,9 @@ class PursuitEnv:
         drone's body for perception, its capture disc for the free evaders' escape."""
         return _with_caught(self._obstacles, self.captured, evader_xy, radius)
 
-    def _observe(self) -> np.ndarray:
-        view = self._view()
+    def _observe(self, view: WorldView | None = None) -> np.ndarray:
+        """Observations of the current state (view: `_view()`'s, if already taken)."""
+        view = self._view() if view is None else view
         # draws keyed by (episode, step): the same whether or not other worlds restart now
         self._perception = perceive(view, self.config, WorldRandom(self._sensing_keys, self.steps))
         return build_observations(view, self._perception, self.obs_spec)
@@ -568,7 +569,8 @@ class PursuitEnv:
         self.done |= finished
 
         known_before = self._perception.known
-        obs = self._observe()
+        view = self._view()  # the state the observation and info's final_state describe
+        obs = self._observe(view)
         if self.extra_rewards:  # after the observation: a term may pay for what the pursuers now know
             step = StepView(cfg, a, pos0[:, :N], pos[:, :N], vel[:, :N], pos0[:, N:], pos[:, N:], vel[:, N:], free_before,
                             events.new_captures & active[:, None], self.captured, events.collided & active[:, None],
@@ -582,7 +584,8 @@ class PursuitEnv:
         for k in self.reward_names:
             self.returns[k] += terms[k].mean(-1)
             self.last_terms[k] = terms[k].copy()
-        info = {"reward_terms": terms, "outcome": outcome, "episodes": [], "final_obs": obs.copy(), "final_state": self.global_state()}
+        info = {"reward_terms": terms, "outcome": outcome, "episodes": [], "final_obs": obs.copy(),
+                "final_state": build_global_state(view, self.steps / cfg.max_steps)}
         ids = np.flatnonzero(finished)
         for w in ids:
             info["episodes"].append(self._record(int(w), str(outcome[w])))
