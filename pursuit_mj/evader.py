@@ -235,29 +235,26 @@ def _left_normals(seg: np.ndarray) -> np.ndarray:
     return np.stack([-d[..., 1], d[..., 0]], -1) / np.maximum(norm(d)[..., None], EPS)
 
 
-def _shift_left(seg: np.ndarray, normal: np.ndarray, distance: np.ndarray) -> np.ndarray:
-    """Segments (..., S, 4) moved by distance (broadcastable to (..., S)) m along their left
-    normals (..., S, 2) (`_left_normals`)."""
-    shift = normal * distance[..., None]
-    return seg + np.concatenate([shift, shift], -1)
-
-
 @dataclasses.dataclass(frozen=True)
 class _CorridorTargets:
-    """What `Corridors` needs of an obstacle set (W, ...) that no evader changes, targets first:
-    box edges (4 NB, W, 1, 4) (counter-clockwise: outside on the right) and border segments
-    (NS, W, 1, 4) (inside on the left) with their left normals (..., 2), the validity of those
-    segments (S, W, 1), the circle centres (C, W, 1, 2): segment starts (C1 of them, the corners)
-    then cylinders, the cylinders' radii (NC, W, 1) m, and the circles' validity (C, W, 1)."""
+    """What `Corridors` needs of an obstacle set (W, ...) that no evader changes, targets first,
+    each coordinate apart (contiguous (T, W, 1) arrays): the segments, box edges (4 NB,
+    counter-clockwise: outside on the right) then border (NS, inside on the left), as start
+    x0, y0 and end x1, y1 (m), the unit normals (nx, ny) they are moved along as they grow (a
+    box edge's right one, out of the box; a border segment's left one, into the arena), their
+    validity (S, W, 1); the circles' centres cx, cy (m), segment starts (the corners) then
+    cylinders, their radii before growing (0 for a corner, the cylinder's) and validity (C, W, 1)."""
 
-    box: np.ndarray
-    box_normal: np.ndarray
-    border: np.ndarray
-    border_normal: np.ndarray
+    x0: np.ndarray
+    y0: np.ndarray
+    x1: np.ndarray
+    y1: np.ndarray
+    nx: np.ndarray
+    ny: np.ndarray
     seg_valid: np.ndarray
-    centres: np.ndarray
-    n_corners: int
-    cylinder_radius: np.ndarray
+    cx: np.ndarray
+    cy: np.ndarray
+    radius: np.ndarray
     circle_valid: np.ndarray
 
 
@@ -270,14 +267,17 @@ def _corridor_targets(obstacles: ObstacleSet) -> _CorridorTargets:
     box, box_valid = obstacles.segments()  # (W, 4 NB, 4)
     box = box.swapaxes(0, 1)[:, :, None]  # (4 NB, W, 1, 4)
     border = obstacles.border.swapaxes(0, 1)[:, :, None]  # (NS, W, 1, 4)
-    corners = np.concatenate([box[..., 0:2], border[..., 0:2]], axis=0)  # (C1, W, 1, 2)
+    seg = np.concatenate([box, border], axis=0)  # (S, W, 1, 4)
+    # a box edge moves by -radius along its left normal: by radius along the negated one (the same
+    # products: a product's sign is its factors' signs)
+    normal = np.concatenate([-_left_normals(box), _left_normals(border)], axis=0)  # (S, W, 1, 2)
     cyl = obstacles.cylinders.swapaxes(0, 1)[:, :, None]  # (NC, W, 1, 3)
-    out = _CorridorTargets(
-        box, _left_normals(box), border, _left_normals(border),
-        np.concatenate([box_valid, obstacles.border_valid], -1).T[:, :, None],
-        np.concatenate([corners, cyl[..., 0:2]], axis=0), corners.shape[0], cyl[..., 2],
-        np.concatenate([box_valid, obstacles.border_valid, obstacles.cylinder_valid], -1).T[:, :, None],
-    )
+    centres = np.concatenate([seg[..., 0:2], cyl[..., 0:2]], axis=0)  # (C, W, 1, 2)
+    radius = np.concatenate([np.zeros(seg.shape[:-1]), cyl[..., 2]], axis=0)  # (C, W, 1)
+    parts = [seg[..., i] for i in range(4)] + [normal[..., 0], normal[..., 1]]
+    parts += [np.concatenate([box_valid, obstacles.border_valid], -1).T[:, :, None], centres[..., 0], centres[..., 1], radius,
+              np.concatenate([box_valid, obstacles.border_valid, obstacles.cylinder_valid], -1).T[:, :, None]]
+    out = _CorridorTargets(*(np.ascontiguousarray(v) for v in parts))
     obstacles.__dict__["_corridor_targets"] = out  # a frozen dataclass: as functools.cached_property stores
     return out
 
@@ -300,18 +300,19 @@ class Corridors:
         # broadcasting along, or reducing over, a short last axis).
         g = _corridor_targets(obstacles)  # what does not depend on the evaders, once per obstacle set
         r = radius[None]  # (1, W, M)
-        seg = np.concatenate([_shift_left(g.box, g.box_normal, -r), _shift_left(g.border, g.border_normal, r)], axis=0)  # (S, W, M, 4)
-        radii = np.concatenate([np.broadcast_to(r, (g.n_corners, W, M)), g.cylinder_radius + r], axis=0)  # (C, W, M)
+        sx, sy = g.nx * r, g.ny * r  # (S, W, M): each segment grown by its evader's radius
+        x0, y0, x1, y1 = g.x0 + sx, g.y0 + sy, g.x1 + sx, g.y1 + sy
         # everything relative to each evader, once; rays then differ only in direction.
         # float32 (micrometre rounding on metre offsets) halves the memory traffic of the hot loop.
-        p = pos[None]  # (1, W, M, 2)
-        a = np.where(g.seg_valid[..., None], seg[..., 0:2] - p, 0.0)  # (S, W, M, 2) segment start
-        e = np.where(g.seg_valid[..., None], seg[..., 2:4] - seg[..., 0:2], 0.0)  # segment vector
-        self._ax, self._ay, self._ex, self._ey = _rows(a[..., 0]), _rows(a[..., 1]), _rows(e[..., 0]), _rows(e[..., 1])
+        px, py = pos[None, ..., 0], pos[None, ..., 1]  # (1, W, M)
+        valid = g.seg_valid
+        self._ax, self._ay = _rows(np.where(valid, x0 - px, 0.0)), _rows(np.where(valid, y0 - py, 0.0))  # segment start
+        self._ex, self._ey = _rows(np.where(valid, x1 - x0, 0.0)), _rows(np.where(valid, y1 - y0, 0.0))  # segment vector
         self._t_num = self._ax * self._ey - self._ay * self._ex  # a x e: the hit distance times (d x e)
-        c = g.centres - p  # (C, W, M, 2) circle centre
-        self._cx, self._cy = _rows(c[..., 0]), _rows(c[..., 1])  # (C, 1, W*M)
-        self._c2 = _rows(np.where(g.circle_valid, dot(c, c) - radii**2, np.inf))  # |c|^2 - r^2
+        cx, cy = g.cx - px, g.cy - py  # (C, W, M) circle centre
+        self._cx, self._cy = _rows(cx), _rows(cy)  # (C, 1, W*M)
+        radii = g.radius + r  # corners of the evader's radius, cylinders grown by it
+        self._c2 = _rows(np.where(g.circle_valid, (cx * cx + cy * cy) - radii**2, np.inf))  # |c|^2 - r^2
 
     def free(self, dirs: np.ndarray) -> np.ndarray:
         """Free length (W, M, Q) m along unit dirs (W, M, Q, 2) from each evader; FAR if open."""

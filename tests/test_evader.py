@@ -734,3 +734,16 @@ def test_each_evader_flies_as_it_would_alone_whether_few_or_most_others_panic(n_
                 assert getattr(alone[w], k).tobytes() == getattr(batch, k)[w : w + 1].tobytes(), k
         e = e + got * 0.1
     assert (batch.panic > 0).sum() >= n_panicking
+
+
+def test_corridors_grow_box_edges_out_and_border_segments_in_by_the_radius():
+    # evaders 1 m right of a 1 m box's face and 1 m off its corner, radius 0.2 m: a ray meets the
+    # box's face grown by it, the border moved in by it, and the corner's circle of that radius
+    from pursuit_mj.evader import Corridors
+
+    box = ObstacleSet(np.array([[2.0, 2.0, 0.5, 0.5, 0.0]]), np.ones(1, bool), np.zeros((0, 3)), np.zeros(0, bool),
+                      np.array([[0, 0, 10, 0], [10, 0, 10, 8], [10, 8, 0, 8], [0, 8, 0, 0]], float), np.ones(4, bool))
+    c = Corridors(ObstacleSet.stack([box]), np.array([[[3.5, 2.0], [3.5, 3.5]]]), np.array([[0.2, 0.2]]))
+    h = np.sqrt(0.5)
+    dirs = np.array([[[[-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]], [[-h, -h], [0.0, 1.0], [1.0, 0.0]]]])
+    np.testing.assert_allclose(c.free(dirs)[0], [[0.8, 1.8, 6.3], [np.sqrt(2.0) - 0.2, 4.3, 6.3]], atol=1e-5)
