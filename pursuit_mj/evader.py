@@ -329,7 +329,6 @@ class Corridors:
     def _free(self, dirs: np.ndarray, cols: np.ndarray | None) -> np.ndarray:
         """Free lengths (Q, P) m along dirs (P, Q, 2) of the (world, evader) pairs cols (P,) (flat
         indices w * M + m; None: all of them, in that order)."""
-        Q = dirs.shape[1]
         d = dirs.astype(np.float32).transpose(1, 0, 2)  # (Q, P, 2)
         dx, dy = np.ascontiguousarray(d[..., 0]), np.ascontiguousarray(d[..., 1])  # (Q, P)
         ax, ay, ex, ey, t_num, cx, cy, c2 = (self._ax, self._ay, self._ex, self._ey, self._t_num, self._cx, self._cy, self._c2)
@@ -571,7 +570,7 @@ class EscapeModel:
         most evaders are calm). Each evader's answer depends on its own rows only.
         """
         W, M = self.n_worlds, self.n_evaders
-        cfg, task = self.cfg, self.config
+        cfg = self.cfg
         if len(self._pair_i) == 0 or not cfg.gap_escape:
             self.gap_pair[:] = -1
             return np.zeros((W, M), bool), np.zeros((W, M, 2))
