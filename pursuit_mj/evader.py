@@ -72,7 +72,7 @@ import numpy as np
 from .config import DRONE_CONTACT_DISTANCE, TaskConfig, checked_task_config
 from .geometry import FAR, ObstacleSet, first_axis_last, last_axis_first, obstacle_distance
 from .planar import EPS, clip_norm, dot, limit_closing, norm, perp, rotate, unit
-from .randomness import TICK as _TICK, hash_uniform, splitmix64 as _splitmix64
+from .randomness import TICK as _TICK, hash_uniform, hash_uniforms, splitmix64 as _splitmix64
 
 RING = 16  # survey directions around the wanted direction
 RING_ANGLES = 2 * math.pi * np.arange(RING) / RING  # rad, relative to the wanted direction
@@ -525,8 +525,7 @@ class EscapeModel:
         """At random times (rate zigzag_rate) turn the wander direction from the heading by
         zigzag_angle * U(0.5, 1) to alternate sides."""
         cfg = self.cfg
-        u_turn = hash_uniform(self.world_seed, self.tick, self.n_evaders, _STREAM_TURN)
-        u_amp = hash_uniform(self.world_seed, self.tick, self.n_evaders, _STREAM_AMPLITUDE)
+        u_turn, u_amp = hash_uniforms(self.world_seed, self.tick, self.n_evaders, (_STREAM_TURN, _STREAM_AMPLITUDE))
         turn = u_turn < -math.expm1(-cfg.zigzag_rate * dt)
         angle = self.zig_side * cfg.zigzag_angle * (0.5 + 0.5 * u_amp)
         self.wander = np.where(turn[..., None], rotate(self.heading, angle), self.wander)

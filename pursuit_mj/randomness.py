@@ -56,6 +56,23 @@ def hash_uniform(key: np.ndarray, tick: np.ndarray, shape: int | tuple[int, ...]
     return ((z >> np.uint64(11)).astype(np.float64) * 2.0**-53).reshape((len(key),) + shape)
 
 
+def hash_uniforms(key: np.ndarray, tick: np.ndarray, shape: int | tuple[int, ...], streams: tuple[int, ...]) -> np.ndarray:
+    """`hash_uniform` of several streams at once, (len(streams), W, *shape): the same numbers
+    (integer arithmetic throughout), with the per-world part of the hash worked out once."""
+    for stream in streams:
+        if not 0 <= stream < N_STREAMS:
+            raise ValueError(f"hash_uniform stream: expected 0..{N_STREAMS - 1}, got {stream!r}")
+    shape = (shape,) if isinstance(shape, (int, np.integer)) else tuple(shape)
+    n = math.prod(shape)
+    idx = np.arange(n, dtype=np.uint64) * np.uint64(N_STREAMS) + np.array(streams, np.uint64)[:, None]  # (S, n)
+    key = np.asarray(key, np.uint64)
+    tick = np.asarray(tick).astype(np.uint64)
+    with np.errstate(over="ignore"):
+        x = splitmix64(key[:, None] ^ (tick[:, None] * TICK))[None] + idx[:, None, :] * _GOLDEN  # (S, W, n)
+    z = splitmix64(x)
+    return ((z >> np.uint64(11)).astype(np.float64) * 2.0**-53).reshape((len(streams), len(key)) + shape)
+
+
 def hash_normal(key: np.ndarray, tick: np.ndarray, shape: int | tuple[int, ...], stream: int) -> np.ndarray:
     """Standard normal numbers (W, *shape) (Box-Muller on streams `stream` and `stream + 1`)."""
     u1 = hash_uniform(key, tick, shape, stream)

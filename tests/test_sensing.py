@@ -371,3 +371,15 @@ def test_a_skipped_draw_leaves_the_next_draws_as_a_made_one_does():
     assert made.normal(0.0, 0.1, (3, 2, 1, 2)).tobytes() == skipped.normal(0.0, 0.1, (3, 2, 1, 2)).tobytes()
     with pytest.raises(ValueError, match="must start with the number of worlds 3"):
         skipped.skip((2, 2))
+
+
+def test_hash_uniforms_are_hash_uniform_of_each_stream_to_the_bit():
+    from pursuit_mj.randomness import hash_uniform, hash_uniforms
+
+    keys, ticks = world_keys(np.array([5, 6, 7, 2**40])), np.array([0, 3, 9, 2**33])
+    both = hash_uniforms(keys, ticks, (2, 3), (0, 5))
+    assert both.shape == (2, 4, 2, 3)
+    for i, stream in enumerate((0, 5)):
+        assert both[i].tobytes() == hash_uniform(keys, ticks, (2, 3), stream).tobytes()
+    with pytest.raises(ValueError, match="expected 0..7, got 8"):
+        hash_uniforms(keys, ticks, 1, (0, 8))
