@@ -103,8 +103,9 @@ def make_unwritable():
 
 
 def _pin_xdist_worker_to_one_core() -> None:
-    """Under `pytest -n N` each worker gets a core of its own: torch's OpenMP threads spin while they
-    wait, and two workers each spinning on every core slowed the training tests about threefold."""
+    """Under `pytest -n N` worker k runs on core k mod cores (scripts/test.sh starts up to two per
+    core): torch's OpenMP threads spin while they wait, and two workers each spinning on every core
+    slowed the training tests about threefold."""
     worker = os.environ.get("PYTEST_XDIST_WORKER", "")
     if not worker.startswith("gw") or not hasattr(os, "sched_setaffinity"):
         return
