@@ -67,18 +67,41 @@ def stops_held() -> Iterator[None]:
         yield
         return
     held: list[int] = []
+
+    def hold(signum, frame):
+        held.append(signum)
+
     taken = {}
-    for sig in STOP_SIGNALS:
-        handler = signal.getsignal(sig)
-        if callable(handler):
-            taken[sig] = signal.signal(sig, lambda signum, frame: held.append(signum))
-    try:
+    try:  # a stop can land between any two of these steps: whatever was taken by then is given back
+        for sig in STOP_SIGNALS:
+            handler = signal.getsignal(sig)
+            if callable(handler):
+                taken[sig] = handler  # noted before it is replaced, so that `hold` is never left behind
+                signal.signal(sig, hold)
         yield
     finally:
-        for sig, handler in taken.items():
-            signal.signal(sig, handler)
+        give_back_handlers(taken)
         if held:
             signal.raise_signal(held[0])  # its own handler runs now, as if it had just arrived
+
+
+def give_back_handlers(handlers: dict) -> None:
+    """Install each signal's handler of `handlers` {signal: handler}, all of them even when a stop
+    lands meanwhile: a handler already back may raise for it (KeyboardInterrupt) at the next
+    bytecode, and that exception is raised once every handler is back (else the signals after
+    it stay on what was to be replaced, for good)."""
+    pending = list(handlers.items())
+    stopped = None
+    for _ in range(len(pending) + 8):  # bounded: a signal.signal that fails itself would fail on every try
+        try:
+            while pending:
+                signal.signal(*pending[0])
+                del pending[0]
+            break
+        except BaseException as exc:  # a handler raised: carry on, raise it after
+            stopped = stopped or exc
+    if stopped is not None:
+        raise stopped
 
 
 def interrupt_handled() -> None:

@@ -876,3 +876,77 @@ def test_a_ctrl_c_anywhere_ends_the_process_with_130_and_one_line_never_by_sigin
     out = subprocess.run([sys.executable, "-m", "stopped_cli", how, str(tmp_path / "run")], capture_output=True,
                          text=True, timeout=120, env=env, cwd=tmp_path, preexec_fn=stop_signals_at_their_defaults)
     assert (out.returncode, out.stderr) == (130, said)
+
+
+def _stop_landing_once_at(monkeypatch, when, stop):
+    """Patch signal.signal so that right after the call `when(sig, handler)` picks, the signal
+    `stop` arrives (its handler runs at once, as Python runs a handler at the next bytecode)."""
+    import signal
+
+    real, fired = signal.signal, []
+
+    def landing(sig, handler):
+        previous = real(sig, handler)
+        if not fired and when(sig, handler):
+            fired.append(sig)
+            signal.raise_signal(stop)
+        return previous
+
+    monkeypatch.setattr(signal, "signal", landing)
+    return fired
+
+
+@pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
+def test_stops_held_gives_every_handler_back_when_a_stop_lands_while_it_does(monkeypatch):
+    """A Ctrl-C that landed right after stops_held gave SIGINT's handler back (its KeyboardInterrupt
+    raised there) left SIGTERM and SIGHUP on the block's holder for good: every later kill of the
+    process was appended to a list no one reads, and the command never stopped for it."""
+    import signal
+
+    from pursuit_mj.io_utils import stops_held
+
+    def term(signum, frame):
+        raise KeyboardInterrupt("SIGTERM")
+
+    before = {s: signal.signal(s, term) for s in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        fired = _stop_landing_once_at(monkeypatch, lambda sig, handler: handler is signal.default_int_handler, signal.SIGINT)
+        with pytest.raises(KeyboardInterrupt):
+            with stops_held():
+                pass
+        monkeypatch.undo()
+        assert fired == [signal.SIGINT]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        assert signal.getsignal(signal.SIGTERM) is term and signal.getsignal(signal.SIGHUP) is term
+    finally:
+        monkeypatch.undo()
+        for s, h in before.items():
+            signal.signal(s, h)
+
+
+@pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
+def test_stops_held_gives_every_handler_back_when_a_stop_lands_while_it_takes_them(monkeypatch):
+    """A kill that landed after stops_held had taken SIGINT and before it took SIGTERM (SIGTERM's own
+    handler raising KeyboardInterrupt as the block began) left SIGINT on the holder for good: every
+    later Ctrl-C was swallowed."""
+    import signal
+
+    from pursuit_mj.io_utils import stops_held
+
+    def term(signum, frame):
+        raise KeyboardInterrupt("SIGTERM")
+
+    before = {s: signal.signal(s, term) for s in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        fired = _stop_landing_once_at(monkeypatch, lambda sig, handler: sig == signal.SIGINT, signal.SIGTERM)
+        with pytest.raises(KeyboardInterrupt):
+            with stops_held():
+                pytest.fail("the block ran although a stop came before it began")
+        monkeypatch.undo()
+        assert fired == [signal.SIGINT]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        assert signal.getsignal(signal.SIGTERM) is term and signal.getsignal(signal.SIGHUP) is term
+    finally:
+        monkeypatch.undo()
+        for s, h in before.items():
+            signal.signal(s, h)
