@@ -167,16 +167,19 @@ def termination_as_interrupt(stops: list[str] | None = None, then_ignore_ctrl_c:
         stops.append(name)
         raise KeyboardInterrupt(*([] if signum == signal.SIGINT else [name]))  # Ctrl-C: Python's own, no name
 
+    from pursuit_mj.io_utils import give_back_handlers  # (no mujoco: it imports the standard library alone)
+
     taken = {}
-    for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None), signal.SIGINT):
-        default = signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL
-        if sig is not None and signal.getsignal(sig) == default:
-            taken[sig] = signal.signal(sig, raise_interrupt)
-    try:
+    try:  # a stop can land between any two of these steps: whatever was taken by then is given back
+        for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None), signal.SIGINT):
+            default = signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL
+            if sig is not None and signal.getsignal(sig) == default:
+                taken[sig] = default  # noted before it is replaced
+                signal.signal(sig, raise_interrupt)
         yield
     finally:
-        for sig, previous in taken.items():
-            signal.signal(sig, signal.SIG_IGN if then_ignore_ctrl_c and sig == signal.SIGINT else previous)
+        give_back_handlers({sig: signal.SIG_IGN if then_ignore_ctrl_c and sig == signal.SIGINT else previous
+                            for sig, previous in taken.items()})
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -950,3 +950,34 @@ def test_stops_held_gives_every_handler_back_when_a_stop_lands_while_it_takes_th
         monkeypatch.undo()
         for s, h in before.items():
             signal.signal(s, h)
+
+
+@pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
+@pytest.mark.parametrize("landing", ["while_taking", "while_giving_back"])
+def test_termination_as_interrupt_gives_every_handler_back_when_a_ctrl_c_lands_meanwhile(monkeypatch, landing):
+    """A Ctrl-C that landed while termination_as_interrupt took or gave back its handlers (one by
+    one; Python runs a handler at the next bytecode) raised there and left SIGTERM and SIGHUP on
+    the command's handler after it: a Python caller's later SIGTERM raised KeyboardInterrupt
+    instead of ending the process."""
+    import signal
+
+    from pursuit_cli import termination_as_interrupt
+
+    before = {s: signal.signal(s, signal.SIG_DFL) for s in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        if landing == "while_taking":  # SIGTERM taken, SIGINT not yet
+            when = lambda sig, handler: sig == signal.SIGTERM and callable(handler)  # noqa: E731
+        else:  # SIGTERM given back, SIGINT not yet
+            when = lambda sig, handler: sig == signal.SIGTERM and handler == signal.SIG_DFL  # noqa: E731
+        fired = _stop_landing_once_at(monkeypatch, when, signal.SIGINT)
+        with pytest.raises(KeyboardInterrupt):
+            with termination_as_interrupt():
+                pass
+        monkeypatch.undo()
+        assert fired == [signal.SIGTERM]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL and signal.getsignal(signal.SIGHUP) == signal.SIG_DFL
+    finally:
+        monkeypatch.undo()
+        for s, h in before.items():
+            signal.signal(s, h)
