@@ -175,19 +175,29 @@ def test_an_interrupted_benchmark_names_its_target_as_its_errors_do(capsys, monk
     assert capsys.readouterr().err == "pursuit-mj bench physics: interrupted\n"
 
 
+def _say_running_then_sleep(running, seconds: float) -> None:
+    import time
+
+    running.set()
+    time.sleep(seconds)
+
+
 def test_a_forked_worker_dies_of_sigterm_while_its_parent_turns_it_into_an_interrupt():
     """The CLI makes SIGTERM a KeyboardInterrupt; a worker forked under it (a benchmark's,
     a pool's) must still die when told, or whoever stops it waits for ever."""
     import multiprocessing
     import signal
-    import time
 
     from pursuit_cli import termination_as_interrupt
 
+    fork = multiprocessing.get_context("fork")
+    running = fork.Event()
     with termination_as_interrupt():
-        worker = multiprocessing.get_context("fork").Process(target=time.sleep, args=(60,))
+        worker = fork.Process(target=_say_running_then_sleep, args=(running, 60.0))
         worker.start()
-        time.sleep(0.2)
+        # told only once it runs Python: a signal in the first moments after fork, before CPython's
+        # after-fork reset, is dropped by that reset (waiting 0.2 s instead failed once at load 14)
+        assert running.wait(timeout=20)
         worker.terminate()  # SIGTERM
         worker.join(timeout=20)
         assert worker.exitcode == -signal.SIGTERM
