@@ -119,6 +119,18 @@ def _policy_files(data: dict) -> dict[str, str]:
     return {str(k): str(v) for k, v in value.items()} if isinstance(value, dict) else {}
 
 
+def _trained_layouts(path: Path, data: dict) -> dict[str, list[str]]:
+    """label -> the layouts its checkpoint trained on, as rows name layouts: eval's and a pooled
+    table's "trained_layouts" (empty for tables written before it); ValueError naming the file
+    where it is no such map."""
+    value = data.get("trained_layouts")
+    if value is None:
+        return {}
+    if not isinstance(value, dict) or not all(isinstance(v, list) and all(isinstance(x, str) for x in v) for v in value.values()):
+        raise ValueError(f"{path}: trained_layouts is {value!r}, not a map of model labels to lists of layout names")
+    return {str(k): list(v) for k, v in value.items()}
+
+
 def _kinds(data: dict) -> dict[str, tuple[str, str]]:
     """label -> (kind, how to say it) of each policy of a table's rows: 'checkpoint' or 'policy file'
     (with its sha256), 'hand-made' where the table records policy files (policy_file_sha256_of),
@@ -186,7 +198,7 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     """The rows of all `paths` pooled by policy, layout and fidelity; ValueError naming the file
     for a file that is no table, a task that differs (an evader model of one's own by its file's
     sha256 too), a label naming two models or two policy files (or a checkpoint in one table and a
-    team in another, _kinds), an episode (same seed) that ended differently in two files,
+    team in another, _kinds, or two lists of layouts its model trained on), an episode (same seed) that ended differently in two files,
     or one that no eval of the task plays (steps outside 1..max_steps, more evaders caught than
     n_evaders, a fidelity that is none of FIDELITIES)."""
     if not paths:
@@ -194,6 +206,7 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     first_path, first = None, None
     model_of: dict[str, tuple[str, Path]] = {}
     file_of: dict[str, tuple[str, Path]] = {}  # label -> (its policy file's sha256, the table that said so)
+    trained_of: dict[str, tuple[list[str], Path]] = {}  # label -> (the layouts its model trained on, the table that said so)
     kind_of: dict[str, tuple[str, str, Path]] = {}  # label -> (_kinds' kind, how to say it, the table that said so)
     knows_files = True  # every table records its policy files (policy_file_sha256_of)
     episodes: dict[tuple[str, str, str], dict[int, tuple[tuple[str, int, int], Path]]] = {}
@@ -225,6 +238,11 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
             if seen[0] != sha:
                 raise ValueError(f"policy {label!r} is two different policy files: sha256 {seen[0][:12]} in {seen[1]} and "
                                  f"{sha[:12]} in {path} (edited between the tables?); pool only tables of one policy per label")
+        for label, layouts in _trained_layouts(path, data).items():
+            seen = trained_of.setdefault(label, (layouts, path))
+            if seen[0] != layouts:
+                raise ValueError(f"policy {label!r} trained on layouts {seen[0]} in {seen[1]} but {layouts} in {path}; "
+                                 "pool only tables where a label names one model")
         for label, (kind, said) in _kinds(data).items():
             was, was_said, where = kind_of.setdefault(label, (kind, said, path))
             if not _one_kind(was, kind):
@@ -294,6 +312,8 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
             "layout_sha256": {label: arena_of[ident][0] for label, ident in layouts.items() if ident in arena_of},
             "code": (dict(code_of_first or {}) if len(commits) == 1 and len(sources) <= 1
                      else {"git_commits": list(commits), **({"source_sha256s": list(sources)} if sources else {})})}
+    if trained_of:  # eval's note on layouts a model never trained on works from it
+        meta["trained_layouts"] = {label: layouts for label, (layouts, _) in trained_of.items()}
     if knows_files:  # else a label of an older table, a policy file perhaps, would read as a hand-made team
         meta["policy_file_sha256_of"] = {label: sha for label, (sha, _) in file_of.items()}
     if "evader_model_sha256" in first:  # so that the pooled table is checked alike when pooled again

@@ -654,3 +654,29 @@ def test_tables_of_one_fidelity_say_which_in_their_headings(tables, tmp_path, ca
     assert main(["pool", str(tables["hr0"]), str(q)]) == 0
     out = capsys.readouterr().out  # two fidelities: a column in each table, nothing in the headings
     assert "pooled 2 tables\n" in out and "paired with heuristic on the episodes both played (" in out
+
+
+def test_a_pool_keeps_the_layouts_each_model_trained_on_and_refuses_two_lists_for_one_label(tables, tmp_path, capsys):
+    """eval's "trained_layouts" ({model label: layouts}) reaches the pooled JSON, which pools
+    again with it; two tables that say one label trained on different layouts are refused."""
+    def trained(layouts):
+        def edit(data):
+            data["policies"], data["models"], data["model_sha256"] = ["heuristic", "random"], ["r.pt"], ["c" * 64]
+            data["trained_layouts"] = {"random": layouts}
+        return edit
+
+    a = _edited(tables, "trained_a", trained(["0", "1"]))
+    b = _edited(tables, "trained_b", trained(["0", "1"]))
+    from pursuit_cli import main
+
+    assert pool_tables([a, b, tables["h0"]]).meta["trained_layouts"] == {"random": ["0", "1"]}
+    assert "trained_layouts" not in pool_tables([tables["h0"], tables["h1"]]).meta
+    assert main(["pool", str(a), str(b), "--out", str(tmp_path / "p")]) == 0
+    capsys.readouterr()
+    assert pool_tables([tmp_path / "p.json", a]).meta["trained_layouts"] == {"random": ["0", "1"]}
+    other = _edited(tables, "trained_c", trained(["2"]))
+    with pytest.raises(ValueError, match=r"'random' trained on layouts \['0', '1'\] in .*trained_a.json but \['2'\] in .*trained_c.json"):
+        pool_tables([a, other])
+    bad = _edited(tables, "trained_bad", lambda data: data.__setitem__("trained_layouts", {"random": "0"}))
+    with pytest.raises(ValueError, match=r"trained_bad.json: trained_layouts is .* not a map of model labels to lists"):
+        pool_tables([bad])
