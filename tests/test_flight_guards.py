@@ -540,3 +540,36 @@ def test_a_stop_signal_as_a_time_out_landing_begins_is_logged_and_kept_in_the_re
     assert [r["during"] for r in events.of_kind("interrupt")] == ["landing"]
     assert result.interrupted_by == "SIGTERM"
     assert "emergency_stop" not in events.kinds() and down(fleet)
+
+
+_FLIGHT_STOPPED_IN_GENERATED_CODE = """
+import sys
+from pathlib import Path
+from flight_rehearsal import ScriptedTeam, fly_virtual, quick_plan
+
+class StoppedInGeneratedCode(ScriptedTeam):
+    def act(self, obs, spec):
+        if self.calls >= 2:
+            exec("raise KeyboardInterrupt")  # a Ctrl-C inside code made by exec
+        return super().act(obs, spec)
+
+result, events, fleet = fly_virtual(quick_plan(max_time=8.0), StoppedInGeneratedCode([[0.0, 0.0]]), Path(sys.argv[1]))
+print(result.outcome, result.landed)
+"""
+
+
+def test_a_script_whose_flight_was_interrupted_ends_normally_not_by_sigint(tmp_path):
+    """The bridge handles a Ctrl-C in its chase (everyone lands, the result says 'interrupted');
+    one that left code run by exec() still ended the script by SIGINT once it finished (CPython
+    keeps such an interrupt marked unhandled), so the script's caller saw -2 instead of 0."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from conftest import stop_signals_at_their_defaults
+
+    tests = Path(__file__).resolve().parent
+    env = dict(os.environ, MUJOCO_GL="egl", PYTHONPATH=os.pathsep.join([str(tests), str(tests.parent)]))
+    out = subprocess.run([sys.executable, "-c", _FLIGHT_STOPPED_IN_GENERATED_CODE, str(tmp_path)], cwd=tests.parent,
+                         capture_output=True, text=True, timeout=120, env=env, preexec_fn=stop_signals_at_their_defaults)
+    assert (out.returncode, out.stdout.splitlines()[-1:]) == (0, ["interrupted True"]), out.stderr[-2000:]

@@ -39,6 +39,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..io_utils import interrupt_handled
 from ..planar import clip_norm
 from ..policy import NonFiniteAction, Policy
 from .board import BoardSnapshot, StateBoard
@@ -411,6 +412,7 @@ class FlightBridge:
         except _Abort as stop:
             outcome, reason = stop.outcome, stop.reason
         except KeyboardInterrupt:
+            interrupt_handled()  # an outcome the result reports: the process must not end by SIGINT for it
             outcome, reason = "interrupted", self._interrupt_reason
         except BaseException as exc:  # SystemExit from a policy too: the links closing would cut every motor
             try:
