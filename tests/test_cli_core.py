@@ -897,10 +897,13 @@ def _stop_landing_once_at(monkeypatch, when, stop):
 
 
 @pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
-def test_stops_held_gives_every_handler_back_when_a_stop_lands_while_it_does(monkeypatch):
-    """A Ctrl-C that landed right after stops_held gave SIGINT's handler back (its KeyboardInterrupt
-    raised there) left SIGTERM and SIGHUP on the block's holder for good: every later kill of the
-    process was appended to a list no one reads, and the command never stopped for it."""
+@pytest.mark.parametrize("landing", ["while_giving_back", "while_taking"])
+def test_stops_held_gives_every_handler_back_when_a_stop_lands_while_it_swaps_them(monkeypatch, landing):
+    """stops_held swaps the stop handlers one by one, and Python runs a handler at the next bytecode.
+    A Ctrl-C right after it gave SIGINT's handler back (raising there) left SIGTERM and SIGHUP on the
+    block's holder for good: every later kill was appended to a list no one reads. A kill right
+    after it took SIGINT, before it took SIGTERM, left SIGINT on the holder: every later Ctrl-C was
+    swallowed. Every handler is back either way, and the stop still raises."""
     import signal
 
     from pursuit_mj.io_utils import stops_held
@@ -908,40 +911,17 @@ def test_stops_held_gives_every_handler_back_when_a_stop_lands_while_it_does(mon
     def term(signum, frame):
         raise KeyboardInterrupt("SIGTERM")
 
+    if landing == "while_giving_back":  # SIGINT's default handler reinstalled, then Ctrl-C
+        when, stop = (lambda sig, handler: handler is signal.default_int_handler), signal.SIGINT
+    else:  # SIGINT taken, then a kill
+        when, stop = (lambda sig, handler: sig == signal.SIGINT), signal.SIGTERM
     before = {s: signal.signal(s, term) for s in (signal.SIGTERM, signal.SIGHUP)}
     try:
-        fired = _stop_landing_once_at(monkeypatch, lambda sig, handler: handler is signal.default_int_handler, signal.SIGINT)
+        fired = _stop_landing_once_at(monkeypatch, when, stop)
         with pytest.raises(KeyboardInterrupt):
             with stops_held():
-                pass
-        monkeypatch.undo()
-        assert fired == [signal.SIGINT]
-        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
-        assert signal.getsignal(signal.SIGTERM) is term and signal.getsignal(signal.SIGHUP) is term
-    finally:
-        monkeypatch.undo()
-        for s, h in before.items():
-            signal.signal(s, h)
-
-
-@pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
-def test_stops_held_gives_every_handler_back_when_a_stop_lands_while_it_takes_them(monkeypatch):
-    """A kill that landed after stops_held had taken SIGINT and before it took SIGTERM (SIGTERM's own
-    handler raising KeyboardInterrupt as the block began) left SIGINT on the holder for good: every
-    later Ctrl-C was swallowed."""
-    import signal
-
-    from pursuit_mj.io_utils import stops_held
-
-    def term(signum, frame):
-        raise KeyboardInterrupt("SIGTERM")
-
-    before = {s: signal.signal(s, term) for s in (signal.SIGTERM, signal.SIGHUP)}
-    try:
-        fired = _stop_landing_once_at(monkeypatch, lambda sig, handler: sig == signal.SIGINT, signal.SIGTERM)
-        with pytest.raises(KeyboardInterrupt):
-            with stops_held():
-                pytest.fail("the block ran although a stop came before it began")
+                if landing == "while_taking":
+                    pytest.fail("the block ran although a stop came before it began")
         monkeypatch.undo()
         assert fired == [signal.SIGINT]
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
