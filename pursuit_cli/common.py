@@ -275,6 +275,24 @@ def one_flag_named(exc: ValueError, typed: str, given: dict, flag_of: dict) -> V
     return ValueError(flags_typed([(flag, given[flag])]) + text[len(typed):])
 
 
+# task keys that a table's heading and columns name already (the fidelity, the layout of each row)
+TABLE_NAMES = ("fidelity", "layout")
+
+
+def task_named(args: argparse.Namespace) -> str:
+    """How a table's heading names the task its rows ran in (evaluation.table_heading): 'task
+    hard', 'task easy + mine.yaml' (task files and presets as given, the later winning), 'task
+    reference' without any (the defaults are the reference preset's values), then 'with' the task
+    flags and --set overrides given, as typed ('task hard with --pursuers 2, --set max_steps=5').
+    Those of TABLE_NAMES are left out: the heading names the fidelity, the table each layout."""
+    files = list(getattr(args, "task_files", None) or []) or ["reference"]
+    flags, names = task_flags_given(args)
+    given = [f"{names[k]} {getattr(args, k)}" for k in flags if k not in TABLE_NAMES]
+    given += [f"--set {o.strip()}" for o in getattr(args, "overrides", None) or []
+              if o.split("=", 1)[0].strip() not in TABLE_NAMES]
+    return f"task {' + '.join(files)}" + (f" with {', '.join(given)}" if given else "")
+
+
 def task_config_from_args(args: argparse.Namespace) -> TaskConfig:
     """Resolve defaults <- task files <- flags <- --set, its evader model made once (check_evader_model),
     and print it if asked; a `note:` line on stderr names each setting the combination never reads

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from pursuit_mj.shipped import shipped_dir
 from .common import (ListFlag, add_task_args, check_episodes, counted, load_model, once_flag, refuse_a_python_file, seed_arg,
-                     table_layouts, task_config_from_args)
+                     table_layouts, task_config_from_args, task_named)
 
 PRETRAINED = shipped_dir("pretrained") / "pursuers.pt"
 REFERENCE_EPISODES = 150  # episodes per layout in the reference study's table
@@ -110,7 +110,7 @@ def run(args) -> int:
             rows += evaluate(pol, config, [ref], args.episodes, args.seed, args.worlds, label=label)
             print(f"[demo] {label} layout {ref}: {time.perf_counter() - t0:.1f} s, success "
                   f"{percent_text(rows[-1].success.p)} %", file=sys.stderr, flush=True)  # as the table says it
-    print(table_heading(rows))
+    print(table_heading(rows, task_named(args)))
     print(format_table(rows))
     paired, _ = paired_report(rows, "heuristic", config.max_steps)
     if paired:

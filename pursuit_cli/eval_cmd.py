@@ -21,7 +21,8 @@ from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_sha256
 from .common import (SHIELD_HELP, ListFlag, add_shield_arg, add_task_args, check_episodes, check_out_prefix, counted, load_model,
                      pick_versus, refuse_replacing_what_is_no_table, refuse_writing_an_input,
-                     sweep_dead_parts, seed_arg, shield_each_if_asked, table_layouts, task_config_from_args, task_input_files)
+                     sweep_dead_parts, seed_arg, shield_each_if_asked, table_layouts, task_config_from_args, task_named,
+                     task_input_files)
 from .eval_resume import check_nothing_kept, drop_finished, finished_rows, interrupted_path, keep_finished, write_finished
 
 
@@ -308,7 +309,7 @@ def _run(args) -> int:
             stack.close()  # the recording is finished: its failure to save must not cost the table
         except CannotWrite as exc:  # it says where its episodes are kept
             recording_error = exc
-    print(table_heading(rows))
+    print(table_heading(rows, task_named(args)))
     print(format_table(rows))
     legend = _models_legend(args, policies)
     if legend:

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from .common import (ListFlag, add_task_args, check_episodes, counted, checked_layouts, finite_float, seed_arg, task_config_from_args,
-                     task_key_source)
+                     task_key_source, task_named)
 
 
 MAX_BUDGET_MINUTES = 525600.0  # a year; far larger budgets overflowed the plan's seconds (1e308 min: an OverflowError)
@@ -75,6 +75,7 @@ def run(args) -> int:
         budget_minutes=args.budget_minutes, out=out, eval_task=task, layouts=layouts, episodes=args.episodes,
         worlds=args.worlds, seed=args.seed,
         train_overrides=(f"task.fidelity={args.train_fidelity}", *args.train_overrides), resume=args.resume,
+        eval_task_name=task_named(args),
     )
     stops = getattr(args, "stop_signals", [])  # a stop signal can surface as a library's own error
     try:

@@ -293,14 +293,15 @@ def one_fidelity(items, lead: str) -> str:
     return f"{lead} in {fidelities.pop()} fidelity" if len(fidelities) == 1 else ""
 
 
-def table_heading(rows: Sequence[Row]) -> str:
+def table_heading(rows: Sequence[Row], task: str = "") -> str:
     """The line above a table of `rows` (eval's, demo's, a study's): 'evaluated 2 policies on 4
-    layouts, every row in point fidelity', the fidelity named as the paired table's heading names
-    it (one_fidelity; rows of several fidelities have a column of it instead)."""
+    layouts, every row in point fidelity, task hard', the fidelity named as the paired table's
+    heading names it (one_fidelity; rows of several fidelities have a column of it instead), then
+    `task`, how the task the rows ran in is named (pursuit_cli.common.task_named), when given."""
     policies = len(dict.fromkeys(r.policy for r in rows))
     layouts = len(dict.fromkeys(r.layout for r in rows))
     return (f"evaluated {policies} {'policy' if policies == 1 else 'policies'} on {layouts} "
-            f"layout{'' if layouts == 1 else 's'}{one_fidelity(rows, ', every row')}")
+            f"layout{'' if layouts == 1 else 's'}{one_fidelity(rows, ', every row')}{f', {task}' if task else ''}")
 
 
 def rows_to_csv(rows: Sequence[Row]) -> str:

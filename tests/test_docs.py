@@ -304,9 +304,9 @@ def test_docs_quote_the_heading_of_the_main_evaluation_table_as_eval_prints_it()
 
     records = [EpisodeRecord(0, 0, 0, "success", 100, None, {}, 1, "0")]
     rows = [summarise(policy, layout, "point", 0, records, 1000) for policy in ("heuristic", "a") for layout in "0123"]
-    heading = table_heading(rows)
-    assert heading == "evaluated 2 policies on 4 layouts, every row in point fidelity"
+    heading = table_heading(rows, "task hard with --set max_steps=500")
+    assert heading == "evaluated 2 policies on 4 layouts, every row in point fidelity, task hard with --set max_steps=500"
     evaluation = " ".join((ROOT / "docs" / "evaluation.md").read_text().split())
     assert f"`{heading}`" in evaluation
     training = " ".join((ROOT / "docs" / "training.md").read_text().split())
-    assert "`table.txt` (the table under a heading naming the fidelity" in training
+    assert "`table.txt` (the table under a heading naming the fidelity and task" in training

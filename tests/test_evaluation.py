@@ -589,7 +589,7 @@ def test_demo_plays_the_layout_named_by_layout(capsys):
                  "--fidelity", "point", "--set", "max_steps=5"])
     assert code == 0
     table = capsys.readouterr().out.split("\n\n")[0].splitlines()
-    assert table[0] == "evaluated 1 policy on 1 layout, every row in point fidelity"  # the heading, then the table
+    assert table[0] == "evaluated 1 policy on 1 layout, every row in point fidelity, task reference with --set max_steps=5"
     assert [line.split()[1] for line in table[2:]] == ["2"]
 
 
@@ -1248,7 +1248,7 @@ def test_the_main_table_names_the_fidelity_its_rows_were_played_in(command, fide
                  "--set", "max_steps=3", *(["-q"] if command[0] == "eval" else [])]) == 0
     lines = capsys.readouterr().out.splitlines()
     head = next(k for k, line in enumerate(lines) if line.startswith("policy "))
-    assert lines[head - 1] == f"evaluated 1 policy on 2 layouts, every row in {fidelity} fidelity", lines
+    assert lines[head - 1] == f"evaluated 1 policy on 2 layouts, every row in {fidelity} fidelity, task reference with --set max_steps=3", lines
 
 
 def test_an_interrupted_eval_names_the_fidelity_of_the_cells_it_shows(tmp_path, capsys):
@@ -1262,3 +1262,25 @@ def test_an_interrupted_eval_names_the_fidelity_of_the_cells_it_shows(tmp_path, 
     rows = evaluate(make_policy("heuristic", config), config, layouts=[0], episodes=1, n_worlds=1)
     keep_finished(rows, None, None, config, {})
     assert "[eval] interrupted; the 1 finished policy-layout cell, every row in point fidelity:\npolicy " in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("task, named", [
+    ([], "task reference with --set max_steps=3"),
+    (["--task", "hard"], "task hard with --set max_steps=3"),
+    (["--task", "easy", "--task", "FILE", "--pursuers", "2"], "task easy + FILE with --pursuers 2, --set max_steps=3"),
+])
+@pytest.mark.parametrize("command", [["eval", "--policy", "heuristic", "-q"], ["demo", "--no-heuristic", "--no-shield"]])
+def test_the_main_table_names_the_task_its_rows_were_played_in(command, task, named, tmp_path, capsys):
+    """The heading above eval's (and demo's) main table named the fidelity but not the task: a table
+    of --task hard read as one of the reference task. It now names the task files and presets as
+    given (the defaults are the reference preset's values) and the task flags and --set overrides
+    given, leaving out --fidelity and --layout, which the heading and the table already name."""
+    assert load_task_config([]) == load_task_config(["reference"])  # no --task is the reference task
+    file = tmp_path / "mine.yaml"
+    file.write_text("evader_speed: 0.5\n")
+    task = [str(file) if t == "FILE" else t for t in task]
+    assert main([*command, *task, "--layouts", "0", "--episodes", "1", "--worlds", "1", "--fidelity", "point",
+                 "--set", "max_steps=3"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    head = next(k for k, line in enumerate(lines) if line.startswith("policy "))
+    assert lines[head - 1] == f"evaluated 1 policy on 1 layout, every row in point fidelity, {named.replace('FILE', str(file))}"

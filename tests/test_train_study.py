@@ -961,7 +961,7 @@ def test_the_study_table_names_each_arms_checkpoint_so_that_pool_refuses_two_stu
         state = {"evaluation": {"checkpoints": {"full_obs": sha}, "cells": {
             "heuristic": {"0": {"row": {"policy": "heuristic"}, "seconds": 1.0}},
             "full_obs": {"0": {"row": {"policy": "full_obs"}, "seconds": 1.0}}}}}
-        plan = SimpleNamespace(out=out, eval_task=task, layouts=(0,), seed=seed, budget_minutes=1.0)
+        plan = SimpleNamespace(out=out, eval_task=task, layouts=(0,), seed=seed, budget_minutes=1.0, eval_task_name="")
         study._write(plan, rows, {"total": 1.0}, 2, state)
         tables.append(out / "table.json")
     meta = json.loads(tables[0].read_text())
@@ -987,7 +987,28 @@ def test_the_study_table_names_the_fidelity_its_rows_were_played_in(tmp_path):
     task = dataclasses.replace(default_config(), fidelity="point", max_steps=5)
     rows = evaluate(make_policy("heuristic", task), task, [0], 1, 0, 1)
     rows += evaluate(make_policy("random", task), task, [0], 1, 0, 1, label="full_obs")
-    plan = SimpleNamespace(out=tmp_path, eval_task=task, layouts=(0,), seed=0, budget_minutes=1.0)
+    plan = study.StudyPlan(budget_minutes=1.0, out=tmp_path, eval_task=task, layouts=(0,), seed=0,
+                           eval_task_name="task hard with --set max_steps=5")
     study._write(plan, rows, {"total": 1.0}, 1, {})
     text = (tmp_path / "table.txt").read_text()
-    assert text.startswith("evaluated 2 policies on 1 layout, every row in point fidelity\npolicy "), text
+    assert text.startswith("evaluated 2 policies on 1 layout, every row in point fidelity, task hard with --set "
+                           "max_steps=5\npolicy "), text
+
+
+def test_the_study_names_its_evaluation_task_in_the_table_heading(tmp_path, monkeypatch):
+    """table.txt's heading named the fidelity but not the task the arms were judged in (the study's
+    --task, reference by default, and its --set): the study command now gives its plan the name
+    common.task_named makes of its task flags. The plan is taken where run_study would run it."""
+    from pursuit_cli import main
+    from train import study
+
+    plans = []
+
+    def keep(plan, **kwargs):
+        plans.append(plan)
+        raise ValueError("stop here")
+
+    monkeypatch.setattr(study, "run_study", keep)
+    for task, named in (([], "task reference with --set max_steps=5"), (["--task", "hard"], "task hard with --set max_steps=5")):
+        assert main(["study", "--budget-minutes", "1", "--out", str(tmp_path / "s"), *task, "--set", "max_steps=5"]) == 2
+        assert plans.pop().eval_task_name == named

@@ -108,6 +108,7 @@ class StudyPlan:
     seed: int = 0
     train_overrides: tuple[str, ...] = ()
     resume: bool = False  # continue the study in `out`: keep its finished arms, resume its interrupted one
+    eval_task_name: str = ""  # how table.txt's heading names eval_task ('task hard', pursuit_cli.common.task_named); '' for nothing
 
 
 STATE_FILE = "study.json"  # in <out>/: the arms trained and cells evaluated so far, written as each ends
@@ -886,7 +887,7 @@ def _write(plan: StudyPlan, rows: Sequence, timings: dict[str, float], episodes:
     """The table, its charts and timings.json; table.json's meta holds this session's budget and
     every session's (`state`'s record, this session's included) with their wall time."""
     paired, pairs = paired_report(rows, "heuristic", plan.eval_task.max_steps)
-    atomic_write_text(plan.out / "table.txt", f"{table_heading(rows)}\n{format_table(rows)}\n" + (f"\n{paired}\n" if paired else ""))
+    atomic_write_text(plan.out / "table.txt", f"{table_heading(rows, plan.eval_task_name)}\n{format_table(rows)}\n" + (f"\n{paired}\n" if paired else ""))
     write_csv(rows, plan.out / "table.csv")
     sessions = {"session_budgets_minutes": state.get("budgets", [plan.budget_minutes]),
                 "seconds_all_sessions": _earlier_sessions_seconds(state)}
