@@ -60,6 +60,21 @@ def test_progress_bar_labels_its_throughput_and_shows_no_rates_before_an_episode
     bar.close()
 
 
+@pytest.mark.parametrize("fidelity, shown", [("point", "point"), ("quadrotor", "quad")])
+def test_progress_bar_names_the_fidelity_the_run_trains_in(fidelity, shown, capsys):
+    """The bar named the run and its live figures but not its physics: two runs side by side, one
+    in point fidelity and one in quadrotor, read alike. Its label now ends in the fidelity."""
+    from train.config import load_train_config
+    from train.progress_bar import advance_bar, progress_bar
+
+    cfg = load_train_config([], [f"task.fidelity={fidelity}", "name=chase", "run.progress=true"])
+    bar = progress_bar(cfg, 0.25)
+    advance_bar(bar, {"world_steps": 10, "agent_steps_per_s": 90.0}, [], {}, 0.5)
+    bar.close()
+    drawn = capsys.readouterr().err
+    assert f"chase ({shown}): " in drawn and "steps=10" in drawn, drawn
+
+
 def test_a_validation_layout_that_cannot_be_loaded_is_refused_before_any_update_naming_its_key(tmp_path):
     from train.config import load_train_config
     from train.trainer import Trainer

@@ -1,4 +1,5 @@
-"""The training run's progress bar: percent of the run, with live success, collisions and throughput."""
+"""The training run's progress bar: percent of the run, with live success, collisions and throughput,
+labelled by the run's name and the fidelity it trains in."""
 
 from __future__ import annotations
 
@@ -6,13 +7,19 @@ from .config import TrainConfig
 from .validation import summarise
 
 
+# how the bar's label names the fidelity (short: the label leads the line)
+FIDELITY_SHORT = {"point": "point", "quadrotor": "quad"}
+
+
 def progress_bar(cfg: TrainConfig, done: float):
-    """A tqdm bar in percent of the run (by steps, or by time when max_minutes ends it sooner)."""
+    """A tqdm bar in percent of the run (by steps, or by time when max_minutes ends it sooner),
+    labelled 'NAME (FIDELITY)', e.g. 'classic (quad)', so that two runs side by side tell apart."""
     if not cfg.run.progress:
         return None
     from tqdm import tqdm
 
-    return tqdm(total=100.0, initial=round(100.0 * done, 1), unit="%", desc=cfg.name, dynamic_ncols=True,
+    label = f"{cfg.name} ({FIDELITY_SHORT.get(cfg.task.fidelity, cfg.task.fidelity)})"
+    return tqdm(total=100.0, initial=round(100.0 * done, 1), unit="%", desc=label, dynamic_ncols=True,
                 smoothing=0.1, bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}{postfix}]")
 
 
