@@ -244,6 +244,7 @@ def _run(argv: list[str] | None, whole_process: bool = False) -> int:
             by = f" by {stops[0]}" if stops and stops[0] != "SIGINT" else ""
             print(f"pursuit-mj: interrupted{by} while starting", file=sys.stderr)
             return stop_exit_code(stops[0] if stops else "SIGINT")
+        _tell_the_failure_under(exc, args)
         return _interrupted(args, str(exc.args[0]) if exc.args else "")
     except BrokenPipeError as exc:
         if args is None:
@@ -338,6 +339,17 @@ def _where(exc: BaseException) -> str:
     if ours and ours[-1] is not frames[-1]:
         return f"in {shown(ours[-1])} (raised in {shown(frames[-1])})"
     return f"in {shown(frames[-1])}"
+
+
+def _tell_the_failure_under(stop: KeyboardInterrupt, args: argparse.Namespace) -> None:
+    """Print, as an error line, the failure a stop was delivered over (its `__cause__`: a stop held
+    by io_utils.stops_held while the block failed, a file that could not be written): without it
+    the user would be told 'interrupted' alone."""
+    failure = stop.__cause__
+    if not isinstance(failure, Exception):
+        return
+    said = _with_source(failure, args) if isinstance(failure, ValueError) else f"{type(failure).__name__}: {failure}"
+    print(f"pursuit-mj {_command_name(args)}: error: {said}", file=sys.stderr)
 
 
 def _interrupted(args: argparse.Namespace, signal_name: str) -> int:

@@ -61,7 +61,10 @@ def stops_held() -> Iterator[None]:
     delivered to that handler as the block ends, so that outputs that belong together (an
     episode's video and its entry in a rerun recording) are put in place together or not at all.
     The first stop held is delivered (its handler raises KeyboardInterrupt, as it would have at
-    once), also when the block raised. Keep the block short: it is deaf to stops while it runs.
+    once), also when the block raised. When the block failed (an Exception: a file that could not
+    be written) and the handler raises, the handler's exception is raised with that failure as its
+    cause (`__cause__`), so that the stop is not lost and the failure is still told (pursuit_cli.main
+    prints it before 'interrupted'). Keep the block short: it is deaf to stops while it runs.
     Signals ignored or at the system's default, and any block off the main thread, are left alone."""
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -72,6 +75,7 @@ def stops_held() -> Iterator[None]:
         held.append(signum)
 
     taken = {}
+    failure = None
     try:  # a stop can land between any two of these steps: whatever was taken by then is given back
         for sig in STOP_SIGNALS:
             handler = signal.getsignal(sig)
@@ -79,10 +83,24 @@ def stops_held() -> Iterator[None]:
                 taken[sig] = handler  # noted before it is replaced, so that `hold` is never left behind
                 signal.signal(sig, hold)
         yield
+    except Exception as exc:
+        failure = exc
+        raise
     finally:
         give_back_handlers(taken)
         if held:
-            signal.raise_signal(held[0])  # its own handler runs now, as if it had just arrived
+            _deliver(held[0], failure)
+
+
+def _deliver(signum: int, failure: Exception | None) -> None:
+    """Run the handler of the stop `signum` now, as if it had just arrived; an exception it raises
+    has `failure` (what the held block raised, if anything) as its cause."""
+    try:
+        signal.raise_signal(signum)
+    except BaseException as stop:
+        if failure is None or stop is failure:
+            raise
+        raise stop from failure
 
 
 def give_back_handlers(handlers: dict) -> None:

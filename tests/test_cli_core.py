@@ -810,6 +810,27 @@ def test_a_stop_within_stops_held_waits_for_the_block_and_then_interrupts():
 
 
 
+@pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
+def test_a_stop_held_while_the_block_fails_is_delivered_with_the_failure_as_its_cause():
+    """A block under stops_held that failed (a file it could not write) while a stop was held
+    ended in the stop's KeyboardInterrupt alone, the failure only its implicit context, and the CLI
+    told 'interrupted' without it. The stop is still delivered (it is not lost to a caller that
+    catches the failure), and the failure is now its cause, which pursuit_cli.main prints."""
+    import signal
+
+    from pursuit_mj.io_utils import stops_held
+
+    failure = ValueError("out/ep0.png: cannot write it")
+    with pytest.raises(KeyboardInterrupt) as stopped:
+        with stops_held():
+            signal.raise_signal(signal.SIGINT)
+            raise failure
+    assert stopped.value.__cause__ is failure
+    with pytest.raises(ValueError) as failed:  # no stop held: the failure as it is
+        with stops_held():
+            raise failure
+    assert failed.value is failure and failed.value.__cause__ is None
+
 #: a module run as `python -m` (as `python -m pursuit_cli` is): argv[1] says where a Ctrl-C lands
 _STOPPED_PROCESS = """
 import argparse, signal, sys

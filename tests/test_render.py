@@ -716,3 +716,47 @@ def test_drones_in_a_large_arena_are_marked_big_enough_to_see():
     from pursuit_mj.render.overlays import OverlayStyle
 
     assert all(marker_radius(load_layout(k), OverlayStyle()) == 0.1 for k in range(4))
+
+
+def test_a_write_that_fails_while_a_stop_is_held_is_reported_and_leaves_the_episode_whole(tmp_path, monkeypatch):
+    """An episode's outputs go into place under io_utils.stops_held. A SIGTERM held there while the
+    final PNG could not be written (its folder is a file) was then delivered over the failure: the
+    caller got 'interrupted' and no word of the PNG, and the video, already renamed into place,
+    had no entry in the rerun recording. Now the other outputs still go into place, the held stop
+    is delivered (its KeyboardInterrupt) with the write failure as its cause, and that failure
+    names the file that failed and what is in place."""
+    import os
+    import signal
+
+    from pursuit_mj.io_utils import CannotWrite
+    from pursuit_mj.recording import RerunEpisodeRecording
+    from pursuit_mj.recording.rrd_read import read_entities
+    from pursuit_mj.render import episodes
+
+    (tmp_path / "blocker").write_text("a file where the image's folder should be\n")
+    video, final, rrd = tmp_path / "ep0.mp4", tmp_path / "blocker" / "ep0.png", tmp_path / "ev.rrd"
+    save = episodes.save_png
+
+    def killed_while_saving(path, frame):
+        os.kill(os.getpid(), signal.SIGTERM)  # lands inside the block: held until it ends
+        return save(path, frame)
+
+    def as_the_cli_stops(signum, frame):
+        raise KeyboardInterrupt("SIGTERM")
+
+    monkeypatch.setattr(episodes, "save_png", killed_while_saving)
+    previous = signal.signal(signal.SIGTERM, as_the_cli_stops)
+    try:
+        with pytest.raises(KeyboardInterrupt) as stopped:
+            with RerunEpisodeRecording(rrd) as recording:
+                run_episodes(default_config(**CFG), RandomPolicy(3), 1, seed=5, settings=small(),
+                             outputs=EpisodeOutputs([video], [final]), recording=recording)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert stopped.value.args == ("SIGTERM",)
+    failure = stopped.value.__cause__
+    assert isinstance(failure, CannotWrite), repr(failure)
+    assert str(failure).startswith(f"{final}: cannot write it") and f"{video} is in place" in str(failure), str(failure)
+    assert "entry in the rerun recording" in str(failure)
+    assert video.is_file() and not final.exists() and len(mediapy.read_video(video)) > 1
+    assert recording.n_episodes == 1 and "/episode_0/outcome" in read_entities(recording.kept)

@@ -560,3 +560,34 @@ def test_a_sigterm_just_after_a_video_is_renamed_into_place_still_records_its_ep
     ent = read_entities(tmp_path / "ep.interrupted.rrd")
     assert ent["/__properties/interrupted"].static["finished_episodes"][0] == 1
     assert "/episode_0/outcome" in ent and "/episode_1/outcome" not in ent
+
+
+def test_a_final_image_that_cannot_be_written_while_a_kill_is_held_is_told_before_interrupted(tmp_path, capsys, monkeypatch):
+    """A SIGTERM that lands while an episode's outputs go into place waits for them (stops_held).
+    When the final PNG then could not be written, render said 'interrupted by SIGTERM' alone: the
+    failed file went unmentioned and its episode's video stood with no entry in the recording. Now
+    the failure is told first (naming the PNG and what is in place), then the stop, whose exit code
+    (143) the command still ends with."""
+    import os
+    import signal
+
+    from pursuit_mj.recording.rrd_read import read_entities
+    from pursuit_mj.render import episodes
+
+    save = episodes.save_png
+
+    def killed_while_saving(path, frame):
+        os.kill(os.getpid(), signal.SIGTERM)  # lands inside the block: held until it ends
+        path.mkdir()  # and the image cannot take its name: a folder is there now
+        return save(path, frame)
+
+    monkeypatch.setattr(episodes, "save_png", killed_while_saving)
+    out, rrd = tmp_path / "renders", tmp_path / "ev.rrd"
+    assert _cli(tmp_path, "-s", str(out), "--final-frame", "--format", "gif", "--rerun", str(rrd)) == 143
+    err = capsys.readouterr().err
+    (png,) = out.glob("*_final.png")  # the folder in its place (the image is kept beside it, as the error says)
+    (gif,) = out.glob("*.gif")
+    lines = err.splitlines()
+    assert lines[-2].startswith(f"pursuit-mj render: error: {png}: cannot") and f"{gif} is in place, with the episode's entry" in lines[-2], err
+    assert lines[-1] == "pursuit-mj render: interrupted by SIGTERM", err
+    assert "/episode_0/outcome" in read_entities(tmp_path / "ev.interrupted.rrd")

@@ -21,7 +21,7 @@ from ..policy import Policy, check_policy, checked_actions
 from .caption import Caption, draw_caption, draw_key
 from .overlays import OverlayStyle, TrailBuffer, draw_all, key_entries, overlay_geom_budget
 from .renderer import RenderSettings, SceneRenderer
-from ..io_utils import stops_held
+from ..io_utils import CannotWrite, stops_held
 from .video import VideoFile, save_png, video_file
 
 if TYPE_CHECKING:  # rerun is imported only when a recording is made
@@ -212,12 +212,42 @@ def _put_in_place(video: VideoFile | None, final_path: Path | None, final: np.nd
                   recording: RerunEpisodeRecording | None, buffer, record: EpisodeRecord) -> list[Path]:
     """Put a played episode's outputs in place: its video renamed onto its name, its final frame
     written, the episode added to the rerun recording; returns the files written. Called under
-    io_utils.stops_held, so that a stop never leaves a video in place whose episode the recording lacks."""
-    written = []
+    io_utils.stops_held, so that a stop never leaves a video in place whose episode the recording lacks.
+    One that cannot be written (CannotWrite) does not keep the others out: they go into place, and
+    then the first failure is raised (a CannotWrite) saying which of them are in place."""
+    written: list[Path] = []
+    failures: list[CannotWrite] = []
+
+    def attempt(put: Callable[[], object]) -> bool:
+        try:
+            put()
+            return True
+        except CannotWrite as exc:
+            failures.append(exc)
+            return False
+
     if video is not None:
-        written.append(video.close(ok=True))
+        attempt(lambda: written.append(video.close(ok=True)))
     if final_path is not None:
-        written.append(save_png(final_path, final))
-    if recording is not None:
-        recording.add_episode(buffer, record)
+        attempt(lambda: written.append(save_png(final_path, final)))
+    recorded = recording is not None and attempt(lambda: recording.add_episode(buffer, record))
+    if failures:
+        raise CannotWrite(str(failures[0]) + _what_is_in_place(written, recorded, failures[1:])) from None
     return written
+
+
+def _what_is_in_place(written: list[Path], recorded: bool, others: list[CannotWrite]) -> str:
+    """'; ep0.mp4 is in place, with the episode's entry in the rerun recording' and the like: what
+    the outputs of `_put_in_place` that did not fail left, told after its first failure (`others`:
+    the failures after it)."""
+    files = " and ".join(str(p) for p in written)
+    verb = "is" if len(written) == 1 else "are"
+    if files and recorded:
+        said = f"{files} {verb} in place, with the episode's entry in the rerun recording"
+    elif files:
+        said = f"{files} {verb} in place"
+    elif recorded:
+        said = "the episode's entry in the rerun recording is added"
+    else:
+        said = "none of the episode's outputs is in place"
+    return f"; {said}" + "".join(f"; also {exc}" for exc in others)
