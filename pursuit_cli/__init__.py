@@ -190,11 +190,13 @@ def main(argv: list[str] | None = None) -> int:
     whole_process = argv is None and threading.current_thread() is threading.main_thread()
     try:
         code = _run(argv, whole_process)
-        from pursuit_mj.io_utils import interrupt_handled
-
-        interrupt_handled()  # whatever interrupt came, the code says so: the process must not end by SIGINT
         return code
     finally:
+        from pursuit_mj.io_utils import interrupt_handled
+
+        # whatever interrupt came, the code says so (or argparse's exit, --help or a bad flag, which
+        # leaves main as SystemExit, does): the process must not end by SIGINT
+        interrupt_handled()
         if whole_process:
             signal.signal(signal.SIGINT, signal.SIG_IGN)
             _exit_past_a_dead_rerun_writer(code)
@@ -231,9 +233,14 @@ def _run(argv: list[str] | None, whole_process: bool = False) -> int:
             if not argv:  # a bare `pursuit-mj`: show what there is
                 parser.print_help(sys.stderr)
                 return 2
-            parsed, extras = parser.parse_known_args(argv)
-            if extras:
-                refuse_unrecognized(parser, parsed, extras)
+            try:
+                parsed, extras = parser.parse_known_args(argv)
+                if extras:
+                    refuse_unrecognized(parser, parsed, extras)
+            except SystemExit:  # argparse's exit: --help, --version or a usage error (said already)
+                if stops:  # a stop came meanwhile, its interrupt taken by an import for its own error: it stops
+                    raise KeyboardInterrupt(stops[0]) from None  # the command, as anywhere else in start-up
+                raise
             if stops:  # an interrupt that an import took for its own error: it still stops the command
                 raise KeyboardInterrupt(stops[0])
             args = parsed

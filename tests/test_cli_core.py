@@ -899,6 +899,60 @@ def test_a_ctrl_c_anywhere_ends_the_process_with_130_and_one_line_never_by_sigin
     assert (out.returncode, out.stderr) == (130, said)
 
 
+
+#: run as `python -m`: the arguments are parsed right after an interrupt inside generated code (exec) that
+#: start-up caught; argv[1] says whether it was a Ctrl-C (the CLI's handler ran) or a KeyboardInterrupt raised
+#: by code. (Right before the parse: any later exec or eval, as of a dataclass, would clear the mark itself.)
+_START_UP_INTERRUPTED = """
+import argparse, signal, sys
+import pursuit_cli
+how, sys.argv = sys.argv[1], ["pursuit-mj", *sys.argv[2:]]
+parse = argparse.ArgumentParser.parse_known_args
+
+def parse_after_an_interrupt(self, *a, **k):
+    try:  # as a library's start-up that catches what reaches it, in code made with exec or eval
+        exec("signal.raise_signal(signal.SIGINT)" if how == "ctrl_c" else "raise KeyboardInterrupt")
+    except KeyboardInterrupt:
+        pass
+    return parse(self, *a, **k)
+
+argparse.ArgumentParser.parse_known_args = parse_after_an_interrupt
+sys.exit(pursuit_cli.main())
+"""
+
+
+@pytest.mark.parametrize("how, argv, code, said", [
+    ("raised", ["config", "--no-such-flag"], 2, "pursuit-mj config: error: unrecognized arguments: --no-such-flag "
+                                                "(see pursuit-mj config --help)"),
+    ("raised", ["config", "--help"], 0, ""),
+    ("ctrl_c", ["config", "--no-such-flag"], 130, "pursuit-mj: interrupted while starting"),
+    ("ctrl_c", ["config", "--help"], 130, "pursuit-mj: interrupted while starting"),
+])
+def test_an_interrupt_caught_at_start_up_before_argparse_exits_ends_with_the_code_meant(tmp_path, how, argv, code, said):
+    """A KeyboardInterrupt that passed through code run by exec() leaves CPython 3.11's 'unhandled
+    interrupt' mark, which main cleared only once the command returned: when argparse then exited
+    (a bad flag: 2, --help: 0), its SystemExit went past that, and a `python -m` process died by
+    SIGINT (-2). Now argparse's code stands when no stop came (a KeyboardInterrupt raised by code,
+    caught); when a Ctrl-C came (the CLI's handler ran, and start-up swallowed its interrupt), the
+    command was asked to stop while it started: 'interrupted while starting' and 130, as a Ctrl-C
+    anywhere else in start-up ends it."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from conftest import stop_signals_at_their_defaults
+
+    (tmp_path / "started_cli.py").write_text(_START_UP_INTERRUPTED)
+    repo = Path(__file__).resolve().parent.parent
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(repo)])}
+    out = subprocess.run([sys.executable, "-m", "started_cli", how, *argv], capture_output=True, text=True, timeout=120,
+                         env=env, cwd=tmp_path, preexec_fn=stop_signals_at_their_defaults)
+    assert out.returncode == code, (out.returncode, out.stderr[-2000:])
+    assert out.stderr.splitlines()[-1:] == ([said] if said else []), out.stderr
+    if argv[-1] == "--help" and how == "raised":
+        assert out.stdout.startswith("usage: pursuit-mj config")
+
 def _stop_landing_once_at(monkeypatch, when, stop):
     """Patch signal.signal so that right after the call `when(sig, handler)` picks, the signal
     `stop` arrives (its handler runs at once, as Python runs a handler at the next bytecode)."""
