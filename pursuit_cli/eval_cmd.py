@@ -296,7 +296,7 @@ def _run(args) -> int:
         except (KeyboardInterrupt, Exception) as exc:
             # Ctrl-C, SIGTERM, or a stop signal a library call reported as its own error (pursuit_cli.main)
             if isinstance(exc, KeyboardInterrupt) or getattr(args, "stop_signals", None):
-                keep_finished(rows, csv_path, json_path, config, meta)
+                keep_finished(rows, csv_path, json_path, config, meta, task_named(args))
                 raise
             # a policy of one's own failed mid-table: say that the finished rows wait for --resume
             if isinstance(exc, ValueError) and rows and json_path and interrupted_path(json_path).is_file():

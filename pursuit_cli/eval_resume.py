@@ -52,10 +52,11 @@ def drop_finished(csv_path: Path | None, json_path: Path | None) -> None:
             interrupted_path(path).unlink(missing_ok=True)
 
 
-def keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, config, meta: dict) -> None:
-    """After an interrupt: show the rows of the finished policy-layout cells and say where they are
-    kept (written again: the last cell may have ended as the stop came); with none finished, say
-    that nothing is kept."""
+def keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, config, meta: dict, task: str = "") -> None:
+    """After an interrupt: show the rows of the finished policy-layout cells, under a line naming
+    their fidelity and `task` (common.task_named, when given) as the whole table's heading does,
+    and say where they are kept (written again: the last cell may have ended as the stop came);
+    with none finished, say that nothing is kept."""
     from pursuit_mj.evaluation import format_table, one_fidelity
 
     if not rows:
@@ -63,8 +64,8 @@ def keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, con
               flush=True)
         return
     cells = f"{len(rows)} finished policy-layout cell{'' if len(rows) == 1 else 's'}"
-    print(f"[eval] interrupted; the {cells}{one_fidelity(rows, ', every row')}:\n{format_table(rows)}", file=sys.stderr,
-          flush=True)
+    named = f"{cells}{one_fidelity(rows, ', every row')}{f', {task}' if task else ''}"
+    print(f"[eval] interrupted; the {named}:\n{format_table(rows)}", file=sys.stderr, flush=True)
     for path in write_finished(rows, csv_path, json_path, config, meta):
         print(f"[eval] wrote {path}", file=sys.stderr, flush=True)
 

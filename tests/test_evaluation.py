@@ -394,7 +394,7 @@ def test_an_interrupted_eval_keeps_its_finished_cells_beside_the_table_it_was_as
                  "--worlds", "2", "--fidelity", "point", "--set", "max_steps=20", "--out", str(tmp_path / "t"), "-q"])
     assert code == 143  # 128 + SIGTERM
     err = capsys.readouterr().err
-    assert "[eval] interrupted; the 2 finished policy-layout cells, every row in point fidelity:" in err and err.endswith("pursuit-mj eval: interrupted by SIGTERM\n")
+    assert "[eval] interrupted; the 2 finished policy-layout cells, every row in point fidelity, task reference with --set max_steps=20:" in err and err.endswith("pursuit-mj eval: interrupted by SIGTERM\n")
     kept = json.loads((tmp_path / "t.interrupted.json").read_text())
     assert kept["interrupted"] is True and [(r["policy"], r["layout"]) for r in kept["rows"]] == [("heuristic", "0"), ("heuristic", "1")]
     assert all(len(r["per_episode"]["seed"]) == 2 for r in kept["rows"])
@@ -1284,3 +1284,28 @@ def test_the_main_table_names_the_task_its_rows_were_played_in(command, task, na
     lines = capsys.readouterr().out.splitlines()
     head = next(k for k, line in enumerate(lines) if line.startswith("policy "))
     assert lines[head - 1] == f"evaluated 1 policy on 1 layout, every row in point fidelity, {named.replace('FILE', str(file))}"
+
+
+def test_an_interrupted_eval_names_the_task_of_the_cells_it_shows(monkeypatch, capsys):
+    """The finished cells an interrupted eval prints named the fidelity but not the task, which the
+    whole table's heading names (common.task_named): the cells of --task hard read as the reference
+    task's. They are now named alike."""
+    import os
+    import signal
+
+    import pursuit_mj.evaluation as evaluation
+
+    real, cells = evaluation.evaluate, []
+
+    def evaluate_then_stopped(*a, **k):
+        cells.append(k["label"])
+        if len(cells) == 2:
+            os.kill(os.getpid(), signal.SIGTERM)  # arrives inside the second cell, before its row exists
+        return real(*a, **k)
+
+    monkeypatch.setattr(evaluation, "evaluate", evaluate_then_stopped)
+    assert main(["eval", "--policy", "heuristic", "--policy", "random", "--task", "hard", "--layouts", "0", "--episodes", "1",
+                 "--worlds", "1", "--fidelity", "point", "--set", "max_steps=5", "-q"]) == 143
+    err = capsys.readouterr().err
+    assert ("[eval] interrupted; the 1 finished policy-layout cell, every row in point fidelity, task hard with "
+            "--set max_steps=5:\npolicy ") in err, err
