@@ -194,7 +194,9 @@ def _meta(args, policies, layouts, code: dict, config) -> dict:
             # what seeded each layout's episodes here (a relative path is a built-in or not by where eval ran): for pool
             "layout_identity": {layout_label(ref): layout_identity(ref) for ref in layouts}, "code": code,
             # the evaders' model of one's own (evader.model FILE.py:NAME) by its bytes: edited, it flies other evaders
-            "evader_model_sha256": evader_model_sha256(config)}
+            "evader_model_sha256": evader_model_sha256(config),
+            # how the heading names the task (common.task_named): pool's heading names it as this table's does
+            "task_name": task_named(args)}
 
 
 def _policy_file_labels(args, policies) -> dict[str, str]:

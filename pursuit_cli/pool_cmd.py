@@ -64,7 +64,8 @@ def _run(args) -> int:
         check_writable_folder(args.plots, "--plots")
     for note in pooled.notes:
         print(note)
-    print(f"pooled {counted(len(args.files), 'table')}{one_fidelity(pooled.rows, ', every row')}")
+    task = f", {pooled.task_name}" if pooled.task_name else ""  # as eval's heading named it
+    print(f"pooled {counted(len(args.files), 'table')}{one_fidelity(pooled.rows, ', every row')}{task}")
     print(format_table(pooled.rows))
     meta: dict = {"pooled_from": list(args.files), **pooled.meta}
     if versus is not None:

@@ -36,13 +36,16 @@ PER_ROW_KEYS = ("layout", "fidelity")  # config keys a table's rows may set apar
 class Pooled:
     """rows: one per policy, layout and fidelity, episodes in seed order; max_steps: the task's
     episode limit (decision steps); config: the task (as the first file holds it); notes: what
-    a reader should know (tables from several code versions)."""
+    a reader should know (tables from several code versions); task_name: how the tables' headings
+    named their task (eval's "task_name", pursuit_cli.common.task_named; the first table's where
+    they name it differently), '' where none records it."""
 
     rows: list[Row]
     max_steps: int
     config: dict
     notes: list[str]
     meta: dict = dataclasses.field(default_factory=dict)  # what a pooled JSON records, so that it can be pooled again
+    task_name: str = ""
 
 
 def _read(path: Path) -> dict:
@@ -101,6 +104,13 @@ def _with_defaults(config: dict, defaults: dict) -> dict:
         elif isinstance(value, dict) and isinstance(out[key], dict):
             out[key] = _with_defaults(out[key], value)
     return out
+
+
+def _task_name(data: dict) -> str:
+    """How a table's heading named its task (eval's "task_name"); '' for a table that does not say
+    (one from before eval recorded it, or written by a script)."""
+    name = data.get("task_name")
+    return name if isinstance(name, str) else ""
 
 
 def _models(data: dict) -> dict[str, str]:
@@ -217,6 +227,7 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
     arena_of: dict[str, tuple[str, Path]] = {}  # layout identity -> (its file's sha256, the table that said so)
     identity_of: dict[str, tuple[str, Path]] = {}  # layout label -> (its identity, the table that said so)
     code_of_first: dict | None = None
+    named_as: dict[str, Path] = {}  # each name the tables give their task -> the first table that gives it
     for path in map(Path, paths):
         data = _read(path)
         if first is None:
@@ -225,9 +236,13 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
             diff = first_difference(table_task(first["config"]), table_task(data["config"]))
             if diff:
                 key, a, b = diff
+                names = (f"; {_task_name(data)!r} there, {_task_name(first)!r} in {first_path}"
+                         if _task_name(data) and _task_name(first) else "")
                 raise ValueError(f"{path}: its task differs from {first_path}'s at {key} ({b!r} there, {a!r} in "
-                                 f"{first_path}); pool only tables of one task")
+                                 f"{first_path}{names}); pool only tables of one task")
             _check_evaders(first_path, first, path, data)
+        if _task_name(data):
+            named_as.setdefault(_task_name(data), path)
         for label, sha in _models(data).items():
             seen = model_of.setdefault(label, (sha, path))
             if seen[0] != sha:
@@ -306,6 +321,9 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
         notes.append(f"note: {', '.join(map(str, unchecked))} record{'s' if len(unchecked) == 1 else ''} no checkpoint "
                      "hashes (written by a script, or a study's table.json before 2026-12-07): a label there is taken "
                      "for the same policy as in the other tables, unchecked")
+    if len(named_as) > 1:  # one config under two names (a preset, and its values as flags): the heading gives the first
+        notes.append("note: the tables name their task differently, its config the same in all: "
+                     + ", ".join(f"{name} in {p}" for name, p in named_as.items()))
     layouts = {labels[key]: key[1] for key in episodes}
     meta = {"model_sha256_of": {label: sha for label, (sha, _) in model_of.items()},
             "layout_identity": layouts,
@@ -318,7 +336,10 @@ def pool_tables(paths: Sequence[str | Path]) -> Pooled:
         meta["policy_file_sha256_of"] = {label: sha for label, (sha, _) in file_of.items()}
     if "evader_model_sha256" in first:  # so that the pooled table is checked alike when pooled again
         meta["evader_model_sha256"] = first["evader_model_sha256"]
-    return Pooled(rows, max_steps, first["config"], notes, meta)
+    task_name = next(iter(named_as), "")
+    if task_name:  # so that the pooled table, pooled again, is named alike
+        meta["task_name"] = task_name
+    return Pooled(rows, max_steps, first["config"], notes, meta, task_name)
 
 
 def _check_played(policy: str, layout: str, known: dict[int, tuple[tuple[str, int, int], Path]], max_steps: int,

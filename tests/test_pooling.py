@@ -680,3 +680,69 @@ def test_a_pool_keeps_the_layouts_each_model_trained_on_and_refuses_two_lists_fo
     bad = _edited(tables, "trained_bad", lambda data: data.__setitem__("trained_layouts", {"random": "0"}))
     with pytest.raises(ValueError, match=r"trained_bad.json: trained_layouts is .* not a map of model labels to lists"):
         pool_tables([bad])
+
+
+def _named(tables, name, source, task_name, **config):
+    """A copy of the fixture table `source` whose JSON names its task `task_name` (None: no name, as
+    a table from before eval recorded it) and has the config keys `config` changed."""
+    data = json.loads(tables[source].read_text())
+    if task_name is not None:
+        data["task_name"] = task_name
+    data["config"].update(config)
+    path = tables["tmp"] / f"{name}.json"
+    path.write_text(json.dumps(data))
+    return path
+
+
+def test_eval_records_the_task_its_heading_names_and_pool_names_it_too(tmp_path, capsys):
+    """pool's heading named the fidelity of the pooled rows but not the task, and eval's JSON did not
+    record how its heading named it: a pool of --task hard tables read as one of the reference task.
+    eval now writes the name ("task_name"), and pool names it above the table and keeps it in its own
+    JSON, so that a pool pooled again names it too."""
+    from pursuit_cli import main
+
+    common = ["eval", "--task", "hard", "--fidelity", "point", "--episodes", "1", "--worlds", "1", "--set", "max_steps=5", "-q"]
+    for seed in ("0", "1"):
+        assert main([*common, "--seed", seed, "--out", str(tmp_path / f"s{seed}")]) == 0
+    assert json.loads((tmp_path / "s0.json").read_text())["task_name"] == "task hard with --set max_steps=5"
+    capsys.readouterr()
+    assert main(["pool", str(tmp_path / "s0.json"), str(tmp_path / "s1.json"), "--out", str(tmp_path / "pooled")]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == "pooled 2 tables, every row in point fidelity, task hard with --set max_steps=5", out
+    assert json.loads((tmp_path / "pooled.json").read_text())["task_name"] == "task hard with --set max_steps=5"
+    assert main(["pool", str(tmp_path / "pooled.json")]) == 0
+    assert capsys.readouterr().out.splitlines()[0] == "pooled 1 table, every row in point fidelity, task hard with --set max_steps=5"
+
+
+def test_a_table_that_names_no_task_pools_under_the_name_the_others_give(tables):
+    """A table written before eval recorded its task's name still pools; the task is the one the
+    others name (their configs are equal), and with no name anywhere there is none to give."""
+    old = _named(tables, "old_unnamed", "h1", None)
+    named = _named(tables, "named_hard", "h0", "task hard")
+    assert pool_tables([old, named]).task_name == "task hard" and pool_tables([named, old]).task_name == "task hard"
+    assert pool_tables([old, tables["h0"]]).task_name == ""
+
+
+def test_tables_naming_one_task_config_differently_pool_with_a_note_naming_each(tables):
+    """Two names for equal configs (--task hard, and the reference with hard's values as flags) are one
+    task: pooled, under the first table's name, with a note naming each name and its file."""
+    a = _named(tables, "as_hard", "h0", "task hard")
+    b = _named(tables, "as_flags", "h1", "task reference with --set evader_speed=0.6")
+    pooled = pool_tables([a, b])
+    assert pooled.task_name == "task hard"
+    assert (f"note: the tables name their task differently, its config the same in all: task hard in {a}, "
+            f"task reference with --set evader_speed=0.6 in {b}") in pooled.notes, pooled.notes
+
+
+def test_tables_of_two_tasks_are_refused_naming_both_files_and_how_each_names_its_task(tables):
+    """Tables of two tasks were refused, naming both files and the first key that differs; where the
+    tables record their tasks' names, the refusal says them too."""
+    a = _named(tables, "task_ref", "h0", "task reference with --set max_steps=120")
+    b = _named(tables, "task_fast", "h1", "task reference with --evader-speed 0.9, --set max_steps=120", evader_speed=0.9)
+    with pytest.raises(ValueError, match=(rf"^{b}: its task differs from {a}'s at evader_speed \(0\.9 there, 0\.6 in {a}; "
+                                          rf"'task reference with --evader-speed 0\.9, --set max_steps=120' there, "
+                                          rf"'task reference with --set max_steps=120' in {a}\); pool only tables of one task$")):
+        pool_tables([a, b])
+    with pytest.raises(ValueError, match=rf"^{b}: its task differs from {tables['h0']}'s at evader_speed \(0\.9 there, 0\.6 in "
+                                         rf"{tables['h0']}\); pool only tables of one task$"):
+        pool_tables([tables["h0"], b])  # the first names none: the key alone, as before

@@ -993,6 +993,8 @@ def test_the_study_table_names_the_fidelity_its_rows_were_played_in(tmp_path):
     text = (tmp_path / "table.txt").read_text()
     assert text.startswith("evaluated 2 policies on 1 layout, every row in point fidelity, task hard with --set "
                            "max_steps=5\npolicy "), text
+    # and table.json records the name, as eval's JSON does, for `pursuit-mj pool`'s heading
+    assert json.loads((tmp_path / "table.json").read_text())["task_name"] == "task hard with --set max_steps=5"
 
 
 def test_the_study_names_its_evaluation_task_in_the_table_heading(tmp_path, monkeypatch):

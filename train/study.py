@@ -894,6 +894,8 @@ def _write(plan: StudyPlan, rows: Sequence, timings: dict[str, float], episodes:
     meta = {"budget_minutes": plan.budget_minutes, **sessions, "episodes": episodes,
             "layouts": [str(l) for l in plan.layouts], "seed": plan.seed, "paired": pairs_to_dicts(pairs),
             **_table_provenance(plan, state)}
+    if plan.eval_task_name:  # as eval's JSON records it, for pool's heading
+        meta["task_name"] = plan.eval_task_name
     write_json(rows, plan.out / "table.json", plan.eval_task, meta)
     plot_rows(rows, plan.out / "plots")
     atomic_write_text(plan.out / "timings.json", _timings_json(timings))
