@@ -279,13 +279,16 @@ def one_flag_named(exc: ValueError, typed: str, given: dict, flag_of: dict) -> V
 TABLE_NAMES = ("fidelity", "layout")
 
 
-def task_named(args: argparse.Namespace) -> str:
+def task_named(args: argparse.Namespace, base: str = "") -> str:
     """How a table's heading names the task its rows ran in (evaluation.table_heading): 'task
     hard', 'task easy + mine.yaml' (task files and presets as given, the later winning), 'task
     reference' without any (the defaults are the reference preset's values), then 'with' the task
     flags and --set overrides given, as typed ('task hard with --pursuers 2, --set max_steps=5').
-    Those of TABLE_NAMES are left out: the heading names the fidelity, the table each layout."""
-    files = list(getattr(args, "task_files", None) or []) or ["reference"]
+    Those of TABLE_NAMES are left out: the heading names the fidelity, the table each layout.
+    `base` names the task the files apply on where it is not the defaults, first (render's -mc
+    run: 'of -mc classic' gives 'task of -mc classic + hard')."""
+    files = [base] if base else []
+    files += list(getattr(args, "task_files", None) or []) or ([] if base else ["reference"])
     flags, names = task_flags_given(args)
     given = [f"{names[k]} {getattr(args, k)}" for k in flags if k not in TABLE_NAMES]
     given += [f"--set {o.strip()}" for o in getattr(args, "overrides", None) or []

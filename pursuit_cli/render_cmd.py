@@ -29,7 +29,8 @@ from pursuit_mj.policies import POLICY_NAMES, make_policy
 from pursuit_mj.evader_models import evader_model_sha256
 from pursuit_mj.policy_file import is_policy_file, policy_file_name, policy_file_path
 from .common import (add_shield_arg, add_task_args, check_episodes, check_evader_model, check_layout_given, flags_typed, load_model, path_arg, seed_arg, sweep_dead_parts,
-                     finite_float, once_flag, shield_each_if_asked, task_config_from_args, task_flag_error, task_flags_given)
+                     finite_float, once_flag, shield_each_if_asked, task_config_from_args, task_flag_error, task_flags_given,
+                     task_named)
 
 DEFAULT_SAVE = "renders"
 
@@ -398,7 +399,8 @@ def _run(args) -> int:
     # its trail_length counts positions: N decision steps are N + 1 of them, as in the frames
     recording = RerunEpisodeRecording(args.rerun, trail_length=args.trail + 1) if args.rerun else None
     where = "a built-in layout drawn per episode" if config.random_layout else f"layout {config.layout}"
-    print(f"render: {label} on {where}, {config.fidelity} fidelity", flush=True)  # what the episode lines below are of
+    task = task_named(args, f"of -mc {args.model_config}" if args.model_config else "")  # the -mc run's task is the base
+    print(f"render: {label} on {where}, {config.fidelity} fidelity, {task}", flush=True)  # what the episode lines below are of
     ok = False
     try:
         run_episodes(config, policy, episodes, args.seed, settings, outputs, recording, label, on_episode=report,

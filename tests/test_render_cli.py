@@ -521,7 +521,7 @@ def test_render_names_the_policy_layout_and_fidelity_of_the_episodes_it_reports(
                  "--no-video", "--rerun", str(tmp_path / "r.rrd")])
     assert code == 0
     lines = capsys.readouterr().out.splitlines()
-    assert lines[0] == "render: heuristic on layout 2, point fidelity" and lines[1].startswith("episode 0: "), lines
+    assert lines[0] == "render: heuristic on layout 2, point fidelity, task reference with --set max_steps=5" and lines[1].startswith("episode 0: "), lines
 
 
 @pytest.mark.parametrize("final", [False, True])
@@ -591,3 +591,21 @@ def test_a_final_image_that_cannot_be_written_while_a_kill_is_held_is_told_befor
     assert lines[-2].startswith(f"pursuit-mj render: error: {png}: cannot") and f"{gif} is in place, with the episode's entry" in lines[-2], err
     assert lines[-1] == "pursuit-mj render: interrupted by SIGTERM", err
     assert "/episode_0/outcome" in read_entities(tmp_path / "ev.interrupted.rrd")
+
+
+@pytest.mark.parametrize("task, named", [
+    ([], "task reference with --set max_steps=5"),
+    (["--task", "hard"], "task hard with --set max_steps=5"),
+    (["-mc", "classic", "--policy", "heuristic", "-ec", "hard", "--pursuers", "2"],
+     "task of -mc classic + hard with --pursuers 2, --set max_steps=5"),
+])
+def test_render_names_the_task_of_the_episodes_it_reports(task, named, tmp_path, capsys):
+    """render's first line named the policy, layout and fidelity but not the task, which eval's
+    heading names (common.task_named): episodes of --task hard read as the reference task's. It
+    now names it as eval does; with -mc the run's task is what the task files and flags change, so
+    the name starts from it."""
+    policy = [] if "--policy" in task else ["--policy", "heuristic"]
+    assert main(["render", *policy, *task, "--fidelity", "point", "--set", "max_steps=5", "-i", "2", "--no-video",
+                 "--rerun", str(tmp_path / "r.rrd")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == f"render: heuristic on layout 2, point fidelity, {named}", lines
