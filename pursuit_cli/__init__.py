@@ -107,9 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def refuse_unrecognized(parser: argparse.ArgumentParser, args: argparse.Namespace, extras: list[str]) -> None:
     """Exit 2 naming `extras` (arguments no flag took) by the (sub)command they were given to, with
-    the closest of its listed flags to the first unknown one ('--layouts' -> '--layout')."""
-    import difflib
-
+    a hint about the first unknown flag (unknown_flag_hint: '--layouts' -> '--layout')."""
     target = parser
     while True:  # down to the innermost command chosen: `layout show`, `bench env`, `fly check`
         sub = next((a for a in target._actions if isinstance(a, argparse._SubParsersAction)), None)
@@ -117,10 +115,43 @@ def refuse_unrecognized(parser: argparse.ArgumentParser, args: argparse.Namespac
         if chosen not in (sub.choices if sub is not None else {}):
             break
         target = sub.choices[chosen]
-    listed = [s for action in target._actions if action.help != argparse.SUPPRESS for s in action.option_strings]
     unknown = [e.split("=", 1)[0] for e in extras if e.startswith("-")]
-    close = difflib.get_close_matches(unknown[0], listed, n=1) if unknown else []
-    target.error(f"unrecognized arguments: {' '.join(extras)}" + (f"; did you mean {close[0]}?" if close else ""))
+    target.error(f"unrecognized arguments: {' '.join(extras)}" + (unknown_flag_hint(target, unknown[0]) if unknown else ""))
+
+
+def unknown_flag_hint(parser: argparse.ArgumentParser, flag: str) -> str:
+    """What to say after 'unrecognized arguments: ...' about `flag`, which `parser` does not take:
+    for a task flag of the other commands (any spelling, '-ev', '--delta_t'), the --set key that
+    sets it there ('; -ev is a task flag, which train does not take: --set task.evader_speed=VALUE';
+    task. where --set takes train keys, as beside --config), or that command's own spelling of it
+    (train's --layout for -i); else the closest of its listed flags ('; did you mean --seed?');
+    else ''."""
+    import difflib
+
+    from .common import TASK_FLAG_NAMES
+
+    options = parser._option_string_actions
+    key = _task_flag_keys().get(flag)
+    if key is not None:
+        if TASK_FLAG_NAMES[key] in options:
+            return f"; did you mean {TASK_FLAG_NAMES[key]}?"
+        command = parser.prog.removeprefix("pursuit-mj ")
+        if "--set" not in options:
+            return f"; {flag} is a task flag, which {command} does not take"
+        return f"; {flag} is a task flag, which {command} does not take: --set {'task.' if '--config' in options else ''}{key}=VALUE"
+    listed = [s for action in parser._actions if action.help != argparse.SUPPRESS for s in action.option_strings]
+    close = difflib.get_close_matches(flag, listed, n=1)
+    return f"; did you mean {close[0]}?" if close else ""
+
+
+def _task_flag_keys() -> dict[str, str]:
+    """Every spelling of the common task flags (common.add_task_args, the reference study's hidden
+    ones included) -> the task key it sets ('-ev' -> 'evader_speed')."""
+    from .common import TASK_FLAG_KEYS, add_task_args
+
+    scratch = argparse.ArgumentParser(add_help=False)
+    add_task_args(scratch)
+    return {s: a.dest for a in scratch._actions if a.dest in TASK_FLAG_KEYS for s in a.option_strings}
 
 
 def mujoco_import_error() -> str | None:

@@ -791,6 +791,29 @@ def test_an_unknown_flag_of_a_subcommand_action_is_refused_by_that_action(capsys
     assert stopped.value.code == 2 and err.startswith("pursuit-mj layout show: error: unrecognized arguments: --sed 3; did you mean --seed?"), err
 
 
+@pytest.mark.parametrize("argv, said", [
+    (["train", "--config", "classic", "--pursuers", "2"],
+     "pursuit-mj train: error: unrecognized arguments: --pursuers 2; --pursuers is a task flag, which train does not "
+     "take: --set task.n_pursuers=VALUE (see pursuit-mj train --help)"),
+    (["bench", "train", "-ev", "0.5"],
+     "pursuit-mj bench train: error: unrecognized arguments: -ev 0.5; -ev is a task flag, which bench train does not "
+     "take: --set task.evader_speed=VALUE"),
+    (["bench", "physics", "--observability", "full"],
+     "pursuit-mj bench physics: error: unrecognized arguments: --observability full; --observability is a task flag, "
+     "which bench physics does not take: --set observability=VALUE"),
+    (["bench", "render", "--delta_t", "0.05"],
+     "pursuit-mj bench render: error: unrecognized arguments: --delta_t 0.05; --delta_t is a task flag, which bench "
+     "render does not take"),
+])
+def test_a_task_flag_given_to_a_command_without_it_is_refused_naming_the_key_to_set(capsys, argv, said):
+    """'train --pursuers 2' was refused with '; did you mean --resume?': train sets task keys by
+    --set task.KEY, and the closest of its own flags is no help."""
+    with pytest.raises(SystemExit) as stopped:
+        main(argv)
+    err = capsys.readouterr().err
+    assert stopped.value.code == 2 and said in err and len(err.splitlines()) == 1, err
+
+
 @pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
 def test_a_stop_within_stops_held_waits_for_the_block_and_then_interrupts():
     import signal
