@@ -50,6 +50,22 @@ class OneLineErrorParser(argparse.ArgumentParser):
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
+    def parse_known_args(self, args=None, namespace=None):
+        self._given = list(sys.argv[1:] if args is None else args)  # for _check_value
+        return super().parse_known_args(args, namespace)
+
+    def _check_value(self, action, value):
+        """A value that is no subcommand (or action: fly check | align) right after a flag this
+        parser does not know is that flag's value ('fly --speed 2'), not a misspelt action: refused
+        as the unknown flag, as refuse_unrecognized refuses one, not as "invalid choice: '2'"."""
+        if isinstance(action, argparse._SubParsersAction) and value not in action.choices:
+            given = getattr(self, "_given", [])
+            stray = next((before for before, arg in zip(given, given[1:]) if arg == value and before.startswith("-")
+                          and before.split("=", 1)[0] not in self._option_string_actions), None)
+            if stray is not None:
+                raise argparse.ArgumentError(None, f"unrecognized arguments: {stray} {value}" + unknown_flag_hint(self, stray))
+        super()._check_value(action, value)
+
     def _parse_optional(self, arg_string):
         if ((_NEGATIVE_NUMBER.match(arg_string) or _NEGATIVE_POINT.match(arg_string))
                 and arg_string not in self._option_string_actions):

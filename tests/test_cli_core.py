@@ -814,6 +814,32 @@ def test_a_task_flag_given_to_a_command_without_it_is_refused_naming_the_key_to_
     assert stopped.value.code == 2 and said in err and len(err.splitlines()) == 1, err
 
 
+@pytest.mark.parametrize("argv, said", [
+    (["fly", "--flight", "example", "--policy", "heuristic", "--virtual", "--wind", "2"],
+     "pursuit-mj fly: error: unrecognized arguments: --wind 2 (see pursuit-mj fly --help)"),
+    (["fly", "--flight", "example", "--virtual", "--polcy", "heuristic"],
+     "pursuit-mj fly: error: unrecognized arguments: --polcy heuristic; did you mean --policy?"),
+    (["fly", "--flight", "example", "--pursuers", "2"],
+     "pursuit-mj fly: error: unrecognized arguments: --pursuers 2; --pursuers is a task flag, which fly does not take: "
+     "--set n_pursuers=VALUE"),
+])
+def test_an_unknown_flag_of_fly_is_refused_naming_it_not_its_value_as_an_action(capsys, argv, said):
+    """fly has the optional actions check and align: the value of an unknown flag ('--speed 2') was
+    taken for the action and refused as "argument [check | align]: invalid choice: '2'", naming
+    neither the flag nor what was meant."""
+    with pytest.raises(SystemExit) as stopped:
+        main(argv)
+    err = capsys.readouterr().err
+    assert stopped.value.code == 2 and said in err and len(err.splitlines()) == 1, err
+
+
+def test_fly_still_refuses_an_unknown_action_as_one():
+    parser = build_parser()
+    with pytest.raises(SystemExit) as stopped:
+        parser.parse_known_args(["fly", "chek", "--flight", "example"])
+    assert stopped.value.code == 2
+
+
 @pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
 def test_a_stop_within_stops_held_waits_for_the_block_and_then_interrupts():
     import signal
