@@ -39,6 +39,16 @@ def test_speed_clamp_geofence_and_separation_guard_keep_drones_slow_inside_and_a
     names = lambda kind: {r["drone"] for r in events.of_kind(kind)}  # noqa: E731
     assert {"p0", "p1", "p2"} <= names("speed_clamped")
     assert "p0" in names("geofence") and {"p1", "p2"} <= names("separation")
+    # each event says what its guard measured (the separation events gave the fence's clearance,
+    # which read as the drones' gap): lab m and m/s, the open layout's arena at lab [0, 3.6] x [0, 5]
+    for r in events.of_kind("speed_clamped"):
+        assert r["speed"] > 0.4 and "clearance" not in r
+    for r in events.of_kind("separation"):
+        assert 0 < r["gap"] < 1.0 and "clearance" not in r
+    for r in events.of_kind("geofence"):
+        x, y = r["pos"]
+        assert r["clearance"] == pytest.approx(min(x, y, 3.6 - x, 5.0 - y), abs=1e-4)
+        assert r["clearance_ahead"] < r["clearance"]  # flying toward the fence
     sent = np.array([s.sent[:3, :2] for s in result.steps])
     assert np.linalg.norm(sent, axis=-1).max() <= 0.4 + 1e-9
     track = np.array(track)

@@ -153,6 +153,18 @@ class _Abort(Exception):
         self.outcome, self.reason = outcome, reason
 
 
+def guard_details(fence: Fence, pos_lab: np.ndarray, asked: np.ndarray, clearance_ahead: np.ndarray) -> dict[str, dict[str, np.ndarray]]:
+    """What the event of each safety filter reports about drones at pos_lab (D, 2) m (lab), each
+    (D,): speed_clamped the `speed` asked (m/s, lab); separation the `gap` to the nearest other
+    drone (m, centre to centre, now); geofence the `clearance` to the nearest border or obstacle
+    surface (m, lab, now; negative outside the arena or inside an obstacle) and `clearance_ahead`,
+    the one the fence judged, where the drone's motion takes it (Fence.judged)."""
+    apart = np.linalg.norm(pos_lab[:, None, :] - pos_lab[None, :, :], axis=-1)
+    np.fill_diagonal(apart, np.inf)
+    return {"speed_clamped": {"speed": asked}, "separation": {"gap": apart.min(axis=1)},
+            "geofence": {"clearance": fence.clearance(pos_lab), "clearance_ahead": clearance_ahead}}
+
+
 class _Edges:
     """Logs a per-drone condition when it starts (rising edge), not on every step."""
 
@@ -672,7 +684,7 @@ class FlightBridge:
             now = self.board.snapshot()
             self._check_abort(now, start)
         now_lab, now_vel = self._lab_state(now) if now is not snap else (pos_lab, vel_lab)
-        v, filtered, clearance = self._guard(wanted, now_lab, now_vel)
+        v, filtered, measured = self._guard(wanted, now_lab, now_vel)
 
         stale = now.state_age > plan.safety.stale_hover
         caught = np.concatenate([np.zeros(N, bool), observer.captured[0] & (plan.roles[N:] == "evader")])
@@ -686,7 +698,7 @@ class FlightBridge:
         sent[unsendable] = np.nan
         self._stream.send({int(i): sent[i] for i in np.flatnonzero(fly)}, [int(i) for i in np.flatnonzero(hover)])
         for kind, flags in filtered.items():
-            self.edges.update(kind, flags & fly, pos=now_lab[:, :2], clearance=clearance)
+            self.edges.update(kind, flags & fly, pos=now_lab[:, :2], **measured[kind])
         self.edges.update("stale_hover", stale & plan.commanded, age=now.state_age)
 
         changed = np.any([flags for flags in filtered.values()], axis=0) & fly
@@ -768,14 +780,17 @@ class FlightBridge:
 
     def _guard(self, wanted: np.ndarray, pos_lab: np.ndarray, vel_lab: np.ndarray):
         """Safety filters on lab commands (D, 2) m/s: (commands, {filter: changed (D,) bool},
-        clearance (D,) m). Judged where each drone will be when the command acts."""
+        {filter: {detail: (D,)}}: what each filter's event reports beside the drone's position,
+        guard_details). Judged where each drone will be when the command acts."""
         limits = self.plan.safety
         ahead = pos_lab[:, :2] + vel_lab[:, :2] * (self.plan.dt + limits.response_time)
         v, clamped = clamp_speed(wanted, limits.max_speed)
-        v, separating, fencing, clearance = keep_apart_and_inside(v, pos_lab[:, :2], self.fence, limits.min_separation, limits.lookahead,
-                                                                  self.plan.commanded, ahead_lab=ahead)
-        v, clamped_again = clamp_speed(v, limits.max_speed)  # a push back out may be fast
-        return v, {"speed_clamped": clamped | clamped_again, "separation": separating, "geofence": fencing}, clearance
+        v, separating, fencing, clearance_ahead = keep_apart_and_inside(v, pos_lab[:, :2], self.fence, limits.min_separation,
+                                                                        limits.lookahead, self.plan.commanded, ahead_lab=ahead)
+        asked = np.maximum(np.linalg.norm(wanted, axis=-1), np.linalg.norm(v, axis=-1))  # a push back out may be the fast one
+        v, clamped_again = clamp_speed(v, limits.max_speed)
+        filtered = {"speed_clamped": clamped | clamped_again, "separation": separating, "geofence": fencing}
+        return v, filtered, guard_details(self.fence, pos_lab[:, :2], asked, clearance_ahead)
 
     def _record_only(self, snap: BoardSnapshot) -> None:
         """States for the recorder outside the chase (take-off, landing)."""
