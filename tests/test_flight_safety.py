@@ -97,6 +97,11 @@ def test_a_lost_link_lands_everyone_else(tmp_path):
     assert events.of_kind("link_lost")[0]["drone"] == "p1"
     assert events.of_kind("land")[0]["drones"] == ["p0", "p2", "e0"]
     assert down(fleet, [0, 2, 3]) and seen["p1_down"]
+    # 'landed' gave its four heights as a list beside the three drones landed: p2 read as p1's 0.3 m
+    landed = events.of_kind("landed")[0]
+    assert landed["drones"] == ["p0", "p2", "e0"] and list(landed["heights"]) == ["p0", "p1", "p2", "e0"]
+    assert landed["heights"]["p1"] == pytest.approx(0.3, abs=0.05) and landed["not_down"] == ["p1"]
+    assert all(landed["heights"][n] < 0.1 for n in ("p0", "p2", "e0"))
 
 
 def test_frozen_estimates_make_the_drone_hover_then_everyone_land(tmp_path):

@@ -534,7 +534,9 @@ class FlightBridge:
         # that stopped, a link gone silent): it says nothing of where the drone is now
         down = (z < LANDED_HEIGHT) & ~silent & (snap.state_time >= began)
         not_down = [n for n, ok, ours in zip(plan.names, down, plan.commanded) if ours and not ok]
-        self.events.log("landed", heights=z, drones=[l.name for l in up], not_down=not_down, level="warn" if not_down else "info")
+        # heights of every drone by name: `drones` (those landed) may be fewer, a list beside it would pair them wrongly
+        self.events.log("landed", heights=dict(zip(plan.names, z)), drones=[l.name for l in up], not_down=not_down,
+                        level="warn" if not_down else "info")
         self._airborne = False
         return len(up) == int(plan.commanded.sum()) and bool(down[plan.commanded].all())
 
