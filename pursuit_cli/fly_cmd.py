@@ -95,7 +95,7 @@ def _describe(plan) -> str:
         f"flight {plan.spec.name} ({plan.spec.source}): {plan.spec.positioning} positioning, layout {plan.layout.name} ({plan.layout.source})",
         f"  height {plan.height:g} m, decision rate {1 / plan.dt:g} Hz, max time {plan.spec.max_time:g} s",
         f"  transform lab -> layout: origin {list(t.origin)} m, yaw {t.yaw:g} rad, scale {t.scale:g}; lab x {list(plan.lab.x)} y {list(plan.lab.y)} m",
-        f"  speeds: pursuers {plan.task.pursuer_speed:g} m/s, evaders {plan.task.evader_speed:g} m/s (layout); safety limit {s.max_speed:g} m/s (lab)",
+        _speeds(plan),
         f"  safety: fence margin {s.geofence_margin:g} m, separation {s.min_separation:g} m, stale {s.stale_hover:g}/{s.stale_land:g} s, "
         f"battery {s.battery_takeoff:g}/{s.battery_land:g} V",
     ]
@@ -103,6 +103,15 @@ def _describe(plan) -> str:
         lines.append(f"  {d.name:>10}  {d.role:<8} {d.uri:<32} start {list(d.start)}")
     lines += [f"  warning: {w}" for w in plan.warnings]
     return "\n".join(lines)
+
+
+def _speeds(plan) -> str:
+    """The plan's speeds line: the task speeds (layout m/s) of the roles the flight flies (evaders
+    only where an evader drone is flown; a target is flown by someone else) and the lab's limit."""
+    flown = f"pursuers {plan.task.pursuer_speed:g} m/s" + (f", evaders {plan.task.evader_speed:g} m/s" if plan.flown_evaders.any() else "")
+    targets = int((plan.roles == "target").sum())
+    by_hand = f", {'the target' if targets == 1 else f'{targets} targets'} flown by someone else" if targets else ""
+    return f"  speeds: {flown} (layout){by_hand}; safety limit {plan.safety.max_speed:g} m/s (lab)"
 
 
 def _landed(result, plan) -> str:

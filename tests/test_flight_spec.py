@@ -521,7 +521,12 @@ def test_the_speed_warning_is_about_flown_roles_only_a_target_is_flown_by_someon
     from pursuit_cli import main
 
     assert main(["fly", "check", "--flight", "configs/flight/lighthouse.yaml"]) == 0  # pursuers and a target: no evader flown
-    assert "warning" not in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "warning" not in out
+    # the plan gave 'evaders 0.6 m/s' here too, a speed nothing in this flight flies at
+    assert "  speeds: pursuers 0.3 m/s (layout), the target flown by someone else; safety limit 0.4 m/s (lab)\n" in out
+    assert main(["fly", "check", "--flight", EXAMPLE]) == 0
+    assert "  speeds: pursuers 0.3 m/s, evaders 0.6 m/s (layout); safety limit 0.7 m/s (lab)\n" in capsys.readouterr().out
     data = flight(safety={"max_speed": 0.4, "geofence_margin": 0.25})
     data["drones"][1]["role"] = "target"
     assert resolve_flight(flight_from_dict(data, "lab.yaml")).warnings == ()
