@@ -43,7 +43,7 @@ def run(args) -> int:
 
 
 def _run(args) -> int:
-    from pursuit_mj.comparison import format_pairs, one_fidelity, pairs_to_dicts
+    from pursuit_mj.comparison import format_pairs, one_fidelity, paired_heading, pairs_to_dicts
     from pursuit_mj.evaluation import format_table, plot_rows, write_csv, write_json
     from pursuit_mj.pooling import not_paired, not_paired_text, pool_tables, pooled_pairs
 
@@ -70,8 +70,7 @@ def _run(args) -> int:
     meta: dict = {"pooled_from": list(args.files), **pooled.meta}
     if versus is not None:
         pairs = pooled_pairs(pooled.rows, versus, pooled.max_steps, pooled.meta["layout_identity"])
-        print(f"\npaired with {versus} on the episodes both played{one_fidelity(pairs, ',')} (capture steps: steps of a success, "
-              f"{pooled.max_steps} for a failure; negative = sooner):")
+        print("\n" + paired_heading(versus, "the episodes both played", pairs, pooled.max_steps))
         print(format_pairs(pairs))
         meta["paired"] = pairs_to_dicts(pairs)
         alone = not_paired(pooled.rows, versus, pooled.max_steps, pooled.meta["layout_identity"])

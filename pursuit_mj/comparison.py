@@ -230,6 +230,11 @@ def paired_report(rows: Sequence[Row], reference: str, max_steps: float) -> tupl
     if reference not in {r.policy for r in rows} or len({r.policy for r in rows}) < 2:
         return "", []
     pairs = pair_table(rows, reference, max_steps)
-    head = (f"paired with {reference} on the same episodes{one_fidelity(pairs, ',')} (capture steps: steps of a success, {max_steps:g} "
+    return paired_heading(reference, "the same episodes", pairs, max_steps) + "\n" + format_pairs(pairs), pairs
+
+
+def paired_heading(reference: str, episodes: str, pairs: Sequence[Paired], max_steps: float) -> str:
+    """The line over a paired table (eval's, pool's): whom the policies are paired with, on which
+    `episodes`, in which fidelity when the pairs are of one, and how to read both of its tests."""
+    return (f"paired with {reference} on {episodes}{one_fidelity(pairs, ',')} (capture steps: steps of a success, {max_steps:g} "
             "for a failure; negative = sooner; success: judged on the episodes only one of the two won):")
-    return head + "\n" + format_pairs(pairs), pairs

@@ -649,6 +649,8 @@ def test_tables_of_one_fidelity_say_which_in_their_headings(tables, tmp_path, ca
     assert "fidelity" not in table.splitlines()[1]  # no column: the heading says it
     assert "pooled 2 tables, every row in point fidelity" in table
     assert paired.splitlines()[0].startswith(" heuristic on the episodes both played, in point fidelity (")
+    # its success columns were not explained, as eval's heading explains them
+    assert paired.splitlines()[0].endswith("negative = sooner; success: judged on the episodes only one of the two won):")
     quad = dataclasses.replace(TASK, fidelity="quadrotor", max_steps=120)
     q = _table(tmp_path, "quad", 0, ("heuristic", "random"), task=quad)
     assert main(["pool", str(tables["hr0"]), str(q)]) == 0
