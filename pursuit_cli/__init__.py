@@ -141,11 +141,14 @@ def unknown_flag_hint(parser: argparse.ArgumentParser, flag: str) -> str:
     sets it there ('; -ev is a task flag, which train does not take: --set task.evader_speed=VALUE';
     task. where --set takes train keys, as beside --config), or that command's own spelling of it
     (train's --layout for -i); else the closest of its listed flags ('; did you mean --seed?');
-    else ''."""
+    else ''. To a parser that needs a subcommand yet (pursuit-mj, bench, layout) the flag came
+    before it: it says so."""
     import difflib
 
     from .common import TASK_FLAG_NAMES
 
+    if any(isinstance(a, argparse._SubParsersAction) and a.required for a in parser._actions):
+        return f"; give flags after the command ({parser.prog} COMMAND {flag} ...)"  # `pursuit-mj --layout 2 eval`
     options = parser._option_string_actions
     key = _task_flag_keys().get(flag)
     if key is not None:

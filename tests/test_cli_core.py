@@ -833,6 +833,21 @@ def test_an_unknown_flag_of_fly_is_refused_naming_it_not_its_value_as_an_action(
     assert stopped.value.code == 2 and said in err and len(err.splitlines()) == 1, err
 
 
+@pytest.mark.parametrize("argv, said", [
+    (["--layout", "2", "eval"], "pursuit-mj: error: unrecognized arguments: --layout 2; give flags after the command "
+                                "(pursuit-mj COMMAND --layout ...)"),
+    (["bench", "--worlds", "4", "env"], "pursuit-mj bench: error: unrecognized arguments: --worlds 4; give flags after "
+                                        "the command (pursuit-mj bench COMMAND --worlds ...)"),
+])
+def test_a_flag_given_before_the_command_is_refused_saying_where_it_goes(capsys, argv, said):
+    """'pursuit-mj --layout 2 eval' read as a task flag pursuit-mj does not take (or, before that,
+    as the command '2'): the flag is eval's, given too early."""
+    with pytest.raises(SystemExit) as stopped:
+        main(argv)
+    err = capsys.readouterr().err
+    assert stopped.value.code == 2 and said in err and len(err.splitlines()) == 1, err
+
+
 def test_fly_still_refuses_an_unknown_action_as_one():
     parser = build_parser()
     with pytest.raises(SystemExit) as stopped:
