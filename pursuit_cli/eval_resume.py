@@ -20,16 +20,27 @@ def interrupted_path(path: Path) -> Path:
     return path.with_name(f"{path.stem}.interrupted{path.suffix}")
 
 
+def kept_beside(path: Path | None) -> bool:
+    """Whether an eval writing its table to `path` keeps its finished cells beside it
+    (interrupted_path): not without a path, nor for a device or named pipe (eval --csv /dev/stdout
+    | ...), which holds no earlier table to keep whole and no file for --resume to read, and
+    beside which (in /dev) no file may be made."""
+    from pursuit_mj.io_utils import is_stream
+
+    return path is not None and not is_stream(path)
+
+
 def write_finished(rows: list, csv_path: Path | None, json_path: Path | None, config, meta: dict) -> list[Path]:
     """Write the finished policy-layout cells beside the asked-for files (interrupted_path), so
     that an earlier whole table there stays whole; called as each cell ends, so that even a
-    kill -9 leaves them for --resume. Returns the paths written."""
+    kill -9 leaves them for --resume. Returns the paths written (none beside a pipe or device:
+    kept_beside)."""
     from pursuit_mj.evaluation import write_csv, write_json
 
     out = []
-    if csv_path:
+    if kept_beside(csv_path):
         out.append(write_csv(rows, interrupted_path(csv_path)))
-    if json_path:
+    if kept_beside(json_path):
         out.append(write_json(rows, interrupted_path(json_path), config, {**meta, "interrupted": True}))
     return out
 
@@ -66,8 +77,11 @@ def keep_finished(rows: list, csv_path: Path | None, json_path: Path | None, con
     cells = f"{len(rows)} finished policy-layout cell{'' if len(rows) == 1 else 's'}"
     named = f"{cells}{one_fidelity(rows, ', every row')}{f', {task}' if task else ''}"
     print(f"[eval] interrupted; the {named}:\n{format_table(rows)}", file=sys.stderr, flush=True)
-    for path in write_finished(rows, csv_path, json_path, config, meta):
+    written = write_finished(rows, csv_path, json_path, config, meta)
+    for path in written:
         print(f"[eval] wrote {path}", file=sys.stderr, flush=True)
+    if not written and (csv_path or json_path):
+        print("[eval] the table goes to a pipe or device: nothing is kept for --resume", file=sys.stderr, flush=True)
 
 
 #: what an interrupted eval and its resumption must share, so that the finished rows are what this run would play

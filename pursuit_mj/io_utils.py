@@ -38,7 +38,7 @@ def device_folder_fault(path: str | Path, appended: bool = False) -> str | None:
     `appended` (the file is opened where the name leads and appended to, never replaced) also for a
     name that leads to a regular file."""
     parent = os.path.dirname(os.path.abspath(path))
-    if os.path.realpath(parent) != os.path.realpath(DEVICES_FOLDER) or _is_stream(Path(path)):
+    if os.path.realpath(parent) != os.path.realpath(DEVICES_FOLDER) or is_stream(Path(path)):
         return None
     try:
         regular = stat.S_ISREG(os.stat(path).st_mode)
@@ -144,7 +144,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     reader) is yielded itself and written in place: a rename would put a file in its stead, for
     every program that uses it."""
     path = Path(path)
-    if _is_stream(path):
+    if is_stream(path):
         with _reader_held(path):
             yield path
         return
@@ -176,7 +176,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             tmp_path.unlink()
 
 
-def _is_stream(path: Path) -> bool:
+def is_stream(path: Path) -> bool:
     """Whether `path` (symbolic links followed) is a character device or a named pipe."""
     try:
         mode = os.stat(path).st_mode
@@ -308,7 +308,7 @@ def move_into_place(tmp: str | Path, path: str | Path) -> Path:
     written into it instead, and `tmp` is removed: a rename would put a file in its stead. A pipe
     that no program opens for reading within PIPE_READER_WAIT_S is OSError ENXIO (`no_reader`),
     and `tmp` is left for the caller to keep."""
-    if _is_stream(Path(path)):
+    if is_stream(Path(path)):
         fd = _open_writing(path, os.O_WRONLY)
         try:
             with open(tmp, "rb") as src, os.fdopen(fd, "wb", closefd=False) as dst:

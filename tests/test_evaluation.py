@@ -402,6 +402,32 @@ def test_an_interrupted_eval_keeps_its_finished_cells_beside_the_table_it_was_as
     assert whole.read_text() == '{"rows": "an earlier, whole table"}\n' and not (tmp_path / "t.csv").exists()
 
 
+def test_an_eval_whose_table_goes_to_dev_stdout_as_a_pipe_runs_to_its_end(tmp_path, monkeypatch, capsys):
+    """'eval --csv /dev/stdout | ...' (a pipe, which --csv may be) played its first cell, then kept
+    that cell beside the table, as /dev/stdout.interrupted, a name in /dev that no device holds:
+    refused, the eval stopped after its first cell. A pipe or device holds no earlier table to keep
+    whole and no file for --resume: such an eval keeps nothing beside it. Here a named pipe
+    'stdout' in a stand-in for /dev stands for the real one, which is never touched."""
+    import os
+    import threading
+
+    from pursuit_mj import io_utils
+
+    dev = tmp_path / "dev"
+    dev.mkdir()
+    os.mkfifo(dev / "stdout")
+    monkeypatch.setattr(io_utils, "DEVICES_FOLDER", str(dev))
+    got: list[str] = []
+    reader = threading.Thread(target=lambda: got.append((dev / "stdout").read_text()), daemon=True)
+    reader.start()
+    code = main(["eval", "--policy", "heuristic", "--layouts", "0", "1", "--episodes", "1", "--worlds", "1",
+                 "--fidelity", "point", "--set", "max_steps=20", "--csv", str(dev / "stdout"), "-q"])
+    reader.join(5)
+    assert code == 0, capsys.readouterr().err
+    assert [line.split(",")[:2] for line in got[0].splitlines()] == [["policy", "layout"], ["heuristic", "0"], ["heuristic", "1"]]
+    assert [p.name for p in dev.iterdir()] == ["stdout"]
+
+
 def test_resume_counts_the_rows_it_takes_back_in_words_that_fit_one(tmp_path, monkeypatch, capsys):
     """A resume of an eval stopped after its first row said '[eval] resuming: 1 finished rows from ...'."""
     import os
