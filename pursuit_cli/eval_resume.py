@@ -101,6 +101,9 @@ def finished_rows(json_path: Path | None, config, meta: dict, csv_path: Path | N
 
     if json_path is None:
         raise ValueError("--resume: needs --out PREFIX or --json FILE, where the interrupted eval kept its rows")
+    if not kept_beside(json_path):
+        raise ValueError(f"--resume: {json_path} is a pipe or device, beside which an eval keeps no finished rows; give the "
+                         "--out PREFIX or --json FILE that the interrupted eval wrote to")
     kept = interrupted_path(json_path)
     kept_files = [p for p in (kept, interrupted_path(csv_path) if csv_path else None) if p is not None and p.is_file()]
     again = (f"run it again without --resume after deleting {' and '.join(str(p) for p in kept_files)}, or with "

@@ -428,6 +428,17 @@ def test_an_eval_whose_table_goes_to_dev_stdout_as_a_pipe_runs_to_its_end(tmp_pa
     assert [p.name for p in dev.iterdir()] == ["stdout"]
 
 
+def test_resume_to_a_pipe_says_that_nothing_is_kept_beside_one(tmp_path, capsys):
+    """'--json PIPE --resume' looked for PIPE.interrupted, which no eval to a pipe keeps."""
+    import os
+
+    os.mkfifo(tmp_path / "view.json")
+    assert main(["eval", "--policy", "heuristic", "--layouts", "0", "--episodes", "1", "--fidelity", "point",
+                 "--json", str(tmp_path / "view.json"), "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "--resume: " in err and "view.json is a pipe or device, beside which an eval keeps no finished rows" in err, err
+
+
 def test_resume_counts_the_rows_it_takes_back_in_words_that_fit_one(tmp_path, monkeypatch, capsys):
     """A resume of an eval stopped after its first row said '[eval] resuming: 1 finished rows from ...'."""
     import os
