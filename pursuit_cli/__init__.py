@@ -282,6 +282,8 @@ def _run(argv: list[str] | None, whole_process: bool = False) -> int:
             argv = sys.argv[1:] if argv is None else list(argv)
             if not argv:  # a bare `pursuit-mj`: show what there is
                 parser.print_help(sys.stderr)
+                if stops:  # a usage error after a stop taken by an import: it stops the command, as below
+                    raise KeyboardInterrupt(stops[0])
                 return 2
             try:
                 parsed, extras = parser.parse_known_args(argv)

@@ -1017,6 +1017,38 @@ def test_an_interrupt_caught_at_start_up_before_argparse_exits_ends_with_the_cod
     if argv[-1] == "--help" and how == "raised":
         assert out.stdout.startswith("usage: pursuit-mj config")
 
+
+@pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
+def test_a_ctrl_c_taken_at_start_up_stops_a_bare_pursuit_mj_too(monkeypatch, capsys):
+    """A Ctrl-C that start-up's imports took for their own error stops the command once the
+    arguments are read, and a stop followed by --help or a usage error ends it so (130). A bare
+    `pursuit-mj` (no command: the help and 2, a usage error) skipped that check: it printed the help
+    and exited 2, the stop lost. It now ends as the others: the help, then 'interrupted while
+    starting' and 130."""
+    import signal
+
+    import pursuit_cli
+
+    build = pursuit_cli.build_parser
+
+    def build_taking_a_ctrl_c():  # as an import that catches what reaches it while the commands load
+        parser = build()
+        try:
+            signal.raise_signal(signal.SIGINT)
+        except KeyboardInterrupt:
+            pass
+        return parser
+
+    monkeypatch.setattr(pursuit_cli, "build_parser", build_taking_a_ctrl_c)
+    assert main([]) == 130
+    err = capsys.readouterr().err
+    assert err.startswith("usage: pursuit-mj") and err.endswith("\npursuit-mj: interrupted while starting\n"), err
+    monkeypatch.setattr(pursuit_cli, "build_parser", build)  # without a stop: the help and 2, as before
+    assert main([]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("usage: pursuit-mj") and "interrupted" not in err
+
+
 def _stop_landing_once_at(monkeypatch, when, stop):
     """Patch signal.signal so that right after the call `when(sig, handler)` picks, the signal
     `stop` arrives (its handler runs at once, as Python runs a handler at the next bytecode)."""
