@@ -62,9 +62,10 @@ def stops_held() -> Iterator[None]:
     episode's video and its entry in a rerun recording) are put in place together or not at all.
     The first stop held is delivered (its handler raises KeyboardInterrupt, as it would have at
     once), also when the block raised. When the block failed (an Exception: a file that could not
-    be written) and the handler raises, the handler's exception is raised with that failure as its
-    cause (`__cause__`), so that the stop is not lost and the failure is still told (pursuit_cli.main
-    prints it before 'interrupted'). Keep the block short: it is deaf to stops while it runs.
+    be written) and the handler raises (for a stop held, or one that lands as the handlers go
+    back), the handler's exception is raised with that failure as its cause (`__cause__`), so
+    that the stop is not lost and the failure is still told (pursuit_cli.main prints it before
+    'interrupted'). Keep the block short: it is deaf to stops while it runs.
     Signals ignored or at the system's default, and any block off the main thread, are left alone."""
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -87,7 +88,8 @@ def stops_held() -> Iterator[None]:
         failure = exc
         raise
     finally:
-        give_back_handlers(taken)
+        # a stop landing as the handlers go back (not held) raises there, the block's failure its cause too
+        _with_cause(give_back_handlers, taken, failure=failure)
         if held:
             _deliver(held[0], failure)
 
@@ -95,8 +97,13 @@ def stops_held() -> Iterator[None]:
 def _deliver(signum: int, failure: Exception | None) -> None:
     """Run the handler of the stop `signum` now, as if it had just arrived; an exception it raises
     has `failure` (what the held block raised, if anything) as its cause."""
+    _with_cause(signal.raise_signal, signum, failure=failure)
+
+
+def _with_cause(call, *args, failure: Exception | None) -> None:
+    """call(*args); an exception it raises (a stop's handler ran) has `failure`, if any, as its cause."""
     try:
-        signal.raise_signal(signum)
+        call(*args)
     except BaseException as stop:
         if failure is None or stop is failure:
             raise

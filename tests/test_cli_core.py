@@ -1104,6 +1104,26 @@ def test_stops_held_gives_every_handler_back_when_a_stop_lands_while_it_swaps_th
 
 
 @pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
+def test_a_stop_landing_as_stops_held_gives_its_handlers_back_keeps_the_blocks_failure_as_its_cause(monkeypatch):
+    """A stop held while the block failed is raised with the failure as its cause, which
+    pursuit_cli.main prints before 'interrupted'. A Ctrl-C landing right after stops_held gave
+    SIGINT's handler back (the block had failed) raised there with no cause: the failure, a file
+    that could not be written and what was in place, was not told. It is the cause there too."""
+    import signal
+
+    from pursuit_mj.io_utils import stops_held
+
+    failure = ValueError("out/ep0.png: cannot write it")
+    fired = _stop_landing_once_at(monkeypatch, lambda sig, handler: handler is signal.default_int_handler, signal.SIGINT)
+    with pytest.raises(KeyboardInterrupt) as stopped:
+        with stops_held():
+            raise failure
+    monkeypatch.undo()
+    assert fired == [signal.SIGINT] and stopped.value.__cause__ is failure
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+@pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
 @pytest.mark.parametrize("landing", ["while_taking", "while_giving_back"])
 def test_termination_as_interrupt_gives_every_handler_back_when_a_ctrl_c_lands_meanwhile(monkeypatch, landing):
     """A Ctrl-C that landed while termination_as_interrupt took or gave back its handlers (one by
