@@ -283,7 +283,8 @@ def task_named(args: argparse.Namespace, base: str = "") -> str:
     """How a table's heading names the task its rows ran in (evaluation.table_heading): 'task
     hard', 'task easy + mine.yaml' (task files and presets as given, the later winning), 'task
     reference' without any (the defaults are the reference preset's values), then 'with' the task
-    flags and --set overrides given, as typed ('task hard with --pursuers 2, --set max_steps=5').
+    flags given with their parsed values (`-rv 1.50` reads `-rv 1.5`) and the --set overrides as typed
+    ('task hard with --pursuers 2, --set max_steps=5').
     Those of TABLE_NAMES are left out: the heading names the fidelity, the table each layout.
     `base` names the task the files apply on where it is not the defaults, first (render's -mc
     run: 'of -mc classic' gives 'task of -mc classic + hard')."""
