@@ -183,8 +183,11 @@ def run(args) -> int:
     if ask and not interactive:
         raise ValueError("a real flight asks for a go after the preflight checks; without a terminal pass --yes")
     watcher = None
+    bridges = []
 
     def wire(bridge) -> None:
+        bridges.append(bridge)
+
         def watch_keys() -> None:
             nonlocal watcher
             if interactive:  # after the go: the watcher takes the terminal's keys from here on
@@ -213,6 +216,12 @@ def run(args) -> int:
     try:
         result, _ = run_flight(plan, policy, virtual=args.virtual, faults=args.fault,
                                events_path=events_path, rerun_path=args.rerun, seed=args.seed, echo=_echo, on_bridge=wire)
+    except Exception as exc:
+        failure = bridges[0].failure if bridges else None
+        if failure is None or failure.error is not exc:  # refused or failed before take-off: bad input (2) or a bug
+            raise
+        print(f"pursuit-mj fly: error: {_failed_in_flight(failure)}; events: {events_path}", file=sys.stderr)
+        return 1
     finally:
         if watcher is not None:
             watcher.stop()
@@ -226,6 +235,18 @@ def run(args) -> int:
 
         return stop_exit_code(STOP_SIGNALS[stopped_by])
     return 0 if result.outcome in ("captured", "timeout") else 1
+
+
+def _failed_in_flight(failure) -> str:
+    """What ended a flight after take-off (bridge.InFlightFailure): the part that failed, whether the
+    drones landed, the exception by type (a policy file's error names its own) and message. A
+    flight, not the input: exit code 1."""
+    from pursuit_mj.user_file import UserCodeError
+
+    part = f"the {failure.part} failed in flight" if failure.part else "the flight failed after take-off"
+    landed = "the drones landed" if failure.landed else "not every drone is shown landed: see the events"
+    error = failure.error
+    return f"{part} ({landed}): " + (str(error) if isinstance(error, UserCodeError) else f"{type(error).__name__}: {error}")
 
 
 def _stop_signal(result) -> str | None:

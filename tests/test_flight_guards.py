@@ -336,6 +336,62 @@ def test_end_of_input_at_the_go_no_go_prompt_declines_the_take_off_in_one_line(t
     assert rc == 2 and "take-off declined" in err and "Traceback" not in err
 
 
+_FAILS_AFTER_TAKEOFF = """
+import numpy as np
+
+
+class FailsOnItsThirdStep:
+    name = "fails-third"
+
+    def __init__(self, config, seed):
+        self.calls = 0
+
+    def reset(self, n_worlds, world_ids=None):
+        pass
+
+    def act(self, obs, spec):
+        self.calls += 1
+        if self.calls >= 3:
+            raise ValueError("no answer for this state")
+        return np.zeros(obs.shape[:-1] + (2,))
+"""
+
+
+def test_a_policy_that_fails_after_take_off_exits_1_saying_it_failed_in_flight_and_the_drones_landed(tmp_path, capsys):
+    """README's exit codes: 2 is bad input or a flight refused before take-off, 1 a flight that
+    ended otherwise than by a capture or its time limit. A policy file's error in its third
+    decision (a ValueError, as every failure of a policy file is) made `fly` exit 2 as bad input,
+    after the drones had flown and landed. It exits 1 now, saying the policy failed in flight,
+    naming its error and that the drones landed; the same file failing at load stays 2."""
+    import yaml
+
+    from flight_rehearsal import FAST, quick_spec
+    from pursuit_cli import main
+    from pursuit_mj.flight.events import read_events
+    from pursuit_mj.flight.virtual.fleet import VirtualFleet
+
+    mine = tmp_path / "mine.py"
+    mine.write_text(_FAILS_AFTER_TAKEOFF)
+    with VirtualFleet(quick_plan(), physics=FAST) as fleet:
+        data = quick_spec()
+        for drone, uri in zip(data["drones"], fleet.uris):  # file order is plan order here
+            drone["uri"] = uri
+        flight = tmp_path / "lab.yaml"
+        flight.write_text(yaml.safe_dump(data))
+        events = tmp_path / "f.jsonl"
+        rc = main(["fly", "--flight", str(flight), "--policy", f"{mine}:FailsOnItsThirdStep", "--yes", "--events", str(events)])
+        err = capsys.readouterr().err
+        assert rc == 1, (rc, err)
+        assert down(fleet)
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert err.startswith(f"pursuit-mj fly: error: the policy fails-third failed in flight (the drones landed): --policy {mine}:"
+                          "FailsOnItsThirdStep: act(obs, spec) raised ValueError: no answer for this state"), err
+    assert err.rstrip().endswith(f"; events: {events}"), err
+    assert kinds_in_order([r["kind"] for r in read_events(events)], "chase", "land", "landed", "error")
+    rc = main(["fly", "--flight", str(flight), "--policy", f"{mine}:NoSuchName", "--yes", "--events", str(events)])
+    assert rc == 2 and "NoSuchName" in capsys.readouterr().err
+
+
 def test_event_log_lines_are_strict_json_a_value_that_is_not_a_number_is_null(tmp_path):
     """The diverged-estimate event carries NaN positions; a NaN or Infinity token is not JSON
     (jq and other strict readers refuse the whole log)."""

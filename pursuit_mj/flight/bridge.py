@@ -147,6 +147,17 @@ def _checked_commands(answer, shape: tuple[int, ...], who: str, names: list[str]
     return out
 
 
+@dataclasses.dataclass(frozen=True)
+class InFlightFailure:
+    """An exception that ended a flight after its take-off was sent, the drones landed first:
+    `part` the policy's or escape model's part that raised or answered wrongly ('policy NAME',
+    'escape model MODEL'; None: the flight's own code), `landed` as FlightResult.landed."""
+
+    error: BaseException
+    part: str | None
+    landed: bool
+
+
 class _Abort(Exception):
     def __init__(self, outcome: str, reason: str):
         super().__init__(reason)
@@ -256,11 +267,15 @@ class FlightBridge:
         self._interrupt_logged = False  # an `interrupt` event for it is in the log
         self._land_request = ""
         self._airborne = False
+        self._took_off = False  # the take-off was sent
         self._landing = False
         self._lost_logged: set[int] = set()  # drones whose link_lost event is in the log
         self._in_flight = False  # past the checks: a stop signal lands instead of aborting
         self._stream: SetpointStream | None = None  # the chase's setpoints (keepalive.py)
         self._thinking: threading.Thread | None = None  # the latest decision: policy and escape model (_decision)
+        self._answering: str | None = None  # the part whose answer the flight is asking for or checking, if any
+        #: set when an exception ends the flight after take-off (run() raises it after the landing)
+        self.failure: InFlightFailure | None = None
         if recorder is not None:
             events.add_sink("rerun", recorder.log_event)
 
@@ -427,10 +442,13 @@ class FlightBridge:
             interrupt_handled()  # an outcome the result reports: the process must not end by SIGINT for it
             outcome, reason = "interrupted", self._interrupt_reason
         except BaseException as exc:  # SystemExit from a policy too: the links closing would cut every motor
+            landed = False
             try:
-                self._land_all("error")  # first: nothing may come between an error and the landing
+                landed = self._land_all("error")  # first: nothing may come between an error and the landing
             finally:
                 self.events.log("error", reason=f"{type(exc).__name__}: {exc}", level="error")
+                if self._took_off:
+                    self.failure = InFlightFailure(exc, self._answering, landed)
             raise
         chase_time = self.clock() - chase_start if chase_start is not None else 0.0
         self.events.log("end_of_run", outcome=outcome, reason=reason, chase_time=chase_time, level="info" if outcome == "captured" else "warn")
@@ -451,7 +469,7 @@ class FlightBridge:
         self._check_abort(self.board.snapshot(), None)  # e.g. an emergency stop during the checks
         duration = plan.height / limits.takeoff_speed
         self.events.log("takeoff", height=plan.height, duration=duration)
-        self._airborne = True
+        self._airborne = self._took_off = True
         for link, ours in zip(self.links, plan.commanded):
             if ours:
                 link.takeoff(plan.height, duration)
@@ -730,12 +748,17 @@ class FlightBridge:
         plan, task, N = self.plan, self.plan.task, self.plan.n_pursuers
         obs = observer.observe(pos[:N], vel[:N], pos[N:], vel[N:])
         flown = plan.flown_evaders & ~observer.captured[0]
+        who, escape = f"policy {getattr(self.policy, 'name', type(self.policy).__name__)}", f"escape model {task.evader.model}"
 
         def decide():
             """The policy's actions and the escape model's commands (None: no evader to fly);
             both may be code of one's own (--policy FILE.py:NAME, task.evader.model FILE.py)."""
+            self._answering = who
             acts = self.policy.act(obs, observer.spec)
-            return acts, (pilot.command(observer, pos[N:], vel[N:], pos[:N], vel[:N]) if flown.any() else None)
+            if not flown.any():
+                return acts, None
+            self._answering = escape
+            return acts, pilot.command(observer, pos[N:], vel[N:], pos[:N], vel[:N])
 
         try:
             actions, ev = self._decision(decide, start)
@@ -743,14 +766,19 @@ class FlightBridge:
             if not 0 <= exc.pursuer < N:
                 raise
             raise ValueError(exc.naming(f"pursuer {plan.names[exc.pursuer]} (index {exc.pursuer})")) from None
-        who = f"policy {getattr(self.policy, 'name', type(self.policy).__name__)}"
+        except _Abort:  # a stop while the policy thought: no part of it failed
+            self._answering = None
+            raise
+        self._answering = who
         actions = np.clip(_checked_commands(actions, (1, N, 2), who, [f"pursuer {n}" for n in plan.names[:N]], "(worlds, pursuers, vx and vy)")[0], -1.0, 1.0)
         wanted = np.zeros((plan.n_drones, 2))
         wanted[:N] = clip_norm(actions * task.pursuer_speed, task.pursuer_speed)
         if ev is not None:
-            ev = _checked_commands(ev, (plan.n_evaders, 2), f"escape model {task.evader.model}", [f"evader {n}" for n in plan.names[N:]],
+            self._answering = escape
+            ev = _checked_commands(ev, (plan.n_evaders, 2), escape, [f"evader {n}" for n in plan.names[N:]],
                                    "(evaders, vx and vy in m/s)")
             wanted[N:] = np.where(flown[:, None], clip_norm(ev, task.evader_speed), 0.0)
+        self._answering = None
         return obs, actions, plan.transform.velocity_to_lab(wanted)
 
     def _decision(self, decide: Callable[[], tuple], start: float) -> tuple:
