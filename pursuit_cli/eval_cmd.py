@@ -129,7 +129,7 @@ def _policies(args, config, layouts) -> list[tuple[str, object]]:
     """(label, policy) pairs in command-line order: hand-made teams first, then models (shielded with
     --shield); a model that trained on none of the table's `layouts` says so in a note."""
     names = args.policy or ([] if args.model else ["heuristic"])
-    made = [(name, make_policy(name, config, args.seed)) for name in names]
+    made = [(name, make_policy(name, config, args.seed, "--policy")) for name in names]
     out = [(policy.name if is_policy_file(name) else name, policy) for name, policy in made]
     spec = ObsSpec.make(config.n_pursuers, config.n_evaders, config.n_rays)
     out += [(getattr(pol, "name", Path(m).stem), pol) for m, pol in ((m, load_model(m, spec, config, layouts=layouts)) for m in args.model)]

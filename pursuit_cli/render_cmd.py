@@ -228,7 +228,7 @@ def choose_policy(args, config: TaskConfig, train_cfg):
         policy = load_model(args.model, spec, config, layouts=played)
         return policy, getattr(policy, "name", Path(args.model).stem)
     if args.policy:
-        policy = make_policy(args.policy, config, args.seed)
+        policy = make_policy(args.policy, config, args.seed, "--policy")
         return policy, (file_label(policy.name) if is_policy_file(args.policy) else args.policy)
     if train_cfg is not None:
         best = train_cfg.run_dir / "best.pt"

@@ -20,10 +20,11 @@ POLICY_NAMES = ("heuristic", "random")
 BUILTIN_LABEL = re.compile(rf"({'|'.join(POLICY_NAMES)})(\+shield)?(#\d+)?")
 
 
-def make_policy(name: str, config: TaskConfig, seed: int = 0, source: str = "--policy") -> Policy:
+def make_policy(name: str, config: TaskConfig, seed: int = 0, source: str = "make_policy name") -> Policy:
     """A hand-made team by name ('heuristic' or 'random') for `config`, or a policy of one's own
-    by FILE.py:NAME (pursuit_mj.policy_file); ValueError names `source`, or make_policy for a
-    config that is no TaskConfig or a seed that is no integer.
+    by FILE.py:NAME (pursuit_mj.policy_file); ValueError names `source` (where `name` came from:
+    a command passes its flag, '--policy'), or make_policy for a config that is no TaskConfig or a
+    seed that is no integer.
 
     `seed` (a command's --seed) goes to a policy file's NAME(config, seed). The built-in teams
     draw nothing from it: the random team's draws follow from each episode's own observations

@@ -474,3 +474,16 @@ def test_under_full_observability_the_team_acts_alike_whatever_the_perception_se
         np.testing.assert_array_equal(actions[0], actions[1])
         obs = [env.step(a)[0] for env, a in zip(envs, actions)]
         np.testing.assert_array_equal(obs[0], obs[1])
+
+
+def test_make_policy_from_python_names_its_argument_and_the_cli_its_flag(capsys):
+    """make_policy's errors named `--policy` by default, a flag a Python caller never typed: an
+    unknown name from Python said "--policy 'heuristc'". From Python they name the argument;
+    eval still names its flag."""
+    from pursuit_cli import main
+    from pursuit_mj.policies import make_policy
+
+    with pytest.raises(ValueError, match=r"^make_policy name 'heuristc': unknown policy \(valid: heuristic, random"):
+        make_policy("heuristc", default_config())
+    assert main(["eval", "--policy", "heuristc", "--layouts", "0", "--episodes", "1"]) == 2
+    assert "error: --policy 'heuristc': unknown policy" in capsys.readouterr().err

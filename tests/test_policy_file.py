@@ -79,7 +79,7 @@ def test_a_policy_file_that_cannot_give_a_policy_is_refused_naming_the_file_and_
     with pytest.raises(ValueError) as caught:
         make_policy(ref, default_config(), 0)
     message = str(caught.value)
-    assert message.startswith(f"--policy {ref}: ") and "\n" not in message, message
+    assert message.startswith(f"make_policy name {ref}: ") and "\n" not in message, message
     assert re.search(said.format(path=re.escape(str(path))), message), message
 
 
@@ -318,10 +318,10 @@ def test_a_folder_named_like_the_file_and_a_name_that_is_no_callable_are_told_as
     monkeypatch.chdir(tmp_path)
     (tmp_path / "team.py").mkdir()
     with pytest.raises(ValueError, match=r"^--policy team\.py:T: team\.py is a folder, not a Python file$"):
-        make_policy("team.py:T", default_config(), 0)
+        make_policy("team.py:T", default_config(), 0, "--policy")  # as the CLI calls it
     (tmp_path / "other.py").write_text("T = 5\n")
     with pytest.raises(ValueError, match=r"^--policy other\.py:T: other\.py binds T to an int, not a class or function$"):
-        make_policy("other.py:T", default_config(), 0)
+        make_policy("other.py:T", default_config(), 0, "--policy")
 
 
 WRONG_ANSWERS = GOOD + """
