@@ -123,12 +123,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def refuse_unrecognized(parser: argparse.ArgumentParser, args: argparse.Namespace, extras: list[str]) -> None:
     """Exit 2 naming `extras` (arguments no flag took) by the (sub)command they were given to, with
-    a hint about the first unknown flag (unknown_flag_hint: '--layouts' -> '--layout')."""
+    a hint about the first unknown flag (unknown_flag_hint: '--layouts' -> '--layout'). Those
+    given before a subcommand (`pursuit-mj --foo eval`, `bench --foo env`) are that parser's."""
     target = parser
     while True:  # down to the innermost command chosen: `layout show`, `bench env`, `fly check`
         sub = next((a for a in target._actions if isinstance(a, argparse._SubParsersAction)), None)
         chosen = getattr(args, sub.dest, None) if sub is not None else None
         if chosen not in (sub.choices if sub is not None else {}):
+            break
+        given = getattr(target, "_given", [])  # what this parser was given, its subcommand among it
+        early = [e for e in extras if e in given[:given.index(chosen)]] if chosen in given else []
+        if early:
+            extras = early
             break
         target = sub.choices[chosen]
     unknown = [e.split("=", 1)[0] for e in extras if e.startswith("-")]

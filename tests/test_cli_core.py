@@ -848,6 +848,21 @@ def test_a_flag_given_before_the_command_is_refused_saying_where_it_goes(capsys,
     assert stopped.value.code == 2 and said in err and len(err.splitlines()) == 1, err
 
 
+@pytest.mark.parametrize("argv, said", [
+    (["--foo", "eval"], "pursuit-mj: error: unrecognized arguments: --foo; give flags after the command (pursuit-mj COMMAND --foo ...)"),
+    (["--ot=x", "eval"], "pursuit-mj: error: unrecognized arguments: --ot=x; give flags after the command"),
+    (["bench", "--foo", "env"], "pursuit-mj bench: error: unrecognized arguments: --foo; give flags after the command "
+                                "(pursuit-mj bench COMMAND --foo ...)"),
+])
+def test_an_unknown_flag_before_the_command_is_refused_by_the_parser_it_was_given_to(capsys, argv, said):
+    """'pursuit-mj --foo eval' was refused as eval's ('pursuit-mj eval: error: ... did you mean
+    --out?'): the unknown flags were looked up in the innermost command chosen, wherever they stood."""
+    with pytest.raises(SystemExit) as stopped:
+        main(argv)
+    err = capsys.readouterr().err
+    assert stopped.value.code == 2 and said in err and len(err.splitlines()) == 1, err
+
+
 def test_fly_still_refuses_an_unknown_action_as_one():
     parser = build_parser()
     with pytest.raises(SystemExit) as stopped:
