@@ -70,7 +70,7 @@ def _place(layout, rng: np.random.Generator, count: int, clearance: float, count
         if len(placed) == count:
             return placed
     raise LayoutError(
-        f"{layout.source}: no room for random obstacle {len(placed) + 1} of {count} in {restarts} placements "
+        f"{layout.source}: no room for random obstacle {len(placed) + 1} of {count} in {restarts} tries at placing all {count} "
         f"(sizes {list(spec.size)} m, clearance {clearance} m); "
         + (f"lower {count_source}" if count_source else "lower random_obstacles.count or .size")
     )

@@ -727,6 +727,14 @@ def test_layout_new_without_room_names_the_flag_to_lower_once(argv, hint, tmp_pa
     assert hint in err and "random_obstacles.count" not in err and err.count("lower") == 1, err
 
 
+def test_layout_new_without_room_counts_its_tries_not_placements(tmp_path, capsys):
+    """'no room for random obstacle 19 of 50 in 10 placements': the 10 are tries, each placing
+    every obstacle anew, not placements of the one that found no room."""
+    assert main(["layout", "new", str(tmp_path / "out.yaml"), "--random", "50"]) == 2
+    err = capsys.readouterr().err
+    assert re.search(r"no room for random obstacle \d+ of 50 in 10 tries at placing all 50 \(sizes", err), err
+
+
 def test_layout_new_into_a_folder_says_so_rather_than_asking_for_force(tmp_path, capsys):
     for argv in ([str(tmp_path)], [str(tmp_path), "--force"]):
         assert main(["layout", "new"] + argv) == 2
