@@ -116,9 +116,14 @@ def run(args) -> int:
     if paired:
         print(f"\n{paired}")
     more = "" if args.episodes >= REFERENCE_EPISODES else f"; use --episodes {REFERENCE_EPISODES} for the reference study's sample size"
-    print(f"\n({time.perf_counter() - t_all:.0f} s; brackets are 95 % confidence intervals{more})\n")
+    print(f"\n({took(time.perf_counter() - t_all)}; brackets are 95 % confidence intervals{more})\n")
     print(HOW_TO_TRAIN, end="")
     return 0
+
+
+def took(seconds: float) -> str:
+    """A run's duration in whole seconds, 'under 1 s' below one (rounded, half a second read '0 s')."""
+    return "under 1 s" if seconds < 1.0 else f"{seconds:.0f} s"
 
 
 def _spec(config):

@@ -630,6 +630,14 @@ def test_demo_plays_the_layout_named_by_layout(capsys):
     assert [line.split()[1] for line in table[2:]] == ["2"]
 
 
+@pytest.mark.parametrize("seconds, said", [(0.0, "under 1 s"), (0.49, "under 1 s"), (0.99, "under 1 s"), (1.0, "1 s"), (83.4, "83 s")])
+def test_demo_says_a_run_under_a_second_took_under_1_s_not_0_s(seconds, said):
+    """demo's closing line said '(0 s; brackets are ...)' for a run under half a second."""
+    from pursuit_cli.demo import took
+
+    assert took(seconds) == said
+
+
 @pytest.mark.parametrize("command", [["eval"], ["demo"]])
 def test_a_seed_too_large_for_episode_seeds_is_refused_naming_the_flag(command, capsys, tmp_path):
     """--seed 2**63 was taken by the parser, made the output folders, then failed as 'evaluate seed'."""
