@@ -158,7 +158,7 @@ def _refuse_events_over_an_input(events_path, args, plan) -> None:
 
 def run(args) -> int:
     from pursuit_mj.flight.plan import load_plan
-    from pursuit_mj.flight.session import choose_policy, default_events_path, parse_fault, run_flight
+    from pursuit_mj.flight.session import choose_policy, default_events_path, parse_fault, refuse_events_path, run_flight
 
     _quiet_cflib(args.verbose)
     plan = load_plan(_need_flight(args), args.overrides)
@@ -171,6 +171,7 @@ def run(args) -> int:
     if (args.policy is None) == (args.model is None):
         raise ValueError("give exactly one of --policy NAME (e.g. heuristic) or --model FILE")
     _refuse_events_over_an_input(events_path, args, plan)
+    refuse_events_path(events_path, plan, args.rerun)  # before the plan is printed: a refusal comes alone
     chosen = load_model(args.model, plan.obs_spec, plan.task, flight=True) if args.model else choose_policy(plan, args.policy, args.seed)
     [(policy, _)] = shield_each_if_asked(args, [(chosen, args.policy or args.model)], plan.task, "fly flies one policy")
     if args.fault and not args.virtual:

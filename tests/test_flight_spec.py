@@ -517,6 +517,21 @@ def test_fly_check_and_bad_command_lines_fail_with_one_clear_line(capsys):
     assert "no drone named 'zz'" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("events", ["notes.yaml", EXAMPLE])
+def test_fly_refuses_a_bad_event_log_before_it_prints_the_flight_plan(tmp_path, capsys, events):
+    """`fly --events X.yaml` printed the whole flight plan and the keys' help, then refused the
+    file as no event log (or as the flight file itself): a refusal comes first, alone."""
+    from pursuit_cli import main
+
+    if events == "notes.yaml":
+        events = tmp_path / events
+        events.write_text("notes: mine\n")
+    assert main(["fly", "--flight", EXAMPLE, "--policy", "heuristic", "--virtual", "--events", str(events)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and len(captured.err.splitlines()) == 1, captured
+    assert captured.err.startswith(f"pursuit-mj fly: error: --events {events}: "), captured.err
+
+
 def test_the_speed_warning_is_about_flown_roles_only_a_target_is_flown_by_someone_else(capsys):
     from pursuit_cli import main
 

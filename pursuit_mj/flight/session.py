@@ -149,6 +149,14 @@ def _check_events_is_a_log(events_path: str | Path) -> None:
                          f"flight record); the log is appended to: give a new name, or an earlier flight's .events.jsonl")
 
 
+def refuse_events_path(events_path: str | Path, plan: FlightPlan, rerun_path: str | Path | None = None) -> None:
+    """ValueError naming --events when it names the rerun recording, a file the flight reads, or
+    an existing file that is not an event log; reads only, so a command may ask before it says
+    anything of the flight (run_flight asks again)."""
+    _check_events_apart(events_path, plan, rerun_path)
+    _check_events_is_a_log(events_path)
+
+
 def choose_policy(plan: FlightPlan, policy: str | None, seed: int = 0) -> Policy:
     """`--policy NAME` (pursuit_mj.policies). A trained model is loaded by the caller
     (`train.load_policy`; the simulator package never imports the learning one) and handed
@@ -209,8 +217,7 @@ def run_flight(
             check_rrd_path(rerun_path)
         if events_path is not None:
             check_writable(events_path, "--events", appended=True)  # /dev/stdout to a file: appended to
-            _check_events_apart(events_path, plan, rerun_path)
-            _check_events_is_a_log(events_path)
+            refuse_events_path(events_path, plan, rerun_path)
         if policy is None:
             policy = choose_policy(plan, policy_name, seed)
         new_log = events_path is not None and not Path(events_path).exists()
