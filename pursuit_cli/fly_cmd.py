@@ -222,6 +222,8 @@ def run(args) -> int:
         if failure is None or failure.error is not exc:  # refused or failed before take-off: bad input (2) or a bug
             raise
         print(f"pursuit-mj fly: error: {_failed_in_flight(failure)}; events: {events_path}", file=sys.stderr)
+        if not isinstance(exc, ValueError):  # a bug (a torch error, ours), not a refusal: its traceback too, exit 1
+            raise
         return 1
     finally:
         if watcher is not None:

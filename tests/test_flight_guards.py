@@ -392,6 +392,35 @@ def test_a_policy_that_fails_after_take_off_exits_1_saying_it_failed_in_flight_a
     assert rc == 2 and "NoSuchName" in capsys.readouterr().err
 
 
+def test_a_bug_after_take_off_says_the_drones_landed_and_keeps_its_traceback(tmp_path, capsys, monkeypatch):
+    """An in-flight error that is no refusal (not a ValueError: a torch error, a bug of ours) is
+    told in the same line (the drones landed, the events file) and then raised on, so that the
+    traceback shows where it came from and the process exits 1 as any failure does."""
+    import yaml
+
+    from flight_rehearsal import FAST, quick_spec
+    from pursuit_cli import main
+    from pursuit_mj.flight.bridge import FlightBridge
+    from pursuit_mj.flight.virtual.fleet import VirtualFleet
+
+    def broken_chase(self, *args):
+        raise RuntimeError("a bug in the chase")
+
+    monkeypatch.setattr(FlightBridge, "_chase", broken_chase)
+    with VirtualFleet(quick_plan(), physics=FAST) as fleet:
+        data = quick_spec()
+        for drone, uri in zip(data["drones"], fleet.uris):
+            drone["uri"] = uri
+        flight = tmp_path / "lab.yaml"
+        flight.write_text(yaml.safe_dump(data))
+        events = tmp_path / "f.jsonl"
+        with pytest.raises(RuntimeError, match="a bug in the chase"):
+            main(["fly", "--flight", str(flight), "--policy", "heuristic", "--yes", "--events", str(events)])
+        assert down(fleet)
+    err = capsys.readouterr().err
+    assert "failed after take-off (the drones landed): RuntimeError: a bug in the chase" in err, err
+
+
 def test_event_log_lines_are_strict_json_a_value_that_is_not_a_number_is_null(tmp_path):
     """The diverged-estimate event carries NaN positions; a NaN or Infinity token is not JSON
     (jq and other strict readers refuse the whole log)."""
