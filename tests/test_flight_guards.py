@@ -18,8 +18,15 @@ from pursuit_mj.heuristic import HeuristicTeam
 
 
 def down(fleet) -> bool:
-    state = fleet.true_state()
-    return bool((state["pos"][:, 2] < 0.03).all() and not state["motors"].any())
+    """Every drone sits on the floor with its motors off, within 3 s: the bridge judges a landing
+    done from estimates under 0.1 m, and the last few cm the drones drop on their own clock, which
+    a loaded computer runs late (as test_flight_safety.settle waits for)."""
+
+    def now() -> bool:
+        state = fleet.true_state()
+        return bool((state["pos"][:, 2] < 0.03).all() and not state["motors"].any())
+
+    return wait_for(now, 3.0)
 
 
 def test_speed_clamp_geofence_and_separation_guard_keep_drones_slow_inside_and_apart(tmp_path):
