@@ -60,11 +60,18 @@ class OneLineErrorParser(argparse.ArgumentParser):
         as the unknown flag, as refuse_unrecognized refuses one, not as "invalid choice: '2'"."""
         if isinstance(action, argparse._SubParsersAction) and value not in action.choices:
             given = getattr(self, "_given", [])
-            stray = next((before for before, arg in zip(given, given[1:]) if arg == value and before.startswith("-")
-                          and before.split("=", 1)[0] not in self._option_string_actions), None)
+            stray = next((before for before, arg in zip(given, given[1:]) if arg == value and self._may_take_next(before)), None)
             if stray is not None:
                 raise argparse.ArgumentError(None, f"unrecognized arguments: {stray} {value}" + unknown_flag_hint(self, stray))
         super()._check_value(action, value)
+
+    def _may_take_next(self, arg: str) -> bool:
+        """Whether `arg` is a flag this parser does not take (nor its abbreviation: '--virt' is
+        --virtual) whose value could be the next argument: not one with its value after '=', nor a
+        negative number (a value itself)."""
+        parsed = self._parse_optional(arg)  # None: a value; else (action or None, ...) ([...] from Python 3.12)
+        action = (parsed[0][0] if isinstance(parsed, list) else parsed[0]) if parsed else None
+        return parsed is not None and action is None and "=" not in arg
 
     def _parse_optional(self, arg_string):
         if ((_NEGATIVE_NUMBER.match(arg_string) or _NEGATIVE_POINT.match(arg_string))

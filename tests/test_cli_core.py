@@ -870,6 +870,18 @@ def test_fly_still_refuses_an_unknown_action_as_one():
     assert stopped.value.code == 2
 
 
+@pytest.mark.parametrize("before", [["--virt"], ["--foo=1"]])
+def test_an_action_after_a_flag_that_takes_no_next_value_is_refused_as_the_action(capsys, before):
+    """An unknown value right after a flag is taken for that flag's value only where the flag is one
+    fly does not know and could take it: '--virt' is argparse's abbreviation of --virtual (which fly
+    takes), '--foo=1' has its value. 'fly ... --virt chek' was refused as
+    'unrecognized arguments: --virt chek; did you mean --virtual?', a flag that was taken."""
+    with pytest.raises(SystemExit) as stopped:
+        main(["fly", "--flight", "example", *before, "chek"])
+    err = capsys.readouterr().err
+    assert stopped.value.code == 2 and "invalid choice: 'chek'" in err and len(err.splitlines()) == 1, err
+
+
 @pytest.mark.usefixtures("ctrl_c_as_in_a_terminal")
 def test_a_stop_within_stops_held_waits_for_the_block_and_then_interrupts():
     import signal
