@@ -224,6 +224,10 @@ def run(args) -> int:
         print(f"pursuit-mj fly: error: {_failed_in_flight(failure)}; events: {events_path}", file=sys.stderr)
         if not isinstance(exc, ValueError):  # a bug (a torch error, ours), not a refusal: its traceback too, exit 1
             raise
+        if failure.interrupted_by in STOP_SIGNALS:  # a stop after take-off (during the landing): exits as the stop, as after a capture
+            from . import stop_exit_code
+
+            return stop_exit_code(STOP_SIGNALS[failure.interrupted_by])
         return 1
     finally:
         if watcher is not None:
@@ -242,12 +246,14 @@ def run(args) -> int:
 
 def _failed_in_flight(failure) -> str:
     """What ended a flight after take-off (bridge.InFlightFailure): the part that failed, whether the
-    drones landed, the exception by type (a policy file's error names its own) and message. A
-    flight, not the input: exit code 1."""
+    drones landed (and a stop signal that came meanwhile), the exception by type (a policy file's
+    error names its own) and message. A flight, not the input: exit code 1 (or the stop's)."""
     from pursuit_mj.user_file import UserCodeError
 
     part = f"the {failure.part} failed in flight" if failure.part else "the flight failed after take-off"
     landed = "the drones landed" if failure.landed else "not every drone is shown landed: see the events"
+    if failure.interrupted_by is not None:
+        landed += f"; a {failure.interrupted_by} came too"
     error = failure.error
     return f"{part} ({landed}): " + (str(error) if isinstance(error, UserCodeError) else f"{type(error).__name__}: {error}")
 

@@ -399,6 +399,48 @@ def test_a_policy_that_fails_after_take_off_exits_1_saying_it_failed_in_flight_a
     assert rc == 2 and "NoSuchName" in capsys.readouterr().err
 
 
+def test_a_ctrl_c_during_the_landing_after_a_policy_failed_in_flight_exits_as_the_stop(tmp_path, capsys):
+    """README's exit codes: a stop signal that comes while a flight lands for another reason lets
+    it land, and the command exits 128 + its number. After a policy failed in flight fly said the
+    failure and exited 1, the Ctrl-C during that landing (in the event log) lost: it exits 130 now,
+    and its line says a Ctrl-C came."""
+    import yaml
+
+    from flight_rehearsal import FAST, quick_spec
+    from pursuit_cli import main
+    from pursuit_mj.flight.events import read_events
+    from pursuit_mj.flight.virtual.fleet import VirtualFleet
+
+    mine = tmp_path / "mine.py"
+    mine.write_text(_FAILS_AFTER_TAKEOFF)
+    events = tmp_path / "f.jsonl"
+
+    def ctrl_c_once_landing() -> None:  # as an operator who sees the drones come down
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline:
+            if events.exists() and any(r["kind"] == "land" for r in read_events(events)):
+                os.kill(os.getpid(), signal.SIGINT)
+                return
+            time.sleep(0.01)
+
+    with VirtualFleet(quick_plan(), physics=FAST) as fleet:
+        data = quick_spec()
+        for drone, uri in zip(data["drones"], fleet.uris):
+            drone["uri"] = uri
+        flight = tmp_path / "lab.yaml"
+        flight.write_text(yaml.safe_dump(data))
+        threading.Thread(target=ctrl_c_once_landing, daemon=True).start()
+        rc = main(["fly", "--flight", str(flight), "--policy", f"{mine}:FailsOnItsThirdStep", "--yes", "--events", str(events)])
+        err = capsys.readouterr().err
+        assert down(fleet)
+    interrupt = [r for r in read_events(events) if r["kind"] == "interrupt"]
+    assert [r.get("during") for r in interrupt] == ["landing"], interrupt
+    assert rc == 130, (rc, err)
+    assert err.startswith("pursuit-mj fly: error: the policy fails-third failed in flight (the drones landed; a Ctrl-C came "
+                          "too): "), err
+    assert len(err.strip().splitlines()) == 1, err
+
+
 def test_a_bug_after_take_off_says_the_drones_landed_and_keeps_its_traceback(tmp_path, capsys, monkeypatch):
     """An in-flight error that is no refusal (not a ValueError: a torch error, a bug of ours) is
     told in the same line (the drones landed, the events file) and then raised on, so that the

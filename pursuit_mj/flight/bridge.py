@@ -151,11 +151,13 @@ def _checked_commands(answer, shape: tuple[int, ...], who: str, names: list[str]
 class InFlightFailure:
     """An exception that ended a flight after its take-off was sent, the drones landed first:
     `part` the policy's or escape model's part that raised or answered wrongly ('policy NAME',
-    'escape model MODEL'; None: the flight's own code), `landed` as FlightResult.landed."""
+    'escape model MODEL'; None: the flight's own code), `landed` and `interrupted_by` (a stop
+    signal that came meanwhile, during that landing too) as FlightResult's."""
 
     error: BaseException
     part: str | None
     landed: bool
+    interrupted_by: str | None = None
 
 
 class _Abort(Exception):
@@ -448,7 +450,8 @@ class FlightBridge:
             finally:
                 self.events.log("error", reason=f"{type(exc).__name__}: {exc}", level="error")
                 if self._took_off:
-                    self.failure = InFlightFailure(exc, self._answering, landed)
+                    stop = self._interrupt_reason if self._interrupt.is_set() else None
+                    self.failure = InFlightFailure(exc, self._answering, landed, stop)
             raise
         chase_time = self.clock() - chase_start if chase_start is not None else 0.0
         self.events.log("end_of_run", outcome=outcome, reason=reason, chase_time=chase_time, level="info" if outcome == "captured" else "warn")
