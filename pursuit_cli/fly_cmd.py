@@ -157,8 +157,33 @@ def _refuse_events_over_an_input(events_path, args, plan) -> None:
 
 
 def run(args) -> int:
+    """fly. Refused before it flies (its --events or --rerun path checked before the plan is
+    printed), it leaves none of the folders it made for them (io_utils.no_new_empty_folders)."""
+    from pursuit_mj.io_utils import no_new_empty_folders
+
+    with no_new_empty_folders():
+        return _run(args)
+
+
+def _refuse_outputs(events_path, args, plan) -> None:
+    """ValueError naming --events or --rerun when the flight could not write it, or --events would
+    damage a file (refuse_events_path): asked before the plan is printed, so that a refusal comes
+    alone (run_flight asks again)."""
+    from pursuit_mj.flight.session import refuse_events_path
+    from pursuit_mj.io_utils import check_writable
+
+    _refuse_events_over_an_input(events_path, args, plan)
+    check_writable(events_path, "--events", appended=True)  # /dev/stdout to a file: appended to
+    refuse_events_path(events_path, plan, args.rerun)
+    if args.rerun is not None:
+        from pursuit_mj.recording import check_rrd_path
+
+        check_rrd_path(args.rerun)
+
+
+def _run(args) -> int:
     from pursuit_mj.flight.plan import load_plan
-    from pursuit_mj.flight.session import choose_policy, default_events_path, parse_fault, refuse_events_path, run_flight
+    from pursuit_mj.flight.session import choose_policy, default_events_path, parse_fault, run_flight
 
     _quiet_cflib(args.verbose)
     plan = load_plan(_need_flight(args), args.overrides)
@@ -170,8 +195,7 @@ def run(args) -> int:
     events_path = args.events or default_events_path(plan)
     if (args.policy is None) == (args.model is None):
         raise ValueError("give exactly one of --policy NAME (e.g. heuristic) or --model FILE")
-    _refuse_events_over_an_input(events_path, args, plan)
-    refuse_events_path(events_path, plan, args.rerun)  # before the plan is printed: a refusal comes alone
+    _refuse_outputs(events_path, args, plan)  # before the plan is printed: a refusal comes alone
     chosen = load_model(args.model, plan.obs_spec, plan.task, flight=True) if args.model else choose_policy(plan, args.policy, args.seed)
     [(policy, _)] = shield_each_if_asked(args, [(chosen, args.policy or args.model)], plan.task, "fly flies one policy")
     if args.fault and not args.virtual:

@@ -532,6 +532,30 @@ def test_fly_refuses_a_bad_event_log_before_it_prints_the_flight_plan(tmp_path, 
     assert captured.err.startswith(f"pursuit-mj fly: error: --events {events}: "), captured.err
 
 
+@pytest.mark.parametrize("flag, value, said", [
+    ("--events", "/dev/new.jsonl", "--events path /dev/new.jsonl: a name in /dev"),
+    ("--rerun", "made/flight.txt", "--rerun made/flight.txt: expected a file name ending in .rrd"),
+])
+def test_fly_refuses_an_events_or_rerun_path_it_cannot_write_before_it_prints_the_flight_plan(tmp_path, capsys, monkeypatch,
+                                                                                             flag, value, said):
+    """Since e2e8cdf a --events file that is no event log is refused before the plan; one that cannot
+    be written (a name in /dev no device holds) or a --rerun name that is no .rrd still came after
+    the whole plan and the keys' help, which run_flight printed nothing between. Refused first
+    now, alone, and no folder made for --events (made/) is left behind."""
+    from pathlib import Path
+
+    from pursuit_cli import main
+
+    flight = str(Path(EXAMPLE).resolve())
+    monkeypatch.chdir(tmp_path)
+    events = ["--events", "made/f.jsonl"] if flag == "--rerun" else []
+    assert main(["fly", "--flight", flight, "--policy", "heuristic", "--virtual", *events, flag, value]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and len(captured.err.splitlines()) == 1, captured
+    assert captured.err.startswith(f"pursuit-mj fly: error: {said}"), captured.err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_the_speed_warning_is_about_flown_roles_only_a_target_is_flown_by_someone_else(capsys):
     from pursuit_cli import main
 
