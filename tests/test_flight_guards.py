@@ -29,6 +29,21 @@ def down(fleet) -> bool:
     return wait_for(now, 3.0)
 
 
+def _lab_flight_file(fleet, folder):
+    """A flight file (folder/lab.yaml) of quick_spec's drones on the udp:// links of `fleet`'s
+    virtual drones: what a real flight's file names, so fly treats it as one (it asks for a go)."""
+    import yaml
+
+    from flight_rehearsal import quick_spec
+
+    data = quick_spec()
+    for drone, uri in zip(data["drones"], fleet.uris):  # file order is plan order here
+        drone["uri"] = uri
+    flight = folder / "lab.yaml"
+    flight.write_text(yaml.safe_dump(data))
+    return flight
+
+
 def test_speed_clamp_geofence_and_separation_guard_keep_drones_slow_inside_and_apart(tmp_path):
     # p0 flies at the left border, p1 and p2 at each other, all asked for 1 m/s (limit 0.4 m/s)
     plan = quick_plan(max_time=2.4, task={"pursuer_speed": 1.0}, safety={"max_speed": 0.4, "geofence_margin": 0.3, "min_separation": 0.25})
@@ -324,18 +339,13 @@ class _TerminalAtEnd:
 def test_end_of_input_at_the_go_no_go_prompt_declines_the_take_off_in_one_line(tmp_path, monkeypatch, capsys):
     """A real flight (its radio links: here the udp:// links of virtual drones) asks for a go;
     Ctrl-D there is a no, never a traceback, and nothing takes off."""
-    import yaml
 
-    from flight_rehearsal import FAST, quick_spec
+    from flight_rehearsal import FAST
     from pursuit_cli import main
     from pursuit_mj.flight.virtual.fleet import VirtualFleet
 
     with VirtualFleet(quick_plan(), physics=FAST) as fleet:
-        data = quick_spec()
-        for drone, uri in zip(data["drones"], fleet.uris):  # file order is plan order here
-            drone["uri"] = uri
-        flight = tmp_path / "lab.yaml"
-        flight.write_text(yaml.safe_dump(data))
+        flight = _lab_flight_file(fleet, tmp_path)
         monkeypatch.setattr("sys.stdin", _TerminalAtEnd())
         rc = main(["fly", "--flight", str(flight), "--policy", "heuristic", "--events", str(tmp_path / "f.jsonl")])
         assert not any(r.kind == "takeoff" for i in range(4) for r in fleet.received(i))
@@ -370,9 +380,8 @@ def test_a_policy_that_fails_after_take_off_exits_1_saying_it_failed_in_flight_a
     decision (a ValueError, as every failure of a policy file is) made `fly` exit 2 as bad input,
     after the drones had flown and landed. It exits 1 now, saying the policy failed in flight,
     naming its error and that the drones landed; the same file failing at load stays 2."""
-    import yaml
 
-    from flight_rehearsal import FAST, quick_spec
+    from flight_rehearsal import FAST
     from pursuit_cli import main
     from pursuit_mj.flight.events import read_events
     from pursuit_mj.flight.virtual.fleet import VirtualFleet
@@ -380,11 +389,7 @@ def test_a_policy_that_fails_after_take_off_exits_1_saying_it_failed_in_flight_a
     mine = tmp_path / "mine.py"
     mine.write_text(_FAILS_AFTER_TAKEOFF)
     with VirtualFleet(quick_plan(), physics=FAST) as fleet:
-        data = quick_spec()
-        for drone, uri in zip(data["drones"], fleet.uris):  # file order is plan order here
-            drone["uri"] = uri
-        flight = tmp_path / "lab.yaml"
-        flight.write_text(yaml.safe_dump(data))
+        flight = _lab_flight_file(fleet, tmp_path)
         events = tmp_path / "f.jsonl"
         rc = main(["fly", "--flight", str(flight), "--policy", f"{mine}:FailsOnItsThirdStep", "--yes", "--events", str(events)])
         err = capsys.readouterr().err
@@ -404,9 +409,8 @@ def test_a_ctrl_c_during_the_landing_after_a_policy_failed_in_flight_exits_as_th
     it land, and the command exits 128 + its number. After a policy failed in flight fly said the
     failure and exited 1, the Ctrl-C during that landing (in the event log) lost: it exits 130 now,
     and its line says a Ctrl-C came."""
-    import yaml
 
-    from flight_rehearsal import FAST, quick_spec
+    from flight_rehearsal import FAST
     from pursuit_cli import main
     from pursuit_mj.flight.events import read_events
     from pursuit_mj.flight.virtual.fleet import VirtualFleet
@@ -424,11 +428,7 @@ def test_a_ctrl_c_during_the_landing_after_a_policy_failed_in_flight_exits_as_th
             time.sleep(0.01)
 
     with VirtualFleet(quick_plan(), physics=FAST) as fleet:
-        data = quick_spec()
-        for drone, uri in zip(data["drones"], fleet.uris):
-            drone["uri"] = uri
-        flight = tmp_path / "lab.yaml"
-        flight.write_text(yaml.safe_dump(data))
+        flight = _lab_flight_file(fleet, tmp_path)
         threading.Thread(target=ctrl_c_once_landing, daemon=True).start()
         rc = main(["fly", "--flight", str(flight), "--policy", f"{mine}:FailsOnItsThirdStep", "--yes", "--events", str(events)])
         err = capsys.readouterr().err
@@ -445,9 +445,8 @@ def test_a_bug_after_take_off_says_the_drones_landed_and_keeps_its_traceback(tmp
     """An in-flight error that is no refusal (not a ValueError: a torch error, a bug of ours) is
     told in the same line (the drones landed, the events file) and then raised on, so that the
     traceback shows where it came from and the process exits 1 as any failure does."""
-    import yaml
 
-    from flight_rehearsal import FAST, quick_spec
+    from flight_rehearsal import FAST
     from pursuit_cli import main
     from pursuit_mj.flight.bridge import FlightBridge
     from pursuit_mj.flight.virtual.fleet import VirtualFleet
@@ -457,11 +456,7 @@ def test_a_bug_after_take_off_says_the_drones_landed_and_keeps_its_traceback(tmp
 
     monkeypatch.setattr(FlightBridge, "_chase", broken_chase)
     with VirtualFleet(quick_plan(), physics=FAST) as fleet:
-        data = quick_spec()
-        for drone, uri in zip(data["drones"], fleet.uris):
-            drone["uri"] = uri
-        flight = tmp_path / "lab.yaml"
-        flight.write_text(yaml.safe_dump(data))
+        flight = _lab_flight_file(fleet, tmp_path)
         events = tmp_path / "f.jsonl"
         with pytest.raises(RuntimeError, match="a bug in the chase"):
             main(["fly", "--flight", str(flight), "--policy", "heuristic", "--yes", "--events", str(events)])
